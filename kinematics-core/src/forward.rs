@@ -1,0 +1,64 @@
+//! Closed-form forward kinematics of the five-bar: encoder angles in, tool point out.
+//!
+//! The elbows are `A = a·(cos θ1g, sin θ1g)` and `B = B0 + d·(cos θ2g, sin θ2g)` with the
+//! geometric angles `θg = θ + encoder offset`. C is where the circles of radius `b` about A and
+//! `c` about B meet. With `s = B - A` and `m = b² + s·s - c²`,
+//!
+//! ```text
+//! h² = 4b²(s·s) - m² = (s·s - (b - c)²) · ((b + c)² - s·s)
+//! C  = A + (m·s + σ·h·s⊥) / (2 s·s),   s⊥ = (-s_y, s_x),   σ = ±1 (assembly mode)
+//! ```
+//!
+//! (check: `|C - A|² = (m² + h²)/(4 s·s) = b²`). `σ = +1` puts C to the left of A→B. The paper's
+//! Eq. 9 is the same construction in angles (`θ3 = φ + π + acos(...)`); this form needs no
+//! inverse trigonometry and gives the parallel-singularity margin `h / 2bc` for free.
+
+use crate::model::FiveBar;
+use crate::pose::Pose;
+use crate::real::Real;
+use crate::KinematicsError;
+
+impl<T: Real> FiveBar<T> {
+    /// The pose reached with encoder angles `theta_rad` (see [`FiveBar::inverse_pose`] for
+    /// `min_transmission`).
+    pub fn forward_pose(
+        &self,
+        theta_rad: [T; 2],
+        min_transmission: T,
+    ) -> Result<Pose<T>, KinematicsError> {
+        if !(theta_rad[0].is_finite() && theta_rad[1].is_finite()) {
+            return Err(KinematicsError::NonFinite);
+        }
+        let (s1, c1) = (theta_rad[0] + self.encoder_offset_rad[0]).sin_cos();
+        let (s2, c2) = (theta_rad[1] + self.encoder_offset_rad[1]).sin_cos();
+        let b0 = self.base_b0_mm;
+        let a = [self.a_mm * c1, self.a_mm * s1];
+        let b = [b0[0] + self.d_mm * c2, b0[1] + self.d_mm * s2];
+        let s = [b[0] - a[0], b[1] - a[1]];
+        let ss = s[0] * s[0] + s[1] * s[1];
+        let diff = self.b_mm - self.c_mm;
+        let sum = self.b_mm + self.c_mm;
+        let h2 = (ss - diff * diff) * (sum * sum - ss);
+        if !(h2 >= T::ZERO) || !(ss > T::ZERO) {
+            return Err(if h2.is_finite() && ss.is_finite() {
+                KinematicsError::Unreachable
+            } else {
+                KinematicsError::NonFinite
+            });
+        }
+        let m = self.b_mm * self.b_mm + ss - self.c_mm * self.c_mm;
+        let h = self.mode.assembly.sign::<T>() * h2.sqrt();
+        let scale = T::ONE / (T::TWO * ss);
+        let tool = [
+            a[0] + (m * s[0] - h * s[1]) * scale,
+            a[1] + (m * s[1] + h * s[0]) * scale,
+        ];
+        Pose { theta_rad, elbow_a_mm: a, elbow_b_mm: b, tool_mm: tool, base_b0_mm: b0 }
+            .check(self, min_transmission)
+    }
+
+    /// The tool point reached with encoder angles `theta_rad`.
+    pub fn forward(&self, theta_rad: [T; 2], min_transmission: T) -> Result<[T; 2], KinematicsError> {
+        self.forward_pose(theta_rad, min_transmission).map(|p| p.tool_mm)
+    }
+}

@@ -1,0 +1,335 @@
+//! The correction grid as it lives in flash: a versioned, CRC-protected binary image.
+//!
+//! # What a node stores, and why
+//! Each node stores the *joint* corrections `(δθ1, δθ2)` (rad, added to the hidden robot's
+//! encoder angles), not the task-space errors `(δx, δy)` the paper stores and maps through
+//! `J⁻¹` at run time. The host tool that builds the image maps each node's measured error
+//! through `J⁻¹` once, in f64, with the fitted model; the 2 kHz loop then does two bilinear
+//! interpolations and nothing else: no Jacobian, no division, no singularity case. Interpolating
+//! `J⁻¹·δ` instead of `δ` differs only by the curvature of `J⁻¹` across one 5 mm cell times the
+//! error, a second-order term (below 1 nm for the paper's errors after the model fit).
+//!
+//! The image also carries the hidden robot it was built for: a grid only makes sense together
+//! with the model whose IK it corrects, so flashing a new calibration replaces both at once and
+//! a grid can never be paired with the wrong model.
+//!
+//! # Layout (version 1, little-endian, no padding)
+//! | offset | size | field |
+//! |---:|---:|---|
+//! | 0 | 4 | magic `b"HRCG"` |
+//! | 4 | 2 | version, `1` |
+//! | 6 | 2 | header length, `72` |
+//! | 8 | 2 | `nx`, nodes along x (2..=1024) |
+//! | 10 | 2 | `ny`, nodes along y (2..=1024) |
+//! | 12 | 4 | flags: bit 0 elbow 1 positive, bit 1 elbow 2 positive, bit 2 assembly positive; others 0 |
+//! | 16 | 4×4 | f32 `x0_mm, y0_mm, step_x_mm, step_y_mm` (steps > 0) |
+//! | 32 | 8×4 | f32 model `a, b, c, d` (mm), `b0_x, b0_y` (mm), `offset_1, offset_2` (rad) |
+//! | 64 | 8 | reserved, zero |
+//! | 72 | 8·nx·ny | f32 pairs `(δθ1_rad, δθ2_rad)`, node `(i, j)` at index `j·nx + i` (x fastest) |
+//! | end-4 | 4 | CRC-32/ISO-HDLC (zlib's) of every byte before it |
+//!
+//! Node `(i, j)` sits at `(x0 + i·step_x, y0 + j·step_y)`. Bytes after the CRC are ignored, so
+//! the parser can be handed the whole flash region.
+//!
+//! # Outside the grid
+//! A point more than [`EDGE_TOLERANCE_CELLS`] of a cell outside the node rectangle is refused
+//! with [`GridError::OutsideGrid`]: an uncalibrated region is not silently extrapolated. Points
+//! within that tolerance (float rounding of a target on the boundary) take the edge value.
+
+use crate::bilinear::bilinear;
+use crate::model::{Branch, FiveBar, WorkingMode};
+
+/// Image magic.
+pub const MAGIC: [u8; 4] = *b"HRCG";
+/// The only version this parser reads.
+pub const VERSION: u16 = 1;
+/// Bytes before the node table.
+pub const HEADER_LEN: usize = 72;
+/// Largest node count per axis.
+pub const MAX_NODES_PER_AXIS: u16 = 1024;
+/// How far outside the node rectangle (in cells) a point still takes the edge value.
+pub const EDGE_TOLERANCE_CELLS: f32 = 1.0e-4;
+
+const CRC32: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
+
+/// Why an image was refused, or a lookup failed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum GridError {
+    /// Fewer bytes than the header, or than the header says the image has.
+    Truncated,
+    BadMagic,
+    UnsupportedVersion(u16),
+    /// Header length, node counts, flags or reserved bytes are not what version 1 allows.
+    BadHeader,
+    /// The stored CRC does not match the contents.
+    BadCrc,
+    /// A header number or a node value is NaN or infinite, or a step is not positive.
+    NonFinite,
+    /// The model in the header is not a valid five-bar.
+    BadModel,
+    /// The point lies outside the calibrated rectangle.
+    OutsideGrid,
+    /// `encode` was given a buffer too small or a node count that does not match.
+    BadEncodeInput,
+}
+
+impl core::fmt::Display for GridError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            GridError::Truncated => f.write_str("grid image truncated"),
+            GridError::BadMagic => f.write_str("not a correction grid image (bad magic)"),
+            GridError::UnsupportedVersion(v) => write!(f, "unsupported grid image version {v}"),
+            GridError::BadHeader => f.write_str("malformed grid image header"),
+            GridError::BadCrc => f.write_str("grid image CRC mismatch (corrupt image)"),
+            GridError::NonFinite => f.write_str("grid image holds a non-finite or invalid number"),
+            GridError::BadModel => f.write_str("grid image holds an invalid five-bar model"),
+            GridError::OutsideGrid => f.write_str("point outside the correction grid"),
+            GridError::BadEncodeInput => f.write_str("grid encode: buffer or node count mismatch"),
+        }
+    }
+}
+
+/// Where the nodes are.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct GridGeometry {
+    pub nx: u16,
+    pub ny: u16,
+    pub x0_mm: f32,
+    pub y0_mm: f32,
+    pub step_x_mm: f32,
+    pub step_y_mm: f32,
+}
+
+impl GridGeometry {
+    /// Position of node `(i, j)`.
+    pub fn node_mm(&self, i: u16, j: u16) -> [f32; 2] {
+        [self.x0_mm + i as f32 * self.step_x_mm, self.y0_mm + j as f32 * self.step_y_mm]
+    }
+
+    /// Number of nodes.
+    pub fn len(&self) -> usize {
+        self.nx as usize * self.ny as usize
+    }
+
+    /// Never true for a valid geometry (at least 2x2 nodes).
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Total image size in bytes for this geometry.
+    pub fn image_len(&self) -> usize {
+        HEADER_LEN + 8 * self.len() + 4
+    }
+
+    fn validate(&self) -> Result<(), GridError> {
+        let counts_ok = (2..=MAX_NODES_PER_AXIS).contains(&self.nx)
+            && (2..=MAX_NODES_PER_AXIS).contains(&self.ny);
+        if !counts_ok {
+            return Err(GridError::BadHeader);
+        }
+        let finite = [self.x0_mm, self.y0_mm, self.step_x_mm, self.step_y_mm]
+            .iter()
+            .all(|v| v.is_finite());
+        if !finite || !(self.step_x_mm > 0.0) || !(self.step_y_mm > 0.0) {
+            return Err(GridError::NonFinite);
+        }
+        Ok(())
+    }
+}
+
+/// A validated image, borrowed from flash (or any byte slice): nothing is copied, nodes are
+/// decoded on demand.
+#[derive(Clone, Copy, Debug)]
+pub struct CorrectionGrid<'a> {
+    geometry: GridGeometry,
+    model: FiveBar<f32>,
+    nodes: &'a [u8],
+}
+
+fn u16_at(b: &[u8], at: usize) -> u16 {
+    u16::from_le_bytes([b[at], b[at + 1]])
+}
+fn u32_at(b: &[u8], at: usize) -> u32 {
+    u32::from_le_bytes([b[at], b[at + 1], b[at + 2], b[at + 3]])
+}
+fn f32_at(b: &[u8], at: usize) -> f32 {
+    f32::from_bits(u32_at(b, at))
+}
+
+fn branch(flags: u32, bit: u32) -> Branch {
+    if flags & (1 << bit) != 0 {
+        Branch::Positive
+    } else {
+        Branch::Negative
+    }
+}
+
+fn mode_flags(mode: WorkingMode) -> u32 {
+    let bit = |b: Branch, n: u32| if b == Branch::Positive { 1 << n } else { 0 };
+    bit(mode.elbow_1, 0) | bit(mode.elbow_2, 1) | bit(mode.assembly, 2)
+}
+
+impl<'a> CorrectionGrid<'a> {
+    /// Validates an image: magic, version, header, sizes, CRC, then every number.
+    ///
+    /// The CRC is checked before any number is trusted, so a flipped bit anywhere in the image
+    /// is reported as [`GridError::BadCrc`] (or as a size error if it hit a count).
+    pub fn parse(bytes: &'a [u8]) -> Result<Self, GridError> {
+        if bytes.len() < HEADER_LEN {
+            return Err(GridError::Truncated);
+        }
+        if bytes[0..4] != MAGIC {
+            return Err(GridError::BadMagic);
+        }
+        let version = u16_at(bytes, 4);
+        if version != VERSION {
+            return Err(GridError::UnsupportedVersion(version));
+        }
+        if u16_at(bytes, 6) as usize != HEADER_LEN {
+            return Err(GridError::BadHeader);
+        }
+        let geometry = GridGeometry {
+            nx: u16_at(bytes, 8),
+            ny: u16_at(bytes, 10),
+            x0_mm: f32_at(bytes, 16),
+            y0_mm: f32_at(bytes, 20),
+            step_x_mm: f32_at(bytes, 24),
+            step_y_mm: f32_at(bytes, 28),
+        };
+        if !(2..=MAX_NODES_PER_AXIS).contains(&geometry.nx)
+            || !(2..=MAX_NODES_PER_AXIS).contains(&geometry.ny)
+        {
+            return Err(GridError::BadHeader);
+        }
+        let total = geometry.image_len();
+        if bytes.len() < total {
+            return Err(GridError::Truncated);
+        }
+        let stored_crc = u32_at(bytes, total - 4);
+        if CRC32.checksum(&bytes[..total - 4]) != stored_crc {
+            return Err(GridError::BadCrc);
+        }
+        let flags = u32_at(bytes, 12);
+        if flags & !0b111 != 0 || bytes[64..72].iter().any(|&b| b != 0) {
+            return Err(GridError::BadHeader);
+        }
+        geometry.validate()?;
+        let p = |k: usize| f32_at(bytes, 32 + 4 * k);
+        let model = FiveBar {
+            a_mm: p(0),
+            b_mm: p(1),
+            c_mm: p(2),
+            d_mm: p(3),
+            base_b0_mm: [p(4), p(5)],
+            encoder_offset_rad: [p(6), p(7)],
+            mode: WorkingMode {
+                elbow_1: branch(flags, 0),
+                elbow_2: branch(flags, 1),
+                assembly: branch(flags, 2),
+            },
+        };
+        model.validate().map_err(|_| GridError::BadModel)?;
+        let nodes = &bytes[HEADER_LEN..total - 4];
+        if nodes.chunks_exact(4).any(|c| !f32::from_le_bytes([c[0], c[1], c[2], c[3]]).is_finite()) {
+            return Err(GridError::NonFinite);
+        }
+        Ok(CorrectionGrid { geometry, model, nodes })
+    }
+
+    pub fn geometry(&self) -> &GridGeometry {
+        &self.geometry
+    }
+
+    /// The hidden robot this grid corrects.
+    pub fn model(&self) -> &FiveBar<f32> {
+        &self.model
+    }
+
+    /// The stored correction of node `(i, j)` (callers keep `i < nx`, `j < ny`).
+    pub fn node_rad(&self, i: u16, j: u16) -> [f32; 2] {
+        let k = 8 * (j as usize * self.geometry.nx as usize + i as usize);
+        [f32_at(self.nodes, k), f32_at(self.nodes, k + 4)]
+    }
+
+    /// Joint corrections at `p_mm` by bilinear interpolation (Eq. 7), to be *added* to the
+    /// model's encoder angles.
+    pub fn correction_rad(&self, p_mm: [f32; 2]) -> Result<[f32; 2], GridError> {
+        let g = &self.geometry;
+        let (i, u) = cell(p_mm[0], g.x0_mm, g.step_x_mm, g.nx)?;
+        let (j, v) = cell(p_mm[1], g.y0_mm, g.step_y_mm, g.ny)?;
+        let (q11, q12) = (self.node_rad(i, j), self.node_rad(i, j + 1));
+        let (q21, q22) = (self.node_rad(i + 1, j), self.node_rad(i + 1, j + 1));
+        Ok([
+            bilinear(q11[0], q12[0], q21[0], q22[0], u, v),
+            bilinear(q11[1], q12[1], q21[1], q22[1], u, v),
+        ])
+    }
+}
+
+/// Cell index (lower node) and cell-relative coordinate in `[0, 1]` along one axis.
+#[inline]
+fn cell(p: f32, origin: f32, step: f32, n: u16) -> Result<(u16, f32), GridError> {
+    let t = (p - origin) / step;
+    let last = (n - 1) as f32;
+    // `!(..)` so that NaN is refused too.
+    if !(t >= -EDGE_TOLERANCE_CELLS && t <= last + EDGE_TOLERANCE_CELLS) {
+        return Err(GridError::OutsideGrid);
+    }
+    let t = t.clamp(0.0, last);
+    // `t` is in [0, n-1]: truncation is floor; the last node belongs to the last cell.
+    let i = (t as u16).min(n - 2);
+    Ok((i, t - i as f32))
+}
+
+/// Writes an image into `out` and returns its length. `nodes_rad` holds `nx·ny` pairs in the
+/// image order (x fastest). Used by the host tools and the tests; the firmware only parses.
+pub fn encode(
+    out: &mut [u8],
+    geometry: &GridGeometry,
+    model: &FiveBar<f32>,
+    nodes_rad: &[[f32; 2]],
+) -> Result<usize, GridError> {
+    geometry.validate()?;
+    model.validate().map_err(|_| GridError::BadModel)?;
+    let total = geometry.image_len();
+    if out.len() < total || nodes_rad.len() != geometry.len() {
+        return Err(GridError::BadEncodeInput);
+    }
+    if nodes_rad.iter().flatten().any(|v| !v.is_finite()) {
+        return Err(GridError::NonFinite);
+    }
+    let out = &mut out[..total];
+    out.fill(0);
+    out[0..4].copy_from_slice(&MAGIC);
+    out[4..6].copy_from_slice(&VERSION.to_le_bytes());
+    out[6..8].copy_from_slice(&(HEADER_LEN as u16).to_le_bytes());
+    out[8..10].copy_from_slice(&geometry.nx.to_le_bytes());
+    out[10..12].copy_from_slice(&geometry.ny.to_le_bytes());
+    out[12..16].copy_from_slice(&mode_flags(model.mode).to_le_bytes());
+    let header_f32 = [
+        geometry.x0_mm,
+        geometry.y0_mm,
+        geometry.step_x_mm,
+        geometry.step_y_mm,
+        model.a_mm,
+        model.b_mm,
+        model.c_mm,
+        model.d_mm,
+        model.base_b0_mm[0],
+        model.base_b0_mm[1],
+        model.encoder_offset_rad[0],
+        model.encoder_offset_rad[1],
+    ];
+    for (k, v) in header_f32.iter().enumerate() {
+        out[16 + 4 * k..20 + 4 * k].copy_from_slice(&v.to_le_bytes());
+    }
+    for (k, v) in nodes_rad.iter().flatten().enumerate() {
+        let at = HEADER_LEN + 4 * k;
+        out[at..at + 4].copy_from_slice(&v.to_le_bytes());
+    }
+    let crc = CRC32.checksum(&out[..total - 4]);
+    out[total - 4..].copy_from_slice(&crc.to_le_bytes());
+    Ok(total)
+}

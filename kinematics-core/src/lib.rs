@@ -1,0 +1,45 @@
+//! Kinematics core of the hidden-robot micro-mechanism: the only place the math lives.
+//!
+//! The real machine is an overconstrained six-bar with no closed-form inverse kinematics. Control
+//! and calibration use its *hidden robot*, a plain five-bar whose end point moves like the
+//! six-bar's tool point (Kiper et al., "Use of hidden robot concept for calibration of an
+//! over-constrained mechanism"). This crate is that five-bar and what the 2 kHz loop does with it:
+//!
+//! * [`model`]: the five-bar's parameters (links a, b, c, d, base offset, encoder offsets,
+//!   working mode);
+//! * [`inverse`], [`forward`], [`jacobian`]: closed-form IK, FK and the Jacobian and its inverse,
+//!   returning a [`Pose`] whose transmission margins give the singularity checks;
+//! * [`grid`], [`bilinear`]: the correction grid image read from flash (validated header, CRC),
+//!   interpolated with the paper's Eq. 7;
+//! * [`pid`], [`servo`]: position control per axis and the servo step
+//!   (setpoint → IK → correction → torque).
+//!
+//! Everything is generic over [`Real`] where the host tools need f64 and the MCU f32; the grid and
+//! the servo are f32, exactly as the MCU runs them. `no_std`, no heap, no panic on any input:
+//! every failure is a typed error.
+#![no_std]
+
+pub mod bilinear;
+pub mod error;
+pub mod forward;
+pub mod grid;
+pub mod inverse;
+pub mod jacobian;
+pub mod model;
+pub mod pid;
+pub mod pose;
+pub mod real;
+pub mod servo;
+
+pub use error::{KinematicsError, Singularity};
+pub use grid::{CorrectionGrid, GridError, GridGeometry};
+pub use jacobian::Mat2;
+pub use model::{Branch, FiveBar, ModelError, WorkingMode};
+pub use pid::{AxisController, AxisGains, AxisReference};
+pub use pose::Pose;
+pub use real::{wrap_angle_rad, Real};
+pub use servo::{Calibration, Servo, ServoConfig, ServoFault, ServoOutput};
+
+/// The default singularity margin: the smallest `|sin|` of a transmission angle accepted
+/// (0.05 is about 2.9° from a singular configuration).
+pub const DEFAULT_MIN_TRANSMISSION: f64 = 0.05;

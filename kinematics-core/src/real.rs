@@ -1,0 +1,183 @@
+//! The scalar type the kinematics are written over: `f32` on the MCU, `f64` in the host tools.
+//!
+//! One generic source serves both so that the firmware and the calibration tools cannot drift
+//! apart. Only the handful of operations the kinematics need are here, each mapped to `libm`
+//! (the same routines on every target, so host and MCU round the same way), except `sqrt` on a
+//! Cortex-M with an FPU, where the `VSQRT.F32` instruction is both exact (IEEE-754 correctly
+//! rounded, like libm's) and about 20x cheaper than libm's software `sqrtf`.
+
+use core::ops::{Add, Div, Mul, Neg, Sub};
+
+/// A floating-point scalar: `f32` or `f64`.
+pub trait Real:
+    Copy
+    + PartialOrd
+    + Add<Output = Self>
+    + Sub<Output = Self>
+    + Mul<Output = Self>
+    + Div<Output = Self>
+    + Neg<Output = Self>
+    + core::fmt::Debug
+{
+    const ZERO: Self;
+    const ONE: Self;
+    const TWO: Self;
+    const HALF: Self;
+    const PI: Self;
+    /// Machine epsilon of the type.
+    const EPSILON: Self;
+
+    /// Converts from `f64`, rounding to nearest.
+    fn from_f64(v: f64) -> Self;
+    /// Widens to `f64` (exact for both implementations).
+    fn to_f64(self) -> f64;
+    fn sqrt(self) -> Self;
+    fn atan2(self, x: Self) -> Self;
+    fn sin_cos(self) -> (Self, Self);
+    fn abs(self) -> Self;
+    fn is_finite(self) -> bool;
+    /// Nearest integer, halfway cases away from zero.
+    fn round(self) -> Self;
+    /// `self * a + b`, fused where the target has it.
+    fn mul_add(self, a: Self, b: Self) -> Self;
+
+    fn min(self, other: Self) -> Self {
+        if other < self {
+            other
+        } else {
+            self
+        }
+    }
+    fn max(self, other: Self) -> Self {
+        if other > self {
+            other
+        } else {
+            self
+        }
+    }
+    /// Clamps into `[lo, hi]` (callers guarantee `lo <= hi`).
+    fn clamp(self, lo: Self, hi: Self) -> Self {
+        self.max(lo).min(hi)
+    }
+}
+
+impl Real for f64 {
+    const ZERO: Self = 0.0;
+    const ONE: Self = 1.0;
+    const TWO: Self = 2.0;
+    const HALF: Self = 0.5;
+    const PI: Self = core::f64::consts::PI;
+    const EPSILON: Self = f64::EPSILON;
+
+    fn from_f64(v: f64) -> Self {
+        v
+    }
+    fn to_f64(self) -> f64 {
+        self
+    }
+    fn sqrt(self) -> Self {
+        libm::sqrt(self)
+    }
+    fn atan2(self, x: Self) -> Self {
+        libm::atan2(self, x)
+    }
+    fn sin_cos(self) -> (Self, Self) {
+        libm::sincos(self)
+    }
+    fn abs(self) -> Self {
+        libm::fabs(self)
+    }
+    fn is_finite(self) -> bool {
+        f64::is_finite(self)
+    }
+    fn round(self) -> Self {
+        libm::round(self)
+    }
+    fn mul_add(self, a: Self, b: Self) -> Self {
+        self * a + b
+    }
+}
+
+impl Real for f32 {
+    const ZERO: Self = 0.0;
+    const ONE: Self = 1.0;
+    const TWO: Self = 2.0;
+    const HALF: Self = 0.5;
+    const PI: Self = core::f32::consts::PI;
+    const EPSILON: Self = f32::EPSILON;
+
+    fn from_f64(v: f64) -> Self {
+        v as f32
+    }
+    fn to_f64(self) -> f64 {
+        self as f64
+    }
+    fn sqrt(self) -> Self {
+        sqrt_f32(self)
+    }
+    fn atan2(self, x: Self) -> Self {
+        libm::atan2f(self, x)
+    }
+    fn sin_cos(self) -> (Self, Self) {
+        libm::sincosf(self)
+    }
+    fn abs(self) -> Self {
+        libm::fabsf(self)
+    }
+    fn is_finite(self) -> bool {
+        f32::is_finite(self)
+    }
+    fn round(self) -> Self {
+        libm::roundf(self)
+    }
+    fn mul_add(self, a: Self, b: Self) -> Self {
+        self * a + b
+    }
+}
+
+/// `sqrtf` with the FPU's `VSQRT.F32` where there is one (correctly rounded, like libm).
+#[inline(always)]
+fn sqrt_f32(v: f32) -> f32 {
+    #[cfg(all(target_arch = "arm", target_feature = "vfp2"))]
+    {
+        let out: f32;
+        // SAFETY: VSQRT.F32 reads one S register and writes one; no memory, no flags we rely on.
+        unsafe {
+            core::arch::asm!("vsqrt.f32 {o}, {i}", o = out(sreg) out, i = in(sreg) v,
+                options(pure, nomem, nostack));
+        }
+        out
+    }
+    #[cfg(not(all(target_arch = "arm", target_feature = "vfp2")))]
+    {
+        libm::sqrtf(v)
+    }
+}
+
+/// Wraps an angle into `(-π, π]`.
+pub fn wrap_angle_rad<T: Real>(angle_rad: T) -> T {
+    let two_pi = T::TWO * T::PI;
+    let wrapped = angle_rad - two_pi * (angle_rad / two_pi).round();
+    if wrapped <= -T::PI {
+        wrapped + two_pi
+    } else {
+        wrapped
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn wrap_angle_lands_in_half_open_interval() {
+        for k in -5..=5 {
+            let base = 0.3f64;
+            let w = wrap_angle_rad(base + k as f64 * 2.0 * core::f64::consts::PI);
+            assert!((w - base).abs() < 1e-12, "k={k} w={w}");
+        }
+        assert_eq!(wrap_angle_rad(core::f64::consts::PI), core::f64::consts::PI);
+        assert_eq!(wrap_angle_rad(-core::f64::consts::PI), core::f64::consts::PI);
+        assert!((wrap_angle_rad(368.689f64.to_radians()) - 8.689f64.to_radians()).abs() < 1e-12);
+    }
+}

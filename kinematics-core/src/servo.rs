@@ -1,0 +1,282 @@
+//! The servo step: one 2 kHz sample from task-space setpoint to joint torque commands.
+//!
+//! ```text
+//! setpoint (x, y) ──► jump check ──► hidden-robot IK ──► + grid correction ──► unwrap
+//!      ──► feed-forward (finite differences) ──► PID per axis ──► torque commands
+//! ```
+//! The firmware calls [`Servo::step`] from its timer interrupt and `host-sim` calls the very same
+//! function against the simulated plant; nothing else computes a motor command.
+//!
+//! # Faults
+//! Any of these latches a fault, sets both torques to zero (safe torque off: the drives are
+//! disabled, the motors never jump to a new position) and keeps refusing until
+//! [`Servo::engage`] re-arms the servo at the machine's actual position:
+//! non-finite setpoint or encoder reading, a setpoint that is unreachable, too close to a
+//! singularity or outside the correction grid, a setpoint sequence that asks for more speed or
+//! acceleration than the machine can follow (5 g), and a following error beyond the limit.
+//!
+//! # Cost
+//! One IK (two `atan2`, two `sqrt`), two bilinear lookups, two PIDs: see `cargo qemu-bench`
+//! (`BENCH servo_step`). No allocation, no panic on any input (property-tested).
+
+use crate::grid::{CorrectionGrid, GridError};
+use crate::model::FiveBar;
+use crate::pid::{AxisController, AxisGains, AxisReference};
+use crate::real::Real;
+use crate::KinematicsError;
+
+/// Standard gravity (mm/s²), for limits stated in g.
+pub const STANDARD_GRAVITY_MM_S2: f32 = 9_806.65;
+
+/// Run-time settings of the servo; [`ServoConfig::default`] suits the paper's machine as
+/// simulated by `host-sim`'s default plant.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct ServoConfig {
+    /// Sample period (s): 0.5 ms for the 2 kHz loop.
+    pub sample_period_s: f32,
+    /// Position controller of motor 1 and motor 2.
+    pub axes: [AxisGains; 2],
+    /// Smallest `|sin|` of a transmission angle a setpoint may have (see `Pose`).
+    pub min_transmission: f32,
+    /// Largest setpoint speed (mm/s) accepted.
+    pub max_speed_mm_s: f32,
+    /// Largest setpoint acceleration (mm/s²) accepted: 5 g plus 5 % for rounding.
+    pub max_accel_mm_s2: f32,
+    /// Largest `|reference - encoder|` (rad) before the servo gives up.
+    pub max_following_error_rad: f32,
+}
+
+impl Default for ServoConfig {
+    fn default() -> Self {
+        // Tuned for a 2e-3 kg·m² joint inertia and ~80 Hz position bandwidth:
+        // kp = J·ω², kd = 2ζ·J·ω (ζ = 0.7), ki = kp·ω/8.
+        let axis = AxisGains {
+            kp_nm_per_rad: 500.0,
+            ki_nm_per_rad_s: 30_000.0,
+            kd_nm_s_per_rad: 1.4,
+            inertia_ff_kg_m2: 2.0e-3,
+            viscous_ff_nm_s_per_rad: 0.0,
+            torque_limit_nm: 8.0,
+            integral_limit_nm: 2.0,
+        };
+        ServoConfig {
+            sample_period_s: 5.0e-4,
+            axes: [axis; 2],
+            min_transmission: 0.05,
+            max_speed_mm_s: 3_000.0,
+            max_accel_mm_s2: 5.0 * STANDARD_GRAVITY_MM_S2 * 1.05,
+            max_following_error_rad: 0.02,
+        }
+    }
+}
+
+/// The hidden robot and (optionally) its correction grid: what a calibration delivers.
+#[derive(Clone, Copy, Debug)]
+pub struct Calibration<'a> {
+    pub model: FiveBar<f32>,
+    pub grid: Option<CorrectionGrid<'a>>,
+}
+
+impl<'a> Calibration<'a> {
+    /// The model and grid of a validated image.
+    pub fn from_grid(grid: CorrectionGrid<'a>) -> Self {
+        Calibration { model: *grid.model(), grid: Some(grid) }
+    }
+
+    /// Encoder angles that put the tool at `tool_mm`: model IK plus grid correction. This is the
+    /// one function that turns a target into a motor command, on the MCU and in the host tools.
+    pub fn command_rad(&self, tool_mm: [f32; 2], min_transmission: f32) -> Result<[f32; 2], ServoFault> {
+        let theta = self.model.inverse(tool_mm, min_transmission).map_err(ServoFault::Kinematics)?;
+        match &self.grid {
+            None => Ok(theta),
+            Some(grid) => {
+                let d = grid.correction_rad(tool_mm).map_err(ServoFault::Grid)?;
+                Ok([theta[0] + d[0], theta[1] + d[1]])
+            }
+        }
+    }
+}
+
+/// Why the servo stopped.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum ServoFault {
+    /// `step` was called before `engage`, or after a fault without re-engaging.
+    NotEngaged,
+    NonFiniteSetpoint,
+    NonFiniteFeedback,
+    Kinematics(KinematicsError),
+    Grid(GridError),
+    /// The setpoint sequence needs more speed or acceleration than the limits allow.
+    SetpointJump,
+    /// The motor lags its reference by more than the limit.
+    FollowingError,
+}
+
+impl core::fmt::Display for ServoFault {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            ServoFault::NotEngaged => f.write_str("servo not engaged"),
+            ServoFault::NonFiniteSetpoint => f.write_str("non-finite setpoint"),
+            ServoFault::NonFiniteFeedback => f.write_str("non-finite encoder reading"),
+            ServoFault::Kinematics(e) => write!(f, "setpoint refused: {e}"),
+            ServoFault::Grid(e) => write!(f, "setpoint refused: {e}"),
+            ServoFault::SetpointJump => f.write_str("setpoint jump beyond speed/acceleration limits"),
+            ServoFault::FollowingError => f.write_str("following error beyond limit"),
+        }
+    }
+}
+
+/// What one sample produced.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct ServoOutput {
+    /// Joint torque commands (N·m), within the configured limits.
+    pub torque_nm: [f32; 2],
+    /// The encoder angles the axes were asked to reach.
+    pub reference_rad: [f32; 2],
+    /// `reference - encoder` (rad).
+    pub following_error_rad: [f32; 2],
+}
+
+/// History the step needs from earlier samples.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct History {
+    setpoint_mm: [[f32; 2]; 2],
+    reference_rad: [[f32; 2]; 2],
+    encoder_rad: [f32; 2],
+}
+
+/// The servo of both motors.
+#[derive(Clone, Debug)]
+pub struct Servo {
+    config: ServoConfig,
+    axes: [AxisController; 2],
+    history: Option<History>,
+    fault: Option<ServoFault>,
+}
+
+fn finite2(v: [f32; 2]) -> bool {
+    v[0].is_finite() && v[1].is_finite()
+}
+
+/// `angle` plus the multiple of 2π that brings it nearest to `near`.
+fn unwrap_near(angle: f32, near: f32) -> f32 {
+    let two_pi = 2.0 * core::f32::consts::PI;
+    angle + two_pi * ((near - angle) / two_pi).round()
+}
+
+impl Servo {
+    pub fn new(config: ServoConfig) -> Self {
+        Servo { config, axes: [AxisController::default(); 2], history: None, fault: None }
+    }
+
+    pub fn config(&self) -> &ServoConfig {
+        &self.config
+    }
+
+    /// The latched fault, if any.
+    pub fn fault(&self) -> Option<ServoFault> {
+        self.fault
+    }
+
+    /// Arms the servo at the machine's current position and returns that tool position: the
+    /// first setpoints must start there (a setpoint far from it is a jump).
+    pub fn engage(&mut self, cal: &Calibration<'_>, encoder_rad: [f32; 2]) -> Result<[f32; 2], ServoFault> {
+        self.history = None;
+        self.fault = None;
+        self.axes = [AxisController::default(); 2];
+        if !finite2(encoder_rad) {
+            return Err(self.latch(ServoFault::NonFiniteFeedback));
+        }
+        let m = self.config.min_transmission;
+        // Undo the correction by one fixed-point step: p = FK(θ - δ(FK(θ))). The correction
+        // varies over millimetres, so the second pass is exact to well below a micrometre.
+        let mut tool = cal.model.forward(encoder_rad, 0.0).map_err(|e| self.latch(ServoFault::Kinematics(e)))?;
+        if let Some(grid) = &cal.grid {
+            let d = grid.correction_rad(tool).map_err(|e| self.latch(ServoFault::Grid(e)))?;
+            tool = cal
+                .model
+                .forward([encoder_rad[0] - d[0], encoder_rad[1] - d[1]], m)
+                .map_err(|e| self.latch(ServoFault::Kinematics(e)))?;
+        }
+        self.history = Some(History {
+            setpoint_mm: [tool; 2],
+            reference_rad: [encoder_rad; 2],
+            encoder_rad,
+        });
+        Ok(tool)
+    }
+
+    fn latch(&mut self, fault: ServoFault) -> ServoFault {
+        self.fault = Some(fault);
+        self.history = None;
+        for a in &mut self.axes {
+            a.reset();
+        }
+        fault
+    }
+
+    /// One sample. On `Err` the fault is latched and both torques must be taken as zero.
+    pub fn step(
+        &mut self,
+        cal: &Calibration<'_>,
+        setpoint_mm: [f32; 2],
+        encoder_rad: [f32; 2],
+    ) -> Result<ServoOutput, ServoFault> {
+        let Some(h) = self.history else {
+            return Err(self.fault.unwrap_or(ServoFault::NotEngaged));
+        };
+        let cfg = self.config;
+        let dt = cfg.sample_period_s;
+        if !finite2(setpoint_mm) {
+            return Err(self.latch(ServoFault::NonFiniteSetpoint));
+        }
+        if !finite2(encoder_rad) {
+            return Err(self.latch(ServoFault::NonFiniteFeedback));
+        }
+        // Speed and acceleration the setpoint sequence implies (backward differences).
+        let [p1, p2] = h.setpoint_mm;
+        let v = [(setpoint_mm[0] - p1[0]) / dt, (setpoint_mm[1] - p1[1]) / dt];
+        let a = [
+            (setpoint_mm[0] - 2.0 * p1[0] + p2[0]) / (dt * dt),
+            (setpoint_mm[1] - 2.0 * p1[1] + p2[1]) / (dt * dt),
+        ];
+        let speed2 = v[0] * v[0] + v[1] * v[1];
+        let accel2 = a[0] * a[0] + a[1] * a[1];
+        if !(speed2 <= cfg.max_speed_mm_s * cfg.max_speed_mm_s)
+            || !(accel2 <= cfg.max_accel_mm_s2 * cfg.max_accel_mm_s2)
+        {
+            return Err(self.latch(ServoFault::SetpointJump));
+        }
+        let command = match cal.command_rad(setpoint_mm, cfg.min_transmission) {
+            Ok(c) => c,
+            Err(f) => return Err(self.latch(f)),
+        };
+        let [r1, r2] = h.reference_rad;
+        let mut out = ServoOutput { torque_nm: [0.0; 2], reference_rad: [0.0; 2], following_error_rad: [0.0; 2] };
+        for k in 0..2 {
+            let reference = unwrap_near(command[k], r1[k]);
+            let axis_ref = AxisReference {
+                angle_rad: reference,
+                velocity_rad_s: (reference - r1[k]) / dt,
+                acceleration_rad_s2: (reference - 2.0 * r1[k] + r2[k]) / (dt * dt),
+            };
+            let error = reference - encoder_rad[k];
+            if !(error.abs() <= cfg.max_following_error_rad) {
+                return Err(self.latch(ServoFault::FollowingError));
+            }
+            let velocity = (encoder_rad[k] - h.encoder_rad[k]) / dt;
+            out.torque_nm[k] = self.axes[k].update(&cfg.axes[k], &axis_ref, encoder_rad[k], velocity, dt);
+            out.reference_rad[k] = reference;
+            out.following_error_rad[k] = error;
+        }
+        self.history = Some(History {
+            setpoint_mm: [setpoint_mm, p1],
+            reference_rad: [out.reference_rad, r1],
+            encoder_rad,
+        });
+        Ok(out)
+    }
+}
