@@ -39,6 +39,15 @@ fn cost(m: &FiveBar<f64>, data: &[Measurement]) -> f64 {
 /// Fits `data` starting from `start`; parameters in `fixed_by_user` stay at their start value,
 /// and so do those the identifiability check fixes.
 pub fn fit_full(data: &[Measurement], start: &FiveBar<f64>, fixed_by_user: &[usize]) -> Result<FullFit> {
+    let requested = N_PARAMS - fixed_by_user.len();
+    if 2 * data.len() <= requested {
+        bail!(
+            "{} points give {} equations, not more than the {requested} parameters to fit: need at least {} points (or --fix some)",
+            data.len(),
+            2 * data.len(),
+            requested / 2 + 1
+        );
+    }
     let j0 = params::jacobian(start, data).context("at the start model")?;
     let ident = identifiability::check(&j0, fixed_by_user);
     let free = ident.free.clone();
