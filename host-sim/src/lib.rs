@@ -13,3 +13,5 @@ pub mod model_file;
 pub mod output;
 pub mod plot;
 pub mod fit;
+pub mod grid_build;
+pub mod command;

@@ -15,6 +15,10 @@ struct Cli {
 enum Command {
     /// Fit the hidden robot to measurements (poly, ls, full).
     Fit(host_sim::fit::FitArgs),
+    /// Build the correction-grid flash image from measurements at the grid nodes.
+    Grid(host_sim::grid_build::GridArgs),
+    /// Motor angles for targets, exactly as the firmware computes them (model + grid, f32).
+    Command(host_sim::command::CommandArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -31,5 +35,7 @@ fn main() -> std::process::ExitCode {
 fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Fit(a) => host_sim::fit::run(&a),
+        Command::Grid(a) => host_sim::grid_build::run(&a),
+        Command::Command(a) => host_sim::command::run(&a),
     }
 }
