@@ -15,3 +15,4 @@ pub mod plot;
 pub mod fit;
 pub mod grid_build;
 pub mod command;
+pub mod accuracy;
