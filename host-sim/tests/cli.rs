@@ -166,3 +166,35 @@ fn grid_then_command_match_the_firmware_path() {
     fails(&["grid", "--model", s(&model), "--data", s(&cut_path), "--out", s(&g2)], "node (1, 1) at (185, -10) is missing", &g2);
     assert!(!d.join("g2.csv").exists());
 }
+
+#[test]
+fn accuracy_through_the_binary() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    // x line at y = 0, targets 200, 210, 220; two runs up then down; +2 µm going up, −2 down.
+    let mut text = String::from("theta1_deg,theta2_deg,x_mm,y_mm,x_target_mm,y_target_mm,run\n");
+    for run in 0..3 {
+        let noise = [0.0, 0.001, -0.001][run];
+        for x in [200.0, 210.0, 220.0] {
+            text.push_str(&format!("0,0,{},0,{x},0,{run}\n", x + 0.002 + noise));
+        }
+        for x in [220.0, 210.0, 200.0] {
+            text.push_str(&format!("0,0,{},0,{x},0,{run}\n", x - 0.002 + noise));
+        }
+    }
+    let data = write(d, "r.csv", &text);
+    let (ok, stdout, stderr) = run(&["accuracy", "--data", s(&data)]);
+    assert!(ok, "{stderr}");
+    let v: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+    let line = &v["lines"][0];
+    assert_eq!(line["axis"], "x");
+    assert!((line["iso_230_2"]["b_um"].as_f64().unwrap() - 4.0).abs() < 1e-6, "{line}");
+    // s = 1 µm at every target and direction: R = 2 + 2 + 4 = 8, Ps = 6.
+    assert!((line["iso_230_2"]["r_um"].as_f64().unwrap() - 8.0).abs() < 1e-6, "{line}");
+    assert!((line["vdi_3441"]["ps_um"].as_f64().unwrap() - 6.0).abs() < 1e-6, "{line}");
+    assert!((line["per_m"]["ps_pm"].as_f64().unwrap() - 150.0).abs() < 1e-6, "{line}");
+
+    let no_run = write(d, "nr.csv", "theta1_deg,theta2_deg,x_mm,y_mm,x_target_mm,y_target_mm\n0,0,1,0,1,0\n0,0,2,0,2,0\n");
+    let (ok, _, stderr) = run(&["accuracy", "--data", s(&no_run)]);
+    assert!(!ok && stderr.contains("line 2: accuracy needs x_target_mm,y_target_mm and run"), "{stderr}");
+}

@@ -66,7 +66,7 @@ mod tests {
             let (ax, ay) = (a * th.cos(), a * th.sin());
             DyadPoint { theta_rad: th, x_mm: ax + b * phi.cos(), y_mm: ay + b * phi.sin() }
         };
-        let (pa, pb) = precision_point_dyad([pt(0.7, -0.6), pt(1.1, -0.2)]).unwrap();
+        let (pa, pb) = precision_point_dyad([pt(0.7, -0.6), pt(1.1, 0.1)]).unwrap();
         assert!((pa - a).abs() < 1e-9 && (pb - b).abs() < 1e-9, "{pa} {pb}");
         assert!(precision_point_dyad([pt(0.7, -0.6), pt(0.7, -0.6)]).is_err());
     }
