@@ -111,7 +111,7 @@ fn mean_sd(v: &[f64]) -> (f64, f64) {
 }
 
 /// The figures of one line from per-target deviations `(position, up devs, down devs)` (µm).
-pub fn line_figures(targets: &[(f64, Vec<f64>, Vec<f64>)]) -> Result<(Iso230, Vdi3441, Vec<TargetStats>)> {
+pub fn line_figures(targets: &[TargetDevs]) -> Result<(Iso230, Vdi3441, Vec<TargetStats>)> {
     let mut stats = Vec::new();
     for (p, up, down) in targets {
         if up.len() < 2 || down.len() < 2 {
@@ -176,6 +176,13 @@ pub fn directions(data: &[Measurement], a: usize) -> Vec<i8> {
     dir
 }
 
+/// Deviations (µm) at one target: `(position_mm, + direction, − direction)`.
+type TargetDevs = (f64, Vec<f64>, Vec<f64>);
+/// Lines of one axis: shared coordinate key → (shared coordinate, position key → deviations).
+type AxisGroups = BTreeMap<i64, (f64, BTreeMap<i64, TargetDevs>)>;
+/// Sum of error vectors per target: key → (target, Σ error µm, count).
+type TargetSums = BTreeMap<(i64, i64), ([f64; 2], [f64; 2], usize)>;
+
 /// Every axis line of the data; lines without enough repeats come back in the second list with
 /// the reason.
 pub fn analyse(data: &[Measurement]) -> Result<(Vec<LineStats>, Vec<String>)> {
@@ -191,7 +198,7 @@ pub fn analyse(data: &[Measurement]) -> Result<(Vec<LineStats>, Vec<String>)> {
         let other = 1 - a;
         let dir = directions(data, a);
         // shared coordinate -> position -> (up, down) deviations
-        let mut groups: BTreeMap<i64, (f64, BTreeMap<i64, (f64, Vec<f64>, Vec<f64>)>)> = BTreeMap::new();
+        let mut groups: AxisGroups = BTreeMap::new();
         for (r, m) in data.iter().enumerate() {
             let t = m.target_mm.expect("checked");
             let g = groups.entry(key(t[other])).or_insert((t[other], BTreeMap::new()));
@@ -207,7 +214,7 @@ pub fn analyse(data: &[Measurement]) -> Result<(Vec<LineStats>, Vec<String>)> {
             if targets.len() < 2 {
                 continue;
             }
-            let t: Vec<(f64, Vec<f64>, Vec<f64>)> = targets.into_values().collect();
+            let t: Vec<TargetDevs> = targets.into_values().collect();
             match line_figures(&t) {
                 Err(e) => skipped.push(format!("{axis} line at {} = {at} mm: {e}", ["x", "y"][other])),
                 Ok((iso, vdi, stats)) => {
@@ -257,7 +264,7 @@ pub fn run(args: &AccuracyArgs) -> Result<()> {
         })
     };
     if let Some(plot) = &args.plot {
-        let mut by_target: BTreeMap<(i64, i64), ([f64; 2], [f64; 2], usize)> = BTreeMap::new();
+        let mut by_target: TargetSums = BTreeMap::new();
         for m in &data {
             let t = m.target_mm.expect("checked");
             let e = by_target.entry(((t[0] * 1e6).round() as i64, (t[1] * 1e6).round() as i64)).or_insert((t, [0.0; 2], 0));

@@ -18,7 +18,8 @@ enum Command {
     /// Build the correction-grid flash image from measurements at the grid nodes.
     Grid(host_sim::grid_build::GridArgs),
     /// Motor angles for targets, exactly as the firmware computes them (model + grid, f32).
-    Command(host_sim::command::CommandArgs),
+    #[command(name = "command")]
+    MotorCommand(host_sim::command::CommandArgs),
     /// VDI/DGQ 3441 and ISO 230-2 figures per axis line from repeated bidirectional runs.
     Accuracy(host_sim::accuracy::AccuracyArgs),
 }
@@ -38,7 +39,7 @@ fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Fit(a) => host_sim::fit::run(&a),
         Command::Grid(a) => host_sim::grid_build::run(&a),
-        Command::Command(a) => host_sim::command::run(&a),
+        Command::MotorCommand(a) => host_sim::command::run(&a),
         Command::Accuracy(a) => host_sim::accuracy::run(&a),
     }
 }
