@@ -202,6 +202,23 @@ pub fn encode_image(model: &FiveBar<f64>, lattice: &Lattice, nodes: &[Node]) -> 
     Ok(image)
 }
 
+/// A built grid: what `run` writes, for callers that have the data in memory (`demo`).
+#[derive(Clone, Debug)]
+pub struct BuiltGrid {
+    pub lattice: Lattice,
+    pub nodes: Vec<Node>,
+    /// The flash image (`kinematics_core::grid` format) for the model.
+    pub image: Vec<u8>,
+}
+
+/// Lattice detection, node corrections and image in one call.
+pub fn build(model: &FiveBar<f64>, data: &[Measurement], step_mm: f64) -> Result<BuiltGrid> {
+    let (lattice, rows) = detect_lattice(data, step_mm)?;
+    let nodes = build_nodes(model, data, &lattice, &rows)?;
+    let image = encode_image(model, &lattice, &nodes)?;
+    Ok(BuiltGrid { lattice, nodes, image })
+}
+
 /// The readable node table.
 pub fn format_csv(nodes: &[Node]) -> String {
     let mut s = String::from("i,j,x_mm,y_mm,dx_um,dy_um,dtheta1_urad,dtheta2_urad\n");
@@ -229,9 +246,7 @@ fn csv_path(args: &GridArgs) -> PathBuf {
 pub fn run(args: &GridArgs) -> Result<()> {
     let model = read_model(&args.model)?;
     let data = read_measurements(&args.data)?;
-    let (lattice, rows) = detect_lattice(&data, args.step_mm).with_context(|| format!("in {}", args.data.display()))?;
-    let nodes = build_nodes(&model, &data, &lattice, &rows).with_context(|| format!("in {}", args.data.display()))?;
-    let image = encode_image(&model, &lattice, &nodes)?;
+    let BuiltGrid { lattice, nodes, image } = build(&model, &data, args.step_mm).with_context(|| format!("in {}", args.data.display()))?;
     let csv = csv_path(args);
     if csv == args.out {
         bail!("the node table would overwrite the image: give --csv");
