@@ -12,3 +12,7 @@ pub mod measurement_csv;
 pub mod model_file;
 pub mod output;
 pub mod plot;
+pub mod fit;
+pub mod grid_build;
+pub mod command;
+pub mod accuracy;
