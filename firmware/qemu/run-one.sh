@@ -9,7 +9,7 @@
 set -u
 elf=$(realpath "$1"); scenario=$2; workdir=$3; shift 3
 mkdir -p "$workdir"
-cd "$workdir" && exec timeout --kill-after=5 "${QEMU_TIMEOUT_S:-60}" qemu-system-arm \
+cd "$workdir" && exec timeout --kill-after=5 "${QEMU_TIMEOUT_S:-30}" qemu-system-arm \
   -machine mps2-an386 -cpu cortex-m4 -nographic -monitor none -serial none \
   -icount shift=3,align=off,sleep=off \
   -semihosting-config enable=on,target=native,arg=firmware,arg="$scenario" \

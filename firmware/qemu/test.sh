@@ -2,17 +2,27 @@
 # `cargo qemu-test` runner: runs every scenario of src/scenario.rs against the same firmware
 # image and checks each one's exit code. Usage (cargo does this): test.sh path/to/firmware.elf
 #
-# Fault injection of the calibration image happens here, from outside the firmware, the way a
-# bad flash would: QEMU's generic loader writes into the CALIBRATION region after the ELF is
-# loaded (the region's origin is read from memory-qemu.x).
+# The program and the calibration image are loaded separately, as they are flashed on the real
+# board: the image bundled in the ELF's `.calibration` section is cut out into
+# calibration.bin, the program is run without it, and QEMU's generic loader puts an image
+# (valid, corrupted or none) at the CALIBRATION origin read from memory-qemu.x. So the
+# firmware is shown to read whatever is in the region, not a copy linked into the program.
 set -u
 here=$(cd "$(dirname "$0")" && pwd)
 elf=$1
 out=${QEMU_TEST_OUT:-$(mktemp -d)}
 cal=$(sed -n 's/^ *CALIBRATION *: *ORIGIN = \(0x[0-9A-Fa-f]*\).*/\1/p' "$here/../memory-qemu.x")
 [ -n "$cal" ] || { echo "cannot find the CALIBRATION origin in memory-qemu.x"; exit 2; }
-# A word inside the node table (past the 72-byte header): a flipped calibration value.
-corrupt=$(printf '0x%x' $((cal + 200)))
+mkdir -p "$out"
+python3 "$here/split-elf.py" "$elf" "$cal" "$out/program.elf" "$out/calibration.bin" || exit 2
+# Corrupt: one node value (offset 200, inside the node table) replaced by 1.0f.
+cp "$out/calibration.bin" "$out/corrupt.bin"
+printf '\x00\x00\x80\x3f' | dd of="$out/corrupt.bin" bs=1 seek=200 conv=notrunc status=none
+# Missing: erased flash (all 0xFF) over the whole 64 KiB region.
+head -c 65536 /dev/zero | tr '\0' '\377' > "$out/erased.bin"
+image() { echo "-device loader,file=$out/$1,addr=$cal"; }
+elf_full=$elf
+elf=$out/program.elf
 
 passed=0; failed=0
 # name  expected-exit  scenario  extra-qemu-args
@@ -23,7 +33,7 @@ run() {
   rc=$?
   local dt=$(printf '%.1f' "$(echo "$(date +%s.%N) - $t0" | bc)")
   if command -v defmt-print > /dev/null && [ -s "$out/$name/defmt.bin" ]; then
-    defmt-print -e "$elf" --log-format '{L} {s}' < "$out/$name/defmt.bin" > "$out/$name.defmt.txt" 2>&1
+    defmt-print -e "$elf_full" --log-format '{L} {s}' < "$out/$name/defmt.bin" > "$out/$name.defmt.txt" 2>&1
   fi
   if [ "$rc" = "$expect" ]; then
     passed=$((passed + 1)); echo "ok   $name (exit $rc, ${dt}s): $(tr '\n' ' ' < "$out/$name.log")"
@@ -33,16 +43,19 @@ run() {
   if [ -f "$out/$name.defmt.txt" ]; then sed 's/^/    | /' "$out/$name.defmt.txt" | tail -n "${DEFMT_TAIL:-4}"; fi
 }
 
-run track          0 track
-run nan-setpoint   0 nan-setpoint
-run out-of-reach   0 out-of-reach
-run jump           0 jump
-run overrun        0 overrun
-run corrupt-image  0 bad-image -device loader,addr="$corrupt",data=0x3f800000,data-len=4
-run missing-image  0 bad-image -device loader,addr="$cal",data=0xffffffff,data-len=4
+run track          0 track        $(image calibration.bin)
+run nan-setpoint   0 nan-setpoint $(image calibration.bin)
+run out-of-reach   0 out-of-reach $(image calibration.bin)
+run jump           0 jump         $(image calibration.bin)
+run overrun        0 overrun      $(image calibration.bin)
+run corrupt-image  0 bad-image-crc   $(image corrupt.bin)
+run erased-image   0 bad-image-magic $(image erased.bin)
+run no-image       0 bad-image-magic
 # The failure paths themselves: a panic and a HardFault must end QEMU with exit 1, not hang.
-run panic-exits      1 panic
-run hardfault-exits  1 hard-fault
+run panic-exits      1 panic      $(image calibration.bin)
+run hardfault-exits  1 hard-fault $(image calibration.bin)
+# The bundled image alone (no loader) is the same valid image: the ELF runs standalone.
+elf=$elf_full run bundled-image 0 track
 
 command -v defmt-print > /dev/null || echo "(defmt-print not installed: defmt logs left undecoded in $out/*/defmt.bin)"
 echo "qemu-test: $passed passed, $failed failed"

@@ -253,7 +253,7 @@ mod app {
             l.board.timer.burn_until_us(1.4 * DEADLINE_US);
         }
 
-        let step_us = l.board.timer.elapsed_us();
+        let step_us = l.board.timer.step_time_us();
         let overrun = l.board.timer.next_tick_pending();
         if l.deadline.record(step_us, overrun, l.servo_settings.overrun_streak_limit) && new_fault.is_none() {
             if let Mode::Running = *l.mode {

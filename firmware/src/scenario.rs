@@ -48,8 +48,8 @@ pub enum Scenario {
     Jump,
     /// Three 700 µs steps in a row at 1 s: `DeadlineMissed`.
     Overrun,
-    /// Corrupt (or missing) image flashed by the test: drives never enabled.
-    BadImage,
+    /// A bad image flashed by the test, refused with this error: drives never enabled.
+    BadImage(GridError),
     /// Self-tests of the failure paths: must make QEMU exit non-zero.
     Panic,
     HardFault,
@@ -65,7 +65,8 @@ impl Scenario {
             "out-of-reach" => Scenario::OutOfReach,
             "jump" => Scenario::Jump,
             "overrun" => Scenario::Overrun,
-            "bad-image" => Scenario::BadImage,
+            "bad-image-crc" => Scenario::BadImage(GridError::BadCrc),
+            "bad-image-magic" => Scenario::BadImage(GridError::BadMagic),
             "panic" => Scenario::Panic,
             "hard-fault" => Scenario::HardFault,
             _ => Scenario::Run,
@@ -188,14 +189,14 @@ pub fn check(
             require(s.overruns >= 3, "overruns not counted")?;
             safe(s)
         }),
-        Scenario::BadImage => (s.ticks >= MIN_TRACK_TICKS / 4).then(|| {
+        Scenario::BadImage(expected) => (s.ticks >= MIN_TRACK_TICKS / 4).then(|| {
             require(
-                matches!(s.calibration, CalibrationState::Refused(_)),
-                "corrupt image not refused",
+                s.calibration == CalibrationState::Refused(expected),
+                "bad image not refused, or refused for another reason",
             )?;
             require(!s.drives_ever_enabled, "drives enabled without a valid image")?;
             require(s.torque_nm == [0.0; 2], "torque commanded without a valid image")?;
-            require(s.fault.is_some(), "no fault reported")
+            require(s.fault == Some(Fault::Calibration(expected)), "calibration fault not reported")
         }),
     }
 }

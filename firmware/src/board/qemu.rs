@@ -140,6 +140,20 @@ impl ServoTimer {
         ticks as f32 * (1.0e6 / TIMER_CLOCK_HZ as f32)
     }
 
+    /// Time since the tick that started this step (µs), also when the step ran past the next
+    /// tick (the counter restarted then; steps longer than two periods read short).
+    #[inline]
+    pub fn step_time_us(&self) -> f32 {
+        let elapsed_us = self.elapsed_us();
+        let period_us = (self.reload + 1) as f32 * (1.0e6 / TIMER_CLOCK_HZ as f32);
+        // A pending tick with a small count means the counter already wrapped once.
+        if self.next_tick_pending() && elapsed_us < 0.5 * period_us {
+            period_us + elapsed_us
+        } else {
+            elapsed_us
+        }
+    }
+
     /// Whether the next period has already begun (its interrupt is pending): an overrun.
     #[inline]
     pub fn next_tick_pending(&self) -> bool {
