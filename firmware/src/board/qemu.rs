@@ -543,35 +543,38 @@ mod logger {
     }
 }
 
-/// Free-running cycle counter for the benchmark: SysTick counting down from 2^24 - 1 at the
-/// core clock. Under `-icount shift=N` QEMU's core clock advances 2^N ns per instruction, so
-/// one SysTick count is `2^N · 25 MHz / 1 GHz` instructions... or, measured rather than
-/// assumed, whatever `bench` calibrates with a loop of known length.
+/// What the benchmark counter's figures are: QEMU counts instructions, not cycles.
+pub const COUNT_UNIT: &str = "instructions";
+
+/// Free-running counter for the benchmark: SysTick counting down from 2^24 - 1 on the core
+/// clock. Under `-icount shift=0` QEMU advances virtual time 1 ns per instruction, so a count
+/// is a fixed number of instructions; `bench` measures that number with a loop of known
+/// length instead of assuming it.
 pub struct CycleCounter {
-    syst: cortex_m::peripheral::SYST,
+    _syst: cortex_m::peripheral::SYST,
 }
 
 impl CycleCounter {
-    pub const BITS: u32 = 24;
+    const MASK: u32 = (1 << 24) - 1;
 
-    pub fn new(mut syst: cortex_m::peripheral::SYST) -> Self {
+    pub fn new(core: cortex_m::Peripherals) -> Self {
+        let mut syst = core.SYST;
         syst.set_clock_source(cortex_m::peripheral::syst::SystClkSource::Core);
-        syst.set_reload((1 << Self::BITS) - 1);
+        syst.set_reload(Self::MASK);
         syst.clear_current();
         syst.enable_counter();
-        CycleCounter { syst }
+        CycleCounter { _syst: syst }
     }
 
-    /// Counts elapsed since an arbitrary origin, increasing (wraps at 2^24).
+    /// Counts since an arbitrary origin, increasing (wraps at 2^24).
     #[inline(always)]
     pub fn now(&self) -> u32 {
-        let _ = &self.syst;
-        ((1 << Self::BITS) - 1) - cortex_m::peripheral::SYST::get_current()
+        Self::MASK - cortex_m::peripheral::SYST::get_current()
     }
 
-    /// `later - earlier` modulo 2^24.
+    /// Counts since `earlier` (modulo 2^24: measure less than 2^24 counts at a time).
     #[inline(always)]
     pub fn since(&self, earlier: u32) -> u32 {
-        self.now().wrapping_sub(earlier) & ((1 << Self::BITS) - 1)
+        self.now().wrapping_sub(earlier) & Self::MASK
     }
 }
