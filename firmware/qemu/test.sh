@@ -28,10 +28,11 @@ passed=0; failed=0
 # name  expected-exit  scenario  extra-qemu-args
 run() {
   local name=$1 expect=$2 scenario=$3; shift 3
-  local t0=$(date +%s.%N) rc
+  local t0=$(date +%s%N) rc
   "$here/run-one.sh" "$elf" "$scenario" "$out/$name" "$@" > "$out/$name.log" 2>&1
   rc=$?
-  local dt=$(printf '%.1f' "$(echo "$(date +%s.%N) - $t0" | bc)")
+  local ms=$(( ($(date +%s%N) - t0) / 1000000 ))
+  local dt=$((ms / 1000)).$(( (ms % 1000) / 100 ))
   if command -v defmt-print > /dev/null && [ -s "$out/$name/defmt.bin" ]; then
     defmt-print -e "$elf_full" --log-format '{L} {s}' < "$out/$name/defmt.bin" > "$out/$name.defmt.txt" 2>&1
   fi
