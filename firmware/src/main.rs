@@ -319,7 +319,7 @@ mod app {
         let s = cx.shared.status.lock(|s| *s);
         defmt::info!(
             "t {} ms: fault {} overruns {} worst {} us, setpoint {} mm, encoders {} rad, torque {} Nm, max following error {} rad",
-            s.ticks / 2, s.fault, s.overruns, s.worst_step_us, s.setpoint_mm, s.encoder_rad, s.torque_nm,
+            s.ticks / (SAMPLE_RATE_HZ / 1000), s.fault, s.overruns, s.worst_step_us, s.setpoint_mm, s.encoder_rad, s.torque_nm,
             s.max_following_error_rad
         );
         let scenario = *cx.local.telemetry_scenario;

@@ -9,8 +9,9 @@ use kinematics_core::ServoConfig;
 #[derive(Clone, Copy, Debug)]
 pub struct Settings {
     /// Servo gains and limits. Default: `ServoConfig::default()` (2e-3 kg·m² per joint,
-    /// 2 kHz, torque limit 8 N·m, setpoint acceleration limit 5 g·1.05, following error limit
-    /// 0.02 rad).
+    /// torque limit 8 N·m, setpoint acceleration limit 5 g·1.05, following error limit
+    /// 0.02 rad) with the sample period pinned to the timer's, [`crate::SAMPLE_PERIOD_S`]
+    /// (the servo timer runs at [`crate::SAMPLE_RATE_HZ`]; the two must agree).
     pub servo: ServoConfig,
     /// Run without correction grid when the image is bad or missing. Default `false`: the
     /// machine exists for micrometre work and the uncorrected model is off by tens of
@@ -35,7 +36,7 @@ pub struct Settings {
 impl Default for Settings {
     fn default() -> Self {
         Settings {
-            servo: ServoConfig::default(),
+            servo: ServoConfig { sample_period_s: crate::SAMPLE_PERIOD_S, ..ServoConfig::default() },
             allow_uncorrected: false,
             overrun_streak_limit: 3,
             drive_full_scale_nm: 10.0,
