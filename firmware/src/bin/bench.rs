@@ -4,7 +4,10 @@
 //! * `ik_f32`: `FiveBar::<f32>::inverse` (closed-form IK, singularity checks);
 //! * `fk_f32`: `FiveBar::<f32>::forward`;
 //! * `grid_lookup`: `CorrectionGrid::correction_rad` on the image in the calibration region;
-//! * `servo_step`: `Servo::step`, the whole sample (jump checks, IK, correction, two PIDs).
+//! * `servo_step`: `Servo::step`, the whole sample (jump checks, IK, correction, two PIDs);
+//!
+//! and, to show what bounds the step: `atan2f` (libm, two per IK) and
+//! `servo_step_uncorrected` (the same step without grid).
 //!
 //! Method: each figure is `(counts(N calls) - counts(N empty iterations)) / N`, the inputs
 //! cycling through points spread over the workspace and passed through `black_box`, so that
@@ -124,6 +127,12 @@ fn main() -> ! {
     });
     report("fk_f32", fk as f32 * per_count / N as f32);
 
+    let atan2 = measure(&counter, |i| {
+        let p = black_box(points[i % POINTS]);
+        black_box(libm::atan2f(p[1], p[0]));
+    });
+    report("atan2f", atan2 as f32 * per_count / N as f32);
+
     let lookup = measure(&counter, |i| {
         let _ = black_box(grid.correction_rad(black_box(points[i % POINTS])));
     });
@@ -138,23 +147,26 @@ fn main() -> ! {
         let (sin, cos) = libm::sincosf(phase);
         *s = [212.132 + 20.0 * (cos - 1.0), 20.0 * sin];
     }
-    let mut servo = Servo::new(ServoConfig::default());
-    let Ok(mut encoder) = cal.command_rad(setpoints[0], 0.05) else { board::exit(false) };
-    if servo.engage(&cal, encoder).is_err() {
-        board::console("FAIL servo did not engage");
-        board::exit(false);
+    let uncorrected = Calibration { model, grid: None };
+    for (name, cal) in [("servo_step", &cal), ("servo_step_uncorrected", &uncorrected)] {
+        let mut servo = Servo::new(ServoConfig::default());
+        let Ok(mut encoder) = cal.command_rad(setpoints[0], 0.05) else { board::exit(false) };
+        if servo.engage(cal, encoder).is_err() {
+            board::console("FAIL servo did not engage");
+            board::exit(false);
+        }
+        let mut fault = None;
+        let step = measure(&counter, |i| match servo.step(cal, black_box(setpoints[i]), black_box(encoder)) {
+            Ok(out) => encoder = out.reference_rad,
+            Err(f) => fault = fault.or(Some((i, f))),
+        });
+        if let Some((i, f)) = fault {
+            let mut line: heapless::String<128> = heapless::String::new();
+            let _ = write!(line, "FAIL {} faulted during the benchmark at call {}: {}", name, i, f);
+            board::console(&line);
+            board::exit(false);
+        }
+        report(name, step as f32 * per_count / N as f32);
     }
-    let mut fault = None;
-    let step = measure(&counter, |i| match servo.step(&cal, black_box(setpoints[i]), black_box(encoder)) {
-        Ok(out) => encoder = out.reference_rad,
-        Err(f) => fault = fault.or(Some((i, f))),
-    });
-    if let Some((i, f)) = fault {
-        let mut line: heapless::String<128> = heapless::String::new();
-        let _ = write!(line, "FAIL servo faulted during the benchmark at call {}: {}", i, f);
-        board::console(&line);
-        board::exit(false);
-    }
-    report("servo_step", step as f32 * per_count / N as f32);
     board::exit(true)
 }
