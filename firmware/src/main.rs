@@ -88,18 +88,18 @@ mod app {
     }
 
     #[init(local = [queue: Queue<[f32; 2], QUEUE_SLOTS> = Queue::new()])]
-    fn init(_cx: init::Context) -> (Shared, Local) {
+    fn init(cx: init::Context) -> (Shared, Local) {
         let settings = Settings::default();
         let mut line = [0u8; 64];
         let scenario = Scenario::from_command_line(board::command_line(&mut line));
         defmt::info!("boot: scenario {}, settings {}", scenario, settings.servo);
+        // Self-tests of the failure paths (QEMU scenarios only; the real board never gets
+        // these on its empty command line): both must end the QEMU run with failure.
         match scenario {
             Scenario::Panic => {
-                // Self-test of the panic path: must end the QEMU run with failure.
                 let v: Option<u32> = core::hint::black_box(None);
                 let _ = v.expect("self-test: panic path");
             }
-            // SAFETY (of the test): UDF always faults; the HardFault handler must exit.
             Scenario::HardFault => cortex_m::asm::udf(),
             _ => {}
         }
@@ -139,8 +139,10 @@ mod app {
         status.setpoint_mm = start_mm;
         status.encoder_rad = encoder_rad;
 
+        // No waypoints: hold the engaged position.
         let tour: &[[f32; 2]] = match scenario {
             Scenario::OutOfReach => &[[320.0, 0.0]],
+            Scenario::Run if !settings.run_builtin_tour => &[],
             _ => &WORKSPACE_TOUR_MM,
         };
         let mut trajectory = Trajectory::new(
@@ -152,7 +154,7 @@ mod app {
             SAMPLE_PERIOD_S,
         );
         let trajectory_end_tick = trajectory.total_samples();
-        let (mut setpoints_in, setpoints_out) = _cx.local.queue.split();
+        let (mut setpoints_in, setpoints_out) = cx.local.queue.split();
         let mut queued = 0u32;
         if mode == Mode::Running {
             while setpoints_in.ready() {

@@ -25,6 +25,10 @@ pub struct Settings {
     pub drive_full_scale_nm: f32,
     /// Telemetry period in servo samples. Default 500 (4 Hz).
     pub telemetry_period_ticks: u32,
+    /// Run the built-in workspace tour after engaging (otherwise hold the engaged position
+    /// until a host link fills the setpoint queue). Default: on for the QEMU board, off for
+    /// the real board, which must not start moving by itself at power-on.
+    pub run_builtin_tour: bool,
     /// Peak tool acceleration of the built-in trajectory (mm/s²). Default 2 g.
     pub trajectory_accel_mm_s2: f32,
     /// Peak tool speed of the built-in trajectory (mm/s). Default 1500 mm/s.
@@ -41,6 +45,7 @@ impl Default for Settings {
             overrun_streak_limit: 3,
             drive_full_scale_nm: 10.0,
             telemetry_period_ticks: 500,
+            run_builtin_tour: cfg!(feature = "board-qemu"),
             trajectory_accel_mm_s2: 2.0 * kinematics_core::servo::STANDARD_GRAVITY_MM_S2,
             trajectory_speed_mm_s: 1_500.0,
             trajectory_dwell_s: 0.1,
