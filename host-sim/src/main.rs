@@ -1,1 +1,45 @@
-fn main() {}
+//! `host-sim` command line: see `host-sim --help`.
+
+use anyhow::Result;
+use clap::{Parser, Subcommand};
+
+/// Plant simulation and calibration tools of the hidden-robot micro-mechanism.
+#[derive(Parser)]
+#[command(name = "host-sim", version, about)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Fit the hidden robot to measurements (poly, ls, full).
+    Fit(host_sim::fit::FitArgs),
+    /// Build the correction-grid flash image from measurements at the grid nodes.
+    Grid(host_sim::grid_build::GridArgs),
+    /// Motor angles for targets, exactly as the firmware computes them (model + grid, f32).
+    #[command(name = "command")]
+    MotorCommand(host_sim::command::CommandArgs),
+    /// VDI/DGQ 3441 and ISO 230-2 figures per axis line from repeated bidirectional runs.
+    Accuracy(host_sim::accuracy::AccuracyArgs),
+}
+
+fn main() -> std::process::ExitCode {
+    let cli = Cli::parse();
+    match run(cli) {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
+
+fn run(cli: Cli) -> Result<()> {
+    match cli.command {
+        Command::Fit(a) => host_sim::fit::run(&a),
+        Command::Grid(a) => host_sim::grid_build::run(&a),
+        Command::MotorCommand(a) => host_sim::command::run(&a),
+        Command::Accuracy(a) => host_sim::accuracy::run(&a),
+    }
+}

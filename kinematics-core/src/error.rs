@@ -19,7 +19,8 @@ pub enum Singularity {
 pub enum KinematicsError {
     /// An input (or the model) holds a NaN or an infinity.
     NonFinite,
-    /// Inverse: the target is out of an arm's reach. Forward: the distal links cannot meet.
+    /// Inverse: the target is out of an arm's reach, or reachable only in another assembly
+    /// mode. Forward: the distal links cannot meet.
     Unreachable,
     /// The pose is within the caller's margin of a singularity.
     NearSingularity(Singularity),

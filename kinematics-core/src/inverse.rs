@@ -14,13 +14,15 @@
 //!
 //! so one arm costs one `atan2`, no square root but `√(h²)`, and the elbow position falls out
 //! for the singularity checks and the Jacobian. The target is reachable by the arm exactly when
-//! both Heron factors are non-negative.
+//! both Heron factors are non-negative, and by the machine when, in addition, C lies on the
+//! side of A→B that the assembly mode prescribes (else FK of the angles would give the mirror
+//! point: the target is beyond a parallel singularity).
 //!
 //! Cost and error: see `cargo qemu-bench` (`BENCH ik_f32`) and the round-trip tests: f32
 //! round trips stay within 0.1 µm and f64 within 1 nm over the paper's workspace.
 
 use crate::model::{Branch, FiveBar};
-use crate::pose::Pose;
+use crate::pose::{cross, sub, Pose};
 use crate::real::{wrap_angle_rad, Real};
 use crate::KinematicsError;
 
@@ -61,12 +63,20 @@ impl<T: Real> FiveBar<T> {
             .ok_or(KinematicsError::Unreachable)?;
         let pb = solve_dyad(r2, self.d_mm, self.c_mm, self.mode.elbow_2)
             .ok_or(KinematicsError::Unreachable)?;
+        let elbow_b = [pb[0] + b0[0], pb[1] + b0[1]];
+        // The elbows fix A and B; C must also lie on the configured side of A→B, otherwise this
+        // target belongs to the other assembly mode (across a parallel singularity) and FK of
+        // these angles would give a different point.
+        let side = cross(sub(elbow_b, pa), sub(tool_mm, pa));
+        if side * self.mode.assembly.sign::<T>() < T::ZERO {
+            return Err(KinematicsError::Unreachable);
+        }
         let theta1 = wrap_angle_rad(pa[1].atan2(pa[0]) - self.encoder_offset_rad[0]);
         let theta2 = wrap_angle_rad(pb[1].atan2(pb[0]) - self.encoder_offset_rad[1]);
         Pose {
             theta_rad: [theta1, theta2],
             elbow_a_mm: pa,
-            elbow_b_mm: [pb[0] + b0[0], pb[1] + b0[1]],
+            elbow_b_mm: elbow_b,
             tool_mm,
             base_b0_mm: b0,
         }

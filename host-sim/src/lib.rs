@@ -1,0 +1,18 @@
+//! `host-sim`: the real machine in simulation and the calibration tools around it.
+//!
+//! The same `kinematics-core` the firmware runs is linked here; this crate adds what only a host
+//! needs: the plant (the overconstrained six-bar with its imperfections), the closed 2 kHz loop,
+//! measurement protocols, the hidden-robot fits, the correction-grid builder, accuracy
+//! statistics and the diagnosis of model/measurement disagreement.
+//!
+//! File formats (contracts other tools rely on): [`measurement_csv`], [`model_file`], the grid
+//! image (`kinematics_core::grid`).
+
+pub mod measurement_csv;
+pub mod model_file;
+pub mod output;
+pub mod plot;
+pub mod fit;
+pub mod grid_build;
+pub mod command;
+pub mod accuracy;

@@ -1,0 +1,140 @@
+//! The flash image of the correction grid: round trip, every single bit flip rejected,
+//! malformed headers rejected, interpolation exact on bilinear fields, edges, outside.
+
+use kinematics_core::grid::{encode, CorrectionGrid, GridError, GridGeometry, HEADER_LEN};
+use kinematics_core::FiveBar;
+
+fn geometry() -> GridGeometry {
+    GridGeometry { nx: 21, ny: 31, x0_mm: 162.132, y0_mm: -75.0, step_x_mm: 5.0, step_y_mm: 5.0 }
+}
+
+/// A bilinear field f(x, y) = c0 + c1 x + c2 y + c3 x y per motor: interpolation must be exact.
+fn field(p: [f32; 2]) -> [f32; 2] {
+    let (x, y) = ((p[0] - 200.0) as f64, p[1] as f64);
+    [
+        (1e-4 + 2e-6 * x - 3e-6 * y + 1e-8 * x * y) as f32,
+        (-2e-4 - 1e-6 * x + 4e-6 * y - 2e-8 * x * y) as f32,
+    ]
+}
+
+fn image() -> Vec<u8> {
+    let g = geometry();
+    let nodes: Vec<[f32; 2]> = (0..g.ny).flat_map(|j| (0..g.nx).map(move |i| (i, j))).map(|(i, j)| field(g.node_mm(i, j))).collect();
+    let mut buf = vec![0u8; g.image_len()];
+    let n = encode(&mut buf, &g, &FiveBar::paper_nominal(), &nodes).unwrap();
+    assert_eq!(n, buf.len());
+    buf
+}
+
+#[test]
+fn round_trip_and_exact_on_bilinear_field() {
+    let img = image();
+    let grid = CorrectionGrid::parse(&img).unwrap();
+    assert_eq!(*grid.geometry(), geometry());
+    assert_eq!(*grid.model(), FiveBar::paper_nominal());
+    for k in 0..500 {
+        let p = [162.132 + (k as f32 * 0.7919) % 100.0, -75.0 + (k as f32 * 1.3771) % 150.0];
+        let got = grid.correction_rad(p).unwrap();
+        let want = field(p);
+        for m in 0..2 {
+            assert!((got[m] - want[m]).abs() < 2e-9, "{p:?}: {got:?} vs {want:?}");
+        }
+    }
+}
+
+#[test]
+fn nodes_edges_and_corners_take_the_node_values() {
+    let img = image();
+    let grid = CorrectionGrid::parse(&img).unwrap();
+    let g = geometry();
+    for (i, j) in [(0, 0), (20, 30), (0, 30), (20, 0), (7, 13)] {
+        let p = g.node_mm(i, j);
+        assert_eq!(grid.correction_rad(p).unwrap(), grid.node_rad(i, j));
+    }
+    // On the edge x = x_max, halfway between two nodes: the mean of those two nodes.
+    let mid = [g.node_mm(20, 4)[0], (g.node_mm(20, 4)[1] + g.node_mm(20, 5)[1]) / 2.0];
+    let (a, b) = (grid.node_rad(20, 4), grid.node_rad(20, 5));
+    let got = grid.correction_rad(mid).unwrap();
+    assert!((got[0] - (a[0] + b[0]) / 2.0).abs() < 1e-10);
+}
+
+#[test]
+fn outside_the_grid_is_refused_and_rounding_at_the_edge_is_not() {
+    let img = image();
+    let grid = CorrectionGrid::parse(&img).unwrap();
+    assert_eq!(grid.correction_rad([162.0, 0.0]), Err(GridError::OutsideGrid));
+    assert_eq!(grid.correction_rad([200.0, 75.1]), Err(GridError::OutsideGrid));
+    assert_eq!(grid.correction_rad([f32::NAN, 0.0]), Err(GridError::OutsideGrid));
+    assert_eq!(grid.correction_rad([f32::INFINITY, 0.0]), Err(GridError::OutsideGrid));
+    // 0.1 µm outside the last node: float rounding of a boundary target, takes the edge value.
+    assert!(grid.correction_rad([262.1321, 75.0]).is_ok());
+}
+
+#[test]
+fn every_single_bit_flip_is_rejected() {
+    let img = image();
+    let mut flipped = img.clone();
+    for byte in 0..img.len() {
+        for bit in 0..8 {
+            flipped[byte] ^= 1 << bit;
+            assert!(CorrectionGrid::parse(&flipped).is_err(), "flip of byte {byte} bit {bit} accepted");
+            flipped[byte] ^= 1 << bit;
+        }
+    }
+    assert!(CorrectionGrid::parse(&flipped).is_ok());
+}
+
+#[test]
+fn trailing_flash_is_ignored_but_truncation_is_not() {
+    let mut img = image();
+    let len = img.len();
+    img.extend(std::iter::repeat(0xFF).take(4096));
+    assert!(CorrectionGrid::parse(&img).is_ok());
+    assert_eq!(CorrectionGrid::parse(&img[..len - 1]).unwrap_err(), GridError::Truncated);
+    assert_eq!(CorrectionGrid::parse(&img[..10]).unwrap_err(), GridError::Truncated);
+    assert_eq!(CorrectionGrid::parse(&[0xFF; 8192]).unwrap_err(), GridError::BadMagic);
+    assert_eq!(CorrectionGrid::parse(&[]).unwrap_err(), GridError::Truncated);
+}
+
+/// Re-encodes with a tampered header and a *valid* CRC: the semantic checks must catch it.
+fn with_valid_crc(mut img: Vec<u8>) -> Vec<u8> {
+    let n = img.len();
+    let crc = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC).checksum(&img[..n - 4]);
+    img[n - 4..].copy_from_slice(&crc.to_le_bytes());
+    img
+}
+
+#[test]
+fn consistent_but_invalid_images_are_rejected() {
+    let img = image();
+    let mut v = img.clone();
+    v[4] = 2;
+    assert_eq!(CorrectionGrid::parse(&with_valid_crc(v)).unwrap_err(), GridError::UnsupportedVersion(2));
+    let mut v = img.clone();
+    v[24..28].copy_from_slice(&(-5.0f32).to_le_bytes());
+    assert_eq!(CorrectionGrid::parse(&with_valid_crc(v)).unwrap_err(), GridError::NonFinite);
+    let mut v = img.clone();
+    v[32..36].copy_from_slice(&0.0f32.to_le_bytes());
+    assert_eq!(CorrectionGrid::parse(&with_valid_crc(v)).unwrap_err(), GridError::BadModel);
+    let mut v = img.clone();
+    v[HEADER_LEN..HEADER_LEN + 4].copy_from_slice(&f32::NAN.to_le_bytes());
+    assert_eq!(CorrectionGrid::parse(&with_valid_crc(v)).unwrap_err(), GridError::NonFinite);
+    let mut v = img.clone();
+    v[12] |= 0x10;
+    assert_eq!(CorrectionGrid::parse(&with_valid_crc(v)).unwrap_err(), GridError::BadHeader);
+    let mut v = img;
+    v[8..10].copy_from_slice(&1u16.to_le_bytes());
+    assert_eq!(CorrectionGrid::parse(&with_valid_crc(v)).unwrap_err(), GridError::BadHeader);
+}
+
+#[test]
+fn encode_refuses_bad_input() {
+    let g = geometry();
+    let mut buf = vec![0u8; g.image_len()];
+    let m = FiveBar::paper_nominal();
+    assert_eq!(encode(&mut buf, &g, &m, &[[0.0; 2]; 3]), Err(GridError::BadEncodeInput));
+    assert_eq!(encode(&mut buf[..100], &g, &m, &vec![[0.0; 2]; g.len()]), Err(GridError::BadEncodeInput));
+    let mut nodes = vec![[0.0f32; 2]; g.len()];
+    nodes[5][1] = f32::NAN;
+    assert_eq!(encode(&mut buf, &g, &m, &nodes), Err(GridError::NonFinite));
+}
