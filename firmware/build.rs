@@ -1,10 +1,10 @@
 //! Selects the board's linker files and builds the bundled calibration image.
 //!
-//! * `memory.x` and `device.x` of the selected board (`firmware/memory-{qemu,g474}.x`,
-//!   `firmware/device-{qemu,g474}.x`) are copied into OUT_DIR, which is put on the linker search
-//!   path. There is deliberately no `memory.x` at the workspace root: the linker runs there
-//!   and looks in its working directory before the search path, so a top-level `memory.x`
-//!   would silently override the selected board's (seen: the QEMU build linked at 0x08000000).
+//! * The selected board's MEMORY block (`firmware/memory-{qemu,g474}.x`) is copied into OUT_DIR
+//!   as `board-memory.x`, which the workspace's `memory.x` includes, and its `device.x`
+//!   (`firmware/device-{qemu,g474}.x`) as `device.x`; OUT_DIR goes on the linker search path.
+//!   The linker runs in the workspace root and finds `memory.x` there first, so the top-level
+//!   file holds what every board shares and each board contributes only its MEMORY block.
 //! * `calibration.bin`: a valid correction grid image for the paper's nominal machine, encoded
 //!   with `kinematics_core::grid::encode` (the same encoder the host calibration tools use).
 //!   Its node values are a smooth synthetic field of a few hundred µrad, the size of the
@@ -26,12 +26,13 @@ fn main() {
         (false, true) => (manifest.join("memory-g474.x"), manifest.join("device-g474.x")),
         _ => panic!("enable exactly one of the features `board-qemu` and `board-g474`"),
     };
-    fs::copy(&memory, out.join("memory.x")).expect("copy memory.x");
+    fs::copy(&memory, out.join("board-memory.x")).expect("copy board-memory.x");
     fs::copy(&device, out.join("device.x")).expect("copy device.x");
     println!("cargo:rustc-link-search={}", out.display());
     println!("cargo:rerun-if-changed={}", memory.display());
     println!("cargo:rerun-if-changed={}", device.display());
     println!("cargo:rerun-if-changed=build.rs");
+    println!("cargo:rerun-if-changed=../memory.x");
 
     fs::write(out.join("calibration.bin"), synthetic_image()).expect("write calibration.bin");
 }
