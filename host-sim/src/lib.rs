@@ -12,3 +12,4 @@ pub mod measurement_csv;
 pub mod model_file;
 pub mod output;
 pub mod plot;
+pub mod plant;
