@@ -13,3 +13,4 @@ pub mod model_file;
 pub mod output;
 pub mod plot;
 pub mod plant;
+pub mod measure;

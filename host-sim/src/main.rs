@@ -12,7 +12,10 @@ struct Cli {
 }
 
 #[derive(Subcommand)]
-enum Command {}
+enum Command {
+    /// Measure a simulated plant with one of the paper's protocols (writes a measurement CSV).
+    Measure(host_sim::measure::MeasureArgs),
+}
 
 fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
@@ -26,5 +29,7 @@ fn main() -> std::process::ExitCode {
 }
 
 fn run(cli: Cli) -> Result<()> {
-    match cli.command {}
+    match cli.command {
+        Command::Measure(args) => host_sim::measure::run(args),
+    }
 }

@@ -257,7 +257,7 @@ impl PlantConfig {
             d.encoder_offset_deg = offset_deg;
             d.backlash_urad = 20.0;
         }
-        p.instrument.frame_offset_mm = [-0.062, 3.210];
+        p.instrument.frame_offset_mm = [-0.008, 3.194];
         p.instrument.noise_sigma_um = 10.0;
         p
     }
