@@ -14,3 +14,6 @@ pub mod output;
 pub mod plot;
 pub mod plant;
 pub mod measure;
+pub mod trajectory;
+pub mod closed_loop;
+pub mod simulate;

@@ -15,6 +15,8 @@ struct Cli {
 enum Command {
     /// Measure a simulated plant with one of the paper's protocols (writes a measurement CSV).
     Measure(host_sim::measure::MeasureArgs),
+    /// Run the closed 2 kHz loop on a simulated plant (JSON summary on stdout).
+    Simulate(host_sim::simulate::SimulateArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -31,5 +33,6 @@ fn main() -> std::process::ExitCode {
 fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Measure(args) => host_sim::measure::run(args),
+        Command::Simulate(args) => host_sim::simulate::run(args),
     }
 }
