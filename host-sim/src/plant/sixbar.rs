@@ -496,4 +496,41 @@ mod tests {
             assert!(sol.iterations <= 40, "{sol:?}");
         }
     }
+
+    #[test]
+    fn solver_converges_on_random_plants() {
+        let five = FiveBar::<f64>::paper_nominal();
+        for seed in 0..6 {
+            let mut cfg = PlantConfig::ideal().with_random_errors(seed, 0.2, 0.0);
+            cfg.sixbar.pin_clearance_mm = 0.005;
+            cfg.sixbar.bar_end_clearance_mm = 0.004;
+            let mut sb = SixBar::new(&cfg.sixbar);
+            for t in grid_targets() {
+                let theta = five.inverse(t, 0.0).unwrap();
+                let sol = sb.solve(theta).unwrap();
+                assert!(sol.iterations <= 30, "seed {seed}: {sol:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn paper_sixbar_departs_from_its_equivalent_fivebar() {
+        // What no five-bar can represent: the stress-induced, configuration-dependent part.
+        let cfg = PlantConfig::paper();
+        let five = FiveBar::<f64>::paper_nominal();
+        let mut sb = SixBar::new(&cfg.sixbar);
+        let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
+        for t in grid_targets() {
+            let theta = five.inverse(t, 0.0).unwrap();
+            let s = sb.solve(theta).unwrap().tool_mm;
+            let f = sb.five_bar_tool_mm(theta).unwrap();
+            for k in 0..2 {
+                lo[k] = lo[k].min(s[k] - f[k]);
+                hi[k] = hi[k].max(s[k] - f[k]);
+            }
+        }
+        let spread_um = [(hi[0] - lo[0]) * 1e3, (hi[1] - lo[1]) * 1e3];
+        eprintln!("six-bar minus equivalent five-bar: spread x {:.1} um, y {:.1} um", spread_um[0], spread_um[1]);
+        assert!(spread_um[0].max(spread_um[1]) > 2.0, "{spread_um:?}");
+    }
 }
