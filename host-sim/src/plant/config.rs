@@ -27,7 +27,9 @@ pub const PAPER_TOML: &str = include_str!("../../plants/paper.toml");
 pub enum PlantModel {
     /// The compliant overconstrained six-bar, solved for static equilibrium (see `sixbar`).
     Sixbar,
-    /// Closed-form five-bar with the arms' effective lengths: fast, no internal stress.
+    /// Closed-form five-bar with the arms' effective geometry (lever and Q-bar lengths, motor
+    /// pins, the Q pins on the elbows and D, E on the platform; the followers' errors and the
+    /// clearances are ignored): fast, no internal stress, no platform rotation.
     Fivebar,
 }
 

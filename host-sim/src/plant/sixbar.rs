@@ -45,8 +45,11 @@
 //! Solver: Levenberg-Marquardt (Gauss-Newton with Marquardt damping only when a step fails) on
 //! the 9 unknowns with the analytic Jacobian, 9x9 Cholesky. Warm start: the nominal closed-form
 //! pose for the new angles plus the previous solution's deviation from its nominal pose; from
-//! there 2-4 iterations reach a step below 1e-9 mm (the stopping rule), i.e. the solution error
-//! is far below a nanometre. Cost: ~1.5 µs per iteration in release (see `cargo bench`).
+//! there 2-4 iterations reach a step below 1e-9 mm (the stopping rule; the last iteration only
+//! confirms), i.e. the solution error is far below a nanometre. Cost (`cargo bench -p host-sim`,
+//! release, shared 2-core host): ~1.7 µs per iteration, 5.3 µs per warm-started solve along a
+//! 2 kHz path (3.1 iterations), 6.8 µs between scattered grid points (4.3 iterations), i.e.
+//! ~150x the closed-form five-bar FK (35 ns) and ~85x its IK (62 ns).
 
 use crate::plant::config::{PlantModel, SixBarConfig};
 use anyhow::{bail, Result};
