@@ -311,4 +311,23 @@ mod tests {
         let err = measure(&PlantConfig::ideal(), Protocol::Table1, 1, &cal, None).unwrap_err();
         assert!(format!("{err:#}").contains("target (212.132, 0.000)"), "{err:#}");
     }
+
+    #[test]
+    fn backlash_alone_shows_as_a_direction_dependent_error() {
+        use crate::plant::Effect;
+        let cfg = PlantConfig::paper().with_only(Effect::Backlash);
+        let rows = measure(&cfg, Protocol::Repeat, 1, &nominal(), None).unwrap();
+        // On the x line (y = 0) motor 1 and 2 move in opposite directions; ascending and
+        // descending passes must be displaced in opposite directions by about J·β/2.
+        let mut shift = [0.0f64; 2];
+        let mut n = [0usize; 2];
+        for m in rows.iter().filter(|m| m.run == Some(0) && m.target_mm.unwrap()[1] == 0.0) {
+            let k = usize::from(m.dir.unwrap()[0] < 0);
+            shift[k] += m.measured_mm[0] - m.target_mm.unwrap()[0];
+            n[k] += 1;
+        }
+        let (a, b) = (shift[0] / n[0] as f64 * 1e3, shift[1] / n[1] as f64 * 1e3);
+        assert!(a * b < 0.0 && a.abs() > 0.5 && b.abs() > 0.5, "mean x error by direction: {a} um, {b} um");
+    }
 }
+

@@ -16,6 +16,8 @@
 //!   motor), so the play needs no contact model.
 //! * Gear cyclic error: `amplitude·sin(cycles·gear_ratio·motor + phase)` on the link, an effect
 //!   no hidden-robot model has (for diagnosis tests).
+//! * Not modelled: the torque the stressed linkage puts on the levers (it would only load the
+//!   servo's integrator) and gear/shaft compliance.
 //! * Dynamics: semi-implicit Euler on one rigid inertia with viscous and Coulomb friction
 //!   (stick when the torque cannot break away). Cost: a handful of flops per substep; error
 //!   O(dt²) per step, the caller chooses dt (the closed loop uses 50 µs, 1/10 of a sample:
@@ -199,4 +201,19 @@ mod tests {
         // (0.2 - 0.1) / 2e-3 = 50 rad/s² for 50 ms: 0.0625 rad.
         assert!((d.motor_rad - 0.0625).abs() < 1e-3, "{}", d.motor_rad);
     }
+
+    #[test]
+    fn cyclic_error_follows_the_motor_angle() {
+        let mut cfg = PlantConfig::ideal().drive_1;
+        cfg.cyclic_error_urad = 10.0;
+        cfg.cyclic_error_cycles_per_motor_rev = 1.0;
+        cfg.gear_ratio = 10.0;
+        let mut d = Drive::new(&cfg);
+        // A quarter motor revolution = 1/40 joint revolution: sin goes 0 -> 1.
+        d.settle(0.0, 1);
+        assert!(d.link_rad().abs() < 1e-12);
+        d.settle(TAU / 40.0, 1);
+        assert!((d.link_rad() - TAU / 40.0 - 10e-6).abs() < 1e-12);
+    }
 }
+
