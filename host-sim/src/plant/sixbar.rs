@@ -333,16 +333,16 @@ impl SixBar {
     /// Static equilibrium for geometric link angles (rad), warm-started from the last call.
     /// With the `fivebar` model: the equivalent five-bar's FK, forces zero.
     pub fn solve(&mut self, link_rad: [f64; 2]) -> Result<SixBarSolution> {
-        let nominal = self.nominal_pose(link_rad)?;
         if self.model == PlantModel::Fivebar {
             return Ok(SixBarSolution {
-                tool_mm: [nominal[6], nominal[7]],
+                tool_mm: self.five_bar_tool_mm(link_rad)?,
                 platform_rot_rad: 0.0,
                 bar_tension_n: [0.0; 6],
                 pin_force_n: [0.0; 2],
                 iterations: 0,
             });
         }
+        let nominal = self.nominal_pose(link_rad)?;
         let guess = nominal + self.deviation.unwrap_or_else(Vec9::zeros);
         match self.solve_from(link_rad, guess) {
             Ok((sol, x)) => {
