@@ -47,9 +47,10 @@
 //! pose for the new angles plus the previous solution's deviation from its nominal pose; from
 //! there 2-4 iterations reach a step below 1e-9 mm (the stopping rule; the last iteration only
 //! confirms), i.e. the solution error is far below a nanometre. Cost (`cargo bench -p host-sim`,
-//! release, shared 2-core host): ~1.7 µs per iteration, 5.3 µs per warm-started solve along a
-//! 2 kHz path (3.1 iterations), 6.8 µs between scattered grid points (4.3 iterations), i.e.
-//! ~150x the closed-form five-bar FK (35 ns) and ~85x its IK (62 ns).
+//! release, shared 2-core host, so ±30 % from run to run): ~1.4 µs per iteration, 4-5 µs per
+//! warm-started solve along a 2 kHz path (3.1 iterations), 5.5-7 µs between scattered grid
+//! points (4.3 iterations), i.e. 150-175x the closed-form five-bar FK (24-35 ns) and 85-100x
+//! its IK (40-60 ns).
 
 use crate::plant::config::{PlantModel, SixBarConfig};
 use anyhow::{bail, Result};
