@@ -139,7 +139,7 @@ pub fn visits(protocol: Protocol, seed: u64) -> Vec<Visit> {
             seq(&t, [WORKSPACE_X_MM[0] - 5.0, WORKSPACE_Y_MM[0]], 0, &mut v);
         }
         Protocol::Random(n) => {
-            let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x5eed_7a26_e75);
+            let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x5eed_7a26_0e75);
             for _ in 0..n {
                 let t = [rng.random_range(WORKSPACE_X_MM[0]..=WORKSPACE_X_MM[1]), rng.random_range(WORKSPACE_Y_MM[0]..=WORKSPACE_Y_MM[1])];
                 let a: f64 = rng.random_range(0.0..std::f64::consts::TAU);

@@ -71,3 +71,34 @@ fn simulate_prints_the_summary_and_writes_log_and_plot() {
     assert_eq!(std::fs::read_to_string(&log).unwrap().lines().count(), 1001);
     assert!(std::fs::metadata(&plot).unwrap().len() > 1000);
 }
+
+#[test]
+fn measure_with_a_zero_grid_matches_without_and_model_mismatch_is_refused() {
+    use kinematics_core::grid::{encode, GridGeometry};
+    use kinematics_core::FiveBar;
+    let dir = tempfile::tempdir().unwrap();
+    let geometry = GridGeometry { nx: 21, ny: 31, x0_mm: 162.132, y0_mm: -75.0, step_x_mm: 5.0, step_y_mm: 5.0 };
+    let mut image = vec![0u8; geometry.image_len()];
+    let model = FiveBar::<f32>::paper_nominal();
+    let n = encode(&mut image, &geometry, &model, &vec![[0.0f32; 2]; geometry.len()]).unwrap();
+    let grid = dir.path().join("g.bin");
+    std::fs::write(&grid, &image[..n]).unwrap();
+    let (a, b) = (dir.path().join("a.csv"), dir.path().join("b.csv"));
+    let base = ["measure", "--plant", "paper", "--protocol", "table1", "--seed", "2", "--out"];
+    assert!(host_sim().args(base).arg(&a).status().unwrap().success());
+    assert!(host_sim().args(base).arg(&b).arg("--grid").arg(&grid).status().unwrap().success());
+    assert_eq!(std::fs::read_to_string(&a).unwrap(), std::fs::read_to_string(&b).unwrap());
+    // A model file that is not the grid's model.
+    let mut other = FiveBar::<f64>::paper_nominal();
+    other.a_mm = 150.5;
+    let m = dir.path().join("m.json");
+    host_sim::model_file::write_model_file(&m, &host_sim::model_file::ModelFile::from_model(&other)).unwrap();
+    let c = dir.path().join("c.csv");
+    let o = host_sim().args(base).arg(&c).arg("--grid").arg(&grid).arg("--model").arg(&m).output().unwrap();
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("differs"), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(!c.exists());
+    // The model alone is used.
+    assert!(host_sim().args(base).arg(&c).arg("--model").arg(&m).status().unwrap().success());
+    assert_ne!(std::fs::read_to_string(&a).unwrap(), std::fs::read_to_string(&c).unwrap());
+}
