@@ -10,8 +10,10 @@
 //! inertia is lumped into the drives' joint inertia; the links' elastic modes, ~kHz, are far
 //! above the loop bandwidth), so it is solved once per sample, not per substep.
 //!
-//! Tracking error: |tool(t_k) - setpoint(t_k)| in the machine frame (the true tool point, no
-//! instrument), so on a plant with errors it includes what the calibration has not removed.
+//! Tracking error: |tool(t_k) - setpoint(t_k)| with the tool point seen in the instrument's frame
+//! without noise (the frame the measurements, and hence the calibration, live in; on `ideal` it
+//! is the machine frame), so on a plant with errors it includes what the calibration has not
+//! removed.
 //! Following error: what the loop itself lags, `|J·(reference - encoder)|` with the model's
 //! Jacobian at the setpoint (µm at the tool), and the joint value (µrad). 5 g segments are the
 //! samples whose setpoint acceleration (backward second difference, as the servo computes it) is
@@ -41,7 +43,7 @@ pub const SUBSTEPS: u32 = 10;
 pub struct LogRow {
     pub t_s: f64,
     pub setpoint_mm: [f64; 2],
-    /// Tool at t_k.
+    /// Tool at t_k (instrument frame, noiseless).
     pub tool_mm: [f64; 2],
     pub encoder_rad: [f64; 2],
     pub reference_rad: [f64; 2],
@@ -96,7 +98,8 @@ pub fn run_loop(
         .engage(cal, [enc0[0] as f32, enc0[1] as f32])
         .map_err(|e| anyhow!("servo refused to engage: {e}"))?;
 
-    let mut tool = plant.solve()?.tool_mm;
+    let first = plant.solve()?.tool_mm;
+    let mut tool = plant.instrument.frame_mm(first);
     let (mut sum2, mut max_err, mut max_follow) = (0.0f64, 0.0f64, 0.0f64);
     let (mut max_5g, mut max_5g_joint, mut n_5g) = (0.0f64, 0.0f64, 0u64);
     let (mut max_joint, mut max_torque, mut max_tension) = (0.0f64, 0.0f64, 0.0f64);
@@ -158,7 +161,7 @@ pub fn run_loop(
                 max_bar_tension_n: sol.max_abs_tension_n(),
             });
         }
-        tool = sol.tool_mm;
+        tool = plant.instrument.frame_mm(sol.tool_mm);
         done += 1;
         let now = Instant::now();
         if (now - last_wall).as_secs_f64() > dt {

@@ -9,7 +9,7 @@ use crate::output::write_atomic;
 use crate::plant::{Plant, PlantConfig, PlantModel};
 use crate::plot::{xy_plot, Mark, Series};
 use crate::trajectory::Trajectory;
-use anyhow::{anyhow, bail, Result};
+use anyhow::{anyhow, bail, Context, Result};
 use kinematics_core::{Calibration, CorrectionGrid};
 use std::fmt::Write as _;
 use std::path::PathBuf;
@@ -112,6 +112,7 @@ pub fn run(args: SimulateArgs) -> Result<()> {
             ],
         )?;
     }
-    println!("{}", serde_json::to_string_pretty(&summary)?);
+    use std::io::Write as _;
+    writeln!(std::io::stdout(), "{}", serde_json::to_string_pretty(&summary)?).context("cannot write the summary to stdout")?;
     Ok(())
 }
