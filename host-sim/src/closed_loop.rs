@@ -228,4 +228,19 @@ mod tests {
         // default gains and this plant's friction, which the servo does not feed forward).
         assert!(s.max_following_err_5g_um.unwrap() < 100.0, "{s:?}");
     }
+
+    #[test]
+    fn paper_sixbar_plant_closes_the_loop_on_a_figure_eight() {
+        // Stress, clearances, backlash, friction, quantization all on.
+        let mut plant = Plant::new(&PlantConfig::paper(), 1);
+        let tr = Trajectory::by_name("figure8").unwrap();
+        let s = run_loop(&mut plant, &nominal(), &tr, 1.0, None).unwrap();
+        assert!(s.fault.is_none(), "{s:?}");
+        assert!(s.max_bar_tension_n > 100.0, "{s:?}");
+        // Friction without feed-forward: tens of µm of lag at the joints' reversals.
+        assert!(s.max_following_err_um < 60.0, "{s:?}");
+        // Uncalibrated: the paper plant's ~1.5 mm class error.
+        assert!(s.max_tracking_err_um > 200.0 && s.max_tracking_err_um < 2000.0, "{s:?}");
+    }
 }
+
