@@ -12,7 +12,10 @@ struct Cli {
 }
 
 #[derive(Subcommand)]
-enum Command {}
+enum Command {
+    /// Find where model and measurements disagree, name the missing effect, show the gap shrink.
+    Diagnose(host_sim::diagnose::Args),
+}
 
 fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
@@ -26,5 +29,7 @@ fn main() -> std::process::ExitCode {
 }
 
 fn run(cli: Cli) -> Result<()> {
-    match cli.command {}
+    match cli.command {
+        Command::Diagnose(args) => host_sim::diagnose::run(args),
+    }
 }
