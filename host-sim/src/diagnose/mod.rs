@@ -207,7 +207,7 @@ pub fn diagnose_with_history(data: &[Measurement], base: &FiveBar<f64>, noise_um
             // (a slightly misjudged noise figure must not read as a missing effect).
             let limit = (1.0 + 4.0 * (2.0 / dof).sqrt()).max(1.21);
             if c > limit {
-                (true, format!("residual is {:.2}× the noise variance (limit {:.2}) and no library effect is significant", c, limit))
+                (true, format!("residual is {:.2}× the noise variance (limit {:.2}) and no further library effect is significant", c, limit))
             } else {
                 (false, format!("residual at the noise level (χ²/dof {:.2} ≤ {:.2})", c, limit))
             }
@@ -223,8 +223,18 @@ pub fn diagnose_with_history(data: &[Measurement], base: &FiveBar<f64>, noise_um
     if !significant.is_empty() {
         let d: Vec<String> = significant.iter().map(|f| format!("[{}] {}", f.kind, f.description)).collect();
         unexplained_description.push_str(&format!(". Structure of the residual: {}", d.join("; ")));
+    } else if unexplained && final_structure.iter().any(|f| f.kind == "too_few_points") {
+        unexplained_description.push_str(&format!(
+            ". Too few points ({}) to describe its structure; largest radial residuals: {}",
+            problem.points.len(),
+            largest_points(data, &problem, &last.residual_um)
+        ));
     } else if unexplained {
-        unexplained_description.push_str(". No test found a structure (not periodic in a motor angle, not direction-dependent, no drift, not smooth over the workspace): looks like extra noise");
+        unexplained_description.push_str(&format!(
+            ". No test found a structure (not periodic in a motor angle, not direction-dependent, no drift, not smooth over \
+             the workspace): looks like extra noise or isolated outliers; largest radial residuals: {}",
+            largest_points(data, &problem, &last.residual_um)
+        ));
     }
     let score = format!(
         "BIC = RSS/σ² + k·ln n (n = {} residuals), σ² = max(noise², smaller residual variance of the two models compared); \
@@ -256,6 +266,23 @@ pub fn diagnose_with_history(data: &[Measurement], base: &FiveBar<f64>, noise_um
         notes,
     };
     Ok((report, History { base_mm, fields, problem }))
+}
+
+/// The three largest radial residuals, with their file line (or index) and position.
+fn largest_points(data: &[Measurement], problem: &Problem, residual_um: &[f64]) -> String {
+    let kept: Vec<&Measurement> = data.iter().filter(|m| m.line == 0 || !problem.dropped_lines.contains(&m.line)).collect();
+    let mut idx: Vec<usize> = (0..problem.points.len()).collect();
+    let mag = |i: usize| residual_um[2 * i].hypot(residual_um[2 * i + 1]);
+    idx.sort_by(|&a, &b| mag(b).total_cmp(&mag(a)));
+    idx.iter()
+        .take(3)
+        .map(|&i| {
+            let p = problem.points[i].measured_mm;
+            let line = kept.get(i).map(|m| m.line).unwrap_or(0);
+            format!("{:.0} µm at line {line} ({:.1}, {:.1}) mm", mag(i), p[0], p[1])
+        })
+        .collect::<Vec<_>>()
+        .join(", ")
 }
 
 /// Residual plots: the field before/after each step (one scale per step), and the final

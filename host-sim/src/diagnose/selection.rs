@@ -110,6 +110,7 @@ pub fn select(problem: &Problem, noise_um: Option<f64>) -> Selection {
         }
         // Forward: best candidate.
         let mut best: Option<(f64, &'static Effect, Fit)> = None;
+        let mut tried = Vec::new();
         for &c in &candidates {
             if set.contains(&c) {
                 continue;
@@ -121,11 +122,13 @@ pub fn select(problem: &Problem, noise_um: Option<f64>) -> Selection {
             trial.push(c);
             if let Some(f) = fitter.fit(&trial, &cur.x) {
                 let d = delta_bic(problem, noise_um, &cur, &f);
+                tried.push(format!("{} rms {:.1} µm ΔBIC {:.1}", c.name, (2.0 * f.rss / n).sqrt(), d));
                 if best.as_ref().is_none_or(|b| d < b.0) {
                     best = Some((d, c, f));
                 }
             }
         }
+        log.push(format!("candidates on top of [{}]: {}", set.iter().map(|e| e.name).collect::<Vec<_>>().join(", "), tried.join("; ")));
         let Some((d, c, f)) = best else { break };
         if d > -ADD_MARGIN {
             log.push(format!("no candidate significant (best {} ΔBIC {:.1} > −{ADD_MARGIN}): stop", c.name, d));

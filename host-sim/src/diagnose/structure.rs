@@ -28,6 +28,8 @@ pub struct Finding {
     pub significant: bool,
     /// Share of the residual's sum of squares this structure explains (0..1).
     pub share: f64,
+    /// For `periodic_*`: the strongest period, cycles per motor revolution.
+    pub cycles_per_rev: Option<f64>,
     pub description: String,
 }
 
@@ -62,6 +64,7 @@ pub fn analyse(problem: &Problem, data: &[Measurement], residual_um: &[f64]) -> 
             kind: "too_few_points".into(),
             significant: false,
             share: 0.0,
+            cycles_per_rev: None,
             description: format!("{n} points: too few to test the residual for periodicity, direction, drift or smooth structure (need {MIN_POINTS})"),
         });
         return out;
@@ -114,6 +117,7 @@ pub fn analyse(problem: &Problem, data: &[Measurement], residual_um: &[f64]) -> 
                 kind: format!("periodic_theta{}", j + 1),
                 significant,
                 share,
+                cycles_per_rev: Some(cycles as f64),
                 description: format!(
                     "motor {} joint-space residual vs θ{}: strongest period {} cycles/rev ({:.2}° per cycle), amplitude {:.1} µrad \
                      (≈ {:.1} µm at 150 mm), explains {:.0}% of that residual; false-alarm probability {:.1e}{}",
@@ -142,6 +146,7 @@ pub fn analyse(problem: &Problem, data: &[Measurement], residual_um: &[f64]) -> 
                     kind: format!("direction_motor{}", j + 1),
                     significant: z.abs() > 5.0,
                     share: ((rss0 - rss) / rss0.max(1e-300)).clamp(0.0, 1.0),
+                    cycles_per_rev: None,
                     description: format!(
                         "motor {} joint residual differs by {:.1} µrad between approach directions (z = {:.1})",
                         j + 1,
@@ -184,6 +189,7 @@ pub fn analyse(problem: &Problem, data: &[Measurement], residual_um: &[f64]) -> 
                 kind: kind.into(),
                 significant,
                 share: (drop / total_ss).clamp(0.0, 1.0),
+                cycles_per_rev: None,
                 description: format!("linear drift: {}", parts.join(", ")),
             });
         }
@@ -211,6 +217,7 @@ pub fn analyse(problem: &Problem, data: &[Measurement], residual_um: &[f64]) -> 
             kind: "smooth_workspace".into(),
             significant: z_max > 30.0,
             share,
+            cycles_per_rev: None,
             description: format!(
                 "a quadratic in (x, y) explains {:.0}% of the residual (χ² drop / σ̂² up to {:.0}; > 30 is significant)",
                 100.0 * share,
