@@ -196,6 +196,23 @@ pub fn diagnose_with_history(data: &[Measurement], base: &FiveBar<f64>, noise_um
     let candidates: Vec<&'static Effect> = LIBRARY.iter().filter(|e| problem.available(e).is_ok()).collect();
     let overlaps = confounding::overlaps(&problem, &last.x, &sel.effects, &candidates, s2_final);
     let confounded = confounding::confounded(&overlaps);
+    // What the data cannot rule out: every candidate left out, fitted on top of the final model.
+    let mut not_detected = Vec::new();
+    for &c in candidates.iter().filter(|c| !sel.effects.contains(c)) {
+        let mut set = sel.effects.clone();
+        set.push(c);
+        if set.iter().map(|e| e.params.len()).sum::<usize>() as f64 >= n {
+            continue;
+        }
+        if let Some(f) = fitter.fit(&set, &last.x) {
+            let s2 = (f.rss / (n - f.free.len() as f64).max(1.0)).max(noise_um.map(|s| s * s).unwrap_or(0.0));
+            not_detected.push(report::NotDetected {
+                effect: c.name.to_string(),
+                params: params_of(&f, &[c], s2),
+                delta_bic: selection::delta_bic(&problem, noise_um, &last, &f),
+            });
+        }
+    }
     // Is anything left above the noise, and what does it look like?
     let initial_structure = structure::analyse(&problem, data, &start.residual_um);
     let final_structure = structure::analyse(&problem, data, &last.residual_um);
@@ -255,6 +272,7 @@ pub fn diagnose_with_history(data: &[Measurement], base: &FiveBar<f64>, noise_um
         final_params,
         confounded,
         overlaps,
+        not_detected,
         unexplained,
         unexplained_description,
         final_structure,

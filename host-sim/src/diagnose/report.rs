@@ -29,6 +29,16 @@ pub struct Step {
     pub max_after_um: f64,
 }
 
+/// A candidate the selection left out, fitted on top of the final model: how large it could be
+/// and still hide in these data (about 3 standard deviations).
+#[derive(Clone, Debug, Serialize)]
+pub struct NotDetected {
+    pub effect: String,
+    pub params: BTreeMap<String, Param>,
+    /// BIC change had it been added (> −10: not significant).
+    pub delta_bic: f64,
+}
+
 #[derive(Clone, Debug, Serialize)]
 pub struct Report {
     pub points: usize,
@@ -49,6 +59,8 @@ pub struct Report {
     /// Pairs whose residual signatures overlap (confounded, or partly identical), with the
     /// measurement that would separate them.
     pub overlaps: Vec<Overlap>,
+    /// Candidates not in the final model, with how large they could be undetected.
+    pub not_detected: Vec<NotDetected>,
     pub unexplained: bool,
     /// Why `unexplained` is what it is, and the structure of what is left.
     pub unexplained_description: String,
@@ -107,6 +119,11 @@ pub fn table(r: &Report) -> String {
             "partly indistinguishable: some combination of {} acts exactly like {} (principal cos {:.6}); to separate: {}\n",
             o.effect, o.other, o.principal_cos, o.separate_by
         ));
+    }
+    for nd in &r.not_detected {
+        let p: Vec<String> =
+            nd.params.iter().map(|(n, p)| format!("{n} = {:.2} ± {:.2}", p.value, p.std_dev)).collect();
+        s.push_str(&format!("not detected: {} (ΔBIC {:.1}; if present: {})\n", nd.effect, nd.delta_bic, p.join(", ")));
     }
     s.push_str(&format!("unexplained: {} — {}\n", r.unexplained, r.unexplained_description));
     s

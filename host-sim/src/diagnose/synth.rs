@@ -107,6 +107,25 @@ impl Truth {
     }
 }
 
+impl Truth {
+    /// The same truth with every effect magnitude multiplied by `f` (noise unchanged).
+    pub fn scaled(&self, f: f64) -> Truth {
+        let mut t = self.clone();
+        t.link_delta_um = t.link_delta_um.map(|v| v * f);
+        t.encoder_offset_urad = t.encoder_offset_urad.map(|v| v * f);
+        t.base_offset_um = t.base_offset_um.map(|v| v * f);
+        t.backlash_urad = t.backlash_urad.map(|v| v * f);
+        t.stretch_um_per_rad = t.stretch_um_per_rad.map(|v| v * f);
+        t.frame = t.frame.map(|v| v * f);
+        t.scale_ppm *= f;
+        t.gear_ppm = t.gear_ppm.map(|v| v * f);
+        if let Some(c) = t.cyclic.as_mut() {
+            c.amplitude_urad *= f;
+        }
+        t
+    }
+}
+
 /// The targets of a pose set.
 pub fn targets(poses: Poses, rng: &mut ChaCha8Rng) -> Vec<[f64; 2]> {
     match poses {
