@@ -307,3 +307,20 @@ fn sweep() {
         }
     }
 }
+
+/// Writes an example measurement file with hidden effects (for DIAGNOSIS.md):
+/// `DIAG_EXAMPLE=/tmp/m.csv cargo test -p host-sim --test diagnose write_example -- --ignored`
+#[test]
+#[ignore]
+fn write_example() {
+    let path = std::env::var("DIAG_EXAMPLE").unwrap_or_else(|_| "diagnose_example.csv".into());
+    let truth = Truth {
+        noise_um: NOISE_UM,
+        link_delta_um: [40.0, -25.0, 30.0, -60.0],
+        backlash_urad: [120.0, 80.0],
+        cyclic: Some(Cyclic { motor: 0, cycles: 50.0, amplitude_urad: 40.0, phase_rad: 0.3 }),
+        ..Default::default()
+    };
+    std::fs::write(&path, format_measurements(&generate(&truth, Poses::Grid5mm, 42))).unwrap();
+    println!("{truth:?}");
+}

@@ -206,9 +206,17 @@ pub fn diagnose_with_history(data: &[Measurement], base: &FiveBar<f64>, noise_um
         }
         if let Some(f) = fitter.fit(&set, &last.x) {
             let s2 = (f.rss / (n - f.free.len() as f64).max(1.0)).max(noise_um.map(|s| s * s).unwrap_or(0.0));
+            // Column-normalised Jacobian singular below 1e-6: some direction of the candidate is
+            // exactly what the final model already does (no bound exists).
+            let identifiable = f.min_singular > 1e-6;
+            let mut params = params_of(&f, &[c], s2);
+            if !identifiable {
+                params.values_mut().for_each(|p| p.std_dev = f64::INFINITY);
+            }
             not_detected.push(report::NotDetected {
                 effect: c.name.to_string(),
-                params: params_of(&f, &[c], s2),
+                identifiable,
+                params,
                 delta_bic: selection::delta_bic(&problem, noise_um, &last, &f),
             });
         }
@@ -342,6 +350,19 @@ fn plots(dir: &Path, data: &[Measurement], _base: &FiveBar<f64>, report: &Report
             label,
             "radial residual (µm)",
             &[Series { label: "start", points: &a, mark: Mark::Dots }, Series { label: "final", points: &b, mark: Mark::Dots }],
+        )?;
+    }
+    // Joint-space residual against each motor's own angle: where a gear or encoder error shows.
+    let flat: Vec<f64> = last.iter().flat_map(|e| [e[0], e[1]]).collect();
+    let joint = structure::joint_residual_urad(&h.problem, &flat);
+    for j in 0..2 {
+        let pts_j: Vec<[f64; 2]> = joint.iter().enumerate().map(|(i, d)| [pts[i].theta_rad[j].to_degrees(), d[j]]).collect();
+        xy_plot(
+            &dir.join(format!("final_joint_residual_motor{}.png", j + 1)),
+            &format!("final residual in joint space, motor {} vs its angle", j + 1),
+            &format!("θ{} (deg)", j + 1),
+            &format!("δθ{} (µrad)", j + 1),
+            &[Series { label: "final", points: &pts_j, mark: Mark::Dots }],
         )?;
     }
     if h.problem.has_dir {

@@ -34,6 +34,9 @@ pub struct Step {
 #[derive(Clone, Debug, Serialize)]
 pub struct NotDetected {
     pub effect: String,
+    /// False when some combination of its parameters is exactly what the final model already
+    /// does (then no bound exists; the standard deviations are infinite, `null` in JSON).
+    pub identifiable: bool,
     pub params: BTreeMap<String, Param>,
     /// BIC change had it been added (> −10: not significant).
     pub delta_bic: f64,
@@ -123,7 +126,11 @@ pub fn table(r: &Report) -> String {
     for nd in &r.not_detected {
         let p: Vec<String> =
             nd.params.iter().map(|(n, p)| format!("{n} = {:.2} ± {:.2}", p.value, p.std_dev)).collect();
-        s.push_str(&format!("not detected: {} (ΔBIC {:.1}; if present: {})\n", nd.effect, nd.delta_bic, p.join(", ")));
+        if nd.identifiable {
+            s.push_str(&format!("not detected: {} (ΔBIC {:.1}; if present: {})\n", nd.effect, nd.delta_bic, p.join(", ")));
+        } else {
+            s.push_str(&format!("not detected: {} (not identifiable alongside the final model: confounded with it)\n", nd.effect));
+        }
     }
     s.push_str(&format!("unexplained: {} — {}\n", r.unexplained, r.unexplained_description));
     s

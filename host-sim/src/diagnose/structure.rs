@@ -50,6 +50,24 @@ fn demeaned_rss(y: &DVector<f64>) -> f64 {
     y.iter().map(|v| (v - m) * (v - m)).sum()
 }
 
+/// The tool residual mapped into joint space (µrad per motor) with the base model's inverse
+/// Jacobian: a motor's own angle error shows up there as a clean function of its angle.
+pub fn joint_residual_urad(problem: &Problem, residual_um: &[f64]) -> Vec<[f64; 2]> {
+    problem
+        .points
+        .iter()
+        .enumerate()
+        .map(|(i, p)| {
+            let ji = problem.base.forward_pose(p.theta_rad, 0.0).ok().and_then(|pose| pose.inverse_jacobian().ok());
+            let r = [residual_um[2 * i], residual_um[2 * i + 1]];
+            match ji {
+                Some(m) => [(m[0][0] * r[0] + m[0][1] * r[1]) * 1e3, (m[1][0] * r[0] + m[1][1] * r[1]) * 1e3],
+                None => [0.0, 0.0],
+            }
+        })
+        .collect()
+}
+
 /// Minimum number of points for the periodogram and the workspace fit.
 pub const MIN_POINTS: usize = 30;
 
@@ -70,24 +88,9 @@ pub fn analyse(problem: &Problem, data: &[Measurement], residual_um: &[f64]) -> 
         return out;
     }
     let total_ss: f64 = residual_um.iter().map(|v| v * v).sum::<f64>().max(1e-300);
-    // Joint-space residual (µrad) via the base model's inverse Jacobian.
-    let mut dth = [Vec::with_capacity(n), Vec::with_capacity(n)];
-    let mut th = [Vec::with_capacity(n), Vec::with_capacity(n)];
-    for (i, p) in problem.points.iter().enumerate() {
-        let ji = problem.base.forward_pose(p.theta_rad, 0.0).ok().and_then(|pose| pose.inverse_jacobian().ok());
-        let r = [residual_um[2 * i], residual_um[2 * i + 1]];
-        let d = match ji {
-            Some(m) => [
-                (m[0][0] * r[0] + m[0][1] * r[1]) * 1e3,
-                (m[1][0] * r[0] + m[1][1] * r[1]) * 1e3,
-            ],
-            None => [0.0, 0.0],
-        };
-        for j in 0..2 {
-            dth[j].push(d[j]);
-            th[j].push(p.theta_rad[j]);
-        }
-    }
+    let joint = joint_residual_urad(problem, residual_um);
+    let dth = [joint.iter().map(|d| d[0]).collect::<Vec<f64>>(), joint.iter().map(|d| d[1]).collect::<Vec<f64>>()];
+    let th = [0, 1].map(|j| problem.points.iter().map(|p| p.theta_rad[j]).collect::<Vec<f64>>());
     // Periodogram per motor.
     let n_max = 360usize;
     let tried = (n_max - 1) as f64;
