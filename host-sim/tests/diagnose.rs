@@ -196,6 +196,25 @@ fn noise_is_estimated_from_repeats_and_backlash_needs_directions() {
 }
 
 #[test]
+fn without_a_noise_figure_the_structure_decides() {
+    // No --noise-um, no repeats: scores compare against what is left; unexplained needs structure.
+    let mut rng = ChaCha8Rng::seed_from_u64(21);
+    let truth = truth_with(&["gear_ratio"], &mut rng);
+    let r = diagnose(&generate(&truth, Poses::Grid5mm, 21), &FiveBar::paper_nominal(), None).unwrap();
+    let named: Vec<&str> = r.steps.iter().map(|s| s.effect.as_str()).collect();
+    assert_eq!(named, ["gear_ratio"], "{}", table(&r));
+    assert!(!r.unexplained && r.noise_um.is_none() && r.chi2_per_dof.is_none());
+    let truth = Truth {
+        noise_um: NOISE_UM,
+        cyclic: Some(Cyclic { motor: 1, cycles: 45.0, amplitude_urad: 40.0, phase_rad: 0.0 }),
+        ..Default::default()
+    };
+    let r = diagnose(&generate(&truth, Poses::Grid5mm, 22), &FiveBar::paper_nominal(), None).unwrap();
+    assert!(r.steps.is_empty() && r.unexplained, "{}", table(&r));
+    assert!(r.unexplained_description.contains("45 cycles/rev"), "{}", r.unexplained_description);
+}
+
+#[test]
 fn paper_table_1_runs_and_says_what_nine_points_cannot_tell() {
     let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("data/table1.csv");
     let data = host_sim::measurement_csv::read_measurements(&path).unwrap();
