@@ -343,3 +343,41 @@ fn write_example() {
     std::fs::write(&path, format_measurements(&generate(&truth, Poses::Grid5mm, 42))).unwrap();
     println!("{truth:?}");
 }
+
+/// What 9 points at 20 µm can tell (for DIAGNOSIS.md): each effect hidden at the Table I poses,
+/// without dir/time columns (the paper has none), at 1× and 5× the magnitudes of the other tests.
+/// `cargo test -p host-sim --test diagnose table1_power -- --ignored --nocapture`
+#[test]
+#[ignore]
+fn table1_power() {
+    let n = 20u64;
+    for f in [1.0, 5.0] {
+        for effect in LIBRARY.iter().map(|e| e.name).chain(["none"]) {
+            let mut exact = 0;
+            let mut other: std::collections::BTreeMap<String, usize> = Default::default();
+            for seed in 0..n {
+                let mut rng = ChaCha8Rng::seed_from_u64(seed);
+                let mut truth = Truth { noise_um: 20.0, ..Default::default() };
+                if effect != "none" {
+                    truth.add_random(effect, &mut rng);
+                }
+                let mut truth = truth.scaled(f);
+                truth.noise_um = 20.0;
+                let mut data = generate(&truth, Poses::Table1, seed);
+                for m in data.iter_mut() {
+                    m.dir = None;
+                    m.t_s = None;
+                }
+                let r = diagnose(&data, &FiveBar::paper_nominal(), Some(20.0)).unwrap();
+                let named: Vec<&str> = r.steps.iter().map(|s| s.effect.as_str()).collect();
+                let want: Vec<&str> = if effect == "none" { vec![] } else { vec![effect] };
+                if named == want {
+                    exact += 1;
+                } else {
+                    *other.entry(format!("{named:?}")).or_default() += 1;
+                }
+            }
+            println!("×{f} {effect}: named exactly {exact}/{n}; otherwise {other:?}");
+        }
+    }
+}

@@ -178,3 +178,31 @@ pub fn confounded(overlaps: &[Overlap]) -> Vec<Vec<String>> {
     }
     out
 }
+
+/// A pair of candidates whose signatures share a direction on these poses, whatever the model.
+#[derive(Clone, Debug, Serialize)]
+pub struct PoseOverlap {
+    pub a: String,
+    pub b: String,
+    /// Cosine of the smallest principal angle between their Jacobian column spaces.
+    pub principal_cos: f64,
+}
+
+/// What the pose set itself can separate: every pair of available candidates whose column
+/// spaces share a direction with cos ≥ `min_cos` (no other effect projected out). On few poses
+/// (Table I) this lists what no fit on these data could tell apart.
+pub fn pose_set_overlaps(problem: &Problem, x: &[f64; N_PARAMS], candidates: &[&'static Effect], min_cos: f64) -> Vec<PoseOverlap> {
+    let all: Vec<usize> = candidates.iter().flat_map(|e| e.params.iter().copied()).collect();
+    let Some(j) = jacobian(problem, x, &all) else { return vec![] };
+    let mut out = Vec::new();
+    for (i, a) in candidates.iter().enumerate() {
+        for b in &candidates[i + 1..] {
+            let cos = max_cos(&columns(&j, &all, a.params), &columns(&j, &all, b.params));
+            if cos >= min_cos {
+                out.push(PoseOverlap { a: a.name.into(), b: b.name.into(), principal_cos: cos });
+            }
+        }
+    }
+    out.sort_by(|p, q| q.principal_cos.total_cmp(&p.principal_cos));
+    out
+}

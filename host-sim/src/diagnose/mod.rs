@@ -196,6 +196,7 @@ pub fn diagnose_with_history(data: &[Measurement], base: &FiveBar<f64>, noise_um
     let candidates: Vec<&'static Effect> = LIBRARY.iter().filter(|e| problem.available(e).is_ok()).collect();
     let overlaps = confounding::overlaps(&problem, &last.x, &sel.effects, &candidates, s2_final);
     let confounded = confounding::confounded(&overlaps);
+    let pose_overlaps = confounding::pose_set_overlaps(&problem, &last.x, &candidates, 0.99);
     // What the data cannot rule out: every candidate left out, fitted on top of the final model.
     let mut not_detected = Vec::new();
     for &c in candidates.iter().filter(|c| !sel.effects.contains(c)) {
@@ -237,6 +238,12 @@ pub fn diagnose_with_history(data: &[Measurement], base: &FiveBar<f64>, noise_um
                 (false, format!("residual at the noise level (χ²/dof {:.2} ≤ {:.2})", c, limit))
             }
         }
+        None if final_structure.iter().any(|f| f.kind == "too_few_points") => (
+            false,
+            "UNDECIDED: noise unknown (no --noise-um, no repeats) and too few points to test the residual's structure; \
+             give --noise-um to decide"
+                .to_string(),
+        ),
         None => {
             if significant.is_empty() {
                 (false, "noise unknown; no significant structure left in the residual".to_string())
@@ -281,6 +288,7 @@ pub fn diagnose_with_history(data: &[Measurement], base: &FiveBar<f64>, noise_um
         confounded,
         overlaps,
         not_detected,
+        pose_overlaps,
         unexplained,
         unexplained_description,
         final_structure,

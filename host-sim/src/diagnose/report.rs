@@ -5,7 +5,7 @@
 //! (list of lists of effect names), `unexplained`, `final_rms_um` (RMS of the radial residual).
 //! Everything else is explanation for people. Cost: negligible.
 
-use super::confounding::Overlap;
+use super::confounding::{Overlap, PoseOverlap};
 use super::structure::Finding;
 use serde::Serialize;
 use std::collections::BTreeMap;
@@ -64,6 +64,9 @@ pub struct Report {
     pub overlaps: Vec<Overlap>,
     /// Candidates not in the final model, with how large they could be undetected.
     pub not_detected: Vec<NotDetected>,
+    /// Pairs of candidates that share a direction (cos ≥ 0.99) on these poses, whatever the
+    /// model: what this pose set cannot separate.
+    pub pose_overlaps: Vec<PoseOverlap>,
     pub unexplained: bool,
     /// Why `unexplained` is what it is, and the structure of what is left.
     pub unexplained_description: String,
@@ -122,6 +125,10 @@ pub fn table(r: &Report) -> String {
             "partly indistinguishable: some combination of {} acts exactly like {} (principal cos {:.6}); to separate: {}\n",
             o.effect, o.other, o.principal_cos, o.separate_by
         ));
+    }
+    if !r.pose_overlaps.is_empty() {
+        let p: Vec<String> = r.pose_overlaps.iter().map(|o| format!("{}~{} ({:.4})", o.a, o.b, o.principal_cos)).collect();
+        s.push_str(&format!("on these poses some combination of each pair acts alike (principal cos): {}\n", p.join(", ")));
     }
     for nd in &r.not_detected {
         let p: Vec<String> =

@@ -65,6 +65,8 @@ pub enum Poses {
     Grid5mm,
     /// Uniform random targets in the same rectangle.
     Random(usize),
+    /// The paper's Table I targets (corners, side midpoints, centre).
+    Table1,
 }
 
 fn sign(rng: &mut ChaCha8Rng) -> f64 {
@@ -138,6 +140,11 @@ pub fn targets(poses: Poses, rng: &mut ChaCha8Rng) -> Vec<[f64; 2]> {
             }
             t
         }
+        Poses::Table1 => [0.0, 75.0, 75.0, 0.0, -75.0, -75.0, -75.0, 0.0, 75.0]
+            .iter()
+            .zip([212.132, 212.132, 262.132, 262.132, 262.132, 212.132, 162.132, 162.132, 162.132])
+            .map(|(&y, x)| [x, y])
+            .collect(),
         Poses::Random(n) => (0..n).map(|_| [rng.random_range(162.132..262.132), rng.random_range(-75.0..75.0)]).collect(),
     }
 }
