@@ -196,6 +196,23 @@ fn noise_is_estimated_from_repeats_and_backlash_needs_directions() {
 }
 
 #[test]
+fn the_current_model_is_the_starting_point() {
+    // The model already has the right link lengths: only what is still missing is named.
+    let truth = Truth { noise_um: NOISE_UM, link_delta_um: [60.0, -40.0, 30.0, -50.0], backlash_urad: [150.0, 90.0], ..Default::default() };
+    let data = generate(&truth, Poses::Grid5mm, 8);
+    let mut model = FiveBar::<f64>::paper_nominal();
+    model.a_mm += 0.060;
+    model.b_mm -= 0.040;
+    model.c_mm += 0.030;
+    model.d_mm -= 0.050;
+    let r = diagnose(&data, &model, Some(NOISE_UM)).unwrap();
+    let named: Vec<&str> = r.steps.iter().map(|s| s.effect.as_str()).collect();
+    assert_eq!(named, ["backlash"], "{}", table(&r));
+    let b = &r.steps[0].params["beta1_urad"];
+    assert!((b.value - 150.0).abs() < 4.0 * b.std_dev + 1.0, "{b:?}");
+}
+
+#[test]
 fn without_a_noise_figure_the_structure_decides() {
     // No --noise-um, no repeats: scores compare against what is left; unexplained needs structure.
     let mut rng = ChaCha8Rng::seed_from_u64(21);

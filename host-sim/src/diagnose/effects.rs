@@ -125,6 +125,8 @@ pub fn effect(name: &str) -> Option<&'static Effect> {
 /// Everything per point the forward model needs besides the parameters.
 #[derive(Clone, Debug)]
 pub struct Point {
+    /// Index of the measurement this point came from (in the slice given to [`Problem::new`]).
+    pub index: usize,
     pub theta_rad: [f64; 2],
     pub dir: [f64; 2],
     pub measured_mm: [f64; 2],
@@ -159,7 +161,7 @@ impl Problem {
             let n = v[0].hypot(v[1]);
             [v[0] / n, v[1] / n]
         };
-        for m in data {
+        for (index, m) in data.iter().enumerate() {
             let th = m.theta_rad();
             let Ok(pose) = base.forward_pose(th, 0.0) else {
                 dropped_lines.push(m.line);
@@ -185,7 +187,7 @@ impl Problem {
             let w = [sens(&|m| m.b_mm += 1e-3), sens(&|m| m.c_mm += 1e-3)];
             geo.push((g, e1, e2, w));
             let d = m.dir.map(|d| [d[0] as f64, d[1] as f64]).unwrap_or([0.0; 2]);
-            points.push(Point { theta_rad: th, dir: d, measured_mm: m.measured_mm, stretch_u: [0.0; 4], theta_centred_rad: [0.0; 2] });
+            points.push(Point { index, theta_rad: th, dir: d, measured_mm: m.measured_mm, stretch_u: [0.0; 4], theta_centred_rad: [0.0; 2] });
         }
         let n = points.len().max(1) as f64;
         let mean_t = [0, 1].map(|j| points.iter().map(|p| p.theta_rad[j]).sum::<f64>() / n);
@@ -298,4 +300,81 @@ pub fn rms_max_um(r: &[f64]) -> (f64, f64) {
         mx = mx.max(q.sqrt());
     }
     ((ss / n).sqrt(), mx)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::diagnose::lm::jacobian;
+
+    fn meas(theta_deg: [f64; 2], dir: [i8; 2], m: &FiveBar<f64>) -> Measurement {
+        let c = m.forward([theta_deg[0].to_radians(), theta_deg[1].to_radians()], 0.0).unwrap();
+        Measurement { theta_deg, measured_mm: c, target_mm: None, dir: Some(dir), run: None, t_s: None, line: 0 }
+    }
+
+    fn grid(m: &FiveBar<f64>) -> Vec<Measurement> {
+        let nominal = FiveBar::<f64>::paper_nominal();
+        let mut out = Vec::new();
+        for i in 0..=10 {
+            for j in 0..=10 {
+                let th = nominal.inverse([162.132 + 10.0 * i as f64, -75.0 + 15.0 * j as f64], 0.05).unwrap();
+                out.push(meas([th[0].to_degrees(), th[1].to_degrees()], [if i % 2 == 0 { 1 } else { -1 }, if j % 2 == 0 { 1 } else { -1 }], m));
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn zero_parameters_reproduce_the_base_model() {
+        let p = Problem::new(FiveBar::paper_nominal(), &grid(&FiveBar::paper_nominal()));
+        let r = p.residuals_um(&[0.0; N_PARAMS]).unwrap();
+        assert!(r.iter().all(|v| v.abs() < 1e-9), "{:?}", &r[..4]);
+    }
+
+    #[test]
+    fn library_offsets_and_lengths_match_the_five_bar_model() {
+        let mut truth = FiveBar::<f64>::paper_nominal();
+        truth.a_mm += 0.05;
+        truth.encoder_offset_rad = [2e-4, -1e-4];
+        truth.base_b0_mm = [0.03, -0.02];
+        let p = Problem::new(FiveBar::paper_nominal(), &grid(&truth));
+        let mut x = [0.0; N_PARAMS];
+        x[0] = 50.0;
+        x[4] = 200.0;
+        x[5] = -100.0;
+        x[6] = 30.0;
+        x[7] = -20.0;
+        let r = p.residuals_um(&x).unwrap();
+        assert!(r.iter().all(|v| v.abs() < 1e-6), "{:?}", &r[..4]);
+    }
+
+    #[test]
+    fn backlash_sign_lags_the_approach_direction() {
+        // dir = +1: the link sits β/2 short of the encoder angle.
+        let base = FiveBar::<f64>::paper_nominal();
+        let mut shifted = base;
+        shifted.encoder_offset_rad = [-50e-6, 0.0];
+        let mut data = vec![meas([45.0, -45.0], [1, 1], &shifted)];
+        data[0].dir = Some([1, 1]);
+        let p = Problem::new(base, &data);
+        let mut x = [0.0; N_PARAMS];
+        x[8] = 100.0; // β1 = 100 µrad
+        let r = p.residuals_um(&x).unwrap();
+        assert!(r.iter().all(|v| v.abs() < 1e-6), "{r:?}");
+    }
+
+    #[test]
+    fn stretch_basis_is_outside_what_lengths_and_offsets_do() {
+        let p = Problem::new(FiveBar::paper_nominal(), &grid(&FiveBar::paper_nominal()));
+        assert!(!p.stretch_degenerate);
+        let x = [0.0; N_PARAMS];
+        let rigid = jacobian(&p, &x, &[0, 1, 2, 3, 4, 5]).unwrap();
+        let stretch = jacobian(&p, &x, &[10, 11, 18, 19]).unwrap();
+        let cos = crate::diagnose::confounding::max_cos(&rigid, &stretch);
+        assert!(cos < 0.99, "stretch basis overlaps lengths+offsets: cos {cos}");
+        // Unit RMS basis.
+        let n = p.points.len() as f64;
+        let rms = (p.points.iter().map(|q| q.stretch_u[0].powi(2)).sum::<f64>() / n).sqrt();
+        assert!((rms - 1.0).abs() < 1e-9);
+    }
 }

@@ -304,7 +304,7 @@ pub fn diagnose_with_history(data: &[Measurement], base: &FiveBar<f64>, noise_um
 
 /// The three largest radial residuals, with their file line (or index) and position.
 fn largest_points(data: &[Measurement], problem: &Problem, residual_um: &[f64]) -> String {
-    let kept: Vec<&Measurement> = data.iter().filter(|m| m.line == 0 || !problem.dropped_lines.contains(&m.line)).collect();
+    let kept: Vec<&Measurement> = problem.points.iter().filter_map(|p| data.get(p.index)).collect();
     let mut idx: Vec<usize> = (0..problem.points.len()).collect();
     let mag = |i: usize| residual_um[2 * i].hypot(residual_um[2 * i + 1]);
     idx.sort_by(|&a, &b| mag(b).total_cmp(&mag(a)));
@@ -387,7 +387,7 @@ fn plots(dir: &Path, data: &[Measurement], _base: &FiveBar<f64>, report: &Report
             &[Series { label: "dir1 = +1", points: &plus, mark: Mark::Dots }, Series { label: "dir1 = −1", points: &minus, mark: Mark::Dots }],
         )?;
     }
-    let times: Option<Vec<f64>> = data.iter().filter(|m| !h.problem.dropped_lines.contains(&m.line) || m.line == 0).map(|m| m.t_s).collect();
+    let times: Option<Vec<f64>> = h.problem.points.iter().map(|p| data.get(p.index).and_then(|m| m.t_s)).collect();
     if let Some(t) = times {
         if t.len() == last.len() {
             let a: Vec<[f64; 2]> = last.iter().zip(&t).map(|(e, t)| [*t, e[0].hypot(e[1])]).collect();

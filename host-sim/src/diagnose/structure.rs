@@ -72,8 +72,7 @@ pub fn joint_residual_urad(problem: &Problem, residual_um: &[f64]) -> Vec<[f64; 
 pub const MIN_POINTS: usize = 30;
 
 /// Analyses a residual (µm, x,y interleaved, one pair per point of `problem`). `data` are the
-/// measurements the problem was built from (for time and run); lines dropped by the problem are
-/// skipped by matching `line`.
+/// measurements the problem was built from (for time and run; matched by `Point::index`).
 pub fn analyse(problem: &Problem, data: &[Measurement], residual_um: &[f64]) -> Vec<Finding> {
     let n = problem.points.len();
     let mut out = Vec::new();
@@ -161,10 +160,7 @@ pub fn analyse(problem: &Problem, data: &[Measurement], residual_um: &[f64]) -> 
         }
     }
     // Time and run.
-    let kept: Vec<&Measurement> = {
-        let dropped = &problem.dropped_lines;
-        data.iter().filter(|m| !dropped.contains(&m.line) || m.line == 0).collect()
-    };
+    let kept: Vec<&Measurement> = problem.points.iter().filter_map(|p| data.get(p.index)).collect();
     if kept.len() == n {
         let series: [(&str, Option<Vec<f64>>, &str); 2] = [
             ("drift_time", kept.iter().map(|m| m.t_s).collect::<Option<Vec<f64>>>(), "s"),
@@ -229,4 +225,37 @@ pub fn analyse(problem: &Problem, data: &[Measurement], residual_um: &[f64]) -> 
         });
     }
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use kinematics_core::FiveBar;
+
+    #[test]
+    fn periodogram_finds_a_joint_ripple_and_ignores_none() {
+        let nominal = FiveBar::<f64>::paper_nominal();
+        let mut data = Vec::new();
+        for i in 0..=20 {
+            for j in 0..=30 {
+                let th = nominal.inverse([162.132 + 5.0 * i as f64, -75.0 + 5.0 * j as f64], 0.05).unwrap();
+                let c = nominal.forward(th, 0.0).unwrap();
+                data.push(Measurement { theta_deg: [th[0].to_degrees(), th[1].to_degrees()], measured_mm: c, target_mm: None, dir: None, run: None, t_s: None, line: 0 });
+            }
+        }
+        let p = Problem::new(nominal, &data);
+        // Residual = J · (30 µrad · sin(40 θ2)) on motor 2, plus a little deterministic "noise".
+        let mut r = Vec::new();
+        for (k, q) in p.points.iter().enumerate() {
+            let j = nominal.forward_pose(q.theta_rad, 0.0).unwrap().jacobian().unwrap();
+            let d2 = 30e-6 * (40.0 * q.theta_rad[1]).sin();
+            let wobble = 1e-3 * ((k * 7919) % 13) as f64 / 13.0;
+            r.push(j[0][1] * d2 * 1e3 + wobble);
+            r.push(j[1][1] * d2 * 1e3 - wobble);
+        }
+        let f = analyse(&p, &data, &r);
+        let per2 = f.iter().find(|f| f.kind == "periodic_theta2").unwrap();
+        assert!(per2.significant && per2.cycles_per_rev == Some(40.0), "{per2:?}");
+        assert!(!f.iter().any(|f| f.kind.starts_with("direction")));
+    }
 }
