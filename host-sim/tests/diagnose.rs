@@ -143,6 +143,17 @@ fn hidden_gear_tooth_error_is_unexplained_and_described() {
 }
 
 #[test]
+fn hidden_drift_is_unexplained_and_described() {
+    // 6 nm/s over the 1300 s of a grid run: 7.8 µm at the end, in x. Its mean over the run is a
+    // constant instrument offset, which `frame` takes (rightly: the data cannot tell them apart).
+    let truth = Truth { noise_um: NOISE_UM, drift_um_per_s: [0.006, 0.0], ..Default::default() };
+    let r = check(generate(&truth, Poses::Grid5mm, 31), Some(NOISE_UM), &["frame"], true, "drift");
+    let f = r.final_structure.iter().find(|f| f.kind == "drift_time").expect("time tested");
+    assert!(f.significant, "{f:?}");
+    assert!(r.unexplained_description.contains("drift_time"), "{}", r.unexplained_description);
+}
+
+#[test]
 fn confounded_pairs_are_reported_with_a_separating_measurement() {
     // A common motor offset turns the mechanism about A0 like an instrument rotation.
     let truth = Truth { noise_um: NOISE_UM, encoder_offset_urad: [250.0, 250.0], ..Default::default() };

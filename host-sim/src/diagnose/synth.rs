@@ -12,7 +12,8 @@
 //!   angle ψ away from its mean over the poses, with a quadratic term, and stretches b and c
 //!   through their compliances — while the library uses a basis linear in cos ψ;
 //! * the frame rotates about an instrument origin away from A0 (library: about A0, plus offset);
-//! * a gear-tooth cyclic error (in no library) adds `A·sin(N·θ_j + φ)` to one motor's link angle.
+//! * a gear-tooth cyclic error (in no library) adds `A·sin(N·θ_j + φ)` to one motor's link angle;
+//! * an instrument drift (in no library) adds a reading offset growing linearly with time.
 //!
 //! Backlash, encoder offsets, link lengths, base offset and scale have one physical form; the
 //! generator uses it. Noise: Gaussian, σ per axis. Cost: one IK and one or two FK per pose.
@@ -55,6 +56,8 @@ pub struct Truth {
     /// Transmission ratio error (ppm) about the mean motor angle of the poses.
     pub gear_ppm: [f64; 2],
     pub cyclic: Option<Cyclic>,
+    /// Instrument drift (thermal), µm per second of `t_s`, x and y (in no library).
+    pub drift_um_per_s: [f64; 2],
     pub noise_um: f64,
 }
 
@@ -222,6 +225,9 @@ pub fn generate(truth: &Truth, poses: Poses, seed: u64) -> Vec<Measurement> {
             o[0] + cs * d[0] - sn * d[1] + truth.frame[0] * 1e-3,
             o[1] + sn * d[0] + cs * d[1] + truth.frame[1] * 1e-3,
         ];
+        let t_s = 2.0 * k as f64;
+        meas[0] += truth.drift_um_per_s[0] * 1e-3 * t_s;
+        meas[1] += truth.drift_um_per_s[1] * 1e-3 * t_s;
         if let Some(nd) = noise {
             meas[0] += nd.sample(&mut rng);
             meas[1] += nd.sample(&mut rng);
@@ -232,7 +238,7 @@ pub fn generate(truth: &Truth, poses: Poses, seed: u64) -> Vec<Measurement> {
             target_mm: Some(*target),
             dir: Some([dir[0] as i8, dir[1] as i8]),
             run: None,
-            t_s: Some(2.0 * k as f64),
+            t_s: Some(t_s),
             line: 0,
         });
     }
