@@ -169,9 +169,16 @@ fn confounded_pairs_are_reported_with_a_separating_measurement() {
     assert!(r.confounded.contains(&vec!["link_lengths".to_string(), "scale".to_string()]), "{:?}", r.confounded);
     let o = r.overlaps.iter().find(|o| o.confounded).expect("overlap listed");
     assert!(o.separate_by.contains("reference length"), "{}", o.separate_by);
-    // Distinct offsets are not a rotation: named, not confounded (only a partial overlap).
+    // Distinct offsets: their common part (here (250 − 150)/√2 = 70.7 along (1, 1)/√2) is still
+    // an instrument rotation, significant, so the pair is reported with that part.
     let truth = Truth { noise_um: NOISE_UM, encoder_offset_urad: [250.0, -150.0], ..Default::default() };
     let r = check(generate(&truth, Poses::Grid5mm, 3), Some(NOISE_UM), &["encoder_offset"], false, "distinct offsets");
+    assert!(r.confounded.contains(&vec!["encoder_offset".to_string(), "frame".to_string()]), "{:?}", r.confounded);
+    let o = r.overlaps.iter().find(|o| o.other == "frame").unwrap();
+    assert!((o.shared_value - 70.7).abs() < 5.0, "{o:?}");
+    // Opposite offsets have no common part: no rotation hides in them; only a partial overlap.
+    let truth = Truth { noise_um: NOISE_UM, encoder_offset_urad: [200.0, -200.0], ..Default::default() };
+    let r = check(generate(&truth, Poses::Grid5mm, 4), Some(NOISE_UM), &["encoder_offset"], false, "opposite offsets");
     assert!(r.confounded.is_empty(), "{:?}", r.confounded);
     assert!(r.overlaps.iter().any(|o| o.other == "frame" && !o.confounded && o.principal_cos > 0.999999));
 }
@@ -323,6 +330,11 @@ fn sweep() {
     ] {
         cases.push(extra.to_vec());
     }
+    cases.push(vec!["link_lengths", "encoder_offset", "backlash", "base_offset"]);
+    cases.push(vec!["link_lengths", "encoder_offset", "backlash", "frame", "gear_ratio"]);
+    if let Ok(only) = std::env::var("SWEEP_ONLY") {
+        cases.retain(|c| c.join(",") == only);
+    }
     for case in &cases {
         let mut fails = Vec::new();
         for seed in 0..n {
@@ -346,6 +358,9 @@ fn sweep() {
             let at_noise = r.chi2_per_dof.unwrap_or(9.0) < 1.21;
             if named != want || r.unexplained || !at_noise {
                 fails.push(format!("seed {seed}: named {named:?} χ²/dof {:.2} confounded {:?}", r.chi2_per_dof.unwrap_or(f64::NAN), r.confounded));
+                if std::env::var("SWEEP_VERBOSE").is_ok() {
+                    fails.push(format!("truth {truth:?}\n{}", table(&r)));
+                }
             }
         }
         println!("{case:?}: {}/{n} ok", n as usize - fails.len());

@@ -15,12 +15,15 @@
 //! SVDs of n×≤18 matrices.
 
 use super::effects::{Effect, Problem, N_PARAMS};
-use super::lm::jacobian;
-use nalgebra::DMatrix;
+use super::effects::PARAM_NAMES;
+use super::lm::{jacobian, Fit};
+use nalgebra::{DMatrix, DVector};
 use serde::Serialize;
 
 /// χ² cost of swapping below which two effects are confounded (5σ of one degree of freedom).
 pub const SWAP_CHI2: f64 = 25.0;
+/// z-score of the shared part above which a partial overlap counts as confounded.
+pub const SHARED_Z: f64 = 5.0;
 /// Principal-angle cosine from which a partial overlap is listed (1 − 1e-6: exact up to rounding).
 pub const PARTIAL_COS: f64 = 1.0 - 1e-6;
 
@@ -38,7 +41,14 @@ pub struct Overlap {
     /// Cosine of the smallest principal angle between their Jacobian column spaces (1 = some
     /// combination of the effect's parameters is indistinguishable from the other).
     pub principal_cos: f64,
-    /// `swap_chi2` < [`SWAP_CHI2`]: the data cannot prefer one over the other.
+    /// When `principal_cos` is 1: the combination of the effect's parameters that acts exactly
+    /// like the other (unit vector, e.g. "0.707·dtheta1_urad + 0.707·dtheta2_urad").
+    pub shared_direction: String,
+    /// The fitted value along that combination, and its z-score.
+    pub shared_value: f64,
+    pub shared_z: f64,
+    /// Confounded: `swap_chi2` < [`SWAP_CHI2`] (the data cannot prefer one over the other), or a
+    /// significant part of the effect (`shared_z` > [`SHARED_Z`]) could equally be the other.
     pub confounded: bool,
     /// What measurement would separate them.
     pub separate_by: String,
@@ -118,15 +128,11 @@ pub fn max_cos(a: &DMatrix<f64>, b: &DMatrix<f64>) -> f64 {
 /// cannot reproduce costs `miss/σ²` in χ² if E were swapped for C. Confounded when that cost is
 /// below [`SWAP_CHI2`] (the data cannot prefer E over C). Independently, the smallest principal
 /// angle between the two column spaces says whether *some* combination of E's parameters is
-/// indistinguishable from C (`partial`, e.g. the common part of two encoder offsets and a frame
-/// rotation), which is listed but not reported as confounded.
-pub fn overlaps(
-    problem: &Problem,
-    x: &[f64; N_PARAMS],
-    final_set: &[&'static Effect],
-    candidates: &[&'static Effect],
-    s2_um2: f64,
-) -> Vec<Overlap> {
+/// indistinguishable from C (e.g. the common part of two encoder offsets and a frame rotation):
+/// if E's fitted value along that combination is significant (z > [`SHARED_Z`]), that part of
+/// E could equally be C, and the pair is confounded too; otherwise it is listed as partial.
+pub fn overlaps(problem: &Problem, fit: &Fit, final_set: &[&'static Effect], candidates: &[&'static Effect], s2_um2: f64) -> Vec<Overlap> {
+    let x = &fit.x;
     let all: Vec<usize> = candidates.iter().flat_map(|e| e.params.iter().copied()).collect();
     let Some(j) = jacobian(problem, x, &all) else { return vec![] };
     let mut out: Vec<Overlap> = Vec::new();
@@ -140,7 +146,7 @@ pub fn overlaps(
             let q = orthonormal_basis(&columns(&j, &all, &rest));
             let je = drop_vanished(project_out(&columns(&j, &all, e.params), &q), &columns(&j, &all, e.params));
             let jc = drop_vanished(project_out(&columns(&j, &all, c.params), &q), &columns(&j, &all, c.params));
-            let pe = nalgebra::DVector::from_iterator(e.params.len(), e.params.iter().map(|&k| x[k]));
+            let pe = DVector::from_iterator(e.params.len(), e.params.iter().map(|&k| x[k]));
             let ve = &je * pe;
             let qc = orthonormal_basis(&jc);
             let explained = if qc.ncols() > 0 { &qc * (qc.transpose() * &ve) } else { ve.clone() * 0.0 };
@@ -148,7 +154,10 @@ pub fn overlaps(
             let cos = if ve.norm() > 0.0 { explained.norm() / ve.norm() } else { 0.0 };
             let swap_chi2 = miss / s2_um2.max(1e-12);
             let principal_cos = max_cos(&je, &jc);
-            let confounded = swap_chi2 < SWAP_CHI2 && ve.norm_squared() / s2_um2.max(1e-12) > SWAP_CHI2;
+            let (shared_direction, shared_value, shared_z) =
+                if principal_cos >= PARTIAL_COS { shared_part(e, &je, &jc, fit, s2_um2) } else { (String::new(), 0.0, 0.0) };
+            let confounded =
+                (swap_chi2 < SWAP_CHI2 && ve.norm_squared() / s2_um2.max(1e-12) > SWAP_CHI2) || shared_z > SHARED_Z;
             if confounded || principal_cos >= PARTIAL_COS {
                 out.push(Overlap {
                     effect: e.name.into(),
@@ -156,6 +165,9 @@ pub fn overlaps(
                     cos,
                     swap_chi2,
                     principal_cos,
+                    shared_direction,
+                    shared_value,
+                    shared_z,
                     confounded,
                     separate_by: separating_measurement(e.name, c.name),
                 });
@@ -164,6 +176,45 @@ pub fn overlaps(
     }
     out.sort_by(|a, b| a.swap_chi2.total_cmp(&b.swap_chi2));
     out
+}
+
+/// The exactly shared part of effect `e` with another candidate: the null direction of
+/// `[J_E, J_C]` restricted to E's parameters (unit vector in E's parameter units), E's fitted value
+/// along it and that value's z-score under the final fit's covariance.
+fn shared_part(e: &Effect, je: &DMatrix<f64>, jc: &DMatrix<f64>, fit: &Fit, s2_um2: f64) -> (String, f64, f64) {
+    let (ke, kc) = (je.ncols(), jc.ncols());
+    let mut m = DMatrix::zeros(je.nrows(), ke + kc);
+    m.columns_mut(0, ke).copy_from(je);
+    m.columns_mut(ke, kc).copy_from(jc);
+    let svd = m.svd(false, true);
+    let Some(vt) = svd.v_t else { return (String::new(), 0.0, 0.0) };
+    let Some((imin, _)) = svd.singular_values.iter().enumerate().min_by(|a, b| a.1.total_cmp(b.1)) else {
+        return (String::new(), 0.0, 0.0);
+    };
+    let d = DVector::from_iterator(ke, (0..ke).map(|i| vt[(imin, i)]));
+    let norm = d.norm();
+    if norm < 1e-6 {
+        return (String::new(), 0.0, 0.0);
+    }
+    let mut d = d / norm;
+    // Sign: make the largest component positive, for a readable description.
+    if d.iter().fold(0.0f64, |a, &v| if v.abs() > a.abs() { v } else { a }) < 0.0 {
+        d = -d;
+    }
+    let cols: Vec<Option<usize>> = e.params.iter().map(|k| fit.free.iter().position(|f| f == k)).collect();
+    let alpha: f64 = e.params.iter().zip(d.iter()).map(|(&k, &w)| fit.x[k] * w).sum();
+    let mut var = 0.0;
+    for (a, ca) in cols.iter().enumerate() {
+        for (b, cb) in cols.iter().enumerate() {
+            if let (Some(ca), Some(cb)) = (ca, cb) {
+                var += d[a] * d[b] * fit.jtj_inv[(*ca, *cb)] * s2_um2;
+            }
+        }
+    }
+    let z = if var > 0.0 { alpha.abs() / var.sqrt() } else { 0.0 };
+    let desc: Vec<String> =
+        e.params.iter().zip(d.iter()).filter(|(_, w)| w.abs() > 1e-3).map(|(&k, w)| format!("{w:.3}·{}", PARAM_NAMES[k])).collect();
+    (desc.join(" + "), alpha, z)
 }
 
 /// The confounded pairs, names sorted within a pair.

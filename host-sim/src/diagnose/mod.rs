@@ -194,7 +194,7 @@ pub fn diagnose_with_history(data: &[Measurement], base: &FiveBar<f64>, noise_um
     let (final_rms_um, final_max_um) = rms_max_um(&last.residual_um);
     // Confounding with every available candidate.
     let candidates: Vec<&'static Effect> = LIBRARY.iter().filter(|e| problem.available(e).is_ok()).collect();
-    let overlaps = confounding::overlaps(&problem, &last.x, &sel.effects, &candidates, s2_final);
+    let overlaps = confounding::overlaps(&problem, &last, &sel.effects, &candidates, s2_final);
     let confounded = confounding::confounded(&overlaps);
     let pose_overlaps = confounding::pose_set_overlaps(&problem, &last.x, &candidates, 0.99);
     // What the data cannot rule out: every candidate left out, fitted on top of the final model.

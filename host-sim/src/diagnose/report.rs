@@ -114,16 +114,27 @@ pub fn table(r: &Report) -> String {
     s.push('\n');
     for c in &r.confounded {
         let sep = r.overlaps.iter().find(|o| (o.effect == c[0] && o.other == c[1]) || (o.effect == c[1] && o.other == c[0]));
+        let why = match sep {
+            Some(o) if o.swap_chi2 < super::confounding::SWAP_CHI2 => {
+                format!("{} can reproduce what {} explains (swap costs χ² {:.1})", o.other, o.effect, o.swap_chi2)
+            }
+            Some(o) => format!(
+                "the part {} = {:.2} of {} (z = {:.0}) acts exactly like {}",
+                o.shared_direction, o.shared_value, o.effect, o.shared_z, o.other
+            ),
+            None => String::new(),
+        };
         s.push_str(&format!(
-            "confounded: {} — {}\n",
+            "confounded: {} — {}; to separate: {}\n",
             c.join(" ~ "),
+            why,
             sep.map(|o| o.separate_by.as_str()).unwrap_or("")
         ));
     }
     for o in r.overlaps.iter().filter(|o| !o.confounded) {
         s.push_str(&format!(
-            "partly indistinguishable: some combination of {} acts exactly like {} (principal cos {:.6}); to separate: {}\n",
-            o.effect, o.other, o.principal_cos, o.separate_by
+            "partly indistinguishable (not significant here): {} = {:.2} (z = {:.1}) of {} acts exactly like {}; to separate: {}\n",
+            o.shared_direction, o.shared_value, o.shared_z, o.effect, o.other, o.separate_by
         ));
     }
     if !r.pose_overlaps.is_empty() {
