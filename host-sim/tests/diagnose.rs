@@ -23,7 +23,13 @@ const NOISE_UM: f64 = 2.0;
 /// Diagnoses `data` against the nominal model and checks that exactly `expected` effects are
 /// named (any order), that the residual is at the noise level (unless `expect_unexplained`),
 /// and that `unexplained` is what it should be. Returns the report for further checks.
-fn check(data: Vec<Measurement>, noise_um: Option<f64>, expected: &[&str], expect_unexplained: bool, what: &str) -> Report {
+fn check(
+    data: Vec<Measurement>,
+    noise_um: Option<f64>,
+    expected: &[&str],
+    expect_unexplained: bool,
+    what: &str,
+) -> Report {
     let r = diagnose(&data, &FiveBar::paper_nominal(), noise_um).expect("diagnosis runs");
     let mut named: Vec<&str> = r.steps.iter().map(|s| s.effect.as_str()).collect();
     named.sort();
@@ -79,10 +85,20 @@ fn each_effect_alone_is_named_exactly_and_the_gap_closes() {
             let r = diagnose(&data, &FiveBar::paper_nominal(), Some(NOISE_UM)).expect("diagnosis runs");
             let named: Vec<&str> = r.steps.iter().map(|s| s.effect.as_str()).collect();
             let want = expected_for(effect.name, &named);
-            let r = check(data, Some(NOISE_UM), &want, false, &format!("{} alone, seed {seed}, truth {truth:?}", effect.name));
+            let r = check(
+                data,
+                Some(NOISE_UM),
+                &want,
+                false,
+                &format!("{} alone, seed {seed}, truth {truth:?}", effect.name),
+            );
             assert!(r.initial_rms_um > 3.0 * r.final_rms_um, "{}: the gap did not shrink", effect.name);
             if effect.name == "scale" {
-                assert!(r.confounded.contains(&vec!["link_lengths".to_string(), "scale".to_string()]), "{:?}", r.confounded);
+                assert!(
+                    r.confounded.contains(&vec!["link_lengths".to_string(), "scale".to_string()]),
+                    "{:?}",
+                    r.confounded
+                );
             }
         }
     }
@@ -119,13 +135,20 @@ fn noise_only_names_nothing() {
 
 #[test]
 fn hidden_gear_tooth_error_is_unexplained_and_described() {
-    for (seed, (motor, cycles, amp)) in [(0usize, 50.0, 40.0), (1, 36.0, 30.0), (0, 90.0, 40.0)].into_iter().enumerate() {
+    for (seed, (motor, cycles, amp)) in [(0usize, 50.0, 40.0), (1, 36.0, 30.0), (0, 90.0, 40.0)].into_iter().enumerate()
+    {
         let truth = Truth {
             noise_um: NOISE_UM,
             cyclic: Some(Cyclic { motor, cycles, amplitude_urad: amp, phase_rad: 0.7 * seed as f64 }),
             ..Default::default()
         };
-        let r = check(generate(&truth, Poses::Grid5mm, 300 + seed as u64), Some(NOISE_UM), &[], true, &format!("cyclic {truth:?}"));
+        let r = check(
+            generate(&truth, Poses::Grid5mm, 300 + seed as u64),
+            Some(NOISE_UM),
+            &[],
+            true,
+            &format!("cyclic {truth:?}"),
+        );
         let kind = format!("periodic_theta{}", motor + 1);
         let f = r.final_structure.iter().find(|f| f.kind == kind).expect("periodogram ran");
         assert!(f.significant, "{f:?}");
@@ -139,7 +162,10 @@ fn hidden_gear_tooth_error_is_unexplained_and_described() {
     let mut truth = truth_with(&["backlash"], &mut rng);
     truth.cyclic = Some(Cyclic { motor: 1, cycles: 60.0, amplitude_urad: 40.0, phase_rad: 0.1 });
     let r = check(generate(&truth, Poses::Grid5mm, 9), Some(NOISE_UM), &["backlash"], true, "backlash + cyclic");
-    assert!(r.final_structure.iter().any(|f| f.kind == "periodic_theta2" && f.significant && f.cycles_per_rev == Some(60.0)));
+    assert!(r
+        .final_structure
+        .iter()
+        .any(|f| f.kind == "periodic_theta2" && f.significant && f.cycles_per_rev == Some(60.0)));
 }
 
 #[test]
@@ -216,7 +242,12 @@ fn noise_is_estimated_from_repeats_and_backlash_needs_directions() {
 #[test]
 fn the_current_model_is_the_starting_point() {
     // The model already has the right link lengths: only what is still missing is named.
-    let truth = Truth { noise_um: NOISE_UM, link_delta_um: [60.0, -40.0, 30.0, -50.0], backlash_urad: [150.0, 90.0], ..Default::default() };
+    let truth = Truth {
+        noise_um: NOISE_UM,
+        link_delta_um: [60.0, -40.0, 30.0, -50.0],
+        backlash_urad: [150.0, 90.0],
+        ..Default::default()
+    };
     let data = generate(&truth, Poses::Grid5mm, 8);
     let mut model = FiveBar::<f64>::paper_nominal();
     model.a_mm += 0.060;
@@ -357,7 +388,11 @@ fn sweep() {
             want.sort();
             let at_noise = r.chi2_per_dof.unwrap_or(9.0) < 1.21;
             if named != want || r.unexplained || !at_noise {
-                fails.push(format!("seed {seed}: named {named:?} χ²/dof {:.2} confounded {:?}", r.chi2_per_dof.unwrap_or(f64::NAN), r.confounded));
+                fails.push(format!(
+                    "seed {seed}: named {named:?} χ²/dof {:.2} confounded {:?}",
+                    r.chi2_per_dof.unwrap_or(f64::NAN),
+                    r.confounded
+                ));
                 if std::env::var("SWEEP_VERBOSE").is_ok() {
                     fails.push(format!("truth {truth:?}\n{}", table(&r)));
                 }

@@ -14,8 +14,8 @@
 //! Cost: one Jacobian over all library parameters (≤ 37 residual evaluations) and a few thin
 //! SVDs of n×≤18 matrices.
 
-use super::effects::{Effect, Problem, N_PARAMS};
 use super::effects::PARAM_NAMES;
+use super::effects::{Effect, Problem, N_PARAMS};
 use super::lm::{jacobian, Fit};
 use nalgebra::{DMatrix, DVector};
 use serde::Serialize;
@@ -85,7 +85,8 @@ fn orthonormal_basis(m: &DMatrix<f64>) -> DMatrix<f64> {
     let svd = m.clone().svd(true, false);
     let Some(u) = svd.u else { return DMatrix::zeros(m.nrows(), 0) };
     let smax = svd.singular_values.max();
-    let keep: Vec<usize> = (0..svd.singular_values.len()).filter(|&i| svd.singular_values[i] > 1e-9 * smax.max(1e-300)).collect();
+    let keep: Vec<usize> =
+        (0..svd.singular_values.len()).filter(|&i| svd.singular_values[i] > 1e-9 * smax.max(1e-300)).collect();
     DMatrix::from_fn(m.nrows(), keep.len(), |r, c| u[(r, keep[c])])
 }
 
@@ -131,7 +132,13 @@ pub fn max_cos(a: &DMatrix<f64>, b: &DMatrix<f64>) -> f64 {
 /// indistinguishable from C (e.g. the common part of two encoder offsets and a frame rotation):
 /// if E's fitted value along that combination is significant (z > [`SHARED_Z`]), that part of
 /// E could equally be C, and the pair is confounded too; otherwise it is listed as partial.
-pub fn overlaps(problem: &Problem, fit: &Fit, final_set: &[&'static Effect], candidates: &[&'static Effect], s2_um2: f64) -> Vec<Overlap> {
+pub fn overlaps(
+    problem: &Problem,
+    fit: &Fit,
+    final_set: &[&'static Effect],
+    candidates: &[&'static Effect],
+    s2_um2: f64,
+) -> Vec<Overlap> {
     let x = &fit.x;
     let all: Vec<usize> = candidates.iter().flat_map(|e| e.params.iter().copied()).collect();
     let Some(j) = jacobian(problem, x, &all) else { return vec![] };
@@ -141,8 +148,11 @@ pub fn overlaps(problem: &Problem, fit: &Fit, final_set: &[&'static Effect], can
             if c.name == e.name {
                 continue;
             }
-            let rest: Vec<usize> =
-                final_set.iter().filter(|f| f.name != e.name && f.name != c.name).flat_map(|f| f.params.iter().copied()).collect();
+            let rest: Vec<usize> = final_set
+                .iter()
+                .filter(|f| f.name != e.name && f.name != c.name)
+                .flat_map(|f| f.params.iter().copied())
+                .collect();
             let q = orthonormal_basis(&columns(&j, &all, &rest));
             let je = drop_vanished(project_out(&columns(&j, &all, e.params), &q), &columns(&j, &all, e.params));
             let jc = drop_vanished(project_out(&columns(&j, &all, c.params), &q), &columns(&j, &all, c.params));
@@ -154,8 +164,11 @@ pub fn overlaps(problem: &Problem, fit: &Fit, final_set: &[&'static Effect], can
             let cos = if ve.norm() > 0.0 { explained.norm() / ve.norm() } else { 0.0 };
             let swap_chi2 = miss / s2_um2.max(1e-12);
             let principal_cos = max_cos(&je, &jc);
-            let (shared_direction, shared_value, shared_z) =
-                if principal_cos >= PARTIAL_COS { shared_part(e, &je, &jc, fit, s2_um2) } else { (String::new(), 0.0, 0.0) };
+            let (shared_direction, shared_value, shared_z) = if principal_cos >= PARTIAL_COS {
+                shared_part(e, &je, &jc, fit, s2_um2)
+            } else {
+                (String::new(), 0.0, 0.0)
+            };
             let confounded =
                 (swap_chi2 < SWAP_CHI2 && ve.norm_squared() / s2_um2.max(1e-12) > SWAP_CHI2) || shared_z > SHARED_Z;
             if confounded || principal_cos >= PARTIAL_COS {
@@ -212,8 +225,13 @@ fn shared_part(e: &Effect, je: &DMatrix<f64>, jc: &DMatrix<f64>, fit: &Fit, s2_u
         }
     }
     let z = if var > 0.0 { alpha.abs() / var.sqrt() } else { 0.0 };
-    let desc: Vec<String> =
-        e.params.iter().zip(d.iter()).filter(|(_, w)| w.abs() > 1e-3).map(|(&k, w)| format!("{w:.3}·{}", PARAM_NAMES[k])).collect();
+    let desc: Vec<String> = e
+        .params
+        .iter()
+        .zip(d.iter())
+        .filter(|(_, w)| w.abs() > 1e-3)
+        .map(|(&k, w)| format!("{w:.3}·{}", PARAM_NAMES[k]))
+        .collect();
     (desc.join(" + "), alpha, z)
 }
 
@@ -242,7 +260,12 @@ pub struct PoseOverlap {
 /// What the pose set itself can separate: every pair of available candidates whose column
 /// spaces share a direction with cos ≥ `min_cos` (no other effect projected out). On few poses
 /// (Table I) this lists what no fit on these data could tell apart.
-pub fn pose_set_overlaps(problem: &Problem, x: &[f64; N_PARAMS], candidates: &[&'static Effect], min_cos: f64) -> Vec<PoseOverlap> {
+pub fn pose_set_overlaps(
+    problem: &Problem,
+    x: &[f64; N_PARAMS],
+    candidates: &[&'static Effect],
+    min_cos: f64,
+) -> Vec<PoseOverlap> {
     let all: Vec<usize> = candidates.iter().flat_map(|e| e.params.iter().copied()).collect();
     let Some(j) = jacobian(problem, x, &all) else { return vec![] };
     let mut out = Vec::new();

@@ -61,15 +61,26 @@ pub struct Effect {
 
 /// Parameter names with units (index = position in the full vector).
 pub const PARAM_NAMES: [&str; N_PARAMS] = [
-    "da_um", "db_um", "dc_um", "dd_um", // 0..4 link_lengths
-    "dtheta1_urad", "dtheta2_urad", // 4..6 encoder_offset
-    "b0x_um", "b0y_um", // 6..8 base_offset
-    "beta1_urad", "beta2_urad", // 8..10 backlash
-    "kb_cos2_um", "kc_cos2_um", // 10..12 link_stretch (RMS stretch over the data, µm), cos 2ψ part
-    "tx_um", "ty_um", "rot_urad", // 12..15 frame
+    "da_um",
+    "db_um",
+    "dc_um",
+    "dd_um", // 0..4 link_lengths
+    "dtheta1_urad",
+    "dtheta2_urad", // 4..6 encoder_offset
+    "b0x_um",
+    "b0y_um", // 6..8 base_offset
+    "beta1_urad",
+    "beta2_urad", // 8..10 backlash
+    "kb_cos2_um",
+    "kc_cos2_um", // 10..12 link_stretch (RMS stretch over the data, µm), cos 2ψ part
+    "tx_um",
+    "ty_um",
+    "rot_urad",  // 12..15 frame
     "scale_ppm", // 15 scale
-    "gear1_ppm", "gear2_ppm", // 16..18 gear_ratio
-    "kb_sin2_um", "kc_sin2_um", // 18..20 link_stretch, sin 2ψ part
+    "gear1_ppm",
+    "gear2_ppm", // 16..18 gear_ratio
+    "kb_sin2_um",
+    "kc_sin2_um", // 18..20 link_stretch, sin 2ψ part
 ];
 
 /// The library, in a fixed order (ties in the selection go to the earlier one).
@@ -187,14 +198,22 @@ impl Problem {
             let w = [sens(&|m| m.b_mm += 1e-3), sens(&|m| m.c_mm += 1e-3)];
             geo.push((g, e1, e2, w));
             let d = m.dir.map(|d| [d[0] as f64, d[1] as f64]).unwrap_or([0.0; 2]);
-            points.push(Point { index, theta_rad: th, dir: d, measured_mm: m.measured_mm, stretch_u: [0.0; 4], theta_centred_rad: [0.0; 2] });
+            points.push(Point {
+                index,
+                theta_rad: th,
+                dir: d,
+                measured_mm: m.measured_mm,
+                stretch_u: [0.0; 4],
+                theta_centred_rad: [0.0; 2],
+            });
         }
         let n = points.len().max(1) as f64;
         let mean_t = [0, 1].map(|j| points.iter().map(|p| p.theta_rad[j]).sum::<f64>() / n);
         // link_stretch basis: g minus its weighted least-squares projection on
         // {1, cos e_j, sin e_j} (what constant link lengths and encoder offsets of that arm do).
         // Order: [b·cos2ψ, c·cos2ψ, b·sin2ψ, c·sin2ψ] (as the parameters 10, 11, 18, 19).
-        let mut u = [vec![0.0; points.len()], vec![0.0; points.len()], vec![0.0; points.len()], vec![0.0; points.len()]];
+        let mut u =
+            [vec![0.0; points.len()], vec![0.0; points.len()], vec![0.0; points.len()], vec![0.0; points.len()]];
         let mut stretch_degenerate = points.len() < 6;
         for slot in 0..4 {
             let (arm, harmonic) = (slot % 2, slot / 2);
@@ -250,15 +269,13 @@ impl Problem {
         m.base_b0_mm[0] += x[6] * um;
         m.base_b0_mm[1] += x[7] * um;
         let th = [0, 1].map(|j| {
-            p.theta_rad[j] + x[4 + j] * urad - p.dir[j] * x[8 + j] * urad * 0.5 + x[16 + j] * 1e-6 * p.theta_centred_rad[j]
+            p.theta_rad[j] + x[4 + j] * urad - p.dir[j] * x[8 + j] * urad * 0.5
+                + x[16 + j] * 1e-6 * p.theta_centred_rad[j]
         });
         let c = m.forward(th, 0.0).ok()?;
         let (s, co) = (x[14] * urad).sin_cos();
         let k = 1.0 + x[15] * 1e-6;
-        Some([
-            k * (co * c[0] - s * c[1]) + x[12] * um,
-            k * (s * c[0] + co * c[1]) + x[13] * um,
-        ])
+        Some([k * (co * c[0] - s * c[1]) + x[12] * um, k * (s * c[0] + co * c[1]) + x[13] * um])
     }
 
     /// Residuals (measured − predicted, µm), x then y per point; `None` if a point has no FK.
@@ -278,7 +295,10 @@ impl Problem {
             return Err(format!("{} skipped: the data have no dir1/dir2 columns", e.name));
         }
         if e.name == "link_stretch" && self.stretch_degenerate {
-            return Err("link_stretch skipped: on these poses its basis is exactly what link_lengths and encoder_offset do".into());
+            return Err(
+                "link_stretch skipped: on these poses its basis is exactly what link_lengths and encoder_offset do"
+                    .into(),
+            );
         }
         Ok(())
     }
@@ -318,7 +338,11 @@ mod tests {
         for i in 0..=10 {
             for j in 0..=10 {
                 let th = nominal.inverse([162.132 + 10.0 * i as f64, -75.0 + 15.0 * j as f64], 0.05).unwrap();
-                out.push(meas([th[0].to_degrees(), th[1].to_degrees()], [if i % 2 == 0 { 1 } else { -1 }, if j % 2 == 0 { 1 } else { -1 }], m));
+                out.push(meas(
+                    [th[0].to_degrees(), th[1].to_degrees()],
+                    [if i % 2 == 0 { 1 } else { -1 }, if j % 2 == 0 { 1 } else { -1 }],
+                    m,
+                ));
             }
         }
         out

@@ -136,7 +136,11 @@ fn pairs(r: &[f64]) -> Vec<[f64; 2]> {
 }
 
 /// [`diagnose`], also returning the residual fields for plotting.
-pub fn diagnose_with_history(data: &[Measurement], base: &FiveBar<f64>, noise_um_arg: Option<f64>) -> Result<(Report, History)> {
+pub fn diagnose_with_history(
+    data: &[Measurement],
+    base: &FiveBar<f64>,
+    noise_um_arg: Option<f64>,
+) -> Result<(Report, History)> {
     let problem = Problem::new(*base, data);
     let mut notes = Vec::new();
     if !problem.dropped_lines.is_empty() {
@@ -357,14 +361,18 @@ fn plots(dir: &Path, data: &[Measurement], _base: &FiveBar<f64>, report: &Report
             &format!("radial residual vs {label}"),
             label,
             "radial residual (µm)",
-            &[Series { label: "start", points: &a, mark: Mark::Dots }, Series { label: "final", points: &b, mark: Mark::Dots }],
+            &[
+                Series { label: "start", points: &a, mark: Mark::Dots },
+                Series { label: "final", points: &b, mark: Mark::Dots },
+            ],
         )?;
     }
     // Joint-space residual against each motor's own angle: where a gear or encoder error shows.
     let flat: Vec<f64> = last.iter().flat_map(|e| [e[0], e[1]]).collect();
     let joint = structure::joint_residual_urad(&h.problem, &flat);
     for j in 0..2 {
-        let pts_j: Vec<[f64; 2]> = joint.iter().enumerate().map(|(i, d)| [pts[i].theta_rad[j].to_degrees(), d[j]]).collect();
+        let pts_j: Vec<[f64; 2]> =
+            joint.iter().enumerate().map(|(i, d)| [pts[i].theta_rad[j].to_degrees(), d[j]]).collect();
         xy_plot(
             &dir.join(format!("final_joint_residual_motor{}.png", j + 1)),
             &format!("final residual in joint space, motor {} vs its angle", j + 1),
@@ -375,27 +383,40 @@ fn plots(dir: &Path, data: &[Measurement], _base: &FiveBar<f64>, report: &Report
     }
     if h.problem.has_dir {
         // Final residual along θ1 split by approach direction of motor 1.
-        let plus: Vec<[f64; 2]> =
-            last.iter().enumerate().filter(|(i, _)| pts[*i].dir[0] > 0.0).map(|(i, e)| [pts[i].theta_rad[0].to_degrees(), e[0].hypot(e[1])]).collect();
-        let minus: Vec<[f64; 2]> =
-            last.iter().enumerate().filter(|(i, _)| pts[*i].dir[0] < 0.0).map(|(i, e)| [pts[i].theta_rad[0].to_degrees(), e[0].hypot(e[1])]).collect();
+        let plus: Vec<[f64; 2]> = last
+            .iter()
+            .enumerate()
+            .filter(|(i, _)| pts[*i].dir[0] > 0.0)
+            .map(|(i, e)| [pts[i].theta_rad[0].to_degrees(), e[0].hypot(e[1])])
+            .collect();
+        let minus: Vec<[f64; 2]> = last
+            .iter()
+            .enumerate()
+            .filter(|(i, _)| pts[*i].dir[0] < 0.0)
+            .map(|(i, e)| [pts[i].theta_rad[0].to_degrees(), e[0].hypot(e[1])])
+            .collect();
         xy_plot(
             &dir.join("final_residual_by_direction.png"),
             "final radial residual by approach direction of motor 1",
             "θ1 (deg)",
             "radial residual (µm)",
-            &[Series { label: "dir1 = +1", points: &plus, mark: Mark::Dots }, Series { label: "dir1 = −1", points: &minus, mark: Mark::Dots }],
+            &[
+                Series { label: "dir1 = +1", points: &plus, mark: Mark::Dots },
+                Series { label: "dir1 = −1", points: &minus, mark: Mark::Dots },
+            ],
         )?;
     }
     let times: Option<Vec<f64>> = h.problem.points.iter().map(|p| data.get(p.index).and_then(|m| m.t_s)).collect();
     if let Some(t) = times {
         if t.len() == last.len() {
             let a: Vec<[f64; 2]> = last.iter().zip(&t).map(|(e, t)| [*t, e[0].hypot(e[1])]).collect();
-            xy_plot(&dir.join("final_residual_vs_time.png"), "final radial residual vs time", "t (s)", "radial residual (µm)", &[Series {
-                label: "final",
-                points: &a,
-                mark: Mark::Dots,
-            }])?;
+            xy_plot(
+                &dir.join("final_residual_vs_time.png"),
+                "final radial residual vs time",
+                "t (s)",
+                "radial residual (µm)",
+                &[Series { label: "final", points: &a, mark: Mark::Dots }],
+            )?;
         }
     }
     Ok(())

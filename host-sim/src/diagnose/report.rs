@@ -109,11 +109,17 @@ pub fn table(r: &Report) -> String {
     }
     s.push_str(&format!("final radial RMS {:.2} µm, max {:.2} µm", r.final_rms_um, r.final_max_um));
     if let Some(c) = r.chi2_per_dof {
-        s.push_str(&format!(", χ²/dof {:.2} (noise {:.2} µm per axis, {})", c, r.noise_um.unwrap_or(f64::NAN), r.noise_source));
+        s.push_str(&format!(
+            ", χ²/dof {:.2} (noise {:.2} µm per axis, {})",
+            c,
+            r.noise_um.unwrap_or(f64::NAN),
+            r.noise_source
+        ));
     }
     s.push('\n');
     for c in &r.confounded {
-        let sep = r.overlaps.iter().find(|o| (o.effect == c[0] && o.other == c[1]) || (o.effect == c[1] && o.other == c[0]));
+        let sep =
+            r.overlaps.iter().find(|o| (o.effect == c[0] && o.other == c[1]) || (o.effect == c[1] && o.other == c[0]));
         let why = match sep {
             Some(o) if o.swap_chi2 < super::confounding::SWAP_CHI2 => {
                 format!("{} can reproduce what {} explains (swap costs χ² {:.1})", o.other, o.effect, o.swap_chi2)
@@ -138,16 +144,28 @@ pub fn table(r: &Report) -> String {
         ));
     }
     if !r.pose_overlaps.is_empty() {
-        let p: Vec<String> = r.pose_overlaps.iter().map(|o| format!("{}~{} ({:.4})", o.a, o.b, o.principal_cos)).collect();
-        s.push_str(&format!("on these poses some combination of each pair acts alike (principal cos): {}\n", p.join(", ")));
+        let p: Vec<String> =
+            r.pose_overlaps.iter().map(|o| format!("{}~{} ({:.4})", o.a, o.b, o.principal_cos)).collect();
+        s.push_str(&format!(
+            "on these poses some combination of each pair acts alike (principal cos): {}\n",
+            p.join(", ")
+        ));
     }
     for nd in &r.not_detected {
         let p: Vec<String> =
             nd.params.iter().map(|(n, p)| format!("{n} = {:.2} ± {:.2}", p.value, p.std_dev)).collect();
         if nd.identifiable {
-            s.push_str(&format!("not detected: {} (ΔBIC {:.1}; if present: {})\n", nd.effect, nd.delta_bic, p.join(", ")));
+            s.push_str(&format!(
+                "not detected: {} (ΔBIC {:.1}; if present: {})\n",
+                nd.effect,
+                nd.delta_bic,
+                p.join(", ")
+            ));
         } else {
-            s.push_str(&format!("not detected: {} (not identifiable alongside the final model: confounded with it)\n", nd.effect));
+            s.push_str(&format!(
+                "not detected: {} (not identifiable alongside the final model: confounded with it)\n",
+                nd.effect
+            ));
         }
     }
     s.push_str(&format!("unexplained: {} — {}\n", r.unexplained, r.unexplained_description));

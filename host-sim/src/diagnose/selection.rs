@@ -104,7 +104,10 @@ pub fn select(problem: &Problem, noise_um: Option<f64>) -> Selection {
         if let Some(s) = noise_um {
             let k = cur.free.len() as f64;
             if cur.rss / (n - k).max(1.0) < s * s {
-                log.push(format!("residual at the noise level ({:.2} µm RMS per axis ≤ {s} µm): stop", (cur.rss / n).sqrt()));
+                log.push(format!(
+                    "residual at the noise level ({:.2} µm RMS per axis ≤ {s} µm): stop",
+                    (cur.rss / n).sqrt()
+                ));
                 break;
             }
         }
@@ -128,7 +131,11 @@ pub fn select(problem: &Problem, noise_um: Option<f64>) -> Selection {
                 }
             }
         }
-        log.push(format!("candidates on top of [{}]: {}", set.iter().map(|e| e.name).collect::<Vec<_>>().join(", "), tried.join("; ")));
+        log.push(format!(
+            "candidates on top of [{}]: {}",
+            set.iter().map(|e| e.name).collect::<Vec<_>>().join(", "),
+            tried.join("; ")
+        ));
         let Some((d, c, f)) = best else { break };
         if d > -ADD_MARGIN {
             log.push(format!("no candidate significant (best {} ΔBIC {:.1} > −{ADD_MARGIN}): stop", c.name, d));

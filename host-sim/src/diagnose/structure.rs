@@ -198,7 +198,8 @@ pub fn analyse(problem: &Problem, data: &[Measurement], residual_um: &[f64]) -> 
         let mut drop = 0.0;
         let mut z_max = 0.0f64;
         let pos: Vec<[f64; 2]> = problem.points.iter().map(|p| p.measured_mm).collect();
-        let (cx, cy) = (pos.iter().map(|p| p[0]).sum::<f64>() / n as f64, pos.iter().map(|p| p[1]).sum::<f64>() / n as f64);
+        let (cx, cy) =
+            (pos.iter().map(|p| p[0]).sum::<f64>() / n as f64, pos.iter().map(|p| p[1]).sum::<f64>() / n as f64);
         for axis in 0..2 {
             let y = DVector::from_fn(n, |r, _| residual_um[2 * r + axis]);
             let a = DMatrix::from_fn(n, 6, |r, c| {
@@ -240,7 +241,15 @@ mod tests {
             for j in 0..=30 {
                 let th = nominal.inverse([162.132 + 5.0 * i as f64, -75.0 + 5.0 * j as f64], 0.05).unwrap();
                 let c = nominal.forward(th, 0.0).unwrap();
-                data.push(Measurement { theta_deg: [th[0].to_degrees(), th[1].to_degrees()], measured_mm: c, target_mm: None, dir: None, run: None, t_s: None, line: 0 });
+                data.push(Measurement {
+                    theta_deg: [th[0].to_degrees(), th[1].to_degrees()],
+                    measured_mm: c,
+                    target_mm: None,
+                    dir: None,
+                    run: None,
+                    t_s: None,
+                    line: 0,
+                });
             }
         }
         let p = Problem::new(nominal, &data);

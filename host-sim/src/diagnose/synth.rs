@@ -148,7 +148,9 @@ pub fn targets(poses: Poses, rng: &mut ChaCha8Rng) -> Vec<[f64; 2]> {
             .zip([212.132, 212.132, 262.132, 262.132, 262.132, 212.132, 162.132, 162.132, 162.132])
             .map(|(&y, x)| [x, y])
             .collect(),
-        Poses::Random(n) => (0..n).map(|_| [rng.random_range(162.132..262.132), rng.random_range(-75.0..75.0)]).collect(),
+        Poses::Random(n) => {
+            (0..n).map(|_| [rng.random_range(162.132..262.132), rng.random_range(-75.0..75.0)]).collect()
+        }
     }
 }
 
