@@ -60,27 +60,17 @@ pub struct Effect {
 }
 
 /// Parameter names with units (index = position in the full vector).
+#[rustfmt::skip]
 pub const PARAM_NAMES: [&str; N_PARAMS] = [
-    "da_um",
-    "db_um",
-    "dc_um",
-    "dd_um", // 0..4 link_lengths
-    "dtheta1_urad",
-    "dtheta2_urad", // 4..6 encoder_offset
-    "b0x_um",
-    "b0y_um", // 6..8 base_offset
-    "beta1_urad",
-    "beta2_urad", // 8..10 backlash
-    "kb_cos2_um",
-    "kc_cos2_um", // 10..12 link_stretch (RMS stretch over the data, µm), cos 2ψ part
-    "tx_um",
-    "ty_um",
-    "rot_urad",  // 12..15 frame
-    "scale_ppm", // 15 scale
-    "gear1_ppm",
-    "gear2_ppm", // 16..18 gear_ratio
-    "kb_sin2_um",
-    "kc_sin2_um", // 18..20 link_stretch, sin 2ψ part
+    "da_um", "db_um", "dc_um", "dd_um", // 0..4 link_lengths
+    "dtheta1_urad", "dtheta2_urad",     // 4..6 encoder_offset
+    "b0x_um", "b0y_um",                 // 6..8 base_offset
+    "beta1_urad", "beta2_urad",         // 8..10 backlash
+    "kb_cos2_um", "kc_cos2_um",         // 10..12 link_stretch (RMS stretch over the data, µm), cos 2ψ part
+    "tx_um", "ty_um", "rot_urad",       // 12..15 frame
+    "scale_ppm",                        // 15 scale
+    "gear1_ppm", "gear2_ppm",           // 16..18 gear_ratio
+    "kb_sin2_um", "kc_sin2_um",         // 18..20 link_stretch, sin 2ψ part
 ];
 
 /// The library, in a fixed order (ties in the selection go to the earlier one).
