@@ -41,7 +41,7 @@
 //! Cost: one closed-form FK per point per evaluation (a few hundred ns); no allocation per point.
 
 use crate::measurement_csv::Measurement;
-use kinematics_core::FiveBar;
+use kinematics_core::{wrap_angle_rad, FiveBar};
 
 /// Number of entries of the full parameter vector.
 pub const N_PARAMS: usize = 20;
@@ -133,7 +133,7 @@ pub struct Point {
     pub measured_mm: [f64; 2],
     /// The link_stretch basis [b·cos2ψ, c·cos2ψ, b·sin2ψ, c·sin2ψ] (unit RMS over the data).
     pub stretch_u: [f64; 4],
-    /// θ_j minus its mean over the data (the gear_ratio basis), rad.
+    /// θ_j minus its circular mean over the data, wrapped to (−π, π] (the gear_ratio basis), rad.
     pub theta_centred_rad: [f64; 2],
 }
 
@@ -198,7 +198,12 @@ impl Problem {
             });
         }
         let n = points.len().max(1) as f64;
-        let mean_t = [0, 1].map(|j| points.iter().map(|p| p.theta_rad[j]).sum::<f64>() / n);
+        // Circular mean: the gear_ratio basis is θ about it, modulo 360° (Table I prints some
+        // angles as θ + 360°; a plain mean would turn that bookkeeping into a huge "ratio error").
+        let mean_t = [0, 1].map(|j| {
+            let (s, c) = points.iter().fold((0.0, 0.0), |(s, c), p| (s + p.theta_rad[j].sin(), c + p.theta_rad[j].cos()));
+            s.atan2(c)
+        });
         // link_stretch basis: g minus its weighted least-squares projection on
         // {1, cos e_j, sin e_j} (what constant link lengths and encoder offsets of that arm do).
         // Order: [b·cos2ψ, c·cos2ψ, b·sin2ψ, c·sin2ψ] (as the parameters 10, 11, 18, 19).
@@ -242,7 +247,7 @@ impl Problem {
         }
         for (i, p) in points.iter_mut().enumerate() {
             p.stretch_u = [u[0][i], u[1][i], u[2][i], u[3][i]];
-            p.theta_centred_rad = [p.theta_rad[0] - mean_t[0], p.theta_rad[1] - mean_t[1]];
+            p.theta_centred_rad = [0, 1].map(|j| wrap_angle_rad(p.theta_rad[j] - mean_t[j]));
         }
         Problem { base, points, has_dir, dropped_lines, stretch_degenerate }
     }

@@ -175,8 +175,11 @@ pub fn generate(truth: &Truth, poses: Poses, seed: u64) -> Vec<Measurement> {
     m.c_mm += truth.link_delta_um[2] * 1e-3;
     m.d_mm += truth.link_delta_um[3] * 1e-3;
     m.base_b0_mm = [truth.base_offset_um[0] * 1e-3, truth.base_offset_um[1] * 1e-3];
-    let n = cmds.len().max(1) as f64;
-    let mean_th = [0, 1].map(|j| cmds.iter().map(|c| c.0[j]).sum::<f64>() / n);
+    // Ratio error about the circular mean angle of the poses (as the library defines it).
+    let mean_th = [0, 1].map(|j| {
+        let (s, c) = cmds.iter().fold((0.0, 0.0), |(s, c), cmd| (s + cmd.0[j].sin(), c + cmd.0[j].cos()));
+        s.atan2(c)
+    });
     let link_angle = |th: [f64; 2], dir: [f64; 2]| -> [f64; 2] {
         let mut g = [0.0; 2];
         for j in 0..2 {
