@@ -43,6 +43,9 @@
 use crate::measurement_csv::Measurement;
 use kinematics_core::{wrap_angle_rad, FiveBar};
 
+/// Smallest transmission |sin| of a usable point (about 0.06° from a singular configuration).
+pub const MIN_TRANSMISSION: f64 = 1e-3;
+
 /// Number of entries of the full parameter vector.
 pub const N_PARAMS: usize = 20;
 
@@ -144,7 +147,8 @@ pub struct Problem {
     pub points: Vec<Point>,
     /// Every point has dir1/dir2.
     pub has_dir: bool,
-    /// Points where the base model has no forward solution (dropped, by file line).
+    /// Points where the base model has no forward solution or is within [`MIN_TRANSMISSION`] of
+    /// a singularity (dropped, by file line).
     pub dropped_lines: Vec<usize>,
     /// The link_stretch basis is indistinguishable from link lengths and offsets on these poses.
     pub stretch_degenerate: bool,
@@ -164,7 +168,8 @@ impl Problem {
         };
         for (index, m) in data.iter().enumerate() {
             let th = m.theta_rad();
-            let Ok(pose) = base.forward_pose(th, 0.0) else {
+            // A point at (or within ~0.06° of) a singularity has unbounded sensitivities: dropped.
+            let Ok(pose) = base.forward_pose(th, MIN_TRANSMISSION) else {
                 dropped_lines.push(m.line);
                 continue;
             };

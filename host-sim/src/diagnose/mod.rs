@@ -145,7 +145,7 @@ pub fn diagnose_with_history(
     let mut notes = Vec::new();
     if !problem.dropped_lines.is_empty() {
         notes.push(format!(
-            "{} point(s) have no forward solution with the base model and are excluded: lines {:?}",
+            "{} point(s) have no forward solution with the base model, or are at a singularity, and are excluded: lines {:?}",
             problem.dropped_lines.len(),
             problem.dropped_lines
         ));

@@ -20,6 +20,9 @@ use std::collections::BTreeMap;
 
 /// BIC decrease needed to add an effect.
 pub const ADD_MARGIN: f64 = 10.0;
+/// Residual degrees of freedom a model must keep per parameter (on few points, e.g. Table I's
+/// 18 numbers, this caps the model at 6 parameters: more would fit the noise).
+pub const MIN_DOF_PER_PARAM: f64 = 2.0;
 /// BIC decrease needed to swap one effect for another.
 pub const SWAP_MARGIN: f64 = 2.0;
 
@@ -118,12 +121,18 @@ pub fn select(problem: &Problem, noise_um: Option<f64>) -> Selection {
             if set.contains(&c) {
                 continue;
             }
-            if (cur.free.len() + c.params.len()) as f64 >= n {
+            let k_new = (cur.free.len() + c.params.len()) as f64;
+            if n - k_new < MIN_DOF_PER_PARAM * k_new {
+                tried.push(format!("{} not tried: {} parameters on {} residuals", c.name, k_new, n));
                 continue;
             }
             let mut trial = set.clone();
             trial.push(c);
-            if let Some(f) = fitter.fit(&trial, &cur.x) {
+            let Some(f) = fitter.fit(&trial, &cur.x) else {
+                tried.push(format!("{} fit failed (a point left the model's workspace)", c.name));
+                continue;
+            };
+            {
                 let d = delta_bic(problem, noise_um, &cur, &f);
                 tried.push(format!("{} rms {:.1} µm ΔBIC {:.1}", c.name, (2.0 * f.rss / n).sqrt(), d));
                 if best.as_ref().is_none_or(|b| d < b.0) {
@@ -175,6 +184,10 @@ pub fn select(problem: &Problem, noise_um: Option<f64>) -> Selection {
                     }
                     let mut trial = set.clone();
                     let old = std::mem::replace(&mut trial[i], c);
+                    let k_new = trial.iter().map(|e| e.params.len()).sum::<usize>() as f64;
+                    if n - k_new < MIN_DOF_PER_PARAM * k_new {
+                        continue;
+                    }
                     if let Some(f) = fitter.fit(&trial, &cur.x) {
                         let d = delta_bic(problem, noise_um, &cur, &f);
                         if d < -SWAP_MARGIN {
