@@ -22,7 +22,6 @@
 use crate::grid::{CorrectionGrid, GridError};
 use crate::model::FiveBar;
 use crate::pid::{AxisController, AxisGains, AxisReference};
-use crate::real::Real;
 use crate::KinematicsError;
 
 /// Standard gravity (mm/s²), for limits stated in g.
