@@ -21,6 +21,7 @@
 
 use crate::grid::{CorrectionGrid, GridError};
 use crate::model::FiveBar;
+use crate::real::Real;
 use crate::pid::{AxisController, AxisGains, AxisReference};
 use crate::KinematicsError;
 
@@ -163,7 +164,8 @@ fn finite2(v: [f32; 2]) -> bool {
 /// `angle` plus the multiple of 2π that brings it nearest to `near`.
 fn unwrap_near(angle: f32, near: f32) -> f32 {
     let two_pi = 2.0 * core::f32::consts::PI;
-    angle + two_pi * ((near - angle) / two_pi).round()
+    // The trait method: `f32::round` is std-only, this crate is no_std.
+    angle + two_pi * Real::round((near - angle) / two_pi)
 }
 
 impl Servo {
