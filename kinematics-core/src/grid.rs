@@ -251,10 +251,21 @@ impl<'a> CorrectionGrid<'a> {
         &self.model
     }
 
-    /// The stored correction of node `(i, j)` (callers keep `i < nx`, `j < ny`).
+    /// The stored correction of node `(i, j)`. Callers keep `i < nx` and `j < ny` (the lookup
+    /// does); an index past the end of the table reads as zero instead of panicking.
+    #[inline]
     pub fn node_rad(&self, i: u16, j: u16) -> [f32; 2] {
         let k = 8 * (j as usize * self.geometry.nx as usize + i as usize);
-        [f32_at(self.nodes, k), f32_at(self.nodes, k + 4)]
+        // One range check for the 8 bytes; the fixed-size copies then compile to two loads.
+        match self.nodes.get(k..k + 8) {
+            Some(n) => {
+                let (mut t1, mut t2) = ([0u8; 4], [0u8; 4]);
+                t1.copy_from_slice(&n[..4]);
+                t2.copy_from_slice(&n[4..]);
+                [f32::from_le_bytes(t1), f32::from_le_bytes(t2)]
+            }
+            None => [0.0; 2],
+        }
     }
 
     /// Joint corrections at `p_mm` by bilinear interpolation (Eq. 7), to be *added* to the

@@ -51,6 +51,9 @@ fn nodes_edges_and_corners_take_the_node_values() {
         let p = g.node_mm(i, j);
         assert_eq!(grid.correction_rad(p).unwrap(), grid.node_rad(i, j));
     }
+    // A node index past the end of the table reads as zero instead of panicking.
+    assert_eq!(grid.node_rad(0, 31), [0.0; 2]);
+    assert_eq!(grid.node_rad(u16::MAX, u16::MAX), [0.0; 2]);
     // On the edge x = x_max, halfway between two nodes: the mean of those two nodes.
     let mid = [g.node_mm(20, 4)[0], (g.node_mm(20, 4)[1] + g.node_mm(20, 5)[1]) / 2.0];
     let (a, b) = (grid.node_rad(20, 4), grid.node_rad(20, 5));
