@@ -16,3 +16,5 @@ pub mod fit;
 pub mod grid_build;
 pub mod command;
 pub mod accuracy;
+pub mod machine;
+pub mod demo;

@@ -22,6 +22,8 @@ enum Command {
     MotorCommand(host_sim::command::CommandArgs),
     /// VDI/DGQ 3441 and ISO 230-2 figures per axis line from repeated bidirectional runs.
     Accuracy(host_sim::accuracy::AccuracyArgs),
+    /// The whole calibration on a built-in simulated machine: measure, fit, grid, verify.
+    Demo(host_sim::demo::DemoArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -41,5 +43,6 @@ fn run(cli: Cli) -> Result<()> {
         Command::Grid(a) => host_sim::grid_build::run(&a),
         Command::MotorCommand(a) => host_sim::command::run(&a),
         Command::Accuracy(a) => host_sim::accuracy::run(&a),
+        Command::Demo(a) => host_sim::demo::run(&a),
     }
 }
