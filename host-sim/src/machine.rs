@@ -79,7 +79,7 @@ impl StandInMachine {
 
     /// A machine with randomly drawn errors of the paper's kind: links (σ 0.1 mm, the paper's
     /// largest manufactured link error), base offset B0 (σ 0.1 mm per axis) and encoder zero
-    /// offsets (σ 0.2°), all scaled together so the nominal model misses by
+    /// offsets (σ 0.05°), all scaled together so the nominal model misses by
     /// [`PAPER_WORST_ERROR_MM`] at worst over the 5 mm grid; a 0.7–1.3 × 40 µm distortion; a
     /// 1 µm instrument.
     pub fn paper_like(seed: u64) -> Result<Self> {
@@ -87,7 +87,7 @@ impl StandInMachine {
         let mut n = || -> f64 { StandardNormal.sample(&mut rng) };
         let dl = [0.1 * n(), 0.1 * n(), 0.1 * n(), 0.1 * n()];
         let db = [0.1 * n(), 0.1 * n()];
-        let doff = [0.2f64.to_radians() * n(), 0.2f64.to_radians() * n()];
+        let doff = [0.05f64.to_radians() * n(), 0.05f64.to_radians() * n()];
         let distortion_scale = rng.random_range(0.7..1.3);
         let nominal = FiveBar::<f64>::paper_nominal();
         let with = |k: f64| FiveBar {
