@@ -13,6 +13,10 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// Measure a simulated plant with one of the paper's protocols (writes a measurement CSV).
+    Measure(host_sim::measure::MeasureArgs),
+    /// Run the closed 2 kHz loop on a simulated plant (JSON summary on stdout).
+    Simulate(host_sim::simulate::SimulateArgs),
     /// Fit the hidden robot to measurements (poly, ls, full).
     Fit(host_sim::fit::FitArgs),
     /// Build the correction-grid flash image from measurements at the grid nodes.
@@ -39,6 +43,8 @@ fn main() -> std::process::ExitCode {
 
 fn run(cli: Cli) -> Result<()> {
     match cli.command {
+        Command::Measure(args) => host_sim::measure::run(args),
+        Command::Simulate(args) => host_sim::simulate::run(args),
         Command::Fit(a) => host_sim::fit::run(&a),
         Command::Grid(a) => host_sim::grid_build::run(&a),
         Command::MotorCommand(a) => host_sim::command::run(&a),

@@ -1,0 +1,59 @@
+//! Selects the board's linker files and builds the bundled calibration image.
+//!
+//! * The selected board's MEMORY block (`firmware/memory-{qemu,g474}.x`) is copied into OUT_DIR
+//!   as `board-memory.x`, which the workspace's `memory.x` includes, and its `device.x`
+//!   (`firmware/device-{qemu,g474}.x`) as `device.x`; OUT_DIR goes on the linker search path.
+//!   The linker runs in the workspace root and finds `memory.x` there first, so the top-level
+//!   file holds what every board shares and each board contributes only its MEMORY block.
+//! * `calibration.bin`: a valid correction grid image for the paper's nominal machine, encoded
+//!   with `kinematics_core::grid::encode` (the same encoder the host calibration tools use).
+//!   Its node values are a smooth synthetic field of a few hundred µrad, the size of the
+//!   paper's corrections; a real image comes from the calibration, not from here. The QEMU
+//!   firmware links it into the calibration region (feature `board-qemu`); the real board
+//!   gets its image flashed separately (see README).
+use std::{env, fs, path::PathBuf};
+
+use kinematics_core::grid::{encode, GridGeometry};
+use kinematics_core::FiveBar;
+
+fn main() {
+    let out = PathBuf::from(env::var("OUT_DIR").expect("cargo sets OUT_DIR"));
+    let manifest = PathBuf::from(env::var("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR"));
+    let qemu = env::var_os("CARGO_FEATURE_BOARD_QEMU").is_some();
+    let g474 = env::var_os("CARGO_FEATURE_BOARD_G474").is_some();
+    let (memory, device) = match (qemu, g474) {
+        (true, false) => (manifest.join("memory-qemu.x"), manifest.join("device-qemu.x")),
+        (false, true) => (manifest.join("memory-g474.x"), manifest.join("device-g474.x")),
+        _ => panic!("enable exactly one of the features `board-qemu` and `board-g474`"),
+    };
+    fs::copy(&memory, out.join("board-memory.x")).expect("copy board-memory.x");
+    fs::copy(&device, out.join("device.x")).expect("copy device.x");
+    println!("cargo:rustc-link-search={}", out.display());
+    println!("cargo:rerun-if-changed={}", memory.display());
+    println!("cargo:rerun-if-changed={}", device.display());
+    println!("cargo:rerun-if-changed=build.rs");
+    println!("cargo:rerun-if-changed=../memory.x");
+
+    fs::write(out.join("calibration.bin"), synthetic_image()).expect("write calibration.bin");
+}
+
+/// Grid over the paper's workspace (x 162.132..262.132 mm, y -75..75 mm) in 5 mm cells.
+fn synthetic_image() -> Vec<u8> {
+    let geometry = GridGeometry { nx: 21, ny: 31, x0_mm: 162.132, y0_mm: -75.0, step_x_mm: 5.0, step_y_mm: 5.0 };
+    let model = FiveBar::<f32>::paper_nominal();
+    let mut nodes = Vec::with_capacity(geometry.len());
+    for j in 0..geometry.ny {
+        for i in 0..geometry.nx {
+            let [x, y] = geometry.node_mm(i, j);
+            let (u, v) = ((x - 212.132) / 50.0, y / 75.0);
+            nodes.push([
+                3.0e-4 * (1.3 * u).sin() + 1.0e-4 * (2.0 * v).cos(),
+                -2.0e-4 * (1.1 * v).sin() + 1.5e-4 * u * v,
+            ]);
+        }
+    }
+    let mut image = vec![0u8; geometry.image_len()];
+    let n = encode(&mut image, &geometry, &model, &nodes).expect("synthetic grid encodes");
+    image.truncate(n);
+    image
+}

@@ -1,0 +1,63 @@
+#!/usr/bin/env bash
+# `cargo qemu-test` runner: runs every scenario of src/scenario.rs against the same firmware
+# image and checks each one's exit code. Usage (cargo does this): test.sh path/to/firmware.elf
+#
+# The program and the calibration image are loaded separately, as they are flashed on the real
+# board: the image bundled in the ELF's `.calibration` section is cut out into
+# calibration.bin, the program is run without it, and QEMU's generic loader puts an image
+# (valid, corrupted or none) at the CALIBRATION origin read from memory-qemu.x. So the
+# firmware is shown to read whatever is in the region, not a copy linked into the program.
+set -u
+here=$(cd "$(dirname "$0")" && pwd)
+elf=$1
+out=${QEMU_TEST_OUT:-$(mktemp -d)}
+cal=$(sed -n 's/^ *CALIBRATION *: *ORIGIN = \(0x[0-9A-Fa-f]*\).*/\1/p' "$here/../memory-qemu.x")
+[ -n "$cal" ] || { echo "cannot find the CALIBRATION origin in memory-qemu.x"; exit 2; }
+mkdir -p "$out"
+python3 "$here/split-elf.py" "$elf" "$cal" "$out/program.elf" "$out/calibration.bin" || exit 2
+# Corrupt: one node value (offset 200, inside the node table) replaced by 1.0f.
+cp "$out/calibration.bin" "$out/corrupt.bin"
+printf '\x00\x00\x80\x3f' | dd of="$out/corrupt.bin" bs=1 seek=200 conv=notrunc status=none
+# Missing: erased flash (all 0xFF) over the whole 64 KiB region.
+head -c 65536 /dev/zero | tr '\0' '\377' > "$out/erased.bin"
+image() { echo "-device loader,file=$out/$1,addr=$cal"; }
+elf_full=$elf
+elf=$out/program.elf
+
+passed=0; failed=0
+# name  expected-exit  scenario  extra-qemu-args
+run() {
+  local name=$1 expect=$2 scenario=$3; shift 3
+  local t0=$(date +%s%N) rc
+  "$here/run-one.sh" "$elf" "$scenario" "$out/$name" "$@" > "$out/$name.log" 2>&1
+  rc=$?
+  local ms=$(( ($(date +%s%N) - t0) / 1000000 ))
+  local dt=$((ms / 1000)).$(( (ms % 1000) / 100 ))
+  if command -v defmt-print > /dev/null && [ -s "$out/$name/defmt.bin" ]; then
+    defmt-print -e "$elf_full" --log-format '{L} {s}' < "$out/$name/defmt.bin" > "$out/$name.defmt.txt" 2>&1
+  fi
+  if [ "$rc" = "$expect" ]; then
+    passed=$((passed + 1)); echo "ok   $name (exit $rc, ${dt}s): $(tr '\n' ' ' < "$out/$name.log")"
+  else
+    failed=$((failed + 1)); echo "FAIL $name: exit $rc, expected $expect (${dt}s)"; sed 's/^/    /' "$out/$name.log"
+  fi
+  if [ -f "$out/$name.defmt.txt" ]; then sed 's/^/    | /' "$out/$name.defmt.txt" | tail -n "${DEFMT_TAIL:-4}"; fi
+}
+
+run track          0 track        $(image calibration.bin)
+run nan-setpoint   0 nan-setpoint $(image calibration.bin)
+run out-of-reach   0 out-of-reach $(image calibration.bin)
+run jump           0 jump         $(image calibration.bin)
+run overrun        0 overrun      $(image calibration.bin)
+run corrupt-image  0 bad-image-crc   $(image corrupt.bin)
+run erased-image   0 bad-image-magic $(image erased.bin)
+run no-image       0 bad-image-magic
+# The failure paths themselves: a panic and a HardFault must end QEMU with exit 1, not hang.
+run panic-exits      1 panic      $(image calibration.bin)
+run hardfault-exits  1 hard-fault $(image calibration.bin)
+# The bundled image alone (no loader) is the same valid image: the ELF runs standalone.
+elf=$elf_full run bundled-image 0 track
+
+command -v defmt-print > /dev/null || echo "(defmt-print not installed: defmt logs left undecoded in $out/*/defmt.bin)"
+echo "qemu-test: $passed passed, $failed failed"
+[ "$failed" = 0 ]

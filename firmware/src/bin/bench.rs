@@ -1,0 +1,172 @@
+//! Instruction / cycle counts of the hot path, one line per figure:
+//! `BENCH <name> <instructions per call>`.
+//!
+//! * `ik_f32`: `FiveBar::<f32>::inverse` (closed-form IK, singularity checks);
+//! * `fk_f32`: `FiveBar::<f32>::forward`;
+//! * `grid_lookup`: `CorrectionGrid::correction_rad` on the image in the calibration region;
+//! * `servo_step`: `Servo::step`, the whole sample (jump checks, IK, correction, two PIDs);
+//!
+//! and, to show what bounds the step: `atan2f` (libm, two per IK) and
+//! `servo_step_uncorrected` (the same step without grid).
+//!
+//! Method: each figure is `(counts(N calls) - counts(N empty iterations)) / N`, the inputs
+//! cycling through points spread over the workspace and passed through `black_box`, so that
+//! loop overhead is removed and nothing is folded at compile time.
+//!
+//! * QEMU (`cargo qemu-bench`, `-icount shift=0`): the counter is SysTick on the core clock;
+//!   how many instructions one SysTick count is gets *measured* first with a loop of known
+//!   length (`subs`/`bne`, two instructions per iteration), not assumed. QEMU counts
+//!   instructions, not cycles: no pipeline, flash wait states or FPU latencies.
+//! * STM32G474: the counter is DWT CYCCNT and the figures are core cycles at 170 MHz
+//!   (printed over defmt-RTT as `BENCH <name> <cycles per call>`).
+#![no_std]
+#![no_main]
+
+#[cfg(feature = "board-g474")]
+use defmt_rtt as _;
+
+use core::hint::black_box;
+use core::fmt::Write;
+
+use cortex_m_rt::entry;
+use kinematics_core::{Calibration, CorrectionGrid, FiveBar, Servo, ServoConfig};
+
+use firmware::board::{self, CycleCounter};
+use firmware::calibration;
+
+/// Calls per figure.
+const N: usize = 2_000;
+/// Distinct inputs cycled through.
+const POINTS: usize = 64;
+
+/// Prints one result line.
+fn report(name: &str, per_call: f32) {
+    let mut line: heapless::String<96> = heapless::String::new();
+    let _ = write!(line, "BENCH {} {:.1}", name, per_call);
+    board::console(&line);
+    defmt::println!("{=str}", line.as_str());
+}
+
+/// Counts of a loop of `2 · iterations` instructions (`subs` + `bne` per iteration).
+fn known_loop(counter: &CycleCounter, iterations: u32) -> u32 {
+    let start = counter.now();
+    // SAFETY: a register-only countdown loop.
+    unsafe {
+        core::arch::asm!(
+            "2:",
+            "subs {n}, {n}, #1",
+            "bne 2b",
+            n = inout(reg) iterations => _,
+            options(nomem, nostack),
+        );
+    }
+    counter.since(start)
+}
+
+/// Measured counts of `body(i)` over `N` calls, minus the same loop with an empty body.
+fn measure(counter: &CycleCounter, mut body: impl FnMut(usize)) -> u32 {
+    let start = counter.now();
+    for i in 0..N {
+        black_box(i);
+    }
+    let empty = counter.since(start);
+    let start = counter.now();
+    for i in 0..N {
+        body(black_box(i));
+    }
+    counter.since(start).saturating_sub(empty)
+}
+
+#[entry]
+fn main() -> ! {
+    let Some(core) = cortex_m::Peripherals::take() else { board::exit(false) };
+    let counter = CycleCounter::new(core);
+
+    // What one count is worth, in instructions (QEMU) or cycles (hardware: 1.0).
+    let (short, long) = (known_loop(&counter, 100_000), known_loop(&counter, 300_000));
+    let per_count = if long > short { 400_000.0 / (long - short) as f32 } else { 0.0 };
+    let mut line: heapless::String<96> = heapless::String::new();
+    let _ = write!(line, "# {} per counter tick: {:.3} (measured with a known loop)", board::COUNT_UNIT, per_count);
+    board::console(&line);
+    if per_count <= 0.0 {
+        board::console("FAIL counter does not run");
+        board::exit(false);
+    }
+
+    let model = FiveBar::<f32>::paper_nominal();
+    let grid = match CorrectionGrid::parse(calibration::region()) {
+        Ok(g) => g,
+        Err(_) => {
+            board::console("FAIL no valid calibration image to benchmark the grid lookup");
+            board::exit(false);
+        }
+    };
+    let cal = Calibration::from_grid(grid);
+
+    // Points on a 8x8 lattice over the workspace, and their joint angles.
+    let mut points = [[0.0f32; 2]; POINTS];
+    let mut thetas = [[0.0f32; 2]; POINTS];
+    for (k, p) in points.iter_mut().enumerate() {
+        *p = [170.0 + 12.0 * (k % 8) as f32, -65.0 + 18.0 * (k / 8) as f32];
+        thetas[k] = match model.inverse(*p, 0.05) {
+            Ok(t) => t,
+            Err(_) => {
+                board::console("FAIL benchmark point out of reach");
+                board::exit(false);
+            }
+        };
+    }
+
+    let ik = measure(&counter, |i| {
+        let _ = black_box(model.inverse(black_box(points[i % POINTS]), 0.05));
+    });
+    report("ik_f32", ik as f32 * per_count / N as f32);
+
+    let fk = measure(&counter, |i| {
+        let _ = black_box(model.forward(black_box(thetas[i % POINTS]), 0.05));
+    });
+    report("fk_f32", fk as f32 * per_count / N as f32);
+
+    let atan2 = measure(&counter, |i| {
+        let p = black_box(points[i % POINTS]);
+        black_box(libm::atan2f(p[1], p[0]));
+    });
+    report("atan2f", atan2 as f32 * per_count / N as f32);
+
+    let lookup = measure(&counter, |i| {
+        let _ = black_box(grid.correction_rad(black_box(points[i % POINTS])));
+    });
+    report("grid_lookup", lookup as f32 * per_count / N as f32);
+
+    // Servo step along a 20 mm circle, speeding up from rest at 2π rad/s² (the servo refuses
+    // a start at speed as a jump), with the encoders following the reference exactly.
+    let mut setpoints = [[0.0f32; 2]; N];
+    for (k, s) in setpoints.iter_mut().enumerate() {
+        let t_s = k as f32 * 5.0e-4;
+        let phase = core::f32::consts::PI * t_s * t_s;
+        let (sin, cos) = libm::sincosf(phase);
+        *s = [212.132 + 20.0 * (cos - 1.0), 20.0 * sin];
+    }
+    let uncorrected = Calibration { model, grid: None };
+    for (name, cal) in [("servo_step", &cal), ("servo_step_uncorrected", &uncorrected)] {
+        let mut servo = Servo::new(ServoConfig::default());
+        let Ok(mut encoder) = cal.command_rad(setpoints[0], 0.05) else { board::exit(false) };
+        if servo.engage(cal, encoder).is_err() {
+            board::console("FAIL servo did not engage");
+            board::exit(false);
+        }
+        let mut fault = None;
+        let step = measure(&counter, |i| match servo.step(cal, black_box(setpoints[i]), black_box(encoder)) {
+            Ok(out) => encoder = out.reference_rad,
+            Err(f) => fault = fault.or(Some((i, f))),
+        });
+        if let Some((i, f)) = fault {
+            let mut line: heapless::String<128> = heapless::String::new();
+            let _ = write!(line, "FAIL {} faulted during the benchmark at call {}: {}", name, i, f);
+            board::console(&line);
+            board::exit(false);
+        }
+        report(name, step as f32 * per_count / N as f32);
+    }
+    board::exit(true)
+}

@@ -1,0 +1,460 @@
+//! The plant description: one TOML file per simulated machine, every effect a parameter.
+//!
+//! A plant is the "real machine" the tools are tested against, so its description must be
+//! explicit and reproducible: every key carries its unit in its name, unknown keys are refused
+//! (`deny_unknown_fields`: a misspelt key must not silently fall back to zero), and every effect
+//! is switched off by setting its parameter to zero. Plants are named on the command line as
+//! `ideal` (everything off), `paper` (the documented default, identical to
+//! `host-sim/plants/paper.toml`, a test checks it) or a path to a TOML file.
+//!
+//! [`PlantConfig::with_random_errors`] draws a plant with random manufacturing errors from a
+//! seed and [`PlantConfig::with_only`] keeps one effect of a plant and switches every other one
+//! off: what the calibration and diagnosis tests need.
+
+use anyhow::{bail, Context, Result};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, Normal};
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+/// The paper plant as shipped (the built-in `paper` must equal it: see the tests).
+pub const PAPER_TOML: &str = include_str!("../../plants/paper.toml");
+
+/// How the tool point is computed from the link angles.
+#[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum PlantModel {
+    /// The compliant overconstrained six-bar, solved for static equilibrium (see `sixbar`).
+    Sixbar,
+    /// Closed-form five-bar with the arms' effective geometry (lever and Q-bar lengths, motor
+    /// pins, the Q pins on the elbows and D, E on the platform; the followers' errors and the
+    /// clearances are ignored): fast, no internal stress, no platform rotation.
+    Fivebar,
+}
+
+/// Manufacturing errors of the six-bar (mm): each bar length, each pin position on each body.
+/// Arm 1 / arm 2 pairs are `[arm1, arm2]`; pin errors are `[x, y]` in the body's frame
+/// (machine frame at the nominal pose). See `sixbar` for the names of the pins.
+#[derive(Clone, Debug, Default, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct SixBarErrors {
+    /// Driven levers P1, P2 (A0→A, B0→B): length errors.
+    pub lever_length_mm: [f64; 2],
+    /// Followers F1, F2 of the first parallelograms: length errors.
+    pub bar_f_length_mm: [f64; 2],
+    /// Distal bars Q1, Q2 (A→D, B→E): length errors.
+    pub bar_q_length_mm: [f64; 2],
+    /// Followers G1, G2 of the second parallelograms: length errors.
+    pub bar_g_length_mm: [f64; 2],
+    /// Motor axes A0, B0 on the ground.
+    pub ground_motor_1_mm: [f64; 2],
+    pub ground_motor_2_mm: [f64; 2],
+    /// Follower ground pivots A0*, B0*.
+    pub ground_follower_1_mm: [f64; 2],
+    pub ground_follower_2_mm: [f64; 2],
+    /// Elbow piece K1: pins of Q1 (nominally at A), of F1 (A*), of G1 (A**).
+    pub elbow_1_pin_q_mm: [f64; 2],
+    pub elbow_1_pin_f_mm: [f64; 2],
+    pub elbow_1_pin_g_mm: [f64; 2],
+    /// Elbow piece K2: pins of Q2 (nominally at B), of F2 (B*), of G2 (B**).
+    pub elbow_2_pin_q_mm: [f64; 2],
+    pub elbow_2_pin_f_mm: [f64; 2],
+    pub elbow_2_pin_g_mm: [f64; 2],
+    /// Platform T: pins D, D** (arm 1) and E, E** (arm 2), relative to the tool point C.
+    pub platform_pin_d_mm: [f64; 2],
+    pub platform_pin_dd_mm: [f64; 2],
+    pub platform_pin_e_mm: [f64; 2],
+    pub platform_pin_ee_mm: [f64; 2],
+}
+
+/// The linkage: nominal geometry, elasticity, clearances, errors.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct SixBarConfig {
+    pub model: PlantModel,
+    /// Nominal length of every lever, bar and follower of the equivalent five-bar (a = b = c = d).
+    pub link_mm: f64,
+    /// Half the platform's DE distance (D = C + (0, w/2), E = C - (0, w/2)).
+    pub platform_half_width_mm: f64,
+    /// Offset of the first parallelogram of arm 1 (A0→A0*, A→A*); arm 2 is mirrored in x.
+    pub parallelogram_1_offset_mm: [f64; 2],
+    /// Offset of the second parallelogram of arm 1 (A→A**, D→D**); arm 2 mirrored.
+    pub parallelogram_2_offset_mm: [f64; 2],
+    /// Young's modulus of the bars (aluminium: 70 000 N/mm²).
+    pub youngs_modulus_n_per_mm2: f64,
+    /// Cross-section of the levers' partners Q1, Q2 (the load-carrying distal bars).
+    pub main_bar_section_mm2: f64,
+    /// Cross-section of the followers F and G.
+    pub follower_bar_section_mm2: f64,
+    /// Radial stiffness of the elbow bearings A (P1–K1) and B (P2–K2).
+    pub pin_stiffness_n_per_mm: f64,
+    /// Radial clearance of the elbow bearings (0 = none).
+    pub pin_clearance_mm: f64,
+    /// Total axial clearance of the two end pins of every bar (0 = none).
+    pub bar_end_clearance_mm: f64,
+    /// Stiffness inside a clearance, as a fraction of the contact stiffness (makes the
+    /// equilibrium unique; 1e-3 is 0.1 %).
+    pub clearance_centring_ratio: f64,
+    pub errors: SixBarErrors,
+}
+
+/// One motor, gearbox and encoder (joint-side units: angles of the link, torques at the link).
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct DriveConfig {
+    /// Motor + gearbox + arm inertia seen at the joint.
+    pub inertia_kg_m2: f64,
+    pub viscous_friction_nm_s_per_rad: f64,
+    pub coulomb_friction_nm: f64,
+    /// The amplifier's torque limit (joint side).
+    pub torque_limit_nm: f64,
+    /// Motor revolutions per joint revolution.
+    pub gear_ratio: f64,
+    /// Encoder counts per motor revolution (0 = no quantization).
+    pub encoder_counts_per_motor_rev: f64,
+    /// True geometric link angle minus encoder angle (what the calibration has to find).
+    pub encoder_offset_deg: f64,
+    /// Gear backlash: total lost motion at the joint (0 = none).
+    pub backlash_urad: f64,
+    /// Gear-tooth cyclic error at the joint: amplitude (0 = none) ...
+    pub cyclic_error_urad: f64,
+    /// ... cycles per motor revolution ...
+    pub cyclic_error_cycles_per_motor_rev: f64,
+    /// ... and phase.
+    pub cyclic_error_phase_deg: f64,
+}
+
+/// The measuring instrument (interferometer / laser tracker).
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct InstrumentConfig {
+    /// Instrument reading = offset + R(rotation)·(1 + scale)·tool + noise.
+    pub frame_offset_mm: [f64; 2],
+    pub frame_rotation_deg: f64,
+    pub scale_error_ppm: f64,
+    /// Standard deviation of the Gaussian noise, per axis (0 = none).
+    pub noise_sigma_um: f64,
+}
+
+/// A whole plant.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct PlantConfig {
+    pub description: String,
+    pub sixbar: SixBarConfig,
+    pub drive_1: DriveConfig,
+    pub drive_2: DriveConfig,
+    pub instrument: InstrumentConfig,
+}
+
+/// One effect, for [`PlantConfig::with_only`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Effect {
+    /// Bar lengths and pin positions of the six-bar.
+    LinkErrors,
+    /// Pin and bar clearances.
+    Clearance,
+    EncoderOffsets,
+    EncoderQuantization,
+    Backlash,
+    CyclicError,
+    InstrumentFrame,
+    InstrumentNoise,
+}
+
+impl Effect {
+    pub const ALL: [Effect; 8] = [
+        Effect::LinkErrors,
+        Effect::Clearance,
+        Effect::EncoderOffsets,
+        Effect::EncoderQuantization,
+        Effect::Backlash,
+        Effect::CyclicError,
+        Effect::InstrumentFrame,
+        Effect::InstrumentNoise,
+    ];
+}
+
+fn ideal_drive() -> DriveConfig {
+    DriveConfig {
+        inertia_kg_m2: 2.0e-3,
+        viscous_friction_nm_s_per_rad: 0.0,
+        coulomb_friction_nm: 0.0,
+        torque_limit_nm: 8.0,
+        gear_ratio: 10.0,
+        encoder_counts_per_motor_rev: 0.0,
+        encoder_offset_deg: 0.0,
+        backlash_urad: 0.0,
+        cyclic_error_urad: 0.0,
+        cyclic_error_cycles_per_motor_rev: 0.0,
+        cyclic_error_phase_deg: 0.0,
+    }
+}
+
+impl PlantConfig {
+    /// Every error off, no clearance, no quantization, no friction, a perfect instrument: the
+    /// six-bar's tool point is then the nominal five-bar's FK.
+    pub fn ideal() -> Self {
+        let r = 30.0 * std::f64::consts::FRAC_1_SQRT_2;
+        PlantConfig {
+            description: "ideal: every error off, no noise".into(),
+            sixbar: SixBarConfig {
+                model: PlantModel::Sixbar,
+                link_mm: 150.0,
+                platform_half_width_mm: 20.0,
+                parallelogram_1_offset_mm: [-r, r],
+                parallelogram_2_offset_mm: [r, r],
+                youngs_modulus_n_per_mm2: 70_000.0,
+                main_bar_section_mm2: 120.0,
+                follower_bar_section_mm2: 40.0,
+                pin_stiffness_n_per_mm: 20_000.0,
+                pin_clearance_mm: 0.0,
+                bar_end_clearance_mm: 0.0,
+                clearance_centring_ratio: 1e-3,
+                errors: SixBarErrors::default(),
+            },
+            drive_1: ideal_drive(),
+            drive_2: ideal_drive(),
+            instrument: InstrumentConfig {
+                frame_offset_mm: [0.0; 2],
+                frame_rotation_deg: 0.0,
+                scale_error_ppm: 0.0,
+                noise_sigma_um: 0.0,
+            },
+        }
+    }
+
+    /// The documented default resembling the paper's machine (see `plants/paper.toml` for the
+    /// reasoning behind each number).
+    pub fn paper() -> Self {
+        let mut p = PlantConfig::ideal();
+        p.description = "paper: resembles Kiper et al. Table I (about 1.5 mm worst error with the nominal model)".into();
+        let s = &mut p.sixbar;
+        s.pin_clearance_mm = 0.003;
+        s.bar_end_clearance_mm = 0.002;
+        let e = &mut s.errors;
+        e.lever_length_mm = [-1.58, 1.52];
+        e.bar_q_length_mm = [2.26, -2.34];
+        e.bar_f_length_mm = [-1.55, 1.58];
+        e.bar_g_length_mm = [2.31, -2.30];
+        e.ground_motor_1_mm = [0.02, -0.01];
+        e.ground_motor_2_mm = [-0.01, 0.015];
+        e.ground_follower_1_mm = [0.04, -0.03];
+        e.ground_follower_2_mm = [-0.02, 0.05];
+        e.elbow_1_pin_q_mm = [0.01, 0.02];
+        e.elbow_1_pin_f_mm = [-0.05, 0.03];
+        e.elbow_1_pin_g_mm = [0.04, 0.06];
+        e.elbow_2_pin_q_mm = [-0.02, 0.01];
+        e.elbow_2_pin_f_mm = [0.03, -0.04];
+        e.elbow_2_pin_g_mm = [-0.06, 0.02];
+        e.platform_pin_d_mm = [0.015, -0.01];
+        e.platform_pin_dd_mm = [-0.03, 0.05];
+        e.platform_pin_e_mm = [0.01, 0.02];
+        e.platform_pin_ee_mm = [0.05, -0.04];
+        for (d, offset_deg) in [(&mut p.drive_1, -0.013), (&mut p.drive_2, 0.027)] {
+            d.viscous_friction_nm_s_per_rad = 0.02;
+            d.coulomb_friction_nm = 0.05;
+            d.encoder_counts_per_motor_rev = 1_048_576.0;
+            d.encoder_offset_deg = offset_deg;
+            d.backlash_urad = 20.0;
+        }
+        p.instrument.frame_offset_mm = [-0.008, 3.194];
+        p.instrument.noise_sigma_um = 10.0;
+        p
+    }
+
+    /// `ideal`, `paper` or a path to a TOML file.
+    pub fn by_name(name: &str) -> Result<Self> {
+        match name {
+            "ideal" => Ok(PlantConfig::ideal()),
+            "paper" => Ok(PlantConfig::paper()),
+            path => {
+                let p = Path::new(path);
+                if !p.exists() {
+                    bail!("unknown plant '{path}': not 'ideal', 'paper' or an existing TOML file");
+                }
+                let text = std::fs::read_to_string(p).with_context(|| format!("cannot read plant file {path}"))?;
+                PlantConfig::from_toml(&text).with_context(|| format!("in plant file {path}"))
+            }
+        }
+    }
+
+    /// Parses and validates a plant description.
+    pub fn from_toml(text: &str) -> Result<Self> {
+        let p: PlantConfig = toml::from_str(text).context("not a valid plant description")?;
+        p.validate()?;
+        Ok(p)
+    }
+
+    pub fn to_toml(&self) -> String {
+        toml::to_string_pretty(self).expect("a plant always serializes")
+    }
+
+    /// Refuses non-finite numbers and physically meaningless values.
+    pub fn validate(&self) -> Result<()> {
+        let s = &self.sixbar;
+        let json = serde_json::to_value(self)?;
+        fn walk(v: &serde_json::Value, path: &str) -> Result<()> {
+            match v {
+                serde_json::Value::Number(n) if !n.as_f64().is_some_and(f64::is_finite) => bail!("'{path}' is not finite"),
+                serde_json::Value::Null => bail!("'{path}' is not a finite number"),
+                serde_json::Value::Object(m) => m.iter().try_for_each(|(k, v)| walk(v, &format!("{path}.{k}"))),
+                serde_json::Value::Array(a) => a.iter().enumerate().try_for_each(|(i, v)| walk(v, &format!("{path}[{i}]"))),
+                _ => Ok(()),
+            }
+        }
+        walk(&json, "plant")?;
+        let positive = [
+            ("sixbar.link_mm", s.link_mm),
+            ("sixbar.platform_half_width_mm", s.platform_half_width_mm),
+            ("sixbar.youngs_modulus_n_per_mm2", s.youngs_modulus_n_per_mm2),
+            ("sixbar.main_bar_section_mm2", s.main_bar_section_mm2),
+            ("sixbar.follower_bar_section_mm2", s.follower_bar_section_mm2),
+            ("sixbar.pin_stiffness_n_per_mm", s.pin_stiffness_n_per_mm),
+            ("sixbar.clearance_centring_ratio", s.clearance_centring_ratio),
+            ("drive_1.inertia_kg_m2", self.drive_1.inertia_kg_m2),
+            ("drive_2.inertia_kg_m2", self.drive_2.inertia_kg_m2),
+            ("drive_1.gear_ratio", self.drive_1.gear_ratio),
+            ("drive_2.gear_ratio", self.drive_2.gear_ratio),
+            ("drive_1.torque_limit_nm", self.drive_1.torque_limit_nm),
+            ("drive_2.torque_limit_nm", self.drive_2.torque_limit_nm),
+        ];
+        for (name, v) in positive {
+            if !(v > 0.0) {
+                bail!("'{name}' must be positive, not {v}");
+            }
+        }
+        let non_negative = [
+            ("sixbar.pin_clearance_mm", s.pin_clearance_mm),
+            ("sixbar.bar_end_clearance_mm", s.bar_end_clearance_mm),
+            ("instrument.noise_sigma_um", self.instrument.noise_sigma_um),
+            ("drive_1.backlash_urad", self.drive_1.backlash_urad),
+            ("drive_2.backlash_urad", self.drive_2.backlash_urad),
+            ("drive_1.encoder_counts_per_motor_rev", self.drive_1.encoder_counts_per_motor_rev),
+            ("drive_2.encoder_counts_per_motor_rev", self.drive_2.encoder_counts_per_motor_rev),
+            ("drive_1.viscous_friction_nm_s_per_rad", self.drive_1.viscous_friction_nm_s_per_rad),
+            ("drive_2.viscous_friction_nm_s_per_rad", self.drive_2.viscous_friction_nm_s_per_rad),
+            ("drive_1.coulomb_friction_nm", self.drive_1.coulomb_friction_nm),
+            ("drive_2.coulomb_friction_nm", self.drive_2.coulomb_friction_nm),
+        ];
+        for (name, v) in non_negative {
+            if !(v >= 0.0) {
+                bail!("'{name}' must not be negative, not {v}");
+            }
+        }
+        if s.pin_clearance_mm > 1.0 || s.bar_end_clearance_mm > 1.0 {
+            bail!("clearances above 1 mm are not a machine");
+        }
+        Ok(())
+    }
+
+    /// This plant with every six-bar pin and length error drawn from N(0, sigma_mm²) and the
+    /// encoder offsets from N(0, sigma_offset_deg²), reproducibly from `seed`.
+    pub fn with_random_errors(&self, seed: u64, sigma_mm: f64, sigma_offset_deg: f64) -> Self {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let n = Normal::new(0.0, sigma_mm.abs()).expect("finite sigma");
+        let o = Normal::new(0.0, sigma_offset_deg.abs()).expect("finite sigma");
+        let mut p = self.clone();
+        let e = &mut p.sixbar.errors;
+        let mut draw2 = |v: &mut [f64; 2]| {
+            v[0] = n.sample(&mut rng);
+            v[1] = n.sample(&mut rng);
+        };
+        for v in [
+            &mut e.lever_length_mm,
+            &mut e.bar_f_length_mm,
+            &mut e.bar_q_length_mm,
+            &mut e.bar_g_length_mm,
+            &mut e.ground_motor_1_mm,
+            &mut e.ground_motor_2_mm,
+            &mut e.ground_follower_1_mm,
+            &mut e.ground_follower_2_mm,
+            &mut e.elbow_1_pin_q_mm,
+            &mut e.elbow_1_pin_f_mm,
+            &mut e.elbow_1_pin_g_mm,
+            &mut e.elbow_2_pin_q_mm,
+            &mut e.elbow_2_pin_f_mm,
+            &mut e.elbow_2_pin_g_mm,
+            &mut e.platform_pin_d_mm,
+            &mut e.platform_pin_dd_mm,
+            &mut e.platform_pin_e_mm,
+            &mut e.platform_pin_ee_mm,
+        ] {
+            draw2(v);
+        }
+        p.drive_1.encoder_offset_deg = o.sample(&mut rng);
+        p.drive_2.encoder_offset_deg = o.sample(&mut rng);
+        p.description = format!("{} + random errors (seed {seed}, {sigma_mm} mm, {sigma_offset_deg} deg)", self.description);
+        p
+    }
+
+    /// The ideal plant with only `effect` taken over from `self`.
+    pub fn with_only(&self, effect: Effect) -> Self {
+        let mut p = PlantConfig::ideal();
+        p.sixbar.model = self.sixbar.model;
+        p.description = format!("{} with only {effect:?}", self.description);
+        let pairs = [(&mut p.drive_1, &self.drive_1), (&mut p.drive_2, &self.drive_2)];
+        match effect {
+            Effect::LinkErrors => p.sixbar.errors = self.sixbar.errors.clone(),
+            Effect::Clearance => {
+                p.sixbar.pin_clearance_mm = self.sixbar.pin_clearance_mm;
+                p.sixbar.bar_end_clearance_mm = self.sixbar.bar_end_clearance_mm;
+            }
+            Effect::EncoderOffsets => pairs.into_iter().for_each(|(d, s)| d.encoder_offset_deg = s.encoder_offset_deg),
+            Effect::EncoderQuantization => pairs.into_iter().for_each(|(d, s)| {
+                d.encoder_counts_per_motor_rev = s.encoder_counts_per_motor_rev;
+                d.gear_ratio = s.gear_ratio;
+            }),
+            Effect::Backlash => pairs.into_iter().for_each(|(d, s)| d.backlash_urad = s.backlash_urad),
+            Effect::CyclicError => pairs.into_iter().for_each(|(d, s)| {
+                d.cyclic_error_urad = s.cyclic_error_urad;
+                d.cyclic_error_cycles_per_motor_rev = s.cyclic_error_cycles_per_motor_rev;
+                d.cyclic_error_phase_deg = s.cyclic_error_phase_deg;
+                d.gear_ratio = s.gear_ratio;
+            }),
+            Effect::InstrumentFrame => {
+                p.instrument.frame_offset_mm = self.instrument.frame_offset_mm;
+                p.instrument.frame_rotation_deg = self.instrument.frame_rotation_deg;
+                p.instrument.scale_error_ppm = self.instrument.scale_error_ppm;
+            }
+            Effect::InstrumentNoise => p.instrument.noise_sigma_um = self.instrument.noise_sigma_um,
+        }
+        p
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn shipped_paper_toml_equals_builtin() {
+        let file = PlantConfig::from_toml(PAPER_TOML).unwrap();
+        assert_eq!(file, PlantConfig::paper());
+    }
+
+    #[test]
+    fn toml_round_trip_and_unknown_keys_refused() {
+        let p = PlantConfig::paper();
+        assert_eq!(PlantConfig::from_toml(&p.to_toml()).unwrap(), p);
+        let bad = PAPER_TOML.replace("backlash_urad", "backlash_urd");
+        let err = format!("{:#}", PlantConfig::from_toml(&bad).unwrap_err());
+        assert!(err.contains("backlash_urd"), "{err}");
+        let neg = PAPER_TOML.replacen("pin_stiffness_n_per_mm = 20000.0", "pin_stiffness_n_per_mm = -1.0", 1);
+        assert!(PlantConfig::from_toml(&neg).is_err());
+        assert!(PlantConfig::by_name("no-such-plant").is_err());
+    }
+
+    #[test]
+    fn random_plants_are_reproducible_and_with_only_keeps_one_effect() {
+        let a = PlantConfig::ideal().with_random_errors(7, 0.05, 0.1);
+        let b = PlantConfig::ideal().with_random_errors(7, 0.05, 0.1);
+        assert_eq!(a, b);
+        assert_ne!(a, PlantConfig::ideal().with_random_errors(8, 0.05, 0.1));
+        let only = PlantConfig::paper().with_only(Effect::Backlash);
+        assert_eq!(only.drive_1.backlash_urad, 20.0);
+        assert_eq!(only.sixbar.errors, SixBarErrors::default());
+        assert_eq!(only.drive_1.encoder_offset_deg, 0.0);
+    }
+}

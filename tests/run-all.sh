@@ -1,0 +1,49 @@
+#!/usr/bin/env bash
+# Runs every test of the project. On a fresh Debian machine it first installs what is missing:
+# the thumbv7em-none-eabihf target (rustup) and QEMU (apt, when root or with sudo).
+#
+#   bash tests/run-all.sh
+#
+# Steps, each must pass:
+#   1. host tests of kinematics-core, host-sim and the cross-crate tests (cargo test)
+#   2. kinematics-core builds for the MCU (thumbv7em-none-eabihf, no_std)
+#   3. firmware under QEMU: the real app against the in-firmware plant (cargo qemu-test)
+#   4. firmware cycle benchmarks under QEMU, printing BENCH lines (cargo qemu-bench)
+#   5. the real board's firmware builds (cargo fw-build)
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+step() { printf '\n=== %s\n' "$*"; }
+
+step "setup: Rust target thumbv7em-none-eabihf"
+if ! rustup target list --installed | grep -qx thumbv7em-none-eabihf; then
+    rustup target add thumbv7em-none-eabihf
+fi
+
+step "setup: qemu-system-arm, python3 (the QEMU runner splits the ELF with it)"
+missing=""
+command -v qemu-system-arm >/dev/null 2>&1 || missing="$missing qemu-system-arm"
+command -v python3 >/dev/null 2>&1 || missing="$missing python3"
+if [ -n "$missing" ]; then
+    if [ "$(id -u)" -eq 0 ]; then SUDO=""; else SUDO="sudo"; fi
+    $SUDO apt-get update -qq
+    DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends $missing >/dev/null
+fi
+qemu-system-arm --version | head -n 1
+
+step "host tests"
+cargo test --locked
+
+step "kinematics-core for the MCU"
+cargo build --locked -p kinematics-core --target thumbv7em-none-eabihf --release
+
+step "firmware under QEMU (real app, 2 kHz timer task, fault injection)"
+cargo qemu-test
+
+step "firmware benchmarks under QEMU (instructions per call)"
+cargo qemu-bench
+
+step "firmware for the real board (STM32G474) builds"
+cargo fw-build
+
+step "all tests passed"
