@@ -34,7 +34,7 @@ use crate::fit::levenberg_marquardt::{fit_full, FullFit};
 use crate::fit::params::NAMES;
 use crate::fit::{synthesize, Method};
 use crate::grid_build::{self, BuiltGrid};
-use crate::machine::{Machine, StandInMachine};
+use crate::machine::{Machine, PlantMachine, StandInMachine};
 use crate::measurement_csv::{format_measurements, Measurement};
 use crate::model_file::{write_model_file, ModelFile};
 use crate::output::write_atomic;
@@ -57,6 +57,14 @@ pub struct DemoArgs {
     /// Seeds the machine's errors, the instrument noise and the random targets.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// The machine: `stand-in` (rigid five-bar + distortion, see machine.rs) or a six-bar
+    /// plant: `ideal`, `paper` or a plant TOML file.
+    #[arg(long, default_value = "stand-in")]
+    pub plant: String,
+    /// Instrument noise σ per axis (µm) for a plant (the demo's premise is a 1 µm instrument;
+    /// the `paper` plant's own is FARO-class, 10 µm).
+    #[arg(long, default_value_t = 1.0)]
+    pub noise_um: f64,
 }
 
 /// The paper's workspace (mm): Table I's corners.
@@ -530,8 +538,11 @@ pub fn run_on(machine: &mut dyn Machine, seed: u64, dir: &Path) -> Result<Value>
 
 /// `host-sim demo`.
 pub fn run(args: &DemoArgs) -> Result<()> {
-    let mut machine = StandInMachine::paper_like(args.seed)?;
-    let summary = run_on(&mut machine, args.seed, &args.out)?;
+    let mut machine: Box<dyn Machine> = match args.plant.as_str() {
+        "stand-in" => Box::new(StandInMachine::paper_like(args.seed)?),
+        name => Box::new(PlantMachine::by_name(name, Some(args.noise_um), args.seed)?),
+    };
+    let summary = run_on(machine.as_mut(), args.seed, &args.out)?;
     println!("{}", serde_json::to_string_pretty(&summary)?);
     if summary["final"]["met"] != json!(true) {
         eprintln!("demo: warning: the accuracy target was not met on this machine");

@@ -15,8 +15,13 @@
 //! instrument whose frame is the machine frame. It has no backlash and no encoder
 //! quantisation: `approach_dir` is ignored and the encoders read exactly what was commanded.
 //! Everything is drawn from a seed, so a run is reproducible.
+//!
+//! [`PlantMachine`] is the real plant (`crate::plant`: the compliant overconstrained six-bar,
+//! drives with encoder quantisation and backlash, the instrument with its own frame, scale and
+//! noise) behind the same trait: settle the drives, solve the linkage, read the instrument.
 
-use anyhow::{anyhow, bail, Result};
+use crate::plant::{Plant, PlantConfig};
+use anyhow::{anyhow, bail, Context, Result};
 use kinematics_core::FiveBar;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -172,6 +177,46 @@ impl Machine for StandInMachine {
             *v += self.noise_sigma_mm * n;
         }
         Ok(Reading { encoder_rad: command_rad, measured_mm, true_mm })
+    }
+}
+
+/// The six-bar plant as a [`Machine`].
+#[derive(Clone, Debug)]
+pub struct PlantMachine {
+    pub plant: Plant,
+    /// How the plant was named (`ideal`, `paper`, a TOML path).
+    pub name: String,
+}
+
+impl PlantMachine {
+    /// The plant `name` (`ideal`, `paper` or a TOML file); `noise_um` overrides its
+    /// instrument's σ per axis; `seed` seeds the instrument noise.
+    pub fn by_name(name: &str, noise_um: Option<f64>, seed: u64) -> Result<Self> {
+        let mut config = PlantConfig::by_name(name)?;
+        if let Some(n) = noise_um {
+            if !(n >= 0.0 && n.is_finite()) {
+                bail!("--noise-um must be a non-negative number, not {n}");
+            }
+            config.instrument.noise_sigma_um = n;
+        }
+        Ok(PlantMachine { plant: Plant::new(&config, seed), name: name.to_string() })
+    }
+}
+
+impl Machine for PlantMachine {
+    fn describe(&self) -> String {
+        format!(
+            "plant '{}' (six-bar, drives, instrument σ {:.1} µm)",
+            self.name,
+            self.plant.instrument.noise_sigma_mm * 1e3
+        )
+    }
+
+    fn measure(&mut self, command_rad: [f64; 2], approach_dir: [i8; 2]) -> Result<Reading> {
+        let (encoder_rad, solution) = self.plant.settle(command_rad, approach_dir).context("plant")?;
+        let true_mm = self.plant.instrument.frame_mm(solution.tool_mm);
+        let measured_mm = self.plant.instrument.read_mm(solution.tool_mm);
+        Ok(Reading { encoder_rad, measured_mm, true_mm })
     }
 }
 
