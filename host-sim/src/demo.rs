@@ -10,24 +10,30 @@
 //!    (Levenberg–Marquardt over links, B0 and encoder offsets);
 //! 3. measure the 5 mm grid (21 × 31 nodes over x ∈ [162.132, 262.132], y ∈ [−75, 75]) commanded
 //!    with the `full` model, and build the correction grid (`grid_build::build`);
-//! 4. verify: [`VERIFY_TARGETS`] fresh random targets (drawn from their own stream, never used
-//!    in a fit or the grid), each commanded exactly as the firmware does
-//!    (`Calibration::command_rad`, f32), with the nominal model, the `ls` model, the `full`
-//!    model and `full` + grid. Accuracy = distance from the target to where the tool really is
+//! 4. measure the nodes again, commanded through that grid, and rebuild it (round 2): the grid
+//!    is first order in the error it corrects, so where the fit leaves a large error (the six-bar
+//!    plant: ~1 mm no five-bar explains) one round leaves ~1 % of it; the second removes that;
+//! 5. verify after every step: [`VERIFY_TARGETS`] fresh random targets (drawn from their own
+//!    stream, never used in a fit or the grid), each commanded exactly as the firmware does
+//!    (`Calibration::command_rad`, f32), with the nominal model, `ls`, `full`, `full` + grid
+//!    and `full` + refined grid. Accuracy = distance from the target to where the tool really is
 //!    (the machine's noiseless truth, instrument frame); the noisy readings are reported too.
 //!
 //! Every pose is approached along a random direction from 5 mm away (grid nodes in raster
-//! order), so a plant with backlash sees realistic approach directions.
+//! order), so a plant with backlash sees realistic approach directions; `--approach positive`
+//! makes every motor arrive moving forward (backlash always on one side, calibrated away).
 //!
 //! Output: the human table on stderr (with progress), one JSON summary on stdout (scripts parse
 //! it), and in `--out` (default `out/demo`): the measurement CSVs, `model.json` (`full`),
-//! `model_ls.json`, `grid.bin` + `grid.csv`, `summary.json` and PNG error-vector plots. Files
-//! are written only once every step has succeeded, each atomically.
+//! `model_ls.json`, `grid.bin` + `grid.csv` (the refined grid), `summary.json` and PNG
+//! error-vector plots ([`FILES`]). Files are written only once every step has succeeded, each
+//! atomically.
 //!
-//! The machine is behind [`crate::machine::Machine`]; today it is the
-//! [`crate::machine::StandInMachine`] (see its doc: five-bar errors + smooth distortion + 1 µm
-//! noise), until the six-bar plant replaces it. Cost: ~1.5 k measurements, one LM fit, a few ms
-//! for a stand-in; the plots dominate (about a second).
+//! The machine is behind [`crate::machine::Machine`]: the [`crate::machine::StandInMachine`] by
+//! default (five-bar errors + smooth distortion + 1 µm noise), or the six-bar plant with
+//! `--plant ideal|paper|FILE` ([`crate::machine::PlantMachine`], instrument σ from
+//! `--noise-um`, default 1 µm). Cost: ~2.2 k measurements and one LM fit, well under a second
+//! (the plant's six-bar solves included); the plots take a few tenths of a second.
 
 use crate::fit::evaluate::{self, Criterion};
 use crate::fit::levenberg_marquardt::{fit_full, FullFit};
@@ -65,6 +71,20 @@ pub struct DemoArgs {
     /// the `paper` plant's own is FARO-class, 10 µm).
     #[arg(long, default_value_t = 1.0)]
     pub noise_um: f64,
+    /// How every pose is approached: `random` (from 5 mm away along a random direction; the
+    /// grid in raster order) or `positive` (every motor reaches its command moving in the
+    /// positive direction, as after an overshoot-and-return move: backlash then always sits
+    /// on the same side and the grid calibrates it away).
+    #[arg(long, value_enum, default_value = "random")]
+    pub approach: Approach,
+}
+
+/// How poses are approached (see `DemoArgs::approach`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Approach {
+    Random,
+    Positive,
 }
 
 /// The paper's workspace (mm): Table I's corners.
@@ -127,9 +147,16 @@ pub struct Landed {
 
 /// Commands every visit through `cal` exactly as the firmware does (f32 `command_rad`), unwraps
 /// the angles next to the previous command (the motors turn continuously), derives each motor's
-/// approach direction from the start of the motion, and measures. `clock` counts measurements
+/// approach direction from the start of the motion (or +1 for [`Approach::Positive`]), and
+/// measures. `clock` counts measurements
 /// (1 s each: the CSV's `t_s`).
-pub fn measure_visits(machine: &mut dyn Machine, cal: &Calibration<'_>, visits: &[Visit], clock: &mut usize) -> Result<Vec<Landed>> {
+pub fn measure_visits(
+    machine: &mut dyn Machine,
+    cal: &Calibration<'_>,
+    visits: &[Visit],
+    approach: Approach,
+    clock: &mut usize,
+) -> Result<Vec<Landed>> {
     let model = cal.model.cast::<f64>();
     let mut previous = [0.0f64; 2];
     let mut out = Vec::with_capacity(visits.len());
@@ -140,9 +167,9 @@ pub fn measure_visits(machine: &mut dyn Machine, cal: &Calibration<'_>, visits: 
             .map_err(|e| anyhow!("target ({:.3}, {:.3}) mm: {e}", v.target_mm[0], v.target_mm[1]))?;
         let cmd = [0, 1].map(|i| previous[i] + wrap_angle_rad(f64::from(cmd[i]) - previous[i]));
         previous = cmd;
-        let dir = match model.inverse(v.from_mm, 0.0) {
-            Ok(f) => [0, 1].map(|i| if wrap_angle_rad(cmd[i] - f[i]) >= 0.0 { 1i8 } else { -1 }),
-            Err(_) => [1, 1],
+        let dir = match (approach, model.inverse(v.from_mm, 0.0)) {
+            (Approach::Positive, _) | (Approach::Random, Err(_)) => [1, 1],
+            (Approach::Random, Ok(f)) => [0, 1].map(|i| if wrap_angle_rad(cmd[i] - f[i]) >= 0.0 { 1i8 } else { -1 }),
         };
         let r = machine
             .measure(cmd, dir)
@@ -220,13 +247,19 @@ pub struct Calibrated {
     pub fit_data: Vec<Landed>,
     pub ls_model: FiveBar<f64>,
     pub full: FullFit,
+    /// Grid nodes commanded with the `full` model (round 1) and the grid built from them.
     pub grid_data: Vec<Landed>,
     pub grid: BuiltGrid,
+    /// Grid nodes re-measured through the round-1 grid (round 2) and the refined grid: the one
+    /// to flash.
+    pub grid2_data: Vec<Landed>,
+    pub grid2: BuiltGrid,
+    pub approach: Approach,
     pub stages: Vec<Stage>,
 }
 
 impl Calibrated {
-    /// The last stage (fit + grid).
+    /// The last stage (fit + refined grid).
     pub fn final_accuracy(&self) -> Option<Accuracy> {
         self.stages.last().map(|s| s.accuracy)
     }
@@ -242,7 +275,7 @@ fn progress(start: &Instant, what: &str) {
 }
 
 /// Runs the calibration on `machine` (the steps of the module doc); `seed` draws the targets.
-pub fn calibrate(machine: &mut dyn Machine, seed: u64) -> Result<Calibrated> {
+pub fn calibrate(machine: &mut dyn Machine, seed: u64, approach: Approach) -> Result<Calibrated> {
     let start = Instant::now();
     let description = machine.describe();
     // Separate streams: the verification targets are fresh whatever the fit draws.
@@ -255,11 +288,11 @@ pub fn calibrate(machine: &mut dyn Machine, seed: u64) -> Result<Calibrated> {
     let nominal_cal = Calibration { model: nominal.cast(), grid: None };
 
     progress(&start, &format!("step 1: measuring {FIT_POSES} random poses commanded with the nominal model"));
-    let fit_data = measure_visits(machine, &nominal_cal, &fit_visits, &mut clock)?;
+    let fit_data = measure_visits(machine, &nominal_cal, &fit_visits, approach, &mut clock)?;
     let fit_rows = rows(&fit_data);
     let mut stages = Vec::new();
     progress(&start, &format!("verifying the nominal model on {VERIFY_TARGETS} fresh targets"));
-    let landed = measure_visits(machine, &nominal_cal, &verify, &mut clock).context("verifying the nominal model")?;
+    let landed = measure_visits(machine, &nominal_cal, &verify, approach, &mut clock).context("verifying the nominal model")?;
     stages.push(Stage {
         key: "nominal",
         description: "before calibration (nominal model)",
@@ -272,39 +305,54 @@ pub fn calibrate(machine: &mut dyn Machine, seed: u64) -> Result<Calibrated> {
     let all: Vec<usize> = (0..fit_rows.len()).collect();
     let ls_model = synthesize(&fit_rows, &all, Method::Ls, &nominal).context("ls fit")?;
     let ls_cal = Calibration { model: ls_model.cast(), grid: None };
-    let landed = measure_visits(machine, &ls_cal, &verify, &mut clock).context("verifying the ls model")?;
+    let landed = measure_visits(machine, &ls_cal, &verify, approach, &mut clock).context("verifying the ls model")?;
     stages.push(Stage { key: "ls", description: "paper's ls fit (4 links)", paper: "~700", accuracy: accuracy(&landed), landed });
     let full = fit_full(&fit_rows, &nominal, &[]).context("full fit")?;
     for (k, why) in &full.identifiability.fixed {
         eprintln!("demo: full fit: {} held at nominal: the data confound {why}", NAMES[*k]);
     }
     let full_cal = Calibration { model: full.model.cast(), grid: None };
-    let landed = measure_visits(machine, &full_cal, &verify, &mut clock).context("verifying the full model")?;
+    let landed = measure_visits(machine, &full_cal, &verify, approach, &mut clock).context("verifying the full model")?;
     stages.push(Stage { key: "full", description: "full fit (LM: links, B0, offsets)", paper: "-", accuracy: accuracy(&landed), landed });
 
     progress(&start, &format!("step 3: measuring the {GRID_STEP_MM} mm grid ({GRID_NX} x {GRID_NY} nodes) commanded with the full model"));
-    let grid_data = measure_visits(machine, &full_cal, &grid_visits(), &mut clock).context("measuring the grid")?;
+    let grid_data = measure_visits(machine, &full_cal, &grid_visits(), approach, &mut clock).context("measuring the grid")?;
     let grid = grid_build::build(&full.model, &rows(&grid_data), GRID_STEP_MM).context("building the grid")?;
     let parsed = CorrectionGrid::parse(&grid.image).map_err(|e| anyhow!("the built grid image does not parse: {e}"))?;
     let grid_cal = Calibration::from_grid(parsed);
-    progress(&start, &format!("step 4: verifying full fit + grid on the same {VERIFY_TARGETS} fresh targets"));
-    let landed = measure_visits(machine, &grid_cal, &verify, &mut clock).context("verifying full fit + grid")?;
+    let landed = measure_visits(machine, &grid_cal, &verify, approach, &mut clock).context("verifying full fit + grid")?;
     stages.push(Stage {
         key: "full+grid",
-        description: "full fit + 5 mm correction grid",
+        description: "full fit + 5 mm grid (1 round)",
         paper: "~37 (40x)",
         accuracy: accuracy(&landed),
         landed,
     });
+    // Round 2: the grid is first order in the error it corrects (grid_build's doc), so the
+    // nodes are measured again through it and the grid rebuilt from what is left.
+    progress(&start, "step 4: measuring the grid nodes again through the grid (round 2) and refining it");
+    let grid2_data = measure_visits(machine, &grid_cal, &grid_visits(), approach, &mut clock).context("measuring the grid, round 2")?;
+    let grid2 = grid_build::build(&full.model, &rows(&grid2_data), GRID_STEP_MM).context("building the grid, round 2")?;
+    let parsed2 = CorrectionGrid::parse(&grid2.image).map_err(|e| anyhow!("the refined grid image does not parse: {e}"))?;
+    let grid2_cal = Calibration::from_grid(parsed2);
+    progress(&start, &format!("step 5: verifying full fit + refined grid on the same {VERIFY_TARGETS} fresh targets"));
+    let landed = measure_visits(machine, &grid2_cal, &verify, approach, &mut clock).context("verifying full fit + refined grid")?;
+    stages.push(Stage {
+        key: "full+grid2",
+        description: "full fit + 5 mm grid (2 rounds)",
+        paper: "-",
+        accuracy: accuracy(&landed),
+        landed,
+    });
     progress(&start, "calibration done");
-    Ok(Calibrated { machine: description, fit_data, ls_model, full, grid_data, grid, stages })
+    Ok(Calibrated { machine: description, fit_data, ls_model, full, grid_data, grid, grid2_data, grid2, approach, stages })
 }
 
 /// The human-readable table (for stderr).
 pub fn format_table(cal: &Calibrated) -> String {
     let before = cal.stages.first().map_or(f64::NAN, |s| s.accuracy.max_um);
     let mut s = format!(
-        "machine: {}\n\naccuracy on {} fresh random targets (µm; true = where the tool landed, measured = + 1 µm instrument)\n",
+        "machine: {}\n\naccuracy on {} fresh random targets (µm; true = where the tool landed, measured = what the instrument read)\n",
         cal.machine, VERIFY_TARGETS
     );
     s.push_str(&format!(
@@ -375,8 +423,12 @@ pub fn summary_json(cal: &Calibrated, seed: u64, out_dir: &Path, files: &[PathBu
     let fit_rows = rows(&cal.fit_data);
     let (full_max, full_rms) = residual_um(&cal.full.model, &fit_rows);
     let (ls_max, ls_rms) = residual_um(&cal.ls_model, &fit_rows);
-    let node_err: Vec<f64> = cal.grid.nodes.iter().map(|n| n.error_mm[0].hypot(n.error_mm[1]) * 1e3).collect();
-    let (node_max, node_rms) = evaluate::max_rms(&node_err);
+    let node_err = |g: &BuiltGrid| -> (f64, f64) {
+        let e: Vec<f64> = g.nodes.iter().map(|n| n.error_mm[0].hypot(n.error_mm[1]) * 1e3).collect();
+        evaluate::max_rms(&e)
+    };
+    let (node_max, node_rms) = node_err(&cal.grid);
+    let (node2_max, node2_rms) = node_err(&cal.grid2);
     let fin = cal.final_accuracy();
     let mut full = model_json(&cal.full.model);
     full["std_dev"] = json!(std_dev_map(&cal.full));
@@ -393,6 +445,7 @@ pub fn summary_json(cal: &Calibrated, seed: u64, out_dir: &Path, files: &[PathBu
         "seed": seed,
         "out_dir": out_dir.display().to_string(),
         "fit_poses": cal.fit_data.len(),
+        "approach": cal.approach,
         "stages": cal.stages.iter().map(|s| json!({
             "step": s.key,
             "description": s.description,
@@ -409,8 +462,9 @@ pub fn summary_json(cal: &Calibrated, seed: u64, out_dir: &Path, files: &[PathBu
         "grid": {
             "nx": cal.grid.lattice.nx, "ny": cal.grid.lattice.ny,
             "x0_mm": cal.grid.lattice.x0_mm, "y0_mm": cal.grid.lattice.y0_mm, "step_mm": cal.grid.lattice.step_mm,
-            "node_err_max_um": round3(node_max), "node_err_rms_um": round3(node_rms),
-            "image_bytes": cal.grid.image.len(),
+            "round1_node_err_max_um": round3(node_max), "round1_node_err_rms_um": round3(node_rms),
+            "round2_node_err_max_um": round3(node2_max), "round2_node_err_rms_um": round3(node2_rms),
+            "image_bytes": cal.grid2.image.len(),
         },
         "final": {
             "max_um": fin.map(|a| round3(a.max_um)),
@@ -424,13 +478,15 @@ pub fn summary_json(cal: &Calibrated, seed: u64, out_dir: &Path, files: &[PathBu
 }
 
 /// The names of the files [`write_outputs`] writes, relative to the output directory.
-pub const FILES: [&str; 15] = [
+pub const FILES: [&str; 17] = [
     "fit_measurements.csv",
     "grid_measurements.csv",
+    "grid_measurements_round2.csv",
     "verify_nominal.csv",
     "verify_ls.csv",
     "verify_full.csv",
     "verify_full_grid.csv",
+    "verify_full_grid2.csv",
     "model.json",
     "model_ls.json",
     "grid.bin",
@@ -458,11 +514,13 @@ pub fn write_outputs(cal: &Calibrated, dir: &Path) -> Result<Vec<PathBuf>> {
     };
     text("fit_measurements.csv", format_measurements(&rows(&cal.fit_data)).as_bytes())?;
     text("grid_measurements.csv", format_measurements(&rows(&cal.grid_data)).as_bytes())?;
+    text("grid_measurements_round2.csv", format_measurements(&rows(&cal.grid2_data)).as_bytes())?;
     for s in &cal.stages {
         text(&format!("verify_{}.csv", s.key.replace('+', "_")), format_measurements(&rows(&s.landed)).as_bytes())?;
     }
-    text("grid.bin", &cal.grid.image)?;
-    text("grid.csv", grid_build::format_csv(&cal.grid.nodes).as_bytes())?;
+    // The grid to flash: round 2. (Round 1 is in the round-2 data: nodes commanded through it.)
+    text("grid.bin", &cal.grid2.image)?;
+    text("grid.csv", grid_build::format_csv(&cal.grid2.nodes).as_bytes())?;
 
     let mut full_file = ModelFile::from_model(&cal.full.model);
     full_file.std_dev = std_dev_map(&cal.full);
@@ -475,13 +533,15 @@ pub fn write_outputs(cal: &Calibrated, dir: &Path) -> Result<Vec<PathBuf>> {
     written.push(p("model_ls.json"));
 
     // Plots: the same fresh targets for every stage; fields in one plot share one scale.
-    let (nominal, ls, full, gridded) = (stage(cal, "nominal")?, stage(cal, "ls")?, stage(cal, "full")?, stage(cal, "full+grid")?);
+    let (nominal, ls, full) = (stage(cal, "nominal")?, stage(cal, "ls")?, stage(cal, "full")?);
+    let (gridded, gridded2) = (stage(cal, "full+grid")?, stage(cal, "full+grid2")?);
     let base: Vec<[f64; 2]> = gridded.landed.iter().map(|l| l.row.target_mm.unwrap_or(l.true_mm)).collect();
-    let (e_nom, e_ls, e_full, e_grid) = (
+    let (e_nom, e_ls, e_full, e_grid, e_grid2) = (
         true_error_vectors_um(&nominal.landed),
         true_error_vectors_um(&ls.landed),
         true_error_vectors_um(&full.landed),
         true_error_vectors_um(&gridded.landed),
+        true_error_vectors_um(&gridded2.landed),
     );
     vector_plot(
         &p("errors_fit.png"),
@@ -498,22 +558,30 @@ pub fn write_outputs(cal: &Calibrated, dir: &Path) -> Result<Vec<PathBuf>> {
         "step 3, grid: true − target at fresh targets",
         &[
             VectorField { label: "full fit", base_mm: &base, error_um: &e_full },
-            VectorField { label: "full fit + grid", base_mm: &base, error_um: &e_grid },
+            VectorField { label: "full fit + grid (1 round)", base_mm: &base, error_um: &e_grid },
+            VectorField { label: "full fit + grid (2 rounds)", base_mm: &base, error_um: &e_grid2 },
         ],
     )?;
     written.push(p("errors_grid.png"));
     vector_plot(
         &p("errors_final.png"),
         "after calibration: true − target at fresh targets",
-        &[VectorField { label: "full fit + grid", base_mm: &base, error_um: &e_grid }],
+        &[
+            VectorField { label: "full fit + grid (1 round)", base_mm: &base, error_um: &e_grid },
+            VectorField { label: "full fit + grid (2 rounds)", base_mm: &base, error_um: &e_grid2 },
+        ],
     )?;
     written.push(p("errors_final.png"));
     let node_base: Vec<[f64; 2]> = cal.grid.nodes.iter().map(|n| n.target_mm).collect();
-    let node_err: Vec<[f64; 2]> = cal.grid.nodes.iter().map(|n| [n.error_mm[0] * 1e3, n.error_mm[1] * 1e3]).collect();
+    let node_err = |g: &BuiltGrid| -> Vec<[f64; 2]> { g.nodes.iter().map(|n| [n.error_mm[0] * 1e3, n.error_mm[1] * 1e3]).collect() };
+    let (node_err1, node_err2) = (node_err(&cal.grid), node_err(&cal.grid2));
     vector_plot(
         &p("grid_nodes.png"),
-        "grid nodes commanded with the full fit: measured − target",
-        &[VectorField { label: "grid nodes", base_mm: &node_base, error_um: &node_err }],
+        "grid nodes: measured − target",
+        &[
+            VectorField { label: "round 1 (full fit)", base_mm: &node_base, error_um: &node_err1 },
+            VectorField { label: "round 2 (through the round-1 grid)", base_mm: &node_base, error_um: &node_err2 },
+        ],
     )?;
     written.push(p("grid_nodes.png"));
     Ok(written)
@@ -521,8 +589,8 @@ pub fn write_outputs(cal: &Calibrated, dir: &Path) -> Result<Vec<PathBuf>> {
 
 /// Calibrates `machine`, writes every file into `dir`, prints the table on stderr; returns the
 /// JSON summary (the caller prints it on stdout).
-pub fn run_on(machine: &mut dyn Machine, seed: u64, dir: &Path) -> Result<Value> {
-    let cal = calibrate(machine, seed)?;
+pub fn run_on(machine: &mut dyn Machine, seed: u64, approach: Approach, dir: &Path) -> Result<Value> {
+    let cal = calibrate(machine, seed, approach)?;
     let start = Instant::now();
     progress(&start, &format!("writing CSVs, models, grid image and plots into {}", dir.display()));
     let mut files = write_outputs(&cal, dir)?;
@@ -542,7 +610,7 @@ pub fn run(args: &DemoArgs) -> Result<()> {
         "stand-in" => Box::new(StandInMachine::paper_like(args.seed)?),
         name => Box::new(PlantMachine::by_name(name, Some(args.noise_um), args.seed)?),
     };
-    let summary = run_on(machine.as_mut(), args.seed, &args.out)?;
+    let summary = run_on(machine.as_mut(), args.seed, args.approach, &args.out)?;
     println!("{}", serde_json::to_string_pretty(&summary)?);
     if summary["final"]["met"] != json!(true) {
         eprintln!("demo: warning: the accuracy target was not met on this machine");

@@ -22,20 +22,25 @@ fn demo_runs_the_whole_story_and_writes_every_file() {
 
     // stdout is exactly one JSON document; the table is on stderr.
     let v: serde_json::Value = serde_json::from_str(&stdout).unwrap();
-    assert!(stderr.contains("full fit + 5 mm correction grid") && stderr.contains("met"), "{stderr}");
+    assert!(stderr.contains("full fit + 5 mm grid (2 rounds)") && stderr.contains("met"), "{stderr}");
     let stages = v["stages"].as_array().unwrap();
     let keys: Vec<&str> = stages.iter().map(|s| s["step"].as_str().unwrap()).collect();
-    assert_eq!(keys, ["nominal", "ls", "full", "full+grid"]);
+    assert_eq!(keys, ["nominal", "ls", "full", "full+grid", "full+grid2"]);
     let max = |k: usize| stages[k]["max_um"].as_f64().unwrap();
     let rms = |k: usize| stages[k]["rms_um"].as_f64().unwrap();
-    // Paper-like start (~1.5 mm worst), and every step improves on the one before.
+    // Paper-like start (~1.5 mm worst), and every step improves on the one before: nominal →
+    // ls → full → grid. The second grid round only refines (on the stand-in both rounds are at
+    // the noise floor); both must meet the target.
     assert!((1000.0..=1600.0).contains(&max(0)), "before: {} µm", max(0));
     for k in 1..4 {
         assert!(max(k) < max(k - 1) && rms(k) < rms(k - 1), "step {k}: {stages:?}");
     }
-    assert!(max(3) <= TARGET_MAX_UM && rms(3) <= TARGET_RMS_UM, "final {} / {} µm", max(3), rms(3));
+    for k in 3..5 {
+        assert!(max(k) <= TARGET_MAX_UM && rms(k) <= TARGET_RMS_UM, "{}: {} / {} µm", keys[k], max(k), rms(k));
+    }
     assert_eq!(v["final"]["met"], serde_json::json!(true));
-    assert_eq!(stages[3]["n_targets"], serde_json::json!(400));
+    assert_eq!(v["final"]["max_um"], stages[4]["max_um"]);
+    assert_eq!(stages[4]["n_targets"], serde_json::json!(400));
 
     // Every file exists and parses with its consumer.
     for name in FILES {
@@ -53,7 +58,8 @@ fn demo_runs_the_whole_story_and_writes_every_file() {
     assert_eq!(*grid.model(), model.cast::<f32>(), "the grid embeds the fitted model");
     assert_eq!(read_measurements(&out_dir.join("fit_measurements.csv")).unwrap().len(), 40);
     assert_eq!(read_measurements(&out_dir.join("grid_measurements.csv")).unwrap().len(), 21 * 31);
-    for k in ["nominal", "ls", "full", "full_grid"] {
+    assert_eq!(read_measurements(&out_dir.join("grid_measurements_round2.csv")).unwrap().len(), 21 * 31);
+    for k in ["nominal", "ls", "full", "full_grid", "full_grid2"] {
         assert_eq!(read_measurements(&out_dir.join(format!("verify_{k}.csv"))).unwrap().len(), 400);
     }
     assert_eq!(std::fs::read_to_string(out_dir.join("grid.csv")).unwrap().lines().count(), 1 + 21 * 31);

@@ -1,25 +1,26 @@
-//! The calibration pipeline (measure → `full` fit → grid → command) in-process, on the shared
-//! stand-in machine (`host_sim::machine::StandInMachine`: a five-bar with the paper's kind of
-//! parameter errors plus a smooth distortion no five-bar describes, 1 µm instrument), through
-//! `demo::calibrate`. Fresh random targets commanded through fit + grid must land within 5 µm
-//! max and 2 µm RMS (issue 6's accuracy target), on hand-set errors and on randomly drawn ones.
+//! The calibration pipeline (measure → `full` fit → grid → command) in-process through
+//! `demo::calibrate`, on the shared stand-in machine (`host_sim::machine::StandInMachine`: a
+//! five-bar with the paper's kind of parameter errors plus a smooth distortion no five-bar
+//! describes, 1 µm instrument) and on the six-bar plant. Fresh random targets commanded through
+//! fit + grid must land within 5 µm max and 2 µm RMS (issue 6's accuracy target), on hand-set
+//! errors and on randomly drawn ones.
 
-use host_sim::demo::{calibrate, Calibrated, TARGET_MAX_UM, TARGET_RMS_UM};
-use host_sim::machine::StandInMachine;
+use host_sim::demo::{calibrate, Approach, Calibrated, TARGET_MAX_UM, TARGET_RMS_UM};
+use host_sim::machine::{PlantMachine, StandInMachine};
 use kinematics_core::FiveBar;
 
 fn check(cal: &Calibrated, label: &str) {
     let line: Vec<String> = cal.stages.iter().map(|s| format!("{} {:.1}/{:.2}", s.key, s.accuracy.max_um, s.accuracy.rms_um)).collect();
     eprintln!("{label}: max/rms µm: {}", line.join(", "));
     let get = |k: &str| cal.stages.iter().find(|s| s.key == k).unwrap().accuracy;
-    let (nominal, full, gridded) = (get("nominal"), get("full"), get("full+grid"));
+    let (nominal, full, gridded, gridded2) = (get("nominal"), get("full"), get("full+grid"), get("full+grid2"));
     assert!(nominal.max_um > 200.0 && full.max_um < nominal.max_um / 5.0, "{label}: {nominal:?} {full:?}");
     assert!(gridded.max_um < full.max_um && gridded.rms_um < full.rms_um, "{label}: {full:?} {gridded:?}");
     assert!(
-        gridded.max_um <= TARGET_MAX_UM && gridded.rms_um <= TARGET_RMS_UM,
+        gridded2.max_um <= TARGET_MAX_UM && gridded2.rms_um <= TARGET_RMS_UM,
         "{label}: fit + grid: max {} µm, rms {} µm",
-        gridded.max_um,
-        gridded.rms_um
+        gridded2.max_um,
+        gridded2.rms_um
     );
 }
 
@@ -33,7 +34,7 @@ fn fit_then_grid_reaches_the_noise_floor() {
     five_bar.base_b0_mm = [0.12, -0.07];
     five_bar.encoder_offset_rad = [0.0015, -0.001];
     let mut machine = StandInMachine::new(five_bar, 1.0, 0.001, 11).unwrap();
-    let cal = calibrate(&mut machine, 11).unwrap();
+    let cal = calibrate(&mut machine, 11, Approach::Random).unwrap();
     check(&cal, "hand-set errors");
 }
 
@@ -41,7 +42,31 @@ fn fit_then_grid_reaches_the_noise_floor() {
 fn randomly_drawn_machines_reach_the_noise_floor() {
     for seed in 1..=4 {
         let mut machine = StandInMachine::paper_like(100 + seed).unwrap();
-        let cal = calibrate(&mut machine, seed).unwrap();
+        let cal = calibrate(&mut machine, seed, Approach::Random).unwrap();
         check(&cal, &format!("paper-like machine, seed {}", 100 + seed));
     }
+}
+
+/// The `paper` six-bar plant with a 1 µm instrument: no five-bar explains it (the `full` fit
+/// leaves ~1 mm), so the grid carries the calibration, and being first order in that 1 mm it
+/// needs its second round. Approached always from the same side, backlash is calibrated away
+/// and the noise floor is reached; approached from random sides, the 20 µrad backlash
+/// (±1.5 µm per motor at the tool, amplified by the Jacobian) is what is left.
+#[test]
+fn paper_plant_reaches_the_noise_floor_with_unidirectional_approach() {
+    let mut machine = PlantMachine::by_name("paper", Some(1.0), 1).unwrap();
+    let cal = calibrate(&mut machine, 1, Approach::Positive).unwrap();
+    let get = |k: &str| cal.stages.iter().find(|s| s.key == k).unwrap().accuracy;
+    let line: Vec<String> = cal.stages.iter().map(|s| format!("{} {:.1}/{:.2}", s.key, s.accuracy.max_um, s.accuracy.rms_um)).collect();
+    eprintln!("paper plant, positive approach: max/rms µm: {}", line.join(", "));
+    let (nominal, full, g1, g2) = (get("nominal"), get("full"), get("full+grid"), get("full+grid2"));
+    assert!(nominal.max_um > 1000.0 && full.max_um < nominal.max_um, "{nominal:?} {full:?}");
+    assert!(g1.max_um < full.max_um / 10.0 && g2.max_um < g1.max_um, "{g1:?} {g2:?}");
+    assert!(g2.max_um <= TARGET_MAX_UM && g2.rms_um <= TARGET_RMS_UM, "{g2:?}");
+
+    let mut machine = PlantMachine::by_name("paper", Some(1.0), 1).unwrap();
+    let random = calibrate(&mut machine, 1, Approach::Random).unwrap();
+    let r2 = random.stages.last().unwrap().accuracy;
+    eprintln!("paper plant, random approach: fit + 2 grid rounds {:.1}/{:.2} µm (backlash)", r2.max_um, r2.rms_um);
+    assert!(r2.max_um < 10.0 && r2.rms_um > g2.rms_um, "{r2:?} vs {g2:?}");
 }
