@@ -455,7 +455,7 @@ pub fn summary_json(cal: &Calibrated, seed: u64, out_dir: &Path, files: &[PathBu
             "measured_rms_um": round3(s.accuracy.measured_rms_um),
             "n_targets": s.accuracy.n_targets,
             "gain_vs_before": round3(before / s.accuracy.max_um),
-            "paper_max_um": s.paper,
+            "paper_max": s.paper,
         })).collect::<Vec<_>>(),
         "fit_full": full,
         "fit_ls": ls,

@@ -35,8 +35,8 @@ fn demo_runs_the_whole_story_and_writes_every_file() {
     for k in 1..4 {
         assert!(max(k) < max(k - 1) && rms(k) < rms(k - 1), "step {k}: {stages:?}");
     }
-    for k in 3..5 {
-        assert!(max(k) <= TARGET_MAX_UM && rms(k) <= TARGET_RMS_UM, "{}: {} / {} µm", keys[k], max(k), rms(k));
+    for (k, key) in keys.iter().enumerate().skip(3) {
+        assert!(max(k) <= TARGET_MAX_UM && rms(k) <= TARGET_RMS_UM, "{key}: {} / {} µm", max(k), rms(k));
     }
     assert_eq!(v["final"]["met"], serde_json::json!(true));
     assert_eq!(v["final"]["max_um"], stages[4]["max_um"]);
