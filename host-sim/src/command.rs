@@ -78,6 +78,8 @@ pub fn check_grid_model(grid: &CorrectionGrid<'_>, model: &FiveBar<f64>) -> Resu
         ("b_mm", got.b_mm, want.b_mm),
         ("c_mm", got.c_mm, want.c_mm),
         ("d_mm", got.d_mm, want.d_mm),
+        ("base_a0_x_mm", got.base_a0_mm[0], want.base_a0_mm[0]),
+        ("base_a0_y_mm", got.base_a0_mm[1], want.base_a0_mm[1]),
         ("base_b0_x_mm", got.base_b0_mm[0], want.base_b0_mm[0]),
         ("base_b0_y_mm", got.base_b0_mm[1], want.base_b0_mm[1]),
         ("encoder_offset_1_rad", got.encoder_offset_rad[0], want.encoder_offset_rad[0]),

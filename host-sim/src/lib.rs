@@ -8,6 +8,7 @@
 //! File formats (contracts other tools rely on): [`measurement_csv`], [`model_file`], the grid
 //! image (`kinematics_core::grid`).
 
+pub mod diagnose;
 pub mod measurement_csv;
 pub mod model_file;
 pub mod output;

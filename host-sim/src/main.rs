@@ -26,6 +26,8 @@ enum Command {
     MotorCommand(host_sim::command::CommandArgs),
     /// VDI/DGQ 3441 and ISO 230-2 figures per axis line from repeated bidirectional runs.
     Accuracy(host_sim::accuracy::AccuracyArgs),
+    /// Find where model and measurements disagree, name the missing effect, show the gap shrink.
+    Diagnose(host_sim::diagnose::Args),
     /// The whole calibration on a built-in simulated machine: measure, fit, grid, verify.
     Demo(host_sim::demo::DemoArgs),
 }
@@ -49,6 +51,7 @@ fn run(cli: Cli) -> Result<()> {
         Command::Grid(a) => host_sim::grid_build::run(&a),
         Command::MotorCommand(a) => host_sim::command::run(&a),
         Command::Accuracy(a) => host_sim::accuracy::run(&a),
+        Command::Diagnose(args) => host_sim::diagnose::run(args),
         Command::Demo(a) => host_sim::demo::run(&a),
     }
 }

@@ -5,7 +5,7 @@
 //! {
 //!   "format": "hidden-robot-model", "version": 1,
 //!   "a_mm": 149.959, "b_mm": 150.013, "c_mm": 150.033, "d_mm": 150.040,
-//!   "base_b0_mm": [0.0, 0.0], "encoder_offset_deg": [0.0, 0.0],
+//!   "base_a0_mm": [0.0, 0.0], "base_b0_mm": [0.0, 0.0], "encoder_offset_deg": [0.0, 0.0],
 //!   "mode": { "elbow_1": "positive", "elbow_2": "negative", "assembly": "positive" },
 //!   "std_dev": { "a_mm": 0.002, ... },          // optional: one standard deviation per fitted parameter
 //!   "fit": { ... }                              // optional: how it was obtained (free-form)
@@ -48,6 +48,10 @@ pub struct ModelFile {
     pub b_mm: f64,
     pub c_mm: f64,
     pub d_mm: f64,
+    /// A0 in the measurement frame; absent in files written before it existed (then 0, 0).
+    #[serde(default)]
+    pub base_a0_mm: [f64; 2],
+    /// B0 relative to A0.
     pub base_b0_mm: [f64; 2],
     pub encoder_offset_deg: [f64; 2],
     mode: ModeFile,
@@ -83,6 +87,7 @@ impl ModelFile {
             b_mm: m.b_mm,
             c_mm: m.c_mm,
             d_mm: m.d_mm,
+            base_a0_mm: m.base_a0_mm,
             base_b0_mm: m.base_b0_mm,
             encoder_offset_deg: [m.encoder_offset_rad[0].to_degrees(), m.encoder_offset_rad[1].to_degrees()],
             mode: ModeFile {
@@ -108,6 +113,7 @@ impl ModelFile {
             b_mm: self.b_mm,
             c_mm: self.c_mm,
             d_mm: self.d_mm,
+            base_a0_mm: self.base_a0_mm,
             base_b0_mm: self.base_b0_mm,
             encoder_offset_rad: [self.encoder_offset_deg[0].to_radians(), self.encoder_offset_deg[1].to_radians()],
             mode: WorkingMode {
@@ -149,12 +155,14 @@ mod tests {
         let mut m = FiveBar::<f64>::paper_nominal();
         m.a_mm = 149.959;
         m.base_b0_mm = [0.1, -0.2];
+        m.base_a0_mm = [-3.0, 0.5];
         m.encoder_offset_rad = [0.001, -0.002];
         let f = ModelFile::from_model(&m);
         let text = serde_json::to_string(&f).unwrap();
         let back: ModelFile = serde_json::from_str(&text).unwrap();
         let m2 = back.model().unwrap();
         assert_eq!(m2.a_mm, m.a_mm);
+        assert_eq!(m2.base_a0_mm, m.base_a0_mm);
         assert!((m2.encoder_offset_rad[1] - m.encoder_offset_rad[1]).abs() < 1e-15);
         assert_eq!(m2.mode, m.mode);
     }

@@ -80,7 +80,7 @@ fn fit_bad_input() {
     let dup = write(d, "dup.csv", &format!("{header}45,-45,212.132,0\n57.286,-57.286,162.22,-0.01\n45,-45,212.13,0.01\n"));
     fails(&["fit", "--data", s(&dup), "--method", "ls", "--out", s(&out)], "line 4: duplicate point, same motor angles as line 2", &out);
     let three = write(d, "three.csv", &format!("{header}45,-45,212.132,0\n57.286,-57.286,162.22,-0.01\n29.1,-29.1,262.03,0.04\n"));
-    fails(&["fit", "--data", s(&three), "--method", "full", "--out", s(&out)], "3 points give 6 equations, not more than the 8 parameters", &out);
+    fails(&["fit", "--data", s(&three), "--method", "full", "--out", s(&out)], "3 points give 6 equations, not more than the 10 parameters", &out);
     fails(&["fit", "--data", s(&three), "--method", "poly", "--out", s(&out)], "poly uses exactly 2 precision points", &out);
     fails(&["fit", "--data", s(&three), "--method", "ls", "--criterion", "paper", "--out", s(&out)], "line 2: --criterion paper needs x_target_mm", &out);
     fails(&["fit", "--data", s(&table1()), "--method", "ls", "--points", "1,12", "--out", s(&out)], "point 12 does not exist", &out);

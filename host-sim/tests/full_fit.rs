@@ -100,10 +100,11 @@ fn flags_confounded_parameters_on_degenerate_data() {
     let f = fit_full(&data, &nominal, &[]).unwrap();
     let fixed: Vec<&str> = f.identifiability.fixed.iter().map(|(k, _)| NAMES[*k]).collect();
     assert_eq!(f.identifiability.rank_all, 6, "{:?}", f.identifiability.singular_values_rel);
-    assert_eq!(fixed, vec!["base_b0_y_mm", "base_b0_x_mm"], "{:?}", f.identifiability.fixed);
+    // Ten parameters, rank 6: the four base coordinates (A0 and B0) are held at nominal.
+    assert_eq!(fixed, vec!["base_b0_y_mm", "base_b0_x_mm", "base_a0_y_mm", "base_a0_x_mm"], "{:?}", f.identifiability.fixed);
     let why = &f.identifiability.fixed[0].1;
     assert!(why.contains("d_mm") || why.contains("encoder_offset_2_rad"), "{why}");
-    assert!(f.std_dev[4].is_none() && f.std_dev[5].is_none());
+    assert!(f.std_dev[4].is_none() && f.std_dev[5].is_none() && f.std_dev[8].is_none() && f.std_dev[9].is_none());
     assert!(f.std_dev[3].unwrap().is_finite());
     // The free ones reproduce the data exactly (the elbow B is right even if d is not true d).
     let r = host_sim::fit::params::residuals_mm(&f.model, &data).unwrap();

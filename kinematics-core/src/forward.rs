@@ -1,6 +1,6 @@
 //! Closed-form forward kinematics of the five-bar: encoder angles in, tool point out.
 //!
-//! The elbows are `A = a·(cos θ1g, sin θ1g)` and `B = B0 + d·(cos θ2g, sin θ2g)` with the
+//! The elbows are `A = A0 + a·(cos θ1g, sin θ1g)` and `B = B0 + d·(cos θ2g, sin θ2g)` with the
 //! geometric angles `θg = θ + encoder offset`. C is where the circles of radius `b` about A and
 //! `c` about B meet. With `s = B - A` and `m = b² + s·s - c²`,
 //!
@@ -31,8 +31,9 @@ impl<T: Real> FiveBar<T> {
         }
         let (s1, c1) = (theta_rad[0] + self.encoder_offset_rad[0]).sin_cos();
         let (s2, c2) = (theta_rad[1] + self.encoder_offset_rad[1]).sin_cos();
-        let b0 = self.base_b0_mm;
-        let a = [self.a_mm * c1, self.a_mm * s1];
+        let a0 = self.base_a0_mm;
+        let b0 = [a0[0] + self.base_b0_mm[0], a0[1] + self.base_b0_mm[1]];
+        let a = [a0[0] + self.a_mm * c1, a0[1] + self.a_mm * s1];
         let b = [b0[0] + self.d_mm * c2, b0[1] + self.d_mm * s2];
         let s = [b[0] - a[0], b[1] - a[1]];
         let ss = s[0] * s[0] + s[1] * s[1];
@@ -53,7 +54,7 @@ impl<T: Real> FiveBar<T> {
             a[0] + (m * s[0] - h * s[1]) * scale,
             a[1] + (m * s[1] + h * s[0]) * scale,
         ];
-        Pose { theta_rad, elbow_a_mm: a, elbow_b_mm: b, tool_mm: tool, base_b0_mm: b0 }
+        Pose { theta_rad, elbow_a_mm: a, elbow_b_mm: b, tool_mm: tool, base_a0_mm: a0, base_b0_mm: b0 }
             .check(self, min_transmission)
     }
 

@@ -26,8 +26,8 @@
 //! | 10 | 2 | `ny`, nodes along y (2..=1024) |
 //! | 12 | 4 | flags: bit 0 elbow 1 positive, bit 1 elbow 2 positive, bit 2 assembly positive; others 0 |
 //! | 16 | 4×4 | f32 `x0_mm, y0_mm, step_x_mm, step_y_mm` (steps > 0) |
-//! | 32 | 8×4 | f32 model `a, b, c, d` (mm), `b0_x, b0_y` (mm), `offset_1, offset_2` (rad) |
-//! | 64 | 8 | reserved, zero |
+//! | 32 | 8×4 | f32 model `a, b, c, d` (mm), `b0_x, b0_y` (mm, relative to A0), `offset_1, offset_2` (rad) |
+//! | 64 | 2×4 | f32 model `a0_x, a0_y` (mm) |
 //! | 72 | 8·nx·ny | f32 pairs `(δθ1_rad, δθ2_rad)`, node `(i, j)` at index `j·nx + i` (x fastest) |
 //! | end-4 | 4 | CRC-32/ISO-HDLC (zlib's) of every byte before it |
 //!
@@ -215,7 +215,7 @@ impl<'a> CorrectionGrid<'a> {
             return Err(GridError::BadCrc);
         }
         let flags = u32_at(bytes, 12);
-        if flags & !0b111 != 0 || bytes[64..72].iter().any(|&b| b != 0) {
+        if flags & !0b111 != 0 {
             return Err(GridError::BadHeader);
         }
         geometry.validate()?;
@@ -225,6 +225,7 @@ impl<'a> CorrectionGrid<'a> {
             b_mm: p(1),
             c_mm: p(2),
             d_mm: p(3),
+            base_a0_mm: [p(8), p(9)],
             base_b0_mm: [p(4), p(5)],
             encoder_offset_rad: [p(6), p(7)],
             mode: WorkingMode {
@@ -324,6 +325,8 @@ pub fn encode(
         model.base_b0_mm[1],
         model.encoder_offset_rad[0],
         model.encoder_offset_rad[1],
+        model.base_a0_mm[0],
+        model.base_a0_mm[1],
     ];
     for (k, v) in header_f32.iter().enumerate() {
         out[16 + 4 * k..20 + 4 * k].copy_from_slice(&v.to_le_bytes());

@@ -57,17 +57,20 @@ impl<T: Real> FiveBar<T> {
         if !(tool_mm[0].is_finite() && tool_mm[1].is_finite()) {
             return Err(KinematicsError::NonFinite);
         }
-        let b0 = self.base_b0_mm;
-        let r2 = [tool_mm[0] - b0[0], tool_mm[1] - b0[1]];
-        let pa = solve_dyad(tool_mm, self.a_mm, self.b_mm, self.mode.elbow_1)
+        let a0 = self.base_a0_mm;
+        let b0 = [a0[0] + self.base_b0_mm[0], a0[1] + self.base_b0_mm[1]];
+        let r1 = sub(tool_mm, a0);
+        let r2 = sub(tool_mm, b0);
+        let pa = solve_dyad(r1, self.a_mm, self.b_mm, self.mode.elbow_1)
             .ok_or(KinematicsError::Unreachable)?;
         let pb = solve_dyad(r2, self.d_mm, self.c_mm, self.mode.elbow_2)
             .ok_or(KinematicsError::Unreachable)?;
+        let elbow_a = [pa[0] + a0[0], pa[1] + a0[1]];
         let elbow_b = [pb[0] + b0[0], pb[1] + b0[1]];
         // The elbows fix A and B; C must also lie on the configured side of A→B, otherwise this
         // target belongs to the other assembly mode (across a parallel singularity) and FK of
         // these angles would give a different point.
-        let side = cross(sub(elbow_b, pa), sub(tool_mm, pa));
+        let side = cross(sub(elbow_b, elbow_a), sub(tool_mm, elbow_a));
         if side * self.mode.assembly.sign::<T>() < T::ZERO {
             return Err(KinematicsError::Unreachable);
         }
@@ -75,9 +78,10 @@ impl<T: Real> FiveBar<T> {
         let theta2 = wrap_angle_rad(pb[1].atan2(pb[0]) - self.encoder_offset_rad[1]);
         Pose {
             theta_rad: [theta1, theta2],
-            elbow_a_mm: pa,
+            elbow_a_mm: elbow_a,
             elbow_b_mm: elbow_b,
             tool_mm,
+            base_a0_mm: a0,
             base_b0_mm: b0,
         }
         .check(self, min_transmission)

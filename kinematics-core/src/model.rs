@@ -10,9 +10,14 @@
 //!       ╲ θ2               d ╱
 //!        ╰──────────────────╯
 //! ```
-//! Proximal link `a` turns about A0 (the origin) by motor 1, proximal link `d` about B0 by
-//! motor 2; distal links `b` (A to C) and `c` (B to C) meet at the tool point C. In the paper's
-//! machine A0 and B0 coincide and a = b = c = d = 150 mm.
+//! Proximal link `a` turns about A0 by motor 1, proximal link `d` about B0 by motor 2; distal
+//! links `b` (A to C) and `c` (B to C) meet at the tool point C. In the paper's machine A0 and B0
+//! coincide at the origin and a = b = c = d = 150 mm.
+//!
+//! The frame is the one targets and measurements are given in (the instrument's, after
+//! calibration). A0 may sit anywhere in it (`base_a0_mm`), so the hidden robot absorbs every
+//! rigid error of that frame: a translation moves A0 (and B0 with it), a rotation about A0 is a
+//! common encoder offset. A common scale of the instrument is a common scale of all lengths.
 //!
 //! Angles: every motor angle here is an *encoder* angle, what the motor's encoder reads and what
 //! the servo commands. The geometric angle of a proximal link from the x axis is
@@ -78,7 +83,9 @@ pub struct FiveBar<T> {
     pub c_mm: T,
     /// Proximal link of motor 2, B0 to B.
     pub d_mm: T,
-    /// Position of B0 relative to A0 (the origin of the machine frame).
+    /// Position of A0 in the machine frame.
+    pub base_a0_mm: [T; 2],
+    /// Position of B0 relative to A0.
     pub base_b0_mm: [T; 2],
     /// Geometric angle minus encoder angle, per motor.
     pub encoder_offset_rad: [T; 2],
@@ -113,6 +120,7 @@ impl<T: Real> FiveBar<T> {
             b_mm: l,
             c_mm: l,
             d_mm: l,
+            base_a0_mm: [T::ZERO; 2],
             base_b0_mm: [T::ZERO; 2],
             encoder_offset_rad: [T::ZERO; 2],
             mode: WorkingMode::PAPER,
@@ -126,6 +134,8 @@ impl<T: Real> FiveBar<T> {
             self.b_mm,
             self.c_mm,
             self.d_mm,
+            self.base_a0_mm[0],
+            self.base_a0_mm[1],
             self.base_b0_mm[0],
             self.base_b0_mm[1],
             self.encoder_offset_rad[0],
@@ -148,6 +158,7 @@ impl<T: Real> FiveBar<T> {
             b_mm: c(self.b_mm),
             c_mm: c(self.c_mm),
             d_mm: c(self.d_mm),
+            base_a0_mm: [c(self.base_a0_mm[0]), c(self.base_a0_mm[1])],
             base_b0_mm: [c(self.base_b0_mm[0]), c(self.base_b0_mm[1])],
             encoder_offset_rad: [c(self.encoder_offset_rad[0]), c(self.encoder_offset_rad[1])],
             mode: self.mode,

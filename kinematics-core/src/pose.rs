@@ -36,7 +36,9 @@ pub struct Pose<T> {
     pub elbow_b_mm: [T; 2],
     /// Tool point C.
     pub tool_mm: [T; 2],
-    /// Base joint B0 (A0 is the origin).
+    /// Base joint A0.
+    pub base_a0_mm: [T; 2],
+    /// Base joint B0.
     pub base_b0_mm: [T; 2],
 }
 
@@ -59,7 +61,7 @@ impl<T: Real> Pose<T> {
     /// `(A - A0, C - A, B - B0, C - B)`.
     pub(crate) fn link_vectors(&self) -> ([T; 2], [T; 2], [T; 2], [T; 2]) {
         (
-            self.elbow_a_mm,
+            sub(self.elbow_a_mm, self.base_a0_mm),
             sub(self.tool_mm, self.elbow_a_mm),
             sub(self.elbow_b_mm, self.base_b0_mm),
             sub(self.tool_mm, self.elbow_b_mm),

@@ -46,7 +46,7 @@ fn machine_with(
         b,
         c,
         d,
-        (-20.0..20.0f64, -20.0..20.0f64),
+        (-20.0..20.0f64, -20.0..20.0f64, -5.0..5.0f64, -5.0..5.0f64),
         (-0.5..0.5f64, -0.5..0.5f64),
         (branch(), branch(), branch()),
     )
@@ -55,6 +55,7 @@ fn machine_with(
             b_mm: b,
             c_mm: c,
             d_mm: d,
+            base_a0_mm: [base.2, base.3],
             base_b0_mm: [base.0, base.1],
             encoder_offset_rad: [off.0, off.1],
             mode: WorkingMode { elbow_1: e1, elbow_2: e2, assembly: asm },

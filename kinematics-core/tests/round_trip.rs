@@ -56,6 +56,7 @@ fn irregular() -> FiveBar<f64> {
         b_mm: 150.21,
         c_mm: 149.74,
         d_mm: 150.12,
+        base_a0_mm: [-0.6, 0.25],
         base_b0_mm: [0.35, -0.8],
         encoder_offset_rad: [0.004, -0.007],
         mode: WorkingMode::PAPER,

@@ -20,7 +20,7 @@ pub const RANK_TOL: f64 = 1e-7;
 /// Condition number above which the fit is reported as poorly conditioned.
 pub const WARN_CONDITION: f64 = 1e4;
 /// Which parameter to fix first when a combination is confounded (indices into `NAMES`).
-pub const FIX_ORDER: [usize; N_PARAMS] = [5, 4, 7, 6, 3, 2, 1, 0];
+pub const FIX_ORDER: [usize; N_PARAMS] = [5, 4, 9, 8, 7, 6, 3, 2, 1, 0];
 
 /// The outcome of the check.
 #[derive(Clone, Debug, serde::Serialize)]

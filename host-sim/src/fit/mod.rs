@@ -77,11 +77,12 @@ fn dyad_points(data: &[Measurement], subset: &[usize], base: &FiveBar<f64>) -> (
         let m = &data[i];
         let th = m.theta_rad();
         let [x, y] = m.measured_mm;
-        arm1.push(DyadPoint { theta_rad: th[0] + base.encoder_offset_rad[0], x_mm: x, y_mm: y });
+        let a0 = base.base_a0_mm;
+        arm1.push(DyadPoint { theta_rad: th[0] + base.encoder_offset_rad[0], x_mm: x - a0[0], y_mm: y - a0[1] });
         arm2.push(DyadPoint {
             theta_rad: th[1] + base.encoder_offset_rad[1],
-            x_mm: x - base.base_b0_mm[0],
-            y_mm: y - base.base_b0_mm[1],
+            x_mm: x - a0[0] - base.base_b0_mm[0],
+            y_mm: y - a0[1] - base.base_b0_mm[1],
         });
     }
     (arm1, arm2)
@@ -153,6 +154,7 @@ fn summary(method: Method, criterion: Criterion, model: &FiveBar<f64>, data: &[M
         "b_mm": round6(model.b_mm),
         "c_mm": round6(model.c_mm),
         "d_mm": round6(model.d_mm),
+        "base_a0_mm": [round6(model.base_a0_mm[0]), round6(model.base_a0_mm[1])],
         "base_b0_mm": [round6(model.base_b0_mm[0]), round6(model.base_b0_mm[1])],
         "encoder_offset_deg": [round6(model.encoder_offset_rad[0].to_degrees()), round6(model.encoder_offset_rad[1].to_degrees())],
         "subset": subset.map(|s| s.iter().map(|i| i + 1).collect::<Vec<_>>()),

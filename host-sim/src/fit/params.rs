@@ -1,4 +1,4 @@
-//! The eight parameters of the five-bar as one vector, the position residual and its Jacobian.
+//! The ten parameters of the five-bar as one vector, the position residual and its Jacobian.
 //!
 //! Why one file: `identifiability` and `levenberg_marquardt` must agree on the order, the names
 //! and the residual. Residual of point i: `FK(θi; p) − measured_i` (mm), two rows per point.
@@ -11,7 +11,7 @@ use kinematics_core::FiveBar;
 use nalgebra::{DMatrix, DVector};
 
 /// Number of model parameters.
-pub const N_PARAMS: usize = 8;
+pub const N_PARAMS: usize = 10;
 
 /// Parameter names, in vector order (code units: mm and rad).
 pub const NAMES: [&str; N_PARAMS] = [
@@ -23,10 +23,12 @@ pub const NAMES: [&str; N_PARAMS] = [
     "base_b0_y_mm",
     "encoder_offset_1_rad",
     "encoder_offset_2_rad",
+    "base_a0_x_mm",
+    "base_a0_y_mm",
 ];
 
 /// Finite-difference step per parameter.
-const STEP: [f64; N_PARAMS] = [1e-6, 1e-6, 1e-6, 1e-6, 1e-6, 1e-6, 1e-8, 1e-8];
+const STEP: [f64; N_PARAMS] = [1e-6, 1e-6, 1e-6, 1e-6, 1e-6, 1e-6, 1e-8, 1e-8, 1e-6, 1e-6];
 
 pub fn to_vector(m: &FiveBar<f64>) -> [f64; N_PARAMS] {
     [
@@ -38,6 +40,8 @@ pub fn to_vector(m: &FiveBar<f64>) -> [f64; N_PARAMS] {
         m.base_b0_mm[1],
         m.encoder_offset_rad[0],
         m.encoder_offset_rad[1],
+        m.base_a0_mm[0],
+        m.base_a0_mm[1],
     ]
 }
 
@@ -48,6 +52,7 @@ pub fn from_vector(p: &[f64; N_PARAMS], like: &FiveBar<f64>) -> FiveBar<f64> {
         b_mm: p[1],
         c_mm: p[2],
         d_mm: p[3],
+        base_a0_mm: [p[8], p[9]],
         base_b0_mm: [p[4], p[5]],
         encoder_offset_rad: [p[6], p[7]],
         mode: like.mode,

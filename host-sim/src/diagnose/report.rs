@@ -1,0 +1,173 @@
+//! The diagnosis report: the JSON other tools and the tests read, and the gap-shrink table.
+//!
+//! Contract keys: `steps` (effects of the final model in the order added, each with `effect`,
+//! `params`, `rms_before_um`, `rms_after_um`, `max_before_um`, `max_after_um`), `confounded`
+//! (list of lists of effect names), `unexplained`, `final_rms_um` (RMS of the radial residual).
+//! Everything else is explanation for people. Cost: negligible.
+
+use super::confounding::{Overlap, PoseOverlap};
+use super::structure::Finding;
+use serde::Serialize;
+use std::collections::BTreeMap;
+
+/// A fitted parameter with its standard deviation (same unit as the name says).
+#[derive(Clone, Debug, Serialize)]
+pub struct Param {
+    pub value: f64,
+    pub std_dev: f64,
+}
+
+/// One row of the gap-shrink table.
+#[derive(Clone, Debug, Serialize)]
+pub struct Step {
+    pub effect: String,
+    /// The effect's parameters as fitted at this step (jointly with the earlier effects).
+    pub params: BTreeMap<String, Param>,
+    pub rms_before_um: f64,
+    pub rms_after_um: f64,
+    pub max_before_um: f64,
+    pub max_after_um: f64,
+}
+
+/// A candidate the selection left out, fitted on top of the final model: how large it could be
+/// and still hide in these data (about 3 standard deviations).
+#[derive(Clone, Debug, Serialize)]
+pub struct NotDetected {
+    pub effect: String,
+    /// False when some combination of its parameters is exactly what the final model already
+    /// does (then no bound exists; the standard deviations are infinite, `null` in JSON).
+    pub identifiable: bool,
+    pub params: BTreeMap<String, Param>,
+    /// BIC change had it been added (> −10: not significant).
+    pub delta_bic: f64,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct Report {
+    pub points: usize,
+    /// Lines the base model could not reach (excluded).
+    pub dropped_lines: Vec<usize>,
+    /// The noise σ per axis used (µm), if known.
+    pub noise_um: Option<f64>,
+    /// Where `noise_um` came from.
+    pub noise_source: String,
+    /// How models were scored.
+    pub score: String,
+    pub initial_rms_um: f64,
+    pub initial_max_um: f64,
+    pub steps: Vec<Step>,
+    /// Every parameter of the final model (jointly fitted).
+    pub final_params: BTreeMap<String, Param>,
+    pub confounded: Vec<Vec<String>>,
+    /// Pairs whose residual signatures overlap (confounded, or partly identical), with the
+    /// measurement that would separate them.
+    pub overlaps: Vec<Overlap>,
+    /// Candidates not in the final model, with how large they could be undetected.
+    pub not_detected: Vec<NotDetected>,
+    /// Pairs of candidates that share a direction (cos ≥ 0.99) on these poses, whatever the
+    /// model: what this pose set cannot separate.
+    pub pose_overlaps: Vec<PoseOverlap>,
+    pub unexplained: bool,
+    /// Why `unexplained` is what it is, and the structure of what is left.
+    pub unexplained_description: String,
+    /// Structure of the final residual (all tests, significant or not).
+    pub final_structure: Vec<Finding>,
+    /// Structure of the residual of the starting model.
+    pub initial_structure: Vec<Finding>,
+    pub final_rms_um: f64,
+    pub final_max_um: f64,
+    /// RSS / (n − k) / σ² of the final model, if σ is known.
+    pub chi2_per_dof: Option<f64>,
+    pub selection_log: Vec<String>,
+    pub notes: Vec<String>,
+}
+
+/// The gap-shrink table as text.
+pub fn table(r: &Report) -> String {
+    let mut s = String::new();
+    s.push_str(&format!(
+        "{:<4} {:<15} {:>10} {:>10} {:>10} {:>10}  params (± 1σ)\n",
+        "step", "effect", "rms_bef_um", "rms_aft_um", "max_bef_um", "max_aft_um"
+    ));
+    s.push_str(&format!(
+        "{:<4} {:<15} {:>10} {:>10.1} {:>10} {:>10.1}\n",
+        0, "(start)", "", r.initial_rms_um, "", r.initial_max_um
+    ));
+    for (k, st) in r.steps.iter().enumerate() {
+        let params: Vec<String> =
+            st.params.iter().map(|(n, p)| format!("{n} = {:.2} ± {:.2}", p.value, p.std_dev)).collect();
+        s.push_str(&format!(
+            "{:<4} {:<15} {:>10.1} {:>10.1} {:>10.1} {:>10.1}  {}\n",
+            k + 1,
+            st.effect,
+            st.rms_before_um,
+            st.rms_after_um,
+            st.max_before_um,
+            st.max_after_um,
+            params.join(", ")
+        ));
+    }
+    s.push_str(&format!("final radial RMS {:.2} µm, max {:.2} µm", r.final_rms_um, r.final_max_um));
+    if let Some(c) = r.chi2_per_dof {
+        s.push_str(&format!(
+            ", χ²/dof {:.2} (noise {:.2} µm per axis, {})",
+            c,
+            r.noise_um.unwrap_or(f64::NAN),
+            r.noise_source
+        ));
+    }
+    s.push('\n');
+    for c in &r.confounded {
+        let sep =
+            r.overlaps.iter().find(|o| (o.effect == c[0] && o.other == c[1]) || (o.effect == c[1] && o.other == c[0]));
+        let why = match sep {
+            Some(o) if o.swap_chi2 < super::confounding::SWAP_CHI2 => {
+                format!("{} can reproduce what {} explains (swap costs χ² {:.1})", o.other, o.effect, o.swap_chi2)
+            }
+            Some(o) => format!(
+                "the part {} = {:.2} of {} (z = {:.0}) acts exactly like {}",
+                o.shared_direction, o.shared_value, o.effect, o.shared_z, o.other
+            ),
+            None => String::new(),
+        };
+        s.push_str(&format!(
+            "confounded: {} — {}; to separate: {}\n",
+            c.join(" ~ "),
+            why,
+            sep.map(|o| o.separate_by.as_str()).unwrap_or("")
+        ));
+    }
+    for o in r.overlaps.iter().filter(|o| !o.confounded) {
+        s.push_str(&format!(
+            "partly indistinguishable (not significant here): {} = {:.2} (z = {:.1}) of {} acts exactly like {}; to separate: {}\n",
+            o.shared_direction, o.shared_value, o.shared_z, o.effect, o.other, o.separate_by
+        ));
+    }
+    if !r.pose_overlaps.is_empty() {
+        let p: Vec<String> =
+            r.pose_overlaps.iter().map(|o| format!("{}~{} ({:.4})", o.a, o.b, o.principal_cos)).collect();
+        s.push_str(&format!(
+            "on these poses some combination of each pair acts alike (principal cos): {}\n",
+            p.join(", ")
+        ));
+    }
+    for nd in &r.not_detected {
+        let p: Vec<String> =
+            nd.params.iter().map(|(n, p)| format!("{n} = {:.2} ± {:.2}", p.value, p.std_dev)).collect();
+        if nd.identifiable {
+            s.push_str(&format!(
+                "not detected: {} (ΔBIC {:.1}; if present: {})\n",
+                nd.effect,
+                nd.delta_bic,
+                p.join(", ")
+            ));
+        } else {
+            s.push_str(&format!(
+                "not detected: {} (not identifiable alongside the final model: confounded with it)\n",
+                nd.effect
+            ));
+        }
+    }
+    s.push_str(&format!("unexplained: {} — {}\n", r.unexplained, r.unexplained_description));
+    s
+}
