@@ -47,11 +47,11 @@ fn randomly_drawn_machines_reach_the_noise_floor() {
     }
 }
 
-/// The `paper` six-bar plant with a 1 µm instrument: no five-bar explains it (the `full` fit
-/// leaves ~1 mm), so the grid carries the calibration, and being first order in that 1 mm it
-/// needs its second round. Approached always from the same side, backlash is calibrated away
-/// and the noise floor is reached; approached from random sides, the 20 µrad backlash
-/// (±1.5 µm per motor at the tool, amplified by the Jacobian) is what is left.
+/// The `paper` six-bar plant with a 1 µm instrument: the `full` fit (A0 free: the instrument
+/// frame's offset) leaves ~12 µm of six-bar motion no five-bar describes, the grid takes the
+/// rest. Approached always from the same side, backlash is calibrated away and the noise floor
+/// is reached; approached from random sides, the 20 µrad backlash (±1.5 µm per motor at the
+/// tool, amplified by the Jacobian) is what is left, about 3 µm RMS.
 #[test]
 fn paper_plant_reaches_the_noise_floor_with_unidirectional_approach() {
     let mut machine = PlantMachine::by_name("paper", Some(1.0), 1).unwrap();
@@ -61,7 +61,7 @@ fn paper_plant_reaches_the_noise_floor_with_unidirectional_approach() {
     eprintln!("paper plant, positive approach: max/rms µm: {}", line.join(", "));
     let (nominal, full, g1, g2) = (get("nominal"), get("full"), get("full+grid"), get("full+grid2"));
     assert!(nominal.max_um > 1000.0 && full.max_um < nominal.max_um, "{nominal:?} {full:?}");
-    assert!(g1.max_um < full.max_um / 10.0 && g2.max_um < g1.max_um, "{g1:?} {g2:?}");
+    assert!(g1.max_um < full.max_um && g1.rms_um < full.rms_um, "{full:?} {g1:?}");
     assert!(g2.max_um <= TARGET_MAX_UM && g2.rms_um <= TARGET_RMS_UM, "{g2:?}");
 
     let mut machine = PlantMachine::by_name("paper", Some(1.0), 1).unwrap();
