@@ -22,3 +22,5 @@ pub mod fit;
 pub mod grid_build;
 pub mod command;
 pub mod accuracy;
+pub mod machine;
+pub mod demo;

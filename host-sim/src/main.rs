@@ -28,6 +28,8 @@ enum Command {
     Accuracy(host_sim::accuracy::AccuracyArgs),
     /// Find where model and measurements disagree, name the missing effect, show the gap shrink.
     Diagnose(host_sim::diagnose::Args),
+    /// The whole calibration on a built-in simulated machine: measure, fit, grid, verify.
+    Demo(host_sim::demo::DemoArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -50,5 +52,6 @@ fn run(cli: Cli) -> Result<()> {
         Command::MotorCommand(a) => host_sim::command::run(&a),
         Command::Accuracy(a) => host_sim::accuracy::run(&a),
         Command::Diagnose(args) => host_sim::diagnose::run(args),
+        Command::Demo(a) => host_sim::demo::run(&a),
     }
 }

@@ -1,68 +1,31 @@
-//! The calibration pipeline (measure → `full` fit → grid → command) on a stand-in machine, until
-//! the plant lands: a five-bar with the paper's kind of parameter errors plus a smooth position-
-//! dependent distortion no five-bar can describe (standing in for the six-bar's flexibility),
-//! measured by a 1 µm instrument. Fresh random targets commanded through fit + grid must land
-//! within 5 µm max and 2 µm RMS (issue 6's accuracy target).
+//! The calibration pipeline (measure → `full` fit → grid → command) in-process through
+//! `demo::calibrate`, on the shared stand-in machine (`host_sim::machine::StandInMachine`: a
+//! five-bar with the paper's kind of parameter errors plus a smooth distortion no five-bar
+//! describes, 1 µm instrument) and on the six-bar plant. Fresh random targets commanded through
+//! fit + grid must land within 5 µm max and 2 µm RMS (issue 6's accuracy target), on hand-set
+//! errors and on randomly drawn ones.
 
-use host_sim::fit::levenberg_marquardt::fit_full;
-use host_sim::grid_build;
-use host_sim::measurement_csv::Measurement;
-use kinematics_core::{Calibration, CorrectionGrid, FiveBar};
-use rand::{Rng, SeedableRng};
-use rand_chacha::ChaCha8Rng;
-use rand_distr::{Distribution, Normal};
+use host_sim::demo::{calibrate, Approach, Calibrated, TARGET_MAX_UM, TARGET_RMS_UM};
+use host_sim::machine::{PlantMachine, StandInMachine};
+use kinematics_core::FiveBar;
 
-struct StandIn {
-    five_bar: FiveBar<f64>,
-}
-
-impl StandIn {
-    /// Where the tool really is for encoder angles θ (mm).
-    fn tool_mm(&self, th: [f64; 2]) -> [f64; 2] {
-        let c = self.five_bar.forward(th, 0.0).unwrap();
-        // ~40 µm smooth distortion over the workspace.
-        let (u, v) = ((c[0] - 212.0) / 50.0, c[1] / 75.0);
-        [c[0] + 0.03 * (1.3 * u).sin() * v + 0.01 * v * v, c[1] + 0.025 * (0.9 * v).sin() * u - 0.015 * u * u]
-    }
-}
-
-fn measure(m: &StandIn, cal: &Calibration<'_>, targets: &[[f64; 2]], rng: &mut ChaCha8Rng) -> Vec<Measurement> {
-    let noise = Normal::new(0.0, 0.001).unwrap();
-    targets
-        .iter()
-        .map(|&t| {
-            let th = cal.command_rad([t[0] as f32, t[1] as f32], 0.05).unwrap();
-            let th = [th[0] as f64, th[1] as f64];
-            let c = m.tool_mm(th);
-            Measurement {
-                theta_deg: [th[0].to_degrees(), th[1].to_degrees()],
-                measured_mm: [c[0] + noise.sample(rng), c[1] + noise.sample(rng)],
-                target_mm: Some(t),
-                dir: None,
-                run: None,
-                t_s: None,
-                line: 0,
-            }
-        })
-        .collect()
-}
-
-/// (max, rms) µm of the true tool position vs target over fresh random targets.
-fn verify(m: &StandIn, cal: &Calibration<'_>, rng: &mut ChaCha8Rng) -> (f64, f64) {
-    let e: Vec<f64> = (0..400)
-        .map(|_| {
-            let t = [rng.random_range(165.0..260.0), rng.random_range(-75.0..75.0)];
-            let th = cal.command_rad([t[0] as f32, t[1] as f32], 0.05).unwrap();
-            let c = m.tool_mm([th[0] as f64, th[1] as f64]);
-            (c[0] - t[0]).hypot(c[1] - t[1]) * 1e3
-        })
-        .collect();
-    host_sim::fit::evaluate::max_rms(&e)
+fn check(cal: &Calibrated, label: &str) {
+    let line: Vec<String> = cal.stages.iter().map(|s| format!("{} {:.1}/{:.2}", s.key, s.accuracy.max_um, s.accuracy.rms_um)).collect();
+    eprintln!("{label}: max/rms µm: {}", line.join(", "));
+    let get = |k: &str| cal.stages.iter().find(|s| s.key == k).unwrap().accuracy;
+    let (nominal, full, gridded, gridded2) = (get("nominal"), get("full"), get("full+grid"), get("full+grid2"));
+    assert!(nominal.max_um > 200.0 && full.max_um < nominal.max_um / 5.0, "{label}: {nominal:?} {full:?}");
+    assert!(gridded.max_um < full.max_um && gridded.rms_um < full.rms_um, "{label}: {full:?} {gridded:?}");
+    assert!(
+        gridded2.max_um <= TARGET_MAX_UM && gridded2.rms_um <= TARGET_RMS_UM,
+        "{label}: fit + grid: max {} µm, rms {} µm",
+        gridded2.max_um,
+        gridded2.rms_um
+    );
 }
 
 #[test]
 fn fit_then_grid_reaches_the_noise_floor() {
-    let mut rng = ChaCha8Rng::seed_from_u64(11);
     let mut five_bar = FiveBar::<f64>::paper_nominal();
     five_bar.a_mm = 149.868;
     five_bar.b_mm = 150.06;
@@ -70,24 +33,40 @@ fn fit_then_grid_reaches_the_noise_floor() {
     five_bar.d_mm = 150.09;
     five_bar.base_b0_mm = [0.12, -0.07];
     five_bar.encoder_offset_rad = [0.0015, -0.001];
-    let machine = StandIn { five_bar };
-    let nominal = FiveBar::<f64>::paper_nominal();
+    let mut machine = StandInMachine::new(five_bar, 1.0, 0.001, 11).unwrap();
+    let cal = calibrate(&mut machine, 11, Approach::Random).unwrap();
+    check(&cal, "hand-set errors");
+}
 
-    let bare = Calibration { model: nominal.cast(), grid: None };
-    let (max0, _) = verify(&machine, &bare, &mut rng);
+#[test]
+fn randomly_drawn_machines_reach_the_noise_floor() {
+    for seed in 1..=4 {
+        let mut machine = StandInMachine::paper_like(100 + seed).unwrap();
+        let cal = calibrate(&mut machine, seed, Approach::Random).unwrap();
+        check(&cal, &format!("paper-like machine, seed {}", 100 + seed));
+    }
+}
 
-    // Step 1: 40 random poses, full fit.
-    let poses: Vec<[f64; 2]> = (0..40).map(|_| [rng.random_range(165.0..260.0), rng.random_range(-75.0..75.0)]).collect();
-    let fit = fit_full(&measure(&machine, &bare, &poses, &mut rng), &nominal, &[]).unwrap();
-    let fitted = Calibration { model: fit.model.cast(), grid: None };
-    let (max1, _) = verify(&machine, &fitted, &mut rng);
+/// The `paper` six-bar plant with a 1 µm instrument: the `full` fit (A0 free: the instrument
+/// frame's offset) leaves ~12 µm of six-bar motion no five-bar describes, the grid takes the
+/// rest. Approached always from the same side, backlash is calibrated away and the noise floor
+/// is reached; approached from random sides, the 20 µrad backlash (±1.5 µm per motor at the
+/// tool, amplified by the Jacobian) is what is left, about 3 µm RMS.
+#[test]
+fn paper_plant_reaches_the_noise_floor_with_unidirectional_approach() {
+    let mut machine = PlantMachine::by_name("paper", Some(1.0), 1).unwrap();
+    let cal = calibrate(&mut machine, 1, Approach::Positive).unwrap();
+    let get = |k: &str| cal.stages.iter().find(|s| s.key == k).unwrap().accuracy;
+    let line: Vec<String> = cal.stages.iter().map(|s| format!("{} {:.1}/{:.2}", s.key, s.accuracy.max_um, s.accuracy.rms_um)).collect();
+    eprintln!("paper plant, positive approach: max/rms µm: {}", line.join(", "));
+    let (nominal, full, g1, g2) = (get("nominal"), get("full"), get("full+grid"), get("full+grid2"));
+    assert!(nominal.max_um > 1000.0 && full.max_um < nominal.max_um, "{nominal:?} {full:?}");
+    assert!(g1.max_um < full.max_um && g1.rms_um < full.rms_um, "{full:?} {g1:?}");
+    assert!(g2.max_um <= TARGET_MAX_UM && g2.rms_um <= TARGET_RMS_UM, "{g2:?}");
 
-    // Step 2: the 5 mm grid commanded with the fitted model.
-    let nodes: Vec<[f64; 2]> = (0..31).flat_map(|j| (0..20).map(move |i| [165.0 + 5.0 * i as f64, -75.0 + 5.0 * j as f64])).collect();
-    let built = grid_build::build(&fit.model, &measure(&machine, &fitted, &nodes, &mut rng), 5.0).unwrap();
-    let cal = Calibration::from_grid(CorrectionGrid::parse(&built.image).unwrap());
-    let (max2, rms2) = verify(&machine, &cal, &mut rng);
-    eprintln!("max error: nominal {max0:.1} µm, fitted {max1:.1} µm, fit + grid {max2:.2} µm (rms {rms2:.2} µm)");
-    assert!(max0 > 200.0 && max1 < max0 / 5.0, "{max0} {max1}");
-    assert!(max2 < 5.0 && rms2 < 2.0, "fit + grid: max {max2} µm, rms {rms2} µm");
+    let mut machine = PlantMachine::by_name("paper", Some(1.0), 1).unwrap();
+    let random = calibrate(&mut machine, 1, Approach::Random).unwrap();
+    let r2 = random.stages.last().unwrap().accuracy;
+    eprintln!("paper plant, random approach: fit + 2 grid rounds {:.1}/{:.2} µm (backlash)", r2.max_um, r2.rms_um);
+    assert!(r2.max_um < 10.0 && r2.rms_um > g2.rms_um, "{r2:?} vs {g2:?}");
 }
