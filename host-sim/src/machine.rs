@@ -192,7 +192,11 @@ impl PlantMachine {
     /// The plant `name` (`ideal`, `paper` or a TOML file); `noise_um` overrides its
     /// instrument's σ per axis; `seed` seeds the instrument noise.
     pub fn by_name(name: &str, noise_um: Option<f64>, seed: u64) -> Result<Self> {
-        let mut config = PlantConfig::by_name(name)?;
+        Self::from_config(PlantConfig::by_name(name)?, name, noise_um, seed)
+    }
+
+    /// A plant from its configuration (e.g. one with randomly drawn errors), named `name`.
+    pub fn from_config(mut config: PlantConfig, name: &str, noise_um: Option<f64>, seed: u64) -> Result<Self> {
         if let Some(n) = noise_um {
             if !(n >= 0.0 && n.is_finite()) {
                 bail!("--noise-um must be a non-negative number, not {n}");

@@ -28,13 +28,14 @@ fn demo_runs_the_whole_story_and_writes_every_file() {
     assert_eq!(keys, ["nominal", "ls", "full", "full+grid", "full+grid2"]);
     let max = |k: usize| stages[k]["max_um"].as_f64().unwrap();
     let rms = |k: usize| stages[k]["rms_um"].as_f64().unwrap();
-    // Paper-like start (~1.5 mm worst), and every step improves on the one before: nominal →
-    // ls → full → grid. The second grid round only refines (on the stand-in both rounds are at
-    // the noise floor); both must meet the target.
+    // The default machine is the paper plant (six-bar, ~1.5 mm worst before calibration, its
+    // instrument zeroed at Table I's point 1 as in the paper). The paper's `ls` fit (4 links)
+    // cannot absorb that frame offset and is no better than nominal (as the paper's own
+    // re-measured 700 µm said of its fit); the `full` fit (A0 free) is, the grid improves on
+    // it, and the second grid round only refines at the noise floor.
     assert!((1000.0..=1600.0).contains(&max(0)), "before: {} µm", max(0));
-    for k in 1..4 {
-        assert!(max(k) < max(k - 1) && rms(k) < rms(k - 1), "step {k}: {stages:?}");
-    }
+    assert!(max(2) < max(0) / 20.0 && rms(2) < rms(0) / 20.0, "full fit: {stages:?}");
+    assert!(max(3) < max(2) && rms(3) < rms(2), "grid: {stages:?}");
     for (k, key) in keys.iter().enumerate().skip(3) {
         assert!(max(k) <= TARGET_MAX_UM && rms(k) <= TARGET_RMS_UM, "{key}: {} / {} µm", max(k), rms(k));
     }
