@@ -6,6 +6,7 @@
 //! cargo bench -p host-sim --bench diagnose_study                    # sweep, then table1_power
 //! cargo bench -p host-sim --bench diagnose_study -- sweep           # robustness sweep only
 //! cargo bench -p host-sim --bench diagnose_study -- table1_power    # what 9 points can tell
+//! cargo bench -p host-sim --bench diagnose_study -- plant           # the plant outputs of DIAGNOSIS.md
 //! cargo bench -p host-sim --bench diagnose_study -- example FILE    # DIAGNOSIS.md's example CSV
 //! ```
 //!
@@ -15,7 +16,10 @@
 use host_sim::diagnose::report::table;
 use host_sim::diagnose::synth::{generate, Cyclic, Poses, Truth};
 use host_sim::diagnose::{diagnose, effects::LIBRARY};
+use host_sim::measure::{measure, Protocol};
 use host_sim::measurement_csv::format_measurements;
+use host_sim::plant::{Effect, PlantConfig, PlantModel};
+use kinematics_core::Calibration;
 use kinematics_core::FiveBar;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -40,9 +44,10 @@ fn main() {
         }
         Some("sweep") => sweep(),
         Some("table1_power") => table1_power(),
+        Some("plant") => plant_outputs(),
         Some("example") => write_example(args.get(1).map(String::as_str).unwrap_or("diagnose_example.csv")),
         Some(other) => {
-            eprintln!("unknown study '{other}' (known: sweep, table1_power, example FILE)");
+            eprintln!("unknown study '{other}' (known: sweep, table1_power, plant, example FILE)");
             std::process::exit(2);
         }
     }
@@ -156,5 +161,84 @@ fn table1_power() {
             }
             println!("×{f} {effect}: named exactly {exact}/{n}; otherwise {other:?}");
         }
+    }
+}
+
+/// The plant outputs of DIAGNOSIS.md: the six-bar plant measured by `host-sim measure` at 1 µm
+/// noise (same plants and seeds as `tests/diagnose_plant.rs`), one line per case, the full
+/// report for the six-bar's link errors and, for comparison, the same plant solved as its
+/// effective five-bar.
+fn plant_outputs() {
+    let cal = Calibration { model: FiveBar::<f32>::paper_nominal(), grid: None };
+    let run = |p: &PlantConfig, protocol: Protocol, seed: u64| {
+        let data = measure(p, protocol, seed, &cal, Some(1.0)).unwrap();
+        diagnose(&data, &FiveBar::paper_nominal(), Some(1.0)).unwrap()
+    };
+    let mut cyclic = PlantConfig::ideal();
+    cyclic.drive_1.cyclic_error_urad = 40.0;
+    cyclic.drive_1.cyclic_error_cycles_per_motor_rev = 5.0;
+    let mut both = PlantConfig::paper().with_only(Effect::EncoderOffsets);
+    both.drive_1.backlash_urad = 120.0;
+    both.drive_2.backlash_urad = 80.0;
+    let mut scale = PlantConfig::ideal();
+    scale.instrument.scale_error_ppm = 300.0;
+    let mut frame = PlantConfig::ideal();
+    frame.instrument.frame_offset_mm = [0.06, -0.04];
+    frame.instrument.frame_rotation_deg = 0.015;
+    let mut backlash = PlantConfig::ideal();
+    backlash.drive_1.backlash_urad = 150.0;
+    backlash.drive_2.backlash_urad = 90.0;
+    let paper_links = PlantConfig::paper().with_only(Effect::LinkErrors);
+    let mut paper_links_five = paper_links.clone();
+    paper_links_five.sixbar.model = PlantModel::Fivebar;
+    let cases: Vec<(&str, PlantConfig, Protocol, u64)> = vec![
+        ("noise only", PlantConfig::ideal(), Protocol::Random(150), 40),
+        ("paper clearances", PlantConfig::paper().with_only(Effect::Clearance), Protocol::Random(150), 43),
+        ("paper quantization", PlantConfig::paper().with_only(Effect::EncoderQuantization), Protocol::Random(150), 44),
+        ("paper encoder offsets", PlantConfig::paper().with_only(Effect::EncoderOffsets), Protocol::Random(150), 2),
+        ("backlash 150/90 µrad", backlash, Protocol::Random(150), 2),
+        ("frame 72 µm, 262 µrad", frame, Protocol::Random(150), 3),
+        ("paper instrument frame", PlantConfig::paper().with_only(Effect::InstrumentFrame), Protocol::Random(150), 3),
+        ("scale 300 ppm", scale, Protocol::Random(150), 4),
+        ("paper offsets + backlash 120/80", both, Protocol::Random(150), 7),
+        ("cyclic 40 µrad, 5/motor rev, motor 1", cyclic, Protocol::Grid, 70),
+        ("paper link errors (six-bar)", paper_links.clone(), Protocol::Random(200), 60),
+        ("paper link errors (effective five-bar)", paper_links_five.clone(), Protocol::Random(200), 60),
+        ("random link errors σ 50 µm, seed 11", PlantConfig::ideal().with_random_errors(11, 0.05, 0.0), Protocol::Random(200), 61),
+        ("random link errors σ 50 µm, seed 12", PlantConfig::ideal().with_random_errors(12, 0.05, 0.0), Protocol::Random(200), 62),
+    ];
+    println!("| plant (1 µm noise) | protocol | named | confounded | start RMS µm | final RMS µm | χ²/dof | unexplained |");
+    println!("|---|---|---|---|---|---|---|---|");
+    for (what, p, protocol, seed) in &cases {
+        let r = run(p, *protocol, *seed);
+        let named: Vec<&str> = r.steps.iter().map(|s| s.effect.as_str()).collect();
+        let conf: Vec<String> = r.confounded.iter().map(|c| c.join("~")).collect();
+        println!(
+            "| {what} | {protocol:?} | {} | {} | {:.1} | {:.2} | {:.2} | {} |",
+            if named.is_empty() { "—".to_string() } else { named.join(", ") },
+            if conf.is_empty() { "—".to_string() } else { conf.join(", ") },
+            r.initial_rms_um,
+            r.final_rms_um,
+            r.chi2_per_dof.unwrap_or(f64::NAN),
+            r.unexplained
+        );
+    }
+    // The non-five-bar part of the six-bar: the same commands on both plant models, no noise.
+    let six = measure(&paper_links, Protocol::Grid, 1, &cal, Some(0.0)).unwrap();
+    let five = measure(&paper_links_five, Protocol::Grid, 1, &cal, Some(0.0)).unwrap();
+    let d: Vec<f64> = six
+        .iter()
+        .zip(&five)
+        .map(|(a, b)| (a.measured_mm[0] - b.measured_mm[0]).hypot(a.measured_mm[1] - b.measured_mm[1]) * 1e3)
+        .collect();
+    let rms = (d.iter().map(|v| v * v).sum::<f64>() / d.len() as f64).sqrt();
+    println!(
+        "\nparallelogram mismatch of the paper's link errors (six-bar − effective five-bar, 5 mm grid): min {:.1}, RMS {:.1}, max {:.1} µm",
+        d.iter().cloned().fold(f64::INFINITY, f64::min),
+        rms,
+        d.iter().cloned().fold(0.0, f64::max)
+    );
+    for (what, p) in [("six-bar", &paper_links), ("effective five-bar", &paper_links_five)] {
+        println!("\n== paper link errors, {what}, random:200 seed 60\n{}", table(&run(p, Protocol::Random(200), 60)));
     }
 }
