@@ -165,7 +165,8 @@ fn table1_power() {
 }
 
 /// The plant outputs of DIAGNOSIS.md: the six-bar plant measured by `host-sim measure` at 1 µm
-/// noise (same plants and seeds as `tests/diagnose_plant.rs`), one line per case, the full
+/// noise (the noise, `paper` and link-error cases are the plants and seeds of
+/// `tests/diagnose_plant.rs`), one line per case, the full
 /// report for the six-bar's link errors and, for comparison, the same plant solved as its
 /// effective five-bar.
 fn plant_outputs() {
