@@ -1,11 +1,10 @@
 //! Tests of `host-sim diagnose` on data whose truth is hidden from the workflow.
 //!
 //! The data come from `host_sim::diagnose::synth` (a five-bar truth with effects generated, where
-//! physics allows, in a different form from the library; see its module doc) until the six-bar
-//! plant of branch `sim` lands. Every check goes through [`check`], which takes plain
-//! `Vec<Measurement>`: to point these tests at the plant, generate the measurements with
-//! `host-sim measure` (or its library function) on a plant with the same effect switched on and
-//! call [`check`] with the same expectations.
+//! physics allows, in a different form from the library; see its module doc): every library
+//! effect, including those the plant has no switch for. The same workflow on the six-bar plant
+//! through `host-sim measure` is tested in `tests/diagnose_plant.rs`; the studies (robustness
+//! sweep, Table I's power, the example file) are `benches/diagnose_study.rs`.
 //!
 //! Cost: each diagnosis is 0.1–0.5 s in the dev profile; the whole file runs in well under a
 //! minute on one core.
@@ -340,122 +339,4 @@ fn command_writes_report_and_plots() {
         .unwrap();
     assert!(!bad.status.success());
     assert!(String::from_utf8_lossy(&bad.stderr).contains("--noise-um"));
-}
-
-/// Robustness sweep (not in CI): many random magnitudes and seeds per single effect and for
-/// harder pairs; prints the failures. `cargo test -p host-sim --test diagnose sweep -- --ignored --nocapture`
-#[test]
-#[ignore]
-fn sweep() {
-    let n: u64 = std::env::var("SWEEP_N").ok().and_then(|v| v.parse().ok()).unwrap_or(20);
-    let mut cases: Vec<Vec<&str>> = LIBRARY.iter().map(|e| vec![e.name]).collect();
-    cases.push(vec![]);
-    for extra in [
-        ["encoder_offset", "frame"],
-        ["base_offset", "frame"],
-        ["link_lengths", "base_offset"],
-        ["link_stretch", "backlash"],
-        ["scale", "frame"],
-        ["gear_ratio", "backlash"],
-        ["link_lengths", "encoder_offset"],
-    ] {
-        cases.push(extra.to_vec());
-    }
-    cases.push(vec!["link_lengths", "encoder_offset", "backlash", "base_offset"]);
-    cases.push(vec!["link_lengths", "encoder_offset", "backlash", "frame", "gear_ratio"]);
-    if let Ok(only) = std::env::var("SWEEP_ONLY") {
-        cases.retain(|c| c.join(",") == only);
-    }
-    for case in &cases {
-        let mut fails = Vec::new();
-        for seed in 0..n {
-            let mut rng = ChaCha8Rng::seed_from_u64(99_000 + seed);
-            let f: f64 = std::env::var("SWEEP_SCALE").ok().and_then(|v| v.parse().ok()).unwrap_or(1.0);
-            let truth = truth_with(case, &mut rng).scaled(f);
-            let poses = if seed % 2 == 1 { Poses::Random(400) } else { Poses::Grid5mm };
-            let data = generate(&truth, poses, 5000 + seed);
-            let r = diagnose(&data, &FiveBar::paper_nominal(), Some(NOISE_UM)).unwrap();
-            let mut named: Vec<&str> = r.steps.iter().map(|s| s.effect.as_str()).collect();
-            named.sort();
-            let mut want: Vec<&str> = case.clone();
-            if case.contains(&"link_stretch") {
-                for extra in ["link_lengths", "encoder_offset"] {
-                    if named.contains(&extra) && !want.contains(&extra) {
-                        want.push(extra);
-                    }
-                }
-            }
-            want.sort();
-            let at_noise = r.chi2_per_dof.unwrap_or(9.0) < 1.21;
-            if named != want || r.unexplained || !at_noise {
-                fails.push(format!(
-                    "seed {seed}: named {named:?} χ²/dof {:.2} confounded {:?}",
-                    r.chi2_per_dof.unwrap_or(f64::NAN),
-                    r.confounded
-                ));
-                if std::env::var("SWEEP_VERBOSE").is_ok() {
-                    fails.push(format!("truth {truth:?}\n{}", table(&r)));
-                }
-            }
-        }
-        println!("{case:?}: {}/{n} ok", n as usize - fails.len());
-        for f in fails {
-            println!("    {f}");
-        }
-    }
-}
-
-/// Writes an example measurement file with hidden effects (for DIAGNOSIS.md):
-/// `DIAG_EXAMPLE=/tmp/m.csv cargo test -p host-sim --test diagnose write_example -- --ignored`
-#[test]
-#[ignore]
-fn write_example() {
-    let path = std::env::var("DIAG_EXAMPLE").unwrap_or_else(|_| "diagnose_example.csv".into());
-    let truth = Truth {
-        noise_um: NOISE_UM,
-        link_delta_um: [40.0, -25.0, 30.0, -60.0],
-        backlash_urad: [120.0, 80.0],
-        cyclic: Some(Cyclic { motor: 0, cycles: 50.0, amplitude_urad: 40.0, phase_rad: 0.3 }),
-        ..Default::default()
-    };
-    std::fs::write(&path, format_measurements(&generate(&truth, Poses::Grid5mm, 42))).unwrap();
-    println!("{truth:?}");
-}
-
-/// What 9 points at 20 µm can tell (for DIAGNOSIS.md): each effect hidden at the Table I poses,
-/// without dir/time columns (the paper has none), at 1× and 5× the magnitudes of the other tests.
-/// `cargo test -p host-sim --test diagnose table1_power -- --ignored --nocapture`
-#[test]
-#[ignore]
-fn table1_power() {
-    let n = 20u64;
-    for f in [1.0, 5.0] {
-        for effect in LIBRARY.iter().map(|e| e.name).chain(["none"]) {
-            let mut exact = 0;
-            let mut other: std::collections::BTreeMap<String, usize> = Default::default();
-            for seed in 0..n {
-                let mut rng = ChaCha8Rng::seed_from_u64(seed);
-                let mut truth = Truth { noise_um: 20.0, ..Default::default() };
-                if effect != "none" {
-                    truth.add_random(effect, &mut rng);
-                }
-                let mut truth = truth.scaled(f);
-                truth.noise_um = 20.0;
-                let mut data = generate(&truth, Poses::Table1, seed);
-                for m in data.iter_mut() {
-                    m.dir = None;
-                    m.t_s = None;
-                }
-                let r = diagnose(&data, &FiveBar::paper_nominal(), Some(20.0)).unwrap();
-                let named: Vec<&str> = r.steps.iter().map(|s| s.effect.as_str()).collect();
-                let want: Vec<&str> = if effect == "none" { vec![] } else { vec![effect] };
-                if named == want {
-                    exact += 1;
-                } else {
-                    *other.entry(format!("{named:?}")).or_default() += 1;
-                }
-            }
-            println!("×{f} {effect}: named exactly {exact}/{n}; otherwise {other:?}");
-        }
-    }
 }
