@@ -2,11 +2,14 @@
 //! feed-forward, a torque limit and anti-windup.
 //!
 //! ```text
-//! τ = kp·e + ki·∫e + kd·(ω_ref - ω) + inertia·α_ref + viscous·ω_ref,   e = θ_ref - θ
+//! τ = kp·e + ki·∫e + kd·(ω_ref - ω) + inertia·α_ref + viscous·ω_ref + coulomb·s(ω_ref),
+//! e = θ_ref - θ,   s(ω) = ω / (|ω| + ω_c)
 //! ```
 //! The feed-forward terms supply the torque a 5 g move needs, so the feedback only has to
 //! correct what the model of the drive gets wrong, and the following error at high
-//! acceleration stays small. Anti-windup is conditional integration: while the output is
+//! acceleration stays small. The Coulomb term uses a smoothed sign of the *reference* velocity
+//! (`ω_c` sets how fast it turns over), so it switches where the motion reverses instead of
+//! waiting for the integrator to unwind, and never chatters on encoder noise. Anti-windup is conditional integration: while the output is
 //! saturated the integrator only moves in the direction that brings it out of saturation, and it
 //! is clamped to `integral_limit_nm` of torque in any case. Derivative acts on the velocity
 //! error (reference velocity minus measured), not on the error of a stepped reference, so a
@@ -26,6 +29,10 @@ pub struct AxisGains {
     pub inertia_ff_kg_m2: f32,
     /// Velocity feed-forward: the axis' viscous friction (N·m·s/rad).
     pub viscous_ff_nm_s_per_rad: f32,
+    /// Coulomb friction feed-forward (N·m), applied with the sign of the reference velocity.
+    pub coulomb_ff_nm: f32,
+    /// Reference speed (rad/s) at which the Coulomb feed-forward reaches half its value.
+    pub coulomb_ff_speed_rad_s: f32,
     /// Output limit (N·m), symmetric.
     pub torque_limit_nm: f32,
     /// Largest torque the integrator may hold (N·m).
@@ -63,7 +70,9 @@ impl AxisController {
             + self.integral_nm
             + gains.kd_nm_s_per_rad * (reference.velocity_rad_s - velocity_rad_s)
             + gains.inertia_ff_kg_m2 * reference.acceleration_rad_s2
-            + gains.viscous_ff_nm_s_per_rad * reference.velocity_rad_s;
+            + gains.viscous_ff_nm_s_per_rad * reference.velocity_rad_s
+            + gains.coulomb_ff_nm * reference.velocity_rad_s
+                / (reference.velocity_rad_s.abs() + gains.coulomb_ff_speed_rad_s);
         let limit = gains.torque_limit_nm;
         let output = unsaturated.clamp(-limit, limit);
         let increment = gains.ki_nm_per_rad_s * error * dt_s;
@@ -97,6 +106,8 @@ mod tests {
             kd_nm_s_per_rad: 1.0,
             inertia_ff_kg_m2: 0.01,
             viscous_ff_nm_s_per_rad: 0.1,
+            coulomb_ff_nm: 0.0,
+            coulomb_ff_speed_rad_s: 0.01,
             torque_limit_nm: 2.0,
             integral_limit_nm: 1.0,
         }
@@ -132,6 +143,19 @@ mod tests {
         }
         assert!((angle - 0.1).abs() < 1e-5, "angle {angle}");
         assert!((c.integral_nm() - 0.5).abs() < 1e-3, "integral {}", c.integral_nm());
+    }
+
+    #[test]
+    fn coulomb_feed_forward_follows_the_reference_direction() {
+        let g = AxisGains { coulomb_ff_nm: 0.5, ..gains() };
+        let at = |w: f32| {
+            let r = AxisReference { angle_rad: 0.0, velocity_rad_s: w, acceleration_rad_s2: 0.0 };
+            // Measured velocity = reference: no kd term; only viscous and Coulomb remain.
+            AxisController::default().update(&g, &r, 0.0, w, 5e-4) - 0.1 * w
+        };
+        assert!((at(10.0) - 0.5).abs() < 1e-3 && (at(-10.0) + 0.5).abs() < 1e-3);
+        assert!((at(0.01) - 0.25).abs() < 1e-6, "half at the turn-over speed");
+        assert_eq!(at(0.0), 0.0);
     }
 
     #[test]

@@ -57,6 +57,10 @@ impl Default for ServoConfig {
             kd_nm_s_per_rad: 1.4,
             inertia_ff_kg_m2: 2.0e-3,
             viscous_ff_nm_s_per_rad: 0.0,
+            // Off: set it to (a little under) the friction identified at commissioning;
+            // on a frictionless axis it only pushes the axis through each reversal.
+            coulomb_ff_nm: 0.0,
+            coulomb_ff_speed_rad_s: 0.01,
             torque_limit_nm: 8.0,
             integral_limit_nm: 2.0,
         };
