@@ -5,7 +5,8 @@
 #   bash tests/run-all.sh
 #
 # Steps, each must pass:
-#   1. host tests of kinematics-core, host-sim and the cross-crate tests (cargo test)
+#   1. host tests of kinematics-core, host-sim and the cross-crate tests (cargo test; the
+#      same-core test builds the firmware's golden binary and runs it under QEMU)
 #   2. kinematics-core builds for the MCU (thumbv7em-none-eabihf, no_std)
 #   3. firmware under QEMU: the real app against the in-firmware plant (cargo qemu-test)
 #   4. firmware cycle benchmarks under QEMU, printing BENCH lines (cargo qemu-bench)

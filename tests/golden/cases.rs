@@ -1,0 +1,145 @@
+// The same-core cases: a fixed computation over `kinematics-core` whose every result must be
+// bit-identical on the MCU (firmware/src/bin/golden.rs, under QEMU) and on the host
+// (tests/tests/same_core_on_mcu.rs). Both `include!` this file, so there is one definition.
+//
+// no_std, no heap: only `kinematics_core` and core. Each result is emitted as a `u32`: an f32's
+// bits, or `ERROR | code` for a refused input, so that errors must agree too. Transcendentals
+// go through `Real` (libm) explicitly: on the host, `f32::sin_cos` would be std's, not the core's.
+
+use kinematics_core::grid::{encode, CorrectionGrid, GridGeometry};
+use kinematics_core::{Calibration, FiveBar, Real, Servo, ServoConfig, WorkingMode};
+
+/// Marks an emitted error code (no f32 result has these bits: a NaN payload the core never makes).
+pub const ERROR: u32 = 0x7fc0_de00;
+
+/// Number of targets.
+pub const TARGETS: usize = 96;
+
+/// A calibrated-looking machine: unequal links, both bases offset, encoder offsets.
+pub fn model() -> FiveBar<f32> {
+    FiveBar {
+        a_mm: 149.868,
+        b_mm: 150.21,
+        c_mm: 149.74,
+        d_mm: 150.12,
+        base_a0_mm: [-0.61, 0.27],
+        base_b0_mm: [0.35, -0.8],
+        encoder_offset_rad: [0.004, -0.007],
+        mode: WorkingMode::PAPER,
+    }
+}
+
+/// Target `k`: a quasi-random spread over the paper workspace, then a few hostile ones.
+pub fn target_mm(k: usize) -> [f32; 2] {
+    match k {
+        90 => [f32::NAN, 0.0],
+        91 => [400.0, 0.0],
+        92 => [0.0, 0.0],
+        93 => [f32::INFINITY, 1.0],
+        94 => [299.0, 0.0],
+        95 => [162.132, -75.0],
+        _ => {
+            let u = (k as f32 * 0.618_034) % 1.0;
+            let v = (k as f32 * 0.754_877_7) % 1.0;
+            [162.132 + 100.0 * u, -75.0 + 150.0 * v]
+        }
+    }
+}
+
+fn emit_result(emit: &mut impl FnMut(u32), r: Result<[f32; 2], u32>) {
+    match r {
+        Ok(v) => {
+            emit(v[0].to_bits());
+            emit(v[1].to_bits());
+        }
+        Err(code) => emit(ERROR | code),
+    }
+}
+
+fn code<E: core::fmt::Debug>(e: E) -> u32 {
+    // A short, stable code from the error's Debug text (same derive on both targets).
+    let mut h: u32 = 0;
+    let mut w = HashWriter(&mut h);
+    let _ = core::fmt::write(&mut w, format_args!("{e:?}"));
+    h & 0xff
+}
+
+struct HashWriter<'a>(&'a mut u32);
+
+impl core::fmt::Write for HashWriter<'_> {
+    fn write_str(&mut self, s: &str) -> core::fmt::Result {
+        for b in s.bytes() {
+            *self.0 = self.0.wrapping_mul(31).wrapping_add(b as u32);
+        }
+        Ok(())
+    }
+}
+
+/// Runs every case, emitting the results in a fixed order.
+pub fn run(emit: &mut impl FnMut(u32)) {
+    let m = model();
+    // 1. IK, FK of the IK, the Jacobian.
+    for k in 0..TARGETS {
+        let p = target_mm(k);
+        let pose = m.inverse_pose(p, 0.05);
+        emit_result(emit, pose.map(|q| q.theta_rad).map_err(code));
+        if let Ok(q) = pose {
+            emit_result(emit, m.forward(q.theta_rad, 0.0).map_err(code));
+            match q.jacobian() {
+                Ok(j) => j.iter().flatten().for_each(|v| emit(v.to_bits())),
+                Err(e) => emit(ERROR | code(e)),
+            }
+        }
+    }
+    // 2. A correction grid built in place, and lookups through it.
+    let g = GridGeometry { nx: 6, ny: 7, x0_mm: 162.132, y0_mm: -75.0, step_x_mm: 20.0, step_y_mm: 25.0 };
+    let mut nodes = [[0.0f32; 2]; 42];
+    for (n, node) in nodes.iter_mut().enumerate() {
+        let (s, c) = Real::sin_cos(n as f32 * 0.37);
+        *node = [3e-4 * s, -2e-4 * c];
+    }
+    let mut image = [0u8; 72 + 8 * 42 + 4];
+    if encode(&mut image, &g, &m, &nodes).is_err() {
+        emit(ERROR | 0xee);
+        return;
+    }
+    let Ok(grid) = CorrectionGrid::parse(&image) else {
+        emit(ERROR | 0xef);
+        return;
+    };
+    let cal = Calibration::from_grid(grid);
+    for k in 0..TARGETS {
+        emit_result(emit, cal.command_rad(target_mm(k), 0.05).map_err(code));
+    }
+    // 3. The servo closed around a two-inertia plant for 400 samples of a 10 mm circle.
+    let mut servo = Servo::new(ServoConfig::default());
+    let centre = [202.132f32, 0.0];
+    let Ok(mut angle) = cal.command_rad([centre[0] + 10.0, centre[1]], 0.05) else {
+        emit(ERROR | 0xf0);
+        return;
+    };
+    let mut velocity = [0.0f32; 2];
+    if let Err(e) = servo.engage(&cal, angle) {
+        emit(ERROR | code(e));
+        return;
+    }
+    for n in 0..400 {
+        let t = n as f32 * 5e-4;
+        let phase = 6.283_185 * t * t; // angular speed ramps up from zero
+        let (s, c) = Real::sin_cos(phase);
+        match servo.step(&cal, [centre[0] + 10.0 * c, centre[1] + 10.0 * s], angle) {
+            Ok(out) => {
+                emit(out.torque_nm[0].to_bits());
+                emit(out.torque_nm[1].to_bits());
+                for k in 0..2 {
+                    velocity[k] += out.torque_nm[k] / 2e-3 * 5e-4;
+                    angle[k] += velocity[k] * 5e-4;
+                }
+            }
+            Err(e) => {
+                emit(ERROR | code(e));
+                return;
+            }
+        }
+    }
+}
