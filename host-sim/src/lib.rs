@@ -7,6 +7,8 @@
 //!
 //! File formats (contracts other tools rely on): [`measurement_csv`], [`model_file`], the grid
 //! image (`kinematics_core::grid`).
+// `!(x >= lo)` instead of `x < lo` is deliberate throughout: it also refuses NaN.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 pub mod diagnose;
 pub mod measurement_csv;
