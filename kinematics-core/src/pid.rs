@@ -122,7 +122,7 @@ mod tests {
         let mut c = AxisController::default();
         for _ in 0..10_000 {
             let t = c.update(&gains(), &still(1.0), 0.0, 0.0, 5e-4);
-            assert!(t <= 2.0 && t >= -2.0);
+            assert!((-2.0..=2.0).contains(&t));
         }
         // Saturated the whole time with a positive error: the integrator must not have grown.
         assert_eq!(c.integral_nm(), 0.0);

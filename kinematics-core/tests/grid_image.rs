@@ -91,7 +91,7 @@ fn every_single_bit_flip_is_rejected() {
 fn trailing_flash_is_ignored_but_truncation_is_not() {
     let mut img = image();
     let len = img.len();
-    img.extend(std::iter::repeat(0xFF).take(4096));
+    img.extend(std::iter::repeat_n(0xFF, 4096));
     assert!(CorrectionGrid::parse(&img).is_ok());
     assert_eq!(CorrectionGrid::parse(&img[..len - 1]).unwrap_err(), GridError::Truncated);
     assert_eq!(CorrectionGrid::parse(&img[..10]).unwrap_err(), GridError::Truncated);
