@@ -1,7 +1,7 @@
 //! The flash image of the correction grid: round trip, every single bit flip rejected,
 //! malformed headers rejected, interpolation exact on bilinear fields, edges, outside.
 
-use kinematics_core::grid::{encode, CorrectionGrid, GridError, GridGeometry, EDGE_TOLERANCE_CELLS, HEADER_LEN};
+use kinematics_core::grid::{encode, CorrectionGrid, GridError, GridGeometry, HEADER_LEN};
 use kinematics_core::FiveBar;
 
 fn geometry() -> GridGeometry {
@@ -73,31 +73,27 @@ fn outside_the_grid_is_refused_and_rounding_at_the_edge_is_not() {
     assert!(grid.correction_rad([262.1321, 75.0]).is_ok());
 }
 
-/// The refusal is probed where the tolerance ends: at twice the edge tolerance outside each of
-/// the four edges a point is refused, at half of it inside the tolerance it takes the edge
-/// value. (A tolerance widened even 3x would accept the first.)
+/// The refusal is probed where the tolerance ends. The tolerance is 1e-4 of a cell
+/// (`grid::EDGE_TOLERANCE_CELLS`), 0.5 µm for these 5 mm cells: it absorbs float rounding of a
+/// target on the boundary, nothing more. At twice that (1 µm) outside each of the four edges a
+/// point is refused; at half of it, it takes the edge value. The distances are the documented
+/// figure, not read from the constant, so a widened tolerance fails here.
 #[test]
 fn refusal_starts_within_twice_the_edge_tolerance_on_every_edge() {
+    const TOLERANCE_MM: f32 = 1.0e-4 * 5.0;
     let img = image();
     let grid = CorrectionGrid::parse(&img).unwrap();
     let g = geometry();
+    assert_eq!((g.step_x_mm, g.step_y_mm), (5.0, 5.0));
     let (x_lo, x_hi) = (g.x0_mm, g.node_mm(g.nx - 1, 0)[0]);
     let (y_lo, y_hi) = (g.y0_mm, g.node_mm(0, g.ny - 1)[1]);
-    let (tol_x_mm, tol_y_mm) = (EDGE_TOLERANCE_CELLS * g.step_x_mm, EDGE_TOLERANCE_CELLS * g.step_y_mm);
-    // 0.5 µm: the tolerance absorbs float rounding of a target on the boundary, nothing more.
-    assert!(tol_x_mm <= 1e-3 && tol_y_mm <= 1e-3);
     let (x_mid, y_mid) = ((x_lo + x_hi) / 2.0, (y_lo + y_hi) / 2.0);
-    let edges = [
-        ([x_lo, y_mid], [-tol_x_mm, 0.0]),
-        ([x_hi, y_mid], [tol_x_mm, 0.0]),
-        ([x_mid, y_lo], [0.0, -tol_y_mm]),
-        ([x_mid, y_hi], [0.0, tol_y_mm]),
-    ];
+    let edges = [([x_lo, y_mid], [-1.0, 0.0]), ([x_hi, y_mid], [1.0, 0.0]), ([x_mid, y_lo], [0.0, -1.0]), ([x_mid, y_hi], [0.0, 1.0])];
     for (edge, outward) in edges {
-        let at = |k: f32| [edge[0] + k * outward[0], edge[1] + k * outward[1]];
-        assert_eq!(grid.correction_rad(at(2.0)), Err(GridError::OutsideGrid), "2x tolerance outside {edge:?}");
-        assert_eq!(grid.correction_rad(at(5.0)), Err(GridError::OutsideGrid), "5x tolerance outside {edge:?}");
-        let inside = grid.correction_rad(at(0.5)).unwrap_or_else(|e| panic!("{e} at half the tolerance, {edge:?}"));
+        let at = |k: f32| [edge[0] + k * TOLERANCE_MM * outward[0], edge[1] + k * TOLERANCE_MM * outward[1]];
+        assert_eq!(grid.correction_rad(at(2.0)), Err(GridError::OutsideGrid), "1 µm outside {edge:?}");
+        assert_eq!(grid.correction_rad(at(5.0)), Err(GridError::OutsideGrid), "2.5 µm outside {edge:?}");
+        let inside = grid.correction_rad(at(0.5)).unwrap_or_else(|e| panic!("{e} 0.25 µm outside {edge:?}"));
         // Taking the edge value: the same as on the edge itself, to f32 rounding.
         let on_edge = grid.correction_rad(edge).unwrap();
         for k in 0..2 {
