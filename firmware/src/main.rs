@@ -44,7 +44,7 @@ mod app {
     use controller::status::Status;
     use controller::trajectory::Trajectory;
     use controller::SAMPLE_RATE_HZ;
-    use firmware::board::{Board, Selected};
+    use firmware::board::{Board, Selected, ServoTimer};
 
     #[shared]
     struct Shared {
@@ -96,7 +96,7 @@ mod app {
             setpoints::refill(&mut setpoints_in, &mut source);
         }
         let status = Status::at_boot(cal_state, &servo_loop, encoder_rad);
-        board.start_timer();
+        board.timer().start();
         (Shared { status }, Local { board, servo_loop, setpoints_out, setpoints_in, source })
     }
 
@@ -118,7 +118,7 @@ mod app {
     #[task(binds = SERVO_TICK, priority = 3, shared = [status], local = [board, servo_loop, setpoints_out])]
     fn servo_tick(mut cx: servo_tick::Context) {
         let l = cx.local;
-        l.board.acknowledge_tick();
+        l.board.timer().acknowledge_tick();
         l.board.begin_sample();
         // Encoders -> sample logic (setpoint intake, mode machine, servo step).
         let encoder_rad = l.board.encoders_rad();
@@ -131,7 +131,8 @@ mod app {
             l.servo_loop.latch(Fault::Drive, &mut sample);
         }
         // Deadline.
-        let (step_us, overrun) = (l.board.step_time_us(), l.board.next_tick_pending());
+        let timer = l.board.timer();
+        let (step_us, overrun) = (timer.step_time_us(), timer.next_tick_pending());
         l.servo_loop.record_deadline(step_us, overrun, &mut sample);
         // Safe state in the sample that found the fault.
         if let Some(fault) = sample.fault {

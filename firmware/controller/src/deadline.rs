@@ -8,6 +8,20 @@
 /// The servo deadline (µs): the next tick.
 pub const DEADLINE_US: f32 = 1.0e6 / crate::SAMPLE_RATE_HZ as f32;
 
+/// Time since the tick that started a step (µs), from a timer that restarts every period:
+/// `elapsed_us` since the current period began (read first), the period, and whether the next
+/// tick is already pending (read after). A pending tick with less than half a period elapsed
+/// means the counter restarted: the step ran past the next tick. A pending tick with more
+/// elapsed came between the two reads. Steps longer than 1.5 periods read short (they are
+/// overruns either way).
+pub fn step_time_us(elapsed_us: f32, period_us: f32, next_tick_pending: bool) -> f32 {
+    if next_tick_pending && elapsed_us < 0.5 * period_us {
+        period_us + elapsed_us
+    } else {
+        elapsed_us
+    }
+}
+
 /// Overrun counts and the worst step time.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -40,6 +54,15 @@ impl Deadline {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn step_time_counts_past_the_next_tick() {
+        assert_eq!(step_time_us(15.0, 500.0, false), 15.0);
+        // The counter restarted 200 µs ago: 700 µs since the step's tick.
+        assert_eq!(step_time_us(200.0, 500.0, true), 700.0);
+        // The tick arrived between the two reads, at the period's end.
+        assert_eq!(step_time_us(499.9, 500.0, true), 499.9);
+    }
 
     #[test]
     fn deadline_is_the_next_tick() {

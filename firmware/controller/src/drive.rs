@@ -46,6 +46,14 @@ impl<P: SetDutyCycle> TorqueDrive<P> {
     }
 }
 
+/// Commands both axes; returns the torques commanded after duty rounding, or the first error
+/// (axis 1 is not written after axis 0 failed).
+pub fn set_torques_nm<P: SetDutyCycle>(drives: &mut [TorqueDrive<P>; 2], torque_nm: [f32; 2]) -> Result<[f32; 2], DriveError> {
+    let a = drives[0].set_torque_nm(torque_nm[0])?;
+    let b = drives[1].set_torque_nm(torque_nm[1])?;
+    Ok([a, b])
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -125,5 +133,14 @@ mod tests {
         assert!((got - 2.5).abs() <= FULL_NM / MAX as f32);
         d.pwm.fail = true;
         assert_eq!(d.set_torque_nm(1.0), Err(DriveError));
+        let mut both = [
+            TorqueDrive { pwm: Recorder { duty: 0, fail: false }, full_scale_nm: FULL_NM },
+            TorqueDrive { pwm: Recorder { duty: 0, fail: false }, full_scale_nm: FULL_NM },
+        ];
+        let got = set_torques_nm(&mut both, [-FULL_NM, 0.0]).unwrap();
+        assert_eq!(got, [-FULL_NM, 0.0]);
+        assert_eq!((both[0].pwm.duty, both[1].pwm.duty), (0, 2125));
+        both[1].pwm.fail = true;
+        assert_eq!(set_torques_nm(&mut both, [0.0; 2]), Err(DriveError));
     }
 }

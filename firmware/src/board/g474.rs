@@ -26,7 +26,7 @@
 //! sets `zero_counts` is still to be written (see README, "What is untested").
 use core::sync::atomic::{AtomicI32, Ordering};
 
-use controller::drive::{DriveError, TorqueDrive};
+use controller::drive::{self, DriveError, TorqueDrive};
 use controller::encoder::{counts_to_rad, QuadratureEncoder};
 use controller::settings::Settings;
 use controller::trajectory::Trajectory;
@@ -34,7 +34,7 @@ use controller::SAMPLE_RATE_HZ;
 use embedded_hal::pwm::{ErrorType, SetDutyCycle};
 use stm32g4::stm32g474 as pac;
 
-use super::Board;
+use super::{Board, ServoTimer};
 
 device! {
     // STM32G4 implements 4 priority bits and 102 external interrupts.
@@ -61,12 +61,12 @@ pub const PWM_MAX_DUTY: u16 = 4250;
 // Servo timer: TIM6.
 
 /// The 2 kHz servo tick: TIM6 counting up from 0 to `reload` once per period.
-pub struct ServoTimer {
+pub struct Tim6Timer {
     tim: pac::TIM6,
     reload: u32,
 }
 
-impl ServoTimer {
+impl Tim6Timer {
     fn new(tim: pac::TIM6, rate_hz: u32) -> Self {
         let reload = TICK_TIMER_HZ / rate_hz - 1;
         // SAFETY (all `bits` writes below): values from RM0440 for these registers.
@@ -76,42 +76,35 @@ impl ServoTimer {
         tim.egr().write(|w| unsafe { w.bits(1) }); // UG: load PSC/ARR
         tim.sr().write(|w| unsafe { w.bits(0) });
         tim.dier().write(|w| unsafe { w.bits(1) }); // UIE
-        ServoTimer { tim, reload }
+        Tim6Timer { tim, reload }
     }
+}
 
-    /// Starts the periodic interrupt.
-    pub fn start(&mut self) {
+impl ServoTimer for Tim6Timer {
+    fn start(&mut self) {
+        // SAFETY: CEN set, the other CR1 bits kept.
         self.tim.cr1().modify(|r, w| unsafe { w.bits(r.bits() | 1) });
     }
 
-    /// Acknowledges the tick.
     #[inline]
-    pub fn clear_interrupt(&mut self) {
+    fn acknowledge_tick(&mut self) {
+        // SAFETY: clearing UIF, the only flag of TIM6's SR.
         self.tim.sr().write(|w| unsafe { w.bits(0) });
     }
 
-    /// Time since the current period started (µs).
     #[inline]
-    pub fn elapsed_us(&self) -> f32 {
+    fn elapsed_us(&self) -> f32 {
         (self.tim.cnt().read().bits() & 0xFFFF) as f32 * (1.0e6 / TICK_TIMER_HZ as f32)
     }
 
-    /// Whether the next period has already begun (its interrupt is pending): an overrun.
     #[inline]
-    pub fn next_tick_pending(&self) -> bool {
-        self.tim.sr().read().bits() & 1 != 0
+    fn period_us(&self) -> f32 {
+        (self.reload + 1) as f32 * (1.0e6 / TICK_TIMER_HZ as f32)
     }
 
-    /// Time since the tick that started this step (µs), also past the next tick.
     #[inline]
-    pub fn step_time_us(&self) -> f32 {
-        let elapsed_us = self.elapsed_us();
-        let period_us = (self.reload + 1) as f32 * (1.0e6 / TICK_TIMER_HZ as f32);
-        if self.next_tick_pending() && elapsed_us < 0.5 * period_us {
-            period_us + elapsed_us
-        } else {
-            elapsed_us
-        }
+    fn next_tick_pending(&self) -> bool {
+        self.tim.sr().read().bits() & 1 != 0
     }
 }
 
@@ -186,7 +179,7 @@ fn encoder_timer(tim: &pac::tim3::RegisterBlock) {
 
 /// The STM32G474 with its drives and encoders.
 pub struct G474Board {
-    timer: ServoTimer,
+    timer: Tim6Timer,
     encoders: [TimEncoder; 2],
     drives: [TorqueDrive<Tim1Pwm>; 2],
     /// Encoder counts at the machine's zero (set by homing; 0 = power-on position).
@@ -200,6 +193,7 @@ fn set_bits(r: u32, mask: u32, value: u32) -> u32 {
 impl Board for G474Board {
     /// No test harness on the board: the production settings, no built-in tour.
     type Setpoints = Trajectory;
+    type Timer = Tim6Timer;
 
     fn settings() -> Settings {
         Settings::default()
@@ -262,7 +256,7 @@ impl Board for G474Board {
         encoder_timer(&dp.TIM3);
         encoder_timer(&dp.TIM4);
 
-        let timer = ServoTimer::new(dp.TIM6, SAMPLE_RATE_HZ);
+        let timer = Tim6Timer::new(dp.TIM6, SAMPLE_RATE_HZ);
         let mut board = G474Board {
             timer,
             encoders: [
@@ -292,9 +286,7 @@ impl Board for G474Board {
 
     #[inline]
     fn set_torques_nm(&mut self, torque_nm: [f32; 2]) -> Result<[f32; 2], DriveError> {
-        let a = self.drives[0].set_torque_nm(torque_nm[0])?;
-        let b = self.drives[1].set_torque_nm(torque_nm[1])?;
-        Ok([a, b])
+        drive::set_torques_nm(&mut self.drives, torque_nm)
     }
 
     fn enable_drives(&mut self) {
@@ -308,23 +300,9 @@ impl Board for G474Board {
         let _ = self.set_torques_nm([0.0; 2]);
     }
 
-    fn start_timer(&mut self) {
-        self.timer.start();
-    }
-
     #[inline]
-    fn acknowledge_tick(&mut self) {
-        self.timer.clear_interrupt();
-    }
-
-    #[inline]
-    fn step_time_us(&self) -> f32 {
-        self.timer.step_time_us()
-    }
-
-    #[inline]
-    fn next_tick_pending(&self) -> bool {
-        self.timer.next_tick_pending()
+    fn timer(&mut self) -> &mut Tim6Timer {
+        &mut self.timer
     }
 
     /// Sleep until the next interrupt.

@@ -12,6 +12,7 @@
 //!
 //! Each board also exports, for the bare-metal benchmark and golden binaries (no RTIC, no
 //! `Board`): `console`, `exit`, `CycleCounter` and `COUNT_UNIT`.
+use controller::deadline::step_time_us;
 use controller::drive::DriveError;
 use controller::settings::Settings;
 use controller::setpoints::SetpointSource;
@@ -34,12 +35,41 @@ pub mod qemu;
 #[cfg(feature = "board-qemu")]
 pub use qemu::{console, device, exit, CycleCounter, QemuBoard as Selected, COUNT_UNIT};
 
+/// The timer whose interrupt (`SERVO_TICK`) starts every servo sample, 2 kHz.
+pub trait ServoTimer {
+    /// Starts the periodic interrupt.
+    fn start(&mut self);
+
+    /// Acknowledges the tick (first thing in the servo task).
+    fn acknowledge_tick(&mut self);
+
+    /// Time since the current period began (µs).
+    fn elapsed_us(&self) -> f32;
+
+    /// Length of a period (µs).
+    fn period_us(&self) -> f32;
+
+    /// Whether the next period has already begun (its interrupt is pending): an overrun.
+    fn next_tick_pending(&self) -> bool;
+
+    /// Time since the tick that started this step (µs), also when the step ran past the next
+    /// tick (`controller::deadline::step_time_us`).
+    #[inline]
+    fn step_time_us(&self) -> f32 {
+        let elapsed_us = self.elapsed_us();
+        step_time_us(elapsed_us, self.period_us(), self.next_tick_pending())
+    }
+}
+
 /// A board the app runs on. All methods are called from the app's tasks: `init` (boot), the
 /// servo task (every sample) and `idle`.
 pub trait Board: Sized {
     /// What fills the setpoint queue: the built-in trajectory on hardware; on QEMU the same
     /// trajectory through the harness's setpoint fault injection.
     type Setpoints: SetpointSource;
+
+    /// The servo tick's timer.
+    type Timer: ServoTimer;
 
     /// The settings this board runs with: [`Settings::default`] on hardware; the QEMU board
     /// runs the built-in tour, and its harness adapts the tour to its scenario.
@@ -64,18 +94,8 @@ pub trait Board: Sized {
     /// Safe state: drive enable off, then zero torque commanded.
     fn disable_drives(&mut self);
 
-    /// Starts the 2 kHz servo tick.
-    fn start_timer(&mut self);
-
-    /// Acknowledges the tick (first thing in the servo task).
-    fn acknowledge_tick(&mut self);
-
-    /// Time since the tick that started this step (µs), also when the step ran past the next
-    /// tick.
-    fn step_time_us(&self) -> f32;
-
-    /// Whether the next tick already came (its interrupt is pending): an overrun.
-    fn next_tick_pending(&self) -> bool;
+    /// The servo tick's timer (configured by `init`, started by the app at the end of boot).
+    fn timer(&mut self) -> &mut Self::Timer;
 
     /// What idle does between interrupts.
     fn idle_wait();

@@ -22,7 +22,7 @@ use controller::status::Status;
 use controller::trajectory::Trajectory;
 use kinematics_core::CorrectionGrid;
 
-use super::{hardware, semihosting, ServoTimer};
+use super::{hardware, semihosting, CmsdkTimer};
 
 /// The harness's state, owned by the QEMU board.
 pub struct Harness {
@@ -65,7 +65,7 @@ impl Harness {
 
     /// Start of a sample: the deadline fault injection.
     #[inline]
-    pub fn begin_sample(&mut self, timer: &ServoTimer) {
+    pub fn begin_sample(&mut self, timer: &CmsdkTimer) {
         if self.scenario.overrun_at(self.sample) {
             timer.burn_until_us(1.4 * DEADLINE_US);
         }

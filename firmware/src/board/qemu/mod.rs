@@ -10,14 +10,14 @@
 //!   run with PASS or FAIL). Only this board has it.
 //! * [`semihosting`]: command line, console, exit code, defmt to a host file, and the
 //!   HardFault / unexpected interrupt / panic handlers (print `FAIL ...`, exit 1).
-use controller::drive::{DriveError, TorqueDrive};
+use controller::drive::{self, DriveError, TorqueDrive};
 use controller::encoder::{counts_to_rad, QuadratureEncoder};
 use controller::settings::Settings;
 use controller::status::Status;
 use controller::trajectory::{Trajectory, WORKSPACE_TOUR_MM};
 use controller::SAMPLE_RATE_HZ;
 
-use super::Board;
+use super::{Board, ServoTimer};
 
 pub mod hardware;
 pub mod harness;
@@ -71,56 +71,18 @@ fn timer_write(offset: usize, value: u32) {
 }
 
 /// The 2 kHz servo tick. The timer counts down from `reload` to 0 once per period.
-pub struct ServoTimer {
+pub struct CmsdkTimer {
     reload: u32,
 }
 
-impl ServoTimer {
+impl CmsdkTimer {
     fn new(rate_hz: u32) -> Self {
         let reload = TIMER_CLOCK_HZ / rate_hz - 1;
         timer_write(TIMER_CTRL, 0);
         timer_write(TIMER_RELOAD, reload);
         timer_write(TIMER_VALUE, reload);
         timer_write(TIMER_INT, 1);
-        ServoTimer { reload }
-    }
-
-    /// Starts the periodic interrupt.
-    pub fn start(&mut self) {
-        timer_write(TIMER_CTRL, CTRL_ENABLE | CTRL_IRQ_ENABLE);
-    }
-
-    /// Acknowledges the tick (first thing in the servo task).
-    #[inline]
-    pub fn clear_interrupt(&mut self) {
-        timer_write(TIMER_INT, 1);
-    }
-
-    /// Time since the current period started (µs).
-    #[inline]
-    pub fn elapsed_us(&self) -> f32 {
-        let ticks = self.reload.saturating_sub(timer_read(TIMER_VALUE));
-        ticks as f32 * (1.0e6 / TIMER_CLOCK_HZ as f32)
-    }
-
-    /// Time since the tick that started this step (µs), also when the step ran past the next
-    /// tick (the counter restarted then; steps longer than two periods read short).
-    #[inline]
-    pub fn step_time_us(&self) -> f32 {
-        let elapsed_us = self.elapsed_us();
-        let period_us = (self.reload + 1) as f32 * (1.0e6 / TIMER_CLOCK_HZ as f32);
-        // A pending tick with a small count means the counter already wrapped once.
-        if self.next_tick_pending() && elapsed_us < 0.5 * period_us {
-            period_us + elapsed_us
-        } else {
-            elapsed_us
-        }
-    }
-
-    /// Whether the next period has already begun (its interrupt is pending): an overrun.
-    #[inline]
-    pub fn next_tick_pending(&self) -> bool {
-        timer_read(TIMER_INT) & 1 != 0
+        CmsdkTimer { reload }
     }
 
     /// Busy-waits until `us` after the current period started (deadline fault injection).
@@ -128,9 +90,36 @@ impl ServoTimer {
         while !self.next_tick_pending() && self.elapsed_us() < us {}
         // Past the period end the counter restarted: keep burning in the next period.
         if self.next_tick_pending() {
-            let rest = us - (self.reload + 1) as f32 * (1.0e6 / TIMER_CLOCK_HZ as f32);
+            let rest = us - self.period_us();
             while self.elapsed_us() < rest {}
         }
+    }
+}
+
+impl ServoTimer for CmsdkTimer {
+    fn start(&mut self) {
+        timer_write(TIMER_CTRL, CTRL_ENABLE | CTRL_IRQ_ENABLE);
+    }
+
+    #[inline]
+    fn acknowledge_tick(&mut self) {
+        timer_write(TIMER_INT, 1);
+    }
+
+    #[inline]
+    fn elapsed_us(&self) -> f32 {
+        let ticks = self.reload.saturating_sub(timer_read(TIMER_VALUE));
+        ticks as f32 * (1.0e6 / TIMER_CLOCK_HZ as f32)
+    }
+
+    #[inline]
+    fn period_us(&self) -> f32 {
+        (self.reload + 1) as f32 * (1.0e6 / TIMER_CLOCK_HZ as f32)
+    }
+
+    #[inline]
+    fn next_tick_pending(&self) -> bool {
+        timer_read(TIMER_INT) & 1 != 0
     }
 }
 
@@ -139,7 +128,7 @@ impl ServoTimer {
 
 /// The MPS2-AN386 with its simulated machine and the test harness.
 pub struct QemuBoard {
-    timer: ServoTimer,
+    timer: CmsdkTimer,
     encoders: [SimEncoder; 2],
     drives: [TorqueDrive<SimPwm>; 2],
     plant: Plant,
@@ -149,6 +138,7 @@ pub struct QemuBoard {
 
 impl Board for QemuBoard {
     type Setpoints = Injected;
+    type Timer = CmsdkTimer;
 
     /// The production settings with the built-in tour on (the simulated machine may move by
     /// itself), the tour adapted to the harness's scenario.
@@ -162,7 +152,7 @@ impl Board for QemuBoard {
         let harness = Harness::boot(settings);
         let full_scale_nm = settings.drive_full_scale_nm;
         let mut board = QemuBoard {
-            timer: ServoTimer::new(SAMPLE_RATE_HZ),
+            timer: CmsdkTimer::new(SAMPLE_RATE_HZ),
             encoders: [SimEncoder { axis: 0 }, SimEncoder { axis: 1 }],
             drives: [
                 TorqueDrive { pwm: SimPwm { axis: 0 }, full_scale_nm },
@@ -190,9 +180,7 @@ impl Board for QemuBoard {
 
     #[inline]
     fn set_torques_nm(&mut self, torque_nm: [f32; 2]) -> Result<[f32; 2], DriveError> {
-        let a = self.drives[0].set_torque_nm(torque_nm[0])?;
-        let b = self.drives[1].set_torque_nm(torque_nm[1])?;
-        Ok([a, b])
+        drive::set_torques_nm(&mut self.drives, torque_nm)
     }
 
     fn enable_drives(&mut self) {
@@ -204,23 +192,9 @@ impl Board for QemuBoard {
         let _ = self.set_torques_nm([0.0; 2]);
     }
 
-    fn start_timer(&mut self) {
-        self.timer.start();
-    }
-
     #[inline]
-    fn acknowledge_tick(&mut self) {
-        self.timer.clear_interrupt();
-    }
-
-    #[inline]
-    fn step_time_us(&self) -> f32 {
-        self.timer.step_time_us()
-    }
-
-    #[inline]
-    fn next_tick_pending(&self) -> bool {
-        self.timer.next_tick_pending()
+    fn timer(&mut self) -> &mut CmsdkTimer {
+        &mut self.timer
     }
 
     /// A busy loop, not WFI: under `-icount ...,sleep=off` a WFI idle makes QEMU's periodic
