@@ -8,8 +8,10 @@
 //!   file holds what every board shares and each board contributes only its MEMORY block.
 //! * `calibration.bin`: a valid correction grid image for the paper's nominal machine, encoded
 //!   with `kinematics_core::grid::encode` (the same encoder the host calibration tools use).
-//!   Its node values are a smooth synthetic field of a few hundred µrad, the size of the
-//!   paper's corrections; a real image comes from the calibration, not from here. The QEMU
+//!   Its node values are a smooth synthetic field of a few hundred µrad (up to 3.9e-4 rad),
+//!   the size of the paper's corrections; `qemu-test`'s `track` needs at least 2e-4 rad on its
+//!   tour to tell an applied grid from a missing one. A real image comes from the
+//!   calibration, not from here. The QEMU
 //!   firmware links it into the calibration region (feature `board-qemu`); the real board
 //!   gets its image flashed separately (see README).
 use std::{env, fs, path::PathBuf};

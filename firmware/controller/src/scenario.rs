@@ -94,7 +94,7 @@ pub enum Scenario {
 }
 
 impl Scenario {
-    /// Parses the semihosting command line ("<program> <scenario>").
+    /// Parses the semihosting command line (`"<program> <scenario>"`).
     pub fn from_command_line(line: &str) -> Scenario {
         let name = line.split_whitespace().nth(1).unwrap_or("");
         match name {

@@ -7,7 +7,7 @@
 use cortex_m_semihosting::{nr, syscall, syscall1};
 
 
-/// The semihosting command line ("<program> <scenario>"), in `buf`.
+/// The semihosting command line (`"<program> <scenario>"`), in `buf`.
 pub fn command_line(buf: &mut [u8]) -> &str {
     let mut block = [buf.as_mut_ptr() as usize, buf.len()];
     // SAFETY: SYS_GET_CMDLINE writes at most `buf.len()` bytes into `buf` and the length into
