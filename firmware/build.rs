@@ -1,14 +1,17 @@
 //! Selects the board's linker files and builds the bundled calibration image.
 //!
 //! * The selected board's MEMORY block (`firmware/memory-{qemu,g474}.x`) is copied into OUT_DIR
-//!   as `board-memory.x`, which the workspace's `memory.x` includes, and its `device.x`
-//!   (`firmware/device-{qemu,g474}.x`) as `device.x`; OUT_DIR goes on the linker search path.
+//!   as `board-memory.x`, which the workspace's `memory.x` includes, and `firmware/device.x`
+//!   (the interrupt handler names, the same on both boards) as `device.x`; OUT_DIR goes on the
+//!   linker search path.
 //!   The linker runs in the workspace root and finds `memory.x` there first, so the top-level
 //!   file holds what every board shares and each board contributes only its MEMORY block.
 //! * `calibration.bin`: a valid correction grid image for the paper's nominal machine, encoded
 //!   with `kinematics_core::grid::encode` (the same encoder the host calibration tools use).
-//!   Its node values are a smooth synthetic field of a few hundred µrad, the size of the
-//!   paper's corrections; a real image comes from the calibration, not from here. The QEMU
+//!   Its node values are a smooth synthetic field of a few hundred µrad (up to 3.9e-4 rad),
+//!   the size of the paper's corrections; `qemu-test`'s `track` needs at least 2e-4 rad on its
+//!   tour to tell an applied grid from a missing one. A real image comes from the
+//!   calibration, not from here. The QEMU
 //!   firmware links it into the calibration region (feature `board-qemu`); the real board
 //!   gets its image flashed separately (see README).
 use std::{env, fs, path::PathBuf};
@@ -21,11 +24,12 @@ fn main() {
     let manifest = PathBuf::from(env::var("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR"));
     let qemu = env::var_os("CARGO_FEATURE_BOARD_QEMU").is_some();
     let g474 = env::var_os("CARGO_FEATURE_BOARD_G474").is_some();
-    let (memory, device) = match (qemu, g474) {
-        (true, false) => (manifest.join("memory-qemu.x"), manifest.join("device-qemu.x")),
-        (false, true) => (manifest.join("memory-g474.x"), manifest.join("device-g474.x")),
+    let memory = match (qemu, g474) {
+        (true, false) => manifest.join("memory-qemu.x"),
+        (false, true) => manifest.join("memory-g474.x"),
         _ => panic!("enable exactly one of the features `board-qemu` and `board-g474`"),
     };
+    let device = manifest.join("device.x");
     fs::copy(&memory, out.join("board-memory.x")).expect("copy board-memory.x");
     fs::copy(&device, out.join("device.x")).expect("copy device.x");
     println!("cargo:rustc-link-search={}", out.display());

@@ -1,6 +1,8 @@
 #!/usr/bin/env bash
-# `cargo qemu-test` runner: runs every scenario of src/scenario.rs against the same firmware
-# image and checks each one's exit code. Usage (cargo does this): test.sh path/to/firmware.elf
+# `cargo qemu-test` runner: runs every scenario of controller/src/scenario.rs against the same
+# firmware image and checks each one's exit code and console output (the harness prints PASS,
+# or FAIL and why; the self-tests must print their own failure line, not just exit 1).
+# Usage (cargo does this): test.sh path/to/firmware.elf
 #
 # The program and the calibration image are loaded separately, as they are flashed on the real
 # board: the image bundled in the ELF's `.calibration` section is cut out into
@@ -25,9 +27,14 @@ elf_full=$elf
 elf=$out/program.elf
 
 passed=0; failed=0
-# name  expected-exit  scenario  extra-qemu-args
+# The console output a run must print, exactly (lines joined with spaces): a passing scenario
+# only "PASS"; the self-tests their handler's line.
+PASS='^PASS $'
+PANIC='^FAIL panic: panicked at [^ ]+ self-test: panic path $'
+HARDFAULT='^FAIL HardFault $'
+# name  expected-exit  expected-console  scenario  extra-qemu-args
 run() {
-  local name=$1 expect=$2 scenario=$3; shift 3
+  local name=$1 expect=$2 console=$3 scenario=$4; shift 4
   local t0=$(date +%s%N) rc
   "$here/run-one.sh" "$elf" "$scenario" "$out/$name" "$@" > "$out/$name.log" 2>&1
   rc=$?
@@ -36,27 +43,32 @@ run() {
   if command -v defmt-print > /dev/null && [ -s "$out/$name/defmt.bin" ]; then
     defmt-print -e "$elf_full" --log-format '{L} {s}' < "$out/$name/defmt.bin" > "$out/$name.defmt.txt" 2>&1
   fi
-  if [ "$rc" = "$expect" ]; then
-    passed=$((passed + 1)); echo "ok   $name (exit $rc, ${dt}s): $(tr '\n' ' ' < "$out/$name.log")"
+  local joined
+  joined=$(tr '\n' ' ' < "$out/$name.log")
+  if [ "$rc" = "$expect" ] && printf '%s' "$joined" | grep -qE -- "$console"; then
+    passed=$((passed + 1)); echo "ok   $name (exit $rc, ${dt}s): $joined"
   else
-    failed=$((failed + 1)); echo "FAIL $name: exit $rc, expected $expect (${dt}s)"; sed 's/^/    /' "$out/$name.log"
+    failed=$((failed + 1)); echo "FAIL $name: exit $rc, expected $expect and console /$console/ (${dt}s)"; sed 's/^/    /' "$out/$name.log"
   fi
   if [ -f "$out/$name.defmt.txt" ]; then sed 's/^/    | /' "$out/$name.defmt.txt" | tail -n "${DEFMT_TAIL:-4}"; fi
 }
 
-run track          0 track        $(image calibration.bin)
-run nan-setpoint   0 nan-setpoint $(image calibration.bin)
-run out-of-reach   0 out-of-reach $(image calibration.bin)
-run jump           0 jump         $(image calibration.bin)
-run overrun        0 overrun      $(image calibration.bin)
-run corrupt-image  0 bad-image-crc   $(image corrupt.bin)
-run erased-image   0 bad-image-magic $(image erased.bin)
-run no-image       0 bad-image-magic
-# The failure paths themselves: a panic and a HardFault must end QEMU with exit 1, not hang.
-run panic-exits      1 panic      $(image calibration.bin)
-run hardfault-exits  1 hard-fault $(image calibration.bin)
+run track          0 "$PASS" track        $(image calibration.bin)
+run nan-setpoint   0 "$PASS" nan-setpoint $(image calibration.bin)
+run out-of-reach   0 "$PASS" out-of-reach $(image calibration.bin)
+run jump           0 "$PASS" jump         $(image calibration.bin)
+run overrun        0 "$PASS" overrun      $(image calibration.bin)
+run corrupt-image  0 "$PASS" bad-image-crc   $(image corrupt.bin)
+run erased-image   0 "$PASS" bad-image-magic $(image erased.bin)
+run no-image       0 "$PASS" bad-image-magic
+# The production path (`run`, what the real board runs) past the old 6 s scenario limit.
+run long-run       0 "$PASS" long-run     $(image calibration.bin)
+# The failure paths themselves: a panic and a HardFault must end QEMU with exit 1 and their own
+# line, not hang and not fail some other way.
+run panic-exits      1 "$PANIC"     panic      $(image calibration.bin)
+run hardfault-exits  1 "$HARDFAULT" hard-fault $(image calibration.bin)
 # The bundled image alone (no loader) is the same valid image: the ELF runs standalone.
-elf=$elf_full run bundled-image 0 track
+elf=$elf_full run bundled-image 0 "$PASS" track
 
 command -v defmt-print > /dev/null || echo "(defmt-print not installed: defmt logs left undecoded in $out/*/defmt.bin)"
 echo "qemu-test: $passed passed, $failed failed"

@@ -5,19 +5,7 @@
 //! firmware validates, so a new calibration needs no rebuild. The QEMU build also links a
 //! valid image into the region (built by `build.rs`); the real board's build does not.
 //!
-//! Policy for a bad or missing image: see [`Settings::allow_uncorrected`](crate::settings::Settings).
-use kinematics_core::{Calibration, CorrectionGrid, FiveBar, GridError};
-
-/// What the boot check found.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, defmt::Format)]
-pub enum CalibrationState {
-    /// A valid image: model and grid in use.
-    Valid,
-    /// The image was refused; the drives stay disabled.
-    Refused(GridError),
-    /// The image was refused and `allow_uncorrected` is on: nominal model, no grid.
-    Uncorrected(GridError),
-}
+//! Validation and the policy for a bad or missing image: `controller::calibration::load`.
 
 /// The image bundled into the QEMU firmware (see `build.rs`).
 #[cfg(feature = "board-qemu")]
@@ -43,15 +31,5 @@ pub fn region() -> &'static [u8] {
         // static's contents: the region may have been reflashed.
         core::ptr::read_volatile(start);
         core::slice::from_raw_parts(start, len)
-    }
-}
-
-/// Validates the image and applies the policy.
-pub fn load(allow_uncorrected: bool) -> (CalibrationState, Calibration<'static>) {
-    let nominal = Calibration { model: FiveBar::<f32>::paper_nominal(), grid: None };
-    match CorrectionGrid::parse(region()) {
-        Ok(grid) => (CalibrationState::Valid, Calibration::from_grid(grid)),
-        Err(e) if allow_uncorrected => (CalibrationState::Uncorrected(e), nominal),
-        Err(e) => (CalibrationState::Refused(e), nominal),
     }
 }

@@ -4,24 +4,28 @@
 //! * **2 kHz servo step** in [`app::servo_tick`], bound to the board's hardware timer interrupt
 //!   (`SERVO_TICK`, priority 3): read both encoders, take the next setpoint, hidden-robot IK,
 //!   grid correction, PID with velocity/acceleration feed-forward per axis, write the torques
-//!   (all of it `kinematics_core::Servo::step`).
+//!   (`controller::servo_loop::ServoLoop::step` around `kinematics_core::Servo::step`).
 //! * **Deadline monitoring**: every step measures its time from the tick and checks whether
 //!   the next tick already came; overruns are counted, the worst step time kept, and a streak
 //!   of overruns latches a fault.
 //! * **Latched faults, safe state**: any fault (non-finite value, unreachable or singular
 //!   setpoint, outside the grid, a setpoint jump beyond 5 g, following error, overrun streak,
-//!   bad calibration image) disables the drives and commands zero torque in the same sample;
-//!   only a reset clears it. A motor never jumps: the servo refuses, it never clamps a
-//!   setpoint into reach.
+//!   PWM write error, bad calibration image) disables the drives and commands zero torque in
+//!   the same sample; only a reset clears it. A motor never jumps: the servo refuses, it never
+//!   clamps a setpoint into reach.
 //! * **Setpoint intake** ([`app::intake`], priority 2): keeps a `heapless` SPSC queue filled
-//!   from the built-in trajectory (a host link would fill the same queue).
-//! * **Telemetry** ([`app::telemetry`], priority 1): defmt status at 4 Hz; on QEMU it also
-//!   evaluates the test scenario and ends the run with its verdict.
+//!   from the board's setpoint source, the built-in trajectory (a host link would fill the
+//!   same queue).
+//! * **Telemetry** ([`app::telemetry`], priority 1): defmt status at 4 Hz.
 //! * **Fault handling** ([`app::on_fault`], priority 1): reports the latched fault.
 //! * **Calibration**: the correction grid image is read from its own flash region and
 //!   validated at boot; a bad or missing image keeps the drives disabled unless
 //!   `Settings::allow_uncorrected` is set.
-//! * Idle spins (QEMU) or sleeps (hardware); it never holds a resource, so it starves nothing.
+//! * Idle waits for interrupts (the QEMU board spins); it never holds a resource.
+//!
+//! The board (`firmware::board::Selected`, a `Board`) is the only thing that differs between
+//! the STM32G474 and QEMU; the QEMU board's per-sample hooks step its simulated plant and run
+//! the test harness, which this file knows nothing about.
 #![no_std]
 #![no_main]
 
@@ -31,31 +35,16 @@ use defmt_rtt as _;
 #[rtic::app(device = firmware::board::device, peripherals = false, dispatchers = [DISPATCH_1, DISPATCH_2])]
 mod app {
     use heapless::spsc::{Consumer, Producer, Queue};
-    use kinematics_core::{Calibration, Servo};
 
-    use firmware::board::{self, Board};
-    use firmware::calibration::{self, CalibrationState};
-    use firmware::monitor::{Deadline, Fault, Status};
-    use firmware::scenario::{self, Scenario};
-    use firmware::settings::Settings;
-    use firmware::trajectory::{Trajectory, WORKSPACE_TOUR_MM};
-    use firmware::{SAMPLE_PERIOD_S, SAMPLE_RATE_HZ};
-
-    /// Setpoint queue: 64 slots (63 usable), 31.5 ms of samples.
-    const QUEUE_SLOTS: usize = 64;
-    /// The servo task asks the intake for more when fewer setpoints than this are queued.
-    const REFILL_BELOW: usize = 32;
-    /// The servo deadline (µs): the next tick.
-    const DEADLINE_US: f32 = 1.0e6 / SAMPLE_RATE_HZ as f32;
-
-    /// Where the servo is.
-    #[derive(Clone, Copy, Debug, PartialEq, defmt::Format)]
-    pub enum Mode {
-        /// Drives enabled, stepping.
-        Running,
-        /// Drives disabled, zero torque: a fault latched (at boot or while running).
-        SafeState(Fault),
-    }
+    use controller::calibration::{self, CalibrationState};
+    use controller::fault::Fault;
+    use controller::servo_loop::{Mode, ServoLoop};
+    use controller::settings::Settings;
+    use controller::setpoints::{self, QUEUE_SLOTS};
+    use controller::status::Status;
+    use controller::trajectory::Trajectory;
+    use controller::SAMPLE_RATE_HZ;
+    use firmware::board::{Board, Selected, ServoTimer};
 
     #[shared]
     struct Shared {
@@ -64,134 +53,57 @@ mod app {
 
     #[local]
     struct Local {
-        board: Board,
-        servo: Servo,
-        calibration: Calibration<'static>,
-        mode: Mode,
-        deadline: Deadline,
+        board: Selected,
+        servo_loop: ServoLoop<'static>,
         setpoints_out: Consumer<'static, [f32; 2]>,
         setpoints_in: Producer<'static, [f32; 2]>,
-        trajectory: Trajectory,
-        scenario: Scenario,
-        /// Setpoints queued so far (the sample index of the next one).
-        queued: u32,
-        /// Copies for the servo task.
-        servo_settings: Settings,
-        servo_scenario: Scenario,
-        /// Copies for the telemetry task's checks.
-        telemetry_scenario: Scenario,
-        telemetry_calibration: Calibration<'static>,
-        /// Sample at which the trajectory is done.
-        trajectory_end_tick: u32,
-        /// Last setpoint the servo was given (held when the queue runs empty).
-        last_setpoint_mm: [f32; 2],
+        source: <Selected as Board>::Setpoints,
     }
 
-    #[init(local = [queue: Queue<[f32; 2], QUEUE_SLOTS> = Queue::new()])]
+    #[init(local = [
+        queue: Queue<[f32; 2], QUEUE_SLOTS> = Queue::new(),
+        settings: Option<Settings> = None,
+    ])]
     fn init(cx: init::Context) -> (Shared, Local) {
-        let settings = Settings::default();
-        let mut line = [0u8; 64];
-        let scenario = Scenario::from_command_line(board::command_line(&mut line));
-        defmt::info!("boot: scenario {}, settings {}", scenario, settings.servo);
-        // Self-tests of the failure paths (QEMU scenarios only; the real board never gets
-        // these on its empty command line): both must end the QEMU run with failure.
-        match scenario {
-            Scenario::Panic => {
-                let v: Option<u32> = core::hint::black_box(None);
-                let _ = v.expect("self-test: panic path");
-            }
-            Scenario::HardFault => cortex_m::asm::udf(),
-            _ => {}
+        // One copy of the settings for the whole run, borrowed by every task.
+        let settings: &'static Settings = cx.local.settings.insert(Selected::settings());
+        defmt::info!("boot: settings {}", settings.servo);
+        let mut board = Selected::init(settings);
+
+        let (cal_state, cal) = calibration::load(firmware::calibration::region(), settings.allow_uncorrected);
+        match cal_state {
+            CalibrationState::Valid => {}
+            CalibrationState::Refused(e) => defmt::error!("calibration image refused ({}): drives stay disabled", e),
+            CalibrationState::Uncorrected(e) => defmt::warn!("calibration image refused ({}): running UNCORRECTED", e),
         }
-
-        let mut board = Board::init(SAMPLE_RATE_HZ, settings.drive_full_scale_nm);
-        let (cal_state, cal) = calibration::load(settings.allow_uncorrected);
-        let mut status = Status::new(cal_state);
-        let mut servo = Servo::new(settings.servo);
-
         // Engage at the machine's actual position, unless the calibration forbids it.
         let encoder_rad = board.encoders_rad();
-        let engaged = match cal_state {
-            CalibrationState::Refused(e) => {
-                defmt::error!("calibration image refused ({}): drives stay disabled", e);
-                Err(Fault::Calibration(e))
-            }
-            CalibrationState::Uncorrected(e) => {
-                defmt::warn!("calibration image refused ({}): running UNCORRECTED", e);
-                servo.engage(&cal, encoder_rad).map_err(Fault::Servo)
-            }
-            CalibrationState::Valid => servo.engage(&cal, encoder_rad).map_err(Fault::Servo),
-        };
-        let (mode, start_mm) = match engaged {
-            Ok(tool_mm) => {
-                defmt::info!("engaged at {} mm (encoders {} rad)", tool_mm, encoder_rad);
+        let servo_loop = ServoLoop::boot(settings, cal, cal_state, encoder_rad);
+        match servo_loop.mode() {
+            Mode::Running => {
+                defmt::info!("engaged at {} mm (encoders {} rad)", servo_loop.setpoint_mm(), encoder_rad);
                 board.enable_drives();
-                status.drives_enabled = true;
-                status.drives_ever_enabled = true;
-                (Mode::Running, tool_mm)
             }
-            Err(fault) => {
+            Mode::SafeState(fault) => {
+                defmt::error!("not engaged ({}): drives disabled", fault);
                 board.disable_drives();
-                status.fault = Some(fault);
-                (Mode::SafeState(fault), [0.0; 2])
-            }
-        };
-        status.setpoint_mm = start_mm;
-        status.encoder_rad = encoder_rad;
-
-        // No waypoints: hold the engaged position.
-        let tour: &[[f32; 2]] = match scenario {
-            Scenario::OutOfReach => &[[320.0, 0.0]],
-            Scenario::Run if !settings.run_builtin_tour => &[],
-            _ => &WORKSPACE_TOUR_MM,
-        };
-        let mut trajectory = Trajectory::new(
-            start_mm,
-            tour,
-            settings.trajectory_accel_mm_s2,
-            settings.trajectory_speed_mm_s,
-            settings.trajectory_dwell_s,
-            SAMPLE_PERIOD_S,
-        );
-        let trajectory_end_tick = trajectory.total_samples();
-        let (mut setpoints_in, setpoints_out) = cx.local.queue.split();
-        let mut queued = 0u32;
-        if mode == Mode::Running {
-            while setpoints_in.ready() {
-                let p = scenario.tamper(queued, trajectory.next_mm());
-                let _ = setpoints_in.enqueue(p);
-                queued += 1;
             }
         }
 
-        board.timer.start();
-        (
-            Shared { status },
-            Local {
-                board,
-                servo,
-                calibration: cal,
-                mode,
-                deadline: Deadline::default(),
-                setpoints_out,
-                setpoints_in,
-                trajectory,
-                scenario,
-                queued,
-                servo_settings: settings,
-                servo_scenario: scenario,
-                telemetry_scenario: scenario,
-                telemetry_calibration: cal,
-                trajectory_end_tick,
-                last_setpoint_mm: start_mm,
-            },
-        )
+        let mut source = board.setpoints(Trajectory::builtin(servo_loop.setpoint_mm(), settings));
+        let (mut setpoints_in, setpoints_out) = cx.local.queue.split();
+        if servo_loop.drives_enabled() {
+            setpoints::refill(&mut setpoints_in, &mut source);
+        }
+        let status = Status::at_boot(cal_state, &servo_loop, encoder_rad);
+        board.timer().start();
+        (Shared { status }, Local { board, servo_loop, setpoints_out, setpoints_in, source })
     }
 
     #[idle]
     fn idle(_: idle::Context) -> ! {
         loop {
-            board::idle_wait();
+            Selected::idle_wait();
         }
     }
 
@@ -203,120 +115,50 @@ mod app {
     /// still stand (they are the best available). `overrun_streak_limit` consecutive misses
     /// (default 3, i.e. 1.5 ms without a fresh command) latch `Fault::DeadlineMissed`: drives
     /// disabled, zero torque.
-    #[task(binds = SERVO_TICK, priority = 3, shared = [status],
-           local = [board, servo, calibration, mode, deadline, setpoints_out, last_setpoint_mm,
-                   servo_settings, servo_scenario])]
+    #[task(binds = SERVO_TICK, priority = 3, shared = [status], local = [board, servo_loop, setpoints_out])]
     fn servo_tick(mut cx: servo_tick::Context) {
         let l = cx.local;
-        l.board.timer.clear_interrupt();
-        l.board.simulate_period();
+        l.board.timer().acknowledge_tick();
+        l.board.begin_sample();
+        // Encoders -> sample logic (setpoint intake, mode machine, servo step).
         let encoder_rad = l.board.encoders_rad();
-        let tick = cx.shared.status.lock(|s| s.ticks);
-
-        let mut underrun = false;
-        let mut following_error_rad = 0.0f32;
-        let mut new_fault = None;
-        let torque_nm = match *l.mode {
-            Mode::Running => {
-                let setpoint_mm = match l.setpoints_out.dequeue() {
-                    Some(p) => p,
-                    None => {
-                        underrun = true;
-                        *l.last_setpoint_mm
-                    }
-                };
-                if l.setpoints_out.len() < REFILL_BELOW {
-                    let _ = intake::spawn();
-                }
-                match l.servo.step(l.calibration, setpoint_mm, encoder_rad) {
-                    Ok(out) => {
-                        *l.last_setpoint_mm = setpoint_mm;
-                        following_error_rad =
-                            out.following_error_rad[0].abs().max(out.following_error_rad[1].abs());
-                        match l.board.set_torques_nm(out.torque_nm) {
-                            Some(t) => t,
-                            None => {
-                                new_fault = Some(Fault::Drive);
-                                [0.0; 2]
-                            }
-                        }
-                    }
-                    Err(f) => {
-                        new_fault = Some(Fault::Servo(f));
-                        [0.0; 2]
-                    }
-                }
-            }
-            Mode::SafeState(_) => l.board.set_torques_nm([0.0; 2]).unwrap_or([0.0; 2]),
-        };
-
-        // Fault injection for the deadline test (QEMU scenario `overrun` only).
-        if l.servo_scenario.overrun_at(tick) {
-            l.board.timer.burn_until_us(1.4 * DEADLINE_US);
+        let mut sample = l.servo_loop.step(l.setpoints_out, encoder_rad);
+        if sample.refill {
+            let _ = intake::spawn();
         }
-
-        let step_us = l.board.timer.step_time_us();
-        let overrun = l.board.timer.next_tick_pending();
-        if l.deadline.record(step_us, overrun, l.servo_settings.overrun_streak_limit) && new_fault.is_none() {
-            if let Mode::Running = *l.mode {
-                new_fault = Some(Fault::DeadlineMissed);
-            }
+        // Drives.
+        if l.board.set_torques_nm(sample.torque_nm).is_err() {
+            l.servo_loop.latch(Fault::Drive, &mut sample);
         }
-        if let Some(fault) = new_fault {
+        // Deadline.
+        let timer = l.board.timer();
+        let (step_us, overrun) = (timer.step_time_us(), timer.next_tick_pending());
+        l.servo_loop.record_deadline(step_us, overrun, &mut sample);
+        // Safe state in the sample that found the fault.
+        if let Some(fault) = sample.fault {
             l.board.disable_drives();
-            *l.mode = Mode::SafeState(fault);
             let _ = on_fault::spawn(fault);
         }
-
-        let mode = *l.mode;
-        let last_setpoint_mm = *l.last_setpoint_mm;
-        let deadline = *l.deadline;
+        // Publish.
+        let (mode, deadline) = (l.servo_loop.mode(), *l.servo_loop.deadline());
         cx.shared.status.lock(|s| {
-            s.ticks = tick.wrapping_add(1);
-            s.overruns = deadline.overruns;
-            s.worst_step_us = deadline.worst_step_us;
-            s.encoder_rad = encoder_rad;
-            s.torque_nm = torque_nm;
-            s.setpoint_mm = last_setpoint_mm;
-            if underrun {
-                s.setpoint_underruns += 1;
-            }
-            match mode {
-                Mode::Running => {
-                    s.max_following_error_rad = s.max_following_error_rad.max(following_error_rad);
-                }
-                Mode::SafeState(fault) => {
-                    if s.fault.is_none() {
-                        s.fault = Some(fault);
-                        s.fault_tick = tick;
-                    } else {
-                        let t = torque_nm[0].abs().max(torque_nm[1].abs());
-                        s.max_torque_after_fault_nm = s.max_torque_after_fault_nm.max(t);
-                    }
-                    s.drives_enabled = false;
-                }
-            }
+            s.record(&sample, mode, &deadline);
+            l.board.end_sample(s);
         });
-        if tick % l.servo_settings.telemetry_period_ticks.max(1) == 0 {
+        if sample.index % l.servo_loop.settings().telemetry_period_ticks.max(1) == 0 {
             let _ = telemetry::spawn();
         }
     }
 
-    /// Setpoint intake: refills the queue from the trajectory (and applies the test
-    /// scenario's tampering). Spawned by the servo task when the queue runs low.
-    #[task(priority = 2, local = [setpoints_in, trajectory, scenario, queued])]
+    /// Setpoint intake: refills the queue from the board's setpoint source. Spawned by the
+    /// servo task when the queue runs low.
+    #[task(priority = 2, local = [setpoints_in, source])]
     async fn intake(cx: intake::Context) {
-        let l = cx.local;
-        while l.setpoints_in.ready() {
-            let p = l.scenario.tamper(*l.queued, l.trajectory.next_mm());
-            let _ = l.setpoints_in.enqueue(p);
-            *l.queued += 1;
-        }
+        setpoints::refill(cx.local.setpoints_in, cx.local.source);
     }
 
-    /// Telemetry every `Settings::telemetry_period_ticks` samples; on QEMU also the
-    /// scenario's verdict, which ends the run.
-    #[task(priority = 1, shared = [status], local = [telemetry_scenario, telemetry_calibration, trajectory_end_tick])]
+    /// Telemetry every `Settings::telemetry_period_ticks` samples.
+    #[task(priority = 1, shared = [status])]
     async fn telemetry(mut cx: telemetry::Context) {
         let s = cx.shared.status.lock(|s| *s);
         defmt::info!(
@@ -324,21 +166,6 @@ mod app {
             s.ticks / (SAMPLE_RATE_HZ / 1000), s.fault, s.overruns, s.worst_step_us, s.setpoint_mm, s.encoder_rad, s.torque_nm,
             s.max_following_error_rad
         );
-        let scenario = *cx.local.telemetry_scenario;
-        match scenario::check(scenario, &s, cx.local.telemetry_calibration, *cx.local.trajectory_end_tick, DEADLINE_US) {
-            None => {}
-            Some(Ok(())) => {
-                defmt::info!("PASS {}", scenario);
-                board::console("PASS");
-                board::exit(true);
-            }
-            Some(Err(why)) => {
-                defmt::error!("FAIL {}: {}", scenario, why);
-                board::console("FAIL");
-                board::console(why);
-                board::exit(false);
-            }
-        }
     }
 
     /// Fault handling: the safe state is already applied by the servo task in the sample that

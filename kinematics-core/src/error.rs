@@ -40,3 +40,5 @@ impl core::fmt::Display for KinematicsError {
         }
     }
 }
+
+impl core::error::Error for KinematicsError {}

@@ -61,7 +61,9 @@ const CRC32: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
 pub enum GridError {
     /// Fewer bytes than the header, or than the header says the image has.
     Truncated,
+    /// The image does not start with [`MAGIC`] (erased flash, another file).
     BadMagic,
+    /// A version this parser does not read (it reads [`VERSION`] only).
     UnsupportedVersion(u16),
     /// Header length, node counts, flags or reserved bytes are not what version 1 allows.
     BadHeader,
@@ -93,15 +95,23 @@ impl core::fmt::Display for GridError {
     }
 }
 
+impl core::error::Error for GridError {}
+
 /// Where the nodes are.
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct GridGeometry {
+    /// Nodes along x (2..=[`MAX_NODES_PER_AXIS`]).
     pub nx: u16,
+    /// Nodes along y (2..=[`MAX_NODES_PER_AXIS`]).
     pub ny: u16,
+    /// x of node `(0, 0)`, the lowest x of the rectangle.
     pub x0_mm: f32,
+    /// y of node `(0, 0)`, the lowest y of the rectangle.
     pub y0_mm: f32,
+    /// Node spacing along x (> 0).
     pub step_x_mm: f32,
+    /// Node spacing along y (> 0).
     pub step_y_mm: f32,
 }
 
@@ -242,6 +252,7 @@ impl<'a> CorrectionGrid<'a> {
         Ok(CorrectionGrid { geometry, model, nodes })
     }
 
+    /// Where the nodes are.
     pub fn geometry(&self) -> &GridGeometry {
         &self.geometry
     }

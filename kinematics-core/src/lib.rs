@@ -18,6 +18,8 @@
 //! the servo are f32, exactly as the MCU runs them. `no_std`, no heap, no panic on any input:
 //! every failure is a typed error.
 #![no_std]
+#![deny(unsafe_op_in_unsafe_fn)]
+#![warn(missing_docs)]
 // `!(x >= lo)` instead of `x < lo` is deliberate throughout: it also refuses NaN.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 

@@ -30,7 +30,9 @@ use crate::real::Real;
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum Branch {
+    /// The `+` solution (see [`WorkingMode`] for what it means for each choice).
     Positive,
+    /// The `-` solution.
     Negative,
 }
 
@@ -57,8 +59,11 @@ impl Branch {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct WorkingMode {
+    /// Elbow of arm 1 (motor 1's angle `φ1 ± α1`).
     pub elbow_1: Branch,
+    /// Elbow of arm 2 (motor 2's angle `φ2 ± α2`).
     pub elbow_2: Branch,
+    /// Side of the line A→B the tool point lies on (`Positive`: left).
     pub assembly: Branch,
 }
 
@@ -89,6 +94,7 @@ pub struct FiveBar<T> {
     pub base_b0_mm: [T; 2],
     /// Geometric angle minus encoder angle, per motor.
     pub encoder_offset_rad: [T; 2],
+    /// Which inverse and forward solution the machine is assembled in.
     pub mode: WorkingMode,
 }
 
@@ -110,6 +116,8 @@ impl core::fmt::Display for ModelError {
         }
     }
 }
+
+impl core::error::Error for ModelError {}
 
 impl<T: Real> FiveBar<T> {
     /// The paper's nominal machine: a = b = c = d = 150 mm, coincident bases, no offsets.

@@ -50,8 +50,11 @@ pub struct AxisController {
 /// What one axis is asked to do in one sample.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct AxisReference {
+    /// Angle the axis should be at (rad).
     pub angle_rad: f32,
+    /// Its rate of change (rad/s): the velocity feed-forward and the kd term's reference.
     pub velocity_rad_s: f32,
+    /// Its second derivative (rad/s²): the acceleration feed-forward.
     pub acceleration_rad_s2: f32,
 }
 
@@ -122,7 +125,7 @@ mod tests {
         let mut c = AxisController::default();
         for _ in 0..10_000 {
             let t = c.update(&gains(), &still(1.0), 0.0, 0.0, 5e-4);
-            assert!(t <= 2.0 && t >= -2.0);
+            assert!((-2.0..=2.0).contains(&t));
         }
         // Saturated the whole time with a positive error: the integrator must not have grown.
         assert_eq!(c.integral_nm(), 0.0);
@@ -164,5 +167,105 @@ mod tests {
         let r = AxisReference { angle_rad: 0.0, velocity_rad_s: 0.0, acceleration_rad_s2: 100.0 };
         let t = c.update(&gains(), &r, 0.0, 0.0, 5e-4);
         assert!((t - 1.0).abs() < 1e-6);
+    }
+
+    // One sample per term: each test turns on one gain, feeds a reference whose angle,
+    // velocity and acceleration all differ from the measured ones, and requires exactly that
+    // term's torque. A gain acting on the wrong signal (viscous feed-forward on the measured
+    // velocity, the integrator on kp, ...) gives another number.
+
+    /// Every term off, limits out of the way.
+    fn only() -> AxisGains {
+        AxisGains {
+            kp_nm_per_rad: 0.0,
+            ki_nm_per_rad_s: 0.0,
+            kd_nm_s_per_rad: 0.0,
+            inertia_ff_kg_m2: 0.0,
+            viscous_ff_nm_s_per_rad: 0.0,
+            coulomb_ff_nm: 0.0,
+            coulomb_ff_speed_rad_s: 0.01,
+            torque_limit_nm: 100.0,
+            integral_limit_nm: 100.0,
+        }
+    }
+
+    /// Reference: 1.25 rad, 4 rad/s, 300 rad/s². Measured: 1.0 rad, -1 rad/s.
+    const REF: AxisReference = AxisReference { angle_rad: 1.25, velocity_rad_s: 4.0, acceleration_rad_s2: 300.0 };
+    const ANGLE_RAD: f32 = 1.0;
+    const VELOCITY_RAD_S: f32 = -1.0;
+
+    fn one_sample(g: &AxisGains, dt_s: f32) -> (f32, AxisController) {
+        let mut c = AxisController::default();
+        let t = c.update(g, &REF, ANGLE_RAD, VELOCITY_RAD_S, dt_s);
+        (t, c)
+    }
+
+    fn close(a: f32, b: f32) -> bool {
+        (a - b).abs() <= 1e-6 * (1.0 + b.abs())
+    }
+
+    #[test]
+    fn kp_acts_on_the_angle_error() {
+        let (t, c) = one_sample(&AxisGains { kp_nm_per_rad: 200.0, ..only() }, 5e-4);
+        assert!(close(t, 200.0 * 0.25), "{t}");
+        assert_eq!(c.integral_nm(), 0.0, "kp does not integrate");
+    }
+
+    #[test]
+    fn ki_integrates_the_error_over_dt_from_the_next_sample_on() {
+        let g = AxisGains { ki_nm_per_rad_s: 1000.0, ..only() };
+        let (t, mut c) = one_sample(&g, 1e-3);
+        assert_eq!(t, 0.0, "the integrator acts from the next sample");
+        assert!(close(c.integral_nm(), 1000.0 * 0.25 * 1e-3), "{}", c.integral_nm());
+        // A longer sample integrates proportionally more; the output is the integral so far.
+        let t = c.update(&g, &REF, ANGLE_RAD, VELOCITY_RAD_S, 2e-3);
+        assert!(close(t, 0.25), "{t}");
+        assert!(close(c.integral_nm(), 0.25 + 1000.0 * 0.25 * 2e-3), "{}", c.integral_nm());
+        // Clamped to the integral limit.
+        let g = AxisGains { integral_limit_nm: 0.1, ..g };
+        let (_, c) = one_sample(&g, 1.0);
+        assert_eq!(c.integral_nm(), 0.1);
+    }
+
+    #[test]
+    fn kd_acts_on_reference_minus_measured_velocity() {
+        let (t, _) = one_sample(&AxisGains { kd_nm_s_per_rad: 2.0, ..only() }, 5e-4);
+        assert!(close(t, 2.0 * (4.0 - -1.0)), "{t}");
+    }
+
+    #[test]
+    fn inertia_feed_forward_acts_on_the_reference_acceleration() {
+        let (t, _) = one_sample(&AxisGains { inertia_ff_kg_m2: 0.01, ..only() }, 5e-4);
+        assert!(close(t, 0.01 * 300.0), "{t}");
+    }
+
+    #[test]
+    fn viscous_feed_forward_acts_on_the_reference_velocity() {
+        let (t, _) = one_sample(&AxisGains { viscous_ff_nm_s_per_rad: 0.5, ..only() }, 5e-4);
+        assert!(close(t, 0.5 * 4.0), "{t} (0.5 x the measured velocity would be -0.5)");
+    }
+
+    #[test]
+    fn coulomb_feed_forward_acts_on_the_reference_velocity() {
+        let (t, _) = one_sample(&AxisGains { coulomb_ff_nm: 0.3, ..only() }, 5e-4);
+        assert!(close(t, 0.3 * 4.0 / 4.01), "{t}");
+    }
+
+    #[test]
+    fn the_terms_add_up_and_the_sum_is_limited() {
+        let all = AxisGains {
+            kp_nm_per_rad: 200.0,
+            kd_nm_s_per_rad: 2.0,
+            inertia_ff_kg_m2: 0.01,
+            viscous_ff_nm_s_per_rad: 0.5,
+            coulomb_ff_nm: 0.3,
+            ..only()
+        };
+        let (t, _) = one_sample(&all, 5e-4);
+        assert!(close(t, 50.0 + 10.0 + 3.0 + 2.0 + 0.3 * 4.0 / 4.01), "{t}");
+        let (t, _) = one_sample(&AxisGains { torque_limit_nm: 7.5, ..all }, 5e-4);
+        assert_eq!(t, 7.5);
+        let (t, _) = one_sample(&AxisGains { kp_nm_per_rad: -200.0, torque_limit_nm: 7.5, ..only() }, 5e-4);
+        assert_eq!(t, -7.5);
     }
 }

@@ -19,10 +19,15 @@ pub trait Real:
     + Neg<Output = Self>
     + core::fmt::Debug
 {
+    /// 0.
     const ZERO: Self;
+    /// 1.
     const ONE: Self;
+    /// 2.
     const TWO: Self;
+    /// 0.5.
     const HALF: Self;
+    /// π, rounded to the type.
     const PI: Self;
     /// Machine epsilon of the type.
     const EPSILON: Self;
@@ -31,16 +36,24 @@ pub trait Real:
     fn from_f64(v: f64) -> Self;
     /// Widens to `f64` (exact for both implementations).
     fn to_f64(self) -> f64;
+    /// Square root, correctly rounded (NaN below zero).
     fn sqrt(self) -> Self;
+    /// Angle of the point `(x, self)` in `(-π, π]` (libm's `atan2`).
     fn atan2(self, x: Self) -> Self;
+    /// `(sin, cos)` of the angle (libm's `sincos`).
     fn sin_cos(self) -> (Self, Self);
+    /// Absolute value.
     fn abs(self) -> Self;
+    /// Neither NaN nor infinite.
     fn is_finite(self) -> bool;
     /// Nearest integer, halfway cases away from zero.
     fn round(self) -> Self;
-    /// `self * a + b`, fused where the target has it.
+    /// `self * a + b`, deliberately *unfused* (two roundings) on every target: the Cortex-M4F
+    /// and x86 must round the same way for the bit-identical MCU/host results the golden
+    /// test requires, and a fused multiply-add would round once on one and twice on the other.
     fn mul_add(self, a: Self, b: Self) -> Self;
 
+    /// The smaller of the two; `self` when they do not compare (a NaN).
     fn min(self, other: Self) -> Self {
         if other < self {
             other
@@ -48,6 +61,7 @@ pub trait Real:
             self
         }
     }
+    /// The larger of the two; `self` when they do not compare (a NaN).
     fn max(self, other: Self) -> Self {
         if other > self {
             other

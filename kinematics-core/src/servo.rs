@@ -78,7 +78,9 @@ impl Default for ServoConfig {
 /// The hidden robot and (optionally) its correction grid: what a calibration delivers.
 #[derive(Clone, Copy, Debug)]
 pub struct Calibration<'a> {
+    /// The fitted hidden robot.
     pub model: FiveBar<f32>,
+    /// Joint corrections over the workspace; `None` runs the model uncorrected.
     pub grid: Option<CorrectionGrid<'a>>,
 }
 
@@ -108,9 +110,13 @@ impl<'a> Calibration<'a> {
 pub enum ServoFault {
     /// `step` was called before `engage`, or after a fault without re-engaging.
     NotEngaged,
+    /// A setpoint coordinate is NaN or infinite.
     NonFiniteSetpoint,
+    /// An encoder reading is NaN or infinite.
     NonFiniteFeedback,
+    /// The setpoint is unreachable or too close to a singularity.
     Kinematics(KinematicsError),
+    /// The setpoint is outside the correction grid.
     Grid(GridError),
     /// The setpoint sequence needs more speed or acceleration than the limits allow.
     SetpointJump,
@@ -131,6 +137,10 @@ impl core::fmt::Display for ServoFault {
         }
     }
 }
+
+/// The message already names the kinematic or grid error inside, so `source` stays `None`
+/// (a reporter walking the chain would print it twice).
+impl core::error::Error for ServoFault {}
 
 /// What one sample produced.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -173,10 +183,12 @@ fn unwrap_near(angle: f32, near: f32) -> f32 {
 }
 
 impl Servo {
+    /// A servo with `config`, not engaged yet.
     pub fn new(config: ServoConfig) -> Self {
         Servo { config, axes: [AxisController::default(); 2], history: None, fault: None }
     }
 
+    /// Its gains and limits.
     pub fn config(&self) -> &ServoConfig {
         &self.config
     }

@@ -73,6 +73,35 @@ fn outside_the_grid_is_refused_and_rounding_at_the_edge_is_not() {
     assert!(grid.correction_rad([262.1321, 75.0]).is_ok());
 }
 
+/// The refusal is probed where the tolerance ends. The tolerance is 1e-4 of a cell
+/// (`grid::EDGE_TOLERANCE_CELLS`), 0.5 µm for these 5 mm cells: it absorbs float rounding of a
+/// target on the boundary, nothing more. At twice that (1 µm) outside each of the four edges a
+/// point is refused; at half of it, it takes the edge value. The distances are the documented
+/// figure, not read from the constant, so a widened tolerance fails here.
+#[test]
+fn refusal_starts_within_twice_the_edge_tolerance_on_every_edge() {
+    const TOLERANCE_MM: f32 = 1.0e-4 * 5.0;
+    let img = image();
+    let grid = CorrectionGrid::parse(&img).unwrap();
+    let g = geometry();
+    assert_eq!((g.step_x_mm, g.step_y_mm), (5.0, 5.0));
+    let (x_lo, x_hi) = (g.x0_mm, g.node_mm(g.nx - 1, 0)[0]);
+    let (y_lo, y_hi) = (g.y0_mm, g.node_mm(0, g.ny - 1)[1]);
+    let (x_mid, y_mid) = ((x_lo + x_hi) / 2.0, (y_lo + y_hi) / 2.0);
+    let edges = [([x_lo, y_mid], [-1.0, 0.0]), ([x_hi, y_mid], [1.0, 0.0]), ([x_mid, y_lo], [0.0, -1.0]), ([x_mid, y_hi], [0.0, 1.0])];
+    for (edge, outward) in edges {
+        let at = |k: f32| [edge[0] + k * TOLERANCE_MM * outward[0], edge[1] + k * TOLERANCE_MM * outward[1]];
+        assert_eq!(grid.correction_rad(at(2.0)), Err(GridError::OutsideGrid), "1 µm outside {edge:?}");
+        assert_eq!(grid.correction_rad(at(5.0)), Err(GridError::OutsideGrid), "2.5 µm outside {edge:?}");
+        let inside = grid.correction_rad(at(0.5)).unwrap_or_else(|e| panic!("{e} 0.25 µm outside {edge:?}"));
+        // Taking the edge value: the same as on the edge itself, to f32 rounding.
+        let on_edge = grid.correction_rad(edge).unwrap();
+        for k in 0..2 {
+            assert!((inside[k] - on_edge[k]).abs() < 1e-9, "{inside:?} vs {on_edge:?}");
+        }
+    }
+}
+
 #[test]
 fn every_single_bit_flip_is_rejected() {
     let img = image();
@@ -91,7 +120,7 @@ fn every_single_bit_flip_is_rejected() {
 fn trailing_flash_is_ignored_but_truncation_is_not() {
     let mut img = image();
     let len = img.len();
-    img.extend(std::iter::repeat(0xFF).take(4096));
+    img.extend(std::iter::repeat_n(0xFF, 4096));
     assert!(CorrectionGrid::parse(&img).is_ok());
     assert_eq!(CorrectionGrid::parse(&img[..len - 1]).unwrap_err(), GridError::Truncated);
     assert_eq!(CorrectionGrid::parse(&img[..10]).unwrap_err(), GridError::Truncated);

@@ -1,8 +1,38 @@
-//! Property tests: no input, however hostile, makes the core panic or return a NaN.
+//! Property tests: no input, however hostile, makes the core panic or return a NaN, and the
+//! paths each property claims to cover are really taken: every test counts the cases that
+//! reached its assertions (`Ok` results, images past the magic bytes, servo steps that
+//! commanded a torque) and requires a minimum number of them.
 
-use kinematics_core::grid::{encode, CorrectionGrid, GridGeometry};
+use std::cell::Cell;
+
+use kinematics_core::grid::{encode, CorrectionGrid, GridError, GridGeometry, HEADER_LEN, MAGIC, MAX_NODES_PER_AXIS};
 use kinematics_core::{Branch, Calibration, FiveBar, Servo, ServoConfig, WorkingMode};
 use proptest::prelude::*;
+use proptest::test_runner::{Config, FileFailurePersistence, TestCaseError, TestRunner};
+
+/// Runs `property` on `cases` inputs drawn from `strategy` (a failing case is shrunk and the
+/// test fails with it) and returns the sum of what the cases returned: how many times they
+/// reached the path under test.
+fn counted<S: Strategy>(cases: u32, strategy: S, property: impl Fn(S::Value) -> Result<u64, TestCaseError>) -> u64
+where
+    S::Value: std::fmt::Debug,
+{
+    let reached = Cell::new(0u64);
+    // Failing seeds are saved next to this file and replayed first (cargo runs integration
+    // tests in the package directory).
+    let persistence = FileFailurePersistence::Direct("tests/hostile_inputs.proptest-regressions");
+    let config = Config { cases, failure_persistence: Some(Box::new(persistence)), ..Config::default() };
+    let mut runner = TestRunner::new(config);
+    let result = runner.run(&strategy, |input| {
+        let n = property(input)?;
+        reached.set(reached.get() + n);
+        Ok(())
+    });
+    if let Err(e) = result {
+        panic!("{e}");
+    }
+    reached.get()
+}
 
 /// Any f64, with the special values well represented.
 fn any_f64() -> impl Strategy<Value = f64> {
@@ -18,6 +48,22 @@ fn any_f64() -> impl Strategy<Value = f64> {
         1 => Just(1e-300),
         1 => any::<f64>(),
     ]
+}
+
+/// A coordinate (mm) or margin: half the time anything, half the time in the workspace of the
+/// machines below, so that a good share of the cases gets solved.
+fn coordinate() -> impl Strategy<Value = f64> {
+    prop_oneof![any_f64(), 100.0..300.0f64, -100.0..100.0f64]
+}
+
+/// An angle (rad): anything, or within a turn.
+fn angle() -> impl Strategy<Value = f64> {
+    prop_oneof![any_f64(), -3.2..3.2f64]
+}
+
+/// A singularity margin: anything, or a sensible one.
+fn margin() -> impl Strategy<Value = f64> {
+    prop_oneof![any_f64(), 0.0..0.2f64]
 }
 
 fn branch() -> impl Strategy<Value = Branch> {
@@ -62,74 +108,421 @@ fn machine_with(
         })
 }
 
-proptest! {
-    #![proptest_config(ProptestConfig { cases: 3000, ..ProptestConfig::default() })]
+const CASES: u32 = 3000;
 
-    #[test]
-    fn inverse_never_panics_nor_returns_nan(m in machine(), x in any_f64(), y in any_f64(), margin in any_f64()) {
+#[test]
+fn inverse_never_panics_nor_returns_nan() {
+    let solved = counted(CASES, (machine(), coordinate(), coordinate(), margin()), |(m, x, y, margin)| {
+        let mut solved = 0;
         for mm in [m, m.cast::<f32>().cast::<f64>()] {
             if let Ok(pose) = mm.inverse_pose([x, y], margin) {
+                solved += 1;
                 prop_assert!(pose.theta_rad.iter().chain(pose.tool_mm.iter()).all(|v| v.is_finite()));
-                if let Ok(j) = pose.inverse_jacobian() { prop_assert!(j.iter().flatten().all(|v| v.is_finite())); }
-                if let Ok(j) = pose.jacobian() { prop_assert!(j.iter().flatten().all(|v| v.is_finite())); }
+                if let Ok(j) = pose.inverse_jacobian() {
+                    prop_assert!(j.iter().flatten().all(|v| v.is_finite()));
+                }
+                if let Ok(j) = pose.jacobian() {
+                    prop_assert!(j.iter().flatten().all(|v| v.is_finite()));
+                }
             }
         }
         let m32 = m.cast::<f32>();
         if let Ok(t) = m32.inverse([x as f32, y as f32], margin as f32) {
+            solved += 1;
             prop_assert!(t.iter().all(|v| v.is_finite()));
         }
-    }
+        Ok(solved)
+    });
+    println!("inverse: {solved} solutions checked in {CASES} cases");
+    assert!(solved >= u64::from(CASES) / 8, "only {solved} inputs were solved: the finite-output check barely ran");
+}
 
-    #[test]
-    fn forward_never_panics_nor_returns_nan(m in machine(), t1 in any_f64(), t2 in any_f64(), margin in any_f64()) {
+#[test]
+fn forward_never_panics_nor_returns_nan() {
+    let solved = counted(CASES, (machine(), angle(), angle(), margin()), |(m, t1, t2, margin)| {
+        let mut solved = 0;
         if let Ok(p) = m.forward([t1, t2], margin) {
+            solved += 1;
             prop_assert!(p.iter().all(|v| v.is_finite()));
         }
         if let Ok(p) = m.cast::<f32>().forward([t1 as f32, t2 as f32], margin as f32) {
+            solved += 1;
             prop_assert!(p.iter().all(|v| v.is_finite()));
         }
-    }
+        Ok(solved)
+    });
+    println!("forward: {solved} solutions checked in {CASES} cases");
+    assert!(solved >= u64::from(CASES) / 5, "only {solved} inputs were solved");
+}
 
-    /// Reachable targets of valid machines round-trip (random machines, not just the paper's).
-    #[test]
-    fn valid_machines_round_trip(m in valid_machine(), x in 100.0..300.0f64, y in -100.0..100.0f64) {
-        if let Ok(theta) = m.inverse([x, y], 0.05) {
-            let back = m.forward(theta, 0.0);
-            prop_assert!(back.is_ok(), "{:?}", back);
-            let back = back.unwrap();
-            prop_assert!((back[0] - x).abs() < 1e-8 && (back[1] - y).abs() < 1e-8, "{:?} vs {:?}", back, [x, y]);
+/// Reachable targets of valid machines round-trip (random machines, not just the paper's).
+#[test]
+fn valid_machines_round_trip() {
+    let checked = counted(CASES, (valid_machine(), 100.0..300.0f64, -100.0..100.0f64), |(m, x, y)| {
+        let Ok(theta) = m.inverse([x, y], 0.05) else { return Ok(0) };
+        let back = m.forward(theta, 0.0);
+        prop_assert!(back.is_ok(), "{:?}", back);
+        let back = back.unwrap();
+        prop_assert!((back[0] - x).abs() < 1e-8 && (back[1] - y).abs() < 1e-8, "{:?} vs {:?}", back, [x, y]);
+        Ok(1)
+    });
+    println!("round trip: {checked} of {CASES} targets reachable and checked");
+    assert!(checked >= u64::from(CASES) / 10, "only {checked} round trips checked");
+}
+
+// ---------------------------------------------------------------------------------------------
+// Grid images.
+
+/// A valid image over the paper's workspace with a smooth correction field.
+fn valid_image() -> (GridGeometry, Vec<u8>) {
+    let g = GridGeometry { nx: 21, ny: 31, x0_mm: 162.132, y0_mm: -75.0, step_x_mm: 5.0, step_y_mm: 5.0 };
+    let nodes: Vec<[f32; 2]> = (0..g.len()).map(|k| [1e-4 * (k as f32).sin(), -2e-4 * (k as f32 * 0.3).cos()]).collect();
+    let mut img = vec![0u8; g.image_len()];
+    encode(&mut img, &g, &FiveBar::paper_nominal(), &nodes).unwrap();
+    (g, img)
+}
+
+/// Writes the CRC over `img[..total - 4]` at `total - 4`, as a tool writing a consistent but
+/// wrong image would.
+fn fix_crc(img: &mut [u8], total: usize) {
+    let crc = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC).checksum(&img[..total - 4]);
+    img[total - 4..total].copy_from_slice(&crc.to_le_bytes());
+}
+
+/// Random bytes are refused, also when they start like an image: then the parser must get
+/// past the magic bytes and still refuse.
+#[test]
+fn grid_parse_refuses_garbage() {
+    let (_, img) = valid_image();
+    let header = img[..12].to_vec();
+    // Magic, version, header length and node counts of a real image, then `n` bytes of garbage.
+    let after_header = move |n: std::ops::Range<usize>| {
+        let header = header.clone();
+        proptest::collection::vec(any::<u8>(), n).prop_map(move |tail| [header.clone(), tail].concat())
+    };
+    let garbage = prop_oneof![
+        1 => proptest::collection::vec(any::<u8>(), 0..400),
+        1 => after_header(0..6000),
+        // At least as long as the image those counts make (5284 bytes): only the CRC can refuse.
+        2 => after_header(5272..5600),
+    ];
+    let past_magic = counted(CASES, garbage, |bytes| {
+        let result = CorrectionGrid::parse(&bytes);
+        prop_assert!(result.is_err(), "garbage of {} bytes accepted", bytes.len());
+        Ok(u64::from(!matches!(result, Err(GridError::BadMagic) | Err(GridError::Truncated))))
+    });
+    println!("garbage: {past_magic} of {CASES} inputs got past the magic bytes and the length check");
+    assert!(past_magic >= u64::from(CASES) / 4, "only {past_magic} inputs got past the magic bytes");
+}
+
+/// One field of the image: where it is and what it holds.
+#[derive(Clone, Copy, Debug)]
+enum Field {
+    Magic,
+    Version,
+    HeaderLen,
+    Nx,
+    Ny,
+    Flags,
+    /// The k-th f32 of the header (offset 16 + 4k): x0, y0, step_x, step_y, a, b, c, d,
+    /// b0_x, b0_y, offset_1, offset_2, a0_x, a0_y.
+    HeaderF32(usize),
+    /// One f32 of the node table.
+    Node(usize),
+}
+
+const FIELD_KINDS: usize = 8;
+
+fn field_kind(f: Field) -> usize {
+    match f {
+        Field::Magic => 0,
+        Field::Version => 1,
+        Field::HeaderLen => 2,
+        Field::Nx => 3,
+        Field::Ny => 4,
+        Field::Flags => 5,
+        Field::HeaderF32(_) => 6,
+        Field::Node(_) => 7,
+    }
+}
+
+fn field() -> impl Strategy<Value = Field> {
+    prop_oneof![
+        Just(Field::Magic),
+        Just(Field::Version),
+        Just(Field::HeaderLen),
+        Just(Field::Nx),
+        Just(Field::Ny),
+        Just(Field::Flags),
+        (0..14usize).prop_map(Field::HeaderF32),
+        (0..2 * 21 * 31usize).prop_map(Field::Node),
+    ]
+}
+
+/// Raw 32 bits for the field: any value, small integers, the valid value's neighbourhood, and
+/// f32 specials.
+fn raw_value() -> impl Strategy<Value = u32> {
+    prop_oneof![
+        2 => any::<u32>(),
+        2 => 0..2048u32,
+        1 => Just(u32::from_le_bytes(MAGIC)),
+        1 => Just(1u32),
+        1 => Just(HEADER_LEN as u32),
+        1 => 0..8u32,
+        // Node counts a 21x31 image has room for.
+        1 => 2..32u32,
+        1 => Just(f32::NAN.to_bits()),
+        1 => Just(f32::INFINITY.to_bits()),
+        1 => Just(f32::NEG_INFINITY.to_bits()),
+        1 => Just((-0.0f32).to_bits()),
+        1 => Just(0.0f32.to_bits()),
+        1 => Just((-150.0f32).to_bits()),
+        3 => (-400.0..400.0f32).prop_map(f32::to_bits),
+        1 => Just(1e-30f32.to_bits()),
+    ]
+}
+
+/// What the format (grid.rs, "Layout") says parsing must give for one tampered field with the
+/// CRC fixed, derived from the layout table, not from the parser: `Ok(())` or the error.
+fn expected(field: Field, raw: u32, g: &GridGeometry, len: usize) -> Result<(), GridError> {
+    let f = f32::from_bits(raw);
+    let u16v = raw as u16;
+    let total = |nx: u16, ny: u16| HEADER_LEN + 8 * nx as usize * ny as usize + 4;
+    let counts = |n: u16| (2..=MAX_NODES_PER_AXIS).contains(&n);
+    match field {
+        Field::Magic if raw.to_le_bytes() == MAGIC => Ok(()),
+        Field::Magic => Err(GridError::BadMagic),
+        Field::Version if u16v == 1 => Ok(()),
+        Field::Version => Err(GridError::UnsupportedVersion(u16v)),
+        Field::HeaderLen if u16v as usize == HEADER_LEN => Ok(()),
+        Field::HeaderLen => Err(GridError::BadHeader),
+        Field::Nx | Field::Ny => {
+            let (nx, ny) = if matches!(field, Field::Nx) { (u16v, g.ny) } else { (g.nx, u16v) };
+            if !counts(u16v) {
+                Err(GridError::BadHeader)
+            } else if total(nx, ny) > len {
+                Err(GridError::Truncated)
+            } else {
+                // A smaller grid: its nodes are the first ones of the original, all finite.
+                Ok(())
+            }
         }
+        Field::Flags if raw & !0b111 != 0 => Err(GridError::BadHeader),
+        Field::Flags => Ok(()),
+        // x0, y0: any finite number.
+        Field::HeaderF32(0 | 1) if !f.is_finite() => Err(GridError::NonFinite),
+        // Steps: finite and positive.
+        Field::HeaderF32(2 | 3) if !(f.is_finite() && f > 0.0) => Err(GridError::NonFinite),
+        // Links: finite and positive.
+        Field::HeaderF32(4..=7) if !(f.is_finite() && f > 0.0) => Err(GridError::BadModel),
+        // Base positions and encoder offsets: finite.
+        Field::HeaderF32(8..=13) if !f.is_finite() => Err(GridError::BadModel),
+        Field::HeaderF32(_) => Ok(()),
+        Field::Node(_) if !f.is_finite() => Err(GridError::NonFinite),
+        Field::Node(_) => Ok(()),
     }
+}
 
-    #[test]
-    fn grid_parse_never_panics_on_garbage(bytes in proptest::collection::vec(any::<u8>(), 0..400)) {
-        let _ = CorrectionGrid::parse(&bytes);
+/// Images tampered field by field, the CRC recomputed: every field must be refused exactly when
+/// the format says so, with the error it names, and an accepted image must read back what was
+/// written. Every field is tampered, and both outcomes occur for each kind of field.
+#[test]
+fn grid_images_tampered_field_by_field_with_the_crc_fixed() {
+    let (g, img) = valid_image();
+    let outcomes: Vec<Cell<[u64; 2]>> = (0..FIELD_KINDS).map(|_| Cell::new([0; 2])).collect();
+    counted(CASES, (field(), raw_value()), |(field, raw)| {
+        let mut v = img.clone();
+        let bytes = raw.to_le_bytes();
+        let (at, width) = match field {
+            Field::Magic => (0, 4),
+            Field::Version => (4, 2),
+            Field::HeaderLen => (6, 2),
+            Field::Nx => (8, 2),
+            Field::Ny => (10, 2),
+            Field::Flags => (12, 4),
+            Field::HeaderF32(k) => (16 + 4 * k, 4),
+            Field::Node(k) => (HEADER_LEN + 4 * k, 4),
+        };
+        v[at..at + width].copy_from_slice(&bytes[..width]);
+        // The CRC goes where the tampered header says the image ends, if that is inside.
+        let (nx, ny) = (u16::from_le_bytes([v[8], v[9]]), u16::from_le_bytes([v[10], v[11]]));
+        let total = HEADER_LEN + 8 * nx as usize * ny as usize + 4;
+        if (2..=MAX_NODES_PER_AXIS).contains(&nx) && (2..=MAX_NODES_PER_AXIS).contains(&ny) && total <= v.len() {
+            fix_crc(&mut v, total);
+        }
+        let want = expected(field, raw, &g, v.len());
+        let got = CorrectionGrid::parse(&v);
+        prop_assert_eq!(got.as_ref().map(|_| ()).map_err(|e| *e), want, "{:?} = {:#x}", field, raw);
+        let kind = field_kind(field);
+        let mut o = outcomes[kind].get();
+        o[usize::from(got.is_ok())] += 1;
+        outcomes[kind].set(o);
+        if let Ok(grid) = got {
+            let f = f32::from_bits(raw);
+            let geo = grid.geometry();
+            let m = grid.model();
+            let read_back = match field {
+                Field::Nx => geo.nx == raw as u16,
+                Field::Ny => geo.ny == raw as u16,
+                Field::Flags => {
+                    let bit = |b: Branch, n: u32| u32::from(b == Branch::Positive) << n;
+                    bit(m.mode.elbow_1, 0) | bit(m.mode.elbow_2, 1) | bit(m.mode.assembly, 2) == raw
+                }
+                Field::HeaderF32(k) => {
+                    let stored = [
+                        geo.x0_mm,
+                        geo.y0_mm,
+                        geo.step_x_mm,
+                        geo.step_y_mm,
+                        m.a_mm,
+                        m.b_mm,
+                        m.c_mm,
+                        m.d_mm,
+                        m.base_b0_mm[0],
+                        m.base_b0_mm[1],
+                        m.encoder_offset_rad[0],
+                        m.encoder_offset_rad[1],
+                        m.base_a0_mm[0],
+                        m.base_a0_mm[1],
+                    ];
+                    stored[k].to_bits() == f.to_bits()
+                }
+                Field::Node(k) => {
+                    let node = (k / 2) as u16;
+                    grid.node_rad(node % g.nx, node / g.nx)[k % 2].to_bits() == f.to_bits()
+                }
+                Field::Magic | Field::Version | Field::HeaderLen => true,
+            };
+            prop_assert!(read_back, "{:?} = {:#x} accepted but not read back", field, raw);
+        }
+        Ok(1)
+    });
+    for (kind, o) in outcomes.iter().enumerate() {
+        let [refused, accepted] = o.get();
+        println!("field kind {kind}: {refused} refused, {accepted} accepted");
+        assert!(refused >= 20 && accepted >= 5, "field kind {kind}: {refused} refused, {accepted} accepted");
     }
+}
 
-    #[test]
-    fn servo_never_panics_nor_commands_nan(
-        steps in proptest::collection::vec((any_f64(), any_f64(), any_f64(), any_f64()), 1..40),
-        start in (-3.0..3.0f64, -3.0..3.0f64),
-    ) {
-        let g = GridGeometry { nx: 3, ny: 3, x0_mm: 160.0, y0_mm: -80.0, step_x_mm: 50.0, step_y_mm: 80.0 };
-        let mut img = vec![0u8; g.image_len()];
-        encode(&mut img, &g, &FiveBar::paper_nominal(), &[[1e-4, -1e-4]; 9]).unwrap();
-        let grid = CorrectionGrid::parse(&img).unwrap();
-        for cal in [Calibration { model: FiveBar::paper_nominal(), grid: None }, Calibration::from_grid(grid)] {
+// ---------------------------------------------------------------------------------------------
+// The servo.
+
+const HOME_MM: [f32; 2] = [212.132, 0.0];
+
+fn calibrations(img: &[u8]) -> [Calibration<'_>; 2] {
+    [Calibration { model: FiveBar::paper_nominal(), grid: None }, Calibration::from_grid(CorrectionGrid::parse(img).unwrap())]
+}
+
+fn small_grid() -> Vec<u8> {
+    let g = GridGeometry { nx: 3, ny: 3, x0_mm: 160.0, y0_mm: -80.0, step_x_mm: 50.0, step_y_mm: 80.0 };
+    let mut img = vec![0u8; g.image_len()];
+    encode(&mut img, &g, &FiveBar::paper_nominal(), &[[1e-4, -1e-4]; 9]).unwrap();
+    img
+}
+
+/// What one case feeds the servo.
+#[derive(Clone, Debug)]
+enum Sequence {
+    /// Arbitrary setpoints and encoder readings from an arbitrary engage.
+    Hostile { steps: Vec<(f64, f64, f64, f64)>, start: (f64, f64) },
+    /// From the engaged home pose: setpoint accelerations within ±1 g per axis (fractions), the
+    /// encoders one sample behind the reference plus noise (rad); at `spike`, one hostile step.
+    Smooth { steps: Vec<(f32, f32, f32, f32)>, spike: Option<(usize, (f64, f64, f64, f64))> },
+}
+
+fn sequence() -> impl Strategy<Value = Sequence> {
+    let hostile_step = || (any_f64(), any_f64(), any_f64(), any_f64());
+    let noise = || prop_oneof![3 => -2e-3..2e-3f32, 1 => -1.5e-2..1.5e-2f32];
+    prop_oneof![
+        (proptest::collection::vec(hostile_step(), 1..40), (-3.0..3.0f64, -3.0..3.0f64))
+            .prop_map(|(steps, start)| Sequence::Hostile { steps, start }),
+        (
+            proptest::collection::vec((-1.0..1.0f32, -1.0..1.0f32, noise(), noise()), 1..100),
+            proptest::option::of((0..100usize, hostile_step())),
+        )
+            .prop_map(|(steps, spike)| Sequence::Smooth { steps, spike }),
+    ]
+}
+
+/// Whatever the servo is fed, it never panics, never commands a non-finite torque or one beyond
+/// its limit, and every refusal is latched. Half the cases are smooth sequences from the engaged
+/// pose, so the torque checks run on a large share of the steps, at the limit too.
+#[test]
+fn servo_never_panics_nor_commands_nan() {
+    let img = small_grid();
+    let dt = ServoConfig::default().sample_period_s;
+    let g_mm_s2 = kinematics_core::servo::STANDARD_GRAVITY_MM_S2;
+    let steps = Cell::new(0u64);
+    let at_limit = Cell::new(0u64);
+    let smooth_refused = Cell::new(0u64);
+    let ok = counted(CASES, sequence(), |seq| {
+        let mut ok = 0;
+        for cal in calibrations(&img) {
             let mut servo = Servo::new(ServoConfig::default());
-            let _ = servo.engage(&cal, [start.0 as f32, start.1 as f32]);
-            for &(x, y, e1, e2) in &steps {
-                match servo.step(&cal, [x as f32, y as f32], [e1 as f32, e2 as f32]) {
+            let mut check = |servo: &Servo, result: Result<kinematics_core::ServoOutput, kinematics_core::ServoFault>| {
+                steps.set(steps.get() + 1);
+                match result {
                     Ok(out) => {
+                        ok += 1;
                         for k in 0..2 {
-                            let t = out.torque_nm[k];
-                            prop_assert!(t.is_finite() && t.abs() <= servo.config().axes[k].torque_limit_nm);
+                            let (t, limit) = (out.torque_nm[k], servo.config().axes[k].torque_limit_nm);
+                            prop_assert!(t.is_finite() && t.abs() <= limit, "torque {} (limit {})", t, limit);
+                            if t.abs() == limit {
+                                at_limit.set(at_limit.get() + 1);
+                            }
                         }
+                        Ok(true)
                     }
                     // Every refusal is latched and reported as the latched fault.
-                    Err(e) => prop_assert_eq!(servo.fault(), Some(e)),
+                    Err(e) => {
+                        prop_assert_eq!(servo.fault(), Some(e));
+                        Ok(false)
+                    }
+                }
+            };
+            match &seq {
+                Sequence::Hostile { steps, start } => {
+                    let _ = servo.engage(&cal, [start.0 as f32, start.1 as f32]);
+                    for &(x, y, e1, e2) in steps {
+                        let r = servo.step(&cal, [x as f32, y as f32], [e1 as f32, e2 as f32]);
+                        check(&servo, r)?;
+                    }
+                }
+                Sequence::Smooth { steps, spike } => {
+                    let mut encoder = cal.command_rad(HOME_MM, 0.05).unwrap();
+                    let mut p = servo.engage(&cal, encoder).unwrap();
+                    let mut v = [0.0f32; 2];
+                    let mut reference = encoder;
+                    let mut refused = false;
+                    for (k, &(ax, ay, n1, n2)) in steps.iter().enumerate() {
+                        let r = match spike {
+                            Some((at, (x, y, e1, e2))) if *at == k => {
+                                servo.step(&cal, [*x as f32, *y as f32], [*e1 as f32, *e2 as f32])
+                            }
+                            _ => {
+                                v = [v[0] + ax * g_mm_s2 * dt, v[1] + ay * g_mm_s2 * dt];
+                                p = [p[0] + v[0] * dt, p[1] + v[1] * dt];
+                                servo.step(&cal, p, encoder)
+                            }
+                        };
+                        if let Ok(out) = &r {
+                            reference = out.reference_rad;
+                        }
+                        refused |= !check(&servo, r)?;
+                        // An ideal plant one sample behind, plus encoder noise.
+                        encoder = [reference[0] + n1, reference[1] + n2];
+                    }
+                    if refused && spike.is_none() {
+                        smooth_refused.set(smooth_refused.get() + 1);
+                    }
                 }
             }
         }
-    }
+        Ok(ok)
+    });
+    let (steps, at_limit) = (steps.get(), at_limit.get());
+    println!("servo: {ok} of {steps} steps returned Ok, {at_limit} torques at the limit");
+    assert_eq!(smooth_refused.get(), 0, "smooth sequences within the limits were refused");
+    assert!(ok * 3 >= steps, "only {ok} of {steps} steps returned Ok: the torque checks barely ran");
+    assert!(at_limit >= 100, "only {at_limit} torques at the limit: the limit check barely ran");
 }

@@ -36,9 +36,11 @@ const POINTS_MM: [[f64; 2]; 6] =
 #[test]
 fn jacobian_matches_finite_differences_of_fk() {
     let h = 1e-6;
+    let mut checked = 0;
     for m in machines() {
         for p in POINTS_MM {
             let Ok(pose) = m.inverse_pose(p, 0.05) else { continue };
+            checked += 1;
             let j = pose.jacobian().unwrap();
             for col in 0..2 {
                 let mut tp = pose.theta_rad;
@@ -54,14 +56,19 @@ fn jacobian_matches_finite_differences_of_fk() {
             }
         }
     }
+    // Every machine and point above is reachable with margin: a pose refused here would skip
+    // the check silently.
+    assert_eq!(checked, machines().len() * POINTS_MM.len(), "only {checked} poses checked");
 }
 
 #[test]
 fn inverse_jacobian_matches_finite_differences_of_ik_and_inverts_j() {
     let h = 1e-6;
+    let mut checked = 0;
     for m in machines() {
         for p in POINTS_MM {
             let Ok(pose) = m.inverse_pose(p, 0.05) else { continue };
+            checked += 1;
             let ji = pose.inverse_jacobian().unwrap();
             for col in 0..2 {
                 let mut pp = p;
@@ -81,6 +88,9 @@ fn inverse_jacobian_matches_finite_differences_of_ik_and_inverts_j() {
             assert!((back[0] - v[0]).abs() < 1e-12 && (back[1] - v[1]).abs() < 1e-12);
         }
     }
+    // Every machine and point above is reachable with margin: a pose refused here would skip
+    // the check silently.
+    assert_eq!(checked, machines().len() * POINTS_MM.len(), "only {checked} poses checked");
 }
 
 /// Eq. 8 with the proximal links in the denominators:
@@ -88,9 +98,11 @@ fn inverse_jacobian_matches_finite_differences_of_ik_and_inverts_j() {
 /// With the printed `b` and `e` it would fail on a machine with a ≠ b.
 #[test]
 fn corrected_eq8_equals_the_inverse_jacobian() {
+    let mut checked = 0;
     for m in machines() {
         for p in POINTS_MM {
             let Ok(pose) = m.inverse_pose(p, 0.05) else { continue };
+            checked += 1;
             let ji = pose.inverse_jacobian().unwrap();
             let th1 = pose.theta_rad[0] + m.encoder_offset_rad[0];
             let th2 = pose.theta_rad[1] + m.encoder_offset_rad[1];
@@ -111,4 +123,7 @@ fn corrected_eq8_equals_the_inverse_jacobian() {
             }
         }
     }
+    // Every machine and point above is reachable with margin: a pose refused here would skip
+    // the check silently.
+    assert_eq!(checked, machines().len() * POINTS_MM.len(), "only {checked} poses checked");
 }

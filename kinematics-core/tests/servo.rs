@@ -19,8 +19,8 @@ impl Plant {
     fn advance(&mut self, torque_nm: [f32; 2]) {
         let h = DT_S / 10.0;
         for _ in 0..10 {
-            for k in 0..2 {
-                let acc = (torque_nm[k] - self.load_nm[k]) / INERTIA_KG_M2;
+            for (k, torque_nm) in torque_nm.into_iter().enumerate() {
+                let acc = (torque_nm - self.load_nm[k]) / INERTIA_KG_M2;
                 self.velocity_rad_s[k] += acc * h;
                 self.angle_rad[k] += self.velocity_rad_s[k] * h;
             }

@@ -125,7 +125,7 @@ pub fn run(emit: &mut impl FnMut(u32)) {
     }
     for n in 0..400 {
         let t = n as f32 * 5e-4;
-        let phase = 6.283_185 * t * t; // angular speed ramps up from zero
+        let phase = core::f32::consts::TAU * t * t; // angular speed ramps up from zero
         let (s, c) = Real::sin_cos(phase);
         match servo.step(&cal, [centre[0] + 10.0 * c, centre[1] + 10.0 * s], angle) {
             Ok(out) => {

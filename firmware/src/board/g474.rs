@@ -20,71 +20,32 @@
 //!   i.e. 98 rad/s at 2^22 counts/rev);
 //! * drive enable: PB0, active high; the safe state drives it low and disables TIM1's outputs;
 //! * clock: HSI16 → PLL (M 4, N 85, R 2) = 170 MHz, range-1 boost mode, 4 flash wait states;
-//! * logging: defmt over RTT (probe-rs); no semihosting on the board (no test scenarios).
+//! * logging: defmt over RTT (probe-rs); no semihosting on the board and no test harness.
 //!
 //! Encoder angles are relative to the power-on position: a homing or absolute-encoder step that
 //! sets `zero_counts` is still to be written (see README, "What is untested").
 use core::sync::atomic::{AtomicI32, Ordering};
 
+use controller::drive::{self, DriveError, TorqueDrive};
+use controller::encoder::{counts_to_rad, QuadratureEncoder};
+use controller::settings::Settings;
+use controller::trajectory::Trajectory;
+use controller::SAMPLE_RATE_HZ;
 use embedded_hal::pwm::{ErrorType, SetDutyCycle};
 use stm32g4::stm32g474 as pac;
 
-use super::{counts_to_rad, QuadratureEncoder, TorqueDrive};
+use super::{Board, ServoTimer};
 
-/// The device module RTIC needs: interrupt numbers, priority bits and the vector table, with
-/// the board-neutral interrupt names the app uses. The PAC's own vector table (its `rt`
-/// feature) is not used.
-pub mod device {
-    /// STM32G4 implements 4 priority bits.
-    pub const NVIC_PRIO_BITS: u8 = 4;
-
-    #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-    #[allow(non_camel_case_types)]
-    #[repr(u16)]
-    pub enum Interrupt {
-        /// UART4 (52), unused: dispatcher of the priority-1 software tasks.
-        DISPATCH_1 = 52,
-        /// UART5 (53), unused: dispatcher of the priority-2 software tasks.
-        DISPATCH_2 = 53,
-        /// TIM6 update (54, `TIM6_DACUNDER`): the 2 kHz servo tick.
-        SERVO_TICK = 54,
-    }
-    pub use Interrupt as interrupt;
-
-    // SAFETY: the numbers are STM32G474 interrupt positions (RM0440 table 97).
-    unsafe impl cortex_m::interrupt::InterruptNumber for Interrupt {
-        #[inline]
-        fn number(self) -> u16 {
-            self as u16
-        }
-    }
-
-    extern "C" {
-        fn DISPATCH_1();
-        fn DISPATCH_2();
-        fn SERVO_TICK();
-        fn DefaultHandler();
-    }
-
-    #[doc(hidden)]
-    pub union Vector {
-        handler: unsafe extern "C" fn(),
-        _reserved: usize,
-    }
-
-    const D: Vector = Vector { handler: DefaultHandler };
-
-    /// The 102 external interrupt vectors of the STM32G474.
-    #[doc(hidden)]
-    #[link_section = ".vector_table.interrupts"]
-    #[no_mangle]
-    pub static __INTERRUPTS: [Vector; 102] = {
-        let mut v = [D; 102];
-        v[52] = Vector { handler: DISPATCH_1 };
-        v[53] = Vector { handler: DISPATCH_2 };
-        v[54] = Vector { handler: SERVO_TICK };
-        v
-    };
+device! {
+    // STM32G4 implements 4 priority bits and 102 external interrupts.
+    nvic_prio_bits: 4,
+    external_interrupts: 102,
+    /// UART4 (52), unused: dispatcher of the priority-1 software tasks.
+    DISPATCH_1 = 52,
+    /// UART5 (53), unused: dispatcher of the priority-2 software tasks.
+    DISPATCH_2 = 53,
+    /// TIM6 update (54, `TIM6_DACUNDER`, RM0440 table 97): the 2 kHz servo tick.
+    SERVO_TICK = 54,
 }
 
 /// Core clock.
@@ -99,12 +60,13 @@ pub const PWM_MAX_DUTY: u16 = 4250;
 // ---------------------------------------------------------------------------------------------
 // Servo timer: TIM6.
 
-pub struct ServoTimer {
+/// The 2 kHz servo tick: TIM6 counting up from 0 to `reload` once per period.
+pub struct Tim6Timer {
     tim: pac::TIM6,
     reload: u32,
 }
 
-impl ServoTimer {
+impl Tim6Timer {
     fn new(tim: pac::TIM6, rate_hz: u32) -> Self {
         let reload = TICK_TIMER_HZ / rate_hz - 1;
         // SAFETY (all `bits` writes below): values from RM0440 for these registers.
@@ -114,42 +76,35 @@ impl ServoTimer {
         tim.egr().write(|w| unsafe { w.bits(1) }); // UG: load PSC/ARR
         tim.sr().write(|w| unsafe { w.bits(0) });
         tim.dier().write(|w| unsafe { w.bits(1) }); // UIE
-        ServoTimer { tim, reload }
+        Tim6Timer { tim, reload }
     }
+}
 
-    pub fn start(&mut self) {
+impl ServoTimer for Tim6Timer {
+    fn start(&mut self) {
+        // SAFETY: CEN set, the other CR1 bits kept.
         self.tim.cr1().modify(|r, w| unsafe { w.bits(r.bits() | 1) });
     }
 
     #[inline]
-    pub fn clear_interrupt(&mut self) {
+    fn acknowledge_tick(&mut self) {
+        // SAFETY: clearing UIF, the only flag of TIM6's SR.
         self.tim.sr().write(|w| unsafe { w.bits(0) });
     }
 
     #[inline]
-    pub fn elapsed_us(&self) -> f32 {
+    fn elapsed_us(&self) -> f32 {
         (self.tim.cnt().read().bits() & 0xFFFF) as f32 * (1.0e6 / TICK_TIMER_HZ as f32)
     }
 
     #[inline]
-    pub fn next_tick_pending(&self) -> bool {
-        self.tim.sr().read().bits() & 1 != 0
+    fn period_us(&self) -> f32 {
+        (self.reload + 1) as f32 * (1.0e6 / TICK_TIMER_HZ as f32)
     }
 
     #[inline]
-    pub fn step_time_us(&self) -> f32 {
-        let elapsed_us = self.elapsed_us();
-        let period_us = (self.reload + 1) as f32 * (1.0e6 / TICK_TIMER_HZ as f32);
-        if self.next_tick_pending() && elapsed_us < 0.5 * period_us {
-            period_us + elapsed_us
-        } else {
-            elapsed_us
-        }
-    }
-
-    /// Busy-waits until `us` after the tick (only the QEMU deadline test uses this).
-    pub fn burn_until_us(&self, us: f32) {
-        while !self.next_tick_pending() && self.elapsed_us() < us {}
+    fn next_tick_pending(&self) -> bool {
+        self.tim.sr().read().bits() & 1 != 0
     }
 }
 
@@ -222,10 +177,11 @@ fn encoder_timer(tim: &pac::tim3::RegisterBlock) {
 // ---------------------------------------------------------------------------------------------
 // The board.
 
-pub struct Board {
-    pub timer: ServoTimer,
-    pub encoders: [TimEncoder; 2],
-    pub drives: [TorqueDrive<Tim1Pwm>; 2],
+/// The STM32G474 with its drives and encoders.
+pub struct G474Board {
+    timer: Tim6Timer,
+    encoders: [TimEncoder; 2],
+    drives: [TorqueDrive<Tim1Pwm>; 2],
     /// Encoder counts at the machine's zero (set by homing; 0 = power-on position).
     pub zero_counts: [i32; 2],
 }
@@ -234,9 +190,18 @@ fn set_bits(r: u32, mask: u32, value: u32) -> u32 {
     (r & !mask) | value
 }
 
-impl Board {
+impl Board for G474Board {
+    /// No test harness on the board: the production settings, no built-in tour.
+    type Setpoints = Trajectory;
+    type Timer = Tim6Timer;
+
+    fn settings() -> Settings {
+        Settings::default()
+    }
+
     /// Clocks, pins and timers; drives disabled, zero torque commanded.
-    pub fn init(rate_hz: u32, drive_full_scale_nm: f32) -> Self {
+    fn init(settings: &'static Settings) -> Self {
+        let drive_full_scale_nm = settings.drive_full_scale_nm;
         // SAFETY: RTIC runs with `peripherals = false`; this is the only owner of the PAC.
         let dp = unsafe { pac::Peripherals::steal() };
         let (rcc, pwr, flash) = (&dp.RCC, &dp.PWR, &dp.FLASH);
@@ -291,8 +256,8 @@ impl Board {
         encoder_timer(&dp.TIM3);
         encoder_timer(&dp.TIM4);
 
-        let timer = ServoTimer::new(dp.TIM6, rate_hz);
-        let mut board = Board {
+        let timer = Tim6Timer::new(dp.TIM6, SAMPLE_RATE_HZ);
+        let mut board = G474Board {
             timer,
             encoders: [
                 TimEncoder { tim4: false, last: 0, position: AtomicI32::new(0) },
@@ -308,33 +273,42 @@ impl Board {
         board
     }
 
-    /// Hardware: nothing to simulate.
-    #[inline]
-    pub fn simulate_period(&mut self) {}
+    fn setpoints(&mut self, trajectory: Trajectory) -> Trajectory {
+        trajectory
+    }
 
     #[inline]
-    pub fn encoders_rad(&mut self) -> [f32; 2] {
+    fn encoders_rad(&mut self) -> [f32; 2] {
         let a = self.encoders[0].position_counts().wrapping_sub(self.zero_counts[0]);
         let b = self.encoders[1].position_counts().wrapping_sub(self.zero_counts[1]);
         [counts_to_rad(a, COUNTS_PER_REV), counts_to_rad(b, COUNTS_PER_REV)]
     }
 
     #[inline]
-    pub fn set_torques_nm(&mut self, torque_nm: [f32; 2]) -> Option<[f32; 2]> {
-        let a = self.drives[0].set_torque_nm(torque_nm[0]).ok()?;
-        let b = self.drives[1].set_torque_nm(torque_nm[1]).ok()?;
-        Some([a, b])
+    fn set_torques_nm(&mut self, torque_nm: [f32; 2]) -> Result<[f32; 2], DriveError> {
+        drive::set_torques_nm(&mut self.drives, torque_nm)
     }
 
-    pub fn enable_drives(&mut self) {
+    fn enable_drives(&mut self) {
         // SAFETY: PB0 is the drive-enable line, owned by the board.
         unsafe { pac::GPIOB::steal().bsrr().write(|w| w.bits(1)) };
     }
 
     /// Safe state: drive-enable low, then zero torque commanded.
-    pub fn disable_drives(&mut self) {
+    fn disable_drives(&mut self) {
         safe_state();
         let _ = self.set_torques_nm([0.0; 2]);
+    }
+
+    #[inline]
+    fn timer(&mut self) -> &mut Tim6Timer {
+        &mut self.timer
+    }
+
+    /// Sleep until the next interrupt.
+    #[inline]
+    fn idle_wait() {
+        cortex_m::asm::wfi();
     }
 }
 
@@ -342,17 +316,6 @@ impl Board {
 fn safe_state() {
     // SAFETY: a write to PB0's reset bit only.
     unsafe { pac::GPIOB::steal().bsrr().write(|w| w.bits(1 << 16)) };
-}
-
-/// Idle: sleep until the next interrupt.
-#[inline]
-pub fn idle_wait() {
-    cortex_m::asm::wfi();
-}
-
-/// No command line on hardware: the app runs `Scenario::Run`.
-pub fn command_line(_buf: &mut [u8]) -> &str {
-    ""
 }
 
 /// Console lines go to defmt (RTT).
@@ -410,6 +373,7 @@ pub struct CycleCounter {
 }
 
 impl CycleCounter {
+    /// Starts the counter (takes the core peripherals it needs).
     pub fn new(core: cortex_m::Peripherals) -> Self {
         let (mut dcb, mut dwt) = (core.DCB, core.DWT);
         dcb.enable_trace();
@@ -417,11 +381,13 @@ impl CycleCounter {
         CycleCounter { _dwt: dwt }
     }
 
+    /// Cycles since an arbitrary origin (wraps at 2^32).
     #[inline(always)]
     pub fn now(&self) -> u32 {
         cortex_m::peripheral::DWT::cycle_count()
     }
 
+    /// Cycles since `earlier`.
     #[inline(always)]
     pub fn since(&self, earlier: u32) -> u32 {
         self.now().wrapping_sub(earlier)

@@ -1,70 +1,115 @@
-//! Board support behind small traits; exactly one board is compiled in (feature `board-*`).
+//! The boards, behind one [`Board`] trait; exactly one is compiled in (feature `board-*`) and
+//! exported as [`Selected`].
 //!
 //! What the app needs from a board, and nothing more:
-//! * a servo timer that interrupts at 2 kHz (`SERVO_TICK` in the board's `device` module) and
+//! * a servo timer that interrupts at 2 kHz (`SERVO_TICK` in the board's [`device`] module) and
 //!   tells how long after its tick we are and whether the next tick already came (overrun);
-//! * two quadrature encoders ([`QuadratureEncoder`], our own trait: embedded-hal 1.0 has none);
-//! * two PWM outputs (`embedded_hal::pwm::SetDutyCycle`) driving torque-mode amplifiers through
-//!   [`TorqueDrive`], plus a drive-enable line;
-//! * a console and an exit code for tests (QEMU only), and `simulate_period`, which advances
-//!   the simulated plant on QEMU and does nothing on hardware.
+//! * two quadrature encoders ([`QuadratureEncoder`](controller::encoder::QuadratureEncoder));
+//! * two PWM outputs (embedded-hal's `SetDutyCycle`) driving torque-mode amplifiers through
+//!   [`TorqueDrive`](controller::drive::TorqueDrive), plus a drive-enable line;
+//! * an idle wait, and two per-sample hooks that do nothing on hardware: the QEMU board advances
+//!   its simulated plant and runs its test harness (scenarios, fault injection, checks) there.
 //!
-//! Both boards export the same names: `device` (for RTIC), `Board`, `ServoTimer`,
-//! `COUNTS_PER_REV`, `idle_wait`, `command_line`, `console`, `exit`.
-use embedded_hal::pwm::SetDutyCycle;
+//! Each board also exports, for the bare-metal benchmark and golden binaries (no RTIC, no
+//! `Board`): `console`, `exit`, `CycleCounter` and `COUNT_UNIT`.
+use controller::deadline::step_time_us;
+use controller::drive::DriveError;
+use controller::settings::Settings;
+use controller::setpoints::SetpointSource;
+use controller::status::Status;
+use controller::trajectory::Trajectory;
 
 #[cfg(all(feature = "board-qemu", feature = "board-g474"))]
 compile_error!("enable exactly one of the features `board-qemu` and `board-g474`");
 
+#[macro_use]
+mod device_macro;
+
 #[cfg(feature = "board-g474")]
 pub mod g474;
 #[cfg(feature = "board-g474")]
-pub use g474::*;
+pub use g474::{console, device, exit, CycleCounter, G474Board as Selected, COUNT_UNIT};
 
 #[cfg(feature = "board-qemu")]
 pub mod qemu;
 #[cfg(feature = "board-qemu")]
-pub use qemu::*;
+pub use qemu::{console, device, exit, CycleCounter, QemuBoard as Selected, COUNT_UNIT};
 
-/// A quadrature encoder read through a hardware counter.
-pub trait QuadratureEncoder {
-    /// Position in counts, extended to 32 bits (no wrap within the machine's travel).
-    fn position_counts(&mut self) -> i32;
+/// The timer whose interrupt (`SERVO_TICK`) starts every servo sample, 2 kHz.
+pub trait ServoTimer {
+    /// Starts the periodic interrupt.
+    fn start(&mut self);
+
+    /// Acknowledges the tick (first thing in the servo task).
+    fn acknowledge_tick(&mut self);
+
+    /// Time since the current period began (µs).
+    fn elapsed_us(&self) -> f32;
+
+    /// Length of a period (µs).
+    fn period_us(&self) -> f32;
+
+    /// Whether the next period has already begun (its interrupt is pending): an overrun.
+    fn next_tick_pending(&self) -> bool;
+
+    /// Time since the tick that started this step (µs), also when the step ran past the next
+    /// tick (`controller::deadline::step_time_us`).
+    #[inline]
+    fn step_time_us(&self) -> f32 {
+        let elapsed_us = self.elapsed_us();
+        step_time_us(elapsed_us, self.period_us(), self.next_tick_pending())
+    }
 }
 
-/// Encoder angle (rad) of a count, for `counts_per_rev` counts per motor revolution.
-#[inline]
-pub fn counts_to_rad(counts: i32, counts_per_rev: u32) -> f32 {
-    counts as f32 * (2.0 * core::f32::consts::PI / counts_per_rev as f32)
-}
+/// A board the app runs on. All methods are called from the app's tasks: `init` (boot), the
+/// servo task (every sample) and `idle`.
+pub trait Board: Sized {
+    /// What fills the setpoint queue: the built-in trajectory on hardware; on QEMU the same
+    /// trajectory through the harness's setpoint fault injection.
+    type Setpoints: SetpointSource;
 
-/// A torque-mode amplifier commanded by PWM duty: 50 % is zero torque, 0 % and 100 % are
-/// minus and plus `full_scale_nm` (locked anti-phase, or an amplifier's PWM torque input).
-pub struct TorqueDrive<P> {
-    pub pwm: P,
-    pub full_scale_nm: f32,
-}
+    /// The servo tick's timer.
+    type Timer: ServoTimer;
 
-/// Duty for a torque (clamped to full scale), rounded to the nearest step.
-#[inline]
-pub fn torque_to_duty(torque_nm: f32, full_scale_nm: f32, max_duty: u16) -> u16 {
-    let fraction = (0.5 + 0.5 * torque_nm / full_scale_nm).clamp(0.0, 1.0);
-    // `fraction` is in [0, 1] (NaN turns into 0 via the cast, but the servo never emits NaN).
-    (fraction * max_duty as f32 + 0.5) as u16
-}
+    /// The settings this board runs with: [`Settings::default`] on hardware; the QEMU board
+    /// runs the built-in tour, and its harness adapts the tour to its scenario.
+    fn settings() -> Settings;
 
-/// Torque that a duty commands (the inverse of [`torque_to_duty`]).
-#[inline]
-pub fn duty_to_torque_nm(duty: u16, full_scale_nm: f32, max_duty: u16) -> f32 {
-    (2.0 * duty as f32 / max_duty as f32 - 1.0) * full_scale_nm
-}
+    /// Brings the board up: clocks, pins, servo timer configured but not started, drives
+    /// disabled with zero torque commanded.
+    fn init(settings: &'static Settings) -> Self;
 
-impl<P: SetDutyCycle> TorqueDrive<P> {
-    /// Commands `torque_nm`; returns the torque actually commanded after duty rounding.
-    pub fn set_torque_nm(&mut self, torque_nm: f32) -> Result<f32, P::Error> {
-        let max = self.pwm.max_duty_cycle();
-        let duty = torque_to_duty(torque_nm, self.full_scale_nm, max);
-        self.pwm.set_duty_cycle(duty)?;
-        Ok(duty_to_torque_nm(duty, self.full_scale_nm, max))
+    /// The setpoint source the intake task fills the queue from.
+    fn setpoints(&mut self, trajectory: Trajectory) -> Self::Setpoints;
+
+    /// Both encoder angles (rad).
+    fn encoders_rad(&mut self) -> [f32; 2];
+
+    /// Writes both torques; returns the torques commanded after duty rounding.
+    fn set_torques_nm(&mut self, torque_nm: [f32; 2]) -> Result<[f32; 2], DriveError>;
+
+    /// Drive enable on.
+    fn enable_drives(&mut self);
+
+    /// Safe state: drive enable off, then zero torque commanded.
+    fn disable_drives(&mut self);
+
+    /// The servo tick's timer (configured by `init`, started by the app at the end of boot).
+    fn timer(&mut self) -> &mut Self::Timer;
+
+    /// What idle does between interrupts.
+    fn idle_wait();
+
+    /// Start of every sample, right after the tick is acknowledged and before the encoders are
+    /// read. QEMU: advances the simulated plant by one period under the torques the drive
+    /// registers hold, and injects the harness's deadline faults. Hardware: nothing.
+    #[inline(always)]
+    fn begin_sample(&mut self) {}
+
+    /// End of every sample, after the status is published. QEMU: the test harness checks the
+    /// drive registers and `status`, and ends the run with its verdict. Hardware: nothing.
+    #[inline(always)]
+    fn end_sample(&mut self, status: &Status) {
+        let _ = status;
     }
 }

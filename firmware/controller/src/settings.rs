@@ -2,7 +2,8 @@
 //!
 //! On the real board these are compiled in today ([`Settings::default`]); a host link would
 //! replace them before the drives are enabled. Nothing here is read from the calibration image:
-//! the image carries the geometry only.
+//! the image carries the geometry only. The app keeps one `&'static Settings` (set up in
+//! `init`) that every task borrows.
 use kinematics_core::ServoConfig;
 
 /// Every run-time setting, with the defaults documented on each field.
@@ -25,10 +26,11 @@ pub struct Settings {
     pub drive_full_scale_nm: f32,
     /// Telemetry period in servo samples. Default 500 (4 Hz).
     pub telemetry_period_ticks: u32,
-    /// Run the built-in workspace tour after engaging (otherwise hold the engaged position
-    /// until a host link fills the setpoint queue). Default: on for the QEMU board, off for
-    /// the real board, which must not start moving by itself at power-on.
-    pub run_builtin_tour: bool,
+    /// Waypoints of the built-in tour run after engaging; empty: hold the engaged position
+    /// until a host link fills the setpoint queue. Default empty: a real machine must not start
+    /// moving by itself at power-on. The QEMU board runs
+    /// [`WORKSPACE_TOUR_MM`](crate::trajectory::WORKSPACE_TOUR_MM).
+    pub builtin_tour_mm: &'static [[f32; 2]],
     /// Peak tool acceleration of the built-in trajectory (mm/s²). Default 2 g.
     pub trajectory_accel_mm_s2: f32,
     /// Peak tool speed of the built-in trajectory (mm/s). Default 1500 mm/s.
@@ -45,10 +47,25 @@ impl Default for Settings {
             overrun_streak_limit: 3,
             drive_full_scale_nm: 10.0,
             telemetry_period_ticks: 500,
-            run_builtin_tour: cfg!(feature = "board-qemu"),
+            builtin_tour_mm: &[],
             trajectory_accel_mm_s2: 2.0 * kinematics_core::servo::STANDARD_GRAVITY_MM_S2,
             trajectory_speed_mm_s: 1_500.0,
             trajectory_dwell_s: 0.1,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_servo_runs_at_the_timer_rate_and_a_real_machine_does_not_move_by_itself() {
+        let s = Settings::default();
+        assert_eq!(s.servo.sample_period_s * crate::SAMPLE_RATE_HZ as f32, 1.0);
+        assert!(s.builtin_tour_mm.is_empty());
+        assert!(!s.allow_uncorrected);
+        // The servo's torque limit, not the PWM range, must saturate first.
+        assert!(s.servo.axes.iter().all(|a| a.torque_limit_nm < s.drive_full_scale_nm));
     }
 }

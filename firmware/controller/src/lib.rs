@@ -1,0 +1,54 @@
+//! The motion controller's application logic, without hardware: what the firmware decides.
+//!
+//! The RTIC app (`firmware/src/main.rs`) wires this crate to a board (`firmware/src/board/`):
+//! it reads the encoders, hands them to [`servo_loop::ServoLoop::step`], writes the torques
+//! the step decided, and publishes the [`status::Status`]. Everything here is plain `no_std`
+//! Rust that runs the same on the MCU and on the host, and `cargo test` tests it on the host.
+//!
+//! One module per concept; where a change goes:
+//! * [`settings`]: every run-time setting, with documented defaults;
+//! * [`servo_loop`]: one servo sample: the mode machine (running / safe state), setpoint
+//!   intake with underrun handling, fault latching, what torque and drive enable result;
+//! * [`setpoints`]: the setpoint queue between a source and the servo, and the
+//!   [`setpoints::SetpointSource`] trait (the built-in trajectory is one; a host link's streamed
+//!   motion buffer would be another);
+//! * [`trajectory`]: the built-in setpoint generator (rest-to-rest quintic moves);
+//! * [`fault`]: why the drives are off ([`fault::Fault`], latched);
+//! * [`deadline`]: the servo task's deadline bookkeeping;
+//! * [`status`]: what the servo task publishes every sample;
+//! * [`calibration`]: the policy for the calibration image found in flash;
+//! * [`drive`]: torque-mode amplifiers commanded by PWM duty (torque <-> duty);
+//! * [`encoder`]: quadrature encoders (counts -> angle);
+//! * `scenario` (feature `qemu-harness`, and in host tests): the QEMU test scenarios, their
+//!   fault injection and their checks.
+//!
+//! Planned homes (not written yet): stop categories and the controlled-stop planner
+//! (`stop.rs`, next to [`fault`]), encoder plausibility (in [`encoder`]), the watchdog hook
+//! (in [`servo_loop`]), the host link's command handler (`link.rs`) feeding a streamed motion
+//! buffer (a [`setpoints::SetpointSource`]), homing (`homing.rs`), calibration slots (in
+//! [`calibration`]).
+//!
+//! No heap, no panic on runtime data: every failure is a [`fault::Fault`].
+#![cfg_attr(not(test), no_std)]
+#![deny(unsafe_op_in_unsafe_fn)]
+#![warn(missing_docs)]
+// `!(x >= lo)` instead of `x < lo` is deliberate throughout: it also refuses NaN.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
+pub mod calibration;
+pub mod deadline;
+pub mod drive;
+pub mod encoder;
+pub mod fault;
+#[cfg(any(test, feature = "qemu-harness"))]
+pub mod scenario;
+pub mod servo_loop;
+pub mod settings;
+pub mod setpoints;
+pub mod status;
+pub mod trajectory;
+
+/// Sample period of the servo loop (s): 2 kHz.
+pub const SAMPLE_PERIOD_S: f32 = 5.0e-4;
+/// Servo loop rate (Hz).
+pub const SAMPLE_RATE_HZ: u32 = 2_000;

@@ -1,0 +1,55 @@
+//! The setpoint queue between a source and the servo.
+//!
+//! A lower-priority task keeps a `heapless` SPSC queue of tool-space setpoints (mm) filled from
+//! a [`SetpointSource`]; the servo task takes one per sample (see
+//! [`ServoLoop::step`](crate::servo_loop::ServoLoop::step): an empty queue holds the last
+//! setpoint and counts an underrun) and asks for a refill when fewer than [`REFILL_BELOW`] are
+//! left. The built-in [`Trajectory`](crate::trajectory::Trajectory) is a source; a host link's
+//! streamed motion buffer would be another.
+use heapless::spsc::Producer;
+
+/// Slots of the setpoint queue: 64 (63 usable), 31.5 ms of samples.
+pub const QUEUE_SLOTS: usize = 64;
+/// The servo task asks for a refill when fewer setpoints than this are queued.
+pub const REFILL_BELOW: usize = 32;
+
+/// Where setpoints come from: one tool-space setpoint (mm) per servo sample.
+pub trait SetpointSource {
+    /// The setpoint for the next sample.
+    fn next_mm(&mut self) -> [f32; 2];
+}
+
+/// Fills the queue from `source` until it is full.
+pub fn refill(queue: &mut Producer<'_, [f32; 2]>, source: &mut impl SetpointSource) {
+    while queue.ready() {
+        let _ = queue.enqueue(source.next_mm());
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use heapless::spsc::Queue;
+
+    struct Counter(f32);
+    impl SetpointSource for Counter {
+        fn next_mm(&mut self) -> [f32; 2] {
+            self.0 += 1.0;
+            [self.0, -self.0]
+        }
+    }
+
+    #[test]
+    fn refill_fills_the_queue_in_order_and_takes_no_more_than_fits() {
+        let mut q: Queue<[f32; 2], QUEUE_SLOTS> = Queue::new();
+        let (mut tx, mut rx) = q.split();
+        let mut source = Counter(0.0);
+        refill(&mut tx, &mut source);
+        assert_eq!(rx.len(), QUEUE_SLOTS - 1);
+        assert_eq!(source.0, (QUEUE_SLOTS - 1) as f32, "no setpoint drawn and dropped");
+        assert_eq!(rx.dequeue(), Some([1.0, -1.0]));
+        refill(&mut tx, &mut source);
+        assert_eq!(rx.len(), QUEUE_SLOTS - 1);
+        assert_eq!(rx.dequeue(), Some([2.0, -2.0]));
+    }
+}

@@ -1,0 +1,92 @@
+//! What the servo task publishes every sample: counters, deadline figures, the latched fault,
+//! the last setpoint, reference, encoder reading and torque. Telemetry reads it; so does the
+//! QEMU test harness, next to the simulated drive registers.
+use crate::calibration::CalibrationState;
+use crate::deadline::Deadline;
+use crate::fault::Fault;
+use crate::servo_loop::{Mode, Sample, ServoLoop};
+
+/// Snapshot the servo task publishes every sample.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Status {
+    /// Servo samples run since the timer started.
+    pub ticks: u32,
+    /// Samples whose step did not finish before the next tick.
+    pub overruns: u32,
+    /// Longest step (timer interrupt to torque written, µs).
+    pub worst_step_us: f32,
+    /// What the boot check found in the calibration region.
+    pub calibration: CalibrationState,
+    /// The latched fault (at boot or while running).
+    pub fault: Option<Fault>,
+    /// Sample at which the fault latched (0 for a fault at boot).
+    pub fault_tick: u32,
+    /// Whether the servo loop wants the drives enabled (the board's line is the truth).
+    pub drives_enabled: bool,
+    /// Last setpoint the servo accepted (mm).
+    pub setpoint_mm: [f32; 2],
+    /// Encoder angles the servo commanded for that setpoint (model IK plus grid correction,
+    /// unwrapped next to the previous reference; rad).
+    pub reference_rad: [f32; 2],
+    /// Last encoder reading (rad).
+    pub encoder_rad: [f32; 2],
+    /// Last torque command (N·m); zero in the safe state.
+    pub torque_nm: [f32; 2],
+    /// Largest |following error| of either axis while running (rad).
+    pub max_following_error_rad: f32,
+    /// Samples that found the setpoint queue empty (the last setpoint was held).
+    pub setpoint_underruns: u32,
+}
+
+impl Status {
+    /// The status after boot, before the first sample, with the encoders read at boot.
+    pub fn at_boot(calibration: CalibrationState, servo_loop: &ServoLoop<'_>, encoder_rad: [f32; 2]) -> Self {
+        let fault = match servo_loop.mode() {
+            Mode::Running => None,
+            Mode::SafeState(f) => Some(f),
+        };
+        Status {
+            ticks: 0,
+            overruns: 0,
+            worst_step_us: 0.0,
+            calibration,
+            fault,
+            fault_tick: 0,
+            drives_enabled: servo_loop.drives_enabled(),
+            setpoint_mm: servo_loop.setpoint_mm(),
+            reference_rad: servo_loop.reference_rad(),
+            encoder_rad,
+            torque_nm: [0.0; 2],
+            max_following_error_rad: 0.0,
+            setpoint_underruns: 0,
+        }
+    }
+
+    /// Records the sample the servo loop just ran (`mode` is the loop's mode after it).
+    pub fn record(&mut self, sample: &Sample, mode: Mode, deadline: &Deadline) {
+        self.ticks = sample.index.wrapping_add(1);
+        self.overruns = deadline.overruns;
+        self.worst_step_us = deadline.worst_step_us;
+        self.encoder_rad = sample.encoder_rad;
+        self.torque_nm = sample.torque_nm;
+        self.setpoint_mm = sample.setpoint_mm;
+        self.reference_rad = sample.reference_rad;
+        if sample.underrun {
+            self.setpoint_underruns += 1;
+        }
+        match mode {
+            Mode::Running => {
+                self.drives_enabled = true;
+                self.max_following_error_rad = self.max_following_error_rad.max(sample.following_error_rad);
+            }
+            Mode::SafeState(fault) => {
+                self.drives_enabled = false;
+                if self.fault.is_none() {
+                    self.fault = Some(fault);
+                    self.fault_tick = sample.index;
+                }
+            }
+        }
+    }
+}

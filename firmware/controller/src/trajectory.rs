@@ -1,0 +1,236 @@
+//! The built-in setpoint generator: rest-to-rest quintic moves through a list of waypoints.
+//!
+//! Each move from `P` to `Q` follows `P + (Q - P)·s(τ)`, `s = 10τ³ - 15τ⁴ + 6τ⁵`, `τ = t/T`,
+//! which starts and ends with zero speed and acceleration, so the sequence never asks the servo
+//! for a jump. Peak acceleration is `10/√3 · D/T²` and peak speed `15/8 · D/T`; the duration of
+//! each move is the shortest that keeps both within the limits given. Time is an integer sample
+//! count, so the setpoints are the same on every run.
+use heapless::Vec;
+
+use crate::settings::Settings;
+use crate::setpoints::SetpointSource;
+
+/// Most waypoints a trajectory holds.
+pub const MAX_WAYPOINTS: usize = 16;
+
+/// Tool-space rest-to-rest moves, sampled at the servo rate.
+#[derive(Clone, Debug)]
+pub struct Trajectory {
+    /// `waypoints[0]` is the start (the engaged tool position).
+    waypoints: Vec<[f32; 2], MAX_WAYPOINTS>,
+    /// Samples of each move (index `k` is the move from `waypoints[k]` to `waypoints[k + 1]`).
+    move_samples: Vec<u32, MAX_WAYPOINTS>,
+    dwell_samples: u32,
+    /// Current move and the sample within move plus dwell.
+    segment: usize,
+    sample: u32,
+}
+
+impl Trajectory {
+    /// Moves from `start_mm` through `waypoints_mm` (extra waypoints beyond the capacity are
+    /// dropped), each limited to `accel_mm_s2` and `speed_mm_s`, resting `dwell_s` at each.
+    pub fn new(
+        start_mm: [f32; 2],
+        waypoints_mm: &[[f32; 2]],
+        accel_mm_s2: f32,
+        speed_mm_s: f32,
+        dwell_s: f32,
+        sample_period_s: f32,
+    ) -> Self {
+        let mut waypoints: Vec<[f32; 2], MAX_WAYPOINTS> = Vec::new();
+        let mut move_samples: Vec<u32, MAX_WAYPOINTS> = Vec::new();
+        let _ = waypoints.push(start_mm);
+        for w in waypoints_mm {
+            let Some(&p) = waypoints.last() else { break };
+            if waypoints.push(*w).is_err() {
+                break;
+            }
+            let d = libm::hypotf(w[0] - p[0], w[1] - p[1]);
+            let t_accel = libm::sqrtf(10.0 / libm::sqrtf(3.0) * d / accel_mm_s2);
+            let t_speed = 15.0 / 8.0 * d / speed_mm_s;
+            let t = if t_accel > t_speed { t_accel } else { t_speed };
+            let _ = move_samples.push(libm::ceilf(t / sample_period_s) as u32 + 1);
+        }
+        Trajectory {
+            waypoints,
+            move_samples,
+            dwell_samples: libm::ceilf(dwell_s / sample_period_s) as u32,
+            segment: 0,
+            sample: 0,
+        }
+    }
+
+    /// The built-in tour of `settings` from `start_mm` at the servo rate.
+    pub fn builtin(start_mm: [f32; 2], settings: &Settings) -> Self {
+        Trajectory::new(
+            start_mm,
+            settings.builtin_tour_mm,
+            settings.trajectory_accel_mm_s2,
+            settings.trajectory_speed_mm_s,
+            settings.trajectory_dwell_s,
+            crate::SAMPLE_PERIOD_S,
+        )
+    }
+
+    /// Samples until the last waypoint is reached and its dwell is over.
+    pub fn total_samples(&self) -> u32 {
+        self.move_samples.iter().map(|n| n + self.dwell_samples).sum()
+    }
+
+    /// Whether every move is done (the generator then holds the last waypoint).
+    pub fn finished(&self) -> bool {
+        self.segment >= self.move_samples.len()
+    }
+
+    /// The last waypoint.
+    pub fn end_mm(&self) -> [f32; 2] {
+        self.waypoints.last().copied().unwrap_or([0.0; 2])
+    }
+
+    /// The next setpoint.
+    pub fn next_mm(&mut self) -> [f32; 2] {
+        let Some(&n) = self.move_samples.get(self.segment) else {
+            return self.end_mm();
+        };
+        let (p, q) = (self.waypoints[self.segment], self.waypoints[self.segment + 1]);
+        let tau = if self.sample >= n { 1.0 } else { self.sample as f32 / n as f32 };
+        let s = tau * tau * tau * (10.0 + tau * (-15.0 + 6.0 * tau));
+        self.sample += 1;
+        if self.sample >= n + self.dwell_samples {
+            self.segment += 1;
+            self.sample = 0;
+        }
+        [p[0] + (q[0] - p[0]) * s, p[1] + (q[1] - p[1]) * s]
+    }
+}
+
+impl SetpointSource for Trajectory {
+    fn next_mm(&mut self) -> [f32; 2] {
+        Trajectory::next_mm(self)
+    }
+}
+
+/// The test path through the paper's workspace (x 162.132..262.132 mm, y -75..75 mm): the four
+/// corner regions, the diagonals and the centre, 5 mm inside the calibrated rectangle.
+pub const WORKSPACE_TOUR_MM: [[f32; 2]; 8] = [
+    [255.0, 68.0],
+    [170.0, 68.0],
+    [170.0, -68.0],
+    [255.0, -68.0],
+    [170.0, 68.0],
+    [255.0, 0.0],
+    [190.0, -30.0],
+    [212.132, 0.0],
+];
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use kinematics_core::{Calibration, FiveBar, Servo};
+
+    const DT_S: f32 = crate::SAMPLE_PERIOD_S;
+    const G_MM_S2: f32 = kinematics_core::servo::STANDARD_GRAVITY_MM_S2;
+
+    fn tour() -> Trajectory {
+        Trajectory::new([212.132, 0.0], &WORKSPACE_TOUR_MM, 2.0 * G_MM_S2, 1500.0, 0.1, DT_S)
+    }
+
+    #[test]
+    fn no_waypoints_holds_the_start() {
+        let mut t = Trajectory::new([200.0, 5.0], &[], 2.0 * G_MM_S2, 1500.0, 0.1, DT_S);
+        assert_eq!(t.total_samples(), 0);
+        assert!(t.finished());
+        for _ in 0..10 {
+            assert_eq!(t.next_mm(), [200.0, 5.0]);
+        }
+    }
+
+    #[test]
+    fn starts_at_the_start_ends_at_the_last_waypoint_and_holds_it() {
+        let mut t = tour();
+        let n = t.total_samples();
+        assert!(n > 1000, "{n} samples");
+        assert_eq!(t.next_mm(), [212.132, 0.0], "the first setpoint is where the servo engaged");
+        for _ in 1..n {
+            assert!(!t.finished());
+            t.next_mm();
+        }
+        assert!(t.finished());
+        let end = WORKSPACE_TOUR_MM[WORKSPACE_TOUR_MM.len() - 1];
+        assert_eq!(t.end_mm(), end);
+        for _ in 0..100 {
+            assert_eq!(t.next_mm(), end);
+        }
+    }
+
+    #[test]
+    fn every_waypoint_is_reached_and_rested_at_for_the_dwell() {
+        let mut t = tour();
+        let dwell = (0.1 / DT_S) as usize;
+        let points: std::vec::Vec<[f32; 2]> = (0..t.total_samples()).map(|_| t.next_mm()).collect();
+        for w in WORKSPACE_TOUR_MM {
+            let longest_rest = points
+                .split(|p| *p != w)
+                .map(|run| run.len())
+                .max()
+                .unwrap_or(0);
+            assert!(longest_rest >= dwell, "{w:?}: rested {longest_rest} samples");
+        }
+    }
+
+    /// Second differences of the setpoints stay within the acceleration limit and first
+    /// differences within the speed limit; the acceleration limit is what binds on the long
+    /// moves (the moves are not needlessly slow).
+    #[test]
+    fn speed_and_acceleration_stay_within_their_limits() {
+        let (accel, speed) = (2.0 * G_MM_S2, 1500.0f32);
+        let mut t = tour();
+        let p: std::vec::Vec<[f64; 2]> =
+            (0..t.total_samples() + 10).map(|_| t.next_mm()).map(|q| [q[0] as f64, q[1] as f64]).collect();
+        let dt = DT_S as f64;
+        let (mut max_v, mut max_a) = (0.0f64, 0.0f64);
+        for k in 2..p.len() {
+            let v = ((p[k][0] - p[k - 1][0]).powi(2) + (p[k][1] - p[k - 1][1]).powi(2)).sqrt() / dt;
+            let a = ((p[k][0] - 2.0 * p[k - 1][0] + p[k - 2][0]).powi(2)
+                + (p[k][1] - 2.0 * p[k - 1][1] + p[k - 2][1]).powi(2))
+            .sqrt()
+                / (dt * dt);
+            max_v = max_v.max(v);
+            max_a = max_a.max(a);
+        }
+        // f32 setpoints near 250 mm carry 15 nm of rounding: ~120 mm/s² in a second difference.
+        assert!(max_a <= accel as f64 * 1.01 + 200.0, "peak acceleration {max_a} mm/s²");
+        assert!(max_v <= speed as f64 * 1.01, "peak speed {max_v} mm/s");
+        assert!(max_a >= 0.9 * accel as f64, "peak acceleration only {max_a} mm/s²");
+    }
+
+    #[test]
+    fn waypoints_beyond_the_capacity_are_dropped() {
+        let many = [[200.0f32, 0.0]; 2 * MAX_WAYPOINTS];
+        let t = Trajectory::new([210.0, 0.0], &many, 2.0 * G_MM_S2, 1500.0, 0.0, DT_S);
+        assert_eq!(t.move_samples.len(), MAX_WAYPOINTS - 1);
+        assert_eq!(t.end_mm(), [200.0, 0.0]);
+    }
+
+    /// The servo (its jump checks at 5 g) accepts every setpoint of the tour from the engaged
+    /// pose, with the encoders following the reference exactly.
+    #[test]
+    fn the_servo_accepts_the_whole_tour() {
+        let cal = Calibration { model: FiveBar::paper_nominal(), grid: None };
+        let mut servo = Servo::new(Settings::default().servo);
+        let mut encoder = cal.command_rad([212.132, 0.0], 0.05).unwrap();
+        servo.engage(&cal, encoder).unwrap();
+        let mut t = tour();
+        for k in 0..t.total_samples() {
+            let out = servo.step(&cal, t.next_mm(), encoder).unwrap_or_else(|f| panic!("sample {k}: {f}"));
+            encoder = out.reference_rad;
+        }
+    }
+
+    #[test]
+    fn builtin_uses_the_settings_tour() {
+        let settings = Settings { builtin_tour_mm: &WORKSPACE_TOUR_MM, ..Settings::default() };
+        assert_eq!(Trajectory::builtin([212.132, 0.0], &settings).total_samples(), tour().total_samples());
+        assert!(Trajectory::builtin([212.132, 0.0], &Settings::default()).finished());
+    }
+}

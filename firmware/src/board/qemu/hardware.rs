@@ -1,0 +1,86 @@
+//! The simulated hardware registers between the firmware and the plant: PWM duty per axis, the
+//! drive-enable line, the encoder counters. They are atomics, written by the board's drivers
+//! ([`SimPwm`], [`QemuBoard::enable_drives`](super::QemuBoard)) and read by the plant and by the
+//! test harness, which checks what the hardware shows rather than what the firmware says.
+use core::sync::atomic::{AtomicBool, AtomicI32, AtomicU16, Ordering};
+
+use controller::drive::duty_to_torque_nm;
+use controller::encoder::QuadratureEncoder;
+use embedded_hal::pwm::{ErrorType, SetDutyCycle};
+
+use super::PWM_MAX_DUTY;
+
+static PWM_DUTY: [AtomicU16; 2] = [AtomicU16::new(PWM_MAX_DUTY / 2), AtomicU16::new(PWM_MAX_DUTY / 2)];
+static DRIVE_ENABLE: AtomicBool = AtomicBool::new(false);
+/// Sticky: the enable line went high at least once since power-on (a probe on the line).
+static DRIVE_ENABLE_EVER: AtomicBool = AtomicBool::new(false);
+static ENCODER_COUNTS: [AtomicI32; 2] = [AtomicI32::new(0), AtomicI32::new(0)];
+
+/// Drives the enable line.
+pub fn set_drive_enable(on: bool) {
+    DRIVE_ENABLE.store(on, Ordering::SeqCst);
+    if on {
+        DRIVE_ENABLE_EVER.store(true, Ordering::SeqCst);
+    }
+}
+
+/// The enable line now.
+pub fn drive_enable() -> bool {
+    DRIVE_ENABLE.load(Ordering::SeqCst)
+}
+
+/// Whether the enable line was ever high.
+pub fn drive_enable_ever() -> bool {
+    DRIVE_ENABLE_EVER.load(Ordering::SeqCst)
+}
+
+/// The duty register of `axis`.
+pub fn pwm_duty(axis: usize) -> u16 {
+    PWM_DUTY[axis].load(Ordering::Relaxed)
+}
+
+/// The torques the duty registers command (N·m) for a drive of `full_scale_nm`, whether or not
+/// the drives are enabled.
+pub fn commanded_torque_nm(full_scale_nm: f32) -> [f32; 2] {
+    [
+        duty_to_torque_nm(pwm_duty(0), full_scale_nm, PWM_MAX_DUTY),
+        duty_to_torque_nm(pwm_duty(1), full_scale_nm, PWM_MAX_DUTY),
+    ]
+}
+
+/// Sets the encoder counter of `axis` (the plant does, from its joint angle).
+pub fn set_encoder_counts(axis: usize, counts: i32) {
+    ENCODER_COUNTS[axis].store(counts, Ordering::Relaxed);
+}
+
+/// One PWM channel of the simulated drive.
+pub struct SimPwm {
+    /// 0 or 1.
+    pub axis: usize,
+}
+
+impl ErrorType for SimPwm {
+    type Error = core::convert::Infallible;
+}
+
+impl SetDutyCycle for SimPwm {
+    fn max_duty_cycle(&self) -> u16 {
+        PWM_MAX_DUTY
+    }
+    fn set_duty_cycle(&mut self, duty: u16) -> Result<(), Self::Error> {
+        PWM_DUTY[self.axis].store(duty.min(PWM_MAX_DUTY), Ordering::Relaxed);
+        Ok(())
+    }
+}
+
+/// One simulated encoder counter.
+pub struct SimEncoder {
+    /// 0 or 1.
+    pub axis: usize,
+}
+
+impl QuadratureEncoder for SimEncoder {
+    fn position_counts(&mut self) -> i32 {
+        ENCODER_COUNTS[self.axis].load(Ordering::Relaxed)
+    }
+}

@@ -1,0 +1,255 @@
+//! The QEMU board: MPS2-AN386 (Cortex-M4F) under `qemu-system-arm -M mps2-an386`, with the
+//! machine simulated inside the firmware and the test harness hooked in.
+//!
+//! * Servo tick: CMSDK APB TIMER0 (IRQ 8, 25 MHz), reload for 2 kHz.
+//! * [`hardware`]: the "registers" between the firmware and the plant (PWM duty per axis, the
+//!   drive-enable line, the encoder counters), atomics.
+//! * [`plant`]: two joint inertias with friction, advanced in [`Board::begin_sample`].
+//! * [`harness`]: the test harness (scenario from the command line, self-tests at boot,
+//!   setpoint and deadline fault injection, the checks at the end of every sample that end the
+//!   run with PASS or FAIL). Only this board has it.
+//! * [`semihosting`]: command line, console, exit code, defmt to a host file, and the
+//!   HardFault / unexpected interrupt / panic handlers (print `FAIL ...`, exit 1).
+use controller::drive::{self, DriveError, TorqueDrive};
+use controller::encoder::{counts_to_rad, QuadratureEncoder};
+use controller::settings::Settings;
+use controller::status::Status;
+use controller::trajectory::{Trajectory, WORKSPACE_TOUR_MM};
+use controller::SAMPLE_RATE_HZ;
+
+use super::{Board, ServoTimer};
+
+pub mod hardware;
+pub mod harness;
+pub mod plant;
+pub mod semihosting;
+
+pub use semihosting::{console, exit};
+
+use hardware::{SimEncoder, SimPwm};
+use harness::{Harness, Injected};
+use plant::Plant;
+
+device! {
+    // The AN386's Cortex-M4 implements 3 priority bits and 32 external interrupts.
+    nvic_prio_bits: 3,
+    external_interrupts: 32,
+    /// UART2 RX (IRQ 4), unused by the board: dispatcher of the priority-1 software tasks.
+    DISPATCH_1 = 4,
+    /// UART2 TX (IRQ 5), unused by the board: dispatcher of the priority-2 software tasks.
+    DISPATCH_2 = 5,
+    /// CMSDK TIMER0 (IRQ 8): the 2 kHz servo tick.
+    SERVO_TICK = 8,
+}
+
+/// Core clock and timer clock of the AN386 (QEMU's SYSCLK).
+pub const TIMER_CLOCK_HZ: u32 = 25_000_000;
+/// Encoder resolution of the simulated motors.
+pub const COUNTS_PER_REV: u32 = 1 << 22;
+/// PWM full-scale duty (the G474's 20 kHz centre-aligned TIM1 period at 170 MHz; even, so that
+/// 50 % and thus zero torque is exact).
+pub const PWM_MAX_DUTY: u16 = 4250;
+
+// ---------------------------------------------------------------------------------------------
+// Servo timer: CMSDK APB timer 0.
+
+const TIMER0_BASE: usize = 0x4000_0000;
+const TIMER_CTRL: usize = 0x00;
+const TIMER_VALUE: usize = 0x04;
+const TIMER_RELOAD: usize = 0x08;
+const TIMER_INT: usize = 0x0C; // INTSTATUS on read, INTCLEAR on write
+const CTRL_ENABLE: u32 = 1 << 0;
+const CTRL_IRQ_ENABLE: u32 = 1 << 3;
+
+fn timer_read(offset: usize) -> u32 {
+    // SAFETY: a CMSDK timer register of the AN386 memory map.
+    unsafe { core::ptr::read_volatile((TIMER0_BASE + offset) as *const u32) }
+}
+fn timer_write(offset: usize, value: u32) {
+    // SAFETY: a CMSDK timer register of the AN386 memory map; only the servo timer owns it.
+    unsafe { core::ptr::write_volatile((TIMER0_BASE + offset) as *mut u32, value) }
+}
+
+/// The 2 kHz servo tick. The timer counts down from `reload` to 0 once per period.
+pub struct CmsdkTimer {
+    reload: u32,
+}
+
+impl CmsdkTimer {
+    fn new(rate_hz: u32) -> Self {
+        let reload = TIMER_CLOCK_HZ / rate_hz - 1;
+        timer_write(TIMER_CTRL, 0);
+        timer_write(TIMER_RELOAD, reload);
+        timer_write(TIMER_VALUE, reload);
+        timer_write(TIMER_INT, 1);
+        CmsdkTimer { reload }
+    }
+
+    /// Busy-waits until `us` after the current period started (deadline fault injection).
+    pub fn burn_until_us(&self, us: f32) {
+        while !self.next_tick_pending() && self.elapsed_us() < us {}
+        // Past the period end the counter restarted: keep burning in the next period.
+        if self.next_tick_pending() {
+            let rest = us - self.period_us();
+            while self.elapsed_us() < rest {}
+        }
+    }
+}
+
+impl ServoTimer for CmsdkTimer {
+    fn start(&mut self) {
+        timer_write(TIMER_CTRL, CTRL_ENABLE | CTRL_IRQ_ENABLE);
+    }
+
+    #[inline]
+    fn acknowledge_tick(&mut self) {
+        timer_write(TIMER_INT, 1);
+    }
+
+    #[inline]
+    fn elapsed_us(&self) -> f32 {
+        let ticks = self.reload.saturating_sub(timer_read(TIMER_VALUE));
+        ticks as f32 * (1.0e6 / TIMER_CLOCK_HZ as f32)
+    }
+
+    #[inline]
+    fn period_us(&self) -> f32 {
+        (self.reload + 1) as f32 * (1.0e6 / TIMER_CLOCK_HZ as f32)
+    }
+
+    #[inline]
+    fn next_tick_pending(&self) -> bool {
+        timer_read(TIMER_INT) & 1 != 0
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// The board.
+
+/// The MPS2-AN386 with its simulated machine and the test harness.
+pub struct QemuBoard {
+    timer: CmsdkTimer,
+    encoders: [SimEncoder; 2],
+    drives: [TorqueDrive<SimPwm>; 2],
+    plant: Plant,
+    period_s: f32,
+    harness: Harness,
+}
+
+impl Board for QemuBoard {
+    type Setpoints = Injected;
+    type Timer = CmsdkTimer;
+
+    /// The production settings with the built-in tour on (the simulated machine may move by
+    /// itself), the tour adapted to the harness's scenario.
+    fn settings() -> Settings {
+        let tour = Harness::scenario().tour_mm(&WORKSPACE_TOUR_MM);
+        Settings { builtin_tour_mm: tour, ..Settings::default() }
+    }
+
+    fn init(settings: &'static Settings) -> Self {
+        // The self-tests of the failure paths run first, as at the top of `init`.
+        let harness = Harness::boot(settings);
+        let full_scale_nm = settings.drive_full_scale_nm;
+        let mut board = QemuBoard {
+            timer: CmsdkTimer::new(SAMPLE_RATE_HZ),
+            encoders: [SimEncoder { axis: 0 }, SimEncoder { axis: 1 }],
+            drives: [
+                TorqueDrive { pwm: SimPwm { axis: 0 }, full_scale_nm },
+                TorqueDrive { pwm: SimPwm { axis: 1 }, full_scale_nm },
+            ],
+            plant: Plant::power_on(full_scale_nm),
+            period_s: 1.0 / SAMPLE_RATE_HZ as f32,
+            harness,
+        };
+        board.disable_drives();
+        board
+    }
+
+    fn setpoints(&mut self, trajectory: Trajectory) -> Injected {
+        self.harness.setpoints(trajectory)
+    }
+
+    #[inline]
+    fn encoders_rad(&mut self) -> [f32; 2] {
+        [
+            counts_to_rad(self.encoders[0].position_counts(), COUNTS_PER_REV),
+            counts_to_rad(self.encoders[1].position_counts(), COUNTS_PER_REV),
+        ]
+    }
+
+    #[inline]
+    fn set_torques_nm(&mut self, torque_nm: [f32; 2]) -> Result<[f32; 2], DriveError> {
+        drive::set_torques_nm(&mut self.drives, torque_nm)
+    }
+
+    fn enable_drives(&mut self) {
+        hardware::set_drive_enable(true);
+    }
+
+    fn disable_drives(&mut self) {
+        hardware::set_drive_enable(false);
+        let _ = self.set_torques_nm([0.0; 2]);
+    }
+
+    #[inline]
+    fn timer(&mut self) -> &mut CmsdkTimer {
+        &mut self.timer
+    }
+
+    /// A busy loop, not WFI: under `-icount ...,sleep=off` a WFI idle makes QEMU's periodic
+    /// timer run at half rate.
+    #[inline]
+    fn idle_wait() {
+        cortex_m::asm::nop();
+    }
+
+    #[inline]
+    fn begin_sample(&mut self) {
+        self.plant.advance(self.period_s);
+        self.harness.begin_sample(&self.timer);
+    }
+
+    #[inline]
+    fn end_sample(&mut self, status: &Status) {
+        self.harness.end_sample(status);
+    }
+}
+
+
+/// What the benchmark counter's figures are: QEMU counts instructions, not cycles.
+pub const COUNT_UNIT: &str = "instructions";
+
+/// Free-running counter for the benchmark: SysTick counting down from 2^24 - 1 on the core
+/// clock. Under `-icount shift=0` QEMU advances virtual time 1 ns per instruction, so a count
+/// is a fixed number of instructions; `bench` measures that number with a loop of known
+/// length instead of assuming it.
+pub struct CycleCounter {
+    _syst: cortex_m::peripheral::SYST,
+}
+
+impl CycleCounter {
+    const MASK: u32 = (1 << 24) - 1;
+
+    /// Starts the counter (takes the core peripherals it needs).
+    pub fn new(core: cortex_m::Peripherals) -> Self {
+        let mut syst = core.SYST;
+        syst.set_clock_source(cortex_m::peripheral::syst::SystClkSource::Core);
+        syst.set_reload(Self::MASK);
+        syst.clear_current();
+        syst.enable_counter();
+        CycleCounter { _syst: syst }
+    }
+
+    /// Counts since an arbitrary origin, increasing (wraps at 2^24).
+    #[inline(always)]
+    pub fn now(&self) -> u32 {
+        Self::MASK - cortex_m::peripheral::SYST::get_current()
+    }
+
+    /// Counts since `earlier` (modulo 2^24: measure less than 2^24 counts at a time).
+    #[inline(always)]
+    pub fn since(&self, earlier: u32) -> u32 {
+        self.now().wrapping_sub(earlier) & Self::MASK
+    }
+}

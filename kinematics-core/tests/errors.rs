@@ -1,0 +1,47 @@
+//! Every error type of the core is a `core::error::Error` with a message of its own, so the
+//! host tools can put it behind `?` and `Box<dyn Error>` without wrapping.
+
+use std::error::Error;
+
+use kinematics_core::{GridError, KinematicsError, ModelError, ServoFault, Singularity};
+
+fn boxed(e: impl Error + 'static) -> Box<dyn Error> {
+    Box::new(e)
+}
+
+#[test]
+fn every_error_type_is_an_error_with_a_distinct_message() {
+    let all: Vec<Box<dyn Error>> = vec![
+        boxed(KinematicsError::NonFinite),
+        boxed(KinematicsError::Unreachable),
+        boxed(KinematicsError::NearSingularity(Singularity::Serial)),
+        boxed(KinematicsError::NearSingularity(Singularity::Parallel)),
+        boxed(ModelError::NonFinite),
+        boxed(ModelError::NonPositiveLink),
+        boxed(GridError::Truncated),
+        boxed(GridError::BadMagic),
+        boxed(GridError::UnsupportedVersion(7)),
+        boxed(GridError::BadHeader),
+        boxed(GridError::BadCrc),
+        boxed(GridError::NonFinite),
+        boxed(GridError::BadModel),
+        boxed(GridError::OutsideGrid),
+        boxed(GridError::BadEncodeInput),
+        boxed(ServoFault::NotEngaged),
+        boxed(ServoFault::NonFiniteSetpoint),
+        boxed(ServoFault::NonFiniteFeedback),
+        boxed(ServoFault::Kinematics(KinematicsError::Unreachable)),
+        boxed(ServoFault::Grid(GridError::OutsideGrid)),
+        boxed(ServoFault::SetpointJump),
+        boxed(ServoFault::FollowingError),
+    ];
+    let messages: Vec<String> = all.iter().map(|e| e.to_string()).collect();
+    for (k, m) in messages.iter().enumerate() {
+        assert!(!m.is_empty());
+        assert!(!messages[..k].contains(m), "two errors read {m:?}");
+        // The cause is in the message, not in a `source` chain (printed once).
+        assert!(all[k].source().is_none());
+    }
+    assert!(messages.iter().any(|m| m.contains("version 7")));
+    assert!(messages.iter().any(|m| m.contains("setpoint refused: pose out of reach")));
+}
