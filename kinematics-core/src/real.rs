@@ -116,10 +116,10 @@ impl Real for f32 {
         sqrt_f32(self)
     }
     fn atan2(self, x: Self) -> Self {
-        libm::atan2f(self, x)
+        crate::atan2::atan2_f32(self, x)
     }
     fn sin_cos(self) -> (Self, Self) {
-        libm::sincosf(self)
+        crate::sin_cos::sin_cos_f32(self)
     }
     fn abs(self) -> Self {
         libm::fabsf(self)
@@ -172,7 +172,15 @@ fn sqrt_f32(v: f32) -> f32 {
 }
 
 /// Wraps an angle into `(-π, π]`.
+///
+/// An angle already in range (an `atan2` minus a small encoder offset, the IK's case) is
+/// returned as it is after one comparison; others (and ±π exactly) take a division and a
+/// rounding.
+#[inline]
 pub fn wrap_angle_rad<T: Real>(angle_rad: T) -> T {
+    if angle_rad.abs() < T::PI {
+        return angle_rad;
+    }
     let two_pi = T::TWO * T::PI;
     let wrapped = angle_rad - two_pi * (angle_rad / two_pi).round();
     if wrapped <= -T::PI {
