@@ -65,7 +65,7 @@ static CASES: [[f32; 4]; 16] = {
 };
 
 /// The angle of `(x, y)` from the +x axis, in `[-π, π]` (see the module doc for the error).
-#[inline]
+#[inline(always)]
 pub fn atan2_f32(y: f32, x: f32) -> f32 {
     let (ax, ay) = (libm::fabsf(x), libm::fabsf(y));
     let swap = ay > ax;

@@ -69,6 +69,7 @@ impl<T: Real> Pose<T> {
     }
 
     /// Refuses the pose if a transmission is below `min_transmission` or anything is not finite.
+    #[inline(always)]
     pub(crate) fn check(
         self,
         model: &FiveBar<T>,

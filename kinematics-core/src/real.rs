@@ -115,9 +115,13 @@ impl Real for f32 {
     fn sqrt(self) -> Self {
         sqrt_f32(self)
     }
+    // Always inlined: their callers are the IK and FK of the 2 kHz step, where a call would
+    // cost its own instructions and force the caller to save FPU registers around it.
+    #[inline(always)]
     fn atan2(self, x: Self) -> Self {
         crate::atan2::atan2_f32(self, x)
     }
+    #[inline(always)]
     fn sin_cos(self) -> (Self, Self) {
         crate::sin_cos::sin_cos_f32(self)
     }

@@ -44,11 +44,11 @@ const C2: f32 = -0.001_388_830_2;
 const C3: f32 = 2.454_794_2e-5;
 
 /// `(sin x, cos x)` (see the module doc for range and error).
-#[inline]
+#[inline(always)]
 pub fn sin_cos_f32(x: f32) -> (f32, f32) {
     // `!(a <= b)` also sends NaN to libm.
     if !(libm::fabsf(x) <= MAX_ARG_RAD) {
-        return libm::sincosf(x);
+        return beyond_range(x);
     }
     let shifted = x * FRAC_2_PI + ROUND_MAGIC;
     let quadrant = shifted.to_bits() & 3;
@@ -63,6 +63,14 @@ pub fn sin_cos_f32(x: f32) -> (f32, f32) {
         2 => (-sin, -cos),
         _ => (-cos, sin),
     }
+}
+
+/// Out of the claimed range: libm (kept out of line, so that callers need not save registers
+/// for a call they never make in practice).
+#[cold]
+#[inline(never)]
+fn beyond_range(x: f32) -> (f32, f32) {
+    libm::sincosf(x)
 }
 
 #[cfg(test)]
