@@ -1,8 +1,8 @@
 //! `atan2(y, x)` in single precision with one division and a degree-11 polynomial.
 //!
 //! Why not libm: `atan2f` is correct but general (special cases first, a five-way range
-//! split, two polynomial halves, a call into `atanf`): 77 instructions per call on the
-//! Cortex-M4F, two per IK. This one is the IK's `atan2` in about 40, in plain f32
+//! split, branches per octant, a call into `atanf`), and the IK calls it twice. This one has
+//! no call and no branch on the way (the octant picks a table entry), in plain f32
 //! arithmetic (no fused multiply-add), so the MCU and the host round identically
 //! (`tests/tests/same_core_on_mcu.rs`).
 //!
@@ -23,7 +23,9 @@
 //! 2.5e-7 on the same inputs. Zero, infinite and NaN inputs give IEEE's results (the
 //! nearest f32 to them, tested).
 //!
-//! Cost on the Cortex-M4F: see `cargo qemu-bench` (`BENCH atan2_f32` against `atan2f`).
+//! Cost on the Cortex-M4F (`cargo qemu-bench`): `atan2_f32` 67 instructions, 88 estimated
+//! cycles (one VDIV), against 75.5 and 115.5 for libm's `atan2f` (8 taken branches). Inlined
+//! into the IK, where its loads and constants are shared, it costs less.
 
 const TAN_PI_8: f32 = 0.414_213_57;
 const P1: f32 = -0.333_332_87;

@@ -2,7 +2,7 @@
 //!
 //! Why not libm: musl's `sincosf` (what the `libm` crate ports) reduces the argument and
 //! evaluates its kernels in f64, which a Cortex-M4F (single-precision FPU) runs in software:
-//! about 2,250 instructions per call, 4,556 per FK. Written here in plain f32 arithmetic
+//! 2,197 instructions per call (3,255 estimated cycles), so 4,556 per FK. Written here in plain f32 arithmetic
 //! (no fused multiply-add, no target-dependent branch), the same source rounds the same way on
 //! the MCU and on the host, which `tests/tests/same_core_on_mcu.rs` checks bit for bit.
 //!
@@ -23,8 +23,8 @@
 //! libm's `sincosf` (correctly reduced for any finite input, NaN otherwise): the
 //! kinematics never get there, but no input gives a wrong answer.
 //!
-//! Cost on the Cortex-M4F: see `cargo qemu-bench` (`BENCH sin_cos_f32`): about 40
-//! instructions, no division, against libm's ~2,250.
+//! Cost on the Cortex-M4F (`cargo qemu-bench`): `sin_cos_f32` 43 instructions, 51
+//! estimated cycles, no division; the FK (two of them) went from 4,556 to 215 instructions.
 
 /// The claimed range: `|x| ≤ MAX_ARG_RAD` (keeps `|k| < 4096`, see the module doc).
 pub const MAX_ARG_RAD: f32 = 4096.0;
