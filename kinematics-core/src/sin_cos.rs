@@ -2,9 +2,10 @@
 //!
 //! Why not libm: musl's `sincosf` (what the `libm` crate ports) reduces the argument and
 //! evaluates its kernels in f64, which a Cortex-M4F (single-precision FPU) runs in software:
-//! 2,197 instructions per call (3,255 estimated cycles), so 4,556 per FK. Written here in plain f32 arithmetic
-//! (no fused multiply-add, no target-dependent branch), the same source rounds the same way on
-//! the MCU and on the host, which `tests/tests/same_core_on_mcu.rs` checks bit for bit.
+//! 2,197 instructions per call (3,255 estimated cycles), so 4,556 per FK. Written here in
+//! plain f32 arithmetic (no fused multiply-add, no target-dependent branch), the same source
+//! rounds the same way on the MCU and on the host, which `tests/tests/same_core_on_mcu.rs`
+//! checks bit for bit.
 //!
 //! Algorithm (Cody-Waite reduction, two polynomials):
 //! * `k = round(x · 2/π)` by the `1.5·2²³` trick (exact round-to-nearest-even for the claimed
