@@ -12,9 +12,9 @@
  *     W <instructions> <cycles without refills> <taken branches> <count per class...>
  * firmware/qemu/bench.sh turns windows into per-call figures.
  *
- * Timing table: ARM Cortex-M4 Technical Reference Manual (DDI 0439B, r0p1), section 3.3
- * "Instruction set summary" (Table 3-1, "Cortex-M4 instruction set summary") and its
- * load/store timing notes, and section 7.2.3 "FPU instruction set" (Table 7-1) for the FPU:
+ * Timing table: ARM Cortex-M4 Technical Reference Manual (DDI 0439B, r0p1), chapter 3,
+ * Table 3-1 "Cortex-M4 instruction set summary" with its load/store timing notes, and
+ * chapter 7, Table 7-1 "FPU instruction set", for the FPU:
  *     ALU, move, compare, shift, bit-field, extend, IT, hints     1
  *     MUL, SMULL/UMULL/SMLAL/UMLAL, DSP multiplies                1
  *     MLA, MLS                                                    2
@@ -22,7 +22,7 @@
  *     LDR/STR single (any size), VLDR/VSTR                        2, or 1 right after a load
  *                                                                   single (address/data phase
  *                                                                   pipelining)
- *     LDRD, STRD                                                  3
+ *     LDRD, STRD, VLDR/VSTR of a double                           3
  *     LDM/STM/PUSH/POP, VLDM/VSTM/VPUSH/VPOP                      1 + number of words
  *     VADD, VSUB, VMUL, VNMUL, VABS, VNEG, VCMP, VCVT, VMOV imm   1
  *     VMLA, VMLS, VNMLA, VNMLS, VFMA, VFMS, VFNMA, VFNMS          3
@@ -30,7 +30,7 @@
  *     VMOV core<->S, VMRS, VMSR                                   1 (2 for the 64-bit forms)
  *     taken branch / any write to PC: + P (pipeline refill, 1..3; bench.sh uses P = 2 and
  *                                                                   prints the range)
- * Assumptions: zero-wait-state memory (the G474 at 170 MHz has 4 flash wait states, mostly
+ * Assumptions: zero-wait-state memory (the G474 at 170 MHz has 4 flash wait states, partly
  * hidden by its ART accelerator), no stalls for register dependencies, IT never folded,
  * conditional instructions that fail their condition charged as if executed.
  *
