@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Runs every test of the project. On a fresh Debian machine it first installs what is missing:
-# the thumbv7em-none-eabihf target (rustup) and QEMU (apt, when root or with sudo).
+# the thumbv7em-none-eabihf target (rustup), QEMU and a C compiler for its cycle-estimating
+# plugin (apt, when root or with sudo).
 #
 #   bash tests/run-all.sh
 #
@@ -10,7 +11,9 @@
 #      runs it under QEMU)
 #   2. kinematics-core builds for the MCU (thumbv7em-none-eabihf, no_std)
 #   3. firmware under QEMU: the real app against the in-firmware plant (cargo qemu-test)
-#   4. firmware cycle benchmarks under QEMU, printing BENCH lines (cargo qemu-bench)
+#   4. firmware benchmarks under QEMU, printing BENCH <name> <instructions> <estimated cycles>
+#      (cargo qemu-bench: builds the TCG plugin firmware/qemu/plugin/m4cycles.c with cc and
+#      fails if the IK or FK executes no VSQRT)
 #   5. the real board's firmware builds (cargo fw-build)
 #   6. clippy, warnings denied: the host crates with all their targets, the firmware for both
 #      boards (last, so that it reuses the proc macros the release builds compiled)
@@ -24,10 +27,11 @@ if ! rustup target list --installed | grep -qx thumbv7em-none-eabihf; then
     rustup target add thumbv7em-none-eabihf
 fi
 
-step "setup: qemu-system-arm, python3 (the QEMU runner splits the ELF with it)"
+step "setup: qemu-system-arm, python3 (the QEMU runner splits the ELF with it), a C compiler (the bench's QEMU plugin)"
 missing=""
 command -v qemu-system-arm >/dev/null 2>&1 || missing="$missing qemu-system-arm"
 command -v python3 >/dev/null 2>&1 || missing="$missing python3"
+command -v cc >/dev/null 2>&1 || missing="$missing gcc libc6-dev"
 if [ -n "$missing" ]; then
     if [ "$(id -u)" -eq 0 ]; then SUDO=""; else SUDO="sudo"; fi
     $SUDO apt-get update -qq
@@ -44,7 +48,7 @@ cargo build --locked -p kinematics-core --target thumbv7em-none-eabihf --release
 step "firmware under QEMU (real app, 2 kHz timer task, fault injection)"
 cargo qemu-test
 
-step "firmware benchmarks under QEMU (instructions per call)"
+step "firmware benchmarks under QEMU (instructions and estimated Cortex-M4 cycles per call; VSQRT executed)"
 cargo qemu-bench
 
 step "firmware for the real board (STM32G474) builds"

@@ -23,6 +23,7 @@
 // `!(x >= lo)` instead of `x < lo` is deliberate throughout: it also refuses NaN.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
+pub mod atan2;
 pub mod bilinear;
 pub mod error;
 pub mod forward;
@@ -34,6 +35,7 @@ pub mod pid;
 pub mod pose;
 pub mod real;
 pub mod servo;
+pub mod sin_cos;
 
 pub use error::{KinematicsError, Singularity};
 pub use grid::{CorrectionGrid, GridError, GridGeometry};

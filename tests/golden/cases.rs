@@ -4,7 +4,7 @@
 //
 // no_std, no heap: only `kinematics_core` and core. Each result is emitted as a `u32`: an f32's
 // bits, or `ERROR | code` for a refused input, so that errors must agree too. Transcendentals
-// go through `Real` (libm) explicitly: on the host, `f32::sin_cos` would be std's, not the core's.
+// go through `Real` explicitly: on the host, `f32::sin_cos` would be std's, not the core's.
 
 use kinematics_core::grid::{encode, CorrectionGrid, GridGeometry};
 use kinematics_core::{Calibration, FiveBar, Real, Servo, ServoConfig, WorkingMode};
