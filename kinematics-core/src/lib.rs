@@ -12,7 +12,13 @@
 //! * [`grid`], [`bilinear`]: the correction grid image read from flash (validated header, CRC),
 //!   interpolated with the paper's Eq. 7;
 //! * [`pid`], [`servo`]: position control per axis and the servo step
-//!   (setpoint → IK → correction → torque).
+//!   (setpoint → IK → correction → torque);
+//! * [`jerk_profile`], [`path`], [`trajectory`]: jerk-limited tool motions (time-optimal
+//!   rest-to-rest profile, lines, circles, figure-eights, tours through waypoints) with exact
+//!   velocity, acceleration and jerk at every sample;
+//! * [`joint_motion`], [`dynamics`], [`joint_limits`]: the joint motion for a tool motion, the
+//!   hidden robot's inverse dynamics (linear in identified parameters), and the motors' speed
+//!   and torque limits met by slowing a trajectory down.
 //!
 //! Everything is generic over [`Real`] where the host tools need f64 and the MCU f32; the grid and
 //! the servo are f32, exactly as the MCU runs them. `no_std`, no heap, no panic on any input:
@@ -25,26 +31,35 @@
 
 pub mod atan2;
 pub mod bilinear;
+pub mod dynamics;
 pub mod error;
 pub mod forward;
 pub mod grid;
 pub mod inverse;
 pub mod jacobian;
+pub mod jerk_profile;
+pub mod joint_limits;
+pub mod joint_motion;
 pub mod model;
+pub mod path;
 pub mod pid;
 pub mod pose;
 pub mod real;
 pub mod servo;
 pub mod sin_cos;
+pub mod trajectory;
 
 pub use error::{KinematicsError, Singularity};
+pub use dynamics::{DynamicsError, FiveBarDynamics};
 pub use grid::{CorrectionGrid, GridError, GridGeometry};
+pub use joint_motion::JointMotion;
 pub use jacobian::Mat2;
 pub use model::{Branch, FiveBar, ModelError, WorkingMode};
 pub use pid::{AxisController, AxisGains, AxisReference};
 pub use pose::Pose;
 pub use real::{wrap_angle_rad, Real};
 pub use servo::{Calibration, Servo, ServoConfig, ServoFault, ServoOutput};
+pub use trajectory::{MotionSetpoint, PathMotion, TaskLimits, Tour, TrajectoryError};
 
 /// The default singularity margin: the smallest `|sin|` of a transmission angle accepted
 /// (0.05 is about 2.9° from a singular configuration).
