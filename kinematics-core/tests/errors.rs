@@ -3,7 +3,8 @@
 
 use std::error::Error;
 
-use kinematics_core::{GridError, KinematicsError, ModelError, ServoFault, Singularity};
+use kinematics_core::jerk_profile::ProfileError;
+use kinematics_core::{DynamicsError, GridError, KinematicsError, ModelError, ServoFault, Singularity, TrajectoryError};
 
 fn boxed(e: impl Error + 'static) -> Box<dyn Error> {
     Box::new(e)
@@ -27,6 +28,15 @@ fn every_error_type_is_an_error_with_a_distinct_message() {
         boxed(GridError::BadModel),
         boxed(GridError::OutsideGrid),
         boxed(GridError::BadEncodeInput),
+        boxed(GridError::BadDynamics),
+        boxed(DynamicsError::NonFinite),
+        boxed(DynamicsError::OutOfRange),
+        boxed(ProfileError::NonFinite),
+        boxed(ProfileError::NonPositiveLimit),
+        boxed(TrajectoryError::TooManyWaypoints),
+        boxed(TrajectoryError::EmptyPath),
+        boxed(TrajectoryError::JointLimits),
+        boxed(TrajectoryError::Kinematics(KinematicsError::Unreachable)),
         boxed(ServoFault::NotEngaged),
         boxed(ServoFault::NonFiniteSetpoint),
         boxed(ServoFault::NonFiniteFeedback),
