@@ -30,8 +30,8 @@
 //! The velocity-product (centripetal and Coriolis) terms are inside `C̈` given the joint motion,
 //! and inside `Ä` and `φ̈`. With `Jᵀx = (k1·(x × q2), k2·(q1 × x)) / (q1 × q2)`, `k = p × q`, no
 //! matrix is formed. Every term is a regressor column times a parameter
-//! ([`regressor`]); [`FiveBarDynamics::torque_nm`] is that product, so identification (`host-sim
-//! identify`) and feed-forward use one computation. `tests` checks it against a Lagrangian
+//! ([`regressor`]); [`FiveBarDynamics::torque_nm`] is that product (without its structural
+//! zeros), so identification (`host-sim identify`) and feed-forward use one computation. `tests` checks it against a Lagrangian
 //! computed by finite differences of the FK.
 //!
 //! Cost: five divisions and about 80 flops from a [`JointMotion`]; `BENCH inverse_dynamics_f32`
@@ -147,17 +147,57 @@ impl<T: Real> FiveBarDynamics<T> {
         FiveBarDynamics::from_array(p, U::from_f64(self.coulomb_speed_rad_s.to_f64()))
     }
 
-    /// Motor torques (N·m) for `motion`: the regressor times the parameters.
+    /// The joint accelerations (rad/s²) that `torque_nm` produces at the pose with joint
+    /// velocities `velocity_rad_s`, friction of this model left out (a plant adds its own):
+    /// `θ̈ = M⁻¹·(τ - h(θ, θ̇))`, `M` and `h` from three evaluations of the inverse dynamics
+    /// (for simulated plants: the firmware's QEMU machine).
+    pub fn forward_acceleration(
+        &self,
+        pose: &crate::pose::Pose<T>,
+        velocity_rad_s: [T; 2],
+        torque_nm: [T; 2],
+    ) -> Result<[T; 2], KinematicsError> {
+        use crate::joint_motion::motion_from_pose;
+        let rigid = FiveBarDynamics { viscous_nm_s_per_rad: [T::ZERO; 2], coulomb_nm: [T::ZERO; 2], ..*self };
+        let h = rigid.torque_nm(&motion_from_pose(pose, velocity_rad_s, [T::ZERO; 2])?)?;
+        let m0 = rigid.torque_nm(&motion_from_pose(pose, [T::ZERO; 2], [T::ONE, T::ZERO])?)?;
+        let m1 = rigid.torque_nm(&motion_from_pose(pose, [T::ZERO; 2], [T::ZERO, T::ONE])?)?;
+        let r = [torque_nm[0] - h[0], torque_nm[1] - h[1]];
+        // M = [m0 m1] (columns); symmetric positive definite for physical parameters.
+        let det = m0[0] * m1[1] - m1[0] * m0[1];
+        if !(det > T::ZERO) {
+            return Err(KinematicsError::NonFinite);
+        }
+        Ok([(r[0] * m1[1] - m1[0] * r[1]) / det, (m0[0] * r[1] - r[0] * m0[1]) / det])
+    }
+
+    /// Motor torques (N·m) for `motion`: the regressor times the parameters (summed without
+    /// the regressor's structural zeros).
     #[inline]
     pub fn torque_nm(&self, motion: &JointMotion<T>) -> Result<[T; 2], KinematicsError> {
-        let y = regressor(motion, self.coulomb_speed_rad_s)?;
-        let p = self.to_array();
+        let y = Terms::of(motion, self.coulomb_speed_rad_s)?;
         let mut tau = [T::ZERO; 2];
-        for (t, row) in tau.iter_mut().zip(&y) {
-            *t = row.iter().zip(&p).fold(T::ZERO, |s, (y, p)| s + *y * *p);
+        for (i, t) in tau.iter_mut().enumerate() {
+            *t = self.motor_inertia_kg_m2[i] * y.acceleration[i]
+                + self.tool_mass_kg * y.tool[i]
+                + self.distal_inertia_kg_m2[0] * y.distal_1[i]
+                + self.distal_inertia_kg_m2[1] * y.distal_2[i]
+                + self.viscous_nm_s_per_rad[i] * y.velocity[i]
+                + self.coulomb_nm[i] * y.coulomb[i];
         }
         Ok(tau)
     }
+}
+
+/// The regressor's non-zero entries: the column of each parameter, per motor (the motor
+/// inertia, friction columns only act on their own motor).
+struct Terms<T> {
+    acceleration: [T; 2],
+    tool: [T; 2],
+    distal_1: [T; 2],
+    distal_2: [T; 2],
+    velocity: [T; 2],
+    coulomb: [T; 2],
 }
 
 #[inline(always)]
@@ -167,44 +207,53 @@ fn dot<T: Real>(u: [T; 2], v: [T; 2]) -> T {
 
 /// The regressor `Y` (2 × [`PARAMETERS`]) of `τ = Y·π` for `motion`, in SI units (the
 /// motion's millimetres are converted). Fails at an exact parallel singularity.
-#[inline]
 pub fn regressor<T: Real>(motion: &JointMotion<T>, coulomb_speed_rad_s: T) -> Result<[[T; PARAMETERS]; 2], KinematicsError> {
-    let [p1, p2] = motion.proximal_mm;
-    let [q1, q2] = motion.distal_mm;
-    let [w1, w2] = motion.velocity_rad_s;
-    let [al1, al2] = motion.acceleration_rad_s2;
-    let acc = motion.tool_acceleration_mm_s2;
-    let det = cross(q1, q2);
-    if det == T::ZERO {
-        return Err(KinematicsError::NearSingularity(Singularity::Parallel));
-    }
-    let inv_det = T::ONE / det;
-    let (k1, k2) = (cross(p1, q1), cross(p2, q2));
-    let (b2, c2) = (dot(q1, q1), dot(q2, q2));
-    let (inv_b2, inv_c2) = (T::ONE / b2, T::ONE / c2);
-    let q12 = dot(q1, q2);
-    // Elbow accelerations Ä = θ̈·p⊥ - θ̇²·p, relative accelerations of the distal links.
-    let rel = |p: [T; 2], w: T, al: T| [acc[0] + al * p[1] + w * w * p[0], acc[1] - al * p[0] + w * w * p[1]];
-    let phi3 = cross(q1, rel(p1, w1, al1)) * inv_b2;
-    let phi4 = cross(q2, rel(p2, w2, al2)) * inv_c2;
-    // m_C: Jᵀ·C̈ (mm → m twice).
-    let si = T::from_f64(1e-6);
-    let tool = [k1 * cross(acc, q2) * inv_det * si, k2 * cross(q1, acc) * inv_det * si];
-    // J3: φ̈3·(Jᵀq1⊥ - (q1·p1)e1)/|q1|², with Jᵀq1⊥ = (-k1·(q1·q2), k2·|q1|²)/det.
-    let d3 = [phi3 * (-(k1 * q12 * inv_det) - dot(q1, p1)) * inv_b2, phi3 * k2 * inv_det];
-    // J4: φ̈4·(Jᵀq2⊥ - (q2·p2)e2)/|q2|², with Jᵀq2⊥ = (-k1·|q2|², k2·(q1·q2))/det.
-    let d4 = [-phi4 * k1 * inv_det, phi4 * (k2 * q12 * inv_det - dot(q2, p2)) * inv_c2];
-    let s1 = w1 / (w1.abs() + coulomb_speed_rad_s);
-    let s2 = w2 / (w2.abs() + coulomb_speed_rad_s);
+    let y = Terms::of(motion, coulomb_speed_rad_s)?;
     let z = T::ZERO;
-    let y = [
-        [al1, z, tool[0], d3[0], d4[0], w1, z, s1, z],
-        [z, al2, tool[1], d3[1], d4[1], z, w2, z, s2],
-    ];
-    if !y.iter().flatten().all(|v| v.is_finite()) {
-        return Err(KinematicsError::NonFinite);
+    Ok([
+        [y.acceleration[0], z, y.tool[0], y.distal_1[0], y.distal_2[0], y.velocity[0], z, y.coulomb[0], z],
+        [z, y.acceleration[1], y.tool[1], y.distal_1[1], y.distal_2[1], z, y.velocity[1], z, y.coulomb[1]],
+    ])
+}
+
+impl<T: Real> Terms<T> {
+    #[inline(always)]
+    fn of(motion: &JointMotion<T>, coulomb_speed_rad_s: T) -> Result<Self, KinematicsError> {
+        let [p1, p2] = motion.proximal_mm;
+        let [q1, q2] = motion.distal_mm;
+        let [w1, w2] = motion.velocity_rad_s;
+        let [al1, al2] = motion.acceleration_rad_s2;
+        let acc = motion.tool_acceleration_mm_s2;
+        let det = cross(q1, q2);
+        if det == T::ZERO {
+            return Err(KinematicsError::NearSingularity(Singularity::Parallel));
+        }
+        let inv_det = T::ONE / det;
+        let (k1, k2) = (cross(p1, q1), cross(p2, q2));
+        let (inv_b2, inv_c2) = (T::ONE / dot(q1, q1), T::ONE / dot(q2, q2));
+        let q12 = dot(q1, q2);
+        // Elbow accelerations Ä = θ̈·p⊥ - θ̇²·p; C̈ - Ä is the distal link's relative one.
+        let rel = |p: [T; 2], w: T, al: T| [acc[0] + al * p[1] + w * w * p[0], acc[1] - al * p[0] + w * w * p[1]];
+        let phi3 = cross(q1, rel(p1, w1, al1)) * inv_b2;
+        let phi4 = cross(q2, rel(p2, w2, al2)) * inv_c2;
+        // m_C: Jᵀ·C̈ (mm → m twice).
+        let si = T::from_f64(1e-6) * inv_det;
+        let y = Terms {
+            acceleration: [al1, al2],
+            tool: [k1 * cross(acc, q2) * si, k2 * cross(q1, acc) * si],
+            // J3: φ̈3·(Jᵀq1⊥ - (q1·p1)e1)/|q1|², with Jᵀq1⊥ = (-k1·(q1·q2), k2·|q1|²)/det.
+            distal_1: [phi3 * (-(k1 * q12 * inv_det) - dot(q1, p1)) * inv_b2, phi3 * k2 * inv_det],
+            // J4: φ̈4·(Jᵀq2⊥ - (q2·p2)e2)/|q2|², with Jᵀq2⊥ = (-k1·|q2|², k2·(q1·q2))/det.
+            distal_2: [-phi4 * k1 * inv_det, phi4 * (k2 * q12 * inv_det - dot(q2, p2)) * inv_c2],
+            velocity: [w1, w2],
+            coulomb: [w1 / (w1.abs() + coulomb_speed_rad_s), w2 / (w2.abs() + coulomb_speed_rad_s)],
+        };
+        let all = [y.tool, y.distal_1, y.distal_2, y.coulomb, y.acceleration, y.velocity];
+        if !all.iter().flatten().all(|v| v.is_finite()) {
+            return Err(KinematicsError::NonFinite);
+        }
+        Ok(y)
     }
-    Ok(y)
 }
 
 #[cfg(test)]
@@ -318,7 +367,7 @@ mod tests {
         let y = regressor(&j, 0.01).unwrap();
         for i in 0..2 {
             let sum: f64 = (0..PARAMETERS).map(|k| y[i][k] * d.to_array()[k]).sum();
-            assert!((sum - tau[i]).abs() < 1e-12);
+            assert!((sum - tau[i]).abs() < 1e-12 * (1.0 + tau[i].abs()), "{sum} vs {}", tau[i]);
         }
         // At rest (no acceleration) only friction would act, and there is none at zero speed.
         let still = m.inverse_motion([215.0, 20.0], [0.0; 2], [0.0; 2], 0.05).unwrap();
@@ -332,6 +381,29 @@ mod tests {
             with_inertia[i] = 1e-3 * slow.acceleration_rad_s2[i];
             assert_eq!((t[i] - with_inertia[i]).signum(), slow.velocity_rad_s[i].signum());
         }
+    }
+
+    /// Forward dynamics inverts the inverse dynamics, and the inertia matrix is symmetric.
+    #[test]
+    fn forward_acceleration_inverts_the_torque() {
+        let m = machine();
+        let d = params();
+        let j = m.inverse_motion([215.0, 20.0], [300.0, -400.0], [20_000.0, 5_000.0], 0.05).unwrap();
+        let tau = d.torque_nm(&j).unwrap();
+        let pose = m.forward_pose(j.angle_rad, 0.05).unwrap();
+        let acc = d.forward_acceleration(&pose, j.velocity_rad_s, tau).unwrap();
+        for i in 0..2 {
+            assert!((acc[i] - j.acceleration_rad_s2[i]).abs() < 1e-9 * (1.0 + acc[i].abs()), "{acc:?} vs {:?}", j.acceleration_rad_s2);
+        }
+        use crate::joint_motion::motion_from_pose;
+        let col = |k: usize| {
+            let mut e = [0.0; 2];
+            e[k] = 1.0;
+            d.torque_nm(&motion_from_pose(&pose, [0.0; 2], e).unwrap()).unwrap()
+        };
+        let (c0, c1) = (col(0), col(1));
+        assert!((c0[1] - c1[0]).abs() < 1e-12 * c0[0].abs(), "M symmetric: {c0:?} {c1:?}");
+        assert!(c0[1].abs() > 1e-5, "the motors are coupled: {c0:?}");
     }
 
     #[test]

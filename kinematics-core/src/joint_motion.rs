@@ -12,12 +12,16 @@
 //! The second line is `J⁻¹·(C̈ - J̇·θ̇)` without forming `J̇`. The result carries the link
 //! vectors, which the inverse dynamics ([`crate::dynamics`]) reuses.
 //!
+//! The other way round ([`FiveBar::forward_motion`], for simulated plants): the same two
+//! relations of both arms, `q1·Ċ = θ̇1·k1`, `q2·Ċ = θ̇2·k2` and
+//! `qi·C̈ = qi·Äi - |Ċ - Ȧi|²`, are two 2×2 systems with the determinant `q1 × q2`.
+//!
 //! Cost: the IK (`BENCH ik_f32`) plus four divisions and about 40 flops; `BENCH
 //! inverse_motion_f32` in `cargo qemu-bench`. Error: exact up to rounding (the tests compare
 //! with finite differences of the IK along a trajectory).
 
 use crate::model::FiveBar;
-use crate::pose::cross;
+use crate::pose::{cross, Pose};
 use crate::real::Real;
 use crate::{KinematicsError, Singularity};
 
@@ -91,6 +95,57 @@ impl<T: Real> FiveBar<T> {
         }
         Ok(m)
     }
+
+    /// The tool's motion for joint angles, velocities and accelerations (the FK's checks).
+    pub fn forward_motion(
+        &self,
+        angle_rad: [T; 2],
+        velocity_rad_s: [T; 2],
+        acceleration_rad_s2: [T; 2],
+        min_transmission: T,
+    ) -> Result<JointMotion<T>, KinematicsError> {
+        let pose = self.forward_pose(angle_rad, min_transmission)?;
+        motion_from_pose(&pose, velocity_rad_s, acceleration_rad_s2)
+    }
+}
+
+/// The tool's motion at a solved pose for joint velocities and accelerations.
+pub fn motion_from_pose<T: Real>(
+    pose: &Pose<T>,
+    velocity_rad_s: [T; 2],
+    acceleration_rad_s2: [T; 2],
+) -> Result<JointMotion<T>, KinematicsError> {
+    let (p1, q1, p2, q2) = pose.link_vectors();
+    let det = cross(q1, q2);
+    if det == T::ZERO {
+        return Err(KinematicsError::NearSingularity(Singularity::Parallel));
+    }
+    let inv_det = T::ONE / det;
+    // Solves q1·x = r1, q2·x = r2.
+    let solve = |r1: T, r2: T| [(r1 * q2[1] - r2 * q1[1]) * inv_det, (r2 * q1[0] - r1 * q2[0]) * inv_det];
+    let [w1, w2] = velocity_rad_s;
+    let [al1, al2] = acceleration_rad_s2;
+    let v = solve(w1 * cross(p1, q1), w2 * cross(p2, q2));
+    // qi·C̈ = qi·Äi - |Ċ - Ȧi|², Ä = θ̈·p⊥ - θ̇²·p, Ȧ = θ̇·p⊥.
+    let rhs = |p: [T; 2], q: [T; 2], w: T, al: T| {
+        let acc_elbow = [-al * p[1] - w * w * p[0], al * p[0] - w * w * p[1]];
+        let rel = [v[0] + w * p[1], v[1] - w * p[0]];
+        dot(q, acc_elbow) - dot(rel, rel)
+    };
+    let a = solve(rhs(p1, q1, w1, al1), rhs(p2, q2, w2, al2));
+    let m = JointMotion {
+        angle_rad: pose.theta_rad,
+        velocity_rad_s,
+        acceleration_rad_s2,
+        proximal_mm: [p1, p2],
+        distal_mm: [q1, q2],
+        tool_velocity_mm_s: v,
+        tool_acceleration_mm_s2: a,
+    };
+    if !(v.iter().chain(a.iter()).all(|x| x.is_finite())) {
+        return Err(KinematicsError::NonFinite);
+    }
+    Ok(m)
 }
 
 #[cfg(test)]
@@ -141,6 +196,28 @@ mod tests {
             for (row, wj) in ji.iter().zip(j.velocity_rad_s) {
                 let w = row[0] * s.velocity_mm_s[0] + row[1] * s.velocity_mm_s[1];
                 assert!((w - wj).abs() < 1e-9 * (1.0 + w.abs()));
+            }
+        }
+    }
+
+    /// Forward and inverse motion are each other's inverse.
+    #[test]
+    fn forward_motion_inverts_inverse_motion() {
+        let m = machine();
+        for (p, v, a) in [
+            ([215.0, 20.0], [300.0, -400.0], [20_000.0, 5_000.0]),
+            ([180.0, -60.0], [-1200.0, 100.0], [-30_000.0, 40_000.0]),
+            ([250.0, 65.0], [0.0, 0.0], [1_000.0, -2_000.0]),
+        ] {
+            let j = m.inverse_motion(p, v, a, 0.05).unwrap();
+            let f = m.forward_motion(j.angle_rad, j.velocity_rad_s, j.acceleration_rad_s2, 0.05).unwrap();
+            for i in 0..2 {
+                assert!((f.tool_velocity_mm_s[i] - v[i]).abs() < 1e-9 * (1.0 + v[i].abs()));
+                assert!((f.tool_acceleration_mm_s2[i] - a[i]).abs() < 1e-8 * (1.0 + a[i].abs()));
+                for k in 0..2 {
+                    assert!((f.proximal_mm[i][k] - j.proximal_mm[i][k]).abs() < 1e-9);
+                    assert!((f.distal_mm[i][k] - j.distal_mm[i][k]).abs() < 1e-9);
+                }
             }
         }
     }

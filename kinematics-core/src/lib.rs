@@ -33,6 +33,7 @@ pub mod atan2;
 pub mod bilinear;
 pub mod dynamics;
 pub mod error;
+pub mod feed_forward;
 pub mod forward;
 pub mod grid;
 pub mod inverse;
