@@ -120,8 +120,8 @@ mod tests {
             let at_t = m.inverse(traj.at(t).position_mm, 0.05).unwrap();
             let s = traj.at(t + dt / 2.0);
             let mid = m.inverse_motion(s.position_mm, s.velocity_mm_s, s.acceleration_mm_s2, 0.05).unwrap();
-            for i in 0..2 {
-                worst_angle = worst_angle.max((iv.angle_rad[i] - at_t[i]).abs());
+            for (i, want) in at_t.iter().enumerate() {
+                worst_angle = worst_angle.max((iv.angle_rad[i] - want).abs());
                 worst_rate = worst_rate.max((iv.mid.velocity_rad_s[i] - mid.velocity_rad_s[i]).abs());
             }
         }
@@ -151,9 +151,9 @@ mod tests {
             integral_limit_nm: 1.0,
         };
         let tau = feed_forward_nm(&iv, None, &[g; 2]).unwrap();
-        for i in 0..2 {
+        for (i, t) in tau.iter().enumerate() {
             let want = 0.01 * iv.mid.acceleration_rad_s2[i] + 0.1 * iv.mid.velocity_rad_s[i];
-            assert!((tau[i] - want).abs() < 1e-6 * (1.0 + want.abs()));
+            assert!((t - want).abs() < 1e-6 * (1.0 + want.abs()));
         }
     }
 }
