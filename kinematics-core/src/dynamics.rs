@@ -248,8 +248,11 @@ impl<T: Real> Terms<T> {
             velocity: [w1, w2],
             coulomb: [w1 / (w1.abs() + coulomb_speed_rad_s), w2 / (w2.abs() + coulomb_speed_rad_s)],
         };
+        // All finite exactly when their sum is (a sum beyond 1e38 is no machine's either).
         let all = [y.tool, y.distal_1, y.distal_2, y.coulomb, y.acceleration, y.velocity];
-        if !all.iter().flatten().all(|v| v.is_finite()) {
+        let sum = all.iter().flatten().fold(T::ZERO, |s, v| s + *v);
+        #[allow(clippy::eq_op)] // `sum - sum` is the test
+        if !(sum - sum == T::ZERO) {
             return Err(KinematicsError::NonFinite);
         }
         Ok(y)
@@ -369,6 +372,10 @@ mod tests {
             let sum: f64 = (0..PARAMETERS).map(|k| y[i][k] * d.to_array()[k]).sum();
             assert!((sum - tau[i]).abs() < 1e-12 * (1.0 + tau[i].abs()), "{sum} vs {}", tau[i]);
         }
+        let mut bad = j;
+        bad.velocity_rad_s[1] = f64::NAN;
+        assert_eq!(d.torque_nm(&bad), Err(KinematicsError::NonFinite));
+        assert_eq!(regressor(&bad, 0.01), Err(KinematicsError::NonFinite));
         // At rest (no acceleration) only friction would act, and there is none at zero speed.
         let still = m.inverse_motion([215.0, 20.0], [0.0; 2], [0.0; 2], 0.05).unwrap();
         assert_eq!(d.torque_nm(&still).unwrap(), [0.0; 2]);

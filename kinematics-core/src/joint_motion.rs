@@ -53,6 +53,7 @@ fn dot<T: Real>(u: [T; 2], v: [T; 2]) -> T {
 impl<T: Real> FiveBar<T> {
     /// Joint angles, velocities and accelerations that move the tool through `tool_mm` with
     /// `velocity_mm_s` and `acceleration_mm_s2`; the same checks as [`FiveBar::inverse`].
+    #[inline]
     pub fn inverse_motion(
         &self,
         tool_mm: [T; 2],

@@ -15,7 +15,9 @@
 //! Cost per point: a line is a few flops; the circle and the figure-eight one and two
 //! `sin_cos`.
 
+use crate::jerk_profile::ScalarState;
 use crate::real::Real;
+use crate::trajectory::MotionSetpoint;
 
 /// A point of a path and the curve's derivatives with respect to its parameter there.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -39,6 +41,22 @@ pub trait Path<T: Real>: Copy {
     fn point(&self, u: T) -> PathPoint<T>;
     /// An upper bound of `|c'(u)|` over the path: planning divides the tool's limits by it.
     fn max_speed_factor(&self) -> T;
+
+    /// The tool's position and derivatives for the parameter's state `s` (the chain rule of
+    /// the module doc; a path may do it with fewer operations).
+    #[inline]
+    fn motion(&self, s: &ScalarState<T>) -> MotionSetpoint<T> {
+        let c = self.point(s.position);
+        let (ud, udd, uddd) = (s.velocity, s.acceleration, s.jerk);
+        let three = T::from_f64(3.0);
+        let mut m = MotionSetpoint::at_rest(c.position_mm);
+        for i in 0..2 {
+            m.velocity_mm_s[i] = c.d1[i] * ud;
+            m.acceleration_mm_s2[i] = c.d2[i] * ud * ud + c.d1[i] * udd;
+            m.jerk_mm_s3[i] = (c.d3[i] * ud * ud + three * c.d2[i] * udd) * ud + c.d1[i] * uddd;
+        }
+        m
+    }
 }
 
 /// A straight segment, parameterised by arc length.
@@ -81,6 +99,17 @@ impl<T: Real> Path<T> for Line<T> {
     }
     fn max_speed_factor(&self) -> T {
         T::ONE
+    }
+    /// Every derivative along the direction (`c'' = c''' = 0`).
+    #[inline]
+    fn motion(&self, s: &ScalarState<T>) -> MotionSetpoint<T> {
+        let (p, d) = (self.from_mm, self.direction);
+        MotionSetpoint {
+            position_mm: [p[0] + s.position * d[0], p[1] + s.position * d[1]],
+            velocity_mm_s: [s.velocity * d[0], s.velocity * d[1]],
+            acceleration_mm_s2: [s.acceleration * d[0], s.acceleration * d[1]],
+            jerk_mm_s3: [s.jerk * d[0], s.jerk * d[1]],
+        }
     }
 }
 

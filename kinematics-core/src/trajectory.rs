@@ -193,17 +193,7 @@ impl<T: Real, P: Path<T>> PathMotion<T, P> {
     /// The setpoint at `t_s` (s from the start; at rest before and after).
     #[inline]
     pub fn at(&self, t_s: T) -> MotionSetpoint<T> {
-        let s = self.law.at(t_s);
-        let c = self.path.point(s.position);
-        let (ud, udd, uddd) = (s.velocity, s.acceleration, s.jerk);
-        let three = T::from_f64(3.0);
-        let mut m = MotionSetpoint::at_rest(c.position_mm);
-        for i in 0..2 {
-            m.velocity_mm_s[i] = c.d1[i] * ud;
-            m.acceleration_mm_s2[i] = c.d2[i] * ud * ud + c.d1[i] * udd;
-            m.jerk_mm_s3[i] = (c.d3[i] * ud * ud + three * c.d2[i] * udd) * ud + c.d1[i] * uddd;
-        }
-        m
+        self.path.motion(&self.law.at(t_s))
     }
 
     /// Peak norms over `samples + 1` equally spaced instants (ends included).
