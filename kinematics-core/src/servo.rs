@@ -7,6 +7,13 @@
 //! The firmware calls [`Servo::step`] from its timer interrupt and `host-sim` calls the very same
 //! function against the simulated plant; nothing else computes a motor command.
 //!
+//! [`Servo::step_motion`] takes a [`MotionSetpoint`] (position with its exact velocity,
+//! acceleration and jerk, from a [`crate::trajectory`]) instead: the same checks, the reference
+//! from the joint motion half a sample ahead ([`crate::feed_forward`]), the feed-forward from the
+//! identified inverse dynamics ([`Servo::set_dynamics`]; without them the gains' constant
+//! feed-forward on the same joint motion) and the PID on the remainder
+//! ([`AxisController::feedback`]). No finite-difference lag.
+//!
 //! # Faults
 //! Any of these latches a fault, sets both torques to zero (safe torque off: the drives are
 //! disabled, the motors never jump to a new position) and keeps refusing until
@@ -17,12 +24,17 @@
 //!
 //! # Cost
 //! One IK (two `atan2`, two `sqrt`), two bilinear lookups, two PIDs: see `cargo qemu-bench`
-//! (`BENCH servo_step`). No allocation, no panic on any input (property-tested).
+//! (`BENCH servo_step`); the motion step adds the joint motion and the inverse dynamics
+//! (`BENCH servo_step_motion`, with the trajectory's evaluation). No allocation, no panic on
+//! any input (property-tested).
 
+use crate::dynamics::{DynamicsError, FiveBarDynamics};
+use crate::feed_forward::{feed_forward_nm, hold_interval};
 use crate::grid::{CorrectionGrid, GridError};
 use crate::model::FiveBar;
 use crate::real::Real;
 use crate::pid::{AxisController, AxisGains, AxisReference};
+use crate::trajectory::MotionSetpoint;
 use crate::KinematicsError;
 
 /// Standard gravity (mm/s²), for limits stated in g.
@@ -92,13 +104,20 @@ impl<'a> Calibration<'a> {
 
     /// Encoder angles that put the tool at `tool_mm`: model IK plus grid correction. This is the
     /// one function that turns a target into a motor command, on the MCU and in the host tools.
+    /// ([`Servo::step_motion`] takes the model's angle from the joint motion around the
+    /// setpoint instead, the same at rest and within 1e-7 rad in motion, and corrects it here.)
     pub fn command_rad(&self, tool_mm: [f32; 2], min_transmission: f32) -> Result<[f32; 2], ServoFault> {
         let theta = self.model.inverse(tool_mm, min_transmission).map_err(ServoFault::Kinematics)?;
+        self.corrected_rad(tool_mm, theta)
+    }
+
+    /// The model's encoder angles `theta_rad` for `tool_mm` plus the grid correction there.
+    pub fn corrected_rad(&self, tool_mm: [f32; 2], theta_rad: [f32; 2]) -> Result<[f32; 2], ServoFault> {
         match &self.grid {
-            None => Ok(theta),
+            None => Ok(theta_rad),
             Some(grid) => {
                 let d = grid.correction_rad(tool_mm).map_err(ServoFault::Grid)?;
-                Ok([theta[0] + d[0], theta[1] + d[1]])
+                Ok([theta_rad[0] + d[0], theta_rad[1] + d[1]])
             }
         }
     }
@@ -169,14 +188,20 @@ pub struct Servo {
     axes: [AxisController; 2],
     history: Option<History>,
     fault: Option<ServoFault>,
+    dynamics: Option<FiveBarDynamics<f32>>,
 }
 
 fn finite2(v: [f32; 2]) -> bool {
     v[0].is_finite() && v[1].is_finite()
 }
 
-/// `angle` plus the multiple of 2π that brings it nearest to `near`.
+/// `angle` plus the multiple of 2π that brings it nearest to `near`: `angle` itself, after one
+/// comparison, when it is within π already (every sample of a continuous motion).
+#[inline]
 fn unwrap_near(angle: f32, near: f32) -> f32 {
+    if (near - angle).abs() < core::f32::consts::PI {
+        return angle;
+    }
     let two_pi = 2.0 * core::f32::consts::PI;
     // The trait method: `f32::round` is std-only, this crate is no_std.
     angle + two_pi * Real::round((near - angle) / two_pi)
@@ -185,7 +210,22 @@ fn unwrap_near(angle: f32, near: f32) -> f32 {
 impl Servo {
     /// A servo with `config`, not engaged yet.
     pub fn new(config: ServoConfig) -> Self {
-        Servo { config, axes: [AxisController::default(); 2], history: None, fault: None }
+        Servo { config, axes: [AxisController::default(); 2], history: None, fault: None, dynamics: None }
+    }
+
+    /// The identified dynamics [`Servo::step_motion`] feeds forward (`None`: the gains'
+    /// constant feed-forward). Refused if out of range; the servo keeps what it had.
+    pub fn set_dynamics(&mut self, dynamics: Option<FiveBarDynamics<f32>>) -> Result<(), DynamicsError> {
+        if let Some(d) = &dynamics {
+            d.validate()?;
+        }
+        self.dynamics = dynamics;
+        Ok(())
+    }
+
+    /// The dynamics fed forward, if any.
+    pub fn dynamics(&self) -> Option<&FiveBarDynamics<f32>> {
+        self.dynamics.as_ref()
     }
 
     /// Its gains and limits.
@@ -242,6 +282,56 @@ impl Servo {
         setpoint_mm: [f32; 2],
         encoder_rad: [f32; 2],
     ) -> Result<ServoOutput, ServoFault> {
+        let h = self.accept(setpoint_mm, encoder_rad)?;
+        let command = match cal.command_rad(setpoint_mm, self.config.min_transmission) {
+            Ok(c) => c,
+            Err(f) => return Err(self.latch(f)),
+        };
+        self.close_loop(h, setpoint_mm, command, encoder_rad, None)
+    }
+
+    /// One sample towards a setpoint with its exact derivatives (see the module doc): the
+    /// checks of [`Servo::step`], plus the setpoint's stated speed and acceleration within the
+    /// limits. On `Err` the fault is latched and both torques must be taken as zero.
+    pub fn step_motion(
+        &mut self,
+        cal: &Calibration<'_>,
+        setpoint: &MotionSetpoint<f32>,
+        encoder_rad: [f32; 2],
+    ) -> Result<ServoOutput, ServoFault> {
+        if self.history.is_some() {
+            if !setpoint.is_finite() {
+                return Err(self.latch(ServoFault::NonFiniteSetpoint));
+            }
+            let cfg = &self.config;
+            let (v, a) = (setpoint.velocity_mm_s, setpoint.acceleration_mm_s2);
+            if !(v[0] * v[0] + v[1] * v[1] <= cfg.max_speed_mm_s * cfg.max_speed_mm_s)
+                || !(a[0] * a[0] + a[1] * a[1] <= cfg.max_accel_mm_s2 * cfg.max_accel_mm_s2)
+            {
+                return Err(self.latch(ServoFault::SetpointJump));
+            }
+        }
+        let p = setpoint.position_mm;
+        let h = self.accept(p, encoder_rad)?;
+        let cfg = self.config;
+        let interval = match hold_interval(&cal.model, setpoint, cfg.sample_period_s, cfg.min_transmission) {
+            Ok(i) => i,
+            Err(e) => return Err(self.latch(ServoFault::Kinematics(e))),
+        };
+        let command = match cal.corrected_rad(p, interval.angle_rad) {
+            Ok(c) => c,
+            Err(f) => return Err(self.latch(f)),
+        };
+        let ff = match feed_forward_nm(&interval, self.dynamics.as_ref(), &cfg.axes) {
+            Ok(t) => t,
+            Err(e) => return Err(self.latch(ServoFault::Kinematics(e))),
+        };
+        self.close_loop(h, p, command, encoder_rad, Some(ff))
+    }
+
+    /// The checks every sample starts with: engaged, finite setpoint and encoders, a setpoint
+    /// sequence within the speed and acceleration limits (backward differences).
+    fn accept(&mut self, setpoint_mm: [f32; 2], encoder_rad: [f32; 2]) -> Result<History, ServoFault> {
         let Some(h) = self.history else {
             return Err(self.fault.unwrap_or(ServoFault::NotEngaged));
         };
@@ -253,42 +343,60 @@ impl Servo {
         if !finite2(encoder_rad) {
             return Err(self.latch(ServoFault::NonFiniteFeedback));
         }
-        // Speed and acceleration the setpoint sequence implies (backward differences).
+        // Speed and acceleration the setpoint sequence implies (backward differences), compared
+        // as the steps they allow in one and two samples (no division).
         let [p1, p2] = h.setpoint_mm;
-        let v = [(setpoint_mm[0] - p1[0]) / dt, (setpoint_mm[1] - p1[1]) / dt];
-        let a = [
-            (setpoint_mm[0] - 2.0 * p1[0] + p2[0]) / (dt * dt),
-            (setpoint_mm[1] - 2.0 * p1[1] + p2[1]) / (dt * dt),
-        ];
-        let speed2 = v[0] * v[0] + v[1] * v[1];
-        let accel2 = a[0] * a[0] + a[1] * a[1];
-        if !(speed2 <= cfg.max_speed_mm_s * cfg.max_speed_mm_s)
-            || !(accel2 <= cfg.max_accel_mm_s2 * cfg.max_accel_mm_s2)
-        {
+        let d1 = [setpoint_mm[0] - p1[0], setpoint_mm[1] - p1[1]];
+        let d2 = [setpoint_mm[0] - 2.0 * p1[0] + p2[0], setpoint_mm[1] - 2.0 * p1[1] + p2[1]];
+        let step = cfg.max_speed_mm_s * dt;
+        let bend = cfg.max_accel_mm_s2 * dt * dt;
+        if !(d1[0] * d1[0] + d1[1] * d1[1] <= step * step) || !(d2[0] * d2[0] + d2[1] * d2[1] <= bend * bend) {
             return Err(self.latch(ServoFault::SetpointJump));
         }
-        let command = match cal.command_rad(setpoint_mm, cfg.min_transmission) {
-            Ok(c) => c,
-            Err(f) => return Err(self.latch(f)),
-        };
+        Ok(h)
+    }
+
+    /// References, following-error check and the PIDs for the encoder angles `command`:
+    /// with the gains' feed-forward on differences of the references (`feedforward_nm` `None`,
+    /// [`Servo::step`]) or with the given feed-forward torques.
+    #[inline(always)]
+    fn close_loop(
+        &mut self,
+        h: History,
+        setpoint_mm: [f32; 2],
+        command: [f32; 2],
+        encoder_rad: [f32; 2],
+        feedforward_nm: Option<[f32; 2]>,
+    ) -> Result<ServoOutput, ServoFault> {
+        let cfg = self.config;
+        let dt = cfg.sample_period_s;
+        let rate = 1.0 / dt;
         let [r1, r2] = h.reference_rad;
         let mut out = ServoOutput { torque_nm: [0.0; 2], reference_rad: [0.0; 2], following_error_rad: [0.0; 2] };
         for k in 0..2 {
             let reference = unwrap_near(command[k], r1[k]);
-            let axis_ref = AxisReference {
-                angle_rad: reference,
-                velocity_rad_s: (reference - r1[k]) / dt,
-                acceleration_rad_s2: (reference - 2.0 * r1[k] + r2[k]) / (dt * dt),
-            };
             let error = reference - encoder_rad[k];
             if !(error.abs() <= cfg.max_following_error_rad) {
                 return Err(self.latch(ServoFault::FollowingError));
             }
-            let velocity = (encoder_rad[k] - h.encoder_rad[k]) / dt;
-            out.torque_nm[k] = self.axes[k].update(&cfg.axes[k], &axis_ref, encoder_rad[k], velocity, dt);
+            let moved = encoder_rad[k] - h.encoder_rad[k];
+            out.torque_nm[k] = match feedforward_nm {
+                None => {
+                    let axis_ref = AxisReference {
+                        angle_rad: reference,
+                        velocity_rad_s: (reference - r1[k]) / dt,
+                        acceleration_rad_s2: (reference - 2.0 * r1[k] + r2[k]) / (dt * dt),
+                    };
+                    self.axes[k].update(&cfg.axes[k], &axis_ref, encoder_rad[k], moved / dt, dt)
+                }
+                // The velocity error from backward differences of both, so that a reference
+                // followed exactly gives none (the measured velocity is half a sample old).
+                Some(ff) => self.axes[k].feedback(&cfg.axes[k], error, ((reference - r1[k]) - moved) * rate, ff[k], dt),
+            };
             out.reference_rad[k] = reference;
             out.following_error_rad[k] = error;
         }
+        let [p1, _] = h.setpoint_mm;
         self.history = Some(History {
             setpoint_mm: [setpoint_mm, p1],
             reference_rad: [out.reference_rad, r1],

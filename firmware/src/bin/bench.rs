@@ -10,6 +10,9 @@
 //!   trajectory (the 1-D profile alone, a straight move, a circle), exact derivatives included;
 //! * `inverse_motion_f32`: joint angles, velocities and accelerations for a tool motion;
 //! * `inverse_dynamics_f32`: the hidden robot's inverse dynamics from that joint motion;
+//! * `servo_step_motion`: one sample of 5 g moves back and forth across the workspace: the
+//!   trajectory evaluated (exact derivatives) and `Servo::step_motion` with the identified
+//!   dynamics fed forward (and `servo_step_motion_uncorrected`, without grid);
 //! * `sixbar_solve`: the six-bar's numerical equilibrium solve (host-sim's plant, ported to
 //!   f32 in `bench/sixbar.rs`), warm-started along the servo's 2 kHz path: what controlling
 //!   the real mechanism without the hidden robot would cost per sample (and
@@ -268,6 +271,47 @@ fn main() -> ! {
         let step = measure(&counter, |i| match servo.step(cal, black_box(setpoints[i]), black_box(encoder)) {
             Ok(out) => encoder = out.reference_rad,
             Err(f) => fault = fault.or(Some((i, f))),
+        });
+        if let Some((i, f)) = fault {
+            let mut line: heapless::String<128> = heapless::String::new();
+            let _ = write!(line, "FAIL {} faulted during the benchmark at call {}: {}", name, i, f);
+            board::console(&line);
+            board::exit(false);
+        }
+        report(name, step as f32 * per_count / N as f32);
+    }
+
+    // The motion step: back and forth along the 5 g move without dwell (in motion but for an
+    // instant at each end), the setpoint evaluated from the trajectory at the sample's time
+    // within the move (integer sample counts, as the firmware's setpoint source keeps them),
+    // then `Servo::step_motion` with the identified dynamics fed forward.
+    let Ok(back) = PathMotion::line([255.0, 68.0], [170.0, -65.0], &limits) else { board::exit(false) };
+    let move_samples = libm::ceilf(line.duration_s() / 5.0e-4) as usize;
+    let sample = |k: usize| {
+        let n = k % (2 * move_samples);
+        if n < move_samples {
+            line.at(n as f32 * 5.0e-4)
+        } else {
+            back.at((n - move_samples) as f32 * 5.0e-4)
+        }
+    };
+    for (name, cal) in [("servo_step_motion", &cal), ("servo_step_motion_uncorrected", &uncorrected)] {
+        let mut servo = Servo::new(ServoConfig::default());
+        if servo.set_dynamics(Some(dynamics)).is_err() {
+            board::exit(false);
+        }
+        let Ok(mut encoder) = cal.command_rad(sample(0).position_mm, 0.05) else { board::exit(false) };
+        if servo.engage(cal, encoder).is_err() {
+            board::console("FAIL servo did not engage");
+            board::exit(false);
+        }
+        let mut fault = None;
+        let step = measure(&counter, |i| {
+            let s = sample(black_box(i));
+            match servo.step_motion(cal, &s, black_box(encoder)) {
+                Ok(out) => encoder = out.reference_rad,
+                Err(f) => fault = fault.or(Some((i, f))),
+            }
         });
         if let Some((i, f)) = fault {
             let mut line: heapless::String<128> = heapless::String::new();
