@@ -147,28 +147,33 @@ impl<T: Real> FiveBarDynamics<T> {
         FiveBarDynamics::from_array(p, U::from_f64(self.coulomb_speed_rad_s.to_f64()))
     }
 
+    /// The inertia matrix `M` (kg·m², symmetric) and the velocity-product torques `h(θ, θ̇)`
+    /// (N·m) at a pose, friction left out: `τ = M·θ̈ + h` (three evaluations of the inverse
+    /// dynamics; for simulated plants).
+    pub fn mass_matrix_and_bias(
+        &self,
+        pose: &crate::pose::Pose<T>,
+        velocity_rad_s: [T; 2],
+    ) -> Result<(crate::jacobian::Mat2<T>, [T; 2]), KinematicsError> {
+        use crate::joint_motion::motion_from_pose;
+        let rigid = FiveBarDynamics { viscous_nm_s_per_rad: [T::ZERO; 2], coulomb_nm: [T::ZERO; 2], ..*self };
+        let h = rigid.torque_nm(&motion_from_pose(pose, velocity_rad_s, [T::ZERO; 2])?)?;
+        let m0 = rigid.torque_nm(&motion_from_pose(pose, [T::ZERO; 2], [T::ONE, T::ZERO])?)?;
+        let m1 = rigid.torque_nm(&motion_from_pose(pose, [T::ZERO; 2], [T::ZERO, T::ONE])?)?;
+        Ok(([[m0[0], m1[0]], [m0[1], m1[1]]], h))
+    }
+
     /// The joint accelerations (rad/s²) that `torque_nm` produces at the pose with joint
     /// velocities `velocity_rad_s`, friction of this model left out (a plant adds its own):
-    /// `θ̈ = M⁻¹·(τ - h(θ, θ̇))`, `M` and `h` from three evaluations of the inverse dynamics
-    /// (for simulated plants: the firmware's QEMU machine).
+    /// `θ̈ = M⁻¹·(τ - h(θ, θ̇))`.
     pub fn forward_acceleration(
         &self,
         pose: &crate::pose::Pose<T>,
         velocity_rad_s: [T; 2],
         torque_nm: [T; 2],
     ) -> Result<[T; 2], KinematicsError> {
-        use crate::joint_motion::motion_from_pose;
-        let rigid = FiveBarDynamics { viscous_nm_s_per_rad: [T::ZERO; 2], coulomb_nm: [T::ZERO; 2], ..*self };
-        let h = rigid.torque_nm(&motion_from_pose(pose, velocity_rad_s, [T::ZERO; 2])?)?;
-        let m0 = rigid.torque_nm(&motion_from_pose(pose, [T::ZERO; 2], [T::ONE, T::ZERO])?)?;
-        let m1 = rigid.torque_nm(&motion_from_pose(pose, [T::ZERO; 2], [T::ZERO, T::ONE])?)?;
-        let r = [torque_nm[0] - h[0], torque_nm[1] - h[1]];
-        // M = [m0 m1] (columns); symmetric positive definite for physical parameters.
-        let det = m0[0] * m1[1] - m1[0] * m0[1];
-        if !(det > T::ZERO) {
-            return Err(KinematicsError::NonFinite);
-        }
-        Ok([(r[0] * m1[1] - m1[0] * r[1]) / det, (m0[0] * r[1] - r[0] * m0[1]) / det])
+        let (m, h) = self.mass_matrix_and_bias(pose, velocity_rad_s)?;
+        solve_spd(&m, [torque_nm[0] - h[0], torque_nm[1] - h[1]])
     }
 
     /// Motor torques (N·m) for `motion`: the regressor times the parameters (summed without
@@ -198,6 +203,15 @@ struct Terms<T> {
     distal_2: [T; 2],
     velocity: [T; 2],
     coulomb: [T; 2],
+}
+
+/// `M⁻¹·r` for a 2×2 inertia matrix; refuses one that is not positive definite.
+pub fn solve_spd<T: Real>(m: &crate::jacobian::Mat2<T>, r: [T; 2]) -> Result<[T; 2], KinematicsError> {
+    let det = m[0][0] * m[1][1] - m[0][1] * m[1][0];
+    if !(det > T::ZERO && m[0][0] > T::ZERO) {
+        return Err(KinematicsError::NonFinite);
+    }
+    Ok([(r[0] * m[1][1] - m[0][1] * r[1]) / det, (m[0][0] * r[1] - r[0] * m[1][0]) / det])
 }
 
 #[inline(always)]

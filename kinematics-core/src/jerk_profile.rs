@@ -143,6 +143,11 @@ impl<T: Real> JerkProfile<T> {
         Ok(profile)
     }
 
+    /// No motion at all (zero duration).
+    pub fn rest() -> Self {
+        Self::from_phases(T::ZERO, T::ONE, T::ZERO, T::ZERO, T::ZERO, T::ZERO)
+    }
+
     /// The profile with jerk `jerk` and phases `t_j`, `t_a`, `t_v` (the boundary states).
     fn from_phases(distance: T, sign: T, jerk: T, t_j: T, t_a: T, t_v: T) -> Self {
         let six = T::from_f64(6.0);

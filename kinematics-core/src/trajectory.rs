@@ -240,6 +240,12 @@ impl<T: Real, const N: usize> Tour<T, N> {
         Ok(Tour { moves, len: waypoints_mm.len(), dwell_s, start_mm })
     }
 
+    /// No moves: holds `start_mm` (never fails).
+    pub fn hold(start_mm: [T; 2]) -> Self {
+        let rest = PathMotion::new(Line::new(start_mm, start_mm), JerkProfile::rest());
+        Tour { moves: [rest; N], len: 0, dwell_s: T::ZERO, start_mm }
+    }
+
     /// The moves, in order.
     pub fn moves(&self) -> &[PathMotion<T, Line<T>>] {
         &self.moves[..self.len]
@@ -380,5 +386,7 @@ mod tests {
         assert_eq!(Tour::<f64, 4>::plan([0.0; 2], &[[f64::NAN, 0.0]], &limits(), 0.1).err(), Some(ProfileError::NonFinite.into()));
         let empty: Tour<f64, 4> = Tour::plan([1.0, 2.0], &[], &limits(), 0.1).unwrap();
         assert_eq!((empty.duration_s(), empty.end_mm()), (0.0, [1.0, 2.0]));
+        let hold: Tour<f64, 4> = Tour::hold([1.0, 2.0]);
+        assert_eq!((hold.duration_s(), hold.end_mm(), hold.at(3.0).position_mm), (0.0, [1.0, 2.0], [1.0, 2.0]));
     }
 }
