@@ -131,11 +131,7 @@ pub fn run_loop(
             }
         };
         let torque = [f64::from(out.torque_nm[0]), f64::from(out.torque_nm[1])];
-        for _ in 0..SUBSTEPS {
-            for (d, &tq) in plant.drives.iter_mut().zip(&torque) {
-                d.step(tq, dt / f64::from(SUBSTEPS));
-            }
-        }
+        plant.advance(torque, dt, SUBSTEPS)?;
         let sol = plant.solve()?;
         let follow_um = match cal.model.inverse_pose([sp[0] as f32, sp[1] as f32], 0.0).and_then(|p| p.jacobian()) {
             Ok(j) => {
