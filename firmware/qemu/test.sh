@@ -54,6 +54,7 @@ run() {
 }
 
 run track          0 "$PASS" track        $(image calibration.bin)
+run track-5g       0 "$PASS" track-5g     $(image calibration.bin)
 run nan-setpoint   0 "$PASS" nan-setpoint $(image calibration.bin)
 run out-of-reach   0 "$PASS" out-of-reach $(image calibration.bin)
 run jump           0 "$PASS" jump         $(image calibration.bin)

@@ -14,7 +14,12 @@
 //!
 //! A motor never jumps: the servo refuses a setpoint it cannot follow, it never clamps one into
 //! reach, and a refusal removes torque in the same sample.
+//!
+//! The servo runs [`Servo::step_motion`]: the queued setpoints carry their exact derivatives, and
+//! the dynamic parameters the calibration image carries (its dynamics extension, if any) are fed
+//! forward; an image without them leaves the gains' constant feed-forward.
 use heapless::spsc::Consumer;
+use kinematics_core::trajectory::MotionSetpoint;
 use kinematics_core::{Calibration, Servo};
 
 use crate::calibration::CalibrationState;
@@ -81,6 +86,8 @@ impl<'a> ServoLoop<'a> {
         encoder_rad: [f32; 2],
     ) -> Self {
         let mut servo = Servo::new(settings.servo);
+        // Validated when the image was parsed; `set_dynamics` checks again and keeps none if not.
+        let _ = servo.set_dynamics(calibration.grid.as_ref().and_then(|g| g.dynamics().copied()));
         let engaged = match state {
             CalibrationState::Refused(e) => Err(Fault::Calibration(e)),
             CalibrationState::Valid | CalibrationState::Uncorrected(_) => {
@@ -138,7 +145,7 @@ impl<'a> ServoLoop<'a> {
     /// One sample: takes the next setpoint from `queue` (holding the last one if it is empty)
     /// and runs the servo step on `encoder_rad`. In the safe state the queue is left alone
     /// and the torques are zero.
-    pub fn step(&mut self, queue: &mut Consumer<'_, [f32; 2]>, encoder_rad: [f32; 2]) -> Sample {
+    pub fn step(&mut self, queue: &mut Consumer<'_, MotionSetpoint<f32>>, encoder_rad: [f32; 2]) -> Sample {
         let index = self.samples;
         self.samples = self.samples.wrapping_add(1);
         let mut sample = Sample {
@@ -155,15 +162,16 @@ impl<'a> ServoLoop<'a> {
         if self.mode != Mode::Running {
             return sample;
         }
-        let setpoint_mm = match queue.dequeue() {
+        let setpoint = match queue.dequeue() {
             Some(p) => p,
             None => {
                 sample.underrun = true;
-                self.setpoint_mm
+                MotionSetpoint::at_rest(self.setpoint_mm)
             }
         };
+        let setpoint_mm = setpoint.position_mm;
         sample.refill = queue.len() < REFILL_BELOW;
-        match self.servo.step(&self.calibration, setpoint_mm, encoder_rad) {
+        match self.servo.step_motion(&self.calibration, &setpoint, encoder_rad) {
             Ok(out) => {
                 self.setpoint_mm = setpoint_mm;
                 self.reference_rad = out.reference_rad;
@@ -244,9 +252,9 @@ mod tests {
         let mut l = ServoLoop::boot(&settings, cal, CalibrationState::Refused(GridError::BadCrc), encoder);
         assert_eq!(l.mode(), Mode::SafeState(Fault::Calibration(GridError::BadCrc)));
         assert!(!l.drives_enabled());
-        let mut q: Queue<[f32; 2], QUEUE_SLOTS> = Queue::new();
+        let mut q: Queue<MotionSetpoint<f32>, QUEUE_SLOTS> = Queue::new();
         let (mut tx, mut rx) = q.split();
-        tx.enqueue(HOME_MM).unwrap();
+        tx.enqueue(MotionSetpoint::at_rest(HOME_MM)).unwrap();
         for _ in 0..3 {
             let s = l.step(&mut rx, encoder);
             assert_eq!(s.torque_nm, [0.0; 2]);
@@ -271,12 +279,12 @@ mod tests {
     fn a_refused_setpoint_latches_with_zero_torque_in_its_own_sample() {
         let (settings, img) = (Settings::default(), image());
         let (mut l, encoder) = running(&settings, &img);
-        let mut q: Queue<[f32; 2], QUEUE_SLOTS> = Queue::new();
+        let mut q: Queue<MotionSetpoint<f32>, QUEUE_SLOTS> = Queue::new();
         let (mut tx, mut rx) = q.split();
         // A small offset so the PID commands torque before the fault.
-        tx.enqueue(HOME_MM).unwrap();
-        tx.enqueue([f32::NAN, 0.0]).unwrap();
-        tx.enqueue(HOME_MM).unwrap();
+        tx.enqueue(MotionSetpoint::at_rest(HOME_MM)).unwrap();
+        tx.enqueue(MotionSetpoint::at_rest([f32::NAN, 0.0])).unwrap();
+        tx.enqueue(MotionSetpoint::at_rest(HOME_MM)).unwrap();
         let off = [encoder[0] + 1e-3, encoder[1]];
         let s = l.step(&mut rx, off);
         assert!(s.torque_nm[0] != 0.0 && s.fault.is_none());
@@ -294,13 +302,13 @@ mod tests {
     fn an_empty_queue_holds_the_last_setpoint_and_asks_for_a_refill() {
         let (settings, img) = (Settings::default(), image());
         let (mut l, encoder) = running(&settings, &img);
-        let mut q: Queue<[f32; 2], QUEUE_SLOTS> = Queue::new();
+        let mut q: Queue<MotionSetpoint<f32>, QUEUE_SLOTS> = Queue::new();
         let (mut tx, mut rx) = q.split();
         let s = l.step(&mut rx, encoder);
         assert!(s.underrun && s.refill && s.fault.is_none());
         assert_eq!(s.setpoint_mm, l.setpoint_mm());
         while tx.ready() {
-            tx.enqueue(l.setpoint_mm()).unwrap();
+            tx.enqueue(MotionSetpoint::at_rest(l.setpoint_mm())).unwrap();
         }
         let s = l.step(&mut rx, encoder);
         assert!(!s.underrun && !s.refill, "{} left", rx.len());
@@ -314,7 +322,7 @@ mod tests {
     fn a_streak_of_overruns_latches_deadline_missed_once() {
         let (settings, img) = (Settings::default(), image());
         let (mut l, encoder) = running(&settings, &img);
-        let mut q: Queue<[f32; 2], QUEUE_SLOTS> = Queue::new();
+        let mut q: Queue<MotionSetpoint<f32>, QUEUE_SLOTS> = Queue::new();
         let (_, mut rx) = q.split();
         for k in 0..settings.overrun_streak_limit {
             let mut s = l.step(&mut rx, encoder);
@@ -333,7 +341,7 @@ mod tests {
     fn a_failed_pwm_write_latches_a_drive_fault() {
         let (settings, img) = (Settings::default(), image());
         let (mut l, encoder) = running(&settings, &img);
-        let mut q: Queue<[f32; 2], QUEUE_SLOTS> = Queue::new();
+        let mut q: Queue<MotionSetpoint<f32>, QUEUE_SLOTS> = Queue::new();
         let (_, mut rx) = q.split();
         let mut s = l.step(&mut rx, [encoder[0] + 1e-3, encoder[1]]);
         assert!(s.torque_nm[0] != 0.0);
@@ -346,9 +354,9 @@ mod tests {
     fn the_reference_is_model_ik_plus_the_grid_correction() {
         let (settings, img) = (Settings::default(), image());
         let (mut l, encoder) = running(&settings, &img);
-        let mut q: Queue<[f32; 2], QUEUE_SLOTS> = Queue::new();
+        let mut q: Queue<MotionSetpoint<f32>, QUEUE_SLOTS> = Queue::new();
         let (mut tx, mut rx) = q.split();
-        tx.enqueue(HOME_MM).unwrap();
+        tx.enqueue(MotionSetpoint::at_rest(HOME_MM)).unwrap();
         let s = l.step(&mut rx, encoder);
         assert!(s.fault.is_none());
         let ik = FiveBar::<f32>::paper_nominal().inverse(HOME_MM, 0.05).unwrap();

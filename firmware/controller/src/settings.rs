@@ -35,6 +35,10 @@ pub struct Settings {
     pub trajectory_accel_mm_s2: f32,
     /// Peak tool speed of the built-in trajectory (mm/s). Default 1500 mm/s.
     pub trajectory_speed_mm_s: f32,
+    /// Peak tool jerk of the built-in trajectory (mm/s³). Default
+    /// [`DEFAULT_JERK_MM_S3`](crate::trajectory::DEFAULT_JERK_MM_S3), 5e6 mm/s³ (5 g reached in
+    /// 10 ms).
+    pub trajectory_jerk_mm_s3: f32,
     /// Rest at every waypoint (s). Default 0.1 s.
     pub trajectory_dwell_s: f32,
 }
@@ -50,6 +54,7 @@ impl Default for Settings {
             builtin_tour_mm: &[],
             trajectory_accel_mm_s2: 2.0 * kinematics_core::servo::STANDARD_GRAVITY_MM_S2,
             trajectory_speed_mm_s: 1_500.0,
+            trajectory_jerk_mm_s3: crate::trajectory::DEFAULT_JERK_MM_S3,
             trajectory_dwell_s: 0.1,
         }
     }

@@ -1,26 +1,36 @@
-//! The built-in setpoint generator: rest-to-rest quintic moves through a list of waypoints.
+//! The built-in setpoint generator: jerk-limited rest-to-rest moves through a list of
+//! waypoints, with their exact derivatives.
 //!
-//! Each move from `P` to `Q` follows `P + (Q - P)·s(τ)`, `s = 10τ³ - 15τ⁴ + 6τ⁵`, `τ = t/T`,
-//! which starts and ends with zero speed and acceleration, so the sequence never asks the servo
-//! for a jump. Peak acceleration is `10/√3 · D/T²` and peak speed `15/8 · D/T`; the duration of
-//! each move is the shortest that keeps both within the limits given. Time is an integer sample
-//! count, so the setpoints are the same on every run.
+//! Each move is the core's time-optimal straight move ([`kinematics_core::trajectory`]: speed,
+//! acceleration and jerk limited, exact velocity, acceleration and jerk at every sample, which
+//! the servo feeds forward), and the tool rests at each waypoint for the dwell. Time is an
+//! integer sample count within each move (`t = n·dt` from the move's start, so f32 keeps
+//! sub-nanosecond resolution however long the tour runs), and the setpoints are the same on
+//! every run. During a dwell the setpoint is the waypoint itself, at rest.
 use heapless::Vec;
+use kinematics_core::trajectory::{MotionSetpoint, TaskLimits, Tour};
 
 use crate::settings::Settings;
 use crate::setpoints::SetpointSource;
 
-/// Most waypoints a trajectory holds.
+/// Most waypoints a trajectory holds, its start included.
 pub const MAX_WAYPOINTS: usize = 16;
+
+/// The jerk limit of [`Trajectory::new`] and the settings' default (mm/s³): 5 g is reached in
+/// 10 ms.
+pub const DEFAULT_JERK_MM_S3: f32 = 5.0e6;
 
 /// Tool-space rest-to-rest moves, sampled at the servo rate.
 #[derive(Clone, Debug)]
 pub struct Trajectory {
+    tour: Tour<f32, MAX_WAYPOINTS>,
     /// `waypoints[0]` is the start (the engaged tool position).
     waypoints: Vec<[f32; 2], MAX_WAYPOINTS>,
-    /// Samples of each move (index `k` is the move from `waypoints[k]` to `waypoints[k + 1]`).
+    /// Samples in motion of each move (index `k` is the move from `waypoints[k]` to
+    /// `waypoints[k + 1]`); the dwell follows.
     move_samples: Vec<u32, MAX_WAYPOINTS>,
     dwell_samples: u32,
+    sample_period_s: f32,
     /// Current move and the sample within move plus dwell.
     segment: usize,
     sample: u32,
@@ -28,7 +38,8 @@ pub struct Trajectory {
 
 impl Trajectory {
     /// Moves from `start_mm` through `waypoints_mm` (extra waypoints beyond the capacity are
-    /// dropped), each limited to `accel_mm_s2` and `speed_mm_s`, resting `dwell_s` at each.
+    /// dropped), each limited to `accel_mm_s2`, `speed_mm_s` and [`DEFAULT_JERK_MM_S3`],
+    /// resting `dwell_s` at each.
     pub fn new(
         start_mm: [f32; 2],
         waypoints_mm: &[[f32; 2]],
@@ -37,24 +48,35 @@ impl Trajectory {
         dwell_s: f32,
         sample_period_s: f32,
     ) -> Self {
+        let limits = TaskLimits { speed_mm_s, accel_mm_s2, jerk_mm_s3: DEFAULT_JERK_MM_S3 };
+        Trajectory::with_limits(start_mm, waypoints_mm, &limits, dwell_s, sample_period_s)
+    }
+
+    /// Moves through `waypoints_mm` within `limits`. Waypoints or limits the planner refuses
+    /// (not finite, not positive) give a trajectory that holds the start. At most
+    /// `MAX_WAYPOINTS` points including the start: later waypoints are dropped.
+    pub fn with_limits(
+        start_mm: [f32; 2],
+        waypoints_mm: &[[f32; 2]],
+        limits: &TaskLimits<f32>,
+        dwell_s: f32,
+        sample_period_s: f32,
+    ) -> Self {
+        let waypoints_mm = &waypoints_mm[..waypoints_mm.len().min(MAX_WAYPOINTS - 1)];
+        let tour = Tour::plan(start_mm, waypoints_mm, limits, dwell_s).unwrap_or_else(|_| Tour::hold(start_mm));
         let mut waypoints: Vec<[f32; 2], MAX_WAYPOINTS> = Vec::new();
         let mut move_samples: Vec<u32, MAX_WAYPOINTS> = Vec::new();
         let _ = waypoints.push(start_mm);
-        for w in waypoints_mm {
-            let Some(&p) = waypoints.last() else { break };
-            if waypoints.push(*w).is_err() {
-                break;
-            }
-            let d = libm::hypotf(w[0] - p[0], w[1] - p[1]);
-            let t_accel = libm::sqrtf(10.0 / libm::sqrtf(3.0) * d / accel_mm_s2);
-            let t_speed = 15.0 / 8.0 * d / speed_mm_s;
-            let t = if t_accel > t_speed { t_accel } else { t_speed };
-            let _ = move_samples.push(libm::ceilf(t / sample_period_s) as u32 + 1);
+        for (m, w) in tour.moves().iter().zip(waypoints_mm) {
+            let _ = waypoints.push(*w);
+            let _ = move_samples.push(libm::ceilf(m.duration_s() / sample_period_s) as u32);
         }
         Trajectory {
+            tour,
             waypoints,
             move_samples,
-            dwell_samples: libm::ceilf(dwell_s / sample_period_s) as u32,
+            dwell_samples: libm::ceilf(tour.dwell_s() / sample_period_s) as u32,
+            sample_period_s,
             segment: 0,
             sample: 0,
         }
@@ -62,14 +84,12 @@ impl Trajectory {
 
     /// The built-in tour of `settings` from `start_mm` at the servo rate.
     pub fn builtin(start_mm: [f32; 2], settings: &Settings) -> Self {
-        Trajectory::new(
-            start_mm,
-            settings.builtin_tour_mm,
-            settings.trajectory_accel_mm_s2,
-            settings.trajectory_speed_mm_s,
-            settings.trajectory_dwell_s,
-            crate::SAMPLE_PERIOD_S,
-        )
+        let limits = TaskLimits {
+            speed_mm_s: settings.trajectory_speed_mm_s,
+            accel_mm_s2: settings.trajectory_accel_mm_s2,
+            jerk_mm_s3: settings.trajectory_jerk_mm_s3,
+        };
+        Trajectory::with_limits(start_mm, settings.builtin_tour_mm, &limits, settings.trajectory_dwell_s, crate::SAMPLE_PERIOD_S)
     }
 
     /// Samples until the last waypoint is reached and its dwell is over.
@@ -87,26 +107,32 @@ impl Trajectory {
         self.waypoints.last().copied().unwrap_or([0.0; 2])
     }
 
-    /// The next setpoint.
-    pub fn next_mm(&mut self) -> [f32; 2] {
+    /// The next setpoint with its derivatives.
+    pub fn next_setpoint(&mut self) -> MotionSetpoint<f32> {
         let Some(&n) = self.move_samples.get(self.segment) else {
-            return self.end_mm();
+            return MotionSetpoint::at_rest(self.end_mm());
         };
-        let (p, q) = (self.waypoints[self.segment], self.waypoints[self.segment + 1]);
-        let tau = if self.sample >= n { 1.0 } else { self.sample as f32 / n as f32 };
-        let s = tau * tau * tau * (10.0 + tau * (-15.0 + 6.0 * tau));
+        let setpoint = match self.tour.moves().get(self.segment) {
+            Some(m) if self.sample < n => m.at(self.sample as f32 * self.sample_period_s),
+            _ => MotionSetpoint::at_rest(self.waypoints[self.segment + 1]),
+        };
         self.sample += 1;
         if self.sample >= n + self.dwell_samples {
             self.segment += 1;
             self.sample = 0;
         }
-        [p[0] + (q[0] - p[0]) * s, p[1] + (q[1] - p[1]) * s]
+        setpoint
+    }
+
+    /// The next setpoint's position.
+    pub fn next_mm(&mut self) -> [f32; 2] {
+        self.next_setpoint().position_mm
     }
 }
 
 impl SetpointSource for Trajectory {
-    fn next_mm(&mut self) -> [f32; 2] {
-        Trajectory::next_mm(self)
+    fn next_setpoint(&mut self) -> MotionSetpoint<f32> {
+        Trajectory::next_setpoint(self)
     }
 }
 

@@ -20,6 +20,7 @@ use controller::settings::Settings;
 use controller::setpoints::SetpointSource;
 use controller::status::Status;
 use controller::trajectory::Trajectory;
+use kinematics_core::trajectory::MotionSetpoint;
 use kinematics_core::CorrectionGrid;
 
 use super::{hardware, semihosting, CmsdkTimer};
@@ -88,11 +89,20 @@ impl Harness {
             None => {}
             Some(Ok(())) => {
                 defmt::info!("PASS {}: {}", self.scenario, status);
-                if self.scenario == Scenario::Track {
+                if matches!(self.scenario, Scenario::Track | Scenario::Track5g) {
                     defmt::info!(
                         "track: grid {}, settled tool error {} mm",
                         checker.grid_check(),
                         checker.settled_tool_error_mm()
+                    );
+                }
+                if self.scenario == Scenario::Track5g {
+                    let m = checker.motion_check();
+                    defmt::info!(
+                        "track-5g: {} samples at 5 g, max following error {} um at the tool (bound {})",
+                        m.samples_at_5g,
+                        m.max_following_error_um,
+                        controller::scenario::MAX_FOLLOWING_ERROR_5G_UM
                     );
                 }
                 semihosting::console("PASS");
@@ -108,8 +118,8 @@ impl Harness {
     }
 }
 
-/// The built-in trajectory with the scenario's setpoint faults (the `n`-th setpoint queued is
-/// `Scenario::tamper(n, ..)` of the trajectory's).
+/// The built-in trajectory with the scenario's setpoint faults (the `n`-th setpoint queued has
+/// the position `Scenario::tamper(n, ..)` of the trajectory's, its derivatives untouched).
 pub struct Injected {
     scenario: Scenario,
     trajectory: Trajectory,
@@ -117,9 +127,10 @@ pub struct Injected {
 }
 
 impl SetpointSource for Injected {
-    fn next_mm(&mut self) -> [f32; 2] {
-        let p = self.scenario.tamper(self.queued, self.trajectory.next_mm());
+    fn next_setpoint(&mut self) -> MotionSetpoint<f32> {
+        let mut s = self.trajectory.next_setpoint();
+        s.position_mm = self.scenario.tamper(self.queued, s.position_mm);
         self.queued = self.queued.wrapping_add(1);
-        p
+        s
     }
 }

@@ -4,7 +4,10 @@
 //! * Servo tick: CMSDK APB TIMER0 (IRQ 8, 25 MHz), reload for 2 kHz.
 //! * [`hardware`]: the "registers" between the firmware and the plant (PWM duty per axis, the
 //!   drive-enable line, the encoder counters), atomics.
-//! * [`plant`]: two joint inertias with friction, advanced in [`Board::begin_sample`].
+//! * [`machine`]: the simulated machine's true dynamic parameters and the calibration image's
+//!   (shared with `build.rs`);
+//! * [`plant`]: the five-bar linkage's rigid-body dynamics (coupled motors) with friction,
+//!   advanced in [`Board::begin_sample`].
 //! * [`harness`]: the test harness (scenario from the command line, self-tests at boot,
 //!   setpoint and deadline fault injection, the checks at the end of every sample that end the
 //!   run with PASS or FAIL). Only this board has it.
@@ -21,6 +24,9 @@ use super::{Board, ServoTimer};
 
 pub mod hardware;
 pub mod harness;
+/// The simulated machine's true dynamic parameters and the calibration image's (shared with
+/// `build.rs`).
+pub mod machine;
 pub mod plant;
 pub mod semihosting;
 
@@ -141,10 +147,15 @@ impl Board for QemuBoard {
     type Timer = CmsdkTimer;
 
     /// The production settings with the built-in tour on (the simulated machine may move by
-    /// itself), the tour adapted to the harness's scenario.
+    /// itself), the tour and its acceleration adapted to the harness's scenario.
     fn settings() -> Settings {
-        let tour = Harness::scenario().tour_mm(&WORKSPACE_TOUR_MM);
-        Settings { builtin_tour_mm: tour, ..Settings::default() }
+        let scenario = Harness::scenario();
+        let production = Settings::default();
+        Settings {
+            builtin_tour_mm: scenario.tour_mm(&WORKSPACE_TOUR_MM),
+            trajectory_accel_mm_s2: scenario.trajectory_accel_mm_s2(production.trajectory_accel_mm_s2),
+            ..production
+        }
     }
 
     fn init(settings: &'static Settings) -> Self {
