@@ -25,4 +25,5 @@ pub mod grid_build;
 pub mod command;
 pub mod accuracy;
 pub mod machine;
+pub mod numeric;
 pub mod demo;

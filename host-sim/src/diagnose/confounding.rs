@@ -15,7 +15,7 @@
 //! SVDs of n×≤18 matrices.
 
 use super::effects::PARAM_NAMES;
-use super::effects::{Effect, Problem, N_PARAMS};
+use super::effects::{Effect, Problem};
 use super::lm::{jacobian, Fit};
 use nalgebra::{DMatrix, DVector};
 use serde::Serialize;
@@ -139,7 +139,7 @@ pub fn overlaps(
     candidates: &[&'static Effect],
     s2_um2: f64,
 ) -> Vec<Overlap> {
-    let x = &fit.x;
+    let x = &fit.p;
     let all: Vec<usize> = candidates.iter().flat_map(|e| e.params.iter().copied()).collect();
     let Some(j) = jacobian(problem, x, &all) else { return vec![] };
     let mut out: Vec<Overlap> = Vec::new();
@@ -215,12 +215,12 @@ fn shared_part(e: &Effect, je: &DMatrix<f64>, jc: &DMatrix<f64>, fit: &Fit, s2_u
         d = -d;
     }
     let cols: Vec<Option<usize>> = e.params.iter().map(|k| fit.free.iter().position(|f| f == k)).collect();
-    let alpha: f64 = e.params.iter().zip(d.iter()).map(|(&k, &w)| fit.x[k] * w).sum();
+    let alpha: f64 = e.params.iter().zip(d.iter()).map(|(&k, &w)| fit.p[k] * w).sum();
     let mut var = 0.0;
     for (a, ca) in cols.iter().enumerate() {
         for (b, cb) in cols.iter().enumerate() {
             if let (Some(ca), Some(cb)) = (ca, cb) {
-                var += d[a] * d[b] * fit.jtj_inv[(*ca, *cb)] * s2_um2;
+                var += d[a] * d[b] * fit.normal_pinv[(*ca, *cb)] * s2_um2;
             }
         }
     }
@@ -262,7 +262,7 @@ pub struct PoseOverlap {
 /// (Table I) this lists what no fit on these data could tell apart.
 pub fn pose_set_overlaps(
     problem: &Problem,
-    x: &[f64; N_PARAMS],
+    x: &[f64],
     candidates: &[&'static Effect],
     min_cos: f64,
 ) -> Vec<PoseOverlap> {
@@ -277,6 +277,9 @@ pub fn pose_set_overlaps(
             }
         }
     }
-    out.sort_by(|p, q| q.principal_cos.total_cmp(&p.principal_cos));
+    // Largest cosine first; cosines equal to 1e-9 (e.g. two exact confoundings, 1 to rounding)
+    // in name order, so rounding noise does not reorder the report.
+    let key = |o: &PoseOverlap| (o.principal_cos * 1e9).round();
+    out.sort_by(|p, q| key(q).total_cmp(&key(p)).then_with(|| (&p.a, &p.b).cmp(&(&q.a, &q.b))));
     out
 }

@@ -124,8 +124,8 @@ fn params_of(fit: &Fit, effects: &[&'static Effect], s2: f64) -> BTreeMap<String
     for e in effects {
         for &k in e.params {
             let col = fit.free.iter().position(|&f| f == k);
-            let sd = col.map(|c| (fit.jtj_inv[(c, c)] * s2).max(0.0).sqrt()).unwrap_or(f64::NAN);
-            out.insert(PARAM_NAMES[k].to_string(), Param { value: fit.x[k], std_dev: sd });
+            let sd = col.map(|c| (fit.normal_pinv[(c, c)] * s2).max(0.0).sqrt()).unwrap_or(f64::NAN);
+            out.insert(PARAM_NAMES[k].to_string(), Param { value: fit.p[k], std_dev: sd });
         }
     }
     out
@@ -167,18 +167,18 @@ pub fn diagnose_with_history(
     let mut fitter = Fitter::new(&problem);
     let zero = [0.0; N_PARAMS];
     let start = fitter.fit(&[], &zero).context("the base model has no forward solution")?;
-    let (initial_rms_um, initial_max_um) = rms_max_um(&start.residual_um);
+    let (initial_rms_um, initial_max_um) = rms_max_um(&start.residuals.as_slice());
     let base_mm: Vec<[f64; 2]> = problem.points.iter().map(|p| p.measured_mm).collect();
-    let mut fields = vec![("start".to_string(), pairs(&start.residual_um))];
+    let mut fields = vec![("start".to_string(), pairs(&start.residuals.as_slice()))];
     let mut steps = Vec::new();
     let mut prev = start.clone();
     let mut last = start.clone();
     for k in 0..sel.effects.len() {
         let set = &sel.effects[..=k];
-        let f = fitter.fit(set, &sel.fit.x).with_context(|| format!("refitting step {}", k + 1))?;
-        let s2 = (f.rss / (n - f.free.len() as f64).max(1.0)).max(noise_um.map(|s| s * s).unwrap_or(0.0));
-        let (rb, mb) = rms_max_um(&prev.residual_um);
-        let (ra, ma) = rms_max_um(&f.residual_um);
+        let f = fitter.fit(set, &sel.fit.p).with_context(|| format!("refitting step {}", k + 1))?;
+        let s2 = (f.cost / (n - f.free.len() as f64).max(1.0)).max(noise_um.map(|s| s * s).unwrap_or(0.0));
+        let (rb, mb) = rms_max_um(&prev.residuals.as_slice());
+        let (ra, ma) = rms_max_um(&f.residuals.as_slice());
         steps.push(Step {
             effect: set[k].name.to_string(),
             params: params_of(&f, &set[k..=k], s2),
@@ -187,20 +187,20 @@ pub fn diagnose_with_history(
             max_before_um: mb,
             max_after_um: ma,
         });
-        fields.push((format!("after {}", set[k].name), pairs(&f.residual_um)));
+        fields.push((format!("after {}", set[k].name), pairs(&f.residuals.as_slice())));
         prev = f.clone();
         last = f;
     }
     let k_final = last.free.len() as f64;
     let dof = (n - k_final).max(1.0);
-    let s2_final = (last.rss / dof).max(noise_um.map(|s| s * s).unwrap_or(0.0));
+    let s2_final = (last.cost / dof).max(noise_um.map(|s| s * s).unwrap_or(0.0));
     let final_params = params_of(&last, &sel.effects, s2_final);
-    let (final_rms_um, final_max_um) = rms_max_um(&last.residual_um);
+    let (final_rms_um, final_max_um) = rms_max_um(&last.residuals.as_slice());
     // Confounding with every available candidate.
     let candidates: Vec<&'static Effect> = LIBRARY.iter().filter(|e| problem.available(e).is_ok()).collect();
     let overlaps = confounding::overlaps(&problem, &last, &sel.effects, &candidates, s2_final);
     let confounded = confounding::confounded(&overlaps);
-    let pose_overlaps = confounding::pose_set_overlaps(&problem, &last.x, &candidates, 0.99);
+    let pose_overlaps = confounding::pose_set_overlaps(&problem, &last.p, &candidates, 0.99);
     // What the data cannot rule out: every candidate left out, fitted on top of the final model.
     let mut not_detected = Vec::new();
     for &c in candidates.iter().filter(|c| !sel.effects.contains(c)) {
@@ -209,11 +209,11 @@ pub fn diagnose_with_history(
         if set.iter().map(|e| e.params.len()).sum::<usize>() as f64 >= n {
             continue;
         }
-        if let Some(f) = fitter.fit(&set, &last.x) {
-            let s2 = (f.rss / (n - f.free.len() as f64).max(1.0)).max(noise_um.map(|s| s * s).unwrap_or(0.0));
+        if let Some(f) = fitter.fit(&set, &last.p) {
+            let s2 = (f.cost / (n - f.free.len() as f64).max(1.0)).max(noise_um.map(|s| s * s).unwrap_or(0.0));
             // Column-normalised Jacobian singular below 1e-6: some direction of the candidate is
             // exactly what the final model already does (no bound exists).
-            let identifiable = f.min_singular > 1e-6;
+            let identifiable = f.svd.min() > 1e-6;
             let mut params = params_of(&f, &[c], s2);
             if !identifiable {
                 params.values_mut().for_each(|p| p.std_dev = f64::INFINITY);
@@ -227,10 +227,10 @@ pub fn diagnose_with_history(
         }
     }
     // Is anything left above the noise, and what does it look like?
-    let initial_structure = structure::analyse(&problem, data, &start.residual_um);
-    let final_structure = structure::analyse(&problem, data, &last.residual_um);
+    let initial_structure = structure::analyse(&problem, data, &start.residuals.as_slice());
+    let final_structure = structure::analyse(&problem, data, &last.residuals.as_slice());
     let significant: Vec<&structure::Finding> = final_structure.iter().filter(|f| f.significant).collect();
-    let chi2_per_dof = noise_um.map(|s| last.rss / dof / (s * s));
+    let chi2_per_dof = noise_um.map(|s| last.cost / dof / (s * s));
     let (unexplained, mut unexplained_description) = match chi2_per_dof {
         Some(c) => {
             // χ² test at ~4σ of the χ² distribution, and a practical floor of 10 % over the noise
@@ -263,13 +263,13 @@ pub fn diagnose_with_history(
         unexplained_description.push_str(&format!(
             ". Too few points ({}) to describe its structure; largest radial residuals: {}",
             problem.points.len(),
-            largest_points(data, &problem, &last.residual_um)
+            largest_points(data, &problem, &last.residuals.as_slice())
         ));
     } else if unexplained {
         unexplained_description.push_str(&format!(
             ". No test found a structure (not periodic in a motor angle, not direction-dependent, no drift, not smooth over \
              the workspace): looks like extra noise or isolated outliers; largest radial residuals: {}",
-            largest_points(data, &problem, &last.residual_um)
+            largest_points(data, &problem, &last.residuals.as_slice())
         ));
     }
     let score = format!(

@@ -50,7 +50,7 @@ impl<'a> Fitter<'a> {
     }
 
     /// The LM fit of a set of effects, starting from `start` (entries outside the set ignored).
-    pub fn fit(&mut self, set: &[&'static Effect], start: &[f64; N_PARAMS]) -> Option<Fit> {
+    pub fn fit(&mut self, set: &[&'static Effect], start: &[f64]) -> Option<Fit> {
         let mut key: Vec<&'static str> = set.iter().map(|e| e.name).collect();
         key.sort();
         if let Some(f) = self.cache.get(&key) {
@@ -71,10 +71,10 @@ fn n_res(p: &Problem) -> f64 {
 pub fn delta_bic(p: &Problem, noise_um: Option<f64>, a: &Fit, b: &Fit) -> f64 {
     let n = n_res(p);
     let (ka, kb) = (a.free.len() as f64, b.free.len() as f64);
-    let va = a.rss / (n - ka).max(1.0);
-    let vb = b.rss / (n - kb).max(1.0);
+    let va = a.cost / (n - ka).max(1.0);
+    let vb = b.cost / (n - kb).max(1.0);
     let s2 = va.min(vb).max(noise_um.map(|s| s * s).unwrap_or(0.0)).max(1e-12);
-    (b.rss - a.rss) / s2 + (kb - ka) * n.ln()
+    (b.cost - a.cost) / s2 + (kb - ka) * n.ln()
 }
 
 /// Runs the stepwise selection from the empty set (the base model).
@@ -106,10 +106,10 @@ pub fn select(problem: &Problem, noise_um: Option<f64>) -> Selection {
     for _round in 0..3 * LIBRARY.len() {
         if let Some(s) = noise_um {
             let k = cur.free.len() as f64;
-            if cur.rss / (n - k).max(1.0) < s * s {
+            if cur.cost / (n - k).max(1.0) < s * s {
                 log.push(format!(
                     "residual at the noise level ({:.2} µm RMS per axis ≤ {s} µm): stop",
-                    (cur.rss / n).sqrt()
+                    (cur.cost / n).sqrt()
                 ));
                 break;
             }
@@ -128,13 +128,13 @@ pub fn select(problem: &Problem, noise_um: Option<f64>) -> Selection {
             }
             let mut trial = set.clone();
             trial.push(c);
-            let Some(f) = fitter.fit(&trial, &cur.x) else {
+            let Some(f) = fitter.fit(&trial, &cur.p) else {
                 tried.push(format!("{} fit failed (a point left the model's workspace)", c.name));
                 continue;
             };
             {
                 let d = delta_bic(problem, noise_um, &cur, &f);
-                tried.push(format!("{} rms {:.1} µm ΔBIC {:.1}", c.name, (2.0 * f.rss / n).sqrt(), d));
+                tried.push(format!("{} rms {:.1} µm ΔBIC {:.1}", c.name, (2.0 * f.cost / n).sqrt(), d));
                 if best.as_ref().is_none_or(|b| d < b.0) {
                     best = Some((d, c, f));
                 }
@@ -163,7 +163,7 @@ pub fn select(problem: &Problem, noise_um: Option<f64>) -> Selection {
                 }
                 let mut trial = set.clone();
                 let removed = trial.remove(i);
-                if let Some(f) = fitter.fit(&trial, &cur.x) {
+                if let Some(f) = fitter.fit(&trial, &cur.p) {
                     let d = delta_bic(problem, noise_um, &cur, &f);
                     if d < 0.0 {
                         log.push(format!("remove {} (ΔBIC {:.1})", removed.name, d));
@@ -188,7 +188,7 @@ pub fn select(problem: &Problem, noise_um: Option<f64>) -> Selection {
                     if n - k_new < MIN_DOF_PER_PARAM * k_new {
                         continue;
                     }
-                    if let Some(f) = fitter.fit(&trial, &cur.x) {
+                    if let Some(f) = fitter.fit(&trial, &cur.p) {
                         let d = delta_bic(problem, noise_um, &cur, &f);
                         if d < -SWAP_MARGIN {
                             log.push(format!("swap {} for {} (ΔBIC {:.1})", old.name, c.name, d));
@@ -209,13 +209,19 @@ pub fn select(problem: &Problem, noise_um: Option<f64>) -> Selection {
 }
 
 fn empty_fit(problem: &Problem) -> Fit {
+    let m = 2 * problem.points.len();
+    let jacobian = nalgebra::DMatrix::zeros(m, 0);
     Fit {
-        x: [0.0; N_PARAMS],
+        p: vec![0.0; N_PARAMS],
         free: vec![],
-        residual_um: vec![0.0; 2 * problem.points.len()],
-        rss: 0.0,
-        jacobian: nalgebra::DMatrix::zeros(2 * problem.points.len(), 0),
-        jtj_inv: nalgebra::DMatrix::zeros(0, 0),
-        min_singular: f64::INFINITY,
+        residuals: nalgebra::DVector::zeros(m),
+        cost: 0.0,
+        cost_history: vec![0.0],
+        iterations: 0,
+        rejected_steps: 0,
+        stop: crate::numeric::Stop::NoFreeParameters,
+        svd: crate::numeric::ScaledSvd::new(&jacobian),
+        jacobian,
+        normal_pinv: nalgebra::DMatrix::zeros(0, 0),
     }
 }

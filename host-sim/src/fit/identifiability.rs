@@ -1,5 +1,6 @@
-//! Which model parameters the data can identify: SVD of the column-scaled identification
-//! Jacobian `J·D⁻¹` (D = column norms, so mm and rad compare), rank and condition number.
+//! Which model parameters the data can identify: the column-scaled SVD of the identification
+//! Jacobian (`crate::numeric::svd`: `J·D⁻¹`, D = column norms, so mm and rad compare), rank and
+//! condition number.
 //!
 //! Why: a confounded combination (e.g. with all data at one θ2 only the elbow B is seen, so
 //! d, the encoder offset 2 and B0 trade off) makes the normal equations singular; fitting it
@@ -13,10 +14,11 @@
 //! number over [`WARN_CONDITION`] the fit runs but is reported as poorly conditioned.
 
 use super::params::{NAMES, N_PARAMS};
+use crate::numeric::ScaledSvd;
 use nalgebra::DMatrix;
 
-/// Relative singular value treated as zero.
-pub const RANK_TOL: f64 = 1e-7;
+/// Relative singular value treated as zero (the crate's one rank tolerance).
+pub use crate::numeric::RANK_TOL;
 /// Condition number above which the fit is reported as poorly conditioned.
 pub const WARN_CONDITION: f64 = 1e4;
 /// Which parameter to fix first when a combination is confounded (indices into `NAMES`).
@@ -37,35 +39,11 @@ pub struct Identifiability {
     pub singular_values_rel: Vec<f64>,
 }
 
-fn scaled(j: &DMatrix<f64>, cols: &[usize]) -> DMatrix<f64> {
-    let mut s = DMatrix::zeros(j.nrows(), cols.len());
-    for (c, &k) in cols.iter().enumerate() {
-        let col = j.column(k);
-        let n = col.norm();
-        if n > 0.0 {
-            s.set_column(c, &(col / n));
-        }
-    }
-    s
-}
-
-/// Singular values (descending, relative to the largest) and the right singular vector of the
-/// smallest one. A zero column (parameter with no effect) is its own null vector.
+/// Relative singular values (descending) and the scaled right singular vector of the smallest
+/// one, of the columns `cols` of `j` ([`ScaledSvd`]: a zero column is its own null vector).
 fn smallest(j: &DMatrix<f64>, cols: &[usize]) -> (Vec<f64>, Vec<f64>) {
-    if let Some(c) = cols.iter().position(|&k| j.column(k).norm() == 0.0) {
-        let mut v = vec![0.0; cols.len()];
-        v[c] = 1.0;
-        return (vec![0.0; cols.len()], v);
-    }
-    let s = scaled(j, cols);
-    let svd = s.svd(false, true);
-    let v_t = svd.v_t.expect("requested");
-    let mut order: Vec<usize> = (0..svd.singular_values.len()).collect();
-    order.sort_by(|&a, &b| svd.singular_values[b].total_cmp(&svd.singular_values[a]));
-    let top = svd.singular_values[order[0]].max(f64::MIN_POSITIVE);
-    let rel: Vec<f64> = order.iter().map(|&i| svd.singular_values[i] / top).collect();
-    let last = *order.last().expect("at least one column");
-    (rel, v_t.row(last).iter().copied().collect())
+    let svd = ScaledSvd::new(&j.select_columns(cols));
+    (svd.relative(), svd.smallest_direction().to_vec())
 }
 
 /// Describes a null vector: `"+0.71·d_mm −0.71·base_b0_x_mm"` (scaled units).

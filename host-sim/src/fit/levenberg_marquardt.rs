@@ -6,19 +6,20 @@
 //! and where it is; this fits exactly that, and can also fit the encoder offsets and the base
 //! offset B0 when the data identify them (see [`super::identifiability`]).
 //!
-//! Method: damped Gauss–Newton with Marquardt's diagonal scaling,
-//! `(JᵀJ + λ·diag(JᵀJ)) δ = −Jᵀr`, λ divided by 10 on success and multiplied by 10 on failure;
-//! stops when the cost changes by less than 1e-14 relative or the step is below 1e-12 (mm/rad).
-//! Covariance `σ²·(JᵀJ)⁻¹` at the solution with `σ² = SSR / (2N − k)` (k free parameters): the
-//! textbook estimate assuming independent equal-variance errors on x and y, first-order in the
-//! errors. Cost: a few to ~20 iterations of 2·8 FK sweeps over the data each.
+//! Method: the crate's one Levenberg–Marquardt (`crate::numeric::lm`, whose module doc states
+//! its acceptance, stopping and damping rules) on [`params::PositionResiduals`], over the
+//! parameters the identifiability check leaves free. Covariance `σ²·(JᵀJ)⁺` at the solution with
+//! `σ² = SSR / (2N − k)` (k free parameters): the textbook estimate assuming independent
+//! equal-variance errors on x and y, first-order in the errors; a solution whose Jacobian has
+//! lost rank is refused. Cost: a few to ~20 iterations of 2·k FK sweeps over the data each.
 
 use super::identifiability::{self, Identifiability};
-use super::params::{self, NAMES, N_PARAMS};
+use super::params::{self, PositionResiduals, NAMES, N_PARAMS};
 use crate::measurement_csv::Measurement;
+use crate::numeric::{levenberg_marquardt, LmFit, LmOptions, NumericError};
 use anyhow::{bail, Context, Result};
 use kinematics_core::FiveBar;
-use nalgebra::{DMatrix, DVector};
+use nalgebra::DVector;
 
 /// A converged fit.
 #[derive(Clone, Debug)]
@@ -30,10 +31,8 @@ pub struct FullFit {
     /// Residual standard deviation per coordinate (mm), `sqrt(SSR / (2N − k))`.
     pub sigma_mm: f64,
     pub iterations: usize,
-}
-
-fn cost(m: &FiveBar<f64>, data: &[Measurement]) -> f64 {
-    params::residuals_mm(m, data).map_or(f64::INFINITY, |r| r.norm_squared())
+    /// The solver's record: cost history, stop reason, Jacobian and covariance at the solution.
+    pub lm: LmFit,
 }
 
 /// Fits `data` starting from `start`; parameters in `fixed_by_user` stay at their start value,
@@ -61,68 +60,25 @@ pub fn fit_full(data: &[Measurement], start: &FiveBar<f64>, fixed_by_user: &[usi
             k / 2 + 1
         );
     }
-    let mut model = *start;
-    let mut c = cost(&model, data);
-    if !c.is_finite() {
-        bail!("the start model cannot reach every measured pose");
+    let problem = PositionResiduals { data, like: *start };
+    let lm = levenberg_marquardt(&problem, &params::to_vector(start), &free, &LmOptions::default())
+        .map_err(|e| match e {
+            NumericError::JacobianOutsideDomain { param } => {
+                anyhow::anyhow!("a measured pose is unreachable by the model near {}", NAMES[param])
+            }
+            _ => anyhow::anyhow!("the start model cannot reach every measured pose"),
+        })?;
+    if lm.rank() < k {
+        bail!("JᵀJ is singular at the solution: the data do not identify the parameters");
     }
-    let mut lambda = 1e-3;
-    let mut iterations = 0;
-    for it in 0..200 {
-        iterations = it + 1;
-        let j_all = params::jacobian(&model, data)?;
-        let j = j_all.select_columns(&free);
-        let r = params::residuals_mm(&model, data).expect("cost was finite");
-        let jtj = j.transpose() * &j;
-        let g = j.transpose() * &r;
-        let mut accepted = false;
-        let mut step_norm = 0.0;
-        for _ in 0..30 {
-            let mut a = jtj.clone();
-            for d in 0..k {
-                a[(d, d)] += lambda * jtj[(d, d)].max(1e-30);
-            }
-            let Some(delta) = a.cholesky().map(|ch| ch.solve(&(-&g))) else {
-                lambda *= 10.0;
-                continue;
-            };
-            let mut p = params::to_vector(&model);
-            for (d, &i) in free.iter().enumerate() {
-                p[i] += delta[d];
-            }
-            let trial = params::from_vector(&p, &model);
-            let c_trial = if trial.validate().is_ok() { cost(&trial, data) } else { f64::INFINITY };
-            if c_trial < c {
-                step_norm = delta.norm();
-                let rel = (c - c_trial) / c.max(f64::MIN_POSITIVE);
-                model = trial;
-                c = c_trial;
-                lambda = (lambda / 10.0).max(1e-12);
-                accepted = true;
-                if rel < 1e-14 {
-                    step_norm = 0.0;
-                }
-                break;
-            }
-            lambda *= 10.0;
-        }
-        if !accepted || step_norm < 1e-12 {
-            break;
-        }
-    }
-    // Covariance at the solution.
-    let j = params::jacobian(&model, data)?.select_columns(&free);
-    let dof = (n_eq - k) as f64;
-    let sigma2 = c / dof;
-    let cov: DMatrix<f64> = (j.transpose() * &j)
-        .try_inverse()
-        .context("JᵀJ is singular at the solution: the data do not identify the parameters")?
-        * sigma2;
+    let p: [f64; N_PARAMS] = lm.p.as_slice().try_into().expect("the problem has N_PARAMS parameters");
+    let model = params::from_vector(&p, start);
+    let sigma2 = lm.residual_variance();
     let mut std_dev = [None; N_PARAMS];
-    for (d, &i) in free.iter().enumerate() {
-        std_dev[i] = Some(cov[(d, d)].max(0.0).sqrt());
+    for &i in &free {
+        std_dev[i] = lm.std_dev(i, sigma2);
     }
-    Ok(FullFit { model, std_dev, identifiability: ident, sigma_mm: sigma2.sqrt(), iterations })
+    Ok(FullFit { model, std_dev, identifiability: ident, sigma_mm: sigma2.sqrt(), iterations: lm.iterations, lm })
 }
 
 /// Leave-one-out: for each point, fit on the others (same start and fixed set) and return the

@@ -1,12 +1,13 @@
 //! The ten parameters of the five-bar as one vector, the position residual and its Jacobian.
 //!
 //! Why one file: `identifiability` and `levenberg_marquardt` must agree on the order, the names
-//! and the residual. Residual of point i: `FK(θi; p) − measured_i` (mm), two rows per point.
-//! Jacobian by central differences (steps 1e-6 mm / 1e-8 rad): truncation error O(h²) ≈ 1e-12
-//! relative, rounding ≈ 1e-10 relative, far below the rank tolerance of `identifiability`.
+//! and the residual. Residual of point i: `FK(θi; p) − measured_i` (mm), two rows per point
+//! ([`PositionResiduals`], the problem the one LM of `crate::numeric` solves). Jacobian by
+//! central differences (steps 1e-6 mm / 1e-8 rad): truncation error O(h²) ≈ 1e-12 relative,
+//! rounding ≈ 1e-10 relative, far below the rank tolerance of `identifiability`.
 
 use crate::measurement_csv::Measurement;
-use anyhow::{anyhow, Result};
+use crate::numeric::{finite_difference, NumericError, Residuals};
 use kinematics_core::FiveBar;
 use nalgebra::{DMatrix, DVector};
 
@@ -70,18 +71,33 @@ pub fn residuals_mm(m: &FiveBar<f64>, data: &[Measurement]) -> Option<DVector<f6
     Some(r)
 }
 
-/// `∂r/∂p` (2N x 8) at `m`, central differences.
-pub fn jacobian(m: &FiveBar<f64>, data: &[Measurement]) -> Result<DMatrix<f64>> {
-    let p0 = to_vector(m);
-    let mut j = DMatrix::zeros(2 * data.len(), N_PARAMS);
-    for k in 0..N_PARAMS {
-        let (mut lo, mut hi) = (p0, p0);
-        lo[k] -= STEP[k];
-        hi[k] += STEP[k];
-        let unreachable = || anyhow!("a measured pose is unreachable by the model near {}", NAMES[k]);
-        let r_hi = residuals_mm(&from_vector(&hi, m), data).ok_or_else(unreachable)?;
-        let r_lo = residuals_mm(&from_vector(&lo, m), data).ok_or_else(unreachable)?;
-        j.set_column(k, &((r_hi - r_lo) / (2.0 * STEP[k])));
+/// The position residual of a data set as a least-squares problem over the ten parameters;
+/// invalid models (non-finite numbers, non-positive links) and unreachable poses have none.
+pub struct PositionResiduals<'a> {
+    pub data: &'a [Measurement],
+    /// Supplies the working mode.
+    pub like: FiveBar<f64>,
+}
+
+impl Residuals for PositionResiduals<'_> {
+    fn n_params(&self) -> usize {
+        N_PARAMS
     }
-    Ok(j)
+
+    fn residuals(&self, p: &[f64]) -> Option<DVector<f64>> {
+        let p: &[f64; N_PARAMS] = p.try_into().ok()?;
+        let m = from_vector(p, &self.like);
+        m.validate().ok()?;
+        residuals_mm(&m, self.data)
+    }
+
+    fn fd_step(&self, k: usize) -> f64 {
+        STEP[k]
+    }
+}
+
+/// `∂r/∂p` (2N x 10) at `m`, central differences.
+pub fn jacobian(m: &FiveBar<f64>, data: &[Measurement]) -> Result<DMatrix<f64>, NumericError> {
+    let all: Vec<usize> = (0..N_PARAMS).collect();
+    finite_difference::jacobian(&PositionResiduals { data, like: *m }, &to_vector(m), &all)
 }
