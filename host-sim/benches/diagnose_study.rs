@@ -17,7 +17,7 @@ use host_sim::diagnose::report::table;
 use host_sim::diagnose::synth::{generate, Cyclic, Poses, Truth};
 use host_sim::diagnose::{diagnose, effects::LIBRARY};
 use host_sim::measure::{measure, Protocol};
-use host_sim::measurement_csv::format_measurements;
+use host_sim::io::measurement_csv::format_measurements;
 use host_sim::plant::{Effect, PlantConfig, PlantModel};
 use kinematics_core::Calibration;
 use kinematics_core::FiveBar;

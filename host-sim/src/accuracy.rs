@@ -38,8 +38,8 @@
 //! Cost: linear in the rows. Each (target, direction) needs at least 2 approaches (a standard
 //! deviation); lines that lack them are listed as skipped with the reason.
 
-use crate::measurement_csv::{read_measurements, Measurement};
-use crate::plot::{vector_plot, VectorField};
+use crate::io::measurement_csv::{read_measurements, Measurement};
+use crate::io::plot::{vector_plot, VectorField};
 use anyhow::{anyhow, bail, Result};
 use serde::Serialize;
 use std::collections::BTreeMap;

@@ -12,8 +12,8 @@
 //! error naming the line; nothing is written then.
 
 use crate::grid_build::read_image;
-use crate::model_file::read_model;
-use crate::output::write_atomic;
+use crate::io::model_file::read_model;
+use crate::io::atomic::write_atomic;
 use anyhow::{anyhow, bail, Context, Result};
 use kinematics_core::{Calibration, CorrectionGrid, FiveBar};
 use std::path::{Path, PathBuf};

@@ -30,10 +30,10 @@
 //! The node lattice is read from the targets: origin = smallest x and y, spacing = `--step-mm`
 //! (must match the targets' spacing); every node must be measured exactly once.
 
-use crate::measurement_csv::{read_measurements, Measurement};
-use crate::model_file::read_model;
-use crate::output::write_atomic;
-use crate::plot::{vector_plot, VectorField};
+use crate::io::measurement_csv::{read_measurements, Measurement};
+use crate::io::model_file::read_model;
+use crate::io::atomic::write_atomic;
+use crate::io::plot::{vector_plot, VectorField};
 use anyhow::{anyhow, bail, Context, Result};
 use kinematics_core::grid::{encode, GridGeometry, MAX_NODES_PER_AXIS};
 use kinematics_core::jacobian::mat2_mul_vec;

@@ -11,10 +11,7 @@
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 pub mod diagnose;
-pub mod measurement_csv;
-pub mod model_file;
-pub mod output;
-pub mod plot;
+pub mod io;
 pub mod plant;
 pub mod measure;
 pub mod trajectory;

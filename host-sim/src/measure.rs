@@ -27,8 +27,8 @@
 //!
 //! Each measurement takes 1 s of machine time (`t_s` = index).
 
-use crate::measurement_csv::{write_measurements, Measurement};
-use crate::model_file::read_model;
+use crate::io::measurement_csv::{write_measurements, Measurement};
+use crate::io::model_file::read_model;
 use crate::plant::{Plant, PlantConfig};
 use anyhow::{anyhow, bail, Context, Result};
 use kinematics_core::{wrap_angle_rad, Calibration, CorrectionGrid, FiveBar, ServoConfig};

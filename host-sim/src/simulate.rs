@@ -5,9 +5,9 @@
 
 use crate::closed_loop::{run_loop, LogRow};
 use crate::measure::load_calibration;
-use crate::output::write_atomic;
+use crate::io::atomic::write_atomic;
 use crate::plant::{Plant, PlantConfig, PlantModel};
-use crate::plot::{xy_plot, Mark, Series};
+use crate::io::plot::{xy_plot, Mark, Series};
 use crate::trajectory::Trajectory;
 use anyhow::{anyhow, bail, Context, Result};
 use kinematics_core::{Calibration, CorrectionGrid};

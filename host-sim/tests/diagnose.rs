@@ -12,7 +12,7 @@
 use host_sim::diagnose::report::{table, Report};
 use host_sim::diagnose::synth::{generate, Cyclic, Poses, Truth};
 use host_sim::diagnose::{diagnose, effects::LIBRARY};
-use host_sim::measurement_csv::{format_measurements, Measurement};
+use host_sim::io::measurement_csv::{format_measurements, Measurement};
 use kinematics_core::FiveBar;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -282,7 +282,7 @@ fn without_a_noise_figure_the_structure_decides() {
 #[test]
 fn paper_table_1_runs_and_says_what_nine_points_cannot_tell() {
     let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("data/table1.csv");
-    let data = host_sim::measurement_csv::read_measurements(&path).unwrap();
+    let data = host_sim::io::measurement_csv::read_measurements(&path).unwrap();
     let r = diagnose(&data, &FiveBar::paper_nominal(), Some(20.0)).unwrap();
     println!("{}", table(&r));
     assert_eq!(r.points, 9);

@@ -25,7 +25,7 @@
 use host_sim::diagnose::diagnose;
 use host_sim::diagnose::report::{table, Report};
 use host_sim::measure::{measure, Protocol};
-use host_sim::measurement_csv::{read_measurements, Measurement};
+use host_sim::io::measurement_csv::{read_measurements, Measurement};
 use host_sim::plant::{Effect, PlantConfig, PlantModel};
 use kinematics_core::{Calibration, FiveBar};
 use rand::{Rng, SeedableRng};

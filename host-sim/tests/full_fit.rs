@@ -3,7 +3,7 @@
 
 use host_sim::fit::levenberg_marquardt::fit_full;
 use host_sim::fit::params::{to_vector, NAMES};
-use host_sim::measurement_csv::Measurement;
+use host_sim::io::measurement_csv::Measurement;
 use kinematics_core::FiveBar;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;

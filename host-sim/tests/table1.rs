@@ -2,7 +2,7 @@
 
 use host_sim::fit::evaluate::{errors_um, max_rms, Criterion};
 use host_sim::fit::{subset_search, synthesize, Method};
-use host_sim::measurement_csv::{read_measurements, Measurement};
+use host_sim::io::measurement_csv::{read_measurements, Measurement};
 use kinematics_core::FiveBar;
 
 fn table1() -> Vec<Measurement> {

@@ -40,7 +40,7 @@
 //!
 //! Cost: one closed-form FK per point per evaluation (a few hundred ns); no allocation per point.
 
-use crate::measurement_csv::Measurement;
+use crate::io::measurement_csv::Measurement;
 use kinematics_core::{wrap_angle_rad, FiveBar};
 
 /// Smallest transmission |sin| of a usable point (about 0.06° from a singular configuration).

@@ -25,10 +25,10 @@ pub mod selection;
 pub mod structure;
 pub mod synth;
 
-use crate::measurement_csv::{read_measurements, Measurement};
-use crate::model_file::read_model;
-use crate::output::write_atomic;
-use crate::plot::{vector_plot, xy_plot, Mark, Series, VectorField};
+use crate::io::measurement_csv::{read_measurements, Measurement};
+use crate::io::model_file::read_model;
+use crate::io::atomic::write_atomic;
+use crate::io::plot::{vector_plot, xy_plot, Mark, Series, VectorField};
 use anyhow::{bail, Context, Result};
 use effects::{rms_max_um, Effect, Problem, LIBRARY, N_PARAMS, PARAM_NAMES};
 use kinematics_core::FiveBar;

@@ -15,7 +15,7 @@
 //! Cost: the periodogram is 2 × 359 small (3×3) least-squares solves over n points: O(700 n).
 
 use super::effects::Problem;
-use crate::measurement_csv::Measurement;
+use crate::io::measurement_csv::Measurement;
 use nalgebra::{DMatrix, DVector};
 use serde::Serialize;
 

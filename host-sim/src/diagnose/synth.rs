@@ -18,7 +18,7 @@
 //! Backlash, encoder offsets, link lengths, base offset and scale have one physical form; the
 //! generator uses it. Noise: Gaussian, σ per axis. Cost: one IK and one or two FK per pose.
 
-use crate::measurement_csv::Measurement;
+use crate::io::measurement_csv::Measurement;
 use kinematics_core::FiveBar;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;

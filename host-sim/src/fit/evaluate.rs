@@ -12,7 +12,7 @@
 //!
 //! Cost: one FK per point. A model that cannot reach a recorded pose gets an infinite error.
 
-use crate::measurement_csv::Measurement;
+use crate::io::measurement_csv::Measurement;
 use anyhow::{bail, Result};
 use kinematics_core::FiveBar;
 

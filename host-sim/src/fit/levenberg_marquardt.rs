@@ -15,7 +15,7 @@
 
 use super::identifiability::{self, Identifiability};
 use super::params::{self, PositionResiduals, NAMES, N_PARAMS};
-use crate::measurement_csv::Measurement;
+use crate::io::measurement_csv::Measurement;
 use crate::numeric::{levenberg_marquardt, LmFit, LmOptions, NumericError};
 use anyhow::{bail, Context, Result};
 use kinematics_core::FiveBar;

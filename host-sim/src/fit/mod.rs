@@ -13,9 +13,9 @@ pub mod params;
 pub mod poly;
 pub mod subset_search;
 
-use crate::measurement_csv::{read_measurements, Measurement};
-use crate::model_file::{write_model_file, ModelFile};
-use crate::plot::{vector_plot, VectorField};
+use crate::io::measurement_csv::{read_measurements, Measurement};
+use crate::io::model_file::{write_model_file, ModelFile};
+use crate::io::plot::{vector_plot, VectorField};
 use anyhow::{bail, Context, Result};
 use evaluate::Criterion;
 use kinematics_core::FiveBar;

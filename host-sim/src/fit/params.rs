@@ -6,7 +6,7 @@
 //! central differences (steps 1e-6 mm / 1e-8 rad): truncation error O(h²) ≈ 1e-12 relative,
 //! rounding ≈ 1e-10 relative, far below the rank tolerance of `identifiability`.
 
-use crate::measurement_csv::Measurement;
+use crate::io::measurement_csv::Measurement;
 use crate::numeric::{finite_difference, NumericError, Residuals};
 use kinematics_core::FiveBar;
 use nalgebra::{DMatrix, DVector};

@@ -15,9 +15,14 @@
 //! Unknown columns are refused (a misspelt optional column would otherwise be silently lost).
 //! Every number must be finite. Errors name the line (1-based, the header is line 1) and column.
 
-use crate::output::write_atomic;
-use anyhow::{anyhow, bail, Context, Result};
+use super::atomic::write_atomic;
+use super::{read_text, IoError};
 use std::path::Path;
+
+/// A format error: the message names the line and column.
+macro_rules! bail {
+    ($($t:tt)*) => { return Err(IoError::Parse(format!($($t)*))) };
+}
 
 /// One measured pose.
 #[derive(Clone, Debug, PartialEq)]
@@ -59,25 +64,27 @@ const COLUMNS: [&str; 10] = [
 ];
 
 /// Reads and validates a measurement file.
-pub fn read_measurements(path: &Path) -> Result<Vec<Measurement>> {
-    let text = std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
-    parse_measurements(&text).with_context(|| format!("in {}", path.display()))
+pub fn read_measurements(path: &Path) -> Result<Vec<Measurement>, IoError> {
+    parse_measurements(&read_text(path)?).map_err(|e| IoError::content(path, e))
 }
 
 /// Parses measurement CSV text (see the module doc for the format).
-pub fn parse_measurements(text: &str) -> Result<Vec<Measurement>> {
+pub fn parse_measurements(text: &str) -> Result<Vec<Measurement>, IoError> {
     let mut reader = csv::ReaderBuilder::new()
         .trim(csv::Trim::All)
         .flexible(true)
         .comment(Some(b'#'))
         .from_reader(text.as_bytes());
-    let headers = reader.headers().context("line 1: cannot read the header")?.clone();
+    let headers = match reader.headers() {
+        Ok(h) => h.clone(),
+        Err(e) => bail!("line 1: cannot read the header: {e}"),
+    };
     let mut index: [Option<usize>; 10] = [None; 10];
     for (i, name) in headers.iter().enumerate() {
         let k = COLUMNS
             .iter()
             .position(|c| *c == name)
-            .ok_or_else(|| anyhow!("line 1: unknown column '{name}' (known: {})", COLUMNS.join(", ")))?;
+            .ok_or_else(|| IoError::Parse(format!("line 1: unknown column '{name}' (known: {})", COLUMNS.join(", "))))?;
         if index[k].replace(i).is_some() {
             bail!("line 1: column '{name}' appears twice");
         }
@@ -94,18 +101,20 @@ pub fn parse_measurements(text: &str) -> Result<Vec<Measurement>> {
     }
     let mut out = Vec::new();
     for record in reader.records() {
-        let record = record.map_err(|e| anyhow!("malformed CSV: {e}"))?;
+        let record = record.map_err(|e| IoError::Parse(format!("malformed CSV: {e}")))?;
         let line = record.position().map(|p| p.line() as usize).unwrap_or(0);
         if record.len() != headers.len() {
             bail!("line {line}: {} fields, the header has {}", record.len(), headers.len());
         }
         let field = |k: usize| index[k].map(|i| &record[i]);
-        let number = |k: usize| -> Result<Option<f64>> {
+        let number = |k: usize| -> Result<Option<f64>, IoError> {
             match field(k) {
                 None | Some("") if k >= 4 => Ok(None),
                 None | Some("") => bail!("line {line}: '{}' is empty", COLUMNS[k]),
                 Some(s) => {
-                    let v: f64 = s.parse().map_err(|_| anyhow!("line {line}: '{}' = '{s}' is not a number", COLUMNS[k]))?;
+                    let v: f64 = s
+                        .parse()
+                        .map_err(|_| IoError::Parse(format!("line {line}: '{}' = '{s}' is not a number", COLUMNS[k])))?;
                     if !v.is_finite() {
                         bail!("line {line}: '{}' = '{s}' is not finite", COLUMNS[k]);
                     }
@@ -114,7 +123,7 @@ pub fn parse_measurements(text: &str) -> Result<Vec<Measurement>> {
             }
         };
         let req = |k: usize| number(k).map(|v| v.expect("required columns are checked above"));
-        let pair = |a: usize, b: usize| -> Result<Option<[f64; 2]>> {
+        let pair = |a: usize, b: usize| -> Result<Option<[f64; 2]>, IoError> {
             match (number(a)?, number(b)?) {
                 (Some(x), Some(y)) => Ok(Some([x, y])),
                 (None, None) => Ok(None),
@@ -124,7 +133,7 @@ pub fn parse_measurements(text: &str) -> Result<Vec<Measurement>> {
         let dir = match pair(6, 7)? {
             None => None,
             Some(d) => {
-                let sign = |v: f64, k: usize| -> Result<i8> {
+                let sign = |v: f64, k: usize| -> Result<i8, IoError> {
                     match v {
                         1.0 => Ok(1),
                         -1.0 => Ok(-1),
@@ -198,7 +207,7 @@ pub fn format_measurements(rows: &[Measurement]) -> String {
 }
 
 /// Writes measurements atomically.
-pub fn write_measurements(path: &Path, rows: &[Measurement]) -> Result<()> {
+pub fn write_measurements(path: &Path, rows: &[Measurement]) -> Result<(), IoError> {
     write_atomic(path, format_measurements(rows).as_bytes())
 }
 
@@ -246,7 +255,7 @@ mod tests {
             ("theta1_deg,theta2_deg,x_mm,y_mm,x_target_mm\n1,2,3,4,5\n", "go together"),
         ];
         for (text, want) in cases {
-            let err = format!("{:#}", parse_measurements(text).unwrap_err());
+            let err = parse_measurements(text).unwrap_err().to_string();
             assert!(err.contains(want), "for {text:?}: got '{err}', want '{want}'");
         }
     }

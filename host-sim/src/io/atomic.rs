@@ -3,30 +3,48 @@
 //! Every file the tools produce goes through [`write_atomic`]: the bytes go to a temporary file
 //! in the same directory, which is renamed over the target only once it is complete.
 
-use anyhow::{Context, Result};
+use super::IoError;
 use std::io::Write;
 use std::path::Path;
 
-/// Writes `bytes` to `path` atomically (temporary file + rename), creating parent directories.
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
+/// The directory of `path` (created) and its file name.
+fn prepare(path: &Path) -> Result<(&Path, String), IoError> {
     let dir = match path.parent() {
         Some(d) if !d.as_os_str().is_empty() => d,
         _ => Path::new("."),
     };
-    std::fs::create_dir_all(dir).with_context(|| format!("cannot create directory {}", dir.display()))?;
-    let file_name = path.file_name().context("output path has no file name")?.to_string_lossy();
+    std::fs::create_dir_all(dir).map_err(|e| IoError::CreateDir { dir: dir.to_path_buf(), message: e.to_string() })?;
+    let file_name = path.file_name().ok_or_else(|| IoError::NoFileName { path: path.to_path_buf() })?;
+    Ok((dir, file_name.to_string_lossy().into_owned()))
+}
+
+/// Writes `bytes` to `path` atomically (temporary file + rename), creating parent directories.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), IoError> {
+    let (dir, file_name) = prepare(path)?;
     let tmp = dir.join(format!(".{file_name}.tmp{}", std::process::id()));
-    let result = (|| -> Result<()> {
+    let result = (|| -> std::io::Result<()> {
         let mut f = std::fs::File::create(&tmp)?;
         f.write_all(bytes)?;
         f.sync_all()?;
-        std::fs::rename(&tmp, path)?;
-        Ok(())
+        std::fs::rename(&tmp, path)
     })();
     if result.is_err() {
         let _ = std::fs::remove_file(&tmp);
     }
-    result.with_context(|| format!("cannot write {}", path.display()))
+    result.map_err(|e| IoError::Write { path: path.to_path_buf(), message: e.to_string() })
+}
+
+/// Lets `write` produce a file at a temporary path, then renames it over `path`; on error the
+/// temporary is removed. For writers that insist on a path (the PNG encoder).
+pub fn write_atomic_with(path: &Path, write: impl FnOnce(&Path) -> Result<(), IoError>) -> Result<(), IoError> {
+    let (dir, file_name) = prepare(path)?;
+    // Keep the extension last: encoders pick the format from it.
+    let tmp = dir.join(format!(".tmp{}-{file_name}", std::process::id()));
+    let result = write(&tmp).map_err(|e| e.to_string()).and_then(|()| std::fs::rename(&tmp, path).map_err(|e| e.to_string()));
+    if result.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    result.map_err(|message| IoError::Write { path: path.to_path_buf(), message })
 }
 
 #[cfg(test)]
@@ -56,20 +74,3 @@ mod tests {
     }
 }
 
-/// Lets `write` produce a file at a temporary path, then renames it over `path`; on error the
-/// temporary is removed. For writers that insist on a path (the PNG encoder).
-pub fn write_atomic_with(path: &Path, write: impl FnOnce(&Path) -> Result<()>) -> Result<()> {
-    let dir = match path.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d,
-        _ => Path::new("."),
-    };
-    std::fs::create_dir_all(dir).with_context(|| format!("cannot create directory {}", dir.display()))?;
-    let file_name = path.file_name().context("output path has no file name")?.to_string_lossy();
-    // Keep the extension last: encoders pick the format from it.
-    let tmp = dir.join(format!(".tmp{}-{file_name}", std::process::id()));
-    let result = write(&tmp).and_then(|()| Ok(std::fs::rename(&tmp, path)?));
-    if result.is_err() {
-        let _ = std::fs::remove_file(&tmp);
-    }
-    result.with_context(|| format!("cannot write {}", path.display()))
-}

@@ -2,16 +2,16 @@
 //!
 //! Built on `plotters` with its pure-Rust bitmap backend and an embedded DejaVu Sans font
 //! (`assets/`), so plotting needs no system library or font on the machine. Every plot is
-//! written atomically (see [`crate::output`]).
+//! written atomically (see [`super::atomic`]).
 
-use crate::output::write_atomic_with;
-use anyhow::{anyhow, Result};
+use super::atomic::write_atomic_with;
+use super::IoError;
 use plotters::prelude::*;
 use plotters::style::{register_font, FontStyle};
 use std::path::Path;
 use std::sync::Once;
 
-static FONT: &[u8] = include_bytes!("../assets/DejaVuSans.ttf");
+static FONT: &[u8] = include_bytes!("../../assets/DejaVuSans.ttf");
 static REGISTER: Once = Once::new();
 
 fn ensure_font() {
@@ -64,14 +64,14 @@ fn bounds<'a>(points: impl Iterator<Item = &'a [f64; 2]>) -> Option<([f64; 2], [
     Some(([lo[0] - pad(0), lo[1] - pad(1)], [hi[0] + pad(0), hi[1] + pad(1)]))
 }
 
-fn err(e: impl std::fmt::Display) -> anyhow::Error {
-    anyhow!("plot: {e}")
+fn err(e: impl std::fmt::Display) -> IoError {
+    IoError::Plot(e.to_string())
 }
 
 /// An x-y plot of several series (lines or dots) with a legend.
-pub fn xy_plot(path: &Path, title: &str, x_label: &str, y_label: &str, series: &[Series<'_>]) -> Result<()> {
+pub fn xy_plot(path: &Path, title: &str, x_label: &str, y_label: &str, series: &[Series<'_>]) -> Result<(), IoError> {
     ensure_font();
-    let (lo, hi) = bounds(series.iter().flat_map(|s| s.points.iter())).ok_or_else(|| anyhow!("plot '{title}': no finite points"))?;
+    let (lo, hi) = bounds(series.iter().flat_map(|s| s.points.iter())).ok_or_else(|| IoError::Invalid(format!("plot '{title}': no finite points")))?;
     write_atomic_with(path, |tmp| {
         let root = BitMapBackend::new(tmp, (1000, 750)).into_drawing_area();
         root.fill(&WHITE).map_err(err)?;
@@ -116,9 +116,9 @@ pub struct VectorField<'a> {
 /// Error vectors over the workspace, magnified so the largest arrow is about a tenth of the
 /// plot; the magnification and the largest error are printed in the caption. Several fields
 /// (e.g. before and after a calibration step) share one scale so they can be compared.
-pub fn vector_plot(path: &Path, title: &str, fields: &[VectorField<'_>]) -> Result<()> {
+pub fn vector_plot(path: &Path, title: &str, fields: &[VectorField<'_>]) -> Result<(), IoError> {
     ensure_font();
-    let (lo, hi) = bounds(fields.iter().flat_map(|f| f.base_mm.iter())).ok_or_else(|| anyhow!("plot '{title}': no points"))?;
+    let (lo, hi) = bounds(fields.iter().flat_map(|f| f.base_mm.iter())).ok_or_else(|| IoError::Invalid(format!("plot '{title}': no points")))?;
     let span_mm = (hi[0] - lo[0]).max(hi[1] - lo[1]);
     let max_um = fields
         .iter()

@@ -13,8 +13,8 @@
 //! ```
 //! Angles are degrees in files (like the measurement CSV) and radians in code.
 
-use crate::output::write_atomic;
-use anyhow::{bail, Context, Result};
+use super::atomic::write_atomic;
+use super::{read_text, IoError};
 use kinematics_core::{Branch, FiveBar, WorkingMode};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -101,12 +101,12 @@ impl ModelFile {
     }
 
     /// The model, validated.
-    pub fn model(&self) -> Result<FiveBar<f64>> {
+    pub fn model(&self) -> Result<FiveBar<f64>, IoError> {
         if self.format != FORMAT {
-            bail!("not a model file: format is '{}', expected '{FORMAT}'", self.format);
+            return Err(IoError::Invalid(format!("not a model file: format is '{}', expected '{FORMAT}'", self.format)));
         }
         if self.version != 1 {
-            bail!("unsupported model file version {}", self.version);
+            return Err(IoError::Invalid(format!("unsupported model file version {}", self.version)));
         }
         let m = FiveBar {
             a_mm: self.a_mm,
@@ -122,28 +122,29 @@ impl ModelFile {
                 assembly: from_name(self.mode.assembly),
             },
         };
-        m.validate().map_err(|e| anyhow::anyhow!("invalid model: {e}"))?;
+        m.validate().map_err(|e| IoError::Invalid(format!("invalid model: {e}")))?;
         Ok(m)
     }
 }
 
 /// Reads and validates a model file.
-pub fn read_model(path: &Path) -> Result<FiveBar<f64>> {
-    read_model_file(path)?.model().with_context(|| format!("in {}", path.display()))
+pub fn read_model(path: &Path) -> Result<FiveBar<f64>, IoError> {
+    read_model_file(path)?.model().map_err(|e| IoError::content(path, e))
 }
 
 /// Reads a model file with its standard deviations and fit record.
-pub fn read_model_file(path: &Path) -> Result<ModelFile> {
-    let text = std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
-    serde_json::from_str(&text).with_context(|| format!("{} is not a valid model file", path.display()))
+pub fn read_model_file(path: &Path) -> Result<ModelFile, IoError> {
+    serde_json::from_str(&read_text(path)?).map_err(|e| IoError::NotA {
+        path: path.to_path_buf(),
+        what: "model file",
+        message: e.to_string(),
+    })
 }
 
 /// Writes a model file atomically.
-pub fn write_model_file(path: &Path, file: &ModelFile) -> Result<()> {
+pub fn write_model_file(path: &Path, file: &ModelFile) -> Result<(), IoError> {
     file.model()?;
-    let mut text = serde_json::to_string_pretty(file)?;
-    text.push('\n');
-    write_atomic(path, text.as_bytes())
+    write_atomic(path, super::json_text(file, super::KeyOrder::Declared)?.as_bytes())
 }
 
 #[cfg(test)]
