@@ -2,8 +2,8 @@
 //! every fit of `diagnose`), started far from the optimum: the accepted cost never increases,
 //! it converges to the known optimum, and it would fail if the solver accepted any finite step.
 
-use host_sim::fit::levenberg_marquardt::fit_full;
-use host_sim::fit::params::{to_vector, NAMES};
+use host_sim::calib::fit::full::fit_full;
+use host_sim::calib::fit::params::{to_vector, NAMES};
 use host_sim::io::measurement_csv::Measurement;
 use host_sim::numeric::{levenberg_marquardt, LmFit, LmOptions, Residuals, Stop};
 use kinematics_core::FiveBar;

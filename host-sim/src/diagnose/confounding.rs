@@ -16,7 +16,7 @@
 
 use super::effects::PARAM_NAMES;
 use super::effects::{Effect, Problem};
-use super::lm::{jacobian, Fit};
+use super::fit::{jacobian, Fit};
 use nalgebra::{DMatrix, DVector};
 use serde::Serialize;
 
@@ -145,12 +145,12 @@ pub fn overlaps(
     let mut out: Vec<Overlap> = Vec::new();
     for &e in final_set {
         for &c in candidates {
-            if c.name == e.name {
+            if c.name() == e.name() {
                 continue;
             }
             let rest: Vec<usize> = final_set
                 .iter()
-                .filter(|f| f.name != e.name && f.name != c.name)
+                .filter(|f| f.name() != e.name() && f.name() != c.name())
                 .flat_map(|f| f.params.iter().copied())
                 .collect();
             let q = orthonormal_basis(&columns(&j, &all, &rest));
@@ -173,8 +173,8 @@ pub fn overlaps(
                 (swap_chi2 < SWAP_CHI2 && ve.norm_squared() / s2_um2.max(1e-12) > SWAP_CHI2) || shared_z > SHARED_Z;
             if confounded || principal_cos >= PARTIAL_COS {
                 out.push(Overlap {
-                    effect: e.name.into(),
-                    other: c.name.into(),
+                    effect: e.name().into(),
+                    other: c.name().into(),
                     cos,
                     swap_chi2,
                     principal_cos,
@@ -182,7 +182,7 @@ pub fn overlaps(
                     shared_value,
                     shared_z,
                     confounded,
-                    separate_by: separating_measurement(e.name, c.name),
+                    separate_by: separating_measurement(e.name(), c.name()),
                 });
             }
         }
@@ -273,7 +273,7 @@ pub fn pose_set_overlaps(
         for b in &candidates[i + 1..] {
             let cos = max_cos(&columns(&j, &all, a.params), &columns(&j, &all, b.params));
             if cos >= min_cos {
-                out.push(PoseOverlap { a: a.name.into(), b: b.name.into(), principal_cos: cos });
+                out.push(PoseOverlap { a: a.name().into(), b: b.name().into(), principal_cos: cos });
             }
         }
     }

@@ -15,7 +15,7 @@
 //! (≤ 8 LM fits); results are cached by effect set.
 
 use super::effects::{free_params, Effect, Problem, LIBRARY, N_PARAMS};
-use super::lm::{fit, Fit};
+use super::fit::{fit, Fit};
 use std::collections::BTreeMap;
 
 /// BIC decrease needed to add an effect.
@@ -51,7 +51,7 @@ impl<'a> Fitter<'a> {
 
     /// The LM fit of a set of effects, starting from `start` (entries outside the set ignored).
     pub fn fit(&mut self, set: &[&'static Effect], start: &[f64]) -> Option<Fit> {
-        let mut key: Vec<&'static str> = set.iter().map(|e| e.name).collect();
+        let mut key: Vec<&'static str> = set.iter().map(|e| e.name()).collect();
         key.sort();
         if let Some(f) = self.cache.get(&key) {
             return f.clone();
@@ -123,18 +123,18 @@ pub fn select(problem: &Problem, noise_um: Option<f64>) -> Selection {
             }
             let k_new = (cur.free.len() + c.params.len()) as f64;
             if n - k_new < MIN_DOF_PER_PARAM * k_new {
-                tried.push(format!("{} not tried: {} parameters on {} residuals", c.name, k_new, n));
+                tried.push(format!("{} not tried: {} parameters on {} residuals", c.name(), k_new, n));
                 continue;
             }
             let mut trial = set.clone();
             trial.push(c);
             let Some(f) = fitter.fit(&trial, &cur.p) else {
-                tried.push(format!("{} fit failed (a point left the model's workspace)", c.name));
+                tried.push(format!("{} fit failed (a point left the model's workspace)", c.name()));
                 continue;
             };
             {
                 let d = delta_bic(problem, noise_um, &cur, &f);
-                tried.push(format!("{} rms {:.1} µm ΔBIC {:.1}", c.name, (2.0 * f.cost / n).sqrt(), d));
+                tried.push(format!("{} rms {:.1} µm ΔBIC {:.1}", c.name(), (2.0 * f.cost / n).sqrt(), d));
                 if best.as_ref().is_none_or(|b| d < b.0) {
                     best = Some((d, c, f));
                 }
@@ -142,15 +142,15 @@ pub fn select(problem: &Problem, noise_um: Option<f64>) -> Selection {
         }
         log.push(format!(
             "candidates on top of [{}]: {}",
-            set.iter().map(|e| e.name).collect::<Vec<_>>().join(", "),
+            set.iter().map(|e| e.name()).collect::<Vec<_>>().join(", "),
             tried.join("; ")
         ));
         let Some((d, c, f)) = best else { break };
         if d > -ADD_MARGIN {
-            log.push(format!("no candidate significant (best {} ΔBIC {:.1} > −{ADD_MARGIN}): stop", c.name, d));
+            log.push(format!("no candidate significant (best {} ΔBIC {:.1} > −{ADD_MARGIN}): stop", c.name(), d));
             break;
         }
-        log.push(format!("add {} (ΔBIC {:.1})", c.name, d));
+        log.push(format!("add {} (ΔBIC {:.1})", c.name(), d));
         set.push(c);
         cur = f;
         // Backward and swap passes while they improve the score.
@@ -166,7 +166,7 @@ pub fn select(problem: &Problem, noise_um: Option<f64>) -> Selection {
                 if let Some(f) = fitter.fit(&trial, &cur.p) {
                     let d = delta_bic(problem, noise_um, &cur, &f);
                     if d < 0.0 {
-                        log.push(format!("remove {} (ΔBIC {:.1})", removed.name, d));
+                        log.push(format!("remove {} (ΔBIC {:.1})", removed.name(), d));
                         set = trial;
                         cur = f;
                         changed = true;
@@ -191,7 +191,7 @@ pub fn select(problem: &Problem, noise_um: Option<f64>) -> Selection {
                     if let Some(f) = fitter.fit(&trial, &cur.p) {
                         let d = delta_bic(problem, noise_um, &cur, &f);
                         if d < -SWAP_MARGIN {
-                            log.push(format!("swap {} for {} (ΔBIC {:.1})", old.name, c.name, d));
+                            log.push(format!("swap {} for {} (ΔBIC {:.1})", old.name(), c.name(), d));
                             // The newcomer counts as added last.
                             trial.remove(i);
                             trial.push(c);

@@ -1,26 +1,29 @@
 //! Task-space setpoint trajectories for the closed loop: built-in test motions and CSV files.
 //!
-//! Built-ins (all inside the paper's workspace, all starting at rest so the servo's 5 g
-//! setpoint-acceleration check never trips at the start):
+//! Built-ins (about the centre of the machine's workspace, [`crate::machine_spec::Workspace`];
+//! inside the paper's; all starting at rest so the servo's setpoint-acceleration check never
+//! trips at the start):
 //! * `circle`: the slow circle, radius 40 mm about the workspace centre, 4 s per turn
 //!   (63 mm/s), phase `ω·(t - τ(1 - e^(-t/τ)))` with τ = 0.3 s so the speed ramps up smoothly;
 //! * `figure8`: a lemniscate of Gerono (±45 mm in x, ±60 mm in y), 2 s per loop, same ramp;
-//! * `p2p`: point-to-point moves between the workspace's inner corners with trapezoidal speed
-//!   profiles at exactly 5 g (49 m/s²) and 1.5 m/s, 0.1 s dwell at each point.
+//! * `p2p`: point-to-point moves from the centre around the corners 10 mm inside the workspace
+//!   and back, trapezoidal speed profiles at exactly the machine's rated acceleration (5 g,
+//!   49 m/s², on the paper machine) and 1.5 m/s, 0.1 s dwell at each point.
 //! * a file: CSV with header `t_s,x_mm,y_mm`, times strictly increasing, linearly interpolated;
 //!   before the first and after the last sample the end points are held.
 //!
 //! Cost: a few transcendental calls per setpoint.
 
-use anyhow::{anyhow, bail, Context, Result};
+use super::SimError;
+use crate::machine_spec::{MachineSpec, STANDARD_GRAVITY_MM_S2};
 use std::f64::consts::TAU;
 use std::path::Path;
 
-/// Standard gravity (mm/s²).
-pub const G_MM_S2: f64 = 9_806.65;
-
-const CENTRE_MM: [f64; 2] = [212.132, 0.0];
 const RAMP_S: f64 = 0.3;
+/// Cruise speed of the point-to-point moves (mm/s).
+const P2P_SPEED_MM_S: f64 = 1_500.0;
+/// How far inside the workspace's corners the point-to-point moves turn (mm).
+const P2P_INSET_MM: f64 = 10.0;
 
 #[derive(Clone, Debug)]
 pub struct Move {
@@ -69,8 +72,8 @@ impl Move {
 /// A setpoint source.
 #[derive(Clone, Debug)]
 pub enum Trajectory {
-    Circle { radius_mm: f64, period_s: f64 },
-    Figure8 { half_x_mm: f64, half_y_mm: f64, period_s: f64 },
+    Circle { centre_mm: [f64; 2], radius_mm: f64, period_s: f64 },
+    Figure8 { centre_mm: [f64; 2], half_x_mm: f64, half_y_mm: f64, period_s: f64 },
     PointToPoint { moves: Vec<Move>, dwell_s: f64 },
     Samples { name: String, t_s: Vec<f64>, xy_mm: Vec<[f64; 2]> },
 }
@@ -81,18 +84,21 @@ fn ramped_phase(omega: f64, t: f64) -> f64 {
 }
 
 impl Trajectory {
-    /// `circle`, `figure8`, `p2p` or a CSV file path.
-    pub fn by_name(name: &str) -> Result<Self> {
+    /// `circle`, `figure8`, `p2p` (on `spec`'s workspace) or a CSV file path.
+    pub fn by_name(name: &str, spec: &MachineSpec) -> Result<Self, SimError> {
+        let centre_mm = spec.workspace.centre_mm();
         match name {
-            "circle" => Ok(Trajectory::Circle { radius_mm: 40.0, period_s: 4.0 }),
-            "figure8" => Ok(Trajectory::Figure8 { half_x_mm: 45.0, half_y_mm: 60.0, period_s: 2.0 }),
+            "circle" => Ok(Trajectory::Circle { centre_mm, radius_mm: 40.0, period_s: 4.0 }),
+            "figure8" => Ok(Trajectory::Figure8 { centre_mm, half_x_mm: 45.0, half_y_mm: 60.0, period_s: 2.0 }),
             "p2p" => {
-                let pts = [[212.132, 0.0], [172.132, -65.0], [252.132, -65.0], [252.132, 65.0], [172.132, 65.0], [212.132, 0.0]];
+                let (x, y, d) = (spec.workspace.x_mm, spec.workspace.y_mm, P2P_INSET_MM);
+                let (lo, hi) = ([x[0] + d, y[0] + d], [x[1] - d, y[1] - d]);
+                let pts = [centre_mm, lo, [hi[0], lo[1]], hi, [lo[0], hi[1]], centre_mm];
                 let dwell = 0.1;
                 let mut t = dwell;
                 let mut moves = Vec::new();
                 for w in pts.windows(2) {
-                    let m = Move::new(t, w[0], w[1], 5.0 * G_MM_S2, 1_500.0);
+                    let m = Move::new(t, w[0], w[1], spec.max_acceleration_g * STANDARD_GRAVITY_MM_S2, P2P_SPEED_MM_S);
                     t += m.duration_s() + dwell;
                     moves.push(m);
                 }
@@ -100,43 +106,45 @@ impl Trajectory {
             }
             path => {
                 if !Path::new(path).exists() {
-                    bail!("unknown trajectory '{path}': not circle, figure8, p2p or an existing CSV file");
+                    return Err(SimError::UnknownTrajectory(path.to_string()));
                 }
                 Trajectory::from_csv(path)
             }
         }
     }
 
-    fn from_csv(path: &str) -> Result<Self> {
-        let text = std::fs::read_to_string(path).with_context(|| format!("cannot read trajectory {path}"))?;
+    fn from_csv(path: &str) -> Result<Self, SimError> {
+        let err = |m: String| SimError::TrajectoryFile(m);
+        let text = std::fs::read_to_string(path).map_err(|e| err(format!("cannot read trajectory {path}: {e}")))?;
         let mut r = csv::ReaderBuilder::new().trim(csv::Trim::All).comment(Some(b'#')).from_reader(text.as_bytes());
-        let h = r.headers().with_context(|| format!("trajectory {path}: no header"))?.clone();
+        let h = r.headers().map_err(|e| err(format!("trajectory {path}: no header: {e}")))?.clone();
         if h.iter().collect::<Vec<_>>() != ["t_s", "x_mm", "y_mm"] {
-            bail!("trajectory {path}: header must be 't_s,x_mm,y_mm', not '{}'", h.iter().collect::<Vec<_>>().join(","));
+            let found = h.iter().collect::<Vec<_>>().join(",");
+            return Err(err(format!("trajectory {path}: header must be 't_s,x_mm,y_mm', not '{found}'")));
         }
         let (mut ts, mut xy) = (Vec::new(), Vec::new());
         for rec in r.records() {
-            let rec = rec.map_err(|e| anyhow!("trajectory {path}: {e}"))?;
+            let rec = rec.map_err(|e| err(format!("trajectory {path}: {e}")))?;
             let line = rec.position().map(|p| p.line()).unwrap_or(0);
-            let num = |k: usize| -> Result<f64> {
+            let num = |k: usize| -> Result<f64, SimError> {
                 let s = rec.get(k).unwrap_or("");
-                let v: f64 = s.parse().map_err(|_| anyhow!("trajectory {path} line {line}: '{s}' is not a number"))?;
+                let v: f64 = s.parse().map_err(|_| err(format!("trajectory {path} line {line}: '{s}' is not a number")))?;
                 if !v.is_finite() {
-                    bail!("trajectory {path} line {line}: '{s}' is not finite");
+                    return Err(err(format!("trajectory {path} line {line}: '{s}' is not finite")));
                 }
                 Ok(v)
             };
             let t = num(0)?;
             if let Some(&last) = ts.last() {
                 if !(t > last) {
-                    bail!("trajectory {path} line {line}: times must increase strictly ({t} after {last})");
+                    return Err(err(format!("trajectory {path} line {line}: times must increase strictly ({t} after {last})")));
                 }
             }
             ts.push(t);
             xy.push([num(1)?, num(2)?]);
         }
         if ts.len() < 2 {
-            bail!("trajectory {path}: needs at least two samples");
+            return Err(err(format!("trajectory {path}: needs at least two samples")));
         }
         Ok(Trajectory::Samples { name: path.to_string(), t_s: ts, xy_mm: xy })
     }
@@ -164,16 +172,17 @@ impl Trajectory {
     pub fn at(&self, t_s: f64) -> [f64; 2] {
         let t = t_s.max(0.0);
         match self {
-            Trajectory::Circle { radius_mm, period_s } => {
+            Trajectory::Circle { centre_mm, radius_mm, period_s } => {
                 let p = ramped_phase(TAU / period_s, t);
-                [CENTRE_MM[0] + radius_mm * p.cos(), CENTRE_MM[1] + radius_mm * p.sin()]
+                [centre_mm[0] + radius_mm * p.cos(), centre_mm[1] + radius_mm * p.sin()]
             }
-            Trajectory::Figure8 { half_x_mm, half_y_mm, period_s } => {
+            Trajectory::Figure8 { centre_mm, half_x_mm, half_y_mm, period_s } => {
                 let p = ramped_phase(TAU / period_s, t);
-                [CENTRE_MM[0] + half_x_mm * p.sin(), CENTRE_MM[1] + half_y_mm * (2.0 * p).sin()]
+                [centre_mm[0] + half_x_mm * p.sin(), centre_mm[1] + half_y_mm * (2.0 * p).sin()]
             }
             Trajectory::PointToPoint { moves, .. } => {
-                let mut pos = moves.first().map(|m| m.from_mm).unwrap_or(CENTRE_MM);
+                let Some(first) = moves.first() else { return [0.0; 2] };
+                let mut pos = first.from_mm;
                 for m in moves {
                     if t < m.t0_s {
                         break;
@@ -217,14 +226,17 @@ mod tests {
         peak
     }
 
+    const G_MM_S2: f64 = STANDARD_GRAVITY_MM_S2;
+
     #[test]
     fn builtins_start_at_rest_and_respect_5g() {
+        let spec = MachineSpec::paper();
         for name in ["circle", "figure8", "p2p"] {
-            let tr = Trajectory::by_name(name).unwrap();
+            let tr = Trajectory::by_name(name, &spec).unwrap();
             let a = peak_accel(&tr);
             assert!(a <= 5.0 * G_MM_S2 * 1.0001, "{name}: {a}");
         }
-        let p2p = Trajectory::by_name("p2p").unwrap();
+        let p2p = Trajectory::by_name("p2p", &spec).unwrap();
         assert!(peak_accel(&p2p) > 4.9 * G_MM_S2);
         let end = p2p.at(p2p.natural_duration_s());
         assert!((end[0] - 212.132).abs() < 1e-9 && end[1].abs() < 1e-9);
@@ -235,12 +247,13 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let p = dir.path().join("t.csv");
         std::fs::write(&p, "t_s,x_mm,y_mm\n0,212,0\n0,213,0\n").unwrap();
-        assert!(format!("{:#}", Trajectory::by_name(p.to_str().unwrap()).unwrap_err()).contains("increase"));
+        let spec = MachineSpec::paper();
+        assert!(Trajectory::by_name(p.to_str().unwrap(), &spec).unwrap_err().to_string().contains("increase"));
         std::fs::write(&p, "t,x,y\n0,212,0\n1,213,0\n").unwrap();
-        assert!(Trajectory::by_name(p.to_str().unwrap()).is_err());
+        assert!(Trajectory::by_name(p.to_str().unwrap(), &spec).is_err());
         std::fs::write(&p, "t_s,x_mm,y_mm\n0,212,0\n1,214,0\n").unwrap();
-        let t = Trajectory::by_name(p.to_str().unwrap()).unwrap();
+        let t = Trajectory::by_name(p.to_str().unwrap(), &spec).unwrap();
         assert_eq!(t.at(0.5), [213.0, 0.0]);
-        assert!(Trajectory::by_name("spiral").is_err());
+        assert!(Trajectory::by_name("spiral", &spec).is_err());
     }
 }

@@ -17,7 +17,7 @@
 //! Following error: what the loop itself lags, `|J·(reference - encoder)|` with the model's
 //! Jacobian at the setpoint (µm at the tool), and the joint value (µrad). 5 g segments are the
 //! samples whose setpoint acceleration (backward second difference, as the servo computes it) is
-//! at least 4.75 g.
+//! at least 95 % of the machine's rated acceleration (4.75 g on the paper machine).
 //!
 //! Cost per sample (release, `cargo bench -p host-sim`): ~0.4 µs with the five-bar plant
 //! (1250-1600x real time), ~4-5 µs with the six-bar plant (115-175x real time): the six-bar
@@ -26,15 +26,14 @@
 //! Overruns: simulation has no deadline, so nothing can overrun; `overruns` counts the steps
 //! whose wall-clock time exceeded the 500 µs period (0 on any reasonable host).
 
+use super::trajectory::Trajectory;
+use super::SimError;
+use crate::machine_spec::{MachineSpec, STANDARD_GRAVITY_MM_S2};
 use crate::plant::Plant;
-use crate::trajectory::{Trajectory, G_MM_S2};
-use anyhow::{anyhow, Result};
 use kinematics_core::{Calibration, Servo, ServoConfig};
 use serde::Serialize;
 use std::time::Instant;
 
-/// Servo sample period (s): 2 kHz.
-pub const SAMPLE_PERIOD_S: f64 = 5e-4;
 /// Drive integration substeps per sample.
 pub const SUBSTEPS: u32 = 10;
 
@@ -71,39 +70,45 @@ pub struct LoopSummary {
     pub max_bar_tension_n: f64,
     pub realtime_factor: f64,
     pub overruns: u64,
-    pub overruns_note: &'static str,
+    pub overruns_note: String,
     pub fault: Option<String>,
 }
 
-/// Runs the loop for `seconds` of simulated time. `log` collects every sample.
+/// Runs the loop for `seconds` of simulated time at `spec`'s sample period and singularity
+/// margin. `log` collects every sample.
 pub fn run_loop(
     plant: &mut Plant,
     cal: &Calibration<'_>,
     trajectory: &Trajectory,
     seconds: f64,
+    spec: &MachineSpec,
     mut log: Option<&mut Vec<LogRow>>,
-) -> Result<LoopSummary> {
+) -> Result<LoopSummary, SimError> {
     // Default gains, with the Coulomb feed-forward set to 80 % of each drive's Coulomb friction,
     // as a commissioning run would identify it (on the paper plant this takes the slow-circle
     // following error from 22 to 16 µm).
-    let mut config = ServoConfig::default();
+    let mut config = ServoConfig {
+        sample_period_s: spec.sample_period_s as f32,
+        min_transmission: spec.min_transmission as f32,
+        ..ServoConfig::default()
+    };
     let coulomb_nm = [plant.config.drive_1.coulomb_friction_nm, plant.config.drive_2.coulomb_friction_nm];
     for (axis, c) in config.axes.iter_mut().zip(coulomb_nm) {
         axis.coulomb_ff_nm = 0.8 * c as f32;
     }
-    let dt = SAMPLE_PERIOD_S;
+    let dt = spec.sample_period_s;
     let n = (seconds / dt).round() as u64;
     let start = trajectory.at(0.0);
     // Start at rest on the first setpoint, as after a homing move.
     let cmd = cal
         .command_rad([start[0] as f32, start[1] as f32], config.min_transmission)
-        .map_err(|e| anyhow!("trajectory start ({:.3}, {:.3}) mm: {e}", start[0], start[1]))?;
+        .map_err(|e| SimError::Start { start_mm: start, reason: e.to_string() })?;
     plant.settle([f64::from(cmd[0]), f64::from(cmd[1])], [1, 1])?;
     let mut servo = Servo::new(config);
     let enc0 = plant.encoder_rad();
     servo
         .engage(cal, [enc0[0] as f32, enc0[1] as f32])
-        .map_err(|e| anyhow!("servo refused to engage: {e}"))?;
+        .map_err(|e| SimError::ServoRefused(e.to_string()))?;
 
     let first = plant.solve()?.tool_mm;
     let mut tool = plant.instrument.frame_mm(first);
@@ -151,7 +156,7 @@ pub fn run_loop(
         max_joint = max_joint.max(joint);
         max_torque = max_torque.max(torque[0].abs()).max(torque[1].abs());
         max_tension = max_tension.max(sol.max_abs_tension_n());
-        if k >= 2 && accel >= 0.95 * 5.0 * G_MM_S2 {
+        if k >= 2 && accel >= 0.95 * spec.max_acceleration_g * STANDARD_GRAVITY_MM_S2 {
             n_5g += 1;
             max_5g = max_5g.max(follow_um);
             max_5g_joint = max_5g_joint.max(joint);
@@ -194,7 +199,10 @@ pub fn run_loop(
         max_bar_tension_n: max_tension,
         realtime_factor: if wall_s > 0.0 { simulated_s / wall_s } else { f64::INFINITY },
         overruns,
-        overruns_note: "simulation has no deadline; counts steps whose wall time exceeded 500 us",
+        overruns_note: format!(
+            "simulation has no deadline; counts steps whose wall time exceeded {:.0} us",
+            spec.sample_period_s * 1e6
+        ),
         fault,
     })
 }
@@ -209,11 +217,17 @@ mod tests {
         Calibration { model: FiveBar::<f32>::paper_nominal(), grid: None }
     }
 
+    fn run(plant: &mut Plant, name: &str, seconds: Option<f64>) -> LoopSummary {
+        let spec = MachineSpec::paper();
+        let tr = Trajectory::by_name(name, &spec).unwrap();
+        let seconds = seconds.unwrap_or_else(|| tr.natural_duration_s());
+        run_loop(plant, &nominal(), &tr, seconds, &spec, None).unwrap()
+    }
+
     #[test]
     fn tracks_a_slow_circle_on_the_ideal_sixbar() {
         let mut plant = Plant::new(&PlantConfig::ideal(), 1);
-        let tr = Trajectory::by_name("circle").unwrap();
-        let s = run_loop(&mut plant, &nominal(), &tr, 2.0, None).unwrap();
+        let s = run(&mut plant, "circle", Some(2.0));
         eprintln!("{s:?}");
         assert!(s.fault.is_none(), "{s:?}");
         assert_eq!(s.samples, 4000);
@@ -226,8 +240,7 @@ mod tests {
         let mut cfg = PlantConfig::paper();
         cfg.sixbar.model = PlantModel::Fivebar;
         let mut plant = Plant::new(&cfg, 1);
-        let tr = Trajectory::by_name("p2p").unwrap();
-        let s = run_loop(&mut plant, &nominal(), &tr, tr.natural_duration_s(), None).unwrap();
+        let s = run(&mut plant, "p2p", None);
         eprintln!("{s:?}");
         assert!(s.fault.is_none(), "{s:?}");
         assert!(s.samples_at_5g > 100, "{s:?}");
@@ -240,8 +253,7 @@ mod tests {
     fn paper_sixbar_plant_closes_the_loop_on_a_figure_eight() {
         // Stress, clearances, backlash, friction, quantization all on.
         let mut plant = Plant::new(&PlantConfig::paper(), 1);
-        let tr = Trajectory::by_name("figure8").unwrap();
-        let s = run_loop(&mut plant, &nominal(), &tr, 1.0, None).unwrap();
+        let s = run(&mut plant, "figure8", Some(1.0));
         assert!(s.fault.is_none(), "{s:?}");
         assert!(s.max_bar_tension_n > 100.0, "{s:?}");
         // Friction without feed-forward: tens of µm of lag at the joints' reversals.

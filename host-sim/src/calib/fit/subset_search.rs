@@ -6,8 +6,11 @@
 //! more than [`MAX_SUBSETS`] candidates are refused (ask for a `--subset-size`). Progress goes to
 //! stderr about once a second. Ties on the maximum are broken by the RMS, then by the earlier
 //! subset in lexicographic order, so the result is deterministic.
+//!
+//! Progress (about once a second, and once at the end) goes to a callback ([`Progress`]): the
+//! command line prints it on stderr.
 
-use anyhow::{bail, Result};
+use crate::calib::{invalid, CalibError};
 use std::time::{Duration, Instant};
 
 /// The largest number of candidate subsets a search may try.
@@ -24,6 +27,17 @@ pub struct Best<M> {
     /// How many subsets gave a model at all (others were degenerate or unreachable).
     pub tried: u64,
     pub valid: u64,
+    /// Wall time of the search (s).
+    pub elapsed_s: f64,
+}
+
+/// Where a running search is.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Progress {
+    pub tried: u64,
+    pub total: u128,
+    /// Best maximum error so far (µm; NaN before the first valid model).
+    pub best_max_um: f64,
 }
 
 /// `C(n, k)` without overflow for the sizes we accept.
@@ -55,12 +69,13 @@ pub fn next_combination(c: &mut [usize], n: usize) -> bool {
 pub fn search<M: Clone>(
     n_points: usize,
     sizes: &[usize],
-    mut fit: impl FnMut(&[usize]) -> Result<M>,
+    mut fit: impl FnMut(&[usize]) -> Result<M, CalibError>,
     mut score: impl FnMut(&M) -> Vec<f64>,
-) -> Result<Best<M>> {
+    progress: &mut dyn FnMut(Progress),
+) -> Result<Best<M>, CalibError> {
     let total: u128 = sizes.iter().map(|&k| binomial(n_points, k)).sum();
     if total > MAX_SUBSETS {
-        bail!("subset search over {total} subsets of {n_points} points is too long (limit {MAX_SUBSETS}); give a smaller --subset-size");
+        return Err(invalid!("subset search over {total} subsets of {n_points} points is too long (limit {MAX_SUBSETS}); give a smaller subset size"));
     }
     let started = Instant::now();
     let mut last_report = started;
@@ -68,14 +83,14 @@ pub fn search<M: Clone>(
     let (mut tried, mut valid) = (0u64, 0u64);
     for &k in sizes {
         if k == 0 || k > n_points {
-            bail!("subset size {k} is impossible with {n_points} points");
+            return Err(invalid!("subset size {k} is impossible with {n_points} points"));
         }
         let mut c: Vec<usize> = (0..k).collect();
         loop {
             tried += 1;
             if let Ok(model) = fit(&c) {
                 let errors = score(&model);
-                let (max, rms) = super::evaluate::max_rms(&errors);
+                let super::evaluate::MaxRms { max, rms } = super::evaluate::max_rms(&errors);
                 if max.is_finite() {
                     valid += 1;
                     let better = match &best {
@@ -83,28 +98,31 @@ pub fn search<M: Clone>(
                         Some(b) => max < b.max_err_um || (max == b.max_err_um && rms < b.rms_err_um),
                     };
                     if better {
-                        best = Some(Best { subset: c.clone(), model, max_err_um: max, rms_err_um: rms, tried, valid });
+                        best = Some(Best {
+                            subset: c.clone(),
+                            model,
+                            max_err_um: max,
+                            rms_err_um: rms,
+                            tried,
+                            valid,
+                            elapsed_s: 0.0,
+                        });
                     }
                 }
             }
             if last_report.elapsed() > Duration::from_secs(1) {
                 last_report = Instant::now();
-                let b = best.as_ref().map_or(f64::NAN, |b| b.max_err_um);
-                eprintln!("subset search: {tried}/{total} subsets, best max error so far {b:.1} µm");
+                progress(Progress { tried, total, best_max_um: best.as_ref().map_or(f64::NAN, |b| b.max_err_um) });
             }
             if !next_combination(&mut c, n_points) {
                 break;
             }
         }
     }
-    let mut best = best.ok_or_else(|| anyhow::anyhow!("no subset of the given size gives a valid model"))?;
+    let mut best = best.ok_or_else(|| invalid!("no subset of the given size gives a valid model"))?;
     best.tried = tried;
     best.valid = valid;
-    eprintln!(
-        "subset search: {tried} subsets tried ({valid} valid) in {:.2} s; best max error {:.1} µm",
-        started.elapsed().as_secs_f64(),
-        best.max_err_um
-    );
+    best.elapsed_s = started.elapsed().as_secs_f64();
     Ok(best)
 }
 

@@ -13,11 +13,11 @@
 //! Cost: one FK per point. A model that cannot reach a recorded pose gets an infinite error.
 
 use crate::io::measurement_csv::Measurement;
-use anyhow::{bail, Result};
+use crate::calib::CalibError;
 use kinematics_core::FiveBar;
 
 /// Which position the model's prediction is compared with.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Criterion {
     /// `FK(measured angles)` vs the measured position: the model's prediction error.
@@ -33,10 +33,10 @@ pub fn predicted_mm(model: &FiveBar<f64>, m: &Measurement) -> Option<[f64; 2]> {
 }
 
 /// Checks that the data have what the criterion compares with.
-pub fn check_criterion(data: &[Measurement], criterion: Criterion) -> Result<()> {
+pub fn check_criterion(data: &[Measurement], criterion: Criterion) -> Result<(), CalibError> {
     if criterion == Criterion::Paper {
         if let Some(m) = data.iter().find(|m| m.target_mm.is_none()) {
-            bail!("line {}: --criterion paper needs x_target_mm,y_target_mm on every row", m.line);
+            return Err(CalibError::MissingTargets { line: m.line });
         }
     }
     Ok(())
@@ -65,9 +65,5 @@ pub fn errors_um(model: &FiveBar<f64>, data: &[Measurement], criterion: Criterio
         .collect()
 }
 
-/// `(max, rms)` of a list of errors.
-pub fn max_rms(errors: &[f64]) -> (f64, f64) {
-    let max = errors.iter().copied().fold(0.0, f64::max);
-    let rms = (errors.iter().map(|e| e * e).sum::<f64>() / errors.len().max(1) as f64).sqrt();
-    (max, rms)
-}
+/// Max and RMS of a list of errors (the crate's one: `crate::numeric::stats`).
+pub use crate::numeric::{max_rms, MaxRms};

@@ -11,7 +11,7 @@
 //! Cost: a 2x2 solve. Error: exact at the two points; the model's error elsewhere is whatever
 //! the data disagree with a rigid five-bar (see `CALIBRATION.md`).
 
-use anyhow::{bail, Result};
+use crate::calib::{invalid, CalibError};
 
 /// One observation of a dyad: geometric motor angle and tool point relative to the dyad's base.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -34,21 +34,21 @@ impl DyadPoint {
 }
 
 /// Link lengths `(proximal, distal)` from `P1`, `P2` (Eq. 3, corrected).
-pub fn links_from_p(p1_mm2: f64, p2_mm: f64) -> Result<(f64, f64)> {
+pub fn links_from_p(p1_mm2: f64, p2_mm: f64) -> Result<(f64, f64), CalibError> {
     let distal2 = p1_mm2 + p2_mm * p2_mm;
     if !(p2_mm > 0.0) || !(distal2 > 0.0) || !distal2.is_finite() {
-        bail!("the points give no real dyad (proximal {p2_mm:.6} mm, distal² {distal2:.6} mm²)");
+        return Err(invalid!("the points give no real dyad (proximal {p2_mm:.6} mm, distal² {distal2:.6} mm²)"));
     }
     Ok((p2_mm, distal2.sqrt()))
 }
 
 /// Exact synthesis through two precision points: `(proximal_mm, distal_mm)`.
-pub fn precision_point_dyad(points: [DyadPoint; 2]) -> Result<(f64, f64)> {
+pub fn precision_point_dyad(points: [DyadPoint; 2]) -> Result<(f64, f64), CalibError> {
     let [p, q] = points;
     let df2 = p.f2_mm() - q.f2_mm();
     // Two points the dyad sees alike (same f2) leave P1, P2 undetermined.
     if !(df2.abs() > 1e-9 * (p.f2_mm().abs() + q.f2_mm().abs())) {
-        bail!("the two precision points are degenerate for this dyad (equal f2 = {:.6} mm)", p.f2_mm());
+        return Err(invalid!("the two precision points are degenerate for this dyad (equal f2 = {:.6} mm)", p.f2_mm()));
     }
     let p2 = (p.big_f_mm2() - q.big_f_mm2()) / df2;
     let p1 = p.big_f_mm2() - p2 * p.f2_mm();

@@ -17,7 +17,7 @@ use super::identifiability::{self, Identifiability};
 use super::params::{self, PositionResiduals, NAMES, N_PARAMS};
 use crate::io::measurement_csv::Measurement;
 use crate::numeric::{levenberg_marquardt, LmFit, LmOptions, NumericError};
-use anyhow::{bail, Context, Result};
+use crate::calib::{invalid, CalibError};
 use kinematics_core::FiveBar;
 use nalgebra::DVector;
 
@@ -35,41 +35,46 @@ pub struct FullFit {
     pub lm: LmFit,
 }
 
+/// What an LM failure means for a five-bar fit.
+fn unreachable(e: NumericError) -> String {
+    match e {
+        NumericError::JacobianOutsideDomain { param } => {
+            format!("a measured pose is unreachable by the model near {}", NAMES.get(param).unwrap_or(&"?"))
+        }
+        _ => "the start model cannot reach every measured pose".into(),
+    }
+}
+
 /// Fits `data` starting from `start`; parameters in `fixed_by_user` stay at their start value,
 /// and so do those the identifiability check fixes.
-pub fn fit_full(data: &[Measurement], start: &FiveBar<f64>, fixed_by_user: &[usize]) -> Result<FullFit> {
+pub fn fit_full(data: &[Measurement], start: &FiveBar<f64>, fixed_by_user: &[usize]) -> Result<FullFit, CalibError> {
     let requested = N_PARAMS - fixed_by_user.len();
     if 2 * data.len() <= requested {
-        bail!(
+        return Err(invalid!(
             "{} points give {} equations, not more than the {requested} parameters to fit: need at least {} points (or --fix some)",
             data.len(),
             2 * data.len(),
             requested / 2 + 1
-        );
+        ));
     }
-    let j0 = params::jacobian(start, data).context("at the start model")?;
+    let j0 = params::jacobian(start, data).map_err(|e| invalid!("at the start model: {}", unreachable(e)))?;
     let ident = identifiability::check(&j0, fixed_by_user);
     let free = ident.free.clone();
     let k = free.len();
     let n_eq = 2 * data.len();
     if n_eq <= k {
-        bail!(
+        return Err(invalid!(
             "{} points give {n_eq} equations, not more than the {k} identifiable parameters ({}): need at least {} points",
             data.len(),
             free.iter().map(|&i| NAMES[i]).collect::<Vec<_>>().join(", "),
             k / 2 + 1
-        );
+        ));
     }
     let problem = PositionResiduals { data, like: *start };
     let lm = levenberg_marquardt(&problem, &params::to_vector(start), &free, &LmOptions::default())
-        .map_err(|e| match e {
-            NumericError::JacobianOutsideDomain { param } => {
-                anyhow::anyhow!("a measured pose is unreachable by the model near {}", NAMES[param])
-            }
-            _ => anyhow::anyhow!("the start model cannot reach every measured pose"),
-        })?;
+        .map_err(|e| invalid!("{}", unreachable(e)))?;
     if lm.rank() < k {
-        bail!("JᵀJ is singular at the solution: the data do not identify the parameters");
+        return Err(invalid!("JᵀJ is singular at the solution: the data do not identify the parameters"));
     }
     let p: [f64; N_PARAMS] = lm.p.as_slice().try_into().expect("the problem has N_PARAMS parameters");
     let model = params::from_vector(&p, start);

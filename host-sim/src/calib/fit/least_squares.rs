@@ -10,12 +10,12 @@
 //! Cost: O(n) sums and a 2x2 solve. Error: exact for n = 2 (same as `poly`).
 
 use super::poly::{links_from_p, DyadPoint};
-use anyhow::{bail, Result};
+use crate::calib::{invalid, CalibError};
 
 /// `(proximal_mm, distal_mm)` minimising Σ (P1 + P2·f2 − F)² over `points` (n ≥ 2).
-pub fn least_squares_dyad(points: &[DyadPoint]) -> Result<(f64, f64)> {
+pub fn least_squares_dyad(points: &[DyadPoint]) -> Result<(f64, f64), CalibError> {
     if points.len() < 2 {
-        bail!("least squares needs at least 2 points per dyad, got {}", points.len());
+        return Err(invalid!("least squares needs at least 2 points per dyad, got {}", points.len()));
     }
     // Normal equations (Eq. 6): [n Σf2; Σf2 Σf2²] [P1; P2] = [ΣF; ΣF·f2].
     let n = points.len() as f64;
@@ -29,7 +29,7 @@ pub fn least_squares_dyad(points: &[DyadPoint]) -> Result<(f64, f64)> {
     }
     let det = n * s_f2f2 - s_f2 * s_f2;
     if !(det.abs() > 1e-12 * n * s_f2f2) {
-        bail!("the design points are degenerate for this dyad (all f2 equal)");
+        return Err(invalid!("the design points are degenerate for this dyad (all f2 equal)"));
     }
     let p1 = (s_big_f * s_f2f2 - s_f2 * s_big_f_f2) / det;
     let p2 = (n * s_big_f_f2 - s_f2 * s_big_f) / det;

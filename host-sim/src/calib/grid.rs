@@ -1,4 +1,5 @@
-//! `host-sim grid`: the correction-grid flash image from measurements at the grid nodes.
+//! The correction-grid flash image from measurements at the grid nodes (`host-sim grid`, the
+//! demo's steps 3 and 4).
 //!
 //! Why: the fitted five-bar cannot explain every error of the real six-bar (link flexibility,
 //! joint clearance; Table I's 1.5 mm → 0.7 mm after the fit). The paper's second step measures
@@ -27,58 +28,18 @@
 //! 0.7 mm field with 5 mm cells; fit the model first so the grid only corrects what is left.
 //! Cost: one IK and one 2x2 inverse per node.
 //!
-//! The node lattice is read from the targets: origin = smallest x and y, spacing = `--step-mm`
-//! (must match the targets' spacing); every node must be measured exactly once.
+//! The node lattice is read from the targets: origin = smallest x and y, spacing = the given step
+//! (must match the targets' spacing); every node must be measured exactly once. The readable node
+//! table ([`format_csv`], `grid.csv`) is this module's file format.
 
-use crate::io::measurement_csv::{read_measurements, Measurement};
-use crate::io::model_file::read_model;
-use crate::io::atomic::write_atomic;
-use crate::io::plot::{vector_plot, VectorField};
-use anyhow::{anyhow, bail, Context, Result};
+use super::{invalid, CalibError};
+use crate::io::measurement_csv::Measurement;
+use crate::machine_spec::GridLattice;
+use crate::numeric::{max_rms, MaxRms};
 use kinematics_core::grid::{encode, GridGeometry, MAX_NODES_PER_AXIS};
 use kinematics_core::jacobian::mat2_mul_vec;
 use kinematics_core::{wrap_angle_rad, FiveBar};
-use serde_json::json;
-use std::path::{Path, PathBuf};
-
-/// Build the correction-grid image from measurements at the grid nodes.
-#[derive(clap::Args, Debug)]
-pub struct GridArgs {
-    /// The fitted model (model.json) the nodes were commanded with.
-    #[arg(long)]
-    pub model: PathBuf,
-    /// Measurements at the nodes; x_target_mm,y_target_mm are the nodes.
-    #[arg(long)]
-    pub data: PathBuf,
-    /// Node spacing (mm), the same along x and y.
-    #[arg(long, default_value_t = 5.0)]
-    pub step_mm: f64,
-    /// Output flash image.
-    #[arg(long)]
-    pub out: PathBuf,
-    /// Readable node table (default: the image path with extension .csv).
-    #[arg(long)]
-    pub csv: Option<PathBuf>,
-    /// Optional PNG of the measured node errors.
-    #[arg(long)]
-    pub plot: Option<PathBuf>,
-}
-
-/// The node lattice found in the targets.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Lattice {
-    pub x0_mm: f64,
-    pub y0_mm: f64,
-    pub step_mm: f64,
-    pub nx: usize,
-    pub ny: usize,
-}
-
-impl Lattice {
-    pub fn node_mm(&self, i: usize, j: usize) -> [f64; 2] {
-        [self.x0_mm + i as f64 * self.step_mm, self.y0_mm + j as f64 * self.step_mm]
-    }
-}
+use serde::Serialize;
 
 /// Largest distance (in steps) a target may be from its node.
 const LATTICE_TOL_STEPS: f64 = 1e-4;
@@ -90,13 +51,15 @@ fn gaps(mut v: Vec<f64>, tol: f64) -> Vec<f64> {
 }
 
 /// Finds the lattice and the row of every node (`rows[j·nx + i]`, x fastest).
-pub fn detect_lattice(data: &[Measurement], step_mm: f64) -> Result<(Lattice, Vec<usize>)> {
+pub fn detect_lattice(data: &[Measurement], step_mm: f64) -> Result<(GridLattice, Vec<usize>), CalibError> {
     if !(step_mm > 0.0 && step_mm.is_finite()) {
-        bail!("--step-mm must be positive, got {step_mm}");
+        return Err(invalid!("the grid step must be positive, got {step_mm}"));
     }
     let mut targets = Vec::with_capacity(data.len());
     for m in data {
-        targets.push(m.target_mm.ok_or_else(|| anyhow!("line {}: no x_target_mm,y_target_mm: the grid nodes are the targets", m.line))?);
+        targets.push(
+            m.target_mm.ok_or_else(|| invalid!("line {}: no x_target_mm,y_target_mm: the grid nodes are the targets", m.line))?,
+        );
     }
     let tol = LATTICE_TOL_STEPS * step_mm;
     // The spacing most neighbouring target columns (rows) have must be the step; single
@@ -108,7 +71,7 @@ pub fn detect_lattice(data: &[Measurement], step_mm: f64) -> Result<(Lattice, Ve
             let mut sorted = gaps.clone();
             sorted.sort_by(f64::total_cmp);
             let typical = sorted[sorted.len() / 2];
-            bail!("step mismatch: the targets are {typical} mm apart along {name}, --step-mm is {step_mm}");
+            return Err(invalid!("step mismatch: the targets are {typical} mm apart along {name}, the step is {step_mm}"));
         }
     }
     let x0 = targets.iter().map(|t| t[0]).fold(f64::INFINITY, f64::min);
@@ -118,7 +81,7 @@ pub fn detect_lattice(data: &[Measurement], step_mm: f64) -> Result<(Lattice, Ve
         let (fi, fj) = ((t[0] - x0) / step_mm, (t[1] - y0) / step_mm);
         let (i, j) = (fi.round(), fj.round());
         if (fi - i).abs() > LATTICE_TOL_STEPS || (fj - j).abs() > LATTICE_TOL_STEPS {
-            bail!("line {}: target ({}, {}) is not on the {step_mm} mm lattice from ({x0}, {y0})", m.line, t[0], t[1]);
+            return Err(invalid!("line {}: target ({}, {}) is not on the {step_mm} mm lattice from ({x0}, {y0})", m.line, t[0], t[1]));
         }
         ij.push((i as usize, j as usize));
     }
@@ -126,14 +89,20 @@ pub fn detect_lattice(data: &[Measurement], step_mm: f64) -> Result<(Lattice, Ve
     let ny = ij.iter().map(|p| p.1).max().unwrap_or(0) + 1;
     let max = MAX_NODES_PER_AXIS as usize;
     if nx < 2 || ny < 2 || nx > max || ny > max {
-        bail!("the targets span {nx} x {ny} nodes; a grid needs 2..={max} nodes along each axis");
+        return Err(invalid!("the targets span {nx} x {ny} nodes; a grid needs 2..={max} nodes along each axis"));
     }
-    let lattice = Lattice { x0_mm: x0, y0_mm: y0, step_mm, nx, ny };
+    let lattice = GridLattice { x0_mm: x0, y0_mm: y0, step_mm, nx, ny };
     let mut rows: Vec<Option<usize>> = vec![None; nx * ny];
     for (r, &(i, j)) in ij.iter().enumerate() {
         if let Some(prev) = rows[j * nx + i].replace(r) {
             let p = lattice.node_mm(i, j);
-            bail!("line {}: node ({i}, {j}) at ({}, {}) is measured twice (also line {})", data[r].line, p[0], p[1], data[prev].line);
+            return Err(invalid!(
+                "line {}: node ({i}, {j}) at ({}, {}) is measured twice (also line {})",
+                data[r].line,
+                p[0],
+                p[1],
+                data[prev].line
+            ));
         }
     }
     let rows = rows
@@ -142,9 +111,9 @@ pub fn detect_lattice(data: &[Measurement], step_mm: f64) -> Result<(Lattice, Ve
         .map(|(k, r)| {
             let (i, j) = (k % nx, k / nx);
             let p = lattice.node_mm(i, j);
-            r.ok_or_else(|| anyhow!("node ({i}, {j}) at ({}, {}) is missing from the data ({nx} x {ny} lattice)", p[0], p[1]))
+            r.ok_or_else(|| invalid!("node ({i}, {j}) at ({}, {}) is missing from the data ({nx} x {ny} lattice)", p[0], p[1]))
         })
-        .collect::<Result<Vec<_>>>()?;
+        .collect::<Result<Vec<_>, CalibError>>()?;
     Ok((lattice, rows))
 }
 
@@ -161,19 +130,19 @@ pub struct Node {
 }
 
 /// The corrections of every node (see the module doc), in image order.
-pub fn build_nodes(model: &FiveBar<f64>, data: &[Measurement], lattice: &Lattice, rows: &[usize]) -> Result<Vec<Node>> {
+pub fn build_nodes(model: &FiveBar<f64>, data: &[Measurement], lattice: &GridLattice, rows: &[usize]) -> Result<Vec<Node>, CalibError> {
     rows.iter()
         .enumerate()
         .map(|(k, &r)| {
             let m = &data[r];
             let (i, j) = (k % lattice.nx, k / lattice.nx);
-            let target = m.target_mm.expect("checked by detect_lattice");
+            let target = m.target_mm.ok_or_else(|| invalid!("line {}: node ({i}, {j}) has no target", m.line))?;
             let pose = model
                 .inverse_pose(target, 0.0)
-                .map_err(|e| anyhow!("line {}: node ({i}, {j}) at ({}, {}): model IK: {e}", m.line, target[0], target[1]))?;
+                .map_err(|e| invalid!("line {}: node ({i}, {j}) at ({}, {}): model IK: {e}", m.line, target[0], target[1]))?;
             let jinv = pose
                 .inverse_jacobian()
-                .map_err(|e| anyhow!("line {}: node ({i}, {j}): {e}", m.line))?;
+                .map_err(|e| invalid!("line {}: node ({i}, {j}): {e}", m.line))?;
             let e = [m.measured_mm[0] - target[0], m.measured_mm[1] - target[1]];
             let th_cmd = m.theta_rad();
             let lin = mat2_mul_vec(&jinv, e);
@@ -187,7 +156,7 @@ pub fn build_nodes(model: &FiveBar<f64>, data: &[Measurement], lattice: &Lattice
 }
 
 /// The flash image of the nodes for `model`.
-pub fn encode_image(model: &FiveBar<f64>, lattice: &Lattice, nodes: &[Node]) -> Result<Vec<u8>> {
+pub fn encode_image(model: &FiveBar<f64>, lattice: &GridLattice, nodes: &[Node]) -> Result<Vec<u8>, CalibError> {
     let geometry = GridGeometry {
         nx: lattice.nx as u16,
         ny: lattice.ny as u16,
@@ -198,21 +167,39 @@ pub fn encode_image(model: &FiveBar<f64>, lattice: &Lattice, nodes: &[Node]) -> 
     };
     let values: Vec<[f32; 2]> = nodes.iter().map(|n| [n.dtheta_rad[0] as f32, n.dtheta_rad[1] as f32]).collect();
     let mut image = vec![0u8; geometry.image_len()];
-    encode(&mut image, &geometry, &model.cast::<f32>(), &values).map_err(|e| anyhow!("encoding the grid image: {e}"))?;
+    encode(&mut image, &geometry, &model.cast::<f32>(), &values).map_err(|e| invalid!("encoding the grid image: {e}"))?;
     Ok(image)
 }
 
-/// A built grid: what `run` writes, for callers that have the data in memory (`demo`).
+/// A built grid: the lattice, the nodes and the image.
 #[derive(Clone, Debug)]
 pub struct BuiltGrid {
-    pub lattice: Lattice,
+    pub lattice: GridLattice,
     pub nodes: Vec<Node>,
     /// The flash image (`kinematics_core::grid` format) for the model.
     pub image: Vec<u8>,
 }
 
+/// Figures of a built grid.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct GridStats {
+    /// |measured − target| at the nodes (µm).
+    pub node_err: MaxRms,
+    /// The largest correction (µrad).
+    pub max_abs_dtheta_urad: f64,
+}
+
+impl BuiltGrid {
+    /// The node errors and the largest correction.
+    pub fn stats(&self) -> GridStats {
+        let err_um: Vec<f64> = self.nodes.iter().map(|n| n.error_mm[0].hypot(n.error_mm[1]) * 1e3).collect();
+        let max_dtheta = self.nodes.iter().flat_map(|n| n.dtheta_rad).map(f64::abs).fold(0.0, f64::max);
+        GridStats { node_err: max_rms(&err_um), max_abs_dtheta_urad: max_dtheta * 1e6 }
+    }
+}
+
 /// Lattice detection, node corrections and image in one call.
-pub fn build(model: &FiveBar<f64>, data: &[Measurement], step_mm: f64) -> Result<BuiltGrid> {
+pub fn build(model: &FiveBar<f64>, data: &[Measurement], step_mm: f64) -> Result<BuiltGrid, CalibError> {
     let (lattice, rows) = detect_lattice(data, step_mm)?;
     let nodes = build_nodes(model, data, &lattice, &rows)?;
     let image = encode_image(model, &lattice, &nodes)?;
@@ -236,44 +223,4 @@ pub fn format_csv(nodes: &[Node]) -> String {
         ));
     }
     s
-}
-
-fn csv_path(args: &GridArgs) -> PathBuf {
-    args.csv.clone().unwrap_or_else(|| args.out.with_extension("csv"))
-}
-
-/// `host-sim grid`.
-pub fn run(args: &GridArgs) -> Result<()> {
-    let model = read_model(&args.model)?;
-    let data = read_measurements(&args.data)?;
-    let BuiltGrid { lattice, nodes, image } = build(&model, &data, args.step_mm).with_context(|| format!("in {}", args.data.display()))?;
-    let csv = csv_path(args);
-    if csv == args.out {
-        bail!("the node table would overwrite the image: give --csv");
-    }
-    if let Some(plot) = &args.plot {
-        let base: Vec<[f64; 2]> = nodes.iter().map(|n| n.target_mm).collect();
-        let err: Vec<[f64; 2]> = nodes.iter().map(|n| [n.error_mm[0] * 1e3, n.error_mm[1] * 1e3]).collect();
-        vector_plot(plot, "grid nodes: measured − target", &[VectorField { label: "before grid", base_mm: &base, error_um: &err }])?;
-    }
-    write_atomic(&csv, format_csv(&nodes).as_bytes())?;
-    write_atomic(&args.out, &image)?;
-    let err_um: Vec<f64> = nodes.iter().map(|n| n.error_mm[0].hypot(n.error_mm[1]) * 1e3).collect();
-    let (max, rms) = crate::fit::evaluate::max_rms(&err_um);
-    let max_dtheta = nodes.iter().flat_map(|n| n.dtheta_rad).map(f64::abs).fold(0.0, f64::max);
-    let summary = json!({
-        "nx": lattice.nx, "ny": lattice.ny,
-        "x0_mm": lattice.x0_mm, "y0_mm": lattice.y0_mm, "step_mm": lattice.step_mm,
-        "node_err_max_um": max, "node_err_rms_um": rms,
-        "max_abs_dtheta_urad": max_dtheta * 1e6,
-        "image": args.out.display().to_string(), "image_bytes": image.len(),
-        "csv": csv.display().to_string(),
-    });
-    println!("{}", serde_json::to_string_pretty(&summary)?);
-    Ok(())
-}
-
-/// Reads an image file (for `command` and the tests).
-pub fn read_image(path: &Path) -> Result<Vec<u8>> {
-    std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))
 }

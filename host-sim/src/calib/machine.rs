@@ -9,7 +9,7 @@
 //!
 //! [`StandInMachine`] is a **stand-in**, not the plant: a rigid five-bar whose parameters carry
 //! errors of the paper's kind (link lengths, base offset B0, encoder zero offsets; scaled so the
-//! nominal model is 1.5 mm off at worst over the 5 mm grid, as in Table I), plus a smooth
+//! nominal model is 1.5 mm off at worst over the grid nodes, as in Table I), plus a smooth
 //! position-dependent distortion of ~40 µm that no five-bar can describe (standing in for the
 //! six-bar's configuration-dependent link-length change), read by a 1 µm (σ per axis)
 //! instrument whose frame is the machine frame. It has no backlash and no encoder
@@ -20,8 +20,9 @@
 //! drives with encoder quantisation and backlash, the instrument with its own frame, scale and
 //! noise) behind the same trait: settle the drives, solve the linkage, read the instrument.
 
+use super::{invalid, CalibError};
+use crate::machine_spec::MachineSpec;
 use crate::plant::{Plant, PlantConfig};
-use anyhow::{anyhow, bail, Context, Result};
 use kinematics_core::FiveBar;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -48,12 +49,8 @@ pub trait Machine {
     /// Drives the motors to the encoder angles `command_rad` (continuous, not wrapped),
     /// approaching each from the side `approach_dir` (+1: from below, i.e. the motor last moved
     /// in the positive direction; -1: from above), lets it settle and reads the tool point.
-    fn measure(&mut self, command_rad: [f64; 2], approach_dir: [i8; 2]) -> Result<Reading>;
+    fn measure(&mut self, command_rad: [f64; 2], approach_dir: [i8; 2]) -> Result<Reading, CalibError>;
 }
-
-/// Centre and half-extent of the paper's workspace (mm), the distortion's natural coordinates.
-const WORKSPACE_CENTRE_MM: [f64; 2] = [212.132, 0.0];
-const WORKSPACE_HALF_MM: [f64; 2] = [50.0, 75.0];
 
 /// Worst error of the nominal model over the 5 mm grid that [`StandInMachine::paper_like`]
 /// scales its parameter errors to (Table I: about 1.5 mm at point 7).
@@ -64,6 +61,9 @@ pub const PAPER_WORST_ERROR_MM: f64 = 1.5;
 pub struct StandInMachine {
     /// The machine's true five-bar (what a perfect `full` fit would find, but for the distortion).
     pub five_bar: FiveBar<f64>,
+    /// The machine description (workspace: the distortion's coordinates; nominal model and grid:
+    /// the scaling of [`StandInMachine::paper_like`]).
+    pub spec: MachineSpec,
     /// Amplitude factor of the smooth distortion (1.0 ≈ 40 µm peak).
     pub distortion_scale: f64,
     /// Instrument noise, σ per axis (mm).
@@ -74,27 +74,39 @@ pub struct StandInMachine {
 impl StandInMachine {
     /// A stand-in with the given true five-bar, distortion amplitude factor and noise; `seed`
     /// seeds the instrument noise.
-    pub fn new(five_bar: FiveBar<f64>, distortion_scale: f64, noise_sigma_mm: f64, seed: u64) -> Result<Self> {
-        five_bar.validate().map_err(|e| anyhow!("stand-in machine: {e}"))?;
+    pub fn new(
+        spec: &MachineSpec,
+        five_bar: FiveBar<f64>,
+        distortion_scale: f64,
+        noise_sigma_mm: f64,
+        seed: u64,
+    ) -> Result<Self, CalibError> {
+        five_bar.validate().map_err(|e| invalid!("stand-in machine: {e}"))?;
         if !(noise_sigma_mm >= 0.0 && noise_sigma_mm.is_finite() && distortion_scale.is_finite()) {
-            bail!("stand-in machine: noise σ must be a non-negative number and the distortion finite");
+            return Err(invalid!("stand-in machine: noise σ must be a non-negative number and the distortion finite"));
         }
-        Ok(StandInMachine { five_bar, distortion_scale, noise_sigma_mm, rng: ChaCha8Rng::seed_from_u64(seed ^ 0x0157_2a3e) })
+        Ok(StandInMachine {
+            five_bar,
+            spec: spec.clone(),
+            distortion_scale,
+            noise_sigma_mm,
+            rng: ChaCha8Rng::seed_from_u64(seed ^ 0x0157_2a3e),
+        })
     }
 
     /// A machine with randomly drawn errors of the paper's kind: links (σ 0.1 mm, the paper's
     /// largest manufactured link error), base offset B0 (σ 0.1 mm per axis) and encoder zero
     /// offsets (σ 0.05°), all scaled together so the nominal model misses by
-    /// [`PAPER_WORST_ERROR_MM`] at worst over the 5 mm grid; a 0.7–1.3 × 40 µm distortion; a
-    /// 1 µm instrument.
-    pub fn paper_like(seed: u64) -> Result<Self> {
+    /// [`PAPER_WORST_ERROR_MM`] at worst over the grid nodes of `spec`; a 0.7–1.3 × 40 µm
+    /// distortion; an instrument of `spec`'s σ (1 µm on the paper machine).
+    pub fn paper_like(spec: &MachineSpec, seed: u64) -> Result<Self, CalibError> {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let mut n = || -> f64 { StandardNormal.sample(&mut rng) };
         let dl = [0.1 * n(), 0.1 * n(), 0.1 * n(), 0.1 * n()];
         let db = [0.1 * n(), 0.1 * n()];
         let doff = [0.05f64.to_radians() * n(), 0.05f64.to_radians() * n()];
         let distortion_scale = rng.random_range(0.7..1.3);
-        let nominal = FiveBar::<f64>::paper_nominal();
+        let nominal = spec.nominal;
         let with = |k: f64| FiveBar {
             a_mm: nominal.a_mm + k * dl[0],
             b_mm: nominal.b_mm + k * dl[1],
@@ -107,25 +119,25 @@ impl StandInMachine {
         // The error is nearly linear in k: a few secant steps hit the target to < 1 %.
         let mut k = 1.0;
         for _ in 0..4 {
-            let m = StandInMachine::new(with(k), distortion_scale, 0.0, seed)?;
+            let m = StandInMachine::new(spec, with(k), distortion_scale, 0.0, seed)?;
             let worst = m.worst_nominal_error_mm()?;
             if !(worst > 0.0) {
-                bail!("stand-in machine: seed {seed} drew no error");
+                return Err(invalid!("stand-in machine: seed {seed} drew no error"));
             }
             k *= PAPER_WORST_ERROR_MM / worst;
         }
-        StandInMachine::new(with(k), distortion_scale, 0.001, seed)
+        StandInMachine::new(spec, with(k), distortion_scale, spec.instrument_sigma_um * 1e-3, seed)
     }
 
     /// Where the tool really is for encoder angles `theta_rad` (mm): the true five-bar's FK
     /// plus the smooth distortion.
-    pub fn tool_mm(&self, theta_rad: [f64; 2]) -> Result<[f64; 2]> {
-        let c = self
-            .five_bar
-            .forward(theta_rad, 0.0)
-            .map_err(|e| anyhow!("stand-in machine cannot reach encoder angles ({:.4}, {:.4}) rad: {e}", theta_rad[0], theta_rad[1]))?;
-        let u = (c[0] - WORKSPACE_CENTRE_MM[0]) / WORKSPACE_HALF_MM[0];
-        let v = (c[1] - WORKSPACE_CENTRE_MM[1]) / WORKSPACE_HALF_MM[1];
+    pub fn tool_mm(&self, theta_rad: [f64; 2]) -> Result<[f64; 2], CalibError> {
+        let c = self.five_bar.forward(theta_rad, 0.0).map_err(|e| {
+            invalid!("stand-in machine cannot reach encoder angles ({:.4}, {:.4}) rad: {e}", theta_rad[0], theta_rad[1])
+        })?;
+        let (centre, half) = (self.spec.workspace.centre_mm(), self.spec.workspace.half_mm());
+        let u = (c[0] - centre[0]) / half[0];
+        let v = (c[1] - centre[1]) / half[1];
         let s = self.distortion_scale;
         Ok([
             c[0] + s * (0.03 * (1.3 * u).sin() * v + 0.01 * v * v),
@@ -133,18 +145,14 @@ impl StandInMachine {
         ])
     }
 
-    /// Worst distance (mm) between target and tool over the 5 mm grid nodes when commanded
-    /// with the nominal model's IK (no noise): the "before calibration" error.
-    pub fn worst_nominal_error_mm(&self) -> Result<f64> {
-        let nominal = FiveBar::<f64>::paper_nominal();
+    /// Worst distance (mm) between target and tool over the grid nodes when commanded with the
+    /// nominal model's IK (no noise): the "before calibration" error.
+    pub fn worst_nominal_error_mm(&self) -> Result<f64, CalibError> {
         let mut worst = 0.0f64;
-        for j in 0..31 {
-            for i in 0..21 {
-                let t = [162.132 + 5.0 * i as f64, -75.0 + 5.0 * j as f64];
-                let th = nominal.inverse(t, 0.0).map_err(|e| anyhow!("nominal IK of ({}, {}): {e}", t[0], t[1]))?;
-                let p = self.tool_mm(th)?;
-                worst = worst.max((p[0] - t[0]).hypot(p[1] - t[1]));
-            }
+        for t in self.spec.grid_nodes_mm() {
+            let th = self.spec.nominal.inverse(t, 0.0).map_err(|e| invalid!("nominal IK of ({}, {}): {e}", t[0], t[1]))?;
+            let p = self.tool_mm(th)?;
+            worst = worst.max((p[0] - t[0]).hypot(p[1] - t[1]));
         }
         Ok(worst)
     }
@@ -169,7 +177,7 @@ impl Machine for StandInMachine {
         )
     }
 
-    fn measure(&mut self, command_rad: [f64; 2], _approach_dir: [i8; 2]) -> Result<Reading> {
+    fn measure(&mut self, command_rad: [f64; 2], _approach_dir: [i8; 2]) -> Result<Reading, CalibError> {
         let true_mm = self.tool_mm(command_rad)?;
         let mut measured_mm = true_mm;
         for v in &mut measured_mm {
@@ -191,15 +199,15 @@ pub struct PlantMachine {
 impl PlantMachine {
     /// The plant `name` (`ideal`, `paper` or a TOML file); `noise_um` overrides its
     /// instrument's σ per axis; `seed` seeds the instrument noise.
-    pub fn by_name(name: &str, noise_um: Option<f64>, seed: u64) -> Result<Self> {
+    pub fn by_name(name: &str, noise_um: Option<f64>, seed: u64) -> Result<Self, CalibError> {
         Self::from_config(PlantConfig::by_name(name)?, name, noise_um, seed)
     }
 
     /// A plant from its configuration (e.g. one with randomly drawn errors), named `name`.
-    pub fn from_config(mut config: PlantConfig, name: &str, noise_um: Option<f64>, seed: u64) -> Result<Self> {
+    pub fn from_config(mut config: PlantConfig, name: &str, noise_um: Option<f64>, seed: u64) -> Result<Self, CalibError> {
         if let Some(n) = noise_um {
             if !(n >= 0.0 && n.is_finite()) {
-                bail!("--noise-um must be a non-negative number, not {n}");
+                return Err(invalid!("the instrument noise σ must be a non-negative number of µm, not {n}"));
             }
             config.instrument.noise_sigma_um = n;
         }
@@ -216,8 +224,8 @@ impl Machine for PlantMachine {
         )
     }
 
-    fn measure(&mut self, command_rad: [f64; 2], approach_dir: [i8; 2]) -> Result<Reading> {
-        let (encoder_rad, solution) = self.plant.settle(command_rad, approach_dir).context("plant")?;
+    fn measure(&mut self, command_rad: [f64; 2], approach_dir: [i8; 2]) -> Result<Reading, CalibError> {
+        let (encoder_rad, solution) = self.plant.settle(command_rad, approach_dir)?;
         let true_mm = self.plant.instrument.frame_mm(solution.tool_mm);
         let measured_mm = self.plant.instrument.read_mm(solution.tool_mm);
         Ok(Reading { encoder_rad, measured_mm, true_mm })
@@ -230,20 +238,21 @@ mod tests {
 
     #[test]
     fn paper_like_is_1_5_mm_off_and_reproducible() {
+        let spec = MachineSpec::paper();
         for seed in [1, 2, 3] {
-            let m = StandInMachine::paper_like(seed).unwrap();
+            let m = StandInMachine::paper_like(&spec, seed).unwrap();
             let w = m.worst_nominal_error_mm().unwrap();
             assert!((w - PAPER_WORST_ERROR_MM).abs() < 0.02, "seed {seed}: {w} mm");
-            assert_eq!(m.five_bar, StandInMachine::paper_like(seed).unwrap().five_bar);
+            assert_eq!(m.five_bar, StandInMachine::paper_like(&spec, seed).unwrap().five_bar);
         }
-        assert_ne!(StandInMachine::paper_like(1).unwrap().five_bar, StandInMachine::paper_like(2).unwrap().five_bar);
+        assert_ne!(StandInMachine::paper_like(&spec, 1).unwrap().five_bar, StandInMachine::paper_like(&spec, 2).unwrap().five_bar);
     }
 
     #[test]
     fn noise_is_seeded_and_about_1_um() {
         let th = [45f64.to_radians(), -45f64.to_radians()];
-        let mut a = StandInMachine::paper_like(5).unwrap();
-        let mut b = StandInMachine::paper_like(5).unwrap();
+        let mut a = StandInMachine::paper_like(&MachineSpec::paper(), 5).unwrap();
+        let mut b = StandInMachine::paper_like(&MachineSpec::paper(), 5).unwrap();
         let ra: Vec<Reading> = (0..200).map(|_| a.measure(th, [1, 1]).unwrap()).collect();
         let rb: Vec<Reading> = (0..200).map(|_| b.measure(th, [1, 1]).unwrap()).collect();
         assert_eq!(ra, rb);

@@ -10,6 +10,7 @@ use crate::io::measurement_csv::Measurement;
 use crate::numeric::{finite_difference, NumericError, Residuals};
 use kinematics_core::FiveBar;
 use nalgebra::{DMatrix, DVector};
+use std::collections::BTreeMap;
 
 /// Number of model parameters.
 pub const N_PARAMS: usize = 10;
@@ -27,6 +28,21 @@ pub const NAMES: [&str; N_PARAMS] = [
     "base_a0_x_mm",
     "base_a0_y_mm",
 ];
+
+/// A standard deviation as files and reports name it: angles in degrees (`encoder_offset_1_deg`),
+/// everything else as [`NAMES`] has it (`a_mm`). The one naming of std devs (`model.json`'s
+/// `std_dev`, `fit`'s and `demo`'s JSON).
+pub fn std_dev_entry(k: usize, v: f64) -> (String, f64) {
+    match NAMES[k].strip_suffix("_rad") {
+        Some(stem) => (format!("{stem}_deg"), v.to_degrees()),
+        None => (NAMES[k].to_string(), v),
+    }
+}
+
+/// Every known standard deviation, named by [`std_dev_entry`].
+pub fn std_dev_map(std_dev: &[Option<f64>; N_PARAMS]) -> BTreeMap<String, f64> {
+    std_dev.iter().enumerate().filter_map(|(k, sd)| sd.map(|v| std_dev_entry(k, v))).collect()
+}
 
 /// Finite-difference step per parameter.
 const STEP: [f64; N_PARAMS] = [1e-6, 1e-6, 1e-6, 1e-6, 1e-6, 1e-6, 1e-8, 1e-8, 1e-6, 1e-6];

@@ -1,4 +1,4 @@
-//! `host-sim accuracy`: positioning accuracy and repeatability per axis line from repeated
+//! Positioning accuracy and repeatability (`host-sim accuracy`) per axis line from repeated
 //! bidirectional runs, by VDI/DGQ 3441 and ISO 230-2 (the paper reports ±37 µm/m precision and
 //! ±26 µm/m repeatability "compatible with VDI/DGQ 3441").
 //!
@@ -38,23 +38,10 @@
 //! Cost: linear in the rows. Each (target, direction) needs at least 2 approaches (a standard
 //! deviation); lines that lack them are listed as skipped with the reason.
 
-use crate::io::measurement_csv::{read_measurements, Measurement};
-use crate::io::plot::{vector_plot, VectorField};
-use anyhow::{anyhow, bail, Result};
+use super::{invalid, CalibError};
+use crate::io::measurement_csv::Measurement;
 use serde::Serialize;
 use std::collections::BTreeMap;
-use std::path::PathBuf;
-
-/// VDI/DGQ 3441 and ISO 230-2 figures per axis line from repeated bidirectional runs.
-#[derive(clap::Args, Debug)]
-pub struct AccuracyArgs {
-    /// Measurements with x_target_mm,y_target_mm and run on every row, rows in motion order.
-    #[arg(long)]
-    pub data: PathBuf,
-    /// Optional PNG: mean error vector at every target.
-    #[arg(long)]
-    pub plot: Option<PathBuf>,
-}
 
 /// Statistics at one target of a line.
 #[derive(Clone, Debug, Serialize, PartialEq)]
@@ -111,18 +98,22 @@ fn mean_sd(v: &[f64]) -> (f64, f64) {
 }
 
 /// The figures of one line from per-target deviations `(position, up devs, down devs)` (µm).
-pub fn line_figures(targets: &[TargetDevs]) -> Result<(Iso230, Vdi3441, Vec<TargetStats>)> {
+pub fn line_figures(targets: &[TargetDevs]) -> Result<(Iso230, Vdi3441, Vec<TargetStats>), CalibError> {
     let mut stats = Vec::new();
     for (p, up, down) in targets {
         if up.len() < 2 || down.len() < 2 {
-            bail!("target {p} mm has {} approaches in + and {} in − direction; each needs at least 2", up.len(), down.len());
+            return Err(invalid!(
+                "target {p} mm has {} approaches in + and {} in − direction; each needs at least 2",
+                up.len(),
+                down.len()
+            ));
         }
         let (mu, su) = mean_sd(up);
         let (md, sd) = mean_sd(down);
         stats.push(TargetStats { position_mm: *p, n_up: up.len(), n_down: down.len(), mean_up_um: mu, mean_down_um: md, s_up_um: su, s_down_um: sd });
     }
     if stats.len() < 2 {
-        bail!("a line needs at least 2 targets");
+        return Err(invalid!("a line needs at least 2 targets"));
     }
     let max = |f: &dyn Fn(&TargetStats) -> f64| stats.iter().map(f).fold(f64::NEG_INFINITY, f64::max);
     let min = |f: &dyn Fn(&TargetStats) -> f64| stats.iter().map(f).fold(f64::INFINITY, f64::min);
@@ -155,7 +146,8 @@ pub fn directions(data: &[Measurement], a: usize) -> Vec<i8> {
     for (r, m) in data.iter().enumerate() {
         by_run.entry(m.run.unwrap_or(0)).or_default().push(r);
     }
-    let t = |r: usize| data[r].target_mm.expect("checked by the caller");
+    // Rows without a target (refused by `analyse`) count as at the origin.
+    let t = |r: usize| data[r].target_mm.unwrap_or_default();
     let sign = |d: f64| if d > 0.0 { 1 } else if d < 0.0 { -1 } else { 0 };
     for rows in by_run.values() {
         for (k, &r) in rows.iter().enumerate() {
@@ -185,10 +177,10 @@ type TargetSums = BTreeMap<(i64, i64), ([f64; 2], [f64; 2], usize)>;
 
 /// Every axis line of the data; lines without enough repeats come back in the second list with
 /// the reason.
-pub fn analyse(data: &[Measurement]) -> Result<(Vec<LineStats>, Vec<String>)> {
+pub fn analyse(data: &[Measurement]) -> Result<(Vec<LineStats>, Vec<String>), CalibError> {
     for m in data {
         if m.target_mm.is_none() || m.run.is_none() {
-            bail!("line {}: accuracy needs x_target_mm,y_target_mm and run on every row", m.line);
+            return Err(invalid!("line {}: accuracy needs x_target_mm,y_target_mm and run on every row", m.line));
         }
     }
     let key = |v: f64| (v * 1e6).round() as i64;
@@ -200,7 +192,7 @@ pub fn analyse(data: &[Measurement]) -> Result<(Vec<LineStats>, Vec<String>)> {
         // shared coordinate -> position -> (up, down) deviations
         let mut groups: AxisGroups = BTreeMap::new();
         for (r, m) in data.iter().enumerate() {
-            let t = m.target_mm.expect("checked");
+            let t = m.target_mm.unwrap_or_default();
             let g = groups.entry(key(t[other])).or_insert((t[other], BTreeMap::new()));
             let e = g.1.entry(key(t[a])).or_insert((t[a], Vec::new(), Vec::new()));
             let dev_um = (m.measured_mm[a] - t[a]) * 1e3;
@@ -238,53 +230,94 @@ pub fn analyse(data: &[Measurement]) -> Result<(Vec<LineStats>, Vec<String>)> {
         }
     }
     if lines.is_empty() {
-        bail!(
+        return Err(invalid!(
             "no axis line has at least 2 targets with 2 approaches from each direction{}",
             skipped.first().map_or(String::new(), |s| format!(" (e.g. {s})"))
-        );
+        ));
     }
     Ok((lines, skipped))
 }
 
-/// `host-sim accuracy`.
-pub fn run(args: &AccuracyArgs) -> Result<()> {
-    let data = read_measurements(&args.data)?;
-    let (lines, skipped) = analyse(&data).map_err(|e| anyhow!("{}: {e:#}", args.data.display()))?;
+/// The worst line of one axis.
+#[derive(Clone, Debug, Serialize)]
+pub struct AxisWorst {
+    pub lines: usize,
+    pub worst_p_um: f64,
+    pub worst_ps_um: f64,
+    pub worst_a_um: f64,
+    pub worst_r_um: f64,
+    pub worst_p_pm_um_per_m: f64,
+    pub worst_ps_pm_um_per_m: f64,
+}
+
+/// The worst line per axis (`None` for an axis without lines).
+#[derive(Clone, Debug, Serialize)]
+pub struct Summary {
+    pub x: Option<AxisWorst>,
+    pub y: Option<AxisWorst>,
+}
+
+/// Which standards and rule the figures follow.
+#[derive(Clone, Debug, Serialize)]
+pub struct Standards {
+    pub iso_230_2: &'static str,
+    pub vdi_3441: &'static str,
+}
+
+/// What `host-sim accuracy` prints.
+#[derive(Clone, Debug, Serialize)]
+pub struct AccuracyReport {
+    pub standards: Standards,
+    pub direction_rule: &'static str,
+    pub summary: Summary,
+    pub lines: Vec<LineStats>,
+    /// Lines without enough repeats, with the reason.
+    pub skipped: Vec<String>,
+}
+
+/// Every axis line's figures and the worst per axis.
+pub fn report(data: &[Measurement]) -> Result<AccuracyReport, CalibError> {
+    let (lines, skipped) = analyse(data)?;
     let worst = |axis: &str| {
         let l: Vec<&LineStats> = lines.iter().filter(|l| l.axis == axis).collect();
         if l.is_empty() {
-            return serde_json::Value::Null;
+            return None;
         }
         let m = |f: &dyn Fn(&LineStats) -> f64| l.iter().map(|x| f(x)).fold(f64::NEG_INFINITY, f64::max);
-        serde_json::json!({
-            "lines": l.len(),
-            "worst_p_um": m(&|x| x.vdi_3441.p_um), "worst_ps_um": m(&|x| x.vdi_3441.ps_um),
-            "worst_a_um": m(&|x| x.iso_230_2.a_um), "worst_r_um": m(&|x| x.iso_230_2.r_um),
-            "worst_p_pm_um_per_m": m(&|x| x.per_m["p_pm"]), "worst_ps_pm_um_per_m": m(&|x| x.per_m["ps_pm"]),
+        Some(AxisWorst {
+            lines: l.len(),
+            worst_p_um: m(&|x| x.vdi_3441.p_um),
+            worst_ps_um: m(&|x| x.vdi_3441.ps_um),
+            worst_a_um: m(&|x| x.iso_230_2.a_um),
+            worst_r_um: m(&|x| x.iso_230_2.r_um),
+            worst_p_pm_um_per_m: m(&|x| x.per_m["p_pm"]),
+            worst_ps_pm_um_per_m: m(&|x| x.per_m["ps_pm"]),
         })
     };
-    if let Some(plot) = &args.plot {
-        let mut by_target: TargetSums = BTreeMap::new();
-        for m in &data {
-            let t = m.target_mm.expect("checked");
-            let e = by_target.entry(((t[0] * 1e6).round() as i64, (t[1] * 1e6).round() as i64)).or_insert((t, [0.0; 2], 0));
-            e.1[0] += (m.measured_mm[0] - t[0]) * 1e3;
-            e.1[1] += (m.measured_mm[1] - t[1]) * 1e3;
-            e.2 += 1;
-        }
-        let base: Vec<[f64; 2]> = by_target.values().map(|v| v.0).collect();
-        let err: Vec<[f64; 2]> = by_target.values().map(|v| [v.1[0] / v.2 as f64, v.1[1] / v.2 as f64]).collect();
-        vector_plot(plot, "mean error at each target", &[VectorField { label: "measured − target", base_mm: &base, error_um: &err }])?;
+    Ok(AccuracyReport {
+        standards: Standards {
+            iso_230_2: "A, R, B, B_mean, M, E (ISO 230-2:2014 cl. 2)",
+            vdi_3441: "P, Ps, U, Pa (VDI/DGQ 3441)",
+        },
+        direction_rule: "approach direction along the axis from the last move along it within the run; a repeated target means a reversal (see accuracy.rs)",
+        summary: Summary { x: worst("x"), y: worst("y") },
+        lines,
+        skipped,
+    })
+}
+
+/// The mean error vector (µm) at every target (rows with a target), for a plot: `(target, mean
+/// measured − target)`, ordered by target.
+pub fn mean_error_per_target(data: &[Measurement]) -> Vec<([f64; 2], [f64; 2])> {
+    let mut by_target: TargetSums = BTreeMap::new();
+    for m in data {
+        let Some(t) = m.target_mm else { continue };
+        let e = by_target.entry(((t[0] * 1e6).round() as i64, (t[1] * 1e6).round() as i64)).or_insert((t, [0.0; 2], 0));
+        e.1[0] += (m.measured_mm[0] - t[0]) * 1e3;
+        e.1[1] += (m.measured_mm[1] - t[1]) * 1e3;
+        e.2 += 1;
     }
-    let out = serde_json::json!({
-        "standards": { "iso_230_2": "A, R, B, B_mean, M, E (ISO 230-2:2014 cl. 2)", "vdi_3441": "P, Ps, U, Pa (VDI/DGQ 3441)" },
-        "direction_rule": "approach direction along the axis from the last move along it within the run; a repeated target means a reversal (see accuracy.rs)",
-        "summary": { "x": worst("x"), "y": worst("y") },
-        "lines": lines,
-        "skipped": skipped,
-    });
-    println!("{}", serde_json::to_string_pretty(&out)?);
-    Ok(())
+    by_target.values().map(|v| (v.0, [v.1[0] / v.2 as f64, v.1[1] / v.2 as f64])).collect()
 }
 
 #[cfg(test)]
@@ -357,7 +390,7 @@ mod tests {
     #[test]
     fn too_few_repeats_is_reported() {
         let d: Vec<Measurement> = known().into_iter().filter(|m| m.run == Some(0)).collect();
-        let e = format!("{:#}", analyse(&d).unwrap_err());
+        let e = analyse(&d).unwrap_err().to_string();
         assert!(e.contains("target 0 mm has 1 approaches in + and 1 in − direction"), "{e}");
     }
 }
