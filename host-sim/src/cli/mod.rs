@@ -3,7 +3,7 @@
 //! (stderr) and JSON (stdout). `anyhow` lives only here and in `main.rs`.
 //!
 //! Where a change goes: a new flag in its subcommand's file (and the option it sets in the
-//! library's options struct); a new subcommand is a file here and a variant of [`Command`].
+//! library's options struct); a new subcommand is a file here and a variant of [`Tool`].
 
 mod accuracy;
 mod command;
@@ -26,11 +26,12 @@ use std::path::Path;
 #[command(name = "host-sim", version, about)]
 pub struct Cli {
     #[command(subcommand)]
-    command: Command,
+    command: Tool,
 }
 
+/// The subcommands.
 #[derive(Subcommand)]
-enum Command {
+enum Tool {
     /// Measure a simulated plant with one of the paper's protocols (writes a measurement CSV).
     Measure(measure::Args),
     /// Run the closed 2 kHz loop on a simulated plant (JSON summary on stdout).
@@ -53,14 +54,14 @@ enum Command {
 /// Runs a parsed command line.
 pub fn run(cli: Cli) -> Result<()> {
     match cli.command {
-        Command::Measure(a) => measure::run(&a),
-        Command::Simulate(a) => simulate::run(&a),
-        Command::Fit(a) => fit::run(&a),
-        Command::Grid(a) => grid::run(&a),
-        Command::MotorCommand(a) => command::run(&a),
-        Command::Accuracy(a) => accuracy::run(&a),
-        Command::Diagnose(a) => diagnose::run(&a),
-        Command::Demo(a) => demo::run(&a),
+        Tool::Measure(a) => measure::run(&a),
+        Tool::Simulate(a) => simulate::run(&a),
+        Tool::Fit(a) => fit::run(&a),
+        Tool::Grid(a) => grid::run(&a),
+        Tool::MotorCommand(a) => command::run(&a),
+        Tool::Accuracy(a) => accuracy::run(&a),
+        Tool::Diagnose(a) => diagnose::run(&a),
+        Tool::Demo(a) => demo::run(&a),
     }
 }
 

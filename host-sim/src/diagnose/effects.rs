@@ -134,6 +134,10 @@ pub fn effect(name: &str) -> Option<&'static Effect> {
     LIBRARY.iter().find(|e| e.name() == name)
 }
 
+/// A point's shape for the link_stretch basis: (cos 2ψ, sin 2ψ), (cos e1, sin e1),
+/// (cos e2, sin e2), (|∂C/∂b|², |∂C/∂c|²).
+type Shape = ([f64; 2], [f64; 2], [f64; 2], [f64; 2]);
+
 /// Everything per point the forward model needs besides the parameters.
 #[derive(Clone, Debug)]
 pub struct Point {
@@ -168,7 +172,7 @@ impl Problem {
         let has_dir = !data.is_empty() && data.iter().all(|m| m.dir.is_some());
         let mut points = Vec::with_capacity(data.len());
         // Per point: (cos 2ψ, sin 2ψ), (cos e1, sin e1), (cos e2, sin e2), (|∂C/∂b|², |∂C/∂c|²).
-        let mut geo: Vec<([f64; 2], [f64; 2], [f64; 2], [f64; 2])> = Vec::with_capacity(data.len());
+        let mut geo: Vec<Shape> = Vec::with_capacity(data.len());
         let mut dropped_lines = Vec::new();
         let unit = |v: [f64; 2]| {
             let n = v[0].hypot(v[1]);
@@ -223,6 +227,8 @@ impl Problem {
         let mut u =
             [vec![0.0; points.len()], vec![0.0; points.len()], vec![0.0; points.len()], vec![0.0; points.len()]];
         let mut stretch_degenerate = points.len() < 6;
+        // The slot indexes both the basis `u` and (through arm and harmonic) the shapes.
+        #[allow(clippy::needless_range_loop)]
         for slot in 0..4 {
             let (arm, harmonic) = (slot % 2, slot / 2);
             let cols = |i: usize| -> [f64; 3] {

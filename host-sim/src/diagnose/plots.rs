@@ -11,6 +11,10 @@ use std::path::Path;
 
 /// Residual plots: the field before/after each step (one scale per step), and the final
 /// residual against configuration and time.
+/// A plot's file name, axis label and x value of point i.
+type Abscissa<'a> = (&'a str, &'a str, Box<dyn Fn(usize) -> f64 + 'a>);
+
+/// Writes every plot into `dir`.
 pub fn write_plots(dir: &Path, data: &[Measurement], report: &Report, h: &History) -> Result<(), IoError> {
     vector_plot(
         &dir.join("residual_start.png"),
@@ -34,7 +38,7 @@ pub fn write_plots(dir: &Path, data: &[Measurement], report: &Report, h: &Histor
     let radial = |r: &[[f64; 2]], f: &dyn Fn(usize) -> f64| -> Vec<[f64; 2]> {
         r.iter().enumerate().map(|(i, e)| [f(i), e[0].hypot(e[1])]).collect()
     };
-    let configs: [(&str, &str, Box<dyn Fn(usize) -> f64>); 3] = [
+    let configs: [Abscissa<'_>; 3] = [
         ("theta1", "θ1 (deg)", Box::new(|i| pts[i].theta_rad[0].to_degrees())),
         ("theta2", "θ2 (deg)", Box::new(|i| pts[i].theta_rad[1].to_degrees())),
         ("theta_diff", "θ1 − θ2 (deg)", Box::new(|i| (pts[i].theta_rad[0] - pts[i].theta_rad[1]).to_degrees())),

@@ -138,6 +138,8 @@ pub fn analyse(problem: &Problem, data: &[Measurement], residual_um: &[f64]) -> 
     }
     // Approach direction.
     if problem.has_dir {
+        // j is the motor: it indexes the joint residuals and each point's directions.
+        #[allow(clippy::needless_range_loop)]
         for j in 0..2 {
             let y = DVector::from_vec(dth[j].clone());
             let a = DMatrix::from_fn(n, 2, |r, c| if c == 0 { 1.0 } else { problem.points[r].dir[j] });

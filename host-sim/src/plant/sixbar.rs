@@ -303,8 +303,8 @@ impl SixBar {
             let mut f = 0.0;
             if c <= 0.0 {
                 // Plain spring: E = ½k|r|².
-                for a in 0..2 {
-                    n.g[3 * i + a] += k * r[a];
+                for (a, ra) in r.iter().enumerate() {
+                    n.g[3 * i + a] += k * ra;
                     n.h[(3 * i + a, 3 * i + a)] += k;
                 }
                 f = k * rho;
@@ -322,8 +322,8 @@ impl SixBar {
             if c > 0.0 {
                 let kc = k * self.centring_ratio;
                 n.energy += 0.5 * kc * rho * rho;
-                for a in 0..2 {
-                    n.g[3 * i + a] += kc * r[a];
+                for (a, ra) in r.iter().enumerate() {
+                    n.g[3 * i + a] += kc * ra;
                     n.h[(3 * i + a, 3 * i + a)] += kc;
                 }
                 f += kc * rho;
