@@ -37,7 +37,7 @@
 use super::fit::evaluate::{self, Criterion};
 use super::fit::full::{fit_full, FullFit};
 use super::fit::params::{self, NAMES};
-use super::fit::{synthesize, Method};
+use super::fit::{synthesize, Method, ModelFigures};
 use super::grid::{self, BuiltGrid};
 use super::machine::Machine;
 use super::measure::{measure_visits, rows, Landed};
@@ -49,7 +49,7 @@ use crate::io::model_file::{write_model_file, ModelFile};
 use crate::io::plot::{vector_plot, VectorField};
 use crate::io::IoError;
 use crate::machine_spec::MachineSpec;
-use crate::numeric::{max_rms, round3, round6, MaxRms};
+use crate::numeric::{max_rms, round3, MaxRms};
 use kinematics_core::{Calibration, CorrectionGrid, FiveBar};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -235,32 +235,6 @@ pub fn calibrate(machine: &mut dyn Machine, opts: &PipelineOptions, events: &mut
     stages.push(stage("full+grid2", &format!("full fit + {} mm grid (2 rounds)", g.step_mm), "-", landed));
     step(events, "calibration done".into());
     Ok(Calibrated { machine: description, fit_data, ls_model, full, grid_data, grid, grid2_data, grid2, approach, stages })
-}
-
-/// A model's parameters as the summary lists them (mm, degrees; 6 decimals).
-#[derive(Clone, Debug, Serialize)]
-pub struct ModelFigures {
-    pub a_mm: f64,
-    pub b_mm: f64,
-    pub c_mm: f64,
-    pub d_mm: f64,
-    pub base_a0_mm: [f64; 2],
-    pub base_b0_mm: [f64; 2],
-    pub encoder_offset_deg: [f64; 2],
-}
-
-impl ModelFigures {
-    fn of(m: &FiveBar<f64>) -> Self {
-        ModelFigures {
-            a_mm: round6(m.a_mm),
-            b_mm: round6(m.b_mm),
-            c_mm: round6(m.c_mm),
-            d_mm: round6(m.d_mm),
-            base_a0_mm: m.base_a0_mm.map(round6),
-            base_b0_mm: m.base_b0_mm.map(round6),
-            encoder_offset_deg: m.encoder_offset_rad.map(|v| round6(v.to_degrees())),
-        }
-    }
 }
 
 /// One stage in the summary.

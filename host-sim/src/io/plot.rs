@@ -68,6 +68,21 @@ fn err(e: impl std::fmt::Display) -> IoError {
     IoError::Plot(e.to_string())
 }
 
+/// Draws the legend and writes the bitmap: how every plot ends.
+fn finish<'a, DB: DrawingBackend + 'a, CT: CoordTranslate>(
+    chart: &mut ChartContext<'a, DB, CT>,
+    root: &DrawingArea<DB, plotters::coord::Shift>,
+) -> Result<(), IoError> {
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .label_font(("sans-serif", 16))
+        .draw()
+        .map_err(err)?;
+    root.present().map_err(err)
+}
+
 /// An x-y plot of several series (lines or dots) with a legend.
 pub fn xy_plot(path: &Path, title: &str, x_label: &str, y_label: &str, series: &[Series<'_>]) -> Result<(), IoError> {
     ensure_font();
@@ -94,15 +109,7 @@ pub fn xy_plot(path: &Path, title: &str, x_label: &str, y_label: &str, series: &
                 .label(s.label)
                 .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(3)));
         }
-        chart
-            .configure_series_labels()
-            .background_style(WHITE.mix(0.85))
-            .border_style(BLACK)
-            .label_font(("sans-serif", 16))
-            .draw()
-            .map_err(err)?;
-        root.present().map_err(err)?;
-        Ok(())
+        finish(&mut chart, &root)
     })
 }
 
@@ -156,15 +163,7 @@ pub fn vector_plot(path: &Path, title: &str, fields: &[VectorField<'_>]) -> Resu
                 .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(3)));
             chart.draw_series(f.base_mm.iter().map(|b| Circle::new((b[0], b[1]), 2, colour.filled()))).map_err(err)?;
         }
-        chart
-            .configure_series_labels()
-            .background_style(WHITE.mix(0.85))
-            .border_style(BLACK)
-            .label_font(("sans-serif", 16))
-            .draw()
-            .map_err(err)?;
-        root.present().map_err(err)?;
-        Ok(())
+        finish(&mut chart, &root)
     })
 }
 

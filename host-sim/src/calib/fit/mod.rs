@@ -120,12 +120,9 @@ pub struct IdentifiabilitySummary {
     pub poorly_conditioned: bool,
 }
 
-/// A fitted model's summary: what `host-sim fit` prints and stores in the model file.
+/// A model's parameters as reports list them (mm, degrees; 6 decimals).
 #[derive(Clone, Debug, Serialize)]
-pub struct FitSummary {
-    pub method: Method,
-    pub criterion: Criterion,
-    pub n_points: usize,
+pub struct ModelFigures {
     pub a_mm: f64,
     pub b_mm: f64,
     pub c_mm: f64,
@@ -133,6 +130,31 @@ pub struct FitSummary {
     pub base_a0_mm: [f64; 2],
     pub base_b0_mm: [f64; 2],
     pub encoder_offset_deg: [f64; 2],
+}
+
+impl ModelFigures {
+    /// The figures of `m`.
+    pub fn of(m: &FiveBar<f64>) -> Self {
+        ModelFigures {
+            a_mm: round6(m.a_mm),
+            b_mm: round6(m.b_mm),
+            c_mm: round6(m.c_mm),
+            d_mm: round6(m.d_mm),
+            base_a0_mm: m.base_a0_mm.map(round6),
+            base_b0_mm: m.base_b0_mm.map(round6),
+            encoder_offset_deg: m.encoder_offset_rad.map(|v| round6(v.to_degrees())),
+        }
+    }
+}
+
+/// A fitted model's summary: what `host-sim fit` prints and stores in the model file.
+#[derive(Clone, Debug, Serialize)]
+pub struct FitSummary {
+    pub method: Method,
+    pub criterion: Criterion,
+    pub n_points: usize,
+    #[serde(flatten)]
+    pub model: ModelFigures,
     /// The points used (1-based), when not all.
     pub subset: Option<Vec<usize>>,
     /// By the criterion.
@@ -260,13 +282,7 @@ fn summary(method: Method, criterion: Criterion, model: &FiveBar<f64>, data: &[M
         method,
         criterion,
         n_points: data.len(),
-        a_mm: round6(model.a_mm),
-        b_mm: round6(model.b_mm),
-        c_mm: round6(model.c_mm),
-        d_mm: round6(model.d_mm),
-        base_a0_mm: model.base_a0_mm.map(round6),
-        base_b0_mm: model.base_b0_mm.map(round6),
-        encoder_offset_deg: model.encoder_offset_rad.map(|v| round6(v.to_degrees())),
+        model: ModelFigures::of(model),
         subset: subset.map(|s| s.iter().map(|i| i + 1).collect()),
         max_err_um: round6(max),
         rms_err_um: round6(rms),
