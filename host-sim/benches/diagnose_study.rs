@@ -240,12 +240,12 @@ fn plant_outputs() {
         .zip(&five)
         .map(|(a, b)| (a.measured_mm[0] - b.measured_mm[0]).hypot(a.measured_mm[1] - b.measured_mm[1]) * 1e3)
         .collect();
-    let rms = (d.iter().map(|v| v * v).sum::<f64>() / d.len() as f64).sqrt();
+    let m = host_sim::numeric::max_rms(&d);
     println!(
         "\nparallelogram mismatch of the paper's link errors (six-bar − effective five-bar, 5 mm grid): min {:.1}, RMS {:.1}, max {:.1} µm",
         d.iter().cloned().fold(f64::INFINITY, f64::min),
-        rms,
-        d.iter().cloned().fold(0.0, f64::max)
+        m.rms,
+        m.max
     );
     for (what, p) in [("six-bar", &paper_links), ("effective five-bar", &paper_links_five)] {
         println!("\n== paper link errors, {what}, random:200 seed 60\n{}", table(&run(p, Protocol::Random(200), 60)));

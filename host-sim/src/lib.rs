@@ -25,7 +25,7 @@
 // `!(x >= lo)` instead of `x < lo` is deliberate throughout: it also refuses NaN.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 #![forbid(unsafe_code)]
-#![deny(rust_2018_idioms, unused_must_use)]
+#![deny(rust_2018_idioms, unused_must_use, rustdoc::broken_intra_doc_links)]
 // The library reports through its return values; the command line prints.
 #![cfg_attr(not(test), deny(clippy::print_stdout, clippy::print_stderr, clippy::dbg_macro))]
 

@@ -411,7 +411,7 @@ fn stage<'a>(cal: &'a Calibrated, key: &str) -> Result<&'a Stage, IoError> {
 }
 
 /// Writes every output into `dir` (each file atomically) and returns the paths, in [`FILES`]
-/// order but for `summary.json`, which the caller writes last with [`summary_json`].
+/// order but for `summary.json`, which the caller writes last from [`summary`].
 pub fn write_outputs(cal: &Calibrated, dir: &Path) -> Result<Vec<PathBuf>, IoError> {
     let p = |name: &str| dir.join(name);
     let mut written = Vec::new();

@@ -334,11 +334,13 @@ mod tests {
     }
 
     fn grid(m: &FiveBar<f64>) -> Vec<Measurement> {
-        let nominal = FiveBar::<f64>::paper_nominal();
+        let spec = crate::machine_spec::MachineSpec::paper();
+        let (nominal, ws) = (spec.nominal, spec.workspace);
         let mut out = Vec::new();
         for i in 0..=10 {
             for j in 0..=10 {
-                let th = nominal.inverse([162.132 + 10.0 * i as f64, -75.0 + 15.0 * j as f64], 0.05).unwrap();
+                let t = [ws.x_mm[0] + 10.0 * i as f64, ws.y_mm[0] + 15.0 * j as f64];
+                let th = nominal.inverse(t, spec.min_transmission).unwrap();
                 out.push(meas(
                     [th[0].to_degrees(), th[1].to_degrees()],
                     [if i % 2 == 0 { 1 } else { -1 }, if j % 2 == 0 { 1 } else { -1 }],

@@ -233,15 +233,15 @@ pub fn analyse(problem: &Problem, data: &[Measurement], residual_um: &[f64]) -> 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use kinematics_core::FiveBar;
 
     #[test]
     fn periodogram_finds_a_joint_ripple_and_ignores_none() {
-        let nominal = FiveBar::<f64>::paper_nominal();
+        let spec = crate::machine_spec::MachineSpec::paper();
+        let (nominal, g) = (spec.nominal, spec.grid);
         let mut data = Vec::new();
-        for i in 0..=20 {
-            for j in 0..=30 {
-                let th = nominal.inverse([162.132 + 5.0 * i as f64, -75.0 + 5.0 * j as f64], 0.05).unwrap();
+        for i in 0..g.nx {
+            for j in 0..g.ny {
+                let th = nominal.inverse(g.node_mm(i, j), spec.min_transmission).unwrap();
                 let c = nominal.forward(th, 0.0).unwrap();
                 data.push(Measurement {
                     theta_deg: [th[0].to_degrees(), th[1].to_degrees()],

@@ -436,11 +436,13 @@ mod tests {
     use super::*;
     use crate::plant::config::PlantConfig;
 
+    /// 11 × 11 targets over the paper machine's workspace.
     fn grid_targets() -> Vec<[f64; 2]> {
+        let ws = crate::machine_spec::MachineSpec::paper().workspace;
         let mut v = Vec::new();
         for i in 0..=10 {
             for j in 0..=10 {
-                v.push([162.132 + 10.0 * i as f64, -75.0 + 15.0 * j as f64]);
+                v.push([ws.x_mm[0] + 10.0 * i as f64, ws.y_mm[0] + 15.0 * j as f64]);
             }
         }
         v

@@ -7,6 +7,9 @@
 //! check the data ([`check_data`]), fit by the method ([`fit`]: dyad synthesis on the chosen
 //! points, or `full`), and summarise ([`FitSummary`], what `fit` prints and stores in the model
 //! file's `fit` record).
+//!
+//! Where a change goes: a new method is a [`Method`] variant, its algorithm in its own file and
+//! its arm in [`fit`]; a new figure of a fit is a field of [`FitSummary`] (keys are the JSON's).
 
 pub mod evaluate;
 pub mod full;
