@@ -14,10 +14,10 @@ mod grid;
 mod measure;
 mod simulate;
 
-use anyhow::{anyhow, bail, Result};
+use anyhow::{anyhow, bail, Context, Result};
 use clap::{Parser, Subcommand};
 use host_sim::io::model_file::read_model;
-use host_sim::io::{json_text, read_bytes, KeyOrder};
+use host_sim::io::{json_text, KeyOrder};
 use kinematics_core::{CorrectionGrid, FiveBar};
 use std::path::Path;
 
@@ -80,7 +80,7 @@ fn load_calibration(model: Option<&Path>, grid: Option<&Path>, nominal: &FiveBar
     };
     let bytes = match grid {
         None => None,
-        Some(p) => Some(read_bytes(p)?),
+        Some(p) => Some(std::fs::read(p).with_context(|| format!("cannot read grid {}", p.display()))?),
     };
     let model = match (&bytes, from_model) {
         (Some(b), m) => {
