@@ -13,7 +13,6 @@ use host_sim::calib::pipeline::{
 };
 use host_sim::io::atomic::write_atomic;
 use host_sim::io::{json_text, KeyOrder};
-use host_sim::machine_spec::MachineSpec;
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -40,7 +39,7 @@ pub struct Args {
     pub plant: String,
     /// Instrument noise σ per axis (µm) for a plant (the demo's premise is a 1 µm instrument;
     /// the `paper` plant's own is FARO-class, 10 µm).
-    #[arg(long, default_value_t = MachineSpec::paper().instrument_sigma_um)]
+    #[arg(long, default_value_t = super::machine_spec().instrument_sigma_um)]
     pub noise_um: f64,
     /// How every pose is approached: `random` (from 5 mm away along a random direction; the
     /// grid in raster order) or `positive` (every motor reaches its command moving in the
@@ -92,7 +91,7 @@ fn format_table(cal: &Calibrated) -> String {
 
 /// `host-sim demo`.
 pub fn run(args: &Args) -> Result<()> {
-    let spec = MachineSpec::paper();
+    let spec = super::machine_spec();
     super::check_noise_um(Some(args.noise_um))?;
     let mut machine: Box<dyn Machine> = match args.plant.as_str() {
         "stand-in" => Box::new(StandInMachine::paper_like(&spec, args.seed)?),

@@ -8,7 +8,6 @@ use host_sim::io::atomic::write_atomic;
 use host_sim::io::measurement_csv::read_measurements;
 use host_sim::io::model_file::read_model;
 use host_sim::io::{json_text, KeyOrder};
-use host_sim::machine_spec::MachineSpec;
 use std::path::PathBuf;
 
 /// Command-line arguments of `host-sim diagnose`.
@@ -36,7 +35,7 @@ pub fn run(args: &Args) -> Result<()> {
     let data = read_measurements(&args.data)?;
     let base = match &args.model {
         Some(p) => read_model(p)?,
-        None => MachineSpec::paper().nominal,
+        None => super::machine_spec().nominal,
     };
     if let Some(s) = args.noise_um {
         if !(s.is_finite() && s > 0.0) {

@@ -140,7 +140,7 @@ fn check(data: &[Measurement], criterion: Criterion) -> Result<()> {
 
 /// `host-sim fit`.
 pub fn run(args: &Args) -> Result<()> {
-    let spec = MachineSpec::paper();
+    let spec = super::machine_spec();
     let data = read_measurements(&args.data)?;
     let criterion = match args.criterion {
         CriterionArg::Measured => Criterion::Measured,

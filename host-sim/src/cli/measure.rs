@@ -5,7 +5,6 @@ use anyhow::Result;
 use host_sim::calib::measure::{measure, MeasureOptions};
 use host_sim::calib::protocol::Protocol;
 use host_sim::io::measurement_csv::write_measurements;
-use host_sim::machine_spec::MachineSpec;
 use host_sim::plant::PlantConfig;
 use kinematics_core::Calibration;
 use std::path::PathBuf;
@@ -37,7 +36,7 @@ pub struct Args {
 }
 
 pub fn run(args: &Args) -> Result<()> {
-    let spec = MachineSpec::paper();
+    let spec = super::machine_spec();
     let plant = PlantConfig::by_name(&args.plant)?;
     let protocol = Protocol::parse(&args.protocol)?;
     let (model, bytes) = super::load_calibration(args.model.as_deref(), args.grid.as_deref(), &spec.nominal)?;

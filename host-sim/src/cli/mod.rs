@@ -18,6 +18,7 @@ use anyhow::{anyhow, bail, Context, Result};
 use clap::{Parser, Subcommand};
 use host_sim::io::model_file::read_model;
 use host_sim::io::{json_text, KeyOrder};
+use host_sim::machine_spec::MachineSpec;
 use kinematics_core::{CorrectionGrid, FiveBar};
 use std::path::Path;
 
@@ -63,6 +64,12 @@ pub fn run(cli: Cli) -> Result<()> {
         Tool::Diagnose(a) => diagnose::run(&a),
         Tool::Demo(a) => demo::run(&a),
     }
+}
+
+/// The machine every subcommand works on: the paper's. (A machine file, issue 12, is read
+/// here: the library already takes the description in every options struct.)
+fn machine_spec() -> MachineSpec {
+    MachineSpec::paper()
 }
 
 /// Prints a JSON document on stdout (one document, pretty, final newline).

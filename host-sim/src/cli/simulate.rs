@@ -6,7 +6,6 @@ use anyhow::{bail, Result};
 use host_sim::io::atomic::write_atomic;
 use host_sim::io::plot::{xy_plot, Mark, Series};
 use host_sim::io::KeyOrder;
-use host_sim::machine_spec::MachineSpec;
 use host_sim::plant::{PlantConfig, PlantModel};
 use host_sim::sim::simulate::{format_log, simulate, SimulateOptions, MAX_SECONDS};
 use host_sim::sim::trajectory::Trajectory;
@@ -46,7 +45,7 @@ pub struct Args {
 }
 
 pub fn run(args: &Args) -> Result<()> {
-    let spec = MachineSpec::paper();
+    let spec = super::machine_spec();
     let mut cfg = PlantConfig::by_name(&args.plant)?;
     match args.plant_model.as_deref() {
         None => {}
