@@ -31,6 +31,7 @@ pub mod grid;
 pub mod inverse;
 pub mod jacobian;
 pub mod model;
+pub mod paper;
 pub mod pid;
 pub mod pose;
 pub mod real;
