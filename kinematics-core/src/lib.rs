@@ -42,6 +42,7 @@ pub mod jerk_profile;
 pub mod joint_limits;
 pub mod joint_motion;
 pub mod model;
+pub mod paper;
 pub mod path;
 pub mod pid;
 pub mod pose;
