@@ -141,6 +141,17 @@ impl<T: Real> FiveBarDynamics<T> {
         Ok(())
     }
 
+    /// Every mass and inertia scaled: `factors` multiply `I1, I2, m_C, J3, J4` (friction
+    /// unchanged). What a model error of ±20 % looks like, for robustness studies.
+    pub fn scaled_masses(&self, factors: [T; 5]) -> Self {
+        FiveBarDynamics {
+            motor_inertia_kg_m2: [self.motor_inertia_kg_m2[0] * factors[0], self.motor_inertia_kg_m2[1] * factors[1]],
+            tool_mass_kg: self.tool_mass_kg * factors[2],
+            distal_inertia_kg_m2: [self.distal_inertia_kg_m2[0] * factors[3], self.distal_inertia_kg_m2[1] * factors[4]],
+            ..*self
+        }
+    }
+
     /// The same parameters in another scalar type.
     pub fn cast<U: Real>(&self) -> FiveBarDynamics<U> {
         let p = self.to_array().map(|v| U::from_f64(v.to_f64()));

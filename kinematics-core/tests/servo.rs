@@ -174,12 +174,7 @@ mod motion {
     }
 
     fn scaled(d: &FiveBarDynamics<f64>, k: [f64; 5]) -> FiveBarDynamics<f64> {
-        FiveBarDynamics {
-            motor_inertia_kg_m2: [d.motor_inertia_kg_m2[0] * k[0], d.motor_inertia_kg_m2[1] * k[1]],
-            tool_mass_kg: d.tool_mass_kg * k[2],
-            distal_inertia_kg_m2: [d.distal_inertia_kg_m2[0] * k[3], d.distal_inertia_kg_m2[1] * k[4]],
-            ..*d
-        }
+        d.scaled_masses(k)
     }
 
     /// 5 g moves through the workspace corners and back, 50 ms dwell after each.
