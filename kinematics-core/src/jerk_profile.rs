@@ -98,6 +98,8 @@ pub struct JerkProfile<T> {
     t_j: T,
     t_a: T,
     t_v: T,
+    /// `2·t_a + t_v`.
+    total: T,
     /// States (position, velocity) at the ends of the first three phases; acceleration `a_p`.
     p1: T,
     v1: T,
@@ -159,7 +161,7 @@ impl<T: Real> JerkProfile<T> {
         let v2 = v1 + a_p * dt;
         let p3 = p2 + v2 * t_j + a_p * t_j * t_j * T::HALF - p1;
         let v3 = v2 + v1;
-        JerkProfile { distance, sign, jerk, t_j, t_a, t_v, p1, v1, p2, v2, p3, v3, a_p }
+        JerkProfile { distance, sign, jerk, t_j, t_a, t_v, total: T::TWO * t_a + t_v, p1, v1, p2, v2, p3, v3, a_p }
     }
 
     /// The same profile run `factor` times slower (`factor > 1`) or faster: `s_k(t) = s(t/k)`,
@@ -188,7 +190,7 @@ impl<T: Real> JerkProfile<T> {
 
     /// Total duration (s).
     pub fn duration_s(&self) -> T {
-        T::TWO * self.t_a + self.t_v
+        self.total
     }
 
     /// The signed distance covered.

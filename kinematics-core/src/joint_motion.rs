@@ -61,6 +61,24 @@ impl<T: Real> FiveBar<T> {
         acceleration_mm_s2: [T; 2],
         min_transmission: T,
     ) -> Result<JointMotion<T>, KinematicsError> {
+        self.solve_motion(tool_mm, velocity_mm_s, Some(acceleration_mm_s2), min_transmission)
+    }
+
+    /// [`FiveBar::inverse_motion`] without the accelerations (left zero): angles, rates and the
+    /// link vectors, for the servo's joint samples.
+    #[inline]
+    pub fn inverse_rates(&self, tool_mm: [T; 2], velocity_mm_s: [T; 2], min_transmission: T) -> Result<JointMotion<T>, KinematicsError> {
+        self.solve_motion(tool_mm, velocity_mm_s, None, min_transmission)
+    }
+
+    #[inline(always)]
+    fn solve_motion(
+        &self,
+        tool_mm: [T; 2],
+        velocity_mm_s: [T; 2],
+        acceleration_mm_s2: Option<[T; 2]>,
+        min_transmission: T,
+    ) -> Result<JointMotion<T>, KinematicsError> {
         let s = self.solve_inverse(tool_mm, min_transmission)?;
         let mut m = JointMotion {
             angle_rad: [s.arm_1.theta_rad, s.arm_2.theta_rad],
@@ -69,7 +87,7 @@ impl<T: Real> FiveBar<T> {
             proximal_mm: [[T::ZERO; 2]; 2],
             distal_mm: [[T::ZERO; 2]; 2],
             tool_velocity_mm_s: velocity_mm_s,
-            tool_acceleration_mm_s2: acceleration_mm_s2,
+            tool_acceleration_mm_s2: acceleration_mm_s2.unwrap_or([T::ZERO; 2]),
         };
         for (i, arm) in [&s.arm_1, &s.arm_2].into_iter().enumerate() {
             // The IK's vectors are scaled by 2ρ².
@@ -82,16 +100,19 @@ impl<T: Real> FiveBar<T> {
             }
             let inv_k = T::ONE / k;
             let w = dot(q, velocity_mm_s) * inv_k;
-            // Ċ - Ȧ with Ȧ = θ̇·p⊥, p⊥ = (-p_y, p_x).
-            let rel = [velocity_mm_s[0] + w * p[1], velocity_mm_s[1] - w * p[0]];
-            let alpha = (dot(q, acceleration_mm_s2) + w * w * dot(q, p) + dot(rel, rel)) * inv_k;
+            if let Some(acc) = acceleration_mm_s2 {
+                // Ċ - Ȧ with Ȧ = θ̇·p⊥, p⊥ = (-p_y, p_x).
+                let rel = [velocity_mm_s[0] + w * p[1], velocity_mm_s[1] - w * p[0]];
+                m.acceleration_rad_s2[i] = (dot(q, acc) + w * w * dot(q, p) + dot(rel, rel)) * inv_k;
+            }
             m.velocity_rad_s[i] = w;
-            m.acceleration_rad_s2[i] = alpha;
             m.proximal_mm[i] = p;
             m.distal_mm[i] = q;
         }
-        let finite = m.velocity_rad_s.iter().chain(m.acceleration_rad_s2.iter()).all(|v| v.is_finite());
-        if !finite {
+        // All finite exactly when their sum is (beyond 1e38 no machine moves either).
+        let sum = m.velocity_rad_s[0] + m.velocity_rad_s[1] + m.acceleration_rad_s2[0] + m.acceleration_rad_s2[1];
+        #[allow(clippy::eq_op)] // `sum - sum` is the test
+        if !(sum - sum == T::ZERO) {
             return Err(KinematicsError::NonFinite);
         }
         Ok(m)

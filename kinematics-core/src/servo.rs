@@ -8,11 +8,12 @@
 //! function against the simulated plant; nothing else computes a motor command.
 //!
 //! [`Servo::step_motion`] takes a [`MotionSetpoint`] (position with its exact velocity,
-//! acceleration and jerk, from a [`crate::trajectory`]) instead: the same checks, the reference
-//! from the joint motion half a sample ahead ([`crate::feed_forward`]), the feed-forward from the
-//! identified inverse dynamics ([`Servo::set_dynamics`]; without them the gains' constant
-//! feed-forward on the same joint motion) and the PID on the remainder
-//! ([`AxisController::feedback`]). No finite-difference lag.
+//! acceleration and jerk, from a [`crate::trajectory`]) and the next one, if queued, instead:
+//! the same checks, the feed-forward from the identified inverse dynamics of the mean motion
+//! until the next sample ([`crate::feed_forward`]; [`Servo::set_dynamics`]; without them the
+//! gains' constant feed-forward on the same motion) and the PID on the remainder
+//! ([`AxisController::feedback`]). No finite-difference lag. The next setpoint's joint state is
+//! kept for the next step, so each step solves one IK.
 //!
 //! # Faults
 //! Any of these latches a fault, sets both torques to zero (safe torque off: the drives are
@@ -29,7 +30,7 @@
 //! any input (property-tested).
 
 use crate::dynamics::{DynamicsError, FiveBarDynamics};
-use crate::feed_forward::{feed_forward_nm, hold_interval};
+use crate::feed_forward::{feed_forward_nm, interval_motion, predict, JointSample};
 use crate::grid::{CorrectionGrid, GridError};
 use crate::model::FiveBar;
 use crate::real::Real;
@@ -112,8 +113,8 @@ impl<'a> Calibration<'a> {
 
     /// Encoder angles that put the tool at `tool_mm`: model IK plus grid correction. This is the
     /// one function that turns a target into a motor command, on the MCU and in the host tools.
-    /// ([`Servo::step_motion`] takes the model's angle from the joint motion around the
-    /// setpoint instead, the same at rest and within 1e-7 rad in motion, and corrects it here.)
+    /// ([`Servo::step_motion`] keeps the model's angle from the IK it solved for the setpoint a
+    /// step earlier, and corrects it here.)
     pub fn command_rad(&self, tool_mm: [f32; 2], min_transmission: f32) -> Result<[f32; 2], ServoFault> {
         let theta = self.model.inverse(tool_mm, min_transmission).map_err(ServoFault::Kinematics)?;
         self.corrected_rad(tool_mm, theta)
@@ -197,10 +198,24 @@ pub struct Servo {
     history: Option<History>,
     fault: Option<ServoFault>,
     dynamics: Option<FiveBarDynamics<f32>>,
+    /// Two joint states: this step's setpoint's and the next's. Solved in place (no copies).
+    joint: [JointSample<f32>; 2],
+    /// Which slot holds the last step's next setpoint's state, if still valid.
+    ahead: Option<usize>,
 }
 
 fn finite2(v: [f32; 2]) -> bool {
     v[0].is_finite() && v[1].is_finite()
+}
+
+/// Every number of the setpoint finite: exactly when their sum is (a sum beyond 1e38 is no
+/// setpoint either). Cheaper than testing each.
+#[inline(always)]
+fn finite_setpoint(s: &MotionSetpoint<f32>) -> bool {
+    let sum = [s.position_mm, s.velocity_mm_s, s.acceleration_mm_s2, s.jerk_mm_s3].iter().flatten().fold(0.0f32, |a, v| a + v);
+    #[allow(clippy::eq_op)] // `sum - sum` is the test
+    let finite = sum - sum == 0.0;
+    finite
 }
 
 /// `angle` plus the multiple of 2π that brings it nearest to `near`: `angle` itself, after one
@@ -218,7 +233,15 @@ fn unwrap_near(angle: f32, near: f32) -> f32 {
 impl Servo {
     /// A servo with `config`, not engaged yet.
     pub fn new(config: ServoConfig) -> Self {
-        Servo { config, axes: [AxisController::default(); 2], history: None, fault: None, dynamics: None }
+        Servo {
+            config,
+            axes: [AxisController::default(); 2],
+            history: None,
+            fault: None,
+            dynamics: None,
+            joint: [JointSample::zero(); 2],
+            ahead: None,
+        }
     }
 
     /// The identified dynamics [`Servo::step_motion`] feeds forward (`None`: the gains'
@@ -251,6 +274,7 @@ impl Servo {
     pub fn engage(&mut self, cal: &Calibration<'_>, encoder_rad: [f32; 2]) -> Result<[f32; 2], ServoFault> {
         self.history = None;
         self.fault = None;
+        self.ahead = None;
         self.axes = [AxisController::default(); 2];
         if !finite2(encoder_rad) {
             return Err(self.latch(ServoFault::NonFiniteFeedback));
@@ -277,6 +301,7 @@ impl Servo {
     fn latch(&mut self, fault: ServoFault) -> ServoFault {
         self.fault = Some(fault);
         self.history = None;
+        self.ahead = None;
         for a in &mut self.axes {
             a.reset();
         }
@@ -298,20 +323,23 @@ impl Servo {
         self.close_loop(h, setpoint_mm, command, encoder_rad, None)
     }
 
-    /// One sample towards a setpoint with its exact derivatives (see the module doc): the
-    /// checks of [`Servo::step`], plus the setpoint's stated speed and acceleration within the
-    /// limits. On `Err` the fault is latched and both torques must be taken as zero.
+    /// One sample towards `setpoint` with its exact derivatives, `next` the setpoint one sample
+    /// later if known (else it is predicted from `setpoint`'s acceleration and jerk): the checks
+    /// of [`Servo::step`], plus the setpoint's derivatives finite and its stated speed and
+    /// acceleration within the limits (`next` is checked when it is the setpoint). On `Err` the
+    /// fault is latched and both torques must be taken as zero.
     pub fn step_motion(
         &mut self,
         cal: &Calibration<'_>,
         setpoint: &MotionSetpoint<f32>,
+        next: Option<&MotionSetpoint<f32>>,
         encoder_rad: [f32; 2],
     ) -> Result<ServoOutput, ServoFault> {
+        let cfg = self.config;
         if self.history.is_some() {
-            if !setpoint.is_finite() {
+            if !finite_setpoint(setpoint) {
                 return Err(self.latch(ServoFault::NonFiniteSetpoint));
             }
-            let cfg = &self.config;
             let (v, a) = (setpoint.velocity_mm_s, setpoint.acceleration_mm_s2);
             if !(v[0] * v[0] + v[1] * v[1] <= cfg.max_speed_mm_s * cfg.max_speed_mm_s)
                 || !(a[0] * a[0] + a[1] * a[1] <= cfg.max_accel_mm_s2 * cfg.max_accel_mm_s2)
@@ -321,20 +349,41 @@ impl Servo {
         }
         let p = setpoint.position_mm;
         let h = self.accept(p, encoder_rad)?;
-        let cfg = self.config;
-        let interval = match hold_interval(&cal.model, setpoint, cfg.sample_period_s, cfg.min_transmission) {
-            Ok(i) => i,
-            Err(e) => return Err(self.latch(ServoFault::Kinematics(e))),
+        let m = cfg.min_transmission;
+        // This setpoint's joint state: the last step's look-ahead if it was this setpoint.
+        let now = match self.ahead {
+            Some(i) if self.joint[i].is_for(setpoint) => i,
+            _ => {
+                if let Err(e) = self.joint[0].solve(&cal.model, setpoint, m) {
+                    return Err(self.latch(ServoFault::Kinematics(e)));
+                }
+                0
+            }
         };
-        let command = match cal.corrected_rad(p, interval.angle_rad) {
+        let (a, b) = self.joint.split_at_mut(1);
+        let (now_state, next_state) = if now == 0 { (&a[0], &mut b[0]) } else { (&b[0], &mut a[0]) };
+        // The look-ahead never faults this sample: a next setpoint that is not finite or not
+        // reachable is refused in its own sample; until then the prediction stands in for it
+        // (and, if that is out of reach too, no motion).
+        let solved = match next {
+            Some(n) if finite_setpoint(n) => next_state.solve(&cal.model, n, m).is_ok(),
+            _ => false,
+        };
+        if !solved && next_state.solve(&cal.model, &predict(setpoint, cfg.sample_period_s), m).is_err() {
+            *next_state = *now_state;
+        }
+        let motion = interval_motion(now_state, next_state, cfg.sample_period_s);
+        let command = match cal.corrected_rad(p, now_state.angle_rad) {
             Ok(c) => c,
             Err(f) => return Err(self.latch(f)),
         };
-        let ff = match feed_forward_nm(&interval, self.dynamics.as_ref(), &cfg.axes) {
+        let ff = match feed_forward_nm(&motion, self.dynamics.as_ref(), &cfg.axes) {
             Ok(t) => t,
             Err(e) => return Err(self.latch(ServoFault::Kinematics(e))),
         };
-        self.close_loop(h, p, command, encoder_rad, Some(ff))
+        let out = self.close_loop(h, p, command, encoder_rad, Some(ff))?;
+        self.ahead = Some(1 - now);
+        Ok(out)
     }
 
     /// The checks every sample starts with: engaged, finite setpoint and encoders, a setpoint

@@ -191,6 +191,11 @@ mod motion {
     }
 
     fn worst_following_um_with(plant: &FiveBarDynamics<f64>, model: Option<FiveBarDynamics<f64>>, config: ServoConfig) -> f64 {
+        worst_following_um_ahead(plant, model, config, true)
+    }
+
+    /// `look_ahead`: the servo is given the next setpoint (else it predicts it).
+    fn worst_following_um_ahead(plant: &FiveBarDynamics<f64>, model: Option<FiveBarDynamics<f64>>, config: ServoConfig, look_ahead: bool) -> f64 {
         let five = FiveBar::<f64>::paper_nominal();
         let cal = Calibration { model: FiveBar::paper_nominal(), grid: None };
         let moves = tour();
@@ -205,14 +210,16 @@ mod motion {
         servo.set_dynamics(model.map(|d| d.cast())).unwrap();
         servo.engage(&cal, [th[0] as f32, th[1] as f32]).unwrap();
         let mut worst = 0.0f64;
-        for s in &samples {
-            let sp = MotionSetpoint {
-                position_mm: s.position_mm.map(|v| v as f32),
-                velocity_mm_s: s.velocity_mm_s.map(|v| v as f32),
-                acceleration_mm_s2: s.acceleration_mm_s2.map(|v| v as f32),
-                jerk_mm_s3: s.jerk_mm_s3.map(|v| v as f32),
-            };
-            let out = servo.step_motion(&cal, &sp, [th[0] as f32, th[1] as f32]).unwrap();
+        let f32_setpoint = |s: &MotionSetpoint<f64>| MotionSetpoint {
+            position_mm: s.position_mm.map(|v| v as f32),
+            velocity_mm_s: s.velocity_mm_s.map(|v| v as f32),
+            acceleration_mm_s2: s.acceleration_mm_s2.map(|v| v as f32),
+            jerk_mm_s3: s.jerk_mm_s3.map(|v| v as f32),
+        };
+        for (k, s) in samples.iter().enumerate() {
+            let sp = f32_setpoint(s);
+            let next = samples.get(k + 1).filter(|_| look_ahead).map(f32_setpoint);
+            let out = servo.step_motion(&cal, &sp, next.as_ref(), [th[0] as f32, th[1] as f32]).unwrap();
             let j = five.inverse_pose(s.position_mm, 0.0).unwrap().jacobian().unwrap();
             let e = out.following_error_rad.map(f64::from);
             worst = worst.max(1e3 * (j[0][0] * e[0] + j[0][1] * e[1]).hypot(j[1][0] * e[0] + j[1][1] * e[1]));
@@ -245,6 +252,7 @@ mod motion {
     fn follows_5g_moves_with_the_dynamics_fed_forward_even_with_20_percent_mass_errors() {
         let t = truth();
         let exact = worst_following_um(&t, Some(t));
+        let predicted = worst_following_um_ahead(&t, Some(t), ServoConfig::default(), false);
         let off = worst_following_um(&t, Some(scaled(&t, [1.2, 0.8, 1.2, 0.8, 1.2])));
         let off2 = worst_following_um(&t, Some(scaled(&t, [0.8, 1.2, 0.8, 1.2, 0.8])));
         let constant = worst_following_um(&t, None);
@@ -254,10 +262,12 @@ mod motion {
         }
         let none = worst_following_um_with(&t, None, bare);
         println!(
-            "5 g tour, five-bar plant: {exact:.2} µm exact model, {off:.2} / {off2:.2} µm with ±20 %, \
-             {constant:.2} µm with the constant inertia feed-forward, {none:.1} µm without feed-forward"
+            "5 g tour, five-bar plant: {exact:.2} µm exact model ({predicted:.2} µm predicting the next setpoint), \
+             {off:.2} / {off2:.2} µm with ±20 %, {constant:.2} µm with the constant inertia feed-forward, \
+             {none:.1} µm without feed-forward"
         );
-        assert!(exact < 2.0, "{exact}");
+        assert!(exact < 1.0, "{exact}");
+        assert!(predicted < 2.0 && predicted > exact, "{predicted}");
         assert!(off < 10.0 && off2 < 10.0, "{off} {off2}");
         assert!(constant > 2.0 * exact, "{constant}");
         assert!(none > 10.0 * exact, "{none}");
@@ -274,7 +284,7 @@ mod motion {
     #[test]
     fn at_rest_the_reference_is_the_command() {
         let (mut servo, cal, theta) = engaged();
-        let out = servo.step_motion(&cal, &MotionSetpoint::at_rest([212.132, 0.0]), theta).unwrap();
+        let out = servo.step_motion(&cal, &MotionSetpoint::at_rest([212.132, 0.0]), None, theta).unwrap();
         assert_eq!(out.reference_rad, cal.command_rad([212.132, 0.0], 0.05).unwrap());
     }
 
@@ -290,14 +300,19 @@ mod motion {
             // A 0.1 mm step that claims to be at rest: the positions tell.
             (MotionSetpoint::at_rest([212.232, 0.0]), ServoFault::SetpointJump),
         ];
+        // A non-finite next setpoint is refused in its own sample, not in the one before.
+        let (mut servo, cal, theta) = engaged();
+        let bad_next = MotionSetpoint::at_rest([f32::NAN, 0.0]);
+        assert!(servo.step_motion(&cal, &rest, Some(&bad_next), theta).is_ok());
+        assert_eq!(servo.step_motion(&cal, &bad_next, None, theta), Err(ServoFault::NonFiniteSetpoint));
         for (sp, want) in cases {
             let (mut servo, cal, theta) = engaged();
-            assert_eq!(servo.step_motion(&cal, &sp, theta), Err(want), "{sp:?}");
-            assert_eq!(servo.step_motion(&cal, &rest, theta), Err(want), "latched");
+            assert_eq!(servo.step_motion(&cal, &sp, None, theta), Err(want), "{sp:?}");
+            assert_eq!(servo.step_motion(&cal, &rest, None, theta), Err(want), "latched");
         }
         let (mut servo, cal, theta) = engaged();
         let far = MotionSetpoint::at_rest([212.132f32, 0.0]);
-        assert!(servo.step_motion(&cal, &far, [theta[0] + 0.05, theta[1]]).is_err());
+        assert!(servo.step_motion(&cal, &far, None, [theta[0] + 0.05, theta[1]]).is_err());
         assert_eq!(servo.fault(), Some(ServoFault::FollowingError));
     }
 

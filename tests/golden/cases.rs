@@ -184,7 +184,9 @@ pub fn run(emit: &mut impl FnMut(u32)) {
             Ok(t) => t.iter().for_each(|v| emit(v.to_bits())),
             Err(e) => emit(ERROR | code(e)),
         }
-        match servo.step_motion(&cal, &s, angle) {
+        // Every other sample with the next setpoint, the others predicting it.
+        let next = contour.at((n + 1) as f32 * 5e-4);
+        match servo.step_motion(&cal, &s, (n % 2 == 0).then_some(&next), angle) {
             Ok(out) => {
                 emit(out.torque_nm[0].to_bits());
                 emit(out.torque_nm[1].to_bits());

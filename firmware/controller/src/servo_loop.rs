@@ -171,7 +171,9 @@ impl<'a> ServoLoop<'a> {
         };
         let setpoint_mm = setpoint.position_mm;
         sample.refill = queue.len() < REFILL_BELOW;
-        match self.servo.step_motion(&self.calibration, &setpoint, encoder_rad) {
+        // The next setpoint, if queued: the feed-forward's look-ahead (else it is predicted).
+        let next = queue.peek().copied();
+        match self.servo.step_motion(&self.calibration, &setpoint, next.as_ref(), encoder_rad) {
             Ok(out) => {
                 self.setpoint_mm = setpoint_mm;
                 self.reference_rad = out.reference_rad;

@@ -282,9 +282,10 @@ fn main() -> ! {
     }
 
     // The motion step: back and forth along the 5 g move without dwell (in motion but for an
-    // instant at each end), the setpoint evaluated from the trajectory at the sample's time
+    // instant at each end), the next setpoint evaluated from the trajectory at its sample's time
     // within the move (integer sample counts, as the firmware's setpoint source keeps them),
-    // then `Servo::step_motion` with the identified dynamics fed forward.
+    // then `Servo::step_motion` with it as the look-ahead and the identified dynamics fed
+    // forward.
     let Ok(back) = PathMotion::line([255.0, 68.0], [170.0, -65.0], &limits) else { board::exit(false) };
     let move_samples = libm::ceilf(line.duration_s() / 5.0e-4) as usize;
     let sample = |k: usize| {
@@ -306,10 +307,14 @@ fn main() -> ! {
             board::exit(false);
         }
         let mut fault = None;
+        // One trajectory evaluation per step: the next setpoint (the current one is the last
+        // step's next), as the setpoint task queues them.
+        let mut current = sample(0);
         let step = measure(&counter, |i| {
-            let s = sample(black_box(i));
-            match servo.step_motion(cal, &s, black_box(encoder)) {
-                Ok(out) => encoder = out.reference_rad,
+            let next = sample(black_box(i) + 1);
+            let stepped = servo.step_motion(cal, &current, Some(&next), black_box(encoder));
+            current = next;
+            match stepped {                Ok(out) => encoder = out.reference_rad,
                 Err(f) => fault = fault.or(Some((i, f))),
             }
         });

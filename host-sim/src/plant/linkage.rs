@@ -27,13 +27,13 @@
 //! hidden robot's five lumped parameters ([`Linkage::lumped`], `kinematics_core::dynamics`)
 //! reproduce them.
 //!
-//! Cost: about 150 flops per torque evaluation (three per inertia matrix); the closed loop
-//! evaluates `M` and `h` four times per 50 µs substep (RK4).
+//! Cost: about 150 flops per torque evaluation; [`Linkage::inertia_and_coriolis`] is five at
+//! one pose (one FK), which the plant evaluates once per 2 kHz sample (`motion`).
 
 use kinematics_core::dynamics::FiveBarDynamics;
 use kinematics_core::jacobian::Mat2;
 use kinematics_core::joint_motion::motion_from_pose;
-use kinematics_core::{FiveBar, KinematicsError};
+use kinematics_core::{FiveBar, KinematicsError, Pose};
 use serde::{Deserialize, Serialize};
 
 /// Masses of the six-bar's bodies (plant TOML section `[linkage]`; every value is optional in
@@ -111,6 +111,23 @@ pub struct Arm {
     pub elbow_piece_kg: f64,
 }
 
+/// The inertia matrix and velocity-product coefficients at one configuration.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct InertiaAt {
+    /// `M` (kg·m²), symmetric.
+    pub mass_kg_m2: Mat2<f64>,
+    /// Per motor `i`: `[c_i11, c_i22, c_i12]` with `h_i = c_i11·θ̇1² + c_i22·θ̇2² + 2·c_i12·θ̇1·θ̇2`.
+    pub quadratic: [[f64; 3]; 2],
+}
+
+impl InertiaAt {
+    /// The velocity-product torques `h(θ̇)` (N·m).
+    pub fn bias_nm(&self, w: [f64; 2]) -> [f64; 2] {
+        let q = &self.quadratic;
+        [0, 1].map(|i| q[i][0] * w[0] * w[0] + q[i][1] * w[1] * w[1] + 2.0 * q[i][2] * w[0] * w[1])
+    }
+}
+
 /// The six-bar's bodies on the equivalent five-bar's kinematics.
 #[derive(Clone, Debug)]
 pub struct Linkage {
@@ -157,11 +174,15 @@ impl Linkage {
     pub fn torque_nm(&self, angle_rad: [f64; 2], velocity_rad_s: [f64; 2], acceleration_rad_s2: [f64; 2]) -> Result<[f64; 2], KinematicsError> {
         let pose = self.five.forward_pose(angle_rad, 0.0)?;
         let jc = pose.jacobian()?;
-        let m = motion_from_pose(&pose, velocity_rad_s, acceleration_rad_s2)?;
+        self.torque_at(&pose, &jc, velocity_rad_s, acceleration_rad_s2)
+    }
+
+    /// [`Linkage::torque_nm`] at a solved pose with its Jacobian `jc` (mm/rad).
+    fn torque_at(&self, pose: &Pose<f64>, jc: &Mat2<f64>, velocity_rad_s: [f64; 2], acceleration_rad_s2: [f64; 2]) -> Result<[f64; 2], KinematicsError> {
+        let m = motion_from_pose(pose, velocity_rad_s, acceleration_rad_s2)?;
         let mm = 1e-3;
-        // Tool point (m, m/s²) and its Jacobian (m/rad), columns per motor.
+        // Tool point (m/s²) and its Jacobian (m/rad), columns per motor.
         let a_c = [m.tool_acceleration_mm_s2[0] * mm, m.tool_acceleration_mm_s2[1] * mm];
-        let v_c = [m.tool_velocity_mm_s[0] * mm, m.tool_velocity_mm_s[1] * mm];
         let jc_col = |k: usize| [jc[0][k] * mm, jc[1][k] * mm];
         let mut tau = [0.0; 2];
         // Platform and tool: a point mass at C.
@@ -174,7 +195,6 @@ impl Linkage {
             let p = [m.proximal_mm[i][0] * mm, m.proximal_mm[i][1] * mm];
             let q = [m.distal_mm[i][0] * mm, m.distal_mm[i][1] * mm];
             let pp = perp(p);
-            let v_a = [w * pp[0], w * pp[1]];
             let a_a = [al * pp[0] - w * w * p[0], al * pp[1] - w * w * p[1]];
             // The elbow's Jacobian: column i is p⊥, the other column zero.
             let ja_col = |k: usize| if k == i { pp } else { [0.0; 2] };
@@ -185,7 +205,6 @@ impl Linkage {
             // Distal bar and its follower: centre at the middle of A–C, turning with φ.
             let q2 = dot(q, q);
             let phi_dd = cross(q, [a_c[0] - a_a[0], a_c[1] - a_a[1]]) / q2;
-            let _phi_d = cross(q, [v_c[0] - v_a[0], v_c[1] - v_a[1]]) / q2;
             let a_mid = [(a_a[0] + a_c[0]) / 2.0, (a_a[1] + a_c[1]) / 2.0];
             for bar in [arm.distal_q, arm.follower_g] {
                 for (k, t) in tau.iter_mut().enumerate() {
@@ -202,10 +221,23 @@ impl Linkage {
     /// The inertia matrix (kg·m²) and velocity-product torques (N·m) at link angles and
     /// velocities: `τ = M·θ̈ + h`.
     pub fn mass_matrix_and_bias(&self, angle_rad: [f64; 2], velocity_rad_s: [f64; 2]) -> Result<(Mat2<f64>, [f64; 2]), KinematicsError> {
-        let h = self.torque_nm(angle_rad, velocity_rad_s, [0.0; 2])?;
-        let c0 = self.torque_nm(angle_rad, [0.0; 2], [1.0, 0.0])?;
-        let c1 = self.torque_nm(angle_rad, [0.0; 2], [0.0, 1.0])?;
-        Ok(([[c0[0], c1[0]], [c0[1], c1[1]]], h))
+        let d = self.inertia_and_coriolis(angle_rad)?;
+        Ok((d.mass_kg_m2, d.bias_nm(velocity_rad_s)))
+    }
+
+    /// The inertia matrix and the velocity-product coefficients at link angles: five torque
+    /// evaluations at one pose (the velocity products are a quadratic form in `θ̇`).
+    pub fn inertia_and_coriolis(&self, angle_rad: [f64; 2]) -> Result<InertiaAt, KinematicsError> {
+        let pose = self.five.forward_pose(angle_rad, 0.0)?;
+        let jc = pose.jacobian()?;
+        let t = |w: [f64; 2], al: [f64; 2]| self.torque_at(&pose, &jc, w, al);
+        let (c0, c1) = (t([0.0; 2], [1.0, 0.0])?, t([0.0; 2], [0.0, 1.0])?);
+        let (h1, h2, h12) = (t([1.0, 0.0], [0.0; 2])?, t([0.0, 1.0], [0.0; 2])?, t([1.0, 1.0], [0.0; 2])?);
+        let mut quadratic = [[0.0; 3]; 2];
+        for i in 0..2 {
+            quadratic[i] = [h1[i], h2[i], 0.5 * (h12[i] - h1[i] - h2[i])];
+        }
+        Ok(InertiaAt { mass_kg_m2: [[c0[0], c1[0]], [c0[1], c1[1]]], quadratic })
     }
 
     /// Kinetic energy (J) at link angles and velocities: `½·θ̇ᵀ·M·θ̇`.

@@ -220,7 +220,10 @@ pub fn run_loop_with(
         let enc32 = [enc[0] as f32, enc[1] as f32];
         let stepped = match (feedforward, trajectory.motion_at(t)) {
             (FeedForward::Differences, _) | (_, None) => servo.step(cal, [sp[0] as f32, sp[1] as f32], enc32),
-            (_, Some(m)) => servo.step_motion(cal, &cast_setpoint(&m), enc32),
+            (_, Some(m)) => {
+                let next = trajectory.motion_at(t + dt).map(|n| cast_setpoint(&n));
+                servo.step_motion(cal, &cast_setpoint(&m), next.as_ref(), enc32)
+            }
         };
         let out = match stepped {
             Ok(o) => o,
