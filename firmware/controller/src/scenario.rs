@@ -16,6 +16,19 @@
 //! the very sample the fault latched and in every sample after it. The calibration is checked
 //! against the harness's own reading of the flash region, not the firmware's.
 //!
+//! # The stalled servo task (`stalled-task`, the watchdog)
+//! Once the tool moves at [`STALL_MIN_SPEED_MM_S`] or more (after [`INJECT_AT_SAMPLE`]), the
+//! harness stops the servo task from completing: at the start of the next sample it disables
+//! interrupts and spins, as a logger blocking inside a critical section would. Nothing but
+//! the watchdog can act: the QEMU board's CMSDK watchdog raises its NMI, whose handler removes
+//! torque. [`Scenario::watchdog_fired`] then checks the hardware as the NMI found it and after
+//! (drive enable on until then, off and zero torque after), that torque was removed within the
+//! stated timeout of the stall ([`crate::watchdog::TIMEOUT_US`]) and that the watchdog fired
+//! that long after its last feed. The run then waits for the watchdog's reset; the boot after
+//! it is [`Scenario::WatchdogRestart`]: the drives must stay off (`Fault::Watchdog(Reset)`).
+//! In any other test scenario a watchdog interrupt fails the run; in the production path it
+//! removes torque and waits for the reset.
+//!
 //! # Bounds (`track`)
 //! * at least [`MIN_TRACK_TICKS`] samples (2 s of simulated time at 2 kHz) and the whole tour;
 //! * no fault, drive enable on in every sample, no overrun, no setpoint underrun, worst step
@@ -34,6 +47,7 @@ use crate::calibration::CalibrationState;
 use crate::fault::Fault;
 use crate::settings::Settings;
 use crate::status::Status;
+use crate::watchdog::{ResetCause, WatchdogFault, TIMEOUT_US};
 
 /// Sample at which the injected faults are applied (1 s into the run).
 pub const INJECT_AT_SAMPLE: u32 = 2_000;
@@ -61,6 +75,13 @@ pub const BAD_IMAGE_TICKS: u32 = 1_000;
 pub const MAX_TICKS: u32 = 12_000;
 /// [`Scenario::LongRun`] observes the production path for 8 s, past [`MAX_TICKS`].
 pub const LONG_RUN_TICKS: u32 = 16_000;
+/// `stalled-task` stalls the servo task once the tool moves at least this fast (mm/s); the
+/// built-in tour peaks at 1380 mm/s on its diagonal after [`INJECT_AT_SAMPLE`].
+pub const STALL_MIN_SPEED_MM_S: f32 = 1_200.0;
+/// How far the watchdog's interrupt may be from its stated timeout after the last feed (µs):
+/// a tenth of a servo period (QEMU's timing is exact; this is the NMI's entry and the reading of
+/// the clock).
+pub const WATCHDOG_TIMING_TOLERANCE_US: f32 = 50.0;
 /// The tour of [`Scenario::OutOfReach`]: towards (320, 0) mm, beyond the 300 mm reach.
 pub const OUT_OF_REACH_TOUR_MM: [[f32; 2]; 1] = [[320.0, 0.0]];
 
@@ -84,6 +105,12 @@ pub enum Scenario {
     Jump,
     /// Three 700 µs steps in a row at 1 s: `DeadlineMissed`.
     Overrun,
+    /// The servo task stalls (interrupts disabled, spinning) while the tool moves at speed:
+    /// the watchdog must remove torque within its timeout, then reset.
+    StalledTask,
+    /// The boot after [`Scenario::StalledTask`]'s watchdog reset (not named on the command
+    /// line: [`Scenario::after_reset`]): the drives must never be enabled.
+    WatchdogRestart,
     /// A bad image flashed by the test, refused with this error: drives never enabled.
     BadImage(GridError),
     /// Self-test of the panic path: the harness panics at boot (`qemu/test.sh` expects the
@@ -104,11 +131,34 @@ impl Scenario {
             "out-of-reach" => Scenario::OutOfReach,
             "jump" => Scenario::Jump,
             "overrun" => Scenario::Overrun,
+            "stalled-task" => Scenario::StalledTask,
             "bad-image-crc" => Scenario::BadImage(GridError::BadCrc),
             "bad-image-magic" => Scenario::BadImage(GridError::BadMagic),
             "panic" => Scenario::Panic,
             "hard-fault" => Scenario::HardFault,
             _ => Scenario::Run,
+        }
+    }
+
+    /// The scenario of a boot that followed a reset with `cause`: the boot after the stalled
+    /// task's watchdog reset is [`Scenario::WatchdogRestart`].
+    pub fn after_reset(self, cause: ResetCause) -> Scenario {
+        match (self, cause) {
+            (Scenario::StalledTask, ResetCause::Watchdog) => Scenario::WatchdogRestart,
+            _ => self,
+        }
+    }
+
+    /// What a watchdog interrupt means in this scenario (the QEMU board's NMI handler, after it
+    /// removed torque, asks). See the module doc.
+    pub fn watchdog_fired(self, o: &WatchdogObservation) -> WatchdogVerdict {
+        match self {
+            Scenario::Run => WatchdogVerdict::Production,
+            Scenario::StalledTask => match check_watchdog(o) {
+                Ok(()) => WatchdogVerdict::AsExpected,
+                Err(why) => WatchdogVerdict::Fail(why),
+            },
+            _ => WatchdogVerdict::Fail("watchdog fired: the servo task did not complete on time"),
         }
     }
 
@@ -156,6 +206,53 @@ pub struct Observation<'s> {
     pub drive_torque_nm: [f32; 2],
 }
 
+/// What the QEMU board's watchdog interrupt found (times in µs on the harness's own clock).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct WatchdogObservation {
+    /// When the harness stalled the servo task (`None`: it had not).
+    pub stalled_at_us: Option<f32>,
+    /// When the servo task last fed the watchdog (`None`: never).
+    pub last_feed_at_us: Option<f32>,
+    /// When the watchdog's interrupt came.
+    pub fired_at_us: f32,
+    /// The drive-enable line as the interrupt found it, before its handler removed torque.
+    pub drive_enable_at_fire: bool,
+    /// The drive-enable line after the handler.
+    pub drive_enable: bool,
+    /// The torque the PWM registers command after the handler (N·m).
+    pub drive_torque_nm: [f32; 2],
+}
+
+/// What a watchdog interrupt means ([`Scenario::watchdog_fired`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum WatchdogVerdict {
+    /// `stalled-task`: the checks passed; wait for the watchdog's reset.
+    AsExpected,
+    /// The production path: torque is off; wait for the reset.
+    Production,
+    /// The run fails with this reason.
+    Fail(&'static str),
+}
+
+/// The checks of a watchdog interrupt in `stalled-task` (see the module doc).
+fn check_watchdog(o: &WatchdogObservation) -> Result<(), &'static str> {
+    let Some(stalled_at_us) = o.stalled_at_us else {
+        return Err("watchdog fired before the servo task was stalled");
+    };
+    let Some(last_feed_at_us) = o.last_feed_at_us else {
+        return Err("the watchdog was never fed");
+    };
+    require(o.drive_enable_at_fire, "drives already off when the watchdog fired: the test proves nothing")?;
+    require(!o.drive_enable, "drive enable still on after the watchdog fired")?;
+    require(o.drive_torque_nm == [0.0; 2], "torque commanded after the watchdog fired")?;
+    // `!(a <= b)` refuses NaN as well.
+    require(o.fired_at_us - stalled_at_us <= TIMEOUT_US, "torque not removed within the watchdog timeout of the stall")?;
+    require(
+        (o.fired_at_us - last_feed_at_us - TIMEOUT_US).abs() <= WATCHDOG_TIMING_TOLERANCE_US,
+        "the watchdog did not fire its stated timeout after the last feed",
+    )
+}
+
 /// Outcome of a check: `None` while the scenario is still running.
 pub type Verdict = Option<Result<(), &'static str>>;
 
@@ -201,6 +298,10 @@ pub struct Checker<'a> {
     fault_at: Option<u32>,
     grid: GridCheck,
     settled_tool_error_mm: Option<f32>,
+    /// The previous sample's setpoint (the tool speed for `stalled-task`).
+    last_setpoint_mm: Option<[f32; 2]>,
+    /// `stalled-task`: the tool speed (mm/s) at which the stall was requested.
+    stall_speed_mm_s: Option<f32>,
 }
 
 impl<'a> Checker<'a> {
@@ -221,7 +322,15 @@ impl<'a> Checker<'a> {
             fault_at: None,
             grid: GridCheck::default(),
             settled_tool_error_mm: None,
+            last_setpoint_mm: None,
+            stall_speed_mm_s: None,
         }
+    }
+
+    /// `stalled-task`: the tool speed (mm/s) at which the servo task must stall; the harness
+    /// stalls it at the start of the next sample.
+    pub fn stall_requested(&self) -> Option<f32> {
+        self.stall_speed_mm_s
     }
 
     /// The scenario checked.
@@ -286,7 +395,32 @@ impl<'a> Checker<'a> {
                 self.fault_scenario(o, None, refused_out_of_reach)
             }
             Scenario::BadImage(expected) => self.bad_image(o, expected),
+            Scenario::StalledTask => self.before_stall(o),
+            Scenario::WatchdogRestart => self.never_enabled(o, |s| {
+                require(s.fault == Some(Fault::Watchdog(WatchdogFault::Reset)), "watchdog reset not reported as the fault")
+            }),
         }
+    }
+
+    /// `stalled-task` until the stall: the machine runs (drives on, no fault); once past
+    /// [`INJECT_AT_SAMPLE`] at [`STALL_MIN_SPEED_MM_S`] or faster, the stall is requested. The
+    /// verdict comes from the watchdog's interrupt ([`Scenario::watchdog_fired`]).
+    fn before_stall(&mut self, o: &Observation<'_>) -> Verdict {
+        let s = o.status;
+        if s.fault.is_some() {
+            return Some(Err("fault before the stall"));
+        }
+        if !o.drive_enable {
+            return Some(Err("drives not enabled before the stall"));
+        }
+        let speed_mm_s = self.last_setpoint_mm.map(|p| {
+            libm::hypotf(s.setpoint_mm[0] - p[0], s.setpoint_mm[1] - p[1]) * crate::SAMPLE_RATE_HZ as f32
+        });
+        self.last_setpoint_mm = Some(s.setpoint_mm);
+        if s.ticks > INJECT_AT_SAMPLE && self.stall_speed_mm_s.is_none() {
+            self.stall_speed_mm_s = speed_mm_s.filter(|&v| v >= STALL_MIN_SPEED_MM_S);
+        }
+        None
     }
 
     /// A fault is expected (at sample `expected_at` if given): before it the drives must be
@@ -317,21 +451,26 @@ impl<'a> Checker<'a> {
     }
 
     fn bad_image(&mut self, o: &Observation<'_>, expected: GridError) -> Verdict {
-        let s = o.status;
-        let now = (|| {
-            require(!o.drive_enable_ever, "drives enabled without a valid image")?;
-            require(o.drive_torque_nm == [0.0; 2], "torque commanded without a valid image")
-        })();
-        if now.is_err() {
-            return Some(now);
-        }
-        (s.ticks >= BAD_IMAGE_TICKS).then(|| {
+        self.never_enabled(o, |s| {
             require(
                 s.calibration == CalibrationState::Refused(expected),
                 "bad image not refused, or refused for another reason",
             )?;
             require(s.fault == Some(Fault::Calibration(expected)), "calibration fault not reported")
         })
+    }
+
+    /// A boot that must never enable the drives: the enable line never high and no torque in
+    /// any sample; after [`BAD_IMAGE_TICKS`], `reason` checks why.
+    fn never_enabled(&mut self, o: &Observation<'_>, reason: impl FnOnce(&Status) -> Result<(), &'static str>) -> Verdict {
+        let now = (|| {
+            require(!o.drive_enable_ever, "drives enabled at a boot that must keep them off")?;
+            require(o.drive_torque_nm == [0.0; 2], "torque commanded at a boot that must keep the drives off")
+        })();
+        if now.is_err() {
+            return Some(now);
+        }
+        (o.status.ticks >= BAD_IMAGE_TICKS).then(|| reason(o.status))
     }
 
     fn long_run(&mut self, o: &Observation<'_>) -> Verdict {
@@ -477,6 +616,7 @@ mod tests {
             ("firmware out-of-reach", Scenario::OutOfReach),
             ("firmware jump", Scenario::Jump),
             ("firmware overrun", Scenario::Overrun),
+            ("firmware stalled-task", Scenario::StalledTask),
             ("firmware bad-image-crc", Scenario::BadImage(GridError::BadCrc)),
             ("firmware bad-image-magic", Scenario::BadImage(GridError::BadMagic)),
             ("firmware panic", Scenario::Panic),
@@ -620,7 +760,7 @@ mod tests {
         }
         assert_eq!(c.observe(&never(&refused(BAD_IMAGE_TICKS))), Some(Ok(())));
         // Enabled once, even if off now.
-        assert_eq!(c.observe(&off(&refused(5))), Some(Err("drives enabled without a valid image")));
+        assert_eq!(c.observe(&off(&refused(5))), Some(Err("drives enabled at a boot that must keep them off")));
         let wrong = Status { calibration: CalibrationState::Refused(GridError::BadMagic), ..refused(BAD_IMAGE_TICKS) };
         assert!(matches!(c.observe(&never(&wrong)), Some(Err(_))));
     }
@@ -682,6 +822,128 @@ mod tests {
             }
             assert_eq!(c.observe(&on(&bad)), Some(Err(why)));
         }
+    }
+
+    #[test]
+    fn stalled_task_requests_the_stall_only_at_speed_after_the_injection_sample() {
+        let img = image(D_RAD);
+        let mut c = checker(Scenario::StalledTask, &img);
+        // The tool along x: 1.4 m/s (0.7 mm per sample) until the injection sample, then
+        // 1 m/s, then 1.3 m/s.
+        let at = |ticks: u32, x: f32| Status { setpoint_mm: [x, 0.0], ..running(ticks, D_RAD) };
+        let mut x = 0.0;
+        for ticks in 1..=INJECT_AT_SAMPLE {
+            x += 0.7;
+            assert_eq!(c.observe(&on(&at(ticks, x))), None);
+            assert_eq!(c.stall_requested(), None, "tick {ticks}: before the injection sample");
+        }
+        for ticks in INJECT_AT_SAMPLE + 1..INJECT_AT_SAMPLE + 100 {
+            x += 0.5;
+            assert_eq!(c.observe(&on(&at(ticks, x))), None);
+        }
+        assert_eq!(c.stall_requested(), None, "1000 mm/s is below the stall speed");
+        for ticks in INJECT_AT_SAMPLE + 100..INJECT_AT_SAMPLE + 103 {
+            x += 0.65;
+            assert_eq!(c.observe(&on(&at(ticks, x))), None);
+        }
+        let v = c.stall_requested().expect("stall requested at speed");
+        assert!(v >= STALL_MIN_SPEED_MM_S && (v - 1300.0).abs() < 5.0, "{v}");
+        // Before the stall the machine must run.
+        let s = running(5, D_RAD);
+        assert_eq!(checker(Scenario::StalledTask, &img).observe(&off(&s)), Some(Err("drives not enabled before the stall")));
+        let s = Status { fault: Some(Fault::Drive), ..running(5, D_RAD) };
+        assert_eq!(checker(Scenario::StalledTask, &img).observe(&on(&s)), Some(Err("fault before the stall")));
+        // A stall that never comes fails at the time limit.
+        assert_eq!(
+            checker(Scenario::StalledTask, &img).observe(&on(&running(MAX_TICKS, D_RAD))),
+            Some(Err("scenario did not finish in time"))
+        );
+    }
+
+    fn fired(o: WatchdogObservation) -> WatchdogVerdict {
+        Scenario::StalledTask.watchdog_fired(&o)
+    }
+
+    #[test]
+    fn a_watchdog_interrupt_passes_only_if_it_removed_torque_within_the_timeout_of_the_stall() {
+        // Fed at t = 1000 µs, stalled 40 µs later, fired exactly the timeout after the feed.
+        let good = WatchdogObservation {
+            stalled_at_us: Some(1_040.0),
+            last_feed_at_us: Some(1_000.0),
+            fired_at_us: 1_000.0 + TIMEOUT_US,
+            drive_enable_at_fire: true,
+            drive_enable: false,
+            drive_torque_nm: [0.0; 2],
+        };
+        assert_eq!(fired(good), WatchdogVerdict::AsExpected);
+        for (bad, why) in [
+            (WatchdogObservation { stalled_at_us: None, ..good }, "watchdog fired before the servo task was stalled"),
+            (WatchdogObservation { last_feed_at_us: None, ..good }, "the watchdog was never fed"),
+            (
+                WatchdogObservation { drive_enable_at_fire: false, ..good },
+                "drives already off when the watchdog fired: the test proves nothing",
+            ),
+            (WatchdogObservation { drive_enable: true, ..good }, "drive enable still on after the watchdog fired"),
+            (WatchdogObservation { drive_torque_nm: [0.0, 0.1], ..good }, "torque commanded after the watchdog fired"),
+            // Fed long before the stall: the watchdog's timeout is right but torque came off late.
+            (
+                WatchdogObservation { stalled_at_us: Some(900.0), last_feed_at_us: Some(0.0), fired_at_us: 4_000.0, ..good },
+                "torque not removed within the watchdog timeout of the stall",
+            ),
+            (
+                WatchdogObservation { fired_at_us: 1_000.0 + TIMEOUT_US + 200.0, stalled_at_us: Some(1_300.0), ..good },
+                "the watchdog did not fire its stated timeout after the last feed",
+            ),
+            (
+                WatchdogObservation { fired_at_us: 1_000.0 + 0.5 * TIMEOUT_US, ..good },
+                "the watchdog did not fire its stated timeout after the last feed",
+            ),
+            (
+                WatchdogObservation { fired_at_us: f32::NAN, ..good },
+                "torque not removed within the watchdog timeout of the stall",
+            ),
+        ] {
+            assert_eq!(fired(bad), WatchdogVerdict::Fail(why), "{bad:?}");
+        }
+        // The production path: torque off, wait for the reset. Any other test: a failure.
+        assert_eq!(Scenario::Run.watchdog_fired(&good), WatchdogVerdict::Production);
+        for s in [Scenario::Track, Scenario::LongRun, Scenario::Overrun, Scenario::WatchdogRestart] {
+            assert_eq!(
+                s.watchdog_fired(&good),
+                WatchdogVerdict::Fail("watchdog fired: the servo task did not complete on time")
+            );
+        }
+    }
+
+    #[test]
+    fn the_boot_after_the_stall_must_keep_the_drives_off_for_the_watchdog_reset() {
+        assert_eq!(Scenario::StalledTask.after_reset(ResetCause::Watchdog), Scenario::WatchdogRestart);
+        assert_eq!(Scenario::StalledTask.after_reset(ResetCause::PowerOnOrBrownOut), Scenario::StalledTask);
+        assert_eq!(Scenario::Track.after_reset(ResetCause::Watchdog), Scenario::Track);
+        let restarted = |ticks, fault| Status {
+            fault: Some(fault),
+            torque_nm: [0.0; 2],
+            drives_enabled: false,
+            ..running(ticks, D_RAD)
+        };
+        fn never(s: &Status) -> Observation<'_> {
+            Observation { drive_enable_ever: false, ..off(s) }
+        }
+        let img = image(D_RAD);
+        let reset = Fault::Watchdog(WatchdogFault::Reset);
+        let mut c = checker(Scenario::WatchdogRestart, &img);
+        for ticks in 1..BAD_IMAGE_TICKS {
+            assert_eq!(c.observe(&never(&restarted(ticks, reset))), None);
+        }
+        assert_eq!(c.observe(&never(&restarted(BAD_IMAGE_TICKS, reset))), Some(Ok(())));
+        assert_eq!(
+            checker(Scenario::WatchdogRestart, &img).observe(&never(&restarted(BAD_IMAGE_TICKS, Fault::DeadlineMissed))),
+            Some(Err("watchdog reset not reported as the fault"))
+        );
+        assert_eq!(
+            checker(Scenario::WatchdogRestart, &img).observe(&off(&restarted(3, reset))),
+            Some(Err("drives enabled at a boot that must keep them off"))
+        );
     }
 
     #[test]

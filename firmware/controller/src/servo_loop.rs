@@ -5,12 +5,14 @@
 //!  boot ── image valid (or uncorrected allowed) and engage accepted ──► Running
 //!    └──── image refused, or engage refused ──────────────────────────► SafeState(fault)
 //!  Running ── servo refusal, PWM write error, overrun streak ─────────► SafeState(fault)
+//!  boot after a watchdog reset, watchdog not started ([`ServoLoop::latch_at_boot`]) ─► SafeState
 //! ```
 //! `SafeState` is latched: zero torque, drive enable off, the queue left alone; only a reset
 //! leaves it. The board-facing part of a sample is in the app (`firmware/src/main.rs`,
 //! `servo_tick`): read encoders, [`ServoLoop::step`], write the torques (a failed write is
 //! [`ServoLoop::latch`]ed as [`Fault::Drive`]), [`ServoLoop::record_deadline`], disable the drives
-//! if the sample latched a fault, publish the [`Status`](crate::status::Status).
+//! if the sample latched a fault, publish the [`Status`](crate::status::Status), and last feed
+//! the watchdog if [`Sample::feed_watchdog`] (the step was on time; see [`crate::watchdog`]).
 //!
 //! A motor never jumps: the servo refuses a setpoint it cannot follow, it never clamps one into
 //! reach, and a refusal removes torque in the same sample.
@@ -22,6 +24,7 @@ use crate::deadline::Deadline;
 use crate::fault::Fault;
 use crate::setpoints::REFILL_BELOW;
 use crate::settings::Settings;
+use crate::watchdog;
 
 /// Where the servo is.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -55,6 +58,10 @@ pub struct Sample {
     pub refill: bool,
     /// The fault this sample latched (the loop was running before it).
     pub fault: Option<Fault>,
+    /// The step completed on time: the servo task feeds the independent watchdog at its end.
+    /// Set only by [`ServoLoop::record_deadline`] (a sample whose deadline was not recorded
+    /// does not feed); in the safe state too (drives off is not a stall).
+    pub feed_watchdog: bool,
 }
 
 /// The servo loop's state from one sample to the next.
@@ -151,6 +158,7 @@ impl<'a> ServoLoop<'a> {
             underrun: false,
             refill: false,
             fault: None,
+            feed_watchdog: false,
         };
         if self.mode != Mode::Running {
             return sample;
@@ -191,10 +199,21 @@ impl<'a> ServoLoop<'a> {
     /// Records how long the sample took (`step_us` from its tick) and whether the next tick
     /// already came; a streak of `overrun_streak_limit` misses latches
     /// [`Fault::DeadlineMissed`]. The torques already written stand until the drives are
-    /// disabled (they were the best available).
+    /// disabled (they were the best available). Sets [`Sample::feed_watchdog`] when the step
+    /// was on time ([`watchdog::step_on_time`]).
     pub fn record_deadline(&mut self, step_us: f32, overrun: bool, sample: &mut Sample) {
         if self.deadline.record(step_us, overrun, self.settings.overrun_streak_limit) && self.mode == Mode::Running {
             self.latch(Fault::DeadlineMissed, sample);
+        }
+        sample.feed_watchdog = watchdog::step_on_time(step_us, overrun);
+    }
+
+    /// Keeps the drives off from boot, before the first sample, with `fault` (e.g. the last
+    /// reset was the watchdog's, or the watchdog could not be started). A fault already
+    /// latched at boot (a refused image) stays the one reported.
+    pub fn latch_at_boot(&mut self, fault: Fault) {
+        if self.mode == Mode::Running {
+            self.mode = Mode::SafeState(fault);
         }
     }
 }
@@ -327,6 +346,49 @@ mod tests {
         l.record_deadline(700.0, true, &mut s);
         assert_eq!(s.fault, None, "already safe: nothing new latched");
         assert_eq!(l.deadline().overruns, settings.overrun_streak_limit + 1);
+    }
+
+    #[test]
+    fn only_an_on_time_step_feeds_the_watchdog_and_the_safe_state_still_does() {
+        let (settings, img) = (Settings::default(), image());
+        let (mut l, encoder) = running(&settings, &img);
+        let mut q: Queue<[f32; 2], QUEUE_SLOTS> = Queue::new();
+        let (_, mut rx) = q.split();
+        let s = l.step(&mut rx, encoder);
+        assert!(!s.feed_watchdog, "no deadline recorded, no feed");
+        let mut s = l.step(&mut rx, encoder);
+        l.record_deadline(15.0, false, &mut s);
+        assert!(s.feed_watchdog);
+        let mut s = l.step(&mut rx, encoder);
+        l.record_deadline(700.0, true, &mut s);
+        assert!(!s.feed_watchdog, "late");
+        let mut s = l.step(&mut rx, encoder);
+        l.record_deadline(f32::NAN, false, &mut s);
+        assert!(!s.feed_watchdog, "step time unreadable");
+        // In the safe state the drives are off and the task still runs on time: it feeds.
+        l.latch(Fault::Drive, &mut s);
+        let mut s = l.step(&mut rx, encoder);
+        l.record_deadline(10.0, false, &mut s);
+        assert!(s.feed_watchdog && !l.drives_enabled());
+    }
+
+    #[test]
+    fn a_fault_at_boot_keeps_the_drives_off_and_the_first_reason_is_kept() {
+        use crate::watchdog::WatchdogFault;
+        let (settings, img) = (Settings::default(), image());
+        let (mut l, encoder) = running(&settings, &img);
+        l.latch_at_boot(Fault::Watchdog(WatchdogFault::Reset));
+        assert_eq!(l.mode(), Mode::SafeState(Fault::Watchdog(WatchdogFault::Reset)));
+        let mut q: Queue<[f32; 2], QUEUE_SLOTS> = Queue::new();
+        let (mut tx, mut rx) = q.split();
+        tx.enqueue(HOME_MM).unwrap();
+        let s = l.step(&mut rx, [encoder[0] + 1e-3, encoder[1]]);
+        assert_eq!((s.torque_nm, s.fault), ([0.0; 2], None));
+        // A refused image at boot stays the reason reported.
+        let cal = Calibration { model: FiveBar::paper_nominal(), grid: None };
+        let mut l = ServoLoop::boot(&settings, cal, CalibrationState::Refused(GridError::BadCrc), encoder);
+        l.latch_at_boot(Fault::Watchdog(WatchdogFault::NotStarted));
+        assert_eq!(l.mode(), Mode::SafeState(Fault::Calibration(GridError::BadCrc)));
     }
 
     #[test]

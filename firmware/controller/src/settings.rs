@@ -6,6 +6,8 @@
 //! `init`) that every task borrows.
 use kinematics_core::ServoConfig;
 
+use crate::encoder::EncoderConfig;
+
 /// Every run-time setting, with the defaults documented on each field.
 #[derive(Clone, Copy, Debug)]
 pub struct Settings {
@@ -31,6 +33,13 @@ pub struct Settings {
     /// moving by itself at power-on. The QEMU board runs
     /// [`WORKSPACE_TOUR_MM`](crate::trajectory::WORKSPACE_TOUR_MM).
     pub builtin_tour_mm: &'static [[f32; 2]],
+    /// Each axis's encoder as fitted: counts per motor revolution, counting direction, gear
+    /// ratio from motor to joint ([`EncoderConfig`]; the zero comes from homing, not from
+    /// here). Default: [`EncoderConfig::DIRECT_DRIVE_2_22`] on both axes, the QEMU board's
+    /// simulated encoders; set them for the motors fitted before the first power-up (see the
+    /// bring-up guide in firmware/README.md). A configuration `EncoderScale::new` refuses
+    /// reads NaN, so the servo refuses to engage.
+    pub encoders: [EncoderConfig; 2],
     /// Peak tool acceleration of the built-in trajectory (mm/s²). Default 2 g.
     pub trajectory_accel_mm_s2: f32,
     /// Peak tool speed of the built-in trajectory (mm/s). Default 1500 mm/s.
@@ -48,6 +57,7 @@ impl Default for Settings {
             drive_full_scale_nm: 10.0,
             telemetry_period_ticks: 500,
             builtin_tour_mm: &[],
+            encoders: [EncoderConfig::DIRECT_DRIVE_2_22; 2],
             trajectory_accel_mm_s2: 2.0 * kinematics_core::servo::STANDARD_GRAVITY_MM_S2,
             trajectory_speed_mm_s: 1_500.0,
             trajectory_dwell_s: 0.1,
@@ -67,5 +77,9 @@ mod tests {
         assert!(!s.allow_uncorrected);
         // The servo's torque limit, not the PWM range, must saturate first.
         assert!(s.servo.axes.iter().all(|a| a.torque_limit_nm < s.drive_full_scale_nm));
+        // The default encoders are valid (a refused one would keep the drives off).
+        for e in &s.encoders {
+            assert!(crate::encoder::EncoderScale::new(e).is_ok(), "{e:?}");
+        }
     }
 }
