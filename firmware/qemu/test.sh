@@ -32,6 +32,8 @@ passed=0; failed=0
 PASS='^PASS $'
 PANIC='^FAIL panic: panicked at [^ ]+ self-test: panic path $'
 HARDFAULT='^FAIL HardFault $'
+# The stalled task: the watchdog's NMI reports, the machine resets, the boot after it passes.
+WATCHDOG='^watchdog: torque off [0-9]+ us after the stall at [0-9]+ mm/s, [0-9]+ us after the last on-time step \(timeout [0-9]+ us\) PASS $'
 # name  expected-exit  expected-console  scenario  extra-qemu-args
 run() {
   local name=$1 expect=$2 console=$3 scenario=$4; shift 4
@@ -58,6 +60,9 @@ run nan-setpoint   0 "$PASS" nan-setpoint $(image calibration.bin)
 run out-of-reach   0 "$PASS" out-of-reach $(image calibration.bin)
 run jump           0 "$PASS" jump         $(image calibration.bin)
 run overrun        0 "$PASS" overrun      $(image calibration.bin)
+# The servo task stalls (interrupts disabled) while the tool moves at speed: the watchdog removes
+# torque within its timeout, then resets the machine; the boot after it keeps the drives off.
+run stalled-task   0 "$WATCHDOG" stalled-task $(image calibration.bin)
 run corrupt-image  0 "$PASS" bad-image-crc   $(image corrupt.bin)
 run erased-image   0 "$PASS" bad-image-magic $(image erased.bin)
 run no-image       0 "$PASS" bad-image-magic

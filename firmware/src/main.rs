@@ -8,6 +8,10 @@
 //! * **Deadline monitoring**: every step measures its time from the tick and checks whether
 //!   the next tick already came; overruns are counted, the worst step time kept, and a streak
 //!   of overruns latches a fault.
+//! * **Independent watchdog** (3 ms), fed last in the servo task and only after an on-time
+//!   step (`controller::watchdog`): a stalled servo task lets it expire (G474: reset; QEMU: NMI
+//!   that removes torque, then reset). The boot after a watchdog reset keeps the drives off;
+//!   the reset cause is logged at every boot.
 //! * **Latched faults, safe state**: any fault (non-finite value, unreachable or singular
 //!   setpoint, outside the grid, a setpoint jump beyond 5 g, following error, overrun streak,
 //!   PWM write error, bad calibration image) disables the drives and commands zero torque in
@@ -43,6 +47,7 @@ mod app {
     use controller::setpoints::{self, QUEUE_SLOTS};
     use controller::status::Status;
     use controller::trajectory::Trajectory;
+    use controller::watchdog;
     use controller::SAMPLE_RATE_HZ;
     use firmware::board::{Board, Selected, ServoTimer};
 
@@ -69,6 +74,8 @@ mod app {
         let settings: &'static Settings = cx.local.settings.insert(Selected::settings());
         defmt::info!("boot: settings {}", settings.servo);
         let mut board = Selected::init(settings);
+        let reset_cause = board.reset_cause();
+        defmt::info!("boot: reset cause {}", reset_cause);
 
         let (cal_state, cal) = calibration::load(firmware::calibration::region(), settings.allow_uncorrected);
         match cal_state {
@@ -78,7 +85,14 @@ mod app {
         }
         // Engage at the machine's actual position, unless the calibration forbids it.
         let encoder_rad = board.encoders_rad();
-        let servo_loop = ServoLoop::boot(settings, cal, cal_state, encoder_rad);
+        let mut servo_loop = ServoLoop::boot(settings, cal, cal_state, encoder_rad);
+        // A watchdog reset, or a watchdog that will not start, keeps the drives off.
+        if let Some(fault) = watchdog::fault_after_reset(reset_cause) {
+            servo_loop.latch_at_boot(fault);
+        }
+        if let Err(e) = board.start_watchdog() {
+            servo_loop.latch_at_boot(Fault::Watchdog(e));
+        }
         match servo_loop.mode() {
             Mode::Running => {
                 defmt::info!("engaged at {} mm (encoders {} rad)", servo_loop.setpoint_mm(), encoder_rad);
@@ -114,7 +128,7 @@ mod app {
     /// already pending. A missed deadline is counted (`overruns`); the torques written late
     /// still stand (they are the best available). `overrun_streak_limit` consecutive misses
     /// (default 3, i.e. 1.5 ms without a fresh command) latch `Fault::DeadlineMissed`: drives
-    /// disabled, zero torque.
+    /// disabled, zero torque. Last, an on-time step feeds the independent watchdog (3 ms).
     #[task(binds = SERVO_TICK, priority = 3, shared = [status], local = [board, servo_loop, setpoints_out])]
     fn servo_tick(mut cx: servo_tick::Context) {
         let l = cx.local;
@@ -147,6 +161,10 @@ mod app {
         });
         if sample.index % l.servo_loop.settings().telemetry_period_ticks.max(1) == 0 {
             let _ = telemetry::spawn();
+        }
+        // Watchdog, last: only a step that completed on time feeds it.
+        if sample.feed_watchdog {
+            l.board.feed_watchdog();
         }
     }
 

@@ -7,6 +7,10 @@
 //! * Setpoint fault injection ([`Injected`], the board's setpoint source): the built-in
 //!   trajectory with the scenario's NaN or jump (`Scenario::tamper`).
 //! * Deadline fault injection ([`Harness::begin_sample`]): burns time in the scenario's samples.
+//! * The stalled servo task (`stalled-task`, [`Harness::begin_sample`]): once the checker asks,
+//!   the servo task disables interrupts and spins; [`watchdog_fired`], called by the watchdog's
+//!   NMI after it removed torque, judges the reaction and waits for the watchdog's reset. The
+//!   boot after it is `Scenario::WatchdogRestart` (`Scenario::after_reset`).
 //! * The checks ([`Harness::end_sample`], after every sample's status is published):
 //!   `controller::scenario::Checker` on the status and on what the simulated hardware shows
 //!   (drive-enable line, torque in the PWM registers); a verdict prints `PASS` or `FAIL <why>`
@@ -14,15 +18,41 @@
 //!
 //! The checker validates the calibration region on its own, so the firmware's reading of it is
 //! under test too.
+use core::cell::Cell;
+use core::fmt::Write;
+use core::sync::atomic::{AtomicU32, Ordering};
+
 use controller::deadline::DEADLINE_US;
-use controller::scenario::{Checker, Observation, Scenario};
+use controller::scenario::{Checker, Observation, Scenario, WatchdogObservation, WatchdogVerdict};
 use controller::settings::Settings;
 use controller::setpoints::SetpointSource;
 use controller::status::Status;
 use controller::trajectory::Trajectory;
+use controller::watchdog::TIMEOUT_US;
+use critical_section::Mutex;
 use kinematics_core::CorrectionGrid;
 
-use super::{hardware, semihosting, CmsdkTimer};
+use super::{clock, hardware, semihosting, CmsdkTimer, TIMER_CLOCK_HZ};
+
+/// What the watchdog's NMI needs (it cannot reach the `Harness`, which the servo task owns).
+/// The scenario of this boot, set once at boot before the watchdog starts.
+static SCENARIO: Mutex<Cell<Scenario>> = Mutex::new(Cell::new(Scenario::Run));
+/// Clock ticks at the last watchdog feed, at the stall; [`NEVER`] until then.
+static LAST_FEED_AT: AtomicU32 = AtomicU32::new(NEVER);
+static STALLED_AT: AtomicU32 = AtomicU32::new(NEVER);
+/// Tool speed at the stall (f32 bits, mm/s).
+static STALL_SPEED: AtomicU32 = AtomicU32::new(0);
+const NEVER: u32 = u32::MAX;
+
+/// Records a watchdog feed (the QEMU board's `feed_watchdog` calls it right after the feed).
+#[inline]
+pub fn note_feed() {
+    LAST_FEED_AT.store(clock::now_ticks(), Ordering::SeqCst);
+}
+
+fn at_us(ticks: u32) -> Option<f32> {
+    (ticks != NEVER).then(|| clock::ticks_to_us(ticks))
+}
 
 /// The harness's state, owned by the QEMU board.
 pub struct Harness {
@@ -35,16 +65,20 @@ pub struct Harness {
 }
 
 impl Harness {
-    /// The scenario named on the semihosting command line.
+    /// The scenario named on the semihosting command line, as it continues after the last
+    /// reset (the boot after `stalled-task`'s watchdog reset is `WatchdogRestart`).
     pub fn scenario() -> Scenario {
         let mut line = [0u8; 64];
-        Scenario::from_command_line(semihosting::command_line(&mut line))
+        Scenario::from_command_line(semihosting::command_line(&mut line)).after_reset(hardware::peek_reset_cause())
     }
 
-    /// Reads the scenario and runs the self-tests of the failure paths.
+    /// Reads the scenario, starts the harness's clock and runs the self-tests of the failure
+    /// paths.
     pub fn boot(settings: &'static Settings) -> Self {
         let scenario = Self::scenario();
         defmt::info!("harness: scenario {}", scenario);
+        critical_section::with(|cs| SCENARIO.borrow(cs).set(scenario));
+        clock::start();
         match scenario {
             Scenario::Panic => {
                 let v: Option<u32> = core::hint::black_box(None);
@@ -63,11 +97,14 @@ impl Harness {
         Injected { scenario: self.scenario, trajectory, queued: 0 }
     }
 
-    /// Start of a sample: the deadline fault injection.
+    /// Start of a sample: the deadline fault injection, and the stalled task.
     #[inline]
     pub fn begin_sample(&mut self, timer: &CmsdkTimer) {
         if self.scenario.overrun_at(self.sample) {
             timer.burn_until_us(1.4 * DEADLINE_US);
+        }
+        if let Some(speed_mm_s) = self.checker.as_ref().and_then(Checker::stall_requested) {
+            stall(speed_mm_s);
         }
         self.sample = self.sample.wrapping_add(1);
     }
@@ -122,4 +159,65 @@ impl SetpointSource for Injected {
         self.queued = self.queued.wrapping_add(1);
         p
     }
+}
+
+/// Stops the servo task from ever completing, the way a logger blocking inside a critical
+/// section would: interrupts disabled, spinning. Only the NMI gets through.
+fn stall(speed_mm_s: f32) -> ! {
+    defmt::info!("harness: stalling the servo task (interrupts disabled) at {} mm/s", speed_mm_s);
+    STALL_SPEED.store(speed_mm_s.to_bits(), Ordering::SeqCst);
+    cortex_m::interrupt::disable();
+    STALLED_AT.store(clock::now_ticks(), Ordering::SeqCst);
+    loop {
+        cortex_m::asm::nop();
+    }
+}
+
+/// Called by the watchdog's NMI after it removed torque (`drive_enable_at_fire`: the enable
+/// line as the NMI found it): the scenario's verdict (`Scenario::watchdog_fired`). A failure
+/// ends the run; otherwise it reports and waits for the watchdog's reset (its second expiry).
+/// No defmt here: the NMI may have interrupted a defmt frame.
+pub fn watchdog_fired(drive_enable_at_fire: bool) -> ! {
+    let fired_at = clock::now_ticks();
+    let o = WatchdogObservation {
+        stalled_at_us: at_us(STALLED_AT.load(Ordering::SeqCst)),
+        last_feed_at_us: at_us(LAST_FEED_AT.load(Ordering::SeqCst)),
+        fired_at_us: clock::ticks_to_us(fired_at),
+        drive_enable_at_fire,
+        drive_enable: hardware::drive_enable(),
+        // Zero torque is a zero at any full scale; 1 N·m keeps any other duty non-zero.
+        drive_torque_nm: hardware::commanded_torque_nm(1.0),
+    };
+    let scenario = critical_section::with(|cs| SCENARIO.borrow(cs).get());
+    let mut line: heapless::String<200> = heapless::String::new();
+    match scenario.watchdog_fired(&o) {
+        WatchdogVerdict::Fail(why) => {
+            semihosting::console("FAIL");
+            semihosting::console(why);
+            semihosting::exit(false)
+        }
+        WatchdogVerdict::AsExpected => {
+            let since = |t: Option<f32>| t.map_or(f32::NAN, |t| o.fired_at_us - t);
+            let _ = write!(
+                line,
+                "watchdog: torque off {:.0} us after the stall at {:.0} mm/s, {:.0} us after the last on-time step (timeout {:.0} us)",
+                since(o.stalled_at_us),
+                f32::from_bits(STALL_SPEED.load(Ordering::SeqCst)),
+                since(o.last_feed_at_us),
+                TIMEOUT_US
+            );
+        }
+        WatchdogVerdict::Production => {
+            semihosting::console("watchdog: the servo task stalled: drives off, waiting for the watchdog's reset");
+            loop {
+                cortex_m::asm::nop();
+            }
+        }
+    }
+    semihosting::console(&line);
+    // The reset comes at the next expiry, one timeout later; if it does not, the test fails.
+    let wait_ticks = (3.0 * TIMEOUT_US * (TIMER_CLOCK_HZ as f32 / 1.0e6)) as u32;
+    while clock::now_ticks().wrapping_sub(fired_at) < wait_ticks {}
+    semihosting::console("FAIL no reset after the watchdog interrupt");
+    semihosting::exit(false)
 }
