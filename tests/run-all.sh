@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Runs every test of the project. On a fresh Debian machine it first installs what is missing:
-# the thumbv7em-none-eabihf target (rustup) and QEMU (apt, when root or with sudo).
+# the thumbv7em-none-eabihf target (rustup), flip-link (cargo install, ~10 s; the STM32G474
+# build links through it) and QEMU (apt, when root or with sudo).
 #
 #   bash tests/run-all.sh
 #
@@ -22,6 +23,11 @@ step() { printf '\n=== %s\n' "$*"; }
 step "setup: Rust target thumbv7em-none-eabihf"
 if ! rustup target list --installed | grep -qx thumbv7em-none-eabihf; then
     rustup target add thumbv7em-none-eabihf
+fi
+
+step "setup: flip-link (the STM32G474 firmware's linker wrapper: stack overflow protection)"
+if ! command -v flip-link >/dev/null 2>&1; then
+    cargo install flip-link --version 0.1.12 --locked
 fi
 
 step "setup: qemu-system-arm, python3 (the QEMU runner splits the ELF with it)"

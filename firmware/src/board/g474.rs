@@ -360,13 +360,33 @@ fn fail_safe() {
     safe_state();
 }
 
-#[cortex_m_rt::exception]
-unsafe fn HardFault(frame: &cortex_m_rt::ExceptionFrame) -> ! {
+hard_fault_on_fresh_stack!(hard_fault);
+
+/// The HardFault handler, on a fresh stack (`hard_fault_on_fresh_stack!`); `faulting_sp` is
+/// the stack pointer the fault was taken with. Below the stack it was a stack overflow (flip-link
+/// puts the stack at the bottom of RAM: the exception frame could not be stacked); otherwise the
+/// stacked PC says where.
+unsafe extern "C" fn hard_fault(faulting_sp: u32) -> ! {
     fail_safe();
-    defmt::error!("HardFault at pc {=u32:#x}: drives disabled", frame.pc());
+    let stack_bottom = core::ptr::addr_of!(_stack_end) as u32;
+    let stack_top = core::ptr::addr_of!(_stack_start) as u32;
+    if (stack_bottom..stack_top.saturating_sub(32)).contains(&faulting_sp) {
+        // SAFETY: the exception frame (8 words) lies within the stack region; word 6 is the PC.
+        let pc = unsafe { core::ptr::read_volatile((faulting_sp as *const u32).add(6)) };
+        defmt::error!("HardFault at pc {=u32:#x}: drives disabled", pc);
+    } else {
+        defmt::error!("HardFault: stack overflow (sp {=u32:#x}): drives disabled", faulting_sp);
+    }
     loop {
         cortex_m::asm::wfi();
     }
+}
+
+extern "C" {
+    /// Top of the stack (cortex-m-rt's link.x; flip-link moves it to the bottom of RAM).
+    static _stack_start: u32;
+    /// Lowest address the stack may use.
+    static _stack_end: u32;
 }
 
 #[cortex_m_rt::exception]

@@ -28,6 +28,8 @@ compile_error!("enable exactly one of the features `board-qemu` and `board-g474`
 
 #[macro_use]
 mod device_macro;
+#[macro_use]
+mod hard_fault_macro;
 
 #[cfg(feature = "board-g474")]
 pub mod g474;

@@ -46,8 +46,10 @@ fn fail_safe() {
     hardware::safe_state();
 }
 
-#[cortex_m_rt::exception]
-unsafe fn HardFault(_frame: &cortex_m_rt::ExceptionFrame) -> ! {
+hard_fault_on_fresh_stack!(hard_fault);
+
+/// The HardFault handler, on a fresh stack (`hard_fault_on_fresh_stack!`, as on the STM32G474).
+unsafe extern "C" fn hard_fault(_faulting_sp: u32) -> ! {
     fail_safe();
     console("FAIL HardFault");
     exit(false)
