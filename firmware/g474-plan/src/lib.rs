@@ -8,9 +8,9 @@
 //! and the debug freeze are read as facts on the host, not only compiled.
 //!
 //! * [`map`]: register addresses and the bit fields used (RM0440's register maps);
-//! * [`plan`]: the plans: [`plan::SAFE_OUTPUTS`] (first, at the reset clock: drive enable
-//!   driven low), [`plan::CLOCK`] (170 MHz), [`plan::DEBUG_AND_POWER`], [`plan::PERIPHERALS`]
-//!   (TIM1 PWM with break, encoders, TIM6 tick, pins), [`plan::START_WATCHDOG`] (IWDG),
+//! * [`plan`]: the plans: [`plan::BOOT`] (first [`plan::SAFE_OUTPUTS`] at the reset clock:
+//!   drive enable driven low; [`plan::CLOCK`]: 170 MHz; debug and power; TIM1 PWM with break,
+//!   encoders, TIM6 tick, pins), [`plan::START_WATCHDOG`] (IWDG),
 //!   [`plan::SAFE_STATE`] / [`plan::ENABLE_OUTPUTS`] (what the fault handlers and the drive
 //!   enable do), and the board's figures (clock, PWM period, watchdog reload);
 //! * [`reset`]: the reset cause from `RCC_CSR`.

@@ -1,10 +1,11 @@
 //! The plans, in the order the board applies them, and the board's figures.
 //!
-//! At boot: [`SAFE_OUTPUTS`] (at the reset clock, before anything can fail: the drive-enable
-//! line driven low), [`CLOCK`] (HSI16 → PLL → 170 MHz, range-1 boost, 4 wait states, prefetch
-//! and caches; every wait bounded), [`DEBUG_AND_POWER`] (debug freeze, debug in sleep, UCPD
-//! dead-battery pull-downs off), [`PERIPHERALS`] (TIM1 PWM with the break input, the encoder
-//! timers, the TIM6 tick, the pins); at the end of the app's `init`, [`START_WATCHDOG`]. The
+//! At boot ([`BOOT`]): [`SAFE_OUTPUTS`] (at the reset clock, before anything can fail: the
+//! drive-enable line driven low), [`CLOCK`] (HSI16 → PLL → 170 MHz, range-1 boost, 4 wait
+//! states, prefetch and caches; every wait bounded), [`DEBUG_AND_POWER`] (debug freeze, debug
+//! in sleep, UCPD dead-battery pull-downs off), [`TIM1_PWM`] (PWM, drive enable and break, and
+//! their pins), [`ENCODER_TIM3`], [`ENCODER_TIM4`], [`ENCODER_PINS`], [`TICK_TIMER`] (TIM6);
+//! at the end of the app's `init`, [`START_WATCHDOG`]. The
 //! drives: [`ENABLE_OUTPUTS`] and [`SAFE_STATE`] (also what HardFault, panic and unexpected
 //! interrupts apply). [`CLEAR_RESET_FLAGS`] after the reset cause was read.
 //!
@@ -227,17 +228,10 @@ pub static DEBUG_AND_POWER: [Step; 4] = [
     ),
 ];
 
-const TIM3: &str = "TIM3";
-const TIM4: &str = "TIM4";
-const TIM6: &str = "TIM6";
-
-/// TIM1 (PWM, drive enable, break), the encoder timers, the TIM6 tick (configured, not
-/// started), and the pins. TIM1 is configured before its pins are handed to it; its outputs
-/// stay off (MOE = 0) until [`ENABLE_OUTPUTS`].
-pub static PERIPHERALS: [Step; 60] = [
+/// TIM1 (PWM, drive enable, break) and its pins. TIM1 is configured before its pins are handed
+/// to it; its outputs stay off (MOE = 0) until [`ENABLE_OUTPUTS`].
+pub static TIM1_PWM: [Step; 27] = [
     set(rcc::APB2ENR, rcc::APB2ENR_TIM1EN, "clock TIM1"),
-    set(rcc::APB1ENR1, rcc::APB1ENR1_TIM3EN | rcc::APB1ENR1_TIM4EN | rcc::APB1ENR1_TIM6EN, "clock TIM3, TIM4, TIM6"),
-    // TIM1.
     write(tim1::CR1, TIM1_CR1, "centre-aligned, preloaded, stopped while configured"),
     write(tim1::PSC, 0, "counter at 170 MHz"),
     write(tim1::ARR, PWM_MAX_DUTY as u32, "170 MHz / (2 × 4250) = 20 kHz, centre-aligned"),
@@ -254,7 +248,6 @@ pub static PERIPHERALS: [Step; 60] = [
     write(tim1::EGR, 1, "load the preloaded registers (UG)"),
     write(tim1::SR, 0, "clear the flags the update set"),
     set(tim1::CR1, tim1::CR1_CEN, "start the PWM counter (outputs still off)"),
-    // TIM1 pins.
     af(PWM_0, 6, "PA8 = TIM1_CH1"),
     pull(PWM_0, gpio::PULL_DOWN, "PWM 0 low when released"),
     mode(PWM_0, gpio::MODE_AF, "PA8 to TIM1"),
@@ -265,22 +258,29 @@ pub static PERIPHERALS: [Step; 60] = [
     af(STO_BREAK, 6, "PB12 = TIM1_BKIN"),
     pull(STO_BREAK, gpio::PULL_DOWN, "an open safe-torque-off input reads as a break"),
     mode(STO_BREAK, gpio::MODE_AF, "PB12 to TIM1's break"),
-    // Encoders: TIM3 (axis 0), TIM4 (axis 1).
-    write(timx::cr1(TIM3, base::TIM3), 0, "stopped while configured"),
-    write(timx::smcr(TIM3, base::TIM3), ENCODER_SMCR, "encoder mode 3"),
-    write(timx::ccmr1(TIM3, base::TIM3), ENCODER_CCMR1, "TI1, TI2 inputs, filtered"),
-    write(timx::ccer(TIM3, base::TIM3), 0, "both inputs non-inverted (the sign is Settings::encoders)"),
-    write(timx::arr(TIM3, base::TIM3), 0xFFFF, "full 16-bit range (extended to 32 bits in software)"),
-    write(timx::cnt(TIM3, base::TIM3), 0, "count from 0 (homing sets the zero)"),
-    write(timx::cr1(TIM3, base::TIM3), 1, "start counting"),
-    write(timx::cr1(TIM4, base::TIM4), 0, "stopped while configured"),
-    write(timx::smcr(TIM4, base::TIM4), ENCODER_SMCR, "encoder mode 3"),
-    write(timx::ccmr1(TIM4, base::TIM4), ENCODER_CCMR1, "TI1, TI2 inputs, filtered"),
-    write(timx::ccer(TIM4, base::TIM4), 0, "both inputs non-inverted (the sign is Settings::encoders)"),
-    write(timx::arr(TIM4, base::TIM4), 0xFFFF, "full 16-bit range (extended to 32 bits in software)"),
-    write(timx::cnt(TIM4, base::TIM4), 0, "count from 0 (homing sets the zero)"),
-    write(timx::cr1(TIM4, base::TIM4), 1, "start counting"),
-    // Encoder pins (after the timers, so the first edge is counted).
+];
+
+/// A general-purpose timer as a quadrature counter (encoder mode 3, full 16-bit range).
+const fn encoder_timer(name: &'static str, base: u32) -> [Step; 7] {
+    [
+        write(timx::cr1(name, base), 0, "stopped while configured"),
+        write(timx::smcr(name, base), ENCODER_SMCR, "encoder mode 3"),
+        write(timx::ccmr1(name, base), ENCODER_CCMR1, "TI1, TI2 inputs, filtered"),
+        write(timx::ccer(name, base), 0, "both inputs non-inverted (the sign is Settings::encoders)"),
+        write(timx::arr(name, base), 0xFFFF, "full 16-bit range (extended to 32 bits in software)"),
+        write(timx::cnt(name, base), 0, "count from 0 (homing sets the zero)"),
+        write(timx::cr1(name, base), 1, "start counting"),
+    ]
+}
+
+/// The encoder of axis 0 (TIM3).
+pub static ENCODER_TIM3: [Step; 7] = encoder_timer("TIM3", base::TIM3);
+/// The encoder of axis 1 (TIM4).
+pub static ENCODER_TIM4: [Step; 7] = encoder_timer("TIM4", base::TIM4);
+
+/// The encoder timers' clocks and pins (the pins after the timers, so the first edge counts).
+pub static ENCODER_PINS: [Step; 13] = [
+    set(rcc::APB1ENR1, rcc::APB1ENR1_TIM3EN | rcc::APB1ENR1_TIM4EN, "clock TIM3, TIM4"),
     af(ENCODER_0[0], 2, "PA6 = TIM3_CH1"),
     af(ENCODER_0[1], 2, "PA7 = TIM3_CH2"),
     af(ENCODER_1[0], 2, "PB6 = TIM4_CH1"),
@@ -293,7 +293,13 @@ pub static PERIPHERALS: [Step; 60] = [
     mode(ENCODER_0[1], gpio::MODE_AF, "PA7 to TIM3"),
     mode(ENCODER_1[0], gpio::MODE_AF, "PB6 to TIM4"),
     mode(ENCODER_1[1], gpio::MODE_AF, "PB7 to TIM4"),
-    // TIM6, the 2 kHz servo tick (started by the app at the end of init).
+];
+
+const TIM6: &str = "TIM6";
+
+/// TIM6, the 2 kHz servo tick: configured, not started (the app starts it at the end of init).
+pub static TICK_TIMER: [Step; 7] = [
+    set(rcc::APB1ENR1, rcc::APB1ENR1_TIM6EN, "clock TIM6"),
     write(timx::cr1(TIM6, base::TIM6), 1 << 2, "URS: only an overflow sets the update flag"),
     write(timx::psc(TIM6, base::TIM6), TIM6_PSC, "counter at 85 MHz"),
     write(timx::arr(TIM6, base::TIM6), TIM6_ARR, "85 MHz / 42500 = 2 kHz"),
@@ -334,4 +340,5 @@ pub static SAFE_STATE: [Step; 5] = [
 pub static CLEAR_RESET_FLAGS: [Step; 1] = [set(rcc::CSR, rcc::CSR_RMVF, "clear the reset flags for the next boot")];
 
 /// The boot plans in the order the board applies them.
-pub static BOOT: [&[Step]; 4] = [&SAFE_OUTPUTS, &CLOCK, &DEBUG_AND_POWER, &PERIPHERALS];
+pub static BOOT: [&[Step]; 8] =
+    [&SAFE_OUTPUTS, &CLOCK, &DEBUG_AND_POWER, &TIM1_PWM, &ENCODER_TIM3, &ENCODER_TIM4, &ENCODER_PINS, &TICK_TIMER];

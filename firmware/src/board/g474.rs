@@ -111,7 +111,7 @@ const TIM6_SR: Register = timx::sr("TIM6", base::TIM6);
 const TIM6_CNT: Register = timx::cnt("TIM6", base::TIM6);
 
 /// The 2 kHz servo tick: TIM6 counting up from 0 to `TIM6_ARR` once per period (configured by
-/// `plan::PERIPHERALS`).
+/// `plan::TICK_TIMER`).
 pub struct Tim6Timer(());
 
 impl ServoTimer for Tim6Timer {
