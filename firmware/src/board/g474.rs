@@ -242,12 +242,7 @@ impl Board for G474Board {
                 boot_failed(step);
             }
         }
-        let (encoder_scales, errors) = EncoderScale::both(&settings.encoders);
-        for (axis, e) in errors.iter().enumerate() {
-            if let Some(e) = e {
-                defmt::error!("encoder {}: {} (reads NaN: the drives stay off)", axis, e);
-            }
-        }
+        let encoder_scales = super::encoder_scales(settings);
         let full_scale_nm = settings.drive_full_scale_nm;
         let encoder = |tim, base| TimEncoder { cnt: timx::cnt(tim, base), last: 0, position: AtomicI32::new(0) };
         let mut board = G474Board {

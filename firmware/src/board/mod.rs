@@ -17,6 +17,7 @@
 //! `COUNT_UNIT`.
 use controller::deadline::step_time_us;
 use controller::drive::DriveError;
+use controller::encoder::EncoderScale;
 use controller::settings::Settings;
 use controller::setpoints::SetpointSource;
 use controller::status::Status;
@@ -40,6 +41,18 @@ pub use g474::{bench_init, console, device, exit, CycleCounter, G474Board as Sel
 pub mod qemu;
 #[cfg(feature = "board-qemu")]
 pub use qemu::{bench_init, console, device, exit, CycleCounter, QemuBoard as Selected, COUNT_UNIT};
+
+/// Both axes' counts-to-angle scales from `Settings::encoders`; a refused configuration is
+/// logged and reads NaN (the servo then refuses to engage). For the boards' `init`.
+fn encoder_scales(settings: &Settings) -> [EncoderScale; 2] {
+    let (scales, errors) = EncoderScale::both(&settings.encoders);
+    for (axis, e) in errors.iter().enumerate() {
+        if let Some(e) = e {
+            defmt::error!("encoder {}: {} (reads NaN: the drives stay off)", axis, e);
+        }
+    }
+    scales
+}
 
 /// The timer whose interrupt (`SERVO_TICK`) starts every servo sample, 2 kHz.
 pub trait ServoTimer {

@@ -191,12 +191,7 @@ impl Board for QemuBoard {
         // The self-tests of the failure paths run first, as at the top of `init`.
         let harness = Harness::boot(settings);
         let full_scale_nm = settings.drive_full_scale_nm;
-        let (encoder_scales, errors) = EncoderScale::both(&settings.encoders);
-        for (axis, e) in errors.iter().enumerate() {
-            if let Some(e) = e {
-                defmt::error!("encoder {}: {} (reads NaN: the drives stay off)", axis, e);
-            }
-        }
+        let encoder_scales = super::encoder_scales(settings);
         let mut board = QemuBoard {
             timer: CmsdkTimer::new(SAMPLE_RATE_HZ),
             encoders: [SimEncoder { axis: 0 }, SimEncoder { axis: 1 }],
