@@ -99,7 +99,7 @@ pub fn run_loop(
         .command_rad([start[0] as f32, start[1] as f32], config.min_transmission)
         .map_err(|e| anyhow!("trajectory start ({:.3}, {:.3}) mm: {e}", start[0], start[1]))?;
     plant.settle([f64::from(cmd[0]), f64::from(cmd[1])], [1, 1])?;
-    let mut servo = Servo::new(config);
+    let mut servo = Servo::new(config).map_err(|e| anyhow!("servo settings refused: {e}"))?;
     let enc0 = plant.encoder_rad();
     servo
         .engage(cal, [enc0[0] as f32, enc0[1] as f32])
