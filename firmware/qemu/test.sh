@@ -54,10 +54,18 @@ run() {
 }
 
 run track          0 "$PASS" track        $(image calibration.bin)
+# Faults of a moving machine, injected at the tour's top speed (1.38 m/s): categories 1 and 2
+# (a controlled stop, then torque off / hold) ...
 run nan-setpoint   0 "$PASS" nan-setpoint $(image calibration.bin)
 run out-of-reach   0 "$PASS" out-of-reach $(image calibration.bin)
 run jump           0 "$PASS" jump         $(image calibration.bin)
+run underrun       0 "$PASS" underrun     $(image calibration.bin)
+# ... and category 0 (torque off at once): the controller and the encoders.
 run overrun        0 "$PASS" overrun      $(image calibration.bin)
+run encoder-frozen-at-rest 0 "$PASS" encoder-frozen-at-rest $(image calibration.bin)
+run encoder-frozen-moving  0 "$PASS" encoder-frozen-moving  $(image calibration.bin)
+run glitch-small   0 "$PASS" glitch-small $(image calibration.bin)
+run glitch-large   0 "$PASS" glitch-large $(image calibration.bin)
 run corrupt-image  0 "$PASS" bad-image-crc   $(image corrupt.bin)
 run erased-image   0 "$PASS" bad-image-magic $(image erased.bin)
 run no-image       0 "$PASS" bad-image-magic

@@ -112,7 +112,10 @@ pub fn run(emit: &mut impl FnMut(u32)) {
         emit_result(emit, cal.command_rad(target_mm(k), 0.05).map_err(code));
     }
     // 3. The servo closed around a two-inertia plant for 400 samples of a 10 mm circle.
-    let mut servo = Servo::new(ServoConfig::default());
+    let Ok(mut servo) = Servo::new(ServoConfig::default()) else {
+        emit(ERROR | 0xf1);
+        return;
+    };
     let centre = [202.132f32, 0.0];
     let Ok(mut angle) = cal.command_rad([centre[0] + 10.0, centre[1]], 0.05) else {
         emit(ERROR | 0xf0);

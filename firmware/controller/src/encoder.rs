@@ -2,7 +2,7 @@
 //!
 //! embedded-hal 1.0 has no encoder trait, hence [`QuadratureEncoder`]. Encoder plausibility
 //! (a reading that jumps further than the machine can move in one sample, a counter that
-//! stopped) belongs here.
+//! stopped) is [`crate::encoder_check`].
 
 /// A quadrature encoder read through a hardware counter.
 pub trait QuadratureEncoder {

@@ -207,7 +207,7 @@ fn main() -> ! {
     }
     let uncorrected = Calibration { model, grid: None };
     for (name, cal) in [("servo_step", &cal), ("servo_step_uncorrected", &uncorrected)] {
-        let mut servo = Servo::new(ServoConfig::default());
+        let Ok(mut servo) = Servo::new(ServoConfig::default()) else { board::exit(false) };
         let Ok(mut encoder) = cal.command_rad(setpoints[0], 0.05) else { board::exit(false) };
         if servo.engage(cal, encoder).is_err() {
             board::console("FAIL servo did not engage");

@@ -4,7 +4,8 @@
 //! * Servo tick: CMSDK APB TIMER0 (IRQ 8, 25 MHz), reload for 2 kHz.
 //! * [`hardware`]: the "registers" between the firmware and the plant (PWM duty per axis, the
 //!   drive-enable line, the encoder counters), atomics.
-//! * [`plant`]: two joint inertias with friction, advanced in [`Board::begin_sample`].
+//! * [`plant`]: two joint inertias with friction, advanced in [`Board::begin_sample`]; the
+//!   harness reads its true state.
 //! * [`harness`]: the test harness (scenario from the command line, self-tests at boot,
 //!   setpoint and deadline fault injection, the checks at the end of every sample that end the
 //!   run with PASS or FAIL). Only this board has it.
@@ -167,7 +168,7 @@ impl Board for QemuBoard {
     }
 
     fn setpoints(&mut self, trajectory: Trajectory) -> Injected {
-        self.harness.setpoints(trajectory)
+        self.harness.setpoints(trajectory, self.plant.coast_model())
     }
 
     #[inline]
@@ -204,15 +205,17 @@ impl Board for QemuBoard {
         cortex_m::asm::nop();
     }
 
+    /// The harness's fault injection first (it decides what the encoder counters show), then
+    /// the plant moves under the torques of the last sample and updates the counters.
     #[inline]
     fn begin_sample(&mut self) {
-        self.plant.advance(self.period_s);
         self.harness.begin_sample(&self.timer);
+        self.plant.advance(self.period_s);
     }
 
     #[inline]
     fn end_sample(&mut self, status: &Status) {
-        self.harness.end_sample(status);
+        self.harness.end_sample(status, self.plant.state());
     }
 }
 
