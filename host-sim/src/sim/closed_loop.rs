@@ -104,7 +104,7 @@ pub fn run_loop(
         .command_rad([start[0] as f32, start[1] as f32], config.min_transmission)
         .map_err(|e| SimError::Start { start_mm: start, reason: e.to_string() })?;
     plant.settle([f64::from(cmd[0]), f64::from(cmd[1])], [1, 1])?;
-    let mut servo = Servo::new(config).map_err(|e| anyhow!("servo settings refused: {e}"))?;
+    let mut servo = Servo::new(config).map_err(|e| SimError::Invalid(format!("servo settings refused: {e}")))?;
     let enc0 = plant.encoder_rad();
     servo
         .engage(cal, [enc0[0] as f32, enc0[1] as f32])
