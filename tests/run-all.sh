@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Runs every test of the project. On a fresh Debian machine it first installs what is missing:
 # the thumbv7em-none-eabihf target (rustup), flip-link (cargo install, ~10 s; the STM32G474
-# build links through it) and QEMU (apt, when root or with sudo).
+# build links through it), QEMU and a C compiler for its cycle-estimating plugin (apt, when
+# root or with sudo).
 #
 #   bash tests/run-all.sh
 #
@@ -11,10 +12,13 @@
 #      runs it under QEMU)
 #   2. kinematics-core builds for the MCU (thumbv7em-none-eabihf, no_std)
 #   3. firmware under QEMU: the real app against the in-firmware plant (cargo qemu-test)
-#   4. firmware cycle benchmarks under QEMU, printing BENCH lines (cargo qemu-bench)
+#   4. firmware benchmarks under QEMU, printing BENCH <name> <instructions> <estimated cycles>
+#      (cargo qemu-bench: builds the TCG plugin firmware/qemu/plugin/m4cycles.c with cc and
+#      fails if the IK or FK executes no VSQRT)
 #   5. the real board's firmware builds (cargo fw-build)
-#   6. clippy, warnings denied: the host crates with all their targets, the firmware for both
-#      boards (last, so that it reuses the proc macros the release builds compiled)
+#   6. clippy, warnings denied: the host crates (g474-plan included) with all their targets
+#      (host-sim's benches compiled there), the firmware for both boards (last, so that it reuses the proc macros
+#      the release builds compiled)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -30,10 +34,11 @@ if ! command -v flip-link >/dev/null 2>&1; then
     cargo install flip-link --version 0.1.12 --locked
 fi
 
-step "setup: qemu-system-arm, python3 (the QEMU runner splits the ELF with it)"
+step "setup: qemu-system-arm, python3 (the QEMU runner splits the ELF with it), a C compiler (the bench's QEMU plugin)"
 missing=""
 command -v qemu-system-arm >/dev/null 2>&1 || missing="$missing qemu-system-arm"
 command -v python3 >/dev/null 2>&1 || missing="$missing python3"
+command -v cc >/dev/null 2>&1 || missing="$missing gcc libc6-dev"
 if [ -n "$missing" ]; then
     if [ "$(id -u)" -eq 0 ]; then SUDO=""; else SUDO="sudo"; fi
     $SUDO apt-get update -qq
@@ -50,16 +55,17 @@ cargo build --locked -p kinematics-core --target thumbv7em-none-eabihf --release
 step "firmware under QEMU (real app, 2 kHz timer task, fault injection)"
 cargo qemu-test
 
-step "firmware benchmarks under QEMU (instructions per call)"
+step "firmware benchmarks under QEMU (instructions and estimated Cortex-M4 cycles per call; VSQRT executed)"
 cargo qemu-bench
 
 step "firmware for the real board (STM32G474) builds"
 cargo fw-build
 
-# host-sim is left out until its restructuring (issue 10) lands clippy-clean; then drop the
-# `--exclude host-sim`. The firmware only builds for the MCU target: linted below.
-step "clippy: host crates (all targets)"
-cargo clippy --locked --workspace --exclude firmware --exclude host-sim --all-targets -- -D warnings
+# All targets: this also compiles (checks) host-sim's benches, which `cargo test` does not
+# build, so an API change that breaks them fails here. The firmware only builds for the MCU
+# target: linted below.
+step "clippy: host crates (kinematics-core, controller, g474-plan, host-sim with its benches, tests; all targets)"
+cargo clippy --locked --workspace --exclude firmware --all-targets -- -D warnings
 
 step "clippy: firmware, QEMU board and STM32G474 board"
 cargo clippy --locked --release -p firmware --target thumbv7em-none-eabihf --lib --bins -- -D warnings

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# `cargo qemu-test` runner: runs every scenario of controller/src/scenario.rs against the same
+# `cargo qemu-test` runner: runs every scenario of controller/src/scenario/mod.rs against the same
 # firmware image and checks each one's exit code and console output (the harness prints PASS,
 # or FAIL and why; the self-tests must print their own failure line, not just exit 1).
 # Usage (cargo does this): test.sh path/to/firmware.elf
@@ -56,10 +56,18 @@ run() {
 }
 
 run track          0 "$PASS" track        $(image calibration.bin)
+# Faults of a moving machine, injected at the tour's top speed (1.38 m/s): categories 1 and 2
+# (a controlled stop, then torque off / hold) ...
 run nan-setpoint   0 "$PASS" nan-setpoint $(image calibration.bin)
 run out-of-reach   0 "$PASS" out-of-reach $(image calibration.bin)
 run jump           0 "$PASS" jump         $(image calibration.bin)
+run underrun       0 "$PASS" underrun     $(image calibration.bin)
+# ... and category 0 (torque off at once): the controller and the encoders.
 run overrun        0 "$PASS" overrun      $(image calibration.bin)
+run encoder-frozen-at-rest 0 "$PASS" encoder-frozen-at-rest $(image calibration.bin)
+run encoder-frozen-moving  0 "$PASS" encoder-frozen-moving  $(image calibration.bin)
+run glitch-small   0 "$PASS" glitch-small $(image calibration.bin)
+run glitch-large   0 "$PASS" glitch-large $(image calibration.bin)
 # The servo task stalls (interrupts disabled) while the tool moves at speed: the watchdog removes
 # torque within its timeout, then resets the machine; the boot after it keeps the drives off.
 run stalled-task   0 "$WATCHDOG" stalled-task $(image calibration.bin)

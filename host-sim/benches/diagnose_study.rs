@@ -15,10 +15,13 @@
 
 use host_sim::diagnose::report::table;
 use host_sim::diagnose::synth::{generate, Cyclic, Poses, Truth};
-use host_sim::diagnose::{diagnose, effects::LIBRARY};
-use host_sim::measure::{measure, Protocol};
-use host_sim::measurement_csv::format_measurements;
-use host_sim::plant::{Effect, PlantConfig, PlantModel};
+use host_sim::calib::measure::{measure, MeasureOptions};
+use host_sim::calib::protocol::Protocol;
+use host_sim::diagnose::{diagnose, effects::LIBRARY, DiagnoseOptions};
+use host_sim::effect::PhysicalEffect;
+use host_sim::io::measurement_csv::format_measurements;
+use host_sim::machine_spec::MachineSpec;
+use host_sim::plant::{PlantConfig, PlantModel};
 use kinematics_core::Calibration;
 use kinematics_core::FiveBar;
 use rand::SeedableRng;
@@ -29,7 +32,7 @@ const NOISE_UM: f64 = 2.0;
 fn truth_with(effects: &[&str], rng: &mut ChaCha8Rng) -> Truth {
     let mut t = Truth { noise_um: NOISE_UM, ..Default::default() };
     for e in effects {
-        t.add_random(e, rng);
+        t.add_random(PhysicalEffect::from_name(e).expect("an effect name"), rng).expect("a library effect");
     }
     t
 }
@@ -58,7 +61,7 @@ fn main() {
 /// SWEEP_ONLY (one case, e.g. `encoder_offset,frame`), SWEEP_VERBOSE (tables of the misses).
 fn sweep() {
     let n: u64 = std::env::var("SWEEP_N").ok().and_then(|v| v.parse().ok()).unwrap_or(20);
-    let mut cases: Vec<Vec<&str>> = LIBRARY.iter().map(|e| vec![e.name]).collect();
+    let mut cases: Vec<Vec<&str>> = LIBRARY.iter().map(|e| vec![e.name()]).collect();
     cases.push(vec![]);
     for extra in [
         ["encoder_offset", "frame"],
@@ -84,7 +87,7 @@ fn sweep() {
             let truth = truth_with(case, &mut rng).scaled(f);
             let poses = if seed % 2 == 1 { Poses::Random(400) } else { Poses::Grid5mm };
             let data = generate(&truth, poses, 5000 + seed);
-            let r = diagnose(&data, &FiveBar::paper_nominal(), Some(NOISE_UM)).unwrap();
+            let r = diagnose(&data, &DiagnoseOptions { base: FiveBar::paper_nominal(), noise_um: Some(NOISE_UM) }).unwrap();
             let mut named: Vec<&str> = r.steps.iter().map(|s| s.effect.as_str()).collect();
             named.sort();
             let mut want: Vec<&str> = case.clone();
@@ -134,14 +137,14 @@ fn write_example(path: &str) {
 fn table1_power() {
     let n = 20u64;
     for f in [1.0, 5.0] {
-        for effect in LIBRARY.iter().map(|e| e.name).chain(["none"]) {
+        for effect in LIBRARY.iter().map(|e| e.name()).chain(["none"]) {
             let mut exact = 0;
             let mut other: std::collections::BTreeMap<String, usize> = Default::default();
             for seed in 0..n {
                 let mut rng = ChaCha8Rng::seed_from_u64(seed);
                 let mut truth = Truth { noise_um: 20.0, ..Default::default() };
                 if effect != "none" {
-                    truth.add_random(effect, &mut rng);
+                    truth.add_random(PhysicalEffect::from_name(effect).expect("an effect name"), &mut rng).expect("a library effect");
                 }
                 let mut truth = truth.scaled(f);
                 truth.noise_um = 20.0;
@@ -150,7 +153,7 @@ fn table1_power() {
                     m.dir = None;
                     m.t_s = None;
                 }
-                let r = diagnose(&data, &FiveBar::paper_nominal(), Some(20.0)).unwrap();
+                let r = diagnose(&data, &DiagnoseOptions { base: FiveBar::paper_nominal(), noise_um: Some(20.0) }).unwrap();
                 let named: Vec<&str> = r.steps.iter().map(|s| s.effect.as_str()).collect();
                 let want: Vec<&str> = if effect == "none" { vec![] } else { vec![effect] };
                 if named == want {
@@ -164,6 +167,11 @@ fn table1_power() {
     }
 }
 
+/// `host-sim measure` on the paper machine.
+fn measured(p: &PlantConfig, cal: &Calibration<'_>, protocol: Protocol, seed: u64, noise_um: Option<f64>) -> Vec<host_sim::io::measurement_csv::Measurement> {
+    measure(p, cal, &MeasureOptions { protocol, seed, noise_um, spec: MachineSpec::paper() }).unwrap()
+}
+
 /// The plant outputs of DIAGNOSIS.md: the six-bar plant measured by `host-sim measure` at 1 µm
 /// noise (the noise, `paper` and link-error cases are the plants and seeds of
 /// `tests/diagnose_plant.rs`), one line per case, the full
@@ -172,13 +180,13 @@ fn table1_power() {
 fn plant_outputs() {
     let cal = Calibration { model: FiveBar::<f32>::paper_nominal(), grid: None };
     let run = |p: &PlantConfig, protocol: Protocol, seed: u64| {
-        let data = measure(p, protocol, seed, &cal, Some(1.0)).unwrap();
-        diagnose(&data, &FiveBar::paper_nominal(), Some(1.0)).unwrap()
+        let data = measured(p, &cal, protocol, seed, Some(1.0));
+        diagnose(&data, &DiagnoseOptions { base: FiveBar::paper_nominal(), noise_um: Some(1.0) }).unwrap()
     };
     let mut cyclic = PlantConfig::ideal();
     cyclic.drive_1.cyclic_error_urad = 40.0;
     cyclic.drive_1.cyclic_error_cycles_per_motor_rev = 5.0;
-    let mut both = PlantConfig::paper().with_only(Effect::EncoderOffsets);
+    let mut both = PlantConfig::paper().with_only(PhysicalEffect::EncoderOffset).unwrap();
     both.drive_1.backlash_urad = 120.0;
     both.drive_2.backlash_urad = 80.0;
     let mut scale = PlantConfig::ideal();
@@ -189,17 +197,17 @@ fn plant_outputs() {
     let mut backlash = PlantConfig::ideal();
     backlash.drive_1.backlash_urad = 150.0;
     backlash.drive_2.backlash_urad = 90.0;
-    let paper_links = PlantConfig::paper().with_only(Effect::LinkErrors);
+    let paper_links = PlantConfig::paper().with_only(PhysicalEffect::LinkGeometry).unwrap();
     let mut paper_links_five = paper_links.clone();
     paper_links_five.sixbar.model = PlantModel::Fivebar;
     let cases: Vec<(&str, PlantConfig, Protocol, u64)> = vec![
         ("noise only", PlantConfig::ideal(), Protocol::Random(150), 40),
-        ("paper clearances", PlantConfig::paper().with_only(Effect::Clearance), Protocol::Random(150), 43),
-        ("paper quantization", PlantConfig::paper().with_only(Effect::EncoderQuantization), Protocol::Random(150), 44),
-        ("paper encoder offsets", PlantConfig::paper().with_only(Effect::EncoderOffsets), Protocol::Random(150), 2),
+        ("paper clearances", PlantConfig::paper().with_only(PhysicalEffect::Clearance).unwrap(), Protocol::Random(150), 43),
+        ("paper quantization", PlantConfig::paper().with_only(PhysicalEffect::EncoderQuantization).unwrap(), Protocol::Random(150), 44),
+        ("paper encoder offsets", PlantConfig::paper().with_only(PhysicalEffect::EncoderOffset).unwrap(), Protocol::Random(150), 2),
         ("backlash 150/90 µrad", backlash, Protocol::Random(150), 2),
         ("frame 72 µm, 262 µrad", frame, Protocol::Random(150), 3),
-        ("paper instrument frame", PlantConfig::paper().with_only(Effect::InstrumentFrame), Protocol::Random(150), 3),
+        ("paper instrument frame", PlantConfig::paper().with_only(PhysicalEffect::Frame).unwrap(), Protocol::Random(150), 3),
         ("scale 300 ppm", scale, Protocol::Random(150), 4),
         ("paper offsets + backlash 120/80", both, Protocol::Random(150), 7),
         ("cyclic 40 µrad, 5/motor rev, motor 1", cyclic, Protocol::Grid, 70),
@@ -225,19 +233,19 @@ fn plant_outputs() {
         );
     }
     // The non-five-bar part of the six-bar: the same commands on both plant models, no noise.
-    let six = measure(&paper_links, Protocol::Grid, 1, &cal, Some(0.0)).unwrap();
-    let five = measure(&paper_links_five, Protocol::Grid, 1, &cal, Some(0.0)).unwrap();
+    let six = measured(&paper_links, &cal, Protocol::Grid, 1, Some(0.0));
+    let five = measured(&paper_links_five, &cal, Protocol::Grid, 1, Some(0.0));
     let d: Vec<f64> = six
         .iter()
         .zip(&five)
         .map(|(a, b)| (a.measured_mm[0] - b.measured_mm[0]).hypot(a.measured_mm[1] - b.measured_mm[1]) * 1e3)
         .collect();
-    let rms = (d.iter().map(|v| v * v).sum::<f64>() / d.len() as f64).sqrt();
+    let m = host_sim::numeric::max_rms(&d);
     println!(
         "\nparallelogram mismatch of the paper's link errors (six-bar − effective five-bar, 5 mm grid): min {:.1}, RMS {:.1}, max {:.1} µm",
         d.iter().cloned().fold(f64::INFINITY, f64::min),
-        rms,
-        d.iter().cloned().fold(0.0, f64::max)
+        m.rms,
+        m.max
     );
     for (what, p) in [("six-bar", &paper_links), ("effective five-bar", &paper_links_five)] {
         println!("\n== paper link errors, {what}, random:200 seed 60\n{}", table(&run(p, Protocol::Random(200), 60)));

@@ -5,9 +5,10 @@
 //!   and cold, as between far-apart measurement points) against the closed-form five-bar IK and
 //!   FK, and the ratio: the paper's reason for controlling through the hidden robot.
 
-use host_sim::closed_loop::run_loop;
+use host_sim::machine_spec::MachineSpec;
 use host_sim::plant::{Plant, PlantConfig, PlantModel, SixBar};
-use host_sim::trajectory::Trajectory;
+use host_sim::sim::closed_loop::run_loop;
+use host_sim::sim::trajectory::Trajectory;
 use kinematics_core::{Calibration, FiveBar};
 use std::hint::black_box;
 use std::time::Instant;
@@ -16,12 +17,13 @@ fn loop_factor(model: PlantModel, trajectory: &str, seconds: f64) -> (f64, f64) 
     let mut cfg = PlantConfig::paper();
     cfg.sixbar.model = model;
     let cal = Calibration { model: FiveBar::<f32>::paper_nominal(), grid: None };
-    let tr = Trajectory::by_name(trajectory).unwrap();
+    let spec = MachineSpec::paper();
+    let tr = Trajectory::by_name(trajectory, &spec).unwrap();
     let mut best: f64 = 0.0;
     let mut err = 0.0;
     for _ in 0..3 {
         let mut plant = Plant::new(&cfg, 1);
-        let s = run_loop(&mut plant, &cal, &tr, seconds, None).unwrap();
+        let s = run_loop(&mut plant, &cal, &tr, seconds, &spec, None).unwrap();
         assert!(s.fault.is_none(), "{s:?}");
         best = best.max(s.realtime_factor);
         err = s.max_following_err_um;
@@ -50,15 +52,14 @@ fn main() {
     }
 
     // Targets along a slow path (consecutive 2 kHz samples of the circle) and scattered ones.
-    let five = FiveBar::<f64>::paper_nominal();
-    let tr = Trajectory::by_name("circle").unwrap();
+    let spec = MachineSpec::paper();
+    let five = spec.nominal;
+    let tr = Trajectory::by_name("circle", &spec).unwrap();
     let path: Vec<[f64; 2]> = (0..8000).map(|k| tr.at(k as f64 * 5e-4)).collect();
     let path_theta: Vec<[f64; 2]> = path.iter().map(|&p| five.inverse(p, 0.0).unwrap()).collect();
+    let g = spec.grid;
     let scattered: Vec<[f64; 2]> = (0..2000)
-        .map(|k| {
-            let (i, j) = (k % 21, (k * 7) % 31);
-            five.inverse([162.132 + 5.0 * i as f64, -75.0 + 5.0 * j as f64], 0.0).unwrap()
-        })
+        .map(|k| five.inverse(g.node_mm(k % g.nx, (k * 7) % g.ny), 0.0).unwrap())
         .collect();
     let cfg = PlantConfig::paper();
     let mut sb = SixBar::new(&cfg.sixbar);

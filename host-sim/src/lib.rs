@@ -1,28 +1,39 @@
-//! `host-sim`: the real machine in simulation and the calibration tools around it.
+//! `host-sim`: the real machine in simulation and the calibration tools around it, as a library
+//! of typed functions; the `host-sim` command line (`src/main.rs`, `src/cli/`) is a thin edge
+//! over it.
 //!
 //! The same `kinematics-core` the firmware runs is linked here; this crate adds what only a host
-//! needs: the plant (the overconstrained six-bar with its imperfections), the closed 2 kHz loop,
-//! measurement protocols, the hidden-robot fits, the correction-grid builder, accuracy
-//! statistics and the diagnosis of model/measurement disagreement.
+//! needs. Folders name the stages (each module doc says what belongs there and where a change
+//! goes):
 //!
-//! File formats (contracts other tools rely on): [`measurement_csv`], [`model_file`], the grid
-//! image (`kinematics_core::grid`).
+//! | module | what |
+//! |---|---|
+//! | [`machine_spec`] | the machine's constants, once: nominal model, workspace, grid lattice, servo rate |
+//! | [`effect`] | the names of the physical effects, shared by the plant and the diagnosis |
+//! | [`plant`] | the simulated six-bar with its imperfections (the "real machine") |
+//! | [`sim`] | trajectories and the closed 2 kHz loop |
+//! | [`calib`] | protocols, the one measurement path, fits, grid, command, accuracy, the demo pipeline |
+//! | [`diagnose`] | where model and measurements disagree, and which effect is missing |
+//! | [`numeric`] | the one Levenberg–Marquardt, finite differences, column-scaled SVD, max/RMS |
+//! | [`io`] | file formats (measurement CSV, model file, targets, plots) and atomic output |
+//!
+//! Conventions: library functions take an options struct (with the [`machine_spec::MachineSpec`]
+//! where machine constants are needed) and return typed results and typed errors (`thiserror`,
+//! one enum per stage, every message complete); nothing in the library prints, parses flags or
+//! uses `anyhow` (lints below). File formats are contracts other tools rely on:
+//! [`io::measurement_csv`], [`io::model_file`], the grid image (`kinematics_core::grid`).
 // `!(x >= lo)` instead of `x < lo` is deliberate throughout: it also refuses NaN.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
+#![forbid(unsafe_code)]
+#![deny(rust_2018_idioms, unused_must_use, rustdoc::broken_intra_doc_links)]
+// The library reports through its return values; the command line prints.
+#![cfg_attr(not(test), deny(clippy::print_stdout, clippy::print_stderr, clippy::dbg_macro))]
 
+pub mod calib;
 pub mod diagnose;
-pub mod measurement_csv;
-pub mod model_file;
-pub mod output;
-pub mod plot;
+pub mod effect;
+pub mod io;
+pub mod machine_spec;
+pub mod numeric;
 pub mod plant;
-pub mod measure;
-pub mod trajectory;
-pub mod closed_loop;
-pub mod simulate;
-pub mod fit;
-pub mod grid_build;
-pub mod command;
-pub mod accuracy;
-pub mod machine;
-pub mod demo;
+pub mod sim;

@@ -1,8 +1,8 @@
 //! The calibration commands through the binary: outputs, and bad input (clear message naming
 //! the line or point, non-zero exit, no output file).
 
-use host_sim::measurement_csv::{write_measurements, Measurement};
-use host_sim::model_file::{write_model_file, ModelFile};
+use host_sim::io::measurement_csv::{write_measurements, Measurement};
+use host_sim::io::model_file::{write_model_file, ModelFile};
 use kinematics_core::{Calibration, CorrectionGrid, FiveBar};
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -35,7 +35,7 @@ fn fit_table1_poly_and_ls_paper_criterion() {
     assert_eq!(v["subset"], serde_json::json!([1, 8]));
     assert!((v["a_mm"].as_f64().unwrap() - 149.8675).abs() < 1e-3);
     assert!(stderr.contains("subset search: 36 subsets tried"), "{stderr}");
-    let m = host_sim::model_file::read_model(&out).unwrap();
+    let m = host_sim::io::model_file::read_model(&out).unwrap();
     assert!((m.d_mm - 149.908).abs() < 1e-3);
     let (ok, stdout, _) = run(&["fit", "--data", s(&table1()), "--method", "ls", "--subset-search", "--criterion", "paper", "--out", s(&out)]);
     assert!(ok);

@@ -17,7 +17,7 @@ fn measure_writes_a_measurement_file() {
         .status()
         .unwrap();
     assert!(st.success());
-    let rows = host_sim::measurement_csv::read_measurements(&out).unwrap();
+    let rows = host_sim::io::measurement_csv::read_measurements(&out).unwrap();
     assert_eq!(rows.len(), 220);
     assert_eq!(rows.iter().map(|m| m.run.unwrap()).max(), Some(4));
 }
@@ -92,7 +92,7 @@ fn measure_with_a_zero_grid_matches_without_and_model_mismatch_is_refused() {
     let mut other = FiveBar::<f64>::paper_nominal();
     other.a_mm = 150.5;
     let m = dir.path().join("m.json");
-    host_sim::model_file::write_model_file(&m, &host_sim::model_file::ModelFile::from_model(&other)).unwrap();
+    host_sim::io::model_file::write_model_file(&m, &host_sim::io::model_file::ModelFile::from_model(&other)).unwrap();
     let c = dir.path().join("c.csv");
     let o = host_sim().args(base).arg(&c).arg("--grid").arg(&grid).arg("--model").arg(&m).output().unwrap();
     assert!(!o.status.success());

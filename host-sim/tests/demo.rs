@@ -2,9 +2,9 @@
 //! stdout, table on stderr), the noise-floor target, and every file it promises, each one
 //! readable by the tool that consumes it.
 
-use host_sim::demo::{FILES, TARGET_MAX_UM, TARGET_RMS_UM};
-use host_sim::measurement_csv::read_measurements;
-use host_sim::model_file::read_model;
+use host_sim::calib::pipeline::{FILES, TARGET_MAX_UM, TARGET_RMS_UM};
+use host_sim::io::measurement_csv::read_measurements;
+use host_sim::io::model_file::read_model;
 use kinematics_core::CorrectionGrid;
 use std::process::Command;
 

@@ -11,8 +11,9 @@
 
 use host_sim::diagnose::report::{table, Report};
 use host_sim::diagnose::synth::{generate, Cyclic, Poses, Truth};
-use host_sim::diagnose::{diagnose, effects::LIBRARY};
-use host_sim::measurement_csv::{format_measurements, Measurement};
+use host_sim::diagnose::{effects::LIBRARY, DiagnoseOptions};
+use host_sim::effect::PhysicalEffect;
+use host_sim::io::measurement_csv::{format_measurements, Measurement};
 use kinematics_core::FiveBar;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -49,10 +50,15 @@ fn check(
     r
 }
 
+/// The diagnosis of `data` against `base` with noise σ `noise_um`.
+fn diagnose(data: &[Measurement], base: &FiveBar<f64>, noise_um: Option<f64>) -> Result<Report, host_sim::diagnose::DiagnoseError> {
+    host_sim::diagnose::diagnose(data, &DiagnoseOptions { base: *base, noise_um })
+}
+
 fn truth_with(effects: &[&str], rng: &mut ChaCha8Rng) -> Truth {
     let mut t = Truth { noise_um: NOISE_UM, ..Default::default() };
     for e in effects {
-        t.add_random(e, rng);
+        t.add_random(PhysicalEffect::from_name(e).expect("an effect name"), rng).expect("a library effect");
     }
     t
 }
@@ -61,7 +67,7 @@ fn truth_with(effects: &[&str], rng: &mut ChaCha8Rng) -> Truth {
 /// what constant link lengths and encoder offsets do (see effects.rs), so those two may be named
 /// alongside it: the library's stretch keeps only the part they cannot reproduce.
 fn expected_for(effect: &str, named: &[&str]) -> Vec<&'static str> {
-    let lib = |n: &str| LIBRARY.iter().find(|e| e.name == n).map(|e| e.name).expect("library name");
+    let lib = |n: &str| LIBRARY.iter().find(|e| e.name() == n).map(|e| e.name()).expect("library name");
     let mut want = vec![lib(effect)];
     if effect == "link_stretch" {
         for extra in ["link_lengths", "encoder_offset"] {
@@ -78,21 +84,21 @@ fn each_effect_alone_is_named_exactly_and_the_gap_closes() {
     for (k, effect) in LIBRARY.iter().enumerate() {
         for seed in 0..3u64 {
             let mut rng = ChaCha8Rng::seed_from_u64(100 * k as u64 + seed);
-            let truth = truth_with(&[effect.name], &mut rng);
+            let truth = truth_with(&[effect.name()], &mut rng);
             let poses = if seed == 1 { Poses::Random(400) } else { Poses::Grid5mm };
             let data = generate(&truth, poses, 1000 + seed);
             let r = diagnose(&data, &FiveBar::paper_nominal(), Some(NOISE_UM)).expect("diagnosis runs");
             let named: Vec<&str> = r.steps.iter().map(|s| s.effect.as_str()).collect();
-            let want = expected_for(effect.name, &named);
+            let want = expected_for(effect.name(), &named);
             let r = check(
                 data,
                 Some(NOISE_UM),
                 &want,
                 false,
-                &format!("{} alone, seed {seed}, truth {truth:?}", effect.name),
+                &format!("{} alone, seed {seed}, truth {truth:?}", effect.name()),
             );
-            assert!(r.initial_rms_um > 3.0 * r.final_rms_um, "{}: the gap did not shrink", effect.name);
-            if effect.name == "scale" {
+            assert!(r.initial_rms_um > 3.0 * r.final_rms_um, "{}: the gap did not shrink", effect.name());
+            if effect.name() == "scale" {
                 assert!(
                     r.confounded.contains(&vec!["link_lengths".to_string(), "scale".to_string()]),
                     "{:?}",
@@ -282,7 +288,7 @@ fn without_a_noise_figure_the_structure_decides() {
 #[test]
 fn paper_table_1_runs_and_says_what_nine_points_cannot_tell() {
     let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("data/table1.csv");
-    let data = host_sim::measurement_csv::read_measurements(&path).unwrap();
+    let data = host_sim::io::measurement_csv::read_measurements(&path).unwrap();
     let r = diagnose(&data, &FiveBar::paper_nominal(), Some(20.0)).unwrap();
     println!("{}", table(&r));
     assert_eq!(r.points, 9);

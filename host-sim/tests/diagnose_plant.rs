@@ -22,11 +22,14 @@
 //! Noise: 1 µm per axis (the `measure --noise-um` override). Cost: ~30 diagnoses of 150–651
 //! points, a few seconds in the dev profile.
 
-use host_sim::diagnose::diagnose;
+use host_sim::diagnose::{diagnose, DiagnoseOptions};
 use host_sim::diagnose::report::{table, Report};
-use host_sim::measure::{measure, Protocol};
-use host_sim::measurement_csv::{read_measurements, Measurement};
-use host_sim::plant::{Effect, PlantConfig, PlantModel};
+use host_sim::calib::measure::{measure, MeasureOptions};
+use host_sim::calib::protocol::Protocol;
+use host_sim::io::measurement_csv::{read_measurements, Measurement};
+use host_sim::effect::PhysicalEffect;
+use host_sim::machine_spec::MachineSpec;
+use host_sim::plant::{PlantConfig, PlantModel};
 use kinematics_core::{Calibration, FiveBar};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -36,11 +39,11 @@ const NOISE_UM: f64 = 1.0;
 /// `host-sim measure --protocol P --seed S --noise-um 1` with the nominal hidden robot.
 fn measured(plant: &PlantConfig, protocol: Protocol, seed: u64) -> Vec<Measurement> {
     let cal = Calibration { model: FiveBar::<f32>::paper_nominal(), grid: None };
-    measure(plant, protocol, seed, &cal, Some(NOISE_UM)).expect("measure runs")
+    measure(plant, &cal, &MeasureOptions { protocol, seed, noise_um: Some(NOISE_UM), spec: MachineSpec::paper() }).expect("measure runs")
 }
 
 fn diagnosed(data: &[Measurement]) -> Report {
-    diagnose(data, &FiveBar::paper_nominal(), Some(NOISE_UM)).expect("diagnosis runs")
+    diagnose(data, &DiagnoseOptions { base: FiveBar::paper_nominal(), noise_um: Some(NOISE_UM) }).expect("diagnosis runs")
 }
 
 fn named(r: &Report) -> Vec<&str> {
@@ -109,7 +112,7 @@ fn encoder_offsets_are_named_and_their_common_part_is_confounded_with_a_frame_ro
         cases.push((p, seed));
     }
     // The paper plant's own offsets (−0.013°, +0.027°).
-    cases.push((PlantConfig::paper().with_only(Effect::EncoderOffsets), 2));
+    cases.push((PlantConfig::paper().with_only(PhysicalEffect::EncoderOffset).unwrap(), 2));
     for (p, seed) in cases {
         let protocol = if seed == 1 { Protocol::Grid } else { Protocol::Random(150) };
         let r = diagnosed(&measured(&p, protocol, seed));
@@ -166,7 +169,7 @@ fn instrument_frame_and_scale_are_named() {
         assert!((rot.value - truth).abs() < 5.0 * rot.std_dev + 2.0, "{what}: {rot:?} vs {truth}");
     }
     // The paper plant's instrument: zeroed at Table I's point 1 (an offset of 3.2 mm).
-    let p = PlantConfig::paper().with_only(Effect::InstrumentFrame);
+    let p = PlantConfig::paper().with_only(PhysicalEffect::Frame).unwrap();
     let r = diagnosed(&measured(&p, Protocol::Random(150), 3));
     check_explained(&r, &["frame"], "paper instrument frame");
     for (seed, ppm) in [(4u64, 300.0), (5, -180.0)] {
@@ -200,9 +203,9 @@ fn noise_and_sub_noise_plant_effects_name_nothing() {
         ("noise only, grid", PlantConfig::ideal(), Protocol::Grid, 41),
         ("noise only, other seed", PlantConfig::ideal(), Protocol::Random(150), 42),
         // 3 µm pin and 2 µm bar-end clearance without link errors: no stress takes them up.
-        ("paper clearances", PlantConfig::paper().with_only(Effect::Clearance), Protocol::Random(150), 43),
+        ("paper clearances", PlantConfig::paper().with_only(PhysicalEffect::Clearance).unwrap(), Protocol::Random(150), 43),
         // 2^20 counts per motor rev × 10: 0.6 µrad steps.
-        ("paper encoder quantization", PlantConfig::paper().with_only(Effect::EncoderQuantization), Protocol::Random(150), 44),
+        ("paper encoder quantization", PlantConfig::paper().with_only(PhysicalEffect::EncoderQuantization).unwrap(), Protocol::Random(150), 44),
     ];
     for (what, p, protocol, seed) in cases {
         let r = diagnosed(&measured(&p, protocol, seed));
@@ -238,7 +241,7 @@ fn two_plant_effects_at_once_are_both_named() {
 fn six_bar_link_errors_leave_the_parallelogram_mismatch_unexplained() {
     let hidden_robot = ["link_lengths", "base_offset", "frame", "encoder_offset", "gear_ratio", "scale", "link_stretch"];
     let cases = [
-        ("paper link errors", PlantConfig::paper().with_only(Effect::LinkErrors), 60u64),
+        ("paper link errors", PlantConfig::paper().with_only(PhysicalEffect::LinkGeometry).unwrap(), 60u64),
         ("random link errors σ 50 µm", PlantConfig::ideal().with_random_errors(11, 0.05, 0.0), 61),
         ("random link errors σ 50 µm", PlantConfig::ideal().with_random_errors(12, 0.05, 0.0), 62),
     ];

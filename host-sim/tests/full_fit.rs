@@ -1,9 +1,9 @@
 //! `fit --method full` on synthetic five-bars: parameters recovered within their standard
 //! deviations, and confounded parameters detected and held, not fitted.
 
-use host_sim::fit::levenberg_marquardt::fit_full;
-use host_sim::fit::params::{to_vector, NAMES};
-use host_sim::measurement_csv::Measurement;
+use host_sim::calib::fit::full::fit_full;
+use host_sim::calib::fit::params::{to_vector, NAMES};
+use host_sim::io::measurement_csv::Measurement;
 use kinematics_core::FiveBar;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -107,7 +107,7 @@ fn flags_confounded_parameters_on_degenerate_data() {
     assert!(f.std_dev[4].is_none() && f.std_dev[5].is_none() && f.std_dev[8].is_none() && f.std_dev[9].is_none());
     assert!(f.std_dev[3].unwrap().is_finite());
     // The free ones reproduce the data exactly (the elbow B is right even if d is not true d).
-    let r = host_sim::fit::params::residuals_mm(&f.model, &data).unwrap();
+    let r = host_sim::calib::fit::params::residuals_mm(&f.model, &data).unwrap();
     assert!(r.amax() < 1e-6, "{}", r.amax());
 }
 

@@ -1,8 +1,8 @@
 //! Grid builder and command path: the sign of the correction (commanding through the grid puts
 //! a synthetic machine's tool on the target), the second round, and the lattice checks.
 
-use host_sim::grid_build::{build_nodes, detect_lattice, encode_image};
-use host_sim::measurement_csv::Measurement;
+use host_sim::calib::grid::{build_nodes, detect_lattice, encode_image};
+use host_sim::io::measurement_csv::Measurement;
 use kinematics_core::{Calibration, CorrectionGrid, FiveBar};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;

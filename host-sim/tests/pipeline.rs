@@ -1,13 +1,20 @@
 //! The calibration pipeline (measure → `full` fit → grid → command) in-process through
-//! `demo::calibrate`, on the shared stand-in machine (`host_sim::machine::StandInMachine`: a
+//! `calib::pipeline::calibrate`, on the shared stand-in machine (`host_sim::calib::machine::StandInMachine`: a
 //! five-bar with the paper's kind of parameter errors plus a smooth distortion no five-bar
 //! describes, 1 µm instrument) and on the six-bar plant. Fresh random targets commanded through
 //! fit + grid must land within 5 µm max and 2 µm RMS (issue 6's accuracy target), on hand-set
 //! errors and on randomly drawn ones.
 
-use host_sim::demo::{calibrate, Approach, Calibrated, TARGET_MAX_UM, TARGET_RMS_UM};
-use host_sim::machine::{PlantMachine, StandInMachine};
+use host_sim::calib::machine::{Machine, PlantMachine, StandInMachine};
+use host_sim::calib::pipeline::{calibrate, Approach, Calibrated, PipelineOptions, TARGET_MAX_UM, TARGET_RMS_UM};
+use host_sim::calib::CalibError;
+use host_sim::machine_spec::MachineSpec;
 use kinematics_core::FiveBar;
+
+/// The pipeline on the paper machine's description, progress ignored.
+fn run(machine: &mut dyn Machine, seed: u64, approach: Approach) -> Result<Calibrated, CalibError> {
+    calibrate(machine, &PipelineOptions { seed, approach, spec: MachineSpec::paper() }, &mut |_| {})
+}
 
 fn check(cal: &Calibrated, label: &str) {
     let line: Vec<String> = cal.stages.iter().map(|s| format!("{} {:.1}/{:.2}", s.key, s.accuracy.max_um, s.accuracy.rms_um)).collect();
@@ -33,16 +40,16 @@ fn fit_then_grid_reaches_the_noise_floor() {
     five_bar.d_mm = 150.09;
     five_bar.base_b0_mm = [0.12, -0.07];
     five_bar.encoder_offset_rad = [0.0015, -0.001];
-    let mut machine = StandInMachine::new(five_bar, 1.0, 0.001, 11).unwrap();
-    let cal = calibrate(&mut machine, 11, Approach::Random).unwrap();
+    let mut machine = StandInMachine::new(&MachineSpec::paper(), five_bar, 1.0, 0.001, 11).unwrap();
+    let cal = run(&mut machine, 11, Approach::FromVisit).unwrap();
     check(&cal, "hand-set errors");
 }
 
 #[test]
 fn randomly_drawn_machines_reach_the_noise_floor() {
     for seed in 1..=4 {
-        let mut machine = StandInMachine::paper_like(100 + seed).unwrap();
-        let cal = calibrate(&mut machine, seed, Approach::Random).unwrap();
+        let mut machine = StandInMachine::paper_like(&MachineSpec::paper(), 100 + seed).unwrap();
+        let cal = run(&mut machine, seed, Approach::FromVisit).unwrap();
         check(&cal, &format!("paper-like machine, seed {}", 100 + seed));
     }
 }
@@ -55,7 +62,7 @@ fn randomly_drawn_machines_reach_the_noise_floor() {
 #[test]
 fn paper_plant_reaches_the_noise_floor_with_unidirectional_approach() {
     let mut machine = PlantMachine::by_name("paper", Some(1.0), 1).unwrap();
-    let cal = calibrate(&mut machine, 1, Approach::Positive).unwrap();
+    let cal = run(&mut machine, 1, Approach::Positive).unwrap();
     let get = |k: &str| cal.stages.iter().find(|s| s.key == k).unwrap().accuracy;
     let line: Vec<String> = cal.stages.iter().map(|s| format!("{} {:.1}/{:.2}", s.key, s.accuracy.max_um, s.accuracy.rms_um)).collect();
     eprintln!("paper plant, positive approach: max/rms µm: {}", line.join(", "));
@@ -65,7 +72,7 @@ fn paper_plant_reaches_the_noise_floor_with_unidirectional_approach() {
     assert!(g2.max_um <= TARGET_MAX_UM && g2.rms_um <= TARGET_RMS_UM, "{g2:?}");
 
     let mut machine = PlantMachine::by_name("paper", Some(1.0), 1).unwrap();
-    let random = calibrate(&mut machine, 1, Approach::Random).unwrap();
+    let random = run(&mut machine, 1, Approach::FromVisit).unwrap();
     let r2 = random.stages.last().unwrap().accuracy;
     eprintln!("paper plant, random approach: fit + 2 grid rounds {:.1}/{:.2} µm (backlash)", r2.max_um, r2.rms_um);
     assert!(r2.max_um < 10.0 && r2.rms_um > g2.rms_um, "{r2:?} vs {g2:?}");
@@ -82,7 +89,7 @@ fn six_bar_plants_with_random_errors_reach_the_noise_floor() {
     for seed in [7u64, 8, 9] {
         let config = paper.with_random_errors(seed, 0.1, 0.1);
         let mut machine = PlantMachine::from_config(config, &format!("paper + random errors {seed}"), Some(1.0), seed).unwrap();
-        let cal = calibrate(&mut machine, seed, Approach::Positive).unwrap();
+        let cal = run(&mut machine, seed, Approach::Positive).unwrap();
         check(&cal, &format!("six-bar plant with random errors, seed {seed}"));
     }
 }

@@ -21,11 +21,19 @@ use crate::KinematicsError;
 impl<T: Real> FiveBar<T> {
     /// The pose reached with encoder angles `theta_rad` (see [`FiveBar::inverse_pose`] for
     /// `min_transmission`).
-    pub fn forward_pose(
-        &self,
-        theta_rad: [T; 2],
-        min_transmission: T,
-    ) -> Result<Pose<T>, KinematicsError> {
+    pub fn forward_pose(&self, theta_rad: [T; 2], min_transmission: T) -> Result<Pose<T>, KinematicsError> {
+        self.solve_forward(theta_rad, min_transmission)
+    }
+
+    /// The tool point reached with encoder angles `theta_rad`.
+    pub fn forward(&self, theta_rad: [T; 2], min_transmission: T) -> Result<[T; 2], KinematicsError> {
+        self.solve_forward(theta_rad, min_transmission).map(|p| p.tool_mm)
+    }
+
+    /// The closed form and its checks, inlined into both entry points so that `forward`
+    /// neither builds nor returns the whole pose.
+    #[inline(always)]
+    fn solve_forward(&self, theta_rad: [T; 2], min_transmission: T) -> Result<Pose<T>, KinematicsError> {
         if !(theta_rad[0].is_finite() && theta_rad[1].is_finite()) {
             return Err(KinematicsError::NonFinite);
         }
@@ -58,8 +66,4 @@ impl<T: Real> FiveBar<T> {
             .check(self, min_transmission)
     }
 
-    /// The tool point reached with encoder angles `theta_rad`.
-    pub fn forward(&self, theta_rad: [T; 2], min_transmission: T) -> Result<[T; 2], KinematicsError> {
-        self.forward_pose(theta_rad, min_transmission).map(|p| p.tool_mm)
-    }
 }

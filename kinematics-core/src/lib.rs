@@ -12,7 +12,8 @@
 //! * [`grid`], [`bilinear`]: the correction grid image read from flash (validated header, CRC),
 //!   interpolated with the paper's Eq. 7;
 //! * [`pid`], [`servo`]: position control per axis and the servo step
-//!   (setpoint → IK → correction → torque).
+//!   (setpoint → IK → correction → torque), with validated settings; a refused setpoint leaves
+//!   the servo engaged (the firmware brakes the machine with it), a feedback fault latches.
 //!
 //! Everything is generic over [`Real`] where the host tools need f64 and the MCU f32; the grid and
 //! the servo are f32, exactly as the MCU runs them. `no_std`, no heap, no panic on any input:
@@ -23,6 +24,7 @@
 // `!(x >= lo)` instead of `x < lo` is deliberate throughout: it also refuses NaN.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
+pub mod atan2;
 pub mod bilinear;
 pub mod error;
 pub mod forward;
@@ -30,19 +32,24 @@ pub mod grid;
 pub mod inverse;
 pub mod jacobian;
 pub mod model;
+pub mod paper;
 pub mod pid;
 pub mod pose;
 pub mod real;
 pub mod servo;
+pub mod sin_cos;
 
 pub use error::{KinematicsError, Singularity};
 pub use grid::{CorrectionGrid, GridError, GridGeometry};
 pub use jacobian::Mat2;
 pub use model::{Branch, FiveBar, ModelError, WorkingMode};
-pub use pid::{AxisController, AxisGains, AxisReference};
+pub use pid::{AxisController, AxisGains, AxisReference, InvalidGain};
 pub use pose::Pose;
 pub use real::{wrap_angle_rad, Real};
-pub use servo::{Calibration, Servo, ServoConfig, ServoFault, ServoOutput};
+pub use servo::{
+    AcceptedSetpoint, Calibration, ConfigError, EngageError, Servo, ServoConfig, ServoFault, ServoOutput, SetpointRefusal,
+    StepError,
+};
 
 /// The default singularity margin: the smallest `|sin|` of a transmission angle accepted
 /// (0.05 is about 2.9° from a singular configuration).

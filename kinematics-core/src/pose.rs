@@ -69,6 +69,7 @@ impl<T: Real> Pose<T> {
     }
 
     /// Refuses the pose if a transmission is below `min_transmission` or anything is not finite.
+    #[inline(always)]
     pub(crate) fn check(
         self,
         model: &FiveBar<T>,
@@ -85,12 +86,16 @@ impl<T: Real> Pose<T> {
         if !finite {
             return Err(KinematicsError::NonFinite);
         }
-        let [s1, s2] = self.serial_transmission(model);
+        // The transmissions compared multiplied out, `|p × q| >= m·|a·b|` for
+        // `|p × q| / (a·b) >= m` (no division; the same test for positive lengths).
         // `!(x >= m)` also refuses a NaN margin.
-        if !(s1 >= min_transmission && s2 >= min_transmission) {
+        let (p1, q1, p2, q2) = self.link_vectors();
+        let serial_1 = cross(p1, q1).abs() >= min_transmission * (model.a_mm * model.b_mm).abs();
+        let serial_2 = cross(p2, q2).abs() >= min_transmission * (model.d_mm * model.c_mm).abs();
+        if !(serial_1 && serial_2) {
             return Err(KinematicsError::NearSingularity(Singularity::Serial));
         }
-        if !(self.parallel_transmission(model) >= min_transmission) {
+        if !(cross(q1, q2).abs() >= min_transmission * (model.b_mm * model.c_mm).abs()) {
             return Err(KinematicsError::NearSingularity(Singularity::Parallel));
         }
         Ok(self)

@@ -1,10 +1,13 @@
 //! The scalar type the kinematics are written over: `f32` on the MCU, `f64` in the host tools.
 //!
 //! One generic source serves both so that the firmware and the calibration tools cannot drift
-//! apart. Only the handful of operations the kinematics need are here, each mapped to `libm`
-//! (the same routines on every target, so host and MCU round the same way), except `sqrt` on a
-//! Cortex-M with an FPU, where the `VSQRT.F32` instruction is both exact (IEEE-754 correctly
-//! rounded, like libm's) and about 20x cheaper than libm's software `sqrtf`.
+//! apart. Only the handful of operations the kinematics need are here, each the same routine on
+//! every target so that host and MCU round the same way: `libm` for f64 and for the f32
+//! rounding helpers; for f32 `atan2` and `sin_cos` the core's own single-precision routines
+//! ([`crate::atan2`], [`crate::sin_cos`]: libm's f32 `atan2f` is slower and its `sincosf`
+//! computes in f64, software on the MCU); and `sqrt` on a Cortex-M with an FPU, where the
+//! `VSQRT.F32` instruction is both exact (IEEE-754 correctly rounded, like libm's) and much
+//! cheaper than libm's software `sqrtf` (about 56 instructions a call on the Cortex-M4F).
 
 use core::ops::{Add, Div, Mul, Neg, Sub};
 
@@ -129,11 +132,15 @@ impl Real for f32 {
     fn sqrt(self) -> Self {
         sqrt_f32(self)
     }
+    // Always inlined: their callers are the IK and FK of the 2 kHz step, where a call would
+    // cost its own instructions and force the caller to save FPU registers around it.
+    #[inline(always)]
     fn atan2(self, x: Self) -> Self {
-        libm::atan2f(self, x)
+        crate::atan2::atan2_f32(self, x)
     }
+    #[inline(always)]
     fn sin_cos(self) -> (Self, Self) {
-        libm::sincosf(self)
+        crate::sin_cos::sin_cos_f32(self)
     }
     fn abs(self) -> Self {
         libm::fabsf(self)
@@ -150,26 +157,51 @@ impl Real for f32 {
 }
 
 /// `sqrtf` with the FPU's `VSQRT.F32` where there is one (correctly rounded, like libm).
+///
+/// The cfg: ARM target features are not visible to `cfg` on stable Rust
+/// (`rustc --print cfg --target thumbv7em-none-eabihf` lists none), so
+/// `target_feature = "vfp2"` is never true; `target_abi = "eabihf"` (floats passed in FPU
+/// registers) is, and implies an FPU with VSQRT on every ARM target that has it. For the same
+/// reason the operand cannot use the `sreg` register class (it requires the unstable `vfp2`
+/// feature): it goes through a core register and `s0`, declared clobbered. That costs two
+/// `VMOV`s on each side (1 cycle each) around the 14-cycle `VSQRT`, against ~40 instructions of
+/// libm's software `sqrtf`. `tests/run-all.sh` checks that the benchmark's IK executes VSQRT.
 #[inline(always)]
 fn sqrt_f32(v: f32) -> f32 {
-    #[cfg(all(target_arch = "arm", target_feature = "vfp2"))]
+    #[cfg(all(target_arch = "arm", target_abi = "eabihf"))]
     {
-        let out: f32;
-        // SAFETY: VSQRT.F32 reads one S register and writes one; no memory, no flags we rely on.
+        let out: u32;
+        // SAFETY: VSQRT.F32 reads one S register and writes one; `s0` is declared clobbered,
+        // no memory is touched and no flags are changed.
         unsafe {
-            core::arch::asm!("vsqrt.f32 {o}, {i}", o = out(sreg) out, i = in(sreg) v,
-                options(pure, nomem, nostack));
+            core::arch::asm!(
+                "vmov s0, {i}",
+                "vsqrt.f32 s0, s0",
+                "vmov {o}, s0",
+                i = in(reg) v.to_bits(),
+                o = lateout(reg) out,
+                out("s0") _,
+                options(pure, nomem, nostack),
+            );
         }
-        out
+        f32::from_bits(out)
     }
-    #[cfg(not(all(target_arch = "arm", target_feature = "vfp2")))]
+    #[cfg(not(all(target_arch = "arm", target_abi = "eabihf")))]
     {
         libm::sqrtf(v)
     }
 }
 
 /// Wraps an angle into `(-π, π]`.
+///
+/// An angle already in range (an `atan2` minus a small encoder offset, the IK's case) is
+/// returned as it is after one comparison; others (and ±π exactly) take a division and a
+/// rounding.
+#[inline]
 pub fn wrap_angle_rad<T: Real>(angle_rad: T) -> T {
+    if angle_rad.abs() < T::PI {
+        return angle_rad;
+    }
     let two_pi = T::TWO * T::PI;
     let wrapped = angle_rad - two_pi * (angle_rad / two_pi).round();
     if wrapped <= -T::PI {

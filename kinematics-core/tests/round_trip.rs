@@ -1,5 +1,6 @@
 //! Inverse then forward kinematics returns the target, over the paper's whole workspace, in
-//! both precisions: f64 within 1 nm, f32 (the MCU's path) within 0.1 µm.
+//! both precisions: f64 within 1 nm, f32 (the MCU's path) within 0.1 µm; and the f32 IK and
+//! FK each on their own against f64, as a distance at the tool.
 
 use kinematics_core::{Branch, FiveBar, Real, WorkingMode};
 
@@ -107,4 +108,36 @@ fn every_working_mode_round_trips_where_it_is_assembled() {
         }
     }
     assert!(checked > 200, "only {checked} round trips found");
+}
+
+fn widen(v: [f32; 2]) -> [f64; 2] {
+    [f64::from(v[0]), f64::from(v[1])]
+}
+
+/// Worst errors (µm at the tool) of the f32 IK and of the f32 FK on their own, against f64:
+/// the f32 angles for each f32 target put through the f64 FK (how far from the target the
+/// MCU's angles really put the tool), and the f32 FK of those angles against the f64 FK.
+fn worst_f32_ik_and_fk_um(m: &FiveBar<f64>) -> (f64, f64) {
+    let m32 = m.cast::<f32>();
+    // The f64 model of exactly the f32 numbers, so that only the arithmetic differs.
+    let m64 = m32.cast::<f64>();
+    let (mut ik, mut fk) = (0.0f64, 0.0f64);
+    for p in workspace_points() {
+        let p = [p[0] as f32, p[1] as f32];
+        let theta = m32.inverse(p, 0.0).unwrap_or_else(|e| panic!("f32 IK at {p:?}: {e}"));
+        let reached = m64.forward(widen(theta), 0.0).expect("f64 FK");
+        ik = ik.max((reached[0] - f64::from(p[0])).hypot(reached[1] - f64::from(p[1])) * 1e3);
+        let fk32 = widen(m32.forward(theta, 0.0).unwrap_or_else(|e| panic!("f32 FK at {p:?}: {e}")));
+        fk = fk.max((fk32[0] - reached[0]).hypot(fk32[1] - reached[1]) * 1e3);
+    }
+    (ik, fk)
+}
+
+#[test]
+fn f32_ik_and_fk_each_within_0_1_um() {
+    for (name, m) in [("paper nominal", FiveBar::<f64>::paper_nominal()), ("irregular", irregular())] {
+        let (ik, fk) = worst_f32_ik_and_fk_um(&m);
+        println!("{name}: f32 IK worst {ik:.4} um, f32 FK worst {fk:.4} um (at the tool, against f64)");
+        assert!(ik < 0.1 && fk < 0.1, "{name}: IK {ik} um, FK {fk} um");
+    }
 }

@@ -4,7 +4,7 @@
 //
 // no_std, no heap: only `kinematics_core` and core. Each result is emitted as a `u32`: an f32's
 // bits, or `ERROR | code` for a refused input, so that errors must agree too. Transcendentals
-// go through `Real` (libm) explicitly: on the host, `f32::sin_cos` would be std's, not the core's.
+// go through `Real` explicitly: on the host, `f32::sin_cos` would be std's, not the core's.
 
 use kinematics_core::grid::{encode, CorrectionGrid, GridGeometry};
 use kinematics_core::{Calibration, FiveBar, Real, Servo, ServoConfig, WorkingMode};
@@ -112,7 +112,10 @@ pub fn run(emit: &mut impl FnMut(u32)) {
         emit_result(emit, cal.command_rad(target_mm(k), 0.05).map_err(code));
     }
     // 3. The servo closed around a two-inertia plant for 400 samples of a 10 mm circle.
-    let mut servo = Servo::new(ServoConfig::default());
+    let Ok(mut servo) = Servo::new(ServoConfig::default()) else {
+        emit(ERROR | 0xf1);
+        return;
+    };
     let centre = [202.132f32, 0.0];
     let Ok(mut angle) = cal.command_rad([centre[0] + 10.0, centre[1]], 0.05) else {
         emit(ERROR | 0xf0);

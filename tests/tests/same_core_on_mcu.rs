@@ -2,8 +2,9 @@
 //! closed servo sequence, hostile inputs) runs on the Cortex-M4F under QEMU (the firmware's
 //! `golden` binary) and here on x86; every f32 result and every error must be bit-identical.
 //!
-//! Why it can fail: the MCU takes `sqrt` from the FPU's VSQRT and everything else from libm's
-//! f32 routines, the host from the same libm source but another compiler backend; any
+//! Why it can fail: the MCU takes `sqrt` from the FPU's VSQRT, `atan2` and `sin_cos` from the
+//! core's own f32 routines and the rest from libm, the host from the same sources but another
+//! compiler backend; any
 //! contraction into fused multiply-adds, any std routine sneaking in on the host (std's
 //! `f32::sin_cos` shadows the core's), or a target-dependent branch would show here.
 //!

@@ -16,7 +16,9 @@
 //! runs; [`EncoderSign`] is what it corrects.
 //!
 //! Encoder plausibility (a reading that jumps further than the machine can move in one
-//! sample, a counter that stopped) belongs here too.
+//! sample, a counter that stopped) is [`crate::encoder_check`]; it reads the angles converted
+//! here and takes the resolution from [`EncoderScale::rad_per_count`] (a coarse encoder's
+//! quantisation must not read as a glitch or a stuck axis).
 
 /// A quadrature encoder read through a hardware counter.
 pub trait QuadratureEncoder {
@@ -101,7 +103,7 @@ pub struct EncoderScale {
 
 impl EncoderScale {
     /// What an axis with a refused configuration reads: NaN, which the servo refuses at engage
-    /// (`ServoFault::NonFiniteFeedback`), so the drives stay disabled.
+    /// (`EngageError::NonFiniteFeedback`), so the drives stay disabled.
     pub const REFUSED: EncoderScale = EncoderScale { rad_per_count: f32::NAN, zero_counts: 0 };
 
     /// The scale for `config`, zero at counter reading 0 (the power-on position) until

@@ -15,14 +15,17 @@ pub const REFILL_BELOW: usize = 32;
 
 /// Where setpoints come from: one tool-space setpoint (mm) per servo sample.
 pub trait SetpointSource {
-    /// The setpoint for the next sample.
-    fn next_mm(&mut self) -> [f32; 2];
+    /// The setpoint for the next sample, or `None` when the source has none now (a streamed
+    /// buffer that ran dry). The servo loop holds the last setpoint if the machine is at rest
+    /// when the queue runs empty, and makes a controlled stop if it is moving.
+    fn next_mm(&mut self) -> Option<[f32; 2]>;
 }
 
-/// Fills the queue from `source` until it is full.
+/// Fills the queue from `source` until it is full or the source has nothing more.
 pub fn refill(queue: &mut Producer<'_, [f32; 2]>, source: &mut impl SetpointSource) {
     while queue.ready() {
-        let _ = queue.enqueue(source.next_mm());
+        let Some(p) = source.next_mm() else { return };
+        let _ = queue.enqueue(p);
     }
 }
 
@@ -31,11 +34,14 @@ mod tests {
     use super::*;
     use heapless::spsc::Queue;
 
-    struct Counter(f32);
+    /// Counts up; runs dry after `dry_after` setpoints.
+    struct Counter(f32, f32);
     impl SetpointSource for Counter {
-        fn next_mm(&mut self) -> [f32; 2] {
-            self.0 += 1.0;
-            [self.0, -self.0]
+        fn next_mm(&mut self) -> Option<[f32; 2]> {
+            (self.0 < self.1).then(|| {
+                self.0 += 1.0;
+                [self.0, -self.0]
+            })
         }
     }
 
@@ -43,7 +49,7 @@ mod tests {
     fn refill_fills_the_queue_in_order_and_takes_no_more_than_fits() {
         let mut q: Queue<[f32; 2], QUEUE_SLOTS> = Queue::new();
         let (mut tx, mut rx) = q.split();
-        let mut source = Counter(0.0);
+        let mut source = Counter(0.0, f32::INFINITY);
         refill(&mut tx, &mut source);
         assert_eq!(rx.len(), QUEUE_SLOTS - 1);
         assert_eq!(source.0, (QUEUE_SLOTS - 1) as f32, "no setpoint drawn and dropped");
@@ -51,5 +57,23 @@ mod tests {
         refill(&mut tx, &mut source);
         assert_eq!(rx.len(), QUEUE_SLOTS - 1);
         assert_eq!(rx.dequeue(), Some([2.0, -2.0]));
+    }
+
+    #[test]
+    fn refill_stops_when_the_source_runs_dry() {
+        let mut q: Queue<[f32; 2], QUEUE_SLOTS> = Queue::new();
+        let (mut tx, mut rx) = q.split();
+        let mut source = Counter(0.0, 5.0);
+        refill(&mut tx, &mut source);
+        assert_eq!(rx.len(), 5);
+        assert_eq!(rx.dequeue(), Some([1.0, -1.0]));
+        source.1 = 6.0;
+        refill(&mut tx, &mut source);
+        assert_eq!(rx.len(), 5);
+        refill(&mut tx, &mut source);
+        assert_eq!(rx.len(), 5);
+        source.1 = 8.0;
+        refill(&mut tx, &mut source);
+        assert_eq!(rx.len(), 7);
     }
 }

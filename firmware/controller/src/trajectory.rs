@@ -49,7 +49,8 @@ impl Trajectory {
             let t_accel = libm::sqrtf(10.0 / libm::sqrtf(3.0) * d / accel_mm_s2);
             let t_speed = 15.0 / 8.0 * d / speed_mm_s;
             let t = if t_accel > t_speed { t_accel } else { t_speed };
-            let _ = move_samples.push(libm::ceilf(t / sample_period_s) as u32 + 1);
+            // Saturating: absurd limits (refused by `Settings::validate`) must not overflow.
+            let _ = move_samples.push((libm::ceilf(t / sample_period_s) as u32).saturating_add(1));
         }
         Trajectory {
             waypoints,
@@ -74,7 +75,7 @@ impl Trajectory {
 
     /// Samples until the last waypoint is reached and its dwell is over.
     pub fn total_samples(&self) -> u32 {
-        self.move_samples.iter().map(|n| n + self.dwell_samples).sum()
+        self.move_samples.iter().fold(0u32, |sum, n| sum.saturating_add(n.saturating_add(self.dwell_samples)))
     }
 
     /// Whether every move is done (the generator then holds the last waypoint).
@@ -96,7 +97,7 @@ impl Trajectory {
         let tau = if self.sample >= n { 1.0 } else { self.sample as f32 / n as f32 };
         let s = tau * tau * tau * (10.0 + tau * (-15.0 + 6.0 * tau));
         self.sample += 1;
-        if self.sample >= n + self.dwell_samples {
+        if self.sample >= n.saturating_add(self.dwell_samples) {
             self.segment += 1;
             self.sample = 0;
         }
@@ -104,9 +105,10 @@ impl Trajectory {
     }
 }
 
+/// Never runs dry: after the last move it holds the last waypoint.
 impl SetpointSource for Trajectory {
-    fn next_mm(&mut self) -> [f32; 2] {
-        Trajectory::next_mm(self)
+    fn next_mm(&mut self) -> Option<[f32; 2]> {
+        Some(Trajectory::next_mm(self))
     }
 }
 
@@ -217,13 +219,24 @@ mod tests {
     #[test]
     fn the_servo_accepts_the_whole_tour() {
         let cal = Calibration { model: FiveBar::paper_nominal(), grid: None };
-        let mut servo = Servo::new(Settings::default().servo);
+        let mut servo = Servo::new(Settings::default().servo).unwrap();
         let mut encoder = cal.command_rad([212.132, 0.0], 0.05).unwrap();
         servo.engage(&cal, encoder).unwrap();
         let mut t = tour();
         for k in 0..t.total_samples() {
             let out = servo.step(&cal, t.next_mm(), encoder).unwrap_or_else(|f| panic!("sample {k}: {f}"));
             encoder = out.reference_rad;
+        }
+    }
+
+    #[test]
+    fn absurd_limits_do_not_panic() {
+        for (accel, speed, dwell, dt) in [(0.0, 1500.0, 0.1, DT_S), (f32::NAN, 0.0, f32::INFINITY, DT_S), (1.0, 1.0, 1e30, 1e-30)] {
+            let mut t = Trajectory::new([212.132, 0.0], &WORKSPACE_TOUR_MM, accel, speed, dwell, dt);
+            let _ = t.total_samples();
+            for _ in 0..10 {
+                let _ = t.next_mm();
+            }
         }
     }
 

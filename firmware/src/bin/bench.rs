@@ -1,13 +1,19 @@
 //! Instruction / cycle counts of the hot path, one line per figure:
-//! `BENCH <name> <instructions per call>`.
+//! `BENCH <name> <instructions per call>` (QEMU; `firmware/qemu/bench.sh` appends the
+//! estimated Cortex-M4 cycles) or `BENCH <name> <cycles per call>` (STM32G474, DWT).
 //!
 //! * `ik_f32`: `FiveBar::<f32>::inverse` (closed-form IK, singularity checks);
 //! * `fk_f32`: `FiveBar::<f32>::forward`;
 //! * `grid_lookup`: `CorrectionGrid::correction_rad` on the image in the calibration region;
 //! * `servo_step`: `Servo::step`, the whole sample (jump checks, IK, correction, two PIDs);
+//! * `sixbar_solve`: the six-bar's numerical equilibrium solve (host-sim's plant, ported to
+//!   f32 in `bench/sixbar.rs`), warm-started along the servo's 2 kHz path: what controlling
+//!   the real mechanism without the hidden robot would cost per sample (and
+//!   `sixbar_solve_scattered`: from one lattice point to another, as between measurements);
 //!
-//! and, to show what bounds the step: `atan2f` (libm, two per IK) and
-//! `servo_step_uncorrected` (the same step without grid).
+//! and, to show what bounds them: `atan2_f32` and `sin_cos_f32` (the core's, one per arm of
+//! the IK and FK), libm's `atan2f` and `sincosf` they replace, and `servo_step_uncorrected`
+//! (the same step without grid).
 //!
 //! Method: each figure is `(counts(N calls) - counts(N empty iterations)) / N`, the inputs
 //! cycling through points spread over the workspace and passed through `black_box`, so that
@@ -16,8 +22,10 @@
 //! * QEMU (`cargo qemu-bench`, `-icount shift=0`): the counter is SysTick on the core clock;
 //!   how many instructions one SysTick count is gets *measured* first with a loop of known
 //!   length (`subs`/`bne`, two instructions per iteration), not assumed. QEMU counts
-//!   instructions, not cycles: no pipeline, flash wait states or FPU latencies.
-//! * STM32G474: the counter is DWT CYCCNT and the figures are core cycles at 170 MHz
+//!   instructions, not cycles; the cycle estimate comes from the plugin
+//!   `qemu/plugin/m4cycles.c`, which sees both loops of every figure as windows between the
+//!   markers of [`window_start`] and [`window_end`].
+//! * STM32G474: the counter is DWT CYCCNT and the figures are core cycles
 //!   (printed over defmt-RTT as `BENCH <name> <cycles per call>`).
 #![no_std]
 #![no_main]
@@ -29,10 +37,16 @@ use core::hint::black_box;
 use core::fmt::Write;
 
 use cortex_m_rt::entry;
+use kinematics_core::atan2::atan2_f32;
+use kinematics_core::sin_cos::sin_cos_f32;
 use kinematics_core::{Calibration, CorrectionGrid, FiveBar, Servo, ServoConfig};
 
 use firmware::board::{self, CycleCounter};
 use firmware::calibration;
+
+// The port lives next to this file (a crate root resolves `mod` from its own directory).
+#[path = "bench/sixbar.rs"]
+mod sixbar;
 
 /// Calls per figure.
 const N: usize = 2_000;
@@ -63,18 +77,43 @@ fn known_loop(counter: &CycleCounter, iterations: u32) -> u32 {
     counter.since(start)
 }
 
+/// Opens a measurement window for the QEMU cycle-estimating plugin
+/// (`firmware/qemu/plugin/m4cycles.c`): `mov r10, r10`, a no-op (one cycle on hardware) that
+/// the compiler never emits.
+#[inline(always)]
+fn window_start() {
+    // SAFETY: moves a register onto itself; no memory, stack or flags. Not `nomem`, so that the
+    // compiler keeps memory accesses on their side of the marker.
+    unsafe { core::arch::asm!("mov r10, r10", options(nostack, preserves_flags)) }
+}
+
+/// Closes a measurement window (`mov r11, r11`, see [`window_start`]).
+#[inline(always)]
+fn window_end() {
+    // SAFETY: as in `window_start`.
+    unsafe { core::arch::asm!("mov r11, r11", options(nostack, preserves_flags)) }
+}
+
 /// Measured counts of `body(i)` over `N` calls, minus the same loop with an empty body.
+///
+/// Each loop is also a plugin window (empty loop first, then the body), so that
+/// `firmware/qemu/bench.sh` pairs window `2k` and `2k + 1` with the `k`-th `BENCH` line.
 fn measure(counter: &CycleCounter, mut body: impl FnMut(usize)) -> u32 {
+    window_start();
     let start = counter.now();
     for i in 0..N {
         black_box(i);
     }
     let empty = counter.since(start);
+    window_end();
+    window_start();
     let start = counter.now();
     for i in 0..N {
         body(black_box(i));
     }
-    counter.since(start).saturating_sub(empty)
+    let total = counter.since(start);
+    window_end();
+    total.saturating_sub(empty)
 }
 
 #[entry]
@@ -91,6 +130,9 @@ fn main() -> ! {
     let per_count = if long > short { 400_000.0 / (long - short) as f32 } else { 0.0 };
     let mut line: heapless::String<96> = heapless::String::new();
     let _ = write!(line, "# {} per counter tick: {:.3} (measured with a known loop)", board::COUNT_UNIT, per_count);
+    board::console(&line);
+    let mut line: heapless::String<96> = heapless::String::new();
+    let _ = write!(line, "# calls per figure: {}", N);
     board::console(&line);
     if per_count <= 0.0 {
         board::console("FAIL counter does not run");
@@ -133,9 +175,25 @@ fn main() -> ! {
 
     let atan2 = measure(&counter, |i| {
         let p = black_box(points[i % POINTS]);
+        black_box(atan2_f32(p[1], p[0]));
+    });
+    report("atan2_f32", atan2 as f32 * per_count / N as f32);
+
+    let atan2 = measure(&counter, |i| {
+        let p = black_box(points[i % POINTS]);
         black_box(libm::atan2f(p[1], p[0]));
     });
     report("atan2f", atan2 as f32 * per_count / N as f32);
+
+    let sin_cos = measure(&counter, |i| {
+        black_box(sin_cos_f32(black_box(thetas[i % POINTS][0])));
+    });
+    report("sin_cos_f32", sin_cos as f32 * per_count / N as f32);
+
+    let sin_cos = measure(&counter, |i| {
+        black_box(libm::sincosf(black_box(thetas[i % POINTS][0])));
+    });
+    report("sincosf", sin_cos as f32 * per_count / N as f32);
 
     let lookup = measure(&counter, |i| {
         let _ = black_box(grid.correction_rad(black_box(points[i % POINTS])));
@@ -153,7 +211,7 @@ fn main() -> ! {
     }
     let uncorrected = Calibration { model, grid: None };
     for (name, cal) in [("servo_step", &cal), ("servo_step_uncorrected", &uncorrected)] {
-        let mut servo = Servo::new(ServoConfig::default());
+        let Ok(mut servo) = Servo::new(ServoConfig::default()) else { board::exit(false) };
         let Ok(mut encoder) = cal.command_rad(setpoints[0], 0.05) else { board::exit(false) };
         if servo.engage(cal, encoder).is_err() {
             board::console("FAIL servo did not engage");
@@ -171,6 +229,39 @@ fn main() -> ! {
             board::exit(false);
         }
         report(name, step as f32 * per_count / N as f32);
+    }
+
+    // The six-bar solve along the same path (link angles from the nominal IK, as host-sim's
+    // plant benchmark does), warm-started from the previous sample like the plant.
+    let mut links = [[0.0f32; 2]; N];
+    for (k, l) in links.iter_mut().enumerate() {
+        let Ok(t) = model.inverse(setpoints[k], 0.0) else { board::exit(false) };
+        *l = t;
+    }
+    let mut plant = sixbar::SixBar::new(&sixbar::SixBarParams::paper());
+    for (name, scattered) in [("sixbar_solve", false), ("sixbar_solve_scattered", true)] {
+        let (mut iterations, mut failed) = (0u32, None);
+        let solve = measure(&counter, |i| {
+            let link = if scattered { thetas[(i * 7) % POINTS] } else { links[i] };
+            match plant.solve(black_box(link)) {
+                Ok(sol) => {
+                    iterations += sol.iterations;
+                    black_box(sol.tool_mm);
+                }
+                Err(e) => failed = failed.or(Some((i, e))),
+            }
+        });
+        if let Some((i, e)) = failed {
+            let mut line: heapless::String<128> = heapless::String::new();
+            let _ = write!(line, "FAIL {} failed at call {}: {:?}", name, i, e);
+            board::console(&line);
+            board::exit(false);
+        }
+        let what = if scattered { "from one lattice point to another" } else { "warm start along the 2 kHz path" };
+        let mut line: heapless::String<128> = heapless::String::new();
+        let _ = write!(line, "# {}: {:.2} LM iterations per solve ({})", name, iterations as f32 / N as f32, what);
+        board::console(&line);
+        report(name, solve as f32 * per_count / N as f32);
     }
     board::exit(true)
 }

@@ -15,8 +15,8 @@
 //! SVDs of n×≤18 matrices.
 
 use super::effects::PARAM_NAMES;
-use super::effects::{Effect, Problem, N_PARAMS};
-use super::lm::{jacobian, Fit};
+use super::effects::{Effect, Problem};
+use super::fit::{jacobian, Fit};
 use nalgebra::{DMatrix, DVector};
 use serde::Serialize;
 
@@ -139,18 +139,18 @@ pub fn overlaps(
     candidates: &[&'static Effect],
     s2_um2: f64,
 ) -> Vec<Overlap> {
-    let x = &fit.x;
+    let x = &fit.p;
     let all: Vec<usize> = candidates.iter().flat_map(|e| e.params.iter().copied()).collect();
     let Some(j) = jacobian(problem, x, &all) else { return vec![] };
     let mut out: Vec<Overlap> = Vec::new();
     for &e in final_set {
         for &c in candidates {
-            if c.name == e.name {
+            if c.name() == e.name() {
                 continue;
             }
             let rest: Vec<usize> = final_set
                 .iter()
-                .filter(|f| f.name != e.name && f.name != c.name)
+                .filter(|f| f.name() != e.name() && f.name() != c.name())
                 .flat_map(|f| f.params.iter().copied())
                 .collect();
             let q = orthonormal_basis(&columns(&j, &all, &rest));
@@ -173,8 +173,8 @@ pub fn overlaps(
                 (swap_chi2 < SWAP_CHI2 && ve.norm_squared() / s2_um2.max(1e-12) > SWAP_CHI2) || shared_z > SHARED_Z;
             if confounded || principal_cos >= PARTIAL_COS {
                 out.push(Overlap {
-                    effect: e.name.into(),
-                    other: c.name.into(),
+                    effect: e.name().into(),
+                    other: c.name().into(),
                     cos,
                     swap_chi2,
                     principal_cos,
@@ -182,7 +182,7 @@ pub fn overlaps(
                     shared_value,
                     shared_z,
                     confounded,
-                    separate_by: separating_measurement(e.name, c.name),
+                    separate_by: separating_measurement(e.name(), c.name()),
                 });
             }
         }
@@ -215,12 +215,12 @@ fn shared_part(e: &Effect, je: &DMatrix<f64>, jc: &DMatrix<f64>, fit: &Fit, s2_u
         d = -d;
     }
     let cols: Vec<Option<usize>> = e.params.iter().map(|k| fit.free.iter().position(|f| f == k)).collect();
-    let alpha: f64 = e.params.iter().zip(d.iter()).map(|(&k, &w)| fit.x[k] * w).sum();
+    let alpha: f64 = e.params.iter().zip(d.iter()).map(|(&k, &w)| fit.p[k] * w).sum();
     let mut var = 0.0;
     for (a, ca) in cols.iter().enumerate() {
         for (b, cb) in cols.iter().enumerate() {
             if let (Some(ca), Some(cb)) = (ca, cb) {
-                var += d[a] * d[b] * fit.jtj_inv[(*ca, *cb)] * s2_um2;
+                var += d[a] * d[b] * fit.normal_pinv[(*ca, *cb)] * s2_um2;
             }
         }
     }
@@ -262,7 +262,7 @@ pub struct PoseOverlap {
 /// (Table I) this lists what no fit on these data could tell apart.
 pub fn pose_set_overlaps(
     problem: &Problem,
-    x: &[f64; N_PARAMS],
+    x: &[f64],
     candidates: &[&'static Effect],
     min_cos: f64,
 ) -> Vec<PoseOverlap> {
@@ -273,10 +273,13 @@ pub fn pose_set_overlaps(
         for b in &candidates[i + 1..] {
             let cos = max_cos(&columns(&j, &all, a.params), &columns(&j, &all, b.params));
             if cos >= min_cos {
-                out.push(PoseOverlap { a: a.name.into(), b: b.name.into(), principal_cos: cos });
+                out.push(PoseOverlap { a: a.name().into(), b: b.name().into(), principal_cos: cos });
             }
         }
     }
-    out.sort_by(|p, q| q.principal_cos.total_cmp(&p.principal_cos));
+    // Largest cosine first; cosines equal to 1e-9 (e.g. two exact confoundings, 1 to rounding)
+    // in name order, so rounding noise does not reorder the report.
+    let key = |o: &PoseOverlap| (o.principal_cos * 1e9).round();
+    out.sort_by(|p, q| key(q).total_cmp(&key(p)).then_with(|| (&p.a, &p.b).cmp(&(&q.a, &q.b))));
     out
 }

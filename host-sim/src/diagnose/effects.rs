@@ -40,7 +40,8 @@
 //!
 //! Cost: one closed-form FK per point per evaluation (a few hundred ns); no allocation per point.
 
-use crate::measurement_csv::Measurement;
+use crate::effect::PhysicalEffect;
+use crate::io::measurement_csv::Measurement;
 use kinematics_core::{wrap_angle_rad, FiveBar};
 
 /// Smallest transmission |sin| of a usable point (about 0.06° from a singular configuration).
@@ -49,11 +50,11 @@ pub const MIN_TRANSMISSION: f64 = 1e-3;
 /// Number of entries of the full parameter vector.
 pub const N_PARAMS: usize = 20;
 
-/// One candidate effect.
+/// One candidate effect: a [`PhysicalEffect`] with its parameters in the extended forward model.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Effect {
-    /// Exact name (the report and the tests rely on it).
-    pub name: &'static str,
+    /// Which effect (its name is the report's: the tests and other tools rely on it).
+    pub kind: PhysicalEffect,
     /// Indices into the full parameter vector.
     pub params: &'static [usize],
     /// Physical meaning, for the report.
@@ -79,26 +80,26 @@ pub const PARAM_NAMES: [&str; N_PARAMS] = [
 /// The library, in a fixed order (ties in the selection go to the earlier one).
 pub const LIBRARY: [Effect; 8] = [
     Effect {
-        name: "link_lengths",
+        kind: PhysicalEffect::LinkLengths,
         params: &[0, 1, 2, 3],
         meaning: "a, b, c, d differ from the model (manufacturing, assembly)",
         needs_dir: false,
     },
     Effect {
-        name: "encoder_offset",
+        kind: PhysicalEffect::EncoderOffset,
         params: &[4, 5],
         meaning: "motor zero offsets (encoder index not at the model's zero)",
         needs_dir: false,
     },
-    Effect { name: "base_offset", params: &[6, 7], meaning: "B0 is not where the model has it", needs_dir: false },
+    Effect { kind: PhysicalEffect::BaseOffset, params: &[6, 7], meaning: "B0 is not where the model has it", needs_dir: false },
     Effect {
-        name: "backlash",
+        kind: PhysicalEffect::Backlash,
         params: &[8, 9],
         meaning: "lost motion per motor: the link lags the encoder by beta/2 against the approach direction",
         needs_dir: true,
     },
     Effect {
-        name: "link_stretch",
+        kind: PhysicalEffect::LinkStretch,
         params: &[10, 11, 18, 19],
         meaning: "configuration-dependent distal link lengths from the internal stress of the overconstrained loops: \
                   b and c vary with cos 2ψ and sin 2ψ (ψ: angle between the distal links), minus the part constant link \
@@ -106,14 +107,14 @@ pub const LIBRARY: [Effect; 8] = [
         needs_dir: false,
     },
     Effect {
-        name: "frame",
+        kind: PhysicalEffect::Frame,
         params: &[12, 13, 14],
         meaning: "instrument frame offset (x, y) and rotation about A0",
         needs_dir: false,
     },
-    Effect { name: "scale", params: &[15], meaning: "instrument scale error (about A0)", needs_dir: false },
+    Effect { kind: PhysicalEffect::Scale, params: &[15], meaning: "instrument scale error (about A0)", needs_dir: false },
     Effect {
-        name: "gear_ratio",
+        kind: PhysicalEffect::GearRatio,
         params: &[16, 17],
         meaning: "transmission ratio error per motor: link angle = encoder angle scaled by (1+g) about the data's mean angle \
                   (the constant part stays encoder_offset)",
@@ -121,10 +122,21 @@ pub const LIBRARY: [Effect; 8] = [
     },
 ];
 
+impl Effect {
+    /// The effect's name ([`PhysicalEffect::name`]).
+    pub const fn name(&self) -> &'static str {
+        self.kind.name()
+    }
+}
+
 /// Looks an effect up by its exact name.
 pub fn effect(name: &str) -> Option<&'static Effect> {
-    LIBRARY.iter().find(|e| e.name == name)
+    LIBRARY.iter().find(|e| e.name() == name)
 }
+
+/// A point's shape for the link_stretch basis: (cos 2ψ, sin 2ψ), (cos e1, sin e1),
+/// (cos e2, sin e2), (|∂C/∂b|², |∂C/∂c|²).
+type Shape = ([f64; 2], [f64; 2], [f64; 2], [f64; 2]);
 
 /// Everything per point the forward model needs besides the parameters.
 #[derive(Clone, Debug)]
@@ -160,7 +172,7 @@ impl Problem {
         let has_dir = !data.is_empty() && data.iter().all(|m| m.dir.is_some());
         let mut points = Vec::with_capacity(data.len());
         // Per point: (cos 2ψ, sin 2ψ), (cos e1, sin e1), (cos e2, sin e2), (|∂C/∂b|², |∂C/∂c|²).
-        let mut geo: Vec<([f64; 2], [f64; 2], [f64; 2], [f64; 2])> = Vec::with_capacity(data.len());
+        let mut geo: Vec<Shape> = Vec::with_capacity(data.len());
         let mut dropped_lines = Vec::new();
         let unit = |v: [f64; 2]| {
             let n = v[0].hypot(v[1]);
@@ -215,6 +227,8 @@ impl Problem {
         let mut u =
             [vec![0.0; points.len()], vec![0.0; points.len()], vec![0.0; points.len()], vec![0.0; points.len()]];
         let mut stretch_degenerate = points.len() < 6;
+        // The slot indexes both the basis `u` and (through arm and harmonic) the shapes.
+        #[allow(clippy::needless_range_loop)]
         for slot in 0..4 {
             let (arm, harmonic) = (slot % 2, slot / 2);
             let cols = |i: usize| -> [f64; 3] {
@@ -292,9 +306,9 @@ impl Problem {
     /// Whether an effect can be fitted on these data (and why not).
     pub fn available(&self, e: &Effect) -> Result<(), String> {
         if e.needs_dir && !self.has_dir {
-            return Err(format!("{} skipped: the data have no dir1/dir2 columns", e.name));
+            return Err(format!("{} skipped: the data have no dir1/dir2 columns", e.name()));
         }
-        if e.name == "link_stretch" && self.stretch_degenerate {
+        if e.kind == PhysicalEffect::LinkStretch && self.stretch_degenerate {
             return Err(
                 "link_stretch skipped: on these poses its basis is exactly what link_lengths and encoder_offset do"
                     .into(),
@@ -309,23 +323,10 @@ pub fn free_params(effects: &[&Effect]) -> Vec<usize> {
     effects.iter().flat_map(|e| e.params.iter().copied()).collect()
 }
 
-/// RMS and max of the radial residual (µm) from an x,y-interleaved residual vector.
-pub fn rms_max_um(r: &[f64]) -> (f64, f64) {
-    let n = (r.len() / 2).max(1) as f64;
-    let mut ss = 0.0;
-    let mut mx = 0.0f64;
-    for c in r.chunks(2) {
-        let q = c[0] * c[0] + c[1] * c[1];
-        ss += q;
-        mx = mx.max(q.sqrt());
-    }
-    ((ss / n).sqrt(), mx)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::diagnose::lm::jacobian;
+    use crate::diagnose::fit::jacobian;
 
     fn meas(theta_deg: [f64; 2], dir: [i8; 2], m: &FiveBar<f64>) -> Measurement {
         let c = m.forward([theta_deg[0].to_radians(), theta_deg[1].to_radians()], 0.0).unwrap();
@@ -333,11 +334,13 @@ mod tests {
     }
 
     fn grid(m: &FiveBar<f64>) -> Vec<Measurement> {
-        let nominal = FiveBar::<f64>::paper_nominal();
+        let spec = crate::machine_spec::MachineSpec::paper();
+        let (nominal, ws) = (spec.nominal, spec.workspace);
         let mut out = Vec::new();
         for i in 0..=10 {
             for j in 0..=10 {
-                let th = nominal.inverse([162.132 + 10.0 * i as f64, -75.0 + 15.0 * j as f64], 0.05).unwrap();
+                let t = [ws.x_mm[0] + 10.0 * i as f64, ws.y_mm[0] + 15.0 * j as f64];
+                let th = nominal.inverse(t, spec.min_transmission).unwrap();
                 out.push(meas(
                     [th[0].to_degrees(), th[1].to_degrees()],
                     [if i % 2 == 0 { 1 } else { -1 }, if j % 2 == 0 { 1 } else { -1 }],

@@ -15,7 +15,7 @@
 //! (≤ 8 LM fits); results are cached by effect set.
 
 use super::effects::{free_params, Effect, Problem, LIBRARY, N_PARAMS};
-use super::lm::{fit, Fit};
+use super::fit::{fit, Fit};
 use std::collections::BTreeMap;
 
 /// BIC decrease needed to add an effect.
@@ -50,8 +50,8 @@ impl<'a> Fitter<'a> {
     }
 
     /// The LM fit of a set of effects, starting from `start` (entries outside the set ignored).
-    pub fn fit(&mut self, set: &[&'static Effect], start: &[f64; N_PARAMS]) -> Option<Fit> {
-        let mut key: Vec<&'static str> = set.iter().map(|e| e.name).collect();
+    pub fn fit(&mut self, set: &[&'static Effect], start: &[f64]) -> Option<Fit> {
+        let mut key: Vec<&'static str> = set.iter().map(|e| e.name()).collect();
         key.sort();
         if let Some(f) = self.cache.get(&key) {
             return f.clone();
@@ -71,10 +71,10 @@ fn n_res(p: &Problem) -> f64 {
 pub fn delta_bic(p: &Problem, noise_um: Option<f64>, a: &Fit, b: &Fit) -> f64 {
     let n = n_res(p);
     let (ka, kb) = (a.free.len() as f64, b.free.len() as f64);
-    let va = a.rss / (n - ka).max(1.0);
-    let vb = b.rss / (n - kb).max(1.0);
+    let va = a.cost / (n - ka).max(1.0);
+    let vb = b.cost / (n - kb).max(1.0);
     let s2 = va.min(vb).max(noise_um.map(|s| s * s).unwrap_or(0.0)).max(1e-12);
-    (b.rss - a.rss) / s2 + (kb - ka) * n.ln()
+    (b.cost - a.cost) / s2 + (kb - ka) * n.ln()
 }
 
 /// Runs the stepwise selection from the empty set (the base model).
@@ -106,10 +106,10 @@ pub fn select(problem: &Problem, noise_um: Option<f64>) -> Selection {
     for _round in 0..3 * LIBRARY.len() {
         if let Some(s) = noise_um {
             let k = cur.free.len() as f64;
-            if cur.rss / (n - k).max(1.0) < s * s {
+            if cur.cost / (n - k).max(1.0) < s * s {
                 log.push(format!(
                     "residual at the noise level ({:.2} µm RMS per axis ≤ {s} µm): stop",
-                    (cur.rss / n).sqrt()
+                    (cur.cost / n).sqrt()
                 ));
                 break;
             }
@@ -123,18 +123,18 @@ pub fn select(problem: &Problem, noise_um: Option<f64>) -> Selection {
             }
             let k_new = (cur.free.len() + c.params.len()) as f64;
             if n - k_new < MIN_DOF_PER_PARAM * k_new {
-                tried.push(format!("{} not tried: {} parameters on {} residuals", c.name, k_new, n));
+                tried.push(format!("{} not tried: {} parameters on {} residuals", c.name(), k_new, n));
                 continue;
             }
             let mut trial = set.clone();
             trial.push(c);
-            let Some(f) = fitter.fit(&trial, &cur.x) else {
-                tried.push(format!("{} fit failed (a point left the model's workspace)", c.name));
+            let Some(f) = fitter.fit(&trial, &cur.p) else {
+                tried.push(format!("{} fit failed (a point left the model's workspace)", c.name()));
                 continue;
             };
             {
                 let d = delta_bic(problem, noise_um, &cur, &f);
-                tried.push(format!("{} rms {:.1} µm ΔBIC {:.1}", c.name, (2.0 * f.rss / n).sqrt(), d));
+                tried.push(format!("{} rms {:.1} µm ΔBIC {:.1}", c.name(), (2.0 * f.cost / n).sqrt(), d));
                 if best.as_ref().is_none_or(|b| d < b.0) {
                     best = Some((d, c, f));
                 }
@@ -142,15 +142,15 @@ pub fn select(problem: &Problem, noise_um: Option<f64>) -> Selection {
         }
         log.push(format!(
             "candidates on top of [{}]: {}",
-            set.iter().map(|e| e.name).collect::<Vec<_>>().join(", "),
+            set.iter().map(|e| e.name()).collect::<Vec<_>>().join(", "),
             tried.join("; ")
         ));
         let Some((d, c, f)) = best else { break };
         if d > -ADD_MARGIN {
-            log.push(format!("no candidate significant (best {} ΔBIC {:.1} > −{ADD_MARGIN}): stop", c.name, d));
+            log.push(format!("no candidate significant (best {} ΔBIC {:.1} > −{ADD_MARGIN}): stop", c.name(), d));
             break;
         }
-        log.push(format!("add {} (ΔBIC {:.1})", c.name, d));
+        log.push(format!("add {} (ΔBIC {:.1})", c.name(), d));
         set.push(c);
         cur = f;
         // Backward and swap passes while they improve the score.
@@ -163,10 +163,10 @@ pub fn select(problem: &Problem, noise_um: Option<f64>) -> Selection {
                 }
                 let mut trial = set.clone();
                 let removed = trial.remove(i);
-                if let Some(f) = fitter.fit(&trial, &cur.x) {
+                if let Some(f) = fitter.fit(&trial, &cur.p) {
                     let d = delta_bic(problem, noise_um, &cur, &f);
                     if d < 0.0 {
-                        log.push(format!("remove {} (ΔBIC {:.1})", removed.name, d));
+                        log.push(format!("remove {} (ΔBIC {:.1})", removed.name(), d));
                         set = trial;
                         cur = f;
                         changed = true;
@@ -188,10 +188,10 @@ pub fn select(problem: &Problem, noise_um: Option<f64>) -> Selection {
                     if n - k_new < MIN_DOF_PER_PARAM * k_new {
                         continue;
                     }
-                    if let Some(f) = fitter.fit(&trial, &cur.x) {
+                    if let Some(f) = fitter.fit(&trial, &cur.p) {
                         let d = delta_bic(problem, noise_um, &cur, &f);
                         if d < -SWAP_MARGIN {
-                            log.push(format!("swap {} for {} (ΔBIC {:.1})", old.name, c.name, d));
+                            log.push(format!("swap {} for {} (ΔBIC {:.1})", old.name(), c.name(), d));
                             // The newcomer counts as added last.
                             trial.remove(i);
                             trial.push(c);
@@ -209,13 +209,19 @@ pub fn select(problem: &Problem, noise_um: Option<f64>) -> Selection {
 }
 
 fn empty_fit(problem: &Problem) -> Fit {
+    let m = 2 * problem.points.len();
+    let jacobian = nalgebra::DMatrix::zeros(m, 0);
     Fit {
-        x: [0.0; N_PARAMS],
+        p: vec![0.0; N_PARAMS],
         free: vec![],
-        residual_um: vec![0.0; 2 * problem.points.len()],
-        rss: 0.0,
-        jacobian: nalgebra::DMatrix::zeros(2 * problem.points.len(), 0),
-        jtj_inv: nalgebra::DMatrix::zeros(0, 0),
-        min_singular: f64::INFINITY,
+        residuals: nalgebra::DVector::zeros(m),
+        cost: 0.0,
+        cost_history: vec![0.0],
+        iterations: 0,
+        rejected_steps: 0,
+        stop: crate::numeric::Stop::NoFreeParameters,
+        svd: crate::numeric::ScaledSvd::new(&jacobian),
+        jacobian,
+        normal_pinv: nalgebra::DMatrix::zeros(0, 0),
     }
 }

@@ -15,7 +15,7 @@
 //! Cost: the periodogram is 2 × 359 small (3×3) least-squares solves over n points: O(700 n).
 
 use super::effects::Problem;
-use crate::measurement_csv::Measurement;
+use crate::io::measurement_csv::Measurement;
 use nalgebra::{DMatrix, DVector};
 use serde::Serialize;
 
@@ -138,6 +138,8 @@ pub fn analyse(problem: &Problem, data: &[Measurement], residual_um: &[f64]) -> 
     }
     // Approach direction.
     if problem.has_dir {
+        // j is the motor: it indexes the joint residuals and each point's directions.
+        #[allow(clippy::needless_range_loop)]
         for j in 0..2 {
             let y = DVector::from_vec(dth[j].clone());
             let a = DMatrix::from_fn(n, 2, |r, c| if c == 0 { 1.0 } else { problem.points[r].dir[j] });
@@ -231,15 +233,15 @@ pub fn analyse(problem: &Problem, data: &[Measurement], residual_um: &[f64]) -> 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use kinematics_core::FiveBar;
 
     #[test]
     fn periodogram_finds_a_joint_ripple_and_ignores_none() {
-        let nominal = FiveBar::<f64>::paper_nominal();
+        let spec = crate::machine_spec::MachineSpec::paper();
+        let (nominal, g) = (spec.nominal, spec.grid);
         let mut data = Vec::new();
-        for i in 0..=20 {
-            for j in 0..=30 {
-                let th = nominal.inverse([162.132 + 5.0 * i as f64, -75.0 + 5.0 * j as f64], 0.05).unwrap();
+        for i in 0..g.nx {
+            for j in 0..g.ny {
+                let th = nominal.inverse(g.node_mm(i, j), spec.min_transmission).unwrap();
                 let c = nominal.forward(th, 0.0).unwrap();
                 data.push(Measurement {
                     theta_deg: [th[0].to_degrees(), th[1].to_degrees()],

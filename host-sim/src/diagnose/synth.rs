@@ -1,8 +1,9 @@
-//! Synthetic measurements with hidden effects, for testing the diagnosis until the six-bar plant
-//! (`host-sim measure`, branch `sim`) lands.
+//! Synthetic measurements with hidden effects, for testing the diagnosis against a truth it does
+//! not share code with (the six-bar plant, `calib::measure`, is the other source).
 //!
-//! Why here and not in the test file: the CLI tests, the unit tests and a later comparison with
-//! the plant all need the same generator; it is small and has no other dependency.
+//! Why here and not in the test file: the CLI tests, the unit tests and the studies
+//! (`benches/diagnose_study.rs`) all need the same generator; it is small and has no other
+//! dependency. Poses are on the paper machine ([`MachineSpec::paper`]).
 //!
 //! The truth is a five-bar (the nominal machine plus per-effect perturbations), commanded with
 //! the *nominal* inverse kinematics at targets on the paper's 5 mm grid or at random targets,
@@ -18,8 +19,9 @@
 //! Backlash, encoder offsets, link lengths, base offset and scale have one physical form; the
 //! generator uses it. Noise: Gaussian, σ per axis. Cost: one IK and one or two FK per pose.
 
-use crate::measurement_csv::Measurement;
-use kinematics_core::FiveBar;
+use crate::effect::PhysicalEffect;
+use crate::io::measurement_csv::Measurement;
+use crate::machine_spec::MachineSpec;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
@@ -61,7 +63,7 @@ pub struct Truth {
     pub noise_um: f64,
 }
 
-/// Where the poses are.
+/// Where the poses are (on the paper machine).
 #[derive(Clone, Copy, Debug)]
 pub enum Poses {
     /// The paper's 5 mm grid over x ∈ [162.132, 262.132], y ∈ [−75, 75] (651 poses).
@@ -86,29 +88,30 @@ fn mag(rng: &mut ChaCha8Rng, lo: f64, hi: f64) -> f64 {
 }
 
 impl Truth {
-    /// One library effect switched on with a random magnitude well above 2 µm noise
-    /// (`name` as in the library). Panics on an unknown name (test support).
-    pub fn add_random(&mut self, name: &str, rng: &mut ChaCha8Rng) {
-        match name {
-            "link_lengths" => self.link_delta_um = [(); 4].map(|_| mag(rng, 20.0, 100.0)),
-            "encoder_offset" => self.encoder_offset_urad = [(); 2].map(|_| mag(rng, 100.0, 400.0)),
-            "base_offset" => self.base_offset_um = [(); 2].map(|_| mag(rng, 30.0, 120.0)),
-            "backlash" => self.backlash_urad = [(); 2].map(|_| rng.random_range(60.0..200.0)),
-            "link_stretch" => {
+    /// One library effect switched on with a random magnitude well above 2 µm noise; effects the
+    /// diagnosis library does not name have no random form here (an error naming the effect).
+    pub fn add_random(&mut self, effect: PhysicalEffect, rng: &mut ChaCha8Rng) -> Result<(), String> {
+        match effect {
+            PhysicalEffect::LinkLengths => self.link_delta_um = [(); 4].map(|_| mag(rng, 20.0, 100.0)),
+            PhysicalEffect::EncoderOffset => self.encoder_offset_urad = [(); 2].map(|_| mag(rng, 100.0, 400.0)),
+            PhysicalEffect::BaseOffset => self.base_offset_um = [(); 2].map(|_| mag(rng, 30.0, 120.0)),
+            PhysicalEffect::Backlash => self.backlash_urad = [(); 2].map(|_| rng.random_range(60.0..200.0)),
+            PhysicalEffect::LinkStretch => {
                 self.stretch_um_per_rad = [(); 2].map(|_| mag(rng, 40.0, 120.0));
                 // A hardening loop spring: without the cubic term the stretch is, on the rhombus,
                 // exactly link_lengths + encoder_offset (see effects.rs) and not a test of it.
                 self.stretch_quadratic_per_rad = 3.0;
                 self.stretch_cubic_per_rad2 = 3.0;
             }
-            "frame" => {
+            PhysicalEffect::Frame => {
                 self.frame = [mag(rng, 30.0, 120.0), mag(rng, 30.0, 120.0), mag(rng, 100.0, 400.0)];
                 self.frame_origin_mm = [rng.random_range(-500.0..500.0), rng.random_range(-500.0..500.0)];
             }
-            "scale" => self.scale_ppm = mag(rng, 150.0, 500.0),
-            "gear_ratio" => self.gear_ppm = [(); 2].map(|_| mag(rng, 300.0, 1000.0)),
-            _ => panic!("unknown effect {name}"),
+            PhysicalEffect::Scale => self.scale_ppm = mag(rng, 150.0, 500.0),
+            PhysicalEffect::GearRatio => self.gear_ppm = [(); 2].map(|_| mag(rng, 300.0, 1000.0)),
+            other => return Err(format!("{other} is not in the diagnosis library: no random form")),
         }
+        Ok(())
     }
 }
 
@@ -131,36 +134,30 @@ impl Truth {
     }
 }
 
-/// The targets of a pose set.
-pub fn targets(poses: Poses, rng: &mut ChaCha8Rng) -> Vec<[f64; 2]> {
+/// The targets of a pose set on `spec`'s machine (the grid column by column, as first written:
+/// the measurement order is shuffled from it).
+pub fn targets(poses: Poses, rng: &mut ChaCha8Rng, spec: &MachineSpec) -> Vec<[f64; 2]> {
+    let ws = &spec.workspace;
     match poses {
         Poses::Grid5mm => {
-            let mut t = Vec::new();
-            for i in 0..=20 {
-                for j in 0..=30 {
-                    t.push([162.132 + 5.0 * i as f64, -75.0 + 5.0 * j as f64]);
-                }
-            }
-            t
+            let g = &spec.grid;
+            (0..g.nx).flat_map(|i| (0..g.ny).map(move |j| g.node_mm(i, j))).collect()
         }
-        Poses::Table1 => [0.0, 75.0, 75.0, 0.0, -75.0, -75.0, -75.0, 0.0, 75.0]
-            .iter()
-            .zip([212.132, 212.132, 262.132, 262.132, 262.132, 212.132, 162.132, 162.132, 162.132])
-            .map(|(&y, x)| [x, y])
+        Poses::Table1 => crate::calib::protocol::table1_targets(ws).to_vec(),
+        Poses::Random(n) => (0..n)
+            .map(|_| [rng.random_range(ws.x_mm[0]..ws.x_mm[1]), rng.random_range(ws.y_mm[0]..ws.y_mm[1])])
             .collect(),
-        Poses::Random(n) => {
-            (0..n).map(|_| [rng.random_range(162.132..262.132), rng.random_range(-75.0..75.0)]).collect()
-        }
     }
 }
 
 /// Generates measurements of the truth machine, commanded by the nominal IK at the targets.
 pub fn generate(truth: &Truth, poses: Poses, seed: u64) -> Vec<Measurement> {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    let nominal = FiveBar::<f64>::paper_nominal();
+    let spec = MachineSpec::paper();
+    let nominal = spec.nominal;
     let mut cmds: Vec<([f64; 2], [f64; 2], [f64; 2])> = Vec::new(); // (theta, target, dir)
-    for t in targets(poses, &mut rng) {
-        if let Ok(th) = nominal.inverse(t, 0.05) {
+    for t in targets(poses, &mut rng, &spec) {
+        if let Ok(th) = nominal.inverse(t, spec.min_transmission) {
             cmds.push((th, t, [sign(&mut rng), sign(&mut rng)]));
         }
     }

@@ -8,10 +8,12 @@
 //! `host-sim/plants/paper.toml`, a test checks it) or a path to a TOML file.
 //!
 //! [`PlantConfig::with_random_errors`] draws a plant with random manufacturing errors from a
-//! seed and [`PlantConfig::with_only`] keeps one effect of a plant and switches every other one
-//! off: what the calibration and diagnosis tests need.
+//! seed and [`PlantConfig::with_only`] keeps one effect of a plant (named in the crate's one
+//! vocabulary, [`PhysicalEffect`]) and switches every other one off: what the calibration and
+//! diagnosis tests need.
 
-use anyhow::{bail, Context, Result};
+use super::PlantError;
+use crate::effect::PhysicalEffect;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
@@ -148,34 +150,6 @@ pub struct PlantConfig {
     pub instrument: InstrumentConfig,
 }
 
-/// One effect, for [`PlantConfig::with_only`].
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Effect {
-    /// Bar lengths and pin positions of the six-bar.
-    LinkErrors,
-    /// Pin and bar clearances.
-    Clearance,
-    EncoderOffsets,
-    EncoderQuantization,
-    Backlash,
-    CyclicError,
-    InstrumentFrame,
-    InstrumentNoise,
-}
-
-impl Effect {
-    pub const ALL: [Effect; 8] = [
-        Effect::LinkErrors,
-        Effect::Clearance,
-        Effect::EncoderOffsets,
-        Effect::EncoderQuantization,
-        Effect::Backlash,
-        Effect::CyclicError,
-        Effect::InstrumentFrame,
-        Effect::InstrumentNoise,
-    ];
-}
-
 fn ideal_drive() -> DriveConfig {
     DriveConfig {
         inertia_kg_m2: 2.0e-3,
@@ -265,24 +239,25 @@ impl PlantConfig {
     }
 
     /// `ideal`, `paper` or a path to a TOML file.
-    pub fn by_name(name: &str) -> Result<Self> {
+    pub fn by_name(name: &str) -> Result<Self, PlantError> {
         match name {
             "ideal" => Ok(PlantConfig::ideal()),
             "paper" => Ok(PlantConfig::paper()),
             path => {
                 let p = Path::new(path);
                 if !p.exists() {
-                    bail!("unknown plant '{path}': not 'ideal', 'paper' or an existing TOML file");
+                    return Err(PlantError::UnknownPlant(path.to_string()));
                 }
-                let text = std::fs::read_to_string(p).with_context(|| format!("cannot read plant file {path}"))?;
-                PlantConfig::from_toml(&text).with_context(|| format!("in plant file {path}"))
+                let text = std::fs::read_to_string(p)
+                    .map_err(|e| PlantError::Read { path: path.to_string(), message: e.to_string() })?;
+                PlantConfig::from_toml(&text).map_err(|e| PlantError::InFile { path: path.to_string(), message: e.to_string() })
             }
         }
     }
 
     /// Parses and validates a plant description.
-    pub fn from_toml(text: &str) -> Result<Self> {
-        let p: PlantConfig = toml::from_str(text).context("not a valid plant description")?;
+    pub fn from_toml(text: &str) -> Result<Self, PlantError> {
+        let p: PlantConfig = toml::from_str(text).map_err(|e| PlantError::Toml(e.to_string()))?;
         p.validate()?;
         Ok(p)
     }
@@ -292,13 +267,14 @@ impl PlantConfig {
     }
 
     /// Refuses non-finite numbers and physically meaningless values.
-    pub fn validate(&self) -> Result<()> {
+    pub fn validate(&self) -> Result<(), PlantError> {
         let s = &self.sixbar;
-        let json = serde_json::to_value(self)?;
-        fn walk(v: &serde_json::Value, path: &str) -> Result<()> {
+        let json = serde_json::to_value(self).map_err(|e| PlantError::Invalid(e.to_string()))?;
+        fn walk(v: &serde_json::Value, path: &str) -> Result<(), PlantError> {
+            let invalid = |m: String| Err(PlantError::Invalid(m));
             match v {
-                serde_json::Value::Number(n) if !n.as_f64().is_some_and(f64::is_finite) => bail!("'{path}' is not finite"),
-                serde_json::Value::Null => bail!("'{path}' is not a finite number"),
+                serde_json::Value::Number(n) if !n.as_f64().is_some_and(f64::is_finite) => invalid(format!("'{path}' is not finite")),
+                serde_json::Value::Null => invalid(format!("'{path}' is not a finite number")),
                 serde_json::Value::Object(m) => m.iter().try_for_each(|(k, v)| walk(v, &format!("{path}.{k}"))),
                 serde_json::Value::Array(a) => a.iter().enumerate().try_for_each(|(i, v)| walk(v, &format!("{path}[{i}]"))),
                 _ => Ok(()),
@@ -322,7 +298,7 @@ impl PlantConfig {
         ];
         for (name, v) in positive {
             if !(v > 0.0) {
-                bail!("'{name}' must be positive, not {v}");
+                return Err(PlantError::Invalid(format!("'{name}' must be positive, not {v}")));
             }
         }
         let non_negative = [
@@ -340,11 +316,11 @@ impl PlantConfig {
         ];
         for (name, v) in non_negative {
             if !(v >= 0.0) {
-                bail!("'{name}' must not be negative, not {v}");
+                return Err(PlantError::Invalid(format!("'{name}' must not be negative, not {v}")));
             }
         }
         if s.pin_clearance_mm > 1.0 || s.bar_end_clearance_mm > 1.0 {
-            bail!("clearances above 1 mm are not a machine");
+            return Err(PlantError::Invalid("clearances above 1 mm are not a machine".into()));
         }
         Ok(())
     }
@@ -389,38 +365,43 @@ impl PlantConfig {
         p
     }
 
-    /// The ideal plant with only `effect` taken over from `self`.
-    pub fn with_only(&self, effect: Effect) -> Self {
+    /// The ideal plant with only `effect` taken over from `self`. Effects the plant has no
+    /// setting of its own for (`link_lengths`, `base_offset`, `link_stretch`: parts of
+    /// `link_geometry`; `gear_ratio`) are refused.
+    pub fn with_only(&self, effect: PhysicalEffect) -> Result<Self, PlantError> {
         let mut p = PlantConfig::ideal();
         p.sixbar.model = self.sixbar.model;
-        p.description = format!("{} with only {effect:?}", self.description);
+        p.description = format!("{} with only {effect}", self.description);
         let pairs = [(&mut p.drive_1, &self.drive_1), (&mut p.drive_2, &self.drive_2)];
         match effect {
-            Effect::LinkErrors => p.sixbar.errors = self.sixbar.errors.clone(),
-            Effect::Clearance => {
+            PhysicalEffect::LinkGeometry => p.sixbar.errors = self.sixbar.errors.clone(),
+            PhysicalEffect::Clearance => {
                 p.sixbar.pin_clearance_mm = self.sixbar.pin_clearance_mm;
                 p.sixbar.bar_end_clearance_mm = self.sixbar.bar_end_clearance_mm;
             }
-            Effect::EncoderOffsets => pairs.into_iter().for_each(|(d, s)| d.encoder_offset_deg = s.encoder_offset_deg),
-            Effect::EncoderQuantization => pairs.into_iter().for_each(|(d, s)| {
+            PhysicalEffect::EncoderOffset => pairs.into_iter().for_each(|(d, s)| d.encoder_offset_deg = s.encoder_offset_deg),
+            PhysicalEffect::EncoderQuantization => pairs.into_iter().for_each(|(d, s)| {
                 d.encoder_counts_per_motor_rev = s.encoder_counts_per_motor_rev;
                 d.gear_ratio = s.gear_ratio;
             }),
-            Effect::Backlash => pairs.into_iter().for_each(|(d, s)| d.backlash_urad = s.backlash_urad),
-            Effect::CyclicError => pairs.into_iter().for_each(|(d, s)| {
+            PhysicalEffect::Backlash => pairs.into_iter().for_each(|(d, s)| d.backlash_urad = s.backlash_urad),
+            PhysicalEffect::CyclicError => pairs.into_iter().for_each(|(d, s)| {
                 d.cyclic_error_urad = s.cyclic_error_urad;
                 d.cyclic_error_cycles_per_motor_rev = s.cyclic_error_cycles_per_motor_rev;
                 d.cyclic_error_phase_deg = s.cyclic_error_phase_deg;
                 d.gear_ratio = s.gear_ratio;
             }),
-            Effect::InstrumentFrame => {
+            PhysicalEffect::Frame => {
                 p.instrument.frame_offset_mm = self.instrument.frame_offset_mm;
                 p.instrument.frame_rotation_deg = self.instrument.frame_rotation_deg;
-                p.instrument.scale_error_ppm = self.instrument.scale_error_ppm;
             }
-            Effect::InstrumentNoise => p.instrument.noise_sigma_um = self.instrument.noise_sigma_um,
+            PhysicalEffect::Scale => p.instrument.scale_error_ppm = self.instrument.scale_error_ppm,
+            PhysicalEffect::InstrumentNoise => p.instrument.noise_sigma_um = self.instrument.noise_sigma_um,
+            PhysicalEffect::LinkLengths | PhysicalEffect::BaseOffset | PhysicalEffect::LinkStretch | PhysicalEffect::GearRatio => {
+                return Err(PlantError::NoSetting(effect));
+            }
         }
-        p
+        Ok(p)
     }
 }
 
@@ -439,7 +420,7 @@ mod tests {
         let p = PlantConfig::paper();
         assert_eq!(PlantConfig::from_toml(&p.to_toml()).unwrap(), p);
         let bad = PAPER_TOML.replace("backlash_urad", "backlash_urd");
-        let err = format!("{:#}", PlantConfig::from_toml(&bad).unwrap_err());
+        let err = PlantConfig::from_toml(&bad).unwrap_err().to_string();
         assert!(err.contains("backlash_urd"), "{err}");
         let neg = PAPER_TOML.replacen("pin_stiffness_n_per_mm = 20000.0", "pin_stiffness_n_per_mm = -1.0", 1);
         assert!(PlantConfig::from_toml(&neg).is_err());
@@ -452,9 +433,10 @@ mod tests {
         let b = PlantConfig::ideal().with_random_errors(7, 0.05, 0.1);
         assert_eq!(a, b);
         assert_ne!(a, PlantConfig::ideal().with_random_errors(8, 0.05, 0.1));
-        let only = PlantConfig::paper().with_only(Effect::Backlash);
+        let only = PlantConfig::paper().with_only(PhysicalEffect::Backlash).unwrap();
         assert_eq!(only.drive_1.backlash_urad, 20.0);
         assert_eq!(only.sixbar.errors, SixBarErrors::default());
         assert_eq!(only.drive_1.encoder_offset_deg, 0.0);
+        assert_eq!(PlantConfig::paper().with_only(PhysicalEffect::GearRatio), Err(PlantError::NoSetting(PhysicalEffect::GearRatio)));
     }
 }

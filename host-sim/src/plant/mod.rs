@@ -1,17 +1,62 @@
 //! The simulated machine: linkage ([`sixbar`]), drives ([`drive`]), measuring instrument
-//! ([`instrument`]) and their description ([`config`]), put together in [`Plant`].
+//! ([`instrument`]) and their description ([`config`], the plant TOML), put together in
+//! [`Plant`].
+//!
+//! Where a change goes: a new physical effect of the machine is a parameter in `config.rs`
+//! (with its TOML key, its unit in the name, 0 = off, and its entry in `PlantConfig::with_only`)
+//! and its physics in the file of the part it belongs to; `PLANT.md` describes them.
 
 pub mod config;
 pub mod drive;
 pub mod instrument;
 pub mod sixbar;
 
-pub use config::{Effect, PlantConfig, PlantModel};
+pub use config::{PlantConfig, PlantModel};
 pub use drive::Drive;
 pub use instrument::Instrument;
 pub use sixbar::{SixBar, SixBarSolution};
 
-use anyhow::Result;
+
+/// Why a plant cannot be built or solved.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum PlantError {
+    /// Not `ideal`, `paper` or an existing file.
+    #[error("unknown plant '{0}': not 'ideal', 'paper' or an existing TOML file")]
+    UnknownPlant(String),
+    /// The plant file could not be read.
+    #[error("cannot read plant file {path}: {message}")]
+    Read { path: String, message: String },
+    /// The plant file is not a valid description (`message` says why).
+    #[error("in plant file {path}: {message}")]
+    InFile { path: String, message: String },
+    /// Not TOML of the plant description's shape (unknown or misspelt keys included).
+    #[error("not a valid plant description: {0}")]
+    Toml(String),
+    /// A value that is not a machine (non-finite, negative, absurd); the message names the key.
+    #[error("{0}")]
+    Invalid(String),
+    /// The linkage cannot be assembled at these link angles.
+    #[error("link angles ({:.4}°, {:.4}°) not assemblable: {reason}", link_deg[0], link_deg[1])]
+    NotAssemblable { link_deg: [f64; 2], reason: String },
+    /// The six-bar's stiffness matrix is singular.
+    #[error("six-bar equilibrium: singular stiffness at link angles ({:.4}°, {:.4}°)", link_deg[0], link_deg[1])]
+    SingularStiffness { link_deg: [f64; 2] },
+    /// `with_only` of an effect the plant has no setting of its own for.
+    #[error("the plant has no separate setting for {0} (it is part of link_geometry, or not modelled)")]
+    NoSetting(crate::effect::PhysicalEffect),
+    /// The equilibrium solve did not converge.
+    #[error(
+        "six-bar equilibrium did not converge in {iterations} iterations at link angles ({:.4}°, {:.4}°)",
+        link_deg[0],
+        link_deg[1]
+    )]
+    NotConverged { link_deg: [f64; 2], iterations: u32 },
+}
+
+/// Link angles in degrees, for messages.
+pub(crate) fn deg(link_rad: [f64; 2]) -> [f64; 2] {
+    [link_rad[0].to_degrees(), link_rad[1].to_degrees()]
+}
 
 /// A plant with its state: what `measure` and `simulate` run against.
 #[derive(Clone, Debug)]
@@ -46,14 +91,14 @@ impl Plant {
     /// Quasi-static positioning: the servo holds each encoder at the count nearest to
     /// `encoder_rad`, having approached it in direction `dir`. Returns the encoder readings and
     /// the linkage's equilibrium.
-    pub fn settle(&mut self, encoder_rad: [f64; 2], dir: [i8; 2]) -> Result<([f64; 2], SixBarSolution)> {
+    pub fn settle(&mut self, encoder_rad: [f64; 2], dir: [i8; 2]) -> Result<([f64; 2], SixBarSolution), PlantError> {
         let r = [self.drives[0].settle(encoder_rad[0], dir[0]), self.drives[1].settle(encoder_rad[1], dir[1])];
         let sol = self.sixbar.solve(self.link_rad())?;
         Ok((r, sol))
     }
 
     /// The linkage's equilibrium at the current link angles.
-    pub fn solve(&mut self) -> Result<SixBarSolution> {
+    pub fn solve(&mut self) -> Result<SixBarSolution, PlantError> {
         let l = self.link_rad();
         self.sixbar.solve(l)
     }

@@ -59,7 +59,7 @@
 //! its IK (40-60 ns).
 
 use crate::plant::config::{PlantModel, SixBarConfig};
-use anyhow::{bail, Result};
+use super::{deg, PlantError};
 use kinematics_core::FiveBar;
 use nalgebra::{SMatrix, SVector};
 
@@ -232,15 +232,15 @@ impl SixBar {
     }
 
     /// Tool point of the equivalent five-bar (no stress): the `fivebar` plant.
-    pub fn five_bar_tool_mm(&self, link_rad: [f64; 2]) -> Result<[f64; 2]> {
+    pub fn five_bar_tool_mm(&self, link_rad: [f64; 2]) -> Result<[f64; 2], PlantError> {
         match self.five.forward(link_rad, 0.0) {
             Ok(c) => Ok(add(c, self.five_base_mm)),
-            Err(e) => bail!("link angles ({:.4}°, {:.4}°) not assemblable: {e}", link_rad[0].to_degrees(), link_rad[1].to_degrees()),
+            Err(e) => Err(PlantError::NotAssemblable { link_deg: deg(link_rad), reason: e.to_string() }),
         }
     }
 
     /// The rigid-body pose the closed-form five-bar gives (unknown vector layout: K1, K2, T).
-    fn nominal_pose(&self, link_rad: [f64; 2]) -> Result<Vec9> {
+    fn nominal_pose(&self, link_rad: [f64; 2]) -> Result<Vec9, PlantError> {
         let tips = self.lever_tips(link_rad);
         let c = self.five_bar_tool_mm(link_rad)?;
         Ok(Vec9::from_column_slice(&[tips[0][0], tips[0][1], 0.0, tips[1][0], tips[1][1], 0.0, c[0], c[1], 0.0]))
@@ -303,8 +303,8 @@ impl SixBar {
             let mut f = 0.0;
             if c <= 0.0 {
                 // Plain spring: E = ½k|r|².
-                for a in 0..2 {
-                    n.g[3 * i + a] += k * r[a];
+                for (a, ra) in r.iter().enumerate() {
+                    n.g[3 * i + a] += k * ra;
                     n.h[(3 * i + a, 3 * i + a)] += k;
                 }
                 f = k * rho;
@@ -322,8 +322,8 @@ impl SixBar {
             if c > 0.0 {
                 let kc = k * self.centring_ratio;
                 n.energy += 0.5 * kc * rho * rho;
-                for a in 0..2 {
-                    n.g[3 * i + a] += kc * r[a];
+                for (a, ra) in r.iter().enumerate() {
+                    n.g[3 * i + a] += kc * ra;
                     n.h[(3 * i + a, 3 * i + a)] += kc;
                 }
                 f += kc * rho;
@@ -339,7 +339,7 @@ impl SixBar {
 
     /// Static equilibrium for geometric link angles (rad), warm-started from the last call.
     /// With the `fivebar` model: the equivalent five-bar's FK, forces zero.
-    pub fn solve(&mut self, link_rad: [f64; 2]) -> Result<SixBarSolution> {
+    pub fn solve(&mut self, link_rad: [f64; 2]) -> Result<SixBarSolution, PlantError> {
         if self.model == PlantModel::Fivebar {
             return Ok(SixBarSolution {
                 tool_mm: self.five_bar_tool_mm(link_rad)?,
@@ -367,7 +367,7 @@ impl SixBar {
     }
 
     /// Levenberg-Marquardt from `guess`; returns the solution and the unknown vector.
-    pub fn solve_from(&self, link_rad: [f64; 2], guess: Vec9) -> Result<(SixBarSolution, Vec9)> {
+    pub fn solve_from(&self, link_rad: [f64; 2], guess: Vec9) -> Result<(SixBarSolution, Vec9), PlantError> {
         const MAX_ITER: u32 = 60;
         const STEP_TOL_MM: f64 = 1e-9;
         // Rotations are compared as displacements at a 30 mm lever.
@@ -383,7 +383,7 @@ impl SixBar {
                 h[(d, d)] += 1e-12;
             }
             let Some(chol) = h.cholesky() else {
-                bail!("six-bar equilibrium: singular stiffness at link angles ({:.4}°, {:.4}°)", link_rad[0].to_degrees(), link_rad[1].to_degrees());
+                return Err(PlantError::SingularStiffness { link_deg: deg(link_rad) });
             };
             let mut step = chol.solve(&(-n.g));
             // Never move more than 1 mm / 1/30 rad in one step (keeps LM inside the model's range).
@@ -422,15 +422,11 @@ impl SixBar {
                 }
             }
         }
-        bail!(
-            "six-bar equilibrium did not converge in {MAX_ITER} iterations at link angles ({:.4}°, {:.4}°)",
-            link_rad[0].to_degrees(),
-            link_rad[1].to_degrees()
-        )
+        Err(PlantError::NotConverged { link_deg: deg(link_rad), iterations: MAX_ITER })
     }
 
     /// The nominal (rigid, closed-form) unknown vector, for tests that perturb it.
-    pub fn nominal_unknowns(&self, link_rad: [f64; 2]) -> Result<Vec9> {
+    pub fn nominal_unknowns(&self, link_rad: [f64; 2]) -> Result<Vec9, PlantError> {
         self.nominal_pose(link_rad)
     }
 }
@@ -440,11 +436,13 @@ mod tests {
     use super::*;
     use crate::plant::config::PlantConfig;
 
+    /// 11 × 11 targets over the paper machine's workspace.
     fn grid_targets() -> Vec<[f64; 2]> {
+        let ws = crate::machine_spec::MachineSpec::paper().workspace;
         let mut v = Vec::new();
         for i in 0..=10 {
             for j in 0..=10 {
-                v.push([162.132 + 10.0 * i as f64, -75.0 + 15.0 * j as f64]);
+                v.push([ws.x_mm[0] + 10.0 * i as f64, ws.y_mm[0] + 15.0 * j as f64]);
             }
         }
         v

@@ -2,7 +2,8 @@
 //! drive-enable line, the encoder counters, and a reset-cause flag. They are atomics, written
 //! by the board's drivers ([`SimPwm`], [`QemuBoard::enable_drives`](super::QemuBoard)) and read
 //! by the plant and by the test harness, which checks what the hardware shows rather than what
-//! the firmware says.
+//! the firmware says. The harness can also make an encoder counter lie ([`inject_encoder`]:
+//! frozen, or offset).
 use core::mem::MaybeUninit;
 use core::sync::atomic::{AtomicBool, AtomicI32, AtomicU16, Ordering};
 
@@ -18,6 +19,9 @@ static DRIVE_ENABLE: AtomicBool = AtomicBool::new(false);
 /// Sticky: the enable line went high at least once since power-on (a probe on the line).
 static DRIVE_ENABLE_EVER: AtomicBool = AtomicBool::new(false);
 static ENCODER_COUNTS: [AtomicI32; 2] = [AtomicI32::new(0), AtomicI32::new(0)];
+/// Encoder fault injection: the counter stops following the plant / shows this many counts more.
+static ENCODER_FROZEN: [AtomicBool; 2] = [AtomicBool::new(false), AtomicBool::new(false)];
+static ENCODER_OFFSET_COUNTS: [AtomicI32; 2] = [AtomicI32::new(0), AtomicI32::new(0)];
 
 /// The safe state, from any context (the watchdog's NMI, fault handlers): duty to zero torque
 /// (50 %), then the enable line low.
@@ -60,9 +64,21 @@ pub fn commanded_torque_nm(full_scale_nm: f32) -> [f32; 2] {
     ]
 }
 
-/// Sets the encoder counter of `axis` (the plant does, from its joint angle).
+/// Sets the encoder counter of `axis` (the plant does, from its joint angle), unless the
+/// counter is frozen; plus the injected offset.
 pub fn set_encoder_counts(axis: usize, counts: i32) {
-    ENCODER_COUNTS[axis].store(counts, Ordering::Relaxed);
+    if !ENCODER_FROZEN[axis].load(Ordering::Relaxed) {
+        let shown = counts.wrapping_add(ENCODER_OFFSET_COUNTS[axis].load(Ordering::Relaxed));
+        ENCODER_COUNTS[axis].store(shown, Ordering::Relaxed);
+    }
+}
+
+/// Encoder fault injection (the test harness), for the plant's next update of the counter:
+/// `frozen` keeps the counter at what it shows now; `offset_counts` is added to the plant's
+/// count.
+pub fn inject_encoder(axis: usize, frozen: bool, offset_counts: i32) {
+    ENCODER_FROZEN[axis].store(frozen, Ordering::Relaxed);
+    ENCODER_OFFSET_COUNTS[axis].store(offset_counts, Ordering::Relaxed);
 }
 
 /// One PWM channel of the simulated drive.

@@ -5,7 +5,8 @@
 //! * [`watchdog`]: the CMSDK APB watchdog, fed by on-time servo steps; its NMI removes torque.
 //! * [`hardware`]: the "registers" between the firmware and the plant (PWM duty per axis, the
 //!   drive-enable line, the encoder counters, the reset-cause flag), atomics.
-//! * [`plant`]: two joint inertias with friction, advanced in [`Board::begin_sample`].
+//! * [`plant`]: two joint inertias with friction, advanced in [`Board::begin_sample`]; the
+//!   harness reads its true state.
 //! * [`harness`]: the test harness (scenario from the command line, self-tests at boot,
 //!   setpoint and deadline fault injection, the stalled servo task, the checks at the end of
 //!   every sample and at the watchdog's interrupt that end the run with PASS or FAIL; its own
@@ -209,7 +210,7 @@ impl Board for QemuBoard {
     }
 
     fn setpoints(&mut self, trajectory: Trajectory) -> Injected {
-        self.harness.setpoints(trajectory)
+        self.harness.setpoints(trajectory, self.plant.coast_model())
     }
 
     #[inline]
@@ -263,15 +264,17 @@ impl Board for QemuBoard {
         cortex_m::asm::nop();
     }
 
+    /// The harness's fault injection first (it decides what the encoder counters show), then
+    /// the plant moves under the torques of the last sample and updates the counters.
     #[inline]
     fn begin_sample(&mut self) {
-        self.plant.advance(self.period_s);
         self.harness.begin_sample(&self.timer);
+        self.plant.advance(self.period_s);
     }
 
     #[inline]
     fn end_sample(&mut self, status: &Status) {
-        self.harness.end_sample(status);
+        self.harness.end_sample(status, self.plant.state());
     }
 }
 

@@ -6,6 +6,8 @@
 //! feed-forward, and friction the feed-forward does not know about. It is advanced at the start
 //! of every servo sample (the torque written in sample k acts during period k..k+1, as on
 //! hardware).
+use controller::scenario::stop_check::{CoastModel, PlantState};
+
 use super::hardware;
 use super::COUNTS_PER_REV;
 
@@ -63,6 +65,16 @@ impl Plant {
         };
         plant.publish_encoders();
         plant
+    }
+
+    /// The true joint state (the harness checks it, not the encoders).
+    pub fn state(&self) -> PlantState {
+        PlantState { joint_rad: self.angle_rad, joint_rad_s: self.velocity_rad_s }
+    }
+
+    /// What bounds a coast with the drives off: inertia and viscous friction.
+    pub fn coast_model(&self) -> CoastModel {
+        CoastModel { inertia_kg_m2: self.params.inertia_kg_m2, viscous_nm_s_per_rad: self.params.viscous_nm_s_per_rad }
     }
 
     fn publish_encoders(&self) {

@@ -1,0 +1,394 @@
+//! The hidden-robot fits: the paper's `poly` and `ls` (with its subset search) and the full
+//! nonlinear fit `full`. See `CALIBRATION.md` for the commands and the Table I story.
+//!
+//! One algorithm per file: [`poly`] (Eqs. 1–3), [`least_squares`] (Eqs. 4–6), [`subset_search`],
+//! [`evaluate`] (the error criteria), [`params`] (the parameter vector, residual and std-dev
+//! names), [`identifiability`], [`full`] (the LM fit). This file is the flow, top to bottom:
+//! check the data ([`check_data`]), fit by the method ([`fit`]: dyad synthesis on the chosen
+//! points, or `full`), and summarise ([`FitSummary`], what `fit` prints and stores in the model
+//! file's `fit` record).
+//!
+//! Where a change goes: a new method is a [`Method`] variant, its algorithm in its own file and
+//! its arm in [`fit`]; a new figure of a fit is a field of [`FitSummary`] (keys are the JSON's).
+
+pub mod evaluate;
+pub mod full;
+pub mod identifiability;
+pub mod least_squares;
+pub mod params;
+pub mod poly;
+pub mod subset_search;
+
+use super::{invalid, CalibError};
+use crate::io::measurement_csv::Measurement;
+use crate::machine_spec::MachineSpec;
+use crate::numeric::{max_rms, round6, MaxRms};
+use evaluate::Criterion;
+use full::{fit_full, leave_one_out_um, FullFit};
+use identifiability::WARN_CONDITION;
+use kinematics_core::FiveBar;
+use poly::DyadPoint;
+use serde::Serialize;
+use std::collections::BTreeMap;
+use subset_search::{Best, Progress};
+
+/// Which synthesis.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Method {
+    /// Precision points, 2 per dyad (paper Sec. III-A).
+    Poly,
+    /// Least squares per dyad on the algebraic residual (paper Sec. III-B).
+    Ls,
+    /// Levenberg–Marquardt on the position residual over all identifiable parameters.
+    Full,
+}
+
+/// Which points the dyad syntheses (`poly`, `ls`) use.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Points {
+    /// Every point (`ls`; `poly` only with exactly two).
+    All,
+    /// These points (0-based).
+    Chosen(Vec<usize>),
+    /// The subset, of any of these sizes, whose largest error (by the criterion) over all points
+    /// is smallest (the paper's Sec. III-C).
+    Search { sizes: Vec<usize> },
+}
+
+/// How to fit.
+#[derive(Clone, Debug)]
+pub struct FitOptions {
+    pub method: Method,
+    /// The error measure of the subset search and of the reported max/RMS.
+    pub criterion: Criterion,
+    /// `poly`, `ls`: the points used.
+    pub points: Points,
+    /// `full`: parameters held at nominal (indices into [`params::NAMES`]).
+    pub fixed: Vec<usize>,
+    /// `full`: predict every point from a fit on the others (N extra fits).
+    pub leave_one_out: bool,
+    /// The machine (its nominal model is the start and the base).
+    pub spec: MachineSpec,
+}
+
+/// Max and RMS (µm), as reported.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct MaxRmsUm {
+    pub max_um: f64,
+    pub rms_um: f64,
+}
+
+impl From<MaxRms> for MaxRmsUm {
+    fn from(m: MaxRms) -> Self {
+        MaxRmsUm { max_um: round6(m.max), rms_um: round6(m.rms) }
+    }
+}
+
+/// Both error measures of a model.
+#[derive(Clone, Debug, Serialize)]
+pub struct Errors {
+    /// `|FK(angles) − measured|`.
+    pub vs_measured: MaxRmsUm,
+    /// `|FK(angles) − target|`, when every row has a target.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub vs_target: Option<MaxRmsUm>,
+}
+
+/// Each point predicted by a fit on the others.
+#[derive(Clone, Debug, Serialize)]
+pub struct LeaveOneOut {
+    pub what: &'static str,
+    pub max_um: f64,
+    pub rms_um: f64,
+    /// Per point (0.1 µm), `null` where the fit on the rest failed.
+    pub per_point_um: Vec<Option<f64>>,
+}
+
+/// A parameter `full` held at its nominal value, and why.
+#[derive(Clone, Debug, Serialize)]
+pub struct Held {
+    pub param: &'static str,
+    pub held_at: &'static str,
+    /// The confounded combination it was part of, or "fixed by --fix".
+    pub confounded: String,
+}
+
+/// What the identifiability check found (`full`).
+#[derive(Clone, Debug, Serialize)]
+pub struct IdentifiabilitySummary {
+    pub rank_all_params: usize,
+    pub condition_number_free: f64,
+    pub singular_values_rel: Vec<f64>,
+    pub poorly_conditioned: bool,
+}
+
+/// A model's parameters as reports list them (mm, degrees; 6 decimals).
+#[derive(Clone, Debug, Serialize)]
+pub struct ModelFigures {
+    pub a_mm: f64,
+    pub b_mm: f64,
+    pub c_mm: f64,
+    pub d_mm: f64,
+    pub base_a0_mm: [f64; 2],
+    pub base_b0_mm: [f64; 2],
+    pub encoder_offset_deg: [f64; 2],
+}
+
+impl ModelFigures {
+    /// The figures of `m`.
+    pub fn of(m: &FiveBar<f64>) -> Self {
+        ModelFigures {
+            a_mm: round6(m.a_mm),
+            b_mm: round6(m.b_mm),
+            c_mm: round6(m.c_mm),
+            d_mm: round6(m.d_mm),
+            base_a0_mm: m.base_a0_mm.map(round6),
+            base_b0_mm: m.base_b0_mm.map(round6),
+            encoder_offset_deg: m.encoder_offset_rad.map(|v| round6(v.to_degrees())),
+        }
+    }
+}
+
+/// A fitted model's summary: what `host-sim fit` prints and stores in the model file.
+#[derive(Clone, Debug, Serialize)]
+pub struct FitSummary {
+    pub method: Method,
+    pub criterion: Criterion,
+    pub n_points: usize,
+    #[serde(flatten)]
+    pub model: ModelFigures,
+    /// The points used (1-based), when not all.
+    pub subset: Option<Vec<usize>>,
+    /// By the criterion.
+    pub max_err_um: f64,
+    pub rms_err_um: f64,
+    pub point_err_um: Vec<f64>,
+    pub errors: Errors,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub leave_one_out: Option<LeaveOneOut>,
+    /// `full`: one standard deviation per fitted parameter (offsets in degrees).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub std_dev: Option<BTreeMap<String, f64>>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub fixed: Option<Vec<Held>>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub identifiability: Option<IdentifiabilitySummary>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub sigma_um: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub iterations: Option<usize>,
+}
+
+/// A fit's result.
+#[derive(Clone, Debug)]
+pub struct FitOutcome {
+    pub model: FiveBar<f64>,
+    pub summary: FitSummary,
+    /// Standard deviations as `model.json` stores them (unrounded; empty for `poly`, `ls`).
+    pub std_dev: BTreeMap<String, f64>,
+    /// `full`: the fit with its identifiability and solver record.
+    pub full: Option<FullFit>,
+    /// The subset search's counts, if one ran.
+    pub search: Option<SearchCounts>,
+}
+
+/// How a subset search went.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SearchCounts {
+    pub tried: u64,
+    pub valid: u64,
+    pub elapsed_s: f64,
+    pub best_max_um: f64,
+}
+
+/// The dyad observations of a subset: arm 1 about A0, arm 2 about B0, geometric angles.
+fn dyad_points(data: &[Measurement], subset: &[usize], base: &FiveBar<f64>) -> (Vec<DyadPoint>, Vec<DyadPoint>) {
+    let mut arm1 = Vec::with_capacity(subset.len());
+    let mut arm2 = Vec::with_capacity(subset.len());
+    for &i in subset {
+        let m = &data[i];
+        let th = m.theta_rad();
+        let [x, y] = m.measured_mm;
+        let a0 = base.base_a0_mm;
+        arm1.push(DyadPoint { theta_rad: th[0] + base.encoder_offset_rad[0], x_mm: x - a0[0], y_mm: y - a0[1] });
+        arm2.push(DyadPoint {
+            theta_rad: th[1] + base.encoder_offset_rad[1],
+            x_mm: x - a0[0] - base.base_b0_mm[0],
+            y_mm: y - a0[1] - base.base_b0_mm[1],
+        });
+    }
+    (arm1, arm2)
+}
+
+/// The paper's synthesis on the points `subset` (0-based): links a, b (arm 1) and d, c (arm 2);
+/// base offset, encoder offsets and working mode are kept from `base`.
+pub fn synthesize(data: &[Measurement], subset: &[usize], method: Method, base: &FiveBar<f64>) -> Result<FiveBar<f64>, CalibError> {
+    if let Some(&i) = subset.iter().find(|&&i| i >= data.len()) {
+        return Err(invalid!("point {} does not exist (the data have {} points)", i + 1, data.len()));
+    }
+    let (arm1, arm2) = dyad_points(data, subset, base);
+    let arm = |name: &str, r: Result<(f64, f64), CalibError>| r.map_err(|e| e.context(name));
+    let ((a, b), (d, c)) = match method {
+        Method::Poly => {
+            if subset.len() != 2 {
+                return Err(invalid!("poly uses exactly 2 precision points, got {}", subset.len()));
+            }
+            (
+                arm("arm 1 (a, b)", poly::precision_point_dyad([arm1[0], arm1[1]]))?,
+                arm("arm 2 (d, c)", poly::precision_point_dyad([arm2[0], arm2[1]]))?,
+            )
+        }
+        Method::Ls => (
+            arm("arm 1 (a, b)", least_squares::least_squares_dyad(&arm1))?,
+            arm("arm 2 (d, c)", least_squares::least_squares_dyad(&arm2))?,
+        ),
+        Method::Full => return Err(invalid!("synthesize: full is not a dyad synthesis")),
+    };
+    let m = FiveBar { a_mm: a, b_mm: b, c_mm: c, d_mm: d, ..*base };
+    m.validate().map_err(|e| invalid!("fitted model invalid: {e}"))?;
+    Ok(m)
+}
+
+/// Refuses two rows with the same motor angles (the same pose measured twice would weigh
+/// double and, in a precision-point pair, make the system singular).
+pub fn check_duplicates(data: &[Measurement]) -> Result<(), CalibError> {
+    for (i, m) in data.iter().enumerate() {
+        for n in &data[..i] {
+            if n.theta_deg == m.theta_deg && n.run == m.run {
+                return Err(invalid!("line {}: duplicate point, same motor angles as line {}", m.line, n.line));
+            }
+        }
+    }
+    Ok(())
+}
+
+/// What every fit needs of the data: the criterion's reference on every row, no pose twice.
+pub fn check_data(data: &[Measurement], criterion: Criterion) -> Result<(), CalibError> {
+    evaluate::check_criterion(data, criterion)?;
+    check_duplicates(data)
+}
+
+fn model_errors(model: &FiveBar<f64>, data: &[Measurement]) -> Errors {
+    let vs_target = data
+        .iter()
+        .all(|m| m.target_mm.is_some())
+        .then(|| max_rms(&evaluate::errors_um(model, data, Criterion::Paper)).into());
+    Errors { vs_measured: max_rms(&evaluate::errors_um(model, data, Criterion::Measured)).into(), vs_target }
+}
+
+/// The summary of a fitted model (the method-specific parts empty).
+fn summary(method: Method, criterion: Criterion, model: &FiveBar<f64>, data: &[Measurement], subset: Option<&[usize]>) -> FitSummary {
+    let errors = evaluate::errors_um(model, data, criterion);
+    let MaxRms { max, rms } = max_rms(&errors);
+    FitSummary {
+        method,
+        criterion,
+        n_points: data.len(),
+        model: ModelFigures::of(model),
+        subset: subset.map(|s| s.iter().map(|i| i + 1).collect()),
+        max_err_um: round6(max),
+        rms_err_um: round6(rms),
+        point_err_um: errors.iter().map(|&e| (e * 10.0).round() / 10.0).collect(),
+        errors: model_errors(model, data),
+        leave_one_out: None,
+        std_dev: None,
+        fixed: None,
+        identifiability: None,
+        sigma_um: None,
+        iterations: None,
+    }
+}
+
+fn leave_one_out(per_point_um: &[Option<f64>]) -> LeaveOneOut {
+    let ok: Vec<f64> = per_point_um.iter().flatten().copied().collect();
+    let MaxRms { max, rms } = max_rms(&ok);
+    LeaveOneOut {
+        what: "each point predicted by a fit on the other points: |FK(angles) - measured|",
+        max_um: round6(max),
+        rms_um: round6(rms),
+        per_point_um: per_point_um.iter().map(|e| e.map(|v| (v * 10.0).round() / 10.0)).collect(),
+    }
+}
+
+/// Fits the hidden robot to `data` (see [`FitOptions`]); `progress` hears from a subset search.
+pub fn fit(data: &[Measurement], opts: &FitOptions, progress: &mut dyn FnMut(Progress)) -> Result<FitOutcome, CalibError> {
+    check_data(data, opts.criterion)?;
+    let nominal = opts.spec.nominal;
+    let n = data.len();
+    match opts.method {
+        Method::Poly | Method::Ls => {
+            if !opts.fixed.is_empty() {
+                return Err(invalid!("holding parameters applies to the full fit only (poly and ls fit the four links)"));
+            }
+            let (model, subset, search) = match &opts.points {
+                Points::Search { sizes } => {
+                    if n < 2 {
+                        return Err(invalid!("the data have {n} point; a fit needs at least 2"));
+                    }
+                    let Best { model, subset, tried, valid, elapsed_s, max_err_um, .. } = subset_search::search(
+                        n,
+                        sizes,
+                        |s| synthesize(data, s, opts.method, &nominal),
+                        |m| evaluate::errors_um(m, data, opts.criterion),
+                        progress,
+                    )?;
+                    (model, Some(subset), Some(SearchCounts { tried, valid, elapsed_s, best_max_um: max_err_um }))
+                }
+                Points::All | Points::Chosen(_) => {
+                    let subset: Vec<usize> = match &opts.points {
+                        Points::Chosen(p) => p.clone(),
+                        _ => (0..n).collect(),
+                    };
+                    if subset.len() < 2 {
+                        return Err(invalid!("a dyad fit needs at least 2 points, got {}", subset.len()));
+                    }
+                    let m = synthesize(data, &subset, opts.method, &nominal)?;
+                    (m, matches!(opts.points, Points::Chosen(_)).then_some(subset), None)
+                }
+            };
+            let mut s = summary(opts.method, opts.criterion, &model, data, subset.as_deref());
+            if opts.method == Method::Ls && subset.is_none() && n >= 3 {
+                // Leave-one-out of the all-points least-squares fit.
+                let loo: Vec<Option<f64>> = (0..n)
+                    .map(|i| {
+                        let rest: Vec<usize> = (0..n).filter(|&k| k != i).collect();
+                        let m = synthesize(data, &rest, Method::Ls, &nominal).ok()?;
+                        Some(evaluate::errors_um(&m, &data[i..=i], Criterion::Measured)[0])
+                    })
+                    .collect();
+                s.leave_one_out = Some(leave_one_out(&loo));
+            }
+            Ok(FitOutcome { model, summary: s, std_dev: BTreeMap::new(), full: None, search })
+        }
+        Method::Full => {
+            if opts.points != Points::All {
+                return Err(invalid!("choosing points applies to poly and ls; full fits every point"));
+            }
+            let f = fit_full(data, &nominal, &opts.fixed)?;
+            let mut s = summary(opts.method, opts.criterion, &f.model, data, None);
+            s.std_dev = Some(params::std_dev_map(&f.std_dev).into_iter().map(|(k, v)| (k, round6(v))).collect());
+            let held = |k: usize, why: String| Held { param: params::NAMES[k], held_at: "nominal", confounded: why };
+            s.fixed = Some(
+                f.identifiability
+                    .fixed
+                    .iter()
+                    .map(|(k, why)| held(*k, why.clone()))
+                    .chain(opts.fixed.iter().map(|&k| held(k, "fixed by --fix".into())))
+                    .collect(),
+            );
+            s.identifiability = Some(IdentifiabilitySummary {
+                rank_all_params: f.identifiability.rank_all,
+                condition_number_free: f.identifiability.condition_number,
+                singular_values_rel: f.identifiability.singular_values_rel.clone(),
+                poorly_conditioned: f.identifiability.condition_number > WARN_CONDITION,
+            });
+            s.sigma_um = Some(round6(f.sigma_mm * 1e3));
+            s.iterations = Some(f.iterations);
+            if opts.leave_one_out {
+                s.leave_one_out = Some(leave_one_out(&leave_one_out_um(data, &nominal, &opts.fixed)));
+            }
+            Ok(FitOutcome { model: f.model, summary: s, std_dev: params::std_dev_map(&f.std_dev), full: Some(f), search: None })
+        }
+    }
+}

@@ -1,0 +1,51 @@
+//! `host-sim command`: motor angles for a targets file, through the firmware's own command path
+//! (`host_sim::calib::command`).
+
+use anyhow::{anyhow, Context, Result};
+use host_sim::calib::command::{check_grid_model, command_all, format_commands};
+use host_sim::io::atomic::write_atomic;
+use host_sim::io::model_file::read_model;
+use host_sim::io::read_bytes;
+use host_sim::io::targets_csv::read_targets;
+use kinematics_core::{Calibration, CorrectionGrid};
+use std::path::PathBuf;
+
+/// Motor angles for targets, via the firmware's command path (model IK + grid, f32).
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// The model (model.json).
+    #[arg(long)]
+    pub model: PathBuf,
+    /// Optional correction-grid image; its embedded model must be --model's.
+    #[arg(long)]
+    pub grid: Option<PathBuf>,
+    /// Targets CSV with columns x_mm,y_mm.
+    #[arg(long)]
+    pub targets: PathBuf,
+    /// Output CSV: x_mm,y_mm,theta1_deg,theta2_deg.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Smallest |sin| of a transmission angle accepted (the servo's default).
+    #[arg(long, default_value_t = kinematics_core::DEFAULT_MIN_TRANSMISSION as f32)]
+    pub min_transmission: f32,
+}
+
+/// `host-sim command`.
+pub fn run(args: &Args) -> Result<()> {
+    let model = read_model(&args.model)?;
+    let image = args.grid.as_deref().map(read_bytes).transpose()?;
+    let grid = match (&image, &args.grid) {
+        (Some(bytes), Some(path)) => {
+            let g = CorrectionGrid::parse(bytes).map_err(|e| anyhow!("{}: {e}", path.display()))?;
+            check_grid_model(&g, &model)?;
+            Some(g)
+        }
+        _ => None,
+    };
+    let cal = Calibration { model: model.cast::<f32>(), grid };
+    let targets = read_targets(&args.targets)?;
+    let angles = command_all(&cal, &targets, args.min_transmission).with_context(|| format!("in {}", args.targets.display()))?;
+    write_atomic(&args.out, format_commands(&targets, &angles).as_bytes())?;
+    eprintln!("command: {} targets -> {}", targets.len(), args.out.display());
+    Ok(())
+}

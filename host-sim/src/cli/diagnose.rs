@@ -1,0 +1,53 @@
+//! `host-sim diagnose`: measurements and a model in, the gap-shrink table on stdout, the report
+//! JSON and plots out (`host_sim::diagnose`, `DIAGNOSIS.md`).
+
+use anyhow::{bail, Context, Result};
+use host_sim::diagnose::plots::write_plots;
+use host_sim::diagnose::{diagnose_with_history, report, DiagnoseOptions};
+use host_sim::io::atomic::write_atomic;
+use host_sim::io::measurement_csv::read_measurements;
+use host_sim::io::model_file::read_model;
+use host_sim::io::{json_text, KeyOrder};
+use std::path::PathBuf;
+
+/// Command-line arguments of `host-sim diagnose`.
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// Measurement CSV (see measurement_csv).
+    #[arg(long)]
+    pub data: PathBuf,
+    /// The current model (model.json); default: the paper's nominal machine.
+    #[arg(long)]
+    pub model: Option<PathBuf>,
+    /// Measurement noise, one standard deviation per axis (µm). Default: from repeats, if any.
+    #[arg(long)]
+    pub noise_um: Option<f64>,
+    /// Report JSON.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Directory for residual plots (PNG).
+    #[arg(long)]
+    pub plots: Option<PathBuf>,
+}
+
+/// `host-sim diagnose`.
+pub fn run(args: &Args) -> Result<()> {
+    let data = read_measurements(&args.data)?;
+    let base = match &args.model {
+        Some(p) => read_model(p)?,
+        None => super::machine_spec().nominal,
+    };
+    if let Some(s) = args.noise_um {
+        if !(s.is_finite() && s > 0.0) {
+            bail!("--noise-um {s}: must be a positive number of micrometres");
+        }
+    }
+    let (report, history) = diagnose_with_history(&data, &DiagnoseOptions { base, noise_um: args.noise_um })
+        .with_context(|| format!("diagnosing {}", args.data.display()))?;
+    print!("{}", report::table(&report));
+    write_atomic(&args.out, json_text(&report, KeyOrder::Declared)?.as_bytes())?;
+    if let Some(dir) = &args.plots {
+        write_plots(dir, &data, &report, &history)?;
+    }
+    Ok(())
+}

@@ -1,0 +1,188 @@
+//! `host-sim fit`: flags → `host_sim::calib::fit::FitOptions`, the fit, the model file and the
+//! JSON summary (see `CALIBRATION.md`).
+
+use anyhow::{bail, Context, Result};
+use host_sim::calib::fit::evaluate::{self, Criterion};
+use host_sim::calib::fit::subset_search::Progress;
+use host_sim::calib::fit::{check_data, fit, params, FitOptions, Method, Points};
+use host_sim::calib::CalibError;
+use host_sim::io::measurement_csv::{read_measurements, Measurement};
+use host_sim::io::model_file::{write_model_file, ModelFile};
+use host_sim::io::plot::{vector_plot, VectorField};
+use host_sim::io::KeyOrder;
+use host_sim::machine_spec::MachineSpec;
+use kinematics_core::FiveBar;
+use std::path::PathBuf;
+
+/// Which synthesis.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum MethodArg {
+    /// Precision points, 2 per dyad (paper Sec. III-A).
+    Poly,
+    /// Least squares per dyad on the algebraic residual (paper Sec. III-B).
+    Ls,
+    /// Levenberg–Marquardt on the position residual over all identifiable parameters.
+    Full,
+}
+
+/// Which position the model's prediction is compared with.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum CriterionArg {
+    /// `FK(measured angles)` vs the measured position: the model's prediction error.
+    Measured,
+    /// `FK(measured angles)` vs the desired (target) position: the paper's measure.
+    Paper,
+}
+
+/// Fit the hidden robot (five-bar) to measured motor angles and tool positions.
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// Measurement CSV (see measurement_csv): theta1_deg,theta2_deg,x_mm,y_mm[,x_target_mm,y_target_mm,...].
+    #[arg(long)]
+    pub data: PathBuf,
+    #[arg(long, value_enum)]
+    pub method: MethodArg,
+    /// Try every subset of the points and keep the one with the smallest maximum error (poly, ls).
+    #[arg(long)]
+    pub subset_search: bool,
+    /// Subset size for --subset-search (poly: 2; ls: default every size from 3 to N).
+    #[arg(long)]
+    pub subset_size: Option<usize>,
+    /// Fit on these points only (1-based, comma separated), e.g. --points 1,8 (poly, ls).
+    #[arg(long, value_delimiter = ',')]
+    pub points: Vec<usize>,
+    /// Error measure for the subset search and the reported max/rms: `measured` = FK(angles) vs
+    /// measured position (the model's prediction error), `paper` = FK(angles) vs target.
+    #[arg(long, value_enum, default_value = "measured")]
+    pub criterion: CriterionArg,
+    /// `full`: hold these parameters at nominal (names as in the summary, e.g. base_b0_x_mm).
+    #[arg(long, value_delimiter = ',')]
+    pub fix: Vec<String>,
+    /// `full`: skip the leave-one-out prediction check (N extra fits).
+    #[arg(long)]
+    pub no_loo: bool,
+    /// Output model.json.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Optional PNG: error vectors (measured − predicted) of the nominal and the fitted model.
+    #[arg(long)]
+    pub plot: Option<PathBuf>,
+}
+
+/// The flags as the library's options, refusing combinations that make no fit (the messages
+/// name the flags).
+fn options(args: &Args, data: &[Measurement], spec: MachineSpec) -> Result<FitOptions> {
+    let method = match args.method {
+        MethodArg::Poly => Method::Poly,
+        MethodArg::Ls => Method::Ls,
+        MethodArg::Full => Method::Full,
+    };
+    let criterion = match args.criterion {
+        CriterionArg::Measured => Criterion::Measured,
+        CriterionArg::Paper => Criterion::Paper,
+    };
+    let n = data.len();
+    for &p in &args.points {
+        if p == 0 || p > n {
+            bail!("--points: point {p} does not exist (the data have {n} points, numbered from 1)");
+        }
+    }
+    let mut opts = FitOptions { method, criterion, points: Points::All, fixed: Vec::new(), leave_one_out: !args.no_loo, spec };
+    match method {
+        Method::Poly | Method::Ls => {
+            if !args.fix.is_empty() {
+                bail!("--fix applies to --method full only (poly and ls fit the four links)");
+            }
+            opts.points = if args.subset_search {
+                let sizes: Vec<usize> = match (method, args.subset_size) {
+                    (Method::Poly, None | Some(2)) => vec![2],
+                    (Method::Poly, Some(s)) => bail!("--subset-size {s}: poly uses exactly 2 points"),
+                    (_, Some(s)) if s < 2 || s > n => bail!("--subset-size {s}: must be between 2 and the {n} points"),
+                    (_, Some(s)) => vec![s],
+                    (_, None) if n < 3 => bail!("ls subset search needs at least 3 points, the data have {n}"),
+                    (_, None) => (3..=n).collect(),
+                };
+                Points::Search { sizes }
+            } else if args.points.is_empty() {
+                if method == Method::Poly && n != 2 {
+                    bail!("poly uses exactly 2 precision points: give --points i,j or --subset-search (the data have {n} points)");
+                }
+                Points::All
+            } else {
+                if method == Method::Poly && args.points.len() != 2 {
+                    bail!("poly uses exactly 2 precision points: give --points i,j or --subset-search (the data have {n} points)");
+                }
+                Points::Chosen(args.points.iter().map(|p| p - 1).collect())
+            };
+        }
+        Method::Full => {
+            if args.subset_search || !args.points.is_empty() || args.subset_size.is_some() {
+                bail!("--subset-search, --subset-size and --points apply to poly and ls; full fits every point");
+            }
+            for name in &args.fix {
+                let k = params::NAMES.iter().position(|n| n == name).with_context(|| {
+                    format!("--fix: unknown parameter '{name}' (known: {})", params::NAMES.join(", "))
+                })?;
+                opts.fixed.push(k);
+            }
+        }
+    }
+    Ok(opts)
+}
+
+/// The data checks, their messages naming the flag that asked for them.
+fn check(data: &[Measurement], criterion: Criterion) -> Result<()> {
+    match check_data(data, criterion) {
+        Err(CalibError::MissingTargets { line }) => bail!("line {line}: --criterion paper needs x_target_mm,y_target_mm on every row"),
+        r => Ok(r?),
+    }
+}
+
+/// `host-sim fit`.
+pub fn run(args: &Args) -> Result<()> {
+    let spec = super::machine_spec();
+    let data = read_measurements(&args.data)?;
+    let criterion = match args.criterion {
+        CriterionArg::Measured => Criterion::Measured,
+        CriterionArg::Paper => Criterion::Paper,
+    };
+    check(&data, criterion)?;
+    let nominal = spec.nominal;
+    let opts = options(args, &data, spec)?;
+    // The search reports about once a second.
+    let mut progress = |p: Progress| {
+        eprintln!("subset search: {}/{} subsets, best max error so far {:.1} µm", p.tried, p.total, p.best_max_um);
+    };
+    let outcome = fit(&data, &opts, &mut progress)?;
+    if let Some(s) = &outcome.search {
+        eprintln!(
+            "subset search: {} subsets tried ({} valid) in {:.2} s; best max error {:.1} µm",
+            s.tried, s.valid, s.elapsed_s, s.best_max_um
+        );
+    }
+    if let Some(f) = &outcome.full {
+        for (k, why) in &f.identifiability.fixed {
+            eprintln!("fit: {} held at nominal: the data confound {why}", params::NAMES[*k]);
+        }
+    }
+    if let Some(plot) = &args.plot {
+        let base: Vec<[f64; 2]> = data.iter().map(|m| m.measured_mm).collect();
+        let vecs = |m: &FiveBar<f64>| -> Vec<[f64; 2]> {
+            evaluate::error_vectors_um(m, &data, Criterion::Measured).into_iter().map(|e| e.unwrap_or([f64::NAN; 2])).collect()
+        };
+        let (before, after) = (vecs(&nominal), vecs(&outcome.model));
+        vector_plot(
+            plot,
+            "measured − predicted",
+            &[
+                VectorField { label: "nominal model", base_mm: &base, error_um: &before },
+                VectorField { label: "fitted model", base_mm: &base, error_um: &after },
+            ],
+        )?;
+    }
+    let mut file = ModelFile::from_model(&outcome.model);
+    file.std_dev = outcome.std_dev.clone();
+    file.fit = Some(serde_json::to_value(&outcome.summary)?);
+    write_model_file(&args.out, &file)?;
+    super::print_json(&outcome.summary, KeyOrder::Sorted)
+}

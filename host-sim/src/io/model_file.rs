@@ -1,0 +1,183 @@
+//! `model.json`: a fitted hidden robot, as `fit` writes it and `grid`, `command`, `measure
+//! --model` and `diagnose --model` read it.
+//!
+//! ```json
+//! {
+//!   "format": "hidden-robot-model", "version": 1,
+//!   "a_mm": 149.959, "b_mm": 150.013, "c_mm": 150.033, "d_mm": 150.040,
+//!   "base_a0_mm": [0.0, 0.0], "base_b0_mm": [0.0, 0.0], "encoder_offset_deg": [0.0, 0.0],
+//!   "mode": { "elbow_1": "positive", "elbow_2": "negative", "assembly": "positive" },
+//!   "std_dev": { "a_mm": 0.002, ... },          // optional: one standard deviation per fitted parameter
+//!   "fit": { ... }                              // optional: how it was obtained (free-form)
+//! }
+//! ```
+//! Angles are degrees in files (like the measurement CSV) and radians in code.
+
+use super::atomic::write_atomic;
+use super::{read_text, IoError};
+use kinematics_core::{Branch, FiveBar, WorkingMode};
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+use std::path::Path;
+
+/// The value of the `format` field.
+pub const FORMAT: &str = "hidden-robot-model";
+
+#[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+enum BranchName {
+    Positive,
+    Negative,
+}
+
+#[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq, Eq)]
+#[serde(deny_unknown_fields)]
+struct ModeFile {
+    elbow_1: BranchName,
+    elbow_2: BranchName,
+    assembly: BranchName,
+}
+
+/// The file's contents.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct ModelFile {
+    pub format: String,
+    pub version: u32,
+    pub a_mm: f64,
+    pub b_mm: f64,
+    pub c_mm: f64,
+    pub d_mm: f64,
+    /// A0 in the measurement frame; absent in files written before it existed (then 0, 0).
+    #[serde(default)]
+    pub base_a0_mm: [f64; 2],
+    /// B0 relative to A0.
+    pub base_b0_mm: [f64; 2],
+    pub encoder_offset_deg: [f64; 2],
+    mode: ModeFile,
+    /// One standard deviation of each fitted parameter, by parameter name.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub std_dev: BTreeMap<String, f64>,
+    /// How the model was obtained (method, data, errors); free-form.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fit: Option<serde_json::Value>,
+}
+
+fn to_name(b: Branch) -> BranchName {
+    match b {
+        Branch::Positive => BranchName::Positive,
+        Branch::Negative => BranchName::Negative,
+    }
+}
+
+fn from_name(b: BranchName) -> Branch {
+    match b {
+        BranchName::Positive => Branch::Positive,
+        BranchName::Negative => Branch::Negative,
+    }
+}
+
+impl ModelFile {
+    /// Wraps a model (no standard deviations, no fit record).
+    pub fn from_model(m: &FiveBar<f64>) -> Self {
+        ModelFile {
+            format: FORMAT.into(),
+            version: 1,
+            a_mm: m.a_mm,
+            b_mm: m.b_mm,
+            c_mm: m.c_mm,
+            d_mm: m.d_mm,
+            base_a0_mm: m.base_a0_mm,
+            base_b0_mm: m.base_b0_mm,
+            encoder_offset_deg: [m.encoder_offset_rad[0].to_degrees(), m.encoder_offset_rad[1].to_degrees()],
+            mode: ModeFile {
+                elbow_1: to_name(m.mode.elbow_1),
+                elbow_2: to_name(m.mode.elbow_2),
+                assembly: to_name(m.mode.assembly),
+            },
+            std_dev: BTreeMap::new(),
+            fit: None,
+        }
+    }
+
+    /// The model, validated.
+    pub fn model(&self) -> Result<FiveBar<f64>, IoError> {
+        if self.format != FORMAT {
+            return Err(IoError::Invalid(format!("not a model file: format is '{}', expected '{FORMAT}'", self.format)));
+        }
+        if self.version != 1 {
+            return Err(IoError::Invalid(format!("unsupported model file version {}", self.version)));
+        }
+        let m = FiveBar {
+            a_mm: self.a_mm,
+            b_mm: self.b_mm,
+            c_mm: self.c_mm,
+            d_mm: self.d_mm,
+            base_a0_mm: self.base_a0_mm,
+            base_b0_mm: self.base_b0_mm,
+            encoder_offset_rad: [self.encoder_offset_deg[0].to_radians(), self.encoder_offset_deg[1].to_radians()],
+            mode: WorkingMode {
+                elbow_1: from_name(self.mode.elbow_1),
+                elbow_2: from_name(self.mode.elbow_2),
+                assembly: from_name(self.mode.assembly),
+            },
+        };
+        m.validate().map_err(|e| IoError::Invalid(format!("invalid model: {e}")))?;
+        Ok(m)
+    }
+}
+
+/// Reads and validates a model file.
+pub fn read_model(path: &Path) -> Result<FiveBar<f64>, IoError> {
+    read_model_file(path)?.model().map_err(|e| IoError::content(path, e))
+}
+
+/// Reads a model file with its standard deviations and fit record.
+pub fn read_model_file(path: &Path) -> Result<ModelFile, IoError> {
+    serde_json::from_str(&read_text(path)?).map_err(|e| IoError::NotA {
+        path: path.to_path_buf(),
+        what: "model file",
+        message: e.to_string(),
+    })
+}
+
+/// Writes a model file atomically.
+pub fn write_model_file(path: &Path, file: &ModelFile) -> Result<(), IoError> {
+    file.model()?;
+    write_atomic(path, super::json_text(file, super::KeyOrder::Declared)?.as_bytes())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn round_trip() {
+        let mut m = FiveBar::<f64>::paper_nominal();
+        m.a_mm = 149.959;
+        m.base_b0_mm = [0.1, -0.2];
+        m.base_a0_mm = [-3.0, 0.5];
+        m.encoder_offset_rad = [0.001, -0.002];
+        let f = ModelFile::from_model(&m);
+        let text = serde_json::to_string(&f).unwrap();
+        let back: ModelFile = serde_json::from_str(&text).unwrap();
+        let m2 = back.model().unwrap();
+        assert_eq!(m2.a_mm, m.a_mm);
+        assert_eq!(m2.base_a0_mm, m.base_a0_mm);
+        assert!((m2.encoder_offset_rad[1] - m.encoder_offset_rad[1]).abs() < 1e-15);
+        assert_eq!(m2.mode, m.mode);
+    }
+
+    #[test]
+    fn rejects_bad_models() {
+        let mut f = ModelFile::from_model(&FiveBar::paper_nominal());
+        f.b_mm = -1.0;
+        assert!(f.model().is_err());
+        let mut f = ModelFile::from_model(&FiveBar::paper_nominal());
+        f.format = "something".into();
+        assert!(f.model().is_err());
+        let text = serde_json::to_string(&ModelFile::from_model(&FiveBar::paper_nominal())).unwrap();
+        let typo = text.replace("\"a_mm\"", "\"a_m\"");
+        assert!(serde_json::from_str::<ModelFile>(&typo).is_err());
+    }
+}
