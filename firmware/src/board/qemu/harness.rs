@@ -12,9 +12,12 @@
 //!   the encoder counters): burns time in the scenario's samples; freezes joint 1's counter or
 //!   offsets it for one sample (`hardware::inject_encoder`).
 //! * The stalled servo task (`stalled-task`, [`Harness::begin_sample`]): at the top-speed
-//!   sample the servo task disables interrupts and spins; [`watchdog_fired`], called by the
+//!   sample the servo task disables interrupts and spins, and the harness keeps the plant
+//!   moving in real time meanwhile (a machine does not stop with its controller), keeping its
+//!   state across the coming reset ([`super::across_reset`]); [`watchdog_fired`], called by the
 //!   watchdog's NMI after it removed torque, judges the reaction and waits for the watchdog's
-//!   reset. The boot after it is `Scenario::WatchdogRestart` (`Scenario::after_reset`).
+//!   reset. The boot after it is `Scenario::WatchdogRestart` (`Scenario::after_reset`), which
+//!   checks the machine's coast from where the interrupt left it ([`Harness::resumed`]).
 //! * The checks ([`Harness::end_sample`], after every sample's status is published):
 //!   `controller::scenario::Checker` on the status, on what the simulated hardware shows
 //!   (drive-enable line, torque in the PWM registers) and on the plant's true joint state; a
@@ -38,7 +41,8 @@ use controller::watchdog::TIMEOUT_US;
 use critical_section::Mutex;
 use kinematics_core::CorrectionGrid;
 
-use super::{clock, hardware, semihosting, CmsdkTimer, COUNTS_PER_REV, TIMER_CLOCK_HZ};
+use super::plant::Plant;
+use super::{across_reset, clock, hardware, semihosting, CmsdkTimer, COUNTS_PER_REV, TIMER_CLOCK_HZ};
 
 /// What the watchdog's NMI needs (it cannot reach the `Harness`, which the servo task owns).
 /// The scenario of this boot, set once at boot before the watchdog starts.
@@ -70,6 +74,8 @@ pub struct Harness {
     injection: Injection,
     /// Index of the sample about to run.
     sample: u32,
+    /// The machine's state when the controller last reset, if it was kept ([`Harness::resumed`]).
+    resumed: Option<PlantState>,
 }
 
 impl Harness {
@@ -95,7 +101,14 @@ impl Harness {
             Scenario::HardFault => cortex_m::asm::udf(),
             _ => {}
         }
-        Harness { scenario, settings, checker: None, injection: Injection::default(), sample: 0 }
+        Harness { scenario, settings, checker: None, injection: Injection::default(), sample: 0, resumed: None }
+    }
+
+    /// The machine was in `state` when the controller reset (the plant resumed there): the
+    /// boot after `stalled-task`'s watchdog reset checks its coast from there.
+    pub fn resumed(&mut self, state: PlantState) {
+        defmt::info!("harness: the machine moves on from before the reset: {}", state);
+        self.resumed = Some(state);
     }
 
     /// The board's setpoint source: `trajectory` with the scenario's setpoint faults. `coast`
@@ -107,19 +120,23 @@ impl Harness {
             defmt::info!("harness: {} injected at sample {}", self.scenario, self.injection);
         }
         let total = trajectory.total_samples();
-        self.checker = Some(Checker::new(self.scenario, image, self.settings, total, self.injection, coast));
+        let mut checker = Checker::new(self.scenario, image, self.settings, total, self.injection, coast);
+        if let (Scenario::WatchdogRestart, Some(state)) = (self.scenario, self.resumed) {
+            checker.coast_after_reset(state);
+        }
+        self.checker = Some(checker);
         Injected { scenario: self.scenario, injection: self.injection, trajectory, queued: 0 }
     }
 
     /// Start of a sample, before the plant moves and updates the encoder counters: the deadline
-    /// and encoder fault injection, and the stalled task.
+    /// and encoder fault injection, and the stalled task (which keeps `plant` moving).
     #[inline]
-    pub fn begin_sample(&mut self, timer: &CmsdkTimer) {
+    pub fn begin_sample(&mut self, timer: &CmsdkTimer, plant: &mut Plant) {
         if self.scenario.overrun_at(&self.injection, self.sample) {
             timer.burn_until_us(1.4 * DEADLINE_US);
         }
         if self.scenario.stall_at(&self.injection, self.sample) {
-            stall(self.injection.top_speed_mm_s);
+            stall(self.injection.top_speed_mm_s, plant);
         }
         let counts_per_rad = COUNTS_PER_REV as f32 / (2.0 * core::f32::consts::PI);
         match self.scenario.encoder_at(&self.injection, self.sample) {
@@ -191,15 +208,30 @@ impl SetpointSource for Injected {
     }
 }
 
+/// How often the stalled task's loop moves the plant on (s): a tenth of a servo period.
+const STALLED_PLANT_STEP_S: f32 = 50.0e-6;
+
 /// Stops the servo task from ever completing, the way a logger blocking inside a critical
-/// section would: interrupts disabled, spinning. Only the NMI gets through.
-fn stall(speed_mm_s: f32) -> ! {
+/// section would: interrupts disabled, spinning. Only the NMI gets through. Meanwhile the
+/// machine moves on under whatever the hardware commands (the last duty while the enable line
+/// is on; the drives' dynamic braking once the NMI has removed torque): the loop advances
+/// `plant` in steps of [`STALLED_PLANT_STEP_S`] on the harness's clock and keeps its state for
+/// the boot after the watchdog's reset.
+fn stall(speed_mm_s: f32, plant: &mut Plant) -> ! {
     defmt::info!("harness: stalling the servo task (interrupts disabled) at {} mm/s", speed_mm_s);
     STALL_SPEED.store(speed_mm_s.to_bits(), Ordering::SeqCst);
     cortex_m::interrupt::disable();
-    STALLED_AT.store(clock::now_ticks(), Ordering::SeqCst);
+    let stalled_at = clock::now_ticks();
+    STALLED_AT.store(stalled_at, Ordering::SeqCst);
+    across_reset::keep(plant.state());
+    let step_ticks = (STALLED_PLANT_STEP_S * TIMER_CLOCK_HZ as f32) as u32;
+    let mut simulated_ticks = 0u32;
     loop {
-        cortex_m::asm::nop();
+        if clock::now_ticks().wrapping_sub(stalled_at) >= simulated_ticks.wrapping_add(step_ticks) {
+            plant.advance(STALLED_PLANT_STEP_S);
+            simulated_ticks = simulated_ticks.wrapping_add(step_ticks);
+            across_reset::keep(plant.state());
+        }
     }
 }
 

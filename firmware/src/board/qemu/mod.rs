@@ -5,8 +5,10 @@
 //! * [`watchdog`]: the CMSDK APB watchdog, fed by on-time servo steps; its NMI removes torque.
 //! * [`hardware`]: the "registers" between the firmware and the plant (PWM duty per axis, the
 //!   drive-enable line, the encoder counters, the reset-cause flag), atomics.
-//! * [`plant`]: two joint inertias with friction, advanced in [`Board::begin_sample`]; the
-//!   harness reads its true state.
+//! * [`plant`]: two joint inertias with friction and the drives' dynamic braking, advanced in
+//!   [`Board::begin_sample`]; the harness reads its true state.
+//! * [`across_reset`]: the plant's state kept across a reset of the controller (the machine
+//!   does not stop with it).
 //! * [`harness`]: the test harness (scenario from the command line, self-tests at boot,
 //!   setpoint and deadline fault injection, the stalled servo task, the checks at the end of
 //!   every sample and at the watchdog's interrupt that end the run with PASS or FAIL; its own
@@ -23,6 +25,7 @@ use controller::SAMPLE_RATE_HZ;
 
 use super::{Board, ServoTimer};
 
+pub mod across_reset;
 pub mod hardware;
 pub mod harness;
 pub mod plant;
@@ -206,6 +209,12 @@ impl Board for QemuBoard {
             harness,
         };
         board.disable_drives();
+        // The machine does not stop with its controller: after a reset in the middle of a
+        // coast (the boot after `stalled-task`'s watchdog reset) it is where the coast was.
+        if let Some(state) = across_reset::take() {
+            board.plant.resume(state);
+            board.harness.resumed(state);
+        }
         board
     }
 
@@ -268,7 +277,7 @@ impl Board for QemuBoard {
     /// the plant moves under the torques of the last sample and updates the counters.
     #[inline]
     fn begin_sample(&mut self) {
-        self.harness.begin_sample(&self.timer);
+        self.harness.begin_sample(&self.timer, &mut self.plant);
         self.plant.advance(self.period_s);
     }
 
