@@ -62,14 +62,16 @@ run nan-setpoint   0 "$PASS" nan-setpoint $(image calibration.bin)
 run out-of-reach   0 "$PASS" out-of-reach $(image calibration.bin)
 run jump           0 "$PASS" jump         $(image calibration.bin)
 run underrun       0 "$PASS" underrun     $(image calibration.bin)
-# ... and category 0 (torque off at once): the controller and the encoders.
+# ... and category 0 (torque off at once; the drives' dynamic braking must stop the machine
+# inside the workspace): the controller and the encoders.
 run overrun        0 "$PASS" overrun      $(image calibration.bin)
 run encoder-frozen-at-rest 0 "$PASS" encoder-frozen-at-rest $(image calibration.bin)
 run encoder-frozen-moving  0 "$PASS" encoder-frozen-moving  $(image calibration.bin)
 run glitch-small   0 "$PASS" glitch-small $(image calibration.bin)
 run glitch-large   0 "$PASS" glitch-large $(image calibration.bin)
 # The servo task stalls (interrupts disabled) while the tool moves at speed: the watchdog removes
-# torque within its timeout, then resets the machine; the boot after it keeps the drives off.
+# torque within its timeout, then resets the machine; the boot after it keeps the drives off
+# while the machine, which moves on through the reset, coasts within category 0's bounds.
 run stalled-task   0 "$WATCHDOG" stalled-task $(image calibration.bin)
 run corrupt-image  0 "$PASS" bad-image-crc   $(image corrupt.bin)
 run erased-image   0 "$PASS" bad-image-magic $(image erased.bin)

@@ -33,8 +33,9 @@
 //!   holding still is indistinguishable from a still machine, and harmless). Measured on the
 //!   QEMU plant's parameters, joint 1 frozen before a 2 g move: found 24 samples (12 ms) after
 //!   the first move of the tour starts, the tool 0.45 mm off, 2.4 mm after coasting (host test
-//!   `servo_loop::tests::an_encoder_frozen_at_rest_is_stuck_...`); 13 samples and a 1.0 mm
-//!   coast before the long diagonal (`cargo qemu-test`, `encoder-frozen-at-rest`). Which joint
+//!   `servo_loop::tests::an_encoder_frozen_at_rest_is_stuck_...`, free-wheeling drives); 13
+//!   samples and a 0.50 mm coast with the drives' dynamic braking (1.63 mm free-wheeling)
+//!   before the long diagonal (`cargo qemu-test`, `encoder-frozen-at-rest`). Which joint
 //!   and which move decide how fast the servo's torque builds up.
 //!
 //! **Resolution.** Every bound above is widened by the encoder's quantisation, from the

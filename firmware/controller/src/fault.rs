@@ -17,16 +17,19 @@
 //! | bad calibration image, settings refused, engage refused, the last reset was the watchdog's, watchdog not started | (boot) | drives never enabled |
 //!
 //! Why these categories: a fault of the setpoint stream leaves the feedback, the servo and the
-//! drives trustworthy, so they brake the machine along its path, which a free-wheeling machine
-//! would leave at full speed (at the built-in tour's 1.38 m/s the QEMU plant coasts about
-//! 1 rad per joint). A **finite** refused setpoint (a place the machine should not go, a
+//! drives trustworthy, so they brake the machine along its path, which removing torque would
+//! leave to the drives' dynamic braking, off the path (at the built-in tour's 1.38 m/s the QEMU
+//! plant then coasts 12 mm; with free-wheeling drives about 1 rad per joint). A **finite** refused setpoint (a place the machine should not go, a
 //! sequence it cannot follow, a stream that ran dry) is something a host can re-plan from:
 //! the machine holds where it stopped (category 2), so resuming needs no re-homing. A
 //! **non-finite** setpoint means its producer is broken (corrupt data, a computation gone
 //! wrong), not merely out of bounds: the machine is stopped, then de-energised (category 1),
 //! and only a deliberate re-engage (a reset) brings it back. A fault of the feedback or of the
 //! controller itself means the servo can no longer brake the machine (it would brake towards
-//! a position it does not know, or too late): torque off at once (category 0).
+//! a position it does not know, or too late): torque off at once (category 0). What stops the
+//! machine then is the drives' dynamic braking, a hardware requirement (firmware/README.md,
+//! "Category 0 needs dynamic braking in the drives"): the firmware cannot brake, hold or steer
+//! a machine after a category-0 fault.
 //!
 //! Only a reset clears a latched fault. The mode machine is in [`crate::servo_loop`], the stop
 //! profile in [`crate::stop`], the encoder checks in [`crate::encoder_check`].
@@ -40,7 +43,8 @@ use crate::watchdog::WatchdogFault;
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum StopCategory {
-    /// Category 0: torque removed at once (safe torque off); the machine coasts.
+    /// Category 0: torque removed at once (safe torque off); the machine coasts, braked by the
+    /// drives' dynamic braking (a hardware requirement).
     Zero,
     /// Category 1: a controlled stop, then torque removed at standstill (SS1).
     One,
