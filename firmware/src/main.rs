@@ -10,11 +10,21 @@
 //! * **Deadline monitoring**: every step measures its time from the tick and checks whether
 //!   the next tick already came; overruns are counted, the worst step time kept, and a streak
 //!   of overruns latches a fault.
-//! * **Latched faults, safe state**: any fault (non-finite value, unreachable or singular
-//!   setpoint, outside the grid, a setpoint jump beyond 5 g, following error, overrun streak,
-//!   PWM write error, bad calibration image) disables the drives and commands zero torque in
-//!   the same sample; only a reset clears it. A motor never jumps: the servo refuses, it never
-//!   clamps a setpoint into reach.
+//! * **Stop categories** (IEC 60204-1; table in `controller::fault`): a fault of the setpoint
+//!   stream (non-finite, unreachable, singular or outside-grid setpoint, a jump beyond 5 g, a
+//!   setpoint whose stop would leave the workspace, the queue running dry while moving) brakes
+//!   the machine along its path at 5 g, jerk-limited, from the very sample that found it, then
+//!   holds the position (category 2) or, after a non-finite setpoint, removes torque at
+//!   standstill (category 1). A fault of the feedback or the controller (encoder implausible,
+//!   stuck or glitching, following error, overrun streak, PWM write error) disables the drives
+//!   and commands zero torque in the same sample (category 0). Only a reset clears a fault. A
+//!   motor never jumps: the servo refuses, it never clamps a setpoint into reach.
+//! * **Encoder plausibility** (`controller::encoder_check`): speed and acceleration beyond the
+//!   mechanism's, glitches, a reading that does not move under torque, at rest too.
+//! * **Independent watchdog** (3 ms), fed last in the servo task and only after an on-time
+//!   step (`controller::watchdog`): a stalled servo task lets it expire (category 0; G474:
+//!   reset; QEMU: NMI that removes torque, then reset). The boot after a watchdog reset keeps
+//!   the drives off; the reset cause is logged at every boot.
 //! * **Setpoint intake** ([`app::intake`], priority 2): keeps a `heapless` SPSC queue filled
 //!   from the board's setpoint source, the built-in jerk-limited trajectory (a host link would
 //!   fill the same queue).
@@ -40,12 +50,13 @@ mod app {
     use kinematics_core::trajectory::MotionSetpoint;
 
     use controller::calibration::{self, CalibrationState};
-    use controller::fault::Fault;
-    use controller::servo_loop::{Mode, ServoLoop};
+    use controller::fault::{Fault, StopCategory};
+    use controller::servo_loop::ServoLoop;
     use controller::settings::Settings;
     use controller::setpoints::{self, QUEUE_SLOTS};
     use controller::status::Status;
     use controller::trajectory::Trajectory;
+    use controller::watchdog;
     use controller::SAMPLE_RATE_HZ;
     use firmware::board::{Board, Selected, ServoTimer};
 
@@ -72,6 +83,8 @@ mod app {
         let settings: &'static Settings = cx.local.settings.insert(Selected::settings());
         defmt::info!("boot: settings {}", settings.servo);
         let mut board = Selected::init(settings);
+        let reset_cause = board.reset_cause();
+        defmt::info!("boot: reset cause {}", reset_cause);
 
         let (cal_state, cal) = calibration::load(firmware::calibration::region(), settings.allow_uncorrected);
         match cal_state {
@@ -81,19 +94,29 @@ mod app {
         }
         // Engage at the machine's actual position, unless the calibration forbids it.
         let encoder_rad = board.encoders_rad();
-        let servo_loop = ServoLoop::boot(settings, cal, cal_state, encoder_rad);
-        match servo_loop.mode() {
-            Mode::Running => {
+        let mut servo_loop = ServoLoop::boot(settings, cal, cal_state, encoder_rad);
+        // A watchdog reset keeps the drives off.
+        if let Some(fault) = watchdog::fault_after_reset(reset_cause) {
+            servo_loop.latch_at_boot(fault);
+        }
+        let mut source = board.setpoints(Trajectory::builtin(servo_loop.setpoint_mm(), settings));
+        // The watchdog starts only now, after the slow part of the boot (the QEMU harness scans
+        // the trajectory), so that the first servo sample comes well within its timeout; a
+        // watchdog that will not start keeps the drives off.
+        if let Err(e) = board.start_watchdog() {
+            servo_loop.latch_at_boot(Fault::Watchdog(e));
+        }
+        match servo_loop.mode().fault() {
+            None => {
                 defmt::info!("engaged at {} mm (encoders {} rad)", servo_loop.setpoint_mm(), encoder_rad);
                 board.enable_drives();
             }
-            Mode::SafeState(fault) => {
+            Some(fault) => {
                 defmt::error!("not engaged ({}): drives disabled", fault);
                 board.disable_drives();
             }
         }
 
-        let mut source = board.setpoints(Trajectory::builtin(servo_loop.setpoint_mm(), settings));
         let (mut setpoints_in, setpoints_out) = cx.local.queue.split();
         if servo_loop.drives_enabled() {
             setpoints::refill(&mut setpoints_in, &mut source);
@@ -117,7 +140,8 @@ mod app {
     /// already pending. A missed deadline is counted (`overruns`); the torques written late
     /// still stand (they are the best available). `overrun_streak_limit` consecutive misses
     /// (default 3, i.e. 1.5 ms without a fresh command) latch `Fault::DeadlineMissed`: drives
-    /// disabled, zero torque.
+    /// disabled, zero torque (category 0). Last, an on-time step feeds the independent watchdog
+    /// (3 ms).
     #[task(binds = SERVO_TICK, priority = 3, shared = [status], local = [board, servo_loop, setpoints_out])]
     fn servo_tick(mut cx: servo_tick::Context) {
         let l = cx.local;
@@ -137,19 +161,27 @@ mod app {
         let timer = l.board.timer();
         let (step_us, overrun) = (timer.step_time_us(), timer.next_tick_pending());
         l.servo_loop.record_deadline(step_us, overrun, &mut sample);
-        // Safe state in the sample that found the fault.
-        if let Some(fault) = sample.fault {
+        // Safe state in the sample that decided it (category 0 at once; category 1 at
+        // standstill after its stop).
+        if sample.torque_off {
             l.board.disable_drives();
+        }
+        if let Some(fault) = sample.fault {
             let _ = on_fault::spawn(fault);
         }
         // Publish.
         let (mode, deadline) = (l.servo_loop.mode(), *l.servo_loop.deadline());
+        let stop_mm = l.servo_loop.stop_profile().map_or(0.0, |p| p.distance_mm());
         cx.shared.status.lock(|s| {
-            s.record(&sample, mode, &deadline);
+            s.record(&sample, mode, &deadline, stop_mm);
             l.board.end_sample(s);
         });
         if sample.index % l.servo_loop.settings().telemetry_period_ticks.max(1) == 0 {
             let _ = telemetry::spawn();
+        }
+        // Watchdog, last: only a step that completed on time feeds it.
+        if sample.feed_watchdog {
+            l.board.feed_watchdog();
         }
     }
 
@@ -165,20 +197,25 @@ mod app {
     async fn telemetry(mut cx: telemetry::Context) {
         let s = cx.shared.status.lock(|s| *s);
         defmt::info!(
-            "t {} ms: fault {} overruns {} worst {} us, setpoint {} mm, encoders {} rad, torque {} Nm, max following error {} rad",
-            s.ticks / (SAMPLE_RATE_HZ / 1000), s.fault, s.overruns, s.worst_step_us, s.setpoint_mm, s.encoder_rad, s.torque_nm,
+            "t {} ms: {} fault {} overruns {} worst {} us, setpoint {} mm, encoders {} rad, torque {} Nm, max following error {} rad",
+            s.ticks / (SAMPLE_RATE_HZ / 1000), s.mode, s.fault, s.overruns, s.worst_step_us, s.setpoint_mm, s.encoder_rad, s.torque_nm,
             s.max_following_error_rad
         );
     }
 
-    /// Fault handling: the safe state is already applied by the servo task in the sample that
-    /// found the fault; this reports it.
+    /// Fault handling: the reaction (the stop, or the safe state) is already under way from
+    /// the servo task's sample that found the fault; this reports it.
     #[task(priority = 1, shared = [status])]
     async fn on_fault(mut cx: on_fault::Context, fault: Fault) {
         let s = cx.shared.status.lock(|s| *s);
+        let reaction = match fault.stop_category() {
+            StopCategory::Zero => "category 0: drives disabled, zero torque",
+            StopCategory::One => "category 1: braking along the path, then torque off",
+            StopCategory::Two => "category 2: braking along the path, then holding",
+        };
         defmt::error!(
-            "FAULT {} at sample {}: drives disabled, zero torque (setpoint {} mm, encoders {} rad)",
-            fault, s.ticks, s.setpoint_mm, s.encoder_rad
+            "FAULT {} at sample {}: {} (setpoint {} mm, encoders {} rad)",
+            fault, s.ticks, reaction, s.setpoint_mm, s.encoder_rad
         );
     }
 }

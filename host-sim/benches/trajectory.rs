@@ -115,7 +115,8 @@ fn main() {
         println!("{:<58} {:>12.4} {:>12.4} {:>8.5}", c.name, o * 1e3, r * 1e3, ratio);
     }
     println!("TRAJECTORY ruckig_duration_ratio_min {worst:.5} over {} moves (>= 0.98 required; 1 = Ruckig's optimum)", cases.len());
-    if !(worst >= 0.98) {
+    // NaN (a failed comparison) fails too.
+    if worst.is_nan() || worst < 0.98 {
         std::process::exit(1);
     }
 }

@@ -185,8 +185,8 @@ mod tests {
             for q in 0..n {
                 let s = traj.at(t + (q as f64 + 0.5) / n as f64 * dt);
                 let j = m.inverse_motion(s.position_mm, s.velocity_mm_s, s.acceleration_mm_s2, 0.05).unwrap();
-                for i in 0..2 {
-                    avg[i] += j.acceleration_rad_s2[i] / n as f64;
+                for (sum, a) in avg.iter_mut().zip(j.acceleration_rad_s2) {
+                    *sum += a / n as f64;
                 }
             }
             for (i, want) in avg.iter().enumerate() {

@@ -12,13 +12,15 @@
 //! * [`grid`], [`bilinear`]: the correction grid image read from flash (validated header, CRC),
 //!   interpolated with the paper's Eq. 7;
 //! * [`pid`], [`servo`]: position control per axis and the servo step
-//!   (setpoint → IK → correction → torque);
+//!   (setpoint → IK → correction → torque), with validated settings; a refused setpoint leaves
+//!   the servo engaged (the firmware brakes the machine with it), a feedback fault latches;
 //! * [`jerk_profile`], [`path`], [`trajectory`]: jerk-limited tool motions (time-optimal
 //!   rest-to-rest profile, lines, circles, figure-eights, tours through waypoints) with exact
 //!   velocity, acceleration and jerk at every sample;
-//! * [`joint_motion`], [`dynamics`], [`joint_limits`]: the joint motion for a tool motion, the
-//!   hidden robot's inverse dynamics (linear in identified parameters), and the motors' speed
-//!   and torque limits met by slowing a trajectory down.
+//! * [`joint_motion`], [`dynamics`], [`feed_forward`], [`joint_limits`]: the joint motion for a
+//!   tool motion, the hidden robot's inverse dynamics (linear in identified parameters), the
+//!   servo's feed-forward over a sample, and the motors' speed and torque limits met by
+//!   slowing a trajectory down.
 //!
 //! Everything is generic over [`Real`] where the host tools need f64 and the MCU f32; the grid and
 //! the servo are f32, exactly as the MCU runs them. `no_std`, no heap, no panic on any input:
@@ -57,10 +59,13 @@ pub use grid::{CorrectionGrid, GridError, GridGeometry};
 pub use joint_motion::JointMotion;
 pub use jacobian::Mat2;
 pub use model::{Branch, FiveBar, ModelError, WorkingMode};
-pub use pid::{AxisController, AxisGains, AxisReference};
+pub use pid::{AxisController, AxisGains, AxisReference, InvalidGain};
 pub use pose::Pose;
 pub use real::{wrap_angle_rad, Real};
-pub use servo::{Calibration, Servo, ServoConfig, ServoFault, ServoOutput};
+pub use servo::{
+    AcceptedSetpoint, Calibration, ConfigError, EngageError, Servo, ServoConfig, ServoFault, ServoOutput, SetpointRefusal,
+    StepError,
+};
 pub use trajectory::{MotionSetpoint, PathMotion, TaskLimits, Tour, TrajectoryError};
 
 /// The default singularity margin: the smallest `|sin|` of a transmission angle accepted

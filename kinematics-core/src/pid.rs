@@ -17,6 +17,14 @@
 //!
 //! [`AxisController::feedback`] is the same controller with the feed-forward torque given from
 //! outside (the servo's inverse dynamics): the gains' own feed-forward terms are then unused.
+//!
+//! No panic for any gains: [`AxisGains::validate`] says which gains a servo may run with (the
+//! servo refuses others, see `ServoConfig::validate`), but [`AxisController::update`] itself
+//! never panics and never returns a NaN, an infinity or more than the limit, whatever it is
+//! given: the output and the integrator go through [`saturate`] (no `f32::clamp`, which panics
+//! when its bounds are crossed or NaN).
+
+use crate::real::Real;
 
 /// Gains and limits of one axis (joint side: torques in N·m at the link, angles in rad).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -42,6 +50,65 @@ pub struct AxisGains {
     pub integral_limit_nm: f32,
 }
 
+/// A gain or limit [`AxisGains::validate`] refuses: the name of the field.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct InvalidGain(pub &'static str);
+
+impl core::fmt::Display for InvalidGain {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        write!(f, "{} must be finite (and, for a feedback gain or a limit, not negative)", self.0)
+    }
+}
+
+impl core::error::Error for InvalidGain {}
+
+impl AxisGains {
+    /// Checks that a servo can run with these gains: every field finite; the feedback gains
+    /// (`kp`, `ki`, `kd`) and both limits not negative (a negative feedback gain is positive
+    /// feedback, a negative limit no limit at all); the Coulomb turn-over speed positive (it
+    /// divides). The feed-forward terms may have either sign.
+    pub fn validate(&self) -> Result<(), InvalidGain> {
+        let non_negative = [
+            (self.kp_nm_per_rad, "kp_nm_per_rad"),
+            (self.ki_nm_per_rad_s, "ki_nm_per_rad_s"),
+            (self.kd_nm_s_per_rad, "kd_nm_s_per_rad"),
+            (self.torque_limit_nm, "torque_limit_nm"),
+            (self.integral_limit_nm, "integral_limit_nm"),
+        ];
+        for (v, name) in non_negative {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(InvalidGain(name));
+            }
+        }
+        let finite = [
+            (self.inertia_ff_kg_m2, "inertia_ff_kg_m2"),
+            (self.viscous_ff_nm_s_per_rad, "viscous_ff_nm_s_per_rad"),
+            (self.coulomb_ff_nm, "coulomb_ff_nm"),
+        ];
+        for (v, name) in finite {
+            if !v.is_finite() {
+                return Err(InvalidGain(name));
+            }
+        }
+        if !(self.coulomb_ff_speed_rad_s.is_finite() && self.coulomb_ff_speed_rad_s > 0.0) {
+            return Err(InvalidGain("coulomb_ff_speed_rad_s"));
+        }
+        Ok(())
+    }
+}
+
+/// `value` limited to `[-limit, limit]`: zero when `value` is NaN, or when `limit` is not a
+/// finite non-negative number (gains `validate` refuses; this must not panic on them either).
+/// Two comparisons more than `f32::clamp`, which would panic on such a limit.
+#[inline]
+pub fn saturate(value: f32, limit: f32) -> f32 {
+    if !(0.0..=f32::MAX).contains(&limit) || value.is_nan() {
+        return 0.0;
+    }
+    Real::clamp(value, -limit, limit)
+}
+
 /// The axis state carried from one sample to the next.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -63,6 +130,8 @@ pub struct AxisReference {
 
 impl AxisController {
     /// One control sample of length `dt_s`: returns the torque command (N·m), within the limit.
+    /// Never panics; the result is always finite and within `±torque_limit_nm` (zero for a
+    /// limit that is not a finite non-negative number, or when the terms add up to NaN).
     pub fn update(
         &mut self,
         gains: &AxisGains,
@@ -87,7 +156,8 @@ impl AxisController {
     /// The PID on the remainder of a feed-forward computed elsewhere (the servo's model-based
     /// one): `τ = kp·e + ki·∫e + kd·ė + feedforward`, limited, with the same anti-windup as
     /// [`AxisController::update`] (which is this with the gains' own feed-forward). The gains'
-    /// feed-forward terms are not used here.
+    /// feed-forward terms are not used here. Never panics, and the same guarantees on the
+    /// result as `update` (finite, within the limit, zero for a NaN sum).
     pub fn feedback(
         &mut self,
         gains: &AxisGains,
@@ -101,12 +171,12 @@ impl AxisController {
             + gains.kd_nm_s_per_rad * velocity_error_rad_s
             + feedforward_nm;
         let limit = gains.torque_limit_nm;
-        let output = unsaturated.clamp(-limit, limit);
+        let output = saturate(unsaturated, limit);
         let increment = gains.ki_nm_per_rad_s * error_rad * dt_s;
         let winds_up = (unsaturated > limit && increment > 0.0) || (unsaturated < -limit && increment < 0.0);
         if !winds_up {
-            let il = gains.integral_limit_nm;
-            self.integral_nm = (self.integral_nm + increment).clamp(-il, il);
+            // A NaN sum (only with absurd gains or inputs) empties the integrator.
+            self.integral_nm = saturate(self.integral_nm + increment, gains.integral_limit_nm);
         }
         output
     }
@@ -273,6 +343,44 @@ mod tests {
     fn coulomb_feed_forward_acts_on_the_reference_velocity() {
         let (t, _) = one_sample(&AxisGains { coulomb_ff_nm: 0.3, ..only() }, 5e-4);
         assert!(close(t, 0.3 * 4.0 / 4.01), "{t}");
+    }
+
+    /// The panic of issue 11: `f32::clamp(-limit, limit)` with a negative or NaN limit.
+    #[test]
+    fn absurd_limits_and_gains_never_panic_and_give_a_finite_limited_torque() {
+        for limit in [-1.0, f32::NAN, f32::INFINITY, f32::NEG_INFINITY, -0.0, 0.0] {
+            for il in [-1.0, f32::NAN, f32::INFINITY, 1.0] {
+                let g = AxisGains { torque_limit_nm: limit, integral_limit_nm: il, ki_nm_per_rad_s: 1e3, ..gains() };
+                assert!(g.validate().is_err() || (limit == 0.0 && il == 1.0), "{limit} {il}");
+                let mut c = AxisController::default();
+                for _ in 0..3 {
+                    let t = c.update(&g, &REF, ANGLE_RAD, VELOCITY_RAD_S, 5e-4);
+                    assert_eq!(t, 0.0, "limit {limit}: a limit that is not a non-negative number commands nothing");
+                    assert!(c.integral_nm().is_finite());
+                }
+            }
+        }
+        // Terms that add up to NaN (inf - inf): zero torque, the integrator emptied, not NaN.
+        let g = AxisGains { kp_nm_per_rad: f32::MAX, kd_nm_s_per_rad: f32::MAX, ..gains() };
+        let r = AxisReference { angle_rad: 10.0, velocity_rad_s: -10.0, acceleration_rad_s2: 0.0 };
+        let mut c = AxisController::default();
+        assert_eq!(c.update(&g, &r, 0.0, 0.0, 5e-4), 0.0);
+        assert_eq!(c.update(&g, &r, 0.0, f32::NAN, 5e-4), 0.0);
+        assert!(c.integral_nm().is_finite());
+        // A zero Coulomb turn-over speed at zero reference speed is 0/0.
+        let g = AxisGains { coulomb_ff_nm: 0.5, coulomb_ff_speed_rad_s: 0.0, ..gains() };
+        assert_eq!(g.validate(), Err(InvalidGain("coulomb_ff_speed_rad_s")));
+        assert_eq!(AxisController::default().update(&g, &still(0.0), 0.0, 0.0, 5e-4), 0.0);
+    }
+
+    #[test]
+    fn validate_accepts_the_defaults_and_names_the_bad_field() {
+        assert_eq!(gains().validate(), Ok(()));
+        assert_eq!(AxisGains { kp_nm_per_rad: -1.0, ..gains() }.validate(), Err(InvalidGain("kp_nm_per_rad")));
+        assert_eq!(AxisGains { kd_nm_s_per_rad: f32::NAN, ..gains() }.validate(), Err(InvalidGain("kd_nm_s_per_rad")));
+        assert_eq!(AxisGains { inertia_ff_kg_m2: f32::INFINITY, ..gains() }.validate(), Err(InvalidGain("inertia_ff_kg_m2")));
+        // Feed-forward terms may be negative (a drive that pushes the axis).
+        assert_eq!(AxisGains { viscous_ff_nm_s_per_rad: -0.1, ..gains() }.validate(), Ok(()));
     }
 
     #[test]

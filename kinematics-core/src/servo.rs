@@ -1,40 +1,60 @@
 //! The servo step: one 2 kHz sample from task-space setpoint to joint torque commands.
 //!
 //! ```text
-//! setpoint (x, y) ──► jump check ──► hidden-robot IK ──► + grid correction ──► unwrap
-//!      ──► feed-forward (finite differences) ──► PID per axis ──► torque commands
+//! setpoint (x, y) ──► jump check ──► hidden-robot IK ──► + grid correction      [accept]
+//!      ──► encoder check ──► unwrap ──► feed-forward (finite differences)
+//!      ──► following-error check ──► PID per axis ──► torque commands            [track]
 //! ```
-//! The firmware calls [`Servo::step`] from its timer interrupt and `host-sim` calls the very same
-//! function against the simulated plant; nothing else computes a motor command.
+//! The firmware calls it from its timer interrupt and `host-sim` calls the very same functions
+//! against the simulated plant; nothing else computes a motor command.
 //!
-//! [`Servo::step_motion`] takes a [`MotionSetpoint`] (position with its exact velocity,
-//! acceleration and jerk, from a [`crate::trajectory`]) and the next one, if queued, instead:
-//! the same checks, the feed-forward from the identified inverse dynamics of the mean motion
-//! until the next sample ([`crate::feed_forward`]; [`Servo::set_dynamics`]; without them the
-//! gains' constant feed-forward on the same motion) and the PID on the remainder
-//! ([`AxisController::feedback`]). No finite-difference lag. The next setpoint's joint state is
-//! kept for the next step, so each step solves one IK.
+//! # The motion step (issue 14)
+//! [`Servo::accept_motion`] (and [`Servo::step_motion`], both phases) takes a [`MotionSetpoint`]
+//! (position with its exact velocity, acceleration and jerk, from a [`crate::trajectory`]) and
+//! the next one, if queued, instead of a bare position: the same refusals (plus the stated
+//! speed and acceleration within the limits), the feed-forward from the identified inverse
+//! dynamics of the mean motion until the next sample ([`crate::feed_forward`];
+//! [`Servo::set_dynamics`]; without them the gains' constant feed-forward on the same motion)
+//! and the PID on the remainder ([`AxisController::feedback`]). No finite-difference lag. The
+//! next setpoint's joint state is kept for the next sample, so each sample solves one IK.
 //!
-//! # Faults
-//! Any of these latches a fault, sets both torques to zero (safe torque off: the drives are
-//! disabled, the motors never jump to a new position) and keeps refusing until
-//! [`Servo::engage`] re-arms the servo at the machine's actual position:
-//! non-finite setpoint or encoder reading, a setpoint that is unreachable, too close to a
-//! singularity or outside the correction grid, a setpoint sequence that asks for more speed or
-//! acceleration than the machine can follow (5 g), and a following error beyond the limit.
+//! # Two kinds of error, two phases
+//! A sample is [`Servo::accept`] then [`AcceptedSetpoint::track`] ([`Servo::step`] does both):
+//! * **Setpoint refusals** ([`SetpointRefusal`], from `accept`): a non-finite setpoint, one that
+//!   is unreachable, too close to a singularity or outside the correction grid, or a setpoint
+//!   sequence that asks for more speed or acceleration than the machine can follow (5 g).
+//!   `accept` takes `&self` as far as the servo's state goes: a refusal changes nothing, the
+//!   servo stays engaged, and the caller may bring another setpoint *in the same sample* (the
+//!   firmware's controlled stop does: the servo, its feedback and the drives are still
+//!   trustworthy, so the machine is braked along its path rather than left to coast).
+//! * **Faults** ([`ServoFault`], from `track`): a non-finite encoder reading, a following error
+//!   beyond the limit. The feedback (or the servo itself) cannot be trusted: the fault latches,
+//!   both torques must be taken as zero and every later sample is refused until
+//!   [`Servo::engage`] re-arms the servo at the machine's actual position.
+//!
+//! Between the two phases the caller can inspect what the setpoint implies (its velocity and
+//! acceleration, [`AcceptedSetpoint::velocity_mm_s`]) and drop it without effect, which is how
+//! the firmware refuses a setpoint whose stopping point would leave the workspace. The
+//! [`AcceptedSetpoint`] holds the servo borrowed, so a setpoint accepted against one history
+//! cannot be tracked after another.
+//!
+//! # Settings
+//! [`Servo::new`] validates its [`ServoConfig`] ([`ServoConfig::validate`]): settings come over
+//! a link, and no value of them may panic or command a NaN. (The PID itself never panics
+//! either, see [`crate::pid`].)
 //!
 //! # Cost
 //! One IK (two `atan2`, two `sqrt`), two bilinear lookups, two PIDs: see `cargo qemu-bench`
-//! (`BENCH servo_step`); the motion step adds the joint motion and the inverse dynamics
+//! (`BENCH servo_step`); the motion step adds the joint rates and the inverse dynamics
 //! (`BENCH servo_step_motion`, with the trajectory's evaluation). No allocation, no panic on
-//! any input (property-tested).
+//! any input or setting (property-tested).
 
 use crate::dynamics::{DynamicsError, FiveBarDynamics};
 use crate::feed_forward::{feed_forward_nm, interval_motion, predict, JointSample};
 use crate::grid::{CorrectionGrid, GridError};
 use crate::model::FiveBar;
+use crate::pid::{AxisController, AxisGains, AxisReference, InvalidGain};
 use crate::real::Real;
-use crate::pid::{AxisController, AxisGains, AxisReference};
 use crate::trajectory::MotionSetpoint;
 use crate::KinematicsError;
 
@@ -42,7 +62,8 @@ use crate::KinematicsError;
 pub const STANDARD_GRAVITY_MM_S2: f32 = 9_806.65;
 
 /// Run-time settings of the servo; [`ServoConfig::default`] suits the paper's machine as
-/// simulated by `host-sim`'s default plant.
+/// simulated by `host-sim`'s default plant. [`ServoConfig::validate`] says which a servo can
+/// run with.
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct ServoConfig {
@@ -96,6 +117,65 @@ impl Default for ServoConfig {
     }
 }
 
+/// A [`ServoConfig`] the servo refuses to run with.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum ConfigError {
+    /// `sample_period_s` is not a positive finite number.
+    SamplePeriod,
+    /// `min_transmission` is not in `[0, 1)` (a `|sin|`: 1 or more refuses every pose).
+    MinTransmission,
+    /// A limit (`max_speed_mm_s`, `max_accel_mm_s2`, `max_following_error_rad`) is negative,
+    /// NaN or infinite.
+    Limit(&'static str),
+    /// A gain of axis `axis` (0 or 1) is refused by [`AxisGains::validate`].
+    Gain {
+        /// 0 or 1.
+        axis: u8,
+        /// What is wrong with it.
+        gain: InvalidGain,
+    },
+}
+
+impl core::fmt::Display for ConfigError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            ConfigError::SamplePeriod => f.write_str("sample_period_s must be a positive finite number"),
+            ConfigError::MinTransmission => f.write_str("min_transmission must be in [0, 1)"),
+            ConfigError::Limit(name) => write!(f, "{name} must be a finite non-negative number"),
+            ConfigError::Gain { axis, gain } => write!(f, "axis {}: {gain}", axis + 1),
+        }
+    }
+}
+
+impl core::error::Error for ConfigError {}
+
+impl ServoConfig {
+    /// Checks every field: a positive finite sample period, a singularity margin in `[0, 1)`,
+    /// finite non-negative limits, and gains [`AxisGains::validate`] accepts.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        if !(self.sample_period_s.is_finite() && self.sample_period_s > 0.0) {
+            return Err(ConfigError::SamplePeriod);
+        }
+        if !(self.min_transmission >= 0.0 && self.min_transmission < 1.0) {
+            return Err(ConfigError::MinTransmission);
+        }
+        for (v, name) in [
+            (self.max_speed_mm_s, "max_speed_mm_s"),
+            (self.max_accel_mm_s2, "max_accel_mm_s2"),
+            (self.max_following_error_rad, "max_following_error_rad"),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(ConfigError::Limit(name));
+            }
+        }
+        for (axis, gains) in self.axes.iter().enumerate() {
+            gains.validate().map_err(|gain| ConfigError::Gain { axis: axis as u8, gain })?;
+        }
+        Ok(())
+    }
+}
+
 /// The hidden robot and (optionally) its correction grid: what a calibration delivers.
 #[derive(Clone, Copy, Debug)]
 pub struct Calibration<'a> {
@@ -113,41 +193,67 @@ impl<'a> Calibration<'a> {
 
     /// Encoder angles that put the tool at `tool_mm`: model IK plus grid correction. This is the
     /// one function that turns a target into a motor command, on the MCU and in the host tools.
-    /// ([`Servo::step_motion`] keeps the model's angle from the IK it solved for the setpoint a
-    /// step earlier, and corrects it here.)
-    pub fn command_rad(&self, tool_mm: [f32; 2], min_transmission: f32) -> Result<[f32; 2], ServoFault> {
-        let theta = self.model.inverse(tool_mm, min_transmission).map_err(ServoFault::Kinematics)?;
+    /// ([`Servo::accept_motion`] keeps the model's angle from the IK it solved for the setpoint a
+    /// sample earlier, and corrects it with [`Calibration::corrected_rad`].)
+    pub fn command_rad(&self, tool_mm: [f32; 2], min_transmission: f32) -> Result<[f32; 2], SetpointRefusal> {
+        let theta = self.model.inverse(tool_mm, min_transmission).map_err(SetpointRefusal::Kinematics)?;
         self.corrected_rad(tool_mm, theta)
     }
 
     /// The model's encoder angles `theta_rad` for `tool_mm` plus the grid correction there.
-    pub fn corrected_rad(&self, tool_mm: [f32; 2], theta_rad: [f32; 2]) -> Result<[f32; 2], ServoFault> {
+    pub fn corrected_rad(&self, tool_mm: [f32; 2], theta_rad: [f32; 2]) -> Result<[f32; 2], SetpointRefusal> {
         match &self.grid {
             None => Ok(theta_rad),
             Some(grid) => {
-                let d = grid.correction_rad(tool_mm).map_err(ServoFault::Grid)?;
+                let d = grid.correction_rad(tool_mm).map_err(SetpointRefusal::Grid)?;
                 Ok([theta_rad[0] + d[0], theta_rad[1] + d[1]])
             }
         }
     }
 }
 
-/// Why the servo stopped.
+/// Why the servo refused a setpoint. Nothing is latched: the servo is exactly as before the
+/// call, still engaged, and takes another setpoint (in the same sample, too).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum ServoFault {
-    /// `step` was called before `engage`, or after a fault without re-engaging.
+pub enum SetpointRefusal {
+    /// The servo is not engaged (never, or a [`ServoFault`] latched since): nothing is accepted.
     NotEngaged,
     /// A setpoint coordinate is NaN or infinite.
-    NonFiniteSetpoint,
-    /// An encoder reading is NaN or infinite.
-    NonFiniteFeedback,
+    NonFinite,
     /// The setpoint is unreachable or too close to a singularity.
     Kinematics(KinematicsError),
     /// The setpoint is outside the correction grid.
     Grid(GridError),
     /// The setpoint sequence needs more speed or acceleration than the limits allow.
-    SetpointJump,
+    Jump,
+}
+
+impl core::fmt::Display for SetpointRefusal {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            SetpointRefusal::NotEngaged => f.write_str("setpoint refused: servo not engaged"),
+            SetpointRefusal::NonFinite => f.write_str("non-finite setpoint"),
+            SetpointRefusal::Kinematics(e) => write!(f, "setpoint refused: {e}"),
+            SetpointRefusal::Grid(e) => write!(f, "setpoint refused: {e}"),
+            SetpointRefusal::Jump => f.write_str("setpoint jump beyond speed/acceleration limits"),
+        }
+    }
+}
+
+/// The message already names the kinematic or grid error inside, so `source` stays `None`
+/// (a reporter walking the chain would print it twice).
+impl core::error::Error for SetpointRefusal {}
+
+/// A fault of the feedback or of the servo itself: latched, both torques zero, every later
+/// sample refused until [`Servo::engage`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum ServoFault {
+    /// `track` was called before `engage`, or after a fault without re-engaging.
+    NotEngaged,
+    /// An encoder reading is NaN or infinite.
+    NonFiniteFeedback,
     /// The motor lags its reference by more than the limit.
     FollowingError,
 }
@@ -156,19 +262,61 @@ impl core::fmt::Display for ServoFault {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         match self {
             ServoFault::NotEngaged => f.write_str("servo not engaged"),
-            ServoFault::NonFiniteSetpoint => f.write_str("non-finite setpoint"),
             ServoFault::NonFiniteFeedback => f.write_str("non-finite encoder reading"),
-            ServoFault::Kinematics(e) => write!(f, "setpoint refused: {e}"),
-            ServoFault::Grid(e) => write!(f, "setpoint refused: {e}"),
-            ServoFault::SetpointJump => f.write_str("setpoint jump beyond speed/acceleration limits"),
             ServoFault::FollowingError => f.write_str("following error beyond limit"),
         }
     }
 }
 
-/// The message already names the kinematic or grid error inside, so `source` stays `None`
-/// (a reporter walking the chain would print it twice).
 impl core::error::Error for ServoFault {}
+
+/// Why [`Servo::step`] produced no torque: a refused setpoint (nothing latched) or a fault
+/// (latched).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum StepError {
+    /// [`Servo::accept`] refused the setpoint; the servo is unchanged.
+    Refused(SetpointRefusal),
+    /// [`AcceptedSetpoint::track`] latched a fault.
+    Fault(ServoFault),
+}
+
+impl core::fmt::Display for StepError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            StepError::Refused(r) => r.fmt(f),
+            StepError::Fault(e) => e.fmt(f),
+        }
+    }
+}
+
+impl core::error::Error for StepError {}
+
+/// Why [`Servo::engage`] refused: the encoder reading is no tool position the servo can start
+/// from. Nothing is engaged.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum EngageError {
+    /// An encoder reading is NaN or infinite.
+    NonFiniteFeedback,
+    /// The forward kinematics refuse the encoder reading (the arms cannot meet there, or the
+    /// pose is too close to a singularity).
+    Kinematics(KinematicsError),
+    /// The tool position the encoders give is outside the correction grid.
+    Grid(GridError),
+}
+
+impl core::fmt::Display for EngageError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            EngageError::NonFiniteFeedback => f.write_str("engage refused: non-finite encoder reading"),
+            EngageError::Kinematics(e) => write!(f, "engage refused: {e}"),
+            EngageError::Grid(e) => write!(f, "engage refused: {e}"),
+        }
+    }
+}
+
+impl core::error::Error for EngageError {}
 
 /// What one sample produced.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -197,10 +345,26 @@ pub struct Servo {
     axes: [AxisController; 2],
     history: Option<History>,
     fault: Option<ServoFault>,
+    /// The identified dynamics the motion step feeds forward.
     dynamics: Option<FiveBarDynamics<f32>>,
-    /// Two joint states: this step's setpoint's and the next's. Solved in place (no copies).
+    /// Two joint states: a sample's setpoint's and its next's, solved in place (no copies).
     joint: [JointSample<f32>; 2],
-    /// Which slot holds the last step's next setpoint's state, if still valid.
+    /// Which slot holds the last tracked sample's next setpoint's state.
+    ahead: Option<usize>,
+}
+
+/// A setpoint [`Servo::accept`] found acceptable, with what it implies; the servo stays
+/// borrowed until it is tracked or dropped. Dropping it leaves the servo unchanged.
+#[derive(Debug)]
+pub struct AcceptedSetpoint<'s> {
+    servo: &'s mut Servo,
+    setpoint_mm: [f32; 2],
+    velocity_mm_s: [f32; 2],
+    accel_mm_s2: [f32; 2],
+    command_rad: [f32; 2],
+    /// The motion step's feed-forward (`None`: the gains' on differences, [`Servo::accept`]).
+    feedforward_nm: Option<[f32; 2]>,
+    /// The slot holding the next setpoint's joint state, kept once tracked.
     ahead: Option<usize>,
 }
 
@@ -231,9 +395,11 @@ fn unwrap_near(angle: f32, near: f32) -> f32 {
 }
 
 impl Servo {
-    /// A servo with `config`, not engaged yet.
-    pub fn new(config: ServoConfig) -> Self {
-        Servo {
+    /// A servo with `config`, not engaged yet; refuses settings [`ServoConfig::validate`]
+    /// refuses.
+    pub fn new(config: ServoConfig) -> Result<Self, ConfigError> {
+        config.validate()?;
+        Ok(Servo {
             config,
             axes: [AxisController::default(); 2],
             history: None,
@@ -241,11 +407,11 @@ impl Servo {
             dynamics: None,
             joint: [JointSample::zero(); 2],
             ahead: None,
-        }
+        })
     }
 
-    /// The identified dynamics [`Servo::step_motion`] feeds forward (`None`: the gains'
-    /// constant feed-forward). Refused if out of range; the servo keeps what it had.
+    /// The identified dynamics the motion step feeds forward (`None`: the gains' constant
+    /// feed-forward). Refused if out of range; the servo keeps what it had.
     pub fn set_dynamics(&mut self, dynamics: Option<FiveBarDynamics<f32>>) -> Result<(), DynamicsError> {
         if let Some(d) = &dynamics {
             d.validate()?;
@@ -269,26 +435,32 @@ impl Servo {
         self.fault
     }
 
+    /// Whether the servo is engaged (and no fault latched since): it accepts setpoints.
+    pub fn is_engaged(&self) -> bool {
+        self.history.is_some()
+    }
+
     /// Arms the servo at the machine's current position and returns that tool position: the
-    /// first setpoints must start there (a setpoint far from it is a jump).
-    pub fn engage(&mut self, cal: &Calibration<'_>, encoder_rad: [f32; 2]) -> Result<[f32; 2], ServoFault> {
+    /// first setpoints must start there (a setpoint far from it is a jump). Clears a latched
+    /// fault; on `Err` the servo is not engaged.
+    pub fn engage(&mut self, cal: &Calibration<'_>, encoder_rad: [f32; 2]) -> Result<[f32; 2], EngageError> {
         self.history = None;
         self.fault = None;
         self.ahead = None;
         self.axes = [AxisController::default(); 2];
         if !finite2(encoder_rad) {
-            return Err(self.latch(ServoFault::NonFiniteFeedback));
+            return Err(EngageError::NonFiniteFeedback);
         }
         let m = self.config.min_transmission;
         // Undo the correction by one fixed-point step: p = FK(θ - δ(FK(θ))). The correction
         // varies over millimetres, so the second pass is exact to well below a micrometre.
-        let mut tool = cal.model.forward(encoder_rad, 0.0).map_err(|e| self.latch(ServoFault::Kinematics(e)))?;
+        let mut tool = cal.model.forward(encoder_rad, 0.0).map_err(EngageError::Kinematics)?;
         if let Some(grid) = &cal.grid {
-            let d = grid.correction_rad(tool).map_err(|e| self.latch(ServoFault::Grid(e)))?;
+            let d = grid.correction_rad(tool).map_err(EngageError::Grid)?;
             tool = cal
                 .model
                 .forward([encoder_rad[0] - d[0], encoder_rad[1] - d[1]], m)
-                .map_err(|e| self.latch(ServoFault::Kinematics(e)))?;
+                .map_err(EngageError::Kinematics)?;
         }
         self.history = Some(History {
             setpoint_mm: [tool; 2],
@@ -308,63 +480,84 @@ impl Servo {
         fault
     }
 
-    /// One sample. On `Err` the fault is latched and both torques must be taken as zero.
-    pub fn step(
-        &mut self,
-        cal: &Calibration<'_>,
-        setpoint_mm: [f32; 2],
-        encoder_rad: [f32; 2],
-    ) -> Result<ServoOutput, ServoFault> {
-        let h = self.accept(setpoint_mm, encoder_rad)?;
-        let command = match cal.command_rad(setpoint_mm, self.config.min_transmission) {
-            Ok(c) => c,
-            Err(f) => return Err(self.latch(f)),
-        };
-        self.close_loop(h, setpoint_mm, command, encoder_rad, None)
+    /// Checks `setpoint_mm` against the setpoint history (speed and acceleration limits), the
+    /// kinematics (reach, singularity margin) and the grid, and returns it with the encoder
+    /// angles it commands. A refusal changes nothing.
+    pub fn accept(&mut self, cal: &Calibration<'_>, setpoint_mm: [f32; 2]) -> Result<AcceptedSetpoint<'_>, SetpointRefusal> {
+        let (v, a) = self.check_sequence(setpoint_mm)?;
+        let command_rad = cal.command_rad(setpoint_mm, self.config.min_transmission)?;
+        Ok(AcceptedSetpoint { servo: self, setpoint_mm, velocity_mm_s: v, accel_mm_s2: a, command_rad, feedforward_nm: None, ahead: None })
     }
 
-    /// One sample towards `setpoint` with its exact derivatives, `next` the setpoint one sample
-    /// later if known (else it is predicted from `setpoint`'s acceleration and jerk): the checks
-    /// of [`Servo::step`], plus the setpoint's derivatives finite and its stated speed and
-    /// acceleration within the limits (`next` is checked when it is the setpoint). On `Err` the
-    /// fault is latched and both torques must be taken as zero.
-    pub fn step_motion(
+    /// Engaged, a finite setpoint, and the speed and acceleration the setpoint sequence implies
+    /// (backward differences, returned) within the limits.
+    #[inline]
+    fn check_sequence(&self, setpoint_mm: [f32; 2]) -> Result<([f32; 2], [f32; 2]), SetpointRefusal> {
+        let Some(h) = &self.history else {
+            return Err(SetpointRefusal::NotEngaged);
+        };
+        let cfg = &self.config;
+        let dt = cfg.sample_period_s;
+        if !finite2(setpoint_mm) {
+            return Err(SetpointRefusal::NonFinite);
+        }
+        let [p1, p2] = h.setpoint_mm;
+        let v = [(setpoint_mm[0] - p1[0]) / dt, (setpoint_mm[1] - p1[1]) / dt];
+        let a = [
+            (setpoint_mm[0] - 2.0 * p1[0] + p2[0]) / (dt * dt),
+            (setpoint_mm[1] - 2.0 * p1[1] + p2[1]) / (dt * dt),
+        ];
+        let speed2 = v[0] * v[0] + v[1] * v[1];
+        let accel2 = a[0] * a[0] + a[1] * a[1];
+        if !(speed2 <= cfg.max_speed_mm_s * cfg.max_speed_mm_s)
+            || !(accel2 <= cfg.max_accel_mm_s2 * cfg.max_accel_mm_s2)
+        {
+            return Err(SetpointRefusal::Jump);
+        }
+        Ok((v, a))
+    }
+
+    /// [`Servo::accept`] for a setpoint with its exact derivatives, `next` the setpoint one
+    /// sample later if known (else it is predicted from `setpoint`'s acceleration and jerk; a
+    /// next setpoint that is not finite or not reachable is refused in its own sample, not
+    /// here). Refused also if the setpoint's derivatives are not finite or its stated speed or
+    /// acceleration exceed the limits. The feed-forward is computed here
+    /// ([`crate::feed_forward`]); [`AcceptedSetpoint::velocity_mm_s`] and
+    /// [`AcceptedSetpoint::accel_mm_s2`] stay the backward differences. A refusal changes
+    /// nothing but the servo's scratch joint states.
+    pub fn accept_motion(
         &mut self,
         cal: &Calibration<'_>,
         setpoint: &MotionSetpoint<f32>,
         next: Option<&MotionSetpoint<f32>>,
-        encoder_rad: [f32; 2],
-    ) -> Result<ServoOutput, ServoFault> {
+    ) -> Result<AcceptedSetpoint<'_>, SetpointRefusal> {
         let cfg = self.config;
         if self.history.is_some() {
             if !finite_setpoint(setpoint) {
-                return Err(self.latch(ServoFault::NonFiniteSetpoint));
+                return Err(SetpointRefusal::NonFinite);
             }
             let (v, a) = (setpoint.velocity_mm_s, setpoint.acceleration_mm_s2);
             if !(v[0] * v[0] + v[1] * v[1] <= cfg.max_speed_mm_s * cfg.max_speed_mm_s)
                 || !(a[0] * a[0] + a[1] * a[1] <= cfg.max_accel_mm_s2 * cfg.max_accel_mm_s2)
             {
-                return Err(self.latch(ServoFault::SetpointJump));
+                return Err(SetpointRefusal::Jump);
             }
         }
         let p = setpoint.position_mm;
-        let h = self.accept(p, encoder_rad)?;
+        let (velocity_mm_s, accel_mm_s2) = self.check_sequence(p)?;
         let m = cfg.min_transmission;
-        // This setpoint's joint state: the last step's look-ahead if it was this setpoint.
+        // This setpoint's joint state: the last sample's look-ahead if it was this setpoint.
         let now = match self.ahead {
             Some(i) if self.joint[i].is_for(setpoint) => i,
             _ => {
-                if let Err(e) = self.joint[0].solve(&cal.model, setpoint, m) {
-                    return Err(self.latch(ServoFault::Kinematics(e)));
-                }
+                self.joint[0].solve(&cal.model, setpoint, m).map_err(SetpointRefusal::Kinematics)?;
                 0
             }
         };
         let (a, b) = self.joint.split_at_mut(1);
         let (now_state, next_state) = if now == 0 { (&a[0], &mut b[0]) } else { (&b[0], &mut a[0]) };
-        // The look-ahead never faults this sample: a next setpoint that is not finite or not
-        // reachable is refused in its own sample; until then the prediction stands in for it
-        // (and, if that is out of reach too, no motion).
+        // The look-ahead never refuses this setpoint: the prediction stands in for a next one
+        // that cannot be used (and, if that is out of reach too, no motion).
         let solved = match next {
             Some(n) if finite_setpoint(n) => next_state.solve(&cal.model, n, m).is_ok(),
             _ => false,
@@ -373,92 +566,117 @@ impl Servo {
             *next_state = *now_state;
         }
         let motion = interval_motion(now_state, next_state, cfg.sample_period_s);
-        let command = match cal.corrected_rad(p, now_state.angle_rad) {
-            Ok(c) => c,
-            Err(f) => return Err(self.latch(f)),
-        };
-        let ff = match feed_forward_nm(&motion, self.dynamics.as_ref(), &cfg.axes) {
-            Ok(t) => t,
-            Err(e) => return Err(self.latch(ServoFault::Kinematics(e))),
-        };
-        let out = self.close_loop(h, p, command, encoder_rad, Some(ff))?;
-        self.ahead = Some(1 - now);
-        Ok(out)
+        let command_rad = cal.corrected_rad(p, now_state.angle_rad)?;
+        let ff = feed_forward_nm(&motion, self.dynamics.as_ref(), &cfg.axes).map_err(SetpointRefusal::Kinematics)?;
+        Ok(AcceptedSetpoint {
+            servo: self,
+            setpoint_mm: p,
+            velocity_mm_s,
+            accel_mm_s2,
+            command_rad,
+            feedforward_nm: Some(ff),
+            ahead: Some(1 - now),
+        })
     }
 
-    /// The checks every sample starts with: engaged, finite setpoint and encoders, a setpoint
-    /// sequence within the speed and acceleration limits (backward differences).
-    fn accept(&mut self, setpoint_mm: [f32; 2], encoder_rad: [f32; 2]) -> Result<History, ServoFault> {
-        let Some(h) = self.history else {
-            return Err(self.fault.unwrap_or(ServoFault::NotEngaged));
-        };
-        let cfg = self.config;
-        let dt = cfg.sample_period_s;
-        if !finite2(setpoint_mm) {
-            return Err(self.latch(ServoFault::NonFiniteSetpoint));
-        }
-        if !finite2(encoder_rad) {
-            return Err(self.latch(ServoFault::NonFiniteFeedback));
-        }
-        // Speed and acceleration the setpoint sequence implies (backward differences), compared
-        // as the steps they allow in one and two samples (no division).
-        let [p1, p2] = h.setpoint_mm;
-        let d1 = [setpoint_mm[0] - p1[0], setpoint_mm[1] - p1[1]];
-        let d2 = [setpoint_mm[0] - 2.0 * p1[0] + p2[0], setpoint_mm[1] - 2.0 * p1[1] + p2[1]];
-        let step = cfg.max_speed_mm_s * dt;
-        let bend = cfg.max_accel_mm_s2 * dt * dt;
-        if !(d1[0] * d1[0] + d1[1] * d1[1] <= step * step) || !(d2[0] * d2[0] + d2[1] * d2[1] <= bend * bend) {
-            return Err(self.latch(ServoFault::SetpointJump));
-        }
-        Ok(h)
-    }
-
-    /// References, following-error check and the PIDs for the encoder angles `command`:
-    /// with the gains' feed-forward on differences of the references (`feedforward_nm` `None`,
-    /// [`Servo::step`]) or with the given feed-forward torques.
-    #[inline(always)]
-    fn close_loop(
+    /// One motion sample: [`Servo::accept_motion`] then [`AcceptedSetpoint::track`] (see
+    /// [`Servo::step`] for what an `Err` means).
+    pub fn step_motion(
         &mut self,
-        h: History,
-        setpoint_mm: [f32; 2],
-        command: [f32; 2],
+        cal: &Calibration<'_>,
+        setpoint: &MotionSetpoint<f32>,
+        next: Option<&MotionSetpoint<f32>>,
         encoder_rad: [f32; 2],
-        feedforward_nm: Option<[f32; 2]>,
-    ) -> Result<ServoOutput, ServoFault> {
-        let cfg = self.config;
+    ) -> Result<ServoOutput, StepError> {
+        self.accept_motion(cal, setpoint, next).map_err(StepError::Refused)?.track(encoder_rad).map_err(StepError::Fault)
+    }
+
+    /// One sample: [`Servo::accept`] then [`AcceptedSetpoint::track`]. On
+    /// `Err(StepError::Refused(_))` nothing changed (the caller may step again with another
+    /// setpoint); on `Err(StepError::Fault(_))` the fault is latched. Either way this sample
+    /// produced no torque: take both as zero unless another setpoint is stepped.
+    pub fn step(
+        &mut self,
+        cal: &Calibration<'_>,
+        setpoint_mm: [f32; 2],
+        encoder_rad: [f32; 2],
+    ) -> Result<ServoOutput, StepError> {
+        self.accept(cal, setpoint_mm).map_err(StepError::Refused)?.track(encoder_rad).map_err(StepError::Fault)
+    }
+}
+
+impl AcceptedSetpoint<'_> {
+    /// The setpoint (mm).
+    pub fn setpoint_mm(&self) -> [f32; 2] {
+        self.setpoint_mm
+    }
+
+    /// Its velocity (mm/s): the backward difference to the previous accepted setpoint.
+    pub fn velocity_mm_s(&self) -> [f32; 2] {
+        self.velocity_mm_s
+    }
+
+    /// Its acceleration (mm/s²): the second backward difference.
+    pub fn accel_mm_s2(&self) -> [f32; 2] {
+        self.accel_mm_s2
+    }
+
+    /// The encoder angles it commands (IK plus grid correction, before unwrapping; rad).
+    pub fn command_rad(&self) -> [f32; 2] {
+        self.command_rad
+    }
+
+    /// The feed-forward torques of a motion setpoint (N·m; `None` for [`Servo::accept`]'s).
+    pub fn feedforward_nm(&self) -> Option<[f32; 2]> {
+        self.feedforward_nm
+    }
+
+    /// Runs the two position controllers towards the setpoint with the encoders at
+    /// `encoder_rad`, and makes the setpoint part of the history. A non-finite encoder reading
+    /// or a following error beyond the limit latches a [`ServoFault`]. A motion setpoint
+    /// ([`Servo::accept_motion`]) feeds its feed-forward and the PID acts on the remainder, the
+    /// velocity error from backward differences of reference and encoder alike (the measured
+    /// velocity is half a sample old, so is the reference's).
+    pub fn track(self, encoder_rad: [f32; 2]) -> Result<ServoOutput, ServoFault> {
+        let servo = self.servo;
+        let Some(h) = servo.history else {
+            return Err(servo.fault.unwrap_or(ServoFault::NotEngaged));
+        };
+        if !finite2(encoder_rad) {
+            return Err(servo.latch(ServoFault::NonFiniteFeedback));
+        }
+        let cfg = servo.config;
         let dt = cfg.sample_period_s;
         let rate = 1.0 / dt;
         let [r1, r2] = h.reference_rad;
         let mut out = ServoOutput { torque_nm: [0.0; 2], reference_rad: [0.0; 2], following_error_rad: [0.0; 2] };
         for k in 0..2 {
-            let reference = unwrap_near(command[k], r1[k]);
+            let reference = unwrap_near(self.command_rad[k], r1[k]);
             let error = reference - encoder_rad[k];
             if !(error.abs() <= cfg.max_following_error_rad) {
-                return Err(self.latch(ServoFault::FollowingError));
+                return Err(servo.latch(ServoFault::FollowingError));
             }
             let moved = encoder_rad[k] - h.encoder_rad[k];
-            out.torque_nm[k] = match feedforward_nm {
+            out.torque_nm[k] = match self.feedforward_nm {
                 None => {
                     let axis_ref = AxisReference {
                         angle_rad: reference,
                         velocity_rad_s: (reference - r1[k]) / dt,
                         acceleration_rad_s2: (reference - 2.0 * r1[k] + r2[k]) / (dt * dt),
                     };
-                    self.axes[k].update(&cfg.axes[k], &axis_ref, encoder_rad[k], moved / dt, dt)
+                    servo.axes[k].update(&cfg.axes[k], &axis_ref, encoder_rad[k], moved / dt, dt)
                 }
-                // The velocity error from backward differences of both, so that a reference
-                // followed exactly gives none (the measured velocity is half a sample old).
-                Some(ff) => self.axes[k].feedback(&cfg.axes[k], error, ((reference - r1[k]) - moved) * rate, ff[k], dt),
+                Some(ff) => servo.axes[k].feedback(&cfg.axes[k], error, ((reference - r1[k]) - moved) * rate, ff[k], dt),
             };
             out.reference_rad[k] = reference;
             out.following_error_rad[k] = error;
         }
-        let [p1, _] = h.setpoint_mm;
-        self.history = Some(History {
-            setpoint_mm: [setpoint_mm, p1],
+        servo.history = Some(History {
+            setpoint_mm: [self.setpoint_mm, h.setpoint_mm[0]],
             reference_rad: [out.reference_rad, r1],
             encoder_rad,
         });
+        servo.ahead = self.ahead;
         Ok(out)
     }
 }

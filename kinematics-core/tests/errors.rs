@@ -4,7 +4,10 @@
 use std::error::Error;
 
 use kinematics_core::jerk_profile::ProfileError;
-use kinematics_core::{DynamicsError, GridError, KinematicsError, ModelError, ServoFault, Singularity, TrajectoryError};
+use kinematics_core::{
+    ConfigError, DynamicsError, EngageError, GridError, InvalidGain, KinematicsError, ModelError, ServoFault, SetpointRefusal,
+    Singularity, StepError, TrajectoryError,
+};
 
 fn boxed(e: impl Error + 'static) -> Box<dyn Error> {
     Box::new(e)
@@ -38,12 +41,21 @@ fn every_error_type_is_an_error_with_a_distinct_message() {
         boxed(TrajectoryError::JointLimits),
         boxed(TrajectoryError::Kinematics(KinematicsError::Unreachable)),
         boxed(ServoFault::NotEngaged),
-        boxed(ServoFault::NonFiniteSetpoint),
         boxed(ServoFault::NonFiniteFeedback),
-        boxed(ServoFault::Kinematics(KinematicsError::Unreachable)),
-        boxed(ServoFault::Grid(GridError::OutsideGrid)),
-        boxed(ServoFault::SetpointJump),
         boxed(ServoFault::FollowingError),
+        boxed(SetpointRefusal::NotEngaged),
+        boxed(SetpointRefusal::NonFinite),
+        boxed(SetpointRefusal::Kinematics(KinematicsError::Unreachable)),
+        boxed(SetpointRefusal::Grid(GridError::OutsideGrid)),
+        boxed(SetpointRefusal::Jump),
+        boxed(EngageError::NonFiniteFeedback),
+        boxed(EngageError::Kinematics(KinematicsError::Unreachable)),
+        boxed(EngageError::Grid(GridError::OutsideGrid)),
+        boxed(ConfigError::SamplePeriod),
+        boxed(ConfigError::MinTransmission),
+        boxed(ConfigError::Limit("max_speed_mm_s")),
+        boxed(ConfigError::Gain { axis: 0, gain: InvalidGain("kp_nm_per_rad") }),
+        boxed(InvalidGain("ki_nm_per_rad_s")),
     ];
     let messages: Vec<String> = all.iter().map(|e| e.to_string()).collect();
     for (k, m) in messages.iter().enumerate() {
@@ -54,4 +66,10 @@ fn every_error_type_is_an_error_with_a_distinct_message() {
     }
     assert!(messages.iter().any(|m| m.contains("version 7")));
     assert!(messages.iter().any(|m| m.contains("setpoint refused: pose out of reach")));
+    assert!(messages.iter().any(|m| m.contains("axis 1: kp_nm_per_rad")));
+    // `StepError` wraps the two without a message of its own: it reads as what it wraps.
+    let step: Vec<Box<dyn Error>> =
+        vec![boxed(StepError::Refused(SetpointRefusal::Jump)), boxed(StepError::Fault(ServoFault::FollowingError))];
+    assert_eq!(step[0].to_string(), SetpointRefusal::Jump.to_string());
+    assert_eq!(step[1].to_string(), ServoFault::FollowingError.to_string());
 }

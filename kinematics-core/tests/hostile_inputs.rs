@@ -6,7 +6,10 @@
 use std::cell::Cell;
 
 use kinematics_core::grid::{encode, CorrectionGrid, GridError, GridGeometry, HEADER_LEN, MAGIC, MAX_NODES_PER_AXIS};
-use kinematics_core::{Branch, Calibration, FiveBar, Servo, ServoConfig, WorkingMode};
+use kinematics_core::{
+    AxisController, AxisGains, AxisReference, Branch, Calibration, FiveBar, Servo, ServoConfig, ServoOutput, StepError,
+    WorkingMode,
+};
 use proptest::prelude::*;
 use proptest::test_runner::{Config, FileFailurePersistence, TestCaseError, TestRunner};
 
@@ -445,7 +448,7 @@ fn sequence() -> impl Strategy<Value = Sequence> {
 }
 
 /// Whatever the servo is fed, it never panics, never commands a non-finite torque or one beyond
-/// its limit, and every refusal is latched. Half the cases are smooth sequences from the engaged
+/// its limit, every feedback fault is latched and no setpoint refusal is. Half the cases are smooth sequences from the engaged
 /// pose, so the torque checks run on a large share of the steps, at the limit too.
 #[test]
 fn servo_never_panics_nor_commands_nan() {
@@ -458,8 +461,8 @@ fn servo_never_panics_nor_commands_nan() {
     let ok = counted(CASES, sequence(), |seq| {
         let mut ok = 0;
         for cal in calibrations(&img) {
-            let mut servo = Servo::new(ServoConfig::default());
-            let mut check = |servo: &Servo, result: Result<kinematics_core::ServoOutput, kinematics_core::ServoFault>| {
+            let mut servo = Servo::new(ServoConfig::default()).unwrap();
+            let mut check = |servo: &Servo, before: (Option<kinematics_core::ServoFault>, bool), result: Result<ServoOutput, StepError>| {
                 steps.set(steps.get() + 1);
                 match result {
                     Ok(out) => {
@@ -473,9 +476,15 @@ fn servo_never_panics_nor_commands_nan() {
                         }
                         Ok(true)
                     }
-                    // Every refusal is latched and reported as the latched fault.
-                    Err(e) => {
+                    // A feedback fault is latched and reported as the latched fault.
+                    Err(StepError::Fault(e)) => {
                         prop_assert_eq!(servo.fault(), Some(e));
+                        prop_assert!(!servo.is_engaged());
+                        Ok(false)
+                    }
+                    // A refused setpoint latches nothing.
+                    Err(StepError::Refused(_)) => {
+                        prop_assert_eq!((servo.fault(), servo.is_engaged()), before);
                         Ok(false)
                     }
                 }
@@ -484,8 +493,9 @@ fn servo_never_panics_nor_commands_nan() {
                 Sequence::Hostile { steps, start } => {
                     let _ = servo.engage(&cal, [start.0 as f32, start.1 as f32]);
                     for &(x, y, e1, e2) in steps {
+                        let before = (servo.fault(), servo.is_engaged());
                         let r = servo.step(&cal, [x as f32, y as f32], [e1 as f32, e2 as f32]);
-                        check(&servo, r)?;
+                        check(&servo, before, r)?;
                     }
                 }
                 Sequence::Smooth { steps, spike } => {
@@ -495,6 +505,7 @@ fn servo_never_panics_nor_commands_nan() {
                     let mut reference = encoder;
                     let mut refused = false;
                     for (k, &(ax, ay, n1, n2)) in steps.iter().enumerate() {
+                        let before = (servo.fault(), servo.is_engaged());
                         let r = match spike {
                             Some((at, (x, y, e1, e2))) if *at == k => {
                                 servo.step(&cal, [*x as f32, *y as f32], [*e1 as f32, *e2 as f32])
@@ -508,7 +519,7 @@ fn servo_never_panics_nor_commands_nan() {
                         if let Ok(out) = &r {
                             reference = out.reference_rad;
                         }
-                        refused |= !check(&servo, r)?;
+                        refused |= !check(&servo, before, r)?;
                         // An ideal plant one sample behind, plus encoder noise.
                         encoder = [reference[0] + n1, reference[1] + n2];
                     }
@@ -525,4 +536,184 @@ fn servo_never_panics_nor_commands_nan() {
     assert_eq!(smooth_refused.get(), 0, "smooth sequences within the limits were refused");
     assert!(ok * 3 >= steps, "only {ok} of {steps} steps returned Ok: the torque checks barely ran");
     assert!(at_limit >= 100, "only {at_limit} torques at the limit: the limit check barely ran");
+}
+
+// ---------------------------------------------------------------------------------------------
+// Hostile settings: they are meant to come over a link.
+
+/// The 24 numbers of a `ServoConfig`, in a fixed order (axis gains field by field, then the
+/// servo's own).
+const SETTINGS_FIELDS: usize = 24;
+
+fn gains_to_array(g: &AxisGains) -> [f32; 9] {
+    [
+        g.kp_nm_per_rad,
+        g.ki_nm_per_rad_s,
+        g.kd_nm_s_per_rad,
+        g.inertia_ff_kg_m2,
+        g.viscous_ff_nm_s_per_rad,
+        g.coulomb_ff_nm,
+        g.coulomb_ff_speed_rad_s,
+        g.torque_limit_nm,
+        g.integral_limit_nm,
+    ]
+}
+
+fn gains_from(v: &[f32]) -> AxisGains {
+    AxisGains {
+        kp_nm_per_rad: v[0],
+        ki_nm_per_rad_s: v[1],
+        kd_nm_s_per_rad: v[2],
+        inertia_ff_kg_m2: v[3],
+        viscous_ff_nm_s_per_rad: v[4],
+        coulomb_ff_nm: v[5],
+        coulomb_ff_speed_rad_s: v[6],
+        torque_limit_nm: v[7],
+        integral_limit_nm: v[8],
+    }
+}
+
+fn settings_to_array(c: &ServoConfig) -> [f32; SETTINGS_FIELDS] {
+    let mut v = [0.0f32; SETTINGS_FIELDS];
+    v[..9].copy_from_slice(&gains_to_array(&c.axes[0]));
+    v[9..18].copy_from_slice(&gains_to_array(&c.axes[1]));
+    v[18..].copy_from_slice(&[
+        c.sample_period_s,
+        c.min_transmission,
+        c.max_speed_mm_s,
+        c.max_accel_mm_s2,
+        c.max_following_error_rad,
+        0.0,
+    ]);
+    v
+}
+
+fn settings_from(v: &[f32; SETTINGS_FIELDS]) -> ServoConfig {
+    ServoConfig {
+        axes: [gains_from(&v[..9]), gains_from(&v[9..18])],
+        sample_period_s: v[18],
+        min_transmission: v[19],
+        max_speed_mm_s: v[20],
+        max_accel_mm_s2: v[21],
+        max_following_error_rad: v[22],
+    }
+}
+
+/// The documented rules (`ServoConfig::validate`, `AxisGains::validate`), written out here from
+/// the doc comments rather than by calling them.
+fn settings_valid(v: &[f32; SETTINGS_FIELDS]) -> bool {
+    let finite_non_negative = |x: f32| x.is_finite() && x >= 0.0;
+    let gains_ok = |g: &[f32]| {
+        [g[0], g[1], g[2], g[7], g[8]].into_iter().all(finite_non_negative)
+            && [g[3], g[4], g[5]].into_iter().all(f32::is_finite)
+            && g[6].is_finite()
+            && g[6] > 0.0
+    };
+    gains_ok(&v[..9])
+        && gains_ok(&v[9..18])
+        && v[18].is_finite()
+        && v[18] > 0.0
+        && (0.0..1.0).contains(&v[19])
+        && v[20..23].iter().copied().all(finite_non_negative)
+}
+
+fn hostile_f32() -> impl Strategy<Value = f32> {
+    prop_oneof![
+        Just(f32::NAN),
+        Just(f32::INFINITY),
+        Just(f32::NEG_INFINITY),
+        Just(0.0f32),
+        Just(-0.0f32),
+        Just(f32::MAX),
+        Just(-f32::MAX),
+        Just(f32::MIN_POSITIVE),
+        Just(-1.0f32),
+        -1e6..1e6f32,
+        any::<f32>(),
+    ]
+}
+
+/// The default settings with every field scaled by 0.1..10 (valid but unusual), then up to three
+/// fields replaced by hostile values.
+fn hostile_settings() -> impl Strategy<Value = [f32; SETTINGS_FIELDS]> {
+    (
+        proptest::collection::vec(0.1..10.0f32, SETTINGS_FIELDS),
+        proptest::collection::vec((0..SETTINGS_FIELDS - 1, hostile_f32()), 0..4),
+    )
+        .prop_map(|(scale, replaced)| {
+            let mut v = settings_to_array(&ServoConfig::default());
+            for (x, s) in v.iter_mut().zip(scale) {
+                *x *= s;
+            }
+            // A margin scaled past 1 would refuse every pose: keep the scaled one sensible.
+            v[19] = v[19].min(0.3);
+            for (k, x) in replaced {
+                v[k] = x;
+            }
+            v
+        })
+}
+
+/// No settings value panics: `Servo::new` refuses exactly what the documented rules refuse; a
+/// servo built from unusual but valid settings commands finite torques within its limit; the
+/// PID given the raw (possibly refused) gains never panics and returns a finite torque within
+/// the limit (zero for a limit that is not a finite non-negative number).
+#[test]
+fn hostile_settings_never_panic() {
+    let (refused, tracked, direct) = (Cell::new(0u64), Cell::new(0u64), Cell::new(0u64));
+    let cal = Calibration { model: FiveBar::paper_nominal(), grid: None };
+    let strategy = (hostile_settings(), proptest::collection::vec((-1.0..1.0f32, -1.0..1.0f32, -1e-3..1e-3f32), 1..60));
+    counted(CASES, strategy, |(v, motion)| {
+        let config = settings_from(&v);
+        let valid = settings_valid(&v);
+        let servo = Servo::new(config);
+        prop_assert_eq!(servo.is_ok(), valid, "{:?}: {:?}", config, servo.as_ref().err());
+        // The PID on its own, with whatever gains, at a reference far off and near.
+        for gains in &config.axes {
+            for (reference, angle, velocity) in [(1.0f32, 0.0f32, 0.0f32), (1e-3, 0.0, 50.0), (-2.0, 1.0, -3.0)] {
+                let r = AxisReference { angle_rad: reference, velocity_rad_s: velocity, acceleration_rad_s2: 1e4 };
+                let mut c = AxisController::default();
+                for _ in 0..3 {
+                    let t = c.update(gains, &r, angle, 0.0, config.sample_period_s);
+                    let limit = gains.torque_limit_nm;
+                    let bound = if limit.is_finite() && limit >= 0.0 { limit } else { 0.0 };
+                    prop_assert!(t.is_finite() && t.abs() <= bound, "torque {} with {:?}", t, gains);
+                    prop_assert!(c.integral_nm().is_finite());
+                    direct.set(direct.get() + 1);
+                }
+            }
+        }
+        let Ok(mut servo) = servo else {
+            refused.set(refused.get() + 1);
+            return Ok(0);
+        };
+        let Ok(mut encoder) = cal.command_rad(HOME_MM, config.min_transmission) else { return Ok(0) };
+        let Ok(mut p) = servo.engage(&cal, encoder) else { return Ok(0) };
+        let dt = config.sample_period_s;
+        let mut vel = [0.0f32; 2];
+        let mut reached = 0;
+        for (ax, ay, noise) in motion {
+            let a = 0.5 * kinematics_core::servo::STANDARD_GRAVITY_MM_S2;
+            vel = [vel[0] + ax * a * dt, vel[1] + ay * a * dt];
+            p = [p[0] + vel[0] * dt, p[1] + vel[1] * dt];
+            match servo.step(&cal, p, encoder) {
+                Ok(out) => {
+                    for k in 0..2 {
+                        let limit = config.axes[k].torque_limit_nm;
+                        prop_assert!(out.torque_nm[k].is_finite() && out.torque_nm[k].abs() <= limit);
+                    }
+                    encoder = [out.reference_rad[0] + noise, out.reference_rad[1] - noise];
+                    reached += 1;
+                }
+                Err(StepError::Fault(_)) => break,
+                Err(StepError::Refused(_)) => {}
+            }
+        }
+        tracked.set(tracked.get() + reached);
+        Ok(reached)
+    });
+    let (refused, tracked, direct) = (refused.get(), tracked.get(), direct.get());
+    println!("hostile settings: {refused} of {CASES} refused by Servo::new, {tracked} servo steps tracked with the others, {direct} PID updates with raw gains");
+    assert!(refused >= u64::from(CASES) / 4, "only {refused} settings refused: the hostile values barely ran");
+    assert!(tracked >= u64::from(CASES) * 5, "only {tracked} steps tracked with unusual valid settings");
 }

@@ -1,8 +1,12 @@
-//! The servo step closed around a simple two-inertia plant: it tracks, and every fault is
-//! latched with zero torque.
+//! The servo step closed around a simple two-inertia plant: it tracks; a refused setpoint leaves
+//! it engaged and unchanged, a feedback fault is latched with zero torque; settings are
+//! validated.
 
 use kinematics_core::grid::{encode, CorrectionGrid, GridGeometry};
-use kinematics_core::{Calibration, FiveBar, KinematicsError, Servo, ServoConfig, ServoFault};
+use kinematics_core::{
+    AxisGains, Calibration, ConfigError, EngageError, FiveBar, InvalidGain, KinematicsError, Servo, ServoConfig, ServoFault,
+    SetpointRefusal, StepError,
+};
 
 const DT_S: f32 = 5e-4;
 /// Joint inertia of the test plant (kg·m²), what the default gains assume.
@@ -39,7 +43,7 @@ fn circle_mm(t_s: f32) -> [f32; 2] {
 fn run(cal: &Calibration<'_>, seconds: f32, load_nm: [f32; 2]) -> (f32, Plant) {
     let start = cal.command_rad(circle_mm(0.0), 0.05).unwrap();
     let mut plant = Plant { angle_rad: start, velocity_rad_s: [0.0; 2], load_nm };
-    let mut servo = Servo::new(ServoConfig::default());
+    let mut servo = Servo::new(ServoConfig::default()).unwrap();
     let tool = servo.engage(cal, plant.angle_rad).unwrap();
     assert!((tool[0] - 212.132).abs() < 1e-3 && tool[1].abs() < 1e-3, "engage at {tool:?}");
     let mut worst_um: f32 = 0.0;
@@ -78,7 +82,7 @@ fn grid_correction_is_added_to_the_command() {
     assert!((corrected[0] - plain[0] - 1e-3).abs() < 1e-6);
     assert!((corrected[1] - plain[1] + 2e-3).abs() < 1e-6);
     // Engage undoes the correction: the tool position found is the commanded one.
-    let mut servo = Servo::new(ServoConfig::default());
+    let mut servo = Servo::new(ServoConfig::default()).unwrap();
     let tool = servo.engage(&cal, corrected).unwrap();
     assert!((tool[0] - 200.0).abs() < 1e-3 && (tool[1] - 10.0).abs() < 1e-3, "{tool:?}");
     let (worst_um, _) = run(&cal, 1.0, [0.0; 2]);
@@ -89,31 +93,131 @@ fn grid_correction_is_added_to_the_command() {
 fn engaged() -> (Servo, Calibration<'static>, [f32; 2]) {
     let cal = Calibration { model: FiveBar::paper_nominal(), grid: None };
     let theta = cal.model.inverse([212.132, 0.0], 0.05).unwrap();
-    let mut servo = Servo::new(ServoConfig::default());
+    let mut servo = Servo::new(ServoConfig::default()).unwrap();
     servo.engage(&cal, theta).unwrap();
     (servo, cal, theta)
 }
 
+/// Issue 11: a refused setpoint used to latch, so the servo could not brake the machine after
+/// it. Now a refusal leaves the servo engaged and exactly as it was: the next setpoint of the
+/// stream (or of a controlled stop) is tracked in the same sample, with the same torque as if
+/// the refused one had never been offered.
 #[test]
-fn faults_latch_and_refuse_until_reengaged() {
-    let cases: [([f32; 2], [f32; 2], ServoFault); 5] = [
-        ([f32::NAN, 0.0], [0.0; 2], ServoFault::NonFiniteSetpoint),
-        ([212.132, 0.0], [f32::INFINITY, 0.0], ServoFault::NonFiniteFeedback),
+fn a_refused_setpoint_changes_nothing_and_the_servo_steps_on() {
+    let cases: [([f32; 2], SetpointRefusal); 5] = [
+        ([f32::NAN, 0.0], SetpointRefusal::NonFinite),
+        ([212.132, f32::INFINITY], SetpointRefusal::NonFinite),
         // 0.1 mm in one sample is 200 mm/s: fine for speed, but 400 m/s² of acceleration.
-        ([212.232, 0.0], [0.0; 2], ServoFault::SetpointJump),
-        ([400.0, 0.0], [0.0; 2], ServoFault::SetpointJump),
-        ([212.132, 0.0], [0.05, 0.0], ServoFault::FollowingError),
+        ([212.232, 0.0], SetpointRefusal::Jump),
+        ([400.0, 0.0], SetpointRefusal::Jump),
+        ([212.132, 0.0], SetpointRefusal::NonFinite), // replaced below: a grid refusal
     ];
-    for (setpoint, encoder_offset, want) in cases {
+    let g = GridGeometry { nx: 3, ny: 3, x0_mm: 212.132, y0_mm: 0.0, step_x_mm: 1e-3, step_y_mm: 1e-3 };
+    let mut img = vec![0u8; g.image_len()];
+    encode(&mut img, &g, &FiveBar::paper_nominal(), &[[0.0; 2]; 9]).unwrap();
+    let tiny_grid = Calibration::from_grid(CorrectionGrid::parse(&img).unwrap());
+    for (n, (setpoint, want)) in cases.into_iter().enumerate() {
+        let (mut servo, cal, theta) = engaged();
+        // A grid of 2 µm: 1 µm off its corner is outside, and no jump.
+        let (cal, setpoint, want) = if n == 4 {
+            (tiny_grid, [212.1312, -1e-3], SetpointRefusal::Grid(kinematics_core::GridError::OutsideGrid))
+        } else {
+            (cal, setpoint, want)
+        };
+        let enc = [theta[0] + 1e-4, theta[1] - 1e-4];
+        let mut twin = servo.clone();
+        let before = format!("{servo:?}");
+        assert_eq!(servo.step(&cal, setpoint, enc), Err(StepError::Refused(want)), "setpoint {setpoint:?}");
+        assert_eq!(format!("{servo:?}"), before, "a refusal must leave the servo untouched");
+        assert_eq!(servo.fault(), None);
+        assert!(servo.is_engaged());
+        // The next good setpoint is tracked, exactly as by a servo that never saw the refusal.
+        let home = [212.132, 0.0];
+        let out = servo.step(&cal, home, enc).unwrap();
+        assert_eq!(Ok(out), twin.step(&cal, home, enc));
+        assert!(out.torque_nm[0] != 0.0, "the offset encoders give torque");
+    }
+}
+
+/// Feedback faults latch: both torques zero, every later setpoint refused until re-engaged.
+#[test]
+fn feedback_faults_latch_and_refuse_until_reengaged() {
+    let cases: [([f32; 2], ServoFault); 3] = [
+        ([f32::INFINITY, 0.0], ServoFault::NonFiniteFeedback),
+        ([0.0, f32::NAN], ServoFault::NonFiniteFeedback),
+        ([0.05, 0.0], ServoFault::FollowingError),
+    ];
+    for (encoder_offset, want) in cases {
         let (mut servo, cal, theta) = engaged();
         let enc = [theta[0] + encoder_offset[0], theta[1] + encoder_offset[1]];
-        assert_eq!(servo.step(&cal, setpoint, enc), Err(want), "setpoint {setpoint:?}");
+        assert_eq!(servo.step(&cal, [212.132, 0.0], enc), Err(StepError::Fault(want)));
         assert_eq!(servo.fault(), Some(want));
-        // Still refused with a perfectly good setpoint: latched.
-        assert_eq!(servo.step(&cal, [212.132, 0.0], theta), Err(want));
+        assert!(!servo.is_engaged());
+        // Still refused with a perfectly good setpoint and encoders: latched.
+        assert_eq!(servo.step(&cal, [212.132, 0.0], theta), Err(StepError::Refused(SetpointRefusal::NotEngaged)));
+        assert_eq!(servo.fault(), Some(want));
         servo.engage(&cal, theta).unwrap();
+        assert_eq!(servo.fault(), None);
         assert!(servo.step(&cal, [212.132, 0.0], theta).is_ok());
     }
+}
+
+/// `accept` shows what a setpoint implies and dropping it changes nothing; `track` commits it.
+#[test]
+fn accept_reports_velocity_and_acceleration_and_dropping_it_changes_nothing() {
+    let (mut servo, cal, theta) = engaged();
+    let before = format!("{servo:?}");
+    {
+        let a = servo.accept(&cal, [212.142, 0.0]).unwrap();
+        // 10 µm in 0.5 ms from rest: 20 mm/s and 40 m/s² (second difference over dt²).
+        assert!((a.velocity_mm_s()[0] - 20.0).abs() < 0.1 && a.velocity_mm_s()[1] == 0.0, "{:?}", a.velocity_mm_s());
+        assert!((a.accel_mm_s2()[0] - 40_000.0).abs() < 200.0, "{:?}", a.accel_mm_s2());
+        assert_eq!(a.command_rad(), cal.command_rad([212.142, 0.0], 0.05).unwrap());
+        // Not tracked: dropped here.
+    }
+    assert_eq!(format!("{servo:?}"), before);
+    let out = servo.accept(&cal, [212.142, 0.0]).unwrap().track(theta).unwrap();
+    assert_ne!(format!("{servo:?}"), before, "tracking commits the setpoint");
+    assert!(out.torque_nm[0].abs() > 0.0);
+}
+
+/// Issue 11: settings come over a link; a negative or NaN limit used to panic in the PID's
+/// `f32::clamp`. Now `Servo::new` refuses them, naming the field.
+#[test]
+fn servo_new_refuses_invalid_settings() {
+    let d = ServoConfig::default();
+    let axis = |f: fn(&mut AxisGains)| {
+        let mut c = d;
+        f(&mut c.axes[1]);
+        c
+    };
+    for (config, want) in [
+        (ServoConfig { sample_period_s: 0.0, ..d }, ConfigError::SamplePeriod),
+        (ServoConfig { sample_period_s: f32::NAN, ..d }, ConfigError::SamplePeriod),
+        (ServoConfig { min_transmission: -0.1, ..d }, ConfigError::MinTransmission),
+        (ServoConfig { min_transmission: 1.0, ..d }, ConfigError::MinTransmission),
+        (ServoConfig { max_speed_mm_s: -1.0, ..d }, ConfigError::Limit("max_speed_mm_s")),
+        (ServoConfig { max_accel_mm_s2: f32::INFINITY, ..d }, ConfigError::Limit("max_accel_mm_s2")),
+        (ServoConfig { max_following_error_rad: f32::NAN, ..d }, ConfigError::Limit("max_following_error_rad")),
+        (axis(|a| a.torque_limit_nm = -8.0), ConfigError::Gain { axis: 1, gain: InvalidGain("torque_limit_nm") }),
+        (axis(|a| a.integral_limit_nm = f32::NAN), ConfigError::Gain { axis: 1, gain: InvalidGain("integral_limit_nm") }),
+        (axis(|a| a.ki_nm_per_rad_s = f32::NEG_INFINITY), ConfigError::Gain { axis: 1, gain: InvalidGain("ki_nm_per_rad_s") }),
+    ] {
+        assert_eq!(Servo::new(config).err(), Some(want), "{config:?}");
+        assert!(!want.to_string().is_empty());
+    }
+    assert!(Servo::new(d).is_ok());
+}
+
+#[test]
+fn engage_refuses_a_reading_that_is_no_tool_position() {
+    let cal = Calibration { model: FiveBar::paper_nominal(), grid: None };
+    let mut servo = Servo::new(ServoConfig::default()).unwrap();
+    assert_eq!(servo.engage(&cal, [f32::NAN, 0.0]), Err(EngageError::NonFiniteFeedback));
+    // Encoder zero: both arms stretched along x, the distal links cannot meet.
+    assert!(matches!(servo.engage(&cal, [0.0, 0.0]), Err(EngageError::Kinematics(_))));
+    assert!(!servo.is_engaged());
+    assert_eq!(servo.step(&cal, [212.132, 0.0], [0.0; 2]), Err(StepError::Refused(SetpointRefusal::NotEngaged)));
 }
 
 #[test]
@@ -138,15 +242,17 @@ fn unreachable_setpoint_approached_smoothly_is_refused_by_the_kinematics() {
     assert!(x < 300.0, "reached x = {x} before refusing");
     assert!(matches!(
         result,
-        Err(ServoFault::Kinematics(KinematicsError::NearSingularity(_))) | Err(ServoFault::Kinematics(KinematicsError::Unreachable))
+        Err(StepError::Refused(SetpointRefusal::Kinematics(
+            KinematicsError::NearSingularity(_) | KinematicsError::Unreachable
+        )))
     ), "{result:?}");
 }
 
 #[test]
 fn step_before_engage_is_refused() {
     let cal = Calibration { model: FiveBar::paper_nominal(), grid: None };
-    let mut servo = Servo::new(ServoConfig::default());
-    assert_eq!(servo.step(&cal, [212.132, 0.0], [0.0; 2]), Err(ServoFault::NotEngaged));
+    let mut servo = Servo::new(ServoConfig::default()).unwrap();
+    assert_eq!(servo.step(&cal, [212.132, 0.0], [0.0; 2]), Err(StepError::Refused(SetpointRefusal::NotEngaged)));
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -156,7 +262,7 @@ mod motion {
     use kinematics_core::dynamics::FiveBarDynamics;
     use kinematics_core::path::Line;
     use kinematics_core::trajectory::{MotionSetpoint, PathMotion, TaskLimits};
-    use kinematics_core::{Calibration, FiveBar, Servo, ServoConfig, ServoFault};
+    use kinematics_core::{Calibration, FiveBar, Servo, ServoConfig, ServoFault, SetpointRefusal, StepError};
 
     const DT: f64 = 5e-4;
     const G: f64 = 9_806.65;
@@ -206,7 +312,7 @@ mod motion {
         }
         let mut th = five.inverse(samples[0].position_mm, 0.0).unwrap();
         let mut w = [0.0f64; 2];
-        let mut servo = Servo::new(config);
+        let mut servo = Servo::new(config).unwrap();
         servo.set_dynamics(model.map(|d| d.cast())).unwrap();
         servo.engage(&cal, [th[0] as f32, th[1] as f32]).unwrap();
         let mut worst = 0.0f64;
@@ -276,7 +382,7 @@ mod motion {
     fn engaged() -> (Servo, Calibration<'static>, [f32; 2]) {
         let cal = Calibration { model: FiveBar::paper_nominal(), grid: None };
         let theta = cal.model.inverse([212.132, 0.0], 0.05).unwrap();
-        let mut servo = Servo::new(ServoConfig::default());
+        let mut servo = Servo::new(ServoConfig::default()).unwrap();
         servo.engage(&cal, theta).unwrap();
         (servo, cal, theta)
     }
@@ -289,36 +395,43 @@ mod motion {
     }
 
     #[test]
-    fn bad_derivatives_and_jumps_are_refused_and_latched() {
+    fn bad_derivatives_and_jumps_are_refused_without_latching() {
         let rest = MotionSetpoint::at_rest([212.132f32, 0.0]);
         let cases = [
-            (MotionSetpoint { velocity_mm_s: [f32::NAN, 0.0], ..rest }, ServoFault::NonFiniteSetpoint),
-            (MotionSetpoint { jerk_mm_s3: [0.0, f32::INFINITY], ..rest }, ServoFault::NonFiniteSetpoint),
+            (MotionSetpoint { velocity_mm_s: [f32::NAN, 0.0], ..rest }, SetpointRefusal::NonFinite),
+            (MotionSetpoint { jerk_mm_s3: [0.0, f32::INFINITY], ..rest }, SetpointRefusal::NonFinite),
             // Stated speed and acceleration beyond the limits (3 m/s, 5.25 g).
-            (MotionSetpoint { velocity_mm_s: [3100.0, 0.0], ..rest }, ServoFault::SetpointJump),
-            (MotionSetpoint { acceleration_mm_s2: [0.0, 60_000.0], ..rest }, ServoFault::SetpointJump),
+            (MotionSetpoint { velocity_mm_s: [3100.0, 0.0], ..rest }, SetpointRefusal::Jump),
+            (MotionSetpoint { acceleration_mm_s2: [0.0, 60_000.0], ..rest }, SetpointRefusal::Jump),
             // A 0.1 mm step that claims to be at rest: the positions tell.
-            (MotionSetpoint::at_rest([212.232, 0.0]), ServoFault::SetpointJump),
+            (MotionSetpoint::at_rest([212.232, 0.0]), SetpointRefusal::Jump),
+            (MotionSetpoint::at_rest([400.0, 0.0]), SetpointRefusal::Jump),
         ];
+        for (sp, want) in cases {
+            let (mut servo, cal, theta) = engaged();
+            assert_eq!(servo.step_motion(&cal, &sp, None, theta), Err(StepError::Refused(want)), "{sp:?}");
+            // Nothing latched: the servo takes a good setpoint in the same sample.
+            assert!(servo.is_engaged() && servo.fault().is_none());
+            assert!(servo.step_motion(&cal, &rest, None, theta).is_ok());
+        }
         // A non-finite next setpoint is refused in its own sample, not in the one before.
         let (mut servo, cal, theta) = engaged();
         let bad_next = MotionSetpoint::at_rest([f32::NAN, 0.0]);
         assert!(servo.step_motion(&cal, &rest, Some(&bad_next), theta).is_ok());
-        assert_eq!(servo.step_motion(&cal, &bad_next, None, theta), Err(ServoFault::NonFiniteSetpoint));
-        for (sp, want) in cases {
-            let (mut servo, cal, theta) = engaged();
-            assert_eq!(servo.step_motion(&cal, &sp, None, theta), Err(want), "{sp:?}");
-            assert_eq!(servo.step_motion(&cal, &rest, None, theta), Err(want), "latched");
-        }
+        assert_eq!(servo.step_motion(&cal, &bad_next, None, theta), Err(StepError::Refused(SetpointRefusal::NonFinite)));
+        // The feedback's faults latch.
         let (mut servo, cal, theta) = engaged();
-        let far = MotionSetpoint::at_rest([212.132f32, 0.0]);
-        assert!(servo.step_motion(&cal, &far, None, [theta[0] + 0.05, theta[1]]).is_err());
+        assert_eq!(
+            servo.step_motion(&cal, &rest, None, [theta[0] + 0.05, theta[1]]),
+            Err(StepError::Fault(ServoFault::FollowingError))
+        );
         assert_eq!(servo.fault(), Some(ServoFault::FollowingError));
+        assert!(servo.step_motion(&cal, &rest, None, theta).is_err(), "latched");
     }
 
     #[test]
     fn invalid_dynamics_are_refused_and_the_old_ones_kept() {
-        let mut servo = Servo::new(ServoConfig::default());
+        let mut servo = Servo::new(ServoConfig::default()).unwrap();
         let good = truth().cast::<f32>();
         servo.set_dynamics(Some(good)).unwrap();
         let bad = FiveBarDynamics { tool_mass_kg: -1.0, ..good };

@@ -115,7 +115,10 @@ pub fn run(emit: &mut impl FnMut(u32)) {
     }
     // 3. The servo closed around a two-inertia plant (the default gains' 7.4e-3 kg·m²) for 400
     //    samples of a 10 mm circle.
-    let mut servo = Servo::new(ServoConfig::default());
+    let Ok(mut servo) = Servo::new(ServoConfig::default()) else {
+        emit(ERROR | 0xf1);
+        return;
+    };
     let centre = [202.132f32, 0.0];
     let Ok(mut angle) = cal.command_rad([centre[0] + 10.0, centre[1]], 0.05) else {
         emit(ERROR | 0xf0);
@@ -166,10 +169,13 @@ pub fn run(emit: &mut impl FnMut(u32)) {
         coulomb_nm: [0.05, 0.04],
         coulomb_speed_rad_s: 0.01,
     };
-    let mut servo = Servo::new(ServoConfig::default());
+    let Ok(mut servo) = Servo::new(ServoConfig::default()) else {
+        emit(ERROR | 0xf2);
+        return;
+    };
     let _ = servo.set_dynamics(Some(dynamics));
     let Ok(mut angle) = cal.command_rad(contour.at(0.0).position_mm, 0.05) else {
-        emit(ERROR | 0xf1);
+        emit(ERROR | 0xf3);
         return;
     };
     let mut velocity = [0.0f32; 2];

@@ -7,24 +7,31 @@
 //!
 //! One module per concept; where a change goes:
 //! * [`settings`]: every run-time setting, with documented defaults;
-//! * [`servo_loop`]: one servo sample: the mode machine (running / safe state), setpoint
-//!   intake with underrun handling, fault latching, what torque and drive enable result;
+//! * [`servo_loop`]: one servo sample: the mode machine (running / stopping / holding / safe
+//!   state), setpoint intake with underrun handling, the workspace check, fault latching, what
+//!   torque and drive enable result;
 //! * [`setpoints`]: the setpoint queue between a source and the servo, and the
 //!   [`setpoints::SetpointSource`] trait (the built-in trajectory is one; a host link's streamed
 //!   motion buffer would be another);
 //! * [`trajectory`]: the built-in setpoint generator (rest-to-rest quintic moves);
-//! * [`fault`]: why the drives are off ([`fault::Fault`], latched);
+//! * [`fault`]: why the machine stops ([`fault::Fault`], latched) and how: its stop category
+//!   (0: torque off at once; 1: controlled stop, then torque off; 2: controlled stop, then
+//!   hold), with the table of faults and reactions;
+//! * [`stop`]: the controlled stop: a jerk-limited deceleration along the current velocity, its
+//!   stopping distance, the workspace its end must lie in;
+//! * [`encoder_check`]: encoder plausibility (speed, acceleration, glitches, a reading that
+//!   does not move under torque);
 //! * [`deadline`]: the servo task's deadline bookkeeping;
 //! * [`status`]: what the servo task publishes every sample;
 //! * [`calibration`]: the policy for the calibration image found in flash;
 //! * [`drive`]: torque-mode amplifiers commanded by PWM duty (torque <-> duty);
-//! * [`encoder`]: quadrature encoders (counts -> angle);
+//! * [`encoder`]: quadrature encoders (per-axis counts -> joint angle, the homing hook);
+//! * [`watchdog`]: when the independent watchdog is fed, its timeout, and what a watchdog
+//!   reset means at the next boot;
 //! * `scenario` (feature `qemu-harness`, and in host tests): the QEMU test scenarios, their
 //!   fault injection and their checks.
 //!
-//! Planned homes (not written yet): stop categories and the controlled-stop planner
-//! (`stop.rs`, next to [`fault`]), encoder plausibility (in [`encoder`]), the watchdog hook
-//! (in [`servo_loop`]), the host link's command handler (`link.rs`) feeding a streamed motion
+//! Planned homes (not written yet): the host link's command handler (`link.rs`) feeding a streamed motion
 //! buffer (a [`setpoints::SetpointSource`]), homing (`homing.rs`), calibration slots (in
 //! [`calibration`]).
 //!
@@ -39,6 +46,7 @@ pub mod calibration;
 pub mod deadline;
 pub mod drive;
 pub mod encoder;
+pub mod encoder_check;
 pub mod fault;
 #[cfg(any(test, feature = "qemu-harness"))]
 pub mod scenario;
@@ -46,7 +54,9 @@ pub mod servo_loop;
 pub mod settings;
 pub mod setpoints;
 pub mod status;
+pub mod stop;
 pub mod trajectory;
+pub mod watchdog;
 
 /// Sample period of the servo loop (s): 2 kHz.
 pub const SAMPLE_PERIOD_S: f32 = 5.0e-4;

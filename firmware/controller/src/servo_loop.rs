@@ -1,41 +1,84 @@
 //! One servo sample, without hardware: the mode machine, setpoint intake with underrun
-//! handling, fault latching, and what torque and drive enable result.
+//! handling, the encoder check, the workspace check, the controlled stop, and what torque and
+//! drive enable result.
 //!
 //! ```text
-//!  boot ── image valid (or uncorrected allowed) and engage accepted ──► Running
-//!    └──── image refused, or engage refused ──────────────────────────► SafeState(fault)
-//!  Running ── servo refusal, PWM write error, overrun streak ─────────► SafeState(fault)
+//!  boot ── settings valid, image valid (or uncorrected allowed), engage accepted ──► Running
+//!    └──── otherwise ───────────────────────────────────────────────────────────────► SafeState
+//!  Running ──── category 1 or 2 fault ──► Stopping ── profile done ── cat. 2 ──► Holding
+//!     │                                     │                    └── cat. 1, standstill ──► SafeState
+//!     └──── category 0 fault ─────────────────────────────────────────────────────────► SafeState
+//!  Stopping, Holding ── category 0 fault ──────────────────────────────────────────► SafeState
+//!  boot after a watchdog reset, watchdog not started ([`ServoLoop::latch_at_boot`]) ──► SafeState
 //! ```
-//! `SafeState` is latched: zero torque, drive enable off, the queue left alone; only a reset
-//! leaves it. The board-facing part of a sample is in the app (`firmware/src/main.rs`,
-//! `servo_tick`): read encoders, [`ServoLoop::step`], write the torques (a failed write is
-//! [`ServoLoop::latch`]ed as [`Fault::Drive`]), [`ServoLoop::record_deadline`], disable the drives
-//! if the sample latched a fault, publish the [`Status`](crate::status::Status).
+//! Every mode but `SafeState` has the drives on. `Holding` keeps the servo on the stop's end
+//! point (the fault stays latched); `SafeState` is zero torque, drive enable off, the queue
+//! left alone. Only a reset leaves `Holding` or `SafeState`. Stop categories and the table of
+//! faults: [`crate::fault`].
+//!
+//! A sample while the drives are on:
+//! 1. the encoder check ([`crate::encoder_check`]) with the torque that acted since the last
+//!    reading: a finding is category 0;
+//! 2. `Running`: the next setpoint from the queue, with its exact derivatives and the one after
+//!    it as the feed-forward's look-ahead (an empty queue holds the last setpoint if the
+//!    machine is at rest, or is [`Fault::Underrun`] if it moves), [`Servo::accept_motion`]
+//!    (the identified dynamics the image carries fed forward, issue 14); a refusal
+//!    is [`Fault::Setpoint`]; an accepted setpoint whose stop would end outside the workspace
+//!    ([`Workspace`], the grid's rectangle less a margin) is dropped and is
+//!    [`Fault::StopOutsideWorkspace`]; otherwise it is tracked;
+//!    `Stopping` / `Holding`: the stop profile's next setpoint is stepped;
+//! 3. a category-1 or -2 fault found in step 2 starts the stop **in the same sample**, from the
+//!    last accepted setpoint (whose stop the workspace check accepted), so the torque of this
+//!    sample already brakes; a servo fault (following error, non-finite encoder) or a refused
+//!    stop setpoint is category 0.
+//!
+//! The board-facing part of a sample is in the app (`firmware/src/main.rs`, `servo_tick`):
+//! read encoders, [`ServoLoop::step`], write the torques (a failed write is
+//! [`ServoLoop::latch`]ed as [`Fault::Drive`]), [`ServoLoop::record_deadline`], disable the
+//! drives if the sample says so ([`Sample::torque_off`]), publish the
+//! [`Status`](crate::status::Status), and last feed the watchdog if [`Sample::feed_watchdog`]
+//! (the step was on time; see [`crate::watchdog`]).
 //!
 //! A motor never jumps: the servo refuses a setpoint it cannot follow, it never clamps one into
-//! reach, and a refusal removes torque in the same sample.
-//!
-//! The servo runs [`Servo::step_motion`]: the queued setpoints carry their exact derivatives, and
-//! the dynamic parameters the calibration image carries (its dynamics extension, if any) are fed
-//! forward; an image without them leaves the gains' constant feed-forward.
+//! reach; a stop never steps the velocity; torque is removed only in category 0 (at once) or
+//! after a category-1 stop has reached standstill.
 use heapless::spsc::Consumer;
 use kinematics_core::trajectory::MotionSetpoint;
-use kinematics_core::{Calibration, Servo};
+use kinematics_core::{Calibration, Servo, ServoOutput, StepError};
 
 use crate::calibration::CalibrationState;
 use crate::deadline::Deadline;
-use crate::fault::Fault;
+use crate::encoder::EncoderScale;
+use crate::encoder_check::EncoderCheck;
+use crate::fault::{Fault, StopCategory};
 use crate::setpoints::REFILL_BELOW;
-use crate::settings::Settings;
+use crate::settings::{Settings, SettingsError};
+use crate::stop::{MotionState, StopProfile, Workspace};
+use crate::watchdog;
 
 /// Where the servo is.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum Mode {
-    /// Drives enabled, stepping.
+    /// Drives enabled, following the setpoint stream.
     Running,
-    /// Drives disabled, zero torque: a fault latched (at boot or while running).
+    /// Drives enabled, braking along the path after a category-1 or -2 fault.
+    Stopping(Fault),
+    /// Drives enabled, holding the stop's end point after a category-2 fault (latched).
+    Holding(Fault),
+    /// Drives disabled, zero torque: a category-0 fault, a category-1 stop done, or a fault at
+    /// boot.
     SafeState(Fault),
+}
+
+impl Mode {
+    /// The latched fault, if any.
+    pub fn fault(&self) -> Option<Fault> {
+        match *self {
+            Mode::Running => None,
+            Mode::Stopping(f) | Mode::Holding(f) | Mode::SafeState(f) => Some(f),
+        }
+    }
 }
 
 /// What one sample decided, and what it saw.
@@ -45,21 +88,34 @@ pub struct Sample {
     pub index: u32,
     /// The encoder angles it was given (rad).
     pub encoder_rad: [f32; 2],
-    /// The last setpoint the servo accepted (mm): this sample's, or an earlier one after an
-    /// underrun or a refusal.
+    /// The last setpoint the servo accepted (mm): this sample's, an earlier one after an
+    /// underrun at rest or in the safe state, or the stop's.
     pub setpoint_mm: [f32; 2],
     /// The encoder angles commanded for [`Sample::setpoint_mm`] (rad).
     pub reference_rad: [f32; 2],
-    /// Torques to write (N·m): zero in the safe state and in the sample that latched a fault.
+    /// Torques to write (N·m): zero in the safe state and in the sample that entered it.
     pub torque_nm: [f32; 2],
     /// Largest |following error| of the two axes this sample (rad; 0 when not stepping).
     pub following_error_rad: f32,
-    /// The queue was empty: the last setpoint was held.
+    /// The queue was empty.
     pub underrun: bool,
     /// Fewer than [`REFILL_BELOW`] setpoints are left: the intake should refill the queue.
     pub refill: bool,
-    /// The fault this sample latched (the loop was running before it).
+    /// The fault this sample latched: the first one, or a category-0 fault ending a stop.
     pub fault: Option<Fault>,
+    /// This sample entered the safe state: disable the drives now.
+    pub torque_off: bool,
+    /// The step completed on time: the servo task feeds the independent watchdog at its end.
+    /// Set only by [`ServoLoop::record_deadline`] (a sample whose deadline was not recorded
+    /// does not feed); in the safe state too (drives off is not a stall).
+    pub feed_watchdog: bool,
+}
+
+/// A stop under way: its profile and the samples stepped along it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Stop {
+    profile: StopProfile,
+    samples: u32,
 }
 
 /// The servo loop's state from one sample to the next.
@@ -67,57 +123,85 @@ pub struct Sample {
 pub struct ServoLoop<'a> {
     settings: &'a Settings,
     calibration: Calibration<'a>,
-    servo: Servo,
+    /// Where a stop may end: the grid's rectangle less the margin (`None`: no grid, running
+    /// uncorrected; then only the servo's reach and singularity checks bound a stop).
+    workspace: Option<Workspace>,
+    /// `None` only when the settings were refused at boot (then the mode is `SafeState`).
+    servo: Option<Servo>,
     mode: Mode,
     deadline: Deadline,
+    encoders: EncoderCheck,
+    /// The last accepted setpoint's motion: where a stop starts.
+    motion: MotionState,
+    stop: Option<Stop>,
     setpoint_mm: [f32; 2],
     reference_rad: [f32; 2],
+    /// The torque written in the last sample: it acts until the next reading.
+    last_torque_nm: [f32; 2],
     samples: u32,
 }
 
 impl<'a> ServoLoop<'a> {
-    /// Boots the loop: engages the servo at the machine's actual position (`encoder_rad`)
-    /// unless the calibration forbids it. [`ServoLoop::mode`] tells the outcome: `Running`
-    /// (enable the drives) or `SafeState` with the reason.
+    /// Boots the loop: validates the settings and engages the servo at the machine's actual
+    /// position (`encoder_rad`) unless the settings or the calibration forbid it.
+    /// [`ServoLoop::mode`] tells the outcome: `Running` (enable the drives) or `SafeState` with
+    /// the reason.
     pub fn boot(
         settings: &'a Settings,
         calibration: Calibration<'a>,
         state: CalibrationState,
         encoder_rad: [f32; 2],
     ) -> Self {
-        let mut servo = Servo::new(settings.servo);
-        // Validated when the image was parsed; `set_dynamics` checks again and keeps none if not.
-        let _ = servo.set_dynamics(calibration.grid.as_ref().and_then(|g| g.dynamics().copied()));
-        let engaged = match state {
-            CalibrationState::Refused(e) => Err(Fault::Calibration(e)),
-            CalibrationState::Valid | CalibrationState::Uncorrected(_) => {
-                servo.engage(&calibration, encoder_rad).map_err(Fault::Servo)
+        let servo = settings.validate().and_then(|()| Servo::new(settings.servo).map_err(SettingsError::Servo));
+        let (servo, engaged) = match servo {
+            Err(e) => (None, Err(Fault::Settings(e))),
+            Ok(mut servo) => {
+                // Validated when the image was parsed; `set_dynamics` checks again and keeps
+                // none if not (the gains' constant feed-forward then).
+                let _ = servo.set_dynamics(calibration.grid.as_ref().and_then(|g| g.dynamics().copied()));
+                let engaged = match state {
+                    CalibrationState::Refused(e) => Err(Fault::Calibration(e)),
+                    CalibrationState::Valid | CalibrationState::Uncorrected(_) => {
+                        servo.engage(&calibration, encoder_rad).map_err(Fault::Engage)
+                    }
+                };
+                (Some(servo), engaged)
             }
         };
         let (mode, setpoint_mm) = match engaged {
             Ok(tool_mm) => (Mode::Running, tool_mm),
             Err(fault) => (Mode::SafeState(fault), [0.0; 2]),
         };
+        // One count of each axis's encoder: the quantisation the encoder check allows (a refused
+        // configuration was refused by `validate` above: the loop is in the safe state).
+        let count_rad = settings.encoders.map(|c| EncoderScale::new(&c).map_or(0.0, |s| s.rad_per_count()));
+        let margin_mm = settings.stop.workspace_margin_mm;
+        let workspace = calibration.grid.as_ref().map(|g| Workspace::of_grid(g.geometry(), margin_mm));
         ServoLoop {
             settings,
             calibration,
+            workspace,
             servo,
             mode,
             deadline: Deadline::default(),
+            encoders: EncoderCheck::new(encoder_rad, count_rad),
+            motion: MotionState::at_rest(setpoint_mm),
+            stop: None,
             setpoint_mm,
             reference_rad: encoder_rad,
+            last_torque_nm: [0.0; 2],
             samples: 0,
         }
     }
 
-    /// Running or safe state.
+    /// The mode after the last sample.
     pub fn mode(&self) -> Mode {
         self.mode
     }
 
-    /// Whether the drives should be enabled (running).
+    /// Whether the drives should be enabled: in every mode but the safe state.
     pub fn drives_enabled(&self) -> bool {
-        self.mode == Mode::Running
+        !matches!(self.mode, Mode::SafeState(_))
     }
 
     /// The last setpoint accepted (mm); after boot, where the servo engaged: the first
@@ -132,6 +216,11 @@ impl<'a> ServoLoop<'a> {
         self.reference_rad
     }
 
+    /// The stop under way or done (`Stopping`, `Holding`, or a safe state a stop led to).
+    pub fn stop_profile(&self) -> Option<StopProfile> {
+        self.stop.map(|s| s.profile)
+    }
+
     /// Deadline bookkeeping so far.
     pub fn deadline(&self) -> &Deadline {
         &self.deadline
@@ -142,9 +231,9 @@ impl<'a> ServoLoop<'a> {
         self.settings
     }
 
-    /// One sample: takes the next setpoint from `queue` (holding the last one if it is empty)
-    /// and runs the servo step on `encoder_rad`. In the safe state the queue is left alone
-    /// and the torques are zero.
+    /// One sample (see the module doc): the encoder check, then the next setpoint from `queue`
+    /// or from the stop, through the servo. In the safe state the queue is left alone and the
+    /// torques are zero.
     pub fn step(&mut self, queue: &mut Consumer<'_, MotionSetpoint<f32>>, encoder_rad: [f32; 2]) -> Sample {
         let index = self.samples;
         self.samples = self.samples.wrapping_add(1);
@@ -158,53 +247,162 @@ impl<'a> ServoLoop<'a> {
             underrun: false,
             refill: false,
             fault: None,
+            torque_off: false,
+            feed_watchdog: false,
         };
-        if self.mode != Mode::Running {
+        if matches!(self.mode, Mode::SafeState(_)) {
             return sample;
         }
-        let setpoint = match queue.dequeue() {
-            Some(p) => p,
-            None => {
-                sample.underrun = true;
-                MotionSetpoint::at_rest(self.setpoint_mm)
-            }
-        };
-        let setpoint_mm = setpoint.position_mm;
-        sample.refill = queue.len() < REFILL_BELOW;
-        // The next setpoint, if queued: the feed-forward's look-ahead (else it is predicted).
-        let next = queue.peek().copied();
-        match self.servo.step_motion(&self.calibration, &setpoint, next.as_ref(), encoder_rad) {
-            Ok(out) => {
-                self.setpoint_mm = setpoint_mm;
-                self.reference_rad = out.reference_rad;
-                sample.setpoint_mm = setpoint_mm;
-                sample.reference_rad = out.reference_rad;
-                sample.torque_nm = out.torque_nm;
-                sample.following_error_rad =
-                    out.following_error_rad[0].abs().max(out.following_error_rad[1].abs());
-            }
-            Err(f) => self.latch(Fault::Servo(f), &mut sample),
+        let dt_s = self.settings.servo.sample_period_s;
+        let checked = self.encoders.check(encoder_rad, self.last_torque_nm, &self.settings.encoder_limits, dt_s);
+        match checked {
+            Err(f) => self.latch(Fault::Encoder(f), &mut sample),
+            Ok(()) if self.mode == Mode::Running => self.run(queue, encoder_rad, &mut sample),
+            Ok(()) => self.follow_stop(encoder_rad, &mut sample),
         }
+        self.last_torque_nm = sample.torque_nm;
         sample
     }
 
-    /// Latches `fault` (if the loop is still running) and zeroes the sample's torques. The
-    /// caller disables the drives when `sample.fault` is set.
-    pub fn latch(&mut self, fault: Fault, sample: &mut Sample) {
-        if self.mode == Mode::Running {
-            self.mode = Mode::SafeState(fault);
-            sample.fault = Some(fault);
+    /// `Running`: the next setpoint of the stream, or the start of a stop.
+    fn run(&mut self, queue: &mut Consumer<'_, MotionSetpoint<f32>>, encoder_rad: [f32; 2], sample: &mut Sample) {
+        let next = queue.dequeue();
+        sample.refill = queue.len() < REFILL_BELOW;
+        let setpoint = match next {
+            Some(p) => p,
+            None => {
+                sample.underrun = true;
+                if !self.motion.is_at_rest() {
+                    return self.begin_stop(Fault::Underrun, encoder_rad, sample);
+                }
+                MotionSetpoint::at_rest(self.motion.position_mm)
+            }
+        };
+        let setpoint_mm = setpoint.position_mm;
+        // The one after it, if queued: the feed-forward's look-ahead (else it is predicted).
+        let ahead = queue.peek().copied();
+        let Some(servo) = self.servo.as_mut() else {
+            return self.latch(Fault::Servo(kinematics_core::ServoFault::NotEngaged), sample);
+        };
+        let accepted = match servo.accept_motion(&self.calibration, &setpoint, ahead.as_ref()) {
+            Ok(a) => a,
+            Err(refusal) => return self.begin_stop(Fault::Setpoint(refusal), encoder_rad, sample),
+        };
+        let dt_s = self.settings.servo.sample_period_s;
+        let state = MotionState::from_differences(setpoint_mm, accepted.velocity_mm_s(), accepted.accel_mm_s2(), dt_s);
+        if let Some(workspace) = &self.workspace {
+            if !workspace.contains(StopProfile::plan(&state, &self.settings.stop.limits).end_mm()) {
+                // `accepted` is not tracked: the servo stays as it was.
+                return self.begin_stop(Fault::StopOutsideWorkspace, encoder_rad, sample);
+            }
         }
+        match accepted.track(encoder_rad) {
+            Ok(out) => {
+                self.motion = state;
+                self.record(&out, setpoint_mm, sample);
+            }
+            Err(f) => self.latch(Fault::Servo(f), sample),
+        }
+    }
+
+    /// Latches `fault` found in this sample; a category-1 or -2 fault starts the stop and steps
+    /// its first setpoint now.
+    fn begin_stop(&mut self, fault: Fault, encoder_rad: [f32; 2], sample: &mut Sample) {
+        if fault.stop_category() == StopCategory::Zero {
+            return self.latch(fault, sample);
+        }
+        sample.fault = Some(fault);
+        self.mode = Mode::Stopping(fault);
+        self.stop = Some(Stop { profile: StopProfile::plan(&self.motion, &self.settings.stop.limits), samples: 0 });
+        self.follow_stop(encoder_rad, sample);
+    }
+
+    /// `Stopping` and `Holding`: the stop's next setpoint; at its end, hold (category 2) or
+    /// remove torque at standstill (category 1).
+    fn follow_stop(&mut self, encoder_rad: [f32; 2], sample: &mut Sample) {
+        let (Some(mut stop), Some(servo)) = (self.stop, self.servo.as_mut()) else {
+            return self.latch(Fault::Servo(kinematics_core::ServoFault::NotEngaged), sample);
+        };
+        stop.samples = stop.samples.saturating_add(1);
+        self.stop = Some(stop);
+        let dt_s = self.settings.servo.sample_period_s;
+        let t_s = stop.samples as f32 * dt_s;
+        let setpoint_mm = stop.profile.at(t_s);
+        match servo.step(&self.calibration, setpoint_mm, encoder_rad) {
+            Ok(out) => self.record(&out, setpoint_mm, sample),
+            Err(StepError::Refused(r)) => return self.latch(Fault::StopRefused(r), sample),
+            Err(StepError::Fault(f)) => return self.latch(Fault::Servo(f), sample),
+        }
+        let Mode::Stopping(fault) = self.mode else { return };
+        if !stop.profile.finished(t_s) {
+            return;
+        }
+        if fault.stop_category() == StopCategory::Two {
+            self.mode = Mode::Holding(fault);
+            return;
+        }
+        let s = &self.settings.stop;
+        let speed = self.encoders.speed_rad_s(dt_s);
+        let still = speed[0].abs() <= s.standstill_rad_s && speed[1].abs() <= s.standstill_rad_s;
+        if still || t_s >= stop.profile.duration_s() + s.settle_timeout_s {
+            self.enter_safe_state(fault, sample);
+        }
+    }
+
+    fn record(&mut self, out: &ServoOutput, setpoint_mm: [f32; 2], sample: &mut Sample) {
+        self.setpoint_mm = setpoint_mm;
+        self.reference_rad = out.reference_rad;
+        sample.setpoint_mm = setpoint_mm;
+        sample.reference_rad = out.reference_rad;
+        sample.torque_nm = out.torque_nm;
+        sample.following_error_rad = out.following_error_rad[0].abs().max(out.following_error_rad[1].abs());
+    }
+
+    fn enter_safe_state(&mut self, fault: Fault, sample: &mut Sample) {
+        self.mode = Mode::SafeState(fault);
         sample.torque_nm = [0.0; 2];
+        sample.torque_off = true;
+    }
+
+    /// Latches `fault` found outside the sample logic (a failed PWM write, a deadline streak;
+    /// later: link loss). Category 0: zero torque and drives off in this sample (the caller
+    /// disables them, [`Sample::torque_off`]). Category 1 or 2 while running: the stop starts
+    /// with the next sample (this sample's torque is already written). A stop already under way
+    /// keeps its first fault; in the safe state nothing new is latched.
+    pub fn latch(&mut self, fault: Fault, sample: &mut Sample) {
+        match self.mode {
+            Mode::SafeState(_) => sample.torque_nm = [0.0; 2],
+            _ if fault.stop_category() == StopCategory::Zero => {
+                sample.fault = Some(fault);
+                self.enter_safe_state(fault, sample);
+            }
+            Mode::Running => {
+                sample.fault = Some(fault);
+                self.mode = Mode::Stopping(fault);
+                self.stop = Some(Stop { profile: StopProfile::plan(&self.motion, &self.settings.stop.limits), samples: 0 });
+            }
+            Mode::Stopping(_) | Mode::Holding(_) => {}
+        }
     }
 
     /// Records how long the sample took (`step_us` from its tick) and whether the next tick
     /// already came; a streak of `overrun_streak_limit` misses latches
-    /// [`Fault::DeadlineMissed`]. The torques already written stand until the drives are
-    /// disabled (they were the best available).
+    /// [`Fault::DeadlineMissed`] (category 0). The torques already written stand until the
+    /// drives are disabled (they were the best available). Sets [`Sample::feed_watchdog`] when
+    /// the step was on time ([`watchdog::step_on_time`]).
     pub fn record_deadline(&mut self, step_us: f32, overrun: bool, sample: &mut Sample) {
-        if self.deadline.record(step_us, overrun, self.settings.overrun_streak_limit) && self.mode == Mode::Running {
+        if self.deadline.record(step_us, overrun, self.settings.overrun_streak_limit) {
             self.latch(Fault::DeadlineMissed, sample);
+        }
+        sample.feed_watchdog = watchdog::step_on_time(step_us, overrun);
+    }
+
+    /// Keeps the drives off from boot, before the first sample, with `fault` (e.g. the last
+    /// reset was the watchdog's, or the watchdog could not be started). A fault already
+    /// latched at boot (a refused image) stays the one reported.
+    pub fn latch_at_boot(&mut self, fault: Fault) {
+        if self.mode == Mode::Running {
+            self.mode = Mode::SafeState(fault);
         }
     }
 }
@@ -214,9 +412,12 @@ mod tests {
     use super::*;
     use heapless::spsc::Queue;
     use kinematics_core::grid::{encode, CorrectionGrid, GridGeometry};
-    use kinematics_core::{FiveBar, GridError, ServoFault};
+    use kinematics_core::{EngageError, FiveBar, GridError, SetpointRefusal};
 
+    use crate::encoder_check::{EncoderFault, EncoderFaultKind};
     use crate::setpoints::QUEUE_SLOTS;
+    use crate::stop::stopping_distance_bound_mm;
+    use crate::trajectory::{Trajectory, WORKSPACE_TOUR_MM};
 
     const HOME_MM: [f32; 2] = [212.132, 0.0];
 
@@ -274,29 +475,44 @@ mod tests {
         let (settings, img) = (Settings::default(), image());
         let cal = Calibration::from_grid(CorrectionGrid::parse(&img).unwrap());
         let l = ServoLoop::boot(&settings, cal, CalibrationState::Valid, [0.0; 2]);
-        assert!(matches!(l.mode(), Mode::SafeState(Fault::Servo(ServoFault::Kinematics(_)))), "{:?}", l.mode());
+        assert!(matches!(l.mode(), Mode::SafeState(Fault::Engage(EngageError::Kinematics(_)))), "{:?}", l.mode());
     }
 
     #[test]
-    fn a_refused_setpoint_latches_with_zero_torque_in_its_own_sample() {
+    fn boot_refuses_an_encoder_configuration_the_scale_refuses() {
+        use crate::encoder::EncoderConfigError;
+        let img = image();
+        let mut settings = Settings::default();
+        settings.encoders[1].counts_per_rev = 0;
+        let cal = Calibration::from_grid(CorrectionGrid::parse(&img).unwrap());
+        let encoder = cal.command_rad(HOME_MM, 0.05).unwrap();
+        let l = ServoLoop::boot(&settings, cal, CalibrationState::Valid, encoder);
+        let want = Fault::Settings(SettingsError::Encoder { axis: 1, error: EncoderConfigError::ZeroCountsPerRev });
+        assert_eq!(l.mode(), Mode::SafeState(want));
+    }
+
+    /// Issue 11: a refused setpoint used to remove torque at once whatever the speed. At rest,
+    /// a NaN (category 1) stops at once (an empty stop) and removes torque at standstill, in the
+    /// same sample; the stop from rest holds the last accepted setpoint.
+    #[test]
+    fn a_nan_setpoint_at_rest_removes_torque_at_standstill() {
         let (settings, img) = (Settings::default(), image());
         let (mut l, encoder) = running(&settings, &img);
         let mut q: Queue<MotionSetpoint<f32>, QUEUE_SLOTS> = Queue::new();
         let (mut tx, mut rx) = q.split();
-        // A small offset so the PID commands torque before the fault.
         tx.enqueue(MotionSetpoint::at_rest(HOME_MM)).unwrap();
         tx.enqueue(MotionSetpoint::at_rest([f32::NAN, 0.0])).unwrap();
         tx.enqueue(MotionSetpoint::at_rest(HOME_MM)).unwrap();
-        let off = [encoder[0] + 1e-3, encoder[1]];
-        let s = l.step(&mut rx, off);
-        assert!(s.torque_nm[0] != 0.0 && s.fault.is_none());
-        let s = l.step(&mut rx, off);
-        assert_eq!(s.fault, Some(Fault::Servo(ServoFault::NonFiniteSetpoint)));
-        assert_eq!(s.torque_nm, [0.0; 2]);
+        let s = l.step(&mut rx, encoder);
+        assert!(s.fault.is_none() && !s.torque_off);
+        let s = l.step(&mut rx, encoder);
+        let nan = Fault::Setpoint(SetpointRefusal::NonFinite);
+        assert_eq!((s.fault, s.torque_off, s.torque_nm), (Some(nan), true, [0.0; 2]));
         assert_eq!(s.setpoint_mm, HOME_MM, "the last accepted setpoint, not the NaN");
-        assert_eq!(l.mode(), Mode::SafeState(Fault::Servo(ServoFault::NonFiniteSetpoint)));
-        let s = l.step(&mut rx, off);
-        assert_eq!((s.fault, s.torque_nm), (None, [0.0; 2]), "latched once, zero ever after");
+        assert_eq!(l.mode(), Mode::SafeState(nan));
+        assert_eq!(l.stop_profile().map(|p| p.distance_mm()), Some(0.0));
+        let s = l.step(&mut rx, encoder);
+        assert_eq!((s.fault, s.torque_nm, s.torque_off), (None, [0.0; 2], false), "latched once, zero ever after");
         assert_eq!(rx.len(), 1);
     }
 
@@ -340,15 +556,58 @@ mod tests {
     }
 
     #[test]
+    fn only_an_on_time_step_feeds_the_watchdog_and_the_safe_state_still_does() {
+        let (settings, img) = (Settings::default(), image());
+        let (mut l, encoder) = running(&settings, &img);
+        let mut q: Queue<MotionSetpoint<f32>, QUEUE_SLOTS> = Queue::new();
+        let (_, mut rx) = q.split();
+        let s = l.step(&mut rx, encoder);
+        assert!(!s.feed_watchdog, "no deadline recorded, no feed");
+        let mut s = l.step(&mut rx, encoder);
+        l.record_deadline(15.0, false, &mut s);
+        assert!(s.feed_watchdog);
+        let mut s = l.step(&mut rx, encoder);
+        l.record_deadline(700.0, true, &mut s);
+        assert!(!s.feed_watchdog, "late");
+        let mut s = l.step(&mut rx, encoder);
+        l.record_deadline(f32::NAN, false, &mut s);
+        assert!(!s.feed_watchdog, "step time unreadable");
+        // In the safe state the drives are off and the task still runs on time: it feeds.
+        l.latch(Fault::Drive, &mut s);
+        let mut s = l.step(&mut rx, encoder);
+        l.record_deadline(10.0, false, &mut s);
+        assert!(s.feed_watchdog && !l.drives_enabled());
+    }
+
+    #[test]
+    fn a_fault_at_boot_keeps_the_drives_off_and_the_first_reason_is_kept() {
+        use crate::watchdog::WatchdogFault;
+        let (settings, img) = (Settings::default(), image());
+        let (mut l, encoder) = running(&settings, &img);
+        l.latch_at_boot(Fault::Watchdog(WatchdogFault::Reset));
+        assert_eq!(l.mode(), Mode::SafeState(Fault::Watchdog(WatchdogFault::Reset)));
+        let mut q: Queue<MotionSetpoint<f32>, QUEUE_SLOTS> = Queue::new();
+        let (mut tx, mut rx) = q.split();
+        tx.enqueue(MotionSetpoint::at_rest(HOME_MM)).unwrap();
+        let s = l.step(&mut rx, [encoder[0] + 1e-3, encoder[1]]);
+        assert_eq!((s.torque_nm, s.fault), ([0.0; 2], None));
+        // A refused image at boot stays the reason reported.
+        let cal = Calibration { model: FiveBar::paper_nominal(), grid: None };
+        let mut l = ServoLoop::boot(&settings, cal, CalibrationState::Refused(GridError::BadCrc), encoder);
+        l.latch_at_boot(Fault::Watchdog(WatchdogFault::NotStarted));
+        assert_eq!(l.mode(), Mode::SafeState(Fault::Calibration(GridError::BadCrc)));
+    }
+
+    #[test]
     fn a_failed_pwm_write_latches_a_drive_fault() {
         let (settings, img) = (Settings::default(), image());
         let (mut l, encoder) = running(&settings, &img);
         let mut q: Queue<MotionSetpoint<f32>, QUEUE_SLOTS> = Queue::new();
         let (_, mut rx) = q.split();
-        let mut s = l.step(&mut rx, [encoder[0] + 1e-3, encoder[1]]);
+        let mut s = l.step(&mut rx, [encoder[0] + 1e-5, encoder[1]]);
         assert!(s.torque_nm[0] != 0.0);
         l.latch(Fault::Drive, &mut s);
-        assert_eq!((s.fault, s.torque_nm), (Some(Fault::Drive), [0.0; 2]));
+        assert_eq!((s.fault, s.torque_nm, s.torque_off), (Some(Fault::Drive), [0.0; 2], true));
         assert!(!l.drives_enabled());
     }
 
@@ -364,5 +623,356 @@ mod tests {
         let ik = FiveBar::<f32>::paper_nominal().inverse(HOME_MM, 0.05).unwrap();
         assert!((s.reference_rad[0] - ik[0] - 3e-4).abs() < 1e-6, "{:?} vs {ik:?}", s.reference_rad);
         assert!((s.reference_rad[1] - ik[1] + 2e-4).abs() < 1e-6);
+    }
+
+    // -----------------------------------------------------------------------------------------
+    // Closed loop: the servo loop against two joint inertias with friction (the QEMU plant's
+    // parameters: its rotors plus the diagonal of its linkage's inertia matrix, 5.4e-3 kg·m²,
+    // without the coupling), the encoders quantised to 2^22 counts/rev.
+
+    const DT_S: f32 = crate::SAMPLE_PERIOD_S;
+    const COUNT_RAD: f32 = 2.0 * core::f32::consts::PI / (1u32 << 22) as f32;
+
+    struct Plant {
+        angle_rad: [f32; 2],
+        velocity_rad_s: [f32; 2],
+        torque_nm: [f32; 2],
+        enabled: bool,
+    }
+
+    impl Plant {
+        fn advance(&mut self) {
+            let h = DT_S / 10.0;
+            for (k, inertia) in [2.2e-3f32 + 5.4e-3, 1.8e-3 + 5.4e-3].into_iter().enumerate() {
+                let tau = if self.enabled { self.torque_nm[k] } else { 0.0 };
+                for _ in 0..10 {
+                    let w = self.velocity_rad_s[k];
+                    let friction = 0.01 * w + 0.03 * w / (w.abs() + 1e-3);
+                    self.velocity_rad_s[k] += (tau - friction) / inertia * h;
+                    self.angle_rad[k] += self.velocity_rad_s[k] * h;
+                }
+            }
+        }
+        fn encoder_rad(&self) -> [f32; 2] {
+            self.angle_rad.map(|a| libm::roundf(a / COUNT_RAD) * COUNT_RAD)
+        }
+    }
+
+    /// What a closed run saw.
+    struct Run {
+        samples: Vec<Sample>,
+        modes: Vec<Mode>,
+        /// The plant's joint angles after each sample's torque acted (rad).
+        angles: Vec<[f32; 2]>,
+        enabled: Vec<bool>,
+    }
+
+    /// Runs `n` samples from HOME: `setpoint(k)` is queued before sample k (`None`: nothing),
+    /// `reading(k, encoder)` is what the loop reads.
+    fn closed(
+        settings: &Settings,
+        cal: Calibration<'_>,
+        n: usize,
+        mut setpoint: impl FnMut(usize) -> Option<[f32; 2]>,
+        mut reading: impl FnMut(usize, [f32; 2]) -> [f32; 2],
+    ) -> Run {
+        let start = cal.command_rad(HOME_MM, 0.05).unwrap();
+        let mut plant = Plant { angle_rad: start, velocity_rad_s: [0.0; 2], torque_nm: [0.0; 2], enabled: true };
+        let mut l = ServoLoop::boot(settings, cal, CalibrationState::Valid, plant.encoder_rad());
+        assert_eq!(l.mode(), Mode::Running);
+        let mut q: Queue<MotionSetpoint<f32>, QUEUE_SLOTS> = Queue::new();
+        let (mut tx, mut rx) = q.split();
+        let mut run = Run { samples: vec![], modes: vec![], angles: vec![], enabled: vec![] };
+        for k in 0..n {
+            if let Some(p) = setpoint(k) {
+                // Full once the loop stops taking setpoints (stopping, holding, safe state).
+                // Positions only (a source without derivatives): no inertia fed forward.
+                let _ = tx.enqueue(MotionSetpoint::at_rest(p));
+            }
+            let s = l.step(&mut rx, reading(k, plant.encoder_rad()));
+            if s.torque_off {
+                plant.enabled = false;
+            }
+            plant.torque_nm = s.torque_nm;
+            plant.advance();
+            run.samples.push(s);
+            run.modes.push(l.mode());
+            run.angles.push(plant.angle_rad);
+            run.enabled.push(plant.enabled);
+        }
+        run
+    }
+
+    fn tour() -> Trajectory {
+        let g = kinematics_core::servo::STANDARD_GRAVITY_MM_S2;
+        Trajectory::new(HOME_MM, &WORKSPACE_TOUR_MM, 2.0 * g, 1500.0, 0.1, DT_S)
+    }
+
+    /// The sample of the tour's top speed, and that speed (mm/s).
+    fn top_speed() -> (usize, f32) {
+        let mut t = tour();
+        let mut last = t.next_mm();
+        let mut best = (0, 0.0f32);
+        for k in 1..t.total_samples() as usize {
+            let p = t.next_mm();
+            let v = libm::hypotf(p[0] - last[0], p[1] - last[1]) / DT_S;
+            if v > best.1 {
+                best = (k, v);
+            }
+            last = p;
+        }
+        best
+    }
+
+    fn tool_mm(cal: &Calibration<'_>, theta: [f32; 2]) -> [f32; 2] {
+        let p = cal.model.forward(theta, 0.0).unwrap();
+        let d = cal.grid.as_ref().map_or([0.0; 2], |g| g.correction_rad(p).unwrap_or([0.0; 2]));
+        cal.model.forward([theta[0] - d[0], theta[1] - d[1]], 0.0).unwrap()
+    }
+
+    fn grid_cal(img: &[u8]) -> Calibration<'_> {
+        Calibration::from_grid(CorrectionGrid::parse(img).unwrap())
+    }
+
+    /// The whole built-in tour at 2 g / 1.5 m/s, closed around the plant: the encoder check,
+    /// the workspace check and the underrun logic never trip.
+    #[test]
+    fn the_tour_runs_without_a_false_trip() {
+        let (settings, img) = (Settings::default(), image());
+        let mut t = tour();
+        let n = t.total_samples() as usize + 200;
+        let run = closed(&settings, grid_cal(&img), n, |_| Some(t.next_mm()), |_, e| e);
+        let faults: Vec<_> = run.samples.iter().filter_map(|s| s.fault).collect();
+        assert!(faults.is_empty(), "{faults:?}");
+        assert!(run.modes.iter().all(|m| *m == Mode::Running));
+        let worst = run.samples.iter().map(|s| s.following_error_rad).fold(0.0, f32::max);
+        assert!(worst < 2e-4, "following error {worst}");
+    }
+
+    /// Injects a fault through `inject` at the tour's top speed and returns the run, the
+    /// sample, and the stated stopping distance from the last accepted setpoint (its speed and
+    /// acceleration along the path from the setpoints).
+    fn stop_at_top_speed(
+        settings: &Settings,
+        img: &[u8],
+        n: usize,
+        inject: impl Fn(usize, [f32; 2]) -> Option<[f32; 2]>,
+    ) -> (Run, usize, f32) {
+        let (at, _) = top_speed();
+        let mut t = tour();
+        let run = closed(settings, grid_cal(img), at + n, |k| inject(k.wrapping_sub(at), t.next_mm()), |_, e| e);
+        let [p1, p2, p3] = [1, 2, 3].map(|j| run.samples[at - j].setpoint_mm);
+        let v = [0, 1].map(|k| (p1[k] - p2[k]) / DT_S);
+        let a = [0, 1].map(|k| (p1[k] - 2.0 * p2[k] + p3[k]) / (DT_S * DT_S));
+        let m = MotionState::from_differences(p1, v, a, DT_S);
+        let along = (m.accel_mm_s2[0] * m.velocity_mm_s[0] + m.accel_mm_s2[1] * m.velocity_mm_s[1]) / m.speed_mm_s();
+        (run, at, stopping_distance_bound_mm(m.speed_mm_s(), along, &settings.stop.limits))
+    }
+
+    /// Checks a controlled stop from sample `at`: the stop's setpoints end at the stated
+    /// distance `bound_mm` from its origin (the last accepted setpoint) within 0.1 %; the tool
+    /// gets no further from the origin than that plus 0.1 mm (tracking) and stays inside the
+    /// calibrated rectangle. Returns (planned, travelled) in mm.
+    fn check_controlled_stop(cal: &Calibration<'_>, run: &Run, at: usize, bound_mm: f32) -> (f32, f32) {
+        let from = run.samples[at - 1].setpoint_mm;
+        let end = run.samples[run.samples.len() - 1].setpoint_mm;
+        let planned = libm::hypotf(end[0] - from[0], end[1] - from[1]);
+        assert!((planned - bound_mm).abs() <= 1e-3 * bound_mm, "planned {planned} mm, stated {bound_mm}");
+        let mut furthest = 0.0f32;
+        for k in at..run.angles.len() {
+            let p = tool_mm(cal, run.angles[k]);
+            furthest = furthest.max(libm::hypotf(p[0] - from[0], p[1] - from[1]));
+            assert!((160.0..=260.0).contains(&p[0]) && (-80.0..=80.0).contains(&p[1]), "left the rectangle: {p:?}");
+        }
+        assert!(furthest <= planned + 0.1 && furthest >= planned - 0.1, "stopped in {furthest} mm, planned {planned}");
+        (planned, furthest)
+    }
+
+    /// Issue 11: a NaN at 1.4 m/s used to remove torque at once; the machine coasted 20-130 mm.
+    /// Now: category 1, braked along the path within the stated distance, torque off at
+    /// standstill, never before.
+    #[test]
+    fn a_nan_at_top_speed_brakes_along_the_path_then_removes_torque() {
+        let (settings, img) = (Settings::default(), image());
+        let (run, at, bound) =
+            stop_at_top_speed(&settings, &img, 300, |k, p| Some(if k == 0 { [p[0], f32::NAN] } else { p }));
+        let nan = Fault::Setpoint(SetpointRefusal::NonFinite);
+        assert_eq!(run.samples[at].fault, Some(nan));
+        assert!(run.samples[at].torque_nm != [0.0; 2], "the fault's sample already brakes");
+        let off = run.samples.iter().position(|s| s.torque_off).expect("torque never removed");
+        let stop = (settings.stop.limits.decel_mm_s2, bound);
+        let duration = ((off - at) as f32) * DT_S;
+        assert!(duration < 0.05 + 0.005, "torque removed {duration} s after the fault ({stop:?})");
+        assert!(run.enabled[..off].iter().all(|&e| e) && run.enabled[off..].iter().all(|&e| !e));
+        assert!(run.samples[off..].iter().all(|s| s.torque_nm == [0.0; 2]));
+        assert_eq!(run.modes[off], Mode::SafeState(nan));
+        let (planned, travelled) = check_controlled_stop(&grid_cal(&img), &run, at, bound);
+        println!("NaN at {at}: planned {planned:.3} mm (stated {bound:.3} mm), tool {travelled:.3} mm, torque off after {duration} s");
+    }
+
+    /// A setpoint jump at top speed: category 2, braked, then held with the drives on.
+    #[test]
+    fn a_jump_at_top_speed_brakes_then_holds() {
+        let (settings, img) = (Settings::default(), image());
+        let (run, at, bound) = stop_at_top_speed(&settings, &img, 300, |k, p| Some(if k < 1000 { [p[0] + 1.0, p[1]] } else { p }));
+        let jump = Fault::Setpoint(SetpointRefusal::Jump);
+        assert_eq!(run.samples[at].fault, Some(jump));
+        assert_eq!(run.modes[run.modes.len() - 1], Mode::Holding(jump));
+        assert!(run.enabled.iter().all(|&e| e) && !run.samples.iter().any(|s| s.torque_off));
+        check_controlled_stop(&grid_cal(&img), &run, at, bound);
+        // Holding: from 50 ms after the stop within 20 µm of its end point (the integrator
+        // gives back what it took on during the 5 g stop: ~10 µm for ~100 ms), the last 50
+        // samples within a micrometre.
+        let cal = grid_cal(&img);
+        let end = run.samples[run.samples.len() - 1].setpoint_mm;
+        let stop_end = at + run.modes[at..].iter().position(|m| matches!(m, Mode::Holding(_))).unwrap();
+        let error = |a: &[f32; 2]| {
+            let p = tool_mm(&cal, *a);
+            libm::hypotf(p[0] - end[0], p[1] - end[1])
+        };
+        let worst = run.angles[stop_end + 100..].iter().map(error).fold(0.0, f32::max);
+        assert!(worst < 0.02, "holding {worst} mm off the stop's end");
+        let last = tool_mm(&cal, run.angles[run.angles.len() - 1]);
+        for a in &run.angles[run.angles.len() - 50..] {
+            let p = tool_mm(&cal, *a);
+            assert!(libm::hypotf(p[0] - last[0], p[1] - last[1]) < 1e-3, "still moving: {p:?} vs {last:?}");
+        }
+    }
+
+    /// Issue 11: an empty queue for one sample at speed read as an infinite deceleration. Now:
+    /// category 2 from the last setpoint; at rest it just holds.
+    #[test]
+    fn an_underrun_while_moving_brakes_then_holds() {
+        let (settings, img) = (Settings::default(), image());
+        let (run, at, bound) = stop_at_top_speed(&settings, &img, 300, |k, p| (k >= 1 << 30).then_some(p));
+        assert_eq!(run.samples[at].fault, Some(Fault::Underrun));
+        assert!(run.samples[at].underrun);
+        assert_eq!(run.modes[run.modes.len() - 1], Mode::Holding(Fault::Underrun));
+        check_controlled_stop(&grid_cal(&img), &run, at, bound);
+    }
+
+    /// A stream that heads for the edge of the calibrated rectangle too fast to stop before it
+    /// is refused early enough: the stop ends inside (the setpoint that would not is never
+    /// tracked), whereas the servo alone would accept setpoints up to the grid's edge.
+    #[test]
+    fn a_stream_too_fast_for_the_edge_is_stopped_inside() {
+        let (settings, img) = (Settings::default(), image());
+        let g = kinematics_core::servo::STANDARD_GRAVITY_MM_S2;
+        // From home towards x = 320 mm (beyond the grid's 260 mm edge) at 2 g / 1.5 m/s.
+        let mut t = Trajectory::new(HOME_MM, &[[320.0, 0.0]], 2.0 * g, 1500.0, 0.1, DT_S);
+        let cal = grid_cal(&img);
+        let run = closed(&settings, cal, 800, |_| Some(t.next_mm()), |_, e| e);
+        let at = run.samples.iter().position(|s| s.fault.is_some()).unwrap();
+        assert_eq!(run.samples[at].fault, Some(Fault::StopOutsideWorkspace));
+        assert!(run.samples.iter().all(|s| s.setpoint_mm[0] <= 260.0 - settings.stop.workspace_margin_mm));
+        assert!(matches!(run.modes[run.modes.len() - 1], Mode::Holding(Fault::StopOutsideWorkspace)));
+        let end = tool_mm(&cal, run.angles[run.angles.len() - 1]);
+        assert!(end[0] <= 260.0 - 0.09 && end[0] > 230.0, "stopped at {end:?}");
+        // The speed when refused: well above what could stop in the last millimetre.
+        let v = (run.samples[at - 1].setpoint_mm[0] - run.samples[at - 2].setpoint_mm[0]) / DT_S;
+        assert!(v > 1000.0, "{v} mm/s");
+    }
+
+    /// An encoder frozen during a stop, and a glitch while moving: category 0 at once, even
+    /// mid-stop (the stop never hides a feedback fault).
+    #[test]
+    fn encoder_faults_remove_torque_at_once_even_during_a_stop() {
+        let (settings, img) = (Settings::default(), image());
+        let (at, _) = top_speed();
+        // A jump at top speed starts a category-2 stop; 10 samples into it the encoder of axis
+        // 1 freezes (mid-stop, decelerating at 5 g).
+        let mut t = tour();
+        let mut frozen = None;
+        let run = closed(
+            &settings,
+            grid_cal(&img),
+            at + 100,
+            |k| Some(if k >= at { [t.next_mm()[0] + 1.0, 0.0] } else { t.next_mm() }),
+            |k, e| if k >= at + 10 { [e[0], *frozen.get_or_insert(e[1])] } else { e },
+        );
+        let bad = run.samples.iter().position(|s| s.fault.is_some_and(|f| f.stop_category() == StopCategory::Zero)).unwrap();
+        // Joint 2 turns slower than 3 rad/s there: the stuck check, not the acceleration check,
+        // finds it, within a few samples.
+        assert!((at + 10..=at + 20).contains(&bad), "found at {bad}, frozen at {}", at + 10);
+        assert!(matches!(run.samples[bad].fault, Some(Fault::Encoder(EncoderFault { axis: 1, .. }))));
+        assert!(run.samples[bad].torque_off && run.samples[bad].torque_nm == [0.0; 2]);
+        assert!(matches!(run.modes[run.modes.len() - 1], Mode::SafeState(Fault::Encoder(_))));
+        // A 5 mrad glitch at top speed: caught in its sample.
+        let mut t = tour();
+        let run = closed(&settings, grid_cal(&img), at + 10, |_| Some(t.next_mm()), |k, e| if k == at { [e[0] + 5e-3, e[1]] } else { e });
+        assert_eq!(
+            run.samples[at].fault,
+            Some(Fault::Encoder(EncoderFault { axis: 0, kind: EncoderFaultKind::Acceleration }))
+        );
+        assert!(run.samples[at].torque_off);
+    }
+
+    /// Issue 11: an encoder frozen at rest went unnoticed until the machine moved, then 8 N·m
+    /// drove the tool 43 mm off. Now the move's torque finds joint 1's reading stuck a few
+    /// samples after the move starts, the tool a fraction of a millimetre off; then it coasts
+    /// (category 0) from the low speed it had.
+    #[test]
+    fn an_encoder_frozen_at_rest_is_stuck_as_soon_as_the_machine_is_asked_to_move() {
+        let (settings, img) = (Settings::default(), image());
+        let cal = grid_cal(&img);
+        let mut t = tour();
+        // Rest 50 samples at home (the tour starts with a move), joint 1 frozen from sample 20.
+        let mut frozen = None;
+        let run = closed(
+            &settings,
+            cal,
+            1000,
+            |k| Some(if k < 50 { HOME_MM } else { t.next_mm() }),
+            |k, e| if k >= 20 { [*frozen.get_or_insert(e[0]), e[1]] } else { e },
+        );
+        let bad = run.samples.iter().position(|s| s.fault.is_some()).expect("not detected");
+        assert_eq!(run.samples[bad].fault, Some(Fault::Encoder(EncoderFault { axis: 0, kind: EncoderFaultKind::Stuck })));
+        assert!(run.samples[bad].torque_off);
+        let p0 = tool_mm(&cal, run.angles[19]);
+        let off = |k: usize| {
+            let p = tool_mm(&cal, run.angles[k]);
+            libm::hypotf(p[0] - p0[0], p[1] - p0[1])
+        };
+        let at_detection = off(bad);
+        let coasted = (bad..run.angles.len()).map(off).fold(0.0, f32::max);
+        println!(
+            "frozen at rest: stuck {} samples after the move started, tool {at_detection:.3} mm off, {coasted:.3} mm after the coast",
+            bad - 50
+        );
+        assert!(bad > 50 && bad <= 50 + 30, "detected at sample {bad}");
+        assert!(at_detection < 0.5, "tool {at_detection} mm off at detection");
+        assert!(coasted < 3.0, "coasted to {coasted} mm");
+    }
+
+    /// Without a grid (running uncorrected) there is no rectangle to check a stop against: a
+    /// stop the kinematics refuse on the way ends in category 0.
+    #[test]
+    fn a_stop_the_servo_refuses_is_category_zero() {
+        let settings = Settings::default();
+        let cal = Calibration { model: FiveBar::paper_nominal(), grid: None };
+        let g = kinematics_core::servo::STANDARD_GRAVITY_MM_S2;
+        // A stream along +x: 2 g up to 0.5 m/s, then cruising towards the 300 mm reach (a host
+        // stream could do that, meaning to brake late); a NaN once past 297 mm, where the
+        // 3.8 mm stop would end beyond the reach.
+        let (mut x, mut v, mut nan_sent) = (HOME_MM[0], 0.0f32, false);
+        let run = closed(
+            &settings,
+            cal,
+            600,
+            |_| {
+                if x >= 297.0 && !nan_sent {
+                    nan_sent = true;
+                    return Some([f32::NAN, 0.0]);
+                }
+                v = (v + 2.0 * g * DT_S).min(500.0);
+                x += v * DT_S;
+                Some([x, 0.0])
+            },
+            |_, e| e,
+        );
+        let faults: Vec<Fault> = run.samples.iter().filter_map(|s| s.fault).collect();
+        assert_eq!(faults.first(), Some(&Fault::Setpoint(SetpointRefusal::NonFinite)), "{faults:?}");
+        assert!(matches!(faults.get(1), Some(Fault::StopRefused(SetpointRefusal::Kinematics(_)))), "{faults:?}");
+        assert!(matches!(run.modes[run.modes.len() - 1], Mode::SafeState(Fault::StopRefused(_))));
     }
 }

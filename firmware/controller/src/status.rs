@@ -18,12 +18,16 @@ pub struct Status {
     pub worst_step_us: f32,
     /// What the boot check found in the calibration region.
     pub calibration: CalibrationState,
-    /// The latched fault (at boot or while running).
+    /// Running, stopping, holding or safe state (with the fault that led there).
+    pub mode: Mode,
+    /// The first fault latched (at boot or while running).
     pub fault: Option<Fault>,
     /// Sample at which the fault latched (0 for a fault at boot).
     pub fault_tick: u32,
     /// Whether the servo loop wants the drives enabled (the board's line is the truth).
     pub drives_enabled: bool,
+    /// The distance of the controlled stop under way or done (mm; 0 without one).
+    pub stop_distance_mm: f32,
     /// Last setpoint the servo accepted (mm).
     pub setpoint_mm: [f32; 2],
     /// Encoder angles the servo commanded for that setpoint (model IK plus grid correction,
@@ -42,18 +46,17 @@ pub struct Status {
 impl Status {
     /// The status after boot, before the first sample, with the encoders read at boot.
     pub fn at_boot(calibration: CalibrationState, servo_loop: &ServoLoop<'_>, encoder_rad: [f32; 2]) -> Self {
-        let fault = match servo_loop.mode() {
-            Mode::Running => None,
-            Mode::SafeState(f) => Some(f),
-        };
+        let mode = servo_loop.mode();
         Status {
+            mode,
             ticks: 0,
             overruns: 0,
             worst_step_us: 0.0,
             calibration,
-            fault,
+            fault: mode.fault(),
             fault_tick: 0,
             drives_enabled: servo_loop.drives_enabled(),
+            stop_distance_mm: 0.0,
             setpoint_mm: servo_loop.setpoint_mm(),
             reference_rad: servo_loop.reference_rad(),
             encoder_rad,
@@ -63,8 +66,9 @@ impl Status {
         }
     }
 
-    /// Records the sample the servo loop just ran (`mode` is the loop's mode after it).
-    pub fn record(&mut self, sample: &Sample, mode: Mode, deadline: &Deadline) {
+    /// Records the sample the servo loop just ran (`mode` is the loop's mode after it,
+    /// `stop_distance_mm` that of its stop, if any).
+    pub fn record(&mut self, sample: &Sample, mode: Mode, deadline: &Deadline, stop_distance_mm: f32) {
         self.ticks = sample.index.wrapping_add(1);
         self.overruns = deadline.overruns;
         self.worst_step_us = deadline.worst_step_us;
@@ -75,17 +79,16 @@ impl Status {
         if sample.underrun {
             self.setpoint_underruns += 1;
         }
-        match mode {
-            Mode::Running => {
-                self.drives_enabled = true;
-                self.max_following_error_rad = self.max_following_error_rad.max(sample.following_error_rad);
-            }
-            Mode::SafeState(fault) => {
-                self.drives_enabled = false;
-                if self.fault.is_none() {
-                    self.fault = Some(fault);
-                    self.fault_tick = sample.index;
-                }
+        self.mode = mode;
+        self.stop_distance_mm = stop_distance_mm;
+        self.drives_enabled = !matches!(mode, Mode::SafeState(_));
+        if mode == Mode::Running {
+            self.max_following_error_rad = self.max_following_error_rad.max(sample.following_error_rad);
+        }
+        if let Some(fault) = sample.fault.or(mode.fault()) {
+            if self.fault.is_none() {
+                self.fault = Some(fault);
+                self.fault_tick = sample.index;
             }
         }
     }

@@ -186,7 +186,7 @@ pub fn run_loop_with(
         .map_err(|e| SimError::Start { start_mm: start, reason: e.to_string() })?;
     plant.settle([f64::from(cmd[0]), f64::from(cmd[1])], [1, 1])?;
     let feedforward = if trajectory.motion_at(0.0).is_some() { *feedforward } else { FeedForward::Differences };
-    let mut servo = Servo::new(config);
+    let mut servo = Servo::new(config).map_err(|e| SimError::Invalid(format!("servo settings refused: {e}")))?;
     if let FeedForward::Dynamics(d) = &feedforward {
         servo.set_dynamics(Some(d.cast())).map_err(|e| SimError::Invalid(format!("dynamic parameters: {e}")))?;
     }
