@@ -137,7 +137,7 @@ impl Real for f32 {
     const HALF: Self = 0.5;
     const PI: Self = core::f32::consts::PI;
     const EPSILON: Self = f32::EPSILON;
-    const IK_MIN_TRANSMISSION: Self = 4.921_566_3e-3;
+    const IK_MIN_TRANSMISSION: Self = 4.921_566e-3;
     const FK_MIN_TRANSMISSION: Self = 3.452_669_8e-4;
 
     fn from_f64(v: f64) -> Self {
@@ -245,9 +245,8 @@ pub fn wrap_angle_rad<T: Real>(angle_rad: T) -> T {
 #[cold]
 #[inline(never)]
 fn wrap_outside_rad<T: Real>(angle_rad: T) -> T {
-    let near = wrap_near_rad(angle_rad);
-    if near == near {
-        near
+    if angle_rad.abs() < T::from_f64(4.0 * core::f64::consts::PI) {
+        wrap_near_rad(angle_rad)
     } else {
         wrap_far_rad(angle_rad)
     }
@@ -265,7 +264,7 @@ pub(crate) fn wrap_near_rad<T: Real>(angle_rad: T) -> T {
         return angle_rad;
     }
     if !(a < T::from_f64(4.0 * core::f64::consts::PI)) {
-        return T::ZERO / T::ZERO;
+        return T::from_f64(f64::NAN);
     }
     // 2π = HI + LO with HI an f32: `k·HI` (k ≤ 2) is exact in either type and so is
     // `x - k·HI` (Sterbenz's lemma: x within a factor 2 of k·HI for x in [π, 4π)); LO carries
@@ -351,7 +350,7 @@ mod tests {
     fn wrap_angle_keeps_the_direction_everywhere() {
         let mut checked = 0;
         for e in -3..=38 {
-            for m in [1.0, 1.234_567, 2.5, 3.141_592_653_589_793, 4.7, 6.283_185_307_179_586, 7.9, 9.999] {
+            for m in [1.0, 1.234_567, 2.5, core::f64::consts::PI, 4.7, core::f64::consts::TAU, 7.9, 9.999] {
                 for sign in [1.0f64, -1.0] {
                     let x = sign * m * 10f64.powi(e);
                     let w = wrap_angle_rad(x);
