@@ -86,7 +86,7 @@ mod app {
         let reset_cause = board.reset_cause();
         defmt::info!("boot: reset cause {}", reset_cause);
 
-        let (cal_state, cal) = calibration::load(firmware::calibration::region(), settings.allow_uncorrected);
+        let (cal_state, cal) = calibration::load(firmware::calibration::region(), &settings.machine, settings.home_mm, settings.allow_uncorrected);
         match cal_state {
             CalibrationState::Valid => {}
             CalibrationState::Refused(e) => defmt::error!("calibration image refused ({}): drives stay disabled", e),

@@ -33,8 +33,9 @@
 //!
 //! Only a reset clears a latched fault. The mode machine is in [`crate::servo_loop`], the stop
 //! profile in [`crate::stop`], the encoder checks in [`crate::encoder_check`].
-use kinematics_core::{EngageError, GridError, ServoFault, SetpointRefusal};
+use kinematics_core::{EngageError, ServoFault, SetpointRefusal};
 
+use crate::calibration::ImageError;
 use crate::encoder_check::EncoderFault;
 use crate::settings::SettingsError;
 use crate::watchdog::WatchdogFault;
@@ -79,7 +80,7 @@ pub enum Fault {
     /// output enable). Category 0.
     Drive,
     /// The calibration image was refused at boot (drives never enabled).
-    Calibration(GridError),
+    Calibration(ImageError),
     /// The settings were refused at boot (drives never enabled).
     Settings(SettingsError),
     /// The servo could not engage at the encoder reading at boot (drives never enabled).
@@ -135,7 +136,7 @@ impl core::error::Error for Fault {}
 mod tests {
     use super::*;
     use crate::encoder_check::EncoderFaultKind;
-    use kinematics_core::KinematicsError;
+    use kinematics_core::{GridError, KinematicsError};
 
     #[test]
     fn categories_follow_the_table() {

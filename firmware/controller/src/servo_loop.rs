@@ -414,6 +414,7 @@ mod tests {
     use kinematics_core::grid::{encode, CorrectionGrid, GridGeometry};
     use kinematics_core::{EngageError, FiveBar, GridError, SetpointRefusal};
 
+    use crate::calibration::ImageError;
     use crate::encoder_check::{EncoderFault, EncoderFaultKind};
     use crate::setpoints::QUEUE_SLOTS;
     use crate::stop::stopping_distance_bound_mm;
@@ -452,8 +453,8 @@ mod tests {
         let settings = Settings::default();
         let cal = Calibration { model: FiveBar::paper_nominal(), grid: None };
         let encoder = cal.command_rad(HOME_MM, 0.05).unwrap();
-        let mut l = ServoLoop::boot(&settings, cal, CalibrationState::Refused(GridError::BadCrc), encoder);
-        assert_eq!(l.mode(), Mode::SafeState(Fault::Calibration(GridError::BadCrc)));
+        let mut l = ServoLoop::boot(&settings, cal, CalibrationState::Refused(ImageError::Grid(GridError::BadCrc)), encoder);
+        assert_eq!(l.mode(), Mode::SafeState(Fault::Calibration(ImageError::Grid(GridError::BadCrc))));
         assert!(!l.drives_enabled());
         let mut q: Queue<MotionSetpoint<f32>, QUEUE_SLOTS> = Queue::new();
         let (mut tx, mut rx) = q.split();
@@ -465,7 +466,7 @@ mod tests {
         }
         assert_eq!(rx.len(), 1, "nothing taken from the queue in the safe state");
         // Uncorrected running allowed: engages with the nominal model.
-        let l = ServoLoop::boot(&settings, cal, CalibrationState::Uncorrected(GridError::BadCrc), encoder);
+        let l = ServoLoop::boot(&settings, cal, CalibrationState::Uncorrected(ImageError::Grid(GridError::BadCrc)), encoder);
         assert_eq!(l.mode(), Mode::Running);
     }
 
@@ -593,9 +594,9 @@ mod tests {
         assert_eq!((s.torque_nm, s.fault), ([0.0; 2], None));
         // A refused image at boot stays the reason reported.
         let cal = Calibration { model: FiveBar::paper_nominal(), grid: None };
-        let mut l = ServoLoop::boot(&settings, cal, CalibrationState::Refused(GridError::BadCrc), encoder);
+        let mut l = ServoLoop::boot(&settings, cal, CalibrationState::Refused(ImageError::Grid(GridError::BadCrc)), encoder);
         l.latch_at_boot(Fault::Watchdog(WatchdogFault::NotStarted));
-        assert_eq!(l.mode(), Mode::SafeState(Fault::Calibration(GridError::BadCrc)));
+        assert_eq!(l.mode(), Mode::SafeState(Fault::Calibration(ImageError::Grid(GridError::BadCrc))));
     }
 
     #[test]

@@ -71,7 +71,7 @@
 //!   Jacobian at the setpoint, at most [`MAX_FOLLOWING_ERROR_5G_UM`] in every sample.
 use kinematics_core::{wrap_angle_rad, Calibration, CorrectionGrid, GridError, SetpointRefusal};
 
-use crate::calibration::CalibrationState;
+use crate::calibration::{CalibrationState, ImageError};
 use crate::encoder_check::{EncoderFault, EncoderFaultKind};
 use crate::fault::{Fault, StopCategory};
 use crate::settings::Settings;
@@ -811,10 +811,10 @@ impl<'a> Checker<'a> {
     fn bad_image(&mut self, o: &Observation<'_>, expected: GridError) -> Verdict {
         self.never_enabled(o, |s| {
             require(
-                s.calibration == CalibrationState::Refused(expected),
+                s.calibration == CalibrationState::Refused(ImageError::Grid(expected)),
                 "bad image not refused, or refused for another reason",
             )?;
-            require(s.fault == Some(Fault::Calibration(expected)), "calibration fault not reported")
+            require(s.fault == Some(Fault::Calibration(ImageError::Grid(expected))), "calibration fault not reported")
         })
     }
 
@@ -1361,8 +1361,8 @@ mod tests {
     #[test]
     fn a_bad_image_passes_only_if_the_drives_were_never_enabled() {
         let refused = |ticks| Status {
-            calibration: CalibrationState::Refused(GridError::BadCrc),
-            fault: Some(Fault::Calibration(GridError::BadCrc)),
+            calibration: CalibrationState::Refused(ImageError::Grid(GridError::BadCrc)),
+            fault: Some(Fault::Calibration(ImageError::Grid(GridError::BadCrc))),
             torque_nm: [0.0; 2],
             ..running(ticks, D_RAD)
         };
@@ -1377,7 +1377,7 @@ mod tests {
         assert_eq!(c.observe(&never(&refused(BAD_IMAGE_TICKS))), Some(Ok(())));
         // Enabled once, even if off now.
         assert_eq!(c.observe(&off(&refused(5))), Some(Err("drives enabled at a boot that must keep them off")));
-        let wrong = Status { calibration: CalibrationState::Refused(GridError::BadMagic), ..refused(BAD_IMAGE_TICKS) };
+        let wrong = Status { calibration: CalibrationState::Refused(ImageError::Grid(GridError::BadMagic)), ..refused(BAD_IMAGE_TICKS) };
         assert!(matches!(c.observe(&never(&wrong)), Some(Err(_))));
     }
 
