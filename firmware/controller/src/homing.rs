@@ -96,7 +96,8 @@ pub struct HomingSettings {
     /// the rectangle to the index, plus margin.
     pub max_travel_rad: [f32; 2],
     /// Speed, acceleration and jerk limits of every homing move (joint space, rad/s, rad/s²,
-    /// rad/s³). Default 0.5 rad/s (75 mm/s at a 150 mm link), 5 rad/s², 200 rad/s³.
+    /// rad/s³). Default 1 rad/s (150 mm/s at a 150 mm link, a tenth of the tour's speed),
+    /// 10 rad/s², 400 rad/s³.
     pub speed_rad_s: f32,
     /// See `speed_rad_s`.
     pub accel_rad_s2: f32,
@@ -107,7 +108,7 @@ pub struct HomingSettings {
     /// Following error that ends homing (rad). Default 0.01 rad.
     pub following_error_rad: f32,
     /// Smallest transmission `|sin|` any pose of the procedure may have ([`check_plan`]).
-    /// Default 0.3 (the servo's own margin is 0.05).
+    /// Default 0.2 (the servo's own margin is 0.05).
     pub min_transmission: f32,
 }
 
@@ -120,12 +121,12 @@ impl Default for HomingSettings {
             search_direction: [Direction::Positive, Direction::Negative],
             order: [0, 1],
             max_travel_rad: [1.35, 1.35],
-            speed_rad_s: 0.5,
-            accel_rad_s2: 5.0,
-            jerk_rad_s3: 200.0,
+            speed_rad_s: 1.0,
+            accel_rad_s2: 10.0,
+            jerk_rad_s3: 400.0,
             torque_limit_nm: 2.0,
             following_error_rad: 0.01,
-            min_transmission: 0.3,
+            min_transmission: 0.2,
         }
     }
 }
@@ -461,7 +462,8 @@ pub fn plan_margin(
     };
     let transmission = |theta: [f32; 2]| -> Option<f32> {
         let pose = model.forward_pose(theta, 0.0).ok()?;
-        Some(pose.transmission())
+        let [s1, s2] = pose.serial_transmission(model);
+        Some(s1.min(s2).min(pose.parallel_transmission(model)))
     };
     let home = model.inverse(home_mm, 0.0).map_err(|_| home_mm)?;
     let mut worst = f32::INFINITY;
@@ -474,7 +476,7 @@ pub fn plan_margin(
                 rect_mm[2] + (rect_mm[3] - rect_mm[2]) * j as f32 / n as f32,
             ];
             let mut theta = model.inverse(start_mm, 0.0).map_err(|_| start_mm)?;
-            let mut sweep = |from: [f32; 2], to: [f32; 2], worst: &mut f32| -> Result<(), [f32; 2]> {
+            let sweep = |from: [f32; 2], to: [f32; 2], worst: &mut f32| -> Result<(), [f32; 2]> {
                 let d = [to[0] - from[0], to[1] - from[1]];
                 let steps = (libm::hypotf(d[0], d[1]) / step_rad) as usize + 1;
                 for s in 0..=steps {
