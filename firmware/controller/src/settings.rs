@@ -11,6 +11,7 @@ use kinematics_core::{ConfigError, ServoConfig};
 use crate::calibration::MachineIdentity;
 use crate::encoder::{EncoderConfig, EncoderConfigError, EncoderScale};
 use crate::encoder_check::EncoderLimits;
+use crate::homing::HomingSettings;
 use crate::stop::StopSettings;
 
 /// The default home position (mm): the middle of the paper's workspace.
@@ -74,6 +75,9 @@ pub struct Settings {
     /// may be from it (`calibration::MachineIdentity`). Default: the paper's machine, 2 mm /
     /// 2 mm / 0.05 rad.
     pub machine: MachineIdentity,
+    /// Homing: absolute encoders (no homing) or the index procedure, its limits and whether it
+    /// runs at boot. See [`HomingSettings`].
+    pub homing: HomingSettings,
     /// The home position (mm): where homing ends, and what every calibration image's grid must
     /// contain. Default (212.132, 0), the middle of the paper's workspace.
     pub home_mm: [f32; 2],
@@ -122,6 +126,7 @@ impl Settings {
             EncoderScale::new(config).map_err(|error| SettingsError::Encoder { axis: axis as u8, error })?;
         }
         self.encoder_limits.validate().map_err(SettingsError::Field)?;
+        self.homing.validate().map_err(SettingsError::Field)?;
         let positive = |v: f32| v.is_finite() && v > 0.0;
         for (ok, name) in [
             (positive(self.drive_full_scale_nm), "drive_full_scale_nm"),
@@ -167,6 +172,7 @@ impl Default for Settings {
             encoder_limits: EncoderLimits::default(),
             machine: MachineIdentity::default(),
             home_mm: HOME_MM,
+            homing: HomingSettings::default(),
         }
     }
 }

@@ -81,7 +81,7 @@ impl Status {
         }
         self.mode = mode;
         self.stop_distance_mm = stop_distance_mm;
-        self.drives_enabled = !matches!(mode, Mode::SafeState(_));
+        self.drives_enabled = mode.drives_on();
         if mode == Mode::Running {
             self.max_following_error_rad = self.max_following_error_rad.max(sample.following_error_rad);
         }
