@@ -504,7 +504,6 @@ mod tests {
         // The next one goes back to slot A, over the probe-flashed image, and wins on sequence.
         let third = image(3e-4);
         assert_eq!(upload(&mut store, &third, 64).unwrap().slot, 0);
-        drop(store);
         let store = open(&mut region);
         assert_eq!(store.active().unwrap(), (&third[..], CalibrationId { slot: 0, sequence: 2, crc32: crc(&third), len: third.len() as u32 }));
     }
@@ -546,7 +545,6 @@ mod tests {
         padded.extend([0u8; 8]);
         assert!(matches!(upload(&mut store, &padded, 64), Err(SlotError::BadLength { .. })));
         assert_eq!(store.active_id(), before);
-        drop(store);
         assert_eq!(open(&mut region).active_id(), before, "and after a reboot");
     }
 
@@ -600,14 +598,13 @@ mod tests {
                 let mut store = open(&mut r);
                 store.flash.budget = Some(budget);
                 let done = upload(&mut store, new, 24).is_ok();
-                drop(store);
                 let after = open(&mut r);
                 let (bytes, id) = after.active().expect("an image in force after every cut");
                 if done {
                     assert_eq!(bytes, &new[..], "cut after {budget} of {total}: committed, the new image");
                 } else {
                     assert_eq!(bytes, &old[..], "cut after {budget} of {total}: the old image");
-                    assert_eq!(budget < total, true);
+                    assert!(budget < total);
                 }
                 assert_eq!(id.crc32, crc(bytes));
                 cuts += 1;
@@ -652,7 +649,6 @@ mod tests {
             let mut s = open64(&mut r);
             s.flash.budget = Some(budget);
             let done = upload(&mut s, &new, 256).is_ok();
-            drop(s);
             let after = open64(&mut r);
             let expected = if done { &new } else { &old };
             assert_eq!(after.active().unwrap().0, &expected[..], "cut after {budget} of {ops}");
