@@ -51,7 +51,7 @@ mod app {
 
     use controller::calibration::{self, CalibrationState};
     use controller::fault::{Fault, StopCategory};
-    use controller::servo_loop::ServoLoop;
+    use controller::servo_loop::{Mode, ServoLoop};
     use controller::settings::Settings;
     use controller::setpoints::{self, QUEUE_SLOTS};
     use controller::status::Status;
@@ -99,19 +99,34 @@ mod app {
         if let Some(fault) = watchdog::fault_after_reset(reset_cause) {
             servo_loop.latch_at_boot(fault);
         }
-        let mut source = board.setpoints(Trajectory::builtin(servo_loop.setpoint_mm(), settings));
+        // Incremental encoders: homing first (at boot if the settings say so; otherwise the
+        // host's Home command starts it). The stream then starts at the home position.
+        let unhomed = servo_loop.mode() == Mode::Unhomed;
+        if unhomed && settings.homing.at_boot {
+            match servo_loop.start_homing(encoder_rad) {
+                Ok(()) => defmt::info!("homing at boot from encoders {} rad", encoder_rad),
+                Err(mode) => defmt::error!("homing refused: {}", mode),
+            }
+        }
+        let start_mm = if unhomed { settings.home_mm } else { servo_loop.setpoint_mm() };
+        let mut source = board.setpoints(Trajectory::builtin(start_mm, settings));
         // The watchdog starts only now, after the slow part of the boot (the QEMU harness scans
         // the trajectory), so that the first servo sample comes well within its timeout; a
         // watchdog that will not start keeps the drives off.
         if let Err(e) = board.start_watchdog() {
             servo_loop.latch_at_boot(Fault::Watchdog(e));
         }
-        match servo_loop.mode().fault() {
-            None => {
+        match (servo_loop.mode(), servo_loop.mode().fault()) {
+            (Mode::Running, _) => {
                 defmt::info!("engaged at {} mm (encoders {} rad)", servo_loop.setpoint_mm(), encoder_rad);
                 board.enable_drives();
             }
-            Some(fault) => {
+            (Mode::Homing, _) => board.enable_drives(),
+            (Mode::Unhomed, _) => {
+                defmt::warn!("not homed: drives disabled until homing (every setpoint refused)");
+                board.disable_drives();
+            }
+            (_, fault) => {
                 defmt::error!("not engaged ({}): drives disabled", fault);
                 board.disable_drives();
             }
@@ -149,7 +164,19 @@ mod app {
         l.board.begin_sample();
         // Encoders -> sample logic (setpoint intake, mode machine, servo step).
         let encoder_rad = l.board.encoders_rad();
-        let mut sample = l.servo_loop.step(l.setpoints_out, encoder_rad);
+        let mut sample = if l.servo_loop.mode() == Mode::Homing {
+            // Homing (joint space, the setpoint stream waits): the index captures, and the
+            // reference once both indexes are found.
+            let index_rad = l.board.index_rad();
+            let mut sample = l.servo_loop.step_homing(encoder_rad, index_rad);
+            if sample.set_reference {
+                let ok = l.board.reference_at_index(l.servo_loop.settings().homing.index_rad);
+                l.servo_loop.referenced(ok, &mut sample);
+            }
+            sample
+        } else {
+            l.servo_loop.step(l.setpoints_out, encoder_rad)
+        };
         if sample.refill {
             let _ = intake::spawn();
         }

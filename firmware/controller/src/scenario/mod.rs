@@ -74,6 +74,8 @@ use kinematics_core::{wrap_angle_rad, Calibration, CorrectionGrid, GridError, Se
 use crate::calibration::{CalibrationState, ImageError};
 use crate::encoder_check::{EncoderFault, EncoderFaultKind};
 use crate::fault::{Fault, StopCategory};
+use crate::homing::HomingFault;
+use crate::servo_loop::Mode;
 use crate::settings::Settings;
 use crate::status::Status;
 use crate::stop::{MotionState, StopProfile};
@@ -177,6 +179,14 @@ pub enum Scenario {
     /// The boot after [`Scenario::StalledTask`]'s watchdog reset (not named on the command
     /// line: [`Scenario::after_reset`]): the drives must never be enabled.
     WatchdogRestart,
+    /// Incremental encoders with index marks, the machine powered up at an unknown pose
+    /// ([`HOMING_POWER_ON_MM`]): homing at boot (speed and torque limited, never a fault), the
+    /// encoder zero it sets must make the readings equal the plant's true angles, then the
+    /// built-in tour with `track`'s checks (the grid applied).
+    Homing,
+    /// The same, but joint 2's index mark is missing: `Homing(IndexNotFound(1))`, the machine at
+    /// rest with the drives off, never running.
+    HomingNoIndex,
     /// A bad image flashed by the test, refused with this error: drives never enabled.
     BadImage(GridError),
     /// Self-test of the panic path: the harness panics at boot (`qemu/test.sh` expects the
@@ -185,6 +195,25 @@ pub enum Scenario {
     /// Self-test of the HardFault path: the harness executes `udf` at boot.
     HardFault,
 }
+
+/// The homing scenarios' machine (see [`Scenario::homing_sim`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct HomingSim {
+    /// Where the tool stands at power-on (mm); the counters read 0 there.
+    pub power_on_mm: [f32; 2],
+    /// Which axes have an index mark.
+    pub index: [bool; 2],
+}
+
+/// Where the homing scenarios' machine powers up (mm): off home, inside the rectangle.
+pub const HOMING_POWER_ON_MM: [f32; 2] = [235.0, -40.0];
+/// `homing` may run this long (10 s: homing about 3.5 s, then the tour).
+pub const HOMING_MAX_TICKS: u32 = 20_000;
+/// After homing, the firmware's readings must equal the plant's true angles within this (rad):
+/// a few counts (2^22 counts/rev: 1.5 µrad each).
+pub const MAX_HOMED_ENCODER_ERROR_RAD: f32 = 1.0e-5;
+/// The drives' torque resolution (N·m): one PWM duty step at 10 N·m full scale over 4250.
+const DUTY_STEP_NM: f32 = 2.0 * 10.0 / 4250.0;
 
 /// What the harness does to joint 1's encoder reading in a sample.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -249,6 +278,8 @@ impl Scenario {
             "glitch-small" => Scenario::GlitchSmall,
             "glitch-large" => Scenario::GlitchLarge,
             "stalled-task" => Scenario::StalledTask,
+            "homing" => Scenario::Homing,
+            "homing-no-index" => Scenario::HomingNoIndex,
             "bad-image-crc" => Scenario::BadImage(GridError::BadCrc),
             "bad-image-magic" => Scenario::BadImage(GridError::BadMagic),
             "panic" => Scenario::Panic,
@@ -348,10 +379,21 @@ impl Scenario {
         self == Scenario::StalledTask && self.inject_at(i) == Some(index)
     }
 
+    /// The homing scenarios' simulated machine: incremental encoders, where it powers up, which
+    /// axes have an index mark (`None`: absolute encoders, no homing).
+    pub fn homing_sim(self) -> Option<HomingSim> {
+        match self {
+            Scenario::Homing => Some(HomingSim { power_on_mm: HOMING_POWER_ON_MM, index: [true, true] }),
+            Scenario::HomingNoIndex => Some(HomingSim { power_on_mm: HOMING_POWER_ON_MM, index: [true, false] }),
+            _ => None,
+        }
+    }
+
     /// Samples after which the scenario fails if it has not concluded.
     pub fn time_limit_ticks(self) -> Option<u32> {
         match self {
             Scenario::Run | Scenario::LongRun => None,
+            Scenario::Homing => Some(HOMING_MAX_TICKS),
             _ => Some(MAX_TICKS),
         }
     }
@@ -494,6 +536,8 @@ pub struct Checker<'a> {
     grid: GridCheck,
     settled_tool_error_mm: Option<f32>,
     motion: MotionCheck,
+    /// The sample homing ended and the servo engaged (`homing`).
+    homed_at: Option<u32>,
 }
 
 /// What `track-5g`'s motion check found so far (logged with the verdict).
@@ -537,7 +581,13 @@ impl<'a> Checker<'a> {
             grid: GridCheck::default(),
             settled_tool_error_mm: None,
             motion: MotionCheck::default(),
+            homed_at: None,
         }
+    }
+
+    /// The sample homing ended at (`homing`), once it did.
+    pub fn homed_at(&self) -> Option<u32> {
+        self.homed_at
     }
 
     /// `track-5g`'s motion check so far.
@@ -689,6 +739,8 @@ impl<'a> Checker<'a> {
                     max_travel_mm: None,
                 },
             ),
+            Scenario::Homing => self.homing_then_track(o),
+            Scenario::HomingNoIndex => self.homing_no_index(o),
             Scenario::BadImage(expected) => self.bad_image(o, expected),
             Scenario::StalledTask => self.before_stall(o),
             Scenario::WatchdogRestart => self.watchdog_restart(o),
@@ -831,6 +883,54 @@ impl<'a> Checker<'a> {
         (o.status.ticks >= BAD_IMAGE_TICKS).then(|| reason(o.status))
     }
 
+    /// While homing: the drives on, no fault, the torque within the homing limit. From the
+    /// first `Running` sample: the readings equal the plant's true angles (the zero is right)
+    /// and `track`'s checks, the tour starting there.
+    fn homing_then_track(&mut self, o: &Observation<'_>) -> Verdict {
+        let s = o.status;
+        if s.fault.is_some() {
+            return Some(Err("unexpected fault"));
+        }
+        match (s.mode, self.homed_at) {
+            (Mode::Homing, None) => {
+                let limit = self.settings.homing.torque_limit_nm + DUTY_STEP_NM;
+                let within = o.drive_torque_nm.iter().all(|t| t.abs() <= limit);
+                return Some(Err("torque above the homing limit")).filter(|_| !within).or_else(|| {
+                    (!o.drive_enable).then_some(Err("drives not enabled while homing"))
+                });
+            }
+            (Mode::Running, None) => {
+                self.homed_at = Some(s.ticks);
+                self.track_end_tick += s.ticks;
+            }
+            (Mode::Running, Some(_)) => {}
+            _ => return Some(Err("neither homing nor running")),
+        }
+        let off = [0, 1].map(|k| (s.encoder_rad[k] - o.plant.joint_rad[k]).abs());
+        if !(off[0] <= MAX_HOMED_ENCODER_ERROR_RAD && off[1] <= MAX_HOMED_ENCODER_ERROR_RAD) {
+            return Some(Err("after homing the readings are not the joints' true angles"));
+        }
+        self.track(o)
+    }
+
+    /// `homing-no-index`: homing until joint 2's search ends without an index, then
+    /// `Homing(IndexNotFound(1))`, the safe state, the machine at rest; never running.
+    fn homing_no_index(&mut self, o: &Observation<'_>) -> Verdict {
+        let s = o.status;
+        match (s.mode, s.fault) {
+            (Mode::Homing, None) => (!o.drive_enable).then_some(Err("drives not enabled while homing")),
+            (Mode::SafeState(Fault::Homing(HomingFault::IndexNotFound(1))), Some(Fault::Homing(HomingFault::IndexNotFound(1)))) => {
+                if let Err(why) = safe_state(o) {
+                    return Some(Err(why));
+                }
+                let at = *self.fault_at.get_or_insert(s.ticks);
+                let still = o.plant.joint_rad_s.iter().all(|w| w.abs() < 0.01);
+                (s.ticks >= at + 200).then(|| require(still, "the machine is not at rest after the failed search"))
+            }
+            _ => Some(Err("not homing, or another fault than the missing index")),
+        }
+    }
+
     fn long_run(&mut self, o: &Observation<'_>) -> Verdict {
         let s = o.status;
         if s.fault.is_some() {
@@ -946,7 +1046,6 @@ fn safe_state(o: &Observation<'_>) -> Result<(), &'static str> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::servo_loop::Mode;
     use kinematics_core::grid::{encode, GridGeometry};
     use kinematics_core::{FiveBar, KinematicsError};
 

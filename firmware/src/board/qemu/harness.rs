@@ -169,7 +169,10 @@ impl Harness {
                 if let (Some(at), Some(report)) = (checker.fault_sample(), checker.stop_report()) {
                     defmt::info!("stop: fault at sample {} ({}): {}", at, status.fault, report);
                 }
-                if matches!(self.scenario, Scenario::Track | Scenario::Track5g) {
+                if let Some(at) = checker.homed_at() {
+                    defmt::info!("homing: homed and engaged at sample {}", at);
+                }
+                if matches!(self.scenario, Scenario::Track | Scenario::Track5g | Scenario::Homing) {
                     defmt::info!(
                         "track: grid {}, settled tool error {} mm",
                         checker.grid_check(),
