@@ -51,7 +51,8 @@
 //! after a category-1 stop has reached standstill.
 use heapless::spsc::Consumer;
 use kinematics_core::trajectory::MotionSetpoint;
-use kinematics_core::{Calibration, Servo, ServoOutput, StepError};
+use kinematics_core::path::Line;
+use kinematics_core::{Calibration, EngageError, PathMotion, Servo, ServoOutput, StepError, TaskLimits};
 
 use crate::calibration::CalibrationState;
 use crate::deadline::Deadline;
@@ -165,6 +166,28 @@ pub struct ServoLoop<'a> {
     homing: Option<Homing>,
     /// The offset of the reference homing asked for, until `referenced`.
     pending_offset_rad: [f32; 2],
+    /// After a calibration switch at rest: the short move from where the new calibration puts
+    /// the tool back to the stream's position, stepped before the queue is read again.
+    blend: Option<Blend>,
+}
+
+/// A jerk-limited straight move the loop steps by itself (after a calibration switch).
+#[derive(Clone, Copy, Debug)]
+struct Blend {
+    motion: PathMotion<f32, Line<f32>>,
+    t_s: f32,
+}
+
+/// Why [`ServoLoop::switch_calibration`] did not switch (now).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum SwitchRefused {
+    /// The machine moves, homes, stops or holds after a fault: try again at the next sample
+    /// (a running machine comes to rest between moves).
+    NotAtRest,
+    /// The new calibration cannot engage at the machine's pose (its kinematics refuse it): the
+    /// old one stays.
+    Engage(EngageError),
 }
 
 impl<'a> ServoLoop<'a> {
@@ -224,7 +247,47 @@ impl<'a> ServoLoop<'a> {
             samples: 0,
             homing: None,
             pending_offset_rad: [0.0; 2],
+            blend: None,
         }
+    }
+
+    /// Switches to a newly committed calibration (`calibration_slots`), without a jump:
+    /// * running at rest (between moves, nothing queued moving): the servo re-engages at the
+    ///   current reading with the new calibration (the reference is the reading: no torque
+    ///   step), then a jerk-limited move within the stop's limits brings the tool from where
+    ///   the new calibration says it is to the stream's position (micrometres: the two
+    ///   calibrations' difference) before the queue is read again;
+    /// * unhomed or in the safe state (drives off): the calibration is replaced;
+    /// * otherwise ([`SwitchRefused::NotAtRest`]): the caller keeps it pending and tries again.
+    pub fn switch_calibration(&mut self, calibration: Calibration<'a>, encoder_rad: [f32; 2]) -> Result<(), SwitchRefused> {
+        let margin_mm = self.settings.stop.workspace_margin_mm;
+        let workspace = calibration.grid.as_ref().map(|g| Workspace::of_grid(g.geometry(), margin_mm));
+        let dynamics = calibration.grid.as_ref().and_then(|g| g.dynamics().copied());
+        match self.mode {
+            Mode::Unhomed | Mode::SafeState(_) => {}
+            Mode::Running if self.motion.is_at_rest() && self.blend.is_none() => {
+                let Some(servo) = self.servo.as_mut() else { return Err(SwitchRefused::NotAtRest) };
+                let tool_mm = match servo.engage(&calibration, encoder_rad) {
+                    Ok(p) => p,
+                    Err(e) => {
+                        // Back to the old calibration, at the same reading (as at boot).
+                        let _ = servo.engage(&self.calibration, encoder_rad);
+                        let _ = servo.set_dynamics(self.calibration.grid.as_ref().and_then(|g| g.dynamics().copied()));
+                        return Err(SwitchRefused::Engage(e));
+                    }
+                };
+                let _ = servo.set_dynamics(dynamics);
+                let l = &self.settings.stop.limits;
+                let limits = TaskLimits { speed_mm_s: self.settings.trajectory_speed_mm_s, accel_mm_s2: l.decel_mm_s2, jerk_mm_s3: l.jerk_mm_s3 };
+                self.blend = PathMotion::line(tool_mm, self.motion.position_mm, &limits).ok().map(|motion| Blend { motion, t_s: 0.0 });
+                self.setpoint_mm = tool_mm;
+                self.reference_rad = encoder_rad;
+            }
+            _ => return Err(SwitchRefused::NotAtRest),
+        }
+        self.calibration = calibration;
+        self.workspace = workspace;
+        Ok(())
     }
 
     /// The mode after the last sample.
@@ -424,6 +487,15 @@ impl<'a> ServoLoop<'a> {
 
     /// `Running`: the next setpoint of the stream, or the start of a stop.
     fn run(&mut self, queue: &mut Consumer<'_, MotionSetpoint<f32>>, encoder_rad: [f32; 2], sample: &mut Sample) {
+        if let Some(blend) = self.blend.as_mut() {
+            // After a calibration switch: the blend's setpoints, the queue left alone.
+            blend.t_s += self.settings.servo.sample_period_s;
+            let setpoint = blend.motion.at(blend.t_s);
+            if blend.t_s >= blend.motion.duration_s() {
+                self.blend = None;
+            }
+            return self.track_setpoint(setpoint, None, encoder_rad, sample);
+        }
         let next = queue.dequeue();
         sample.refill = queue.len() < REFILL_BELOW;
         let setpoint = match next {
@@ -436,9 +508,14 @@ impl<'a> ServoLoop<'a> {
                 MotionSetpoint::at_rest(self.motion.position_mm)
             }
         };
-        let setpoint_mm = setpoint.position_mm;
         // The one after it, if queued: the feed-forward's look-ahead (else it is predicted).
         let ahead = queue.peek().copied();
+        self.track_setpoint(setpoint, ahead, encoder_rad, sample)
+    }
+
+    /// Accepts and tracks one setpoint (`ahead` the next, if known), or starts the stop.
+    fn track_setpoint(&mut self, setpoint: MotionSetpoint<f32>, ahead: Option<MotionSetpoint<f32>>, encoder_rad: [f32; 2], sample: &mut Sample) {
+        let setpoint_mm = setpoint.position_mm;
         let Some(servo) = self.servo.as_mut() else {
             return self.latch(Fault::Servo(kinematics_core::ServoFault::NotEngaged), sample);
         };
@@ -1219,5 +1296,59 @@ mod tests {
                 assert_eq!(rx.len(), 1);
             }
         }
+    }
+
+    /// A calibration committed while the tour runs: the loop switches in the next dwell (not
+    /// while moving), without a torque step; after the blend the reference carries the new
+    /// grid's correction and the tour goes on without a fault.
+    #[test]
+    fn a_new_calibration_is_switched_to_at_rest_without_a_jump() {
+        let settings = absolute();
+        let img = image();
+        let g = GridGeometry { nx: 3, ny: 3, x0_mm: 160.0, y0_mm: -80.0, step_x_mm: 50.0, step_y_mm: 80.0 };
+        let mut new_img = vec![0u8; g.image_len()];
+        encode(&mut new_img, &g, &FiveBar::paper_nominal(), &[[-3e-4, 2e-4]; 9]).unwrap();
+        let (old, new) = (grid_cal(&img), grid_cal(&new_img));
+        let start = old.command_rad(HOME_MM, 0.05).unwrap();
+        let mut plant = Plant { angle_rad: start, velocity_rad_s: [0.0; 2], torque_nm: [0.0; 2], enabled: true };
+        let mut l = ServoLoop::boot(&settings, old, CalibrationState::Valid, plant.encoder_rad());
+        let mut q: Queue<MotionSetpoint<f32>, QUEUE_SLOTS> = Queue::new();
+        let (mut tx, mut rx) = q.split();
+        let mut t = tour();
+        let (mut pending, mut switched_at, mut last_torque, mut worst_step) = (false, None, [0.0f32; 2], 0.0f32);
+        for k in 0..6000 {
+            while tx.ready() && !t.finished() {
+                tx.enqueue(t.next_setpoint()).unwrap();
+            }
+            if k == 700 {
+                pending = true;
+            }
+            if pending {
+                match l.switch_calibration(new, plant.encoder_rad()) {
+                    Ok(()) => {
+                        pending = false;
+                        switched_at = Some(k);
+                    }
+                    Err(e) => assert_eq!(e, SwitchRefused::NotAtRest),
+                }
+            }
+            let s = l.step(&mut rx, plant.encoder_rad());
+            assert!(s.fault.is_none(), "sample {k}: {:?}", s.fault);
+            if switched_at.is_some_and(|at| k >= at && k < at + 50) {
+                worst_step = worst_step.max((s.torque_nm[0] - last_torque[0]).abs()).max((s.torque_nm[1] - last_torque[1]).abs());
+            }
+            last_torque = s.torque_nm;
+            plant.torque_nm = s.torque_nm;
+            plant.advance();
+        }
+        let at = switched_at.expect("never switched");
+        assert!(at > 700, "switched at {at}");
+        // The reference now carries the new correction: commanded minus IK is the new grid's.
+        let p = l.setpoint_mm();
+        let ik = FiveBar::<f32>::paper_nominal().inverse(p, 0.05).unwrap();
+        let d = [l.reference_rad()[0] - ik[0], l.reference_rad()[1] - ik[1]];
+        assert!((d[0] + 3e-4).abs() < 2e-6 && (d[1] - 2e-4).abs() < 2e-6, "{d:?}");
+        println!("switched at sample {at}, largest torque change per sample in the next 50: {worst_step:.3} N·m");
+        assert!(worst_step < 1.0, "{worst_step}");
     }
 }
