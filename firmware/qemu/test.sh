@@ -79,6 +79,11 @@ run stalled-task   0 "$WATCHDOG" stalled-task $(image calibration.bin)
 # mark the search ends at rest and the drives go off.
 run homing         0 "$PASS" homing          $(image calibration.bin)
 run homing-no-index 0 "$PASS" homing-no-index $(image calibration.bin)
+# A calibration uploaded at run time into the inactive slot (the firmware's bundled second
+# image), committed and switched to at rest; the same upload corrupted on the way is refused
+# and the old image stays in force.
+run calibration-upload         0 "$PASS" calibration-upload         $(image calibration.bin)
+run calibration-upload-corrupt 0 "$PASS" calibration-upload-corrupt $(image calibration.bin)
 run corrupt-image  0 "$PASS" bad-image-crc   $(image corrupt.bin)
 run erased-image   0 "$PASS" bad-image-magic $(image erased.bin)
 run no-image       0 "$PASS" bad-image-magic

@@ -20,7 +20,7 @@
 //! | 6 | 2 | 0 |
 //! | 8 | 4 | sequence number (the previous image's plus one) |
 //! | 12 | 4 | image length (bytes) |
-//! | 16 | 4 | CRC-32/ISO-HDLC of the image's bytes: the [`CalibrationId`]'s `crc32` |
+//! | 16 | 4 | CRC-32C (Castagnoli) of the image's bytes: the [`CalibrationId`]'s `crc32` |
 //! | 20 | 4 | 0 |
 //! | 24 | 4 | CRC-32/ISO-HDLC of the record's bytes 0..24 |
 //! | 28 | 4 | commit marker `b"DONE"`, in the last write unit programmed |
@@ -56,7 +56,14 @@
 //! runs from bank 1.
 use crate::calibration::{validate_image, ImageError, MachineIdentity};
 
+/// The record's own CRC (CRC-32/ISO-HDLC, zlib's, as the grid format uses).
 const CRC32: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
+/// The image's CRC in the record and the [`CalibrationId`]: CRC-32C (Castagnoli, iSCSI), not the
+/// grid format's CRC-32/ISO-HDLC. A grid image ends with its own ISO-HDLC CRC (and the dynamics
+/// block with its own): an ISO-HDLC CRC over such bytes is the same constant for every image of
+/// a length (the CRC residue), so it would identify nothing. Another polynomial has no such
+/// relation to the image's contents.
+const IMAGE_CRC: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISCSI);
 
 /// Commit record magic.
 pub const RECORD_MAGIC: [u8; 4] = *b"HRCR";
@@ -99,6 +106,25 @@ pub trait SlotFlash {
     fn program(&mut self, offset: usize, data: &[u8]) -> Result<(), FlashError>;
 }
 
+/// The region read-only (a memory-mapped view): [`SlotStore::open`] over it finds the image in
+/// force without being able to change anything (the QEMU harness's independent reading, host
+/// tools inspecting a dump). Erase and program fail.
+pub struct ReadOnly<'a>(pub &'a [u8]);
+
+impl SlotFlash for ReadOnly<'_> {
+    const WRITE_SIZE: usize = 8;
+    const ERASE_SIZE: usize = 2048;
+    fn region(&self) -> &[u8] {
+        self.0
+    }
+    fn erase(&mut self, _: usize, _: usize) -> Result<(), FlashError> {
+        Err(FlashError::Hardware)
+    }
+    fn program(&mut self, _: usize, _: &[u8]) -> Result<(), FlashError> {
+        Err(FlashError::Hardware)
+    }
+}
+
 /// Which image is in force: the host compares `crc32` with its file's CRC-32.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -107,7 +133,8 @@ pub struct CalibrationId {
     pub slot: u8,
     /// The commit's sequence number (0: an image flashed by probe, without record).
     pub sequence: u32,
-    /// CRC-32/ISO-HDLC of the image's bytes (zlib's `crc32` of the uploaded file).
+    /// CRC-32C (Castagnoli, `crc::CRC_32_ISCSI`) of the image's bytes: the host computes it
+    /// over its file (see `IMAGE_CRC` for why not zlib's CRC-32).
     pub crc32: u32,
     /// The image's length (bytes).
     pub len: u32,
@@ -311,7 +338,7 @@ impl<F: SlotFlash> SlotStore<F> {
         if parsed_len != up.len as usize {
             return Err(SlotError::BadLength { max: self.capacity() as u32 });
         }
-        let crc32 = CRC32.checksum(image);
+        let crc32 = IMAGE_CRC.checksum(image);
         let sequence = self.active.map_or(1, |a| a.sequence.wrapping_add(1));
         let record = encode_record(sequence, up.len, crc32);
         let at = base + slot_len - RECORD_LEN;
@@ -343,7 +370,7 @@ impl<F: SlotFlash> SlotStore<F> {
         let bytes = self.flash.region().get(slot as usize * slot_len..(slot as usize + 1) * slot_len)?;
         let (sequence, len, crc32) = decode_record(&bytes[slot_len - RECORD_LEN..])?;
         let image = bytes.get(..len as usize).filter(|_| len as usize <= slot_len - RECORD_LEN)?;
-        if CRC32.checksum(image) != crc32 {
+        if IMAGE_CRC.checksum(image) != crc32 {
             return None;
         }
         let (_, parsed_len) = validate_image(image, &self.machine, self.home_mm).ok()?;
@@ -354,7 +381,7 @@ impl<F: SlotFlash> SlotStore<F> {
     fn probe_flashed(&self) -> Option<CalibrationId> {
         let a = self.flash.region().get(..self.capacity())?;
         let (_, len) = validate_image(a, &self.machine, self.home_mm).ok()?;
-        Some(CalibrationId { slot: 0, sequence: 0, crc32: CRC32.checksum(&a[..len]), len: len as u32 })
+        Some(CalibrationId { slot: 0, sequence: 0, crc32: IMAGE_CRC.checksum(&a[..len]), len: len as u32 })
     }
 }
 
@@ -471,7 +498,16 @@ mod tests {
     }
 
     fn crc(b: &[u8]) -> u32 {
-        CRC32.checksum(b)
+        IMAGE_CRC.checksum(b)
+    }
+
+    /// Regression: zlib's CRC-32 over whole grid images is one constant (each image ends with
+    /// its own CRC-32), so it cannot tell images apart; the id's CRC-32C does.
+    #[test]
+    fn different_images_have_different_ids() {
+        let (a, b) = (image(1e-4), image(2e-4));
+        assert_eq!(CRC32.checksum(&a), CRC32.checksum(&b), "the residue the id must not use");
+        assert_ne!(crc(&a), crc(&b));
     }
 
     type Small<'a> = SimFlash<'a, 8, 256>;

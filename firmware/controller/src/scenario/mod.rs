@@ -72,6 +72,7 @@
 use kinematics_core::{wrap_angle_rad, Calibration, CorrectionGrid, GridError, SetpointRefusal};
 
 use crate::calibration::{CalibrationState, ImageError};
+use crate::calibration_slots::SlotError;
 use crate::encoder_check::{EncoderFault, EncoderFaultKind};
 use crate::fault::{Fault, StopCategory};
 use crate::homing::HomingFault;
@@ -187,6 +188,14 @@ pub enum Scenario {
     /// The same, but joint 2's index mark is missing: `Homing(IndexNotFound(1))`, the machine at
     /// rest with the drives off, never running.
     HomingNoIndex,
+    /// `track`, and at [`UPLOAD_AT_TICKS`] the firmware uploads its bundled second image (the
+    /// first one's correction field negated) into the inactive slot, commits it and switches
+    /// at the next rest: the calibration id shows commit 1, and from the switch on the grid
+    /// check finds the new image's corrections applied.
+    CalibrationUpload,
+    /// The same upload with one byte corrupted on the way: refused (`BadCrc`), the old image
+    /// stays in force (commit 0) and applied to the end.
+    CalibrationUploadCorrupt,
     /// A bad image flashed by the test, refused with this error: drives never enabled.
     BadImage(GridError),
     /// Self-test of the panic path: the harness panics at boot (`qemu/test.sh` expects the
@@ -204,6 +213,9 @@ pub struct HomingSim {
     /// Which axes have an index mark.
     pub index: [bool; 2],
 }
+
+/// When the upload scenarios upload (sample): 0.5 s into the tour.
+pub const UPLOAD_AT_TICKS: u32 = 1_000;
 
 /// Where the homing scenarios' machine powers up (mm): off home, inside the rectangle.
 pub const HOMING_POWER_ON_MM: [f32; 2] = [235.0, -40.0];
@@ -278,6 +290,8 @@ impl Scenario {
             "glitch-small" => Scenario::GlitchSmall,
             "glitch-large" => Scenario::GlitchLarge,
             "stalled-task" => Scenario::StalledTask,
+            "calibration-upload" => Scenario::CalibrationUpload,
+            "calibration-upload-corrupt" => Scenario::CalibrationUploadCorrupt,
             "homing" => Scenario::Homing,
             "homing-no-index" => Scenario::HomingNoIndex,
             "bad-image-crc" => Scenario::BadImage(GridError::BadCrc),
@@ -379,6 +393,16 @@ impl Scenario {
         self == Scenario::StalledTask && self.inject_at(i) == Some(index)
     }
 
+    /// When the firmware uploads its bundled second image, and whether corrupted on the way
+    /// (`None`: no upload in this scenario).
+    pub fn upload(self) -> Option<(u32, bool)> {
+        match self {
+            Scenario::CalibrationUpload => Some((UPLOAD_AT_TICKS, false)),
+            Scenario::CalibrationUploadCorrupt => Some((UPLOAD_AT_TICKS, true)),
+            _ => None,
+        }
+    }
+
     /// The homing scenarios' simulated machine: incremental encoders, where it powers up, which
     /// axes have an index mark (`None`: absolute encoders, no homing).
     pub fn homing_sim(self) -> Option<HomingSim> {
@@ -394,6 +418,7 @@ impl Scenario {
         match self {
             Scenario::Run | Scenario::LongRun => None,
             Scenario::Homing => Some(HOMING_MAX_TICKS),
+            Scenario::CalibrationUpload | Scenario::CalibrationUploadCorrupt => Some(MAX_TICKS + 1_000),
             _ => Some(MAX_TICKS),
         }
     }
@@ -538,6 +563,8 @@ pub struct Checker<'a> {
     motion: MotionCheck,
     /// The sample homing ended and the servo engaged (`homing`).
     homed_at: Option<u32>,
+    /// Grid checks done when the checked image was replaced (the upload scenarios).
+    grid_checks_at_switch: Option<u32>,
 }
 
 /// What `track-5g`'s motion check found so far (logged with the verdict).
@@ -582,7 +609,17 @@ impl<'a> Checker<'a> {
             settled_tool_error_mm: None,
             motion: MotionCheck::default(),
             homed_at: None,
+            grid_checks_at_switch: None,
         }
+    }
+
+    /// The image in force changed (the harness's own reading of the slots): check the grid
+    /// against `image` from now on.
+    pub fn switch_image(&mut self, image: Result<CorrectionGrid<'a>, GridError>) {
+        self.image = image.map(Calibration::from_grid);
+        self.grid_checks_at_switch = Some(self.grid.checks);
+        // The blend after the switch delays the tour by a few samples.
+        self.track_end_tick += 100;
     }
 
     /// The sample homing ended at (`homing`), once it did.
@@ -740,6 +777,9 @@ impl<'a> Checker<'a> {
                 },
             ),
             Scenario::Homing => self.homing_then_track(o),
+            Scenario::CalibrationUpload | Scenario::CalibrationUploadCorrupt => {
+                self.track(o).map(|v| v.and_then(|()| self.upload_outcome(s)))
+            }
             Scenario::HomingNoIndex => self.homing_no_index(o),
             Scenario::BadImage(expected) => self.bad_image(o, expected),
             Scenario::StalledTask => self.before_stall(o),
@@ -911,6 +951,22 @@ impl<'a> Checker<'a> {
             return Some(Err("after homing the readings are not the joints' true angles"));
         }
         self.track(o)
+    }
+
+    /// The upload scenarios at the end of the tour: the upload's outcome and the image in force.
+    fn upload_outcome(&self, s: &Status) -> Result<(), &'static str> {
+        let sequence = s.calibration_id.map(|i| i.sequence);
+        if self.scenario == Scenario::CalibrationUploadCorrupt {
+            require(
+                s.last_upload == Some(Err(SlotError::Image(ImageError::Grid(GridError::BadCrc)))),
+                "the corrupted upload was not refused for its CRC",
+            )?;
+            return require(sequence == Some(0) && self.grid_checks_at_switch.is_none(), "the old image did not stay in force");
+        }
+        require(matches!(s.last_upload, Some(Ok(id)) if id.sequence == 1), "the upload was not committed")?;
+        require(sequence == Some(1), "the servo did not switch to the new image")?;
+        let after = self.grid_checks_at_switch.map_or(0, |at| self.grid.checks - at);
+        require(after >= 10, "too few grid checks against the new image")
     }
 
     /// `homing-no-index`: homing until joint 2's search ends without an index, then
@@ -1095,6 +1151,8 @@ mod tests {
             torque_nm: [0.1, -0.1],
             max_following_error_rad: 1e-4,
             setpoint_underruns: 0,
+            calibration_id: None,
+            last_upload: None,
         }
     }
 
