@@ -338,22 +338,7 @@ impl<'a> ServoLoop<'a> {
     /// sample. At home the task-space servo engages and the mode becomes `Running`; a homing
     /// fault stops: category 0 at once, category 1 (the search came to rest) torque off.
     pub fn step_homing(&mut self, encoder_rad: [f32; 2], index_rad: [Option<f32>; 2]) -> Sample {
-        let index = self.samples;
-        self.samples = self.samples.wrapping_add(1);
-        let mut sample = Sample {
-            index,
-            encoder_rad,
-            setpoint_mm: self.setpoint_mm,
-            reference_rad: self.reference_rad,
-            torque_nm: [0.0; 2],
-            following_error_rad: 0.0,
-            underrun: false,
-            refill: false,
-            fault: None,
-            torque_off: false,
-            set_reference: false,
-            feed_watchdog: false,
-        };
+        let mut sample = self.begin_sample(encoder_rad);
         let (Mode::Homing, Some(mut homing)) = (self.mode, self.homing) else { return sample };
         let dt_s = self.settings.servo.sample_period_s;
         if let Err(f) = self.encoders.check(encoder_rad, self.last_torque_nm, &self.settings.encoder_limits, dt_s) {
@@ -450,13 +435,12 @@ impl<'a> ServoLoop<'a> {
         self.settings
     }
 
-    /// One sample (see the module doc): the encoder check, then the next setpoint from `queue`
-    /// or from the stop, through the servo. In the safe state the queue is left alone and the
-    /// torques are zero.
-    pub fn step(&mut self, queue: &mut Consumer<'_, MotionSetpoint<f32>>, encoder_rad: [f32; 2]) -> Sample {
+    /// A new sample at `encoder_rad`: nothing decided yet, zero torque.
+    #[inline]
+    fn begin_sample(&mut self, encoder_rad: [f32; 2]) -> Sample {
         let index = self.samples;
         self.samples = self.samples.wrapping_add(1);
-        let mut sample = Sample {
+        Sample {
             index,
             encoder_rad,
             setpoint_mm: self.setpoint_mm,
@@ -469,7 +453,14 @@ impl<'a> ServoLoop<'a> {
             torque_off: false,
             set_reference: false,
             feed_watchdog: false,
-        };
+        }
+    }
+
+    /// One sample (see the module doc): the encoder check, then the next setpoint from `queue`
+    /// or from the stop, through the servo. In the safe state the queue is left alone and the
+    /// torques are zero.
+    pub fn step(&mut self, queue: &mut Consumer<'_, MotionSetpoint<f32>>, encoder_rad: [f32; 2]) -> Sample {
+        let mut sample = self.begin_sample(encoder_rad);
         if matches!(self.mode, Mode::SafeState(_) | Mode::Unhomed | Mode::Homing) {
             // Homing runs through `step_homing`; nothing is taken from the queue.
             return sample;
