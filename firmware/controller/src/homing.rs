@@ -35,7 +35,7 @@
 //! on the way has a transmission `|sin|` below `min_transmission` or cannot be assembled in the
 //! working mode in use. The defaults (the paper's machine: the arms open, joint 1 upwards and
 //! joint 2 downwards, away from the stretched singularity) pass with the margin printed by the
-//! test `the_default_plan_keeps_away_from_singularities`.
+//! test `the_default_plan_keeps_away_from_singularities`. The servo loop runs it once at boot.
 //!
 //! # Failures: stop and report
 //! * the index not found within `max_travel_rad`: the search has come to rest at the end of its

@@ -221,6 +221,19 @@ impl<'a> ServoLoop<'a> {
                 (Some(servo), engaged)
             }
         };
+        let margin_mm = settings.stop.workspace_margin_mm;
+        let workspace = calibration.grid.as_ref().map(|g| Workspace::of_grid(g.geometry(), margin_mm));
+        // Homing's sweeps checked against the singularities once, here (hundreds of thousands
+        // of instructions: not in a servo sample), from every start in the calibrated rectangle.
+        let engaged = match (engaged, workspace) {
+            (Ok(None), Some(w)) => {
+                let rect = [w.min_mm[0], w.max_mm[0], w.min_mm[1], w.max_mm[1]];
+                homing::check_plan(&settings.homing, &calibration.model, rect, settings.home_mm)
+                    .map(|_| None)
+                    .map_err(Fault::Homing)
+            }
+            (other, _) => other,
+        };
         let (mode, setpoint_mm) = match engaged {
             Ok(Some(tool_mm)) => (Mode::Running, tool_mm),
             Ok(None) => (Mode::Unhomed, [0.0; 2]),
@@ -229,8 +242,6 @@ impl<'a> ServoLoop<'a> {
         // One count of each axis's encoder: the quantisation the encoder check allows (a refused
         // configuration was refused by `validate` above: the loop is in the safe state).
         let count_rad = settings.encoders.map(|c| EncoderScale::new(&c).map_or(0.0, |s| s.rad_per_count()));
-        let margin_mm = settings.stop.workspace_margin_mm;
-        let workspace = calibration.grid.as_ref().map(|g| Workspace::of_grid(g.geometry(), margin_mm));
         ServoLoop {
             settings,
             calibration,
@@ -308,16 +319,14 @@ impl<'a> ServoLoop<'a> {
     /// Starts homing from `Unhomed` (the host's Home command, or the boot with
     /// `HomingSettings::at_boot`), at the machine's reading `encoder_rad`. The caller enables the
     /// drives when this returns `Ok`. Refused in any other mode (a latched fault needs a reset;
-    /// a homed machine is not re-homed), and when the homing plan is refused: then
-    /// `Fault::Homing(Plan)` is latched and the machine stays off.
+    /// a homed machine is not re-homed), and when the homing settings are refused: then
+    /// `Fault::Homing(Plan)` is latched and the machine stays off. Cheap enough for the servo
+    /// task: the plan's kinematic check ran at boot.
     pub fn start_homing(&mut self, encoder_rad: [f32; 2]) -> Result<(), Mode> {
         if self.mode != Mode::Unhomed {
             return Err(self.mode);
         }
-        let s = self.settings;
-        let rect = self.workspace.map(|w| [w.min_mm[0], w.max_mm[0], w.min_mm[1], w.max_mm[1]]);
-        let plan = rect.map_or(Ok(0.0), |r| homing::check_plan(&s.homing, &self.calibration.model, r, s.home_mm));
-        match plan.and_then(|_| Homing::start(&s.homing, encoder_rad)) {
+        match Homing::start(&self.settings.homing, encoder_rad) {
             Ok(h) => {
                 self.homing = Some(h);
                 self.encoders = EncoderCheck::new(encoder_rad, self.encoders.count_rad());
@@ -1215,6 +1224,21 @@ mod tests {
         assert_eq!(faults.first(), Some(&Fault::Setpoint(SetpointRefusal::NonFinite)), "{faults:?}");
         assert!(matches!(faults.get(1), Some(Fault::StopRefused(SetpointRefusal::Kinematics(_)))), "{faults:?}");
         assert!(matches!(run.modes[run.modes.len() - 1], Mode::SafeState(Fault::StopRefused(_))));
+    }
+
+    /// The homing plan is checked at boot: settings whose search runs into a singularity keep
+    /// the drives off.
+    #[test]
+    fn a_homing_plan_near_a_singularity_is_refused_at_boot() {
+        use crate::homing::{Direction, HomingFault};
+        let img = image();
+        let mut settings = Settings::default();
+        settings.homing.search_direction = [Direction::Negative, Direction::Positive];
+        settings.homing.index_rad = [0.10, -0.10];
+        let cal = Calibration::from_grid(CorrectionGrid::parse(&img).unwrap());
+        let mut l = ServoLoop::boot(&settings, cal, CalibrationState::Valid, [0.0; 2]);
+        assert_eq!(l.mode(), Mode::SafeState(Fault::Homing(HomingFault::Plan)));
+        assert!(l.start_homing([0.0; 2]).is_err() && !l.drives_enabled());
     }
 
     /// Incremental encoders (the default): the loop boots `Unhomed`, drives off, refusing the

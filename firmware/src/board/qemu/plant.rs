@@ -170,9 +170,9 @@ impl Plant {
         if let Ok(angles) = self.geometry.inverse(tool_mm, 0.0) {
             self.angle_rad = angles;
         }
-        for k in 0..2 {
+        for (k, has_index) in index.into_iter().enumerate() {
             hardware::set_counter_zero(k, counts_of(self.angle_rad[k]));
-            if !index[k] {
+            if !has_index {
                 self.index_rad[k] = None;
             }
         }
@@ -222,9 +222,9 @@ impl Plant {
             self.jammed = true;
             self.velocity_rad_s = [0.0; 2];
         }
-        for k in 0..2 {
+        for (k, (from, to)) in before.into_iter().zip(self.angle_rad).enumerate() {
             if let Some(i) = self.index_rad[k] {
-                if before[k] != self.angle_rad[k] && (before[k] - i) * (self.angle_rad[k] - i) <= 0.0 {
+                if from != to && (from - i) * (to - i) <= 0.0 {
                     hardware::index_pulse(k, counts_of(i));
                 }
             }
