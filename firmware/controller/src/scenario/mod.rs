@@ -1179,6 +1179,48 @@ mod tests {
         Checker::new(scenario, CorrectionGrid::parse(img), &Settings::default(), 3_000, INJECTION, COAST)
     }
 
+    /// `homing`: torque above the homing limit while homing fails; after homing, readings that
+    /// are not the plant's true angles (a wrong zero) fail; the right zero goes on to `track`.
+    #[test]
+    fn homing_fails_on_torque_above_its_limit_or_a_wrong_zero() {
+        let img = image(D_RAD);
+        let homing = |ticks, torque_nm| Status { mode: Mode::Homing, torque_nm, ..running(ticks, D_RAD) };
+        let mut c = checker(Scenario::Homing, &img);
+        assert_eq!(c.observe(&on(&homing(1, [1.9, -1.9]))), None);
+        assert_eq!(c.observe(&on(&homing(2, [2.5, 0.0]))), Some(Err("torque above the homing limit")));
+        assert_eq!(c.observe(&off(&homing(3, [0.0, 0.0]))), Some(Err("drives not enabled while homing")));
+        let s = running(100, D_RAD);
+        let mut wrong = on(&s);
+        wrong.plant.joint_rad[0] += 1e-3;
+        let mut c = checker(Scenario::Homing, &img);
+        assert_eq!(c.observe(&wrong), Some(Err("after homing the readings are not the joints' true angles")));
+        let mut c = checker(Scenario::Homing, &img);
+        assert_eq!(c.observe(&on(&s)), None);
+        assert_eq!(c.homed_at(), Some(100));
+    }
+
+    /// The upload scenarios' verdict at the end of the tour: committed and switched (with grid
+    /// checks against the new image), or refused for its CRC with the old image kept.
+    #[test]
+    fn the_upload_outcome_is_checked() {
+        use crate::calibration_slots::CalibrationId;
+        let img = image(D_RAD);
+        let id = |sequence| CalibrationId { slot: sequence as u8, sequence, crc32: 7, len: 100 };
+        let c = checker(Scenario::CalibrationUpload, &img);
+        let not_switched = Status { calibration_id: Some(id(0)), last_upload: Some(Ok(id(1))), ..running(1, D_RAD) };
+        assert_eq!(c.upload_outcome(&not_switched), Err("the servo did not switch to the new image"));
+        let switched = Status { calibration_id: Some(id(1)), ..not_switched };
+        assert_eq!(c.upload_outcome(&switched), Err("too few grid checks against the new image"));
+        let c = checker(Scenario::CalibrationUploadCorrupt, &img);
+        let refused = Status {
+            calibration_id: Some(id(0)),
+            last_upload: Some(Err(SlotError::Image(ImageError::Grid(GridError::BadCrc)))),
+            ..running(1, D_RAD)
+        };
+        assert_eq!(c.upload_outcome(&refused), Ok(()));
+        assert!(c.upload_outcome(&switched).is_err());
+    }
+
     #[test]
     fn command_line_names() {
         for (line, want) in [
