@@ -143,14 +143,8 @@ pub fn feed_forward_nm(
     match dynamics {
         Some(d) => d.torque_nm(motion),
         None => {
-            let mut tau = [0.0f32; 2];
-            for (i, (t, g)) in tau.iter_mut().zip(axes).enumerate() {
-                let w = motion.velocity_rad_s[i];
-                *t = g.inertia_ff_kg_m2 * motion.acceleration_rad_s2[i]
-                    + g.viscous_ff_nm_s_per_rad * w
-                    + g.coulomb_ff_nm * w / (w.abs() + g.coulomb_ff_speed_rad_s);
-            }
-            Ok(tau)
+            let (w, a) = (motion.velocity_rad_s, motion.acceleration_rad_s2);
+            Ok([axes[0].feed_forward_nm(w[0], a[0]), axes[1].feed_forward_nm(w[1], a[1])])
         }
     }
 }
