@@ -151,6 +151,7 @@ impl AxisController {
     /// One control sample of length `dt_s`: returns the torque command (N·m), within the limit.
     /// Never panics; the result is always finite and within `±torque_limit_nm` (zero for a
     /// limit that is not a finite non-negative number, or when the terms add up to NaN).
+    #[inline(always)]
     pub fn update(
         &mut self,
         gains: &AxisGains,
@@ -173,6 +174,7 @@ impl AxisController {
     /// [`AxisController::update`] (which is this with the gains' own feed-forward). The gains'
     /// feed-forward terms are not used here. Never panics, and the same guarantees on the
     /// result as `update` (finite, within the limit, zero for a NaN sum).
+    #[inline(always)]
     pub fn feedback(
         &mut self,
         gains: &AxisGains,
