@@ -660,6 +660,7 @@ impl AcceptedSetpoint<'_> {
     /// ([`Servo::accept_motion`]) feeds its feed-forward and the PID acts on the remainder, the
     /// velocity error from backward differences of reference and encoder alike (the measured
     /// velocity is half a sample old, so is the reference's).
+    #[inline(always)]
     pub fn track(self, encoder_rad: [f32; 2]) -> Result<ServoOutput, ServoFault> {
         let servo = self.servo;
         let Some(h) = servo.history else {
