@@ -215,13 +215,13 @@ struct CellAxis {
     /// `n - 1 + EDGE_TOLERANCE_CELLS`: the largest cell coordinate accepted.
     upper: f32,
     /// `n - 2`: the last cell's lower node.
-    last_cell: u16,
+    last_cell: u32,
 }
 
 impl CellAxis {
     fn of(origin_mm: f32, step_mm: f32, n: u16) -> Self {
         let last = (n - 1) as f32;
-        CellAxis { origin_mm, inv_step: 1.0 / step_mm, last, upper: last + EDGE_TOLERANCE_CELLS, last_cell: n - 2 }
+        CellAxis { origin_mm, inv_step: 1.0 / step_mm, last, upper: last + EDGE_TOLERANCE_CELLS, last_cell: u32::from(n - 2) }
     }
 }
 
@@ -363,18 +363,19 @@ impl<'a> CorrectionGrid<'a> {
         let (i, u) = cell(p_mm[0], &self.axes[0])?;
         let (j, v) = cell(p_mm[1], &self.axes[1])?;
         let k = 8 * (j * self.geometry.nx as usize + i);
-        let (r1, r2) = (self.row_pair(k), self.row_pair(k + 8 * self.geometry.nx as usize));
+        // The cell's indices keep both pairs inside the table (checked at parse); the range
+        // checks stay (no `unsafe`), and a pair past the end would refuse the point.
+        let (Some(r1), Some(r2)) = (self.node_pair(k), self.node_pair(k + 8 * self.geometry.nx as usize)) else {
+            return Err(GridError::OutsideGrid);
+        };
         Ok([bilinear(r1[0], r2[0], r1[2], r2[2], u, v), bilinear(r1[1], r2[1], r1[3], r2[3], u, v)])
     }
 
-    /// The two nodes whose table entries start at byte `k`: `[δ1, δ2]` of each (zeros past the
-    /// end of the table, which the lookup's indices never reach).
+    /// The two nodes whose table entries start at byte `k`: `[δ1, δ2]` of each.
     #[inline]
-    fn row_pair(&self, k: usize) -> [f32; 4] {
-        match self.nodes.get(k..k + 16).and_then(|b| <&[u8; 16]>::try_from(b).ok()) {
-            Some(b) => core::array::from_fn(|m| f32::from_le_bytes([b[4 * m], b[4 * m + 1], b[4 * m + 2], b[4 * m + 3]])),
-            None => [0.0; 4],
-        }
+    fn node_pair(&self, k: usize) -> Option<[f32; 4]> {
+        let b = <&[u8; 16]>::try_from(self.nodes.get(k..k + 16)?).ok()?;
+        Some(core::array::from_fn(|m| f32::from_le_bytes([b[4 * m], b[4 * m + 1], b[4 * m + 2], b[4 * m + 3]])))
     }
 }
 
@@ -389,8 +390,9 @@ fn cell(p: f32, axis: &CellAxis) -> Result<(usize, f32), GridError> {
     // Into [0, n-1] (comparisons, not `f32::clamp`, which checks its bounds at run time).
     let t = if t > 0.0 { t } else { 0.0 };
     let t = if t < axis.last { t } else { axis.last };
-    // `t` is in [0, n-1]: truncation is floor; the last node belongs to the last cell.
-    let i = (t as u16).min(axis.last_cell);
+    // `t` is in [0, n-1]: truncation is floor; the last node belongs to the last cell. (To
+    // u32, which VCVT does alone; to u16 the cast adds its own saturation.)
+    let i = (t as u32).min(axis.last_cell);
     Ok((i as usize, t - i as f32))
 }
 
