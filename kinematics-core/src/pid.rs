@@ -112,20 +112,24 @@ impl AxisGains {
 /// finite non-negative number (gains `validate` refuses; this must not panic on them either).
 /// `f32::clamp` would panic on such a limit. The usual case (a valid limit, `value` within it)
 /// costs two comparisons: `|value| <= limit` is false for a NaN value or a NaN or negative
-/// limit, `limit <= f32::MAX` for an infinite one; only the rest goes the long way.
+/// limit, `limit <= f32::MAX` for an infinite one; a value beyond a valid limit two or three
+/// more.
 #[inline]
 pub fn saturate(value: f32, limit: f32) -> f32 {
     if value.abs() <= limit && limit <= f32::MAX {
         return value;
     }
-    if !(0.0..=f32::MAX).contains(&limit) || value.is_nan() {
-        return 0.0;
+    // Beyond the limit, or NaN. Neither comparison holds for a NaN value nor for a NaN or
+    // infinite limit (zero then); a negative limit is refused before them.
+    if limit >= 0.0 {
+        if value > limit {
+            return limit;
+        }
+        if value < -limit {
+            return -limit;
+        }
     }
-    if value > 0.0 {
-        limit
-    } else {
-        -limit
-    }
+    0.0
 }
 
 /// The axis state carried from one sample to the next.
