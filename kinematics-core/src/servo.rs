@@ -195,6 +195,7 @@ impl<'a> Calibration<'a> {
     /// one function that turns a target into a motor command, on the MCU and in the host tools.
     /// ([`Servo::accept_motion`] keeps the model's angle from the IK it solved for the setpoint a
     /// sample earlier, and corrects it with [`Calibration::corrected_rad`].)
+    #[inline(always)]
     pub fn command_rad(&self, tool_mm: [f32; 2], min_transmission: f32) -> Result<[f32; 2], SetpointRefusal> {
         let theta = self.model.inverse(tool_mm, min_transmission).map_err(SetpointRefusal::Kinematics)?;
         self.corrected_rad(tool_mm, theta)
