@@ -48,18 +48,18 @@
 //! Cortex-M4 cycles estimated by `firmware/qemu/plugin/m4cycles.c`, per call, split by part
 //! with a per-instruction count of the same run attributed through the debug info:
 //!
-//! | `servo_step` (693 instructions, 963 cycles) | instructions | cycles |
+//! | `servo_step` (710 instructions, 987 cycles) | instructions | cycles |
 //! |---|---|---|
-//! | hidden-robot IK (inlined; `BENCH ik_f32` with its call: 313 / 452) | 291 | 373 |
-//! | grid lookup and adding the correction | 159 | 207 |
+//! | hidden-robot IK (inlined; `BENCH ik_f32` with its call: 325 / 461) | 305 | 390 |
+//! | grid lookup and adding the correction | 158 | 206 |
 //! | setpoint jump checks (speed and acceleration from backward differences) | 30 | 34 |
 //! | two PIDs: feed-forward of the gains, PID, saturation, anti-windup | 106 | 145 |
-//! | unwrap, following-error check, reference rates, history, output | 56 | 79 |
-//! | the call, its register saves and the results | 25 | 87 |
+//! | unwrap, following-error check, reference rates, history, output | 58 | 81 |
+//! | the call, its register saves and the results | 27 | 93 |
 //! | the benchmark loop's own work per call (input, output) | 26 | 38 |
 //!
-//! The motion step (`servo_step_motion`, 1194 / 1786, the trajectory's evaluation 77 / 113
-//! included) is the next setpoint's IK with the joint rates (359 / 562), the inverse dynamics
+//! The motion step (`servo_step_motion`, 1198 / 1787; the parts from the build before the IK's
+//! singularity-floor checks, 1194 / 1786: the trajectory's evaluation 77 / 113 included) is the next setpoint's IK with the joint rates (359 / 562), the inverse dynamics
 //! (156 / 211), the interval's means (48 / 68), the grid (185 / 243), the finiteness of both
 //! setpoints and the differenced speed and acceleration (62 / 81) and the PIDs (78 / 97); the
 //! rest is the stated speed and acceleration, the joint-state slots, the history and the calls.
