@@ -185,7 +185,7 @@ pub enum Scenario {
     /// encoder zero it sets must make the readings equal the plant's true angles, then the
     /// built-in tour with `track`'s checks (the grid applied).
     Homing,
-    /// The same, but joint 2's index mark is missing: `Homing(IndexNotFound(1))`, the machine at
+    /// The same, but joint 1's index mark is missing: `Homing(IndexNotFound(0))`, the machine at
     /// rest with the drives off, never running.
     HomingNoIndex,
     /// `track`, and at [`UPLOAD_AT_TICKS`] the firmware uploads its bundled second image (the
@@ -408,7 +408,7 @@ impl Scenario {
     pub fn homing_sim(self) -> Option<HomingSim> {
         match self {
             Scenario::Homing => Some(HomingSim { power_on_mm: HOMING_POWER_ON_MM, index: [true, true] }),
-            Scenario::HomingNoIndex => Some(HomingSim { power_on_mm: HOMING_POWER_ON_MM, index: [true, false] }),
+            Scenario::HomingNoIndex => Some(HomingSim { power_on_mm: HOMING_POWER_ON_MM, index: [false, true] }),
             _ => None,
         }
     }
@@ -969,13 +969,16 @@ impl<'a> Checker<'a> {
         require(after >= 10, "too few grid checks against the new image")
     }
 
-    /// `homing-no-index`: homing until joint 2's search ends without an index, then
-    /// `Homing(IndexNotFound(1))`, the safe state, the machine at rest; never running.
+    /// `homing-no-index`: homing until joint 1's search (the first) ends without an index, then
+    /// `Homing(IndexNotFound(0))`, the safe state, the machine at rest; never running. (Joint
+    /// 2's missing index is not the scenario: its search runs with joint 1 parked at its own
+    /// index, and its whole travel can reach the parallel singularity, firmware/README.md,
+    /// "Homing", known limitation.)
     fn homing_no_index(&mut self, o: &Observation<'_>) -> Verdict {
         let s = o.status;
         match (s.mode, s.fault) {
             (Mode::Homing, None) => (!o.drive_enable).then_some(Err("drives not enabled while homing")),
-            (Mode::SafeState(Fault::Homing(HomingFault::IndexNotFound(1))), Some(Fault::Homing(HomingFault::IndexNotFound(1)))) => {
+            (Mode::SafeState(Fault::Homing(HomingFault::IndexNotFound(0))), Some(Fault::Homing(HomingFault::IndexNotFound(0)))) => {
                 if let Err(why) = safe_state(o) {
                     return Some(Err(why));
                 }
