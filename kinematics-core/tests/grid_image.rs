@@ -170,3 +170,128 @@ fn encode_refuses_bad_input() {
     nodes[5][1] = f32::NAN;
     assert_eq!(encode(&mut buf, &g, &m, &nodes), Err(GridError::NonFinite));
 }
+
+// ---------------------------------------------------------------------------------------------
+// Extension blocks (grid.rs, "Extension blocks"): the workspace block and the chain.
+
+use kinematics_core::grid::{append_workspace, image_crc, WorkspaceLimits, WORKSPACE_LEN, WORKSPACE_MAGIC};
+use kinematics_core::ConvexWorkspace;
+
+/// A hexagon inside the grid (the rectangle with two corners cut).
+fn limits() -> WorkspaceLimits {
+    let v = [[172.0, -75.0], [262.0, -75.0], [262.0, 65.0], [252.0, 75.0], [163.0, 75.0], [163.0, -66.0]];
+    WorkspaceLimits { region: ConvexWorkspace::new(&v).unwrap(), stop_margin_mm: 0.25 }
+}
+
+fn image_with_workspace() -> Vec<u8> {
+    let mut img = image();
+    let n = img.len();
+    img.resize(n + WORKSPACE_LEN, 0xAA);
+    assert_eq!(append_workspace(&mut img, n, n, &limits()), Ok(n + WORKSPACE_LEN));
+    img
+}
+
+#[test]
+fn the_workspace_block_round_trips_and_a_version_1_reader_still_reads_the_grid() {
+    let img = image_with_workspace();
+    let grid = CorrectionGrid::parse(&img).unwrap();
+    assert_eq!(grid.workspace(), Some(limits()));
+    let v1 = image();
+    assert_eq!(&img[..v1.len()], &v1[..], "the first image_len bytes are exactly the version-1 image");
+    assert_eq!(CorrectionGrid::parse(&v1).unwrap().workspace(), None);
+    assert_eq!(CorrectionGrid::parse(&v1).unwrap().correction_rad([200.0, 10.0]), grid.correction_rad([200.0, 10.0]));
+    // In a flash region: erased bytes end the chain.
+    let mut region = img.clone();
+    region.extend([0xFF; 4096]);
+    assert_eq!(CorrectionGrid::parse(&region).unwrap().workspace(), Some(limits()));
+    // Any other bytes that are no known magic end it too.
+    let mut region = img.clone();
+    region.extend(b"HRXX and then anything");
+    assert_eq!(CorrectionGrid::parse(&region).unwrap().workspace(), Some(limits()));
+}
+
+#[test]
+fn every_bit_flip_in_the_workspace_block_refuses_the_image() {
+    let img = image_with_workspace();
+    let start = geometry().image_len();
+    // A flip in the magic makes the bytes "no known block" (the chain ends, no workspace);
+    // every other flip must be caught.
+    for byte in start + 4..img.len() {
+        for bit in 0..8 {
+            let mut v = img.clone();
+            v[byte] ^= 1 << bit;
+            assert_eq!(CorrectionGrid::parse(&v).unwrap_err(), GridError::BadWorkspace, "byte {byte} bit {bit}");
+        }
+    }
+    for byte in start..start + 4 {
+        let mut v = img.clone();
+        v[byte] ^= 0x40;
+        assert_eq!(CorrectionGrid::parse(&v).unwrap().workspace(), None);
+    }
+    assert_eq!(CorrectionGrid::parse(&img[..img.len() - 1]).unwrap_err(), GridError::BadWorkspace, "truncated");
+    assert_eq!(CorrectionGrid::parse(&img[..start + 4]).unwrap_err(), GridError::BadWorkspace, "magic only");
+}
+
+/// Rewrites the block's CRC after a payload edit: the checks behind the CRC must still refuse.
+fn with_payload_edit(edit: impl FnOnce(&mut [u8])) -> Result<(), GridError> {
+    let mut img = image_with_workspace();
+    let start = geometry().image_len();
+    edit(&mut img[start + 12..start + WORKSPACE_LEN - 4]);
+    let crc = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC).checksum(&img[start..start + WORKSPACE_LEN - 4]);
+    img[start + WORKSPACE_LEN - 4..start + WORKSPACE_LEN].copy_from_slice(&crc.to_le_bytes());
+    CorrectionGrid::parse(&img).map(|_| ())
+}
+
+#[test]
+fn a_workspace_that_is_not_a_workspace_is_refused_even_with_a_valid_crc() {
+    assert_eq!(with_payload_edit(|_| {}), Ok(()));
+    let bad = GridError::BadWorkspace;
+    // Vertex count 2 and 17; reserved bytes; a negative or NaN margin.
+    assert_eq!(with_payload_edit(|p| p[0..2].copy_from_slice(&2u16.to_le_bytes())), Err(bad));
+    assert_eq!(with_payload_edit(|p| p[0..2].copy_from_slice(&17u16.to_le_bytes())), Err(bad));
+    assert_eq!(with_payload_edit(|p| p[2] = 1), Err(bad));
+    assert_eq!(with_payload_edit(|p| p[4..8].copy_from_slice(&(-0.1f32).to_le_bytes())), Err(bad));
+    assert_eq!(with_payload_edit(|p| p[4..8].copy_from_slice(&f32::NAN.to_le_bytes())), Err(bad));
+    // A concave polygon (vertex 2 pulled inwards), a vertex outside the grid, junk in an unused slot.
+    assert_eq!(with_payload_edit(|p| p[8 + 16..12 + 16].copy_from_slice(&200.0f32.to_le_bytes())), Err(bad));
+    assert_eq!(with_payload_edit(|p| p[8 + 8..12 + 8].copy_from_slice(&263.0f32.to_le_bytes())), Err(bad));
+    assert_eq!(with_payload_edit(|p| p[8 + 8 * 6] = 1), Err(bad));
+}
+
+#[test]
+fn a_block_comes_at_most_once_and_belongs_to_its_image() {
+    let img = image_with_workspace();
+    let start = geometry().image_len();
+    let block = img[start..].to_vec();
+    // The same block twice: refused.
+    let mut twice = img.clone();
+    twice.extend_from_slice(&block);
+    assert_eq!(CorrectionGrid::parse(&twice).unwrap_err(), GridError::BadWorkspace);
+    // A block left behind by another image (one node changed, image CRC rewritten).
+    let mut other = image();
+    other[HEADER_LEN] ^= 1;
+    let n = other.len();
+    let crc = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC).checksum(&other[..n - 4]);
+    other[n - 4..].copy_from_slice(&crc.to_le_bytes());
+    other.extend_from_slice(&block);
+    assert_eq!(CorrectionGrid::parse(&other).unwrap_err(), GridError::BadWorkspace);
+    assert_eq!(image_crc(&img, start), Some(u32::from_le_bytes(img[start - 4..start].try_into().unwrap())));
+    assert_eq!(&img[start..start + 4], &WORKSPACE_MAGIC);
+}
+
+#[test]
+fn append_workspace_refuses_what_the_parser_would() {
+    let mut img = image();
+    let n = img.len();
+    img.resize(n + WORKSPACE_LEN, 0);
+    // Outside the grid's rectangle.
+    let outside = WorkspaceLimits { region: ConvexWorkspace::rectangle([150.0, 250.0], [-70.0, 70.0]).unwrap(), stop_margin_mm: 0.1 };
+    assert_eq!(append_workspace(&mut img, n, n, &outside), Err(GridError::BadWorkspace));
+    let negative = WorkspaceLimits { stop_margin_mm: -1.0, ..limits() };
+    assert_eq!(append_workspace(&mut img, n, n, &negative), Err(GridError::BadWorkspace));
+    // Too small a buffer, a position inside the image, a corrupt image.
+    assert_eq!(append_workspace(&mut img[..n + 10], n, n, &limits()), Err(GridError::BadEncodeInput));
+    assert_eq!(append_workspace(&mut img, n, n - 1, &limits()), Err(GridError::BadEncodeInput));
+    img[100] ^= 1;
+    assert_eq!(append_workspace(&mut img, n, n, &limits()), Err(GridError::BadCrc));
+}
