@@ -21,7 +21,7 @@
 //! 2. `Running`: the next setpoint from the queue (an empty queue holds the last setpoint if the
 //!    machine is at rest, or is [`Fault::Underrun`] if it moves), [`Servo::accept`]; a refusal
 //!    is [`Fault::Setpoint`]; an accepted setpoint whose stop would end outside the workspace
-//!    ([`Workspace`], the grid's rectangle less a margin) is dropped and is
+//!    ([`Workspace`], the image's workspace polygon or the grid's rectangle, less a margin) is dropped and is
 //!    [`Fault::StopOutsideWorkspace`]; otherwise it is tracked;
 //!    `Stopping` / `Holding`: the stop profile's next setpoint is stepped;
 //! 3. a category-1 or -2 fault found in step 2 starts the stop **in the same sample**, from the
@@ -112,8 +112,9 @@ struct Stop {
 pub struct ServoLoop<'a> {
     settings: &'a Settings,
     calibration: Calibration<'a>,
-    /// Where a stop may end: the grid's rectangle less the margin (`None`: no grid, running
-    /// uncorrected; then only the servo's reach and singularity checks bound a stop).
+    /// Where a stop may end: the image's workspace polygon (or, without one, the grid's
+    /// rectangle) less the margin (`None`: no grid, running uncorrected; then only the servo's
+    /// reach and singularity checks bound a stop).
     workspace: Option<Workspace>,
     /// `None` only when the settings were refused at boot (then the mode is `SafeState`).
     servo: Option<Servo>,
@@ -159,7 +160,7 @@ impl<'a> ServoLoop<'a> {
             Err(fault) => (Mode::SafeState(fault), [0.0; 2]),
         };
         let margin_mm = settings.stop.workspace_margin_mm;
-        let workspace = calibration.grid.as_ref().map(|g| Workspace::of_grid(g.geometry(), margin_mm));
+        let workspace = calibration.grid.as_ref().and_then(|g| Workspace::of_image(g, margin_mm));
         ServoLoop {
             settings,
             calibration,
@@ -781,6 +782,30 @@ mod tests {
         // The speed when refused: well above what could stop in the last millimetre.
         let v = (run.samples[at - 1].setpoint_mm[0] - run.samples[at - 2].setpoint_mm[0]) / DT_S;
         assert!(v > 1000.0, "{v} mm/s");
+    }
+
+    /// With the machine's workspace in the image (issue 12), the edge is the polygon's, not the
+    /// grid's: the same stream towards x = 320 mm is stopped inside the polygon's right edge
+    /// at x = 240 mm (20 mm before the grid's), by the image's stop margin of 0.5 mm.
+    #[test]
+    fn the_edge_is_the_images_workspace_when_it_has_one() {
+        use kinematics_core::grid::{append_workspace, WorkspaceLimits, WORKSPACE_LEN};
+        use kinematics_core::ConvexWorkspace;
+        let settings = Settings::default();
+        let mut img = image();
+        let n = img.len();
+        img.resize(n + WORKSPACE_LEN, 0);
+        let region = ConvexWorkspace::new(&[[170.0, -70.0], [240.0, -70.0], [240.0, 70.0], [170.0, 70.0]]).unwrap();
+        append_workspace(&mut img, n, n, &WorkspaceLimits { region, stop_margin_mm: 0.5 }).unwrap();
+        let g = kinematics_core::servo::STANDARD_GRAVITY_MM_S2;
+        let mut t = Trajectory::new(HOME_MM, &[[320.0, 0.0]], 2.0 * g, 1500.0, 0.1, DT_S);
+        let cal = grid_cal(&img);
+        let run = closed(&settings, cal, 800, |_| Some(t.next_mm()), |_, e| e);
+        let at = run.samples.iter().position(|s| s.fault.is_some()).unwrap();
+        assert_eq!(run.samples[at].fault, Some(Fault::StopOutsideWorkspace));
+        assert!(run.samples.iter().all(|s| s.setpoint_mm[0] <= 240.0 - 0.5), "a setpoint beyond the polygon's edge");
+        let end = tool_mm(&cal, run.angles[run.angles.len() - 1]);
+        assert!(end[0] <= 240.0 - 0.45 && end[0] > 215.0, "stopped at {end:?}");
     }
 
     /// An encoder frozen during a stop, and a glitch while moving: category 0 at once, even
