@@ -543,7 +543,8 @@ pub fn append_workspace(out: &mut [u8], image_len: usize, at: usize, limits: &Wo
         return Err(GridError::BadEncodeInput);
     }
     let geometry = CorrectionGrid::parse(&out[..image_len])?.geometry;
-    if !(limits.stop_margin_mm.is_finite() && limits.stop_margin_mm >= 0.0) || !within_grid(&limits.region, &geometry) {
+    let margin_ok = limits.stop_margin_mm.is_finite() && limits.stop_margin_mm >= 0.0;
+    if !margin_ok || !within_grid(&limits.region, &geometry) {
         return Err(GridError::BadWorkspace);
     }
     let v = limits.region.vertices_mm();
