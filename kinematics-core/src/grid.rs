@@ -193,6 +193,19 @@ impl GridGeometry {
         HEADER_LEN + 8 * self.len() + 4
     }
 
+    /// Whether every vertex of `region` lies in the node rectangle (to the lookup's
+    /// [`EDGE_TOLERANCE_CELLS`]): the grid corrects everywhere in the region.
+    pub fn covers(&self, region: &ConvexWorkspace<f32>) -> bool {
+        let inside = |v: f32, origin: f32, step: f32, n: u16| {
+            let t = (v - origin) / step;
+            t >= -EDGE_TOLERANCE_CELLS && t <= n.saturating_sub(1) as f32 + EDGE_TOLERANCE_CELLS
+        };
+        region
+            .vertices_mm()
+            .iter()
+            .all(|p| inside(p[0], self.x0_mm, self.step_x_mm, self.nx) && inside(p[1], self.y0_mm, self.step_y_mm, self.ny))
+    }
+
     fn validate(&self) -> Result<(), GridError> {
         let counts_ok = (2..=MAX_NODES_PER_AXIS).contains(&self.nx)
             && (2..=MAX_NODES_PER_AXIS).contains(&self.ny);
@@ -466,7 +479,7 @@ fn parse_extensions<'a>(rest: &'a [u8], image_crc: u32, geometry: &GridGeometry)
                 let payload = framed_payload(&rest[at..], WORKSPACE_VERSION, WORKSPACE_LEN, image_crc)
                     .ok_or(GridError::BadWorkspace)?;
                 let limits = decode_workspace(payload)?;
-                if found.workspace.is_some() || !within_grid(&limits.region, geometry) {
+                if found.workspace.is_some() || !geometry.covers(&limits.region) {
                     return Err(GridError::BadWorkspace);
                 }
                 found.workspace = Some(payload);
@@ -477,15 +490,6 @@ fn parse_extensions<'a>(rest: &'a [u8], image_crc: u32, geometry: &GridGeometry)
         at += len;
     }
     Ok(found)
-}
-
-/// Every vertex inside the node rectangle (to the lookup's edge tolerance).
-fn within_grid(region: &ConvexWorkspace<f32>, g: &GridGeometry) -> bool {
-    let inside = |v: f32, origin: f32, step: f32, n: u16| {
-        let t = (v - origin) / step;
-        t >= -EDGE_TOLERANCE_CELLS && t <= (n - 1) as f32 + EDGE_TOLERANCE_CELLS
-    };
-    region.vertices_mm().iter().all(|p| inside(p[0], g.x0_mm, g.step_x_mm, g.nx) && inside(p[1], g.y0_mm, g.step_y_mm, g.ny))
 }
 
 /// The workspace block's payload (the block without its 12-byte head and CRC) decoded and
@@ -544,7 +548,7 @@ pub fn append_workspace(out: &mut [u8], image_len: usize, at: usize, limits: &Wo
     }
     let geometry = CorrectionGrid::parse(&out[..image_len])?.geometry;
     let margin_ok = limits.stop_margin_mm.is_finite() && limits.stop_margin_mm >= 0.0;
-    if !margin_ok || !within_grid(&limits.region, &geometry) {
+    if !margin_ok || !geometry.covers(&limits.region) {
         return Err(GridError::BadWorkspace);
     }
     let v = limits.region.vertices_mm();

@@ -50,6 +50,15 @@ pub trait Machine {
     /// approaching each from the side `approach_dir` (+1: from below, i.e. the motor last moved
     /// in the positive direction; -1: from above), lets it settle and reads the tool point.
     fn measure(&mut self, command_rad: [f64; 2], approach_dir: [i8; 2]) -> Result<Reading, CalibError>;
+
+    /// Restarts the instrument's noise stream as a machine built with `seed` starts it (each
+    /// list a session of its own: `host-sim measure --seed`, and the demo's lists).
+    fn reseed(&mut self, seed: u64);
+}
+
+/// The stand-in's noise stream for a seed.
+fn stand_in_noise(seed: u64) -> ChaCha8Rng {
+    ChaCha8Rng::seed_from_u64(seed ^ 0x0157_2a3e)
 }
 
 /// Worst error of the nominal model over the 5 mm grid that [`StandInMachine::paper_like`]
@@ -90,7 +99,7 @@ impl StandInMachine {
             spec: spec.clone(),
             distortion_scale,
             noise_sigma_mm,
-            rng: ChaCha8Rng::seed_from_u64(seed ^ 0x0157_2a3e),
+            rng: stand_in_noise(seed),
         })
     }
 
@@ -112,8 +121,8 @@ impl StandInMachine {
             b_mm: nominal.b_mm + k * dl[1],
             c_mm: nominal.c_mm + k * dl[2],
             d_mm: nominal.d_mm + k * dl[3],
-            base_b0_mm: [k * db[0], k * db[1]],
-            encoder_offset_rad: [k * doff[0], k * doff[1]],
+            base_b0_mm: [nominal.base_b0_mm[0] + k * db[0], nominal.base_b0_mm[1] + k * db[1]],
+            encoder_offset_rad: [nominal.encoder_offset_rad[0] + k * doff[0], nominal.encoder_offset_rad[1] + k * doff[1]],
             ..nominal
         };
         // The error is nearly linear in k: a few secant steps hit the target to < 1 %.
@@ -186,6 +195,10 @@ impl Machine for StandInMachine {
         }
         Ok(Reading { encoder_rad: command_rad, measured_mm, true_mm })
     }
+
+    fn reseed(&mut self, seed: u64) {
+        self.rng = stand_in_noise(seed);
+    }
 }
 
 /// The six-bar plant as a [`Machine`].
@@ -229,6 +242,10 @@ impl Machine for PlantMachine {
         let true_mm = self.plant.instrument.frame_mm(solution.tool_mm);
         let measured_mm = self.plant.instrument.read_mm(solution.tool_mm);
         Ok(Reading { encoder_rad, measured_mm, true_mm })
+    }
+
+    fn reseed(&mut self, seed: u64) {
+        self.plant.instrument.reseed(seed);
     }
 }
 
