@@ -201,6 +201,36 @@ impl Machine for StandInMachine {
     }
 }
 
+/// Largest relative difference of a link between a plant's nominal five-bar and the machine's.
+pub const PLANT_LINK_TOLERANCE: f64 = 0.05;
+/// Largest distance (mm) between a plant's nominal base axes and the machine's.
+pub const PLANT_BASE_TOLERANCE_MM: f64 = 10.0;
+
+/// Refuses a plant built around another five-bar than `spec`'s nominal one (the plant of
+/// another machine: calibrating it would fail far from any target, or silently fit nonsense):
+/// every link within [`PLANT_LINK_TOLERANCE`], A0 and B0 within [`PLANT_BASE_TOLERANCE_MM`],
+/// the same working mode. Manufacturing errors are not counted: they are what a calibration
+/// finds.
+pub fn check_plant_fits(plant: &PlantConfig, spec: &MachineSpec) -> Result<(), CalibError> {
+    let (p, m) = (plant.sixbar.nominal_five_bar(), &spec.nominal);
+    let links = [("a", p.a_mm, m.a_mm), ("b", p.b_mm, m.b_mm), ("c", p.c_mm, m.c_mm), ("d", p.d_mm, m.d_mm)];
+    let b0 = |f: &FiveBar<f64>| [f.base_a0_mm[0] + f.base_b0_mm[0], f.base_a0_mm[1] + f.base_b0_mm[1]];
+    let far = |u: [f64; 2], v: [f64; 2]| (u[0] - v[0]).hypot(u[1] - v[1]) > PLANT_BASE_TOLERANCE_MM;
+    let what = if let Some((name, pl, ml)) = links.iter().find(|(_, pl, ml)| !((pl - ml).abs() <= PLANT_LINK_TOLERANCE * ml)) {
+        format!("its link {name} is {pl} mm, the machine's {ml} mm")
+    } else if far(p.base_a0_mm, m.base_a0_mm) || far(b0(&p), b0(m)) {
+        format!("its axes A0 {:?}, B0 {:?} mm are not the machine's {:?}, {:?}", p.base_a0_mm, b0(&p), m.base_a0_mm, b0(m))
+    } else if p.mode != m.mode {
+        format!("its working mode {:?} is not the machine's {:?}", p.mode, m.mode)
+    } else {
+        return Ok(());
+    };
+    Err(invalid!(
+        "the plant is not a simulation of machine '{}': {what} (give the plant of this machine with --plant FILE)",
+        spec.name
+    ))
+}
+
 /// The six-bar plant as a [`Machine`].
 #[derive(Clone, Debug)]
 pub struct PlantMachine {
@@ -263,6 +293,22 @@ mod tests {
             assert_eq!(m.five_bar, StandInMachine::paper_like(&spec, seed).unwrap().five_bar);
         }
         assert_ne!(StandInMachine::paper_like(&spec, 1).unwrap().five_bar, StandInMachine::paper_like(&spec, 2).unwrap().five_bar);
+    }
+
+    #[test]
+    fn a_plant_of_another_machine_is_refused() {
+        let spec = MachineSpec::paper();
+        assert!(check_plant_fits(&PlantConfig::paper(), &spec).is_ok());
+        let mut other = spec.clone();
+        other.nominal.c_mm = 170.0;
+        let e = check_plant_fits(&PlantConfig::paper(), &other).unwrap_err().to_string();
+        assert!(e.contains("link c is 150 mm, the machine's 170 mm"), "{e}");
+        other.nominal.c_mm = 150.0;
+        other.nominal.base_b0_mm = [0.0, -60.0];
+        assert!(check_plant_fits(&PlantConfig::paper(), &other).unwrap_err().to_string().contains("axes"));
+        // A plant built around the other machine fits it.
+        let plant = PlantConfig::ideal_for(&other.nominal, &other.grid_nodes_mm()).unwrap();
+        assert!(check_plant_fits(&plant, &other).is_ok());
     }
 
     #[test]

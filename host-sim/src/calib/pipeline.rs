@@ -75,6 +75,14 @@ pub const VERIFY_TARGETS: usize = super::plan::VERIFY_TARGETS;
 pub const TARGET_MAX_UM: f64 = 5.0;
 pub const TARGET_RMS_UM: f64 = 2.0;
 
+/// The accuracy goal `[max, RMS]` (µm) of a run on `spec`'s machine: the noise floor,
+/// [`TARGET_MAX_UM`] / [`TARGET_RMS_UM`] with a 1 µm instrument, scaled with the instrument's σ
+/// above that (the grid and the fit carry the measurement noise into the result).
+pub fn goal_um(spec: &MachineSpec) -> [f64; 2] {
+    let k = spec.instrument_sigma_um.max(1.0);
+    [TARGET_MAX_UM * k, TARGET_RMS_UM * k]
+}
+
 /// How to run the story.
 #[derive(Clone, Debug)]
 pub struct PipelineOptions {
@@ -124,6 +132,8 @@ pub struct Calibrated {
     pub grid2: BuiltGrid,
     pub approach: Approach,
     pub stages: Vec<Stage>,
+    /// The accuracy goal `[max, RMS]` (µm), [`goal_um`].
+    pub goal_um: [f64; 2],
 }
 
 impl Calibrated {
@@ -134,7 +144,7 @@ impl Calibrated {
 
     /// The accuracy target (noise floor) met by the last stage.
     pub fn target_met(&self) -> bool {
-        self.final_accuracy().is_some_and(|a| a.max_um <= TARGET_MAX_UM && a.rms_um <= TARGET_RMS_UM)
+        self.final_accuracy().is_some_and(|a| a.max_um <= self.goal_um[0] && a.rms_um <= self.goal_um[1])
     }
 }
 
@@ -235,7 +245,8 @@ pub fn calibrate(machine: &mut dyn Machine, opts: &PipelineOptions, events: &mut
     let landed = measure(machine, &grid2_cal, &plan.verify, 8, "verifying full fit + refined grid")?;
     stages.push(stage("full+grid2", &format!("full fit + {} mm grid (2 rounds)", g.step_mm), "-", landed));
     step(events, "calibration done".into());
-    Ok(Calibrated { machine: description, plan, fit_data, ls_model, full, grid_data, grid, grid2_data, grid2, approach, stages })
+    let goal_um = goal_um(spec);
+    Ok(Calibrated { machine: description, plan, fit_data, ls_model, full, grid_data, grid, grid2_data, grid2, approach, stages, goal_um })
 }
 
 /// One stage in the summary.
@@ -381,8 +392,8 @@ pub fn summary(cal: &Calibrated, seed: u64, out_dir: &Path, files: &[PathBuf]) -
         final_: FinalSummary {
             max_um: fin.map(|a| round3(a.max_um)),
             rms_um: fin.map(|a| round3(a.rms_um)),
-            target_max_um: TARGET_MAX_UM,
-            target_rms_um: TARGET_RMS_UM,
+            target_max_um: cal.goal_um[0],
+            target_rms_um: cal.goal_um[1],
             met: cal.target_met(),
         },
         files: files.iter().map(|p| p.display().to_string()).collect(),

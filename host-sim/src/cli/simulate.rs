@@ -42,11 +42,14 @@ pub struct Args {
     /// PNG plot of commanded and actual paths.
     #[arg(long)]
     pub plot: Option<PathBuf>,
+    #[command(flatten)]
+    pub machine: super::MachineArg,
 }
 
 pub fn run(args: &Args) -> Result<()> {
-    let spec = super::machine_spec();
+    let spec = args.machine.spec()?;
     let mut cfg = PlantConfig::by_name(&args.plant)?;
+    host_sim::calib::machine::check_plant_fits(&cfg, &spec)?;
     match args.plant_model.as_deref() {
         None => {}
         Some("sixbar") => cfg.sixbar.model = PlantModel::Sixbar,
@@ -79,5 +82,10 @@ pub fn run(args: &Args) -> Result<()> {
             ],
         )?;
     }
-    super::print_json(&run.summary, KeyOrder::Declared)
+    super::print_json(&run.summary, KeyOrder::Declared)?;
+    // A run that faulted is a failed run: the summary says why, the exit status says so.
+    if let Some(fault) = &run.summary.fault {
+        bail!("the simulation faulted: {fault}");
+    }
+    Ok(())
 }

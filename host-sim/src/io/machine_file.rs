@@ -272,6 +272,26 @@ mod tests {
     }
 
     #[test]
+    fn the_shipped_second_machine_reads() {
+        let s = parse_machine(include_str!("../../machines/second.toml")).unwrap();
+        assert_eq!((s.grid.nx, s.grid.ny, s.grid.step_mm), (22, 32, 4.0));
+        assert_eq!(s.nominal.base_b0_mm, [15.0, -65.0]);
+        assert!(s.nominal.base_b0_mm[0].hypot(s.nominal.base_b0_mm[1]) >= 50.0);
+        assert!(!s.workspace.is_rectangle && s.workspace.region.vertices_mm().len() == 8);
+        // Its shipped plant is built around exactly this five-bar, with ideal_for's
+        // parallelogram offsets (rounded to 1 µm in the file).
+        let plant = crate::plant::PlantConfig::by_name(concat!(env!("CARGO_MANIFEST_DIR"), "/plants/second.toml")).unwrap();
+        let ideal = crate::plant::PlantConfig::ideal_for(&s.nominal, &s.grid_nodes_mm()).unwrap();
+        let mut want = ideal.sixbar.nominal_five_bar();
+        want.encoder_offset_rad = [0.0; 2];
+        assert_eq!(plant.sixbar.nominal_five_bar(), want);
+        for (p, i) in plant.sixbar.parallelogram_offsets_mm().iter().flatten().zip(ideal.sixbar.parallelogram_offsets_mm().iter().flatten()) {
+            assert!((p[0] - i[0]).abs() < 1e-3 && (p[1] - i[1]).abs() < 1e-3, "{p:?} vs {i:?}");
+        }
+        crate::calib::machine::check_plant_fits(&plant, &s).unwrap();
+    }
+
+    #[test]
     fn a_polygon_workspace_and_a_second_geometry_read() {
         let cut = "vertices_mm = [[162.132, -75.0], [262.132, -75.0], [262.132, 35.0], [222.132, 75.0], [162.132, 75.0]]";
         let s = edited("x_mm = [162.132, 262.132]\ny_mm = [-75.0, 75.0]\nstop_margin_mm", &format!("{cut}\nstop_margin_mm")).unwrap();
