@@ -130,6 +130,27 @@ impl Workspace {
         (lo <= hi).then_some([lo, hi])
     }
 
+    /// `p_mm` if it lies inside with `margin_mm` to spare, else the point nearest to it on the
+    /// segment from the centre where it does (bisection, to 1e-12 of the segment): how a
+    /// protocol or a test motion defined on the bounding rectangle is brought into a polygon.
+    pub fn pulled_inside(&self, p_mm: [f64; 2], margin_mm: f64) -> [f64; 2] {
+        if self.region.contains(p_mm, margin_mm) {
+            return p_mm;
+        }
+        let c = self.centre_mm();
+        let at = |s: f64| [c[0] + s * (p_mm[0] - c[0]), c[1] + s * (p_mm[1] - c[1])];
+        let (mut lo, mut hi) = (0.0f64, 1.0f64);
+        for _ in 0..40 {
+            let mid = 0.5 * (lo + hi);
+            if self.region.contains(at(mid), margin_mm) {
+                lo = mid;
+            } else {
+                hi = mid;
+            }
+        }
+        at(lo)
+    }
+
     /// What the firmware reads: the polygon in f32 and the stop margin.
     pub fn limits(&self) -> Result<WorkspaceLimits, String> {
         let region = self.region.cast::<f32>().map_err(|e| format!("the workspace in f32: {e}"))?;

@@ -21,16 +21,17 @@ use kinematics_core::{Calibration, ConvexWorkspace, CorrectionGrid, FiveBar};
 /// vertices (0.004 µm at 162 mm) and of targets written with fewer digits.
 pub const WORKSPACE_TOLERANCE_MM: f64 = 1e-3;
 
-/// Refuses the first target outside `region` (the machine `machine`'s workspace), naming its
-/// line.
-pub fn check_in_workspace(targets: &[Target], region: &ConvexWorkspace<f64>, machine: &str) -> Result<(), CalibError> {
+/// Refuses the first target outside `region` (the machine `machine`'s workspace, as its file
+/// or, `from_image`, its grid image's workspace block states it), naming its line.
+pub fn check_in_workspace(targets: &[Target], region: &ConvexWorkspace<f64>, machine: &str, from_image: bool) -> Result<(), CalibError> {
     for &Target { line, target_mm: t } in targets {
         if !region.contains(t, -WORKSPACE_TOLERANCE_MM) {
             return Err(invalid!(
-                "line {line}: target ({}, {}): outside the workspace of machine '{machine}' ({:.3} mm beyond its edge; vertices {:?} mm)",
+                "line {line}: target ({}, {}): outside the workspace of machine '{machine}' ({:.3} mm beyond its edge{}; vertices {:?} mm)",
                 t[0],
                 t[1],
                 -region.clearance_mm(t),
+                if from_image { ", as the grid image's workspace block states it" } else { "" },
                 region.vertices_mm()
             ));
         }

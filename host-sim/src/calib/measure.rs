@@ -227,6 +227,22 @@ mod tests {
         assert!(err.to_string().contains("target (212.132, 0.000)"), "{err}");
     }
 
+    /// Issue 12: the repeat protocol's measurements and `accuracy` fit together: both axis
+    /// lines are analysed, none skipped, and on a backlash-only plant both show a reversal.
+    #[test]
+    fn the_repeat_protocol_gives_both_axis_lines() {
+        use crate::effect::PhysicalEffect;
+        let cfg = PlantConfig::paper().with_only(PhysicalEffect::Backlash).unwrap();
+        let rows = run(&cfg, Protocol::Repeat, 1, &nominal(), Some(0.2));
+        let r = crate::calib::accuracy::report(&rows).unwrap();
+        assert!(r.skipped.is_empty(), "{:?}", r.skipped);
+        let axes: Vec<&str> = r.lines.iter().map(|l| l.axis).collect();
+        assert_eq!(axes, ["x", "y"]);
+        for l in &r.lines {
+            assert!(l.iso_230_2.b_um > 0.5, "{} line: reversal {} µm", l.axis, l.iso_230_2.b_um);
+        }
+    }
+
     #[test]
     fn backlash_alone_shows_as_a_direction_dependent_error() {
         use crate::effect::PhysicalEffect;

@@ -92,24 +92,7 @@ pub enum Range {
 /// bounding rectangle's point leaves the polygon.
 pub fn table1_targets(ws: &Workspace) -> [[f64; 2]; 9] {
     let ([x0, x1], [y0, y1], [cx, cy]) = (ws.x_mm, ws.y_mm, ws.centre_mm());
-    let c = [cx, cy];
-    let on_edge = |p: [f64; 2]| -> [f64; 2] {
-        if ws.contains(p, 0.0) {
-            return p;
-        }
-        // Bisect along the ray: inside at 0, outside at 1.
-        let (mut lo, mut hi) = (0.0f64, 1.0f64);
-        for _ in 0..60 {
-            let mid = 0.5 * (lo + hi);
-            if ws.contains([c[0] + mid * (p[0] - c[0]), c[1] + mid * (p[1] - c[1])], 0.0) {
-                lo = mid;
-            } else {
-                hi = mid;
-            }
-        }
-        [c[0] + lo * (p[0] - c[0]), c[1] + lo * (p[1] - c[1])]
-    };
-    [[cx, cy], [cx, y1], [x1, y1], [x1, cy], [x1, y0], [cx, y0], [x0, y0], [x0, cy], [x0, y1]].map(on_edge)
+    [[cx, cy], [cx, y1], [x1, y1], [x1, cy], [x1, y0], [cx, y0], [x0, y0], [x0, cy], [x0, y1]].map(|p| ws.pulled_inside(p, 0.0))
 }
 
 /// Visits of `targets` in order, each approached from the previous one (the first from

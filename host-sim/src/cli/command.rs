@@ -54,11 +54,8 @@ pub fn run(args: &Args) -> Result<()> {
         Some(w) => Some(w.region.cast::<f64>().map_err(|e| anyhow!("the grid's workspace block: {e}"))?),
         None => None,
     };
-    let (region, whose) = match &image_region {
-        Some(r) => (r, format!("{} (the grid image's workspace block)", spec.name)),
-        None => (&spec.workspace.region, spec.name.clone()),
-    };
-    check_in_workspace(&targets, region, &whose).with_context(in_file)?;
+    let region = image_region.as_ref().unwrap_or(&spec.workspace.region);
+    check_in_workspace(&targets, region, &spec.name, image_region.is_some()).with_context(in_file)?;
     let min_transmission = args.min_transmission.unwrap_or(spec.min_transmission as f32);
     let angles = command_all(&cal, &targets, min_transmission).with_context(in_file)?;
     write_atomic(&args.out, format_commands(&targets, &angles).as_bytes())?;

@@ -8,7 +8,9 @@
 //! * `figure8`: a lemniscate of Gerono (±45 mm in x, ±60 mm in y), 2 s per loop, same ramp;
 //! * `p2p`: point-to-point moves from the centre around the corners 10 mm inside the workspace
 //!   and back, trapezoidal speed profiles at exactly the machine's rated acceleration (5 g,
-//!   49 m/s², on the paper machine) and 1.5 m/s, 0.1 s dwell at each point.
+//!   49 m/s², on the paper machine) and 1.5 m/s, 0.1 s dwell at each point (on a polygon
+//!   workspace, the bounding rectangle's inset corners pulled towards the centre until they
+//!   are 10 mm inside);
 //! * a file: CSV with header `t_s,x_mm,y_mm`, times strictly increasing, linearly interpolated;
 //!   before the first and after the last sample the end points are held.
 //!
@@ -93,7 +95,10 @@ impl Trajectory {
             "p2p" => {
                 let (x, y, d) = (spec.workspace.x_mm, spec.workspace.y_mm, P2P_INSET_MM);
                 let (lo, hi) = ([x[0] + d, y[0] + d], [x[1] - d, y[1] - d]);
-                let pts = [centre_mm, lo, [hi[0], lo[1]], hi, [lo[0], hi[1]], centre_mm];
+                // The inset rectangle's corners; on a polygon workspace, pulled inside it.
+                let ws = &spec.workspace;
+                let corners = [lo, [hi[0], lo[1]], hi, [lo[0], hi[1]]].map(|p| if ws.is_rectangle { p } else { ws.pulled_inside(p, d) });
+                let pts = [centre_mm, corners[0], corners[1], corners[2], corners[3], centre_mm];
                 let dwell = 0.1;
                 let mut t = dwell;
                 let mut moves = Vec::new();

@@ -1,0 +1,257 @@
+//! Issue 12: the calibration workflow as a machine builder runs it, command by command through
+//! the binary (plan → measure → fit → grid → command → accuracy), on the paper machine and on a
+//! second, different machine (`machines/second.toml`: unequal links, bases 67 mm apart, an
+//! octagonal workspace, a 4 mm grid; its plant `plants/second.toml`), against the demo:
+//!
+//! * the separate commands reproduce the demo's figures bit for bit (one path: the demo calls
+//!   the same library functions with the same lists and seeds; README's workflow);
+//! * the second machine runs the whole workflow and the demo, reaching its noise floor;
+//! * bad input of the new parts fails cleanly: a target outside the workspace, a plant of
+//!   another machine, a simulation that faults, a demo that misses its goal.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+/// Runs the binary; panics with its stderr on failure; returns stdout.
+fn ok(args: &[&str]) -> String {
+    let out = Command::new(env!("CARGO_BIN_EXE_host-sim")).args(args).output().unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{args:?} failed: {stderr}");
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+/// Runs the binary expecting failure with `want` in the message; returns (stdout, stderr).
+fn fails(args: &[&str], want: &str) -> (String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_host-sim")).args(args).output().unwrap();
+    let (stdout, stderr) = (String::from_utf8_lossy(&out.stdout).into_owned(), String::from_utf8_lossy(&out.stderr).into_owned());
+    assert!(!out.status.success(), "{args:?} succeeded");
+    assert!(stderr.contains(want), "{args:?}: '{stderr}' lacks '{want}'");
+    (stdout, stderr)
+}
+
+fn json(text: &str) -> serde_json::Value {
+    serde_json::from_str(text).unwrap()
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+/// The machine and its plant: (`--machine` args, plant, noise).
+struct Setup {
+    machine: Vec<String>,
+    plant: String,
+    noise_um: String,
+}
+
+impl Setup {
+    fn paper() -> Self {
+        Setup { machine: vec![], plant: "paper".into(), noise_um: "1".into() }
+    }
+    fn second() -> Self {
+        let r = root();
+        Setup {
+            machine: vec!["--machine".into(), r.join("machines/second.toml").display().to_string()],
+            plant: r.join("plants/second.toml").display().to_string(),
+            noise_um: "2".into(),
+        }
+    }
+    fn args<'a>(&'a self, head: &[&'a str]) -> Vec<&'a str> {
+        let mut v = head.to_vec();
+        v.extend(self.machine.iter().map(String::as_str));
+        v
+    }
+}
+
+/// The demo's measurement seeds for seed 1 (`calib::pipeline::noise_seed`): 10·1 + step.
+const SEED: u64 = 1;
+fn seed(step: u64) -> String {
+    host_sim::calib::pipeline::noise_seed(SEED, step).to_string()
+}
+
+/// The command-by-command workflow of README, in `dir`; returns the verification figures of
+/// every stage (`[max, rms]` µm, rounded as the demo's summary rounds them) and the final image.
+fn workflow(setup: &Setup, dir: &Path) -> (Vec<(String, [f64; 2])>, Vec<u8>) {
+    let p = |name: &str| dir.join(name).display().to_string();
+    let plan = json(&ok(&setup.args(&["plan", "--seed", &SEED.to_string(), "--out", &p("plan")])));
+    eprintln!("plan: {}", plan["identification"]);
+    let measure = |targets: &str, calibration: &[&str], step: u64, out: &str| -> serde_json::Value {
+        let mut a = vec!["measure", "--plant", &setup.plant, "--noise-um", &setup.noise_um, "--targets"];
+        let t = p(targets);
+        let (sd, o) = (seed(step), p(out));
+        a.extend([t.as_str(), "--seed", sd.as_str(), "--out", o.as_str()]);
+        a.extend_from_slice(calibration);
+        json(&ok(&setup.args(&a)))
+    };
+    let round = |v: &serde_json::Value| [v["max_um"].as_f64().unwrap(), v["rms_um"].as_f64().unwrap()].map(|x| (x * 1e3).round() / 1e3);
+    let mut figures = Vec::new();
+    measure("plan/identify.csv", &[], 1, "fit.csv");
+    ok(&setup.args(&["fit", "--data", &p("fit.csv"), "--method", "full", "--no-loo", "--out", &p("model.json")]));
+    ok(&setup.args(&["fit", "--data", &p("fit.csv"), "--method", "ls", "--out", &p("model_ls.json")]));
+    figures.push(("nominal".into(), round(&measure("plan/verify.csv", &[], 2, "v_nominal.csv"))));
+    figures.push(("ls".into(), round(&measure("plan/verify.csv", &["--model", &p("model_ls.json")], 3, "v_ls.csv"))));
+    figures.push(("full".into(), round(&measure("plan/verify.csv", &["--model", &p("model.json")], 4, "v_full.csv"))));
+    measure("plan/grid.csv", &["--model", &p("model.json")], 5, "grid1.csv");
+    let g1 = json(&ok(&setup.args(&["grid", "--model", &p("model.json"), "--data", &p("grid1.csv"), "--out", &p("grid1.bin")])));
+    assert_eq!(g1["workspace_block"], "written", "{g1}");
+    figures.push(("full+grid".into(), round(&measure("plan/verify.csv", &["--grid", &p("grid1.bin")], 6, "v_grid1.csv"))));
+    measure("plan/grid.csv", &["--grid", &p("grid1.bin")], 7, "grid2.csv");
+    ok(&setup.args(&["grid", "--model", &p("model.json"), "--data", &p("grid2.csv"), "--out", &p("grid.bin")]));
+    figures.push(("full+grid2".into(), round(&measure("plan/verify.csv", &["--grid", &p("grid.bin")], 8, "v_grid2.csv"))));
+    (figures, std::fs::read(dir.join("grid.bin")).unwrap())
+}
+
+/// The demo's figures and image for the same machine and seed.
+fn demo(setup: &Setup, dir: &Path) -> (Vec<(String, [f64; 2])>, Vec<u8>, serde_json::Value) {
+    let out = dir.join("demo");
+    let mut a = vec!["demo", "--plant", &setup.plant, "--noise-um", &setup.noise_um, "--seed", "1", "--out", s(&out)];
+    a.extend(setup.machine.iter().map(String::as_str));
+    let v = json(&ok(&a));
+    let stages = v["stages"].as_array().unwrap();
+    let figures = stages.iter().map(|st| (st["step"].as_str().unwrap().to_string(), [st["max_um"].as_f64().unwrap(), st["rms_um"].as_f64().unwrap()])).collect();
+    (figures, std::fs::read(out.join("grid.bin")).unwrap(), v)
+}
+
+#[test]
+fn the_separate_commands_reproduce_the_demo_on_the_paper_machine() {
+    let dir = tempfile::tempdir().unwrap();
+    let (steps, image) = workflow(&Setup::paper(), dir.path());
+    let (demo_steps, demo_image, v) = demo(&Setup::paper(), dir.path());
+    eprintln!("commands: {steps:?}\ndemo:     {demo_steps:?}");
+    assert_eq!(steps, demo_steps, "the commands and the demo disagree");
+    assert!(image == demo_image, "the commands' grid.bin differs from the demo's");
+    assert_eq!(v["final"]["met"], true);
+    // The image carries the paper machine's workspace for the firmware.
+    let grid = kinematics_core::CorrectionGrid::parse(&image).unwrap();
+    let ws = grid.workspace().expect("a workspace block");
+    assert_eq!(ws.region.vertices_mm(), [[162.132f32, -75.0], [262.132, -75.0], [262.132, 75.0], [162.132, 75.0]]);
+    assert_eq!(ws.stop_margin_mm, 0.1);
+}
+
+#[test]
+fn the_second_machine_runs_the_whole_workflow_and_the_demo() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let setup = Setup::second();
+    let spec = host_sim::io::machine_file::read_machine(&root().join("machines/second.toml")).unwrap();
+    let (steps, image) = workflow(&setup, d);
+    let (demo_steps, demo_image, v) = demo(&setup, d);
+    eprintln!("second machine, commands: {steps:?}\ndemo: {demo_steps:?}");
+    assert_eq!(steps, demo_steps);
+    assert!(image == demo_image);
+    // Before calibration it is hundreds of µm off; fit + grid reach the 2 µm instrument's floor.
+    let get = |k: &str| steps.iter().find(|(s, _)| s == k).unwrap().1;
+    assert!(get("nominal")[0] > 300.0, "{steps:?}");
+    assert!(get("full")[0] < get("nominal")[0] / 20.0, "{steps:?}");
+    let [max, rms] = get("full+grid2");
+    assert_eq!(v["final"]["target_max_um"], 10.0);
+    assert_eq!(v["final"]["target_rms_um"], 4.0);
+    assert!(max <= 10.0 && rms <= 4.0 && rms < get("full")[1], "fit + grid {max} / {rms} µm");
+    assert_eq!(v["final"]["met"], true);
+
+    // The image: the machine's octagon and 0.2 mm soft limit, its 4 mm lattice.
+    let grid = kinematics_core::CorrectionGrid::parse(&image).unwrap();
+    let g = grid.geometry();
+    assert_eq!((g.nx, g.ny, g.x0_mm, g.y0_mm, g.step_x_mm), (22, 32, 168.0, -72.0, 4.0));
+    let ws = grid.workspace().unwrap();
+    assert_eq!(ws.region.vertices_mm().len(), 8);
+    assert_eq!(ws.stop_margin_mm, 0.2);
+    assert_eq!(*grid.model(), host_sim::io::model_file::read_model(&d.join("model.json")).unwrap().cast::<f32>());
+
+    // command: the firmware's path with the machine's calibration; the octagon's cut corner
+    // (inside the grid's rectangle) and a point off the grid are refused.
+    let targets = d.join("t.csv");
+    std::fs::write(&targets, "x_mm,y_mm\n210,-10\n245,30\n172,-50\n").unwrap();
+    let angles = d.join("a.csv");
+    let (m, gb) = (d.join("model.json"), d.join("grid.bin"));
+    ok(&setup.args(&["command", "--model", s(&m), "--grid", s(&gb), "--targets", s(&targets), "--out", s(&angles)]));
+    let cal = kinematics_core::Calibration::from_grid(grid);
+    for (line, t) in std::fs::read_to_string(&angles).unwrap().lines().skip(1).zip([[210.0f32, -10.0], [245.0, 30.0], [172.0, -50.0]]) {
+        let th = cal.command_rad(t, spec.min_transmission as f32).unwrap();
+        let f: Vec<f64> = line.split(',').map(|v| v.parse().unwrap()).collect();
+        assert_eq!((f[2].to_radians() as f32, f[3].to_radians() as f32), (th[0], th[1]), "{line}");
+    }
+    let corner = d.join("corner.csv");
+    std::fs::write(&corner, "x_mm,y_mm\n210,-10\n172,-69\n").unwrap();
+    let o = d.join("o.csv");
+    fails(&setup.args(&["command", "--model", s(&m), "--grid", s(&gb), "--targets", s(&corner), "--out", s(&o)]), "line 3: target (172, -69): outside the workspace of machine 'second'");
+    fails(&setup.args(&["command", "--model", s(&m), "--targets", s(&corner), "--out", s(&o)]), "line 3: target (172, -69): outside the workspace");
+    assert!(!o.exists());
+
+    // accuracy: the plan's repeat runs measured through the calibration; both axis lines.
+    let rep = d.join("repeat.csv");
+    let plan_repeat = d.join("plan/repeat.csv");
+    let mut a = vec!["measure", "--plant", &setup.plant, "--noise-um", &setup.noise_um, "--targets", s(&plan_repeat), "--grid", s(&gb), "--seed", "9", "--out", s(&rep)];
+    a.extend(setup.machine.iter().map(String::as_str));
+    ok(&a);
+    let r = json(&ok(&setup.args(&["accuracy", "--data", s(&rep)])));
+    assert_eq!(r["skipped"], serde_json::json!([]), "{r}");
+    let axes: Vec<&str> = r["lines"].as_array().unwrap().iter().map(|l| l["axis"].as_str().unwrap()).collect();
+    assert_eq!(axes, ["x", "y"]);
+    eprintln!("second machine, ISO 230-2 / VDI 3441 after calibration: {}", r["summary"]);
+
+    // The paper plant is not this machine's simulation.
+    fails(&setup.args(&["measure", "--plant", "paper", "--protocol", "table1", "--out", s(&o)]), "the plant is not a simulation of machine 'second'");
+}
+
+#[test]
+fn command_without_a_grid_refuses_targets_outside_the_workspace() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let model = d.join("m.json");
+    let nominal = host_sim::io::machine_file::paper().nominal;
+    host_sim::io::model_file::write_model_file(&model, &host_sim::io::model_file::ModelFile::from_model(&nominal)).unwrap();
+    let out = d.join("a.csv");
+    for (t, line) in [("212,-200", "line 3: target (212, -200)"), ("50,0", "line 3: target (50, 0)")] {
+        let targets = d.join("t.csv");
+        std::fs::write(&targets, format!("x_mm,y_mm\n212.132,0\n{t}\n")).unwrap();
+        let (_, e) = fails(&["command", "--model", s(&model), "--targets", s(&targets), "--out", s(&out)], line);
+        assert!(e.contains("outside the workspace of machine 'paper'"), "{e}");
+        assert!(!out.exists());
+    }
+    // The workspace's corner is a target (Table I's point 7).
+    let targets = d.join("t.csv");
+    std::fs::write(&targets, "x_mm,y_mm\n162.132,-75\n").unwrap();
+    ok(&["command", "--model", s(&model), "--targets", s(&targets), "--out", s(&out)]);
+}
+
+#[test]
+fn a_simulation_that_faults_and_a_demo_that_misses_its_goal_exit_non_zero() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    // A 20 mm jump in one millisecond: the servo refuses the setpoint.
+    let jump = d.join("jump.csv");
+    std::fs::write(&jump, "t_s,x_mm,y_mm\n0,212.132,0\n0.05,212.132,0\n0.051,232.132,0\n0.2,232.132,0\n").unwrap();
+    let (stdout, _) = fails(&["simulate", "--plant", "ideal", "--trajectory", s(&jump)], "the simulation faulted");
+    assert!(json(&stdout)["fault"].is_string(), "the summary still says what happened: {stdout}");
+    // Random approach on the paper plant: its 20 µrad backlash stays (about 6 µm max > 5).
+    let out = d.join("demo");
+    let (stdout, stderr) = fails(&["demo", "--approach", "random", "--out", s(&out)], "the accuracy target");
+    assert_eq!(json(&stdout)["final"]["met"], false);
+    assert!(stderr.contains("NOT met"), "{stderr}");
+    assert!(out.join("summary.json").is_file(), "the outputs are written");
+}
+
+#[test]
+fn machine_files_are_checked() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let text = std::fs::read_to_string(root().join("machines/paper.toml")).unwrap();
+    let bad = d.join("bad.toml");
+    std::fs::write(&bad, text.replace("sigma_um = 1.0", "sigma_um = 1.0\nsigma_mm = 0.001")).unwrap();
+    let (_, e) = fails(&["plan", "--machine", s(&bad), "--out", s(&d.join("p"))], "sigma_mm");
+    assert!(e.contains("bad.toml") && e.contains("machine file"), "{e}");
+    assert!(!d.join("p").exists());
+    fails(&["fit", "--machine", "/nonexistent/m.toml", "--data", "x.csv", "--method", "full", "--out", s(&d.join("m.json"))], "m.toml");
+    // The shipped paper file is the default: the same plan either way.
+    let (a, b) = (d.join("a"), d.join("b"));
+    ok(&["plan", "--out", s(&a)]);
+    ok(&["plan", "--machine", s(&root().join("machines/paper.toml")), "--out", s(&b)]);
+    for f in ["identify.csv", "grid.csv", "verify.csv", "repeat.csv", "plan.json"] {
+        assert_eq!(std::fs::read(a.join(f)).unwrap(), std::fs::read(b.join(f)).unwrap(), "{f}");
+    }
+}
