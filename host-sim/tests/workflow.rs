@@ -67,6 +67,9 @@ impl Setup {
     }
 }
 
+/// Verification figures per stage: `(stage, [max, rms] µm)`.
+type Figures = Vec<(String, [f64; 2])>;
+
 /// The demo's measurement seeds for seed 1 (`calib::pipeline::noise_seed`): 10·1 + step.
 const SEED: u64 = 1;
 fn seed(step: u64) -> String {
@@ -75,7 +78,7 @@ fn seed(step: u64) -> String {
 
 /// The command-by-command workflow of README, in `dir`; returns the verification figures of
 /// every stage (`[max, rms]` µm, rounded as the demo's summary rounds them) and the final image.
-fn workflow(setup: &Setup, dir: &Path) -> (Vec<(String, [f64; 2])>, Vec<u8>) {
+fn workflow(setup: &Setup, dir: &Path) -> (Figures, Vec<u8>) {
     let p = |name: &str| dir.join(name).display().to_string();
     let plan = json(&ok(&setup.args(&["plan", "--seed", &SEED.to_string(), "--out", &p("plan")])));
     eprintln!("plan: {}", plan["identification"]);
@@ -106,7 +109,7 @@ fn workflow(setup: &Setup, dir: &Path) -> (Vec<(String, [f64; 2])>, Vec<u8>) {
 }
 
 /// The demo's figures and image for the same machine and seed.
-fn demo(setup: &Setup, dir: &Path) -> (Vec<(String, [f64; 2])>, Vec<u8>, serde_json::Value) {
+fn demo(setup: &Setup, dir: &Path) -> (Figures, Vec<u8>, serde_json::Value) {
     let out = dir.join("demo");
     let mut a = vec!["demo", "--plant", &setup.plant, "--noise-um", &setup.noise_um, "--seed", "1", "--out", s(&out)];
     a.extend(setup.machine.iter().map(String::as_str));

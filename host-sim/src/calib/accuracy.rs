@@ -14,10 +14,9 @@
 //!    there (the overrun at the end of a pass, as in ISO 230-2's linear cycle) → the opposite of
 //!    the previous row's direction;
 //! 2. else the previous row's target differs along a only → `sign(target_a(r) − target_a(prev))`;
-//! 2b. else it differs along both axes (a move from one line to another: a new pass starts, and
-//!    a pass starts from its own overrun, as `measure --protocol repeat` makes it) → the
-//!    direction of the next move along a within the run (`sign(target_a(r) − target_a(prev))`
-//!    if there is none);
+//!    if it differs along both axes (a move from one line to another: a new pass starts, and a
+//!    pass starts from its own overrun, as `measure --protocol repeat` makes it) → the
+//!    direction of the next move along a within the run (the sign above if there is none);
 //! 3. else (the last move was along the other axis only) → the previous row's direction;
 //! 4. the first row of a run: the direction of the run's first move along a (approach from an
 //!    overrun, as a pass starts); a run that never moves along a has no direction: its rows are

@@ -281,8 +281,8 @@ fn d_optimal(j: &DMatrix<f64>, n: usize) -> (Vec<usize>, usize) {
     for _ in 0..MAX_EXCHANGE_PASSES {
         passes += 1;
         let mut improved = false;
-        for slot in 0..chosen.len() {
-            let s = chosen[slot];
+        for slot in chosen.iter_mut() {
+            let s = *slot;
             let bs = block(s);
             let without = &info - bs.transpose() * &bs;
             let mut best = (current, usize::MAX);
@@ -296,7 +296,7 @@ fn d_optimal(j: &DMatrix<f64>, n: usize) -> (Vec<usize>, usize) {
             if best.1 != usize::MAX {
                 taken[s] = false;
                 taken[best.1] = true;
-                chosen[slot] = best.1;
+                *slot = best.1;
                 let bc = block(best.1);
                 info = without + bc.transpose() * &bc;
                 current = best.0;
@@ -378,7 +378,7 @@ pub fn plan(opts: &PlanOptions) -> Result<Plan, CalibError> {
     let spec = &opts.spec;
     spec.validate().map_err(|e| invalid!("machine '{}': {e}", spec.name))?;
     let n = opts.identification_poses;
-    if n < 6 || n > MAX_LIST_TARGETS {
+    if !(6..=MAX_LIST_TARGETS).contains(&n) {
         return Err(invalid!("{n} identification poses: the full fit needs at least 6 (12 equations for 10 parameters), at most {MAX_LIST_TARGETS}"));
     }
     if opts.candidates < n || opts.candidates > MAX_LIST_TARGETS {
