@@ -13,10 +13,38 @@
 //! each tool's own settings (options structs).
 
 use kinematics_core::grid::{GridGeometry, WorkspaceLimits};
-use kinematics_core::{paper, ConvexWorkspace, FiveBar, DEFAULT_MIN_TRANSMISSION};
+use kinematics_core::{paper, Branch, ConvexWorkspace, FiveBar, DEFAULT_MIN_TRANSMISSION};
+use serde::{Deserialize, Serialize};
 
 /// Standard gravity (mm/s²), for accelerations stated in g.
 pub const STANDARD_GRAVITY_MM_S2: f64 = 9_806.65;
+
+/// Which solution a five-bar's arm or assembly is in (`kinematics_core::Branch`), as the
+/// machine file and the plant TOML have it: `positive`, `negative`.
+#[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum BranchKey {
+    Positive,
+    Negative,
+}
+
+impl From<BranchKey> for Branch {
+    fn from(b: BranchKey) -> Branch {
+        match b {
+            BranchKey::Positive => Branch::Positive,
+            BranchKey::Negative => Branch::Negative,
+        }
+    }
+}
+
+impl From<Branch> for BranchKey {
+    fn from(b: Branch) -> BranchKey {
+        match b {
+            Branch::Positive => BranchKey::Positive,
+            Branch::Negative => BranchKey::Negative,
+        }
+    }
+}
 
 /// How every motor arrives at a measured or commanded pose (the machine's approach policy).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]

@@ -847,12 +847,8 @@ mod tests {
     #[test]
     fn a_stream_too_fast_for_the_edge_is_stopped_inside() {
         let (settings, img) = (Settings::default(), image());
-        let g = kinematics_core::servo::STANDARD_GRAVITY_MM_S2;
-        // From home towards x = 320 mm (beyond the grid's 260 mm edge) at 2 g / 1.5 m/s.
-        let mut t = Trajectory::new(HOME_MM, &[[320.0, 0.0]], 2.0 * g, 1500.0, 0.1, DT_S);
         let cal = grid_cal(&img);
-        let run = closed(&settings, cal, 800, |_| Some(t.next_mm()), |_, e| e);
-        let at = run.samples.iter().position(|s| s.fault.is_some()).unwrap();
+        let (run, at) = towards_x_320(&settings, cal);
         assert_eq!(run.samples[at].fault, Some(Fault::StopOutsideWorkspace));
         assert!(run.samples.iter().all(|s| s.setpoint_mm[0] <= 260.0 - settings.stop.workspace_margin_mm));
         assert!(matches!(run.modes[run.modes.len() - 1], Mode::Holding(Fault::StopOutsideWorkspace)));
@@ -861,6 +857,16 @@ mod tests {
         // The speed when refused: well above what could stop in the last millimetre.
         let v = (run.samples[at - 1].setpoint_mm[0] - run.samples[at - 2].setpoint_mm[0]) / DT_S;
         assert!(v > 1000.0, "{v} mm/s");
+    }
+
+    /// From home towards x = 320 mm (beyond the grid's 260 mm edge) at 2 g / 1.5 m/s: the run and
+    /// the sample of its first fault.
+    fn towards_x_320<'a>(settings: &Settings, cal: Calibration<'a>) -> (Run, usize) {
+        let g = kinematics_core::servo::STANDARD_GRAVITY_MM_S2;
+        let mut t = Trajectory::new(HOME_MM, &[[320.0, 0.0]], 2.0 * g, 1500.0, 0.1, DT_S);
+        let run = closed(settings, cal, 800, |_| Some(t.next_mm()), |_, e| e);
+        let at = run.samples.iter().position(|s| s.fault.is_some()).unwrap();
+        (run, at)
     }
 
     /// With the machine's workspace in the image (issue 12), the edge is the polygon's, not the
@@ -876,11 +882,8 @@ mod tests {
         img.resize(n + WORKSPACE_LEN, 0);
         let region = ConvexWorkspace::new(&[[170.0, -70.0], [240.0, -70.0], [240.0, 70.0], [170.0, 70.0]]).unwrap();
         append_workspace(&mut img, n, n, &WorkspaceLimits { region, stop_margin_mm: 0.5 }).unwrap();
-        let g = kinematics_core::servo::STANDARD_GRAVITY_MM_S2;
-        let mut t = Trajectory::new(HOME_MM, &[[320.0, 0.0]], 2.0 * g, 1500.0, 0.1, DT_S);
         let cal = grid_cal(&img);
-        let run = closed(&settings, cal, 800, |_| Some(t.next_mm()), |_, e| e);
-        let at = run.samples.iter().position(|s| s.fault.is_some()).unwrap();
+        let (run, at) = towards_x_320(&settings, cal);
         assert_eq!(run.samples[at].fault, Some(Fault::StopOutsideWorkspace));
         assert!(run.samples.iter().all(|s| s.setpoint_mm[0] <= 240.0 - 0.5), "a setpoint beyond the polygon's edge");
         let end = tool_mm(&cal, run.angles[run.angles.len() - 1]);

@@ -11,8 +11,8 @@
 //! reachable with the singularity margin).
 
 use super::{read_text, IoError};
-use crate::machine_spec::{Approach, GridLattice, MachineSpec, Workspace};
-use kinematics_core::{Branch, FiveBar, WorkingMode};
+use crate::machine_spec::{Approach, BranchKey, GridLattice, MachineSpec, Workspace};
+use kinematics_core::{FiveBar, WorkingMode};
 use serde::Deserialize;
 use std::path::Path;
 
@@ -53,22 +53,6 @@ struct Nominal {
     elbow_1: BranchKey,
     elbow_2: BranchKey,
     assembly: BranchKey,
-}
-
-#[derive(Clone, Copy, Debug, Deserialize)]
-#[serde(rename_all = "lowercase")]
-enum BranchKey {
-    Positive,
-    Negative,
-}
-
-impl From<BranchKey> for Branch {
-    fn from(b: BranchKey) -> Branch {
-        match b {
-            BranchKey::Positive => Branch::Positive,
-            BranchKey::Negative => Branch::Negative,
-        }
-    }
 }
 
 #[derive(Debug, Deserialize)]

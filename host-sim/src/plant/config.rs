@@ -14,7 +14,8 @@
 
 use super::PlantError;
 use crate::effect::PhysicalEffect;
-use kinematics_core::{Branch, FiveBar, WorkingMode};
+use crate::machine_spec::BranchKey;
+use kinematics_core::{FiveBar, WorkingMode};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
@@ -69,32 +70,6 @@ pub struct SixBarErrors {
     pub platform_pin_dd_mm: [f64; 2],
     pub platform_pin_e_mm: [f64; 2],
     pub platform_pin_ee_mm: [f64; 2],
-}
-
-/// Which solution a five-bar's arm or assembly is in (`kinematics_core::Branch`, as TOML has it).
-#[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq, Eq)]
-#[serde(rename_all = "lowercase")]
-pub enum BranchKey {
-    Positive,
-    Negative,
-}
-
-impl From<BranchKey> for Branch {
-    fn from(b: BranchKey) -> Branch {
-        match b {
-            BranchKey::Positive => Branch::Positive,
-            BranchKey::Negative => Branch::Negative,
-        }
-    }
-}
-
-impl From<Branch> for BranchKey {
-    fn from(b: Branch) -> BranchKey {
-        match b {
-            Branch::Positive => BranchKey::Positive,
-            Branch::Negative => BranchKey::Negative,
-        }
-    }
 }
 
 /// The nominal five-bar a six-bar is built around, for any machine (`[sixbar.geometry]`;
