@@ -74,8 +74,27 @@
 //! lies within the node rectangle (to [`EDGE_TOLERANCE_CELLS`]): a stop may never end where
 //! the grid cannot correct. Refusal: [`GridError::BadWorkspace`].
 //!
-//! Reserved magics: `HRDY` (the identified dynamics, issue 14) and a backlash-compensation block
-//! (issue 13) are further entries of this chain.
+//! **`HRDY`, the identified dynamics** (version 1, 56 bytes, [`FiveBarDynamics`], issue 14):
+//! what the servo feeds forward (`Servo::step_motion`). The dynamic parameters travel with the
+//! model they were identified for.
+//!
+//! | offset (in the block) | size | field |
+//! |---:|---:|---|
+//! | 12 | 10×4 | f32 `I1, I2` (kg·m²), `m_C` (kg), `J3, J4` (kg·m²), `fv1, fv2` (N·m·s/rad), `fc1, fc2` (N·m), Coulomb speed (rad/s) |
+//! | 52 | 4 | block CRC |
+//!
+//! Checks: [`FiveBarDynamics::validate`] (feed-forward from a corrupt block would push the
+//! motors). Refusal: [`GridError::BadDynamics`].
+//!
+//! An image may carry neither block, either, or both, in either order. The writers here
+//! ([`append_workspace`], [`append_dynamics`], [`encode_with_dynamics`]) append a block at a
+//! given end, so a chain is built one block after the other. Compatibility: the first
+//! dynamics-aware parser (before the chain) read a `HRDY` block only right after the CRC and
+//! ignored everything else; images whose chain starts with `HRDY` read the same there.
+//! A version-2 header was not used for these blocks because it would have changed what a
+//! version-1 image with a tampered version field is refused as.
+//!
+//! Reserved magic: a backlash-compensation block (issue 13) is a further entry of this chain.
 //!
 //! # Outside the grid
 //! A point more than [`EDGE_TOLERANCE_CELLS`] of a cell outside the node rectangle is refused
@@ -83,6 +102,7 @@
 //! within that tolerance (float rounding of a target on the boundary) take the edge value.
 
 use crate::bilinear::bilinear;
+use crate::dynamics::{FiveBarDynamics, PARAMETERS};
 use crate::model::{Branch, FiveBar, WorkingMode};
 use crate::workspace::{ConvexWorkspace, MAX_WORKSPACE_VERTICES};
 
@@ -105,6 +125,12 @@ pub const WORKSPACE_MAGIC: [u8; 4] = *b"HRWS";
 pub const WORKSPACE_VERSION: u16 = 1;
 /// Bytes of the workspace block.
 pub const WORKSPACE_LEN: usize = BLOCK_FRAME_LEN + 8 + 8 * MAX_WORKSPACE_VERTICES;
+/// Magic of the dynamics block.
+pub const DYNAMICS_MAGIC: [u8; 4] = *b"HRDY";
+/// The dynamics block's version.
+pub const DYNAMICS_VERSION: u16 = 1;
+/// Bytes of the dynamics block: the frame and the 9 parameters and the Coulomb speed (f32).
+pub const DYNAMICS_LEN: usize = BLOCK_FRAME_LEN + 4 * (PARAMETERS + 1);
 
 const CRC32: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
 
@@ -133,6 +159,9 @@ pub enum GridError {
     /// The workspace block after the image is corrupt, belongs to another image, repeats, or
     /// holds a polygon that is not convex or leaves the grid.
     BadWorkspace,
+    /// The dynamics block after the image is corrupt, belongs to another image, repeats or
+    /// holds invalid parameters.
+    BadDynamics,
 }
 
 impl core::fmt::Display for GridError {
@@ -148,6 +177,7 @@ impl core::fmt::Display for GridError {
             GridError::OutsideGrid => f.write_str("point outside the correction grid"),
             GridError::BadEncodeInput => f.write_str("grid encode: buffer or node count mismatch"),
             GridError::BadWorkspace => f.write_str("the image's workspace block is corrupt or invalid"),
+            GridError::BadDynamics => f.write_str("the image's dynamics block is corrupt or invalid"),
         }
     }
 }
@@ -206,6 +236,11 @@ impl GridGeometry {
             .all(|p| inside(p[0], self.x0_mm, self.step_x_mm, self.nx) && inside(p[1], self.y0_mm, self.step_y_mm, self.ny))
     }
 
+    /// Image size followed by the dynamics block.
+    pub fn image_len_with_dynamics(&self) -> usize {
+        self.image_len() + DYNAMICS_LEN
+    }
+
     fn validate(&self) -> Result<(), GridError> {
         let counts_ok = (2..=MAX_NODES_PER_AXIS).contains(&self.nx)
             && (2..=MAX_NODES_PER_AXIS).contains(&self.ny);
@@ -233,7 +268,8 @@ pub struct WorkspaceLimits {
 }
 
 /// A validated image, borrowed from flash (or any byte slice): nothing is copied, nodes are
-/// decoded on demand, and so is the workspace block (validated by [`CorrectionGrid::parse`]).
+/// decoded on demand, and so is the workspace block (validated by [`CorrectionGrid::parse`]);
+/// the dynamics block is decoded once (the servo reads it every step).
 #[derive(Clone, Copy, Debug)]
 pub struct CorrectionGrid<'a> {
     geometry: GridGeometry,
@@ -241,6 +277,8 @@ pub struct CorrectionGrid<'a> {
     nodes: &'a [u8],
     /// The workspace block's payload, if the image has one.
     workspace: Option<&'a [u8]>,
+    /// The dynamics block's parameters, if the image has one.
+    dynamics: Option<FiveBarDynamics<f32>>,
 }
 
 fn u16_at(b: &[u8], at: usize) -> u16 {
@@ -332,7 +370,12 @@ impl<'a> CorrectionGrid<'a> {
             return Err(GridError::NonFinite);
         }
         let extensions = parse_extensions(&bytes[total..], stored_crc, &geometry)?;
-        Ok(CorrectionGrid { geometry, model, nodes, workspace: extensions.workspace })
+        Ok(CorrectionGrid { geometry, model, nodes, workspace: extensions.workspace, dynamics: extensions.dynamics })
+    }
+
+    /// The identified dynamics, if the image carries the block (validated by [`Self::parse`]).
+    pub fn dynamics(&self) -> Option<&FiveBarDynamics<f32>> {
+        self.dynamics.as_ref()
     }
 
     /// The workspace limits, if the image carries the block (validated by [`Self::parse`]).
@@ -454,6 +497,7 @@ pub fn encode(
 #[derive(Default)]
 struct Extensions<'a> {
     workspace: Option<&'a [u8]>,
+    dynamics: Option<FiveBarDynamics<f32>>,
 }
 
 /// The payload of the framed block at the start of `rest` if its frame is sound (version,
@@ -484,6 +528,15 @@ fn parse_extensions<'a>(rest: &'a [u8], image_crc: u32, geometry: &GridGeometry)
                 }
                 found.workspace = Some(payload);
                 WORKSPACE_LEN
+            }
+            m if m == DYNAMICS_MAGIC => {
+                let payload = framed_payload(&rest[at..], DYNAMICS_VERSION, DYNAMICS_LEN, image_crc)
+                    .ok_or(GridError::BadDynamics)?;
+                if found.dynamics.is_some() {
+                    return Err(GridError::BadDynamics);
+                }
+                found.dynamics = Some(decode_dynamics(payload)?);
+                DYNAMICS_LEN
             }
             _ => break,
         };
@@ -516,6 +569,20 @@ fn decode_workspace(payload: &[u8]) -> Result<WorkspaceLimits, GridError> {
     }
     let region = ConvexWorkspace::new(&v[..n]).map_err(|_| GridError::BadWorkspace)?;
     Ok(WorkspaceLimits { region, stop_margin_mm })
+}
+
+/// The dynamics block's payload decoded and validated.
+fn decode_dynamics(payload: &[u8]) -> Result<FiveBarDynamics<f32>, GridError> {
+    if payload.len() != DYNAMICS_LEN - BLOCK_FRAME_LEN {
+        return Err(GridError::BadDynamics);
+    }
+    let mut p = [0.0f32; PARAMETERS];
+    for (k, v) in p.iter_mut().enumerate() {
+        *v = f32_at(payload, 4 * k);
+    }
+    let d = FiveBarDynamics::from_array(p, f32_at(payload, 4 * PARAMETERS));
+    d.validate().map_err(|_| GridError::BadDynamics)?;
+    Ok(d)
 }
 
 /// Writes one framed extension block into `out` (exactly `len` bytes): magic, version, length,
@@ -561,4 +628,41 @@ pub fn append_workspace(out: &mut [u8], image_len: usize, at: usize, limits: &Wo
         }
     });
     Ok(at + WORKSPACE_LEN)
+}
+
+/// Appends the dynamics block to the image in `out[..image_len]` (an image from [`encode`],
+/// possibly followed by other blocks: `at` is where this block goes) and returns the new end.
+/// `out` must hold `at + DYNAMICS_LEN` bytes; the parameters are validated as the parser does.
+pub fn append_dynamics(out: &mut [u8], image_len: usize, at: usize, dynamics: &FiveBarDynamics<f32>) -> Result<usize, GridError> {
+    dynamics.validate().map_err(|_| GridError::BadDynamics)?;
+    let crc = image_crc(out, image_len).ok_or(GridError::BadEncodeInput)?;
+    if at < image_len || out.len() < at + DYNAMICS_LEN {
+        return Err(GridError::BadEncodeInput);
+    }
+    CorrectionGrid::parse(&out[..image_len])?;
+    let values = dynamics.to_array();
+    write_block(&mut out[at..at + DYNAMICS_LEN], DYNAMICS_MAGIC, DYNAMICS_VERSION, DYNAMICS_LEN, crc, |p| {
+        for (k, v) in values.iter().chain(core::iter::once(&dynamics.coulomb_speed_rad_s)).enumerate() {
+            p[4 * k..4 + 4 * k].copy_from_slice(&v.to_le_bytes());
+        }
+    });
+    Ok(at + DYNAMICS_LEN)
+}
+
+/// Writes an image followed by the dynamics block into `out` (at least
+/// [`GridGeometry::image_len_with_dynamics`] bytes) and returns its length: [`encode`] then
+/// [`append_dynamics`].
+pub fn encode_with_dynamics(
+    out: &mut [u8],
+    geometry: &GridGeometry,
+    model: &FiveBar<f32>,
+    nodes_rad: &[[f32; 2]],
+    dynamics: &FiveBarDynamics<f32>,
+) -> Result<usize, GridError> {
+    dynamics.validate().map_err(|_| GridError::BadDynamics)?;
+    if out.len() < geometry.image_len_with_dynamics() {
+        return Err(GridError::BadEncodeInput);
+    }
+    let total = encode(out, geometry, model, nodes_rad)?;
+    append_dynamics(out, total, total, dynamics)
 }

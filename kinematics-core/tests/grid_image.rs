@@ -295,3 +295,214 @@ fn append_workspace_refuses_what_the_parser_would() {
     img[100] ^= 1;
     assert_eq!(append_workspace(&mut img, n, n, &limits()), Err(GridError::BadCrc));
 }
+
+// ---------------------------------------------------------------------------------------------
+// The dynamics block (grid.rs, "Extension blocks", `HRDY`).
+
+fn dynamics() -> kinematics_core::FiveBarDynamics<f32> {
+    kinematics_core::FiveBarDynamics {
+        motor_inertia_kg_m2: [3.1e-3, 2.9e-3],
+        tool_mass_kg: 0.11,
+        distal_inertia_kg_m2: [-2.5e-4, -2.4e-4],
+        viscous_nm_s_per_rad: [0.02, 0.021],
+        coulomb_nm: [0.05, 0.049],
+        coulomb_speed_rad_s: 0.01,
+    }
+}
+
+fn image_with_dynamics() -> Vec<u8> {
+    let g = geometry();
+    let nodes: Vec<[f32; 2]> = (0..g.ny).flat_map(|j| (0..g.nx).map(move |i| (i, j))).map(|(i, j)| field(g.node_mm(i, j))).collect();
+    let mut buf = vec![0u8; g.image_len_with_dynamics()];
+    let n = kinematics_core::grid::encode_with_dynamics(&mut buf, &g, &FiveBar::paper_nominal(), &nodes, &dynamics()).unwrap();
+    assert_eq!(n, buf.len());
+    buf
+}
+
+#[test]
+fn the_dynamics_extension_round_trips_and_a_version_1_reader_still_reads_the_grid() {
+    let img = image_with_dynamics();
+    let grid = CorrectionGrid::parse(&img).unwrap();
+    assert_eq!(grid.dynamics(), Some(&dynamics()));
+    // The first image_len bytes are exactly the version-1 image: what an older parser reads.
+    let v1 = image();
+    assert_eq!(&img[..v1.len()], &v1[..]);
+    let old = CorrectionGrid::parse(&v1).unwrap();
+    assert_eq!(old.dynamics(), None);
+    assert_eq!(old.correction_rad([200.0, 10.0]), grid.correction_rad([200.0, 10.0]));
+    // Erased flash after a plain image: no extension.
+    let mut region = v1.clone();
+    region.extend([0xFF; 256]);
+    assert_eq!(CorrectionGrid::parse(&region).unwrap().dynamics(), None);
+    // And after an image with the extension.
+    let mut region = img.clone();
+    region.extend([0xFF; 256]);
+    assert_eq!(CorrectionGrid::parse(&region).unwrap().dynamics(), Some(&dynamics()));
+}
+
+#[test]
+fn every_bit_flip_in_the_extension_refuses_the_image() {
+    let img = image_with_dynamics();
+    let start = geometry().image_len();
+    // Byte 0..4 is the magic: a flip there makes the block "not an extension" (the image is
+    // then read without dynamics); every other flip must be caught.
+    for byte in start + 4..img.len() {
+        for bit in 0..8 {
+            let mut v = img.clone();
+            v[byte] ^= 1 << bit;
+            assert_eq!(CorrectionGrid::parse(&v).unwrap_err(), GridError::BadDynamics, "byte {byte} bit {bit}");
+        }
+    }
+    for byte in start..start + 4 {
+        let mut v = img.clone();
+        v[byte] ^= 0x40;
+        assert_eq!(CorrectionGrid::parse(&v).unwrap().dynamics(), None);
+    }
+    // Truncated inside the block.
+    assert_eq!(CorrectionGrid::parse(&img[..img.len() - 1]).unwrap_err(), GridError::BadDynamics);
+}
+
+#[test]
+fn an_extension_left_behind_by_another_image_is_refused() {
+    let img = image_with_dynamics();
+    let start = geometry().image_len();
+    // Another image (one node changed), the old block appended.
+    let mut other = image();
+    other[HEADER_LEN] ^= 1;
+    let n = other.len();
+    let crc = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC).checksum(&other[..n - 4]);
+    other[n - 4..].copy_from_slice(&crc.to_le_bytes());
+    other.extend_from_slice(&img[start..]);
+    assert_eq!(CorrectionGrid::parse(&other).unwrap_err(), GridError::BadDynamics);
+}
+
+#[test]
+fn invalid_dynamics_are_not_encoded_nor_accepted() {
+    let g = geometry();
+    let nodes = vec![[0.0f32; 2]; g.len()];
+    let mut buf = vec![0u8; g.image_len_with_dynamics()];
+    let bad = kinematics_core::FiveBarDynamics { motor_inertia_kg_m2: [0.0, 1e-3], ..dynamics() };
+    let m = FiveBar::paper_nominal();
+    assert_eq!(kinematics_core::grid::encode_with_dynamics(&mut buf, &g, &m, &nodes, &bad), Err(GridError::BadDynamics));
+    let mut short = vec![0u8; g.image_len()];
+    assert_eq!(kinematics_core::grid::encode_with_dynamics(&mut short, &g, &m, &nodes, &dynamics()), Err(GridError::BadEncodeInput));
+    // A negative friction written with a valid CRC: refused on parsing.
+    let mut img = image_with_dynamics();
+    let start = g.image_len();
+    img[start + 12 + 4 * 7..start + 16 + 4 * 7].copy_from_slice(&(-0.05f32).to_le_bytes());
+    let crc = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC).checksum(&img[start..start + 52]);
+    img[start + 52..start + 56].copy_from_slice(&crc.to_le_bytes());
+    assert_eq!(CorrectionGrid::parse(&img).unwrap_err(), GridError::BadDynamics);
+}
+
+// ---------------------------------------------------------------------------------------------
+// The chain with both blocks (grid.rs, "Extension blocks").
+
+use kinematics_core::grid::{append_dynamics, DYNAMICS_LEN, DYNAMICS_MAGIC};
+
+/// The image followed by the blocks in `order` (`b'W'` workspace, `b'D'` dynamics).
+fn image_with_chain(order: &[u8]) -> Vec<u8> {
+    let mut img = image();
+    let n = img.len();
+    let mut end = n;
+    for b in order {
+        let len = if *b == b'W' { WORKSPACE_LEN } else { DYNAMICS_LEN };
+        img.resize(end + len, 0x55);
+        end = match b {
+            b'W' => append_workspace(&mut img, n, end, &limits()),
+            _ => append_dynamics(&mut img, n, end, &dynamics()),
+        }
+        .unwrap();
+    }
+    assert_eq!(end, img.len());
+    img
+}
+
+#[test]
+fn images_with_neither_either_or_both_blocks_in_either_order_are_read() {
+    let plain = image();
+    let reference = CorrectionGrid::parse(&plain).unwrap().correction_rad([200.0, 10.0]).unwrap();
+    for order in [&b""[..], b"W", b"D", b"WD", b"DW"] {
+        for tail in [&[][..], &[0xFF; 300][..], &b"HRXX unknown bytes"[..]] {
+            let mut img = image_with_chain(order);
+            img.extend_from_slice(tail);
+            let g = CorrectionGrid::parse(&img).unwrap();
+            let name = core::str::from_utf8(order).unwrap();
+            assert_eq!(g.workspace(), order.contains(&b'W').then(limits), "{name} + {} bytes", tail.len());
+            assert_eq!(g.dynamics(), order.contains(&b'D').then(dynamics).as_ref(), "{name}");
+            assert_eq!(g.correction_rad([200.0, 10.0]).unwrap(), reference, "{name}");
+            assert_eq!(&img[..plain.len()], &plain[..], "{name}: a version-1 reader sees the same image");
+        }
+    }
+}
+
+#[test]
+fn a_corrupt_second_block_refuses_the_whole_image() {
+    let n = geometry().image_len();
+    for (order, second_at, err) in [
+        (&b"WD"[..], n + WORKSPACE_LEN, GridError::BadDynamics),
+        (&b"DW"[..], n + DYNAMICS_LEN, GridError::BadWorkspace),
+    ] {
+        let img = image_with_chain(order);
+        // A flip in the second block's payload or CRC.
+        for byte in [second_at + 12, img.len() - 1] {
+            let mut v = img.clone();
+            v[byte] ^= 0x01;
+            assert_eq!(CorrectionGrid::parse(&v).unwrap_err(), err, "{:?} byte {byte}", core::str::from_utf8(order));
+        }
+        // Truncated in the second block.
+        assert_eq!(CorrectionGrid::parse(&img[..img.len() - 3]).unwrap_err(), err);
+    }
+    // Each magic at most once, also with another block between the two.
+    let mut twice = image_with_chain(b"DW");
+    let d = twice[n..n + DYNAMICS_LEN].to_vec();
+    twice.extend_from_slice(&d);
+    assert_eq!(CorrectionGrid::parse(&twice).unwrap_err(), GridError::BadDynamics);
+}
+
+#[test]
+fn the_dynamics_block_has_the_documented_byte_layout() {
+    // The table in grid.rs, byte by byte: what the first dynamics-aware parser (HRDY right
+    // after the CRC) wrote and read, so images built before the chain still read.
+    let img = image_with_dynamics();
+    let n = geometry().image_len();
+    let b = &img[n..];
+    assert_eq!(b.len(), 56);
+    assert_eq!(&b[0..4], &DYNAMICS_MAGIC);
+    assert_eq!(&b[0..4], b"HRDY");
+    assert_eq!(u16::from_le_bytes([b[4], b[5]]), 1);
+    assert_eq!(u16::from_le_bytes([b[6], b[7]]), 56);
+    assert_eq!(&b[8..12], &img[n - 4..n], "the image's CRC");
+    let f = |k: usize| f32::from_le_bytes(b[12 + 4 * k..16 + 4 * k].try_into().unwrap());
+    let d = dynamics();
+    let want = [
+        d.motor_inertia_kg_m2[0],
+        d.motor_inertia_kg_m2[1],
+        d.tool_mass_kg,
+        d.distal_inertia_kg_m2[0],
+        d.distal_inertia_kg_m2[1],
+        d.viscous_nm_s_per_rad[0],
+        d.viscous_nm_s_per_rad[1],
+        d.coulomb_nm[0],
+        d.coulomb_nm[1],
+        d.coulomb_speed_rad_s,
+    ];
+    for (k, w) in want.iter().enumerate() {
+        assert_eq!(f(k), *w, "parameter {k}");
+    }
+    let crc = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC).checksum(&b[..52]);
+    assert_eq!(u32::from_le_bytes(b[52..56].try_into().unwrap()), crc);
+}
+
+#[test]
+fn append_dynamics_refuses_what_the_parser_would() {
+    let mut img = image();
+    let n = img.len();
+    img.resize(n + DYNAMICS_LEN, 0);
+    let bad = kinematics_core::FiveBarDynamics { coulomb_speed_rad_s: f32::NAN, ..dynamics() };
+    assert_eq!(append_dynamics(&mut img, n, n, &bad), Err(GridError::BadDynamics));
+    assert_eq!(append_dynamics(&mut img[..n + 55], n, n, &dynamics()), Err(GridError::BadEncodeInput));
+    assert_eq!(append_dynamics(&mut img, n, n - 1, &dynamics()), Err(GridError::BadEncodeInput));
+    img[100] ^= 1;
+    assert_eq!(append_dynamics(&mut img, n, n, &dynamics()), Err(GridError::BadCrc));
+}

@@ -3,6 +3,7 @@
 //! * [`measurement_csv`]: the measurement CSV, the contract between measuring (an
 //!   interferometer or `host-sim measure`) and every tool that reads measurements;
 //! * [`model_file`]: `model.json`, a fitted hidden robot;
+//! * [`dynamics_file`]: `dynamics.json`, its identified dynamic parameters;
 //! * [`targets_csv`]: the `x_mm,y_mm` target lists `command` reads, and the plan's lists;
 //! * [`machine_file`]: the machine file (TOML), what `--machine` reads;
 //! * [`plot`]: the PNG plots (paths, error-vector fields);
@@ -17,6 +18,7 @@
 //! everything; `source()` is not used, so a chain printed with `{:#}` does not repeat it).
 
 pub mod atomic;
+pub mod dynamics_file;
 pub mod machine_file;
 pub mod measurement_csv;
 pub mod model_file;
