@@ -133,7 +133,34 @@ fn the_separate_commands_reproduce_the_demo_on_the_paper_machine() {
     let ws = grid.workspace().expect("a workspace block");
     assert_eq!(ws.region.vertices_mm(), [[162.132f32, -75.0], [262.132, -75.0], [262.132, 75.0], [162.132, 75.0]]);
     assert_eq!(ws.stop_margin_mm, 0.1);
+    assert!(grid.dynamics().is_none(), "no --dynamics, no dynamics block");
+
+    // grid --dynamics: the same image with the dynamics block at the end of its chain, which
+    // simulate feeds forward; a dynamics file that does not validate writes nothing.
+    let d = dir.path();
+    let dynamics = d.join("dynamics.json");
+    std::fs::write(&dynamics, DYNAMICS_JSON).unwrap();
+    let (m, g2, gd) = (d.join("model.json"), d.join("grid2.csv"), d.join("gd.bin"));
+    let v = json(&ok(&["grid", "--model", s(&m), "--data", s(&g2), "--out", s(&gd), "--dynamics", s(&dynamics)]));
+    assert_eq!((&v["workspace_block"], &v["dynamics_block"]), (&"written".into(), &true.into()), "{v}");
+    let with = std::fs::read(&gd).unwrap();
+    assert_eq!(&with[..image.len()], &image[..]);
+    assert_eq!(with.len(), image.len() + kinematics_core::grid::DYNAMICS_LEN);
+    let parsed = kinematics_core::CorrectionGrid::parse(&with).unwrap();
+    assert_eq!(parsed.workspace(), Some(ws));
+    assert_eq!(parsed.dynamics().unwrap().tool_mass_kg, 0.165);
+    let sim = json(&ok(&["simulate", "--trajectory", "move-10mm", "--model", s(&m), "--grid", s(&gd)]));
+    assert_eq!(sim["dynamics_source"], "the --grid image's dynamics block", "{sim}");
+    std::fs::write(&dynamics, DYNAMICS_JSON.replace("0.165", "-0.165")).unwrap();
+    let bad = d.join("bad.bin");
+    fails(&["grid", "--model", s(&m), "--data", s(&g2), "--out", s(&bad), "--dynamics", s(&dynamics)], "dynamics.json");
+    assert!(!bad.exists());
 }
+
+/// A dynamics file (`io::dynamics_file`) with the QEMU machine's kind of values.
+const DYNAMICS_JSON: &str = r#"{"format": "hidden-robot-dynamics", "version": 1,
+  "motor_inertia_kg_m2": [0.0037, 0.0037], "tool_mass_kg": 0.165, "distal_inertia_kg_m2": [0.0, 0.0],
+  "viscous_nm_s_per_rad": [0.02, 0.02], "coulomb_nm": [0.05, 0.05], "coulomb_speed_rad_s": 0.01}"#;
 
 #[test]
 fn the_second_machine_runs_the_whole_workflow_and_the_demo() {

@@ -3,7 +3,8 @@
 
 use anyhow::{bail, Context, Result};
 use host_sim::calib::grid::{build, format_csv};
-use host_sim::calib::image::{finish_image, WorkspaceBlock};
+use host_sim::calib::image::{append_dynamics_block, finish_image, WorkspaceBlock};
+use host_sim::io::dynamics_file::read_dynamics;
 use host_sim::io::atomic::write_atomic;
 use host_sim::io::measurement_csv::read_measurements;
 use host_sim::io::model_file::read_model;
@@ -33,6 +34,10 @@ pub struct Args {
     /// Optional PNG of the measured node errors.
     #[arg(long)]
     pub plot: Option<PathBuf>,
+    /// Identified dynamic parameters (dynamics.json) the image carries for the servo's
+    /// feed-forward (the `HRDY` block); without it the image has no dynamics block.
+    #[arg(long)]
+    pub dynamics: Option<PathBuf>,
     #[command(flatten)]
     pub machine: super::MachineArg,
 }
@@ -54,6 +59,8 @@ struct Summary {
     /// Whether the image carries the machine's workspace block (`written`) or not (a grid
     /// that does not cover the workspace: the firmware then keeps to the grid's rectangle).
     workspace_block: WorkspaceBlock,
+    /// Whether the image carries the dynamics block (`--dynamics`).
+    dynamics_block: bool,
 }
 
 /// `host-sim grid`.
@@ -67,7 +74,10 @@ pub fn run(args: &Args) -> Result<()> {
     let data = read_measurements(&args.data)?;
     let mut built = build(&model, &data, step_mm).with_context(|| format!("in {}", args.data.display()))?;
     let (image, workspace_block) = finish_image(&built.image, &spec)?;
-    built.image = image;
+    built.image = match &args.dynamics {
+        Some(p) => append_dynamics_block(&image, &read_dynamics(p)?).with_context(|| format!("with {}", p.display()))?,
+        None => image,
+    };
     if workspace_block == WorkspaceBlock::GridDoesNotCoverTheWorkspace {
         eprintln!(
             "grid: the grid does not cover machine '{}''s workspace: the image carries no workspace block (the firmware keeps its stops inside the grid's rectangle)",
@@ -101,6 +111,7 @@ pub fn run(args: &Args) -> Result<()> {
             image_bytes: built.image.len(),
             csv: csv.display().to_string(),
             workspace_block,
+            dynamics_block: args.dynamics.is_some(),
         },
         KeyOrder::Sorted,
     )
