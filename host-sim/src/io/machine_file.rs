@@ -255,6 +255,44 @@ mod tests {
         refused("[grid]\nx_mm = [162.132, 262.132]", "[grid]\nx_mm = [162.132, 312.132]", "not reachable");
     }
 
+    /// Every key of the shipped files (between them, every key the reader knows: the paper's
+    /// rectangle, the second's polygon), dotted.
+    fn keys(text: &str) -> Vec<String> {
+        let table: toml::Table = toml::from_str(text).unwrap();
+        let mut out = Vec::new();
+        for (k, v) in &table {
+            match v.as_table() {
+                Some(t) => out.extend(t.keys().map(|sub| format!("{k}.{sub}"))),
+                None => out.push(k.clone()),
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn every_key_is_documented_with_its_unit_in_machine_md() {
+        let doc = include_str!("../../MACHINE.md");
+        let mut all = keys(PAPER_TOML);
+        all.extend(keys(include_str!("../../machines/second.toml")));
+        assert!(all.len() >= 27, "{all:?}");
+        for key in &all {
+            // A row of the key table: "| `key` | unit | ..." (x_mm and y_mm share a row).
+            let row = doc.lines().find(|l| l.starts_with('|') && l.contains(&format!("`{key}`")));
+            let row = row.unwrap_or_else(|| panic!("MACHINE.md does not document '{key}'"));
+            let unit = row.split('|').nth(2).unwrap().trim();
+            let want = ["_mm", "_um", "_deg", "_s", "_g"].iter().find(|u| key.ends_with(*u));
+            let said = match want {
+                Some(&"_mm") => unit == "mm",
+                Some(&"_um") => unit == "µm",
+                Some(&"_deg") => unit == "°",
+                Some(&"_s") => unit == "s",
+                Some(_) => unit.starts_with('g'),
+                None => unit == "—",
+            };
+            assert!(said, "MACHINE.md gives '{key}' the unit '{unit}'");
+        }
+    }
+
     #[test]
     fn the_shipped_second_machine_reads() {
         let s = parse_machine(include_str!("../../machines/second.toml")).unwrap();
