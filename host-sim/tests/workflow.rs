@@ -285,3 +285,37 @@ fn machine_files_are_checked() {
         assert_eq!(std::fs::read(a.join(f)).unwrap(), std::fs::read(b.join(f)).unwrap(), "{f}");
     }
 }
+
+/// README's "Calibrating a machine, command by command", run line by line as written (`$h` is
+/// the binary, `$m` the measure prefix the block defines): every command succeeds and every
+/// figure in a comment (`max / rms` µm) is what that command printed, to the digits shown.
+#[test]
+fn the_readme_workflow_reaches_the_figures_it_states() {
+    let readme = std::fs::read_to_string(root().join("../README.md")).unwrap();
+    let section = readme.split("## Calibrating a machine, command by command").nth(1).expect("the README section");
+    let block = section.split("```sh\n").nth(1).unwrap().split("```").next().unwrap();
+    let measure = block.lines().find_map(|l| l.strip_prefix("m=\"")).unwrap().trim_end_matches('"');
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(dir.path().join("T.csv"), "x_mm,y_mm\n212.132,0\n240,30\n").unwrap();
+    let mut checked = 0;
+    for line in block.lines().filter(|l| l.starts_with("$h ")) {
+        let (command, comment) = line.split_once('#').map_or((line, ""), |(c, k)| (c, k.trim()));
+        let command = command.replacen("$h ", "", 1).replace("$m", measure);
+        let args: Vec<&str> = command.split_whitespace().collect();
+        let out = Command::new(env!("CARGO_BIN_EXE_host-sim")).args(&args).current_dir(dir.path()).output().unwrap();
+        assert!(out.status.success(), "README: `{line}` failed: {}", String::from_utf8_lossy(&out.stderr));
+        let figures: Vec<&str> = comment.split(" / ").map(str::trim).collect();
+        if figures.len() == 2 && figures.iter().all(|f| f.parse::<f64>().is_ok()) {
+            let v = json(&String::from_utf8_lossy(&out.stdout));
+            for (key, stated) in ["max_um", "rms_um"].into_iter().zip(&figures) {
+                let decimals = stated.split('.').nth(1).map_or(0, str::len) as i32;
+                let got = v[key].as_f64().unwrap();
+                let shown = (got * 10f64.powi(decimals)).round() / 10f64.powi(decimals);
+                assert_eq!(shown, stated.parse::<f64>().unwrap(), "README: `{line}`: {key} is {got}");
+            }
+            checked += 1;
+        }
+    }
+    assert_eq!(checked, 4, "the four verifications carry their figures");
+    assert!(dir.path().join("angles.csv").is_file());
+}
