@@ -319,3 +319,58 @@ fn the_readme_workflow_reaches_the_figures_it_states() {
     assert_eq!(checked, 4, "the four verifications carry their figures");
     assert!(dir.path().join("angles.csv").is_file());
 }
+
+/// `plan`'s files, checked from the files alone on both machines: every target in the
+/// workspace with the machine's approach, the verification targets disjoint from every other
+/// list (brute force), the repeat runs as ISO 230-2 / VDI 3441 want them, the identification
+/// design better than random poses of the same count.
+#[test]
+fn plan_files_hold_what_the_issue_asks_on_both_machines() {
+    for setup in [Setup::paper(), Setup::second()] {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("plan");
+        let report = json(&ok(&setup.args(&["plan", "--seed", "3", "--out", s(&out)])));
+        let spec = match setup.machine.get(1) {
+            Some(f) => host_sim::io::machine_file::read_machine(Path::new(f)).unwrap(),
+            None => host_sim::io::machine_file::paper(),
+        };
+        let read = |name: &str| host_sim::io::targets_csv::read_target_list(&out.join(format!("{name}.csv"))).unwrap();
+        let (identify, grid, verify, repeat) = (read("identify"), read("grid"), read("verify"), read("repeat"));
+        assert_eq!((identify.len(), grid.len(), verify.len()), (40, spec.grid.nx * spec.grid.ny, 400), "{}", spec.name);
+        for t in identify.iter().chain(&verify).chain(&repeat) {
+            assert!(spec.workspace.contains(t.target_mm, 1e-9), "{}: {:?} outside the workspace", spec.name, t.target_mm);
+        }
+        for t in identify.iter().chain(&grid).chain(&verify).chain(&repeat) {
+            assert_eq!(t.dir, Some([1, 1]), "{}: positive approach on every row", spec.name);
+            assert!(t.from_mm.is_some());
+        }
+        // Disjoint: no verification target within 1 µm of any target of the other lists.
+        let others: Vec<[f64; 2]> = identify.iter().chain(&grid).chain(&repeat).map(|t| t.target_mm).collect();
+        let nearest = verify
+            .iter()
+            .map(|v| others.iter().map(|o| (o[0] - v.target_mm[0]).hypot(o[1] - v.target_mm[1])).fold(f64::INFINITY, f64::min))
+            .fold(f64::INFINITY, f64::min);
+        assert!(nearest > 1e-3, "{}: a verification target {nearest} mm from another list's", spec.name);
+        assert_eq!(report["verify_min_distance_to_others_mm"].as_f64().unwrap(), nearest);
+        // Repeat runs: 5 runs, each over both axis lines through the centre, both directions,
+        // 11 targets per line (ISO 230-2: ≥ 5 targets, 5 bidirectional runs).
+        let c = spec.workspace.centre_mm();
+        let runs: std::collections::BTreeSet<u32> = repeat.iter().map(|t| t.run.unwrap()).collect();
+        assert_eq!(runs.into_iter().collect::<Vec<_>>(), [0, 1, 2, 3, 4], "{}", spec.name);
+        for run in 0..5 {
+            let rows: Vec<[f64; 2]> = repeat.iter().filter(|t| t.run == Some(run)).map(|t| t.target_mm).collect();
+            let x_line: Vec<f64> = rows.iter().filter(|p| p[1] == c[1]).map(|p| p[0]).collect();
+            let y_line: Vec<f64> = rows.iter().filter(|p| p[0] == c[0] && p[1] != c[1]).map(|p| p[1]).collect();
+            let distinct = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<std::collections::BTreeSet<_>>().len();
+            assert_eq!(distinct(&x_line), 11, "{} run {run}: x line {x_line:?}", spec.name);
+            assert!(distinct(&y_line) >= 10, "{} run {run}: y line {y_line:?}", spec.name);
+            // Both directions: the line is walked up and down.
+            assert!(x_line.windows(2).any(|w| w[1] > w[0]) && x_line.windows(2).any(|w| w[1] < w[0]), "{}", spec.name);
+        }
+        let id = &report["identification"];
+        let f = |k: &str, w: &str| id[k][w].as_f64().unwrap();
+        assert!(f("chosen", "condition_number") < f("random_same_count", "condition_number"), "{}: {id}", spec.name);
+        assert!(f("chosen", "observability_o1") > f("random_same_count", "observability_o1"), "{}: {id}", spec.name);
+        assert_eq!(id["random_same_count"]["poses"], 40);
+    }
+}
