@@ -279,6 +279,8 @@ pub struct CorrectionGrid<'a> {
     workspace: Option<&'a [u8]>,
     /// The dynamics block's parameters, if the image has one.
     dynamics: Option<FiveBarDynamics<f32>>,
+    /// Bytes of the image with its chain of blocks (where the chain ended).
+    len: usize,
 }
 
 fn u16_at(b: &[u8], at: usize) -> u16 {
@@ -370,7 +372,14 @@ impl<'a> CorrectionGrid<'a> {
             return Err(GridError::NonFinite);
         }
         let extensions = parse_extensions(&bytes[total..], stored_crc, &geometry)?;
-        Ok(CorrectionGrid { geometry, model, nodes, workspace: extensions.workspace, dynamics: extensions.dynamics })
+        let len = total + extensions.len;
+        Ok(CorrectionGrid { geometry, model, nodes, workspace: extensions.workspace, dynamics: extensions.dynamics, len })
+    }
+
+    /// Bytes of the image with its chain of extension blocks: what a copy of the image (an
+    /// upload, a flash slot) must hold; the bytes after it in the region are not the image's.
+    pub fn len_bytes(&self) -> usize {
+        self.len
     }
 
     /// The identified dynamics, if the image carries the block (validated by [`Self::parse`]).
@@ -498,6 +507,8 @@ pub fn encode(
 struct Extensions<'a> {
     workspace: Option<&'a [u8]>,
     dynamics: Option<FiveBarDynamics<f32>>,
+    /// Bytes of the chain (0 without blocks).
+    len: usize,
 }
 
 /// The payload of the framed block at the start of `rest` if its frame is sound (version,
@@ -542,6 +553,7 @@ fn parse_extensions<'a>(rest: &'a [u8], image_crc: u32, geometry: &GridGeometry)
         };
         at += len;
     }
+    found.len = at;
     Ok(found)
 }
 

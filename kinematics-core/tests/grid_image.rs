@@ -432,6 +432,8 @@ fn images_with_neither_either_or_both_blocks_in_either_order_are_read() {
             assert_eq!(g.dynamics(), order.contains(&b'D').then(dynamics).as_ref(), "{name}");
             assert_eq!(g.correction_rad([200.0, 10.0]).unwrap(), reference, "{name}");
             assert_eq!(&img[..plain.len()], &plain[..], "{name}: a version-1 reader sees the same image");
+            let chain: usize = order.iter().map(|b| if *b == b'W' { WORKSPACE_LEN } else { DYNAMICS_LEN }).sum();
+            assert_eq!(g.len_bytes(), plain.len() + chain, "{name}: the image's bytes end with its chain, not the region");
         }
     }
 }
