@@ -11,17 +11,21 @@
 //!   Its node values are a smooth synthetic field of a few hundred µrad (up to 3.9e-4 rad),
 //!   the size of the paper's corrections; `qemu-test`'s `track` needs at least 2e-4 rad on its
 //!   tour to tell an applied grid from a missing one. A real image comes from the
-//!   calibration, not from here. The image carries the dynamics extension with the QEMU
-//!   machine's dynamic parameters 20 % off its plant's (`src/board/qemu/machine.rs`, shared
-//!   with the plant), which the servo feeds forward. The QEMU
+//!   calibration, not from here. The image carries two extension blocks
+//!   (`kinematics_core::grid`, "Extension blocks"): the paper machine's workspace (`HRWS`: the
+//!   grid's rectangle and the 0.1 mm stop margin of `host-sim/machines/paper.toml`, as
+//!   `host-sim grid` writes it), so the firmware's workspace check runs on the image's polygon,
+//!   and the dynamics (`HRDY`) with the QEMU machine's dynamic parameters 20 % off its
+//!   plant's (`src/board/qemu/machine.rs`, shared with the plant), which the servo feeds
+//!   forward. The QEMU
 //!   firmware links it into the calibration region (feature `board-qemu`); the real board
 //!   gets its image flashed separately (see README).
 //! * `calibration-2.bin`: the same with the field negated, bundled into the QEMU firmware's
 //!   program (not the region) for the run-time upload scenarios.
 use std::{env, fs, path::PathBuf};
 
-use kinematics_core::grid::{encode_with_dynamics, GridGeometry};
-use kinematics_core::FiveBar;
+use kinematics_core::grid::{append_dynamics, append_workspace, encode, GridGeometry, WorkspaceLimits, DYNAMICS_LEN, WORKSPACE_LEN};
+use kinematics_core::{paper, ConvexWorkspace, FiveBar};
 
 // `TRUE_DYNAMICS` (the plant's) and `IMAGE_DYNAMICS`.
 #[allow(dead_code)]
@@ -70,9 +74,13 @@ fn synthetic_image(sign: f32) -> Vec<u8> {
             ]);
         }
     }
-    let mut image = vec![0u8; geometry.image_len_with_dynamics()];
-    let n = encode_with_dynamics(&mut image, &geometry, &model, &nodes, &machine::IMAGE_DYNAMICS)
-        .expect("synthetic grid encodes");
-    image.truncate(n);
+    let mut image = vec![0u8; geometry.image_len() + WORKSPACE_LEN + DYNAMICS_LEN];
+    let n = encode(&mut image, &geometry, &model, &nodes).expect("synthetic grid encodes");
+    let (x, y) = (paper::WORKSPACE_X_MM.map(|v| v as f32), paper::WORKSPACE_Y_MM.map(|v| v as f32));
+    let region = ConvexWorkspace::rectangle(x, y).expect("the paper workspace is a rectangle");
+    let limits = WorkspaceLimits { region, stop_margin_mm: paper::STOP_MARGIN_MM as f32 };
+    let end = append_workspace(&mut image, n, n, &limits).expect("the paper workspace lies on its grid");
+    let end = append_dynamics(&mut image, n, end, &machine::IMAGE_DYNAMICS).expect("the QEMU machine's dynamics are valid");
+    image.truncate(end);
     image
 }

@@ -31,29 +31,70 @@
 //! | 72 | 8·nx·ny | f32 pairs `(δθ1_rad, δθ2_rad)`, node `(i, j)` at index `j·nx + i` (x fastest) |
 //! | end-4 | 4 | CRC-32/ISO-HDLC (zlib's) of every byte before it |
 //!
-//! Node `(i, j)` sits at `(x0 + i·step_x, y0 + j·step_y)`. Bytes after the CRC are ignored, so
-//! the parser can be handed the whole flash region, unless they start with the dynamics
-//! extension's magic.
+//! Node `(i, j)` sits at `(x0 + i·step_x, y0 + j·step_y)`.
 //!
-//! # Dynamics extension (optional, right after the CRC)
-//! The identified dynamic parameters of the hidden robot (`crate::dynamics`, issue 14) travel
-//! with the model they were identified for, in a block appended after the version-1 image.
-//! Version-1 parsers (older firmware) ignore it and still read the grid; this parser reads
-//! images with and without it. A version-2 header was not used because it would have changed
-//! what a version-1 image with a tampered version field is refused as.
+//! # Extension blocks (optional, a chain after the image's CRC)
+//! What else the firmware needs of the machine travels with the image it belongs to, in blocks
+//! appended after the version-1 image. A version-1 parser (older firmware) stops at the image's
+//! CRC and still reads the grid; this parser reads the chain: at each position, the next 4
+//! bytes are a known magic (the block is parsed and validated, then the next one starts right
+//! after it) or they are not (erased flash `0xFF…`, the rest of the region, anything else: the
+//! chain ends there, and those bytes are ignored, so the parser can be handed the whole flash
+//! region). Blocks may come in any order; each magic at most once. Every block has the same
+//! frame:
 //!
-//! | offset (after the image's CRC) | size | field |
+//! | offset (in the block) | size | field |
 //! |---:|---:|---|
-//! | 0 | 4 | magic `b"HRDY"` |
-//! | 4 | 2 | extension version, `1` |
-//! | 6 | 2 | block length, `56` |
+//! | 0 | 4 | magic |
+//! | 4 | 2 | block version |
+//! | 6 | 2 | block length in bytes, frame included (fixed per magic and version) |
 //! | 8 | 4 | the CRC of the image it belongs to (a block left behind by another image is refused) |
-//! | 12 | 10×4 | f32 `I1, I2` (kg·m²), `m_C` (kg), `J3, J4` (kg·m²), `fv1, fv2` (N·m·s/rad), `fc1, fc2` (N·m), Coulomb speed (rad/s) |
-//! | 52 | 4 | CRC-32/ISO-HDLC of the block's 52 bytes before it |
+//! | 12 | len − 16 | payload |
+//! | len − 4 | 4 | CRC-32/ISO-HDLC of the block's bytes before it |
 //!
-//! A block that starts with the magic but fails any check (version, length, image CRC, its own
-//! CRC, [`FiveBarDynamics::validate`]) refuses the whole image ([`GridError::BadDynamics`]):
-//! feed-forward from a corrupt block would push the motors.
+//! A block with a known magic that fails any check (version, length, truncated, image CRC, its
+//! own CRC, its payload's validation, a second block with the same magic) refuses the whole
+//! image with that block's error: a corrupt limit must not be read as "no limit".
+//!
+//! Known blocks (one match arm each in `parse_extensions`; a new block is a magic, a payload
+//! spec here, an error variant and an arm):
+//!
+//! **`HRWS`, the workspace** (version 1, 152 bytes, [`WorkspaceLimits`]): where the machine may
+//! be commanded and where a controlled stop must end (`firmware/controller/src/stop.rs`).
+//!
+//! | offset (in the block) | size | field |
+//! |---:|---:|---|
+//! | 12 | 2 | vertex count `n` (3..=[`MAX_WORKSPACE_VERTICES`]) |
+//! | 14 | 2 | reserved, 0 |
+//! | 16 | 4 | f32 `stop_margin_mm`: the soft limit, how far inside the polygon a stop must end (≥ 0) |
+//! | 20 | 16×8 | f32 pairs `(x_mm, y_mm)`: the `n` vertices, counter-clockwise, strictly convex; unused slots 0 |
+//! | 148 | 4 | block CRC |
+//!
+//! Checks: the polygon is strictly convex and counter-clockwise ([`ConvexWorkspace::new`]) and
+//! lies within the node rectangle (to [`EDGE_TOLERANCE_CELLS`]): a stop may never end where
+//! the grid cannot correct. Refusal: [`GridError::BadWorkspace`].
+//!
+//! **`HRDY`, the identified dynamics** (version 1, 56 bytes, [`FiveBarDynamics`], issue 14):
+//! what the servo feeds forward (`Servo::step_motion`). The dynamic parameters travel with the
+//! model they were identified for.
+//!
+//! | offset (in the block) | size | field |
+//! |---:|---:|---|
+//! | 12 | 10×4 | f32 `I1, I2` (kg·m²), `m_C` (kg), `J3, J4` (kg·m²), `fv1, fv2` (N·m·s/rad), `fc1, fc2` (N·m), Coulomb speed (rad/s) |
+//! | 52 | 4 | block CRC |
+//!
+//! Checks: [`FiveBarDynamics::validate`] (feed-forward from a corrupt block would push the
+//! motors). Refusal: [`GridError::BadDynamics`].
+//!
+//! An image may carry neither block, either, or both, in either order. The writers here
+//! ([`append_workspace`], [`append_dynamics`], [`encode_with_dynamics`]) append a block at a
+//! given end, so a chain is built one block after the other. Compatibility: the first
+//! dynamics-aware parser (before the chain) read a `HRDY` block only right after the CRC and
+//! ignored everything else; images whose chain starts with `HRDY` read the same there.
+//! A version-2 header was not used for these blocks because it would have changed what a
+//! version-1 image with a tampered version field is refused as.
+//!
+//! Reserved magic: a backlash-compensation block (issue 13) is a further entry of this chain.
 //!
 //! # Outside the grid
 //! A point more than [`EDGE_TOLERANCE_CELLS`] of a cell outside the node rectangle is refused
@@ -63,6 +104,7 @@
 use crate::bilinear::bilinear;
 use crate::dynamics::{FiveBarDynamics, PARAMETERS};
 use crate::model::{Branch, FiveBar, WorkingMode};
+use crate::workspace::{ConvexWorkspace, MAX_WORKSPACE_VERTICES};
 
 /// Image magic.
 pub const MAGIC: [u8; 4] = *b"HRCG";
@@ -75,12 +117,20 @@ pub const MAX_NODES_PER_AXIS: u16 = 1024;
 /// How far outside the node rectangle (in cells) a point still takes the edge value.
 pub const EDGE_TOLERANCE_CELLS: f32 = 1.0e-4;
 
-/// Magic of the dynamics extension.
+/// Bytes of an extension block's frame: magic, version, length, image CRC (12) and its CRC (4).
+pub const BLOCK_FRAME_LEN: usize = 16;
+/// Magic of the workspace block.
+pub const WORKSPACE_MAGIC: [u8; 4] = *b"HRWS";
+/// The workspace block's version.
+pub const WORKSPACE_VERSION: u16 = 1;
+/// Bytes of the workspace block.
+pub const WORKSPACE_LEN: usize = BLOCK_FRAME_LEN + 8 + 8 * MAX_WORKSPACE_VERTICES;
+/// Magic of the dynamics block.
 pub const DYNAMICS_MAGIC: [u8; 4] = *b"HRDY";
-/// The dynamics extension's version.
+/// The dynamics block's version.
 pub const DYNAMICS_VERSION: u16 = 1;
-/// Bytes of the dynamics extension.
-pub const DYNAMICS_LEN: usize = 56;
+/// Bytes of the dynamics block: the frame and the 9 parameters and the Coulomb speed (f32).
+pub const DYNAMICS_LEN: usize = BLOCK_FRAME_LEN + 4 * (PARAMETERS + 1);
 
 const CRC32: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
 
@@ -106,8 +156,11 @@ pub enum GridError {
     OutsideGrid,
     /// `encode` was given a buffer too small or a node count that does not match.
     BadEncodeInput,
-    /// The dynamics extension after the image is corrupt, belongs to another image or holds
-    /// invalid parameters.
+    /// The workspace block after the image is corrupt, belongs to another image, repeats, or
+    /// holds a polygon that is not convex or leaves the grid.
+    BadWorkspace,
+    /// The dynamics block after the image is corrupt, belongs to another image, repeats or
+    /// holds invalid parameters.
     BadDynamics,
 }
 
@@ -123,7 +176,8 @@ impl core::fmt::Display for GridError {
             GridError::BadModel => f.write_str("grid image holds an invalid five-bar model"),
             GridError::OutsideGrid => f.write_str("point outside the correction grid"),
             GridError::BadEncodeInput => f.write_str("grid encode: buffer or node count mismatch"),
-            GridError::BadDynamics => f.write_str("the image's dynamics extension is corrupt or invalid"),
+            GridError::BadWorkspace => f.write_str("the image's workspace block is corrupt or invalid"),
+            GridError::BadDynamics => f.write_str("the image's dynamics block is corrupt or invalid"),
         }
     }
 }
@@ -169,7 +223,20 @@ impl GridGeometry {
         HEADER_LEN + 8 * self.len() + 4
     }
 
-    /// Image size with the dynamics extension.
+    /// Whether every vertex of `region` lies in the node rectangle (to the lookup's
+    /// [`EDGE_TOLERANCE_CELLS`]): the grid corrects everywhere in the region.
+    pub fn covers(&self, region: &ConvexWorkspace<f32>) -> bool {
+        let inside = |v: f32, origin: f32, step: f32, n: u16| {
+            let t = (v - origin) / step;
+            t >= -EDGE_TOLERANCE_CELLS && t <= n.saturating_sub(1) as f32 + EDGE_TOLERANCE_CELLS
+        };
+        region
+            .vertices_mm()
+            .iter()
+            .all(|p| inside(p[0], self.x0_mm, self.step_x_mm, self.nx) && inside(p[1], self.y0_mm, self.step_y_mm, self.ny))
+    }
+
+    /// Image size followed by the dynamics block.
     pub fn image_len_with_dynamics(&self) -> usize {
         self.image_len() + DYNAMICS_LEN
     }
@@ -190,14 +257,30 @@ impl GridGeometry {
     }
 }
 
+/// What the workspace block holds: the polygon and the soft limit.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct WorkspaceLimits {
+    /// Where the machine may be commanded (mm, machine frame).
+    pub region: ConvexWorkspace<f32>,
+    /// How far inside `region` a controlled stop must end (mm, ≥ 0).
+    pub stop_margin_mm: f32,
+}
+
 /// A validated image, borrowed from flash (or any byte slice): nothing is copied, nodes are
-/// decoded on demand.
+/// decoded on demand, and so is the workspace block (validated by [`CorrectionGrid::parse`]);
+/// the dynamics block is decoded once (the servo reads it every step).
 #[derive(Clone, Copy, Debug)]
 pub struct CorrectionGrid<'a> {
     geometry: GridGeometry,
     model: FiveBar<f32>,
     nodes: &'a [u8],
+    /// The workspace block's payload, if the image has one.
+    workspace: Option<&'a [u8]>,
+    /// The dynamics block's parameters, if the image has one.
     dynamics: Option<FiveBarDynamics<f32>>,
+    /// Bytes of the image with its chain of blocks (where the chain ended).
+    len: usize,
     /// The lookup's constants per axis (x, y), from the geometry.
     axes: [CellAxis; 2],
 }
@@ -313,17 +396,29 @@ impl<'a> CorrectionGrid<'a> {
         if nodes.chunks_exact(4).any(|c| !f32::from_le_bytes([c[0], c[1], c[2], c[3]]).is_finite()) {
             return Err(GridError::NonFinite);
         }
-        let dynamics = parse_dynamics(&bytes[total..], stored_crc)?;
+        let extensions = parse_extensions(&bytes[total..], stored_crc, &geometry)?;
+        let len = total + extensions.len;
         let axes = [
             CellAxis::of(geometry.x0_mm, geometry.step_x_mm, geometry.nx),
             CellAxis::of(geometry.y0_mm, geometry.step_y_mm, geometry.ny),
         ];
-        Ok(CorrectionGrid { geometry, model, nodes, dynamics, axes })
+        Ok(CorrectionGrid { geometry, model, nodes, workspace: extensions.workspace, dynamics: extensions.dynamics, len, axes })
     }
 
-    /// The identified dynamics, if the image carries the extension.
+    /// Bytes of the image with its chain of extension blocks: what a copy of the image (an
+    /// upload, a flash slot) must hold; the bytes after it in the region are not the image's.
+    pub fn len_bytes(&self) -> usize {
+        self.len
+    }
+
+    /// The identified dynamics, if the image carries the block (validated by [`Self::parse`]).
     pub fn dynamics(&self) -> Option<&FiveBarDynamics<f32>> {
         self.dynamics.as_ref()
+    }
+
+    /// The workspace limits, if the image carries the block (validated by [`Self::parse`]).
+    pub fn workspace(&self) -> Option<WorkspaceLimits> {
+        self.workspace.and_then(|p| decode_workspace(p).ok())
     }
 
     /// Where the nodes are.
@@ -396,29 +491,6 @@ fn cell(p: f32, axis: &CellAxis) -> Result<(usize, f32), GridError> {
     Ok((i as usize, t - i as f32))
 }
 
-/// The dynamics extension at the start of `rest` (the bytes after an image whose CRC is
-/// `image_crc`): `None` if `rest` does not start with its magic.
-fn parse_dynamics(rest: &[u8], image_crc: u32) -> Result<Option<FiveBarDynamics<f32>>, GridError> {
-    if rest.len() < 4 || rest[0..4] != DYNAMICS_MAGIC {
-        return Ok(None);
-    }
-    let valid = rest.len() >= DYNAMICS_LEN
-        && u16_at(rest, 4) == DYNAMICS_VERSION
-        && u16_at(rest, 6) as usize == DYNAMICS_LEN
-        && u32_at(rest, 8) == image_crc
-        && CRC32.checksum(&rest[..DYNAMICS_LEN - 4]) == u32_at(rest, DYNAMICS_LEN - 4);
-    if !valid {
-        return Err(GridError::BadDynamics);
-    }
-    let mut p = [0.0f32; PARAMETERS];
-    for (k, v) in p.iter_mut().enumerate() {
-        *v = f32_at(rest, 12 + 4 * k);
-    }
-    let d = FiveBarDynamics::from_array(p, f32_at(rest, 12 + 4 * PARAMETERS));
-    d.validate().map_err(|_| GridError::BadDynamics)?;
-    Ok(Some(d))
-}
-
 /// Writes an image into `out` and returns its length. `nodes_rad` holds `nx·ny` pairs in the
 /// image order (x fastest). Used by the host tools and the tests; the firmware only parses.
 pub fn encode(
@@ -472,8 +544,168 @@ pub fn encode(
     Ok(total)
 }
 
-/// Writes an image with the dynamics extension into `out` (at least
-/// [`GridGeometry::image_len_with_dynamics`] bytes) and returns its length.
+/// The extension blocks found after an image (see the module doc, "Extension blocks").
+#[derive(Default)]
+struct Extensions<'a> {
+    workspace: Option<&'a [u8]>,
+    dynamics: Option<FiveBarDynamics<f32>>,
+    /// Bytes of the chain (0 without blocks).
+    len: usize,
+}
+
+/// The payload of the framed block at the start of `rest` if its frame is sound (version,
+/// length, image CRC, own CRC); `None` otherwise.
+fn framed_payload(rest: &[u8], version: u16, len: usize, image_crc: u32) -> Option<&[u8]> {
+    let block = rest.get(..len)?;
+    let sound = u16_at(block, 4) == version
+        && u16_at(block, 6) as usize == len
+        && u32_at(block, 8) == image_crc
+        && CRC32.checksum(&block[..len - 4]) == u32_at(block, len - 4);
+    sound.then(|| &block[12..len - 4])
+}
+
+/// Reads the chain of extension blocks in `rest` (the bytes after an image whose CRC is
+/// `image_crc`) until bytes that are no known magic.
+fn parse_extensions<'a>(rest: &'a [u8], image_crc: u32, geometry: &GridGeometry) -> Result<Extensions<'a>, GridError> {
+    let mut found = Extensions::default();
+    let mut at = 0;
+    while let Some(magic) = rest.get(at..at + 4) {
+        // One arm per known block; anything else ends the chain.
+        let len = match magic {
+            m if m == WORKSPACE_MAGIC => {
+                let payload = framed_payload(&rest[at..], WORKSPACE_VERSION, WORKSPACE_LEN, image_crc)
+                    .ok_or(GridError::BadWorkspace)?;
+                let limits = decode_workspace(payload)?;
+                if found.workspace.is_some() || !geometry.covers(&limits.region) {
+                    return Err(GridError::BadWorkspace);
+                }
+                found.workspace = Some(payload);
+                WORKSPACE_LEN
+            }
+            m if m == DYNAMICS_MAGIC => {
+                let payload = framed_payload(&rest[at..], DYNAMICS_VERSION, DYNAMICS_LEN, image_crc)
+                    .ok_or(GridError::BadDynamics)?;
+                if found.dynamics.is_some() {
+                    return Err(GridError::BadDynamics);
+                }
+                found.dynamics = Some(decode_dynamics(payload)?);
+                DYNAMICS_LEN
+            }
+            _ => break,
+        };
+        at += len;
+    }
+    found.len = at;
+    Ok(found)
+}
+
+/// The workspace block's payload (the block without its 12-byte head and CRC) decoded and
+/// checked.
+fn decode_workspace(payload: &[u8]) -> Result<WorkspaceLimits, GridError> {
+    if payload.len() != WORKSPACE_LEN - BLOCK_FRAME_LEN {
+        return Err(GridError::BadWorkspace);
+    }
+    let n = u16_at(payload, 0) as usize;
+    if !(3..=MAX_WORKSPACE_VERTICES).contains(&n) || u16_at(payload, 2) != 0 {
+        return Err(GridError::BadWorkspace);
+    }
+    let stop_margin_mm = f32_at(payload, 4);
+    if !(stop_margin_mm.is_finite() && stop_margin_mm >= 0.0) {
+        return Err(GridError::BadWorkspace);
+    }
+    let mut v = [[0.0f32; 2]; MAX_WORKSPACE_VERTICES];
+    for (k, p) in v.iter_mut().enumerate() {
+        *p = [f32_at(payload, 8 + 8 * k), f32_at(payload, 12 + 8 * k)];
+        // Unused slots are zero (bit pattern), so a block has one encoding.
+        if k >= n && (u32_at(payload, 8 + 8 * k) != 0 || u32_at(payload, 12 + 8 * k) != 0) {
+            return Err(GridError::BadWorkspace);
+        }
+    }
+    let region = ConvexWorkspace::new(&v[..n]).map_err(|_| GridError::BadWorkspace)?;
+    Ok(WorkspaceLimits { region, stop_margin_mm })
+}
+
+/// The dynamics block's payload decoded and validated.
+fn decode_dynamics(payload: &[u8]) -> Result<FiveBarDynamics<f32>, GridError> {
+    if payload.len() != DYNAMICS_LEN - BLOCK_FRAME_LEN {
+        return Err(GridError::BadDynamics);
+    }
+    let mut p = [0.0f32; PARAMETERS];
+    for (k, v) in p.iter_mut().enumerate() {
+        *v = f32_at(payload, 4 * k);
+    }
+    let d = FiveBarDynamics::from_array(p, f32_at(payload, 4 * PARAMETERS));
+    d.validate().map_err(|_| GridError::BadDynamics)?;
+    Ok(d)
+}
+
+/// Writes one framed extension block into `out` (exactly `len` bytes): magic, version, length,
+/// the image's CRC, the payload `fill` writes into `out[12..len - 4]`, the block's CRC.
+fn write_block(out: &mut [u8], magic: [u8; 4], version: u16, len: usize, image_crc: u32, fill: impl FnOnce(&mut [u8])) {
+    out.fill(0);
+    out[0..4].copy_from_slice(&magic);
+    out[4..6].copy_from_slice(&version.to_le_bytes());
+    out[6..8].copy_from_slice(&(len as u16).to_le_bytes());
+    out[8..12].copy_from_slice(&image_crc.to_le_bytes());
+    fill(&mut out[12..len - 4]);
+    let crc = CRC32.checksum(&out[..len - 4]);
+    out[len - 4..len].copy_from_slice(&crc.to_le_bytes());
+}
+
+/// The CRC an image of `image_len` bytes at the start of `image` carries (what its blocks
+/// must repeat); `None` if `image` is shorter.
+pub fn image_crc(image: &[u8], image_len: usize) -> Option<u32> {
+    (image_len >= 4 && image.len() >= image_len).then(|| u32_at(image, image_len - 4))
+}
+
+/// Appends the workspace block to the image in `out[..image_len]` (an image from [`encode`],
+/// possibly followed by other blocks: `at` is where this block goes) and returns the new end.
+/// `out` must hold `at + WORKSPACE_LEN` bytes. The block is checked as the parser checks it,
+/// the polygon against the image's grid included.
+pub fn append_workspace(out: &mut [u8], image_len: usize, at: usize, limits: &WorkspaceLimits) -> Result<usize, GridError> {
+    let crc = image_crc(out, image_len).ok_or(GridError::BadEncodeInput)?;
+    if at < image_len || out.len() < at + WORKSPACE_LEN {
+        return Err(GridError::BadEncodeInput);
+    }
+    let geometry = CorrectionGrid::parse(&out[..image_len])?.geometry;
+    let margin_ok = limits.stop_margin_mm.is_finite() && limits.stop_margin_mm >= 0.0;
+    if !margin_ok || !geometry.covers(&limits.region) {
+        return Err(GridError::BadWorkspace);
+    }
+    let v = limits.region.vertices_mm();
+    write_block(&mut out[at..at + WORKSPACE_LEN], WORKSPACE_MAGIC, WORKSPACE_VERSION, WORKSPACE_LEN, crc, |p| {
+        p[0..2].copy_from_slice(&(v.len() as u16).to_le_bytes());
+        p[4..8].copy_from_slice(&limits.stop_margin_mm.to_le_bytes());
+        for (k, q) in v.iter().enumerate() {
+            p[8 + 8 * k..12 + 8 * k].copy_from_slice(&q[0].to_le_bytes());
+            p[12 + 8 * k..16 + 8 * k].copy_from_slice(&q[1].to_le_bytes());
+        }
+    });
+    Ok(at + WORKSPACE_LEN)
+}
+
+/// Appends the dynamics block to the image in `out[..image_len]` (an image from [`encode`],
+/// possibly followed by other blocks: `at` is where this block goes) and returns the new end.
+/// `out` must hold `at + DYNAMICS_LEN` bytes; the parameters are validated as the parser does.
+pub fn append_dynamics(out: &mut [u8], image_len: usize, at: usize, dynamics: &FiveBarDynamics<f32>) -> Result<usize, GridError> {
+    dynamics.validate().map_err(|_| GridError::BadDynamics)?;
+    let crc = image_crc(out, image_len).ok_or(GridError::BadEncodeInput)?;
+    if at < image_len || out.len() < at + DYNAMICS_LEN {
+        return Err(GridError::BadEncodeInput);
+    }
+    CorrectionGrid::parse(&out[..image_len])?;
+    let values = dynamics.to_array();
+    write_block(&mut out[at..at + DYNAMICS_LEN], DYNAMICS_MAGIC, DYNAMICS_VERSION, DYNAMICS_LEN, crc, |p| {
+        for (k, v) in values.iter().chain(core::iter::once(&dynamics.coulomb_speed_rad_s)).enumerate() {
+            p[4 * k..4 + 4 * k].copy_from_slice(&v.to_le_bytes());
+        }
+    });
+    Ok(at + DYNAMICS_LEN)
+}
+
+/// Writes an image followed by the dynamics block into `out` (at least
+/// [`GridGeometry::image_len_with_dynamics`] bytes) and returns its length: [`encode`] then
+/// [`append_dynamics`].
 pub fn encode_with_dynamics(
     out: &mut [u8],
     geometry: &GridGeometry,
@@ -486,18 +718,5 @@ pub fn encode_with_dynamics(
         return Err(GridError::BadEncodeInput);
     }
     let total = encode(out, geometry, model, nodes_rad)?;
-    let image_crc = u32_at(out, total - 4);
-    let block = &mut out[total..total + DYNAMICS_LEN];
-    block.fill(0);
-    block[0..4].copy_from_slice(&DYNAMICS_MAGIC);
-    block[4..6].copy_from_slice(&DYNAMICS_VERSION.to_le_bytes());
-    block[6..8].copy_from_slice(&(DYNAMICS_LEN as u16).to_le_bytes());
-    block[8..12].copy_from_slice(&image_crc.to_le_bytes());
-    let values = dynamics.to_array();
-    for (k, v) in values.iter().chain(core::iter::once(&dynamics.coulomb_speed_rad_s)).enumerate() {
-        block[12 + 4 * k..16 + 4 * k].copy_from_slice(&v.to_le_bytes());
-    }
-    let crc = CRC32.checksum(&block[..DYNAMICS_LEN - 4]);
-    block[DYNAMICS_LEN - 4..].copy_from_slice(&crc.to_le_bytes());
-    Ok(total + DYNAMICS_LEN)
+    append_dynamics(out, total, total, dynamics)
 }

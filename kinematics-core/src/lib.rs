@@ -10,7 +10,10 @@
 //! * [`inverse`], [`forward`], [`jacobian`]: closed-form IK, FK and the Jacobian and its inverse,
 //!   returning a [`Pose`] whose transmission margins give the singularity checks;
 //! * [`grid`], [`bilinear`]: the correction grid image read from flash (validated header, CRC),
-//!   interpolated with the paper's Eq. 7;
+//!   interpolated with the paper's Eq. 7, and the chain of extension blocks after it (the
+//!   machine's workspace limits, the identified dynamics);
+//! * [`workspace`]: the machine's convex workspace and the check that a point lies inside it
+//!   with a margin (host tools and firmware share it);
 //! * [`pid`], [`servo`]: position control per axis and the servo step
 //!   (setpoint → IK → correction → torque), with validated settings; a refused setpoint leaves
 //!   the servo engaged (the firmware brakes the machine with it), a feedback fault latches;
@@ -52,16 +55,18 @@ pub mod real;
 pub mod servo;
 pub mod sin_cos;
 pub mod trajectory;
+pub mod workspace;
 
 pub use error::{KinematicsError, Singularity};
 pub use dynamics::{DynamicsError, FiveBarDynamics};
-pub use grid::{CorrectionGrid, GridError, GridGeometry};
+pub use grid::{CorrectionGrid, GridError, GridGeometry, WorkspaceLimits};
 pub use joint_motion::JointMotion;
 pub use jacobian::Mat2;
 pub use model::{Branch, FiveBar, ModelError, WorkingMode};
 pub use pid::{AxisController, AxisGains, AxisReference, InvalidGain};
 pub use pose::Pose;
 pub use real::{wrap_angle_rad, Real};
+pub use workspace::{ConvexWorkspace, WorkspaceError, MAX_WORKSPACE_VERTICES};
 pub use servo::{
     AcceptedSetpoint, Calibration, ConfigError, EngageError, Servo, ServoConfig, ServoFault, ServoOutput, SetpointRefusal,
     StepError,

@@ -6,7 +6,8 @@
 //! * the workspace: the rectangle of Table I's corners, x ∈ [162.132, 262.132] mm (its centre,
 //!   212.132 = 150·√2, is where the nominal five-bar is a square), y ∈ [−75, 75] mm;
 //! * the correction grid's lattice: 5 mm nodes over that rectangle, 21 × 31 ([`grid_geometry`]);
-//! * the servo's sample period, 0.5 ms (2 kHz).
+//! * the servo's sample period, 0.5 ms (2 kHz);
+//! * the soft limit: controlled stops end at least [`STOP_MARGIN_MM`] inside the workspace.
 //!
 //! Why here: the firmware's build script bakes a grid for this lattice and the host's machine
 //! description (`host_sim::machine_spec::MachineSpec::paper`) starts from the same numbers; a
@@ -25,6 +26,9 @@ pub const GRID_STEP_MM: f64 = 5.0;
 pub const GRID_NODES: [u16; 2] = [21, 31];
 /// Servo sample period (s): 2 kHz.
 pub const SAMPLE_PERIOD_S: f64 = 5e-4;
+/// The soft limit: how far inside the workspace a controlled stop must end (mm); the firmware's
+/// own default (`StopSettings::workspace_margin_mm`) is the same 0.1 mm.
+pub const STOP_MARGIN_MM: f64 = 0.1;
 
 /// The nominal hidden robot.
 pub fn nominal<T: Real>() -> FiveBar<T> {

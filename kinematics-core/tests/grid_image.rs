@@ -172,7 +172,132 @@ fn encode_refuses_bad_input() {
 }
 
 // ---------------------------------------------------------------------------------------------
-// The dynamics extension (grid.rs, "Dynamics extension").
+// Extension blocks (grid.rs, "Extension blocks"): the workspace block and the chain.
+
+use kinematics_core::grid::{append_workspace, image_crc, WorkspaceLimits, WORKSPACE_LEN, WORKSPACE_MAGIC};
+use kinematics_core::ConvexWorkspace;
+
+/// A hexagon inside the grid (the rectangle with two corners cut).
+fn limits() -> WorkspaceLimits {
+    let v = [[172.0, -75.0], [262.0, -75.0], [262.0, 65.0], [252.0, 75.0], [163.0, 75.0], [163.0, -66.0]];
+    WorkspaceLimits { region: ConvexWorkspace::new(&v).unwrap(), stop_margin_mm: 0.25 }
+}
+
+fn image_with_workspace() -> Vec<u8> {
+    let mut img = image();
+    let n = img.len();
+    img.resize(n + WORKSPACE_LEN, 0xAA);
+    assert_eq!(append_workspace(&mut img, n, n, &limits()), Ok(n + WORKSPACE_LEN));
+    img
+}
+
+#[test]
+fn the_workspace_block_round_trips_and_a_version_1_reader_still_reads_the_grid() {
+    let img = image_with_workspace();
+    let grid = CorrectionGrid::parse(&img).unwrap();
+    assert_eq!(grid.workspace(), Some(limits()));
+    let v1 = image();
+    assert_eq!(&img[..v1.len()], &v1[..], "the first image_len bytes are exactly the version-1 image");
+    assert_eq!(CorrectionGrid::parse(&v1).unwrap().workspace(), None);
+    assert_eq!(CorrectionGrid::parse(&v1).unwrap().correction_rad([200.0, 10.0]), grid.correction_rad([200.0, 10.0]));
+    // In a flash region: erased bytes end the chain.
+    let mut region = img.clone();
+    region.extend([0xFF; 4096]);
+    assert_eq!(CorrectionGrid::parse(&region).unwrap().workspace(), Some(limits()));
+    // Any other bytes that are no known magic end it too.
+    let mut region = img.clone();
+    region.extend(b"HRXX and then anything");
+    assert_eq!(CorrectionGrid::parse(&region).unwrap().workspace(), Some(limits()));
+}
+
+#[test]
+fn every_bit_flip_in_the_workspace_block_refuses_the_image() {
+    let img = image_with_workspace();
+    let start = geometry().image_len();
+    // A flip in the magic makes the bytes "no known block" (the chain ends, no workspace);
+    // every other flip must be caught.
+    for byte in start + 4..img.len() {
+        for bit in 0..8 {
+            let mut v = img.clone();
+            v[byte] ^= 1 << bit;
+            assert_eq!(CorrectionGrid::parse(&v).unwrap_err(), GridError::BadWorkspace, "byte {byte} bit {bit}");
+        }
+    }
+    for byte in start..start + 4 {
+        let mut v = img.clone();
+        v[byte] ^= 0x40;
+        assert_eq!(CorrectionGrid::parse(&v).unwrap().workspace(), None);
+    }
+    assert_eq!(CorrectionGrid::parse(&img[..img.len() - 1]).unwrap_err(), GridError::BadWorkspace, "truncated");
+    assert_eq!(CorrectionGrid::parse(&img[..start + 4]).unwrap_err(), GridError::BadWorkspace, "magic only");
+}
+
+/// Rewrites the block's CRC after a payload edit: the checks behind the CRC must still refuse.
+fn with_payload_edit(edit: impl FnOnce(&mut [u8])) -> Result<(), GridError> {
+    let mut img = image_with_workspace();
+    let start = geometry().image_len();
+    edit(&mut img[start + 12..start + WORKSPACE_LEN - 4]);
+    let crc = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC).checksum(&img[start..start + WORKSPACE_LEN - 4]);
+    img[start + WORKSPACE_LEN - 4..start + WORKSPACE_LEN].copy_from_slice(&crc.to_le_bytes());
+    CorrectionGrid::parse(&img).map(|_| ())
+}
+
+#[test]
+fn a_workspace_that_is_not_a_workspace_is_refused_even_with_a_valid_crc() {
+    assert_eq!(with_payload_edit(|_| {}), Ok(()));
+    let bad = GridError::BadWorkspace;
+    // Vertex count 2 and 17; reserved bytes; a negative or NaN margin.
+    assert_eq!(with_payload_edit(|p| p[0..2].copy_from_slice(&2u16.to_le_bytes())), Err(bad));
+    assert_eq!(with_payload_edit(|p| p[0..2].copy_from_slice(&17u16.to_le_bytes())), Err(bad));
+    assert_eq!(with_payload_edit(|p| p[2] = 1), Err(bad));
+    assert_eq!(with_payload_edit(|p| p[4..8].copy_from_slice(&(-0.1f32).to_le_bytes())), Err(bad));
+    assert_eq!(with_payload_edit(|p| p[4..8].copy_from_slice(&f32::NAN.to_le_bytes())), Err(bad));
+    // A concave polygon (vertex 2 pulled inwards), a vertex outside the grid, junk in an unused slot.
+    assert_eq!(with_payload_edit(|p| p[8 + 16..12 + 16].copy_from_slice(&200.0f32.to_le_bytes())), Err(bad));
+    assert_eq!(with_payload_edit(|p| p[8 + 8..12 + 8].copy_from_slice(&263.0f32.to_le_bytes())), Err(bad));
+    assert_eq!(with_payload_edit(|p| p[8 + 8 * 6] = 1), Err(bad));
+}
+
+#[test]
+fn a_block_comes_at_most_once_and_belongs_to_its_image() {
+    let img = image_with_workspace();
+    let start = geometry().image_len();
+    let block = img[start..].to_vec();
+    // The same block twice: refused.
+    let mut twice = img.clone();
+    twice.extend_from_slice(&block);
+    assert_eq!(CorrectionGrid::parse(&twice).unwrap_err(), GridError::BadWorkspace);
+    // A block left behind by another image (one node changed, image CRC rewritten).
+    let mut other = image();
+    other[HEADER_LEN] ^= 1;
+    let n = other.len();
+    let crc = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC).checksum(&other[..n - 4]);
+    other[n - 4..].copy_from_slice(&crc.to_le_bytes());
+    other.extend_from_slice(&block);
+    assert_eq!(CorrectionGrid::parse(&other).unwrap_err(), GridError::BadWorkspace);
+    assert_eq!(image_crc(&img, start), Some(u32::from_le_bytes(img[start - 4..start].try_into().unwrap())));
+    assert_eq!(&img[start..start + 4], &WORKSPACE_MAGIC);
+}
+
+#[test]
+fn append_workspace_refuses_what_the_parser_would() {
+    let mut img = image();
+    let n = img.len();
+    img.resize(n + WORKSPACE_LEN, 0);
+    // Outside the grid's rectangle.
+    let outside = WorkspaceLimits { region: ConvexWorkspace::rectangle([150.0, 250.0], [-70.0, 70.0]).unwrap(), stop_margin_mm: 0.1 };
+    assert_eq!(append_workspace(&mut img, n, n, &outside), Err(GridError::BadWorkspace));
+    let negative = WorkspaceLimits { stop_margin_mm: -1.0, ..limits() };
+    assert_eq!(append_workspace(&mut img, n, n, &negative), Err(GridError::BadWorkspace));
+    // Too small a buffer, a position inside the image, a corrupt image.
+    assert_eq!(append_workspace(&mut img[..n + 10], n, n, &limits()), Err(GridError::BadEncodeInput));
+    assert_eq!(append_workspace(&mut img, n, n - 1, &limits()), Err(GridError::BadEncodeInput));
+    img[100] ^= 1;
+    assert_eq!(append_workspace(&mut img, n, n, &limits()), Err(GridError::BadCrc));
+}
+
+// ---------------------------------------------------------------------------------------------
+// The dynamics block (grid.rs, "Extension blocks", `HRDY`).
 
 fn dynamics() -> kinematics_core::FiveBarDynamics<f32> {
     kinematics_core::FiveBarDynamics {
@@ -268,4 +393,118 @@ fn invalid_dynamics_are_not_encoded_nor_accepted() {
     let crc = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC).checksum(&img[start..start + 52]);
     img[start + 52..start + 56].copy_from_slice(&crc.to_le_bytes());
     assert_eq!(CorrectionGrid::parse(&img).unwrap_err(), GridError::BadDynamics);
+}
+
+// ---------------------------------------------------------------------------------------------
+// The chain with both blocks (grid.rs, "Extension blocks").
+
+use kinematics_core::grid::{append_dynamics, DYNAMICS_LEN, DYNAMICS_MAGIC};
+
+/// The image followed by the blocks in `order` (`b'W'` workspace, `b'D'` dynamics).
+fn image_with_chain(order: &[u8]) -> Vec<u8> {
+    let mut img = image();
+    let n = img.len();
+    let mut end = n;
+    for b in order {
+        let len = if *b == b'W' { WORKSPACE_LEN } else { DYNAMICS_LEN };
+        img.resize(end + len, 0x55);
+        end = match b {
+            b'W' => append_workspace(&mut img, n, end, &limits()),
+            _ => append_dynamics(&mut img, n, end, &dynamics()),
+        }
+        .unwrap();
+    }
+    assert_eq!(end, img.len());
+    img
+}
+
+#[test]
+fn images_with_neither_either_or_both_blocks_in_either_order_are_read() {
+    let plain = image();
+    let reference = CorrectionGrid::parse(&plain).unwrap().correction_rad([200.0, 10.0]).unwrap();
+    for order in [&b""[..], b"W", b"D", b"WD", b"DW"] {
+        for tail in [&[][..], &[0xFF; 300][..], &b"HRXX unknown bytes"[..]] {
+            let mut img = image_with_chain(order);
+            img.extend_from_slice(tail);
+            let g = CorrectionGrid::parse(&img).unwrap();
+            let name = core::str::from_utf8(order).unwrap();
+            assert_eq!(g.workspace(), order.contains(&b'W').then(limits), "{name} + {} bytes", tail.len());
+            assert_eq!(g.dynamics(), order.contains(&b'D').then(dynamics).as_ref(), "{name}");
+            assert_eq!(g.correction_rad([200.0, 10.0]).unwrap(), reference, "{name}");
+            assert_eq!(&img[..plain.len()], &plain[..], "{name}: a version-1 reader sees the same image");
+            let chain: usize = order.iter().map(|b| if *b == b'W' { WORKSPACE_LEN } else { DYNAMICS_LEN }).sum();
+            assert_eq!(g.len_bytes(), plain.len() + chain, "{name}: the image's bytes end with its chain, not the region");
+        }
+    }
+}
+
+#[test]
+fn a_corrupt_second_block_refuses_the_whole_image() {
+    let n = geometry().image_len();
+    for (order, second_at, err) in [
+        (&b"WD"[..], n + WORKSPACE_LEN, GridError::BadDynamics),
+        (&b"DW"[..], n + DYNAMICS_LEN, GridError::BadWorkspace),
+    ] {
+        let img = image_with_chain(order);
+        // A flip in the second block's payload or CRC.
+        for byte in [second_at + 12, img.len() - 1] {
+            let mut v = img.clone();
+            v[byte] ^= 0x01;
+            assert_eq!(CorrectionGrid::parse(&v).unwrap_err(), err, "{:?} byte {byte}", core::str::from_utf8(order));
+        }
+        // Truncated in the second block.
+        assert_eq!(CorrectionGrid::parse(&img[..img.len() - 3]).unwrap_err(), err);
+    }
+    // Each magic at most once, also with another block between the two.
+    let mut twice = image_with_chain(b"DW");
+    let d = twice[n..n + DYNAMICS_LEN].to_vec();
+    twice.extend_from_slice(&d);
+    assert_eq!(CorrectionGrid::parse(&twice).unwrap_err(), GridError::BadDynamics);
+}
+
+#[test]
+fn the_dynamics_block_has_the_documented_byte_layout() {
+    // The table in grid.rs, byte by byte: what the first dynamics-aware parser (HRDY right
+    // after the CRC) wrote and read, so images built before the chain still read.
+    let img = image_with_dynamics();
+    let n = geometry().image_len();
+    let b = &img[n..];
+    assert_eq!(b.len(), 56);
+    assert_eq!(&b[0..4], &DYNAMICS_MAGIC);
+    assert_eq!(&b[0..4], b"HRDY");
+    assert_eq!(u16::from_le_bytes([b[4], b[5]]), 1);
+    assert_eq!(u16::from_le_bytes([b[6], b[7]]), 56);
+    assert_eq!(&b[8..12], &img[n - 4..n], "the image's CRC");
+    let f = |k: usize| f32::from_le_bytes(b[12 + 4 * k..16 + 4 * k].try_into().unwrap());
+    let d = dynamics();
+    let want = [
+        d.motor_inertia_kg_m2[0],
+        d.motor_inertia_kg_m2[1],
+        d.tool_mass_kg,
+        d.distal_inertia_kg_m2[0],
+        d.distal_inertia_kg_m2[1],
+        d.viscous_nm_s_per_rad[0],
+        d.viscous_nm_s_per_rad[1],
+        d.coulomb_nm[0],
+        d.coulomb_nm[1],
+        d.coulomb_speed_rad_s,
+    ];
+    for (k, w) in want.iter().enumerate() {
+        assert_eq!(f(k), *w, "parameter {k}");
+    }
+    let crc = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC).checksum(&b[..52]);
+    assert_eq!(u32::from_le_bytes(b[52..56].try_into().unwrap()), crc);
+}
+
+#[test]
+fn append_dynamics_refuses_what_the_parser_would() {
+    let mut img = image();
+    let n = img.len();
+    img.resize(n + DYNAMICS_LEN, 0);
+    let bad = kinematics_core::FiveBarDynamics { coulomb_speed_rad_s: f32::NAN, ..dynamics() };
+    assert_eq!(append_dynamics(&mut img, n, n, &bad), Err(GridError::BadDynamics));
+    assert_eq!(append_dynamics(&mut img[..n + 55], n, n, &dynamics()), Err(GridError::BadEncodeInput));
+    assert_eq!(append_dynamics(&mut img, n, n - 1, &dynamics()), Err(GridError::BadEncodeInput));
+    img[100] ^= 1;
+    assert_eq!(append_dynamics(&mut img, n, n, &dynamics()), Err(GridError::BadCrc));
 }

@@ -129,8 +129,8 @@ impl MachineIdentity {
 }
 
 /// Parses `bytes` and checks it is this machine's image: the validation of a boot and of an
-/// upload's commit. Returns the grid and the image's length in bytes (with its dynamics
-/// extension, if any).
+/// upload's commit. Returns the grid and the image's length in bytes (with its chain of
+/// extension blocks: workspace, dynamics).
 pub fn validate_image<'a>(
     bytes: &'a [u8],
     machine: &MachineIdentity,
@@ -138,8 +138,7 @@ pub fn validate_image<'a>(
 ) -> Result<(CorrectionGrid<'a>, usize), ImageError> {
     let grid = CorrectionGrid::parse(bytes).map_err(ImageError::Grid)?;
     machine.check(&grid, home_mm).map_err(ImageError::OtherMachine)?;
-    let g = grid.geometry();
-    let len = if grid.dynamics().is_some() { g.image_len_with_dynamics() } else { g.image_len() };
+    let len = grid.len_bytes();
     Ok((grid, len))
 }
 
@@ -196,6 +195,38 @@ mod tests {
         assert_eq!(state, CalibrationState::Valid);
         let grid = cal.grid.expect("grid in use");
         assert_eq!(grid.correction_rad([200.0, 0.0]), Ok([2e-4, -1e-4]));
+    }
+
+    /// The image's length (what an upload commits and a slot holds) ends with its chain of
+    /// blocks, whichever it has, not with the grid's CRC nor the region.
+    #[test]
+    fn the_image_length_includes_its_chain_of_blocks() {
+        use kinematics_core::grid::{append_dynamics, append_workspace, WorkspaceLimits, DYNAMICS_LEN, WORKSPACE_LEN};
+        use kinematics_core::{ConvexWorkspace, FiveBarDynamics};
+        let plain = image();
+        let n = plain.len();
+        let mut img = plain.clone();
+        img.resize(n + WORKSPACE_LEN + DYNAMICS_LEN, 0);
+        let region = ConvexWorkspace::rectangle([165.0, 255.0], [-75.0, 75.0]).unwrap();
+        let end = append_workspace(&mut img, n, n, &WorkspaceLimits { region, stop_margin_mm: 0.1 }).unwrap();
+        let d = FiveBarDynamics {
+            motor_inertia_kg_m2: [5e-3; 2],
+            tool_mass_kg: 0.2,
+            distal_inertia_kg_m2: [0.0; 2],
+            viscous_nm_s_per_rad: [0.01; 2],
+            coulomb_nm: [0.02; 2],
+            coulomb_speed_rad_s: 0.01,
+        };
+        let end = append_dynamics(&mut img, n, end, &d).unwrap();
+        let mut region = img.clone();
+        region.extend([0xFF; 64]);
+        let (grid, len) = validate_image(&region, &MachineIdentity::default(), HOME_MM).unwrap();
+        assert_eq!(len, end);
+        assert!(grid.workspace().is_some() && grid.dynamics().is_some());
+        // Cut to that length, the image still has both blocks.
+        let (grid, _) = validate_image(&region[..len], &MachineIdentity::default(), HOME_MM).unwrap();
+        assert!(grid.workspace().is_some() && grid.dynamics().is_some());
+        assert_eq!(validate_image(&plain, &MachineIdentity::default(), HOME_MM).unwrap().1, n);
     }
 
     #[test]

@@ -31,7 +31,7 @@
 //!    machine is at rest, or is [`Fault::Underrun`] if it moves), [`Servo::accept_motion`]
 //!    (the identified dynamics the image carries fed forward, issue 14); a refusal
 //!    is [`Fault::Setpoint`]; an accepted setpoint whose stop would end outside the workspace
-//!    ([`Workspace`], the grid's rectangle less a margin) is dropped and is
+//!    ([`Workspace`], the image's workspace polygon or the grid's rectangle, less a margin) is dropped and is
 //!    [`Fault::StopOutsideWorkspace`]; otherwise it is tracked;
 //!    `Stopping` / `Holding`: the stop profile's next setpoint is stepped;
 //! 3. a category-1 or -2 fault found in step 2 starts the stop **in the same sample**, from the
@@ -146,8 +146,9 @@ struct Stop {
 pub struct ServoLoop<'a> {
     settings: &'a Settings,
     calibration: Calibration<'a>,
-    /// Where a stop may end: the grid's rectangle less the margin (`None`: no grid, running
-    /// uncorrected; then only the servo's reach and singularity checks bound a stop).
+    /// Where a stop may end: the image's workspace polygon (or, without one, the grid's
+    /// rectangle) less the margin (`None`: no grid, running uncorrected; then only the servo's
+    /// reach and singularity checks bound a stop).
     workspace: Option<Workspace>,
     /// `None` only when the settings were refused at boot (then the mode is `SafeState`).
     servo: Option<Servo>,
@@ -222,12 +223,16 @@ impl<'a> ServoLoop<'a> {
             }
         };
         let margin_mm = settings.stop.workspace_margin_mm;
-        let workspace = calibration.grid.as_ref().map(|g| Workspace::of_grid(g.geometry(), margin_mm));
+        let workspace = calibration.grid.as_ref().and_then(|g| Workspace::of_image(g, margin_mm));
         // Homing's sweeps checked against the singularities once, here (hundreds of thousands
-        // of instructions: not in a servo sample), from every start in the calibrated rectangle.
-        let engaged = match (engaged, workspace) {
+        // of instructions: not in a servo sample), from every start in the calibrated rectangle
+        // (the grid's, less the margin: the machine may be anywhere the grid covers at power-on,
+        // also outside a polygon workspace).
+        let calibrated = calibration.grid.as_ref().and_then(|g| Workspace::of_grid(g.geometry(), margin_mm));
+        let engaged = match (engaged, calibrated) {
             (Ok(None), Some(w)) => {
-                let rect = [w.min_mm[0], w.max_mm[0], w.min_mm[1], w.max_mm[1]];
+                let ([x0, x1], [y0, y1]) = w.region().bounds_mm();
+                let rect = [x0 + margin_mm, x1 - margin_mm, y0 + margin_mm, y1 - margin_mm];
                 homing::check_plan(&settings.homing, &calibration.model, rect, settings.home_mm)
                     .map(|_| None)
                     .map_err(Fault::Homing)
@@ -272,7 +277,7 @@ impl<'a> ServoLoop<'a> {
     /// * otherwise ([`SwitchRefused::NotAtRest`]): the caller keeps it pending and tries again.
     pub fn switch_calibration(&mut self, calibration: Calibration<'a>, encoder_rad: [f32; 2]) -> Result<(), SwitchRefused> {
         let margin_mm = self.settings.stop.workspace_margin_mm;
-        let workspace = calibration.grid.as_ref().map(|g| Workspace::of_grid(g.geometry(), margin_mm));
+        let workspace = calibration.grid.as_ref().and_then(|g| Workspace::of_image(g, margin_mm));
         let dynamics = calibration.grid.as_ref().and_then(|g| g.dynamics().copied());
         match self.mode {
             Mode::Unhomed | Mode::SafeState(_) => {}
@@ -1107,12 +1112,8 @@ mod tests {
     #[test]
     fn a_stream_too_fast_for_the_edge_is_stopped_inside() {
         let (settings, img) = (absolute(), image());
-        let g = kinematics_core::servo::STANDARD_GRAVITY_MM_S2;
-        // From home towards x = 320 mm (beyond the grid's 260 mm edge) at 2 g / 1.5 m/s.
-        let mut t = Trajectory::new(HOME_MM, &[[320.0, 0.0]], 2.0 * g, 1500.0, 0.1, DT_S);
         let cal = grid_cal(&img);
-        let run = closed(&settings, cal, 800, |_| Some(t.next_mm()), |_, e| e);
-        let at = run.samples.iter().position(|s| s.fault.is_some()).unwrap();
+        let (run, at) = towards_x_320(&settings, cal);
         assert_eq!(run.samples[at].fault, Some(Fault::StopOutsideWorkspace));
         assert!(run.samples.iter().all(|s| s.setpoint_mm[0] <= 260.0 - settings.stop.workspace_margin_mm));
         assert!(matches!(run.modes[run.modes.len() - 1], Mode::Holding(Fault::StopOutsideWorkspace)));
@@ -1121,6 +1122,37 @@ mod tests {
         // The speed when refused: well above what could stop in the last millimetre.
         let v = (run.samples[at - 1].setpoint_mm[0] - run.samples[at - 2].setpoint_mm[0]) / DT_S;
         assert!(v > 1000.0, "{v} mm/s");
+    }
+
+    /// From home towards x = 320 mm (beyond the grid's 260 mm edge) at 2 g / 1.5 m/s: the run and
+    /// the sample of its first fault.
+    fn towards_x_320<'a>(settings: &Settings, cal: Calibration<'a>) -> (Run, usize) {
+        let g = kinematics_core::servo::STANDARD_GRAVITY_MM_S2;
+        let mut t = Trajectory::new(HOME_MM, &[[320.0, 0.0]], 2.0 * g, 1500.0, 0.1, DT_S);
+        let run = closed(settings, cal, 800, |_| Some(t.next_mm()), |_, e| e);
+        let at = run.samples.iter().position(|s| s.fault.is_some()).unwrap();
+        (run, at)
+    }
+
+    /// With the machine's workspace in the image (issue 12), the edge is the polygon's, not the
+    /// grid's: the same stream towards x = 320 mm is stopped inside the polygon's right edge
+    /// at x = 240 mm (20 mm before the grid's), by the image's stop margin of 0.5 mm.
+    #[test]
+    fn the_edge_is_the_images_workspace_when_it_has_one() {
+        use kinematics_core::grid::{append_workspace, WorkspaceLimits, WORKSPACE_LEN};
+        use kinematics_core::ConvexWorkspace;
+        let settings = absolute();
+        let mut img = image();
+        let n = img.len();
+        img.resize(n + WORKSPACE_LEN, 0);
+        let region = ConvexWorkspace::new(&[[170.0, -70.0], [240.0, -70.0], [240.0, 70.0], [170.0, 70.0]]).unwrap();
+        append_workspace(&mut img, n, n, &WorkspaceLimits { region, stop_margin_mm: 0.5 }).unwrap();
+        let cal = grid_cal(&img);
+        let (run, at) = towards_x_320(&settings, cal);
+        assert_eq!(run.samples[at].fault, Some(Fault::StopOutsideWorkspace));
+        assert!(run.samples.iter().all(|s| s.setpoint_mm[0] <= 240.0 - 0.5), "a setpoint beyond the polygon's edge");
+        let end = tool_mm(&cal, run.angles[run.angles.len() - 1]);
+        assert!(end[0] <= 240.0 - 0.45 && end[0] > 215.0, "stopped at {end:?}");
     }
 
     /// An encoder frozen during a stop, and a glitch while moving: category 0 at once, even

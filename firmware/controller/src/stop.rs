@@ -48,7 +48,7 @@
 //! built up in 5 ms): 22.9 mm and 33 ms from the built-in tour's top speed of 1.38 m/s; 26.7 mm
 //! from 1.5 m/s; 99 mm from the servo's 3 m/s limit. Cost of a plan: two square roots, a handful
 //! of divisions (run once per sample in `servo_loop` for the workspace check).
-use kinematics_core::GridGeometry;
+use kinematics_core::{ConvexWorkspace, CorrectionGrid, GridGeometry};
 
 /// Below this speed (mm/s) a motion is at rest: stopping it is holding its position, a velocity
 /// step of at most 0.1 mm/s (0.05 µm in one 0.5 ms sample).
@@ -164,27 +164,52 @@ impl MotionState {
     }
 }
 
-/// The calibrated rectangle, less a margin: where a stop may end.
+/// Where a stop may end: the machine's workspace polygon from the calibration image's workspace
+/// block (`kinematics_core::grid`, "Extension blocks"), or the grid's rectangle when the image
+/// has none; less a margin. Convex either way, so a straight stop that ends inside stays inside
+/// (module doc).
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Workspace {
-    /// Lower-left corner (mm).
-    pub min_mm: [f32; 2],
-    /// Upper-right corner (mm).
-    pub max_mm: [f32; 2],
+    region: ConvexWorkspace<f32>,
+    /// How far inside `region` a stop must end (mm).
+    margin_mm: f32,
 }
 
 impl Workspace {
-    /// The rectangle a correction grid covers, shrunk by `margin_mm` on every side.
-    pub fn of_grid(g: &GridGeometry, margin_mm: f32) -> Self {
+    /// The rectangle a correction grid covers, shrunk by `margin_mm` on every side. `None` for a
+    /// geometry without area (a validated grid always has some).
+    pub fn of_grid(g: &GridGeometry, margin_mm: f32) -> Option<Self> {
         let max_x = g.x0_mm + g.step_x_mm * (g.nx.saturating_sub(1)) as f32;
         let max_y = g.y0_mm + g.step_y_mm * (g.ny.saturating_sub(1)) as f32;
-        Workspace { min_mm: [g.x0_mm + margin_mm, g.y0_mm + margin_mm], max_mm: [max_x - margin_mm, max_y - margin_mm] }
+        let region = ConvexWorkspace::rectangle([g.x0_mm, max_x], [g.y0_mm, max_y]).ok()?;
+        Some(Workspace { region, margin_mm })
     }
 
-    /// Whether `p_mm` is inside (on the edge counts; NaN does not).
+    /// The workspace of a calibration image: its workspace block's polygon with the larger of
+    /// the block's stop margin (the machine's soft limit) and `margin_mm` (the firmware's
+    /// setting, [`StopSettings::workspace_margin_mm`]); without a block, [`Self::of_grid`].
+    pub fn of_image(grid: &CorrectionGrid<'_>, margin_mm: f32) -> Option<Self> {
+        match grid.workspace() {
+            Some(limits) => Some(Workspace { region: limits.region, margin_mm: limits.stop_margin_mm.max(margin_mm) }),
+            None => Self::of_grid(grid.geometry(), margin_mm),
+        }
+    }
+
+    /// Whether `p_mm` is inside, at least the margin from every edge (on it counts; NaN does
+    /// not).
     pub fn contains(&self, p_mm: [f32; 2]) -> bool {
-        (0..2).all(|k| p_mm[k] >= self.min_mm[k] && p_mm[k] <= self.max_mm[k])
+        self.region.contains(p_mm, self.margin_mm)
+    }
+
+    /// The margin in force (mm).
+    pub fn margin_mm(&self) -> f32 {
+        self.margin_mm
+    }
+
+    /// The polygon (before the margin).
+    pub fn region(&self) -> &ConvexWorkspace<f32> {
+        &self.region
     }
 }
 
@@ -469,9 +494,33 @@ mod tests {
     #[test]
     fn workspace_is_the_grid_rectangle_less_the_margin() {
         let g = GridGeometry { nx: 21, ny: 31, x0_mm: 162.132, y0_mm: -75.0, step_x_mm: 5.0, step_y_mm: 5.0 };
-        let w = Workspace::of_grid(&g, 0.1);
+        let w = Workspace::of_grid(&g, 0.1).unwrap();
         assert!(w.contains([162.24, -74.89]) && w.contains([262.02, 74.89]));
         assert!(!w.contains([162.2, 0.0]) && !w.contains([200.0, 74.95]) && !w.contains([f32::NAN, 0.0]));
+    }
+
+    /// An image that carries the machine's workspace: its polygon and the larger of the two
+    /// margins; without the block, the grid's rectangle.
+    #[test]
+    fn workspace_comes_from_the_image_when_it_has_one() {
+        use kinematics_core::grid::{append_workspace, encode, WorkspaceLimits, WORKSPACE_LEN};
+        let g = GridGeometry { nx: 21, ny: 31, x0_mm: 162.132, y0_mm: -75.0, step_x_mm: 5.0, step_y_mm: 5.0 };
+        let mut img = std::vec![0u8; g.image_len() + WORKSPACE_LEN];
+        let n = encode(&mut img, &g, &kinematics_core::FiveBar::paper_nominal(), &std::vec![[0.0; 2]; g.len()]).unwrap();
+        let plain = CorrectionGrid::parse(&img[..n]).unwrap();
+        assert_eq!(Workspace::of_image(&plain, 0.1), Workspace::of_grid(&g, 0.1));
+        // A hexagon: the rectangle with its upper right corner cut along x + y = 317.
+        let v = [[162.132, -75.0], [262.132, -75.0], [262.132, 54.868], [242.132, 74.868], [162.132, 74.868]];
+        let limits = WorkspaceLimits { region: ConvexWorkspace::new(&v).unwrap(), stop_margin_mm: 0.5 };
+        append_workspace(&mut img, n, n, &limits).unwrap();
+        let grid = CorrectionGrid::parse(&img).unwrap();
+        let w = Workspace::of_image(&grid, 0.1).unwrap();
+        assert_eq!(w.margin_mm(), 0.5, "the image's soft limit is the larger");
+        assert_eq!(Workspace::of_image(&grid, 2.0).unwrap().margin_mm(), 2.0, "the setting is the larger");
+        assert!(w.contains([212.0, 0.0]) && w.contains([162.7, 0.0]) && !w.contains([162.5, 0.0]));
+        // Inside the grid's rectangle but beyond the cut corner: refused.
+        assert!(Workspace::of_grid(&g, 0.1).unwrap().contains([255.0, 70.0]));
+        assert!(!w.contains([255.0, 70.0]) && !w.contains([212.0, 74.6]));
     }
 
     #[test]

@@ -13,7 +13,10 @@
 //! 1. the previous row of the run has the *same target* (both coordinates): the machine reversed
 //!    there (the overrun at the end of a pass, as in ISO 230-2's linear cycle) → the opposite of
 //!    the previous row's direction;
-//! 2. else the previous row's target differs along a → `sign(target_a(r) − target_a(prev))`;
+//! 2. else the previous row's target differs along a only → `sign(target_a(r) − target_a(prev))`;
+//!    if it differs along both axes (a move from one line to another: a new pass starts, and a
+//!    pass starts from its own overrun, as `measure --protocol repeat` makes it) → the
+//!    direction of the next move along a within the run (the sign above if there is none);
 //! 3. else (the last move was along the other axis only) → the previous row's direction;
 //! 4. the first row of a run: the direction of the run's first move along a (approach from an
 //!    overrun, as a pass starts); a run that never moves along a has no direction: its rows are
@@ -157,6 +160,9 @@ pub fn directions(data: &[Measurement], a: usize) -> Vec<i8> {
                 let p = rows[k - 1];
                 if t(p) == t(r) {
                     -dir[p]
+                } else if t(p)[a] != t(r)[a] && t(p)[1 - a] != t(r)[1 - a] {
+                    let next = rows[k..].windows(2).map(|w| sign(t(w[1])[a] - t(w[0])[a])).find(|&s| s != 0);
+                    next.unwrap_or_else(|| sign(t(r)[a] - t(p)[a]))
                 } else if t(p)[a] != t(r)[a] {
                     sign(t(r)[a] - t(p)[a])
                 } else {
@@ -360,6 +366,25 @@ mod tests {
         let r = vec![row(0, 0.0, 0.0, 0.0), row(0, 5.0, 0.0, 0.0), row(0, 5.0, 5.0, 0.0), row(0, 0.0, 5.0, 0.0)];
         assert_eq!(directions(&r, 0), vec![1, 1, 1, -1]);
         assert_eq!(directions(&r, 1), vec![1, 1, 1, 1]);
+    }
+
+    /// Issue 12: `measure --protocol repeat` runs the x line and then the y line in the same
+    /// run, each pass from its own overrun; the first y target follows the x line's last one
+    /// (a move along both axes) and is approached upwards, not downwards.
+    #[test]
+    fn a_move_between_lines_starts_a_pass() {
+        let r = vec![
+            row(0, 0.0, 5.0, 0.0),
+            row(0, 10.0, 5.0, 0.0),
+            row(0, 10.0, 5.0, 0.0),
+            row(0, 0.0, 5.0, 0.0),
+            row(0, 5.0, 0.0, 0.0),
+            row(0, 5.0, 10.0, 0.0),
+            row(0, 5.0, 10.0, 0.0),
+            row(0, 5.0, 0.0, 0.0),
+        ];
+        assert_eq!(directions(&r, 1)[4..], [1, 1, -1, -1]);
+        assert_eq!(directions(&r, 0)[..4], [1, 1, -1, -1]);
     }
 
     #[test]

@@ -8,12 +8,36 @@
 //!
 //! Input: the targets CSV (`crate::io::targets_csv`). Output ([`format_commands`]):
 //! `x_mm,y_mm,theta1_deg,theta2_deg` (degrees with 9 decimals: f32 radians round-trip exactly).
-//! Any unreachable target, any target outside the grid, or a grid built for another model is an
-//! error naming the line; nothing is written then.
+//! Any unreachable target, any target outside the machine's workspace ([`check_in_workspace`]:
+//! the image's workspace block when the grid has one, else the machine file's), any target
+//! outside the grid, or a grid built for another model is an error naming the line; nothing is
+//! written then.
 
 use super::{invalid, CalibError};
 use crate::io::targets_csv::Target;
-use kinematics_core::{Calibration, CorrectionGrid, FiveBar};
+use kinematics_core::{Calibration, ConvexWorkspace, CorrectionGrid, FiveBar};
+
+/// How far outside the workspace's edge a target may lie (mm): f32 rounding of an image's
+/// vertices (0.004 µm at 162 mm) and of targets written with fewer digits.
+pub const WORKSPACE_TOLERANCE_MM: f64 = 1e-3;
+
+/// Refuses the first target outside `region` (the machine `machine`'s workspace, as its file
+/// or, `from_image`, its grid image's workspace block states it), naming its line.
+pub fn check_in_workspace(targets: &[Target], region: &ConvexWorkspace<f64>, machine: &str, from_image: bool) -> Result<(), CalibError> {
+    for &Target { line, target_mm: t } in targets {
+        if !region.contains(t, -WORKSPACE_TOLERANCE_MM) {
+            return Err(invalid!(
+                "line {line}: target ({}, {}): outside the workspace of machine '{machine}' ({:.3} mm beyond its edge{}; vertices {:?} mm)",
+                t[0],
+                t[1],
+                -region.clearance_mm(t),
+                if from_image { ", as the grid image's workspace block states it" } else { "" },
+                region.vertices_mm()
+            ));
+        }
+    }
+    Ok(())
+}
 
 /// Checks that the grid was built for `model` (every parameter equal after rounding to f32).
 pub fn check_grid_model(grid: &CorrectionGrid<'_>, model: &FiveBar<f64>) -> Result<(), CalibError> {

@@ -50,6 +50,15 @@ pub trait Machine {
     /// approaching each from the side `approach_dir` (+1: from below, i.e. the motor last moved
     /// in the positive direction; -1: from above), lets it settle and reads the tool point.
     fn measure(&mut self, command_rad: [f64; 2], approach_dir: [i8; 2]) -> Result<Reading, CalibError>;
+
+    /// Restarts the instrument's noise stream as a machine built with `seed` starts it (each
+    /// list a session of its own: `host-sim measure --seed`, and the demo's lists).
+    fn reseed(&mut self, seed: u64);
+}
+
+/// The stand-in's noise stream for a seed.
+fn stand_in_noise(seed: u64) -> ChaCha8Rng {
+    ChaCha8Rng::seed_from_u64(seed ^ 0x0157_2a3e)
 }
 
 /// Worst error of the nominal model over the 5 mm grid that [`StandInMachine::paper_like`]
@@ -90,7 +99,7 @@ impl StandInMachine {
             spec: spec.clone(),
             distortion_scale,
             noise_sigma_mm,
-            rng: ChaCha8Rng::seed_from_u64(seed ^ 0x0157_2a3e),
+            rng: stand_in_noise(seed),
         })
     }
 
@@ -112,8 +121,8 @@ impl StandInMachine {
             b_mm: nominal.b_mm + k * dl[1],
             c_mm: nominal.c_mm + k * dl[2],
             d_mm: nominal.d_mm + k * dl[3],
-            base_b0_mm: [k * db[0], k * db[1]],
-            encoder_offset_rad: [k * doff[0], k * doff[1]],
+            base_b0_mm: [nominal.base_b0_mm[0] + k * db[0], nominal.base_b0_mm[1] + k * db[1]],
+            encoder_offset_rad: [nominal.encoder_offset_rad[0] + k * doff[0], nominal.encoder_offset_rad[1] + k * doff[1]],
             ..nominal
         };
         // The error is nearly linear in k: a few secant steps hit the target to < 1 %.
@@ -186,6 +195,40 @@ impl Machine for StandInMachine {
         }
         Ok(Reading { encoder_rad: command_rad, measured_mm, true_mm })
     }
+
+    fn reseed(&mut self, seed: u64) {
+        self.rng = stand_in_noise(seed);
+    }
+}
+
+/// Largest relative difference of a link between a plant's nominal five-bar and the machine's.
+pub const PLANT_LINK_TOLERANCE: f64 = 0.05;
+/// Largest distance (mm) between a plant's nominal base axes and the machine's.
+pub const PLANT_BASE_TOLERANCE_MM: f64 = 10.0;
+
+/// Refuses a plant built around another five-bar than `spec`'s nominal one (the plant of
+/// another machine: calibrating it would fail far from any target, or silently fit nonsense):
+/// every link within [`PLANT_LINK_TOLERANCE`], A0 and B0 within [`PLANT_BASE_TOLERANCE_MM`],
+/// the same working mode. Manufacturing errors are not counted: they are what a calibration
+/// finds.
+pub fn check_plant_fits(plant: &PlantConfig, spec: &MachineSpec) -> Result<(), CalibError> {
+    let (p, m) = (plant.sixbar.nominal_five_bar(), &spec.nominal);
+    let links = [("a", p.a_mm, m.a_mm), ("b", p.b_mm, m.b_mm), ("c", p.c_mm, m.c_mm), ("d", p.d_mm, m.d_mm)];
+    let b0 = |f: &FiveBar<f64>| [f.base_a0_mm[0] + f.base_b0_mm[0], f.base_a0_mm[1] + f.base_b0_mm[1]];
+    let far = |u: [f64; 2], v: [f64; 2]| (u[0] - v[0]).hypot(u[1] - v[1]) > PLANT_BASE_TOLERANCE_MM;
+    let what = if let Some((name, pl, ml)) = links.iter().find(|(_, pl, ml)| !((pl - ml).abs() <= PLANT_LINK_TOLERANCE * ml)) {
+        format!("its link {name} is {pl} mm, the machine's {ml} mm")
+    } else if far(p.base_a0_mm, m.base_a0_mm) || far(b0(&p), b0(m)) {
+        format!("its axes A0 {:?}, B0 {:?} mm are not the machine's {:?}, {:?}", p.base_a0_mm, b0(&p), m.base_a0_mm, b0(m))
+    } else if p.mode != m.mode {
+        format!("its working mode {:?} is not the machine's {:?}", p.mode, m.mode)
+    } else {
+        return Ok(());
+    };
+    Err(invalid!(
+        "the plant is not a simulation of machine '{}': {what} (give the plant of this machine with --plant FILE)",
+        spec.name
+    ))
 }
 
 /// The six-bar plant as a [`Machine`].
@@ -230,6 +273,10 @@ impl Machine for PlantMachine {
         let measured_mm = self.plant.instrument.read_mm(solution.tool_mm);
         Ok(Reading { encoder_rad, measured_mm, true_mm })
     }
+
+    fn reseed(&mut self, seed: u64) {
+        self.plant.instrument.reseed(seed);
+    }
 }
 
 #[cfg(test)]
@@ -246,6 +293,22 @@ mod tests {
             assert_eq!(m.five_bar, StandInMachine::paper_like(&spec, seed).unwrap().five_bar);
         }
         assert_ne!(StandInMachine::paper_like(&spec, 1).unwrap().five_bar, StandInMachine::paper_like(&spec, 2).unwrap().five_bar);
+    }
+
+    #[test]
+    fn a_plant_of_another_machine_is_refused() {
+        let spec = MachineSpec::paper();
+        assert!(check_plant_fits(&PlantConfig::paper(), &spec).is_ok());
+        let mut other = spec.clone();
+        other.nominal.c_mm = 170.0;
+        let e = check_plant_fits(&PlantConfig::paper(), &other).unwrap_err().to_string();
+        assert!(e.contains("link c is 150 mm, the machine's 170 mm"), "{e}");
+        other.nominal.c_mm = 150.0;
+        other.nominal.base_b0_mm = [0.0, -60.0];
+        assert!(check_plant_fits(&PlantConfig::paper(), &other).unwrap_err().to_string().contains("axes"));
+        // A plant built around the other machine fits it.
+        let plant = PlantConfig::ideal_for(&other.nominal, &other.grid_nodes_mm()).unwrap();
+        assert!(check_plant_fits(&plant, &other).is_ok());
     }
 
     #[test]

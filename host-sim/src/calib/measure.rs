@@ -13,29 +13,20 @@
 //!
 //! The approach direction of motor j is the sign of the (wrapped) change of its command from the
 //! start of the motion (the visit's `from_mm`, through the model's IK) to the target; a start the
-//! model cannot reach counts as +1. Each measurement takes 1 s of machine time (`t_s` counts
-//! measurements).
+//! model cannot reach counts as +1; a visit from a plan's list may prescribe it instead
+//! ([`Visit::dir`]). Each measurement takes 1 s of machine time (`t_s` counts measurements).
 
 use super::machine::{Machine, PlantMachine};
 use super::protocol::{visits, Protocol, Visit};
 use super::CalibError;
 use crate::io::measurement_csv::Measurement;
 use crate::machine_spec::MachineSpec;
+use crate::numeric::max_rms;
 use crate::plant::PlantConfig;
 use kinematics_core::{wrap_angle_rad, Calibration};
+use serde::Serialize;
 
-/// How every motor arrives at its command.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Approach {
-    /// From the visit's start (`from_mm`): the directions a real motion gives (random ones for
-    /// randomly placed starts: `random` in the demo's options and reports).
-    #[serde(rename = "random")]
-    FromVisit,
-    /// Every motor moving in the positive direction, as after an overshoot-and-return move:
-    /// backlash always sits on the same side.
-    Positive,
-}
+pub use crate::machine_spec::Approach;
 
 /// One measured visit: the CSV row and the truth behind it.
 #[derive(Clone, Debug)]
@@ -50,8 +41,9 @@ pub fn rows(landed: &[Landed]) -> Vec<Measurement> {
     landed.iter().map(|l| l.row.clone()).collect()
 }
 
-/// Commands every visit through `cal` and measures it on `machine` (see the module doc).
-/// `clock` counts measurements across calls (the rows' `t_s`).
+/// Commands every visit through `cal` and measures it on `machine` (see the module doc). A
+/// visit that prescribes its approach (`Visit::dir`, a plan's list) is approached so; the others
+/// by `approach`. `clock` counts measurements across calls (the rows' `t_s`).
 pub fn measure_visits(
     machine: &mut dyn Machine,
     cal: &Calibration<'_>,
@@ -71,9 +63,10 @@ pub fn measure_visits(
         // The motors turn continuously: unwrap next to the previous command.
         let cmd = [0, 1].map(|i| previous[i] + wrap_angle_rad(f64::from(cmd[i]) - previous[i]));
         previous = cmd;
-        let dir = match (approach, model.inverse(v.from_mm, 0.0)) {
-            (Approach::Positive, _) | (Approach::FromVisit, Err(_)) => [1, 1],
-            (Approach::FromVisit, Ok(f)) => [0, 1].map(|i| if wrap_angle_rad(cmd[i] - f[i]) >= 0.0 { 1i8 } else { -1 }),
+        let dir = match (v.dir, approach, model.inverse(v.from_mm, 0.0)) {
+            (Some(d), _, _) => d,
+            (None, Approach::Positive, _) | (None, Approach::FromVisit, Err(_)) => [1, 1],
+            (None, Approach::FromVisit, Ok(f)) => [0, 1].map(|i| if wrap_angle_rad(cmd[i] - f[i]) >= 0.0 { 1i8 } else { -1 }),
         };
         let r = machine.measure(cmd, dir).map_err(|e| at_target(e.to_string()))?;
         out.push(Landed {
@@ -93,7 +86,62 @@ pub fn measure_visits(
     Ok(out)
 }
 
-/// What `host-sim measure` runs.
+/// Measures one list as `host-sim measure` does: the machine's instrument noise restarted from
+/// `noise_seed` (what a machine built with that seed would draw), the clock from 0. The demo's
+/// pipeline measures every list through this, so the separate commands with the same seeds
+/// give the same measurements.
+pub fn measure_list(
+    machine: &mut dyn Machine,
+    cal: &Calibration<'_>,
+    visits: &[Visit],
+    approach: Approach,
+    noise_seed: u64,
+    spec: &MachineSpec,
+) -> Result<Vec<Landed>, CalibError> {
+    machine.reseed(noise_seed);
+    measure_visits(machine, cal, visits, approach, spec, &mut 0)
+}
+
+/// Where measured visits landed against their targets (µm): the figures `measure` prints and
+/// the demo's verification reports.
+#[derive(Clone, Copy, Debug, Serialize, PartialEq)]
+pub struct Accuracy {
+    /// |true position − target|: where the tool really landed (known in simulation only).
+    pub max_um: f64,
+    pub rms_um: f64,
+    /// |measured − target|: what the instrument shows (truth + its noise).
+    pub measured_max_um: f64,
+    pub measured_rms_um: f64,
+    pub n_targets: usize,
+}
+
+/// Error vectors (µm) of the truth against the targets.
+pub fn true_error_vectors_um(landed: &[Landed]) -> Vec<[f64; 2]> {
+    landed
+        .iter()
+        .map(|l| {
+            let t = l.row.target_mm.unwrap_or(l.true_mm);
+            [(l.true_mm[0] - t[0]) * 1e3, (l.true_mm[1] - t[1]) * 1e3]
+        })
+        .collect()
+}
+
+/// Where measured visits landed, against their targets.
+pub fn accuracy(landed: &[Landed]) -> Accuracy {
+    let truth: Vec<f64> = true_error_vectors_um(landed).iter().map(|e| e[0].hypot(e[1])).collect();
+    let measured: Vec<f64> = landed
+        .iter()
+        .map(|l| {
+            let t = l.row.target_mm.unwrap_or(l.row.measured_mm);
+            (l.row.measured_mm[0] - t[0]).hypot(l.row.measured_mm[1] - t[1]) * 1e3
+        })
+        .collect();
+    let (t, m) = (max_rms(&truth), max_rms(&measured));
+    Accuracy { max_um: t.max, rms_um: t.rms, measured_max_um: m.max, measured_rms_um: m.rms, n_targets: landed.len() }
+}
+
+/// What `host-sim measure` runs (the library API of the protocols; the command itself also
+/// measures plan lists through [`measure_list`]).
 #[derive(Clone, Debug)]
 pub struct MeasureOptions {
     pub protocol: Protocol,
@@ -104,11 +152,12 @@ pub struct MeasureOptions {
     pub spec: MachineSpec,
 }
 
-/// Runs a protocol on a plant, commanded through `cal`, and returns the measurements.
+/// Runs a protocol on a plant, commanded through `cal`, approached from each visit's start,
+/// and returns the measurements.
 pub fn measure(plant: &PlantConfig, cal: &Calibration<'_>, opts: &MeasureOptions) -> Result<Vec<Measurement>, CalibError> {
     let mut machine = PlantMachine::from_config(plant.clone(), "measured plant", opts.noise_um, opts.seed)?;
     let visits = visits(opts.protocol, opts.seed, &opts.spec);
-    let landed = measure_visits(&mut machine, cal, &visits, Approach::FromVisit, &opts.spec, &mut 0)?;
+    let landed = measure_list(&mut machine, cal, &visits, Approach::FromVisit, opts.seed, &opts.spec)?;
     Ok(rows(&landed))
 }
 
@@ -176,6 +225,22 @@ mod tests {
         let opts = MeasureOptions { protocol: Protocol::Table1, seed: 1, noise_um: None, spec: MachineSpec::paper() };
         let err = measure(&PlantConfig::ideal(), &cal, &opts).unwrap_err();
         assert!(err.to_string().contains("target (212.132, 0.000)"), "{err}");
+    }
+
+    /// Issue 12: the repeat protocol's measurements and `accuracy` fit together: both axis
+    /// lines are analysed, none skipped, and on a backlash-only plant both show a reversal.
+    #[test]
+    fn the_repeat_protocol_gives_both_axis_lines() {
+        use crate::effect::PhysicalEffect;
+        let cfg = PlantConfig::paper().with_only(PhysicalEffect::Backlash).unwrap();
+        let rows = run(&cfg, Protocol::Repeat, 1, &nominal(), Some(0.2));
+        let r = crate::calib::accuracy::report(&rows).unwrap();
+        assert!(r.skipped.is_empty(), "{:?}", r.skipped);
+        let axes: Vec<&str> = r.lines.iter().map(|l| l.axis).collect();
+        assert_eq!(axes, ["x", "y"]);
+        for l in &r.lines {
+            assert!(l.iso_230_2.b_um > 0.5, "{} line: reversal {} µm", l.axis, l.iso_230_2.b_um);
+        }
     }
 
     #[test]

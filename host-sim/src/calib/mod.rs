@@ -3,12 +3,15 @@
 //! The stages, in the order a calibration runs them:
 //! * [`protocol`]: the paper's measurement protocols as lists of visits (where to go, where the
 //!   motion comes from);
+//! * [`plan`]: the session's target lists (identification poses chosen for identifiability,
+//!   grid nodes, verification targets, repeat runs), each row with its approach;
 //! * [`machine`]: the machine being calibrated, behind one trait (the six-bar plant, or a
 //!   stand-in five-bar);
 //! * [`measure`]: THE measurement path: command every visit exactly as the firmware does, settle,
 //!   read the instrument. `host-sim measure`, the demo and the tests all measure through it;
 //! * [`fit`]: the hidden robot from measurements (the paper's `poly` and `ls`, the full LM);
 //! * [`grid`]: the correction grid flash image from measurements at the nodes;
+//! * [`image`]: the image finished with the machine's extension blocks (the workspace);
 //! * [`command`]: motor angles for targets, exactly as the firmware computes them;
 //! * [`accuracy`]: VDI/DGQ 3441 and ISO 230-2 figures from repeated runs;
 //! * [`dynamics`]: the hidden robot's dynamic parameters from a closed-loop excitation run
@@ -25,9 +28,11 @@ pub mod command;
 pub mod dynamics;
 pub mod fit;
 pub mod grid;
+pub mod image;
 pub mod machine;
 pub mod measure;
 pub mod pipeline;
+pub mod plan;
 pub mod protocol;
 
 use crate::io::IoError;

@@ -1,71 +1,87 @@
-//! The whole calibration story on one machine (`host-sim demo`): measure, fit, grid, verify,
-//! in one process, on a machine whose truth is known, stating the accuracy after every step.
+//! The whole calibration story on one machine (`host-sim demo`): plan, measure, fit, grid,
+//! verify, in one process, on a machine whose truth is known, stating the accuracy after every
+//! step.
 //!
-//! Why: this is what the README shows first. It runs what a machine builder would run with the
-//! separate commands (`measure` → `fit` → `measure --protocol grid` → `grid` → `command`), through
-//! the same library functions:
+//! Why: this is what the README shows first. It runs exactly what a machine builder runs with
+//! the separate commands, through the same library functions, so the commands reproduce it
+//! (the README's command-by-command workflow, checked by `tests/workflow.rs`):
 //!
-//! 1. measure [`FIT_POSES`] random poses commanded with the nominal model;
-//! 2. fit the hidden robot: the paper's `ls` (links only, for comparison) and `full`
-//!    (Levenberg–Marquardt over every identifiable parameter: links, A0, B0, encoder offsets);
-//! 3. measure the grid nodes (the machine's lattice: on the paper machine 21 × 31 nodes, 5 mm
-//!    apart over x ∈ [162.132, 262.132], y ∈ [−75, 75]) commanded with the `full` model, and
-//!    build the correction grid ([`super::grid::build`]);
-//! 4. measure the nodes again, commanded through that grid, and rebuild it (round 2): the grid
-//!    is first order in the error it corrects, so where the fit leaves a large error one round
-//!    leaves ~1 % of it and the second removes that (the six-bar plant with A0 held at the
-//!    origin: fit ~1 mm, one round 16 µm, two 6 µm); after a good fit both sit at the floor;
-//! 5. verify after every step: [`VERIFY_TARGETS`] fresh random targets (drawn from their own
-//!    stream, never used in a fit or the grid), each commanded exactly as the firmware does
-//!    (`Calibration::command_rad`, f32), with the nominal model, `ls`, `full`, `full` + grid
-//!    and `full` + refined grid. Accuracy = distance from the target to where the tool really is
-//!    (the machine's noiseless truth, instrument frame); the noisy readings are reported too.
+//! | step | library function | command | noise seed |
+//! |---|---|---|---|
+//! | 0. the lists (identification poses chosen for identifiability, grid nodes, verification targets, repeat runs) | [`super::plan::plan`] | `plan --seed S` | — |
+//! | 1. measure the identification poses, nominal model | [`super::measure::measure_list`] | `measure --targets identify.csv` | 10·S + 1 |
+//! | 2. fit: the paper's `ls` (links only, for comparison) and `full` (LM: links, A0, B0, encoder offsets) | [`super::fit::fit`] | `fit --method ls`, `fit --method full` | — |
+//! | 3. measure the grid nodes commanded with the `full` model; build the grid (+ the workspace block) | `measure_list`, [`super::grid::build`], [`super::image::finish_image`] | `measure --targets grid.csv --model`, `grid` | 10·S + 5 |
+//! | 4. measure the nodes again through that grid; rebuild it (round 2, the image to flash) | the same | `measure --grid`, `grid` | 10·S + 7 |
+//! | 5. verify every stage on the verification targets: nominal, `ls`, `full`, `full` + grid, `full` + refined grid | `measure_list`, [`super::measure::accuracy`] | `measure --targets verify.csv [--model M] [--grid G]` | 10·S + 2, 3, 4, 6, 8 |
 //!
-//! Every measurement goes through [`super::measure::measure_visits`], the one measurement path.
-//! With [`Approach::Positive`] every motor arrives moving forward (as after an
-//! overshoot-and-return move): unidirectional positioning, so backlash always sits on one side
-//! and is calibrated away; [`Approach::FromVisit`] approaches along a random direction from
-//! `approach_mm` away (grid nodes in raster order); on the paper plant the 20 µrad backlash then
-//! stays in the result (about 6 µm max, 3 µm RMS).
+//! Each list is measured as `measure --seed` measures it (the instrument's noise restarted from
+//! the step's seed, the clock from 0), and the fits and the grid read the measurements as the
+//! CSV files hold them (rounded to 1 nm and 1e-9°, [`round_trip`]), so the files give the same
+//! models, images and figures bit for bit.
+//!
+//! The grid is first order in the error it corrects, so where the fit leaves a large error one
+//! round leaves ~1 % of it and the second removes that (the six-bar plant with A0 held at the
+//! origin: fit ~1 mm, one round 16 µm, two 6 µm); after a good fit both sit at the floor.
+//! Accuracy = distance from the target to where the tool really is (the machine's noiseless
+//! truth, instrument frame); the noisy readings are reported too. Every target is commanded
+//! exactly as the firmware does (`Calibration::command_rad`, f32).
+//!
+//! Approach: the lists carry the machine's policy ([`PipelineOptions::approach`]). With
+//! [`Approach::Positive`] every motor arrives moving forward (as after an overshoot-and-return
+//! move): unidirectional positioning, so backlash always sits on one side and is calibrated
+//! away; with [`Approach::FromVisit`] each motor arrives as the motion from `approach_mm` away
+//! along a random direction (grid nodes in raster order) makes it; on the paper plant the
+//! 20 µrad backlash then stays in the result (about 6 µm max, 3 µm RMS).
 //!
 //! Output: [`calibrate`] keeps everything in memory ([`Calibrated`]); [`write_outputs`] writes the
-//! measurement CSVs, `model.json` (`full`), `model_ls.json`, `grid.bin` + `grid.csv` (the refined
-//! grid) and PNG error-vector plots ([`FILES`], each atomically); [`summary`] is the JSON report.
-//! The machine is behind [`super::machine::Machine`]. Cost: ~2.2 k measurements and one LM fit,
-//! well under a second (the plant's six-bar solves included); the plots take a few tenths.
+//! plan's lists, the measurement CSVs, `model.json` (`full`), `model_ls.json`, `grid.bin` +
+//! `grid.csv` (the refined grid) and PNG error-vector plots ([`FILES`], each atomically);
+//! [`summary`] is the JSON report. The machine is behind [`super::machine::Machine`]. Cost:
+//! ~2.2 k measurements, the plan's selection and two fits: about a second.
 
 use super::fit::evaluate::{self, Criterion};
-use super::fit::full::{fit_full, FullFit};
+use super::fit::full::FullFit;
 use super::fit::params::{self, NAMES};
-use super::fit::{synthesize, Method, ModelFigures};
+use super::fit::{fit, FitOptions, Method, ModelFigures, Points};
 use super::grid::{self, BuiltGrid};
+use super::image::finish_image;
 use super::machine::Machine;
-use super::measure::{measure_visits, rows, Landed};
-use super::protocol::{random_visits, visits, Protocol, Range};
-use super::CalibError;
+use super::measure::{measure_list, rows, Landed};
+use super::plan::{plan, Plan, PlanOptions};
+use super::protocol::Visit;
+use super::{invalid, CalibError};
 use crate::io::atomic::write_atomic;
-use crate::io::measurement_csv::format_measurements;
+use crate::io::measurement_csv::{format_measurements, parse_measurements, Measurement};
+use crate::io::targets_csv::format_target_list;
+use super::plan::list_rows;
 use crate::io::model_file::{write_model_file, ModelFile};
 use crate::io::plot::{vector_plot, VectorField};
 use crate::io::IoError;
 use crate::machine_spec::MachineSpec;
 use crate::numeric::{max_rms, round3, MaxRms};
 use kinematics_core::{Calibration, CorrectionGrid, FiveBar};
-use rand::SeedableRng;
-use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-pub use super::measure::Approach;
+pub use super::measure::{accuracy, true_error_vectors_um, Accuracy, Approach};
 
-/// Random poses measured for the fits.
-pub const FIT_POSES: usize = 40;
-/// Fresh random targets per verification.
-pub const VERIFY_TARGETS: usize = 400;
+/// Poses measured for the fits (the plan's identification poses).
+pub const FIT_POSES: usize = super::plan::IDENTIFICATION_POSES;
+/// Fresh random targets per verification (the plan's verification list).
+pub const VERIFY_TARGETS: usize = super::plan::VERIFY_TARGETS;
 /// The accuracy to reach (issue 6): the 1 µm instrument's noise floor.
 pub const TARGET_MAX_UM: f64 = 5.0;
 pub const TARGET_RMS_UM: f64 = 2.0;
+
+/// The accuracy goal `[max, RMS]` (µm) of a run on `spec`'s machine: the noise floor,
+/// [`TARGET_MAX_UM`] / [`TARGET_RMS_UM`] with a 1 µm instrument, scaled with the instrument's σ
+/// above that (the grid and the fit carry the measurement noise into the result).
+pub fn goal_um(spec: &MachineSpec) -> [f64; 2] {
+    let k = spec.instrument_sigma_um.max(1.0);
+    [TARGET_MAX_UM * k, TARGET_RMS_UM * k]
+}
 
 /// How to run the story.
 #[derive(Clone, Debug)]
@@ -85,43 +101,6 @@ pub enum Event {
     Held { param: &'static str, why: String },
 }
 
-/// Accuracy of one verification run (µm).
-#[derive(Clone, Copy, Debug, Serialize, PartialEq)]
-pub struct Accuracy {
-    /// |true position − target|: where the tool really landed.
-    pub max_um: f64,
-    pub rms_um: f64,
-    /// |measured − target|: what the instrument shows (truth + its noise).
-    pub measured_max_um: f64,
-    pub measured_rms_um: f64,
-    pub n_targets: usize,
-}
-
-/// Error vectors (µm) of the truth against the targets.
-pub fn true_error_vectors_um(landed: &[Landed]) -> Vec<[f64; 2]> {
-    landed
-        .iter()
-        .map(|l| {
-            let t = l.row.target_mm.unwrap_or(l.true_mm);
-            [(l.true_mm[0] - t[0]) * 1e3, (l.true_mm[1] - t[1]) * 1e3]
-        })
-        .collect()
-}
-
-/// Where measured visits landed, against their targets.
-pub fn accuracy(landed: &[Landed]) -> Accuracy {
-    let truth: Vec<f64> = true_error_vectors_um(landed).iter().map(|e| e[0].hypot(e[1])).collect();
-    let measured: Vec<f64> = landed
-        .iter()
-        .map(|l| {
-            let t = l.row.target_mm.unwrap_or(l.row.measured_mm);
-            (l.row.measured_mm[0] - t[0]).hypot(l.row.measured_mm[1] - t[1]) * 1e3
-        })
-        .collect();
-    let (t, m) = (max_rms(&truth), max_rms(&measured));
-    Accuracy { max_um: t.max, rms_um: t.rms, measured_max_um: m.max, measured_rms_um: m.rms, n_targets: landed.len() }
-}
-
 /// One verified calibration state.
 #[derive(Clone, Debug)]
 pub struct Stage {
@@ -138,6 +117,9 @@ pub struct Stage {
 /// Everything a calibration run produced (in memory; [`write_outputs`] writes it).
 pub struct Calibrated {
     pub machine: String,
+    /// The lists measured (the plan's identification, grid and verification lists, and its
+    /// repeat runs, which the demo does not measure).
+    pub plan: Plan,
     pub fit_data: Vec<Landed>,
     pub ls_model: FiveBar<f64>,
     pub full: FullFit,
@@ -150,6 +132,8 @@ pub struct Calibrated {
     pub grid2: BuiltGrid,
     pub approach: Approach,
     pub stages: Vec<Stage>,
+    /// The accuracy goal `[max, RMS]` (µm), [`goal_um`].
+    pub goal_um: [f64; 2],
 }
 
 impl Calibrated {
@@ -160,40 +144,64 @@ impl Calibrated {
 
     /// The accuracy target (noise floor) met by the last stage.
     pub fn target_met(&self) -> bool {
-        self.final_accuracy().is_some_and(|a| a.max_um <= TARGET_MAX_UM && a.rms_um <= TARGET_RMS_UM)
+        self.final_accuracy().is_some_and(|a| a.max_um <= self.goal_um[0] && a.rms_um <= self.goal_um[1])
     }
 }
 
 /// A grid image as the firmware reads it.
 fn grid_calibration<'g>(g: &'g BuiltGrid, what: &str) -> Result<Calibration<'g>, CalibError> {
-    let parsed = CorrectionGrid::parse(&g.image).map_err(|e| super::invalid!("the {what} image does not parse: {e}"))?;
+    let parsed = CorrectionGrid::parse(&g.image).map_err(|e| invalid!("the {what} image does not parse: {e}"))?;
     Ok(Calibration::from_grid(parsed))
+}
+
+/// The instrument noise seed of the demo's measurement `step` (1..=8, the module doc's table):
+/// `10·seed + step`, what `measure --seed` is given in the command-by-command workflow.
+pub fn noise_seed(seed: u64, step: u64) -> u64 {
+    seed.wrapping_mul(10).wrapping_add(step)
+}
+
+/// Measurement rows as a CSV file holds them (what `fit` and `grid` read back).
+pub fn round_trip(rows: &[Measurement]) -> Result<Vec<Measurement>, CalibError> {
+    Ok(parse_measurements(&format_measurements(rows))?)
+}
+
+/// The `full` fit as `fit --method full --no-loo` runs it.
+fn fit_with(method: Method, data: &[Measurement], spec: &MachineSpec) -> Result<super::fit::FitOutcome, CalibError> {
+    let opts = FitOptions { method, criterion: Criterion::Measured, points: Points::All, fixed: Vec::new(), leave_one_out: false, spec: spec.clone() };
+    fit(data, &opts, &mut |_| {})
+}
+
+/// The grid from node measurements, as `grid` builds and finishes it.
+fn build_grid(model: &FiveBar<f64>, data: &[Measurement], spec: &MachineSpec) -> Result<BuiltGrid, CalibError> {
+    let mut built = grid::build(model, data, spec.grid.step_mm)?;
+    built.image = finish_image(&built.image, spec)?.0;
+    Ok(built)
 }
 
 /// Runs the calibration on `machine` (the steps of the module doc); `events` hears progress.
 pub fn calibrate(machine: &mut dyn Machine, opts: &PipelineOptions, events: &mut dyn FnMut(Event)) -> Result<Calibrated, CalibError> {
-    let (spec, approach) = (&opts.spec, opts.approach);
+    let approach = opts.approach;
+    // The plan under the run's approach policy: its rows carry the directions.
+    let spec = &MachineSpec { approach, ..opts.spec.clone() };
     let step = |events: &mut dyn FnMut(Event), s: String| events(Event::Step(s));
     let description = machine.describe();
-    // Separate streams: the verification targets are fresh whatever the fit draws.
-    let mut fit_rng = ChaCha8Rng::seed_from_u64(opts.seed ^ 0xf17_f17);
-    let mut verify_rng = ChaCha8Rng::seed_from_u64(opts.seed ^ 0x7e21_f1ed_0000);
-    let fit_visits = random_visits(FIT_POSES, &mut fit_rng, spec, Range::HalfOpen);
-    let verify = random_visits(VERIFY_TARGETS, &mut verify_rng, spec, Range::HalfOpen);
-    let grid_visits = visits(Protocol::Grid, opts.seed, spec);
-    let mut clock = 0usize;
-    let nominal = spec.nominal;
-    let mut measure = |machine: &mut dyn Machine, cal: &Calibration<'_>, v: &[super::protocol::Visit], what: &str| {
-        measure_visits(machine, cal, v, approach, spec, &mut clock).map_err(|e| e.context(what))
+    step(events, "step 0: planning the lists (identification poses chosen for identifiability, grid, verification targets)".into());
+    let plan = plan(&PlanOptions::new(spec.clone(), opts.seed)).map_err(|e| e.context("planning"))?;
+    let seed = |k: u64| noise_seed(opts.seed, k);
+    let measure = |machine: &mut dyn Machine, cal: &Calibration<'_>, v: &[Visit], k: u64, what: &str| {
+        measure_list(machine, cal, v, approach, seed(k), spec).map_err(|e| e.context(what))
     };
+    let read_back = |landed: &[Landed], what: &str| round_trip(&rows(landed)).map_err(|e| e.context(what));
+    let nominal = spec.nominal;
     let nominal_cal = Calibration { model: nominal.cast(), grid: None };
+    let (n_fit, n_verify) = (plan.identify.len(), plan.verify.len());
 
-    step(events, format!("step 1: measuring {FIT_POSES} random poses commanded with the nominal model"));
-    let fit_data = measure(machine, &nominal_cal, &fit_visits, "measuring the fit poses")?;
-    let fit_rows = rows(&fit_data);
+    step(events, format!("step 1: measuring {n_fit} identification poses commanded with the nominal model"));
+    let fit_data = measure(machine, &nominal_cal, &plan.identify, 1, "measuring the fit poses")?;
+    let fit_rows = read_back(&fit_data, "the fit poses")?;
     let mut stages = Vec::new();
-    step(events, format!("verifying the nominal model on {VERIFY_TARGETS} fresh targets"));
-    let landed = measure(machine, &nominal_cal, &verify, "verifying the nominal model")?;
+    step(events, format!("verifying the nominal model on {n_verify} fresh targets"));
+    let landed = measure(machine, &nominal_cal, &plan.verify, 2, "verifying the nominal model")?;
     let stage = |key, description: &str, paper, landed: Vec<Landed>| Stage {
         key,
         description: description.to_string(),
@@ -204,37 +212,41 @@ pub fn calibrate(machine: &mut dyn Machine, opts: &PipelineOptions, events: &mut
     stages.push(stage("nominal", "before calibration (nominal model)", "~1500", landed));
 
     step(events, "step 2: fitting the hidden robot: the paper's ls (links only) and full (LM: links, A0, B0, offsets)".into());
-    let all: Vec<usize> = (0..fit_rows.len()).collect();
-    let ls_model = synthesize(&fit_rows, &all, Method::Ls, &nominal).map_err(|e| e.context("ls fit"))?;
+    let ls_model = fit_with(Method::Ls, &fit_rows, spec).map_err(|e| e.context("ls fit"))?.model;
     let ls_cal = Calibration { model: ls_model.cast(), grid: None };
-    let landed = measure(machine, &ls_cal, &verify, "verifying the ls model")?;
+    let landed = measure(machine, &ls_cal, &plan.verify, 3, "verifying the ls model")?;
     stages.push(stage("ls", "paper's ls fit (4 links)", "~700", landed));
-    let full = fit_full(&fit_rows, &nominal, &[]).map_err(|e| e.context("full fit"))?;
+    let full = fit_with(Method::Full, &fit_rows, spec)
+        .map_err(|e| e.context("full fit"))?
+        .full
+        .ok_or_else(|| invalid!("internal: the full fit reported no full fit"))?;
     for (k, why) in &full.identifiability.fixed {
         events(Event::Held { param: NAMES[*k], why: why.clone() });
     }
     let full_cal = Calibration { model: full.model.cast(), grid: None };
-    let landed = measure(machine, &full_cal, &verify, "verifying the full model")?;
+    let landed = measure(machine, &full_cal, &plan.verify, 4, "verifying the full model")?;
     stages.push(stage("full", "full fit (LM: links, A0, B0, offsets)", "-", landed));
 
     let g = &spec.grid;
     step(events, format!("step 3: measuring the {} mm grid ({} x {} nodes) commanded with the full model", g.step_mm, g.nx, g.ny));
-    let grid_data = measure(machine, &full_cal, &grid_visits, "measuring the grid")?;
-    let grid = grid::build(&full.model, &rows(&grid_data), g.step_mm).map_err(|e| e.context("building the grid"))?;
+    let grid_data = measure(machine, &full_cal, &plan.grid, 5, "measuring the grid")?;
+    let grid = build_grid(&full.model, &read_back(&grid_data, "the grid")?, spec).map_err(|e| e.context("building the grid"))?;
     let grid_cal = grid_calibration(&grid, "built grid")?;
-    let landed = measure(machine, &grid_cal, &verify, "verifying full fit + grid")?;
+    let landed = measure(machine, &grid_cal, &plan.verify, 6, "verifying full fit + grid")?;
     stages.push(stage("full+grid", &format!("full fit + {} mm grid (1 round)", g.step_mm), "~37 (40x)", landed));
     // Round 2: the grid is first order in the error it corrects (grid.rs's doc), so the nodes
     // are measured again through it and the grid rebuilt from what is left.
     step(events, "step 4: measuring the grid nodes again through the grid (round 2) and refining it".into());
-    let grid2_data = measure(machine, &grid_cal, &grid_visits, "measuring the grid, round 2")?;
-    let grid2 = grid::build(&full.model, &rows(&grid2_data), g.step_mm).map_err(|e| e.context("building the grid, round 2"))?;
+    let grid2_data = measure(machine, &grid_cal, &plan.grid, 7, "measuring the grid, round 2")?;
+    let grid2 = build_grid(&full.model, &read_back(&grid2_data, "the grid, round 2")?, spec)
+        .map_err(|e| e.context("building the grid, round 2"))?;
     let grid2_cal = grid_calibration(&grid2, "refined grid")?;
-    step(events, format!("step 5: verifying full fit + refined grid on the same {VERIFY_TARGETS} fresh targets"));
-    let landed = measure(machine, &grid2_cal, &verify, "verifying full fit + refined grid")?;
+    step(events, format!("step 5: verifying full fit + refined grid on the same {n_verify} fresh targets"));
+    let landed = measure(machine, &grid2_cal, &plan.verify, 8, "verifying full fit + refined grid")?;
     stages.push(stage("full+grid2", &format!("full fit + {} mm grid (2 rounds)", g.step_mm), "-", landed));
     step(events, "calibration done".into());
-    Ok(Calibrated { machine: description, fit_data, ls_model, full, grid_data, grid, grid2_data, grid2, approach, stages })
+    let goal_um = goal_um(spec);
+    Ok(Calibrated { machine: description, plan, fit_data, ls_model, full, grid_data, grid, grid2_data, grid2, approach, stages, goal_um })
 }
 
 /// One stage in the summary.
@@ -310,6 +322,8 @@ pub struct Summary {
     pub fit_full: FullFitSummary,
     pub fit_ls: LsFitSummary,
     pub grid: GridSummary,
+    /// The plan's identification design against random poses of the same count.
+    pub identification: super::plan::IdentificationReport,
     #[serde(rename = "final")]
     pub final_: FinalSummary,
     pub files: Vec<String>,
@@ -374,11 +388,12 @@ pub fn summary(cal: &Calibrated, seed: u64, out_dir: &Path, files: &[PathBuf]) -
             round2_node_err_rms_um: round3(n2.rms),
             image_bytes: cal.grid2.image.len(),
         },
+        identification: cal.plan.report.identification.clone(),
         final_: FinalSummary {
             max_um: fin.map(|a| round3(a.max_um)),
             rms_um: fin.map(|a| round3(a.rms_um)),
-            target_max_um: TARGET_MAX_UM,
-            target_rms_um: TARGET_RMS_UM,
+            target_max_um: cal.goal_um[0],
+            target_rms_um: cal.goal_um[1],
             met: cal.target_met(),
         },
         files: files.iter().map(|p| p.display().to_string()).collect(),
@@ -386,7 +401,11 @@ pub fn summary(cal: &Calibrated, seed: u64, out_dir: &Path, files: &[PathBuf]) -
 }
 
 /// The names of the files [`write_outputs`] writes, relative to the output directory.
-pub const FILES: [&str; 17] = [
+pub const FILES: [&str; 21] = [
+    "plan_identify.csv",
+    "plan_grid.csv",
+    "plan_verify.csv",
+    "plan_repeat.csv",
     "fit_measurements.csv",
     "grid_measurements.csv",
     "grid_measurements_round2.csv",
@@ -420,6 +439,9 @@ pub fn write_outputs(cal: &Calibrated, dir: &Path) -> Result<Vec<PathBuf>, IoErr
         written.push(p(name));
         Ok(())
     };
+    for (name, list) in cal.plan.lists() {
+        text(&format!("plan_{name}.csv"), format_target_list(&list_rows(list)).as_bytes())?;
+    }
     text("fit_measurements.csv", format_measurements(&rows(&cal.fit_data)).as_bytes())?;
     text("grid_measurements.csv", format_measurements(&rows(&cal.grid_data)).as_bytes())?;
     text("grid_measurements_round2.csv", format_measurements(&rows(&cal.grid2_data)).as_bytes())?;

@@ -2,7 +2,7 @@
 //! (`host_sim::calib::command`).
 
 use anyhow::{anyhow, Context, Result};
-use host_sim::calib::command::{check_grid_model, command_all, format_commands};
+use host_sim::calib::command::{check_grid_model, check_in_workspace, command_all, format_commands};
 use host_sim::io::atomic::write_atomic;
 use host_sim::io::model_file::read_model;
 use host_sim::io::read_bytes;
@@ -25,13 +25,17 @@ pub struct Args {
     /// Output CSV: x_mm,y_mm,theta1_deg,theta2_deg.
     #[arg(long)]
     pub out: PathBuf,
-    /// Smallest |sin| of a transmission angle accepted (the servo's default).
-    #[arg(long, default_value_t = kinematics_core::DEFAULT_MIN_TRANSMISSION as f32)]
-    pub min_transmission: f32,
+    /// Smallest |sin| of a transmission angle accepted (default: the machine's, the servo's
+    /// 0.05 on the paper machine).
+    #[arg(long)]
+    pub min_transmission: Option<f32>,
+    #[command(flatten)]
+    pub machine: super::MachineArg,
 }
 
 /// `host-sim command`.
 pub fn run(args: &Args) -> Result<()> {
+    let spec = args.machine.spec()?;
     let model = read_model(&args.model)?;
     let image = args.grid.as_deref().map(read_bytes).transpose()?;
     let grid = match (&image, &args.grid) {
@@ -44,7 +48,16 @@ pub fn run(args: &Args) -> Result<()> {
     };
     let cal = Calibration { model: model.cast::<f32>(), grid };
     let targets = read_targets(&args.targets)?;
-    let angles = command_all(&cal, &targets, args.min_transmission).with_context(|| format!("in {}", args.targets.display()))?;
+    let in_file = || format!("in {}", args.targets.display());
+    // The workspace the firmware keeps to: the image's when it carries one, else the machine's.
+    let image_region = match cal.grid.as_ref().and_then(|g| g.workspace()) {
+        Some(w) => Some(w.region.cast::<f64>().map_err(|e| anyhow!("the grid's workspace block: {e}"))?),
+        None => None,
+    };
+    let region = image_region.as_ref().unwrap_or(&spec.workspace.region);
+    check_in_workspace(&targets, region, &spec.name, image_region.is_some()).with_context(in_file)?;
+    let min_transmission = args.min_transmission.unwrap_or(spec.min_transmission as f32);
+    let angles = command_all(&cal, &targets, min_transmission).with_context(in_file)?;
     write_atomic(&args.out, format_commands(&targets, &angles).as_bytes())?;
     eprintln!("command: {} targets -> {}", targets.len(), args.out.display());
     Ok(())

@@ -3,14 +3,13 @@
 //!
 //! Output: progress and the human table on stderr, one JSON summary on stdout (scripts parse it)
 //! and the same in `summary.json`, written last in `--out` after every other file
-//! (`pipeline::FILES`), each atomically, only once every step has succeeded.
+//! (`pipeline::FILES`), each atomically, only once every step has succeeded. A run that misses
+//! its stated goal (the noise floor) writes everything and exits non-zero.
 
-use anyhow::Result;
-use host_sim::calib::machine::{Machine, PlantMachine, StandInMachine};
+use anyhow::{bail, Result};
+use host_sim::calib::machine::{check_plant_fits, Machine, PlantMachine, StandInMachine};
 use host_sim::calib::pipeline::{
-    calibrate, summary, write_outputs, Approach, Calibrated, Event, PipelineOptions, TARGET_MAX_UM, TARGET_RMS_UM,
-    VERIFY_TARGETS,
-};
+    calibrate, summary, write_outputs, Approach, Calibrated, Event, PipelineOptions};
 use host_sim::io::atomic::write_atomic;
 use host_sim::io::{json_text, KeyOrder};
 use std::path::PathBuf;
@@ -32,23 +31,27 @@ pub struct Args {
     /// Seeds the machine's errors, the instrument noise and the random targets.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
-    /// The machine: a six-bar plant (`paper`, the documented default resembling the paper's
-    /// machine; `ideal`; or a plant TOML file) or `stand-in` (rigid five-bar + distortion,
-    /// see machine.rs).
+    /// The simulated machine: a six-bar plant (`paper`, the documented default resembling the
+    /// paper's machine; `ideal`; or a plant TOML file, which must be built around --machine's
+    /// five-bar) or `stand-in` (rigid five-bar + distortion, see machine.rs).
     #[arg(long, default_value = "paper")]
     pub plant: String,
-    /// Instrument noise σ per axis (µm) for a plant (the demo's premise is a 1 µm instrument;
-    /// the `paper` plant's own is FARO-class, 10 µm).
-    #[arg(long, default_value_t = super::machine_spec().instrument_sigma_um)]
-    pub noise_um: f64,
+    /// Instrument noise σ per axis (µm) for a plant (default: the machine file's instrument,
+    /// 1 µm on the paper machine: the demo's premise; the `paper` plant's own is FARO-class,
+    /// 10 µm).
+    #[arg(long)]
+    pub noise_um: Option<f64>,
     /// How every pose is approached: `random` (from 5 mm away along a random direction; the
     /// grid in raster order) or `positive` (every motor reaches its command moving in the
     /// positive direction, as after an overshoot-and-return move: backlash then always sits
     /// on the same side and the grid calibrates it away). The default is `positive`:
     /// unidirectional positioning is how a machine with backlash reaches micrometres; with
     /// `random` the paper plant's 20 µrad backlash (±1.5 µm per motor) stays in the result.
-    #[arg(long, value_enum, default_value = "positive")]
-    pub approach: ApproachArg,
+    /// Default: the machine file's policy (`positive` on the paper machine).
+    #[arg(long, value_enum)]
+    pub approach: Option<ApproachArg>,
+    #[command(flatten)]
+    pub machine: super::MachineArg,
 }
 
 /// Prints a progress line with the time since `start`.
@@ -61,7 +64,7 @@ fn format_table(cal: &Calibrated) -> String {
     let before = cal.stages.first().map_or(f64::NAN, |s| s.accuracy.max_um);
     let mut s = format!(
         "machine: {}\n\naccuracy on {} fresh random targets (µm; true = where the tool landed, measured = what the instrument read)\n",
-        cal.machine, VERIFY_TARGETS
+        cal.machine, cal.plan.verify.len()
     );
     s.push_str(&format!(
         "{:<36} {:>10} {:>10} {:>9} {:>13} {:>13} {:>11}\n",
@@ -82,7 +85,9 @@ fn format_table(cal: &Calibrated) -> String {
     }
     if cal.final_accuracy().is_some() {
         s.push_str(&format!(
-            "\ntarget (noise floor): max <= {TARGET_MAX_UM} µm, RMS <= {TARGET_RMS_UM} µm: {}\n",
+            "\ntarget (noise floor): max <= {} µm, RMS <= {} µm: {}\n",
+            cal.goal_um[0],
+            cal.goal_um[1],
             if cal.target_met() { "met" } else { "NOT met" }
         ));
     }
@@ -91,15 +96,25 @@ fn format_table(cal: &Calibrated) -> String {
 
 /// `host-sim demo`.
 pub fn run(args: &Args) -> Result<()> {
-    let spec = super::machine_spec();
-    super::check_noise_um(Some(args.noise_um))?;
+    let mut spec = args.machine.spec()?;
+    let noise_um = args.noise_um.unwrap_or(spec.instrument_sigma_um);
+    super::check_noise_um(Some(noise_um))?;
+    // The instrument the run measures with (its σ sets the goal).
+    if !matches!(args.plant.as_str(), "stand-in") {
+        spec.instrument_sigma_um = noise_um;
+    }
     let mut machine: Box<dyn Machine> = match args.plant.as_str() {
         "stand-in" => Box::new(StandInMachine::paper_like(&spec, args.seed)?),
-        name => Box::new(PlantMachine::by_name(name, Some(args.noise_um), args.seed)?),
+        name => {
+            let plant = host_sim::plant::PlantConfig::by_name(name)?;
+            check_plant_fits(&plant, &spec)?;
+            Box::new(PlantMachine::from_config(plant, name, Some(noise_um), args.seed)?)
+        }
     };
     let approach = match args.approach {
-        ApproachArg::Random => Approach::FromVisit,
-        ApproachArg::Positive => Approach::Positive,
+        None => spec.approach,
+        Some(ApproachArg::Random) => Approach::FromVisit,
+        Some(ApproachArg::Positive) => Approach::Positive,
     };
     let start = Instant::now();
     let mut events = |e: Event| match e {
@@ -118,7 +133,14 @@ pub fn run(args: &Args) -> Result<()> {
     eprintln!("\n{}", format_table(&cal));
     print!("{text}");
     if !summary.final_.met {
-        eprintln!("demo: warning: the accuracy target was not met on this machine");
+        bail!(
+            "the accuracy target (max <= {} µm, RMS <= {} µm) was not met on this machine: {:?} / {:?} µm (outputs written to {})",
+            summary.final_.target_max_um,
+            summary.final_.target_rms_um,
+            summary.final_.max_um,
+            summary.final_.rms_um,
+            args.out.display()
+        );
     }
     Ok(())
 }

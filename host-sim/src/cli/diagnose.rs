@@ -16,7 +16,7 @@ pub struct Args {
     /// Measurement CSV (see measurement_csv).
     #[arg(long)]
     pub data: PathBuf,
-    /// The current model (model.json); default: the paper's nominal machine.
+    /// The current model (model.json); default: the machine's nominal five-bar.
     #[arg(long)]
     pub model: Option<PathBuf>,
     /// Measurement noise, one standard deviation per axis (µm). Default: from repeats, if any.
@@ -28,6 +28,8 @@ pub struct Args {
     /// Directory for residual plots (PNG).
     #[arg(long)]
     pub plots: Option<PathBuf>,
+    #[command(flatten)]
+    pub machine: super::MachineArg,
 }
 
 /// `host-sim diagnose`.
@@ -35,7 +37,7 @@ pub fn run(args: &Args) -> Result<()> {
     let data = read_measurements(&args.data)?;
     let base = match &args.model {
         Some(p) => read_model(p)?,
-        None => super::machine_spec().nominal,
+        None => args.machine.spec()?.nominal,
     };
     if let Some(s) = args.noise_um {
         if !(s.is_finite() && s > 0.0) {

@@ -67,6 +67,8 @@ pub struct Args {
     /// Optional PNG: error vectors (measured − predicted) of the nominal and the fitted model.
     #[arg(long)]
     pub plot: Option<PathBuf>,
+    #[command(flatten)]
+    pub machine: super::MachineArg,
 }
 
 /// The flags as the library's options, refusing combinations that make no fit (the messages
@@ -140,7 +142,7 @@ fn check(data: &[Measurement], criterion: Criterion) -> Result<()> {
 
 /// `host-sim fit`.
 pub fn run(args: &Args) -> Result<()> {
-    let spec = super::machine_spec();
+    let spec = args.machine.spec()?;
     let data = read_measurements(&args.data)?;
     let criterion = match args.criterion {
         CriterionArg::Measured => Criterion::Measured,

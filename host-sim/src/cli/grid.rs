@@ -3,6 +3,8 @@
 
 use anyhow::{bail, Context, Result};
 use host_sim::calib::grid::{build, format_csv};
+use host_sim::calib::image::{append_dynamics_block, finish_image, WorkspaceBlock};
+use host_sim::io::dynamics_file::read_dynamics;
 use host_sim::io::atomic::write_atomic;
 use host_sim::io::measurement_csv::read_measurements;
 use host_sim::io::model_file::read_model;
@@ -20,9 +22,9 @@ pub struct Args {
     /// Measurements at the nodes; x_target_mm,y_target_mm are the nodes.
     #[arg(long)]
     pub data: PathBuf,
-    /// Node spacing (mm), the same along x and y.
-    #[arg(long, default_value_t = kinematics_core::paper::GRID_STEP_MM)]
-    pub step_mm: f64,
+    /// Node spacing (mm), the same along x and y (default: the machine's grid step).
+    #[arg(long)]
+    pub step_mm: Option<f64>,
     /// Output flash image.
     #[arg(long)]
     pub out: PathBuf,
@@ -32,6 +34,12 @@ pub struct Args {
     /// Optional PNG of the measured node errors.
     #[arg(long)]
     pub plot: Option<PathBuf>,
+    /// Identified dynamic parameters (dynamics.json) the image carries for the servo's
+    /// feed-forward (the `HRDY` block); without it the image has no dynamics block.
+    #[arg(long)]
+    pub dynamics: Option<PathBuf>,
+    #[command(flatten)]
+    pub machine: super::MachineArg,
 }
 
 /// What `grid` prints.
@@ -48,16 +56,34 @@ struct Summary {
     image: String,
     image_bytes: usize,
     csv: String,
+    /// Whether the image carries the machine's workspace block (`written`) or not (a grid
+    /// that does not cover the workspace: the firmware then keeps to the grid's rectangle).
+    workspace_block: WorkspaceBlock,
+    /// Whether the image carries the dynamics block (`--dynamics`).
+    dynamics_block: bool,
 }
 
 /// `host-sim grid`.
 pub fn run(args: &Args) -> Result<()> {
-    if !(args.step_mm > 0.0 && args.step_mm.is_finite()) {
-        bail!("--step-mm must be positive, got {}", args.step_mm);
+    let spec = args.machine.spec()?;
+    let step_mm = args.step_mm.unwrap_or(spec.grid.step_mm);
+    if !(step_mm > 0.0 && step_mm.is_finite()) {
+        bail!("--step-mm must be positive, got {step_mm}");
     }
     let model = read_model(&args.model)?;
     let data = read_measurements(&args.data)?;
-    let built = build(&model, &data, args.step_mm).with_context(|| format!("in {}", args.data.display()))?;
+    let mut built = build(&model, &data, step_mm).with_context(|| format!("in {}", args.data.display()))?;
+    let (image, workspace_block) = finish_image(&built.image, &spec)?;
+    built.image = match &args.dynamics {
+        Some(p) => append_dynamics_block(&image, &read_dynamics(p)?).with_context(|| format!("with {}", p.display()))?,
+        None => image,
+    };
+    if workspace_block == WorkspaceBlock::GridDoesNotCoverTheWorkspace {
+        eprintln!(
+            "grid: the grid does not cover machine '{}''s workspace: the image carries no workspace block (the firmware keeps its stops inside the grid's rectangle)",
+            spec.name
+        );
+    }
     let csv = args.csv.clone().unwrap_or_else(|| args.out.with_extension("csv"));
     if csv == args.out {
         bail!("the node table would overwrite the image: give --csv");
@@ -84,6 +110,8 @@ pub fn run(args: &Args) -> Result<()> {
             image: args.out.display().to_string(),
             image_bytes: built.image.len(),
             csv: csv.display().to_string(),
+            workspace_block,
+            dynamics_block: args.dynamics.is_some(),
         },
         KeyOrder::Sorted,
     )

@@ -1,13 +1,39 @@
-//! `host-sim measure`: a protocol on a simulated plant, written as a measurement CSV
-//! (`host_sim::calib::measure`).
+//! `host-sim measure`: a protocol or a plan's list on a simulated plant, written as a
+//! measurement CSV (`host_sim::calib::measure`), with the accuracy of the measured visits
+//! against their targets as JSON on stdout (true and measured: the demo's verification
+//! figures).
 
-use anyhow::Result;
-use host_sim::calib::measure::{measure, MeasureOptions};
-use host_sim::calib::protocol::Protocol;
+use super::MachineArg;
+use anyhow::{bail, Result};
+use host_sim::calib::machine::{check_plant_fits, PlantMachine};
+use host_sim::calib::measure::{accuracy, measure_list, rows, Accuracy, Approach};
+use host_sim::calib::plan::visits_from_rows;
+use host_sim::calib::protocol::{visits, Protocol};
 use host_sim::io::measurement_csv::write_measurements;
+use host_sim::io::targets_csv::read_target_list;
+use host_sim::io::KeyOrder;
 use host_sim::plant::PlantConfig;
 use kinematics_core::Calibration;
+use serde::Serialize;
 use std::path::PathBuf;
+
+/// How every motor arrives at its command.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum ApproachArg {
+    /// From `approach_mm` away along a random direction (a protocol's start of each move).
+    Random,
+    /// Every motor moving forward (unidirectional positioning, as after an overshoot-and-return).
+    Positive,
+}
+
+impl From<ApproachArg> for Approach {
+    fn from(a: ApproachArg) -> Approach {
+        match a {
+            ApproachArg::Random => Approach::FromVisit,
+            ApproachArg::Positive => Approach::Positive,
+        }
+    }
+}
 
 /// Arguments of `host-sim measure`.
 #[derive(clap::Args, Debug)]
@@ -15,16 +41,24 @@ pub struct Args {
     /// `ideal`, `paper` or a plant TOML file.
     #[arg(long)]
     pub plant: String,
-    /// `table1`, `grid`, `random:N` or `repeat`.
+    /// `table1`, `grid`, `random:N` or `repeat` (or give --targets).
     #[arg(long)]
-    pub protocol: String,
+    pub protocol: Option<String>,
+    /// A targets file to measure in its order: a plan's list (`host-sim plan`; its rows'
+    /// approach is used unless --approach is given) or any `x_mm,y_mm` list.
+    #[arg(long, value_name = "FILE", conflicts_with = "protocol")]
+    pub targets: Option<PathBuf>,
+    /// How every motor arrives: `random` (from the move's start) or `positive`. Default: a
+    /// plan list's own directions; for a protocol, `random`.
+    #[arg(long, value_enum)]
+    pub approach: Option<ApproachArg>,
     /// Seeds the random targets and the instrument noise.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
     /// Output measurement CSV.
     #[arg(long)]
     pub out: PathBuf,
-    /// Hidden-robot model to command with (default: the nominal five-bar).
+    /// Hidden-robot model to command with (default: the machine's nominal five-bar).
     #[arg(long)]
     pub model: Option<PathBuf>,
     /// Correction grid image to add to the commands.
@@ -33,17 +67,64 @@ pub struct Args {
     /// Overrides the instrument's noise σ (µm).
     #[arg(long)]
     pub noise_um: Option<f64>,
+    #[command(flatten)]
+    pub machine: MachineArg,
+}
+
+/// What `measure` prints.
+#[derive(Serialize)]
+struct Summary {
+    machine: String,
+    plant: String,
+    targets: String,
+    approach: String,
+    seed: u64,
+    out: String,
+    /// Where the tool landed (simulation: the truth) and what the instrument read, against the
+    /// targets (µm).
+    #[serde(flatten)]
+    accuracy: Accuracy,
 }
 
 pub fn run(args: &Args) -> Result<()> {
-    let spec = super::machine_spec();
+    let spec = args.machine.spec()?;
     let plant = PlantConfig::by_name(&args.plant)?;
-    let protocol = Protocol::parse(&args.protocol)?;
+    check_plant_fits(&plant, &spec)?;
+    let (list, what) = match (&args.protocol, &args.targets) {
+        (Some(p), None) => (visits(Protocol::parse(p)?, args.seed, &spec), p.clone()),
+        (None, Some(path)) => {
+            let mut v = visits_from_rows(&read_target_list(path)?, &spec);
+            if args.approach.is_some() {
+                // The flag wins over the list's directions.
+                v.iter_mut().for_each(|v| v.dir = None);
+            }
+            (v, path.display().to_string())
+        }
+        _ => bail!("give --protocol (table1, grid, random:N, repeat) or --targets FILE"),
+    };
+    let approach: Approach = args.approach.map_or(Approach::FromVisit, Approach::from);
     let (model, bytes) = super::load_calibration(args.model.as_deref(), args.grid.as_deref(), &spec.nominal)?;
     let cal = Calibration { model, grid: super::parse_grid(&bytes)? };
     super::check_noise_um(args.noise_um)?;
-    let rows = measure(&plant, &cal, &MeasureOptions { protocol, seed: args.seed, noise_um: args.noise_um, spec })?;
-    write_measurements(&args.out, &rows)?;
-    eprintln!("measure: {} measurements written to {}", rows.len(), args.out.display());
-    Ok(())
+    let mut machine = PlantMachine::from_config(plant, &args.plant, args.noise_um, args.seed)?;
+    let landed = measure_list(&mut machine, &cal, &list, approach, args.seed, &spec)?;
+    write_measurements(&args.out, &rows(&landed))?;
+    eprintln!("measure: {} measurements written to {}", landed.len(), args.out.display());
+    let approach = match (args.approach, args.targets.is_some()) {
+        (Some(a), _) => Approach::from(a).name().to_string(),
+        (None, true) => "as the list says (random where it says nothing)".into(),
+        (None, false) => Approach::FromVisit.name().to_string(),
+    };
+    super::print_json(
+        &Summary {
+            machine: spec.name.clone(),
+            plant: args.plant.clone(),
+            targets: what,
+            approach,
+            seed: args.seed,
+            out: args.out.display().to_string(),
+            accuracy: accuracy(&landed),
+        },
+        KeyOrder::Sorted,
+    )
 }

@@ -12,15 +12,17 @@ mod diagnose;
 mod fit;
 mod grid;
 mod measure;
+mod plan;
 mod simulate;
 
 use anyhow::{anyhow, bail, Context, Result};
 use clap::{Parser, Subcommand};
+use host_sim::io::machine_file::{self, read_machine};
 use host_sim::io::model_file::read_model;
 use host_sim::io::{json_text, KeyOrder};
 use host_sim::machine_spec::MachineSpec;
 use kinematics_core::{CorrectionGrid, FiveBar};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 /// Plant simulation and calibration tools of the hidden-robot micro-mechanism.
 #[derive(Parser)]
@@ -33,7 +35,10 @@ pub struct Cli {
 /// The subcommands.
 #[derive(Subcommand)]
 enum Tool {
-    /// Measure a simulated plant with one of the paper's protocols (writes a measurement CSV).
+    /// Plan the measurement session: the target lists, each row with its approach (CSV files).
+    Plan(plan::Args),
+    /// Measure a simulated plant with one of the paper's protocols or a plan's list (writes a
+    /// measurement CSV; accuracy figures as JSON).
     Measure(measure::Args),
     /// Run the closed 2 kHz loop on a simulated plant (JSON summary on stdout).
     Simulate(simulate::Args),
@@ -55,6 +60,7 @@ enum Tool {
 /// Runs a parsed command line.
 pub fn run(cli: Cli) -> Result<()> {
     match cli.command {
+        Tool::Plan(a) => plan::run(&a),
         Tool::Measure(a) => measure::run(&a),
         Tool::Simulate(a) => simulate::run(&a),
         Tool::Fit(a) => fit::run(&a),
@@ -66,10 +72,24 @@ pub fn run(cli: Cli) -> Result<()> {
     }
 }
 
-/// The machine every subcommand works on: the paper's. (A machine file, issue 12, is read
-/// here: the library already takes the description in every options struct.)
-fn machine_spec() -> MachineSpec {
-    MachineSpec::paper()
+/// `--machine FILE`, the flag every subcommand has.
+#[derive(clap::Args, Debug, Clone)]
+pub struct MachineArg {
+    /// The machine file (TOML; see host-sim/MACHINE.md). Default: the paper's machine
+    /// (host-sim/machines/paper.toml, built in).
+    #[arg(long, value_name = "FILE")]
+    pub machine: Option<PathBuf>,
+}
+
+impl MachineArg {
+    /// The machine every subcommand works on: the file's, or the paper's. The ONE place the
+    /// machine is chosen.
+    fn spec(&self) -> Result<MachineSpec> {
+        match &self.machine {
+            Some(path) => Ok(read_machine(path)?),
+            None => Ok(machine_file::paper()),
+        }
+    }
 }
 
 /// Prints a JSON document on stdout (one document, pretty, final newline).

@@ -4,7 +4,7 @@
 //!
 //! What the servo feeds forward (`--feedforward`, default `dynamics`): the hidden robot's
 //! identified dynamics on the trajectory's exact derivatives. The parameters come from
-//! `--dynamics FILE` (`host-sim identify`), else from the `--grid` image's dynamics extension,
+//! `--dynamics FILE` (`host-sim identify`), else from the `--grid` image's dynamics block (`HRDY`),
 //! else they are identified on the plant first (`host_sim::calib::dynamics`: an excitation run,
 //! a few seconds). `--mass-error-pct P` scales every mass and inertia of them by `1 + P/100`
 //! (a model error, for robustness studies).
@@ -55,6 +55,8 @@ pub struct Args {
     /// PNG plot of commanded and actual paths.
     #[arg(long)]
     pub plot: Option<PathBuf>,
+    #[command(flatten)]
+    pub machine: super::MachineArg,
     /// What the servo feeds forward: `dynamics` (identified inverse dynamics on the exact
     /// derivatives), `constant` (the gains' constant inertia on them), `differences` (backward
     /// differences of the setpoints, as before issue 14).
@@ -78,8 +80,9 @@ struct Output<'a> {
 }
 
 pub fn run(args: &Args) -> Result<()> {
-    let spec = super::machine_spec();
+    let spec = args.machine.spec()?;
     let mut cfg = PlantConfig::by_name(&args.plant)?;
+    host_sim::calib::machine::check_plant_fits(&cfg, &spec)?;
     match args.plant_model.as_deref() {
         None => {}
         Some("sixbar") => cfg.sixbar.model = PlantModel::Sixbar,
@@ -102,7 +105,7 @@ pub fn run(args: &Args) -> Result<()> {
         "dynamics" => {
             let (d, source) = match (&args.dynamics, cal.grid.as_ref().and_then(|g| g.dynamics())) {
                 (Some(p), _) => (read_dynamics(p)?, format!("--dynamics {}", p.display())),
-                (None, Some(d)) => (d.cast::<f64>(), "the --grid image's dynamics extension".to_string()),
+                (None, Some(d)) => (d.cast::<f64>(), "the --grid image's dynamics block".to_string()),
                 (None, None) => {
                     let id = identify(&cfg, &cal, &spec, args.seed)?;
                     (id.dynamics, format!("identified on the plant (excitation run, residual {:.4} N·m RMS)", id.residual_rms_nm))
@@ -146,5 +149,10 @@ pub fn run(args: &Args) -> Result<()> {
         FeedForward::Dynamics(d) => Some(PARAMETER_NAMES.iter().map(|n| n.to_string()).zip(d.to_array()).collect()),
         _ => None,
     };
-    super::print_json(&Output { summary: &run.summary, dynamics_source: source, dynamics }, KeyOrder::Declared)
+    super::print_json(&Output { summary: &run.summary, dynamics_source: source, dynamics }, KeyOrder::Declared)?;
+    // A run that faulted is a failed run: the summary says why, the exit status says so.
+    if let Some(fault) = &run.summary.fault {
+        bail!("the simulation faulted: {fault}");
+    }
+    Ok(())
 }

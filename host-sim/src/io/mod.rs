@@ -4,7 +4,8 @@
 //!   interferometer or `host-sim measure`) and every tool that reads measurements;
 //! * [`model_file`]: `model.json`, a fitted hidden robot;
 //! * [`dynamics_file`]: `dynamics.json`, its identified dynamic parameters;
-//! * [`targets_csv`]: the `x_mm,y_mm` target lists `command` reads;
+//! * [`targets_csv`]: the `x_mm,y_mm` target lists `command` reads, and the plan's lists;
+//! * [`machine_file`]: the machine file (TOML), what `--machine` reads;
 //! * [`plot`]: the PNG plots (paths, error-vector fields);
 //! * [`atomic`]: every output goes through it: a failed run never leaves a half-written file.
 //!
@@ -18,6 +19,7 @@
 
 pub mod atomic;
 pub mod dynamics_file;
+pub mod machine_file;
 pub mod measurement_csv;
 pub mod model_file;
 pub mod plot;

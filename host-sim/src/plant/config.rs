@@ -14,6 +14,8 @@
 
 use super::PlantError;
 use crate::effect::PhysicalEffect;
+use crate::machine_spec::BranchKey;
+use kinematics_core::{FiveBar, WorkingMode};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
@@ -70,13 +72,45 @@ pub struct SixBarErrors {
     pub platform_pin_ee_mm: [f64; 2],
 }
 
+/// The nominal five-bar a six-bar is built around, for any machine (`[sixbar.geometry]`;
+/// absent: the paper's, every link `link_mm`, both axes at the origin, the paper's working
+/// mode, arm 2's parallelogram offsets the mirror image of arm 1's). The motors' axes sit
+/// `platform_half_width_mm` above A0 and below B0, as D and E sit above and below the tool
+/// point, so the tool point moves like this five-bar's end point (see `sixbar`).
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct SixBarGeometry {
+    /// Lever P1 and its follower F1 (the five-bar's a).
+    pub a_mm: f64,
+    /// Distal bar Q1 and its follower G1 (b).
+    pub b_mm: f64,
+    /// Distal bar Q2 and its follower G2 (c).
+    pub c_mm: f64,
+    /// Lever P2 and its follower F2 (d).
+    pub d_mm: f64,
+    /// The equivalent five-bar's A0 and B0 (machine frame).
+    pub a0_mm: [f64; 2],
+    pub b0_mm: [f64; 2],
+    pub elbow_1: BranchKey,
+    pub elbow_2: BranchKey,
+    pub assembly: BranchKey,
+    /// Offsets of arm 2's first and second parallelograms (arm 1's are
+    /// `parallelogram_1_offset_mm` and `parallelogram_2_offset_mm`).
+    pub arm_2_parallelogram_1_offset_mm: [f64; 2],
+    pub arm_2_parallelogram_2_offset_mm: [f64; 2],
+}
+
 /// The linkage: nominal geometry, elasticity, clearances, errors.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct SixBarConfig {
     pub model: PlantModel,
-    /// Nominal length of every lever, bar and follower of the equivalent five-bar (a = b = c = d).
+    /// Nominal length of every lever, bar and follower of the equivalent five-bar (a = b = c = d)
+    /// when `geometry` is absent (the paper's machine); not used with it.
     pub link_mm: f64,
+    /// Any other five-bar (`[sixbar.geometry]`); absent: the paper's.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub geometry: Option<SixBarGeometry>,
     /// Half the platform's DE distance (D = C + (0, w/2), E = C - (0, w/2)).
     pub platform_half_width_mm: f64,
     /// Offset of the first parallelogram of arm 1 (A0→A0*, A→A*); arm 2 is mirrored in x.
@@ -153,6 +187,39 @@ pub struct PlantConfig {
     pub instrument: InstrumentConfig,
 }
 
+impl SixBarConfig {
+    /// The nominal five-bar the linkage is built around (errors not included): the paper's, or
+    /// `geometry`'s.
+    pub fn nominal_five_bar(&self) -> FiveBar<f64> {
+        match &self.geometry {
+            None => {
+                let mut f = FiveBar::paper_nominal();
+                (f.a_mm, f.b_mm, f.c_mm, f.d_mm) = (self.link_mm, self.link_mm, self.link_mm, self.link_mm);
+                f
+            }
+            Some(g) => FiveBar {
+                a_mm: g.a_mm,
+                b_mm: g.b_mm,
+                c_mm: g.c_mm,
+                d_mm: g.d_mm,
+                base_a0_mm: g.a0_mm,
+                base_b0_mm: [g.b0_mm[0] - g.a0_mm[0], g.b0_mm[1] - g.a0_mm[1]],
+                encoder_offset_rad: [0.0; 2],
+                mode: WorkingMode { elbow_1: g.elbow_1.into(), elbow_2: g.elbow_2.into(), assembly: g.assembly.into() },
+            },
+        }
+    }
+
+    /// The two parallelogram offsets of each arm: `[[g1, h1], [g2, h2]]`.
+    pub fn parallelogram_offsets_mm(&self) -> [[[f64; 2]; 2]; 2] {
+        let (g1, h1) = (self.parallelogram_1_offset_mm, self.parallelogram_2_offset_mm);
+        match &self.geometry {
+            None => [[g1, h1], [[g1[0], -g1[1]], [h1[0], -h1[1]]]],
+            Some(g) => [[g1, h1], [g.arm_2_parallelogram_1_offset_mm, g.arm_2_parallelogram_2_offset_mm]],
+        }
+    }
+}
+
 fn ideal_drive() -> DriveConfig {
     DriveConfig {
         inertia_kg_m2: 2.0e-3,
@@ -180,6 +247,7 @@ impl PlantConfig {
             sixbar: SixBarConfig {
                 model: PlantModel::Sixbar,
                 link_mm: 150.0,
+                geometry: None,
                 platform_half_width_mm: 20.0,
                 parallelogram_1_offset_mm: [-r, r],
                 parallelogram_2_offset_mm: [r, r],
@@ -202,6 +270,59 @@ impl PlantConfig {
                 noise_sigma_um: 0.0,
             },
         }
+    }
+
+    /// The ideal plant (every error off) built around `nominal`'s five-bar, for any machine:
+    /// links, bases and working mode from `nominal`, the drives' encoder offsets its zero
+    /// offsets, and each parallelogram's offset 30 mm long and perpendicular to the middle of
+    /// its bar's angle range over `targets` (arm 1 turned +90°, arm 2 −90°, as on the paper
+    /// machine), so that none comes near its flat, singular shape. `None` if `nominal` cannot
+    /// reach a target.
+    pub fn ideal_for(nominal: &FiveBar<f64>, targets: &[[f64; 2]]) -> Option<Self> {
+        let mut p = PlantConfig::ideal();
+        let mut lo = [f64::INFINITY; 4];
+        let mut hi = [f64::NEG_INFINITY; 4];
+        let mut first: Option<[f64; 4]> = None;
+        // Bar angles: the levers' (link angles) and the distal bars' (from the elbows to C),
+        // unwrapped next to the first target's.
+        for &t in targets {
+            let pose = nominal.inverse_pose(t, 0.0).ok()?;
+            let link = [0, 1].map(|i| pose.theta_rad[i] + nominal.encoder_offset_rad[i]);
+            let (ea, eb) = (pose.elbow_a_mm, pose.elbow_b_mm);
+            let raw = [link[0], (t[1] - ea[1]).atan2(t[0] - ea[0]), link[1], (t[1] - eb[1]).atan2(t[0] - eb[0])];
+            let f = *first.get_or_insert(raw);
+            for k in 0..4 {
+                let a = f[k] + kinematics_core::wrap_angle_rad(raw[k] - f[k]);
+                lo[k] = lo[k].min(a);
+                hi[k] = hi[k].max(a);
+            }
+        }
+        let offset = |k: usize, turn: f64| {
+            let mid = 0.5 * (lo[k] + hi[k]) + turn;
+            [30.0 * mid.cos(), 30.0 * mid.sin()]
+        };
+        let half_pi = std::f64::consts::FRAC_PI_2;
+        let s = &mut p.sixbar;
+        s.parallelogram_1_offset_mm = offset(0, half_pi);
+        s.parallelogram_2_offset_mm = offset(1, half_pi);
+        let m = nominal.mode;
+        s.geometry = Some(SixBarGeometry {
+            a_mm: nominal.a_mm,
+            b_mm: nominal.b_mm,
+            c_mm: nominal.c_mm,
+            d_mm: nominal.d_mm,
+            a0_mm: nominal.base_a0_mm,
+            b0_mm: [nominal.base_a0_mm[0] + nominal.base_b0_mm[0], nominal.base_a0_mm[1] + nominal.base_b0_mm[1]],
+            elbow_1: m.elbow_1.into(),
+            elbow_2: m.elbow_2.into(),
+            assembly: m.assembly.into(),
+            arm_2_parallelogram_1_offset_mm: offset(2, -half_pi),
+            arm_2_parallelogram_2_offset_mm: offset(3, -half_pi),
+        });
+        p.drive_1.encoder_offset_deg = nominal.encoder_offset_rad[0].to_degrees();
+        p.drive_2.encoder_offset_deg = nominal.encoder_offset_rad[1].to_degrees();
+        p.description = "ideal plant around a machine's nominal five-bar".into();
+        Some(p)
     }
 
     /// The documented default resembling the paper's machine (see `plants/paper.toml` for the

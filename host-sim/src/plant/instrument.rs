@@ -29,6 +29,11 @@ impl Instrument {
         }
     }
 
+    /// Restarts the noise stream as [`Instrument::new`] with `seed` starts it.
+    pub fn reseed(&mut self, seed: u64) {
+        self.rng = ChaCha8Rng::seed_from_u64(seed);
+    }
+
     /// The noiseless reading of a tool point (machine frame).
     pub fn frame_mm(&self, tool_mm: [f64; 2]) -> [f64; 2] {
         let (s, c) = self.rot_sin_cos;

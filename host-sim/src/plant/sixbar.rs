@@ -128,9 +128,6 @@ fn add(u: [f64; 2], v: [f64; 2]) -> [f64; 2] {
 fn sub(u: [f64; 2], v: [f64; 2]) -> [f64; 2] {
     [u[0] - v[0], u[1] - v[1]]
 }
-fn mirror(v: [f64; 2]) -> [f64; 2] {
-    [v[0], -v[1]]
-}
 
 /// Energy `½k·dz(s)²` of a spring with a dead zone of half-width `c` (`dz(s) = s - c·tanh(s/c)`,
 /// smooth, `≈ s³/3c²` inside the clearance): returns `(E, dE/ds, d²E/ds², force = dE/ds)`.
@@ -167,15 +164,16 @@ impl Normal {
 impl SixBar {
     pub fn new(cfg: &SixBarConfig) -> Self {
         let e = &cfg.errors;
-        let l = cfg.link_mm;
+        let nominal = cfg.nominal_five_bar();
         let w2 = cfg.platform_half_width_mm;
-        let g = [cfg.parallelogram_1_offset_mm, mirror(cfg.parallelogram_1_offset_mm)];
-        let h = [cfg.parallelogram_2_offset_mm, mirror(cfg.parallelogram_2_offset_mm)];
-        let motor = [add([0.0, w2], e.ground_motor_1_mm), add([0.0, -w2], e.ground_motor_2_mm)];
-        let follower = [
-            add(add([0.0, w2], g[0]), e.ground_follower_1_mm),
-            add(add([0.0, -w2], g[1]), e.ground_follower_2_mm),
-        ];
+        let [[g1, h1], [g2, h2]] = cfg.parallelogram_offsets_mm();
+        let (g, h) = ([g1, g2], [h1, h2]);
+        // The motors' axes: w/2 above A0 and below B0 (D and E sit so on the platform).
+        let a0 = nominal.base_a0_mm;
+        let b0 = add(a0, nominal.base_b0_mm);
+        let axis = [add(a0, [0.0, w2]), add(b0, [0.0, -w2])];
+        let motor = [add(axis[0], e.ground_motor_1_mm), add(axis[1], e.ground_motor_2_mm)];
+        let follower = [add(add(axis[0], g[0]), e.ground_follower_1_mm), add(add(axis[1], g[1]), e.ground_follower_2_mm)];
         let k_pin_q = [e.elbow_1_pin_q_mm, e.elbow_2_pin_q_mm];
         let k_pin_f = [add(g[0], e.elbow_1_pin_f_mm), add(g[1], e.elbow_2_pin_f_mm)];
         let k_pin_g = [add(h[0], e.elbow_1_pin_g_mm), add(h[1], e.elbow_2_pin_g_mm)];
@@ -187,20 +185,22 @@ impl SixBar {
         let stiff = |section: f64, len: f64| cfg.youngs_modulus_n_per_mm2 * section / len;
         let bar = |p: End, q: End, len: f64, section: f64| Bar { p, q, length_mm: len, k_n_per_mm: stiff(section, len) };
         let (fs, ms) = (cfg.follower_bar_section_mm2, cfg.main_bar_section_mm2);
+        // Nominal lengths: lever and first follower, distal bar and second follower, per arm.
+        let (lever_mm, distal_mm) = ([nominal.a_mm, nominal.d_mm], [nominal.b_mm, nominal.c_mm]);
         let arm = |i: usize| {
             [
-                bar(End::Ground(follower[i]), End::Body(i, k_pin_f[i]), l + e.bar_f_length_mm[i], fs),
-                bar(End::Body(i, k_pin_q[i]), End::Body(2, t_pin_q[i]), l + e.bar_q_length_mm[i], ms),
-                bar(End::Body(i, k_pin_g[i]), End::Body(2, t_pin_g[i]), l + e.bar_g_length_mm[i], fs),
+                bar(End::Ground(follower[i]), End::Body(i, k_pin_f[i]), lever_mm[i] + e.bar_f_length_mm[i], fs),
+                bar(End::Body(i, k_pin_q[i]), End::Body(2, t_pin_q[i]), distal_mm[i] + e.bar_q_length_mm[i], ms),
+                bar(End::Body(i, k_pin_g[i]), End::Body(2, t_pin_g[i]), distal_mm[i] + e.bar_g_length_mm[i], fs),
             ]
         };
         let (a1, a2) = (arm(0), arm(1));
-        let lever = [l + e.lever_length_mm[0], l + e.lever_length_mm[1]];
+        let lever = [lever_mm[0] + e.lever_length_mm[0], lever_mm[1] + e.lever_length_mm[1]];
         // C = A0 + a·u1 + (K1's Q pin) + b·v1 - D_off: the equivalent five-bar's base A0' is
         // A0 + Q pin - D_off, its B0' likewise; the platform stays unrotated in the guess.
         let a0p = sub(add(motor[0], k_pin_q[0]), t_pin_q[0]);
         let b0p = sub(add(motor[1], k_pin_q[1]), t_pin_q[1]);
-        let mut five = FiveBar::<f64>::paper_nominal();
+        let mut five = FiveBar::<f64> { base_a0_mm: [0.0; 2], encoder_offset_rad: [0.0; 2], ..nominal };
         five.a_mm = lever[0];
         five.b_mm = a1[1].length_mm;
         five.c_mm = a2[1].length_mm;

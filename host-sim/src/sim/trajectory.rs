@@ -9,7 +9,8 @@
 //! * `p2p`: point-to-point moves from the centre around the corners 10 mm inside the workspace
 //!   and back, jerk-limited at the machine's rated acceleration (5 g, 49 m/s², on the paper
 //!   machine), 1.5 m/s and [`JERK_MM_S3`] (`kinematics_core::trajectory`), 0.1 s dwell at each
-//!   point;
+//!   point (on a polygon workspace, the bounding rectangle's inset corners pulled towards the
+//!   centre until they are 10 mm inside);
 //! * `p2p-trapezoid`: the same moves with trapezoidal speed profiles (infinite jerk): what `p2p`
 //!   was before issue 14, kept for comparison;
 //! * `circle-5g`: two turns of the 40 mm circle from rest to rest at 5 g peak acceleration
@@ -171,10 +172,13 @@ fn ramped_phase(omega: f64, t: f64) -> f64 {
 
 /// The `p2p` tour: the centre, the corners 10 mm inside the workspace, the centre.
 fn p2p_points(spec: &MachineSpec) -> [[f64; 2]; 6] {
-    let centre_mm = spec.workspace.centre_mm();
-    let (x, y, d) = (spec.workspace.x_mm, spec.workspace.y_mm, P2P_INSET_MM);
+    let ws = &spec.workspace;
+    let centre_mm = ws.centre_mm();
+    let (x, y, d) = (ws.x_mm, ws.y_mm, P2P_INSET_MM);
     let (lo, hi) = ([x[0] + d, y[0] + d], [x[1] - d, y[1] - d]);
-    [centre_mm, lo, [hi[0], lo[1]], hi, [lo[0], hi[1]], centre_mm]
+    // The inset rectangle's corners; on a polygon workspace, pulled inside it.
+    let corners = [lo, [hi[0], lo[1]], hi, [lo[0], hi[1]]].map(|p| if ws.is_rectangle { p } else { ws.pulled_inside(p, d) });
+    [centre_mm, corners[0], corners[1], corners[2], corners[3], centre_mm]
 }
 
 /// The machine's rated motion: its acceleration, 1.5 m/s, [`JERK_MM_S3`].

@@ -59,7 +59,9 @@
 //! * following error of either joint during the 2 g moves at most
 //!   [`MAX_FOLLOWING_ERROR_RAD`];
 //! * after the last move has settled ([`SETTLE_TICKS`]), tool error at most
-//!   [`MAX_SETTLED_TOOL_ERROR_MM`], measured as `|FK(θ - δ) - setpoint|`.
+//!   [`MAX_SETTLED_TOOL_ERROR_MM`], measured as `|FK(θ - δ) - setpoint|`;
+//! * the image carries both extension blocks of its chain (`kinematics_core::grid`): the
+//!   workspace (`HRWS`) and the dynamics (`HRDY`), so an image that lost one shows.
 //!
 //! # Bounds (`track-5g`, issue 14)
 //! The same tour with the time-optimal jerk-limited profile at 5 g (exact derivatives through
@@ -1023,8 +1025,10 @@ impl<'a> Checker<'a> {
         };
         self.settled_tool_error_mm = tool_error_mm(&cal, s.encoder_rad, s.setpoint_mm);
         let tool_error = self.settled_tool_error_mm;
+        let blocks = cal.grid.is_some_and(|g| g.workspace().is_some() && g.dynamics().is_some());
         Some((|| {
             require(s.calibration == CalibrationState::Valid, "calibration image not valid")?;
+            require(blocks, "the image lacks its workspace or dynamics block")?;
             require(s.overruns == 0, "deadline overrun")?;
             require(s.worst_step_us < crate::deadline::DEADLINE_US, "step longer than the deadline")?;
             require(s.setpoint_underruns == 0, "setpoint queue ran empty")?;
@@ -1105,14 +1109,33 @@ fn safe_state(o: &Observation<'_>) -> Result<(), &'static str> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use kinematics_core::grid::{encode, GridGeometry};
-    use kinematics_core::{FiveBar, KinematicsError};
+    use kinematics_core::grid::{append_dynamics, append_workspace, encode, GridGeometry, WorkspaceLimits, DYNAMICS_LEN, WORKSPACE_LEN};
+    use kinematics_core::{ConvexWorkspace, FiveBar, FiveBarDynamics, KinematicsError};
 
-    /// The QEMU image's geometry with a constant correction.
-    fn image(correction_rad: [f32; 2]) -> Vec<u8> {
+    /// The QEMU image's geometry with a constant correction, without extension blocks.
+    fn plain_image(correction_rad: [f32; 2]) -> Vec<u8> {
         let g = GridGeometry { nx: 21, ny: 31, x0_mm: 162.132, y0_mm: -75.0, step_x_mm: 5.0, step_y_mm: 5.0 };
         let mut img = vec![0u8; g.image_len()];
         encode(&mut img, &g, &FiveBar::paper_nominal(), &vec![correction_rad; g.len()]).unwrap();
+        img
+    }
+
+    /// [`plain_image`] with the workspace and dynamics blocks, as the bundled image has them.
+    fn image(correction_rad: [f32; 2]) -> Vec<u8> {
+        let mut img = plain_image(correction_rad);
+        let n = img.len();
+        img.resize(n + WORKSPACE_LEN + DYNAMICS_LEN, 0);
+        let region = ConvexWorkspace::rectangle([162.132, 262.132], [-75.0, 75.0]).unwrap();
+        let end = append_workspace(&mut img, n, n, &WorkspaceLimits { region, stop_margin_mm: 0.1 }).unwrap();
+        let d = FiveBarDynamics {
+            motor_inertia_kg_m2: [3e-3; 2],
+            tool_mass_kg: 0.1,
+            distal_inertia_kg_m2: [0.0; 2],
+            viscous_nm_s_per_rad: [0.01; 2],
+            coulomb_nm: [0.0; 2],
+            coulomb_speed_rad_s: 0.01,
+        };
+        append_dynamics(&mut img, n, end, &d).unwrap();
         img
     }
 
@@ -1594,6 +1617,14 @@ mod tests {
             }
         }
         None
+    }
+
+    #[test]
+    fn track_fails_on_an_image_without_its_extension_blocks() {
+        let img = plain_image(D_RAD);
+        let mut c = checker(Scenario::Track, &img);
+        let verdict = (1..MAX_TICKS).find_map(|ticks| c.observe(&on(&running(ticks, D_RAD))));
+        assert_eq!(verdict, Some(Err("the image lacks its workspace or dynamics block")));
     }
 
     #[test]
