@@ -27,7 +27,8 @@
 //! # Figures (x_ij = deviation of approach j at target i; ↑ positive, ↓ negative direction)
 //! `x̄i↑`, `x̄i↓` means, `si↑`, `si↓` sample standard deviations (n − 1), `x̄i = (x̄i↑ + x̄i↓)/2`.
 //! * ISO 230-2:2014, clause 2: reversal value `Bi = x̄i↑ − x̄i↓`, `B = max|Bi|`, mean reversal
-//!   value `B̄ = Σ Bi / m`; repeatability `Ri = max(2si↑ + 2si↓ + |Bi|, 4si↑, 4si↓)`, `R = max Ri`;
+//!   value `B̄ = Σ Bi / m`; repeatability `Ri = max(2si↑ + 2si↓ + |Bi|, 4si↑, 4si↓)`, `R = max Ri`,
+//!   unidirectional `R↑ = max 4si↑`, `R↓ = max 4si↓`;
 //!   systematic deviation `E = max(x̄↑, x̄↓) − min(x̄↑, x̄↓)`; mean bidirectional positional
 //!   deviation `M = max x̄i − min x̄i`; accuracy
 //!   `A = max(x̄i↑ + 2si↑, x̄i↓ + 2si↓) − min(x̄i↑ − 2si↑, x̄i↓ − 2si↓)`.
@@ -63,6 +64,9 @@ pub struct TargetStats {
 pub struct Iso230 {
     pub a_um: f64,
     pub r_um: f64,
+    /// Unidirectional repeatability `R↑ = max 4si↑`, `R↓ = max 4si↓`.
+    pub r_up_um: f64,
+    pub r_down_um: f64,
     pub b_um: f64,
     pub b_mean_um: f64,
     pub m_um: f64,
@@ -126,6 +130,8 @@ pub fn line_figures(targets: &[TargetDevs]) -> Result<(Iso230, Vdi3441, Vec<Targ
         a_um: max(&|t| (t.mean_up_um + 2.0 * t.s_up_um).max(t.mean_down_um + 2.0 * t.s_down_um))
             - min(&|t| (t.mean_up_um - 2.0 * t.s_up_um).min(t.mean_down_um - 2.0 * t.s_down_um)),
         r_um: max(&|t| (2.0 * t.s_up_um + 2.0 * t.s_down_um + b(t).abs()).max(4.0 * t.s_up_um).max(4.0 * t.s_down_um)),
+        r_up_um: max(&|t| 4.0 * t.s_up_um),
+        r_down_um: max(&|t| 4.0 * t.s_down_um),
         b_um: max(&|t| b(t).abs()),
         b_mean_um: stats.iter().map(b).sum::<f64>() / stats.len() as f64,
         m_um: max(&mid) - min(&mid),
@@ -402,6 +408,8 @@ mod tests {
         close(iso.m_um, 1.0, "M");
         close(iso.e_um, 3.0, "E");
         close(iso.r_um, 8.0 * r2, "R");
+        close(iso.r_up_um, 8.0 * r2, "R up");
+        close(iso.r_down_um, 4.0 * r2, "R down");
         close(iso.a_um, 8.0 * r2, "A");
         let vdi = &l.vdi_3441;
         close(vdi.u_um, 3.0, "U");

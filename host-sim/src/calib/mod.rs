@@ -14,6 +14,8 @@
 //! * [`image`]: the image finished with the machine's extension blocks (the workspace);
 //! * [`command`]: motor angles for targets, exactly as the firmware computes them;
 //! * [`accuracy`]: VDI/DGQ 3441 and ISO 230-2 figures from repeated runs;
+//! * [`verify`]: the accuracy report for the customer: the standards' figures and the 2-D
+//!   position error, before and after calibration;
 //! * [`pipeline`]: all of it on one machine, as `host-sim demo` runs it.
 //!
 //! Where a change goes: a new protocol in `protocol.rs` (and `Protocol::parse`); a new fit
@@ -31,6 +33,7 @@ pub mod measure;
 pub mod pipeline;
 pub mod plan;
 pub mod protocol;
+pub mod verify;
 
 use crate::io::IoError;
 use crate::plant::PlantError;

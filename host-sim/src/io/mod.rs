@@ -6,6 +6,7 @@
 //! * [`targets_csv`]: the `x_mm,y_mm` target lists `command` reads, and the plan's lists;
 //! * [`machine_file`]: the machine file (TOML), what `--machine` reads;
 //! * [`plot`]: the PNG plots (paths, error-vector fields);
+//! * [`verify_plot`]: the accuracy report's plots (error map, ISO 230-2 chart), as PNG bytes;
 //! * [`atomic`]: every output goes through it: a failed run never leaves a half-written file.
 //!
 //! Formats tied to one stage's own types live next to them (the grid node table in
@@ -22,6 +23,7 @@ pub mod measurement_csv;
 pub mod model_file;
 pub mod plot;
 pub mod targets_csv;
+pub mod verify_plot;
 
 use std::path::{Path, PathBuf};
 
