@@ -233,3 +233,19 @@ fn bad_input_is_refused_with_the_reason() {
     .to_string();
     assert!(e.contains("before, repeat runs: no measurements"), "{e}");
 }
+
+/// The page: every plot embedded (a map per state, a chart per axis line), outside text
+/// escaped, no external resource.
+#[test]
+fn the_page_embeds_its_plots_and_escapes_text() {
+    let mut spec = MachineSpec::paper();
+    spec.name = "<b>&\"x\"".into();
+    let r = verify(&VerifyOptions { spec: spec.clone(), before: Some(stage_data(10.0)), after: stage_data(1.0) }).unwrap();
+    let page = html::render(&r, &spec, &[("after, verification".into(), "a<b>.csv".into())]).unwrap();
+    assert_eq!(page.matches("src=\"data:image/png;base64,").count(), 2 + 2);
+    assert!(page.contains("machine '&lt;b&gt;&amp;&quot;x&quot;'") && !page.contains("<b>&"), "not escaped");
+    assert!(page.contains("<code>a&lt;b&gt;.csv</code>"));
+    assert!(!page.contains("http") && !page.contains("<script"));
+    // The summary row of the x line's A: 120 before, 12 after, 10x.
+    assert!(page.contains("<tr><td>x line at y = 0 mm: ISO 230-2 accuracy A</td><td>120</td><td>12.0</td><td>10.0×</td></tr>"), "{}", &page[..3000]);
+}
