@@ -36,6 +36,8 @@ fn encode_png(rgb: &[u8], (w, h): (u32, u32)) -> Result<Vec<u8>, IoError> {
         enc.set_compression(png::Compression::Best);
         let mut writer = enc.write_header().map_err(err)?;
         writer.write_image_data(rgb).map_err(err)?;
+        // Finish explicitly: dropping the writer would swallow a failure.
+        writer.finish().map_err(err)?;
     }
     Ok(out)
 }
