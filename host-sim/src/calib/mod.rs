@@ -14,9 +14,9 @@
 //! * [`image`]: the image finished with the machine's extension blocks (the workspace);
 //! * [`command`]: motor angles for targets, exactly as the firmware computes them;
 //! * [`accuracy`]: VDI/DGQ 3441 and ISO 230-2 figures from repeated runs;
-//! * [`verify`]: the accuracy report for the customer: the standards' figures and the 2-D
-//!   position error, before and after calibration;
 //! * [`pipeline`]: all of it on one machine, as `host-sim demo` runs it.
+//! * [`verify`]: the accuracy report for the customer (the standards' figures and the 2-D
+//!   position error, before and after calibration), from the verification and repeat runs.
 //!
 //! Where a change goes: a new protocol in `protocol.rs` (and `Protocol::parse`); a new fit
 //! method in `fit/` (one file, wired in `fit/mod.rs`); a new accuracy figure in `accuracy.rs`;

@@ -6,8 +6,8 @@
 //! * [`targets_csv`]: the `x_mm,y_mm` target lists `command` reads, and the plan's lists;
 //! * [`machine_file`]: the machine file (TOML), what `--machine` reads;
 //! * [`plot`]: the PNG plots (paths, error-vector fields);
-//! * [`verify_plot`]: the accuracy report's plots (error map, ISO 230-2 chart), as PNG bytes;
 //! * [`atomic`]: every output goes through it: a failed run never leaves a half-written file.
+//! * [`verify_plot`]: the accuracy report's plots (error map, ISO 230-2 chart), as PNG bytes.
 //!
 //! Formats tied to one stage's own types live next to them (the grid node table in
 //! `calib::grid`, the closed-loop log in `sim::simulate`); the grid flash image is
