@@ -14,7 +14,7 @@
 //! * [`image`]: the image finished with the machine's extension blocks (the workspace);
 //! * [`command`]: motor angles for targets, exactly as the firmware computes them;
 //! * [`accuracy`]: VDI/DGQ 3441 and ISO 230-2 figures from repeated runs;
-//! * [`pipeline`]: all of it on one machine, as `host-sim demo` runs it;
+//! * [`pipeline`]: all of it on one machine, as `host-sim demo` runs it.
 //! * [`verify`]: the accuracy report for the customer (the standards' figures and the 2-D
 //!   position error, before and after calibration), from the verification and repeat runs.
 //!
