@@ -14,6 +14,7 @@ mod grid;
 mod measure;
 mod plan;
 mod simulate;
+mod verify;
 
 use anyhow::{anyhow, bail, Context, Result};
 use clap::{Parser, Subcommand};
@@ -51,6 +52,9 @@ enum Tool {
     MotorCommand(command::Args),
     /// VDI/DGQ 3441 and ISO 230-2 figures per axis line from repeated bidirectional runs.
     Accuracy(accuracy::Args),
+    /// The accuracy report for the customer: ISO 230-2 / VDI 3441 per axis and the 2-D
+    /// position error, before and after calibration (one HTML page, plots embedded).
+    Verify(verify::Args),
     /// Find where model and measurements disagree, name the missing effect, show the gap shrink.
     Diagnose(diagnose::Args),
     /// The whole calibration on a built-in simulated machine: measure, fit, grid, verify.
@@ -67,6 +71,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Tool::Grid(a) => grid::run(&a),
         Tool::MotorCommand(a) => command::run(&a),
         Tool::Accuracy(a) => accuracy::run(&a),
+        Tool::Verify(a) => verify::run(&a),
         Tool::Diagnose(a) => diagnose::run(&a),
         Tool::Demo(a) => demo::run(&a),
     }
