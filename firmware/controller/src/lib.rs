@@ -48,6 +48,7 @@ pub mod drive;
 pub mod encoder;
 pub mod encoder_check;
 pub mod fault;
+pub mod motion_stream;
 #[cfg(any(test, feature = "qemu-harness"))]
 pub mod scenario;
 pub mod servo_loop;
