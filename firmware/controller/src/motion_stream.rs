@@ -85,7 +85,8 @@ pub enum PushRefusal {
     Index(u32),
     /// Not enough free slots (the free slots).
     Full(u16),
-    /// A move is under way, or the stream starved (the fault must be reset first).
+    /// A move is under way, or the stream starved or was paused (the fault must be reset
+    /// first).
     Busy,
 }
 
@@ -210,6 +211,9 @@ enum Play {
     Stream { segment: Option<Segment>, sample: u32 },
     /// The stream ran out of knots while moving: no setpoints until [`MotionStream::hold`].
     Starved,
+    /// Stopped by the link (a stop, disable or reset was requested): no setpoints until
+    /// [`MotionStream::hold`] at the point where the servo loop then is.
+    Paused,
 }
 
 /// The link's motion source (see the module doc).
@@ -240,9 +244,27 @@ impl MotionStream {
         *self = MotionStream { underruns: self.underruns, ..MotionStream::new(self.limits, position_mm) };
     }
 
-    /// A move or stream is under way (or starved).
+    /// A move or stream is under way (or starved, or paused).
     pub fn is_moving(&self) -> bool {
         !matches!(self.play, Play::Hold)
+    }
+
+    /// Drops any move or stream and produces no setpoints until [`MotionStream::hold`]: the
+    /// servo loop is about to stop or re-engage somewhere this source does not know yet.
+    pub fn pause(&mut self) {
+        self.knots.clear();
+        self.received = 0;
+        self.play = Play::Paused;
+    }
+
+    /// A move or stream is under way or starved (not holding, not paused).
+    pub fn is_playing(&self) -> bool {
+        matches!(self.play, Play::Move { .. } | Play::Stream { .. } | Play::Starved)
+    }
+
+    /// Paused (see [`MotionStream::pause`]).
+    pub fn is_paused(&self) -> bool {
+        self.play == Play::Paused
     }
 
     /// The stream ran dry while moving and waits for [`MotionStream::hold`].
@@ -301,7 +323,7 @@ impl MotionStream {
             Play::Hold | Play::Stream { .. } => {
                 return Err(PushRefusal::Index(if matches!(self.play, Play::Hold) { 0 } else { self.received }))
             }
-            Play::Move { .. } | Play::Starved => return Err(PushRefusal::Busy),
+            Play::Move { .. } | Play::Starved | Play::Paused => return Err(PushRefusal::Busy),
         }
         if knots.len() > self.free() {
             return Err(PushRefusal::Full(self.free() as u16));
@@ -384,7 +406,7 @@ impl SetpointSource for MotionStream {
                 Some(motion.at(t_s))
             }
             Play::Stream { segment, sample } => self.stream_setpoint(segment, sample),
-            Play::Starved => None,
+            Play::Starved | Play::Paused => None,
         }
     }
 }

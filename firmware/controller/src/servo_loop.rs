@@ -724,32 +724,8 @@ mod tests {
     // without the coupling), the encoders quantised to 2^22 counts/rev.
 
     const DT_S: f32 = crate::SAMPLE_PERIOD_S;
-    const COUNT_RAD: f32 = 2.0 * core::f32::consts::PI / (1u32 << 22) as f32;
 
-    struct Plant {
-        angle_rad: [f32; 2],
-        velocity_rad_s: [f32; 2],
-        torque_nm: [f32; 2],
-        enabled: bool,
-    }
-
-    impl Plant {
-        fn advance(&mut self) {
-            let h = DT_S / 10.0;
-            for (k, inertia) in [2.2e-3f32 + 5.4e-3, 1.8e-3 + 5.4e-3].into_iter().enumerate() {
-                let tau = if self.enabled { self.torque_nm[k] } else { 0.0 };
-                for _ in 0..10 {
-                    let w = self.velocity_rad_s[k];
-                    let friction = 0.01 * w + 0.03 * w / (w.abs() + 1e-3);
-                    self.velocity_rad_s[k] += (tau - friction) / inertia * h;
-                    self.angle_rad[k] += self.velocity_rad_s[k] * h;
-                }
-            }
-        }
-        fn encoder_rad(&self) -> [f32; 2] {
-            self.angle_rad.map(|a| libm::roundf(a / COUNT_RAD) * COUNT_RAD)
-        }
-    }
+    use crate::host_link::doubles::JointPlant as Plant;
 
     /// What a closed run saw.
     struct Run {

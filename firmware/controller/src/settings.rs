@@ -96,6 +96,16 @@ impl core::fmt::Display for SettingsError {
 }
 
 impl Settings {
+    /// The limits the host link's motion (planned moves, streamed knots) must keep: the same
+    /// speed, acceleration and jerk as the built-in trajectory's.
+    pub fn stream_limits(&self) -> kinematics_core::trajectory::TaskLimits<f32> {
+        kinematics_core::trajectory::TaskLimits {
+            speed_mm_s: self.trajectory_speed_mm_s,
+            accel_mm_s2: self.trajectory_accel_mm_s2,
+            jerk_mm_s3: self.trajectory_jerk_mm_s3,
+        }
+    }
+
     /// Checks every field: the servo's ([`ServoConfig::validate`]), its sample period equal to
     /// the timer's, the stop's, each axis's encoder configuration ([`EncoderScale::new`]) and
     /// the encoder check's; a positive finite drive full scale,
