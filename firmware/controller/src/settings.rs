@@ -60,6 +60,11 @@ pub struct Settings {
     pub trajectory_jerk_mm_s3: f32,
     /// Rest at every waypoint (s). Default 0.1 s.
     pub trajectory_dwell_s: f32,
+    /// Where the setpoints come from: `false`, the built-in tour (`builtin_tour_mm`); `true`,
+    /// the host link's motion (moves and streams, `motion_stream`), holding still until the
+    /// host commands one. Default `false` (the boards' behaviour before the link); the QEMU
+    /// board's `link` scenario sets it.
+    pub link_motion: bool,
     /// The controlled stop (stop categories 1 and 2): deceleration 5 g built up in 5 ms, and
     /// when a category-1 stop removes torque. See [`StopSettings`].
     pub stop: StopSettings,
@@ -154,6 +159,7 @@ impl Default for Settings {
             trajectory_profile: crate::trajectory::Profile::Quintic,
             trajectory_jerk_mm_s3: crate::trajectory::DEFAULT_JERK_MM_S3,
             trajectory_dwell_s: 0.1,
+            link_motion: false,
             stop: StopSettings::default(),
             encoder_limits: EncoderLimits::default(),
         }
