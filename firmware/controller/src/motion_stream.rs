@@ -46,8 +46,8 @@ use link_protocol::{Knot, SegmentRefusal, MAX_SEGMENT_US};
 use crate::setpoints::SetpointSource;
 use crate::stop::{MotionState, StopLimits, StopProfile, Workspace};
 
-/// Knots the buffer holds.
-pub const KNOT_SLOTS: usize = 64;
+/// Knots the buffer holds (the protocol states it, so that the host knows it).
+pub const KNOT_SLOTS: usize = link_protocol::STREAM_BUFFER_KNOTS;
 /// Intervals at which a segment's speed and stop are checked.
 pub const CHECK_POINTS: u32 = 32;
 /// Sample period (µs).

@@ -42,6 +42,9 @@ pub const MAX_FRAME_LEN: usize = 256;
 pub const MAX_PAYLOAD_LEN: usize = MAX_FRAME_LEN - 4 - 2 - 1;
 /// Knots in one [`Command::StreamKnots`] frame.
 pub const MAX_KNOTS_PER_FRAME: usize = 8;
+/// Knots the controller's motion stream buffer holds (its depth; 64 knots of 10 ms are 640 ms
+/// of motion).
+pub const STREAM_BUFFER_KNOTS: usize = 64;
 /// Bytes of calibration image in one [`Command::CalibrationChunk`] frame.
 pub const CALIBRATION_CHUNK_LEN: usize = 128;
 /// Largest calibration image the controller accepts (bytes): a slot of the calibration region.

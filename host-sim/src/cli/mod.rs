@@ -11,6 +11,7 @@ mod demo;
 mod diagnose;
 mod fit;
 mod grid;
+mod link;
 mod measure;
 mod simulate;
 
@@ -50,6 +51,8 @@ enum Tool {
     Diagnose(diagnose::Args),
     /// The whole calibration on a built-in simulated machine: measure, fit, grid, verify.
     Demo(demo::Args),
+    /// Talk to a controller over its host link (QEMU: TCP): identify, home, move, stream, upload...
+    Link(link::Args),
 }
 
 /// Runs a parsed command line.
@@ -63,6 +66,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Tool::Accuracy(a) => accuracy::run(&a),
         Tool::Diagnose(a) => diagnose::run(&a),
         Tool::Demo(a) => demo::run(&a),
+        Tool::Link(a) => link::run(&a),
     }
 }
 
