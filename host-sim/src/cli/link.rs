@@ -103,6 +103,10 @@ pub struct StreamArgs {
     /// The built-in figure's frequency along x (Hz; y runs at twice that).
     #[arg(long, default_value_t = 0.5)]
     pub freq_hz: f64,
+    /// The built-in figure's knot spacing (ms). Under QEMU use 50: its UART takes a byte per
+    /// main-loop turn, ~100 ms per 8-knot frame, slower than 10 ms knots play.
+    #[arg(long, default_value_t = 20)]
+    pub knot_ms: u32,
     /// Stop sending after this many knots (provokes an underrun when the trajectory still moves
     /// there).
     #[arg(long)]
@@ -272,7 +276,10 @@ fn stream(client: &mut LinkClient<std::net::TcpStream>, a: &StreamArgs, timeout:
                 bail!("--seconds must be between 1 and 600, not {seconds}");
             }
             let start = client.status()?.setpoint_mm;
-            figure_knots([f64::from(start[0]), f64::from(start[1])], [a.amp_mm[0], a.amp_mm[1]], a.freq_hz, seconds)
+            if !(1..=1000).contains(&a.knot_ms) {
+                bail!("--knot-ms must be between 1 and 1000, not {}", a.knot_ms);
+            }
+            figure_knots([f64::from(start[0]), f64::from(start[1])], [a.amp_mm[0], a.amp_mm[1]], a.freq_hz, seconds, a.knot_ms)
         }
     };
     let total = knots.len();

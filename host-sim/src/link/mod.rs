@@ -270,10 +270,10 @@ pub fn upload_calibration<S: Read + Write>(
 }
 
 /// The built-in test trajectory: a Lissajous figure (±`amp_mm[0]` along x at `freq_hz`,
-/// ±`amp_mm[1]` along y at twice that) around `centre_mm`, as knots every 10 ms for
+/// ±`amp_mm[1]` along y at twice that) around `centre_mm`, as knots every `knot_ms` for
 /// `seconds`, with a sin² envelope over the first and last 0.5 s so that it starts and ends
 /// at rest at the centre.
-pub fn figure_knots(centre_mm: [f64; 2], amp_mm: [f64; 2], freq_hz: f64, seconds: f64) -> Vec<Knot> {
+pub fn figure_knots(centre_mm: [f64; 2], amp_mm: [f64; 2], freq_hz: f64, seconds: f64, knot_ms: u32) -> Vec<Knot> {
     let ramp = 0.5f64.min(seconds / 2.0);
     let w = 2.0 * std::f64::consts::PI * freq_hz;
     // Position and velocity of the enveloped figure (exact derivative).
@@ -293,12 +293,13 @@ pub fn figure_knots(centre_mm: [f64; 2], amp_mm: [f64; 2], freq_hz: f64, seconds
         let v = [denv * amp_mm[0] * sx + env * amp_mm[0] * w * cx, denv * amp_mm[1] * sy + env * amp_mm[1] * 2.0 * w * cy];
         (p, v)
     };
-    let n = (seconds * 100.0).round() as u32;
+    let knot_ms = knot_ms.max(1);
+    let n = (seconds * 1000.0 / f64::from(knot_ms)).round() as u32;
     (1..=n)
         .map(|i| {
-            let (p, v) = at(f64::from(i) * 0.01);
+            let (p, v) = at(f64::from(i * knot_ms) * 1e-3);
             Knot {
-                t_us: i * 10_000,
+                t_us: i * knot_ms * 1000,
                 position_mm: [p[0] as f32, p[1] as f32],
                 velocity_mm_s: [v[0] as f32, v[1] as f32],
             }
@@ -368,7 +369,7 @@ mod tests {
 
     #[test]
     fn the_figure_starts_and_ends_at_rest_at_its_centre_and_its_velocities_are_derivatives() {
-        let k = figure_knots([212.0, 0.0], [30.0, 40.0], 0.5, 3.0);
+        let k = figure_knots([212.0, 0.0], [30.0, 40.0], 0.5, 3.0, 10);
         assert_eq!(k.len(), 300);
         let last = k.last().unwrap();
         assert!((last.position_mm[0] - 212.0).abs() < 1e-4 && last.position_mm[1].abs() < 1e-4);
