@@ -76,8 +76,8 @@ pub enum Action {
         #[arg(long)]
         csv: PathBuf,
     },
-    /// Send random bytes (each burst ends with a frame delimiter) and count the answers: the
-    /// controller must reject every frame and not move.
+    /// Send random bytes (bursts of 300, each ending with a frame delimiter) and count the
+    /// frames they make and the answers: the controller must answer every one and not move.
     Garbage {
         /// Bytes to send.
         #[arg(long, default_value_t = 10_000)]
@@ -228,7 +228,7 @@ pub fn run(args: &Args) -> Result<()> {
             let before = client.status()?;
             let mut x = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
             let mut sent = 0usize;
-            let mut answers = 0usize;
+            let (mut frames, mut answers) = (0usize, 0usize);
             while sent < *bytes {
                 let n = (*bytes - sent).min(300);
                 let mut burst: Vec<u8> = (0..n)
@@ -240,13 +240,16 @@ pub fn run(args: &Args) -> Result<()> {
                     })
                     .collect();
                 burst.push(0);
-                answers += client.send_raw(&burst, Duration::from_millis(100))?;
+                let (f, a) = client.send_raw(&burst)?;
+                frames += f;
+                answers += a;
                 sent += n;
             }
             let after = client.status()?;
             #[derive(Serialize)]
             struct Garbage {
                 bytes: usize,
+                frames: usize,
                 answers: usize,
                 setpoint_before_mm: [f32; 2],
                 setpoint_after_mm: [f32; 2],
@@ -255,6 +258,7 @@ pub fn run(args: &Args) -> Result<()> {
             }
             let report = Garbage {
                 bytes: sent,
+                frames,
                 answers,
                 setpoint_before_mm: before.setpoint_mm,
                 setpoint_after_mm: after.setpoint_mm,

@@ -116,19 +116,24 @@ impl<S: Read + Write> LinkClient<S> {
         Ok(LinkClient { io, reader: FrameReader::new(), seq: 0, telemetry: Vec::new(), pending: Default::default(), bad_frames: 0, timeout })
     }
 
-    /// Sends raw bytes (the garbage test) and drops the answers they provoke (each frame gets
-    /// one: a rejection); returns how many came within `wait`.
-    pub fn send_raw(&mut self, bytes: &[u8], wait: Duration) -> Result<usize, ClientError> {
+    /// Sends raw bytes (the garbage test) and waits for the answers they provoke: the
+    /// controller answers every non-empty run of bytes between two zeros with exactly one
+    /// message (a rejection, unless the run happens to be a valid frame). Returns (frames sent,
+    /// answers received); waits at most the client's timeout for the answers.
+    pub fn send_raw(&mut self, bytes: &[u8]) -> Result<(usize, usize), ClientError> {
+        let frames = bytes.split(|&b| b == 0).filter(|run| !run.is_empty()).count()
+            - usize::from(bytes.last().is_some_and(|&b| b != 0));
         self.io.write_all(bytes)?;
-        let deadline = Instant::now() + wait;
+        let deadline = Instant::now() + self.timeout;
         let mut answers = 0;
-        loop {
+        while answers < frames {
             match self.next_message(deadline) {
                 Ok(_) => answers += 1,
-                Err(ClientError::Timeout(_)) => return Ok(answers),
+                Err(ClientError::Timeout(_)) => break,
                 Err(e) => return Err(e),
             }
         }
+        Ok((frames, answers))
     }
 
     /// Sends `command` and waits for its reply.

@@ -15,7 +15,7 @@
 //! | Identify, Status, CalibrationId | never | answer |
 //! | Enable | not homed (encoders not absolute), fault latched (not a commanded one), stopping | re-engage where the machine is, drives on |
 //! | Disable | never | controlled stop, drives off (category 1) |
-//! | Home | moving, drives on, homing refuses | starts homing ([`Homing`]) |
+//! | Home | moving or stopping, homing refuses | starts homing ([`Homing`]) |
 //! | MoveTo | not running, moving, target outside / unplannable | plans the jerk-limited move |
 //! | StreamKnots | not running, index, full, a bad knot | queues the knots (validated whole) |
 //! | Stop | never | controlled stop, then hold (category 2) |
@@ -196,7 +196,8 @@ impl LinkHandler {
             Command::Stop => Ok(self.post(ServoRequest::Stop, status.ticks, device)),
             Command::Disable => Ok(self.post(ServoRequest::Disable, status.ticks, device)),
             Command::Home => {
-                if status.drives_enabled || device.with_stream(|s| s.is_playing()) {
+                // Whether homing may start with the drives on or off is the procedure's decision.
+                if device.with_stream(|s| s.is_playing()) || matches!(mode, Mode::Stopping(_)) {
                     return Err(LinkError::Busy);
                 }
                 device.homing().start().map(|()| Response::Done).map_err(|()| LinkError::Homing)

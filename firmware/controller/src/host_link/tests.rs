@@ -245,7 +245,8 @@ fn stop_disable_enable_and_homing() {
     assert_eq!(send(&mut h, &mut r, 10, Command::Enable), Ok(Response::Done));
     run(&mut h, &mut r, 5);
     assert_eq!((r.status.mode, r.status.drives_enabled), (Mode::Running, true));
-    assert_eq!(send(&mut h, &mut r, 11, Command::Home), Err(LinkError::Busy), "not with the drives on");
+    send(&mut h, &mut r, 11, Command::MoveTo { target_mm: [220.0, 10.0] }).unwrap();
+    assert_eq!(send(&mut h, &mut r, 12, Command::Home), Err(LinkError::Busy), "not while moving");
 }
 
 #[test]
