@@ -8,7 +8,7 @@
 //! the servo task: what the servo task does for the link is apply a posted
 //! [`ServoRequest`] (one lock, one `take`).
 use controller::calibration::image_id;
-use controller::host_link::{encode_or_reject, CalibrationStore, Device, Homing, LinkHandler};
+use controller::host_link::{encode_or_reject, CalibrationStore, Device, Homing, HomingRefused, LinkHandler};
 use controller::motion_stream::MotionStream;
 use controller::servo_loop::ServoRequest;
 use controller::status::Status;
@@ -140,7 +140,7 @@ impl<D: DeviceResources> Device for AppDevice<'_, D> {
 pub struct PowerOnHoming;
 
 impl Homing for PowerOnHoming {
-    fn start(&mut self) -> Result<(), ()> {
+    fn start(&mut self) -> Result<(), HomingRefused> {
         Ok(())
     }
     fn state(&self) -> HomingState {

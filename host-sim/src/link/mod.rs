@@ -328,7 +328,7 @@ pub fn parse_knots_csv(text: &str) -> Result<Vec<Knot>, ClientError> {
         let [t, x, y, vx, vy] = f[..] else {
             return Err(ClientError::Trajectory(format!("line {}: expected 5 numbers, got {}", i + 1, f.len())));
         };
-        if !(t > 0.0 && t < 4000.0) || ![x, y, vx, vy].iter().all(|v| v.is_finite()) {
+        if !(t > 0.0 && t < 4000.0 && [x, y, vx, vy].iter().all(|v| v.is_finite())) {
             return Err(ClientError::Trajectory(format!("line {}: time must be in (0, 4000) s and every number finite", i + 1)));
         }
         knots.push(Knot {

@@ -13,7 +13,7 @@ use kinematics_core::trajectory::MotionSetpoint;
 use kinematics_core::Calibration;
 use link_protocol::{Board, CalibrationRefusal, HomingState, MAX_CALIBRATION_IMAGE_LEN};
 
-use super::{CalibrationStore, Device, Homing};
+use super::{CalibrationStore, Device, Homing, HomingRefused};
 use crate::calibration::CalibrationState;
 use crate::motion_stream::{MotionStream, StreamLimits};
 use crate::servo_loop::{ServoLoop, ServoRequest};
@@ -73,10 +73,10 @@ pub struct HomingDouble {
 }
 
 impl Homing for HomingDouble {
-    fn start(&mut self) -> Result<(), ()> {
+    fn start(&mut self) -> Result<(), HomingRefused> {
         if self.refuse {
             self.state = HomingState::Failed;
-            return Err(());
+            return Err(HomingRefused);
         }
         self.state = HomingState::Homed;
         Ok(())

@@ -42,10 +42,14 @@ use crate::status::Status;
 #[cfg(any(test, feature = "host-doubles"))]
 pub mod doubles;
 
+/// Homing would not start (the procedure says why in its own state and log).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct HomingRefused;
+
 /// Homing, as the link drives it (the procedure itself is `homing.rs`, the device side).
 pub trait Homing {
     /// Starts the homing procedure.
-    fn start(&mut self) -> Result<(), ()>;
+    fn start(&mut self) -> Result<(), HomingRefused>;
     /// Where homing is.
     fn state(&self) -> HomingState;
     /// The settings say the encoders are absolute: the drives may engage unhomed.
@@ -200,7 +204,7 @@ impl LinkHandler {
                 if device.with_stream(|s| s.is_playing()) || matches!(mode, Mode::Stopping(_)) {
                     return Err(LinkError::Busy);
                 }
-                device.homing().start().map(|()| Response::Done).map_err(|()| LinkError::Homing)
+                device.homing().start().map(|()| Response::Done).map_err(|HomingRefused| LinkError::Homing)
             }
             Command::MoveTo { target_mm } => {
                 running(mode)?;

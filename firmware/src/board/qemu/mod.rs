@@ -194,7 +194,7 @@ impl Board for QemuBoard {
     type Link = uart::CmsdkUart;
 
     fn link(&mut self) -> uart::CmsdkUart {
-        uart::CmsdkUart::new()
+        uart::CmsdkUart::open()
     }
 
     /// The production settings with the built-in tour on (the simulated machine may move by

@@ -42,8 +42,9 @@ pub struct CmsdkUart {
 }
 
 impl CmsdkUart {
-    /// Configures UART0 (receive interrupt enabled).
-    pub fn new() -> Self {
+    /// Configures UART0 (receive interrupt enabled). Not `new`/`Default`: it writes the
+    /// peripheral's registers.
+    pub fn open() -> Self {
         write(CTRL, 0);
         write(BAUDDIV, TIMER_CLOCK_HZ / BAUD);
         write(INT, 0b11);
