@@ -251,6 +251,10 @@ pub enum ModeCode {
     Holding,
     /// Drives off.
     SafeState,
+    /// Drives off, waiting for homing (incremental encoders).
+    Unhomed,
+    /// Homing under way.
+    Homing,
 }
 
 /// Why the machine stopped (the controller's fault, flattened for the wire; the details are in
@@ -286,6 +290,8 @@ pub enum FaultCode {
     Commanded,
     /// Not homed.
     NotHomed,
+    /// Homing failed (index not found, reference refused, following error while homing).
+    Homing,
 }
 
 /// Homing progress.

@@ -124,6 +124,7 @@ pub fn fault_code(fault: Fault) -> FaultCode {
         Fault::Settings(_) => FaultCode::Settings,
         Fault::Engage(_) => FaultCode::Engage,
         Fault::Watchdog(_) => FaultCode::Watchdog,
+        Fault::Homing(_) => FaultCode::Homing,
     }
 }
 
@@ -134,6 +135,8 @@ pub fn mode_code(mode: Mode) -> ModeCode {
         Mode::Stopping(_) => ModeCode::Stopping,
         Mode::Holding(_) => ModeCode::Holding,
         Mode::SafeState(_) => ModeCode::SafeState,
+        Mode::Unhomed => ModeCode::Unhomed,
+        Mode::Homing => ModeCode::Homing,
     }
 }
 
@@ -187,12 +190,16 @@ impl LinkHandler {
             Command::Status => Ok(Response::Status(self.report(&status, device))),
             Command::Enable => match mode {
                 Mode::Running => Ok(Response::Done),
+                Mode::Unhomed => Err(LinkError::NotHomed),
+                Mode::Homing => Err(LinkError::Busy),
                 Mode::Stopping(_) => Err(LinkError::Busy),
                 Mode::Holding(f) | Mode::SafeState(f) if !commanded(f) => Err(LinkError::Faulted(fault_code(f))),
                 Mode::Holding(_) | Mode::SafeState(_) => self.reset(status.ticks, device),
             },
             Command::ResetFault => match mode {
                 Mode::Running => Ok(Response::Done),
+                Mode::Unhomed => Err(LinkError::NotHomed),
+                Mode::Homing => Err(LinkError::Busy),
                 Mode::Stopping(_) => Err(LinkError::Busy),
                 Mode::Holding(f) | Mode::SafeState(f) if permanent(f) => Err(LinkError::Faulted(fault_code(f))),
                 Mode::Holding(_) | Mode::SafeState(_) => self.reset(status.ticks, device),
@@ -343,6 +350,8 @@ fn permanent(f: Fault) -> bool {
 fn running(mode: Mode) -> Result<(), LinkError> {
     match mode {
         Mode::Running => Ok(()),
+        Mode::Unhomed => Err(LinkError::NotHomed),
+        Mode::Homing => Err(LinkError::Busy),
         Mode::SafeState(Fault::DisableCommanded) => Err(LinkError::NotEnabled),
         Mode::Stopping(_) => Err(LinkError::Busy),
         Mode::Holding(f) | Mode::SafeState(f) => Err(LinkError::Faulted(fault_code(f))),
