@@ -75,7 +75,8 @@ fn main() {
     let g = GridGeometry { nx: 3, ny: 3, x0_mm: 160.0, y0_mm: -80.0, step_x_mm: 50.0, step_y_mm: 80.0 };
     let mut img = vec![0u8; g.image_len()];
     encode_grid(&mut img, &g, &FiveBar::paper_nominal(), &[[3e-4, -2e-4]; 9]).expect("grid image");
-    let settings = Settings::default();
+    let mut settings = Settings::default();
+    settings.homing.absolute_encoders = true;
     let cal = Calibration::from_grid(CorrectionGrid::parse(&img).expect("grid parses"));
     let joints = cal.command_rad([212.132, 0.0], 0.05).expect("home is reachable");
     let mut rig = Rig::boot(&settings, cal, joints, image_id(&img));

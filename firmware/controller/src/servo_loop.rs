@@ -1195,7 +1195,7 @@ mod tests {
     /// removes torque, and a reset turns the drives back on.
     #[test]
     fn a_commanded_stop_brakes_then_holds_and_a_reset_resumes() {
-        let (settings, img) = (Settings::default(), image());
+        let (settings, img) = (absolute(), image());
         let (at, _) = top_speed();
         let mut t = tour();
         let n = at + 401;
@@ -1241,9 +1241,9 @@ mod tests {
         assert_eq!(l.request(ServoRequest::Reset, &mut rx, enc), Ok(true), "drives back on");
         assert_eq!(l.mode(), Mode::Running);
         assert_eq!(rx.len(), 0, "the stale setpoint was dropped");
-        let boot_fault = Fault::Calibration(GridError::BadCrc);
+        let boot_fault = Fault::Calibration(ImageError::Grid(GridError::BadCrc));
         let nominal = Calibration { model: FiveBar::paper_nominal(), grid: None };
-        let mut l = ServoLoop::boot(&settings, nominal, CalibrationState::Refused(GridError::BadCrc), enc);
+        let mut l = ServoLoop::boot(&settings, nominal, CalibrationState::Refused(ImageError::Grid(GridError::BadCrc)), enc);
         assert_eq!(l.request(ServoRequest::Reset, &mut rx, enc), Err(ResetRefusal::Permanent(boot_fault)));
     }
 

@@ -19,6 +19,14 @@ fn image(offset_rad: f32) -> Vec<u8> {
     img
 }
 
+/// The production settings with absolute encoders (the rig's machine needs no homing; the
+/// handler's homing gate is tested with the homing double).
+fn settings() -> Settings {
+    let mut s = Settings::default();
+    s.homing.absolute_encoders = true;
+    s
+}
+
 fn rig<'a>(settings: &'a Settings, img: &'a [u8]) -> Rig<'a> {
     let cal = Calibration::from_grid(CorrectionGrid::parse(img).unwrap());
     let joints = cal.command_rad(HOME_MM, 0.05).unwrap();
@@ -118,7 +126,7 @@ fn stream(h: &mut LinkHandler, rig: &mut Rig<'_>, knots: &[Knot], extra_samples:
 
 #[test]
 fn identify_and_status_answer() {
-    let (settings, img) = (Settings::default(), image(3e-4));
+    let (settings, img) = (settings(), image(3e-4));
     let mut r = rig(&settings, &img);
     let mut h = LinkHandler::new();
     let Ok(Response::Identity(id)) = send(&mut h, &mut r, 1, Command::Identify) else { panic!() };
@@ -132,7 +140,7 @@ fn identify_and_status_answer() {
 
 #[test]
 fn a_streamed_figure_is_tracked_and_ends_at_rest_where_it_should() {
-    let (settings, img) = (Settings::default(), image(3e-4));
+    let (settings, img) = (settings(), image(3e-4));
     let mut r = rig(&settings, &img);
     let mut h = LinkHandler::new();
     let knots = figure_knots(3.0);
@@ -164,7 +172,7 @@ fn a_streamed_figure_is_tracked_and_ends_at_rest_where_it_should() {
 
 #[test]
 fn an_underrun_is_a_controlled_stop_reported_and_a_reset_resumes() {
-    let (settings, img) = (Settings::default(), image(3e-4));
+    let (settings, img) = (settings(), image(3e-4));
     let mut r = rig(&settings, &img);
     let mut h = LinkHandler::new();
     let knots = figure_knots(3.0);
@@ -202,7 +210,7 @@ fn an_underrun_is_a_controlled_stop_reported_and_a_reset_resumes() {
 
 #[test]
 fn a_frame_with_one_bad_knot_is_refused_whole_and_nothing_moves() {
-    let (settings, img) = (Settings::default(), image(3e-4));
+    let (settings, img) = (settings(), image(3e-4));
     let mut r = rig(&settings, &img);
     let mut h = LinkHandler::new();
     let mut knots = figure_knots(3.0)[..8].to_vec();
@@ -219,7 +227,7 @@ fn a_frame_with_one_bad_knot_is_refused_whole_and_nothing_moves() {
 
 #[test]
 fn stop_disable_enable_and_homing() {
-    let (settings, img) = (Settings::default(), image(3e-4));
+    let (settings, img) = (settings(), image(3e-4));
     let mut r = rig(&settings, &img);
     let mut h = LinkHandler::new();
     send(&mut h, &mut r, 1, Command::MoveTo { target_mm: [250.0, 60.0] }).unwrap();
@@ -251,7 +259,7 @@ fn stop_disable_enable_and_homing() {
 
 #[test]
 fn a_bad_image_is_refused_and_the_old_one_stays() {
-    let (settings, img) = (Settings::default(), image(3e-4));
+    let (settings, img) = (settings(), image(3e-4));
     let mut r = rig(&settings, &img);
     let mut h = LinkHandler::new();
     let old = image_id(&img);
@@ -282,7 +290,7 @@ fn a_bad_image_is_refused_and_the_old_one_stays() {
 
 #[test]
 fn telemetry_is_decimated_and_bounded() {
-    let (settings, img) = (Settings::default(), image(3e-4));
+    let (settings, img) = (settings(), image(3e-4));
     let mut r = rig(&settings, &img);
     let mut h = LinkHandler::new();
     assert_eq!(send(&mut h, &mut r, 1, Command::Telemetry { decimation: 1 }), Ok(Response::TelemetryDecimation(MIN_TELEMETRY_DECIMATION)));
@@ -313,7 +321,7 @@ proptest! {
         target in [150.0f32..270.0, -90.0f32..90.0],
         flips in prop::collection::vec((any::<prop::sample::Index>(), 1u8..=255), 1..4),
     ) {
-        let (settings, img) = (Settings::default(), image(3e-4));
+        let (settings, img) = (settings(), image(3e-4));
         let mut r = rig(&settings, &img);
         let mut h = LinkHandler::new();
         let before = r.status.setpoint_mm;
