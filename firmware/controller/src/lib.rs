@@ -42,8 +42,9 @@
 //! * [`motion_stream`]: the link's motion source: planned moves and streamed knots validated
 //!   whole, interpolated at 2 kHz (a [`setpoints::SetpointSource`]).
 //!
-//! Planned homes (not written yet): homing (`homing.rs`), calibration slots
-//! (`calibration_slots.rs`), behind the handler's `Homing` and `CalibrationStore` traits.
+//! The link reaches [`homing`] and [`calibration_slots`] through the handler's `Homing` and
+//! `CalibrationStore` traits (the firmware still implements them with stand-ins: see
+//! firmware/README.md, "Host link").
 //!
 //! No heap, no panic on runtime data: every failure is a [`fault::Fault`].
 #![cfg_attr(not(test), no_std)]
