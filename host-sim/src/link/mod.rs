@@ -380,6 +380,12 @@ mod tests {
         assert!((last.position_mm[0] - 212.0).abs() < 1e-4 && last.position_mm[1].abs() < 1e-4);
         assert!(last.velocity_mm_s[0].abs() < 1e-3 && last.velocity_mm_s[1].abs() < 1e-3);
         for w in k.windows(3).skip(10).step_by(17) {
+            // The envelope is C¹ but not C² where the ramps meet the plateau (0.5 s, 2.5 s): a
+            // central difference across those knots is off by h·Δp''/4 there.
+            let t_mid = f64::from(w[1].t_us) * 1e-6;
+            if (t_mid - 0.5).abs() < 0.011 || (t_mid - 2.5).abs() < 0.011 {
+                continue;
+            }
             for a in 0..2 {
                 let v = (w[2].position_mm[a] - w[0].position_mm[a]) / 0.02;
                 assert!((v - w[1].velocity_mm_s[a]).abs() < 0.02 * w[1].velocity_mm_s[a].abs().max(10.0), "{v} {:?}", w[1]);
