@@ -11,6 +11,7 @@ mod demo;
 mod diagnose;
 mod fit;
 mod grid;
+mod link;
 mod measure;
 mod plan;
 mod simulate;
@@ -59,6 +60,8 @@ enum Tool {
     Diagnose(diagnose::Args),
     /// The whole calibration on a built-in simulated machine: measure, fit, grid, verify.
     Demo(demo::Args),
+    /// Talk to a controller over its host link (QEMU: TCP): identify, home, move, stream, upload...
+    Link(link::Args),
 }
 
 /// Runs a parsed command line.
@@ -74,6 +77,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Tool::Verify(a) => verify::run(&a),
         Tool::Diagnose(a) => diagnose::run(&a),
         Tool::Demo(a) => demo::run(&a),
+        Tool::Link(a) => link::run(&a),
     }
 }
 
