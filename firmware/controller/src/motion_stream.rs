@@ -145,10 +145,13 @@ impl Segment {
             return Err(SegmentRefusal::Acceleration);
         }
         if let Some(w) = &limits.workspace {
-            for k in 0..2 {
-                // Extremes of the cubic on this axis: the ends and where its velocity is zero.
-                let (lo, hi) = self.axis_range(k);
-                if !(lo >= w.min_mm[k] && hi <= w.max_mm[k]) {
+            // The cubic lies in the box of its per-axis extremes (the ends and where each axis's
+            // velocity is zero); the workspace is convex, so the box's four corners inside it
+            // put the whole segment inside (a sufficient test: a segment along a slanted edge
+            // of a polygon workspace can be refused although it stays inside).
+            let (x, y) = (self.axis_range(0), self.axis_range(1));
+            for corner in [[x.0, y.0], [x.1, y.0], [x.0, y.1], [x.1, y.1]] {
+                if !w.contains(corner) {
                     return Err(SegmentRefusal::Workspace);
                 }
             }
@@ -423,7 +426,11 @@ mod tests {
         StreamLimits {
             task: TaskLimits { speed_mm_s: 1500.0, accel_mm_s2: 49_050.0, jerk_mm_s3: 5.0e6 },
             stop: s.stop.limits,
-            workspace: Some(Workspace { min_mm: [167.0, -70.0], max_mm: [257.0, 70.0] }),
+            // The rectangle [167, 257] x [-70, 70] mm.
+            workspace: Workspace::of_grid(
+                &kinematics_core::GridGeometry { nx: 19, ny: 29, x0_mm: 167.0, y0_mm: -70.0, step_x_mm: 5.0, step_y_mm: 5.0 },
+                0.0,
+            ),
         }
     }
 
