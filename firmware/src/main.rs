@@ -124,7 +124,7 @@ mod app {
         defmt::info!("boot: calibration in force {}", calibration_id);
         let image = calibration_id.map_or(firmware::calibration::region(), firmware::calibration::slot_bytes);
         let (cal_state, cal) = calibration::load(image, &settings.machine, settings.home_mm, settings.allow_uncorrected);
-        let workspace = cal.grid.as_ref().map(|g| Workspace::of_grid(g.geometry(), settings.stop.workspace_margin_mm));
+        let workspace = cal.grid.as_ref().and_then(|g| Workspace::of_image(g, settings.stop.workspace_margin_mm));
         match cal_state {
             CalibrationState::Valid => {}
             CalibrationState::Refused(e) => defmt::error!("calibration image refused ({}): drives stay disabled", e),

@@ -169,7 +169,7 @@ impl<'a> Rig<'a> {
     /// Boots the servo loop with the machine at `joints_rad` and the stream holding where it
     /// engaged; `active_id` is the id of the image `calibration` came from.
     pub fn boot(settings: &'a Settings, calibration: Calibration<'a>, joints_rad: [f32; 2], active_id: Option<u32>) -> Self {
-        let workspace = calibration.grid.as_ref().map(|g| Workspace::of_grid(g.geometry(), settings.stop.workspace_margin_mm));
+        let workspace = calibration.grid.as_ref().and_then(|g| Workspace::of_image(g, settings.stop.workspace_margin_mm));
         let servo = ServoLoop::boot(settings, calibration, CalibrationState::Valid, joints_rad);
         let limits = StreamLimits { task: settings.stream_limits(), stop: settings.stop.limits, workspace };
         let stream = MotionStream::new(limits, servo.setpoint_mm());
