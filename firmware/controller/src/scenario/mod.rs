@@ -1192,6 +1192,7 @@ mod tests {
             setpoint_underruns: 0,
             calibration_id: None,
             last_upload: None,
+            homing: None,
         }
     }
 
