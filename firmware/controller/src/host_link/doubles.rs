@@ -6,7 +6,7 @@
 //!   published [`Status`], and the machine ([`JointPlant`], the servo loop's own test plant).
 //! * [`HomingDouble`]: homes at once (or refuses); the real procedure is `homing.rs`.
 //! * [`StoreDouble`]: a RAM calibration store with the real image check
-//!   ([`image_id`](crate::calibration::image_id)) and the image's CRC as its id; the real one is the two flash
+//!   ([`image_id`](crate::calibration::image_id), the CRC-32C id the real store reports); the real one is the two flash
 //!   slots of `calibration_slots.rs`.
 use heapless::spsc::Queue;
 use kinematics_core::trajectory::MotionSetpoint;
