@@ -159,6 +159,9 @@ pub enum ResetRefusal {
     Permanent(Fault),
     /// The servo would not engage at the machine's position.
     Engage(kinematics_core::EngageError),
+    /// Incremental encoders and homing never reached home (a fault latched before or during
+    /// homing): the encoder zero is unknown, the drives stay off.
+    NotHomed,
 }
 
 /// A stop under way: its profile and the samples stepped along it.
@@ -678,7 +681,8 @@ impl<'a> ServoLoop<'a> {
     /// setpoint, as a fault would) and do nothing otherwise. `Reset` from `Holding` or
     /// `SafeState` clears the fault, drops what is queued (`queue`: setpoints planned before the
     /// stop) and re-engages at `encoder_rad`, at rest there; it does nothing while running and
-    /// is refused during a stop or after a boot fault. `Home` starts homing from `Unhomed`
+    /// is refused during a stop, after a boot fault, and with incremental encoders before homing
+    /// reached home ([`ResetRefusal::NotHomed`]). `Home` starts homing from `Unhomed`
     /// ([`ServoLoop::start_homing`]: the drives go on) and does nothing in any other mode (a
     /// refused plan latches its fault there). Returns whether the drives must be enabled now
     /// (they were off).
@@ -730,6 +734,9 @@ impl<'a> ServoLoop<'a> {
     ) -> Result<bool, ResetRefusal> {
         if matches!(fault, Fault::Settings(_) | Fault::Calibration(_)) {
             return Err(ResetRefusal::Permanent(fault));
+        }
+        if !self.settings.homing.absolute_encoders && self.homing_phase() != Some(HomingPhase::Done) {
+            return Err(ResetRefusal::NotHomed);
         }
         let servo = self.servo.as_mut().ok_or(ResetRefusal::Permanent(fault))?;
         let tool_mm = servo.engage(&self.calibration, encoder_rad).map_err(ResetRefusal::Engage)?;
@@ -1440,6 +1447,18 @@ mod tests {
         assert_eq!((l.mode(), l.homing_phase()), (Mode::Homing, Some(HomingPhase::Search(0))));
         assert_eq!(l.request(ServoRequest::Home, &mut rx, [0.0; 2]), Ok(false), "not twice");
         assert_eq!(l.mode(), Mode::Homing);
+        // A fault while homing: the safe state, and no reset engages the unhomed machine.
+        let mut sample = l.step_homing([0.0; 2], [None; 2]);
+        l.latch(Fault::DeadlineMissed, &mut sample);
+        assert_eq!(l.mode(), Mode::SafeState(Fault::DeadlineMissed));
+        assert_eq!(l.request(ServoRequest::Reset, &mut rx, [0.0; 2]), Err(ResetRefusal::NotHomed));
+        assert!(!l.drives_enabled());
+        // Nor after a fault latched at boot (a watchdog reset) before homing.
+        let mut l = ServoLoop::boot(&settings, cal, CalibrationState::Valid, [0.0; 2]);
+        l.latch_at_boot(Fault::DeadlineMissed);
+        assert_eq!(l.request(ServoRequest::Reset, &mut rx, [0.0; 2]), Err(ResetRefusal::NotHomed));
+        assert_eq!(l.request(ServoRequest::Home, &mut rx, [0.0; 2]), Ok(false));
+        assert!(!l.drives_enabled());
         let absolute = Settings { homing: crate::homing::HomingSettings { absolute_encoders: true, ..settings.homing }, ..settings };
         let at = cal.command_rad(HOME_MM, 0.05).unwrap();
         let mut l = ServoLoop::boot(&absolute, cal, CalibrationState::Valid, at);
