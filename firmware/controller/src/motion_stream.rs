@@ -145,15 +145,13 @@ impl Segment {
             return Err(SegmentRefusal::Acceleration);
         }
         if let Some(w) = &limits.workspace {
-            // The cubic lies in the box of its per-axis extremes (the ends and where each axis's
-            // velocity is zero); the workspace is convex, so the box's four corners inside it
-            // put the whole segment inside (a sufficient test: a segment along a slanted edge
-            // of a polygon workspace can be refused although it stays inside).
-            let (x, y) = (self.axis_range(0), self.axis_range(1));
-            for corner in [[x.0, y.0], [x.1, y.0], [x.0, y.1], [x.1, y.1]] {
-                if !w.contains(corner) {
-                    return Err(SegmentRefusal::Workspace);
-                }
+            // The segment's bounding box (per axis, the extremes of the cubic: the ends and where
+            // its velocity is zero) must lie inside: the workspace is convex, so its four corners
+            // inside put the whole box, and the curve in it, inside. Exact for a rectangular
+            // workspace; conservative next to a slanted edge of a polygon.
+            let ([x0, x1], [y0, y1]) = (self.axis_range(0).into(), self.axis_range(1).into());
+            if ![[x0, y0], [x1, y0], [x0, y1], [x1, y1]].iter().all(|&p| w.contains(p)) {
+                return Err(SegmentRefusal::Workspace);
             }
         }
         let step_s = h / CHECK_POINTS as f32;
@@ -426,9 +424,8 @@ mod tests {
         StreamLimits {
             task: TaskLimits { speed_mm_s: 1500.0, accel_mm_s2: 49_050.0, jerk_mm_s3: 5.0e6 },
             stop: s.stop.limits,
-            // The rectangle [167, 257] x [-70, 70] mm.
             workspace: Workspace::of_grid(
-                &kinematics_core::GridGeometry { nx: 19, ny: 29, x0_mm: 167.0, y0_mm: -70.0, step_x_mm: 5.0, step_y_mm: 5.0 },
+                &kinematics_core::grid::GridGeometry { nx: 2, ny: 2, x0_mm: 167.0, y0_mm: -70.0, step_x_mm: 90.0, step_y_mm: 140.0 },
                 0.0,
             ),
         }
