@@ -87,7 +87,7 @@ fn sweep() {
             let truth = truth_with(case, &mut rng).scaled(f);
             let poses = if seed % 2 == 1 { Poses::Random(400) } else { Poses::Grid5mm };
             let data = generate(&truth, poses, 5000 + seed);
-            let r = diagnose(&data, &DiagnoseOptions { base: FiveBar::paper_nominal(), noise_um: Some(NOISE_UM) }).unwrap();
+            let r = diagnose(&data, &DiagnoseOptions::paper(FiveBar::paper_nominal(), Some(NOISE_UM))).unwrap();
             let mut named: Vec<&str> = r.steps.iter().map(|s| s.effect.as_str()).collect();
             named.sort();
             let mut want: Vec<&str> = case.clone();
@@ -153,7 +153,7 @@ fn table1_power() {
                     m.dir = None;
                     m.t_s = None;
                 }
-                let r = diagnose(&data, &DiagnoseOptions { base: FiveBar::paper_nominal(), noise_um: Some(20.0) }).unwrap();
+                let r = diagnose(&data, &DiagnoseOptions::paper(FiveBar::paper_nominal(), Some(20.0))).unwrap();
                 let named: Vec<&str> = r.steps.iter().map(|s| s.effect.as_str()).collect();
                 let want: Vec<&str> = if effect == "none" { vec![] } else { vec![effect] };
                 if named == want {
@@ -181,7 +181,7 @@ fn plant_outputs() {
     let cal = Calibration { model: FiveBar::<f32>::paper_nominal(), grid: None };
     let run = |p: &PlantConfig, protocol: Protocol, seed: u64| {
         let data = measured(p, &cal, protocol, seed, Some(1.0));
-        diagnose(&data, &DiagnoseOptions { base: FiveBar::paper_nominal(), noise_um: Some(1.0) }).unwrap()
+        diagnose(&data, &DiagnoseOptions::paper(FiveBar::paper_nominal(), Some(1.0))).unwrap()
     };
     let mut cyclic = PlantConfig::ideal();
     cyclic.drive_1.cyclic_error_urad = 40.0;

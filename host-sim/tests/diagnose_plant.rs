@@ -43,7 +43,7 @@ fn measured(plant: &PlantConfig, protocol: Protocol, seed: u64) -> Vec<Measureme
 }
 
 fn diagnosed(data: &[Measurement]) -> Report {
-    diagnose(data, &DiagnoseOptions { base: FiveBar::paper_nominal(), noise_um: Some(NOISE_UM) }).expect("diagnosis runs")
+    diagnose(data, &DiagnoseOptions::paper(FiveBar::paper_nominal(), Some(NOISE_UM))).expect("diagnosis runs")
 }
 
 fn named(r: &Report) -> Vec<&str> {

@@ -3,6 +3,7 @@
 
 use anyhow::{bail, Context, Result};
 use host_sim::diagnose::plots::write_plots;
+use host_sim::diagnose::loop_closure::SixBarDesign;
 use host_sim::diagnose::{diagnose_with_history, report, DiagnoseOptions};
 use host_sim::io::atomic::write_atomic;
 use host_sim::io::measurement_csv::read_measurements;
@@ -33,16 +34,21 @@ pub struct Args {
 /// `host-sim diagnose`.
 pub fn run(args: &Args) -> Result<()> {
     let data = read_measurements(&args.data)?;
+    let spec = super::machine_spec();
     let base = match &args.model {
         Some(p) => read_model(p)?,
-        None => super::machine_spec().nominal,
+        None => spec.nominal,
     };
+    // The six-bar's own effects are derived from the machine's nominal design, not the current
+    // model (which may carry an instrument offset as its A0).
+    let sixbar = SixBarDesign::for_model(&spec.nominal, spec.workspace.centre_mm())
+        .map_err(|e| anyhow::anyhow!("the machine's six-bar design: {e}"))?;
     if let Some(s) = args.noise_um {
         if !(s.is_finite() && s > 0.0) {
             bail!("--noise-um {s}: must be a positive number of micrometres");
         }
     }
-    let (report, history) = diagnose_with_history(&data, &DiagnoseOptions { base, noise_um: args.noise_um })
+    let (report, history) = diagnose_with_history(&data, &DiagnoseOptions { base, noise_um: args.noise_um, sixbar })
         .with_context(|| format!("diagnosing {}", args.data.display()))?;
     print!("{}", report::table(&report));
     write_atomic(&args.out, json_text(&report, KeyOrder::Declared)?.as_bytes())?;

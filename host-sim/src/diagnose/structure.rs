@@ -254,7 +254,7 @@ mod tests {
                 });
             }
         }
-        let p = Problem::new(nominal, &data);
+        let p = Problem::new(nominal, &crate::diagnose::loop_closure::SixBarDesign::paper(), &data);
         // Residual = J · (30 µrad · sin(40 θ2)) on motor 2, plus a little deterministic "noise".
         let mut r = Vec::new();
         for (k, q) in p.points.iter().enumerate() {
