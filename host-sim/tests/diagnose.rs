@@ -164,11 +164,18 @@ fn two_effects_at_once_are_both_named() {
         let truth = truth_with(pair, &mut rng);
         let (r, _) = check(&truth, Poses::Random(300), 77 + k as u64, pair, false, &format!("{pair:?}"));
         // Confounded pairs: the exact twins, or pairs within the final model (whose shared part
-        // the report states); never one effect of the model and an absent one otherwise.
+        // the report states); never one effect of the model and an absent one otherwise, but
+        // for the small encoder offset a gear ratio about a fixed reference angle leaves beside
+        // it (checked to its value by `named_as_hidden`): tens of µrad, which constant link
+        // changes can reproduce on these poses.
         let in_model = |e: &String| r.steps.iter().any(|s| &s.effect == e);
+        let gear_offset = pair.contains(&"gear_ratio") && !pair.contains(&"encoder_offset");
         for c in &r.confounded {
             assert!(
-                c == &["encoder_offset", "frame"] || c == &["link_lengths", "scale"] || c.iter().all(in_model),
+                c == &["encoder_offset", "frame"]
+                    || c == &["link_lengths", "scale"]
+                    || c.iter().all(in_model)
+                    || (gear_offset && c.contains(&"encoder_offset".to_string())),
                 "{pair:?}: unexpected confounded pair {c:?}\n{}",
                 table(&r)
             );

@@ -16,6 +16,7 @@
 //! model cannot reach counts as +1. Each measurement takes 1 s of machine time (`t_s` counts
 //! measurements).
 
+use super::backlash::{approach_dir, Backlash};
 use super::machine::{Machine, PlantMachine};
 use super::protocol::{visits, Protocol, Visit};
 use super::CalibError;
@@ -60,6 +61,22 @@ pub fn measure_visits(
     spec: &MachineSpec,
     clock: &mut usize,
 ) -> Result<Vec<Landed>, CalibError> {
+    measure_visits_compensated(machine, cal, None, visits, approach, spec, clock)
+}
+
+/// [`measure_visits`] with the direction-dependent backlash correction
+/// ([`super::backlash::Backlash::command_rad`]) added to every command, each motor's approach
+/// direction taken from the uncorrected command (the correction is microradians: it never
+/// turns a direction).
+pub fn measure_visits_compensated(
+    machine: &mut dyn Machine,
+    cal: &Calibration<'_>,
+    backlash: Option<&Backlash>,
+    visits: &[Visit],
+    approach: Approach,
+    spec: &MachineSpec,
+    clock: &mut usize,
+) -> Result<Vec<Landed>, CalibError> {
     let model = cal.model.cast::<f64>();
     let min_transmission = spec.min_transmission as f32;
     let mut previous = [0.0f64; 2];
@@ -73,8 +90,9 @@ pub fn measure_visits(
         previous = cmd;
         let dir = match (approach, model.inverse(v.from_mm, 0.0)) {
             (Approach::Positive, _) | (Approach::FromVisit, Err(_)) => [1, 1],
-            (Approach::FromVisit, Ok(f)) => [0, 1].map(|i| if wrap_angle_rad(cmd[i] - f[i]) >= 0.0 { 1i8 } else { -1 }),
+            (Approach::FromVisit, Ok(f)) => approach_dir(f, cmd),
         };
+        let cmd = backlash.map_or(cmd, |b| b.command_rad(cmd, dir));
         let r = machine.measure(cmd, dir).map_err(|e| at_target(e.to_string()))?;
         out.push(Landed {
             row: Measurement {

@@ -10,6 +10,7 @@
 //! * [`fit`]: the hidden robot from measurements (the paper's `poly` and `ls`, the full LM);
 //! * [`grid`]: the correction grid flash image from measurements at the nodes;
 //! * [`command`]: motor angles for targets, exactly as the firmware computes them;
+//! * [`backlash`]: the direction-dependent correction of backlash (command, grid, estimate);
 //! * [`accuracy`]: VDI/DGQ 3441 and ISO 230-2 figures from repeated runs;
 //! * [`pipeline`]: all of it on one machine, as `host-sim demo` runs it.
 //!
@@ -19,6 +20,7 @@
 //! [`MachineSpec`](crate::machine_spec::MachineSpec) in each options struct, never from here.
 
 pub mod accuracy;
+pub mod backlash;
 pub mod command;
 pub mod fit;
 pub mod grid;

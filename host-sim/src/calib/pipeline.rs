@@ -25,8 +25,11 @@
 //! With [`Approach::Positive`] every motor arrives moving forward (as after an
 //! overshoot-and-return move): unidirectional positioning, so backlash always sits on one side
 //! and is calibrated away; [`Approach::FromVisit`] approaches along a random direction from
-//! `approach_mm` away (grid nodes in raster order); on the paper plant the 20 µrad backlash then
-//! stays in the result (about 6 µm max, 3 µm RMS).
+//! `approach_mm` away (grid nodes in raster order). Then the backlash is measured on the
+//! round-1 grid data ([`super::backlash::estimate`]) and corrected from there on by direction
+//! (each motor's command moved by dir·β/2, the grids built from link angles): on the paper plant
+//! its 20 µrad, which left 6.3 µm max / 3.0 µm RMS uncorrected, are taken out (figures in the
+//! README).
 //!
 //! Output: [`calibrate`] keeps everything in memory ([`Calibrated`]); [`write_outputs`] writes the
 //! measurement CSVs, `model.json` (`full`), `model_ls.json`, `grid.bin` + `grid.csv` (the refined
@@ -40,7 +43,9 @@ use super::fit::params::{self, NAMES};
 use super::fit::{synthesize, Method, ModelFigures};
 use super::grid::{self, BuiltGrid};
 use super::machine::Machine;
-use super::measure::{measure_visits, rows, Landed};
+use super::backlash::{self, Backlash};
+use super::measure::{measure_visits_compensated, rows, Landed};
+use crate::diagnose::loop_closure::SixBarDesign;
 use super::protocol::{random_visits, visits, Protocol, Range};
 use super::CalibError;
 use crate::io::atomic::write_atomic;
@@ -149,6 +154,8 @@ pub struct Calibrated {
     pub grid2_data: Vec<Landed>,
     pub grid2: BuiltGrid,
     pub approach: Approach,
+    /// The backlash measured and corrected by direction (random approach only).
+    pub backlash: Option<Backlash>,
     pub stages: Vec<Stage>,
 }
 
@@ -183,8 +190,11 @@ pub fn calibrate(machine: &mut dyn Machine, opts: &PipelineOptions, events: &mut
     let grid_visits = visits(Protocol::Grid, opts.seed, spec);
     let mut clock = 0usize;
     let nominal = spec.nominal;
+    let mut measure_with = |machine: &mut dyn Machine, cal: &Calibration<'_>, b: Option<&Backlash>, v: &[super::protocol::Visit], what: &str| {
+        measure_visits_compensated(machine, cal, b, v, approach, spec, &mut clock).map_err(|e| e.context(what))
+    };
     let mut measure = |machine: &mut dyn Machine, cal: &Calibration<'_>, v: &[super::protocol::Visit], what: &str| {
-        measure_visits(machine, cal, v, approach, spec, &mut clock).map_err(|e| e.context(what))
+        measure_with(machine, cal, None, v, what)
     };
     let nominal_cal = Calibration { model: nominal.cast(), grid: None };
 
@@ -220,21 +230,45 @@ pub fn calibrate(machine: &mut dyn Machine, opts: &PipelineOptions, events: &mut
     let g = &spec.grid;
     step(events, format!("step 3: measuring the {} mm grid ({} x {} nodes) commanded with the full model", g.step_mm, g.nx, g.ny));
     let grid_data = measure(machine, &full_cal, &grid_visits, "measuring the grid")?;
-    let grid = grid::build(&full.model, &rows(&grid_data), g.step_mm).map_err(|e| e.context("building the grid"))?;
+    // Random approach directions: the backlash is measured on the grid data (both directions at
+    // every part of the workspace) and corrected from here on by the direction-dependent command
+    // (backlash.rs); the grids are built from link angles, free of it.
+    let backlash = match approach {
+        Approach::Positive => None,
+        Approach::FromVisit => {
+            let design = SixBarDesign::for_model(&spec.nominal, spec.workspace.centre_mm()).map_err(|e| super::invalid!("the six-bar design: {e}"))?;
+            let (b, sd) = backlash::estimate(&rows(&grid_data), &full.model, &design).map_err(|e| e.context("estimating the backlash"))?;
+            step(
+                events,
+                format!(
+                    "backlash from the grid data: {:.1} ± {:.1} and {:.1} ± {:.1} µrad; commands corrected by direction from here on",
+                    b.lost_motion_urad[0], sd[0], b.lost_motion_urad[1], sd[1]
+                ),
+            );
+            Some(b)
+        }
+    };
+    let link_rows = |landed: &[Landed]| -> Result<Vec<crate::io::measurement_csv::Measurement>, CalibError> {
+        match &backlash {
+            Some(b) => b.link_angles(&rows(landed)),
+            None => Ok(rows(landed)),
+        }
+    };
+    let grid = grid::build(&full.model, &link_rows(&grid_data)?, g.step_mm).map_err(|e| e.context("building the grid"))?;
     let grid_cal = grid_calibration(&grid, "built grid")?;
-    let landed = measure(machine, &grid_cal, &verify, "verifying full fit + grid")?;
+    let landed = measure_with(machine, &grid_cal, backlash.as_ref(), &verify, "verifying full fit + grid")?;
     stages.push(stage("full+grid", &format!("full fit + {} mm grid (1 round)", g.step_mm), "~37 (40x)", landed));
     // Round 2: the grid is first order in the error it corrects (grid.rs's doc), so the nodes
     // are measured again through it and the grid rebuilt from what is left.
     step(events, "step 4: measuring the grid nodes again through the grid (round 2) and refining it".into());
-    let grid2_data = measure(machine, &grid_cal, &grid_visits, "measuring the grid, round 2")?;
-    let grid2 = grid::build(&full.model, &rows(&grid2_data), g.step_mm).map_err(|e| e.context("building the grid, round 2"))?;
+    let grid2_data = measure_with(machine, &grid_cal, backlash.as_ref(), &grid_visits, "measuring the grid, round 2")?;
+    let grid2 = grid::build(&full.model, &link_rows(&grid2_data)?, g.step_mm).map_err(|e| e.context("building the grid, round 2"))?;
     let grid2_cal = grid_calibration(&grid2, "refined grid")?;
     step(events, format!("step 5: verifying full fit + refined grid on the same {VERIFY_TARGETS} fresh targets"));
-    let landed = measure(machine, &grid2_cal, &verify, "verifying full fit + refined grid")?;
+    let landed = measure_with(machine, &grid2_cal, backlash.as_ref(), &verify, "verifying full fit + refined grid")?;
     stages.push(stage("full+grid2", &format!("full fit + {} mm grid (2 rounds)", g.step_mm), "-", landed));
     step(events, "calibration done".into());
-    Ok(Calibrated { machine: description, fit_data, ls_model, full, grid_data, grid, grid2_data, grid2, approach, stages })
+    Ok(Calibrated { machine: description, fit_data, ls_model, full, grid_data, grid, grid2_data, grid2, approach, backlash, stages })
 }
 
 /// One stage in the summary.
@@ -310,6 +344,9 @@ pub struct Summary {
     pub fit_full: FullFitSummary,
     pub fit_ls: LsFitSummary,
     pub grid: GridSummary,
+    /// The backlash corrected by direction (µrad; random approach only).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub backlash_urad: Option<[f64; 2]>,
     #[serde(rename = "final")]
     pub final_: FinalSummary,
     pub files: Vec<String>,
@@ -374,6 +411,7 @@ pub fn summary(cal: &Calibrated, seed: u64, out_dir: &Path, files: &[PathBuf]) -
             round2_node_err_rms_um: round3(n2.rms),
             image_bytes: cal.grid2.image.len(),
         },
+        backlash_urad: cal.backlash.map(|b| b.lost_motion_urad.map(round3)),
         final_: FinalSummary {
             max_um: fin.map(|a| round3(a.max_um)),
             rms_um: fin.map(|a| round3(a.rms_um)),
@@ -433,6 +471,7 @@ pub fn write_outputs(cal: &Calibrated, dir: &Path) -> Result<Vec<PathBuf>, IoErr
     let mut full_file = ModelFile::from_model(&cal.full.model);
     full_file.std_dev = params::std_dev_map(&cal.full.std_dev);
     full_file.fit = Some(serde_json::json!({ "method": "full", "source": "host-sim demo", "n_points": cal.fit_data.len() }));
+    full_file.backlash_urad = cal.backlash.map(|b| b.lost_motion_urad);
     write_model_file(&p("model.json"), &full_file)?;
     written.push(p("model.json"));
     let mut ls_file = ModelFile::from_model(&cal.ls_model);

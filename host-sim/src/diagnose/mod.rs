@@ -22,6 +22,7 @@ pub mod confounding;
 pub mod effects;
 pub mod fit;
 pub mod loop_closure;
+pub mod model_out;
 pub mod plots;
 pub mod report;
 pub mod selection;
