@@ -327,3 +327,66 @@ fn measure_command_csv_backlash_named_and_cyclic_error_unexplained() {
     assert!(r.unexplained, "{context}");
     assert!(r.final_structure.iter().any(|f| f.kind == "periodic_theta2" && f.significant && f.cycles_per_rev == Some(50.0)), "{context}");
 }
+
+/// The gap-shrink workflow of DIAGNOSIS.md ("Closing the loop"), through the binary: measure the
+/// `paper` six-bar plant from random approach directions, fit, diagnose against the fit and
+/// write the extended model, then measure the grid nodes commanded with it (backlash corrected
+/// by direction) and build the grid from link angles. The diagnosis names the plant's backlash
+/// (20 µrad per drive, PLANT.md) and the six-bar's mismatch, each step shrinks the residual to
+/// the noise, and the extended model carries the backlash the commands then correct.
+#[test]
+fn gap_shrink_workflow_writes_the_extended_model_and_the_commands_use_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = |name: &str| dir.path().join(name);
+    let run = |args: &[&str]| {
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_host-sim")).args(args).current_dir(dir.path()).output().unwrap();
+        assert!(out.status.success(), "{args:?}: {}", String::from_utf8_lossy(&out.stderr));
+        String::from_utf8_lossy(&out.stdout).to_string()
+    };
+    run(&["measure", "--plant", "paper", "--protocol", "random:400", "--seed", "1", "--noise-um", "1", "--out", "m1.csv"]);
+    run(&["fit", "--data", "m1.csv", "--method", "full", "--out", "fit.json"]);
+    let table = run(&[
+        "diagnose", "--data", "m1.csv", "--model", "fit.json", "--noise-um", "1", "--out", "report.json", "--plots", "plots",
+        "--out-model", "model.json",
+    ]);
+    let report: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(p("report.json")).unwrap()).unwrap();
+    let steps = report["steps"].as_array().unwrap();
+    let named: Vec<&str> = steps.iter().map(|s| s["effect"].as_str().unwrap()).collect();
+    assert!(named.contains(&"backlash") && named.contains(&"parallelogram_mismatch"), "{table}");
+    for s in steps {
+        assert!(s["rms_after_um"].as_f64().unwrap() < s["rms_before_um"].as_f64().unwrap(), "{table}");
+    }
+    assert!(report["unexplained"] == false && report["final_rms_um"].as_f64().unwrap() < 1.1 * 2f64.sqrt(), "{table}");
+    assert!(p("plots").join("residual_start.png").exists());
+    let model: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(p("model.json")).unwrap()).unwrap();
+    let beta: Vec<f64> = model["backlash_urad"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+    assert!(beta.iter().all(|b| (b - 20.0).abs() < 4.0), "{beta:?}");
+    assert!(model["diagnosed"]["effects"].get("parallelogram_mismatch").is_some(), "{model}");
+    // The tools use it: grid nodes commanded with the backlash correction, the grid from link
+    // angles; `command` writes each target's approach directions and the corrected angles.
+    run(&["measure", "--plant", "paper", "--protocol", "grid", "--seed", "2", "--noise-um", "1", "--model", "model.json", "--out", "g.csv"]);
+    run(&["grid", "--model", "model.json", "--data", "g.csv", "--out", "grid.bin"]);
+    std::fs::write(p("targets.csv"), "x_mm,y_mm\n200,0\n210,10\n205,-5\n").unwrap();
+    run(&["command", "--model", "model.json", "--grid", "grid.bin", "--targets", "targets.csv", "--out", "cmd.csv"]);
+    run(&["command", "--model", "fit.json", "--targets", "targets.csv", "--out", "cmd_plain.csv"]);
+    let cmd = std::fs::read_to_string(p("cmd.csv")).unwrap();
+    assert!(cmd.starts_with("x_mm,y_mm,theta1_deg,theta2_deg,dir1,dir2\n"), "{cmd}");
+    assert!(std::fs::read_to_string(p("cmd_plain.csv")).unwrap().starts_with("x_mm,y_mm,theta1_deg,theta2_deg\n"));
+    // Each corrected angle is the uncorrected one (model + grid) moved by dir·β/2.
+    let mut plain_model = model.clone();
+    plain_model.as_object_mut().unwrap().remove("backlash_urad");
+    std::fs::write(p("model_plain.json"), plain_model.to_string()).unwrap();
+    run(&["command", "--model", "model_plain.json", "--grid", "grid.bin", "--targets", "targets.csv", "--out", "cmd_nb.csv"]);
+    let rows = |text: &str| -> Vec<Vec<f64>> {
+        text.lines().skip(1).map(|l| l.split(',').map(|v| v.parse().unwrap()).collect()).collect()
+    };
+    let (with, without) = (rows(&cmd), rows(&std::fs::read_to_string(p("cmd_nb.csv")).unwrap()));
+    assert_eq!(with.len(), 3);
+    for (w, n) in with.iter().zip(&without) {
+        for j in 0..2 {
+            let shift_urad = (w[2 + j] - n[2 + j]).to_radians() * 1e6;
+            let want = w[4 + j] * beta[j] / 2.0;
+            assert!((shift_urad - want).abs() < 0.05, "{w:?} vs {n:?}: {shift_urad} µrad, want {want}");
+        }
+    }
+}

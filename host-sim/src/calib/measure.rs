@@ -124,9 +124,20 @@ pub struct MeasureOptions {
 
 /// Runs a protocol on a plant, commanded through `cal`, and returns the measurements.
 pub fn measure(plant: &PlantConfig, cal: &Calibration<'_>, opts: &MeasureOptions) -> Result<Vec<Measurement>, CalibError> {
+    measure_compensated(plant, cal, None, opts)
+}
+
+/// [`measure`] with the direction-dependent backlash correction in every command (a model file
+/// with `backlash_urad`: `host-sim measure --model`).
+pub fn measure_compensated(
+    plant: &PlantConfig,
+    cal: &Calibration<'_>,
+    backlash: Option<&Backlash>,
+    opts: &MeasureOptions,
+) -> Result<Vec<Measurement>, CalibError> {
     let mut machine = PlantMachine::from_config(plant.clone(), "measured plant", opts.noise_um, opts.seed)?;
     let visits = visits(opts.protocol, opts.seed, &opts.spec);
-    let landed = measure_visits(&mut machine, cal, &visits, Approach::FromVisit, &opts.spec, &mut 0)?;
+    let landed = measure_visits_compensated(&mut machine, cal, backlash, &visits, Approach::FromVisit, &opts.spec, &mut 0)?;
     Ok(rows(&landed))
 }
 

@@ -2,7 +2,8 @@
 //! (`host_sim::calib::measure`).
 
 use anyhow::Result;
-use host_sim::calib::measure::{measure, MeasureOptions};
+use host_sim::calib::measure::{measure_compensated, MeasureOptions};
+use host_sim::io::model_file::read_model_file;
 use host_sim::calib::protocol::Protocol;
 use host_sim::io::measurement_csv::write_measurements;
 use host_sim::plant::PlantConfig;
@@ -24,7 +25,8 @@ pub struct Args {
     /// Output measurement CSV.
     #[arg(long)]
     pub out: PathBuf,
-    /// Hidden-robot model to command with (default: the nominal five-bar).
+    /// Hidden-robot model to command with (default: the nominal five-bar); its backlash_urad,
+    /// if any, is corrected by direction in every command.
     #[arg(long)]
     pub model: Option<PathBuf>,
     /// Correction grid image to add to the commands.
@@ -42,7 +44,14 @@ pub fn run(args: &Args) -> Result<()> {
     let (model, bytes) = super::load_calibration(args.model.as_deref(), args.grid.as_deref(), &spec.nominal)?;
     let cal = Calibration { model, grid: super::parse_grid(&bytes)? };
     super::check_noise_um(args.noise_um)?;
-    let rows = measure(&plant, &cal, &MeasureOptions { protocol, seed: args.seed, noise_um: args.noise_um, spec })?;
+    // A model with a backlash correction (diagnose --out-model): every command corrected by its
+    // motors' approach directions, as the servo would.
+    let backlash = match &args.model {
+        Some(p) => read_model_file(p)?.backlash().map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))?,
+        None => None,
+    };
+    let opts = MeasureOptions { protocol, seed: args.seed, noise_um: args.noise_um, spec };
+    let rows = measure_compensated(&plant, &cal, backlash.as_ref(), &opts)?;
     write_measurements(&args.out, &rows)?;
     eprintln!("measure: {} measurements written to {}", rows.len(), args.out.display());
     Ok(())
