@@ -147,6 +147,13 @@ fn sweep() {
                     t[1] += usize::from(!false_pos.is_empty());
                     t[2] += usize::from(!missed.is_empty());
                     t[3] += usize::from(flag_wrong);
+                    // One line per diagnosis, so that a partial run is readable.
+                    println!(
+                        "run {run}: {case:?} + {ool}, scale {f}, seed {seed}: named {named:?}; false {} missed {} unexplained {}",
+                        !false_pos.is_empty(),
+                        !missed.is_empty(),
+                        r.unexplained
+                    );
                     if !false_pos.is_empty() || (verbose && (!missed.is_empty() || flag_wrong)) {
                         println!(
                             "  {case:?} + {ool}, scale {f}, seed {seed}: named {named:?}; false {false_pos:?}, missed {missed:?}, unexplained {}",
