@@ -2,9 +2,11 @@
 //!
 //! Features:
 //! * **2 kHz servo step** in [`app::servo_tick`], bound to the board's hardware timer interrupt
-//!   (`SERVO_TICK`, priority 3): read both encoders, take the next setpoint, hidden-robot IK,
-//!   grid correction, PID with velocity/acceleration feed-forward per axis, write the torques
-//!   (`controller::servo_loop::ServoLoop::step` around `kinematics_core::Servo::step`).
+//!   (`SERVO_TICK`, priority 3): read both encoders, take the next setpoint (with its exact
+//!   velocity, acceleration and jerk), hidden-robot IK and joint motion, grid correction,
+//!   inverse-dynamics feed-forward (the image's identified parameters) and a PID per axis on
+//!   the remainder, write the torques (`controller::servo_loop::ServoLoop::step` around
+//!   `kinematics_core::Servo::step_motion`).
 //! * **Deadline monitoring**: every step measures its time from the tick and checks whether
 //!   the next tick already came; overruns are counted, the worst step time kept, and a streak
 //!   of overruns latches a fault.
@@ -19,9 +21,13 @@
 //!   motor never jumps: the servo refuses, it never clamps a setpoint into reach.
 //! * **Encoder plausibility** (`controller::encoder_check`): speed and acceleration beyond the
 //!   mechanism's, glitches, a reading that does not move under torque, at rest too.
+//! * **Independent watchdog** (3 ms), fed last in the servo task and only after an on-time
+//!   step (`controller::watchdog`): a stalled servo task lets it expire (category 0; G474:
+//!   reset; QEMU: NMI that removes torque, then reset). The boot after a watchdog reset keeps
+//!   the drives off; the reset cause is logged at every boot.
 //! * **Setpoint intake** ([`app::intake`], priority 2): keeps a `heapless` SPSC queue filled
-//!   from the board's setpoint source, the built-in trajectory (a host link would fill the
-//!   same queue).
+//!   from the board's setpoint source, the built-in jerk-limited trajectory (a host link would
+//!   fill the same queue).
 //! * **Telemetry** ([`app::telemetry`], priority 1): defmt status at 4 Hz.
 //! * **Fault handling** ([`app::on_fault`], priority 1): reports the latched fault.
 //! * **Calibration**: the correction grid image is read from its own flash region and
@@ -41,6 +47,7 @@ use defmt_rtt as _;
 #[rtic::app(device = firmware::board::device, peripherals = false, dispatchers = [DISPATCH_1, DISPATCH_2])]
 mod app {
     use heapless::spsc::{Consumer, Producer, Queue};
+    use kinematics_core::trajectory::MotionSetpoint;
 
     use controller::calibration::{self, CalibrationState};
     use controller::fault::{Fault, StopCategory};
@@ -49,6 +56,7 @@ mod app {
     use controller::setpoints::{self, QUEUE_SLOTS};
     use controller::status::Status;
     use controller::trajectory::Trajectory;
+    use controller::watchdog;
     use controller::SAMPLE_RATE_HZ;
     use firmware::board::{Board, Selected, ServoTimer};
 
@@ -61,13 +69,13 @@ mod app {
     struct Local {
         board: Selected,
         servo_loop: ServoLoop<'static>,
-        setpoints_out: Consumer<'static, [f32; 2]>,
-        setpoints_in: Producer<'static, [f32; 2]>,
+        setpoints_out: Consumer<'static, MotionSetpoint<f32>>,
+        setpoints_in: Producer<'static, MotionSetpoint<f32>>,
         source: <Selected as Board>::Setpoints,
     }
 
     #[init(local = [
-        queue: Queue<[f32; 2], QUEUE_SLOTS> = Queue::new(),
+        queue: Queue<MotionSetpoint<f32>, QUEUE_SLOTS> = Queue::new(),
         settings: Option<Settings> = None,
     ])]
     fn init(cx: init::Context) -> (Shared, Local) {
@@ -75,6 +83,8 @@ mod app {
         let settings: &'static Settings = cx.local.settings.insert(Selected::settings());
         defmt::info!("boot: settings {}", settings.servo);
         let mut board = Selected::init(settings);
+        let reset_cause = board.reset_cause();
+        defmt::info!("boot: reset cause {}", reset_cause);
 
         let (cal_state, cal) = calibration::load(firmware::calibration::region(), settings.allow_uncorrected);
         match cal_state {
@@ -84,7 +94,18 @@ mod app {
         }
         // Engage at the machine's actual position, unless the calibration forbids it.
         let encoder_rad = board.encoders_rad();
-        let servo_loop = ServoLoop::boot(settings, cal, cal_state, encoder_rad);
+        let mut servo_loop = ServoLoop::boot(settings, cal, cal_state, encoder_rad);
+        // A watchdog reset keeps the drives off.
+        if let Some(fault) = watchdog::fault_after_reset(reset_cause) {
+            servo_loop.latch_at_boot(fault);
+        }
+        let mut source = board.setpoints(Trajectory::builtin(servo_loop.setpoint_mm(), settings));
+        // The watchdog starts only now, after the slow part of the boot (the QEMU harness scans
+        // the trajectory), so that the first servo sample comes well within its timeout; a
+        // watchdog that will not start keeps the drives off.
+        if let Err(e) = board.start_watchdog() {
+            servo_loop.latch_at_boot(Fault::Watchdog(e));
+        }
         match servo_loop.mode().fault() {
             None => {
                 defmt::info!("engaged at {} mm (encoders {} rad)", servo_loop.setpoint_mm(), encoder_rad);
@@ -96,7 +117,6 @@ mod app {
             }
         }
 
-        let mut source = board.setpoints(Trajectory::builtin(servo_loop.setpoint_mm(), settings));
         let (mut setpoints_in, setpoints_out) = cx.local.queue.split();
         if servo_loop.drives_enabled() {
             setpoints::refill(&mut setpoints_in, &mut source);
@@ -120,7 +140,8 @@ mod app {
     /// already pending. A missed deadline is counted (`overruns`); the torques written late
     /// still stand (they are the best available). `overrun_streak_limit` consecutive misses
     /// (default 3, i.e. 1.5 ms without a fresh command) latch `Fault::DeadlineMissed`: drives
-    /// disabled, zero torque (category 0).
+    /// disabled, zero torque (category 0). Last, an on-time step feeds the independent watchdog
+    /// (3 ms).
     #[task(binds = SERVO_TICK, priority = 3, shared = [status], local = [board, servo_loop, setpoints_out])]
     fn servo_tick(mut cx: servo_tick::Context) {
         let l = cx.local;
@@ -157,6 +178,10 @@ mod app {
         });
         if sample.index % l.servo_loop.settings().telemetry_period_ticks.max(1) == 0 {
             let _ = telemetry::spawn();
+        }
+        // Watchdog, last: only a step that completed on time feeds it.
+        if sample.feed_watchdog {
+            l.board.feed_watchdog();
         }
     }
 

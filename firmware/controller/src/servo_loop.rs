@@ -9,6 +9,7 @@
 //!     │                                     │                    └── cat. 1, standstill ──► SafeState
 //!     └──── category 0 fault ─────────────────────────────────────────────────────────► SafeState
 //!  Stopping, Holding ── category 0 fault ──────────────────────────────────────────► SafeState
+//!  boot after a watchdog reset, watchdog not started ([`ServoLoop::latch_at_boot`]) ──► SafeState
 //! ```
 //! Every mode but `SafeState` has the drives on. `Holding` keeps the servo on the stop's end
 //! point (the fault stays latched); `SafeState` is zero torque, drive enable off, the queue
@@ -18,8 +19,10 @@
 //! A sample while the drives are on:
 //! 1. the encoder check ([`crate::encoder_check`]) with the torque that acted since the last
 //!    reading: a finding is category 0;
-//! 2. `Running`: the next setpoint from the queue (an empty queue holds the last setpoint if the
-//!    machine is at rest, or is [`Fault::Underrun`] if it moves), [`Servo::accept`]; a refusal
+//! 2. `Running`: the next setpoint from the queue, with its exact derivatives and the one after
+//!    it as the feed-forward's look-ahead (an empty queue holds the last setpoint if the
+//!    machine is at rest, or is [`Fault::Underrun`] if it moves), [`Servo::accept_motion`]
+//!    (the identified dynamics the image carries fed forward, issue 14); a refusal
 //!    is [`Fault::Setpoint`]; an accepted setpoint whose stop would end outside the workspace
 //!    ([`Workspace`], the grid's rectangle less a margin) is dropped and is
 //!    [`Fault::StopOutsideWorkspace`]; otherwise it is tracked;
@@ -33,21 +36,25 @@
 //! read encoders, [`ServoLoop::step`], write the torques (a failed write is
 //! [`ServoLoop::latch`]ed as [`Fault::Drive`]), [`ServoLoop::record_deadline`], disable the
 //! drives if the sample says so ([`Sample::torque_off`]), publish the
-//! [`Status`](crate::status::Status).
+//! [`Status`](crate::status::Status), and last feed the watchdog if [`Sample::feed_watchdog`]
+//! (the step was on time; see [`crate::watchdog`]).
 //!
 //! A motor never jumps: the servo refuses a setpoint it cannot follow, it never clamps one into
 //! reach; a stop never steps the velocity; torque is removed only in category 0 (at once) or
 //! after a category-1 stop has reached standstill.
 use heapless::spsc::Consumer;
+use kinematics_core::trajectory::MotionSetpoint;
 use kinematics_core::{Calibration, Servo, ServoOutput, StepError};
 
 use crate::calibration::CalibrationState;
 use crate::deadline::Deadline;
+use crate::encoder::EncoderScale;
 use crate::encoder_check::EncoderCheck;
 use crate::fault::{Fault, StopCategory};
 use crate::setpoints::REFILL_BELOW;
 use crate::settings::{Settings, SettingsError};
 use crate::stop::{MotionState, StopProfile, Workspace};
+use crate::watchdog;
 
 /// Where the servo is.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -98,6 +105,10 @@ pub struct Sample {
     pub fault: Option<Fault>,
     /// This sample entered the safe state: disable the drives now.
     pub torque_off: bool,
+    /// The step completed on time: the servo task feeds the independent watchdog at its end.
+    /// Set only by [`ServoLoop::record_deadline`] (a sample whose deadline was not recorded
+    /// does not feed); in the safe state too (drives off is not a stall).
+    pub feed_watchdog: bool,
 }
 
 /// A stop under way: its profile and the samples stepped along it.
@@ -145,6 +156,9 @@ impl<'a> ServoLoop<'a> {
         let (servo, engaged) = match servo {
             Err(e) => (None, Err(Fault::Settings(e))),
             Ok(mut servo) => {
+                // Validated when the image was parsed; `set_dynamics` checks again and keeps
+                // none if not (the gains' constant feed-forward then).
+                let _ = servo.set_dynamics(calibration.grid.as_ref().and_then(|g| g.dynamics().copied()));
                 let engaged = match state {
                     CalibrationState::Refused(e) => Err(Fault::Calibration(e)),
                     CalibrationState::Valid | CalibrationState::Uncorrected(_) => {
@@ -158,6 +172,9 @@ impl<'a> ServoLoop<'a> {
             Ok(tool_mm) => (Mode::Running, tool_mm),
             Err(fault) => (Mode::SafeState(fault), [0.0; 2]),
         };
+        // One count of each axis's encoder: the quantisation the encoder check allows (a refused
+        // configuration was refused by `validate` above: the loop is in the safe state).
+        let count_rad = settings.encoders.map(|c| EncoderScale::new(&c).map_or(0.0, |s| s.rad_per_count()));
         let margin_mm = settings.stop.workspace_margin_mm;
         let workspace = calibration.grid.as_ref().map(|g| Workspace::of_grid(g.geometry(), margin_mm));
         ServoLoop {
@@ -167,7 +184,7 @@ impl<'a> ServoLoop<'a> {
             servo,
             mode,
             deadline: Deadline::default(),
-            encoders: EncoderCheck::new(encoder_rad),
+            encoders: EncoderCheck::new(encoder_rad, count_rad),
             motion: MotionState::at_rest(setpoint_mm),
             stop: None,
             setpoint_mm,
@@ -217,7 +234,7 @@ impl<'a> ServoLoop<'a> {
     /// One sample (see the module doc): the encoder check, then the next setpoint from `queue`
     /// or from the stop, through the servo. In the safe state the queue is left alone and the
     /// torques are zero.
-    pub fn step(&mut self, queue: &mut Consumer<'_, [f32; 2]>, encoder_rad: [f32; 2]) -> Sample {
+    pub fn step(&mut self, queue: &mut Consumer<'_, MotionSetpoint<f32>>, encoder_rad: [f32; 2]) -> Sample {
         let index = self.samples;
         self.samples = self.samples.wrapping_add(1);
         let mut sample = Sample {
@@ -231,6 +248,7 @@ impl<'a> ServoLoop<'a> {
             refill: false,
             fault: None,
             torque_off: false,
+            feed_watchdog: false,
         };
         if matches!(self.mode, Mode::SafeState(_)) {
             return sample;
@@ -247,23 +265,26 @@ impl<'a> ServoLoop<'a> {
     }
 
     /// `Running`: the next setpoint of the stream, or the start of a stop.
-    fn run(&mut self, queue: &mut Consumer<'_, [f32; 2]>, encoder_rad: [f32; 2], sample: &mut Sample) {
+    fn run(&mut self, queue: &mut Consumer<'_, MotionSetpoint<f32>>, encoder_rad: [f32; 2], sample: &mut Sample) {
         let next = queue.dequeue();
         sample.refill = queue.len() < REFILL_BELOW;
-        let setpoint_mm = match next {
+        let setpoint = match next {
             Some(p) => p,
             None => {
                 sample.underrun = true;
                 if !self.motion.is_at_rest() {
                     return self.begin_stop(Fault::Underrun, encoder_rad, sample);
                 }
-                self.motion.position_mm
+                MotionSetpoint::at_rest(self.motion.position_mm)
             }
         };
+        let setpoint_mm = setpoint.position_mm;
+        // The one after it, if queued: the feed-forward's look-ahead (else it is predicted).
+        let ahead = queue.peek().copied();
         let Some(servo) = self.servo.as_mut() else {
             return self.latch(Fault::Servo(kinematics_core::ServoFault::NotEngaged), sample);
         };
-        let accepted = match servo.accept(&self.calibration, setpoint_mm) {
+        let accepted = match servo.accept_motion(&self.calibration, &setpoint, ahead.as_ref()) {
             Ok(a) => a,
             Err(refusal) => return self.begin_stop(Fault::Setpoint(refusal), encoder_rad, sample),
         };
@@ -367,10 +388,21 @@ impl<'a> ServoLoop<'a> {
     /// Records how long the sample took (`step_us` from its tick) and whether the next tick
     /// already came; a streak of `overrun_streak_limit` misses latches
     /// [`Fault::DeadlineMissed`] (category 0). The torques already written stand until the
-    /// drives are disabled (they were the best available).
+    /// drives are disabled (they were the best available). Sets [`Sample::feed_watchdog`] when
+    /// the step was on time ([`watchdog::step_on_time`]).
     pub fn record_deadline(&mut self, step_us: f32, overrun: bool, sample: &mut Sample) {
         if self.deadline.record(step_us, overrun, self.settings.overrun_streak_limit) {
             self.latch(Fault::DeadlineMissed, sample);
+        }
+        sample.feed_watchdog = watchdog::step_on_time(step_us, overrun);
+    }
+
+    /// Keeps the drives off from boot, before the first sample, with `fault` (e.g. the last
+    /// reset was the watchdog's, or the watchdog could not be started). A fault already
+    /// latched at boot (a refused image) stays the one reported.
+    pub fn latch_at_boot(&mut self, fault: Fault) {
+        if self.mode == Mode::Running {
+            self.mode = Mode::SafeState(fault);
         }
     }
 }
@@ -423,9 +455,9 @@ mod tests {
         let mut l = ServoLoop::boot(&settings, cal, CalibrationState::Refused(GridError::BadCrc), encoder);
         assert_eq!(l.mode(), Mode::SafeState(Fault::Calibration(GridError::BadCrc)));
         assert!(!l.drives_enabled());
-        let mut q: Queue<[f32; 2], QUEUE_SLOTS> = Queue::new();
+        let mut q: Queue<MotionSetpoint<f32>, QUEUE_SLOTS> = Queue::new();
         let (mut tx, mut rx) = q.split();
-        tx.enqueue(HOME_MM).unwrap();
+        tx.enqueue(MotionSetpoint::at_rest(HOME_MM)).unwrap();
         for _ in 0..3 {
             let s = l.step(&mut rx, encoder);
             assert_eq!(s.torque_nm, [0.0; 2]);
@@ -446,6 +478,19 @@ mod tests {
         assert!(matches!(l.mode(), Mode::SafeState(Fault::Engage(EngageError::Kinematics(_)))), "{:?}", l.mode());
     }
 
+    #[test]
+    fn boot_refuses_an_encoder_configuration_the_scale_refuses() {
+        use crate::encoder::EncoderConfigError;
+        let img = image();
+        let mut settings = Settings::default();
+        settings.encoders[1].counts_per_rev = 0;
+        let cal = Calibration::from_grid(CorrectionGrid::parse(&img).unwrap());
+        let encoder = cal.command_rad(HOME_MM, 0.05).unwrap();
+        let l = ServoLoop::boot(&settings, cal, CalibrationState::Valid, encoder);
+        let want = Fault::Settings(SettingsError::Encoder { axis: 1, error: EncoderConfigError::ZeroCountsPerRev });
+        assert_eq!(l.mode(), Mode::SafeState(want));
+    }
+
     /// Issue 11: a refused setpoint used to remove torque at once whatever the speed. At rest,
     /// a NaN (category 1) stops at once (an empty stop) and removes torque at standstill, in the
     /// same sample; the stop from rest holds the last accepted setpoint.
@@ -453,11 +498,11 @@ mod tests {
     fn a_nan_setpoint_at_rest_removes_torque_at_standstill() {
         let (settings, img) = (Settings::default(), image());
         let (mut l, encoder) = running(&settings, &img);
-        let mut q: Queue<[f32; 2], QUEUE_SLOTS> = Queue::new();
+        let mut q: Queue<MotionSetpoint<f32>, QUEUE_SLOTS> = Queue::new();
         let (mut tx, mut rx) = q.split();
-        tx.enqueue(HOME_MM).unwrap();
-        tx.enqueue([f32::NAN, 0.0]).unwrap();
-        tx.enqueue(HOME_MM).unwrap();
+        tx.enqueue(MotionSetpoint::at_rest(HOME_MM)).unwrap();
+        tx.enqueue(MotionSetpoint::at_rest([f32::NAN, 0.0])).unwrap();
+        tx.enqueue(MotionSetpoint::at_rest(HOME_MM)).unwrap();
         let s = l.step(&mut rx, encoder);
         assert!(s.fault.is_none() && !s.torque_off);
         let s = l.step(&mut rx, encoder);
@@ -475,13 +520,13 @@ mod tests {
     fn an_empty_queue_holds_the_last_setpoint_and_asks_for_a_refill() {
         let (settings, img) = (Settings::default(), image());
         let (mut l, encoder) = running(&settings, &img);
-        let mut q: Queue<[f32; 2], QUEUE_SLOTS> = Queue::new();
+        let mut q: Queue<MotionSetpoint<f32>, QUEUE_SLOTS> = Queue::new();
         let (mut tx, mut rx) = q.split();
         let s = l.step(&mut rx, encoder);
         assert!(s.underrun && s.refill && s.fault.is_none());
         assert_eq!(s.setpoint_mm, l.setpoint_mm());
         while tx.ready() {
-            tx.enqueue(l.setpoint_mm()).unwrap();
+            tx.enqueue(MotionSetpoint::at_rest(l.setpoint_mm())).unwrap();
         }
         let s = l.step(&mut rx, encoder);
         assert!(!s.underrun && !s.refill, "{} left", rx.len());
@@ -495,7 +540,7 @@ mod tests {
     fn a_streak_of_overruns_latches_deadline_missed_once() {
         let (settings, img) = (Settings::default(), image());
         let (mut l, encoder) = running(&settings, &img);
-        let mut q: Queue<[f32; 2], QUEUE_SLOTS> = Queue::new();
+        let mut q: Queue<MotionSetpoint<f32>, QUEUE_SLOTS> = Queue::new();
         let (_, mut rx) = q.split();
         for k in 0..settings.overrun_streak_limit {
             let mut s = l.step(&mut rx, encoder);
@@ -511,10 +556,53 @@ mod tests {
     }
 
     #[test]
+    fn only_an_on_time_step_feeds_the_watchdog_and_the_safe_state_still_does() {
+        let (settings, img) = (Settings::default(), image());
+        let (mut l, encoder) = running(&settings, &img);
+        let mut q: Queue<MotionSetpoint<f32>, QUEUE_SLOTS> = Queue::new();
+        let (_, mut rx) = q.split();
+        let s = l.step(&mut rx, encoder);
+        assert!(!s.feed_watchdog, "no deadline recorded, no feed");
+        let mut s = l.step(&mut rx, encoder);
+        l.record_deadline(15.0, false, &mut s);
+        assert!(s.feed_watchdog);
+        let mut s = l.step(&mut rx, encoder);
+        l.record_deadline(700.0, true, &mut s);
+        assert!(!s.feed_watchdog, "late");
+        let mut s = l.step(&mut rx, encoder);
+        l.record_deadline(f32::NAN, false, &mut s);
+        assert!(!s.feed_watchdog, "step time unreadable");
+        // In the safe state the drives are off and the task still runs on time: it feeds.
+        l.latch(Fault::Drive, &mut s);
+        let mut s = l.step(&mut rx, encoder);
+        l.record_deadline(10.0, false, &mut s);
+        assert!(s.feed_watchdog && !l.drives_enabled());
+    }
+
+    #[test]
+    fn a_fault_at_boot_keeps_the_drives_off_and_the_first_reason_is_kept() {
+        use crate::watchdog::WatchdogFault;
+        let (settings, img) = (Settings::default(), image());
+        let (mut l, encoder) = running(&settings, &img);
+        l.latch_at_boot(Fault::Watchdog(WatchdogFault::Reset));
+        assert_eq!(l.mode(), Mode::SafeState(Fault::Watchdog(WatchdogFault::Reset)));
+        let mut q: Queue<MotionSetpoint<f32>, QUEUE_SLOTS> = Queue::new();
+        let (mut tx, mut rx) = q.split();
+        tx.enqueue(MotionSetpoint::at_rest(HOME_MM)).unwrap();
+        let s = l.step(&mut rx, [encoder[0] + 1e-3, encoder[1]]);
+        assert_eq!((s.torque_nm, s.fault), ([0.0; 2], None));
+        // A refused image at boot stays the reason reported.
+        let cal = Calibration { model: FiveBar::paper_nominal(), grid: None };
+        let mut l = ServoLoop::boot(&settings, cal, CalibrationState::Refused(GridError::BadCrc), encoder);
+        l.latch_at_boot(Fault::Watchdog(WatchdogFault::NotStarted));
+        assert_eq!(l.mode(), Mode::SafeState(Fault::Calibration(GridError::BadCrc)));
+    }
+
+    #[test]
     fn a_failed_pwm_write_latches_a_drive_fault() {
         let (settings, img) = (Settings::default(), image());
         let (mut l, encoder) = running(&settings, &img);
-        let mut q: Queue<[f32; 2], QUEUE_SLOTS> = Queue::new();
+        let mut q: Queue<MotionSetpoint<f32>, QUEUE_SLOTS> = Queue::new();
         let (_, mut rx) = q.split();
         let mut s = l.step(&mut rx, [encoder[0] + 1e-5, encoder[1]]);
         assert!(s.torque_nm[0] != 0.0);
@@ -527,9 +615,9 @@ mod tests {
     fn the_reference_is_model_ik_plus_the_grid_correction() {
         let (settings, img) = (Settings::default(), image());
         let (mut l, encoder) = running(&settings, &img);
-        let mut q: Queue<[f32; 2], QUEUE_SLOTS> = Queue::new();
+        let mut q: Queue<MotionSetpoint<f32>, QUEUE_SLOTS> = Queue::new();
         let (mut tx, mut rx) = q.split();
-        tx.enqueue(HOME_MM).unwrap();
+        tx.enqueue(MotionSetpoint::at_rest(HOME_MM)).unwrap();
         let s = l.step(&mut rx, encoder);
         assert!(s.fault.is_none());
         let ik = FiveBar::<f32>::paper_nominal().inverse(HOME_MM, 0.05).unwrap();
@@ -539,7 +627,8 @@ mod tests {
 
     // -----------------------------------------------------------------------------------------
     // Closed loop: the servo loop against two joint inertias with friction (the QEMU plant's
-    // parameters), the encoders quantised to 2^22 counts/rev.
+    // parameters: its rotors plus the diagonal of its linkage's inertia matrix, 5.4e-3 kg·m²,
+    // without the coupling), the encoders quantised to 2^22 counts/rev.
 
     const DT_S: f32 = crate::SAMPLE_PERIOD_S;
     const COUNT_RAD: f32 = 2.0 * core::f32::consts::PI / (1u32 << 22) as f32;
@@ -554,7 +643,7 @@ mod tests {
     impl Plant {
         fn advance(&mut self) {
             let h = DT_S / 10.0;
-            for (k, inertia) in [2.2e-3f32, 1.8e-3].into_iter().enumerate() {
+            for (k, inertia) in [2.2e-3f32 + 5.4e-3, 1.8e-3 + 5.4e-3].into_iter().enumerate() {
                 let tau = if self.enabled { self.torque_nm[k] } else { 0.0 };
                 for _ in 0..10 {
                     let w = self.velocity_rad_s[k];
@@ -591,13 +680,14 @@ mod tests {
         let mut plant = Plant { angle_rad: start, velocity_rad_s: [0.0; 2], torque_nm: [0.0; 2], enabled: true };
         let mut l = ServoLoop::boot(settings, cal, CalibrationState::Valid, plant.encoder_rad());
         assert_eq!(l.mode(), Mode::Running);
-        let mut q: Queue<[f32; 2], QUEUE_SLOTS> = Queue::new();
+        let mut q: Queue<MotionSetpoint<f32>, QUEUE_SLOTS> = Queue::new();
         let (mut tx, mut rx) = q.split();
         let mut run = Run { samples: vec![], modes: vec![], angles: vec![], enabled: vec![] };
         for k in 0..n {
             if let Some(p) = setpoint(k) {
                 // Full once the loop stops taking setpoints (stopping, holding, safe state).
-                let _ = tx.enqueue(p);
+                // Positions only (a source without derivatives): no inertia fed forward.
+                let _ = tx.enqueue(MotionSetpoint::at_rest(p));
             }
             let s = l.step(&mut rx, reading(k, plant.encoder_rad()));
             if s.torque_off {

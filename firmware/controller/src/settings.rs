@@ -8,6 +8,7 @@
 //! refuses (`Fault::Settings`), and no value of them can make the firmware panic.
 use kinematics_core::{ConfigError, ServoConfig};
 
+use crate::encoder::{EncoderConfig, EncoderConfigError, EncoderScale};
 use crate::encoder_check::EncoderLimits;
 use crate::stop::StopSettings;
 
@@ -36,10 +37,27 @@ pub struct Settings {
     /// moving by itself at power-on. The QEMU board runs
     /// [`WORKSPACE_TOUR_MM`](crate::trajectory::WORKSPACE_TOUR_MM).
     pub builtin_tour_mm: &'static [[f32; 2]],
+    /// Each axis's encoder as fitted: counts per motor revolution, counting direction, gear
+    /// ratio from motor to joint ([`EncoderConfig`]; the zero comes from homing, not from
+    /// here). Default: [`EncoderConfig::DIRECT_DRIVE_2_22`] on both axes, the QEMU board's
+    /// simulated encoders; set them for the motors fitted before the first power-up (see the
+    /// bring-up guide in firmware/README.md). [`Settings::validate`] refuses a configuration
+    /// `EncoderScale::new` refuses (`SettingsError::Encoder`), and the board reads such an axis
+    /// as NaN, so the drives stay off either way. The encoder check takes each axis's
+    /// resolution from here.
+    pub encoders: [EncoderConfig; 2],
     /// Peak tool acceleration of the built-in trajectory (mm/s²). Default 2 g.
     pub trajectory_accel_mm_s2: f32,
     /// Peak tool speed of the built-in trajectory (mm/s). Default 1500 mm/s.
     pub trajectory_speed_mm_s: f32,
+    /// The built-in trajectory's time law. Default
+    /// [`Profile::Quintic`](crate::trajectory::Profile::Quintic); the QEMU board's `track-5g`
+    /// runs `JerkLimited`.
+    pub trajectory_profile: crate::trajectory::Profile,
+    /// Peak tool jerk of the built-in trajectory's jerk-limited profile (mm/s³). Default
+    /// [`DEFAULT_JERK_MM_S3`](crate::trajectory::DEFAULT_JERK_MM_S3), 5e6 mm/s³ (5 g reached in
+    /// 10 ms).
+    pub trajectory_jerk_mm_s3: f32,
     /// Rest at every waypoint (s). Default 0.1 s.
     pub trajectory_dwell_s: f32,
     /// The controlled stop (stop categories 1 and 2): deceleration 5 g built up in 5 ms, and
@@ -56,6 +74,13 @@ pub struct Settings {
 pub enum SettingsError {
     /// The servo's settings (`servo`).
     Servo(ConfigError),
+    /// An axis's encoder configuration (`encoders[axis]`).
+    Encoder {
+        /// 0 or 1.
+        axis: u8,
+        /// Why `EncoderScale::new` refused it.
+        error: EncoderConfigError,
+    },
     /// Another field, by name: not a finite number in its range.
     Field(&'static str),
 }
@@ -64,6 +89,7 @@ impl core::fmt::Display for SettingsError {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         match self {
             SettingsError::Servo(e) => write!(f, "servo: {e}"),
+            SettingsError::Encoder { axis, error } => write!(f, "encoders[{axis}]: {error}"),
             SettingsError::Field(name) => write!(f, "{name} out of range"),
         }
     }
@@ -71,7 +97,8 @@ impl core::fmt::Display for SettingsError {
 
 impl Settings {
     /// Checks every field: the servo's ([`ServoConfig::validate`]), its sample period equal to
-    /// the timer's, the stop's and the encoder check's; a positive finite drive full scale,
+    /// the timer's, the stop's, each axis's encoder configuration ([`EncoderScale::new`]) and
+    /// the encoder check's; a positive finite drive full scale,
     /// trajectory acceleration and speed; a finite non-negative dwell; at least one overrun in
     /// a streak and one sample per telemetry period.
     pub fn validate(&self) -> Result<(), SettingsError> {
@@ -80,12 +107,16 @@ impl Settings {
             return Err(SettingsError::Field("servo.sample_period_s (must be the timer's)"));
         }
         self.stop.validate(self.servo.max_accel_mm_s2).map_err(SettingsError::Field)?;
+        for (axis, config) in self.encoders.iter().enumerate() {
+            EncoderScale::new(config).map_err(|error| SettingsError::Encoder { axis: axis as u8, error })?;
+        }
         self.encoder_limits.validate().map_err(SettingsError::Field)?;
         let positive = |v: f32| v.is_finite() && v > 0.0;
         for (ok, name) in [
             (positive(self.drive_full_scale_nm), "drive_full_scale_nm"),
             (positive(self.trajectory_accel_mm_s2), "trajectory_accel_mm_s2"),
             (positive(self.trajectory_speed_mm_s), "trajectory_speed_mm_s"),
+            (positive(self.trajectory_jerk_mm_s3), "trajectory_jerk_mm_s3"),
             (self.trajectory_dwell_s.is_finite() && self.trajectory_dwell_s >= 0.0, "trajectory_dwell_s"),
             (self.overrun_streak_limit >= 1, "overrun_streak_limit"),
             (self.telemetry_period_ticks >= 1, "telemetry_period_ticks"),
@@ -107,8 +138,11 @@ impl Default for Settings {
             drive_full_scale_nm: 10.0,
             telemetry_period_ticks: 500,
             builtin_tour_mm: &[],
+            encoders: [EncoderConfig::DIRECT_DRIVE_2_22; 2],
             trajectory_accel_mm_s2: 2.0 * kinematics_core::servo::STANDARD_GRAVITY_MM_S2,
             trajectory_speed_mm_s: 1_500.0,
+            trajectory_profile: crate::trajectory::Profile::Quintic,
+            trajectory_jerk_mm_s3: crate::trajectory::DEFAULT_JERK_MM_S3,
             trajectory_dwell_s: 0.1,
             stop: StopSettings::default(),
             encoder_limits: EncoderLimits::default(),
@@ -129,6 +163,10 @@ mod tests {
         // The servo's torque limit, not the PWM range, must saturate first.
         assert!(s.servo.axes.iter().all(|a| a.torque_limit_nm < s.drive_full_scale_nm));
         assert_eq!(s.validate(), Ok(()));
+        // The default encoders are valid (a refused one would keep the drives off).
+        for e in &s.encoders {
+            assert!(crate::encoder::EncoderScale::new(e).is_ok(), "{e:?}");
+        }
     }
 
     #[test]
@@ -143,6 +181,7 @@ mod tests {
             (Settings { drive_full_scale_nm: 0.0, ..d }, "drive_full_scale_nm"),
             (Settings { trajectory_accel_mm_s2: f32::NAN, ..d }, "trajectory_accel_mm_s2"),
             (Settings { trajectory_dwell_s: -1.0, ..d }, "trajectory_dwell_s"),
+            (Settings { trajectory_jerk_mm_s3: 0.0, ..d }, "trajectory_jerk_mm_s3"),
             (Settings { overrun_streak_limit: 0, ..d }, "overrun_streak_limit"),
             (Settings { telemetry_period_ticks: 0, ..d }, "telemetry_period_ticks"),
         ] {
@@ -153,5 +192,17 @@ mod tests {
         assert_eq!(Settings { stop, ..d }.validate(), Err(SettingsError::Field("stop.limits.jerk_mm_s3")));
         let encoder_limits = EncoderLimits { stuck_motion_rad: 0.0, ..d.encoder_limits };
         assert_eq!(Settings { encoder_limits, ..d }.validate(), Err(SettingsError::Field("encoder_limits.stuck_motion_rad")));
+        let mut encoders = d.encoders;
+        encoders[1].gear_ratio = -50.0;
+        assert_eq!(
+            Settings { encoders, ..d }.validate(),
+            Err(SettingsError::Encoder { axis: 1, error: EncoderConfigError::GearRatio })
+        );
+        encoders[1].gear_ratio = 1.0;
+        encoders[0].counts_per_rev = 0;
+        assert_eq!(
+            Settings { encoders, ..d }.validate(),
+            Err(SettingsError::Encoder { axis: 0, error: EncoderConfigError::ZeroCountsPerRev })
+        );
     }
 }

@@ -12,6 +12,8 @@
 //! * [`command`]: motor angles for targets, exactly as the firmware computes them;
 //! * [`backlash`]: the direction-dependent correction of backlash (command, grid, estimate);
 //! * [`accuracy`]: VDI/DGQ 3441 and ISO 230-2 figures from repeated runs;
+//! * [`dynamics`]: the hidden robot's dynamic parameters from a closed-loop excitation run
+//!   (what the servo feeds forward; issue 14);
 //! * [`pipeline`]: all of it on one machine, as `host-sim demo` runs it.
 //!
 //! Where a change goes: a new protocol in `protocol.rs` (and `Protocol::parse`); a new fit
@@ -22,6 +24,7 @@
 pub mod accuracy;
 pub mod backlash;
 pub mod command;
+pub mod dynamics;
 pub mod fit;
 pub mod grid;
 pub mod machine;

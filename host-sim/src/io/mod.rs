@@ -3,6 +3,7 @@
 //! * [`measurement_csv`]: the measurement CSV, the contract between measuring (an
 //!   interferometer or `host-sim measure`) and every tool that reads measurements;
 //! * [`model_file`]: `model.json`, a fitted hidden robot;
+//! * [`dynamics_file`]: `dynamics.json`, its identified dynamic parameters;
 //! * [`targets_csv`]: the `x_mm,y_mm` target lists `command` reads;
 //! * [`plot`]: the PNG plots (paths, error-vector fields);
 //! * [`atomic`]: every output goes through it: a failed run never leaves a half-written file.
@@ -16,6 +17,7 @@
 //! everything; `source()` is not used, so a chain printed with `{:#}` does not repeat it).
 
 pub mod atomic;
+pub mod dynamics_file;
 pub mod measurement_csv;
 pub mod model_file;
 pub mod plot;
