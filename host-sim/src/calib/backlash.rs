@@ -61,8 +61,8 @@ impl Backlash {
             .map(|m| {
                 let dir = m.dir.ok_or_else(|| invalid!("line {}: a backlash correction needs the dir1,dir2 columns", m.line))?;
                 let mut out = m.clone();
-                for j in 0..2 {
-                    out.theta_deg[j] -= (f64::from(dir[j]) * self.lost_motion_urad[j] * 0.5e-6).to_degrees();
+                for ((t, d), b) in out.theta_deg.iter_mut().zip(dir).zip(self.lost_motion_urad) {
+                    *t -= (f64::from(d) * b * 0.5e-6).to_degrees();
                 }
                 Ok(out)
             })
@@ -128,7 +128,7 @@ mod tests {
             t_s: None,
             line: 2,
         };
-        let back = b.link_angles(&[row.clone()]).unwrap();
+        let back = b.link_angles(std::slice::from_ref(&row)).unwrap();
         assert!((back[0].theta_deg[0].to_radians() - 0.5).abs() < 1e-12);
         assert!((back[0].theta_deg[1].to_radians() + 0.3).abs() < 1e-12);
         let mut no_dir = row;

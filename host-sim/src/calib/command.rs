@@ -68,6 +68,9 @@ pub fn format_commands(targets: &[Target], angles: &[[f32; 2]]) -> String {
     s
 }
 
+/// Corrected motor angles (rad) and each target's approach directions.
+pub type CommandsWithDirs = (Vec<[f64; 2]>, Vec<[i8; 2]>);
+
 /// [`command_all`] for a motion through the targets in file order, with the direction-dependent
 /// backlash correction (module doc). Returns the corrected angles (rad, unwrapped next to the
 /// previous command) and each target's approach directions.
@@ -76,7 +79,7 @@ pub fn command_all_compensated(
     targets: &[Target],
     min_transmission: f32,
     backlash: &super::backlash::Backlash,
-) -> Result<(Vec<[f64; 2]>, Vec<[i8; 2]>), CalibError> {
+) -> Result<CommandsWithDirs, CalibError> {
     let raw = command_all(cal, targets, min_transmission)?;
     let mut previous: Option<[f64; 2]> = None;
     let mut angles = Vec::with_capacity(raw.len());

@@ -387,11 +387,11 @@ impl Problem {
         let m = self.sixbar.as_ref().ok()?;
         let mut out = EffectiveSixBar { stretch_raw_um: [[0.0; N_RAW]; 2], mismatch_raw_um: [0.0; N_RAW], five_bar_shift: vec![0.0; N_PARAMS] };
         let ratio = [1.0, 1.0 + x[idx::STRETCH_RATIO] * 0.01];
-        for arm in 0..2 {
+        for (bar, r) in out.stretch_raw_um.iter_mut().zip(ratio) {
             for k in 0..N_STRETCH {
-                let a = x[idx::STRETCH + k] * ratio[arm];
-                for raw in 0..N_RAW {
-                    out.stretch_raw_um[arm][raw] += a * m.stretch_raw[k][raw];
+                let a = x[idx::STRETCH + k] * r;
+                for (v, mode) in bar.iter_mut().zip(&m.stretch_raw[k]) {
+                    *v += a * mode;
                 }
             }
         }
@@ -551,16 +551,16 @@ mod tests {
                 let st = [0, 1].map(|arm| r.distal_elongation[arm][raw]);
                 got[0] += m * (r.tool[raw][0] - r.dc_db[0][0] * st[0] - r.dc_db[1][0] * st[1]);
                 got[1] += m * (r.tool[raw][1] - r.dc_db[0][1] * st[0] - r.dc_db[1][1] * st[1]);
-                for arm in 0..2 {
-                    stretch[arm] += eff.stretch_raw_um[arm][raw] * r.distal_elongation[arm][raw];
+                for (arm, s) in stretch.iter_mut().enumerate() {
+                    *s += eff.stretch_raw_um[arm][raw] * r.distal_elongation[arm][raw];
                 }
             }
             let err = (got[0] - want[0]).hypot(got[1] - want[1]);
             assert!(err < 1e-6, "point {i}: {got:?} vs {want:?}");
-            for arm in 0..2 {
+            for (arm, s) in stretch.iter().enumerate() {
                 let ratio = if arm == 0 { 1.0 } else { 1.3 };
                 let w: f64 = ratio * (0..N_STRETCH).map(|k| x[idx::STRETCH + k] * q.stretch_u[arm][k]).sum::<f64>();
-                assert!((stretch[arm] - w).abs() < 1e-9, "point {i} arm {arm}: {} vs {w}", stretch[arm]);
+                assert!((s - w).abs() < 1e-9, "point {i} arm {arm}: {s} vs {w}");
             }
         }
     }

@@ -386,10 +386,10 @@ mod tests {
                 let r = response(&spec.nominal, &design, th).unwrap();
                 let mut pred = [0.0; 2];
                 let mut rot = 0.0;
-                for k in 0..N_RAW {
-                    pred[0] += r.tool[k][0] * raw[k];
-                    pred[1] += r.tool[k][1] * raw[k];
-                    rot += r.platform_rot_urad[k] * raw[k];
+                for (k, e) in raw.iter().enumerate() {
+                    pred[0] += r.tool[k][0] * e;
+                    pred[1] += r.tool[k][1] * e;
+                    rot += r.platform_rot_urad[k] * e;
                 }
                 worst = worst.max((pred[0] - truth[0]).hypot(pred[1] - truth[1]));
                 size = size.max(truth[0].hypot(truth[1]));
