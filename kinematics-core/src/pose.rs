@@ -88,7 +88,9 @@ impl<T: Real> Pose<T> {
         }
         // The transmissions compared multiplied out, `|p × q| >= m·|a·b|` for
         // `|p × q| / (a·b) >= m` (no division; the same test for positive lengths).
-        // `!(x >= m)` also refuses a NaN margin.
+        // `!(x >= m)` also refuses a NaN margin; the margin is raised to √ε (below the IK's
+        // floor, `FiveBar::inverse_pose`), so an exact singularity is never a solution.
+        let min_transmission = crate::real::effective_margin(min_transmission, T::FK_MIN_TRANSMISSION);
         let (p1, q1, p2, q2) = self.link_vectors();
         let serial_1 = cross(p1, q1).abs() >= min_transmission * (model.a_mm * model.b_mm).abs();
         let serial_2 = cross(p2, q2).abs() >= min_transmission * (model.d_mm * model.c_mm).abs();
