@@ -176,8 +176,8 @@ fn sweep() {
             "{:<8} {:<8} {:>6} {:>9} ({:>4.1} %) {:>5} ({:>4.1} %) {:>9} ({:>4.1} %)",
             size, ool, t[0], t[1], pct(1), t[2], pct(2), t[3], pct(3)
         );
-        for k in 0..4 {
-            total[k] += t[k];
+        for (sum, v) in total.iter_mut().zip(t) {
+            *sum += v;
         }
     }
     println!(
