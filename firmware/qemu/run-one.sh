@@ -7,13 +7,15 @@
 # -icount shift=3: every instruction advances virtual time by 8 ns (a 125 MHz core), so the
 # 25 MHz timer and therefore the whole run are deterministic. Idle is a busy loop (see
 # src/board/qemu.rs), which keeps the timer at its true rate with sleep=off.
+# QEMU_SERIAL: where UART0, the host link, goes (default none), e.g.
+#   QEMU_SERIAL=tcp:127.0.0.1:4444,server=on,wait=off   (scenario `link`, then `host-sim link --tcp 127.0.0.1:4444 ...`)
 set -u
 elf=$(realpath "$1"); scenario=$2; workdir=$3; shift 3
 mkdir -p "$workdir"
 # The firmware appends its defmt frames (a boot after a watchdog reset adds to the first's).
 rm -f "$workdir/defmt.bin"
 cd "$workdir" && exec timeout --kill-after=5 "${QEMU_TIMEOUT_S:-30}" qemu-system-arm \
-  -machine mps2-an386 -cpu cortex-m4 -nographic -monitor none -serial none \
+  -machine mps2-an386 -cpu cortex-m4 -nographic -monitor none -serial "${QEMU_SERIAL:-none}" \
   -icount shift=3,align=off,sleep=off \
   -semihosting-config enable=on,target=native,arg=firmware,arg="$scenario" \
   -kernel "$elf" "$@"

@@ -4,9 +4,12 @@
 //!
 //! * [`board`]: the [`board::Board`] trait and the two boards (QEMU MPS2-AN386 with a
 //!   simulated plant and the test harness, STM32G474), selected by the `board-*` feature;
-//! * [`calibration`]: the calibration image's flash region, read by address.
+//! * [`calibration`]: the calibration image's flash region, read by address;
+//! * [`link`]: the host link's port trait, the handler's view of the app's resources, and the
+//!   stand-ins for homing and the calibration store.
 #![no_std]
 #![warn(missing_docs)]
 
 pub mod board;
 pub mod calibration;
+pub mod link;

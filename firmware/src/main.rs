@@ -28,6 +28,13 @@
 //! * **Setpoint intake** ([`app::intake`], priority 2): keeps a `heapless` SPSC queue filled
 //!   from the board's setpoint source, the built-in jerk-limited trajectory (a host link would
 //!   fill the same queue).
+//! * **Host link** ([`app::link_rx`], priority 1, the link UART's receive interrupt, also pended
+//!   every 5 ms): framed, checksummed requests (`link-protocol`), one reply each
+//!   (`controller::host_link`): identify, status, enable/disable, home, move, streamed motion
+//!   into the [`MotionStream`](controller::motion_stream::MotionStream), stop, reset,
+//!   telemetry, calibration. Requests for the servo (stop, disable, reset) are posted and
+//!   applied by the servo task at its next sample. With `Settings::link_motion` the intake
+//!   plays the link's motion instead of the built-in tour.
 //! * **Telemetry** ([`app::telemetry`], priority 1): defmt status at 4 Hz.
 //! * **Fault handling** ([`app::on_fault`], priority 1): reports the latched fault.
 //! * **Calibration**: the correction grid image is read from its own flash region and
@@ -54,7 +61,10 @@ mod app {
     use firmware::calibration::RegionFlash;
     use kinematics_core::Calibration;
     use controller::fault::{Fault, StopCategory};
-    use controller::servo_loop::{Mode, ServoLoop, SwitchRefused};
+    use controller::host_link::LinkHandler;
+    use controller::motion_stream::{MotionStream, StreamLimits};
+    use controller::servo_loop::{Mode, ServoLoop, ServoRequest, SwitchRefused};
+    use controller::stop::Workspace;
     use controller::settings::Settings;
     use controller::setpoints::{self, QUEUE_SLOTS};
     use controller::status::Status;
@@ -62,10 +72,22 @@ mod app {
     use controller::watchdog;
     use controller::SAMPLE_RATE_HZ;
     use firmware::board::{Board, Selected, ServoTimer};
+    use firmware::link::{LinkState, Locks, PowerOnHoming, ReadOnlyStore};
+    use link_protocol::FrameReader;
+
+    /// The servo task pends the link task every this many samples (5 ms), so that a paused
+    /// motion source resumes and telemetry goes out even when the host sends nothing.
+    const LINK_POLL_TICKS: u32 = 10;
 
     #[shared]
     struct Shared {
         status: Status,
+        /// The host link's motion source (link task: queues; intake task: plays).
+        stream: MotionStream,
+        /// A host request for the servo task, applied at the start of its next sample.
+        servo_request: Option<ServoRequest>,
+        /// The host link's port, reader, handler (link and telemetry tasks).
+        link: LinkState<<Selected as Board>::Link>,
         /// The calibration slots (the upload task writes the inactive one; a host link's upload
         /// handler would too, at the same low priority).
         slots: SlotStore<RegionFlash>,
@@ -80,6 +102,7 @@ mod app {
         setpoints_out: Consumer<'static, MotionSetpoint<f32>>,
         setpoints_in: Producer<'static, MotionSetpoint<f32>>,
         source: <Selected as Board>::Setpoints,
+        link_motion: bool,
     }
 
     #[init(local = [
@@ -101,6 +124,7 @@ mod app {
         defmt::info!("boot: calibration in force {}", calibration_id);
         let image = calibration_id.map_or(firmware::calibration::region(), firmware::calibration::slot_bytes);
         let (cal_state, cal) = calibration::load(image, &settings.machine, settings.home_mm, settings.allow_uncorrected);
+        let workspace = cal.grid.as_ref().map(|g| Workspace::of_grid(g.geometry(), settings.stop.workspace_margin_mm));
         match cal_state {
             CalibrationState::Valid => {}
             CalibrationState::Refused(e) => defmt::error!("calibration image refused ({}): drives stay disabled", e),
@@ -146,15 +170,32 @@ mod app {
             }
         }
 
+        let limits = StreamLimits { task: settings.stream_limits(), stop: settings.stop.limits, workspace };
+        let mut stream = MotionStream::new(limits, servo_loop.setpoint_mm());
         let (mut setpoints_in, setpoints_out) = cx.local.queue.split();
         if servo_loop.drives_enabled() {
-            setpoints::refill(&mut setpoints_in, &mut source);
+            if settings.link_motion {
+                setpoints::refill(&mut setpoints_in, &mut stream);
+            } else {
+                setpoints::refill(&mut setpoints_in, &mut source);
+            }
+        }
+        let link = LinkState {
+            port: board.link(),
+            reader: FrameReader::new(),
+            handler: LinkHandler::new(),
+            homing: PowerOnHoming,
+            store: ReadOnlyStore::new(image),
+        };
+        if settings.link_motion {
+            defmt::info!("setpoints from the host link");
         }
         let status = Status { calibration_id, ..Status::at_boot(cal_state, &servo_loop, encoder_rad) };
         board.timer().start();
+        let link_motion = settings.link_motion;
         (
-            Shared { status, slots, new_calibration: None },
-            Local { board, servo_loop, setpoints_out, setpoints_in, source },
+            Shared { status, stream, servo_request: None, link, slots, new_calibration: None },
+            Local { board, servo_loop, setpoints_out, setpoints_in, source, link_motion },
         )
     }
 
@@ -174,13 +215,20 @@ mod app {
     /// (default 3, i.e. 1.5 ms without a fresh command) latch `Fault::DeadlineMissed`: drives
     /// disabled, zero torque (category 0). Last, an on-time step feeds the independent watchdog
     /// (3 ms).
-    #[task(binds = SERVO_TICK, priority = 3, shared = [status, new_calibration], local = [board, servo_loop, setpoints_out])]
+    #[task(binds = SERVO_TICK, priority = 3, shared = [status, servo_request, new_calibration], local = [board, servo_loop, setpoints_out])]
     fn servo_tick(mut cx: servo_tick::Context) {
         let l = cx.local;
         l.board.timer().acknowledge_tick();
         l.board.begin_sample();
         // Encoders -> sample logic (setpoint intake, mode machine, servo step).
         let encoder_rad = l.board.encoders_rad();
+        // A host request (stop, disable, reset) takes effect in this sample. A refused reset
+        // leaves the mode as it was, which the host reads in the status.
+        if let Some(request) = cx.shared.servo_request.lock(Option::take) {
+            if let Ok(true) = l.servo_loop.request(request, l.setpoints_out, encoder_rad) {
+                l.board.enable_drives();
+            }
+        }
         // A newly committed calibration: switched to at rest (parsed by the upload task, so
         // this costs a lock and a re-engage), kept pending while the machine moves.
         let mut switched = None;
@@ -237,6 +285,9 @@ mod app {
         if sample.index % l.servo_loop.settings().telemetry_period_ticks.max(1) == 0 {
             let _ = telemetry::spawn();
         }
+        if sample.index % LINK_POLL_TICKS == 0 {
+            rtic::pend(firmware::board::device::Interrupt::LINK_RX);
+        }
         // Watchdog, last: only a step that completed on time feeds it.
         if sample.feed_watchdog {
             l.board.feed_watchdog();
@@ -245,9 +296,29 @@ mod app {
 
     /// Setpoint intake: refills the queue from the board's setpoint source. Spawned by the
     /// servo task when the queue runs low.
-    #[task(priority = 2, local = [setpoints_in, source])]
-    async fn intake(cx: intake::Context) {
-        setpoints::refill(cx.local.setpoints_in, cx.local.source);
+    #[task(priority = 2, shared = [stream], local = [setpoints_in, source, link_motion])]
+    async fn intake(mut cx: intake::Context) {
+        if *cx.local.link_motion {
+            let queue = cx.local.setpoints_in;
+            cx.shared.stream.lock(|stream| setpoints::refill(queue, stream));
+        } else {
+            setpoints::refill(cx.local.setpoints_in, cx.local.source);
+        }
+    }
+
+    /// The host link (priority 1, below the intake and the servo task): on the port's receive
+    /// interrupt, and pended by the servo task every [`LINK_POLL_TICKS`] samples. Drains the
+    /// port, answers every frame (`controller::host_link`), resumes a paused motion source,
+    /// sends due telemetry. Its locks on the stream hold off the intake (priority 2) for a
+    /// frame's validation at most, never the servo task.
+    #[task(binds = LINK_RX, priority = 1, shared = [status, stream, servo_request, link])]
+    fn link_rx(cx: link_rx::Context) {
+        let link_rx::SharedResources { status, stream, servo_request, mut link, .. } = cx.shared;
+        let mut locks = Locks { status, request: servo_request, stream };
+        link.lock(|link| {
+            link.serve(&mut locks);
+            link.poll(&mut locks);
+        });
     }
 
     /// Telemetry every `Settings::telemetry_period_ticks` samples.

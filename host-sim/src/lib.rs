@@ -15,6 +15,7 @@
 //! | [`calib`] | protocols, the one measurement path, fits, grid, command, accuracy, the demo pipeline |
 //! | [`diagnose`] | where model and measurements disagree, and which effect is missing |
 //! | [`numeric`] | the one Levenberg–Marquardt, finite differences, column-scaled SVD, max/RMS |
+//! | [`link`] | the controller's host link: client, streamed motion, calibration upload, telemetry |
 //! | [`io`] | file formats (measurement CSV, model file, targets, plots) and atomic output |
 //!
 //! Conventions: library functions take an options struct (with the [`machine_spec::MachineSpec`]
@@ -33,6 +34,7 @@ pub mod calib;
 pub mod diagnose;
 pub mod effect;
 pub mod io;
+pub mod link;
 pub mod machine_spec;
 pub mod numeric;
 pub mod plant;

@@ -172,6 +172,16 @@ pub fn load<'a>(
     }
 }
 
+/// The id of the image at the start of `region`: its stored CRC-32 (the image's last four
+/// bytes before any dynamics block), `None` if the image is refused. What the host link
+/// reports as the calibration id.
+pub fn image_id(region: &[u8]) -> Option<u32> {
+    let grid = CorrectionGrid::parse(region).ok()?;
+    let end = grid.geometry().image_len();
+    let crc = region.get(end.checked_sub(4)?..end)?;
+    Some(u32::from_le_bytes([crc[0], crc[1], crc[2], crc[3]]))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -14,6 +14,8 @@
 //! | deadline overrun streak, PWM write error, drive outputs off (safe-torque-off input) | 0 | torque off at once |
 //! | servo task stalled: the independent watchdog expires ([`crate::watchdog`]) | 0 | torque off by the watchdog (QEMU: its NMI; STM32G474: the reset, the enable line pulled low), then a reset |
 //! | the controlled stop's own setpoint refused | 0 | torque off at once (a fallback the workspace check makes unreachable) |
+//! | host link: `Stop` command | 2 | brakes along its path, then holds (not a failure; latched so that only a reset or an enable moves it again) |
+//! | host link: `Disable` command | 1 | brakes along its path, then torque off |
 //! | bad calibration image, settings refused, engage refused, the last reset was the watchdog's, watchdog not started | (boot) | drives never enabled |
 //!
 //! Why these categories: a fault of the setpoint stream leaves the feedback, the servo and the
@@ -31,7 +33,8 @@
 //! "Category 0 needs dynamic braking in the drives"): the firmware cannot brake, hold or steer
 //! a machine after a category-0 fault.
 //!
-//! Only a reset clears a latched fault. The mode machine is in [`crate::servo_loop`], the stop
+//! Only a reset clears a latched fault: a reboot, or the host link's `ResetFault` / `Enable`
+//! ([`ServoLoop::reset`](crate::servo_loop::ServoLoop::reset): re-engages where the machine is). The mode machine is in [`crate::servo_loop`], the stop
 //! profile in [`crate::stop`], the encoder checks in [`crate::encoder_check`].
 use kinematics_core::{EngageError, ServoFault, SetpointRefusal};
 
@@ -80,6 +83,11 @@ pub enum Fault {
     /// the STM32G474: TIM1's break input, the external safe-torque-off, cleared its main
     /// output enable). Category 0.
     Drive,
+    /// The host link commanded a stop (category 2: controlled stop, then hold). Not a failure;
+    /// latched like one so that the machine moves again only after a reset or an enable.
+    StopCommanded,
+    /// The host link commanded the drives off (category 1: controlled stop, then torque off).
+    DisableCommanded,
     /// Homing failed ([`HomingFault`]): the index not found within the travel or a reference
     /// refused (category 1: the search has ended at rest, torque off), a following error while
     /// homing or the homing plan refused (category 0).
@@ -102,7 +110,8 @@ impl Fault {
     pub fn stop_category(&self) -> StopCategory {
         match self {
             Fault::Setpoint(SetpointRefusal::NonFinite) => StopCategory::One,
-            Fault::Setpoint(_) | Fault::StopOutsideWorkspace | Fault::Underrun => StopCategory::Two,
+            Fault::Setpoint(_) | Fault::StopOutsideWorkspace | Fault::Underrun | Fault::StopCommanded => StopCategory::Two,
+            Fault::DisableCommanded => StopCategory::One,
             Fault::Homing(HomingFault::IndexNotFound(_) | HomingFault::Reference) => StopCategory::One,
             Fault::Homing(HomingFault::FollowingError(_) | HomingFault::Plan) => StopCategory::Zero,
             Fault::Servo(_)
@@ -134,6 +143,8 @@ impl core::fmt::Display for Fault {
             Fault::Settings(e) => write!(f, "settings refused: {e}"),
             Fault::Engage(e) => write!(f, "{e}"),
             Fault::Watchdog(e) => write!(f, "watchdog: {e}"),
+            Fault::StopCommanded => f.write_str("stop commanded by the host"),
+            Fault::DisableCommanded => f.write_str("drives off commanded by the host"),
         }
     }
 }
@@ -161,6 +172,8 @@ mod tests {
             (Fault::StopRefused(SetpointRefusal::Jump), Zero),
             (Fault::DeadlineMissed, Zero),
             (Fault::Drive, Zero),
+            (Fault::StopCommanded, Two),
+            (Fault::DisableCommanded, One),
             (Fault::Watchdog(WatchdogFault::Reset), Zero),
             (Fault::Watchdog(WatchdogFault::NotStarted), Zero),
         ] {

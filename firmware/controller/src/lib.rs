@@ -36,9 +36,15 @@
 //! * `scenario` (feature `qemu-harness`, and in host tests): the QEMU test scenarios, their
 //!   fault injection and their checks.
 //!
-//! Planned homes (not written yet): the host link's command handler (`link.rs`) feeding a streamed motion
-//! buffer (a [`setpoints::SetpointSource`]), homing (`homing.rs`), calibration slots (in
-//! [`calibration`]).
+//! * [`host_link`]: the host link's command handler (requests in, one reply out; posts
+//!   [`servo_loop::ServoRequest`]s, feeds the [`motion_stream`]); the wire format is the
+//!   `link-protocol` crate;
+//! * [`motion_stream`]: the link's motion source: planned moves and streamed knots validated
+//!   whole, interpolated at 2 kHz (a [`setpoints::SetpointSource`]).
+//!
+//! The link reaches [`homing`] and [`calibration_slots`] through the handler's `Homing` and
+//! `CalibrationStore` traits (the firmware still implements them with stand-ins: see
+//! firmware/README.md, "Host link").
 //!
 //! No heap, no panic on runtime data: every failure is a [`fault::Fault`].
 #![cfg_attr(not(test), no_std)]
@@ -55,6 +61,8 @@ pub mod encoder;
 pub mod encoder_check;
 pub mod fault;
 pub mod homing;
+pub mod host_link;
+pub mod motion_stream;
 #[cfg(any(test, feature = "qemu-harness"))]
 pub mod scenario;
 pub mod servo_loop;

@@ -134,6 +134,31 @@ pub struct Sample {
     pub feed_watchdog: bool,
 }
 
+/// What the host link asks of the servo loop ([`ServoLoop::request`]). The servo task applies
+/// it at the start of a sample, before the step (the link's task only posts it).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum ServoRequest {
+    /// Controlled stop, then hold ([`Fault::StopCommanded`], category 2).
+    Stop,
+    /// Controlled stop, then torque off ([`Fault::DisableCommanded`], category 1).
+    Disable,
+    /// Clear the latched fault and re-engage where the machine is ([`ServoLoop::request`]).
+    Reset,
+}
+
+/// Why [`ServoRequest::Reset`] was refused; the mode is unchanged.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum ResetRefusal {
+    /// A controlled stop is under way: reset once it has ended.
+    Stopping,
+    /// The fault cannot be cleared without a reboot (settings or calibration refused at boot).
+    Permanent(Fault),
+    /// The servo would not engage at the machine's position.
+    Engage(kinematics_core::EngageError),
+}
+
 /// A stop under way: its profile and the samples stepped along it.
 #[derive(Clone, Copy, Debug, PartialEq)]
 struct Stop {
@@ -163,6 +188,8 @@ pub struct ServoLoop<'a> {
     /// The torque written in the last sample: it acts until the next reading.
     last_torque_nm: [f32; 2],
     samples: u32,
+    /// One count of each axis's encoder (rad): the encoder check's quantisation.
+    count_rad: [f32; 2],
     /// The homing procedure, from `start_homing` until the servo engages at home.
     homing: Option<Homing>,
     /// The offset of the reference homing asked for, until `referenced`.
@@ -261,6 +288,7 @@ impl<'a> ServoLoop<'a> {
             reference_rad: encoder_rad,
             last_torque_nm: [0.0; 2],
             samples: 0,
+            count_rad,
             homing: None,
             pending_offset_rad: [0.0; 2],
             blend: None,
@@ -643,6 +671,74 @@ impl<'a> ServoLoop<'a> {
         sample.feed_watchdog = watchdog::step_on_time(step_us, overrun);
     }
 
+    /// Applies a host link request (see [`ServoRequest`]) before this sample's step.
+    /// `Stop` and `Disable` start the controlled stop while running (from the last accepted
+    /// setpoint, as a fault would) and do nothing otherwise. `Reset` from `Holding` or
+    /// `SafeState` clears the fault, drops what is queued (`queue`: setpoints planned before the
+    /// stop) and re-engages at `encoder_rad`, at rest there; it does nothing while running and
+    /// is refused during a stop or after a boot fault. Returns whether the drives must be
+    /// enabled now (they were off).
+    pub fn request(
+        &mut self,
+        request: ServoRequest,
+        queue: &mut Consumer<'_, MotionSetpoint<f32>>,
+        encoder_rad: [f32; 2],
+    ) -> Result<bool, ResetRefusal> {
+        let mut scratch = Sample {
+            index: self.samples,
+            encoder_rad,
+            setpoint_mm: self.setpoint_mm,
+            reference_rad: self.reference_rad,
+            torque_nm: [0.0; 2],
+            following_error_rad: 0.0,
+            underrun: false,
+            refill: false,
+            fault: None,
+            torque_off: false,
+            feed_watchdog: false,
+            set_reference: false,
+        };
+        let fault = match (request, self.mode) {
+            (ServoRequest::Stop, Mode::Running) => Fault::StopCommanded,
+            (ServoRequest::Disable, Mode::Running | Mode::Holding(_)) => Fault::DisableCommanded,
+            (ServoRequest::Stop | ServoRequest::Disable, _) | (ServoRequest::Reset, Mode::Running) => return Ok(false),
+            (ServoRequest::Reset, Mode::Stopping(_)) => return Err(ResetRefusal::Stopping),
+            // Homing decides when the servo engages.
+            (ServoRequest::Reset, Mode::Unhomed | Mode::Homing) => return Ok(false),
+            (ServoRequest::Reset, Mode::Holding(f) | Mode::SafeState(f)) => return self.reset(f, queue, encoder_rad),
+        };
+        if let Mode::Holding(_) = self.mode {
+            // Disable while holding: torque off at once, the machine is at rest.
+            self.enter_safe_state(fault, &mut scratch);
+            return Ok(false);
+        }
+        self.latch(fault, &mut scratch);
+        Ok(false)
+    }
+
+    fn reset(
+        &mut self,
+        fault: Fault,
+        queue: &mut Consumer<'_, MotionSetpoint<f32>>,
+        encoder_rad: [f32; 2],
+    ) -> Result<bool, ResetRefusal> {
+        if matches!(fault, Fault::Settings(_) | Fault::Calibration(_)) {
+            return Err(ResetRefusal::Permanent(fault));
+        }
+        let servo = self.servo.as_mut().ok_or(ResetRefusal::Permanent(fault))?;
+        let tool_mm = servo.engage(&self.calibration, encoder_rad).map_err(ResetRefusal::Engage)?;
+        while queue.dequeue().is_some() {}
+        let was_off = !self.drives_enabled();
+        self.mode = Mode::Running;
+        self.stop = None;
+        self.motion = MotionState::at_rest(tool_mm);
+        self.setpoint_mm = tool_mm;
+        self.reference_rad = encoder_rad;
+        self.encoders = EncoderCheck::new(encoder_rad, self.count_rad);
+        self.last_torque_nm = [0.0; 2];
+        Ok(was_off)
+    }
+
     /// Keeps the drives off from boot, before the first sample, with `fault` (e.g. the last
     /// reset was the watchdog's, or the watchdog could not be started). A fault already
     /// latched at boot (a refused image) stays the one reported.
@@ -886,32 +982,8 @@ mod tests {
     // without the coupling), the encoders quantised to 2^22 counts/rev.
 
     const DT_S: f32 = crate::SAMPLE_PERIOD_S;
-    const COUNT_RAD: f32 = 2.0 * core::f32::consts::PI / (1u32 << 22) as f32;
 
-    struct Plant {
-        angle_rad: [f32; 2],
-        velocity_rad_s: [f32; 2],
-        torque_nm: [f32; 2],
-        enabled: bool,
-    }
-
-    impl Plant {
-        fn advance(&mut self) {
-            let h = DT_S / 10.0;
-            for (k, inertia) in [2.2e-3f32 + 5.4e-3, 1.8e-3 + 5.4e-3].into_iter().enumerate() {
-                let tau = if self.enabled { self.torque_nm[k] } else { 0.0 };
-                for _ in 0..10 {
-                    let w = self.velocity_rad_s[k];
-                    let friction = 0.01 * w + 0.03 * w / (w.abs() + 1e-3);
-                    self.velocity_rad_s[k] += (tau - friction) / inertia * h;
-                    self.angle_rad[k] += self.velocity_rad_s[k] * h;
-                }
-            }
-        }
-        fn encoder_rad(&self) -> [f32; 2] {
-            self.angle_rad.map(|a| libm::roundf(a / COUNT_RAD) * COUNT_RAD)
-        }
-    }
+    use crate::host_link::doubles::JointPlant as Plant;
 
     /// What a closed run saw.
     struct Run {
@@ -928,8 +1000,20 @@ mod tests {
         settings: &Settings,
         cal: Calibration<'_>,
         n: usize,
+        setpoint: impl FnMut(usize) -> Option<[f32; 2]>,
+        reading: impl FnMut(usize, [f32; 2]) -> [f32; 2],
+    ) -> Run {
+        closed_with_requests(settings, cal, n, setpoint, reading, |_| None)
+    }
+
+    /// [`closed`], with `request(k)` applied before sample k (as the servo task does).
+    fn closed_with_requests(
+        settings: &Settings,
+        cal: Calibration<'_>,
+        n: usize,
         mut setpoint: impl FnMut(usize) -> Option<[f32; 2]>,
         mut reading: impl FnMut(usize, [f32; 2]) -> [f32; 2],
+        mut request: impl FnMut(usize) -> Option<ServoRequest>,
     ) -> Run {
         let start = cal.command_rad(HOME_MM, 0.05).unwrap();
         let mut plant = Plant { angle_rad: start, velocity_rad_s: [0.0; 2], torque_nm: [0.0; 2], enabled: true };
@@ -943,6 +1027,11 @@ mod tests {
                 // Full once the loop stops taking setpoints (stopping, holding, safe state).
                 // Positions only (a source without derivatives): no inertia fed forward.
                 let _ = tx.enqueue(MotionSetpoint::at_rest(p));
+            }
+            if let Some(r) = request(k) {
+                if let Ok(true) = l.request(r, &mut rx, reading(k, plant.encoder_rad())) {
+                    plant.enabled = true;
+                }
             }
             let s = l.step(&mut rx, reading(k, plant.encoder_rad()));
             if s.torque_off {
@@ -1104,6 +1193,63 @@ mod tests {
         assert!(run.samples[at].underrun);
         assert_eq!(run.modes[run.modes.len() - 1], Mode::Holding(Fault::Underrun));
         check_controlled_stop(&grid_cal(&img), &run, at, bound);
+    }
+
+    /// The host's Stop at top speed is the same controlled stop (category 2, then hold); a
+    /// reset re-engages where it held, dropping what was queued; Disable brakes and
+    /// removes torque, and a reset turns the drives back on.
+    #[test]
+    fn a_commanded_stop_brakes_then_holds_and_a_reset_resumes() {
+        let (settings, img) = (absolute(), image());
+        let (at, _) = top_speed();
+        let mut t = tour();
+        let n = at + 401;
+        let run = closed_with_requests(
+            &settings,
+            grid_cal(&img),
+            n,
+            |_| Some(t.next_mm()),
+            |_, e| e,
+            |k| match k {
+                _ if k == at => Some(ServoRequest::Stop),
+                _ if k == at + 1 => Some(ServoRequest::Reset), // refused: stopping
+                _ if k == at + 400 => Some(ServoRequest::Reset),
+                _ => None,
+            },
+        );
+        assert_eq!(run.samples[at].fault, None, "a request takes effect from the next sample's stop");
+        assert_eq!(run.modes[at], Mode::Stopping(Fault::StopCommanded));
+        assert_eq!(run.modes[at + 1], Mode::Stopping(Fault::StopCommanded), "reset refused during the stop");
+        assert_eq!(run.modes[at + 399], Mode::Holding(Fault::StopCommanded));
+        assert_eq!(run.modes[at + 400], Mode::Running, "the reset dropped the tour's queued setpoints");
+        // The stop braked along the path, within its bound from the last accepted setpoint.
+        let from = run.samples[at - 1].setpoint_mm;
+        let end = run.samples[at + 399].setpoint_mm;
+        let v = libm::hypotf(from[0] - run.samples[at - 2].setpoint_mm[0], from[1] - run.samples[at - 2].setpoint_mm[1]) / DT_S;
+        let travelled = libm::hypotf(end[0] - from[0], end[1] - from[1]);
+        let bound = stopping_distance_bound_mm(v, 2.0 * 9806.65, &settings.stop.limits);
+        assert!(travelled > 0.0 && travelled <= bound, "{travelled} mm, bound {bound} mm");
+
+        // Direct: disable at rest, reset turns the drives back on, a boot fault is permanent.
+        let (mut l, enc) = running(&settings, &img);
+        let mut q: Queue<MotionSetpoint<f32>, QUEUE_SLOTS> = Queue::new();
+        let (mut tx, mut rx) = q.split();
+        assert_eq!(l.request(ServoRequest::Reset, &mut rx, enc), Ok(false), "running: nothing to reset");
+        assert_eq!(l.request(ServoRequest::Disable, &mut rx, enc), Ok(false));
+        let mut torque_off = false;
+        for _ in 0..200 {
+            torque_off |= l.step(&mut rx, enc).torque_off;
+        }
+        assert!(torque_off);
+        assert_eq!(l.mode(), Mode::SafeState(Fault::DisableCommanded));
+        let _ = tx.enqueue(MotionSetpoint::at_rest([200.0, 10.0]));
+        assert_eq!(l.request(ServoRequest::Reset, &mut rx, enc), Ok(true), "drives back on");
+        assert_eq!(l.mode(), Mode::Running);
+        assert_eq!(rx.len(), 0, "the stale setpoint was dropped");
+        let boot_fault = Fault::Calibration(ImageError::Grid(GridError::BadCrc));
+        let nominal = Calibration { model: FiveBar::paper_nominal(), grid: None };
+        let mut l = ServoLoop::boot(&settings, nominal, CalibrationState::Refused(ImageError::Grid(GridError::BadCrc)), enc);
+        assert_eq!(l.request(ServoRequest::Reset, &mut rx, enc), Err(ResetRefusal::Permanent(boot_fault)));
     }
 
     /// A stream that heads for the edge of the calibrated rectangle too fast to stop before it

@@ -65,6 +65,11 @@ pub struct Settings {
     pub trajectory_jerk_mm_s3: f32,
     /// Rest at every waypoint (s). Default 0.1 s.
     pub trajectory_dwell_s: f32,
+    /// Where the setpoints come from: `false`, the built-in tour (`builtin_tour_mm`); `true`,
+    /// the host link's motion (moves and streams, `motion_stream`), holding still until the
+    /// host commands one. Default `false` (the boards' behaviour before the link); the QEMU
+    /// board's `link` scenario sets it.
+    pub link_motion: bool,
     /// The controlled stop (stop categories 1 and 2): deceleration 5 g built up in 5 ms, and
     /// when a category-1 stop removes torque. See [`StopSettings`].
     pub stop: StopSettings,
@@ -111,6 +116,16 @@ impl core::fmt::Display for SettingsError {
 }
 
 impl Settings {
+    /// The limits the host link's motion (planned moves, streamed knots) must keep: the same
+    /// speed, acceleration and jerk as the built-in trajectory's.
+    pub fn stream_limits(&self) -> kinematics_core::trajectory::TaskLimits<f32> {
+        kinematics_core::trajectory::TaskLimits {
+            speed_mm_s: self.trajectory_speed_mm_s,
+            accel_mm_s2: self.trajectory_accel_mm_s2,
+            jerk_mm_s3: self.trajectory_jerk_mm_s3,
+        }
+    }
+
     /// Checks every field: the servo's ([`ServoConfig::validate`]), its sample period equal to
     /// the timer's, the stop's, each axis's encoder configuration ([`EncoderScale::new`]) and
     /// the encoder check's; a positive finite drive full scale,
@@ -168,6 +183,7 @@ impl Default for Settings {
             trajectory_profile: crate::trajectory::Profile::Quintic,
             trajectory_jerk_mm_s3: crate::trajectory::DEFAULT_JERK_MM_S3,
             trajectory_dwell_s: 0.1,
+            link_motion: false,
             stop: StopSettings::default(),
             encoder_limits: EncoderLimits::default(),
             machine: MachineIdentity::default(),

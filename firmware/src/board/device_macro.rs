@@ -1,6 +1,7 @@
 //! The `device` module RTIC needs, for any board: interrupt numbers, priority bits and the
 //! external-interrupt vector table, with the board-neutral interrupt names the app binds
-//! (`SERVO_TICK`, and `DISPATCH_1`/`DISPATCH_2` for the software tasks), so that one app file
+//! (`SERVO_TICK`, `LINK_RX` for the host link, and `DISPATCH_1`/`DISPATCH_2` for the software
+//! tasks), so that one app file
 //! serves every board. A board states its numbers once:
 //!
 //! ```ignore
@@ -13,7 +14,7 @@
 //! }
 //! ```
 //! Every other vector points at `DefaultHandler`; `firmware/device.x` provides weak defaults for
-//! the three names (RTIC defines them). A PAC's own vector table (its `rt` feature) is not used.
+//! the four names (RTIC defines them). A PAC's own vector table (its `rt` feature) is not used.
 
 /// Defines `pub mod device` for a board (see the module doc).
 macro_rules! device {

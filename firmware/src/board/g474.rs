@@ -58,6 +58,9 @@ device! {
     DISPATCH_2 = 53,
     /// TIM6 update (54, `TIM6_DACUNDER`, RM0440 vector table): the 2 kHz servo tick.
     SERVO_TICK = 54,
+    /// USART2 (38): the host link's receive interrupt, once the USART is in the register plan
+    /// (not yet: [`UnwiredLink`]; the interrupt is never enabled).
+    LINK_RX = 38,
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -241,10 +244,29 @@ fn boot_failed(step: &'static Step) -> ! {
     }
 }
 
+/// The host link's port on the STM32G474, not wired yet: USART2 (the Nucleo's ST-LINK virtual
+/// COM port, PA2/PA3, AF7) must first be added to the register plan (`g474-plan`: RCC
+/// APB1ENR1.USART2EN, the pins, BRR for 115 200 Bd at 170 MHz, CR1 UE|TE|RE|RXNEIE) with its
+/// host test against RM0440. Until then it receives nothing and drops what is written, and the
+/// board runs its built-in settings as before.
+pub struct UnwiredLink;
+
+impl crate::link::LinkPort for UnwiredLink {
+    fn read_byte(&mut self) -> Option<u8> {
+        None
+    }
+    fn write(&mut self, _bytes: &[u8]) {}
+}
+
 impl Board for G474Board {
     /// No test harness on the board: the production settings, no built-in tour.
     type Setpoints = Trajectory;
     type Timer = Tim6Timer;
+    type Link = UnwiredLink;
+
+    fn link(&mut self) -> UnwiredLink {
+        UnwiredLink
+    }
 
     fn settings() -> Settings {
         Settings::default()

@@ -9,6 +9,7 @@
 //!   [`TorqueDrive`](controller::drive::TorqueDrive), plus a drive-enable line;
 //! * an independent watchdog, fed by the servo task only after an on-time step
 //!   ([`controller::watchdog`]), and the cause of the last reset;
+//! * the host link's byte port ([`crate::link::LinkPort`], a UART with its receive interrupt);
 //! * an idle wait, and two per-sample hooks that do nothing on hardware: the QEMU board advances
 //!   its simulated plant and runs its test harness (scenarios, fault injection, checks) there.
 //!
@@ -36,11 +37,17 @@ mod hard_fault_macro;
 pub mod g474;
 #[cfg(feature = "board-g474")]
 pub use g474::{bench_init, console, device, exit, CycleCounter, G474Board as Selected, COUNT_UNIT};
+/// What the host link's `Identify` reports as the board.
+#[cfg(feature = "board-g474")]
+pub const BOARD_ID: link_protocol::Board = link_protocol::Board::Stm32G474;
 
 #[cfg(feature = "board-qemu")]
 pub mod qemu;
 #[cfg(feature = "board-qemu")]
 pub use qemu::{bench_init, console, device, exit, CycleCounter, QemuBoard as Selected, COUNT_UNIT};
+/// What the host link's `Identify` reports as the board.
+#[cfg(feature = "board-qemu")]
+pub const BOARD_ID: link_protocol::Board = link_protocol::Board::Qemu;
 
 /// Sets both scales' zero at the captured index counts `counts` (rad `index_rad`), both or
 /// neither. For the boards' `reference_at_index`.
@@ -101,6 +108,12 @@ pub trait Board: Sized {
 
     /// The servo tick's timer.
     type Timer: ServoTimer;
+
+    /// The host link's byte port (a UART; its receive interrupt is `LINK_RX` in [`device`]).
+    type Link: crate::link::LinkPort;
+
+    /// Takes the host link's port, configured, its receive interrupt enabled at the device.
+    fn link(&mut self) -> Self::Link;
 
     /// The settings this board runs with: [`Settings::default`] on hardware; the QEMU board
     /// runs the built-in tour, and its harness adapts the tour to its scenario.

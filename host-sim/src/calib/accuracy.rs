@@ -4,7 +4,11 @@
 //!
 //! # Axis lines
 //! Targets sharing y (to 1 nm) form an x-axis line, targets sharing x a y-axis line; a line needs
-//! at least two distinct targets. Along an x line the deviation is `x_measured − x_target` (the
+//! at least two distinct targets. A row counts on an axis-a line only if it lies on a pass along
+//! a: its previous or next row in the run with another target differs from it along a only
+//! ([`on_pass`]). So where an x line and a y line cross (the repeat protocol's lines share the
+//! workspace's centre) each line keeps its own approaches: the y passes' visits of the centre
+//! are not x-line approaches (their x direction is not one the x test cycle made). Along an x line the deviation is `x_measured − x_target` (the
 //! positioning deviation along the axis; the other coordinate is straightness, not reported).
 //!
 //! # Approach direction (derived, documented rule)
@@ -27,7 +31,8 @@
 //! # Figures (x_ij = deviation of approach j at target i; ↑ positive, ↓ negative direction)
 //! `x̄i↑`, `x̄i↓` means, `si↑`, `si↓` sample standard deviations (n − 1), `x̄i = (x̄i↑ + x̄i↓)/2`.
 //! * ISO 230-2:2014, clause 2: reversal value `Bi = x̄i↑ − x̄i↓`, `B = max|Bi|`, mean reversal
-//!   value `B̄ = Σ Bi / m`; repeatability `Ri = max(2si↑ + 2si↓ + |Bi|, 4si↑, 4si↓)`, `R = max Ri`;
+//!   value `B̄ = Σ Bi / m`; repeatability `Ri = max(2si↑ + 2si↓ + |Bi|, 4si↑, 4si↓)`, `R = max Ri`,
+//!   unidirectional `R↑ = max 4si↑`, `R↓ = max 4si↓`;
 //!   systematic deviation `E = max(x̄↑, x̄↓) − min(x̄↑, x̄↓)`; mean bidirectional positional
 //!   deviation `M = max x̄i − min x̄i`; accuracy
 //!   `A = max(x̄i↑ + 2si↑, x̄i↓ + 2si↓) − min(x̄i↑ − 2si↑, x̄i↓ − 2si↓)`.
@@ -63,6 +68,9 @@ pub struct TargetStats {
 pub struct Iso230 {
     pub a_um: f64,
     pub r_um: f64,
+    /// Unidirectional repeatability `R↑ = max 4si↑`, `R↓ = max 4si↓`.
+    pub r_up_um: f64,
+    pub r_down_um: f64,
     pub b_um: f64,
     pub b_mean_um: f64,
     pub m_um: f64,
@@ -126,6 +134,8 @@ pub fn line_figures(targets: &[TargetDevs]) -> Result<(Iso230, Vdi3441, Vec<Targ
         a_um: max(&|t| (t.mean_up_um + 2.0 * t.s_up_um).max(t.mean_down_um + 2.0 * t.s_down_um))
             - min(&|t| (t.mean_up_um - 2.0 * t.s_up_um).min(t.mean_down_um - 2.0 * t.s_down_um)),
         r_um: max(&|t| (2.0 * t.s_up_um + 2.0 * t.s_down_um + b(t).abs()).max(4.0 * t.s_up_um).max(4.0 * t.s_down_um)),
+        r_up_um: max(&|t| 4.0 * t.s_up_um),
+        r_down_um: max(&|t| 4.0 * t.s_down_um),
         b_um: max(&|t| b(t).abs()),
         b_mean_um: stats.iter().map(b).sum::<f64>() / stats.len() as f64,
         m_um: max(&mid) - min(&mid),
@@ -174,6 +184,26 @@ pub fn directions(data: &[Measurement], a: usize) -> Vec<i8> {
     dir
 }
 
+/// Whether each row lies on a pass along axis `a` (module doc, *Axis lines*): the previous or
+/// next row of its run with another target differs from it along `a` only.
+pub fn on_pass(data: &[Measurement], a: usize) -> Vec<bool> {
+    let mut on = vec![false; data.len()];
+    let mut by_run: BTreeMap<u32, Vec<usize>> = BTreeMap::new();
+    for (r, m) in data.iter().enumerate() {
+        by_run.entry(m.run.unwrap_or(0)).or_default().push(r);
+    }
+    let t = |r: usize| data[r].target_mm.unwrap_or_default();
+    for rows in by_run.values() {
+        for (k, &r) in rows.iter().enumerate() {
+            let along = |o: &&usize| t(**o)[a] != t(r)[a] && t(**o)[1 - a] == t(r)[1 - a];
+            let prev = rows[..k].iter().rev().find(|&&o| t(o) != t(r));
+            let next = rows[k + 1..].iter().find(|&&o| t(o) != t(r));
+            on[r] = prev.as_ref().is_some_and(along) || next.as_ref().is_some_and(along);
+        }
+    }
+    on
+}
+
 /// Deviations (µm) at one target: `(position_mm, + direction, − direction)`.
 type TargetDevs = (f64, Vec<f64>, Vec<f64>);
 /// Lines of one axis: shared coordinate key → (shared coordinate, position key → deviations).
@@ -195,9 +225,10 @@ pub fn analyse(data: &[Measurement]) -> Result<(Vec<LineStats>, Vec<String>), Ca
     for (a, axis) in [(0usize, "x"), (1usize, "y")] {
         let other = 1 - a;
         let dir = directions(data, a);
+        let on = on_pass(data, a);
         // shared coordinate -> position -> (up, down) deviations
         let mut groups: AxisGroups = BTreeMap::new();
-        for (r, m) in data.iter().enumerate() {
+        for (r, m) in data.iter().enumerate().filter(|(r, _)| on[*r]) {
             let t = m.target_mm.unwrap_or_default();
             let g = groups.entry(key(t[other])).or_insert((t[other], BTreeMap::new()));
             let e = g.1.entry(key(t[a])).or_insert((t[a], Vec::new(), Vec::new()));
@@ -387,6 +418,30 @@ mod tests {
         assert_eq!(directions(&r, 0)[..4], [1, 1, -1, -1]);
     }
 
+    /// An x line and a y line crossing at (10, 0): each keeps its own approaches there (2 runs
+    /// × 1 per direction), not the other line's passes through it.
+    #[test]
+    fn crossing_lines_keep_their_own_approaches() {
+        let mut d = Vec::new();
+        for run in 0..2 {
+            for (x, y) in [(0.0, 0.0), (10.0, 0.0), (20.0, 0.0), (20.0, 0.0), (10.0, 0.0), (0.0, 0.0)] {
+                d.push(row(run, x, y, 1.0));
+            }
+            for (x, y) in [(10.0, -10.0), (10.0, 0.0), (10.0, 10.0), (10.0, 10.0), (10.0, 0.0), (10.0, -10.0)] {
+                d.push(row(run, x, y, 5.0));
+            }
+        }
+        assert_eq!(on_pass(&d, 0)[..12], [true, true, true, true, true, true, false, false, false, false, false, false]);
+        assert_eq!(on_pass(&d, 1)[..12], [false, false, false, false, false, false, true, true, true, true, true, true]);
+        let (lines, skipped) = analyse(&d).unwrap();
+        assert!(skipped.is_empty(), "{skipped:?}");
+        let x = lines.iter().find(|l| l.axis == "x").unwrap();
+        let centre = &x.targets[1];
+        assert_eq!((centre.position_mm, centre.n_up, centre.n_down), (10.0, 2, 2));
+        // Only the x passes' deviations (1 µm), not the y passes' x deviation (5 µm).
+        assert!((centre.mean_up_um - 1.0).abs() < 1e-9 && (centre.mean_down_um - 1.0).abs() < 1e-9, "{centre:?}");
+    }
+
     #[test]
     fn figures_match_hand_computation() {
         let (lines, skipped) = analyse(&known()).unwrap();
@@ -402,6 +457,8 @@ mod tests {
         close(iso.m_um, 1.0, "M");
         close(iso.e_um, 3.0, "E");
         close(iso.r_um, 8.0 * r2, "R");
+        close(iso.r_up_um, 8.0 * r2, "R up");
+        close(iso.r_down_um, 4.0 * r2, "R down");
         close(iso.a_um, 8.0 * r2, "A");
         let vdi = &l.vdi_3441;
         close(vdi.u_um, 3.0, "U");

@@ -18,6 +18,8 @@
 //! * [`dynamics`]: the hidden robot's dynamic parameters from a closed-loop excitation run
 //!   (what the servo feeds forward; issue 14);
 //! * [`pipeline`]: all of it on one machine, as `host-sim demo` runs it.
+//! * [`verify`]: the accuracy report for the customer (the standards' figures and the 2-D
+//!   position error, before and after calibration), from the verification and repeat runs.
 //!
 //! Where a change goes: a new protocol in `protocol.rs` (and `Protocol::parse`); a new fit
 //! method in `fit/` (one file, wired in `fit/mod.rs`); a new accuracy figure in `accuracy.rs`;
@@ -36,6 +38,7 @@ pub mod measure;
 pub mod pipeline;
 pub mod plan;
 pub mod protocol;
+pub mod verify;
 
 use crate::io::IoError;
 use crate::plant::PlantError;

@@ -11,9 +11,11 @@ mod demo;
 mod diagnose;
 mod fit;
 mod grid;
+mod link;
 mod measure;
 mod plan;
 mod simulate;
+mod verify;
 
 use anyhow::{anyhow, bail, Context, Result};
 use clap::{Parser, Subcommand};
@@ -51,10 +53,15 @@ enum Tool {
     MotorCommand(command::Args),
     /// VDI/DGQ 3441 and ISO 230-2 figures per axis line from repeated bidirectional runs.
     Accuracy(accuracy::Args),
+    /// The accuracy report for the customer: ISO 230-2 / VDI 3441 per axis and the 2-D
+    /// position error, before and after calibration (one HTML page, plots embedded).
+    Verify(verify::Args),
     /// Find where model and measurements disagree, name the missing effect, show the gap shrink.
     Diagnose(diagnose::Args),
     /// The whole calibration on a built-in simulated machine: measure, fit, grid, verify.
     Demo(demo::Args),
+    /// Talk to a controller over its host link (QEMU: TCP): identify, home, move, stream, upload...
+    Link(link::Args),
 }
 
 /// Runs a parsed command line.
@@ -67,8 +74,10 @@ pub fn run(cli: Cli) -> Result<()> {
         Tool::Grid(a) => grid::run(&a),
         Tool::MotorCommand(a) => command::run(&a),
         Tool::Accuracy(a) => accuracy::run(&a),
+        Tool::Verify(a) => verify::run(&a),
         Tool::Diagnose(a) => diagnose::run(&a),
         Tool::Demo(a) => demo::run(&a),
+        Tool::Link(a) => link::run(&a),
     }
 }
 

@@ -8,6 +8,7 @@
 //! * [`machine_file`]: the machine file (TOML), what `--machine` reads;
 //! * [`plot`]: the PNG plots (paths, error-vector fields);
 //! * [`atomic`]: every output goes through it: a failed run never leaves a half-written file.
+//! * [`verify_plot`]: the accuracy report's plots (error map, ISO 230-2 chart), as PNG bytes.
 //!
 //! Formats tied to one stage's own types live next to them (the grid node table in
 //! `calib::grid`, the closed-loop log in `sim::simulate`); the grid flash image is
@@ -24,6 +25,7 @@ pub mod measurement_csv;
 pub mod model_file;
 pub mod plot;
 pub mod targets_csv;
+pub mod verify_plot;
 
 use std::path::{Path, PathBuf};
 

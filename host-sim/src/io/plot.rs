@@ -14,7 +14,7 @@ use std::sync::Once;
 static FONT: &[u8] = include_bytes!("../../assets/DejaVuSans.ttf");
 static REGISTER: Once = Once::new();
 
-fn ensure_font() {
+pub(crate) fn ensure_font() {
     REGISTER.call_once(|| {
         // The font is valid and compiled in; a failure here would be a build defect.
         let _ = register_font("sans-serif", FontStyle::Normal, FONT);

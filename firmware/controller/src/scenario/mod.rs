@@ -200,6 +200,11 @@ pub enum Scenario {
     CalibrationUploadCorrupt,
     /// A bad image flashed by the test, refused with this error: drives never enabled.
     BadImage(GridError),
+    /// The host link drives the machine (`firmware/qemu/link.sh`, `host-sim link`): the setpoints
+    /// come from the link's motion stream, the built-in tour is not run, nothing is injected,
+    /// and the run never concludes (the host ends QEMU). The harness still checks every sample
+    /// (deadline and watchdog) and fails the run on a missed deadline.
+    Link,
     /// Self-test of the panic path: the harness panics at boot (`qemu/test.sh` expects the
     /// panic handler's line and exit 1).
     Panic,
@@ -298,6 +303,7 @@ impl Scenario {
             "homing-no-index" => Scenario::HomingNoIndex,
             "bad-image-crc" => Scenario::BadImage(GridError::BadCrc),
             "bad-image-magic" => Scenario::BadImage(GridError::BadMagic),
+            "link" => Scenario::Link,
             "panic" => Scenario::Panic,
             "hard-fault" => Scenario::HardFault,
             _ => Scenario::Run,
@@ -324,6 +330,11 @@ impl Scenario {
             },
             _ => WatchdogVerdict::Fail("watchdog fired: the servo task did not complete on time"),
         }
+    }
+
+    /// Whether the host link's motion replaces the built-in tour ([`Scenario::Link`]).
+    pub fn link_motion(self) -> bool {
+        self == Scenario::Link
     }
 
     /// The built-in tour this scenario runs instead of the board's (`production`).
@@ -418,7 +429,7 @@ impl Scenario {
     /// Samples after which the scenario fails if it has not concluded.
     pub fn time_limit_ticks(self) -> Option<u32> {
         match self {
-            Scenario::Run | Scenario::LongRun => None,
+            Scenario::Run | Scenario::LongRun | Scenario::Link => None,
             Scenario::Homing => Some(HOMING_MAX_TICKS),
             Scenario::CalibrationUpload | Scenario::CalibrationUploadCorrupt => Some(MAX_TICKS + 1_000),
             _ => Some(MAX_TICKS),
@@ -689,6 +700,8 @@ impl<'a> Checker<'a> {
         let at_top_speed = |within: u32| at.map(|a| (a, a + within));
         let verdict = match self.scenario {
             Scenario::Run => None,
+            // The host checks the motion; the harness ends the run if a deadline is missed.
+            Scenario::Link => (s.overruns > 0).then_some(Err("servo deadline missed while the host link ran")),
             Scenario::Panic | Scenario::HardFault => Some(Err("the self-test did not stop the firmware")),
             Scenario::LongRun => self.long_run(o),
             Scenario::Track => self.track(o),
@@ -1252,6 +1265,7 @@ mod tests {
         for (line, want) in [
             ("firmware", Scenario::Run),
             ("", Scenario::Run),
+            ("firmware link", Scenario::Link),
             ("firmware bogus", Scenario::Run),
             ("firmware long-run", Scenario::LongRun),
             ("firmware track", Scenario::Track),

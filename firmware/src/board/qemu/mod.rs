@@ -14,6 +14,7 @@
 //!   setpoint and deadline fault injection, the stalled servo task, the checks at the end of
 //!   every sample and at the watchdog's interrupt that end the run with PASS or FAIL; its own
 //!   clock on TIMER1). Only this board has it.
+//! * [`uart`]: the host link's port (CMSDK UART0 on QEMU's first `-serial`).
 //! * [`semihosting`]: command line, console, exit code, defmt to a host file, and the
 //!   HardFault / unexpected interrupt / panic handlers (print `FAIL ...`, exit 1).
 use controller::drive::{self, DriveError, TorqueDrive};
@@ -35,6 +36,7 @@ pub mod harness;
 pub mod machine;
 pub mod plant;
 pub mod semihosting;
+pub mod uart;
 pub mod watchdog;
 
 pub use semihosting::{console, exit};
@@ -47,6 +49,8 @@ device! {
     // The AN386's Cortex-M4 implements 3 priority bits and 32 external interrupts.
     nvic_prio_bits: 3,
     external_interrupts: 32,
+    /// UART0 RX (IRQ 0): the host link's receive interrupt ([`uart`]).
+    LINK_RX = 0,
     /// UART2 RX (IRQ 4), unused by the board: dispatcher of the priority-1 software tasks.
     DISPATCH_1 = 4,
     /// UART2 TX (IRQ 5), unused by the board: dispatcher of the priority-2 software tasks.
@@ -188,6 +192,11 @@ pub struct QemuBoard {
 impl Board for QemuBoard {
     type Setpoints = Injected;
     type Timer = CmsdkTimer;
+    type Link = uart::CmsdkUart;
+
+    fn link(&mut self) -> uart::CmsdkUart {
+        uart::CmsdkUart::open()
+    }
 
     /// The production settings with the built-in tour on (the simulated machine may move by
     /// itself), the tour, its profile and its acceleration adapted to the harness's scenario.
@@ -202,6 +211,7 @@ impl Board for QemuBoard {
         let homes = scenario.homing_sim().is_some();
         let homing = HomingSettings { absolute_encoders: !homes, at_boot: homes, ..production.homing };
         Settings {
+            link_motion: scenario.link_motion(),
             builtin_tour_mm: scenario.tour_mm(&WORKSPACE_TOUR_MM),
             trajectory_profile,
             trajectory_accel_mm_s2,

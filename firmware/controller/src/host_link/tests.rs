@@ -1,0 +1,354 @@
+//! The handler end to end on the host: frames in through the reader, replies out, with the real
+//! servo loop and motion stream running in the [`Rig`].
+use super::doubles::Rig;
+use super::*;
+use kinematics_core::grid::{encode as encode_grid, GridGeometry};
+use kinematics_core::{Calibration, CorrectionGrid, FiveBar};
+use link_protocol::{FrameReader, Knot, MAX_FRAME_LEN};
+use proptest::prelude::*;
+
+use crate::calibration::image_id;
+use crate::settings::Settings;
+
+const HOME_MM: [f32; 2] = [212.132, 0.0];
+
+fn image(offset_rad: f32) -> Vec<u8> {
+    let g = GridGeometry { nx: 3, ny: 3, x0_mm: 160.0, y0_mm: -80.0, step_x_mm: 50.0, step_y_mm: 80.0 };
+    let mut img = vec![0u8; g.image_len()];
+    encode_grid(&mut img, &g, &FiveBar::paper_nominal(), &[[offset_rad, -2e-4]; 9]).unwrap();
+    img
+}
+
+/// The production settings with absolute encoders (the rig's machine needs no homing; the
+/// handler's homing gate is tested with the homing double).
+fn settings() -> Settings {
+    let mut s = Settings::default();
+    s.homing.absolute_encoders = true;
+    s
+}
+
+fn rig<'a>(settings: &'a Settings, img: &'a [u8]) -> Rig<'a> {
+    let cal = Calibration::from_grid(CorrectionGrid::parse(img).unwrap());
+    let joints = cal.command_rad(HOME_MM, 0.05).unwrap();
+    let mut r = Rig::boot(settings, cal, joints, image_id(img));
+    r.step();
+    r
+}
+
+/// Sends `command` as a frame through the reader and the handler; returns the reply.
+fn send(h: &mut LinkHandler, rig: &mut Rig<'_>, seq: u16, command: Command) -> Result<Response, LinkError> {
+    let mut frame = [0u8; MAX_FRAME_LEN];
+    let n = encode(&Request::new(seq, command), &mut frame).unwrap();
+    let replies = feed(h, rig, &frame[..n]);
+    assert_eq!(replies.len(), 1, "one reply per frame");
+    match replies.into_iter().next().unwrap().body {
+        DeviceBody::Reply { seq: s, result } => {
+            assert_eq!(s, seq);
+            result
+        }
+        other => panic!("not a reply: {other:?}"),
+    }
+}
+
+/// Feeds bytes through a fresh reader into the handler; returns every message it answered.
+fn feed(h: &mut LinkHandler, rig: &mut Rig<'_>, bytes: &[u8]) -> Vec<DeviceMessage> {
+    let mut reader = FrameReader::new();
+    let mut out = Vec::new();
+    for &b in bytes {
+        if let Some(received) = reader.push(b) {
+            let mut reply = [0u8; MAX_FRAME_LEN];
+            let n = h.on_received(received, rig, &mut reply);
+            assert!(n > 0, "never silence");
+            out.push(decode::<DeviceMessage>(&mut reply[..n - 1]).unwrap());
+        }
+    }
+    out
+}
+
+fn run(h: &mut LinkHandler, rig: &mut Rig<'_>, samples: usize) -> Vec<Status> {
+    (0..samples)
+        .map(|_| {
+            rig.step();
+            let _ = h.poll(rig);
+            rig.status
+        })
+        .collect()
+}
+
+/// A several-second figure through the workspace: a Lissajous 30 × 40 mm around HOME, as
+/// knots every 10 ms, starting and ending at rest (sin² envelope on the first and last 0.5 s).
+fn figure_knots(seconds: f32) -> Vec<Knot> {
+    let n = (seconds * 100.0) as u32;
+    let ramp = 0.5f32;
+    (1..=n)
+        .map(|i| {
+            let t = i as f32 * 0.01;
+            let pos = |t: f32| {
+                let env = if t < ramp {
+                    libm::sinf(core::f32::consts::FRAC_PI_2 * t / ramp).powi(2)
+                } else if t > seconds - ramp {
+                    libm::sinf(core::f32::consts::FRAC_PI_2 * (seconds - t) / ramp).powi(2)
+                } else {
+                    1.0
+                };
+                let w = 2.0 * core::f32::consts::PI * 0.5;
+                [HOME_MM[0] + env * 30.0 * libm::sinf(w * t), HOME_MM[1] + env * 40.0 * libm::sinf(2.0 * w * t)]
+            };
+            let h = 1e-4;
+            let (a, b) = (pos(t - h), pos((t + h).min(seconds)));
+            let dt = (t + h).min(seconds) - (t - h);
+            let v = if i == n { [0.0; 2] } else { [(b[0] - a[0]) / dt, (b[1] - a[1]) / dt] };
+            Knot { t_us: i * 10_000, position_mm: if i == n { pos(seconds) } else { pos(t) }, velocity_mm_s: v }
+        })
+        .collect()
+}
+
+/// Streams `knots` keeping the buffer ahead, runs until done; returns the statuses.
+fn stream(h: &mut LinkHandler, rig: &mut Rig<'_>, knots: &[Knot], extra_samples: usize) -> Vec<Status> {
+    let mut sent = 0usize;
+    let mut statuses = Vec::new();
+    let mut seq = 100;
+    while sent < knots.len() || rig.stream.is_moving() {
+        while sent < knots.len() && rig.stream.free() >= 8 {
+            let end = (sent + 8).min(knots.len());
+            let frame = heapless::Vec::from_slice(&knots[sent..end]).unwrap();
+            seq += 1;
+            let r = send(h, rig, seq, Command::StreamKnots { first_index: sent as u32, knots: frame });
+            assert!(matches!(r, Ok(Response::StreamAccepted { .. })), "{r:?}");
+            sent = end;
+        }
+        statuses.extend(run(h, rig, 20));
+        assert!(statuses.len() < 100_000);
+    }
+    statuses.extend(run(h, rig, extra_samples));
+    statuses
+}
+
+#[test]
+fn identify_and_status_answer() {
+    let (settings, img) = (settings(), image(3e-4));
+    let mut r = rig(&settings, &img);
+    let mut h = LinkHandler::new();
+    let Ok(Response::Identity(id)) = send(&mut h, &mut r, 1, Command::Identify) else { panic!() };
+    assert_eq!((id.protocol_version, id.board, id.calibration_id), (PROTOCOL_VERSION, Board::Qemu, image_id(&img)));
+    assert!(id.calibration_id.is_some());
+    let Ok(Response::Status(s)) = send(&mut h, &mut r, 2, Command::Status) else { panic!() };
+    assert_eq!((s.mode, s.fault, s.drives_enabled, s.moving), (ModeCode::Running, None, true, false));
+    let other = Request { version: PROTOCOL_VERSION + 1, seq: 9, command: Command::Enable };
+    assert_eq!(h.handle(&other, &mut r), DeviceBody::Reply { seq: 9, result: Err(LinkError::Version(PROTOCOL_VERSION + 1)) });
+}
+
+#[test]
+fn a_streamed_figure_is_tracked_and_ends_at_rest_where_it_should() {
+    let (settings, img) = (settings(), image(3e-4));
+    let mut r = rig(&settings, &img);
+    let mut h = LinkHandler::new();
+    let knots = figure_knots(3.0);
+    let statuses = stream(&mut h, &mut r, &knots, 100);
+    assert!(statuses.iter().all(|s| s.mode == Mode::Running), "no fault");
+    assert!(statuses.len() >= 6000, "{} samples", statuses.len());
+    // The setpoints pass through every knot at its time: sample k is at (k + 1) · 500 µs from
+    // the stream's start, the first status after the start is sample 0 of the stream.
+    // Where the stream started (after the hold setpoints already queued, at most 63): the
+    // offset that puts the setpoint on the knot at 0.5 s.
+    let at = |start: usize, k: &Knot| {
+        let p = statuses[start + (k.t_us / 500) as usize - 1].setpoint_mm;
+        libm::hypotf(p[0] - k.position_mm[0], p[1] - k.position_mm[1])
+    };
+    let start = (0..100).min_by(|&a, &b| at(a, &knots[49]).total_cmp(&at(b, &knots[49]))).unwrap();
+    let mut worst = 0.0f32;
+    for k in &knots {
+        worst = worst.max(at(start, k));
+    }
+    assert!(worst < 1e-3, "setpoint off a knot by {worst} mm");
+    // Tracked: the following error stays as small as on the built-in tour.
+    let following = r.status.max_following_error_rad;
+    assert!(following > 0.0 && following < 2e-4, "following error {following} rad");
+    let end = statuses.last().unwrap().setpoint_mm;
+    let last = knots.last().unwrap().position_mm;
+    assert!(libm::hypotf(end[0] - last[0], end[1] - last[1]) < 1e-3, "{end:?} vs {last:?}");
+    assert!(!r.stream.is_moving());
+}
+
+#[test]
+fn an_underrun_is_a_controlled_stop_reported_and_a_reset_resumes() {
+    let (settings, img) = (settings(), image(3e-4));
+    let mut r = rig(&settings, &img);
+    let mut h = LinkHandler::new();
+    let knots = figure_knots(3.0);
+    // Two frames (160 ms) of a moving figure, then nothing.
+    for i in 0..2 {
+        let frame = heapless::Vec::from_slice(&knots[i * 8..i * 8 + 8]).unwrap();
+        send(&mut h, &mut r, i as u16, Command::StreamKnots { first_index: i as u32 * 8, knots: frame }).unwrap();
+    }
+    let statuses = run(&mut h, &mut r, 1000);
+    assert!(statuses.iter().any(|s| s.mode == Mode::Stopping(Fault::Underrun)));
+    assert_eq!(r.status.mode, Mode::Holding(Fault::Underrun));
+    let Ok(Response::Status(s)) = send(&mut h, &mut r, 5, Command::Status) else { panic!() };
+    assert_eq!((s.mode, s.fault), (ModeCode::Holding, Some(FaultCode::Underrun)));
+    let more = heapless::Vec::from_slice(&knots[16..24]).unwrap();
+    assert_eq!(
+        send(&mut h, &mut r, 6, Command::StreamKnots { first_index: 16, knots: more }),
+        Err(LinkError::Faulted(FaultCode::Underrun))
+    );
+    assert_eq!(send(&mut h, &mut r, 7, Command::ResetFault), Ok(Response::Done));
+    run(&mut h, &mut r, 10);
+    assert_eq!(r.status.mode, Mode::Running);
+    let held = r.status.setpoint_mm;
+    // A new stream starts from where it held.
+    let Ok(Response::MovePlanned { duration_s }) = send(&mut h, &mut r, 8, Command::MoveTo { target_mm: HOME_MM }) else {
+        panic!()
+    };
+    assert!(duration_s > 0.0);
+    let statuses = run(&mut h, &mut r, (duration_s / 5e-4) as usize + 100);
+    assert!(statuses.iter().all(|s| s.mode == Mode::Running));
+    let first = statuses[0].setpoint_mm;
+    assert!(libm::hypotf(first[0] - held[0], first[1] - held[1]) < 0.01, "no jump: {first:?} {held:?}");
+    let end = r.status.setpoint_mm;
+    assert!(libm::hypotf(end[0] - HOME_MM[0], end[1] - HOME_MM[1]) < 1e-3);
+}
+
+#[test]
+fn a_frame_with_one_bad_knot_is_refused_whole_and_nothing_moves() {
+    let (settings, img) = (settings(), image(3e-4));
+    let mut r = rig(&settings, &img);
+    let mut h = LinkHandler::new();
+    let mut knots = figure_knots(3.0)[..8].to_vec();
+    knots[6].position_mm[0] = 400.0; // far outside the workspace
+    let frame = heapless::Vec::from_slice(&knots).unwrap();
+    let refused = send(&mut h, &mut r, 1, Command::StreamKnots { first_index: 0, knots: frame });
+    assert!(matches!(refused, Err(LinkError::Segment { index: 6, .. })), "{refused:?}");
+    let before = r.status.setpoint_mm;
+    let statuses = run(&mut h, &mut r, 400);
+    assert!(statuses.iter().all(|s| s.setpoint_mm == before && s.mode == Mode::Running));
+    assert_eq!(r.stream.queued(), 0);
+    assert_eq!(send(&mut h, &mut r, 2, Command::MoveTo { target_mm: [400.0, 0.0] }), Err(LinkError::Target));
+}
+
+#[test]
+fn stop_disable_enable_and_homing() {
+    let (settings, img) = (settings(), image(3e-4));
+    let mut r = rig(&settings, &img);
+    let mut h = LinkHandler::new();
+    send(&mut h, &mut r, 1, Command::MoveTo { target_mm: [250.0, 60.0] }).unwrap();
+    run(&mut h, &mut r, 200);
+    assert_eq!(send(&mut h, &mut r, 2, Command::Stop), Ok(Response::Done));
+    let statuses = run(&mut h, &mut r, 400);
+    assert_eq!(statuses[0].mode, Mode::Stopping(Fault::StopCommanded));
+    assert_eq!(r.status.mode, Mode::Holding(Fault::StopCommanded));
+    assert_eq!(send(&mut h, &mut r, 3, Command::MoveTo { target_mm: HOME_MM }), Err(LinkError::Faulted(FaultCode::Commanded)));
+    assert_eq!(send(&mut h, &mut r, 4, Command::Enable), Ok(Response::Done));
+    run(&mut h, &mut r, 5);
+    assert_eq!(r.status.mode, Mode::Running);
+    send(&mut h, &mut r, 5, Command::MoveTo { target_mm: HOME_MM }).unwrap();
+
+    assert_eq!(send(&mut h, &mut r, 6, Command::Disable), Ok(Response::Done));
+    run(&mut h, &mut r, 800);
+    assert_eq!(r.status.mode, Mode::SafeState(Fault::DisableCommanded));
+    assert_eq!(send(&mut h, &mut r, 7, Command::MoveTo { target_mm: HOME_MM }), Err(LinkError::NotEnabled));
+    // Unhomed: the drives do not engage; homing, then they do.
+    r.homing.state = HomingState::NotHomed;
+    assert_eq!(send(&mut h, &mut r, 8, Command::Enable), Err(LinkError::NotHomed));
+    assert_eq!(send(&mut h, &mut r, 9, Command::Home), Ok(Response::Done));
+    assert_eq!(send(&mut h, &mut r, 10, Command::Enable), Ok(Response::Done));
+    run(&mut h, &mut r, 5);
+    assert_eq!((r.status.mode, r.status.drives_enabled), (Mode::Running, true));
+    send(&mut h, &mut r, 11, Command::MoveTo { target_mm: [220.0, 10.0] }).unwrap();
+    assert_eq!(send(&mut h, &mut r, 12, Command::Home), Err(LinkError::Busy), "not while moving");
+}
+
+#[test]
+fn a_bad_image_is_refused_and_the_old_one_stays() {
+    let (settings, img) = (settings(), image(3e-4));
+    let mut r = rig(&settings, &img);
+    let mut h = LinkHandler::new();
+    let old = image_id(&img);
+    let upload = |h: &mut LinkHandler, r: &mut Rig<'_>, bytes: &[u8]| {
+        send(h, r, 1, Command::CalibrationBegin { len: bytes.len() as u32 })?;
+        for (i, c) in bytes.chunks(link_protocol::CALIBRATION_CHUNK_LEN).enumerate() {
+            let offset = (i * link_protocol::CALIBRATION_CHUNK_LEN) as u32;
+            send(h, r, 2, Command::CalibrationChunk { offset, data: heapless::Vec::from_slice(c).unwrap() })?;
+        }
+        send(h, r, 3, Command::CalibrationCommit)
+    };
+    let mut bad = image(5e-4);
+    bad[100] ^= 0x40;
+    assert_eq!(upload(&mut h, &mut r, &bad), Err(LinkError::Calibration(CalibrationRefusal::Invalid)));
+    assert_eq!(send(&mut h, &mut r, 4, Command::CalibrationId), Ok(Response::CalibrationId(old)));
+    let new = image(5e-4);
+    assert_eq!(upload(&mut h, &mut r, &new), Ok(Response::CalibrationId(image_id(&new))));
+    assert_ne!(image_id(&new), old);
+    assert_eq!(send(&mut h, &mut r, 5, Command::CalibrationId), Ok(Response::CalibrationId(image_id(&new))));
+    // Out of order chunk.
+    send(&mut h, &mut r, 6, Command::CalibrationBegin { len: 300 }).unwrap();
+    let chunk = heapless::Vec::from_slice(&[1u8; 10]).unwrap();
+    assert_eq!(
+        send(&mut h, &mut r, 7, Command::CalibrationChunk { offset: 5, data: chunk }),
+        Err(LinkError::Calibration(CalibrationRefusal::Offset))
+    );
+}
+
+#[test]
+fn telemetry_is_decimated_and_bounded() {
+    let (settings, img) = (settings(), image(3e-4));
+    let mut r = rig(&settings, &img);
+    let mut h = LinkHandler::new();
+    assert_eq!(send(&mut h, &mut r, 1, Command::Telemetry { decimation: 1 }), Ok(Response::TelemetryDecimation(MIN_TELEMETRY_DECIMATION)));
+    let mut n = 0;
+    for _ in 0..400 {
+        r.step();
+        if let Some(m) = h.poll(&mut r) {
+            assert!(matches!(m.body, DeviceBody::Telemetry(t) if t.mode == ModeCode::Running));
+            n += 1;
+        }
+    }
+    assert_eq!(n, 400 / MIN_TELEMETRY_DECIMATION as usize);
+    assert_eq!(send(&mut h, &mut r, 2, Command::Telemetry { decimation: 0 }), Ok(Response::TelemetryDecimation(0)));
+    r.step();
+    assert_eq!(h.poll(&mut r), None);
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 3000, ..ProptestConfig::default() })]
+
+    /// Random bytes, and valid frames with bytes flipped, dropped or inserted, into the reader
+    /// and the handler while the servo runs: every frame answered, a clear error, no request
+    /// posted, no motion queued, the setpoint unchanged.
+    #[test]
+    fn garbage_is_answered_and_never_moves_the_machine(
+        noise in prop::collection::vec(any::<u8>(), 0..600),
+        seq in any::<u16>(),
+        target in [150.0f32..270.0, -90.0f32..90.0],
+        flips in prop::collection::vec((any::<prop::sample::Index>(), 1u8..=255), 1..4),
+    ) {
+        let (settings, img) = (settings(), image(3e-4));
+        let mut r = rig(&settings, &img);
+        let mut h = LinkHandler::new();
+        let before = r.status.setpoint_mm;
+        let mut bytes = noise.clone();
+        let mut frame = [0u8; MAX_FRAME_LEN];
+        let n = encode(&Request::new(seq, Command::MoveTo { target_mm: target }), &mut frame).unwrap();
+        let mut mutated = frame[..n].to_vec();
+        for (at, x) in &flips {
+            let i = at.index(n - 1);
+            mutated[i] ^= x;
+        }
+        prop_assume!(mutated[..] != frame[..n]);
+        bytes.push(0);
+        bytes.extend_from_slice(&mutated);
+        bytes.push(0);
+        let replies = feed(&mut h, &mut r, &bytes);
+        for m in &replies {
+            let is_error = matches!(m.body, DeviceBody::FrameRejected(_) | DeviceBody::Reply { result: Err(_), .. });
+            // A reply that is not an error can only come from a frame that decoded: a random
+            // frame passing the CRC-32 is a 2^-32 event, so here it means the frame was intact.
+            prop_assert!(is_error, "{m:?}");
+        }
+        prop_assert_eq!(r.posted, 0);
+        prop_assert!(!r.stream.is_moving());
+        for s in run(&mut h, &mut r, 20) {
+            prop_assert_eq!(s.setpoint_mm, before);
+            prop_assert_eq!(s.mode, Mode::Running);
+        }
+    }
+}

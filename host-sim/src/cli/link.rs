@@ -1,0 +1,315 @@
+//! `host-sim link`: talk to a controller over its host link (`host_sim::link`): identify,
+//! status, enable, disable, home, move, stream a trajectory (a knot file or the built-in
+//! figure) with telemetry to CSV, stop, reset, upload a calibration image, record telemetry,
+//! send garbage. JSON report on stdout, progress on stderr.
+//!
+//! Transport: `--tcp HOST:PORT` (QEMU's UART on a socket: `firmware/qemu/run-one.sh` with
+//! `QEMU_SERIAL`). A serial port (the real board) is not built in yet: the client takes any
+//! `Read + Write`, so it is a `serialport` stream away (see firmware/README.md).
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+use anyhow::{bail, Context, Result};
+use host_sim::io::atomic::write_atomic;
+use host_sim::io::KeyOrder;
+use host_sim::link::link_protocol::{Command, ModeCode, Response, StatusReport, TelemetrySample};
+use host_sim::link::{figure_knots, parse_knots_csv, stream_knots, telemetry_csv, upload_calibration, LinkClient};
+use serde::Serialize;
+
+/// Talk to a controller over its host link.
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// The controller's link on a TCP socket (QEMU): HOST:PORT.
+    #[arg(long)]
+    pub tcp: String,
+    /// Seconds to wait for each reply (and for the connection).
+    #[arg(long, default_value_t = 5.0)]
+    pub timeout_s: f64,
+    #[command(subcommand)]
+    pub action: Action,
+}
+
+/// What to do.
+#[derive(clap::Subcommand, Debug)]
+pub enum Action {
+    /// Firmware version, board, protocol version, calibration id.
+    Identify,
+    /// The controller's state.
+    Status,
+    /// Engage and enable the drives (after a disable or a commanded stop).
+    Enable,
+    /// Controlled stop, then drives off.
+    Disable,
+    /// Start homing and wait until it ends.
+    Home,
+    /// Controlled stop, then hold.
+    Stop,
+    /// Clear a latched fault and re-engage.
+    Reset,
+    /// Move to a point (the controller plans the jerk-limited move); waits until it is there.
+    Move {
+        /// Target x (mm).
+        #[arg(long)]
+        x_mm: f32,
+        /// Target y (mm).
+        #[arg(long)]
+        y_mm: f32,
+    },
+    /// Stream a trajectory (a knot file, or the built-in figure), wait until it has played,
+    /// report the tracking from the telemetry.
+    Stream(StreamArgs),
+    /// Upload a calibration image (grid.bin) and read back its id.
+    Upload {
+        /// The image.
+        #[arg(long)]
+        grid: PathBuf,
+    },
+    /// Record telemetry for a while.
+    Telemetry {
+        /// Servo samples per telemetry sample (at least 20: 100 Hz).
+        #[arg(long, default_value_t = 20)]
+        decimation: u16,
+        /// How long (s, wall clock).
+        #[arg(long, default_value_t = 1.0)]
+        seconds: f64,
+        /// CSV output.
+        #[arg(long)]
+        csv: PathBuf,
+    },
+    /// Send random bytes (bursts of 300, each ending with a frame delimiter) and count the
+    /// frames they make and the answers: the controller must answer every one and not move.
+    Garbage {
+        /// Bytes to send.
+        #[arg(long, default_value_t = 10_000)]
+        bytes: usize,
+        /// Seed of the bytes.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+    },
+}
+
+/// `host-sim link stream`.
+#[derive(clap::Args, Debug)]
+pub struct StreamArgs {
+    /// Knots: CSV with a header, `t_s,x_mm,y_mm,vx_mm_s,vy_mm_s` (times from the start).
+    #[arg(long, conflicts_with = "seconds")]
+    pub file: Option<PathBuf>,
+    /// The built-in figure's length (s) (default when no --file: 3 s).
+    #[arg(long)]
+    pub seconds: Option<f64>,
+    /// The built-in figure's amplitudes along x and y (mm).
+    #[arg(long, num_args = 2, default_values_t = [30.0, 40.0])]
+    pub amp_mm: Vec<f64>,
+    /// The built-in figure's frequency along x (Hz; y runs at twice that).
+    #[arg(long, default_value_t = 0.5)]
+    pub freq_hz: f64,
+    /// The built-in figure's knot spacing (ms). Under QEMU use 50: its UART takes a byte per
+    /// main-loop turn, ~100 ms per 8-knot frame, slower than 10 ms knots play.
+    #[arg(long, default_value_t = 20)]
+    pub knot_ms: u32,
+    /// Stop sending after this many knots (provokes an underrun when the trajectory still moves
+    /// there).
+    #[arg(long)]
+    pub cut_after: Option<usize>,
+    /// Telemetry to CSV while streaming.
+    #[arg(long)]
+    pub telemetry_csv: Option<PathBuf>,
+    /// Telemetry decimation (servo samples per telemetry sample).
+    #[arg(long, default_value_t = 20)]
+    pub decimation: u16,
+}
+
+#[derive(Serialize)]
+struct Done {
+    done: &'static str,
+}
+
+#[derive(Serialize)]
+struct StreamReport {
+    knots_sent: usize,
+    knots_total: usize,
+    telemetry_samples: usize,
+    max_following_error_urad: f64,
+    final_status: StatusReport,
+    telemetry_csv: Option<String>,
+}
+
+fn request(client: &mut LinkClient<std::net::TcpStream>, command: Command) -> Result<Response> {
+    Ok(client.request(command)?)
+}
+
+/// Waits until the controller has finished the move or stream (or stopped); returns its status.
+fn wait_idle(client: &mut LinkClient<std::net::TcpStream>, limit: Duration) -> Result<StatusReport> {
+    let start = Instant::now();
+    loop {
+        let s = client.status()?;
+        if !s.moving || s.mode != ModeCode::Running {
+            // A stop under way: wait for it to end too.
+            if s.mode != ModeCode::Stopping {
+                return Ok(s);
+            }
+        }
+        if start.elapsed() > limit {
+            bail!("the controller is still moving after {limit:?}: {s:?}");
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// `host-sim link`.
+pub fn run(args: &Args) -> Result<()> {
+    if !(args.timeout_s > 0.0 && args.timeout_s.is_finite()) {
+        bail!("--timeout-s must be a positive number, not {}", args.timeout_s);
+    }
+    let timeout = Duration::from_secs_f64(args.timeout_s);
+    let mut client = LinkClient::connect_tcp(&args.tcp, timeout).with_context(|| format!("connecting to {}", args.tcp))?;
+    let done = |what| super::print_json(&Done { done: what }, KeyOrder::Sorted);
+    match &args.action {
+        Action::Identify => match request(&mut client, Command::Identify)? {
+            Response::Identity(id) => super::print_json(&id, KeyOrder::Sorted),
+            other => bail!("unexpected reply: {other:?}"),
+        },
+        Action::Status => super::print_json(&client.status()?, KeyOrder::Sorted),
+        Action::Enable => request(&mut client, Command::Enable).and_then(|_| done("enable")),
+        Action::Disable => request(&mut client, Command::Disable).and_then(|_| done("disable")),
+        Action::Stop => request(&mut client, Command::Stop).and_then(|_| done("stop")),
+        Action::Reset => request(&mut client, Command::ResetFault).and_then(|_| done("reset")),
+        Action::Home => {
+            request(&mut client, Command::Home)?;
+            let start = Instant::now();
+            loop {
+                let s = client.status()?;
+                match s.homing {
+                    host_sim::link::link_protocol::HomingState::Homed => return done("home"),
+                    host_sim::link::link_protocol::HomingState::Failed => bail!("homing failed: {s:?}"),
+                    _ if start.elapsed() > 60 * timeout => bail!("homing did not finish: {s:?}"),
+                    _ => std::thread::sleep(Duration::from_millis(50)),
+                }
+            }
+        }
+        Action::Move { x_mm, y_mm } => {
+            let Response::MovePlanned { duration_s } = request(&mut client, Command::MoveTo { target_mm: [*x_mm, *y_mm] })? else {
+                bail!("unexpected reply to move");
+            };
+            eprintln!("move planned: {duration_s:.3} s");
+            let s = wait_idle(&mut client, timeout + Duration::from_secs_f64(f64::from(duration_s) * 20.0))?;
+            super::print_json(&s, KeyOrder::Sorted)
+        }
+        Action::Stream(a) => stream(&mut client, a, timeout),
+        Action::Upload { grid } => {
+            let image = std::fs::read(grid).with_context(|| format!("cannot read {}", grid.display()))?;
+            let id = upload_calibration(&mut client, &image, &mut |done, total| {
+                eprint!("\rupload {done}/{total} bytes");
+            });
+            eprintln!();
+            #[derive(Serialize)]
+            struct Uploaded {
+                calibration_id: Option<u32>,
+            }
+            super::print_json(&Uploaded { calibration_id: id? }, KeyOrder::Sorted)
+        }
+        Action::Telemetry { decimation, seconds, csv } => {
+            if !(*seconds > 0.0 && seconds.is_finite()) {
+                bail!("--seconds must be a positive number, not {seconds}");
+            }
+            request(&mut client, Command::Telemetry { decimation: *decimation })?;
+            client.listen(Duration::from_secs_f64(*seconds))?;
+            request(&mut client, Command::Telemetry { decimation: 0 })?;
+            let samples = client.take_telemetry();
+            write_atomic(csv, telemetry_csv(&samples).as_bytes())?;
+            #[derive(Serialize)]
+            struct Recorded {
+                samples: usize,
+                csv: String,
+            }
+            super::print_json(&Recorded { samples: samples.len(), csv: csv.display().to_string() }, KeyOrder::Sorted)
+        }
+        Action::Garbage { bytes, seed } => {
+            let before = client.status()?;
+            let mut x = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
+            let mut sent = 0usize;
+            let (mut frames, mut answers) = (0usize, 0usize);
+            while sent < *bytes {
+                let n = (*bytes - sent).min(300);
+                let mut burst: Vec<u8> = (0..n)
+                    .map(|_| {
+                        x ^= x << 13;
+                        x ^= x >> 7;
+                        x ^= x << 17;
+                        x as u8
+                    })
+                    .collect();
+                burst.push(0);
+                let (f, a) = client.send_raw(&burst)?;
+                frames += f;
+                answers += a;
+                sent += n;
+            }
+            let after = client.status()?;
+            #[derive(Serialize)]
+            struct Garbage {
+                bytes: usize,
+                frames: usize,
+                answers: usize,
+                setpoint_before_mm: [f32; 2],
+                setpoint_after_mm: [f32; 2],
+                overruns: u32,
+                mode: ModeCode,
+            }
+            let report = Garbage {
+                bytes: sent,
+                frames,
+                answers,
+                setpoint_before_mm: before.setpoint_mm,
+                setpoint_after_mm: after.setpoint_mm,
+                overruns: after.overruns,
+                mode: after.mode,
+            };
+            super::print_json(&report, KeyOrder::Sorted)
+        }
+    }
+}
+
+fn stream(client: &mut LinkClient<std::net::TcpStream>, a: &StreamArgs, timeout: Duration) -> Result<()> {
+    let knots = match (&a.file, a.seconds) {
+        (Some(f), _) => parse_knots_csv(&std::fs::read_to_string(f).with_context(|| format!("cannot read {}", f.display()))?)
+            .with_context(|| format!("in {}", f.display()))?,
+        (None, s) => {
+            let seconds = s.unwrap_or(3.0);
+            if !(seconds > 1.0 && seconds < 600.0) {
+                bail!("--seconds must be between 1 and 600, not {seconds}");
+            }
+            let start = client.status()?.setpoint_mm;
+            if !(1..=1000).contains(&a.knot_ms) {
+                bail!("--knot-ms must be between 1 and 1000, not {}", a.knot_ms);
+            }
+            figure_knots([f64::from(start[0]), f64::from(start[1])], [a.amp_mm[0], a.amp_mm[1]], a.freq_hz, seconds, a.knot_ms)
+        }
+    };
+    let total = knots.len();
+    let send = a.cut_after.map_or(total, |n| n.min(total));
+    request(client, Command::Telemetry { decimation: a.decimation })?;
+    let streamed = stream_knots(client, &knots[..send], Duration::from_millis(20), &mut |done, total| {
+        eprint!("\rstream {done}/{total} knots");
+    });
+    eprintln!();
+    streamed?;
+    let duration_s = f64::from(knots[send - 1].t_us) * 1e-6;
+    let status = wait_idle(client, timeout + Duration::from_secs_f64(duration_s * 20.0))?;
+    request(client, Command::Telemetry { decimation: 0 })?;
+    client.listen(Duration::from_millis(100))?;
+    let samples: Vec<TelemetrySample> = client.take_telemetry();
+    let max_error = samples.iter().map(|t| f64::from(t.following_error_rad)).fold(0.0, f64::max);
+    if let Some(csv) = &a.telemetry_csv {
+        write_atomic(csv, telemetry_csv(&samples).as_bytes())?;
+    }
+    let report = StreamReport {
+        knots_sent: send,
+        knots_total: total,
+        telemetry_samples: samples.len(),
+        max_following_error_urad: max_error * 1e6,
+        final_status: status,
+        telemetry_csv: a.telemetry_csv.as_ref().map(|p| p.display().to_string()),
+    };
+    super::print_json(&report, KeyOrder::Sorted)
+}

@@ -1,0 +1,406 @@
+//! The host side of the controller's link (`link-protocol`): a client over any byte stream (a
+//! TCP socket to QEMU's UART today; a serial port is the same `Read + Write`), typed requests
+//! and replies, streamed motion with flow control, calibration upload, telemetry.
+//!
+//! * [`LinkClient`]: one request, one reply (matched by sequence number); telemetry samples
+//!   that arrive meanwhile are kept ([`LinkClient::take_telemetry`]).
+//! * [`stream_knots`]: sends a trajectory's knots in frames of 8, keeping the controller's
+//!   buffer full and waiting (polling the status) when it is.
+//! * [`upload_calibration`]: Begin, Chunks, Commit.
+//! * [`figure_knots`]: the built-in test trajectory (a Lissajous figure through the workspace);
+//!   [`read_knots_csv`]: knots from a file.
+use std::io::{Read, Write};
+use std::net::TcpStream;
+use std::time::{Duration, Instant};
+
+use link_protocol::{
+    decode, encode, Command, DeviceBody, DeviceMessage, FrameReader, Knot, LinkError, Received, Request, Response,
+    StatusReport, TelemetrySample, CALIBRATION_CHUNK_LEN, MAX_FRAME_LEN, MAX_KNOTS_PER_FRAME,
+};
+
+pub use link_protocol;
+
+/// What can go wrong talking to a controller.
+#[derive(Debug, thiserror::Error)]
+pub enum ClientError {
+    /// The byte stream failed.
+    #[error("link i/o: {0}")]
+    Io(#[from] std::io::Error),
+    /// No reply in time.
+    #[error("no reply from the controller within {0:?}")]
+    Timeout(Duration),
+    /// The controller could not decode our frame.
+    #[error("the controller rejected the frame: {0:?}")]
+    FrameRejected(link_protocol::FrameError),
+    /// The controller refused the request.
+    #[error("the controller refused {command}: {error:?}")]
+    Refused {
+        /// The request's name.
+        command: &'static str,
+        /// Why.
+        error: LinkError,
+    },
+    /// A reply of an unexpected kind.
+    #[error("unexpected reply to {command}: {reply:?}")]
+    Unexpected {
+        /// The request's name.
+        command: &'static str,
+        /// What came back.
+        reply: Box<Response>,
+    },
+    /// A frame from the controller that does not decode (a corrupted byte on the wire).
+    #[error("undecodable frame from the controller: {0:?}")]
+    BadFrame(link_protocol::FrameError),
+    /// A knot file or trajectory is unusable.
+    #[error("trajectory: {0}")]
+    Trajectory(String),
+}
+
+/// The name of a command, for messages.
+pub fn command_name(c: &Command) -> &'static str {
+    match c {
+        Command::Identify => "identify",
+        Command::Status => "status",
+        Command::Enable => "enable",
+        Command::Disable => "disable",
+        Command::Home => "home",
+        Command::MoveTo { .. } => "move",
+        Command::StreamKnots { .. } => "stream",
+        Command::Stop => "stop",
+        Command::ResetFault => "reset",
+        Command::Telemetry { .. } => "telemetry",
+        Command::CalibrationBegin { .. } => "calibration begin",
+        Command::CalibrationChunk { .. } => "calibration chunk",
+        Command::CalibrationCommit => "calibration commit",
+        Command::CalibrationId => "calibration id",
+    }
+}
+
+/// A connection to a controller.
+pub struct LinkClient<S: Read + Write> {
+    io: S,
+    reader: FrameReader,
+    seq: u16,
+    telemetry: Vec<TelemetrySample>,
+    /// Messages read but not yet returned (several can arrive in one read).
+    pending: std::collections::VecDeque<DeviceBody>,
+    /// Frames from the controller that did not decode.
+    pub bad_frames: u64,
+    timeout: Duration,
+}
+
+impl LinkClient<TcpStream> {
+    /// Connects to `addr` (QEMU's `-serial tcp:...` socket), retrying until `timeout`.
+    pub fn connect_tcp(addr: &str, timeout: Duration) -> Result<Self, ClientError> {
+        let start = Instant::now();
+        loop {
+            match TcpStream::connect(addr) {
+                Ok(s) => {
+                    s.set_nodelay(true)?;
+                    s.set_read_timeout(Some(Duration::from_millis(20)))?;
+                    return LinkClient::new(s, timeout);
+                }
+                Err(e) if start.elapsed() > timeout => return Err(e.into()),
+                Err(_) => std::thread::sleep(Duration::from_millis(50)),
+            }
+        }
+    }
+}
+
+impl<S: Read + Write> LinkClient<S> {
+    /// A client over `io` (reads must time out, so that a silent controller is noticed);
+    /// `timeout` bounds each request.
+    pub fn new(mut io: S, timeout: Duration) -> Result<Self, ClientError> {
+        // A zero ends whatever half frame an earlier client left in the controller's reader.
+        io.write_all(&[0])?;
+        Ok(LinkClient { io, reader: FrameReader::new(), seq: 0, telemetry: Vec::new(), pending: Default::default(), bad_frames: 0, timeout })
+    }
+
+    /// Sends raw bytes (the garbage test) and waits for the answers they provoke: the
+    /// controller answers every non-empty run of bytes between two zeros with exactly one
+    /// message (a rejection, unless the run happens to be a valid frame). Returns (frames sent,
+    /// answers received); waits at most the client's timeout for the answers.
+    pub fn send_raw(&mut self, bytes: &[u8]) -> Result<(usize, usize), ClientError> {
+        let frames = bytes.split(|&b| b == 0).filter(|run| !run.is_empty()).count()
+            - usize::from(bytes.last().is_some_and(|&b| b != 0));
+        self.io.write_all(bytes)?;
+        let deadline = Instant::now() + self.timeout;
+        let mut answers = 0;
+        while answers < frames {
+            match self.next_message(deadline) {
+                Ok(_) => answers += 1,
+                Err(ClientError::Timeout(_)) => break,
+                Err(e) => return Err(e),
+            }
+        }
+        Ok((frames, answers))
+    }
+
+    /// Sends `command` and waits for its reply.
+    pub fn request(&mut self, command: Command) -> Result<Response, ClientError> {
+        let name = command_name(&command);
+        self.seq = self.seq.wrapping_add(1);
+        let seq = self.seq;
+        let mut frame = [0u8; MAX_FRAME_LEN];
+        let n = encode(&Request::new(seq, command), &mut frame).map_err(ClientError::FrameRejected)?;
+        self.io.write_all(&frame[..n])?;
+        let deadline = Instant::now() + self.timeout;
+        loop {
+            match self.next_message(deadline)? {
+                DeviceBody::Reply { seq: s, result } if s == seq => {
+                    return result.map_err(|error| ClientError::Refused { command: name, error })
+                }
+                DeviceBody::FrameRejected(e) => return Err(ClientError::FrameRejected(e)),
+                // A late reply to an earlier request (after a timeout) or telemetry: go on.
+                _ => {}
+            }
+        }
+    }
+
+    /// Reads until one message (telemetry is kept) or `deadline`.
+    fn next_message(&mut self, deadline: Instant) -> Result<DeviceBody, ClientError> {
+        let mut buf = [0u8; 256];
+        loop {
+            if let Some(body) = self.pending.pop_front() {
+                return Ok(body);
+            }
+            if Instant::now() > deadline {
+                return Err(ClientError::Timeout(self.timeout));
+            }
+            let n = match self.io.read(&mut buf) {
+                Ok(0) => return Err(std::io::Error::from(std::io::ErrorKind::UnexpectedEof).into()),
+                Ok(n) => n,
+                Err(e) if matches!(e.kind(), std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut) => continue,
+                Err(e) => return Err(e.into()),
+            };
+            for &b in &buf[..n] {
+                let body = match self.reader.push(b) {
+                    None => continue,
+                    Some(Received::TooLong) => Err(link_protocol::FrameError::TooLong),
+                    Some(Received::Frame(f)) => decode::<DeviceMessage>(f).map(|m| m.body),
+                };
+                match body {
+                    Ok(DeviceBody::Telemetry(t)) => self.telemetry.push(t),
+                    Ok(other) => self.pending.push_back(other),
+                    Err(_) => self.bad_frames += 1,
+                }
+            }
+        }
+    }
+
+    /// Reads for `duration`, keeping telemetry.
+    pub fn listen(&mut self, duration: Duration) -> Result<(), ClientError> {
+        let deadline = Instant::now() + duration;
+        loop {
+            match self.next_message(deadline) {
+                Err(ClientError::Timeout(_)) => return Ok(()),
+                Err(e) => return Err(e),
+                Ok(_) => {}
+            }
+        }
+    }
+
+    /// The telemetry samples received so far (and forgets them).
+    pub fn take_telemetry(&mut self) -> Vec<TelemetrySample> {
+        std::mem::take(&mut self.telemetry)
+    }
+
+    /// The controller's status.
+    pub fn status(&mut self) -> Result<StatusReport, ClientError> {
+        match self.request(Command::Status)? {
+            Response::Status(s) => Ok(s),
+            other => Err(ClientError::Unexpected { command: "status", reply: Box::new(other) }),
+        }
+    }
+}
+
+/// Progress of a long operation: (done, total).
+pub type Progress<'a> = &'a mut dyn FnMut(usize, usize);
+
+/// Streams `knots` (times from the stream's start), keeping the controller's buffer as full as
+/// it takes; returns when every knot is queued. `poll` is how long to wait before asking again
+/// when the buffer is full.
+pub fn stream_knots<S: Read + Write>(
+    client: &mut LinkClient<S>,
+    knots: &[Knot],
+    poll: Duration,
+    progress: Progress<'_>,
+) -> Result<(), ClientError> {
+    let mut sent = 0usize;
+    let mut free = link_protocol::MAX_KNOTS_PER_FRAME;
+    while sent < knots.len() {
+        let end = (sent + MAX_KNOTS_PER_FRAME).min(knots.len());
+        if free < end - sent {
+            std::thread::sleep(poll);
+            let s = client.status()?;
+            free = controller_free(&s);
+            continue;
+        }
+        let frame = heapless::Vec::from_slice(&knots[sent..end]).map_err(|_| ClientError::Trajectory("frame".into()))?;
+        match client.request(Command::StreamKnots { first_index: sent as u32, knots: frame }) {
+            Ok(Response::StreamAccepted { free: f, .. }) => {
+                free = usize::from(f);
+                sent = end;
+                progress(sent, knots.len());
+            }
+            Err(ClientError::Refused { error: LinkError::StreamFull(f), .. }) => free = usize::from(f),
+            Ok(other) => return Err(ClientError::Unexpected { command: "stream", reply: Box::new(other) }),
+            Err(e) => return Err(e),
+        }
+    }
+    Ok(())
+}
+
+fn controller_free(s: &StatusReport) -> usize {
+    link_protocol::STREAM_BUFFER_KNOTS.saturating_sub(usize::from(s.stream_knots_queued))
+}
+
+/// Uploads a calibration image; returns the id the controller reports for it.
+pub fn upload_calibration<S: Read + Write>(
+    client: &mut LinkClient<S>,
+    image: &[u8],
+    progress: Progress<'_>,
+) -> Result<Option<u32>, ClientError> {
+    client.request(Command::CalibrationBegin { len: image.len() as u32 })?;
+    for (i, chunk) in image.chunks(CALIBRATION_CHUNK_LEN).enumerate() {
+        let offset = (i * CALIBRATION_CHUNK_LEN) as u32;
+        let data = heapless::Vec::from_slice(chunk).map_err(|_| ClientError::Trajectory("chunk".into()))?;
+        client.request(Command::CalibrationChunk { offset, data })?;
+        progress(offset as usize + chunk.len(), image.len());
+    }
+    match client.request(Command::CalibrationCommit)? {
+        Response::CalibrationId(id) => Ok(id),
+        other => Err(ClientError::Unexpected { command: "calibration commit", reply: Box::new(other) }),
+    }
+}
+
+/// The built-in test trajectory: a Lissajous figure (±`amp_mm[0]` along x at `freq_hz`,
+/// ±`amp_mm[1]` along y at twice that) around `centre_mm`, as knots every `knot_ms` for
+/// `seconds`, with a sin² envelope over the first and last 0.5 s so that it starts and ends
+/// at rest at the centre.
+pub fn figure_knots(centre_mm: [f64; 2], amp_mm: [f64; 2], freq_hz: f64, seconds: f64, knot_ms: u32) -> Vec<Knot> {
+    let ramp = 0.5f64.min(seconds / 2.0);
+    let w = 2.0 * std::f64::consts::PI * freq_hz;
+    // Position and velocity of the enveloped figure (exact derivative).
+    let at = |t: f64| {
+        let (env, denv) = if t < ramp {
+            let a = std::f64::consts::FRAC_PI_2 * t / ramp;
+            (a.sin().powi(2), 2.0 * a.sin() * a.cos() * std::f64::consts::FRAC_PI_2 / ramp)
+        } else if t > seconds - ramp {
+            let a = std::f64::consts::FRAC_PI_2 * (seconds - t) / ramp;
+            (a.sin().powi(2), -2.0 * a.sin() * a.cos() * std::f64::consts::FRAC_PI_2 / ramp)
+        } else {
+            (1.0, 0.0)
+        };
+        let (sx, cx) = (w * t).sin_cos();
+        let (sy, cy) = (2.0 * w * t).sin_cos();
+        let p = [centre_mm[0] + env * amp_mm[0] * sx, centre_mm[1] + env * amp_mm[1] * sy];
+        let v = [denv * amp_mm[0] * sx + env * amp_mm[0] * w * cx, denv * amp_mm[1] * sy + env * amp_mm[1] * 2.0 * w * cy];
+        (p, v)
+    };
+    let knot_ms = knot_ms.max(1);
+    let n = (seconds * 1000.0 / f64::from(knot_ms)).round() as u32;
+    (1..=n)
+        .map(|i| {
+            let (p, v) = at(f64::from(i * knot_ms) * 1e-3);
+            Knot {
+                t_us: i * knot_ms * 1000,
+                position_mm: [p[0] as f32, p[1] as f32],
+                velocity_mm_s: [v[0] as f32, v[1] as f32],
+            }
+        })
+        .collect()
+}
+
+/// Knots from CSV text: a header, then `t_s,x_mm,y_mm,vx_mm_s,vy_mm_s` per line (times from
+/// the stream's start, strictly increasing; the controller checks the limits).
+pub fn parse_knots_csv(text: &str) -> Result<Vec<Knot>, ClientError> {
+    let mut knots = Vec::new();
+    for (i, line) in text.lines().enumerate().skip(1) {
+        if line.trim().is_empty() {
+            continue;
+        }
+        let f: Vec<f64> = line
+            .split(',')
+            .map(|v| v.trim().parse::<f64>())
+            .collect::<Result<_, _>>()
+            .map_err(|e| ClientError::Trajectory(format!("line {}: {e}", i + 1)))?;
+        let [t, x, y, vx, vy] = f[..] else {
+            return Err(ClientError::Trajectory(format!("line {}: expected 5 numbers, got {}", i + 1, f.len())));
+        };
+        if !(t > 0.0 && t < 4000.0 && [x, y, vx, vy].iter().all(|v| v.is_finite())) {
+            return Err(ClientError::Trajectory(format!("line {}: time must be in (0, 4000) s and every number finite", i + 1)));
+        }
+        knots.push(Knot {
+            t_us: (t * 1e6).round() as u32,
+            position_mm: [x as f32, y as f32],
+            velocity_mm_s: [vx as f32, vy as f32],
+        });
+    }
+    if knots.is_empty() {
+        return Err(ClientError::Trajectory("no knots".into()));
+    }
+    Ok(knots)
+}
+
+/// Telemetry as CSV text (header and one line per sample).
+pub fn telemetry_csv(samples: &[TelemetrySample]) -> String {
+    let mut s = String::from(
+        "tick,setpoint_x_mm,setpoint_y_mm,reference_1_rad,reference_2_rad,encoder_1_rad,encoder_2_rad,torque_1_nm,torque_2_nm,following_error_rad,mode,fault\n",
+    );
+    for t in samples {
+        s.push_str(&format!(
+            "{},{},{},{},{},{},{},{},{},{},{:?},{}\n",
+            t.tick,
+            t.setpoint_mm[0],
+            t.setpoint_mm[1],
+            t.reference_rad[0],
+            t.reference_rad[1],
+            t.encoder_rad[0],
+            t.encoder_rad[1],
+            t.torque_nm[0],
+            t.torque_nm[1],
+            t.following_error_rad,
+            t.mode,
+            t.fault.map_or(String::new(), |f| format!("{f:?}")),
+        ));
+    }
+    s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_figure_starts_and_ends_at_rest_at_its_centre_and_its_velocities_are_derivatives() {
+        let k = figure_knots([212.0, 0.0], [30.0, 40.0], 0.5, 3.0, 10);
+        assert_eq!(k.len(), 300);
+        let last = k.last().unwrap();
+        assert!((last.position_mm[0] - 212.0).abs() < 1e-4 && last.position_mm[1].abs() < 1e-4);
+        assert!(last.velocity_mm_s[0].abs() < 1e-3 && last.velocity_mm_s[1].abs() < 1e-3);
+        for w in k.windows(3).skip(10).step_by(17) {
+            // The envelope is C¹ but not C² where the ramps meet the plateau (0.5 s, 2.5 s): a
+            // central difference across those knots is off by h·Δp''/4 there.
+            let t_mid = f64::from(w[1].t_us) * 1e-6;
+            if (t_mid - 0.5).abs() < 0.011 || (t_mid - 2.5).abs() < 0.011 {
+                continue;
+            }
+            for a in 0..2 {
+                let v = (w[2].position_mm[a] - w[0].position_mm[a]) / 0.02;
+                assert!((v - w[1].velocity_mm_s[a]).abs() < 0.02 * w[1].velocity_mm_s[a].abs().max(10.0), "{v} {:?}", w[1]);
+            }
+        }
+    }
+
+    #[test]
+    fn a_knot_file_is_read_and_bad_lines_are_named() {
+        let k = parse_knots_csv("t_s,x_mm,y_mm,vx_mm_s,vy_mm_s\n0.01,212,0,1,0\n0.02,212.01,0,0,0\n").unwrap();
+        assert_eq!(k.len(), 2);
+        assert_eq!(k[1].t_us, 20_000);
+        let e = parse_knots_csv("h\n0.01,212,0,1\n").unwrap_err().to_string();
+        assert!(e.contains("line 2") && e.contains("5 numbers"), "{e}");
+        assert!(parse_knots_csv("h\n0.01,NaN,0,1,0\n").is_err());
+        assert!(parse_knots_csv("h\n").is_err());
+    }
+}
