@@ -7,7 +7,7 @@ use host_sim::calib::image::{append_dynamics_block, finish_image, WorkspaceBlock
 use host_sim::io::dynamics_file::read_dynamics;
 use host_sim::io::atomic::write_atomic;
 use host_sim::io::measurement_csv::read_measurements;
-use host_sim::io::model_file::read_model;
+use host_sim::io::model_file::read_model_file;
 use host_sim::io::plot::{vector_plot, VectorField};
 use host_sim::io::KeyOrder;
 use serde::Serialize;
@@ -16,7 +16,8 @@ use std::path::PathBuf;
 /// Build the correction-grid image from measurements at the grid nodes.
 #[derive(clap::Args, Debug)]
 pub struct Args {
-    /// The fitted model (model.json) the nodes were commanded with.
+    /// The fitted model (model.json) the nodes were commanded with. If it carries
+    /// `backlash_urad`, the grid is built from link angles (the data need dir1,dir2).
     #[arg(long)]
     pub model: PathBuf,
     /// Measurements at the nodes; x_target_mm,y_target_mm are the nodes.
@@ -70,8 +71,15 @@ pub fn run(args: &Args) -> Result<()> {
     if !(step_mm > 0.0 && step_mm.is_finite()) {
         bail!("--step-mm must be positive, got {step_mm}");
     }
-    let model = read_model(&args.model)?;
+    let file = read_model_file(&args.model)?;
+    let model = file.model().map_err(|e| anyhow::anyhow!("{}: {e}", args.model.display()))?;
     let data = read_measurements(&args.data)?;
+    // A model with a backlash correction: the grid is built from link angles (calib::backlash),
+    // free of the lost motion whatever direction each node was approached from.
+    let data = match file.backlash().map_err(|e| anyhow::anyhow!("{}: {e}", args.model.display()))? {
+        Some(b) => b.link_angles(&data).with_context(|| format!("{} with the model's backlash", args.data.display()))?,
+        None => data,
+    };
     let mut built = build(&model, &data, step_mm).with_context(|| format!("in {}", args.data.display()))?;
     let (image, workspace_block) = finish_image(&built.image, &spec)?;
     built.image = match &args.dynamics {
