@@ -11,10 +11,11 @@
 //! 3. measure the grid nodes (the machine's lattice: on the paper machine 21 × 31 nodes, 5 mm
 //!    apart over x ∈ [162.132, 262.132], y ∈ [−75, 75]) commanded with the `full` model, and
 //!    build the correction grid ([`super::grid::build`]);
-//! 4. measure the nodes again, commanded through that grid, and rebuild it (round 2): the grid
-//!    is first order in the error it corrects, so where the fit leaves a large error one round
-//!    leaves ~1 % of it and the second removes that (the six-bar plant with A0 held at the
-//!    origin: fit ~1 mm, one round 16 µm, two 6 µm); after a good fit both sit at the floor;
+//! 4. measure the nodes again, commanded through that grid, and rebuild it from both rounds'
+//!    readings (round 2: two readings per node, each referred to the node's IK command, so the
+//!    instrument's noise in the grid drops by √2; the grid smooths the node errors, see
+//!    [`super::grid`]). With a 10 µm instrument this is what brings fit + grid under 6 µm; with
+//!    1 µm both rounds sit at the floor;
 //! 5. verify after every step: [`VERIFY_TARGETS`] fresh random targets (drawn from their own
 //!    stream, never used in a fit or the grid), each commanded exactly as the firmware does
 //!    (`Calibration::command_rad`, f32), with the nominal model, `ls`, `full`, `full` + grid
@@ -104,6 +105,17 @@ pub fn true_error_vectors_um(landed: &[Landed]) -> Vec<[f64; 2]> {
         .map(|l| {
             let t = l.row.target_mm.unwrap_or(l.true_mm);
             [(l.true_mm[0] - t[0]) * 1e3, (l.true_mm[1] - t[1]) * 1e3]
+        })
+        .collect()
+}
+
+/// Measured − target (µm) of measured visits (what the instrument read at the grid nodes).
+fn node_errors_um(landed: &[Landed]) -> Vec<[f64; 2]> {
+    landed
+        .iter()
+        .map(|l| {
+            let t = l.row.target_mm.unwrap_or(l.row.measured_mm);
+            [(l.row.measured_mm[0] - t[0]) * 1e3, (l.row.measured_mm[1] - t[1]) * 1e3]
         })
         .collect()
 }
@@ -228,7 +240,10 @@ pub fn calibrate(machine: &mut dyn Machine, opts: &PipelineOptions, events: &mut
     // are measured again through it and the grid rebuilt from what is left.
     step(events, "step 4: measuring the grid nodes again through the grid (round 2) and refining it".into());
     let grid2_data = measure(machine, &grid_cal, &grid_visits, "measuring the grid, round 2")?;
-    let grid2 = grid::build(&full.model, &rows(&grid2_data), g.step_mm).map_err(|e| e.context("building the grid, round 2"))?;
+    // Both rounds' readings: the grid refers each to the node's IK command (grid.rs), so the
+    // refined grid averages two readings per node.
+    let both: Vec<_> = rows(&grid_data).into_iter().chain(rows(&grid2_data)).collect();
+    let grid2 = grid::build(&full.model, &both, g.step_mm).map_err(|e| e.context("building the grid, round 2"))?;
     let grid2_cal = grid_calibration(&grid2, "refined grid")?;
     step(events, format!("step 5: verifying full fit + refined grid on the same {VERIFY_TARGETS} fresh targets"));
     let landed = measure(machine, &grid2_cal, &verify, "verifying full fit + refined grid")?;
@@ -286,6 +301,9 @@ pub struct GridSummary {
     pub round2_node_err_max_um: f64,
     pub round2_node_err_rms_um: f64,
     pub image_bytes: usize,
+    /// What each grid knew of the noise and did about it (`grid::NoiseReport`).
+    pub round1_noise: grid::NoiseReport,
+    pub round2_noise: grid::NoiseReport,
 }
 
 /// The final accuracy against the target.
@@ -325,7 +343,8 @@ pub fn summary(cal: &Calibrated, seed: u64, out_dir: &Path, files: &[PathBuf]) -
     let before = cal.stages.first().map_or(f64::NAN, |s| s.accuracy.max_um);
     let fit_rows = rows(&cal.fit_data);
     let (full_res, ls_res) = (residual_um(&cal.full.model, &fit_rows), residual_um(&cal.ls_model, &fit_rows));
-    let (n1, n2) = (cal.grid.stats().node_err, cal.grid2.stats().node_err);
+    let n1 = cal.grid.stats().node_err;
+    let n2 = max_rms(&node_errors_um(&cal.grid2_data).iter().map(|e| e[0].hypot(e[1])).collect::<Vec<f64>>());
     let fin = cal.final_accuracy();
     Summary {
         machine: cal.machine.clone(),
@@ -373,6 +392,8 @@ pub fn summary(cal: &Calibrated, seed: u64, out_dir: &Path, files: &[PathBuf]) -
             round2_node_err_max_um: round3(n2.max),
             round2_node_err_rms_um: round3(n2.rms),
             image_bytes: cal.grid2.image.len(),
+            round1_noise: cal.grid.noise.clone(),
+            round2_noise: cal.grid2.noise.clone(),
         },
         final_: FinalSummary {
             max_um: fin.map(|a| round3(a.max_um)),
@@ -481,8 +502,7 @@ pub fn write_outputs(cal: &Calibrated, dir: &Path) -> Result<Vec<PathBuf>, IoErr
     )?;
     written.push(p("errors_final.png"));
     let node_base: Vec<[f64; 2]> = cal.grid.nodes.iter().map(|n| n.target_mm).collect();
-    let node_err = |g: &BuiltGrid| -> Vec<[f64; 2]> { g.nodes.iter().map(|n| [n.error_mm[0] * 1e3, n.error_mm[1] * 1e3]).collect() };
-    let (node_err1, node_err2) = (node_err(&cal.grid), node_err(&cal.grid2));
+    let (node_err1, node_err2) = (node_errors_um(&cal.grid_data), node_errors_um(&cal.grid2_data));
     vector_plot(
         &p("grid_nodes.png"),
         "grid nodes: measured − target",

@@ -2,7 +2,7 @@
 //! nodes (`host_sim::calib::grid`), with a JSON summary.
 
 use anyhow::{bail, Context, Result};
-use host_sim::calib::grid::{build, format_csv};
+use host_sim::calib::grid::{build_with, format_csv, GridOptions, NoiseReport, Smoothing};
 use host_sim::io::atomic::write_atomic;
 use host_sim::io::measurement_csv::read_measurements;
 use host_sim::io::model_file::read_model;
@@ -32,6 +32,24 @@ pub struct Args {
     /// Optional PNG of the measured node errors.
     #[arg(long)]
     pub plot: Option<PathBuf>,
+    /// How the nodes' errors are smoothed before they become corrections: `gcv` (the basis and
+    /// the smoothing chosen from the data by generalised cross-validation; repeated readings of
+    /// a node are averaged), `none` (each node's own error, the paper's grid), or a number
+    /// (a fixed smoothing λ in lattice-step units).
+    #[arg(long, default_value = "gcv")]
+    pub smoothing: String,
+}
+
+/// `--smoothing` as the library's option.
+fn smoothing(s: &str) -> Result<Smoothing> {
+    Ok(match s {
+        "gcv" => Smoothing::Gcv,
+        "none" => Smoothing::None,
+        other => match other.parse::<f64>() {
+            Ok(l) if l >= 0.0 && l.is_finite() => Smoothing::Fixed(l),
+            _ => bail!("--smoothing must be gcv, none or a non-negative number, not '{other}'"),
+        },
+    })
 }
 
 /// What `grid` prints.
@@ -48,6 +66,8 @@ struct Summary {
     image: String,
     image_bytes: usize,
     csv: String,
+    /// The noise estimate, the smoothing chosen and the residual expected (grid.rs).
+    noise: NoiseReport,
 }
 
 /// `host-sim grid`.
@@ -55,9 +75,12 @@ pub fn run(args: &Args) -> Result<()> {
     if !(args.step_mm > 0.0 && args.step_mm.is_finite()) {
         bail!("--step-mm must be positive, got {}", args.step_mm);
     }
+    let smoothing = smoothing(&args.smoothing)?;
     let model = read_model(&args.model)?;
     let data = read_measurements(&args.data)?;
-    let built = build(&model, &data, args.step_mm).with_context(|| format!("in {}", args.data.display()))?;
+    let built = build_with(&model, &data, &GridOptions { step_mm: args.step_mm, smoothing })
+        .with_context(|| format!("in {}", args.data.display()))?;
+    eprintln!("grid: {}", built.noise.describe());
     let csv = args.csv.clone().unwrap_or_else(|| args.out.with_extension("csv"));
     if csv == args.out {
         bail!("the node table would overwrite the image: give --csv");
@@ -84,6 +107,7 @@ pub fn run(args: &Args) -> Result<()> {
             image: args.out.display().to_string(),
             image_bytes: built.image.len(),
             csv: csv.display().to_string(),
+            noise: built.noise.clone(),
         },
         KeyOrder::Sorted,
     )
