@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Runs every test of the project. On a fresh Debian machine it first installs what is missing:
-# the thumbv7em-none-eabihf target (rustup), QEMU and a C compiler for its cycle-estimating
-# plugin (apt, when root or with sudo).
+# the thumbv7em-none-eabihf target (rustup), flip-link (cargo install, ~10 s; the STM32G474
+# build links through it), QEMU and a C compiler for its cycle-estimating plugin (apt, when
+# root or with sudo).
 #
 #   bash tests/run-all.sh
 #
@@ -15,8 +16,8 @@
 #      (cargo qemu-bench: builds the TCG plugin firmware/qemu/plugin/m4cycles.c with cc and
 #      fails if the IK or FK executes no VSQRT)
 #   5. the real board's firmware builds (cargo fw-build)
-#   6. clippy, warnings denied: the host crates with all their targets (host-sim's benches
-#      compiled there), the firmware for both boards (last, so that it reuses the proc macros
+#   6. clippy, warnings denied: the host crates (g474-plan included) with all their targets
+#      (host-sim's benches compiled there), the firmware for both boards (last, so that it reuses the proc macros
 #      the release builds compiled)
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -26,6 +27,11 @@ step() { printf '\n=== %s\n' "$*"; }
 step "setup: Rust target thumbv7em-none-eabihf"
 if ! rustup target list --installed | grep -qx thumbv7em-none-eabihf; then
     rustup target add thumbv7em-none-eabihf
+fi
+
+step "setup: flip-link (the STM32G474 firmware's linker wrapper: stack overflow protection)"
+if ! command -v flip-link >/dev/null 2>&1; then
+    cargo install flip-link --version 0.1.12 --locked
 fi
 
 step "setup: qemu-system-arm, python3 (the QEMU runner splits the ELF with it), a C compiler (the bench's QEMU plugin)"
@@ -58,7 +64,7 @@ cargo fw-build
 # All targets: this also compiles (checks) host-sim's benches, which `cargo test` does not
 # build, so an API change that breaks them fails here. The firmware only builds for the MCU
 # target: linted below.
-step "clippy: host crates (all targets, host-sim's benches included)"
+step "clippy: host crates (kinematics-core, controller, g474-plan, host-sim with its benches, tests; all targets)"
 cargo clippy --locked --workspace --exclude firmware --all-targets -- -D warnings
 
 step "clippy: firmware, QEMU board and STM32G474 board"

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# `cargo qemu-test` runner: runs every scenario of controller/src/scenario.rs against the same
+# `cargo qemu-test` runner: runs every scenario of controller/src/scenario/mod.rs against the same
 # firmware image and checks each one's exit code and console output (the harness prints PASS,
 # or FAIL and why; the self-tests must print their own failure line, not just exit 1).
 # Usage (cargo does this): test.sh path/to/firmware.elf
@@ -32,6 +32,8 @@ passed=0; failed=0
 PASS='^PASS $'
 PANIC='^FAIL panic: panicked at [^ ]+ self-test: panic path $'
 HARDFAULT='^FAIL HardFault $'
+# The stalled task: the watchdog's NMI reports, the machine resets, the boot after it passes.
+WATCHDOG='^watchdog: torque off [0-9]+ us after the stall at [0-9]+ mm/s, [0-9]+ us after the last on-time step \(timeout [0-9]+ us\) PASS $'
 # name  expected-exit  expected-console  scenario  extra-qemu-args
 run() {
   local name=$1 expect=$2 console=$3 scenario=$4; shift 4
@@ -60,12 +62,17 @@ run nan-setpoint   0 "$PASS" nan-setpoint $(image calibration.bin)
 run out-of-reach   0 "$PASS" out-of-reach $(image calibration.bin)
 run jump           0 "$PASS" jump         $(image calibration.bin)
 run underrun       0 "$PASS" underrun     $(image calibration.bin)
-# ... and category 0 (torque off at once): the controller and the encoders.
+# ... and category 0 (torque off at once; the drives' dynamic braking must stop the machine
+# inside the workspace): the controller and the encoders.
 run overrun        0 "$PASS" overrun      $(image calibration.bin)
 run encoder-frozen-at-rest 0 "$PASS" encoder-frozen-at-rest $(image calibration.bin)
 run encoder-frozen-moving  0 "$PASS" encoder-frozen-moving  $(image calibration.bin)
 run glitch-small   0 "$PASS" glitch-small $(image calibration.bin)
 run glitch-large   0 "$PASS" glitch-large $(image calibration.bin)
+# The servo task stalls (interrupts disabled) while the tool moves at speed: the watchdog removes
+# torque within its timeout, then resets the machine; the boot after it keeps the drives off
+# while the machine, which moves on through the reset, coasts within category 0's bounds.
+run stalled-task   0 "$WATCHDOG" stalled-task $(image calibration.bin)
 run corrupt-image  0 "$PASS" bad-image-crc   $(image corrupt.bin)
 run erased-image   0 "$PASS" bad-image-magic $(image erased.bin)
 run no-image       0 "$PASS" bad-image-magic

@@ -19,6 +19,10 @@
 //!   motor never jumps: the servo refuses, it never clamps a setpoint into reach.
 //! * **Encoder plausibility** (`controller::encoder_check`): speed and acceleration beyond the
 //!   mechanism's, glitches, a reading that does not move under torque, at rest too.
+//! * **Independent watchdog** (3 ms), fed last in the servo task and only after an on-time
+//!   step (`controller::watchdog`): a stalled servo task lets it expire (category 0; G474:
+//!   reset; QEMU: NMI that removes torque, then reset). The boot after a watchdog reset keeps
+//!   the drives off; the reset cause is logged at every boot.
 //! * **Setpoint intake** ([`app::intake`], priority 2): keeps a `heapless` SPSC queue filled
 //!   from the board's setpoint source, the built-in trajectory (a host link would fill the
 //!   same queue).
@@ -49,6 +53,7 @@ mod app {
     use controller::setpoints::{self, QUEUE_SLOTS};
     use controller::status::Status;
     use controller::trajectory::Trajectory;
+    use controller::watchdog;
     use controller::SAMPLE_RATE_HZ;
     use firmware::board::{Board, Selected, ServoTimer};
 
@@ -75,6 +80,8 @@ mod app {
         let settings: &'static Settings = cx.local.settings.insert(Selected::settings());
         defmt::info!("boot: settings {}", settings.servo);
         let mut board = Selected::init(settings);
+        let reset_cause = board.reset_cause();
+        defmt::info!("boot: reset cause {}", reset_cause);
 
         let (cal_state, cal) = calibration::load(firmware::calibration::region(), settings.allow_uncorrected);
         match cal_state {
@@ -84,7 +91,18 @@ mod app {
         }
         // Engage at the machine's actual position, unless the calibration forbids it.
         let encoder_rad = board.encoders_rad();
-        let servo_loop = ServoLoop::boot(settings, cal, cal_state, encoder_rad);
+        let mut servo_loop = ServoLoop::boot(settings, cal, cal_state, encoder_rad);
+        // A watchdog reset keeps the drives off.
+        if let Some(fault) = watchdog::fault_after_reset(reset_cause) {
+            servo_loop.latch_at_boot(fault);
+        }
+        let mut source = board.setpoints(Trajectory::builtin(servo_loop.setpoint_mm(), settings));
+        // The watchdog starts only now, after the slow part of the boot (the QEMU harness scans
+        // the trajectory), so that the first servo sample comes well within its timeout; a
+        // watchdog that will not start keeps the drives off.
+        if let Err(e) = board.start_watchdog() {
+            servo_loop.latch_at_boot(Fault::Watchdog(e));
+        }
         match servo_loop.mode().fault() {
             None => {
                 defmt::info!("engaged at {} mm (encoders {} rad)", servo_loop.setpoint_mm(), encoder_rad);
@@ -96,7 +114,6 @@ mod app {
             }
         }
 
-        let mut source = board.setpoints(Trajectory::builtin(servo_loop.setpoint_mm(), settings));
         let (mut setpoints_in, setpoints_out) = cx.local.queue.split();
         if servo_loop.drives_enabled() {
             setpoints::refill(&mut setpoints_in, &mut source);
@@ -120,7 +137,8 @@ mod app {
     /// already pending. A missed deadline is counted (`overruns`); the torques written late
     /// still stand (they are the best available). `overrun_streak_limit` consecutive misses
     /// (default 3, i.e. 1.5 ms without a fresh command) latch `Fault::DeadlineMissed`: drives
-    /// disabled, zero torque (category 0).
+    /// disabled, zero torque (category 0). Last, an on-time step feeds the independent watchdog
+    /// (3 ms).
     #[task(binds = SERVO_TICK, priority = 3, shared = [status], local = [board, servo_loop, setpoints_out])]
     fn servo_tick(mut cx: servo_tick::Context) {
         let l = cx.local;
@@ -157,6 +175,10 @@ mod app {
         });
         if sample.index % l.servo_loop.settings().telemetry_period_ticks.max(1) == 0 {
             let _ = telemetry::spawn();
+        }
+        // Watchdog, last: only a step that completed on time feeds it.
+        if sample.feed_watchdog {
+            l.board.feed_watchdog();
         }
     }
 

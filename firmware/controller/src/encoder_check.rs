@@ -33,9 +33,23 @@
 //!   holding still is indistinguishable from a still machine, and harmless). Measured on the
 //!   QEMU plant's parameters, joint 1 frozen before a 2 g move: found 24 samples (12 ms) after
 //!   the first move of the tour starts, the tool 0.45 mm off, 2.4 mm after coasting (host test
-//!   `servo_loop::tests::an_encoder_frozen_at_rest_is_stuck_...`); 13 samples and a 1.0 mm
-//!   coast before the long diagonal (`cargo qemu-test`, `encoder-frozen-at-rest`). Which joint
+//!   `servo_loop::tests::an_encoder_frozen_at_rest_is_stuck_...`, free-wheeling drives); 13
+//!   samples and a 0.50 mm coast with the drives' dynamic braking (1.63 mm free-wheeling)
+//!   before the long diagonal (`cargo qemu-test`, `encoder-frozen-at-rest`). Which joint
 //!   and which move decide how fast the servo's torque builds up.
+//!
+//! **Resolution.** Every bound above is widened by the encoder's quantisation, from the
+//! per-axis scale (`Settings::encoders`, [`EncoderScale::rad_per_count`](crate::encoder::EncoderScale::rad_per_count)):
+//! one count on the speed bound, two on the acceleration bound (the second difference of
+//! readings rounded to counts is off by up to two counts), and the stuck check needs more than
+//! four counts of expected motion: the expected motion is counted from rest, but an axis that
+//! was moving against the torque when the reading last changed turns around inside one count
+//! for up to `sqrt(8·count/a)`, during which the motion from rest reaches `½·a·t²` = 4 counts.
+//! At the default 2²² counts/rev (1.5 µrad per count) this changes none of the figures above;
+//! it is what keeps a coarse encoder (4096 counts/rev direct drive: 1.5 mrad per count, as much
+//! as one sample's acceleration bound) from reading its own quantisation as a glitch or a stuck
+//! axis. The glitch and stuck thresholds grow accordingly: a geared axis (10,000 counts/rev
+//! through 50:1 is 12.6 µrad per count) keeps them within 2 % of the figures above.
 //!
 //! On a real axis: a breakaway friction or a static load (a spring, the six-bar's preload)
 //! above `hold_torque` trips it; commissioning sets it from the largest holding torque
@@ -141,15 +155,19 @@ struct Expected {
 /// The check's state: the last readings and the expected motion per axis.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct EncoderCheck {
+    /// One count of each axis's encoder (rad, positive): the quantisation the bounds allow.
+    count_rad: [f32; 2],
     last_rad: [f32; 2],
     last_step_rad: [f32; 2],
     expected: [Expected; 2],
 }
 
 impl EncoderCheck {
-    /// Starts at `encoder_rad`, at rest.
-    pub fn new(encoder_rad: [f32; 2]) -> Self {
-        EncoderCheck { last_rad: encoder_rad, last_step_rad: [0.0; 2], expected: [Expected::default(); 2] }
+    /// Starts at `encoder_rad`, at rest; `count_rad` is one count of each axis's encoder (rad;
+    /// the sign is ignored, and a non-finite value counts as 0: the unwidened bounds).
+    pub fn new(encoder_rad: [f32; 2], count_rad: [f32; 2]) -> Self {
+        let count_rad = count_rad.map(|c| if c.is_finite() { c.abs() } else { 0.0 });
+        EncoderCheck { count_rad, last_rad: encoder_rad, last_step_rad: [0.0; 2], expected: [Expected::default(); 2] }
     }
 
     /// The last sample's joint speeds (rad/s): the difference of the last two readings.
@@ -172,11 +190,12 @@ impl EncoderCheck {
             if !encoder_rad[k].is_finite() {
                 return Err(fault(EncoderFaultKind::NonFinite));
             }
+            let count = self.count_rad[k];
             let step = encoder_rad[k] - self.last_rad[k];
-            if !(step.abs() <= limits.max_speed_rad_s * dt_s) {
+            if !(step.abs() <= limits.max_speed_rad_s * dt_s + count) {
                 return Err(fault(EncoderFaultKind::Speed));
             }
-            if !((step - self.last_step_rad[k]).abs() <= limits.max_accel_rad_s2 * dt_s * dt_s) {
+            if !((step - self.last_step_rad[k]).abs() <= limits.max_accel_rad_s2 * dt_s * dt_s + 2.0 * count) {
                 return Err(fault(EncoderFaultKind::Acceleration));
             }
             let e = &mut next.expected[k];
@@ -190,7 +209,7 @@ impl EncoderCheck {
                 let accel = excess / limits.max_inertia_kg_m2;
                 e.motion_rad += (e.speed_rad_s + 0.5 * accel * dt_s) * dt_s;
                 e.speed_rad_s += accel * dt_s;
-                if e.motion_rad > limits.stuck_motion_rad {
+                if e.motion_rad > limits.stuck_motion_rad.max(4.0 * count) {
                     return Err(fault(EncoderFaultKind::Stuck));
                 }
             }
@@ -211,7 +230,11 @@ mod tests {
     const COUNT_RAD: f32 = 2.0 * core::f32::consts::PI / (1u32 << 22) as f32;
 
     fn quantise(rad: f32) -> f32 {
-        libm::roundf(rad / COUNT_RAD) * COUNT_RAD
+        quantise_to(rad, COUNT_RAD)
+    }
+
+    fn quantise_to(rad: f32, count_rad: f32) -> f32 {
+        libm::roundf(rad / count_rad) * count_rad
     }
 
     /// An axis: inertia, Coulomb friction, the encoder quantised; `torque(k, θ, ω)` per sample.
@@ -220,12 +243,26 @@ mod tests {
         samples: usize,
         inertia_kg_m2: f32,
         friction_nm: f32,
+        torque: impl FnMut(usize, f32, f32) -> f32,
+        reading: impl FnMut(usize, f32) -> f32,
+    ) -> Option<(usize, EncoderFault)> {
+        run_with(COUNT_RAD, samples, inertia_kg_m2, friction_nm, torque, reading)
+    }
+
+    /// [`run`] with an encoder of `count_rad` per count (the reading passed to `reading` is
+    /// quantised to it, and the check knows it).
+    fn run_with(
+        count_rad: f32,
+        samples: usize,
+        inertia_kg_m2: f32,
+        friction_nm: f32,
         mut torque: impl FnMut(usize, f32, f32) -> f32,
         mut reading: impl FnMut(usize, f32) -> f32,
     ) -> Option<(usize, EncoderFault)> {
         let limits = EncoderLimits::default();
         let (mut angle, mut speed) = (0.9f32, 0.0f32);
-        let mut check = EncoderCheck::new([quantise(angle), -0.7]);
+        let quantise = |rad| quantise_to(rad, count_rad);
+        let mut check = EncoderCheck::new([quantise(angle), -0.7], [count_rad, COUNT_RAD]);
         let mut tau = 0.0f32;
         for k in 0..samples {
             // The torque of the previous sample acts for one period (10 sub-steps).
@@ -300,7 +337,7 @@ mod tests {
     fn a_jump_faster_than_the_mechanism_is_a_speed_fault() {
         let fault = run(300, 2.2e-3, 0.03, |_, _, _| 0.0, |k, r| if k >= 200 { r + 0.2 } else { r });
         assert_eq!(fault, Some((200, EncoderFault { axis: 0, kind: EncoderFaultKind::Speed })));
-        let mut c = EncoderCheck::new([0.0; 2]);
+        let mut c = EncoderCheck::new([0.0; 2], [COUNT_RAD; 2]);
         let e = c.check([0.0, f32::NAN], [0.0; 2], &EncoderLimits::default(), DT_S);
         assert_eq!(e, Err(EncoderFault { axis: 1, kind: EncoderFaultKind::NonFinite }));
     }
@@ -314,7 +351,7 @@ mod tests {
             let a = (torque - l.hold_torque_nm) / l.max_inertia_kg_m2;
             let stated = (1..).find(|&n: &usize| a * (n as f32 * DT_S).powi(2) / 2.0 > l.stuck_motion_rad).unwrap();
             assert_eq!(stated, samples, "{torque} N·m");
-            let mut c = EncoderCheck::new([0.5, 0.5]);
+            let mut c = EncoderCheck::new([0.5, 0.5], [COUNT_RAD; 2]);
             let mut found = None;
             for k in 1..100 {
                 if let Err(f) = c.check([0.5, 0.5], [0.0, -torque], &l, DT_S) {
@@ -344,13 +381,39 @@ mod tests {
     #[test]
     fn holding_a_load_within_hold_torque_and_reversing_torque_are_not_stuck() {
         let l = EncoderLimits::default();
-        let mut c = EncoderCheck::new([0.5, 0.5]);
+        let mut c = EncoderCheck::new([0.5, 0.5], [COUNT_RAD; 2]);
         for k in 0..10_000 {
             // A static load held with 0.19 N·m; axis 2 alternates ±0.5 N·m every sample (a
             // chattering servo at rest: never one sign long enough to move).
             let t2 = if k % 2 == 0 { 0.5 } else { -0.5 };
             assert_eq!(c.check([0.5, 0.5], [0.19, t2], &l, DT_S), Ok(()), "sample {k}");
         }
+    }
+
+    /// A coarse encoder (4096 counts/rev on a direct-drive joint: 1.53 mrad per count, more than
+    /// one sample's acceleration bound of 1.5 mrad) reads its quantisation neither as a glitch
+    /// nor, slowly starting under torque, as a stuck axis; a glitch of a few counts and a stuck
+    /// reading are still found.
+    #[test]
+    fn a_coarse_encoders_quantisation_is_not_a_fault_but_a_glitch_still_is() {
+        let count = core::f32::consts::TAU / 4096.0;
+        let reversing = |k: usize, _: f32, w: f32| {
+            if k < 3000 {
+                if (k / 80) % 2 == 0 { 2.0 } else { -2.0 }
+            } else if w.abs() > 0.1 {
+                -2.0 * w.signum()
+            } else {
+                0.15
+            }
+        };
+        assert_eq!(run_with(count, 4000, 2.2e-3, 0.18, reversing, |_, r| r), None);
+        // 0.5 N·m from rest: the expected motion passes stuck_motion (1e-4 rad) long before the
+        // axis has moved one count.
+        assert_eq!(run_with(count, 400, 2.2e-3, 0.03, |_, _, _| 0.5, |_, r| r), None);
+        let glitch = run_with(count, 600, 2.2e-3, 0.03, |_, _, _| 0.2, |k, r| if k == 400 { r + 4.0 * count } else { r });
+        assert!(matches!(glitch, Some((400, EncoderFault { axis: 0, kind: EncoderFaultKind::Acceleration }))), "{glitch:?}");
+        let stuck = run_with(count, 400, 2.2e-3, 0.03, |_, _, _| 0.5, |_, _| quantise_to(0.9, count));
+        assert!(matches!(stuck, Some((_, EncoderFault { axis: 0, kind: EncoderFaultKind::Stuck }))), "{stuck:?}");
     }
 
     #[test]

@@ -11,21 +11,25 @@
 //! | setpoint queue empty while moving | 2 | the same |
 //! | encoder: non-finite, speed or acceleration beyond the mechanism's, stuck | 0 (STO) | torque off in the sample that found it |
 //! | following error beyond the limit, non-finite encoder in the servo | 0 | torque off at once |
-//! | deadline overrun streak, PWM write error | 0 | torque off at once |
+//! | deadline overrun streak, PWM write error, drive outputs off (safe-torque-off input) | 0 | torque off at once |
+//! | servo task stalled: the independent watchdog expires ([`crate::watchdog`]) | 0 | torque off by the watchdog (QEMU: its NMI; STM32G474: the reset, the enable line pulled low), then a reset |
 //! | the controlled stop's own setpoint refused | 0 | torque off at once (a fallback the workspace check makes unreachable) |
-//! | bad calibration image, settings refused, engage refused | (boot) | drives never enabled |
+//! | bad calibration image, settings refused, engage refused, the last reset was the watchdog's, watchdog not started | (boot) | drives never enabled |
 //!
 //! Why these categories: a fault of the setpoint stream leaves the feedback, the servo and the
-//! drives trustworthy, so they brake the machine along its path, which a free-wheeling machine
-//! would leave at full speed (at the built-in tour's 1.38 m/s the QEMU plant coasts about
-//! 1 rad per joint). A **finite** refused setpoint (a place the machine should not go, a
+//! drives trustworthy, so they brake the machine along its path, which removing torque would
+//! leave to the drives' dynamic braking, off the path (at the built-in tour's 1.38 m/s the QEMU
+//! plant then coasts 12 mm; with free-wheeling drives about 1 rad per joint). A **finite** refused setpoint (a place the machine should not go, a
 //! sequence it cannot follow, a stream that ran dry) is something a host can re-plan from:
 //! the machine holds where it stopped (category 2), so resuming needs no re-homing. A
 //! **non-finite** setpoint means its producer is broken (corrupt data, a computation gone
 //! wrong), not merely out of bounds: the machine is stopped, then de-energised (category 1),
 //! and only a deliberate re-engage (a reset) brings it back. A fault of the feedback or of the
 //! controller itself means the servo can no longer brake the machine (it would brake towards
-//! a position it does not know, or too late): torque off at once (category 0).
+//! a position it does not know, or too late): torque off at once (category 0). What stops the
+//! machine then is the drives' dynamic braking, a hardware requirement (firmware/README.md,
+//! "Category 0 needs dynamic braking in the drives"): the firmware cannot brake, hold or steer
+//! a machine after a category-0 fault.
 //!
 //! Only a reset clears a latched fault. The mode machine is in [`crate::servo_loop`], the stop
 //! profile in [`crate::stop`], the encoder checks in [`crate::encoder_check`].
@@ -33,12 +37,14 @@ use kinematics_core::{EngageError, GridError, ServoFault, SetpointRefusal};
 
 use crate::encoder_check::EncoderFault;
 use crate::settings::SettingsError;
+use crate::watchdog::WatchdogFault;
 
 /// How the machine is brought to rest (IEC 60204-1 stop categories).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum StopCategory {
-    /// Category 0: torque removed at once (safe torque off); the machine coasts.
+    /// Category 0: torque removed at once (safe torque off); the machine coasts, braked by the
+    /// drives' dynamic braking (a hardware requirement).
     Zero,
     /// Category 1: a controlled stop, then torque removed at standstill (SS1).
     One,
@@ -68,7 +74,9 @@ pub enum Fault {
     StopRefused(SetpointRefusal),
     /// `overrun_streak_limit` consecutive samples missed their 500 µs deadline (category 0).
     DeadlineMissed,
-    /// Writing a PWM duty failed (category 0).
+    /// Writing a PWM duty failed, or the drive outputs are off while they should be on (on
+    /// the STM32G474: TIM1's break input, the external safe-torque-off, cleared its main
+    /// output enable). Category 0.
     Drive,
     /// The calibration image was refused at boot (drives never enabled).
     Calibration(GridError),
@@ -76,6 +84,10 @@ pub enum Fault {
     Settings(SettingsError),
     /// The servo could not engage at the encoder reading at boot (drives never enabled).
     Engage(EngageError),
+    /// The independent watchdog reset the controller (the servo task stalled: the watchdog
+    /// removed torque at once, category 0), or could not be started; at boot, so the drives
+    /// are never enabled. See [`crate::watchdog`].
+    Watchdog(WatchdogFault),
 }
 
 impl Fault {
@@ -92,7 +104,8 @@ impl Fault {
             | Fault::Drive
             | Fault::Calibration(_)
             | Fault::Settings(_)
-            | Fault::Engage(_) => StopCategory::Zero,
+            | Fault::Engage(_)
+            | Fault::Watchdog(_) => StopCategory::Zero,
         }
     }
 }
@@ -107,10 +120,11 @@ impl core::fmt::Display for Fault {
             Fault::Encoder(e) => write!(f, "encoder: {e}"),
             Fault::StopRefused(e) => write!(f, "controlled stop refused ({e})"),
             Fault::DeadlineMissed => f.write_str("servo deadline missed repeatedly"),
-            Fault::Drive => f.write_str("PWM write failed"),
+            Fault::Drive => f.write_str("PWM write failed or drive outputs off (safe-torque-off)"),
             Fault::Calibration(e) => write!(f, "calibration image refused: {e}"),
             Fault::Settings(e) => write!(f, "settings refused: {e}"),
             Fault::Engage(e) => write!(f, "{e}"),
+            Fault::Watchdog(e) => write!(f, "watchdog: {e}"),
         }
     }
 }
@@ -138,6 +152,8 @@ mod tests {
             (Fault::StopRefused(SetpointRefusal::Jump), Zero),
             (Fault::DeadlineMissed, Zero),
             (Fault::Drive, Zero),
+            (Fault::Watchdog(WatchdogFault::Reset), Zero),
+            (Fault::Watchdog(WatchdogFault::NotStarted), Zero),
         ] {
             assert_eq!(fault.stop_category(), want, "{fault}");
         }

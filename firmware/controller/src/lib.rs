@@ -25,11 +25,13 @@
 //! * [`status`]: what the servo task publishes every sample;
 //! * [`calibration`]: the policy for the calibration image found in flash;
 //! * [`drive`]: torque-mode amplifiers commanded by PWM duty (torque <-> duty);
-//! * [`encoder`]: quadrature encoders (counts -> angle);
+//! * [`encoder`]: quadrature encoders (per-axis counts -> joint angle, the homing hook);
+//! * [`watchdog`]: when the independent watchdog is fed, its timeout, and what a watchdog
+//!   reset means at the next boot;
 //! * `scenario` (feature `qemu-harness`, and in host tests): the QEMU test scenarios, their
 //!   fault injection and their checks.
 //!
-//! Planned homes (not written yet): the watchdog hook (in [`servo_loop`]), the host link's command handler (`link.rs`) feeding a streamed motion
+//! Planned homes (not written yet): the host link's command handler (`link.rs`) feeding a streamed motion
 //! buffer (a [`setpoints::SetpointSource`]), homing (`homing.rs`), calibration slots (in
 //! [`calibration`]).
 //!
@@ -54,6 +56,7 @@ pub mod setpoints;
 pub mod status;
 pub mod stop;
 pub mod trajectory;
+pub mod watchdog;
 
 /// Sample period of the servo loop (s): 2 kHz.
 pub const SAMPLE_PERIOD_S: f32 = 5.0e-4;

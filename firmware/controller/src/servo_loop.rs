@@ -9,6 +9,7 @@
 //!     │                                     │                    └── cat. 1, standstill ──► SafeState
 //!     └──── category 0 fault ─────────────────────────────────────────────────────────► SafeState
 //!  Stopping, Holding ── category 0 fault ──────────────────────────────────────────► SafeState
+//!  boot after a watchdog reset, watchdog not started ([`ServoLoop::latch_at_boot`]) ──► SafeState
 //! ```
 //! Every mode but `SafeState` has the drives on. `Holding` keeps the servo on the stop's end
 //! point (the fault stays latched); `SafeState` is zero torque, drive enable off, the queue
@@ -33,7 +34,8 @@
 //! read encoders, [`ServoLoop::step`], write the torques (a failed write is
 //! [`ServoLoop::latch`]ed as [`Fault::Drive`]), [`ServoLoop::record_deadline`], disable the
 //! drives if the sample says so ([`Sample::torque_off`]), publish the
-//! [`Status`](crate::status::Status).
+//! [`Status`](crate::status::Status), and last feed the watchdog if [`Sample::feed_watchdog`]
+//! (the step was on time; see [`crate::watchdog`]).
 //!
 //! A motor never jumps: the servo refuses a setpoint it cannot follow, it never clamps one into
 //! reach; a stop never steps the velocity; torque is removed only in category 0 (at once) or
@@ -43,11 +45,13 @@ use kinematics_core::{Calibration, Servo, ServoOutput, StepError};
 
 use crate::calibration::CalibrationState;
 use crate::deadline::Deadline;
+use crate::encoder::EncoderScale;
 use crate::encoder_check::EncoderCheck;
 use crate::fault::{Fault, StopCategory};
 use crate::setpoints::REFILL_BELOW;
 use crate::settings::{Settings, SettingsError};
 use crate::stop::{MotionState, StopProfile, Workspace};
+use crate::watchdog;
 
 /// Where the servo is.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -98,6 +102,10 @@ pub struct Sample {
     pub fault: Option<Fault>,
     /// This sample entered the safe state: disable the drives now.
     pub torque_off: bool,
+    /// The step completed on time: the servo task feeds the independent watchdog at its end.
+    /// Set only by [`ServoLoop::record_deadline`] (a sample whose deadline was not recorded
+    /// does not feed); in the safe state too (drives off is not a stall).
+    pub feed_watchdog: bool,
 }
 
 /// A stop under way: its profile and the samples stepped along it.
@@ -158,6 +166,9 @@ impl<'a> ServoLoop<'a> {
             Ok(tool_mm) => (Mode::Running, tool_mm),
             Err(fault) => (Mode::SafeState(fault), [0.0; 2]),
         };
+        // One count of each axis's encoder: the quantisation the encoder check allows (a refused
+        // configuration was refused by `validate` above: the loop is in the safe state).
+        let count_rad = settings.encoders.map(|c| EncoderScale::new(&c).map_or(0.0, |s| s.rad_per_count()));
         let margin_mm = settings.stop.workspace_margin_mm;
         let workspace = calibration.grid.as_ref().map(|g| Workspace::of_grid(g.geometry(), margin_mm));
         ServoLoop {
@@ -167,7 +178,7 @@ impl<'a> ServoLoop<'a> {
             servo,
             mode,
             deadline: Deadline::default(),
-            encoders: EncoderCheck::new(encoder_rad),
+            encoders: EncoderCheck::new(encoder_rad, count_rad),
             motion: MotionState::at_rest(setpoint_mm),
             stop: None,
             setpoint_mm,
@@ -231,6 +242,7 @@ impl<'a> ServoLoop<'a> {
             refill: false,
             fault: None,
             torque_off: false,
+            feed_watchdog: false,
         };
         if matches!(self.mode, Mode::SafeState(_)) {
             return sample;
@@ -367,10 +379,21 @@ impl<'a> ServoLoop<'a> {
     /// Records how long the sample took (`step_us` from its tick) and whether the next tick
     /// already came; a streak of `overrun_streak_limit` misses latches
     /// [`Fault::DeadlineMissed`] (category 0). The torques already written stand until the
-    /// drives are disabled (they were the best available).
+    /// drives are disabled (they were the best available). Sets [`Sample::feed_watchdog`] when
+    /// the step was on time ([`watchdog::step_on_time`]).
     pub fn record_deadline(&mut self, step_us: f32, overrun: bool, sample: &mut Sample) {
         if self.deadline.record(step_us, overrun, self.settings.overrun_streak_limit) {
             self.latch(Fault::DeadlineMissed, sample);
+        }
+        sample.feed_watchdog = watchdog::step_on_time(step_us, overrun);
+    }
+
+    /// Keeps the drives off from boot, before the first sample, with `fault` (e.g. the last
+    /// reset was the watchdog's, or the watchdog could not be started). A fault already
+    /// latched at boot (a refused image) stays the one reported.
+    pub fn latch_at_boot(&mut self, fault: Fault) {
+        if self.mode == Mode::Running {
+            self.mode = Mode::SafeState(fault);
         }
     }
 }
@@ -446,6 +469,19 @@ mod tests {
         assert!(matches!(l.mode(), Mode::SafeState(Fault::Engage(EngageError::Kinematics(_)))), "{:?}", l.mode());
     }
 
+    #[test]
+    fn boot_refuses_an_encoder_configuration_the_scale_refuses() {
+        use crate::encoder::EncoderConfigError;
+        let img = image();
+        let mut settings = Settings::default();
+        settings.encoders[1].counts_per_rev = 0;
+        let cal = Calibration::from_grid(CorrectionGrid::parse(&img).unwrap());
+        let encoder = cal.command_rad(HOME_MM, 0.05).unwrap();
+        let l = ServoLoop::boot(&settings, cal, CalibrationState::Valid, encoder);
+        let want = Fault::Settings(SettingsError::Encoder { axis: 1, error: EncoderConfigError::ZeroCountsPerRev });
+        assert_eq!(l.mode(), Mode::SafeState(want));
+    }
+
     /// Issue 11: a refused setpoint used to remove torque at once whatever the speed. At rest,
     /// a NaN (category 1) stops at once (an empty stop) and removes torque at standstill, in the
     /// same sample; the stop from rest holds the last accepted setpoint.
@@ -508,6 +544,49 @@ mod tests {
         l.record_deadline(700.0, true, &mut s);
         assert_eq!(s.fault, None, "already safe: nothing new latched");
         assert_eq!(l.deadline().overruns, settings.overrun_streak_limit + 1);
+    }
+
+    #[test]
+    fn only_an_on_time_step_feeds_the_watchdog_and_the_safe_state_still_does() {
+        let (settings, img) = (Settings::default(), image());
+        let (mut l, encoder) = running(&settings, &img);
+        let mut q: Queue<[f32; 2], QUEUE_SLOTS> = Queue::new();
+        let (_, mut rx) = q.split();
+        let s = l.step(&mut rx, encoder);
+        assert!(!s.feed_watchdog, "no deadline recorded, no feed");
+        let mut s = l.step(&mut rx, encoder);
+        l.record_deadline(15.0, false, &mut s);
+        assert!(s.feed_watchdog);
+        let mut s = l.step(&mut rx, encoder);
+        l.record_deadline(700.0, true, &mut s);
+        assert!(!s.feed_watchdog, "late");
+        let mut s = l.step(&mut rx, encoder);
+        l.record_deadline(f32::NAN, false, &mut s);
+        assert!(!s.feed_watchdog, "step time unreadable");
+        // In the safe state the drives are off and the task still runs on time: it feeds.
+        l.latch(Fault::Drive, &mut s);
+        let mut s = l.step(&mut rx, encoder);
+        l.record_deadline(10.0, false, &mut s);
+        assert!(s.feed_watchdog && !l.drives_enabled());
+    }
+
+    #[test]
+    fn a_fault_at_boot_keeps_the_drives_off_and_the_first_reason_is_kept() {
+        use crate::watchdog::WatchdogFault;
+        let (settings, img) = (Settings::default(), image());
+        let (mut l, encoder) = running(&settings, &img);
+        l.latch_at_boot(Fault::Watchdog(WatchdogFault::Reset));
+        assert_eq!(l.mode(), Mode::SafeState(Fault::Watchdog(WatchdogFault::Reset)));
+        let mut q: Queue<[f32; 2], QUEUE_SLOTS> = Queue::new();
+        let (mut tx, mut rx) = q.split();
+        tx.enqueue(HOME_MM).unwrap();
+        let s = l.step(&mut rx, [encoder[0] + 1e-3, encoder[1]]);
+        assert_eq!((s.torque_nm, s.fault), ([0.0; 2], None));
+        // A refused image at boot stays the reason reported.
+        let cal = Calibration { model: FiveBar::paper_nominal(), grid: None };
+        let mut l = ServoLoop::boot(&settings, cal, CalibrationState::Refused(GridError::BadCrc), encoder);
+        l.latch_at_boot(Fault::Watchdog(WatchdogFault::NotStarted));
+        assert_eq!(l.mode(), Mode::SafeState(Fault::Calibration(GridError::BadCrc)));
     }
 
     #[test]

@@ -8,6 +8,7 @@
 //! refuses (`Fault::Settings`), and no value of them can make the firmware panic.
 use kinematics_core::{ConfigError, ServoConfig};
 
+use crate::encoder::{EncoderConfig, EncoderConfigError, EncoderScale};
 use crate::encoder_check::EncoderLimits;
 use crate::stop::StopSettings;
 
@@ -36,6 +37,15 @@ pub struct Settings {
     /// moving by itself at power-on. The QEMU board runs
     /// [`WORKSPACE_TOUR_MM`](crate::trajectory::WORKSPACE_TOUR_MM).
     pub builtin_tour_mm: &'static [[f32; 2]],
+    /// Each axis's encoder as fitted: counts per motor revolution, counting direction, gear
+    /// ratio from motor to joint ([`EncoderConfig`]; the zero comes from homing, not from
+    /// here). Default: [`EncoderConfig::DIRECT_DRIVE_2_22`] on both axes, the QEMU board's
+    /// simulated encoders; set them for the motors fitted before the first power-up (see the
+    /// bring-up guide in firmware/README.md). [`Settings::validate`] refuses a configuration
+    /// `EncoderScale::new` refuses (`SettingsError::Encoder`), and the board reads such an axis
+    /// as NaN, so the drives stay off either way. The encoder check takes each axis's
+    /// resolution from here.
+    pub encoders: [EncoderConfig; 2],
     /// Peak tool acceleration of the built-in trajectory (mm/s²). Default 2 g.
     pub trajectory_accel_mm_s2: f32,
     /// Peak tool speed of the built-in trajectory (mm/s). Default 1500 mm/s.
@@ -56,6 +66,13 @@ pub struct Settings {
 pub enum SettingsError {
     /// The servo's settings (`servo`).
     Servo(ConfigError),
+    /// An axis's encoder configuration (`encoders[axis]`).
+    Encoder {
+        /// 0 or 1.
+        axis: u8,
+        /// Why `EncoderScale::new` refused it.
+        error: EncoderConfigError,
+    },
     /// Another field, by name: not a finite number in its range.
     Field(&'static str),
 }
@@ -64,6 +81,7 @@ impl core::fmt::Display for SettingsError {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         match self {
             SettingsError::Servo(e) => write!(f, "servo: {e}"),
+            SettingsError::Encoder { axis, error } => write!(f, "encoders[{axis}]: {error}"),
             SettingsError::Field(name) => write!(f, "{name} out of range"),
         }
     }
@@ -71,7 +89,8 @@ impl core::fmt::Display for SettingsError {
 
 impl Settings {
     /// Checks every field: the servo's ([`ServoConfig::validate`]), its sample period equal to
-    /// the timer's, the stop's and the encoder check's; a positive finite drive full scale,
+    /// the timer's, the stop's, each axis's encoder configuration ([`EncoderScale::new`]) and
+    /// the encoder check's; a positive finite drive full scale,
     /// trajectory acceleration and speed; a finite non-negative dwell; at least one overrun in
     /// a streak and one sample per telemetry period.
     pub fn validate(&self) -> Result<(), SettingsError> {
@@ -80,6 +99,9 @@ impl Settings {
             return Err(SettingsError::Field("servo.sample_period_s (must be the timer's)"));
         }
         self.stop.validate(self.servo.max_accel_mm_s2).map_err(SettingsError::Field)?;
+        for (axis, config) in self.encoders.iter().enumerate() {
+            EncoderScale::new(config).map_err(|error| SettingsError::Encoder { axis: axis as u8, error })?;
+        }
         self.encoder_limits.validate().map_err(SettingsError::Field)?;
         let positive = |v: f32| v.is_finite() && v > 0.0;
         for (ok, name) in [
@@ -107,6 +129,7 @@ impl Default for Settings {
             drive_full_scale_nm: 10.0,
             telemetry_period_ticks: 500,
             builtin_tour_mm: &[],
+            encoders: [EncoderConfig::DIRECT_DRIVE_2_22; 2],
             trajectory_accel_mm_s2: 2.0 * kinematics_core::servo::STANDARD_GRAVITY_MM_S2,
             trajectory_speed_mm_s: 1_500.0,
             trajectory_dwell_s: 0.1,
@@ -129,6 +152,10 @@ mod tests {
         // The servo's torque limit, not the PWM range, must saturate first.
         assert!(s.servo.axes.iter().all(|a| a.torque_limit_nm < s.drive_full_scale_nm));
         assert_eq!(s.validate(), Ok(()));
+        // The default encoders are valid (a refused one would keep the drives off).
+        for e in &s.encoders {
+            assert!(crate::encoder::EncoderScale::new(e).is_ok(), "{e:?}");
+        }
     }
 
     #[test]
@@ -153,5 +180,17 @@ mod tests {
         assert_eq!(Settings { stop, ..d }.validate(), Err(SettingsError::Field("stop.limits.jerk_mm_s3")));
         let encoder_limits = EncoderLimits { stuck_motion_rad: 0.0, ..d.encoder_limits };
         assert_eq!(Settings { encoder_limits, ..d }.validate(), Err(SettingsError::Field("encoder_limits.stuck_motion_rad")));
+        let mut encoders = d.encoders;
+        encoders[1].gear_ratio = -50.0;
+        assert_eq!(
+            Settings { encoders, ..d }.validate(),
+            Err(SettingsError::Encoder { axis: 1, error: EncoderConfigError::GearRatio })
+        );
+        encoders[1].gear_ratio = 1.0;
+        encoders[0].counts_per_rev = 0;
+        assert_eq!(
+            Settings { encoders, ..d }.validate(),
+            Err(SettingsError::Encoder { axis: 0, error: EncoderConfigError::ZeroCountsPerRev })
+        );
     }
 }

@@ -6,35 +6,47 @@
 //! input, HRTIM at 184 ps resolution), encoder mode on every general-purpose timer, a CORDIC
 //! unit for the `atan2`/`sin`/`cos` the kinematics need (not used yet), 512 KiB dual-bank
 //! flash (the calibration region sits in bank 2 and can be rewritten without stalling code
-//! in bank 1), and good probe-rs and PAC support. The M7 parts are faster but the loop fits
-//! in a few percent of a G474 period (see README, "Benchmarks").
+//! in bank 1), and good probe-rs support. The M7 parts are faster but the loop fits in a few
+//! percent of a G474 period (see README, "Benchmarks").
 //!
-//! Pin and peripheral map (**untested on hardware**; it compiles, and follows RM0440 and the
-//! STM32G474 datasheet's alternate-function table):
+//! **Every register this board sets is in the `g474-plan` crate** (`firmware/g474-plan/`): the
+//! boot, the drive enable, the safe state and the watchdog are lists of (register, value, why)
+//! that `cargo test` checks against RM0440 on the host; this file applies them
+//! ([`Mmio`]) and keeps the per-sample accesses (duty, encoder counters, tick, feed).
+//! Pin map and why the drive enable is a TIM1 output: `g474_plan::plan`'s doc. In short:
 //! * servo tick: TIM6 update interrupt at 2 kHz (85 MHz counter, ARR 42499), `SERVO_TICK`;
 //!   software-task dispatchers on the unused UART4/UART5 vectors;
-//! * PWM: TIM1 CH1 (PA8, AF6) and CH2 (PA9, AF6), centre-aligned 20 kHz, duty 0..4250, 50 %
-//!   = zero torque (`SetDutyCycle`);
-//! * encoders: TIM3 (PA6/PA7, AF2) and TIM4 (PB6/PB7, AF2) in encoder mode 3, 16-bit counters
-//!   extended to 32 bits in software at every read (at most ±32767 counts between two reads,
-//!   i.e. 98 rad/s at 2^22 counts/rev);
-//! * drive enable: PB0, active high; the safe state drives it low and disables TIM1's outputs;
-//! * clock: HSI16 → PLL (M 4, N 85, R 2) = 170 MHz, range-1 boost mode, 4 flash wait states;
-//! * logging: defmt over RTT (probe-rs); no semihosting on the board and no test harness.
+//! * PWM: TIM1 CH1 (PA8) and CH2 (PA9), centre-aligned 20 kHz, duty 0..4250, 50 % = zero
+//!   torque (`SetDutyCycle`; a write reports an error when TIM1's outputs are off);
+//! * drive enable: PA10 = TIM1 CH3 forced active, high only while TIM1's main output enable
+//!   (MOE) is set; external pull-down;
+//! * safe-torque-off: PB12 = TIM1_BKIN, active low, clears MOE in hardware;
+//! * encoders: TIM3 (PA6/PA7) and TIM4 (PB6/PB7) in encoder mode 3, 16-bit counters extended
+//!   to 32 bits at every read (at most ±32767 counts between two reads, i.e. 98 rad/s at
+//!   2^22 counts/rev), scaled per axis by `Settings::encoders`;
+//! * watchdog: IWDG, 3 ms, fed by on-time servo steps; a reset's cause is read from RCC_CSR;
+//! * clock: HSI16 → PLL (M 4, N 85, R 2) = 170 MHz, range-1 boost, 4 wait states, prefetch
+//!   and caches; a PLL that does not lock stops the boot in the safe state;
+//! * logging: defmt over RTT, non-blocking (feature `disable-blocking-mode`, see README); no
+//!   semihosting on the board and no test harness.
 //!
-//! Encoder angles are relative to the power-on position: a homing or absolute-encoder step that
-//! sets `zero_counts` is still to be written (see README, "What is untested").
+//! **Untested on hardware**: it compiles, and its register plan is host-tested against RM0440
+//! and DS12288. Encoder angles are relative to the power-on position until homing (a later
+//! issue) calls `EncoderScale::set_reference`.
 use core::sync::atomic::{AtomicI32, Ordering};
 
 use controller::drive::{self, DriveError, TorqueDrive};
-use controller::encoder::{counts_to_rad, QuadratureEncoder};
+use controller::encoder::{EncoderScale, QuadratureEncoder};
 use controller::settings::Settings;
 use controller::trajectory::Trajectory;
-use controller::SAMPLE_RATE_HZ;
-use embedded_hal::pwm::{ErrorType, SetDutyCycle};
-use stm32g4::stm32g474 as pac;
+use controller::watchdog::{ResetCause, WatchdogFault};
+use embedded_hal::pwm::{ErrorKind, ErrorType, SetDutyCycle};
+use g474_plan::map::{base, iwdg, rcc, tim1, timx};
+use g474_plan::{plan, Bus, Register, Step};
 
 use super::{Board, ServoTimer};
+
+pub use g474_plan::plan::{PWM_MAX_DUTY, SYSCLK_HZ};
 
 device! {
     // STM32G4 implements 4 priority bits and 102 external interrupts.
@@ -44,67 +56,87 @@ device! {
     DISPATCH_1 = 52,
     /// UART5 (53), unused: dispatcher of the priority-2 software tasks.
     DISPATCH_2 = 53,
-    /// TIM6 update (54, `TIM6_DACUNDER`, RM0440 table 97): the 2 kHz servo tick.
+    /// TIM6 update (54, `TIM6_DACUNDER`, RM0440 vector table): the 2 kHz servo tick.
     SERVO_TICK = 54,
 }
 
-/// Core clock.
-pub const SYSCLK_HZ: u32 = 170_000_000;
-/// TIM6 counter clock (prescaler 2).
-const TICK_TIMER_HZ: u32 = SYSCLK_HZ / 2;
-/// Encoder resolution assumed (interpolated quadrature output); set for the motors fitted.
-pub const COUNTS_PER_REV: u32 = 1 << 22;
-/// TIM1 period: 170 MHz / (2 · 20 kHz), centre-aligned.
-pub const PWM_MAX_DUTY: u16 = 4250;
+// ---------------------------------------------------------------------------------------------
+// Register access: the plans and the per-sample registers.
+
+/// Volatile access to the STM32G474's registers, for `g474_plan::apply`.
+pub struct Mmio;
+
+impl Bus for Mmio {
+    #[inline]
+    fn read(&mut self, address: u32) -> u32 {
+        // SAFETY: the plans name registers of RM0440's memory map only (host-tested); a
+        // register read has no effect beyond the ones the plans intend.
+        unsafe { core::ptr::read_volatile(address as *const u32) }
+    }
+    #[inline]
+    fn write(&mut self, address: u32, value: u32) {
+        // SAFETY: as in `read`; the values are RM0440's for those registers.
+        unsafe { core::ptr::write_volatile(address as *mut u32, value) }
+    }
+    fn delay(&mut self, cycles: u32) {
+        cortex_m::asm::delay(cycles);
+    }
+}
+
+#[inline]
+fn read(register: Register) -> u32 {
+    Mmio.read(register.address)
+}
+#[inline]
+fn write(register: Register, value: u32) {
+    Mmio.write(register.address, value)
+}
+
+/// Applies a plan to the registers.
+fn apply(p: &'static [Step]) -> Result<(), &'static Step> {
+    g474_plan::apply(p, &mut Mmio)
+}
+
+/// The safe state from any context, fault handlers included (registers only, no waits, cannot
+/// fail): duty to zero torque, TIM1's outputs off (MOE), the enable line a GPIO driven low.
+pub fn safe_state() {
+    let _ = apply(&plan::SAFE_STATE);
+}
 
 // ---------------------------------------------------------------------------------------------
 // Servo timer: TIM6.
 
-/// The 2 kHz servo tick: TIM6 counting up from 0 to `reload` once per period.
-pub struct Tim6Timer {
-    tim: pac::TIM6,
-    reload: u32,
-}
+const TIM6_CR1: Register = timx::cr1("TIM6", base::TIM6);
+const TIM6_SR: Register = timx::sr("TIM6", base::TIM6);
+const TIM6_CNT: Register = timx::cnt("TIM6", base::TIM6);
 
-impl Tim6Timer {
-    fn new(tim: pac::TIM6, rate_hz: u32) -> Self {
-        let reload = TICK_TIMER_HZ / rate_hz - 1;
-        // SAFETY (all `bits` writes below): values from RM0440 for these registers.
-        tim.cr1().write(|w| unsafe { w.bits(1 << 2) }); // URS: only overflow sets UIF
-        tim.psc().write(|w| unsafe { w.bits(1) });
-        tim.arr().write(|w| unsafe { w.bits(reload) });
-        tim.egr().write(|w| unsafe { w.bits(1) }); // UG: load PSC/ARR
-        tim.sr().write(|w| unsafe { w.bits(0) });
-        tim.dier().write(|w| unsafe { w.bits(1) }); // UIE
-        Tim6Timer { tim, reload }
-    }
-}
+/// The 2 kHz servo tick: TIM6 counting up from 0 to `TIM6_ARR` once per period (configured by
+/// `plan::TICK_TIMER`).
+pub struct Tim6Timer(());
 
 impl ServoTimer for Tim6Timer {
     fn start(&mut self) {
-        // SAFETY: CEN set, the other CR1 bits kept.
-        self.tim.cr1().modify(|r, w| unsafe { w.bits(r.bits() | 1) });
+        write(TIM6_CR1, read(TIM6_CR1) | 1);
     }
 
     #[inline]
     fn acknowledge_tick(&mut self) {
-        // SAFETY: clearing UIF, the only flag of TIM6's SR.
-        self.tim.sr().write(|w| unsafe { w.bits(0) });
+        write(TIM6_SR, 0);
     }
 
     #[inline]
     fn elapsed_us(&self) -> f32 {
-        (self.tim.cnt().read().bits() & 0xFFFF) as f32 * (1.0e6 / TICK_TIMER_HZ as f32)
+        (read(TIM6_CNT) & 0xFFFF) as f32 * (1.0e6 / plan::TICK_TIMER_HZ as f32)
     }
 
     #[inline]
     fn period_us(&self) -> f32 {
-        (self.reload + 1) as f32 * (1.0e6 / TICK_TIMER_HZ as f32)
+        (plan::TIM6_ARR + 1) as f32 * (1.0e6 / plan::TICK_TIMER_HZ as f32)
     }
 
     #[inline]
     fn next_tick_pending(&self) -> bool {
-        self.tim.sr().read().bits() & 1 != 0
+        read(TIM6_SR) & 1 != 0
     }
 }
 
@@ -116,62 +148,53 @@ pub struct Tim1Pwm {
     channel: u8,
 }
 
+/// TIM1's main output enable is off while the drives should be on: the break input (the
+/// external safe-torque-off) cleared it, or the outputs were never enabled.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct OutputsOff;
+
+impl embedded_hal::pwm::Error for OutputsOff {
+    fn kind(&self) -> ErrorKind {
+        ErrorKind::Other
+    }
+}
+
 impl ErrorType for Tim1Pwm {
-    type Error = core::convert::Infallible;
+    type Error = OutputsOff;
 }
 
 impl SetDutyCycle for Tim1Pwm {
     fn max_duty_cycle(&self) -> u16 {
         PWM_MAX_DUTY
     }
-    fn set_duty_cycle(&mut self, duty: u16) -> Result<(), Self::Error> {
-        // SAFETY: TIM1 is only written here and in `Board::init`; CCRx takes any 16-bit value.
-        let tim = unsafe { pac::TIM1::steal() };
+    /// Writes the duty, then reports whether it can act: an error when MOE is off (the servo
+    /// loop latches it as `Fault::Drive` while running).
+    fn set_duty_cycle(&mut self, duty: u16) -> Result<(), OutputsOff> {
         let duty = duty.min(PWM_MAX_DUTY) as u32;
-        match self.channel {
-            1 => tim.ccr1().write(|w| unsafe { w.bits(duty) }),
-            _ => tim.ccr2().write(|w| unsafe { w.bits(duty) }),
-        };
+        write(if self.channel == 1 { tim1::CCR1 } else { tim1::CCR2 }, duty);
+        if read(tim1::BDTR) & tim1::BDTR_MOE == 0 {
+            return Err(OutputsOff);
+        }
         Ok(())
     }
 }
 
 /// A 16-bit encoder-mode timer extended to 32 bits.
 pub struct TimEncoder {
-    /// TIM4 if set, else TIM3 (one register-block type serves both).
-    tim4: bool,
+    cnt: Register,
     last: u16,
     position: AtomicI32,
 }
 
-impl TimEncoder {
-    fn regs(&self) -> &'static pac::tim3::RegisterBlock {
-        // SAFETY: the PAC's register blocks live at fixed addresses for the whole run; this
-        // encoder owns its timer.
-        unsafe { &*(if self.tim4 { pac::TIM4::ptr() } else { pac::TIM3::ptr() }) }
-    }
-}
-
 impl QuadratureEncoder for TimEncoder {
     fn position_counts(&mut self) -> i32 {
-        let now = (self.regs().cnt().read().bits() & 0xFFFF) as u16;
+        let now = (read(self.cnt) & 0xFFFF) as u16;
         let delta = now.wrapping_sub(self.last) as i16 as i32;
         self.last = now;
         let p = self.position.load(Ordering::Relaxed).wrapping_add(delta);
         self.position.store(p, Ordering::Relaxed);
         p
     }
-}
-
-fn encoder_timer(tim: &pac::tim3::RegisterBlock) {
-    // SAFETY: values from RM0440 (general-purpose timer encoder interface).
-    tim.cr1().write(|w| unsafe { w.bits(0) });
-    tim.smcr().write(|w| unsafe { w.bits(0b011) }); // SMS: encoder mode 3 (both edges of both inputs)
-    tim.ccmr1_input().write(|w| unsafe { w.bits(0b01 | (0b0011 << 4) | (0b01 << 8) | (0b0011 << 12)) }); // TI1, TI2, filter N=8
-    tim.ccer().write(|w| unsafe { w.bits(0) });
-    tim.arr().write(|w| unsafe { w.bits(0xFFFF) });
-    tim.cnt().write(|w| unsafe { w.bits(0) });
-    tim.cr1().write(|w| unsafe { w.bits(1) });
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -181,13 +204,25 @@ fn encoder_timer(tim: &pac::tim3::RegisterBlock) {
 pub struct G474Board {
     timer: Tim6Timer,
     encoders: [TimEncoder; 2],
+    /// Counts to joint angle per axis (`Settings::encoders`); homing calls
+    /// `encoder_scales[k].set_reference(counts, joint_rad)`.
+    encoder_scales: [EncoderScale; 2],
     drives: [TorqueDrive<Tim1Pwm>; 2],
-    /// Encoder counts at the machine's zero (set by homing; 0 = power-on position).
-    pub zero_counts: [i32; 2],
 }
 
-fn set_bits(r: u32, mask: u32, value: u32) -> u32 {
-    (r & !mask) | value
+/// A boot plan's wait timed out (the clock did not start): the safe state, a log line, and a
+/// halt with the drive-enable line driven low (the watchdog is not running yet).
+fn boot_failed(step: &'static Step) -> ! {
+    safe_state();
+    defmt::error!(
+        "boot: {=str} {=str} not ready ({=str}): drives stay disabled, halted",
+        step.register.peripheral,
+        step.register.name,
+        step.why
+    );
+    loop {
+        cortex_m::asm::wfi();
+    }
 }
 
 impl Board for G474Board {
@@ -199,75 +234,25 @@ impl Board for G474Board {
         Settings::default()
     }
 
-    /// Clocks, pins and timers; drives disabled, zero torque commanded.
+    /// The boot plans (`g474_plan::plan::BOOT`): enable line low, 170 MHz, debug freeze and
+    /// power, TIM1 (outputs off), encoders, TIM6, pins.
     fn init(settings: &'static Settings) -> Self {
-        let drive_full_scale_nm = settings.drive_full_scale_nm;
-        // SAFETY: RTIC runs with `peripherals = false`; this is the only owner of the PAC.
-        let dp = unsafe { pac::Peripherals::steal() };
-        let (rcc, pwr, flash) = (&dp.RCC, &dp.PWR, &dp.FLASH);
-        // SAFETY (all `bits` writes below): values from RM0440 for these registers.
-        unsafe {
-            // 170 MHz: PWR clock, range-1 boost, 4 wait states, PLL from HSI16.
-            rcc.apb1enr1().modify(|r, w| w.bits(r.bits() | (1 << 28)));
-            pwr.cr5().modify(|r, w| w.bits(r.bits() & !(1 << 8)));
-            flash.acr().modify(|r, w| w.bits(set_bits(r.bits(), 0xF, 4) | (1 << 8) | (1 << 9) | (1 << 10)));
-            while flash.acr().read().bits() & 0xF != 4 {}
-            rcc.cr().modify(|r, w| w.bits(r.bits() | (1 << 8)));
-            while rcc.cr().read().bits() & (1 << 10) == 0 {}
-            rcc.pllcfgr().write(|w| w.bits(2 | (3 << 4) | (85 << 8) | (1 << 24)));
-            rcc.cr().modify(|r, w| w.bits(r.bits() | (1 << 24)));
-            while rcc.cr().read().bits() & (1 << 25) == 0 {}
-            // AHB /2 across the switch (RM0440 6.1.5), then /1.
-            rcc.cfgr().modify(|r, w| w.bits(set_bits(r.bits(), 0xF0, 0b1000 << 4)));
-            rcc.cfgr().modify(|r, w| w.bits(set_bits(r.bits(), 0b11, 0b11)));
-            while (rcc.cfgr().read().bits() >> 2) & 0b11 != 0b11 {}
-            cortex_m::asm::delay(200);
-            rcc.cfgr().modify(|r, w| w.bits(set_bits(r.bits(), 0xF0, 0)));
-
-            // Clocks of GPIOA/B, TIM1, TIM3, TIM4, TIM6.
-            rcc.ahb2enr().modify(|r, w| w.bits(r.bits() | 0b11));
-            rcc.apb2enr().modify(|r, w| w.bits(r.bits() | (1 << 11)));
-            rcc.apb1enr1().modify(|r, w| w.bits(r.bits() | (1 << 1) | (1 << 2) | (1 << 4)));
-
-            // PB0 drive enable: output, low first.
-            let (ga, gb) = (&dp.GPIOA, &dp.GPIOB);
-            gb.bsrr().write(|w| w.bits(1 << 16));
-            gb.moder().modify(|r, w| w.bits(set_bits(r.bits(), 0b11, 0b01)));
-            // PA6/PA7 AF2 (TIM3), PA8/PA9 AF6 (TIM1), PB6/PB7 AF2 (TIM4).
-            ga.afrl().modify(|r, w| w.bits(set_bits(r.bits(), 0xFF << 24, 0x22 << 24)));
-            ga.afrh().modify(|r, w| w.bits(set_bits(r.bits(), 0xFF, 0x66)));
-            ga.moder().modify(|r, w| w.bits(set_bits(r.bits(), 0xFF << 12, 0b1010_1010 << 12)));
-            gb.afrl().modify(|r, w| w.bits(set_bits(r.bits(), 0xFF << 24, 0x22 << 24)));
-            gb.moder().modify(|r, w| w.bits(set_bits(r.bits(), 0xF << 12, 0b1010 << 12)));
-
-            // TIM1: centre-aligned 20 kHz PWM on CH1/CH2 at 50 % (zero torque), outputs on.
-            let t1 = &dp.TIM1;
-            t1.psc().write(|w| w.bits(0));
-            t1.arr().write(|w| w.bits(PWM_MAX_DUTY as u32));
-            t1.ccr1().write(|w| w.bits(PWM_MAX_DUTY as u32 / 2));
-            t1.ccr2().write(|w| w.bits(PWM_MAX_DUTY as u32 / 2));
-            t1.ccmr1_output().write(|w| w.bits((0b110 << 4) | (1 << 3) | (0b110 << 12) | (1 << 11)));
-            t1.ccer().write(|w| w.bits(1 | (1 << 4)));
-            t1.cr1().write(|w| w.bits((0b01 << 5) | (1 << 7)));
-            t1.egr().write(|w| w.bits(1));
-            t1.bdtr().modify(|r, w| w.bits(r.bits() | (1 << 15)));
-            t1.cr1().modify(|r, w| w.bits(r.bits() | 1));
+        for p in plan::BOOT {
+            if let Err(step) = apply(p) {
+                boot_failed(step);
+            }
         }
-        encoder_timer(&dp.TIM3);
-        encoder_timer(&dp.TIM4);
-
-        let timer = Tim6Timer::new(dp.TIM6, SAMPLE_RATE_HZ);
+        let encoder_scales = super::encoder_scales(settings);
+        let full_scale_nm = settings.drive_full_scale_nm;
+        let encoder = |tim, base| TimEncoder { cnt: timx::cnt(tim, base), last: 0, position: AtomicI32::new(0) };
         let mut board = G474Board {
-            timer,
-            encoders: [
-                TimEncoder { tim4: false, last: 0, position: AtomicI32::new(0) },
-                TimEncoder { tim4: true, last: 0, position: AtomicI32::new(0) },
-            ],
+            timer: Tim6Timer(()),
+            encoders: [encoder("TIM3", base::TIM3), encoder("TIM4", base::TIM4)],
+            encoder_scales,
             drives: [
-                TorqueDrive { pwm: Tim1Pwm { channel: 1 }, full_scale_nm: drive_full_scale_nm },
-                TorqueDrive { pwm: Tim1Pwm { channel: 2 }, full_scale_nm: drive_full_scale_nm },
+                TorqueDrive { pwm: Tim1Pwm { channel: 1 }, full_scale_nm },
+                TorqueDrive { pwm: Tim1Pwm { channel: 2 }, full_scale_nm },
             ],
-            zero_counts: [0; 2],
         };
         board.disable_drives();
         board
@@ -279,9 +264,10 @@ impl Board for G474Board {
 
     #[inline]
     fn encoders_rad(&mut self) -> [f32; 2] {
-        let a = self.encoders[0].position_counts().wrapping_sub(self.zero_counts[0]);
-        let b = self.encoders[1].position_counts().wrapping_sub(self.zero_counts[1]);
-        [counts_to_rad(a, COUNTS_PER_REV), counts_to_rad(b, COUNTS_PER_REV)]
+        [
+            self.encoder_scales[0].joint_rad(self.encoders[0].position_counts()),
+            self.encoder_scales[1].joint_rad(self.encoders[1].position_counts()),
+        ]
     }
 
     #[inline]
@@ -289,15 +275,31 @@ impl Board for G474Board {
         drive::set_torques_nm(&mut self.drives, torque_nm)
     }
 
+    /// PA10 to TIM1_CH3, then MOE (`plan::ENABLE_OUTPUTS`); an active break keeps MOE off.
     fn enable_drives(&mut self) {
-        // SAFETY: PB0 is the drive-enable line, owned by the board.
-        unsafe { pac::GPIOB::steal().bsrr().write(|w| w.bits(1)) };
+        let _ = apply(&plan::ENABLE_OUTPUTS);
     }
 
-    /// Safe state: drive-enable low, then zero torque commanded.
+    /// Zero torque, MOE off, enable line driven low (`plan::SAFE_STATE`).
     fn disable_drives(&mut self) {
         safe_state();
-        let _ = self.set_torques_nm([0.0; 2]);
+    }
+
+    /// RCC_CSR's reset flags, then cleared (RMVF).
+    fn reset_cause(&mut self) -> ResetCause {
+        let csr = read(rcc::CSR);
+        let _ = apply(&plan::CLEAR_RESET_FLAGS);
+        g474_plan::reset::reset_cause(csr)
+    }
+
+    /// `plan::START_WATCHDOG`: IWDG at 3 ms (2.82 to 3.25 ms over the LSI's range).
+    fn start_watchdog(&mut self) -> Result<(), WatchdogFault> {
+        apply(&plan::START_WATCHDOG).map(|_| ()).map_err(|_| WatchdogFault::NotStarted)
+    }
+
+    #[inline]
+    fn feed_watchdog(&mut self) {
+        write(iwdg::KR, iwdg::KEY_RELOAD);
     }
 
     #[inline]
@@ -305,22 +307,29 @@ impl Board for G474Board {
         &mut self.timer
     }
 
-    /// Sleep until the next interrupt.
+    /// Sleep until the next interrupt (DBGMCU's DBG_SLEEP keeps the debug link up).
     #[inline]
     fn idle_wait() {
         cortex_m::asm::wfi();
     }
 }
 
-/// Drive-enable low; usable from fault handlers.
-fn safe_state() {
-    // SAFETY: a write to PB0's reset bit only.
-    unsafe { pac::GPIOB::steal().bsrr().write(|w| w.bits(1 << 16)) };
-}
-
 /// Console lines go to defmt (RTT).
 pub fn console(line: &str) {
     defmt::println!("{=str}", line);
+}
+
+/// For the benchmark (no `Board`, no RTIC): the enable line low and the clock the app runs at
+/// (170 MHz, 4 wait states, prefetch and caches), so the cycle counts are the servo's. A clock
+/// that does not start ends the benchmark.
+pub fn bench_init() {
+    for p in [&plan::SAFE_OUTPUTS[..], &plan::CLOCK[..]] {
+        if let Err(step) = apply(p) {
+            defmt::println!("FAIL clock: {=str} {=str} not ready ({=str})", step.register.peripheral, step.register.name, step.why);
+            exit(false);
+        }
+    }
+    console("# core clock 170 MHz (PLL from HSI16, range-1 boost), flash 4 wait states, prefetch and I/D caches on");
 }
 
 /// End of a benchmark run: report over semihosting when a debugger (probe-rs) is attached,
@@ -337,18 +346,47 @@ pub fn exit(pass: bool) -> ! {
     }
 }
 
-#[cortex_m_rt::exception]
-unsafe fn HardFault(_frame: &cortex_m_rt::ExceptionFrame) -> ! {
+/// What every failure path does first: no more interrupts (nothing may run on top), then the
+/// safe state. The loop after it is not fed: the watchdog resets the chip 3 ms later, and the
+/// boot after it keeps the drives off (unless a debugger halted the core, which also freezes
+/// TIM1 and the watchdog).
+fn fail_safe() {
+    cortex_m::interrupt::disable();
     safe_state();
-    defmt::error!("HardFault: drives disabled");
+}
+
+hard_fault_on_fresh_stack!(hard_fault);
+
+/// The HardFault handler, on a fresh stack (`hard_fault_on_fresh_stack!`); `faulting_sp` is
+/// the stack pointer the fault was taken with. Below the stack it was a stack overflow (flip-link
+/// puts the stack at the bottom of RAM: the exception frame could not be stacked); otherwise the
+/// stacked PC says where.
+unsafe extern "C" fn hard_fault(faulting_sp: u32) -> ! {
+    fail_safe();
+    let stack_bottom = core::ptr::addr_of!(_stack_end) as u32;
+    let stack_top = core::ptr::addr_of!(_stack_start) as u32;
+    if (stack_bottom..stack_top.saturating_sub(32)).contains(&faulting_sp) {
+        // SAFETY: the exception frame (8 words) lies within the stack region; word 6 is the PC.
+        let pc = unsafe { core::ptr::read_volatile((faulting_sp as *const u32).add(6)) };
+        defmt::error!("HardFault at pc {=u32:#x}: drives disabled", pc);
+    } else {
+        defmt::error!("HardFault: stack overflow (sp {=u32:#x}): drives disabled", faulting_sp);
+    }
     loop {
         cortex_m::asm::wfi();
     }
 }
 
+extern "C" {
+    /// Top of the stack (cortex-m-rt's link.x; flip-link moves it to the bottom of RAM).
+    static _stack_start: u32;
+    /// Lowest address the stack may use.
+    static _stack_end: u32;
+}
+
 #[cortex_m_rt::exception]
 unsafe fn DefaultHandler(irqn: i16) {
-    safe_state();
+    fail_safe();
     defmt::error!("unexpected interrupt {}: drives disabled", irqn);
     loop {
         cortex_m::asm::wfi();
@@ -357,7 +395,7 @@ unsafe fn DefaultHandler(irqn: i16) {
 
 #[panic_handler]
 fn panic(info: &core::panic::PanicInfo) -> ! {
-    safe_state();
+    fail_safe();
     defmt::error!("panic: {}", defmt::Display2Format(info));
     loop {
         cortex_m::asm::wfi();
@@ -367,7 +405,7 @@ fn panic(info: &core::panic::PanicInfo) -> ! {
 /// What the benchmark counter's figures are.
 pub const COUNT_UNIT: &str = "cycles";
 
-/// DWT cycle counter (core cycles at 170 MHz).
+/// DWT cycle counter (core cycles; 170 MHz once `bench_init` set the clock).
 pub struct CycleCounter {
     _dwt: cortex_m::peripheral::DWT,
 }

@@ -7,33 +7,52 @@
 //! * two quadrature encoders ([`QuadratureEncoder`](controller::encoder::QuadratureEncoder));
 //! * two PWM outputs (embedded-hal's `SetDutyCycle`) driving torque-mode amplifiers through
 //!   [`TorqueDrive`](controller::drive::TorqueDrive), plus a drive-enable line;
+//! * an independent watchdog, fed by the servo task only after an on-time step
+//!   ([`controller::watchdog`]), and the cause of the last reset;
 //! * an idle wait, and two per-sample hooks that do nothing on hardware: the QEMU board advances
 //!   its simulated plant and runs its test harness (scenarios, fault injection, checks) there.
 //!
 //! Each board also exports, for the bare-metal benchmark and golden binaries (no RTIC, no
-//! `Board`): `console`, `exit`, `CycleCounter` and `COUNT_UNIT`.
+//! `Board`): `console`, `exit`, `bench_init` (the clock the app runs at), `CycleCounter` and
+//! `COUNT_UNIT`.
 use controller::deadline::step_time_us;
 use controller::drive::DriveError;
+use controller::encoder::EncoderScale;
 use controller::settings::Settings;
 use controller::setpoints::SetpointSource;
 use controller::status::Status;
 use controller::trajectory::Trajectory;
+use controller::watchdog::{ResetCause, WatchdogFault};
 
 #[cfg(all(feature = "board-qemu", feature = "board-g474"))]
 compile_error!("enable exactly one of the features `board-qemu` and `board-g474`");
 
 #[macro_use]
 mod device_macro;
+#[macro_use]
+mod hard_fault_macro;
 
 #[cfg(feature = "board-g474")]
 pub mod g474;
 #[cfg(feature = "board-g474")]
-pub use g474::{console, device, exit, CycleCounter, G474Board as Selected, COUNT_UNIT};
+pub use g474::{bench_init, console, device, exit, CycleCounter, G474Board as Selected, COUNT_UNIT};
 
 #[cfg(feature = "board-qemu")]
 pub mod qemu;
 #[cfg(feature = "board-qemu")]
-pub use qemu::{console, device, exit, CycleCounter, QemuBoard as Selected, COUNT_UNIT};
+pub use qemu::{bench_init, console, device, exit, CycleCounter, QemuBoard as Selected, COUNT_UNIT};
+
+/// Both axes' counts-to-angle scales from `Settings::encoders`; a refused configuration is
+/// logged and reads NaN (the servo then refuses to engage). For the boards' `init`.
+fn encoder_scales(settings: &Settings) -> [EncoderScale; 2] {
+    let (scales, errors) = EncoderScale::both(&settings.encoders);
+    for (axis, e) in errors.iter().enumerate() {
+        if let Some(e) = e {
+            defmt::error!("encoder {}: {} (reads NaN: the drives stay off)", axis, e);
+        }
+    }
+    scales
+}
 
 /// The timer whose interrupt (`SERVO_TICK`) starts every servo sample, 2 kHz.
 pub trait ServoTimer {
@@ -91,8 +110,23 @@ pub trait Board: Sized {
     /// Drive enable on.
     fn enable_drives(&mut self);
 
-    /// Safe state: drive enable off, then zero torque commanded.
+    /// Safe state: zero torque commanded (50 % duty), then the outputs and the drive enable
+    /// off. The boards' fault handlers (HardFault, panic, unexpected interrupt, the QEMU
+    /// watchdog's NMI) do the same without the `Board`.
     fn disable_drives(&mut self);
+
+    /// Why the controller last reset: reads the board's reset flags and clears them (call once,
+    /// at boot).
+    fn reset_cause(&mut self) -> ResetCause;
+
+    /// Starts the independent watchdog (it cannot be stopped afterwards) with
+    /// [`controller::watchdog::TIMEOUT_US`]. From then on the servo task must feed it after
+    /// every on-time step.
+    fn start_watchdog(&mut self) -> Result<(), WatchdogFault>;
+
+    /// Feeds the watchdog. Only the servo task calls it, last, when
+    /// `Sample::feed_watchdog` says the step was on time.
+    fn feed_watchdog(&mut self);
 
     /// The servo tick's timer (configured by `init`, started by the app at the end of boot).
     fn timer(&mut self) -> &mut Self::Timer;

@@ -17,7 +17,9 @@
 //! * Gear cyclic error: `amplitude·sin(cycles·gear_ratio·motor + phase)` on the link, an effect
 //!   no hidden-robot model has (for diagnosis tests).
 //! * Not modelled: the torque the stressed linkage puts on the levers (it would only load the
-//!   servo's integrator) and gear/shaft compliance.
+//!   servo's integrator) and gear/shaft compliance; a disabled drive (the closed loop ends at a
+//!   servo fault instead of removing torque, so the drives' dynamic braking, which the QEMU
+//!   plant models for category-0 stops, never acts here).
 //! * Dynamics: semi-implicit Euler on one rigid inertia with viscous and Coulomb friction
 //!   (stick when the torque cannot break away). Cost: a handful of flops per substep; error
 //!   O(dt²) per step, the caller chooses dt (the closed loop uses 50 µs, 1/10 of a sample:

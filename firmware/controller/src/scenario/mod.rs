@@ -18,14 +18,33 @@
 //! rest** freezes 100 samples before the move that reaches the top speed, in the dwell before
 //! it: it must be found once that move starts.
 //!
+//! # The stalled servo task (`stalled-task`, the watchdog)
+//! At the top-speed sample the harness stops the servo task from completing: at the start of
+//! that sample it disables interrupts and spins, as a logger blocking inside a critical section
+//! would. Nothing but the watchdog can act: the QEMU board's CMSDK watchdog raises its NMI,
+//! whose handler removes torque. [`Scenario::watchdog_fired`] then checks the hardware as the
+//! NMI found it and after (drive enable on until then, off and zero torque after), that torque
+//! was removed within the stated timeout of the stall ([`crate::watchdog::TIMEOUT_US`]) and that
+//! the watchdog fired that long after its last feed. The run then waits for the watchdog's
+//! reset; the boot after it is [`Scenario::WatchdogRestart`]: the drives must stay off
+//! (`Fault::Watchdog(Reset)`), and the machine, which does not stop with its controller, must
+//! coast as category 0 requires ([`stop_check`]): the QEMU board keeps its plant moving under
+//! the last torque while the task is stalled, and hands the plant's state at the watchdog's
+//! interrupt to the boot after the reset ([`Checker::coast_after_reset`]), where the coast is
+//! checked from that state sample by sample, as in the other category-0 scenarios. In any
+//! other test scenario a watchdog interrupt fails the run; in the production path it removes
+//! torque and waits for the reset.
+//!
 //! # What the checks read
 //! [`Checker::observe`] runs at the end of every servo sample with an [`Observation`]: what the
 //! hardware shows (the drive-enable line, the torque the PWM duty registers command, as the QEMU
 //! board's simulated hardware holds them) and the plant's true joint state, next to the
 //! published [`Status`]. The reaction is checked on the hardware and the plant, not on status
 //! fields the firmware writes itself, in the very sample the fault latched and in every sample
-//! after it ([`stop_check`]: stopping distance within the planned stop, the tool inside the
-//! calibrated rectangle, torque off for categories 0 and 1, holding for category 2). The
+//! after it ([`stop_check`]: stopping distance within the planned stop, or for category 0
+//! each joint's coast within the drives' dynamic-braking bound; the tool inside the
+//! calibrated rectangle in every category; torque off for categories 0 and 1, holding for
+//! category 2). The
 //! calibration is checked against the harness's own reading of the flash region, not the
 //! firmware's.
 //!
@@ -50,6 +69,7 @@ use crate::settings::Settings;
 use crate::status::Status;
 use crate::stop::{MotionState, StopProfile};
 use crate::trajectory::Trajectory;
+use crate::watchdog::{ResetCause, WatchdogFault, TIMEOUT_US};
 
 pub mod stop_check;
 
@@ -85,8 +105,9 @@ pub const FROZEN_AT_REST_LEAD: u32 = 100;
 /// ... and must be found within this many samples of that move's start (20 ms).
 pub const FROZEN_AT_REST_WITHIN: u32 = 40;
 /// ... and the tool, coasting from the low speed it had then (about 0.6 rad/s at joint 1),
-/// gets no further than this from where it was at the fault (mm; measured: 1.0 mm; the issue
-/// measured 43 mm before the stuck check existed).
+/// gets no further than this from where it was at the fault (mm; measured: 0.50 mm with the
+/// drives' dynamic braking, 1.63 mm free-wheeling; the issue measured 43 mm before the stuck
+/// check existed).
 pub const FROZEN_AT_REST_MAX_TRAVEL_MM: f32 = 2.0;
 /// A frozen reading at speed must be found within this many samples (the acceleration check
 /// finds it at once if the joint turns faster than `max_accel·dt` = 3 rad/s, the stuck check
@@ -96,6 +117,10 @@ pub const FROZEN_MOVING_WITHIN: u32 = 10;
 pub const SMALL_GLITCH_RAD: f32 = 5.0e-3;
 /// The large glitch: 0.1 rad.
 pub const LARGE_GLITCH_RAD: f32 = 0.1;
+/// How far the watchdog's interrupt may be from its stated timeout after the last feed (µs):
+/// a tenth of a servo period (QEMU's timing is exact; this is the NMI's entry and the reading of
+/// the clock).
+pub const WATCHDOG_TIMING_TOLERANCE_US: f32 = 50.0;
 
 /// A test scenario (or the production path).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -130,6 +155,12 @@ pub enum Scenario {
     /// Joint 1's reading off by [`LARGE_GLITCH_RAD`] for one sample at top speed:
     /// `Encoder(Speed)`, category 0.
     GlitchLarge,
+    /// The servo task stalls (interrupts disabled, spinning) at top speed: the watchdog must
+    /// remove torque within its timeout (category 0), then reset.
+    StalledTask,
+    /// The boot after [`Scenario::StalledTask`]'s watchdog reset (not named on the command
+    /// line: [`Scenario::after_reset`]): the drives must never be enabled.
+    WatchdogRestart,
     /// A bad image flashed by the test, refused with this error: drives never enabled.
     BadImage(GridError),
     /// Self-test of the panic path: the harness panics at boot (`qemu/test.sh` expects the
@@ -200,11 +231,34 @@ impl Scenario {
             "encoder-frozen-moving" => Scenario::EncoderFrozenMoving,
             "glitch-small" => Scenario::GlitchSmall,
             "glitch-large" => Scenario::GlitchLarge,
+            "stalled-task" => Scenario::StalledTask,
             "bad-image-crc" => Scenario::BadImage(GridError::BadCrc),
             "bad-image-magic" => Scenario::BadImage(GridError::BadMagic),
             "panic" => Scenario::Panic,
             "hard-fault" => Scenario::HardFault,
             _ => Scenario::Run,
+        }
+    }
+
+    /// The scenario of a boot that followed a reset with `cause`: the boot after the stalled
+    /// task's watchdog reset is [`Scenario::WatchdogRestart`].
+    pub fn after_reset(self, cause: ResetCause) -> Scenario {
+        match (self, cause) {
+            (Scenario::StalledTask, ResetCause::Watchdog) => Scenario::WatchdogRestart,
+            _ => self,
+        }
+    }
+
+    /// What a watchdog interrupt means in this scenario (the QEMU board's NMI handler, after it
+    /// removed torque, asks). See the module doc.
+    pub fn watchdog_fired(self, o: &WatchdogObservation) -> WatchdogVerdict {
+        match self {
+            Scenario::Run => WatchdogVerdict::Production,
+            Scenario::StalledTask => match check_watchdog(o) {
+                Ok(()) => WatchdogVerdict::AsExpected,
+                Err(why) => WatchdogVerdict::Fail(why),
+            },
+            _ => WatchdogVerdict::Fail("watchdog fired: the servo task did not complete on time"),
         }
     }
 
@@ -225,7 +279,8 @@ impl Scenario {
             | Scenario::Overrun
             | Scenario::EncoderFrozenMoving
             | Scenario::GlitchSmall
-            | Scenario::GlitchLarge => Some(i.top_speed_sample),
+            | Scenario::GlitchLarge
+            | Scenario::StalledTask => Some(i.top_speed_sample),
             Scenario::EncoderFrozenAtRest => Some(i.move_start_sample.saturating_sub(FROZEN_AT_REST_LEAD)),
             _ => None,
         }
@@ -262,6 +317,11 @@ impl Scenario {
         }
     }
 
+    /// Whether the servo task must stall at the start of sample `index` (`stalled-task`).
+    pub fn stall_at(self, i: &Injection, index: u32) -> bool {
+        self == Scenario::StalledTask && self.inject_at(i) == Some(index)
+    }
+
     /// Samples after which the scenario fails if it has not concluded.
     pub fn time_limit_ticks(self) -> Option<u32> {
         match self {
@@ -284,6 +344,53 @@ pub struct Observation<'s> {
     pub drive_torque_nm: [f32; 2],
     /// The simulated plant's true joint state (not the encoders).
     pub plant: PlantState,
+}
+
+/// What the QEMU board's watchdog interrupt found (times in µs on the harness's own clock).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct WatchdogObservation {
+    /// When the harness stalled the servo task (`None`: it had not).
+    pub stalled_at_us: Option<f32>,
+    /// When the servo task last fed the watchdog (`None`: never).
+    pub last_feed_at_us: Option<f32>,
+    /// When the watchdog's interrupt came.
+    pub fired_at_us: f32,
+    /// The drive-enable line as the interrupt found it, before its handler removed torque.
+    pub drive_enable_at_fire: bool,
+    /// The drive-enable line after the handler.
+    pub drive_enable: bool,
+    /// The torque the PWM registers command after the handler (N·m).
+    pub drive_torque_nm: [f32; 2],
+}
+
+/// What a watchdog interrupt means ([`Scenario::watchdog_fired`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum WatchdogVerdict {
+    /// `stalled-task`: the checks passed; wait for the watchdog's reset.
+    AsExpected,
+    /// The production path: torque is off; wait for the reset.
+    Production,
+    /// The run fails with this reason.
+    Fail(&'static str),
+}
+
+/// The checks of a watchdog interrupt in `stalled-task` (see the module doc).
+fn check_watchdog(o: &WatchdogObservation) -> Result<(), &'static str> {
+    let Some(stalled_at_us) = o.stalled_at_us else {
+        return Err("watchdog fired before the servo task was stalled");
+    };
+    let Some(last_feed_at_us) = o.last_feed_at_us else {
+        return Err("the watchdog was never fed");
+    };
+    require(o.drive_enable_at_fire, "drives already off when the watchdog fired: the test proves nothing")?;
+    require(!o.drive_enable, "drive enable still on after the watchdog fired")?;
+    require(o.drive_torque_nm == [0.0; 2], "torque commanded after the watchdog fired")?;
+    // `!(a <= b)` refuses NaN as well.
+    require(o.fired_at_us - stalled_at_us <= TIMEOUT_US, "torque not removed within the watchdog timeout of the stall")?;
+    require(
+        (o.fired_at_us - last_feed_at_us - TIMEOUT_US).abs() <= WATCHDOG_TIMING_TOLERANCE_US,
+        "the watchdog did not fire its stated timeout after the last feed",
+    )
 }
 
 /// Outcome of a check: `None` while the scenario is still running.
@@ -338,8 +445,6 @@ struct Expected {
     /// The fault's first sample must be in this window (inclusive), if known.
     window: Option<(u32, u32)>,
     fault: fn(Fault) -> bool,
-    /// The tool must stay in the calibrated rectangle (every category but 0 at speed).
-    inside: bool,
     /// Largest travel of the tool from the fault (mm), beyond the category's own bound.
     max_travel_mm: Option<f32>,
 }
@@ -367,7 +472,8 @@ pub struct Checker<'a> {
 impl<'a> Checker<'a> {
     /// A checker for `scenario`. `image` is the harness's own parse of the calibration region;
     /// `track_end_tick` the sample at which the built-in trajectory is done; `injection` where
-    /// the faults go; `coast` the plant's inertia and viscous friction (the category-0 bound).
+    /// the faults go; `coast` the plant's inertia, viscous friction and the drives' dynamic
+    /// braking (the category-0 bound).
     pub fn new(
         scenario: Scenario,
         image: Result<CorrectionGrid<'a>, GridError>,
@@ -417,6 +523,24 @@ impl<'a> Checker<'a> {
         self.fault_at
     }
 
+    /// [`Scenario::WatchdogRestart`]: the controller reset while the machine was moving; `plant`
+    /// is the machine's state then (the watchdog's interrupt removed torque there). Its coast is
+    /// checked as category 0 from there on, the boot's first sample counting as the fault's.
+    pub fn coast_after_reset(&mut self, plant: PlantState) {
+        let Ok(cal) = self.image else { return };
+        let dt = self.settings.servo.sample_period_s;
+        let tool = tool_mm(&cal, plant.joint_rad).0;
+        // The tool's speed: where the joints' speed takes it in one sample.
+        let ahead = [0, 1].map(|k| plant.joint_rad[k] + plant.joint_rad_s[k] * dt);
+        let speed_mm_s = match (tool, tool_mm(&cal, ahead).0) {
+            (Some(p), Some(q)) => libm::hypotf(p[0] - q[0], p[1] - q[1]) / dt,
+            _ => f32::NAN,
+        };
+        self.fault_at = Some(0);
+        let settle_s = self.settings.stop.settle_timeout_s;
+        self.stop = Some(StopCheck::new(StopCategory::Zero, 0, &plant, tool, speed_mm_s, None, &self.coast, dt, settle_s));
+    }
+
     /// Checks the end of one sample; `Some` ends the run with the verdict.
     pub fn observe(&mut self, o: &Observation<'_>) -> Verdict {
         let s = o.status;
@@ -437,7 +561,6 @@ impl<'a> Checker<'a> {
                 Expected {
                     window: at_top_speed(0),
                     fault: |f| f == Fault::Setpoint(SetpointRefusal::NonFinite),
-                    inside: true,
                     max_travel_mm: None,
                 },
             ),
@@ -446,13 +569,12 @@ impl<'a> Checker<'a> {
                 Expected {
                     window: at_top_speed(0),
                     fault: |f| f == Fault::Setpoint(SetpointRefusal::Jump),
-                    inside: true,
                     max_travel_mm: None,
                 },
             ),
             Scenario::Underrun => self.fault_scenario(
                 o,
-                Expected { window: at_top_speed(0), fault: |f| f == Fault::Underrun, inside: true, max_travel_mm: None },
+                Expected { window: at_top_speed(0), fault: |f| f == Fault::Underrun, max_travel_mm: None },
             ),
             Scenario::OutOfReach => {
                 if s.fault.is_some() && self.fault_at.is_none() {
@@ -467,7 +589,7 @@ impl<'a> Checker<'a> {
                 }
                 self.fault_scenario(
                     o,
-                    Expected { window: None, fault: |f| f == Fault::StopOutsideWorkspace, inside: true, max_travel_mm: None },
+                    Expected { window: None, fault: |f| f == Fault::StopOutsideWorkspace, max_travel_mm: None },
                 )
             }
             Scenario::Overrun => {
@@ -475,7 +597,7 @@ impl<'a> Checker<'a> {
                 let window = at.map(|a| (a + streak, a + streak));
                 let verdict = self.fault_scenario(
                     o,
-                    Expected { window, fault: |f| f == Fault::DeadlineMissed, inside: false, max_travel_mm: None },
+                    Expected { window, fault: |f| f == Fault::DeadlineMissed, max_travel_mm: None },
                 );
                 verdict.map(|v| v.and_then(|()| require(s.overruns >= 3, "overruns not counted")))
             }
@@ -486,7 +608,6 @@ impl<'a> Checker<'a> {
                     Expected {
                         window: Some((start, start + FROZEN_AT_REST_WITHIN)),
                         fault: |f| matches!(f, Fault::Encoder(EncoderFault { axis: 0, kind: EncoderFaultKind::Stuck })),
-                        inside: true,
                         max_travel_mm: Some(FROZEN_AT_REST_MAX_TRAVEL_MM),
                     },
                 )
@@ -496,7 +617,6 @@ impl<'a> Checker<'a> {
                 Expected {
                     window: at_top_speed(FROZEN_MOVING_WITHIN),
                     fault: |f| matches!(f, Fault::Encoder(EncoderFault { axis: 0, .. })),
-                    inside: false,
                     max_travel_mm: None,
                 },
             ),
@@ -505,7 +625,6 @@ impl<'a> Checker<'a> {
                 Expected {
                     window: at_top_speed(0),
                     fault: |f| f == Fault::Encoder(EncoderFault { axis: 0, kind: EncoderFaultKind::Acceleration }),
-                    inside: false,
                     max_travel_mm: None,
                 },
             ),
@@ -514,11 +633,12 @@ impl<'a> Checker<'a> {
                 Expected {
                     window: at_top_speed(0),
                     fault: |f| f == Fault::Encoder(EncoderFault { axis: 0, kind: EncoderFaultKind::Speed }),
-                    inside: false,
                     max_travel_mm: None,
                 },
             ),
             Scenario::BadImage(expected) => self.bad_image(o, expected),
+            Scenario::StalledTask => self.before_stall(o),
+            Scenario::WatchdogRestart => self.watchdog_restart(o),
         };
         self.last_joint_rad = o.plant.joint_rad;
         verdict
@@ -569,7 +689,6 @@ impl<'a> Checker<'a> {
             self.stop = Some(StopCheck::new(
                 category,
                 sample,
-                e.inside,
                 &o.plant,
                 tool,
                 speed_mm_s,
@@ -592,22 +711,71 @@ impl<'a> Checker<'a> {
         done.then_some(Ok(()))
     }
 
-    fn bad_image(&mut self, o: &Observation<'_>, expected: GridError) -> Verdict {
+    /// `stalled-task` until the stall: the machine runs (drives on, no fault, the tool inside).
+    /// The harness stalls the servo task at the top-speed sample ([`Scenario::stall_at`]); the
+    /// verdict comes from the watchdog's interrupt ([`Scenario::watchdog_fired`]), so a sample
+    /// that ends after the stall sample is a failure.
+    fn before_stall(&mut self, o: &Observation<'_>) -> Verdict {
         let s = o.status;
-        let now = (|| {
-            require(!o.drive_enable_ever, "drives enabled without a valid image")?;
-            require(o.drive_torque_nm == [0.0; 2], "torque commanded without a valid image")
-        })();
-        if now.is_err() {
-            return Some(now);
+        if s.fault.is_some() {
+            return Some(Err("fault before the stall"));
         }
-        (s.ticks >= BAD_IMAGE_TICKS).then(|| {
+        if !o.drive_enable {
+            return Some(Err("drives not enabled before the stall"));
+        }
+        let Ok(cal) = self.image else { return Some(Err("calibration image not valid")) };
+        if !tool_mm(&cal, o.plant.joint_rad).1 {
+            return Some(Err("the tool left the calibrated rectangle before the stall"));
+        }
+        if matches!(self.scenario.inject_at(&self.injection), Some(at) if s.ticks > at) {
+            return Some(Err("the servo task completed a sample after the stall"));
+        }
+        None
+    }
+
+    /// The boot after `stalled-task`'s watchdog reset: the drives stay off with
+    /// `Fault::Watchdog(Reset)`, and the machine's coast from the state it was in at the
+    /// watchdog's interrupt stays within category 0's bounds.
+    fn watchdog_restart(&mut self, o: &Observation<'_>) -> Verdict {
+        let sample = o.status.ticks.wrapping_sub(1);
+        let Ok(cal) = self.image else { return Some(Err("calibration image not valid")) };
+        let (tool, inside) = tool_mm(&cal, o.plant.joint_rad);
+        let Some(stop) = self.stop.as_mut() else {
+            return Some(Err("the machine's state at the watchdog's interrupt did not reach the boot after the reset"));
+        };
+        let coast_done = match stop.observe(o, sample, tool, inside) {
+            Ok(done) => done,
+            Err(why) => return Some(Err(why)),
+        };
+        match self.never_enabled(o, |s| {
+            require(s.fault == Some(Fault::Watchdog(WatchdogFault::Reset)), "watchdog reset not reported as the fault")
+        }) {
+            Some(Ok(())) if !coast_done => None,
+            verdict => verdict,
+        }
+    }
+
+    fn bad_image(&mut self, o: &Observation<'_>, expected: GridError) -> Verdict {
+        self.never_enabled(o, |s| {
             require(
                 s.calibration == CalibrationState::Refused(expected),
                 "bad image not refused, or refused for another reason",
             )?;
             require(s.fault == Some(Fault::Calibration(expected)), "calibration fault not reported")
         })
+    }
+
+    /// A boot that must never enable the drives: the enable line never high and no torque in
+    /// any sample; after [`BAD_IMAGE_TICKS`], `reason` checks why.
+    fn never_enabled(&mut self, o: &Observation<'_>, reason: impl FnOnce(&Status) -> Result<(), &'static str>) -> Verdict {
+        let now = (|| {
+            require(!o.drive_enable_ever, "drives enabled at a boot that must keep them off")?;
+            require(o.drive_torque_nm == [0.0; 2], "torque commanded at a boot that must keep the drives off")
+        })();
+        if now.is_err() {
+            return Some(now);
+        }
+        (o.status.ticks >= BAD_IMAGE_TICKS).then(|| reason(o.status))
     }
 
     fn long_run(&mut self, o: &Observation<'_>) -> Verdict {
@@ -709,7 +877,9 @@ mod tests {
     const D_RAD: [f32; 2] = [3e-4, -2.5e-4];
     const P_MM: [f32; 2] = [212.132, 0.0];
     const DT_S: f32 = crate::SAMPLE_PERIOD_S;
-    const COAST: CoastModel = CoastModel { inertia_kg_m2: [2.2e-3, 1.8e-3], viscous_nm_s_per_rad: 0.01 };
+    /// The QEMU plant's: dynamic braking 0.225 N·m·s/rad, coast time constants 9.4 / 7.7 ms.
+    const COAST: CoastModel =
+        CoastModel { inertia_kg_m2: [2.2e-3, 1.8e-3], viscous_nm_s_per_rad: 0.01, dynamic_brake_nm_s_per_rad: 0.225 };
     /// Faults at sample 1000; the move reaching it starts at 900.
     const INJECTION: Injection = Injection { top_speed_sample: 1000, top_speed_mm_s: 1000.0, move_start_sample: 900 };
 
@@ -780,6 +950,7 @@ mod tests {
             ("firmware encoder-frozen-moving", Scenario::EncoderFrozenMoving),
             ("firmware glitch-small", Scenario::GlitchSmall),
             ("firmware glitch-large", Scenario::GlitchLarge),
+            ("firmware stalled-task", Scenario::StalledTask),
             ("firmware bad-image-crc", Scenario::BadImage(GridError::BadCrc)),
             ("firmware bad-image-magic", Scenario::BadImage(GridError::BadMagic)),
             ("firmware panic", Scenario::Panic),
@@ -890,7 +1061,8 @@ mod tests {
         /// Category 0: enable left on / torque left on.
         EnableLeftOn,
         TorqueLeftOn,
-        /// Category 0: the joints keep going at their speed (pushed).
+        /// Category 0: the joints keep going at their speed (pushed, or a drive that does not
+        /// brake).
         Pushed,
         /// Category 0: the joints never come to rest.
         NeverAtRest,
@@ -963,16 +1135,17 @@ mod tests {
             }
             let mut plant = PlantState { joint_rad: theta(x_at(k.saturating_sub(1))), joint_rad_s: [0.0; 2] };
             if category == StopCategory::Zero && k >= fault_at {
-                // Coasts: the joints' speed at the fault, decelerating to rest in 0.1 s.
+                // Coasts: the joints' speed at the fault, decelerating to rest in 10 ms (travel
+                // w·5 ms, inside the dynamic-braking bound J·w/(c + b) = w·7.7 ms for joint 2).
                 let (a, b) = (theta(x_before(fault_at - 2, fault_at)), theta(x_before(fault_at - 1, fault_at)));
                 let w = [(b[0] - a[0]) / dt, (b[1] - a[1]) / dt];
                 let t = (k - fault_at) as f32 * dt;
                 let (travel, speed) = match tweak {
                     Tweak::Pushed => (t, 1.0),
-                    Tweak::NeverAtRest => (t.min(0.05), if t < 0.05 { 1.0 } else { 0.01 }),
+                    Tweak::NeverAtRest => (t.min(0.005), if t < 0.005 { 1.0 } else { 0.01 }),
                     _ => {
-                        let t = t.min(0.1);
-                        (t - t * t / 0.2, 1.0 - t / 0.1)
+                        let t = t.min(0.01);
+                        (t - t * t / 0.02, 1.0 - t / 0.01)
                     }
                 };
                 plant = PlantState { joint_rad: [0, 1].map(|i| b[i] + w[i] * travel), joint_rad_s: [0, 1].map(|i| w[i] * speed) };
@@ -985,9 +1158,20 @@ mod tests {
 
     /// Runs `scenario`'s checker over the synthetic machine; returns the verdict and the report.
     fn run_fault(scenario: Scenario, fault: Fault, fault_at: u32, tweak: Tweak) -> (Verdict, Option<StopReport>) {
+        run_fault_coasting(COAST, scenario, fault, fault_at, tweak)
+    }
+
+    /// [`run_fault`] with the checker bounding a coast by `coast`.
+    fn run_fault_coasting(
+        coast: CoastModel,
+        scenario: Scenario,
+        fault: Fault,
+        fault_at: u32,
+        tweak: Tweak,
+    ) -> (Verdict, Option<StopReport>) {
         let img = image(D_RAD);
         let frames = synthetic(&img, fault, fault_at, tweak);
-        let mut c = checker(scenario, &img);
+        let mut c = Checker::new(scenario, CorrectionGrid::parse(&img), &Settings::default(), 3_000, INJECTION, coast);
         for k in 0..MAX_TICKS {
             let f = frames(k);
             let o = Observation { status: &f.status, drive_enable: f.enable, drive_enable_ever: true, drive_torque_nm: f.torque_nm, plant: f.plant };
@@ -1035,7 +1219,7 @@ mod tests {
     }
 
     #[test]
-    fn category_zero_passes_only_with_the_hardware_off_and_a_free_coast() {
+    fn category_zero_passes_only_with_the_hardware_off_a_braked_coast_and_the_tool_inside() {
         let at = INJECTION.top_speed_sample + 2;
         let (v, report) = run_fault(Scenario::Overrun, Fault::DeadlineMissed, at, Tweak::None);
         assert_eq!(v, Some(Ok(())));
@@ -1044,11 +1228,17 @@ mod tests {
         for (tweak, why) in [
             (Tweak::EnableLeftOn, "drive enable still on after the fault"),
             (Tweak::TorqueLeftOn, "torque commanded after the fault"),
-            (Tweak::Pushed, "a joint went further than a free coast"),
+            (Tweak::Pushed, "a joint coasted further than the dynamic-braking bound"),
             (Tweak::NeverAtRest, "the joints are not at rest at the end of the coast"),
         ] {
             assert_eq!(run_fault(Scenario::Overrun, Fault::DeadlineMissed, at, tweak).0, Some(Err(why)), "{why}");
         }
+        // Checked against a free-wheeling drive's bound (no dynamic braking), a coast that goes
+        // on at speed leaves the calibrated rectangle first: the workspace bound holds on its own.
+        let free = CoastModel { dynamic_brake_nm_s_per_rad: 0.0, ..COAST };
+        let (v, report) = run_fault_coasting(free, Scenario::Overrun, Fault::DeadlineMissed, at, Tweak::Pushed);
+        assert_eq!(v, Some(Err("the tool left the calibrated rectangle")));
+        assert!(report.unwrap().left_workspace);
         // An encoder fault at rest must also keep the tool inside and barely moving.
         let stuck = Fault::Encoder(EncoderFault { axis: 0, kind: EncoderFaultKind::Stuck });
         assert_eq!(run_fault(Scenario::EncoderFrozenAtRest, stuck, 910, Tweak::None).0, Some(Err("the tool travelled further than the scenario allows")));
@@ -1096,7 +1286,7 @@ mod tests {
         }
         assert_eq!(c.observe(&never(&refused(BAD_IMAGE_TICKS))), Some(Ok(())));
         // Enabled once, even if off now.
-        assert_eq!(c.observe(&off(&refused(5))), Some(Err("drives enabled without a valid image")));
+        assert_eq!(c.observe(&off(&refused(5))), Some(Err("drives enabled at a boot that must keep them off")));
         let wrong = Status { calibration: CalibrationState::Refused(GridError::BadMagic), ..refused(BAD_IMAGE_TICKS) };
         assert!(matches!(c.observe(&never(&wrong)), Some(Err(_))));
     }
@@ -1157,6 +1347,149 @@ mod tests {
                 assert_eq!(c.observe(&on(&running(ticks, D_RAD))), None);
             }
             assert_eq!(c.observe(&on(&bad)), Some(Err(why)));
+        }
+    }
+
+    #[test]
+    fn stalled_task_stalls_at_top_speed_and_the_machine_must_run_until_then() {
+        let (i, at) = (&INJECTION, INJECTION.top_speed_sample);
+        let stalls: Vec<u32> = (0..5_000).filter(|&k| Scenario::StalledTask.stall_at(i, k)).collect();
+        assert_eq!(stalls, [at]);
+        for s in [Scenario::Run, Scenario::Overrun, Scenario::WatchdogRestart] {
+            assert!(!s.stall_at(i, at));
+        }
+        let img = image(D_RAD);
+        let mut c = checker(Scenario::StalledTask, &img);
+        // Status ticks count the samples done: sample `at` (the stall) would be tick at + 1.
+        for ticks in 1..=at {
+            assert_eq!(c.observe(&on(&running(ticks, D_RAD))), None, "tick {ticks}");
+        }
+        assert_eq!(c.observe(&on(&running(at + 1, D_RAD))), Some(Err("the servo task completed a sample after the stall")));
+        // Before the stall the machine must run.
+        let s = running(5, D_RAD);
+        assert_eq!(checker(Scenario::StalledTask, &img).observe(&off(&s)), Some(Err("drives not enabled before the stall")));
+        let s = Status { fault: Some(Fault::Drive), ..running(5, D_RAD) };
+        assert_eq!(checker(Scenario::StalledTask, &img).observe(&on(&s)), Some(Err("fault before the stall")));
+        let s = running(5, D_RAD);
+        let mut outside = on(&s);
+        outside.plant.joint_rad = FiveBar::<f32>::paper_nominal().inverse([200.0, 100.0], 0.05).unwrap();
+        assert_eq!(
+            checker(Scenario::StalledTask, &img).observe(&outside),
+            Some(Err("the tool left the calibrated rectangle before the stall"))
+        );
+    }
+
+    fn fired(o: WatchdogObservation) -> WatchdogVerdict {
+        Scenario::StalledTask.watchdog_fired(&o)
+    }
+
+    #[test]
+    fn a_watchdog_interrupt_passes_only_if_it_removed_torque_within_the_timeout_of_the_stall() {
+        // Fed at t = 1000 µs, stalled 40 µs later, fired exactly the timeout after the feed.
+        let good = WatchdogObservation {
+            stalled_at_us: Some(1_040.0),
+            last_feed_at_us: Some(1_000.0),
+            fired_at_us: 1_000.0 + TIMEOUT_US,
+            drive_enable_at_fire: true,
+            drive_enable: false,
+            drive_torque_nm: [0.0; 2],
+        };
+        assert_eq!(fired(good), WatchdogVerdict::AsExpected);
+        for (bad, why) in [
+            (WatchdogObservation { stalled_at_us: None, ..good }, "watchdog fired before the servo task was stalled"),
+            (WatchdogObservation { last_feed_at_us: None, ..good }, "the watchdog was never fed"),
+            (
+                WatchdogObservation { drive_enable_at_fire: false, ..good },
+                "drives already off when the watchdog fired: the test proves nothing",
+            ),
+            (WatchdogObservation { drive_enable: true, ..good }, "drive enable still on after the watchdog fired"),
+            (WatchdogObservation { drive_torque_nm: [0.0, 0.1], ..good }, "torque commanded after the watchdog fired"),
+            // Fed long before the stall: the watchdog's timeout is right but torque came off late.
+            (
+                WatchdogObservation { stalled_at_us: Some(900.0), last_feed_at_us: Some(0.0), fired_at_us: 4_000.0, ..good },
+                "torque not removed within the watchdog timeout of the stall",
+            ),
+            (
+                WatchdogObservation { fired_at_us: 1_000.0 + TIMEOUT_US + 200.0, stalled_at_us: Some(1_300.0), ..good },
+                "the watchdog did not fire its stated timeout after the last feed",
+            ),
+            (
+                WatchdogObservation { fired_at_us: 1_000.0 + 0.5 * TIMEOUT_US, ..good },
+                "the watchdog did not fire its stated timeout after the last feed",
+            ),
+            (
+                WatchdogObservation { fired_at_us: f32::NAN, ..good },
+                "torque not removed within the watchdog timeout of the stall",
+            ),
+        ] {
+            assert_eq!(fired(bad), WatchdogVerdict::Fail(why), "{bad:?}");
+        }
+        // The production path: torque off, wait for the reset. Any other test: a failure.
+        assert_eq!(Scenario::Run.watchdog_fired(&good), WatchdogVerdict::Production);
+        for s in [Scenario::Track, Scenario::LongRun, Scenario::Overrun, Scenario::WatchdogRestart] {
+            assert_eq!(
+                s.watchdog_fired(&good),
+                WatchdogVerdict::Fail("watchdog fired: the servo task did not complete on time")
+            );
+        }
+    }
+
+    #[test]
+    fn the_boot_after_the_stall_must_keep_the_drives_off_and_the_machine_coast_as_category_zero() {
+        assert_eq!(Scenario::StalledTask.after_reset(ResetCause::Watchdog), Scenario::WatchdogRestart);
+        assert_eq!(Scenario::StalledTask.after_reset(ResetCause::PowerOnOrBrownOut), Scenario::StalledTask);
+        assert_eq!(Scenario::Track.after_reset(ResetCause::Watchdog), Scenario::Track);
+        let restarted = |ticks, fault| Status {
+            fault: Some(fault),
+            torque_nm: [0.0; 2],
+            drives_enabled: false,
+            ..running(ticks, D_RAD)
+        };
+        fn never(s: &Status) -> Observation<'_> {
+            Observation { drive_enable_ever: false, ..off(s) }
+        }
+        let img = image(D_RAD);
+        let reset = Fault::Watchdog(WatchdogFault::Reset);
+        // The machine at the watchdog's interrupt: where `running` has it, at rest.
+        let kept = plant_of(&running(1, D_RAD));
+        let restart = || {
+            let mut c = checker(Scenario::WatchdogRestart, &img);
+            c.coast_after_reset(kept);
+            c
+        };
+        let mut c = restart();
+        for ticks in 1..=BAD_IMAGE_TICKS {
+            assert_eq!(c.observe(&never(&restarted(ticks, reset))), None, "tick {ticks}");
+        }
+        // Passes once both the boot's 0.5 s and the coast's 1000 samples are over.
+        assert_eq!(c.observe(&never(&restarted(BAD_IMAGE_TICKS + 1, reset))), Some(Ok(())));
+        assert_eq!(c.fault_sample(), Some(0));
+        assert_eq!(
+            restart().observe(&never(&restarted(BAD_IMAGE_TICKS + 1, Fault::DeadlineMissed))),
+            Some(Err("watchdog reset not reported as the fault"))
+        );
+        assert_eq!(restart().observe(&off(&restarted(3, reset))), Some(Err("drives enabled at a boot that must keep them off")));
+        // The machine's state did not survive the reset: nothing to check the coast against.
+        assert_eq!(
+            checker(Scenario::WatchdogRestart, &img).observe(&never(&restarted(3, reset))),
+            Some(Err("the machine's state at the watchdog's interrupt did not reach the boot after the reset"))
+        );
+        // A coast from rest that moves 0.01 rad: beyond the bound (0 rad plus round-off).
+        let s = restarted(3, reset);
+        let mut moved = never(&s);
+        moved.plant.joint_rad[0] += 0.01;
+        assert_eq!(restart().observe(&moved), Some(Err("a joint coasted further than the dynamic-braking bound")));
+        // Kept at speed, the bound is the dynamic-braking one from that speed: 1 rad/s on joint 1
+        // is 9.4 mrad; 5 mrad passes, 12 mrad fails.
+        let fast = PlantState { joint_rad_s: [1.0, 0.0], ..kept };
+        for (travel, verdict) in [(5e-3, None), (12e-3, Some(Err("a joint coasted further than the dynamic-braking bound")))] {
+            let mut c = checker(Scenario::WatchdogRestart, &img);
+            c.coast_after_reset(fast);
+            let mut o = never(&s);
+            o.plant.joint_rad[0] += travel;
+            assert_eq!(c.observe(&o), verdict, "{travel}");
+            let r = c.stop_report().unwrap();
+            assert!((r.coast_bound_rad[0] - 2.2e-3 / 0.235).abs() < 1e-6, "{r:?}");
         }
     }
 

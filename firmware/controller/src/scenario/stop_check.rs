@@ -4,12 +4,13 @@
 //!
 //! Per stop category:
 //! * **0** (torque off at once): from the fault's own sample, drive enable low and zero
-//!   torque; each joint travels no further than a joint coasting freely from its speed at the
-//!   fault could (`J·|ω|/b`, viscous friction only: Coulomb friction only shortens it; a joint
-//!   that went further was pushed); the run ends with both joints at rest. The tool is required
-//!   to stay in the calibrated rectangle only when the fault came at rest: at speed a free
-//!   wheeling machine coasts where its inertia takes it, which no firmware can change (the
-//!   figure is reported; see firmware/README.md).
+//!   torque; each joint travels no further than the drives' dynamic braking lets it coast from
+//!   its speed at the fault (`J·|ω|/(c + b)`: dynamic braking `c` and viscous friction `b`;
+//!   Coulomb friction only shortens it; a joint that went further was pushed, or its drive does
+//!   not brake); the tool never leaves the calibrated rectangle; the run ends with both joints
+//!   at rest. Dynamic braking is a hardware requirement of the drives (firmware/README.md,
+//!   "Faults and stop categories"): once the torque is off the firmware can do nothing more,
+//!   and free-wheeling drives coast out of the workspace from the tour's top speed.
 //! * **1** (controlled stop, then torque off): drive enable on until the loop reports
 //!   standstill, which must come within the stop's duration plus the settle timeout; then
 //!   enable low and zero torque for good. The tool travels no further than the planned stop
@@ -37,6 +38,7 @@ pub const REST_RAD_S: f32 = 1.0e-3;
 
 /// The simulated plant's true state, as the harness reads it.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct PlantState {
     /// Joint angles (rad), unquantised.
     pub joint_rad: [f32; 2],
@@ -44,19 +46,23 @@ pub struct PlantState {
     pub joint_rad_s: [f32; 2],
 }
 
-/// Enough of the plant to bound a coast: inertia and viscous friction per joint.
+/// Enough of the plant to bound a coast with the drives off: inertia, viscous friction and the
+/// drives' dynamic braking per joint.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct CoastModel {
     /// Joint inertias (kg·m²).
     pub inertia_kg_m2: [f32; 2],
     /// Viscous friction (N·m·s/rad).
     pub viscous_nm_s_per_rad: f32,
+    /// The drives' dynamic braking with the enable line low (N·m·s/rad at the joint).
+    pub dynamic_brake_nm_s_per_rad: f32,
 }
 
 impl CoastModel {
-    /// The furthest joint `axis` can coast from `speed_rad_s` with no torque (rad): `J·|ω|/b`.
+    /// The furthest joint `axis` can coast from `speed_rad_s` with the drives off (rad):
+    /// `J·|ω|/(c + b)`, the speed decaying with the time constant `J/(c + b)`.
     pub fn bound_rad(&self, axis: usize, speed_rad_s: f32) -> f32 {
-        self.inertia_kg_m2[axis] * speed_rad_s.abs() / self.viscous_nm_s_per_rad
+        self.inertia_kg_m2[axis] * speed_rad_s.abs() / (self.dynamic_brake_nm_s_per_rad + self.viscous_nm_s_per_rad)
     }
 }
 
@@ -75,7 +81,7 @@ pub struct StopReport {
     pub travelled_mm: f32,
     /// Each joint's travel since the fault (rad).
     pub joint_travel_rad: [f32; 2],
-    /// Category 0: the free-coast bound per joint (rad).
+    /// Category 0: the coast bound per joint (rad), [`CoastModel::bound_rad`].
     pub coast_bound_rad: [f32; 2],
     /// Samples from the fault to torque off (0 for category 0; category 2 never).
     pub torque_off_after: u32,
@@ -90,8 +96,6 @@ pub struct StopReport {
 pub struct StopCheck {
     category: StopCategory,
     fault_sample: u32,
-    /// The tool must stay in the calibrated rectangle.
-    require_inside: bool,
     from_tool_mm: Option<[f32; 2]>,
     from_joint_rad: [f32; 2],
     planned: Option<StopProfile>,
@@ -108,7 +112,6 @@ impl StopCheck {
     pub fn new(
         category: StopCategory,
         fault_sample: u32,
-        require_inside: bool,
         plant: &PlantState,
         tool_mm: Option<[f32; 2]>,
         speed_mm_s: f32,
@@ -126,7 +129,6 @@ impl StopCheck {
         StopCheck {
             category,
             fault_sample,
-            require_inside,
             from_tool_mm: planned.map(|p| p.origin_mm()).or(tool_mm),
             from_joint_rad: plant.joint_rad,
             planned,
@@ -144,7 +146,8 @@ impl StopCheck {
     /// Samples after the fault at which the scenario concludes.
     pub fn conclude_after(&self) -> u32 {
         match self.category {
-            // Coasting from 10 rad/s against the QEMU plant's friction takes about 0.3 s.
+            // 0.5 s: a dynamically braked coast from 10 rad/s is over in about 50 ms, a free
+            // coast against the QEMU plant's friction alone in about 0.3 s.
             StopCategory::Zero => 1_000,
             _ => {
                 let end_s = self.planned.map_or(0.0, |p| p.duration_s()) + HOLD_AFTER_S + self.settle_timeout_s;
@@ -174,7 +177,7 @@ impl StopCheck {
             _ => f32::NAN,
         };
         r.left_workspace |= !inside;
-        if self.require_inside && !inside {
+        if !inside {
             return Err("the tool left the calibrated rectangle");
         }
         let planned_mm = r.planned_mm + TRACKING_ALLOWANCE_MM;
@@ -182,7 +185,10 @@ impl StopCheck {
             StopCategory::Zero => {
                 safe_state(o)?;
                 for k in 0..2 {
-                    require(r.joint_travel_rad[k] <= r.coast_bound_rad[k] + 1e-4, "a joint went further than a free coast")?;
+                    require(
+                        r.joint_travel_rad[k] <= r.coast_bound_rad[k] + 1e-4,
+                        "a joint coasted further than the dynamic-braking bound",
+                    )?;
                 }
                 if done {
                     let still = o.plant.joint_rad_s.iter().all(|w| w.abs() < REST_RAD_S);

@@ -1,12 +1,15 @@
 //! The simulated hardware registers between the firmware and the plant: PWM duty per axis, the
-//! drive-enable line, the encoder counters. They are atomics, written by the board's drivers
-//! ([`SimPwm`], [`QemuBoard::enable_drives`](super::QemuBoard)) and read by the plant and by the
-//! test harness, which checks what the hardware shows rather than what the firmware says. The
-//! harness can also make an encoder counter lie ([`inject_encoder`]: frozen, or offset).
+//! drive-enable line, the encoder counters, and a reset-cause flag. They are atomics, written
+//! by the board's drivers ([`SimPwm`], [`QemuBoard::enable_drives`](super::QemuBoard)) and read
+//! by the plant and by the test harness, which checks what the hardware shows rather than what
+//! the firmware says. The harness can also make an encoder counter lie ([`inject_encoder`]:
+//! frozen, or offset).
+use core::mem::MaybeUninit;
 use core::sync::atomic::{AtomicBool, AtomicI32, AtomicU16, Ordering};
 
 use controller::drive::duty_to_torque_nm;
 use controller::encoder::QuadratureEncoder;
+use controller::watchdog::ResetCause;
 use embedded_hal::pwm::{ErrorType, SetDutyCycle};
 
 use super::PWM_MAX_DUTY;
@@ -19,6 +22,15 @@ static ENCODER_COUNTS: [AtomicI32; 2] = [AtomicI32::new(0), AtomicI32::new(0)];
 /// Encoder fault injection: the counter stops following the plant / shows this many counts more.
 static ENCODER_FROZEN: [AtomicBool; 2] = [AtomicBool::new(false), AtomicBool::new(false)];
 static ENCODER_OFFSET_COUNTS: [AtomicI32; 2] = [AtomicI32::new(0), AtomicI32::new(0)];
+
+/// The safe state, from any context (the watchdog's NMI, fault handlers): duty to zero torque
+/// (50 %), then the enable line low.
+pub fn safe_state() {
+    for duty in &PWM_DUTY {
+        duty.store(PWM_MAX_DUTY / 2, Ordering::SeqCst);
+    }
+    set_drive_enable(false);
+}
 
 /// Drives the enable line.
 pub fn set_drive_enable(on: bool) {
@@ -99,4 +111,40 @@ impl QuadratureEncoder for SimEncoder {
     fn position_counts(&mut self) -> i32 {
         ENCODER_COUNTS[self.axis].load(Ordering::Relaxed)
     }
+}
+
+/// The reset-cause flag (the MPS2 has no reset-cause register QEMU models): the watchdog's
+/// interrupt sets it, since the CMSDK watchdog resets the machine at its next expiry; the boot
+/// reads and clears it. It lives in `.uninit` RAM, which neither QEMU's system reset nor
+/// cortex-m-rt's start-up clears; a fresh QEMU's RAM reads 0, i.e. power-on.
+#[link_section = ".uninit.reset_flag"]
+static mut RESET_FLAG: MaybeUninit<u32> = MaybeUninit::uninit();
+/// [`RESET_FLAG`]'s value for "the watchdog is about to reset the machine".
+const WATCHDOG_RESET: u32 = 0x5744_5253;
+
+fn reset_flag() -> *mut u32 {
+    core::ptr::addr_of_mut!(RESET_FLAG).cast::<u32>()
+}
+
+/// Marks the coming reset as the watchdog's.
+pub fn note_watchdog_reset() {
+    // SAFETY: a word of RAM reserved for this flag; volatile, as it must survive a reset.
+    unsafe { reset_flag().write_volatile(WATCHDOG_RESET) };
+}
+
+/// The last reset's cause, without clearing it.
+pub fn peek_reset_cause() -> ResetCause {
+    // SAFETY: as in `note_watchdog_reset`; any bit pattern is a valid u32.
+    match unsafe { reset_flag().read_volatile() } {
+        WATCHDOG_RESET => ResetCause::Watchdog,
+        _ => ResetCause::PowerOnOrBrownOut,
+    }
+}
+
+/// The last reset's cause; clears the flag (as RCC_CSR's RMVF does on the STM32G474).
+pub fn take_reset_cause() -> ResetCause {
+    let cause = peek_reset_cause();
+    // SAFETY: as in `note_watchdog_reset`.
+    unsafe { reset_flag().write_volatile(0) };
+    cause
 }

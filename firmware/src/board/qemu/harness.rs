@@ -11,6 +11,13 @@
 //! * Deadline and encoder fault injection ([`Harness::begin_sample`], before the plant updates
 //!   the encoder counters): burns time in the scenario's samples; freezes joint 1's counter or
 //!   offsets it for one sample (`hardware::inject_encoder`).
+//! * The stalled servo task (`stalled-task`, [`Harness::begin_sample`]): at the top-speed
+//!   sample the servo task disables interrupts and spins, and the harness keeps the plant
+//!   moving in real time meanwhile (a machine does not stop with its controller), keeping its
+//!   state across the coming reset ([`super::across_reset`]); [`watchdog_fired`], called by the
+//!   watchdog's NMI after it removed torque, judges the reaction and waits for the watchdog's
+//!   reset. The boot after it is `Scenario::WatchdogRestart` (`Scenario::after_reset`), which
+//!   checks the machine's coast from where the interrupt left it ([`Harness::resumed`]).
 //! * The checks ([`Harness::end_sample`], after every sample's status is published):
 //!   `controller::scenario::Checker` on the status, on what the simulated hardware shows
 //!   (drive-enable line, torque in the PWM registers) and on the plant's true joint state; a
@@ -19,16 +26,43 @@
 //!
 //! The checker validates the calibration region on its own, so the firmware's reading of it is
 //! under test too.
+use core::cell::Cell;
+use core::fmt::Write;
+use core::sync::atomic::{AtomicU32, Ordering};
+
 use controller::deadline::DEADLINE_US;
 use controller::scenario::stop_check::{CoastModel, PlantState};
-use controller::scenario::{Checker, EncoderInjection, Injection, Observation, Scenario};
+use controller::scenario::{Checker, EncoderInjection, Injection, Observation, Scenario, WatchdogObservation, WatchdogVerdict};
 use controller::settings::Settings;
 use controller::setpoints::SetpointSource;
 use controller::status::Status;
 use controller::trajectory::Trajectory;
+use controller::watchdog::TIMEOUT_US;
+use critical_section::Mutex;
 use kinematics_core::CorrectionGrid;
 
-use super::{hardware, semihosting, CmsdkTimer, COUNTS_PER_REV};
+use super::plant::Plant;
+use super::{across_reset, clock, hardware, semihosting, CmsdkTimer, COUNTS_PER_REV, TIMER_CLOCK_HZ};
+
+/// What the watchdog's NMI needs (it cannot reach the `Harness`, which the servo task owns).
+/// The scenario of this boot, set once at boot before the watchdog starts.
+static SCENARIO: Mutex<Cell<Scenario>> = Mutex::new(Cell::new(Scenario::Run));
+/// Clock ticks at the last watchdog feed, at the stall; [`NEVER`] until then.
+static LAST_FEED_AT: AtomicU32 = AtomicU32::new(NEVER);
+static STALLED_AT: AtomicU32 = AtomicU32::new(NEVER);
+/// Tool speed at the stall (f32 bits, mm/s).
+static STALL_SPEED: AtomicU32 = AtomicU32::new(0);
+const NEVER: u32 = u32::MAX;
+
+/// Records a watchdog feed (the QEMU board's `feed_watchdog` calls it right after the feed).
+#[inline]
+pub fn note_feed() {
+    LAST_FEED_AT.store(clock::now_ticks(), Ordering::SeqCst);
+}
+
+fn at_us(ticks: u32) -> Option<f32> {
+    (ticks != NEVER).then(|| clock::ticks_to_us(ticks))
+}
 
 /// The harness's state, owned by the QEMU board.
 pub struct Harness {
@@ -40,19 +74,25 @@ pub struct Harness {
     injection: Injection,
     /// Index of the sample about to run.
     sample: u32,
+    /// The machine's state when the controller last reset, if it was kept ([`Harness::resumed`]).
+    resumed: Option<PlantState>,
 }
 
 impl Harness {
-    /// The scenario named on the semihosting command line.
+    /// The scenario named on the semihosting command line, as it continues after the last
+    /// reset (the boot after `stalled-task`'s watchdog reset is `WatchdogRestart`).
     pub fn scenario() -> Scenario {
         let mut line = [0u8; 64];
-        Scenario::from_command_line(semihosting::command_line(&mut line))
+        Scenario::from_command_line(semihosting::command_line(&mut line)).after_reset(hardware::peek_reset_cause())
     }
 
-    /// Reads the scenario and runs the self-tests of the failure paths.
+    /// Reads the scenario, starts the harness's clock and runs the self-tests of the failure
+    /// paths.
     pub fn boot(settings: &'static Settings) -> Self {
         let scenario = Self::scenario();
         defmt::info!("harness: scenario {}", scenario);
+        critical_section::with(|cs| SCENARIO.borrow(cs).set(scenario));
+        clock::start();
         match scenario {
             Scenario::Panic => {
                 let v: Option<u32> = core::hint::black_box(None);
@@ -61,7 +101,14 @@ impl Harness {
             Scenario::HardFault => cortex_m::asm::udf(),
             _ => {}
         }
-        Harness { scenario, settings, checker: None, injection: Injection::default(), sample: 0 }
+        Harness { scenario, settings, checker: None, injection: Injection::default(), sample: 0, resumed: None }
+    }
+
+    /// The machine was in `state` when the controller reset (the plant resumed there): the
+    /// boot after `stalled-task`'s watchdog reset checks its coast from there.
+    pub fn resumed(&mut self, state: PlantState) {
+        defmt::info!("harness: the machine moves on from before the reset: {}", state);
+        self.resumed = Some(state);
     }
 
     /// The board's setpoint source: `trajectory` with the scenario's setpoint faults. `coast`
@@ -73,16 +120,23 @@ impl Harness {
             defmt::info!("harness: {} injected at sample {}", self.scenario, self.injection);
         }
         let total = trajectory.total_samples();
-        self.checker = Some(Checker::new(self.scenario, image, self.settings, total, self.injection, coast));
+        let mut checker = Checker::new(self.scenario, image, self.settings, total, self.injection, coast);
+        if let (Scenario::WatchdogRestart, Some(state)) = (self.scenario, self.resumed) {
+            checker.coast_after_reset(state);
+        }
+        self.checker = Some(checker);
         Injected { scenario: self.scenario, injection: self.injection, trajectory, queued: 0 }
     }
 
     /// Start of a sample, before the plant moves and updates the encoder counters: the deadline
-    /// and encoder fault injection.
+    /// and encoder fault injection, and the stalled task (which keeps `plant` moving).
     #[inline]
-    pub fn begin_sample(&mut self, timer: &CmsdkTimer) {
+    pub fn begin_sample(&mut self, timer: &CmsdkTimer, plant: &mut Plant) {
         if self.scenario.overrun_at(&self.injection, self.sample) {
             timer.burn_until_us(1.4 * DEADLINE_US);
+        }
+        if self.scenario.stall_at(&self.injection, self.sample) {
+            stall(self.injection.top_speed_mm_s, plant);
         }
         let counts_per_rad = COUNTS_PER_REV as f32 / (2.0 * core::f32::consts::PI);
         match self.scenario.encoder_at(&self.injection, self.sample) {
@@ -152,4 +206,80 @@ impl SetpointSource for Injected {
         self.queued = self.queued.wrapping_add(1);
         Some(p)
     }
+}
+
+/// How often the stalled task's loop moves the plant on (s): a tenth of a servo period.
+const STALLED_PLANT_STEP_S: f32 = 50.0e-6;
+
+/// Stops the servo task from ever completing, the way a logger blocking inside a critical
+/// section would: interrupts disabled, spinning. Only the NMI gets through. Meanwhile the
+/// machine moves on under whatever the hardware commands (the last duty while the enable line
+/// is on; the drives' dynamic braking once the NMI has removed torque): the loop advances
+/// `plant` in steps of [`STALLED_PLANT_STEP_S`] on the harness's clock and keeps its state for
+/// the boot after the watchdog's reset.
+fn stall(speed_mm_s: f32, plant: &mut Plant) -> ! {
+    defmt::info!("harness: stalling the servo task (interrupts disabled) at {} mm/s", speed_mm_s);
+    STALL_SPEED.store(speed_mm_s.to_bits(), Ordering::SeqCst);
+    cortex_m::interrupt::disable();
+    let stalled_at = clock::now_ticks();
+    STALLED_AT.store(stalled_at, Ordering::SeqCst);
+    across_reset::keep(plant.state());
+    let step_ticks = (STALLED_PLANT_STEP_S * TIMER_CLOCK_HZ as f32) as u32;
+    let mut simulated_ticks = 0u32;
+    loop {
+        if clock::now_ticks().wrapping_sub(stalled_at) >= simulated_ticks.wrapping_add(step_ticks) {
+            plant.advance(STALLED_PLANT_STEP_S);
+            simulated_ticks = simulated_ticks.wrapping_add(step_ticks);
+            across_reset::keep(plant.state());
+        }
+    }
+}
+
+/// Called by the watchdog's NMI after it removed torque (`drive_enable_at_fire`: the enable
+/// line as the NMI found it): the scenario's verdict (`Scenario::watchdog_fired`). A failure
+/// ends the run; otherwise it reports and waits for the watchdog's reset (its second expiry).
+/// No defmt here: the NMI may have interrupted a defmt frame.
+pub fn watchdog_fired(drive_enable_at_fire: bool) -> ! {
+    let fired_at = clock::now_ticks();
+    let o = WatchdogObservation {
+        stalled_at_us: at_us(STALLED_AT.load(Ordering::SeqCst)),
+        last_feed_at_us: at_us(LAST_FEED_AT.load(Ordering::SeqCst)),
+        fired_at_us: clock::ticks_to_us(fired_at),
+        drive_enable_at_fire,
+        drive_enable: hardware::drive_enable(),
+        // Zero torque is a zero at any full scale; 1 N·m keeps any other duty non-zero.
+        drive_torque_nm: hardware::commanded_torque_nm(1.0),
+    };
+    let scenario = critical_section::with(|cs| SCENARIO.borrow(cs).get());
+    let mut line: heapless::String<200> = heapless::String::new();
+    match scenario.watchdog_fired(&o) {
+        WatchdogVerdict::Fail(why) => {
+            semihosting::console("FAIL");
+            semihosting::console(why);
+            semihosting::exit(false)
+        }
+        WatchdogVerdict::AsExpected => {
+            let since = |t: Option<f32>| t.map_or(f32::NAN, |t| o.fired_at_us - t);
+            let _ = write!(
+                line,
+                "watchdog: torque off {:.0} us after the stall at {:.0} mm/s, {:.0} us after the last on-time step (timeout {:.0} us)",
+                since(o.stalled_at_us),
+                f32::from_bits(STALL_SPEED.load(Ordering::SeqCst)),
+                since(o.last_feed_at_us),
+                TIMEOUT_US
+            );
+        }
+        WatchdogVerdict::Production => {
+            semihosting::console("watchdog: the servo task stalled: drives off, waiting for the watchdog's reset");
+            loop {
+                cortex_m::asm::nop();
+            }
+        }
+    }
+    semihosting::console(&line);
+    // The reset comes at the next expiry, one timeout later; if it does not, the test fails.
+    let wait_ticks = (3.0 * TIMEOUT_US * (TIMER_CLOCK_HZ as f32 / 1.0e6)) as u32;
+    while clock::now_ticks().wrapping_sub(fired_at) < wait_ticks {}
+    semihosting::console("FAIL no reset after the watchdog interrupt");
+    semihosting::exit(false)
 }

@@ -2,28 +2,35 @@
 //! machine simulated inside the firmware and the test harness hooked in.
 //!
 //! * Servo tick: CMSDK APB TIMER0 (IRQ 8, 25 MHz), reload for 2 kHz.
+//! * [`watchdog`]: the CMSDK APB watchdog, fed by on-time servo steps; its NMI removes torque.
 //! * [`hardware`]: the "registers" between the firmware and the plant (PWM duty per axis, the
-//!   drive-enable line, the encoder counters), atomics.
-//! * [`plant`]: two joint inertias with friction, advanced in [`Board::begin_sample`]; the
-//!   harness reads its true state.
+//!   drive-enable line, the encoder counters, the reset-cause flag), atomics.
+//! * [`plant`]: two joint inertias with friction and the drives' dynamic braking, advanced in
+//!   [`Board::begin_sample`]; the harness reads its true state.
+//! * [`across_reset`]: the plant's state kept across a reset of the controller (the machine
+//!   does not stop with it).
 //! * [`harness`]: the test harness (scenario from the command line, self-tests at boot,
-//!   setpoint and deadline fault injection, the checks at the end of every sample that end the
-//!   run with PASS or FAIL). Only this board has it.
+//!   setpoint and deadline fault injection, the stalled servo task, the checks at the end of
+//!   every sample and at the watchdog's interrupt that end the run with PASS or FAIL; its own
+//!   clock on TIMER1). Only this board has it.
 //! * [`semihosting`]: command line, console, exit code, defmt to a host file, and the
 //!   HardFault / unexpected interrupt / panic handlers (print `FAIL ...`, exit 1).
 use controller::drive::{self, DriveError, TorqueDrive};
-use controller::encoder::{counts_to_rad, QuadratureEncoder};
+use controller::encoder::{EncoderScale, QuadratureEncoder};
 use controller::settings::Settings;
 use controller::status::Status;
 use controller::trajectory::{Trajectory, WORKSPACE_TOUR_MM};
+use controller::watchdog::{ResetCause, WatchdogFault};
 use controller::SAMPLE_RATE_HZ;
 
 use super::{Board, ServoTimer};
 
+pub mod across_reset;
 pub mod hardware;
 pub mod harness;
 pub mod plant;
 pub mod semihosting;
+pub mod watchdog;
 
 pub use semihosting::{console, exit};
 
@@ -45,16 +52,18 @@ device! {
 
 /// Core clock and timer clock of the AN386 (QEMU's SYSCLK).
 pub const TIMER_CLOCK_HZ: u32 = 25_000_000;
-/// Encoder resolution of the simulated motors.
+/// Encoder resolution of the simulated motors (the simulated hardware; the firmware reads them
+/// through `Settings::encoders`, whose default is the same).
 pub const COUNTS_PER_REV: u32 = 1 << 22;
 /// PWM full-scale duty (the G474's 20 kHz centre-aligned TIM1 period at 170 MHz; even, so that
 /// 50 % and thus zero torque is exact).
 pub const PWM_MAX_DUTY: u16 = 4250;
 
 // ---------------------------------------------------------------------------------------------
-// Servo timer: CMSDK APB timer 0.
+// CMSDK APB timers: TIMER0 is the servo tick, TIMER1 the harness's free-running clock.
 
 const TIMER0_BASE: usize = 0x4000_0000;
+const TIMER1_BASE: usize = 0x4000_1000;
 const TIMER_CTRL: usize = 0x00;
 const TIMER_VALUE: usize = 0x04;
 const TIMER_RELOAD: usize = 0x08;
@@ -62,13 +71,46 @@ const TIMER_INT: usize = 0x0C; // INTSTATUS on read, INTCLEAR on write
 const CTRL_ENABLE: u32 = 1 << 0;
 const CTRL_IRQ_ENABLE: u32 = 1 << 3;
 
-fn timer_read(offset: usize) -> u32 {
+fn cmsdk_timer_read(base: usize, offset: usize) -> u32 {
     // SAFETY: a CMSDK timer register of the AN386 memory map.
-    unsafe { core::ptr::read_volatile((TIMER0_BASE + offset) as *const u32) }
+    unsafe { core::ptr::read_volatile((base + offset) as *const u32) }
+}
+fn cmsdk_timer_write(base: usize, offset: usize, value: u32) {
+    // SAFETY: a CMSDK timer register of the AN386 memory map; TIMER0 is owned by the servo
+    // timer, TIMER1 by the harness's clock.
+    unsafe { core::ptr::write_volatile((base + offset) as *mut u32, value) }
+}
+fn timer_read(offset: usize) -> u32 {
+    cmsdk_timer_read(TIMER0_BASE, offset)
 }
 fn timer_write(offset: usize, value: u32) {
-    // SAFETY: a CMSDK timer register of the AN386 memory map; only the servo timer owns it.
-    unsafe { core::ptr::write_volatile((TIMER0_BASE + offset) as *mut u32, value) }
+    cmsdk_timer_write(TIMER0_BASE, offset, value)
+}
+
+/// TIMER1 counting down from 2^32 - 1 at 25 MHz, no interrupt: a clock independent of the
+/// servo timer and the watchdog (wraps after 171 s).
+pub mod clock {
+    use super::{cmsdk_timer_read, cmsdk_timer_write, CTRL_ENABLE, TIMER1_BASE, TIMER_CLOCK_HZ};
+    use super::{TIMER_CTRL, TIMER_RELOAD, TIMER_VALUE};
+
+    /// Starts the clock at 0.
+    pub fn start() {
+        cmsdk_timer_write(TIMER1_BASE, TIMER_CTRL, 0);
+        cmsdk_timer_write(TIMER1_BASE, TIMER_RELOAD, u32::MAX);
+        cmsdk_timer_write(TIMER1_BASE, TIMER_VALUE, u32::MAX);
+        cmsdk_timer_write(TIMER1_BASE, TIMER_CTRL, CTRL_ENABLE);
+    }
+
+    /// Ticks (25 MHz) since [`start`].
+    #[inline]
+    pub fn now_ticks() -> u32 {
+        u32::MAX - cmsdk_timer_read(TIMER1_BASE, TIMER_VALUE)
+    }
+
+    /// Microseconds of a tick count.
+    pub fn ticks_to_us(ticks: u32) -> f32 {
+        ticks as f32 * (1.0e6 / TIMER_CLOCK_HZ as f32)
+    }
 }
 
 /// The 2 kHz servo tick. The timer counts down from `reload` to 0 once per period.
@@ -131,6 +173,7 @@ impl ServoTimer for CmsdkTimer {
 pub struct QemuBoard {
     timer: CmsdkTimer,
     encoders: [SimEncoder; 2],
+    encoder_scales: [EncoderScale; 2],
     drives: [TorqueDrive<SimPwm>; 2],
     plant: Plant,
     period_s: f32,
@@ -152,9 +195,11 @@ impl Board for QemuBoard {
         // The self-tests of the failure paths run first, as at the top of `init`.
         let harness = Harness::boot(settings);
         let full_scale_nm = settings.drive_full_scale_nm;
+        let encoder_scales = super::encoder_scales(settings);
         let mut board = QemuBoard {
             timer: CmsdkTimer::new(SAMPLE_RATE_HZ),
             encoders: [SimEncoder { axis: 0 }, SimEncoder { axis: 1 }],
+            encoder_scales,
             drives: [
                 TorqueDrive { pwm: SimPwm { axis: 0 }, full_scale_nm },
                 TorqueDrive { pwm: SimPwm { axis: 1 }, full_scale_nm },
@@ -164,6 +209,12 @@ impl Board for QemuBoard {
             harness,
         };
         board.disable_drives();
+        // The machine does not stop with its controller: after a reset in the middle of a
+        // coast (the boot after `stalled-task`'s watchdog reset) it is where the coast was.
+        if let Some(state) = across_reset::take() {
+            board.plant.resume(state);
+            board.harness.resumed(state);
+        }
         board
     }
 
@@ -174,8 +225,8 @@ impl Board for QemuBoard {
     #[inline]
     fn encoders_rad(&mut self) -> [f32; 2] {
         [
-            counts_to_rad(self.encoders[0].position_counts(), COUNTS_PER_REV),
-            counts_to_rad(self.encoders[1].position_counts(), COUNTS_PER_REV),
+            self.encoder_scales[0].joint_rad(self.encoders[0].position_counts()),
+            self.encoder_scales[1].joint_rad(self.encoders[1].position_counts()),
         ]
     }
 
@@ -188,9 +239,26 @@ impl Board for QemuBoard {
         hardware::set_drive_enable(true);
     }
 
+    /// Duty to zero torque, then the enable line low (`hardware::safe_state`, also what the
+    /// watchdog's NMI and the fault handlers do).
     fn disable_drives(&mut self) {
-        hardware::set_drive_enable(false);
-        let _ = self.set_torques_nm([0.0; 2]);
+        hardware::safe_state();
+    }
+
+    /// The simulated reset-cause flag (set by the watchdog's NMI before its reset).
+    fn reset_cause(&mut self) -> ResetCause {
+        hardware::take_reset_cause()
+    }
+
+    fn start_watchdog(&mut self) -> Result<(), WatchdogFault> {
+        watchdog::start();
+        Ok(())
+    }
+
+    #[inline]
+    fn feed_watchdog(&mut self) {
+        watchdog::feed();
+        harness::note_feed();
     }
 
     #[inline]
@@ -209,7 +277,7 @@ impl Board for QemuBoard {
     /// the plant moves under the torques of the last sample and updates the counters.
     #[inline]
     fn begin_sample(&mut self) {
-        self.harness.begin_sample(&self.timer);
+        self.harness.begin_sample(&self.timer, &mut self.plant);
         self.plant.advance(self.period_s);
     }
 
@@ -219,6 +287,9 @@ impl Board for QemuBoard {
     }
 }
 
+
+/// For the benchmark: nothing to set up (QEMU counts instructions at any clock).
+pub fn bench_init() {}
 
 /// What the benchmark counter's figures are: QEMU counts instructions, not cycles.
 pub const COUNT_UNIT: &str = "instructions";

@@ -2,9 +2,13 @@
 //! defmt logger writing its frames to the host file `defmt.bin` (so they never mix with the
 //! console; `qemu/test.sh` decodes them with `defmt-print` when it is installed).
 //!
-//! HardFault, unexpected interrupts and panics print a `FAIL ...` line and exit with failure,
-//! so a broken firmware can never hang CI; `qemu/test.sh`'s self-test runs match those lines.
+//! HardFault, unexpected interrupts and panics disable interrupts, put the simulated hardware in
+//! the safe state (zero torque, enable line low), print a `FAIL ...` line and exit with
+//! failure, so a broken firmware can never hang CI; `qemu/test.sh`'s self-test runs match those
+//! lines.
 use cortex_m_semihosting::{nr, syscall, syscall1};
+
+use super::hardware;
 
 
 /// The semihosting command line (`"<program> <scenario>"`), in `buf`.
@@ -36,8 +40,17 @@ pub fn exit(pass: bool) -> ! {
     }
 }
 
-#[cortex_m_rt::exception]
-unsafe fn HardFault(_frame: &cortex_m_rt::ExceptionFrame) -> ! {
+/// What every failure path does first.
+fn fail_safe() {
+    cortex_m::interrupt::disable();
+    hardware::safe_state();
+}
+
+hard_fault_on_fresh_stack!(hard_fault);
+
+/// The HardFault handler, on a fresh stack (`hard_fault_on_fresh_stack!`, as on the STM32G474).
+unsafe extern "C" fn hard_fault(_faulting_sp: u32) -> ! {
+    fail_safe();
     console("FAIL HardFault");
     exit(false)
 }
@@ -45,6 +58,7 @@ unsafe fn HardFault(_frame: &cortex_m_rt::ExceptionFrame) -> ! {
 #[cortex_m_rt::exception]
 unsafe fn DefaultHandler(irqn: i16) {
     let _ = irqn;
+    fail_safe();
     console("FAIL unexpected interrupt (DefaultHandler)");
     exit(false)
 }
@@ -52,13 +66,16 @@ unsafe fn DefaultHandler(irqn: i16) {
 #[panic_handler]
 fn panic(info: &core::panic::PanicInfo) -> ! {
     use core::fmt::Write;
+    fail_safe();
     if let Ok(mut out) = cortex_m_semihosting::hio::hstdout() {
         let _ = writeln!(out, "FAIL panic: {}", info);
     }
     exit(false)
 }
 
-/// defmt logger writing each frame to the host file `defmt.bin` (opened at the first log).
+/// defmt logger appending each frame to the host file `defmt.bin` (opened at the first log;
+/// appended, so that the log of a boot after a watchdog reset follows the first boot's;
+/// `qemu/run-one.sh` removes the file before a run).
 mod logger {
     use core::cell::UnsafeCell;
     use core::sync::atomic::{AtomicBool, Ordering};
@@ -93,10 +110,19 @@ mod logger {
     fn flush(s: &mut State) {
         if s.handle.is_none() {
             let name = b"defmt.bin\0";
-            // Mode 5 is "wb".
+            // Mode 9 is "ab".
             // SAFETY: SYS_OPEN reads `name` (length without the NUL).
-            let h = unsafe { syscall!(OPEN, name.as_ptr(), 5, name.len() - 1) } as isize;
+            let h = unsafe { syscall!(OPEN, name.as_ptr(), 9, name.len() - 1) } as isize;
             s.handle = Some(if h < 0 { usize::MAX } else { h as usize });
+            if h >= 0 {
+                // QEMU 7.2 opens "ab" at offset 0: seek to the end explicitly.
+                // SAFETY: SYS_FLEN and SYS_SEEK take the handle just opened.
+                let len = unsafe { syscall!(FLEN, h as usize) } as isize;
+                if len > 0 {
+                    // SAFETY: as above.
+                    unsafe { syscall!(SEEK, h as usize, len as usize) };
+                }
+            }
         }
         if let Some(h) = s.handle {
             if h != usize::MAX && s.len > 0 {
