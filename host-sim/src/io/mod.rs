@@ -5,6 +5,7 @@
 //! * [`model_file`]: `model.json`, a fitted hidden robot;
 //! * [`targets_csv`]: the `x_mm,y_mm` target lists `command` reads;
 //! * [`plot`]: the PNG plots (paths, error-vector fields);
+//! * [`csv_dialect`]: what every CSV read shares (delimiter detection, number ranges);
 //! * [`atomic`]: every output goes through it: a failed run never leaves a half-written file.
 //!
 //! Formats tied to one stage's own types live next to them (the grid node table in
@@ -16,6 +17,7 @@
 //! everything; `source()` is not used, so a chain printed with `{:#}` does not repeat it).
 
 pub mod atomic;
+pub mod csv_dialect;
 pub mod measurement_csv;
 pub mod model_file;
 pub mod plot;

@@ -1,5 +1,6 @@
-//! A list of targets: CSV with the columns `x_mm,y_mm` (any order, `#` comments), what
-//! `host-sim command` reads. Every number must be finite; errors name the line (header = 1).
+//! A list of targets: CSV with the columns `x_mm,y_mm` (any order, `#` comments, `,` `;` or tab
+//! separated), what `host-sim command` reads. Every number must be finite and |value| ≤ 1e6 mm;
+//! errors name the line (header = 1).
 
 use super::{read_text, IoError};
 use std::path::Path;
@@ -14,8 +15,7 @@ pub struct Target {
 /// Parses a targets CSV text.
 pub fn parse_targets(text: &str) -> Result<Vec<Target>, IoError> {
     let parse = |m: String| IoError::Parse(m);
-    let mut reader =
-        csv::ReaderBuilder::new().trim(csv::Trim::All).flexible(true).comment(Some(b'#')).from_reader(text.as_bytes());
+    let mut reader = super::csv_dialect::reader(text);
     let headers = reader.headers().map_err(|e| parse(format!("line 1: cannot read the header: {e}")))?.clone();
     let col = |name: &str| {
         headers.iter().position(|h| h == name).ok_or_else(|| parse(format!("line 1: required column '{name}' is missing")))
@@ -31,14 +31,7 @@ pub fn parse_targets(text: &str) -> Result<Vec<Target>, IoError> {
         if record.len() != headers.len() {
             return Err(parse(format!("line {line}: {} fields, the header has {}", record.len(), headers.len())));
         }
-        let num = |i: usize, name: &str| -> Result<f64, IoError> {
-            let v: f64 =
-                record[i].parse().map_err(|_| parse(format!("line {line}: '{name}' = '{}' is not a number", &record[i])))?;
-            if !v.is_finite() {
-                return Err(parse(format!("line {line}: '{name}' = '{}' is not finite", &record[i])));
-            }
-            Ok(v)
-        };
+        let num = |i: usize, name: &str| super::csv_dialect::number(&record[i], name, line, super::csv_dialect::Quantity::LengthMm);
         out.push(Target { line, target_mm: [num(ix, "x_mm")?, num(iy, "y_mm")?] });
     }
     if out.is_empty() {
