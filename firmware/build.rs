@@ -11,13 +11,21 @@
 //!   Its node values are a smooth synthetic field of a few hundred µrad (up to 3.9e-4 rad),
 //!   the size of the paper's corrections; `qemu-test`'s `track` needs at least 2e-4 rad on its
 //!   tour to tell an applied grid from a missing one. A real image comes from the
-//!   calibration, not from here. The QEMU
+//!   calibration, not from here. The image carries the dynamics extension with the QEMU
+//!   machine's dynamic parameters 20 % off its plant's (`src/board/qemu/machine.rs`, shared
+//!   with the plant), which the servo feeds forward. The QEMU
 //!   firmware links it into the calibration region (feature `board-qemu`); the real board
 //!   gets its image flashed separately (see README).
 use std::{env, fs, path::PathBuf};
 
-use kinematics_core::grid::{encode, GridGeometry};
+use kinematics_core::grid::{encode_with_dynamics, GridGeometry};
 use kinematics_core::FiveBar;
+
+// `TRUE_DYNAMICS` (the plant's) and `IMAGE_DYNAMICS`.
+#[allow(dead_code)]
+mod machine {
+    include!("src/board/qemu/machine.rs");
+}
 
 fn main() {
     let out = PathBuf::from(env::var("OUT_DIR").expect("cargo sets OUT_DIR"));
@@ -37,6 +45,7 @@ fn main() {
     println!("cargo:rerun-if-changed={}", device.display());
     println!("cargo:rerun-if-changed=build.rs");
     println!("cargo:rerun-if-changed=../memory.x");
+    println!("cargo:rerun-if-changed=src/board/qemu/machine.rs");
 
     fs::write(out.join("calibration.bin"), synthetic_image()).expect("write calibration.bin");
 }
@@ -56,8 +65,9 @@ fn synthetic_image() -> Vec<u8> {
             ]);
         }
     }
-    let mut image = vec![0u8; geometry.image_len()];
-    let n = encode(&mut image, &geometry, &model, &nodes).expect("synthetic grid encodes");
+    let mut image = vec![0u8; geometry.image_len_with_dynamics()];
+    let n = encode_with_dynamics(&mut image, &geometry, &model, &nodes, &machine::IMAGE_DYNAMICS)
+        .expect("synthetic grid encodes");
     image.truncate(n);
     image
 }

@@ -56,6 +56,7 @@ run() {
 }
 
 run track          0 "$PASS" track        $(image calibration.bin)
+run track-5g       0 "$PASS" track-5g     $(image calibration.bin)
 # Faults of a moving machine, injected at the tour's top speed (1.38 m/s): categories 1 and 2
 # (a controlled stop, then torque off / hold) ...
 run nan-setpoint   0 "$PASS" nan-setpoint $(image calibration.bin)

@@ -2,9 +2,11 @@
 //!
 //! Features:
 //! * **2 kHz servo step** in [`app::servo_tick`], bound to the board's hardware timer interrupt
-//!   (`SERVO_TICK`, priority 3): read both encoders, take the next setpoint, hidden-robot IK,
-//!   grid correction, PID with velocity/acceleration feed-forward per axis, write the torques
-//!   (`controller::servo_loop::ServoLoop::step` around `kinematics_core::Servo::step`).
+//!   (`SERVO_TICK`, priority 3): read both encoders, take the next setpoint (with its exact
+//!   velocity, acceleration and jerk), hidden-robot IK and joint motion, grid correction,
+//!   inverse-dynamics feed-forward (the image's identified parameters) and a PID per axis on
+//!   the remainder, write the torques (`controller::servo_loop::ServoLoop::step` around
+//!   `kinematics_core::Servo::step_motion`).
 //! * **Deadline monitoring**: every step measures its time from the tick and checks whether
 //!   the next tick already came; overruns are counted, the worst step time kept, and a streak
 //!   of overruns latches a fault.
@@ -24,8 +26,8 @@
 //!   reset; QEMU: NMI that removes torque, then reset). The boot after a watchdog reset keeps
 //!   the drives off; the reset cause is logged at every boot.
 //! * **Setpoint intake** ([`app::intake`], priority 2): keeps a `heapless` SPSC queue filled
-//!   from the board's setpoint source, the built-in trajectory (a host link would fill the
-//!   same queue).
+//!   from the board's setpoint source, the built-in jerk-limited trajectory (a host link would
+//!   fill the same queue).
 //! * **Telemetry** ([`app::telemetry`], priority 1): defmt status at 4 Hz.
 //! * **Fault handling** ([`app::on_fault`], priority 1): reports the latched fault.
 //! * **Calibration**: the correction grid image is read from its own flash region and
@@ -45,6 +47,7 @@ use defmt_rtt as _;
 #[rtic::app(device = firmware::board::device, peripherals = false, dispatchers = [DISPATCH_1, DISPATCH_2])]
 mod app {
     use heapless::spsc::{Consumer, Producer, Queue};
+    use kinematics_core::trajectory::MotionSetpoint;
 
     use controller::calibration::{self, CalibrationState};
     use controller::fault::{Fault, StopCategory};
@@ -66,13 +69,13 @@ mod app {
     struct Local {
         board: Selected,
         servo_loop: ServoLoop<'static>,
-        setpoints_out: Consumer<'static, [f32; 2]>,
-        setpoints_in: Producer<'static, [f32; 2]>,
+        setpoints_out: Consumer<'static, MotionSetpoint<f32>>,
+        setpoints_in: Producer<'static, MotionSetpoint<f32>>,
         source: <Selected as Board>::Setpoints,
     }
 
     #[init(local = [
-        queue: Queue<[f32; 2], QUEUE_SLOTS> = Queue::new(),
+        queue: Queue<MotionSetpoint<f32>, QUEUE_SLOTS> = Queue::new(),
         settings: Option<Settings> = None,
     ])]
     fn init(cx: init::Context) -> (Shared, Local) {

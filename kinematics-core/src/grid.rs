@@ -32,7 +32,28 @@
 //! | end-4 | 4 | CRC-32/ISO-HDLC (zlib's) of every byte before it |
 //!
 //! Node `(i, j)` sits at `(x0 + i·step_x, y0 + j·step_y)`. Bytes after the CRC are ignored, so
-//! the parser can be handed the whole flash region.
+//! the parser can be handed the whole flash region, unless they start with the dynamics
+//! extension's magic.
+//!
+//! # Dynamics extension (optional, right after the CRC)
+//! The identified dynamic parameters of the hidden robot (`crate::dynamics`, issue 14) travel
+//! with the model they were identified for, in a block appended after the version-1 image.
+//! Version-1 parsers (older firmware) ignore it and still read the grid; this parser reads
+//! images with and without it. A version-2 header was not used because it would have changed
+//! what a version-1 image with a tampered version field is refused as.
+//!
+//! | offset (after the image's CRC) | size | field |
+//! |---:|---:|---|
+//! | 0 | 4 | magic `b"HRDY"` |
+//! | 4 | 2 | extension version, `1` |
+//! | 6 | 2 | block length, `56` |
+//! | 8 | 4 | the CRC of the image it belongs to (a block left behind by another image is refused) |
+//! | 12 | 10×4 | f32 `I1, I2` (kg·m²), `m_C` (kg), `J3, J4` (kg·m²), `fv1, fv2` (N·m·s/rad), `fc1, fc2` (N·m), Coulomb speed (rad/s) |
+//! | 52 | 4 | CRC-32/ISO-HDLC of the block's 52 bytes before it |
+//!
+//! A block that starts with the magic but fails any check (version, length, image CRC, its own
+//! CRC, [`FiveBarDynamics::validate`]) refuses the whole image ([`GridError::BadDynamics`]):
+//! feed-forward from a corrupt block would push the motors.
 //!
 //! # Outside the grid
 //! A point more than [`EDGE_TOLERANCE_CELLS`] of a cell outside the node rectangle is refused
@@ -40,6 +61,7 @@
 //! within that tolerance (float rounding of a target on the boundary) take the edge value.
 
 use crate::bilinear::bilinear;
+use crate::dynamics::{FiveBarDynamics, PARAMETERS};
 use crate::model::{Branch, FiveBar, WorkingMode};
 
 /// Image magic.
@@ -52,6 +74,13 @@ pub const HEADER_LEN: usize = 72;
 pub const MAX_NODES_PER_AXIS: u16 = 1024;
 /// How far outside the node rectangle (in cells) a point still takes the edge value.
 pub const EDGE_TOLERANCE_CELLS: f32 = 1.0e-4;
+
+/// Magic of the dynamics extension.
+pub const DYNAMICS_MAGIC: [u8; 4] = *b"HRDY";
+/// The dynamics extension's version.
+pub const DYNAMICS_VERSION: u16 = 1;
+/// Bytes of the dynamics extension.
+pub const DYNAMICS_LEN: usize = 56;
 
 const CRC32: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
 
@@ -77,6 +106,9 @@ pub enum GridError {
     OutsideGrid,
     /// `encode` was given a buffer too small or a node count that does not match.
     BadEncodeInput,
+    /// The dynamics extension after the image is corrupt, belongs to another image or holds
+    /// invalid parameters.
+    BadDynamics,
 }
 
 impl core::fmt::Display for GridError {
@@ -91,6 +123,7 @@ impl core::fmt::Display for GridError {
             GridError::BadModel => f.write_str("grid image holds an invalid five-bar model"),
             GridError::OutsideGrid => f.write_str("point outside the correction grid"),
             GridError::BadEncodeInput => f.write_str("grid encode: buffer or node count mismatch"),
+            GridError::BadDynamics => f.write_str("the image's dynamics extension is corrupt or invalid"),
         }
     }
 }
@@ -136,6 +169,11 @@ impl GridGeometry {
         HEADER_LEN + 8 * self.len() + 4
     }
 
+    /// Image size with the dynamics extension.
+    pub fn image_len_with_dynamics(&self) -> usize {
+        self.image_len() + DYNAMICS_LEN
+    }
+
     fn validate(&self) -> Result<(), GridError> {
         let counts_ok = (2..=MAX_NODES_PER_AXIS).contains(&self.nx)
             && (2..=MAX_NODES_PER_AXIS).contains(&self.ny);
@@ -159,6 +197,7 @@ pub struct CorrectionGrid<'a> {
     geometry: GridGeometry,
     model: FiveBar<f32>,
     nodes: &'a [u8],
+    dynamics: Option<FiveBarDynamics<f32>>,
 }
 
 fn u16_at(b: &[u8], at: usize) -> u16 {
@@ -249,7 +288,13 @@ impl<'a> CorrectionGrid<'a> {
         if nodes.chunks_exact(4).any(|c| !f32::from_le_bytes([c[0], c[1], c[2], c[3]]).is_finite()) {
             return Err(GridError::NonFinite);
         }
-        Ok(CorrectionGrid { geometry, model, nodes })
+        let dynamics = parse_dynamics(&bytes[total..], stored_crc)?;
+        Ok(CorrectionGrid { geometry, model, nodes, dynamics })
+    }
+
+    /// The identified dynamics, if the image carries the extension.
+    pub fn dynamics(&self) -> Option<&FiveBarDynamics<f32>> {
+        self.dynamics.as_ref()
     }
 
     /// Where the nodes are.
@@ -309,6 +354,29 @@ fn cell(p: f32, origin: f32, step: f32, n: u16) -> Result<(u16, f32), GridError>
     Ok((i, t - i as f32))
 }
 
+/// The dynamics extension at the start of `rest` (the bytes after an image whose CRC is
+/// `image_crc`): `None` if `rest` does not start with its magic.
+fn parse_dynamics(rest: &[u8], image_crc: u32) -> Result<Option<FiveBarDynamics<f32>>, GridError> {
+    if rest.len() < 4 || rest[0..4] != DYNAMICS_MAGIC {
+        return Ok(None);
+    }
+    let valid = rest.len() >= DYNAMICS_LEN
+        && u16_at(rest, 4) == DYNAMICS_VERSION
+        && u16_at(rest, 6) as usize == DYNAMICS_LEN
+        && u32_at(rest, 8) == image_crc
+        && CRC32.checksum(&rest[..DYNAMICS_LEN - 4]) == u32_at(rest, DYNAMICS_LEN - 4);
+    if !valid {
+        return Err(GridError::BadDynamics);
+    }
+    let mut p = [0.0f32; PARAMETERS];
+    for (k, v) in p.iter_mut().enumerate() {
+        *v = f32_at(rest, 12 + 4 * k);
+    }
+    let d = FiveBarDynamics::from_array(p, f32_at(rest, 12 + 4 * PARAMETERS));
+    d.validate().map_err(|_| GridError::BadDynamics)?;
+    Ok(Some(d))
+}
+
 /// Writes an image into `out` and returns its length. `nodes_rad` holds `nx·ny` pairs in the
 /// image order (x fastest). Used by the host tools and the tests; the firmware only parses.
 pub fn encode(
@@ -360,4 +428,34 @@ pub fn encode(
     let crc = CRC32.checksum(&out[..total - 4]);
     out[total - 4..].copy_from_slice(&crc.to_le_bytes());
     Ok(total)
+}
+
+/// Writes an image with the dynamics extension into `out` (at least
+/// [`GridGeometry::image_len_with_dynamics`] bytes) and returns its length.
+pub fn encode_with_dynamics(
+    out: &mut [u8],
+    geometry: &GridGeometry,
+    model: &FiveBar<f32>,
+    nodes_rad: &[[f32; 2]],
+    dynamics: &FiveBarDynamics<f32>,
+) -> Result<usize, GridError> {
+    dynamics.validate().map_err(|_| GridError::BadDynamics)?;
+    if out.len() < geometry.image_len_with_dynamics() {
+        return Err(GridError::BadEncodeInput);
+    }
+    let total = encode(out, geometry, model, nodes_rad)?;
+    let image_crc = u32_at(out, total - 4);
+    let block = &mut out[total..total + DYNAMICS_LEN];
+    block.fill(0);
+    block[0..4].copy_from_slice(&DYNAMICS_MAGIC);
+    block[4..6].copy_from_slice(&DYNAMICS_VERSION.to_le_bytes());
+    block[6..8].copy_from_slice(&(DYNAMICS_LEN as u16).to_le_bytes());
+    block[8..12].copy_from_slice(&image_crc.to_le_bytes());
+    let values = dynamics.to_array();
+    for (k, v) in values.iter().chain(core::iter::once(&dynamics.coulomb_speed_rad_s)).enumerate() {
+        block[12 + 4 * k..16 + 4 * k].copy_from_slice(&v.to_le_bytes());
+    }
+    let crc = CRC32.checksum(&block[..DYNAMICS_LEN - 4]);
+    block[DYNAMICS_LEN - 4..].copy_from_slice(&crc.to_le_bytes());
+    Ok(total + DYNAMICS_LEN)
 }

@@ -38,14 +38,14 @@ use crate::{KinematicsError, Singularity};
 
 /// One arm solved: its angle and what the checks and `inverse_pose` need, the vectors scaled
 /// by `2ρ²` (the division is left to who needs lengths).
-struct Arm<T> {
-    theta_rad: T,
+pub(crate) struct Arm<T> {
+    pub(crate) theta_rad: T,
     /// `2ρ²·(A - A0)`: the proximal link's direction, all `atan2` needs.
-    proximal: [T; 2],
+    pub(crate) proximal: [T; 2],
     /// `2ρ²·(C - A)`: the distal link's direction.
-    distal: [T; 2],
+    pub(crate) distal: [T; 2],
     /// `ρ²`.
-    rho2: T,
+    pub(crate) rho2: T,
     /// The serial transmission is at least the margin: `|p × q| / (|p|·|q|) = h / (2·|p|·|q|)`,
     /// with `|p × q| = h/2` for the unscaled links (the Heron quantity, no cross product).
     serial_ok: bool,
@@ -97,9 +97,9 @@ fn finite_without_overflow<T: Real, const N: usize>(values: [T; N]) -> bool {
 }
 
 /// The IK solved up to the angles, with what `inverse_pose` needs to place the elbows.
-struct Solved<T> {
-    arm_1: Arm<T>,
-    arm_2: Arm<T>,
+pub(crate) struct Solved<T> {
+    pub(crate) arm_1: Arm<T>,
+    pub(crate) arm_2: Arm<T>,
     base_b0_mm: [T; 2],
 }
 
@@ -110,7 +110,7 @@ impl<T: Real> FiveBar<T> {
     /// arm is finished (angle included) before the next one starts, which keeps few values
     /// alive at a time; the errors come in the same order whatever is computed first.
     #[inline(always)]
-    fn solve_inverse(&self, tool_mm: [T; 2], min_transmission: T) -> Result<Solved<T>, KinematicsError> {
+    pub(crate) fn solve_inverse(&self, tool_mm: [T; 2], min_transmission: T) -> Result<Solved<T>, KinematicsError> {
         if !all_finite(tool_mm) {
             return Err(KinematicsError::NonFinite);
         }

@@ -13,7 +13,14 @@
 //!   interpolated with the paper's Eq. 7;
 //! * [`pid`], [`servo`]: position control per axis and the servo step
 //!   (setpoint → IK → correction → torque), with validated settings; a refused setpoint leaves
-//!   the servo engaged (the firmware brakes the machine with it), a feedback fault latches.
+//!   the servo engaged (the firmware brakes the machine with it), a feedback fault latches;
+//! * [`jerk_profile`], [`path`], [`trajectory`]: jerk-limited tool motions (time-optimal
+//!   rest-to-rest profile, lines, circles, figure-eights, tours through waypoints) with exact
+//!   velocity, acceleration and jerk at every sample;
+//! * [`joint_motion`], [`dynamics`], [`feed_forward`], [`joint_limits`]: the joint motion for a
+//!   tool motion, the hidden robot's inverse dynamics (linear in identified parameters), the
+//!   servo's feed-forward over a sample, and the motors' speed and torque limits met by
+//!   slowing a trajectory down.
 //!
 //! Everything is generic over [`Real`] where the host tools need f64 and the MCU f32; the grid and
 //! the servo are f32, exactly as the MCU runs them. `no_std`, no heap, no panic on any input:
@@ -26,21 +33,30 @@
 
 pub mod atan2;
 pub mod bilinear;
+pub mod dynamics;
 pub mod error;
+pub mod feed_forward;
 pub mod forward;
 pub mod grid;
 pub mod inverse;
 pub mod jacobian;
+pub mod jerk_profile;
+pub mod joint_limits;
+pub mod joint_motion;
 pub mod model;
 pub mod paper;
+pub mod path;
 pub mod pid;
 pub mod pose;
 pub mod real;
 pub mod servo;
 pub mod sin_cos;
+pub mod trajectory;
 
 pub use error::{KinematicsError, Singularity};
+pub use dynamics::{DynamicsError, FiveBarDynamics};
 pub use grid::{CorrectionGrid, GridError, GridGeometry};
+pub use joint_motion::JointMotion;
 pub use jacobian::Mat2;
 pub use model::{Branch, FiveBar, ModelError, WorkingMode};
 pub use pid::{AxisController, AxisGains, AxisReference, InvalidGain};
@@ -50,6 +66,7 @@ pub use servo::{
     AcceptedSetpoint, Calibration, ConfigError, EngageError, Servo, ServoConfig, ServoFault, ServoOutput, SetpointRefusal,
     StepError,
 };
+pub use trajectory::{MotionSetpoint, PathMotion, TaskLimits, Tour, TrajectoryError};
 
 /// The default singularity margin: the smallest `|sin|` of a transmission angle accepted
 /// (0.05 is about 2.9° from a singular configuration).

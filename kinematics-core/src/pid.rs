@@ -15,6 +15,9 @@
 //! error (reference velocity minus measured), not on the error of a stepped reference, so a
 //! new setpoint never kicks the output. Cost: about 25 floating-point operations.
 //!
+//! [`AxisController::feedback`] is the same controller with the feed-forward torque given from
+//! outside (the servo's inverse dynamics): the gains' own feed-forward terms are then unused.
+//!
 //! No panic for any gains: [`AxisGains::validate`] says which gains a servo may run with (the
 //! servo refuses others, see `ServoConfig::validate`), but [`AxisController::update`] itself
 //! never panics and never returns a NaN, an infinity or more than the limit, whatever it is
@@ -137,17 +140,39 @@ impl AxisController {
         velocity_rad_s: f32,
         dt_s: f32,
     ) -> f32 {
-        let error = reference.angle_rad - angle_rad;
-        let unsaturated = gains.kp_nm_per_rad * error
-            + self.integral_nm
-            + gains.kd_nm_s_per_rad * (reference.velocity_rad_s - velocity_rad_s)
-            + gains.inertia_ff_kg_m2 * reference.acceleration_rad_s2
+        let feedforward_nm = gains.inertia_ff_kg_m2 * reference.acceleration_rad_s2
             + gains.viscous_ff_nm_s_per_rad * reference.velocity_rad_s
             + gains.coulomb_ff_nm * reference.velocity_rad_s
                 / (reference.velocity_rad_s.abs() + gains.coulomb_ff_speed_rad_s);
+        self.feedback(
+            gains,
+            reference.angle_rad - angle_rad,
+            reference.velocity_rad_s - velocity_rad_s,
+            feedforward_nm,
+            dt_s,
+        )
+    }
+
+    /// The PID on the remainder of a feed-forward computed elsewhere (the servo's model-based
+    /// one): `τ = kp·e + ki·∫e + kd·ė + feedforward`, limited, with the same anti-windup as
+    /// [`AxisController::update`] (which is this with the gains' own feed-forward). The gains'
+    /// feed-forward terms are not used here. Never panics, and the same guarantees on the
+    /// result as `update` (finite, within the limit, zero for a NaN sum).
+    pub fn feedback(
+        &mut self,
+        gains: &AxisGains,
+        error_rad: f32,
+        velocity_error_rad_s: f32,
+        feedforward_nm: f32,
+        dt_s: f32,
+    ) -> f32 {
+        let unsaturated = gains.kp_nm_per_rad * error_rad
+            + self.integral_nm
+            + gains.kd_nm_s_per_rad * velocity_error_rad_s
+            + feedforward_nm;
         let limit = gains.torque_limit_nm;
         let output = saturate(unsaturated, limit);
-        let increment = gains.ki_nm_per_rad_s * error * dt_s;
+        let increment = gains.ki_nm_per_rad_s * error_rad * dt_s;
         let winds_up = (unsaturated > limit && increment > 0.0) || (unsaturated < -limit && increment < 0.0);
         if !winds_up {
             // A NaN sum (only with absurd gains or inputs) empties the integrator.
@@ -356,6 +381,21 @@ mod tests {
         assert_eq!(AxisGains { inertia_ff_kg_m2: f32::INFINITY, ..gains() }.validate(), Err(InvalidGain("inertia_ff_kg_m2")));
         // Feed-forward terms may be negative (a drive that pushes the axis).
         assert_eq!(AxisGains { viscous_ff_nm_s_per_rad: -0.1, ..gains() }.validate(), Ok(()));
+    }
+
+    #[test]
+    fn feedback_adds_an_external_feed_forward_and_ignores_the_gains_own() {
+        let all = AxisGains { kp_nm_per_rad: 200.0, kd_nm_s_per_rad: 2.0, inertia_ff_kg_m2: 0.01, viscous_ff_nm_s_per_rad: 0.5, ..only() };
+        let mut c = AxisController::default();
+        let t = c.feedback(&all, 0.25, 5.0, 1.5, 5e-4);
+        assert!(close(t, 200.0 * 0.25 + 2.0 * 5.0 + 1.5), "{t}");
+        // The same sample through `update` with the gains' feed-forward turned into the argument.
+        let ff = 0.01 * 300.0 + 0.5 * 4.0;
+        let (u, _) = one_sample(&all, 5e-4);
+        let f = AxisController::default().feedback(&all, 0.25, 5.0, ff, 5e-4);
+        assert!(close(u, f), "{u} vs {f}");
+        let limited = AxisController::default().feedback(&AxisGains { torque_limit_nm: 7.5, ..all }, 0.25, 5.0, 100.0, 5e-4);
+        assert_eq!(limited, 7.5);
     }
 
     #[test]

@@ -41,6 +41,8 @@ pub trait Real:
     fn to_f64(self) -> f64;
     /// Square root, correctly rounded (NaN below zero).
     fn sqrt(self) -> Self;
+    /// Cube root (libm's `cbrt`; used when planning a trajectory, not in the 2 kHz step).
+    fn cbrt(self) -> Self;
     /// Angle of the point `(x, self)` in `(-π, π]` (libm's `atan2`).
     fn atan2(self, x: Self) -> Self;
     /// `(sin, cos)` of the angle (libm's `sincos`).
@@ -95,6 +97,9 @@ impl Real for f64 {
     fn sqrt(self) -> Self {
         libm::sqrt(self)
     }
+    fn cbrt(self) -> Self {
+        libm::cbrt(self)
+    }
     fn atan2(self, x: Self) -> Self {
         libm::atan2(self, x)
     }
@@ -131,6 +136,9 @@ impl Real for f32 {
     }
     fn sqrt(self) -> Self {
         sqrt_f32(self)
+    }
+    fn cbrt(self) -> Self {
+        libm::cbrtf(self)
     }
     // Always inlined: their callers are the IK and FK of the 2 kHz step, where a call would
     // cost its own instructions and force the caller to save FPU registers around it.

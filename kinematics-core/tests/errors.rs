@@ -3,9 +3,10 @@
 
 use std::error::Error;
 
+use kinematics_core::jerk_profile::ProfileError;
 use kinematics_core::{
-    ConfigError, EngageError, GridError, InvalidGain, KinematicsError, ModelError, ServoFault, SetpointRefusal, Singularity,
-    StepError,
+    ConfigError, DynamicsError, EngageError, GridError, InvalidGain, KinematicsError, ModelError, ServoFault, SetpointRefusal,
+    Singularity, StepError, TrajectoryError,
 };
 
 fn boxed(e: impl Error + 'static) -> Box<dyn Error> {
@@ -30,6 +31,15 @@ fn every_error_type_is_an_error_with_a_distinct_message() {
         boxed(GridError::BadModel),
         boxed(GridError::OutsideGrid),
         boxed(GridError::BadEncodeInput),
+        boxed(GridError::BadDynamics),
+        boxed(DynamicsError::NonFinite),
+        boxed(DynamicsError::OutOfRange),
+        boxed(ProfileError::NonFinite),
+        boxed(ProfileError::NonPositiveLimit),
+        boxed(TrajectoryError::TooManyWaypoints),
+        boxed(TrajectoryError::EmptyPath),
+        boxed(TrajectoryError::JointLimits),
+        boxed(TrajectoryError::Kinematics(KinematicsError::Unreachable)),
         boxed(ServoFault::NotEngaged),
         boxed(ServoFault::NonFiniteFeedback),
         boxed(ServoFault::FollowingError),

@@ -170,3 +170,102 @@ fn encode_refuses_bad_input() {
     nodes[5][1] = f32::NAN;
     assert_eq!(encode(&mut buf, &g, &m, &nodes), Err(GridError::NonFinite));
 }
+
+// ---------------------------------------------------------------------------------------------
+// The dynamics extension (grid.rs, "Dynamics extension").
+
+fn dynamics() -> kinematics_core::FiveBarDynamics<f32> {
+    kinematics_core::FiveBarDynamics {
+        motor_inertia_kg_m2: [3.1e-3, 2.9e-3],
+        tool_mass_kg: 0.11,
+        distal_inertia_kg_m2: [-2.5e-4, -2.4e-4],
+        viscous_nm_s_per_rad: [0.02, 0.021],
+        coulomb_nm: [0.05, 0.049],
+        coulomb_speed_rad_s: 0.01,
+    }
+}
+
+fn image_with_dynamics() -> Vec<u8> {
+    let g = geometry();
+    let nodes: Vec<[f32; 2]> = (0..g.ny).flat_map(|j| (0..g.nx).map(move |i| (i, j))).map(|(i, j)| field(g.node_mm(i, j))).collect();
+    let mut buf = vec![0u8; g.image_len_with_dynamics()];
+    let n = kinematics_core::grid::encode_with_dynamics(&mut buf, &g, &FiveBar::paper_nominal(), &nodes, &dynamics()).unwrap();
+    assert_eq!(n, buf.len());
+    buf
+}
+
+#[test]
+fn the_dynamics_extension_round_trips_and_a_version_1_reader_still_reads_the_grid() {
+    let img = image_with_dynamics();
+    let grid = CorrectionGrid::parse(&img).unwrap();
+    assert_eq!(grid.dynamics(), Some(&dynamics()));
+    // The first image_len bytes are exactly the version-1 image: what an older parser reads.
+    let v1 = image();
+    assert_eq!(&img[..v1.len()], &v1[..]);
+    let old = CorrectionGrid::parse(&v1).unwrap();
+    assert_eq!(old.dynamics(), None);
+    assert_eq!(old.correction_rad([200.0, 10.0]), grid.correction_rad([200.0, 10.0]));
+    // Erased flash after a plain image: no extension.
+    let mut region = v1.clone();
+    region.extend([0xFF; 256]);
+    assert_eq!(CorrectionGrid::parse(&region).unwrap().dynamics(), None);
+    // And after an image with the extension.
+    let mut region = img.clone();
+    region.extend([0xFF; 256]);
+    assert_eq!(CorrectionGrid::parse(&region).unwrap().dynamics(), Some(&dynamics()));
+}
+
+#[test]
+fn every_bit_flip_in_the_extension_refuses_the_image() {
+    let img = image_with_dynamics();
+    let start = geometry().image_len();
+    // Byte 0..4 is the magic: a flip there makes the block "not an extension" (the image is
+    // then read without dynamics); every other flip must be caught.
+    for byte in start + 4..img.len() {
+        for bit in 0..8 {
+            let mut v = img.clone();
+            v[byte] ^= 1 << bit;
+            assert_eq!(CorrectionGrid::parse(&v).unwrap_err(), GridError::BadDynamics, "byte {byte} bit {bit}");
+        }
+    }
+    for byte in start..start + 4 {
+        let mut v = img.clone();
+        v[byte] ^= 0x40;
+        assert_eq!(CorrectionGrid::parse(&v).unwrap().dynamics(), None);
+    }
+    // Truncated inside the block.
+    assert_eq!(CorrectionGrid::parse(&img[..img.len() - 1]).unwrap_err(), GridError::BadDynamics);
+}
+
+#[test]
+fn an_extension_left_behind_by_another_image_is_refused() {
+    let img = image_with_dynamics();
+    let start = geometry().image_len();
+    // Another image (one node changed), the old block appended.
+    let mut other = image();
+    other[HEADER_LEN] ^= 1;
+    let n = other.len();
+    let crc = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC).checksum(&other[..n - 4]);
+    other[n - 4..].copy_from_slice(&crc.to_le_bytes());
+    other.extend_from_slice(&img[start..]);
+    assert_eq!(CorrectionGrid::parse(&other).unwrap_err(), GridError::BadDynamics);
+}
+
+#[test]
+fn invalid_dynamics_are_not_encoded_nor_accepted() {
+    let g = geometry();
+    let nodes = vec![[0.0f32; 2]; g.len()];
+    let mut buf = vec![0u8; g.image_len_with_dynamics()];
+    let bad = kinematics_core::FiveBarDynamics { motor_inertia_kg_m2: [0.0, 1e-3], ..dynamics() };
+    let m = FiveBar::paper_nominal();
+    assert_eq!(kinematics_core::grid::encode_with_dynamics(&mut buf, &g, &m, &nodes, &bad), Err(GridError::BadDynamics));
+    let mut short = vec![0u8; g.image_len()];
+    assert_eq!(kinematics_core::grid::encode_with_dynamics(&mut short, &g, &m, &nodes, &dynamics()), Err(GridError::BadEncodeInput));
+    // A negative friction written with a valid CRC: refused on parsing.
+    let mut img = image_with_dynamics();
+    let start = g.image_len();
+    img[start + 12 + 4 * 7..start + 16 + 4 * 7].copy_from_slice(&(-0.05f32).to_le_bytes());
+    let crc = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC).checksum(&img[start..start + 52]);
+    img[start + 52..start + 56].copy_from_slice(&crc.to_le_bytes());
+    assert_eq!(CorrectionGrid::parse(&img).unwrap_err(), GridError::BadDynamics);
+}

@@ -7,7 +7,9 @@
 // go through `Real` explicitly: on the host, `f32::sin_cos` would be std's, not the core's.
 
 use kinematics_core::grid::{encode, CorrectionGrid, GridGeometry};
-use kinematics_core::{Calibration, FiveBar, Real, Servo, ServoConfig, WorkingMode};
+use kinematics_core::path::Circle;
+use kinematics_core::trajectory::{PathMotion, TaskLimits};
+use kinematics_core::{Calibration, FiveBar, FiveBarDynamics, Real, Servo, ServoConfig, WorkingMode};
 
 /// Marks an emitted error code (no f32 result has these bits: a NaN payload the core never makes).
 pub const ERROR: u32 = 0x7fc0_de00;
@@ -111,7 +113,8 @@ pub fn run(emit: &mut impl FnMut(u32)) {
     for k in 0..TARGETS {
         emit_result(emit, cal.command_rad(target_mm(k), 0.05).map_err(code));
     }
-    // 3. The servo closed around a two-inertia plant for 400 samples of a 10 mm circle.
+    // 3. The servo closed around a two-inertia plant (the default gains' 7.4e-3 kg·m²) for 400
+    //    samples of a 10 mm circle.
     let Ok(mut servo) = Servo::new(ServoConfig::default()) else {
         emit(ERROR | 0xf1);
         return;
@@ -135,7 +138,66 @@ pub fn run(emit: &mut impl FnMut(u32)) {
                 emit(out.torque_nm[0].to_bits());
                 emit(out.torque_nm[1].to_bits());
                 for k in 0..2 {
-                    velocity[k] += out.torque_nm[k] / 2e-3 * 5e-4;
+                    velocity[k] += out.torque_nm[k] / 7.4e-3 * 5e-4;
+                    angle[k] += velocity[k] * 5e-4;
+                }
+            }
+            Err(e) => {
+                emit(ERROR | code(e));
+                return;
+            }
+        }
+    }
+    // 4. Issue 14: a 5 g circle's time law (planning and sampling: sqrt, cbrt, sin_cos), the
+    //    joint motion and inverse dynamics at each sample, and the motion step with them fed
+    //    forward around the same plant.
+    let limits = TaskLimits { speed_mm_s: 1500.0f32, accel_mm_s2: 49_033.25, jerk_mm_s3: 5.0e6 };
+    let circle = Circle { centre_mm: [212.132f32, 0.0], radius_mm: 30.0, start_rad: 0.0, turns: 1.0 };
+    let contour = match PathMotion::plan(circle, &limits, 64) {
+        Ok(c) => c,
+        Err(e) => {
+            emit(ERROR | code(e));
+            return;
+        }
+    };
+    emit(contour.duration_s().to_bits());
+    let dynamics = FiveBarDynamics {
+        motor_inertia_kg_m2: [3.9e-3f32, 3.8e-3],
+        tool_mass_kg: 0.165,
+        distal_inertia_kg_m2: [-2.4e-4, -2.5e-4],
+        viscous_nm_s_per_rad: [0.02, 0.02],
+        coulomb_nm: [0.05, 0.04],
+        coulomb_speed_rad_s: 0.01,
+    };
+    let Ok(mut servo) = Servo::new(ServoConfig::default()) else {
+        emit(ERROR | 0xf2);
+        return;
+    };
+    let _ = servo.set_dynamics(Some(dynamics));
+    let Ok(mut angle) = cal.command_rad(contour.at(0.0).position_mm, 0.05) else {
+        emit(ERROR | 0xf3);
+        return;
+    };
+    let mut velocity = [0.0f32; 2];
+    if let Err(e) = servo.engage(&cal, angle) {
+        emit(ERROR | code(e));
+        return;
+    }
+    for n in 0..200 {
+        let s = contour.at(n as f32 * 5e-4);
+        s.position_mm.iter().chain(&s.velocity_mm_s).chain(&s.acceleration_mm_s2).chain(&s.jerk_mm_s3).for_each(|v| emit(v.to_bits()));
+        match m.inverse_motion(s.position_mm, s.velocity_mm_s, s.acceleration_mm_s2, 0.05).and_then(|j| dynamics.torque_nm(&j)) {
+            Ok(t) => t.iter().for_each(|v| emit(v.to_bits())),
+            Err(e) => emit(ERROR | code(e)),
+        }
+        // Every other sample with the next setpoint, the others predicting it.
+        let next = contour.at((n + 1) as f32 * 5e-4);
+        match servo.step_motion(&cal, &s, (n % 2 == 0).then_some(&next), angle) {
+            Ok(out) => {
+                emit(out.torque_nm[0].to_bits());
+                emit(out.torque_nm[1].to_bits());
+                for k in 0..2 {
+                    velocity[k] += out.torque_nm[k] / 7.4e-3 * 5e-4;
                     angle[k] += velocity[k] * 5e-4;
                 }
             }

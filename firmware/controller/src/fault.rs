@@ -19,7 +19,7 @@
 //! Why these categories: a fault of the setpoint stream leaves the feedback, the servo and the
 //! drives trustworthy, so they brake the machine along its path, which removing torque would
 //! leave to the drives' dynamic braking, off the path (at the built-in tour's 1.38 m/s the QEMU
-//! plant then coasts 12 mm; with free-wheeling drives about 1 rad per joint). A **finite** refused setpoint (a place the machine should not go, a
+//! plant then coasts 40 mm; with free-wheeling drives it leaves the workspace). A **finite** refused setpoint (a place the machine should not go, a
 //! sequence it cannot follow, a stream that ran dry) is something a host can re-plan from:
 //! the machine holds where it stopped (category 2), so resuming needs no re-homing. A
 //! **non-finite** setpoint means its producer is broken (corrupt data, a computation gone

@@ -19,8 +19,10 @@
 //! A sample while the drives are on:
 //! 1. the encoder check ([`crate::encoder_check`]) with the torque that acted since the last
 //!    reading: a finding is category 0;
-//! 2. `Running`: the next setpoint from the queue (an empty queue holds the last setpoint if the
-//!    machine is at rest, or is [`Fault::Underrun`] if it moves), [`Servo::accept`]; a refusal
+//! 2. `Running`: the next setpoint from the queue, with its exact derivatives and the one after
+//!    it as the feed-forward's look-ahead (an empty queue holds the last setpoint if the
+//!    machine is at rest, or is [`Fault::Underrun`] if it moves), [`Servo::accept_motion`]
+//!    (the identified dynamics the image carries fed forward, issue 14); a refusal
 //!    is [`Fault::Setpoint`]; an accepted setpoint whose stop would end outside the workspace
 //!    ([`Workspace`], the grid's rectangle less a margin) is dropped and is
 //!    [`Fault::StopOutsideWorkspace`]; otherwise it is tracked;
@@ -41,6 +43,7 @@
 //! reach; a stop never steps the velocity; torque is removed only in category 0 (at once) or
 //! after a category-1 stop has reached standstill.
 use heapless::spsc::Consumer;
+use kinematics_core::trajectory::MotionSetpoint;
 use kinematics_core::{Calibration, Servo, ServoOutput, StepError};
 
 use crate::calibration::CalibrationState;
@@ -153,6 +156,9 @@ impl<'a> ServoLoop<'a> {
         let (servo, engaged) = match servo {
             Err(e) => (None, Err(Fault::Settings(e))),
             Ok(mut servo) => {
+                // Validated when the image was parsed; `set_dynamics` checks again and keeps
+                // none if not (the gains' constant feed-forward then).
+                let _ = servo.set_dynamics(calibration.grid.as_ref().and_then(|g| g.dynamics().copied()));
                 let engaged = match state {
                     CalibrationState::Refused(e) => Err(Fault::Calibration(e)),
                     CalibrationState::Valid | CalibrationState::Uncorrected(_) => {
@@ -228,7 +234,7 @@ impl<'a> ServoLoop<'a> {
     /// One sample (see the module doc): the encoder check, then the next setpoint from `queue`
     /// or from the stop, through the servo. In the safe state the queue is left alone and the
     /// torques are zero.
-    pub fn step(&mut self, queue: &mut Consumer<'_, [f32; 2]>, encoder_rad: [f32; 2]) -> Sample {
+    pub fn step(&mut self, queue: &mut Consumer<'_, MotionSetpoint<f32>>, encoder_rad: [f32; 2]) -> Sample {
         let index = self.samples;
         self.samples = self.samples.wrapping_add(1);
         let mut sample = Sample {
@@ -259,23 +265,26 @@ impl<'a> ServoLoop<'a> {
     }
 
     /// `Running`: the next setpoint of the stream, or the start of a stop.
-    fn run(&mut self, queue: &mut Consumer<'_, [f32; 2]>, encoder_rad: [f32; 2], sample: &mut Sample) {
+    fn run(&mut self, queue: &mut Consumer<'_, MotionSetpoint<f32>>, encoder_rad: [f32; 2], sample: &mut Sample) {
         let next = queue.dequeue();
         sample.refill = queue.len() < REFILL_BELOW;
-        let setpoint_mm = match next {
+        let setpoint = match next {
             Some(p) => p,
             None => {
                 sample.underrun = true;
                 if !self.motion.is_at_rest() {
                     return self.begin_stop(Fault::Underrun, encoder_rad, sample);
                 }
-                self.motion.position_mm
+                MotionSetpoint::at_rest(self.motion.position_mm)
             }
         };
+        let setpoint_mm = setpoint.position_mm;
+        // The one after it, if queued: the feed-forward's look-ahead (else it is predicted).
+        let ahead = queue.peek().copied();
         let Some(servo) = self.servo.as_mut() else {
             return self.latch(Fault::Servo(kinematics_core::ServoFault::NotEngaged), sample);
         };
-        let accepted = match servo.accept(&self.calibration, setpoint_mm) {
+        let accepted = match servo.accept_motion(&self.calibration, &setpoint, ahead.as_ref()) {
             Ok(a) => a,
             Err(refusal) => return self.begin_stop(Fault::Setpoint(refusal), encoder_rad, sample),
         };
@@ -446,9 +455,9 @@ mod tests {
         let mut l = ServoLoop::boot(&settings, cal, CalibrationState::Refused(GridError::BadCrc), encoder);
         assert_eq!(l.mode(), Mode::SafeState(Fault::Calibration(GridError::BadCrc)));
         assert!(!l.drives_enabled());
-        let mut q: Queue<[f32; 2], QUEUE_SLOTS> = Queue::new();
+        let mut q: Queue<MotionSetpoint<f32>, QUEUE_SLOTS> = Queue::new();
         let (mut tx, mut rx) = q.split();
-        tx.enqueue(HOME_MM).unwrap();
+        tx.enqueue(MotionSetpoint::at_rest(HOME_MM)).unwrap();
         for _ in 0..3 {
             let s = l.step(&mut rx, encoder);
             assert_eq!(s.torque_nm, [0.0; 2]);
@@ -489,11 +498,11 @@ mod tests {
     fn a_nan_setpoint_at_rest_removes_torque_at_standstill() {
         let (settings, img) = (Settings::default(), image());
         let (mut l, encoder) = running(&settings, &img);
-        let mut q: Queue<[f32; 2], QUEUE_SLOTS> = Queue::new();
+        let mut q: Queue<MotionSetpoint<f32>, QUEUE_SLOTS> = Queue::new();
         let (mut tx, mut rx) = q.split();
-        tx.enqueue(HOME_MM).unwrap();
-        tx.enqueue([f32::NAN, 0.0]).unwrap();
-        tx.enqueue(HOME_MM).unwrap();
+        tx.enqueue(MotionSetpoint::at_rest(HOME_MM)).unwrap();
+        tx.enqueue(MotionSetpoint::at_rest([f32::NAN, 0.0])).unwrap();
+        tx.enqueue(MotionSetpoint::at_rest(HOME_MM)).unwrap();
         let s = l.step(&mut rx, encoder);
         assert!(s.fault.is_none() && !s.torque_off);
         let s = l.step(&mut rx, encoder);
@@ -511,13 +520,13 @@ mod tests {
     fn an_empty_queue_holds_the_last_setpoint_and_asks_for_a_refill() {
         let (settings, img) = (Settings::default(), image());
         let (mut l, encoder) = running(&settings, &img);
-        let mut q: Queue<[f32; 2], QUEUE_SLOTS> = Queue::new();
+        let mut q: Queue<MotionSetpoint<f32>, QUEUE_SLOTS> = Queue::new();
         let (mut tx, mut rx) = q.split();
         let s = l.step(&mut rx, encoder);
         assert!(s.underrun && s.refill && s.fault.is_none());
         assert_eq!(s.setpoint_mm, l.setpoint_mm());
         while tx.ready() {
-            tx.enqueue(l.setpoint_mm()).unwrap();
+            tx.enqueue(MotionSetpoint::at_rest(l.setpoint_mm())).unwrap();
         }
         let s = l.step(&mut rx, encoder);
         assert!(!s.underrun && !s.refill, "{} left", rx.len());
@@ -531,7 +540,7 @@ mod tests {
     fn a_streak_of_overruns_latches_deadline_missed_once() {
         let (settings, img) = (Settings::default(), image());
         let (mut l, encoder) = running(&settings, &img);
-        let mut q: Queue<[f32; 2], QUEUE_SLOTS> = Queue::new();
+        let mut q: Queue<MotionSetpoint<f32>, QUEUE_SLOTS> = Queue::new();
         let (_, mut rx) = q.split();
         for k in 0..settings.overrun_streak_limit {
             let mut s = l.step(&mut rx, encoder);
@@ -550,7 +559,7 @@ mod tests {
     fn only_an_on_time_step_feeds_the_watchdog_and_the_safe_state_still_does() {
         let (settings, img) = (Settings::default(), image());
         let (mut l, encoder) = running(&settings, &img);
-        let mut q: Queue<[f32; 2], QUEUE_SLOTS> = Queue::new();
+        let mut q: Queue<MotionSetpoint<f32>, QUEUE_SLOTS> = Queue::new();
         let (_, mut rx) = q.split();
         let s = l.step(&mut rx, encoder);
         assert!(!s.feed_watchdog, "no deadline recorded, no feed");
@@ -577,9 +586,9 @@ mod tests {
         let (mut l, encoder) = running(&settings, &img);
         l.latch_at_boot(Fault::Watchdog(WatchdogFault::Reset));
         assert_eq!(l.mode(), Mode::SafeState(Fault::Watchdog(WatchdogFault::Reset)));
-        let mut q: Queue<[f32; 2], QUEUE_SLOTS> = Queue::new();
+        let mut q: Queue<MotionSetpoint<f32>, QUEUE_SLOTS> = Queue::new();
         let (mut tx, mut rx) = q.split();
-        tx.enqueue(HOME_MM).unwrap();
+        tx.enqueue(MotionSetpoint::at_rest(HOME_MM)).unwrap();
         let s = l.step(&mut rx, [encoder[0] + 1e-3, encoder[1]]);
         assert_eq!((s.torque_nm, s.fault), ([0.0; 2], None));
         // A refused image at boot stays the reason reported.
@@ -593,7 +602,7 @@ mod tests {
     fn a_failed_pwm_write_latches_a_drive_fault() {
         let (settings, img) = (Settings::default(), image());
         let (mut l, encoder) = running(&settings, &img);
-        let mut q: Queue<[f32; 2], QUEUE_SLOTS> = Queue::new();
+        let mut q: Queue<MotionSetpoint<f32>, QUEUE_SLOTS> = Queue::new();
         let (_, mut rx) = q.split();
         let mut s = l.step(&mut rx, [encoder[0] + 1e-5, encoder[1]]);
         assert!(s.torque_nm[0] != 0.0);
@@ -606,9 +615,9 @@ mod tests {
     fn the_reference_is_model_ik_plus_the_grid_correction() {
         let (settings, img) = (Settings::default(), image());
         let (mut l, encoder) = running(&settings, &img);
-        let mut q: Queue<[f32; 2], QUEUE_SLOTS> = Queue::new();
+        let mut q: Queue<MotionSetpoint<f32>, QUEUE_SLOTS> = Queue::new();
         let (mut tx, mut rx) = q.split();
-        tx.enqueue(HOME_MM).unwrap();
+        tx.enqueue(MotionSetpoint::at_rest(HOME_MM)).unwrap();
         let s = l.step(&mut rx, encoder);
         assert!(s.fault.is_none());
         let ik = FiveBar::<f32>::paper_nominal().inverse(HOME_MM, 0.05).unwrap();
@@ -618,7 +627,8 @@ mod tests {
 
     // -----------------------------------------------------------------------------------------
     // Closed loop: the servo loop against two joint inertias with friction (the QEMU plant's
-    // parameters), the encoders quantised to 2^22 counts/rev.
+    // parameters: its rotors plus the diagonal of its linkage's inertia matrix, 5.4e-3 kg·m²,
+    // without the coupling), the encoders quantised to 2^22 counts/rev.
 
     const DT_S: f32 = crate::SAMPLE_PERIOD_S;
     const COUNT_RAD: f32 = 2.0 * core::f32::consts::PI / (1u32 << 22) as f32;
@@ -633,7 +643,7 @@ mod tests {
     impl Plant {
         fn advance(&mut self) {
             let h = DT_S / 10.0;
-            for (k, inertia) in [2.2e-3f32, 1.8e-3].into_iter().enumerate() {
+            for (k, inertia) in [2.2e-3f32 + 5.4e-3, 1.8e-3 + 5.4e-3].into_iter().enumerate() {
                 let tau = if self.enabled { self.torque_nm[k] } else { 0.0 };
                 for _ in 0..10 {
                     let w = self.velocity_rad_s[k];
@@ -670,13 +680,14 @@ mod tests {
         let mut plant = Plant { angle_rad: start, velocity_rad_s: [0.0; 2], torque_nm: [0.0; 2], enabled: true };
         let mut l = ServoLoop::boot(settings, cal, CalibrationState::Valid, plant.encoder_rad());
         assert_eq!(l.mode(), Mode::Running);
-        let mut q: Queue<[f32; 2], QUEUE_SLOTS> = Queue::new();
+        let mut q: Queue<MotionSetpoint<f32>, QUEUE_SLOTS> = Queue::new();
         let (mut tx, mut rx) = q.split();
         let mut run = Run { samples: vec![], modes: vec![], angles: vec![], enabled: vec![] };
         for k in 0..n {
             if let Some(p) = setpoint(k) {
                 // Full once the loop stops taking setpoints (stopping, holding, safe state).
-                let _ = tx.enqueue(p);
+                // Positions only (a source without derivatives): no inertia fed forward.
+                let _ = tx.enqueue(MotionSetpoint::at_rest(p));
             }
             let s = l.step(&mut rx, reading(k, plant.encoder_rad()));
             if s.torque_off {

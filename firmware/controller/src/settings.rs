@@ -50,6 +50,14 @@ pub struct Settings {
     pub trajectory_accel_mm_s2: f32,
     /// Peak tool speed of the built-in trajectory (mm/s). Default 1500 mm/s.
     pub trajectory_speed_mm_s: f32,
+    /// The built-in trajectory's time law. Default
+    /// [`Profile::Quintic`](crate::trajectory::Profile::Quintic); the QEMU board's `track-5g`
+    /// runs `JerkLimited`.
+    pub trajectory_profile: crate::trajectory::Profile,
+    /// Peak tool jerk of the built-in trajectory's jerk-limited profile (mm/s³). Default
+    /// [`DEFAULT_JERK_MM_S3`](crate::trajectory::DEFAULT_JERK_MM_S3), 5e6 mm/s³ (5 g reached in
+    /// 10 ms).
+    pub trajectory_jerk_mm_s3: f32,
     /// Rest at every waypoint (s). Default 0.1 s.
     pub trajectory_dwell_s: f32,
     /// The controlled stop (stop categories 1 and 2): deceleration 5 g built up in 5 ms, and
@@ -108,6 +116,7 @@ impl Settings {
             (positive(self.drive_full_scale_nm), "drive_full_scale_nm"),
             (positive(self.trajectory_accel_mm_s2), "trajectory_accel_mm_s2"),
             (positive(self.trajectory_speed_mm_s), "trajectory_speed_mm_s"),
+            (positive(self.trajectory_jerk_mm_s3), "trajectory_jerk_mm_s3"),
             (self.trajectory_dwell_s.is_finite() && self.trajectory_dwell_s >= 0.0, "trajectory_dwell_s"),
             (self.overrun_streak_limit >= 1, "overrun_streak_limit"),
             (self.telemetry_period_ticks >= 1, "telemetry_period_ticks"),
@@ -132,6 +141,8 @@ impl Default for Settings {
             encoders: [EncoderConfig::DIRECT_DRIVE_2_22; 2],
             trajectory_accel_mm_s2: 2.0 * kinematics_core::servo::STANDARD_GRAVITY_MM_S2,
             trajectory_speed_mm_s: 1_500.0,
+            trajectory_profile: crate::trajectory::Profile::Quintic,
+            trajectory_jerk_mm_s3: crate::trajectory::DEFAULT_JERK_MM_S3,
             trajectory_dwell_s: 0.1,
             stop: StopSettings::default(),
             encoder_limits: EncoderLimits::default(),
@@ -170,6 +181,7 @@ mod tests {
             (Settings { drive_full_scale_nm: 0.0, ..d }, "drive_full_scale_nm"),
             (Settings { trajectory_accel_mm_s2: f32::NAN, ..d }, "trajectory_accel_mm_s2"),
             (Settings { trajectory_dwell_s: -1.0, ..d }, "trajectory_dwell_s"),
+            (Settings { trajectory_jerk_mm_s3: 0.0, ..d }, "trajectory_jerk_mm_s3"),
             (Settings { overrun_streak_limit: 0, ..d }, "overrun_streak_limit"),
             (Settings { telemetry_period_ticks: 0, ..d }, "telemetry_period_ticks"),
         ] {

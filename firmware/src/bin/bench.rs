@@ -6,6 +6,13 @@
 //! * `fk_f32`: `FiveBar::<f32>::forward`;
 //! * `grid_lookup`: `CorrectionGrid::correction_rad` on the image in the calibration region;
 //! * `servo_step`: `Servo::step`, the whole sample (jump checks, IK, correction, two PIDs);
+//! * `jerk_profile_at`, `trajectory_line_at`, `trajectory_circle_at`: one sample of a 5 g
+//!   trajectory (the 1-D profile alone, a straight move, a circle), exact derivatives included;
+//! * `inverse_motion_f32`: joint angles, velocities and accelerations for a tool motion;
+//! * `inverse_dynamics_f32`: the hidden robot's inverse dynamics from that joint motion;
+//! * `servo_step_motion`: one sample of 5 g moves back and forth across the workspace: the
+//!   trajectory evaluated (exact derivatives) and `Servo::step_motion` with the identified
+//!   dynamics fed forward (and `servo_step_motion_uncorrected`, without grid);
 //! * `sixbar_solve`: the six-bar's numerical equilibrium solve (host-sim's plant, ported to
 //!   f32 in `bench/sixbar.rs`), warm-started along the servo's 2 kHz path: what controlling
 //!   the real mechanism without the hidden robot would cost per sample (and
@@ -39,7 +46,9 @@ use core::fmt::Write;
 use cortex_m_rt::entry;
 use kinematics_core::atan2::atan2_f32;
 use kinematics_core::sin_cos::sin_cos_f32;
-use kinematics_core::{Calibration, CorrectionGrid, FiveBar, Servo, ServoConfig};
+use kinematics_core::path::Circle;
+use kinematics_core::servo::STANDARD_GRAVITY_MM_S2;
+use kinematics_core::{Calibration, CorrectionGrid, FiveBar, FiveBarDynamics, MotionSetpoint, PathMotion, Servo, ServoConfig, TaskLimits};
 
 use firmware::board::{self, CycleCounter};
 use firmware::calibration;
@@ -200,6 +209,51 @@ fn main() -> ! {
     });
     report("grid_lookup", lookup as f32 * per_count / N as f32);
 
+    // Trajectory evaluation and dynamics (issue 14): a 5 g move across the workspace and a
+    // 40 mm circle at 5 g, sampled at instants spread over their durations.
+    let limits = TaskLimits { speed_mm_s: 1500.0, accel_mm_s2: 5.0 * STANDARD_GRAVITY_MM_S2, jerk_mm_s3: 5.0e6 };
+    let Ok(line) = PathMotion::line([170.0, -65.0], [255.0, 68.0], &limits) else { board::exit(false) };
+    let circle = Circle { centre_mm: [212.132, 0.0], radius_mm: 40.0, start_rad: 0.0, turns: 1.0 };
+    let Ok(contour) = PathMotion::plan(circle, &limits, 200) else { board::exit(false) };
+    let times = |d: f32| core::array::from_fn::<f32, POINTS, _>(|k| d * k as f32 / (POINTS - 1) as f32);
+    let (line_t, circle_t) = (times(line.duration_s()), times(contour.duration_s()));
+    let profile = *line.law();
+    let at = measure(&counter, |i| {
+        black_box(profile.at(black_box(line_t[i % POINTS])));
+    });
+    report("jerk_profile_at", at as f32 * per_count / N as f32);
+    let at = measure(&counter, |i| {
+        black_box(line.at(black_box(line_t[i % POINTS])));
+    });
+    report("trajectory_line_at", at as f32 * per_count / N as f32);
+    let at = measure(&counter, |i| {
+        black_box(contour.at(black_box(circle_t[i % POINTS])));
+    });
+    report("trajectory_circle_at", at as f32 * per_count / N as f32);
+    let setpoints_5g: [MotionSetpoint<f32>; POINTS] = core::array::from_fn(|k| line.at(line_t[k]));
+    let motion = measure(&counter, |i| {
+        let s = black_box(&setpoints_5g[i % POINTS]);
+        let _ = black_box(model.inverse_motion(s.position_mm, s.velocity_mm_s, s.acceleration_mm_s2, 0.05));
+    });
+    report("inverse_motion_f32", motion as f32 * per_count / N as f32);
+    let mut motions = [None; POINTS];
+    for (m, s) in motions.iter_mut().zip(&setpoints_5g) {
+        *m = model.inverse_motion(s.position_mm, s.velocity_mm_s, s.acceleration_mm_s2, 0.05).ok();
+    }
+    let Some(motions) = motions.into_iter().collect::<Option<heapless::Vec<_, POINTS>>>() else { board::exit(false) };
+    let dynamics = FiveBarDynamics {
+        motor_inertia_kg_m2: [3.9e-3; 2],
+        tool_mass_kg: 0.165,
+        distal_inertia_kg_m2: [-2.4e-4; 2],
+        viscous_nm_s_per_rad: [0.02; 2],
+        coulomb_nm: [0.05; 2],
+        coulomb_speed_rad_s: 0.01,
+    };
+    let torque = measure(&counter, |i| {
+        let _ = black_box(dynamics.torque_nm(black_box(&motions[i % POINTS])));
+    });
+    report("inverse_dynamics_f32", torque as f32 * per_count / N as f32);
+
     // Servo step along a 20 mm circle, speeding up from rest at 2π rad/s² (the servo refuses
     // a start at speed as a jump), with the encoders following the reference exactly.
     let mut setpoints = [[0.0f32; 2]; N];
@@ -221,6 +275,52 @@ fn main() -> ! {
         let step = measure(&counter, |i| match servo.step(cal, black_box(setpoints[i]), black_box(encoder)) {
             Ok(out) => encoder = out.reference_rad,
             Err(f) => fault = fault.or(Some((i, f))),
+        });
+        if let Some((i, f)) = fault {
+            let mut line: heapless::String<128> = heapless::String::new();
+            let _ = write!(line, "FAIL {} faulted during the benchmark at call {}: {}", name, i, f);
+            board::console(&line);
+            board::exit(false);
+        }
+        report(name, step as f32 * per_count / N as f32);
+    }
+
+    // The motion step: back and forth along the 5 g move without dwell (in motion but for an
+    // instant at each end), the next setpoint evaluated from the trajectory at its sample's time
+    // within the move (integer sample counts, as the firmware's setpoint source keeps them),
+    // then `Servo::step_motion` with it as the look-ahead and the identified dynamics fed
+    // forward.
+    let Ok(back) = PathMotion::line([255.0, 68.0], [170.0, -65.0], &limits) else { board::exit(false) };
+    let move_samples = libm::ceilf(line.duration_s() / 5.0e-4) as usize;
+    let sample = |k: usize| {
+        let n = k % (2 * move_samples);
+        if n < move_samples {
+            line.at(n as f32 * 5.0e-4)
+        } else {
+            back.at((n - move_samples) as f32 * 5.0e-4)
+        }
+    };
+    for (name, cal) in [("servo_step_motion", &cal), ("servo_step_motion_uncorrected", &uncorrected)] {
+        let Ok(mut servo) = Servo::new(ServoConfig::default()) else { board::exit(false) };
+        if servo.set_dynamics(Some(dynamics)).is_err() {
+            board::exit(false);
+        }
+        let Ok(mut encoder) = cal.command_rad(sample(0).position_mm, 0.05) else { board::exit(false) };
+        if servo.engage(cal, encoder).is_err() {
+            board::console("FAIL servo did not engage");
+            board::exit(false);
+        }
+        let mut fault = None;
+        // One trajectory evaluation per step: the next setpoint (the current one is the last
+        // step's next), as the setpoint task queues them.
+        let mut current = sample(0);
+        let step = measure(&counter, |i| {
+            let next = sample(black_box(i) + 1);
+            let stepped = servo.step_motion(cal, &current, Some(&next), black_box(encoder));
+            current = next;
+            match stepped {                Ok(out) => encoder = out.reference_rad,
+                Err(f) => fault = fault.or(Some((i, f))),
+            }
         });
         if let Some((i, f)) = fault {
             let mut line: heapless::String<128> = heapless::String::new();

@@ -11,6 +11,8 @@
 //! * [`grid`]: the correction grid flash image from measurements at the nodes;
 //! * [`command`]: motor angles for targets, exactly as the firmware computes them;
 //! * [`accuracy`]: VDI/DGQ 3441 and ISO 230-2 figures from repeated runs;
+//! * [`dynamics`]: the hidden robot's dynamic parameters from a closed-loop excitation run
+//!   (what the servo feeds forward; issue 14);
 //! * [`pipeline`]: all of it on one machine, as `host-sim demo` runs it.
 //!
 //! Where a change goes: a new protocol in `protocol.rs` (and `Protocol::parse`); a new fit
@@ -20,6 +22,7 @@
 
 pub mod accuracy;
 pub mod command;
+pub mod dynamics;
 pub mod fit;
 pub mod grid;
 pub mod machine;

@@ -1,15 +1,27 @@
 //! `host-sim simulate`: the closed 2 kHz loop on a plant (`host_sim::sim`), with a JSON summary
 //! on stdout and, when asked, the sample log (CSV) and a plot of the paths, each written
 //! atomically.
+//!
+//! What the servo feeds forward (`--feedforward`, default `dynamics`): the hidden robot's
+//! identified dynamics on the trajectory's exact derivatives. The parameters come from
+//! `--dynamics FILE` (`host-sim identify`), else from the `--grid` image's dynamics extension,
+//! else they are identified on the plant first (`host_sim::calib::dynamics`: an excitation run,
+//! a few seconds). `--mass-error-pct P` scales every mass and inertia of them by `1 + P/100`
+//! (a model error, for robustness studies).
 
 use anyhow::{bail, Result};
 use host_sim::io::atomic::write_atomic;
 use host_sim::io::plot::{xy_plot, Mark, Series};
 use host_sim::io::KeyOrder;
+use host_sim::calib::dynamics::identify;
+use host_sim::io::dynamics_file::read_dynamics;
 use host_sim::plant::{PlantConfig, PlantModel};
+use host_sim::sim::closed_loop::{FeedForward, LoopSummary};
 use host_sim::sim::simulate::{format_log, simulate, SimulateOptions, MAX_SECONDS};
 use host_sim::sim::trajectory::Trajectory;
+use kinematics_core::dynamics::PARAMETER_NAMES;
 use kinematics_core::Calibration;
+use serde::Serialize;
 use std::path::PathBuf;
 
 /// Arguments of `host-sim simulate`.
@@ -24,7 +36,8 @@ pub struct Args {
     /// Simulated seconds (default: the trajectory's natural length).
     #[arg(long)]
     pub seconds: Option<f64>,
-    /// `circle`, `figure8`, `p2p` or a CSV file `t_s,x_mm,y_mm`.
+    /// `circle`, `figure8`, `p2p`, `p2p-trapezoid`, `circle-5g`, `figure8-5g`, `move-10mm` or a
+    /// CSV file `t_s,x_mm,y_mm`.
     #[arg(long, default_value = "circle")]
     pub trajectory: String,
     /// Hidden-robot model the servo uses (default: nominal five-bar).
@@ -42,6 +55,26 @@ pub struct Args {
     /// PNG plot of commanded and actual paths.
     #[arg(long)]
     pub plot: Option<PathBuf>,
+    /// What the servo feeds forward: `dynamics` (identified inverse dynamics on the exact
+    /// derivatives), `constant` (the gains' constant inertia on them), `differences` (backward
+    /// differences of the setpoints, as before issue 14).
+    #[arg(long, default_value = "dynamics")]
+    pub feedforward: String,
+    /// Identified dynamic parameters (dynamics.json from `host-sim identify`).
+    #[arg(long)]
+    pub dynamics: Option<PathBuf>,
+    /// Every mass and inertia of the fed-forward dynamics times `1 + P/100` (model error).
+    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+    pub mass_error_pct: f64,
+}
+
+/// What `simulate` prints: the loop's figures and where the fed-forward dynamics came from.
+#[derive(Serialize)]
+struct Output<'a> {
+    #[serde(flatten)]
+    summary: &'a LoopSummary,
+    dynamics_source: Option<String>,
+    dynamics: Option<Vec<(String, f64)>>,
 }
 
 pub fn run(args: &Args) -> Result<()> {
@@ -58,9 +91,39 @@ pub fn run(args: &Args) -> Result<()> {
     if !(seconds > 0.0 && seconds <= MAX_SECONDS) {
         bail!("--seconds must be in (0, {MAX_SECONDS}], not {seconds}");
     }
+    if !(args.mass_error_pct > -100.0 && args.mass_error_pct <= 1000.0) {
+        bail!("--mass-error-pct must be in (-100, 1000], not {}", args.mass_error_pct);
+    }
     let (model, bytes) = super::load_calibration(args.model.as_deref(), args.grid.as_deref(), &spec.nominal)?;
     let cal = Calibration { model, grid: super::parse_grid(&bytes)? };
-    let opts = SimulateOptions { seconds: Some(seconds), seed: args.seed, keep_log: args.log.is_some() || args.plot.is_some(), spec };
+    let (feedforward, source) = match args.feedforward.as_str() {
+        "differences" => (FeedForward::Differences, None),
+        "constant" => (FeedForward::Constant, None),
+        "dynamics" => {
+            let (d, source) = match (&args.dynamics, cal.grid.as_ref().and_then(|g| g.dynamics())) {
+                (Some(p), _) => (read_dynamics(p)?, format!("--dynamics {}", p.display())),
+                (None, Some(d)) => (d.cast::<f64>(), "the --grid image's dynamics extension".to_string()),
+                (None, None) => {
+                    let id = identify(&cfg, &cal, &spec, args.seed)?;
+                    (id.dynamics, format!("identified on the plant (excitation run, residual {:.4} N·m RMS)", id.residual_rms_nm))
+                }
+            };
+            let k = 1.0 + args.mass_error_pct / 100.0;
+            let source = if args.mass_error_pct != 0.0 { format!("{source}, masses and inertias x{k}") } else { source };
+            (FeedForward::Dynamics(d.scaled_masses([k; 5])), Some(source))
+        }
+        other => bail!("unknown --feedforward '{other}' (known: dynamics, constant, differences)"),
+    };
+    if args.mass_error_pct != 0.0 && !matches!(feedforward, FeedForward::Dynamics(_)) {
+        bail!("--mass-error-pct applies to --feedforward dynamics only");
+    }
+    let opts = SimulateOptions {
+        seconds: Some(seconds),
+        seed: args.seed,
+        keep_log: args.log.is_some() || args.plot.is_some(),
+        spec,
+        feedforward,
+    };
     let run = simulate(&cfg, &cal, &trajectory, &opts)?;
     if let Some(p) = &args.log {
         write_atomic(p, format_log(&run.log).as_bytes())?;
@@ -79,5 +142,9 @@ pub fn run(args: &Args) -> Result<()> {
             ],
         )?;
     }
-    super::print_json(&run.summary, KeyOrder::Declared)
+    let dynamics = match feedforward {
+        FeedForward::Dynamics(d) => Some(PARAMETER_NAMES.iter().map(|n| n.to_string()).zip(d.to_array()).collect()),
+        _ => None,
+    };
+    super::print_json(&Output { summary: &run.summary, dynamics_source: source, dynamics }, KeyOrder::Declared)
 }

@@ -3,6 +3,7 @@
 //! * [`measurement_csv`]: the measurement CSV, the contract between measuring (an
 //!   interferometer or `host-sim measure`) and every tool that reads measurements;
 //! * [`model_file`]: `model.json`, a fitted hidden robot;
+//! * [`dynamics_file`]: `dynamics.json`, its identified dynamic parameters;
 //! * [`targets_csv`]: the `x_mm,y_mm` target lists `command` reads;
 //! * [`plot`]: the PNG plots (paths, error-vector fields);
 //! * [`csv_dialect`]: what every CSV read shares (delimiter detection, number ranges);
@@ -18,6 +19,7 @@
 
 pub mod atomic;
 pub mod csv_dialect;
+pub mod dynamics_file;
 pub mod measurement_csv;
 pub mod model_file;
 pub mod plot;

@@ -105,7 +105,7 @@ pub struct SixBarConfig {
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct DriveConfig {
-    /// Motor + gearbox + arm inertia seen at the joint.
+    /// Motor and gearbox inertia seen at the joint (the linkage's bodies are `[linkage]`).
     pub inertia_kg_m2: f64,
     pub viscous_friction_nm_s_per_rad: f64,
     pub coulomb_friction_nm: f64,
@@ -145,6 +145,9 @@ pub struct InstrumentConfig {
 pub struct PlantConfig {
     pub description: String,
     pub sixbar: SixBarConfig,
+    /// Masses of the linkage's bodies (optional in a file: the paper machine's by default).
+    #[serde(default)]
+    pub linkage: crate::plant::linkage::LinkageConfig,
     pub drive_1: DriveConfig,
     pub drive_2: DriveConfig,
     pub instrument: InstrumentConfig,
@@ -168,7 +171,8 @@ fn ideal_drive() -> DriveConfig {
 
 impl PlantConfig {
     /// Every error off, no clearance, no quantization, no friction, a perfect instrument: the
-    /// six-bar's tool point is then the nominal five-bar's FK.
+    /// six-bar's tool point is then the nominal five-bar's FK. The masses are the paper
+    /// machine's (`[linkage]` defaults): an ideal machine still has inertia.
     pub fn ideal() -> Self {
         let r = 30.0 * std::f64::consts::FRAC_1_SQRT_2;
         PlantConfig {
@@ -188,6 +192,7 @@ impl PlantConfig {
                 clearance_centring_ratio: 1e-3,
                 errors: SixBarErrors::default(),
             },
+            linkage: crate::plant::linkage::LinkageConfig::default(),
             drive_1: ideal_drive(),
             drive_2: ideal_drive(),
             instrument: InstrumentConfig {
@@ -314,7 +319,7 @@ impl PlantConfig {
             ("drive_1.coulomb_friction_nm", self.drive_1.coulomb_friction_nm),
             ("drive_2.coulomb_friction_nm", self.drive_2.coulomb_friction_nm),
         ];
-        for (name, v) in non_negative {
+        for (name, v) in non_negative.into_iter().chain(self.linkage.non_negative()) {
             if !(v >= 0.0) {
                 return Err(PlantError::Invalid(format!("'{name}' must not be negative, not {v}")));
             }

@@ -20,10 +20,12 @@
 //!   servo's integrator) and gear/shaft compliance; a disabled drive (the closed loop ends at a
 //!   servo fault instead of removing torque, so the drives' dynamic braking, which the QEMU
 //!   plant models for category-0 stops, never acts here).
-//! * Dynamics: semi-implicit Euler on one rigid inertia with viscous and Coulomb friction
-//!   (stick when the torque cannot break away). Cost: a handful of flops per substep; error
-//!   O(dt²) per step, the caller chooses dt (the closed loop uses 50 µs, 1/10 of a sample:
-//!   ω·dt ≈ 0.025 at the loop's 80 Hz).
+//! * Dynamics ([`Drive::step`]): semi-implicit Euler on one rigid inertia with viscous and
+//!   Coulomb friction (stick when the torque cannot break away), for a drive alone. Cost: a
+//!   handful of flops per substep; error O(dt²) per step. In the plant the drives are coupled
+//!   through the linkage's inertia: `crate::plant::motion` integrates both together, with the
+//!   parameters below ([`Drive::rotor_inertia_kg_m2`], [`Drive::friction`],
+//!   [`Drive::limit_torque`]) and [`Drive::set_motion`].
 
 use crate::plant::config::DriveConfig;
 use std::f64::consts::TAU;
@@ -111,6 +113,29 @@ impl Drive {
         } else if self.motor_rad - self.play_rad < -half {
             self.play_rad = self.motor_rad + half;
         }
+    }
+
+    /// Motor and gearbox inertia at the joint (kg·m²).
+    pub fn rotor_inertia_kg_m2(&self) -> f64 {
+        self.inertia_kg_m2
+    }
+
+    /// Viscous (N·m·s/rad) and Coulomb (N·m) friction.
+    pub fn friction(&self) -> (f64, f64) {
+        (self.viscous_nm_s_per_rad, self.coulomb_nm)
+    }
+
+    /// The torque the amplifier delivers for the command `torque_nm`.
+    pub fn limit_torque(&self, torque_nm: f64) -> f64 {
+        torque_nm.clamp(-self.torque_limit_nm, self.torque_limit_nm)
+    }
+
+    /// Sets the motor's angle and velocity (from an integration of the coupled drives); the link
+    /// follows through the play.
+    pub fn set_motion(&mut self, motor_rad: f64, velocity_rad_s: f64) {
+        self.motor_rad = motor_rad;
+        self.velocity_rad_s = velocity_rad_s;
+        self.update_play();
     }
 
     /// Moves the motor to `motor_rad` kinematically (for tests and quasi-static protocols).

@@ -1,6 +1,7 @@
-//! The simulated machine: linkage ([`sixbar`]), drives ([`drive`]), measuring instrument
-//! ([`instrument`]) and their description ([`config`], the plant TOML), put together in
-//! [`Plant`].
+//! The simulated machine: linkage ([`sixbar`] for its equilibrium and tool point, [`linkage`]
+//! for its bodies' inertia), drives ([`drive`]), their coupled equations of motion
+//! ([`motion`]), measuring instrument ([`instrument`]) and their description ([`config`], the
+//! plant TOML), put together in [`Plant`].
 //!
 //! Where a change goes: a new physical effect of the machine is a parameter in `config.rs`
 //! (with its TOML key, its unit in the name, 0 = off, and its entry in `PlantConfig::with_only`)
@@ -9,6 +10,8 @@
 pub mod config;
 pub mod drive;
 pub mod instrument;
+pub mod linkage;
+pub mod motion;
 pub mod sixbar;
 
 pub use config::{PlantConfig, PlantModel};
@@ -63,6 +66,8 @@ pub(crate) fn deg(link_rad: [f64; 2]) -> [f64; 2] {
 pub struct Plant {
     pub config: PlantConfig,
     pub sixbar: SixBar,
+    /// The linkage's bodies (its inertia), on the six-bar's equivalent five-bar.
+    pub linkage: linkage::Linkage,
     pub drives: [Drive; 2],
     pub instrument: Instrument,
 }
@@ -70,9 +75,12 @@ pub struct Plant {
 impl Plant {
     /// Builds a plant; `seed` seeds the instrument noise.
     pub fn new(config: &PlantConfig, seed: u64) -> Self {
+        let sixbar = SixBar::new(&config.sixbar);
+        let linkage = linkage::Linkage::new(&config.linkage, sixbar.equivalent_five_bar(), &config.sixbar);
         Plant {
             config: config.clone(),
-            sixbar: SixBar::new(&config.sixbar),
+            sixbar,
+            linkage,
             drives: [Drive::new(&config.drive_1), Drive::new(&config.drive_2)],
             instrument: Instrument::new(&config.instrument, seed),
         }
@@ -95,6 +103,25 @@ impl Plant {
         let r = [self.drives[0].settle(encoder_rad[0], dir[0]), self.drives[1].settle(encoder_rad[1], dir[1])];
         let sol = self.sixbar.solve(self.link_rad())?;
         Ok((r, sol))
+    }
+
+    /// Advances the machine by `dt_s` (in `substeps` steps) under the joint torque commands
+    /// `torque_nm`: the drives coupled through the linkage's inertia ([`motion`]).
+    pub fn advance(&mut self, torque_nm: [f64; 2], dt_s: f64, substeps: u32) -> Result<(), PlantError> {
+        motion::CoupledDrives { drives: &mut self.drives, linkage: &self.linkage }
+            .advance(torque_nm, dt_s, substeps)
+            .map_err(|e| PlantError::NotAssemblable { link_deg: deg(self.link_rad()), reason: e.to_string() })
+    }
+
+    /// The hidden robot's dynamic parameters of this machine's bodies and rotors, friction
+    /// included: the truth an identification should find (up to the hidden robot's geometry).
+    pub fn true_dynamics(&self) -> kinematics_core::FiveBarDynamics<f64> {
+        let mut d = self.linkage.lumped();
+        for k in 0..2 {
+            d.motor_inertia_kg_m2[k] += self.drives[k].rotor_inertia_kg_m2();
+            (d.viscous_nm_s_per_rad[k], d.coulomb_nm[k]) = self.drives[k].friction();
+        }
+        d
     }
 
     /// The linkage's equilibrium at the current link angles.

@@ -231,6 +231,12 @@ impl SixBar {
         t
     }
 
+    /// The equivalent five-bar of the errored arms (link angles as its encoder angles, A0' at
+    /// the origin of its frame): what the linkage's dynamics move on.
+    pub fn equivalent_five_bar(&self) -> FiveBar<f64> {
+        self.five
+    }
+
     /// Tool point of the equivalent five-bar (no stress): the `fivebar` plant.
     pub fn five_bar_tool_mm(&self, link_rad: [f64; 2]) -> Result<[f64; 2], PlantError> {
         match self.five.forward(link_rad, 0.0) {

@@ -2,13 +2,19 @@
 //! against the simulated plant.
 //!
 //! ```text
-//!  trajectory(t_k) ─► Servo::step (f32: IK + grid + PID) ─► torque (held for 0.5 ms) ─►
-//!  drives (10 substeps of 50 µs: inertia, friction, torque limit, backlash) ─► link angles ─►
-//!  six-bar equilibrium (or five-bar FK) ─► tool point;   encoders (quantized) ─► next step
+//!  trajectory(t_k) ─► Servo::step_motion (f32: IK + joint motion + grid + inverse dynamics
+//!  + PID) ─► torque (held for 0.5 ms) ─► drives coupled through the linkage's inertia (10 RK4
+//!  substeps of 50 µs: rotors, bars, platform, friction, torque limit, backlash) ─► link angles
+//!  ─► six-bar equilibrium (or five-bar FK) ─► tool point;   encoders (quantized) ─► next step
 //! ```
-//! Simulated time advances by exactly 0.5 ms per servo step. The linkage is quasi-static (its
-//! inertia is lumped into the drives' joint inertia; the links' elastic modes, ~kHz, are far
-//! above the loop bandwidth), so it is solved once per sample, not per substep.
+//! Simulated time advances by exactly 0.5 ms per servo step. The linkage's rigid-body dynamics
+//! are in the drives' equations of motion (`plant::motion`); its elastic modes (~kHz, far above
+//! the loop bandwidth) are not, so its equilibrium is solved once per sample, not per substep.
+//!
+//! What the servo feeds forward ([`FeedForward`]): the identified inverse dynamics on the
+//! trajectory's exact derivatives (`Servo::step_motion`, the default of `host-sim simulate`), the
+//! gains' constant inertia on the same derivatives, or (a trajectory file, which has positions
+//! only, and [`run_loop`]) `Servo::step` on backward differences as before issue 14.
 //!
 //! Tracking error: |tool(t_k) - setpoint(t_k)| with the tool point seen in the instrument's frame
 //! without noise (the frame the measurements, and hence the calibration, live in; on `ideal` it
@@ -30,12 +36,38 @@ use super::trajectory::Trajectory;
 use super::SimError;
 use crate::machine_spec::{MachineSpec, STANDARD_GRAVITY_MM_S2};
 use crate::plant::Plant;
-use kinematics_core::{Calibration, Servo, ServoConfig};
+use kinematics_core::trajectory::MotionSetpoint;
+use kinematics_core::{Calibration, FiveBarDynamics, Servo, ServoConfig};
 use serde::Serialize;
 use std::time::Instant;
 
 /// Drive integration substeps per sample.
 pub const SUBSTEPS: u32 = 10;
+/// The settling window (µm at the tool).
+pub const SETTLE_WINDOW_UM: f64 = 2.0;
+
+/// What the servo feeds forward.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum FeedForward {
+    /// `Servo::step` on the positions: velocity and acceleration feed-forward from backward
+    /// differences with the gains' constant inertia (the loop before issue 14).
+    Differences,
+    /// `Servo::step_motion` on the exact derivatives with the gains' constant inertia.
+    Constant,
+    /// `Servo::step_motion` with these dynamic parameters (identified, `calib::dynamics`).
+    Dynamics(FiveBarDynamics<f64>),
+}
+
+impl FeedForward {
+    /// A short name for reports.
+    pub fn name(&self) -> &'static str {
+        match self {
+            FeedForward::Differences => "differences",
+            FeedForward::Constant => "constant",
+            FeedForward::Dynamics(_) => "dynamics",
+        }
+    }
+}
 
 /// One logged sample.
 #[derive(Clone, Copy, Debug)]
@@ -72,16 +104,65 @@ pub struct LoopSummary {
     pub overruns: u64,
     pub overruns_note: String,
     pub fault: Option<String>,
+    /// What the servo fed forward (`differences`, `constant`, `dynamics`).
+    pub feedforward: String,
+    /// RMS of the following error at the tool (µm).
+    pub rms_following_err_um: f64,
+    /// From the end of the last motion, how long until the following error at the tool stays
+    /// within ±2 µm for the rest of the run (s; `None`: never, or no motion end).
+    pub settling_following_2um_s: Option<f64>,
+    /// The same for the tracking error (tool against setpoint, instrument frame).
+    pub settling_tracking_2um_s: Option<f64>,
+}
+
+/// When a signal has stayed within the settling window since: `end` is the motion's end.
+#[derive(Clone, Copy, Debug)]
+struct Settling {
+    end_s: Option<f64>,
+    last_outside_s: Option<f64>,
+}
+
+impl Settling {
+    fn record(&mut self, t_s: f64, value_um: f64) {
+        if matches!(self.end_s, Some(end) if t_s >= end) && !(value_um <= SETTLE_WINDOW_UM) {
+            self.last_outside_s = Some(t_s);
+        }
+    }
+
+    /// Settling time, if the run went on inside the window after the last excursion.
+    fn time_s(&self, last_sample_s: f64, dt_s: f64) -> Option<f64> {
+        let end = self.end_s?;
+        match self.last_outside_s {
+            None if last_sample_s >= end => Some(0.0),
+            Some(t) if t < last_sample_s => Some(t + dt_s - end),
+            _ => None,
+        }
+    }
 }
 
 /// Runs the loop for `seconds` of simulated time at `spec`'s sample period and singularity
-/// margin. `log` collects every sample.
+/// margin, with the servo on backward differences ([`FeedForward::Differences`]). `log`
+/// collects every sample.
 pub fn run_loop(
     plant: &mut Plant,
     cal: &Calibration<'_>,
     trajectory: &Trajectory,
     seconds: f64,
     spec: &MachineSpec,
+    log: Option<&mut Vec<LogRow>>,
+) -> Result<LoopSummary, SimError> {
+    run_loop_with(plant, cal, trajectory, seconds, spec, &FeedForward::Differences, log)
+}
+
+/// [`run_loop`] with the servo feeding forward `feedforward` (a trajectory without derivatives
+/// runs on differences whatever is asked).
+pub fn run_loop_with(
+    plant: &mut Plant,
+    cal: &Calibration<'_>,
+    trajectory: &Trajectory,
+    seconds: f64,
+    spec: &MachineSpec,
+    feedforward: &FeedForward,
     mut log: Option<&mut Vec<LogRow>>,
 ) -> Result<LoopSummary, SimError> {
     // Default gains, with the Coulomb feed-forward set to 80 % of each drive's Coulomb friction,
@@ -104,7 +185,11 @@ pub fn run_loop(
         .command_rad([start[0] as f32, start[1] as f32], config.min_transmission)
         .map_err(|e| SimError::Start { start_mm: start, reason: e.to_string() })?;
     plant.settle([f64::from(cmd[0]), f64::from(cmd[1])], [1, 1])?;
+    let feedforward = if trajectory.motion_at(0.0).is_some() { *feedforward } else { FeedForward::Differences };
     let mut servo = Servo::new(config).map_err(|e| SimError::Invalid(format!("servo settings refused: {e}")))?;
+    if let FeedForward::Dynamics(d) = &feedforward {
+        servo.set_dynamics(Some(d.cast())).map_err(|e| SimError::Invalid(format!("dynamic parameters: {e}")))?;
+    }
     let enc0 = plant.encoder_rad();
     servo
         .engage(cal, [enc0[0] as f32, enc0[1] as f32])
@@ -119,6 +204,10 @@ pub fn run_loop(
     let mut overruns = 0u64;
     let mut fault = None;
     let mut done = 0u64;
+    let mut sum2_follow = 0.0f64;
+    let end_s = trajectory.motion_end_s();
+    let mut settle_follow = Settling { end_s, last_outside_s: None };
+    let mut settle_track = Settling { end_s, last_outside_s: None };
     let wall = Instant::now();
     let mut last_wall = wall;
     for k in 0..n {
@@ -128,7 +217,15 @@ pub fn run_loop(
         history = [sp, history[0]];
         let enc = plant.encoder_rad();
         let err = (tool[0] - sp[0]).hypot(tool[1] - sp[1]) * 1e3;
-        let out = match servo.step(cal, [sp[0] as f32, sp[1] as f32], [enc[0] as f32, enc[1] as f32]) {
+        let enc32 = [enc[0] as f32, enc[1] as f32];
+        let stepped = match (feedforward, trajectory.motion_at(t)) {
+            (FeedForward::Differences, _) | (_, None) => servo.step(cal, [sp[0] as f32, sp[1] as f32], enc32),
+            (_, Some(m)) => {
+                let next = trajectory.motion_at(t + dt).map(|n| cast_setpoint(&n));
+                servo.step_motion(cal, &cast_setpoint(&m), next.as_ref(), enc32)
+            }
+        };
+        let out = match stepped {
             Ok(o) => o,
             Err(f) => {
                 fault = Some(format!("t = {t:.4} s: {f}"));
@@ -136,11 +233,7 @@ pub fn run_loop(
             }
         };
         let torque = [f64::from(out.torque_nm[0]), f64::from(out.torque_nm[1])];
-        for _ in 0..SUBSTEPS {
-            for (d, &tq) in plant.drives.iter_mut().zip(&torque) {
-                d.step(tq, dt / f64::from(SUBSTEPS));
-            }
-        }
+        plant.advance(torque, dt, SUBSTEPS)?;
         let sol = plant.solve()?;
         let follow_um = match cal.model.inverse_pose([sp[0] as f32, sp[1] as f32], 0.0).and_then(|p| p.jacobian()) {
             Ok(j) => {
@@ -151,6 +244,9 @@ pub fn run_loop(
         };
         let joint = f64::from(out.following_error_rad[0].abs().max(out.following_error_rad[1].abs())) * 1e6;
         sum2 += err * err;
+        sum2_follow += follow_um * follow_um;
+        settle_follow.record(t, follow_um);
+        settle_track.record(t, err);
         max_err = max_err.max(err);
         max_follow = max_follow.max(follow_um);
         max_joint = max_joint.max(joint);
@@ -183,6 +279,7 @@ pub fn run_loop(
     }
     let wall_s = wall.elapsed().as_secs_f64();
     let simulated_s = done as f64 * dt;
+    let last_s = done.saturating_sub(1) as f64 * dt;
     Ok(LoopSummary {
         plant: plant.config.description.clone(),
         trajectory: trajectory.name(),
@@ -204,7 +301,21 @@ pub fn run_loop(
             spec.sample_period_s * 1e6
         ),
         fault,
+        feedforward: feedforward.name().into(),
+        rms_following_err_um: if done > 0 { (sum2_follow / done as f64).sqrt() } else { 0.0 },
+        settling_following_2um_s: settle_follow.time_s(last_s, dt),
+        settling_tracking_2um_s: settle_track.time_s(last_s, dt),
     })
+}
+
+/// The servo's f32 setpoint.
+fn cast_setpoint(m: &MotionSetpoint<f64>) -> MotionSetpoint<f32> {
+    MotionSetpoint {
+        position_mm: m.position_mm.map(|v| v as f32),
+        velocity_mm_s: m.velocity_mm_s.map(|v| v as f32),
+        acceleration_mm_s2: m.acceleration_mm_s2.map(|v| v as f32),
+        jerk_mm_s3: m.jerk_mm_s3.map(|v| v as f32),
+    }
 }
 
 #[cfg(test)]

@@ -4,7 +4,7 @@
 //! See [`super::closed_loop`] for what is simulated and how errors are defined. Cost: the loop's
 //! (≈ 0.4 µs per sample with the five-bar plant, 4–5 µs with the six-bar).
 
-use super::closed_loop::{run_loop, LogRow, LoopSummary};
+use super::closed_loop::{run_loop_with, FeedForward, LogRow, LoopSummary};
 use super::trajectory::Trajectory;
 use super::SimError;
 use crate::machine_spec::MachineSpec;
@@ -25,6 +25,8 @@ pub struct SimulateOptions {
     /// Keep every sample ([`SimulateRun::log`]).
     pub keep_log: bool,
     pub spec: MachineSpec,
+    /// What the servo feeds forward.
+    pub feedforward: FeedForward,
 }
 
 /// The outcome of a run.
@@ -48,7 +50,8 @@ pub fn simulate(
     }
     let mut plant = Plant::new(plant, opts.seed);
     let mut log = Vec::new();
-    let summary = run_loop(&mut plant, cal, trajectory, seconds, &opts.spec, opts.keep_log.then_some(&mut log))?;
+    let summary =
+        run_loop_with(&mut plant, cal, trajectory, seconds, &opts.spec, &opts.feedforward, opts.keep_log.then_some(&mut log))?;
     Ok(SimulateRun { summary, log })
 }
 

@@ -7,17 +7,47 @@
 //!   (63 mm/s), phase `ω·(t - τ(1 - e^(-t/τ)))` with τ = 0.3 s so the speed ramps up smoothly;
 //! * `figure8`: a lemniscate of Gerono (±45 mm in x, ±60 mm in y), 2 s per loop, same ramp;
 //! * `p2p`: point-to-point moves from the centre around the corners 10 mm inside the workspace
-//!   and back, trapezoidal speed profiles at exactly the machine's rated acceleration (5 g,
-//!   49 m/s², on the paper machine) and 1.5 m/s, 0.1 s dwell at each point.
+//!   and back, jerk-limited at the machine's rated acceleration (5 g, 49 m/s², on the paper
+//!   machine), 1.5 m/s and [`JERK_MM_S3`] (`kinematics_core::trajectory`), 0.1 s dwell at each
+//!   point;
+//! * `p2p-trapezoid`: the same moves with trapezoidal speed profiles (infinite jerk): what `p2p`
+//!   was before issue 14, kept for comparison;
+//! * `circle-5g`: two turns of the 40 mm circle from rest to rest at 5 g peak acceleration
+//!   (`PathMotion::plan`: the ramps and the cruise within 5 g and 1.5 m/s, jerk up to 5e7
+//!   mm/s³ so that the acceleration binds);
+//! * `figure8-5g`: two loops of the figure-eight (±45 mm, ±60 mm) at 5 g peak acceleration (and
+//!   1.5 m/s);
+//! * `move-10mm`: one 10 mm move along x from the centre at 5 g, then 0.3 s at rest (the
+//!   settling time);
 //! * a file: CSV with header `t_s,x_mm,y_mm`, times strictly increasing, linearly interpolated;
-//!   before the first and after the last sample the end points are held.
+//!   before the first and after the last sample the end points are held. A file has positions
+//!   only: [`Trajectory::motion_at`] is `None` and the loop runs the servo on differences.
+//!
+//! Every built-in has exact derivatives ([`Trajectory::motion_at`]: velocity, acceleration and
+//! jerk of the same closed form), which the servo's motion step feeds forward.
 //!
 //! Cost: a few transcendental calls per setpoint.
 
 use super::SimError;
 use crate::machine_spec::{MachineSpec, STANDARD_GRAVITY_MM_S2};
+use kinematics_core::jerk_profile::ScalarState;
+use kinematics_core::path::{Circle, Figure8, Line, Path as _};
+use kinematics_core::trajectory::{MotionSetpoint, PathMotion, TaskLimits};
 use std::f64::consts::TAU;
 use std::path::Path;
+
+/// Jerk limit of the built-in jerk-limited motions (mm/s³): 5 g is reached in 10 ms.
+pub const JERK_MM_S3: f64 = 5.0e6;
+/// Turns of `circle-5g` and loops of `figure8-5g`.
+const CONTOUR_TURNS: f64 = 2.0;
+/// Jerk limit of the 5 g contours (mm/s³): high enough that the acceleration (and on the
+/// figure-eight the speed) is what binds, as the contours are specified by their peak
+/// acceleration; their actual peak jerk is 2.9e7 (circle) and 5e7 (figure-eight).
+const CONTOUR_JERK_MM_S3: f64 = 5.0e7;
+/// Instants sampled when a contour is scaled to its limits.
+const CONTOUR_SAMPLES: usize = 20_000;
+/// Rest after `move-10mm` (s).
+const SETTLE_S: f64 = 0.3;
 
 const RAMP_S: f64 = 0.3;
 /// Cruise speed of the point-to-point moves (mm/s).
@@ -52,6 +82,31 @@ impl Move {
         2.0 * self.t_acc_s + self.t_cruise_s
     }
 
+    /// The setpoint at local time `t`: position, velocity and acceleration along the line (the
+    /// jerk is infinite at the phase changes and zero elsewhere).
+    fn motion(&self, t: f64) -> MotionSetpoint<f64> {
+        let d = (self.to_mm[0] - self.from_mm[0]).hypot(self.to_mm[1] - self.from_mm[1]);
+        let u = if d > 0.0 { [(self.to_mm[0] - self.from_mm[0]) / d, (self.to_mm[1] - self.from_mm[1]) / d] } else { [0.0; 2] };
+        let s = if d > 0.0 { self.distance_mm(t) / d } else { 1.0 };
+        let a = self.v_peak_mm_s / self.t_acc_s.max(1e-12);
+        let (ta, tc, total) = (self.t_acc_s, self.t_cruise_s, self.duration_s());
+        let (v, acc) = if !(t > 0.0) || t >= total {
+            (0.0, 0.0)
+        } else if t <= ta {
+            (a * t, a)
+        } else if t <= ta + tc {
+            (self.v_peak_mm_s, 0.0)
+        } else {
+            (a * (total - t), -a)
+        };
+        MotionSetpoint {
+            position_mm: [self.from_mm[0] + s * (self.to_mm[0] - self.from_mm[0]), self.from_mm[1] + s * (self.to_mm[1] - self.from_mm[1])],
+            velocity_mm_s: [v * u[0], v * u[1]],
+            acceleration_mm_s2: [acc * u[0], acc * u[1]],
+            jerk_mm_s3: [0.0; 2],
+        }
+    }
+
     /// Distance travelled along the move at local time `t`.
     fn distance_mm(&self, t: f64) -> f64 {
         let a = self.v_peak_mm_s / self.t_acc_s.max(1e-12);
@@ -69,18 +124,67 @@ impl Move {
     }
 }
 
+/// One planned piece of a [`Trajectory::Planned`]: a path with its jerk-limited time law.
+#[derive(Clone, Copy, Debug)]
+pub enum Piece {
+    Line(PathMotion<f64, Line<f64>>),
+    Circle(PathMotion<f64, Circle<f64>>),
+    Figure8(PathMotion<f64, Figure8<f64>>),
+}
+
+impl Piece {
+    /// Duration (s).
+    pub fn duration_s(&self) -> f64 {
+        match self {
+            Piece::Line(m) => m.duration_s(),
+            Piece::Circle(m) => m.duration_s(),
+            Piece::Figure8(m) => m.duration_s(),
+        }
+    }
+
+    /// The setpoint `t_s` after the piece's start.
+    pub fn at(&self, t_s: f64) -> MotionSetpoint<f64> {
+        match self {
+            Piece::Line(m) => m.at(t_s),
+            Piece::Circle(m) => m.at(t_s),
+            Piece::Figure8(m) => m.at(t_s),
+        }
+    }
+}
+
 /// A setpoint source.
 #[derive(Clone, Debug)]
 pub enum Trajectory {
     Circle { centre_mm: [f64; 2], radius_mm: f64, period_s: f64 },
     Figure8 { centre_mm: [f64; 2], half_x_mm: f64, half_y_mm: f64, period_s: f64 },
+    /// Trapezoidal moves (`p2p-trapezoid`).
     PointToPoint { moves: Vec<Move>, dwell_s: f64 },
+    /// Jerk-limited pieces, each starting at its time (s), at rest in between.
+    Planned { name: String, pieces: Vec<(f64, Piece)>, duration_s: f64 },
     Samples { name: String, t_s: Vec<f64>, xy_mm: Vec<[f64; 2]> },
 }
 
 /// The ramped phase of the periodic built-ins: starts at rest, reaches `ω` after a few τ.
 fn ramped_phase(omega: f64, t: f64) -> f64 {
     omega * (t - RAMP_S * (1.0 - (-t / RAMP_S).exp()))
+}
+
+/// The `p2p` tour: the centre, the corners 10 mm inside the workspace, the centre.
+fn p2p_points(spec: &MachineSpec) -> [[f64; 2]; 6] {
+    let centre_mm = spec.workspace.centre_mm();
+    let (x, y, d) = (spec.workspace.x_mm, spec.workspace.y_mm, P2P_INSET_MM);
+    let (lo, hi) = ([x[0] + d, y[0] + d], [x[1] - d, y[1] - d]);
+    [centre_mm, lo, [hi[0], lo[1]], hi, [lo[0], hi[1]], centre_mm]
+}
+
+/// The machine's rated motion: its acceleration, 1.5 m/s, [`JERK_MM_S3`].
+pub fn rated_limits(spec: &MachineSpec) -> TaskLimits<f64> {
+    TaskLimits { speed_mm_s: P2P_SPEED_MM_S, accel_mm_s2: spec.max_acceleration_g * STANDARD_GRAVITY_MM_S2, jerk_mm_s3: JERK_MM_S3 }
+}
+
+/// The 5 g contours' limits: the rated ones with [`CONTOUR_JERK_MM_S3`].
+fn contour_limits(spec: &MachineSpec) -> TaskLimits<f64> {
+    TaskLimits { jerk_mm_s3: CONTOUR_JERK_MM_S3, ..rated_limits(spec) }
 }
 
 impl Trajectory {
@@ -90,19 +194,35 @@ impl Trajectory {
         match name {
             "circle" => Ok(Trajectory::Circle { centre_mm, radius_mm: 40.0, period_s: 4.0 }),
             "figure8" => Ok(Trajectory::Figure8 { centre_mm, half_x_mm: 45.0, half_y_mm: 60.0, period_s: 2.0 }),
-            "p2p" => {
-                let (x, y, d) = (spec.workspace.x_mm, spec.workspace.y_mm, P2P_INSET_MM);
-                let (lo, hi) = ([x[0] + d, y[0] + d], [x[1] - d, y[1] - d]);
-                let pts = [centre_mm, lo, [hi[0], lo[1]], hi, [lo[0], hi[1]], centre_mm];
+            "p2p-trapezoid" => {
                 let dwell = 0.1;
                 let mut t = dwell;
                 let mut moves = Vec::new();
-                for w in pts.windows(2) {
+                for w in p2p_points(spec).windows(2) {
                     let m = Move::new(t, w[0], w[1], spec.max_acceleration_g * STANDARD_GRAVITY_MM_S2, P2P_SPEED_MM_S);
                     t += m.duration_s() + dwell;
                     moves.push(m);
                 }
                 Ok(Trajectory::PointToPoint { moves, dwell_s: dwell })
+            }
+            "p2p" => Trajectory::tour("p2p", &p2p_points(spec), &rated_limits(spec), 0.1),
+            "move-10mm" => {
+                let to = [centre_mm[0] + 10.0, centre_mm[1]];
+                let mut t = Trajectory::tour("move-10mm", &[centre_mm, to], &rated_limits(spec), 0.05)?;
+                if let Trajectory::Planned { duration_s, .. } = &mut t {
+                    *duration_s += SETTLE_S - 0.05;
+                }
+                Ok(t)
+            }
+            "circle-5g" => {
+                let c = Circle { centre_mm, radius_mm: 40.0, start_rad: 0.0, turns: CONTOUR_TURNS };
+                let m = PathMotion::plan(c, &contour_limits(spec), CONTOUR_SAMPLES).map_err(|e| SimError::Invalid(format!("circle-5g: {e}")))?;
+                Ok(Trajectory::Planned { name: "circle-5g".into(), pieces: vec![(0.0, Piece::Circle(m))], duration_s: m.duration_s() + 0.05 })
+            }
+            "figure8-5g" => {
+                let f = Figure8 { centre_mm, half_x_mm: 45.0, half_y_mm: 60.0, loops: CONTOUR_TURNS };
+                let m = PathMotion::plan(f, &contour_limits(spec), CONTOUR_SAMPLES).map_err(|e| SimError::Invalid(format!("figure8-5g: {e}")))?;
+                Ok(Trajectory::Planned { name: "figure8-5g".into(), pieces: vec![(0.0, Piece::Figure8(m))], duration_s: m.duration_s() + 0.05 })
             }
             path => {
                 if !Path::new(path).exists() {
@@ -111,6 +231,31 @@ impl Trajectory {
                 Trajectory::from_csv(path)
             }
         }
+    }
+
+    /// Jerk-limited rest-to-rest moves through `points` (the first is the start), `dwell_s`
+    /// before the first move and after each.
+    pub fn tour(name: &str, points: &[[f64; 2]], limits: &TaskLimits<f64>, dwell_s: f64) -> Result<Self, SimError> {
+        if points.len() < 2 {
+            return Err(SimError::Invalid(format!("{name}: a tour needs a start and at least one point")));
+        }
+        let mut pieces = Vec::new();
+        for w in points.windows(2) {
+            pieces.push(Piece::Line(PathMotion::line(w[0], w[1], limits).map_err(|e| SimError::Invalid(format!("{name}: {e}")))?));
+        }
+        Ok(Trajectory::sequence(name, pieces, dwell_s))
+    }
+
+    /// `pieces` one after the other (each must start where the last ended), `dwell_s` at rest
+    /// before the first and after each.
+    pub fn sequence(name: &str, pieces: Vec<Piece>, dwell_s: f64) -> Self {
+        let mut t = dwell_s;
+        let mut timed = Vec::new();
+        for p in pieces {
+            timed.push((t, p));
+            t += p.duration_s() + dwell_s;
+        }
+        Trajectory::Planned { name: name.into(), pieces: timed, duration_s: t }
     }
 
     fn from_csv(path: &str) -> Result<Self, SimError> {
@@ -153,8 +298,64 @@ impl Trajectory {
         match self {
             Trajectory::Circle { .. } => "circle".into(),
             Trajectory::Figure8 { .. } => "figure8".into(),
-            Trajectory::PointToPoint { .. } => "p2p".into(),
-            Trajectory::Samples { name, .. } => name.clone(),
+            Trajectory::PointToPoint { .. } => "p2p-trapezoid".into(),
+            Trajectory::Planned { name, .. } | Trajectory::Samples { name, .. } => name.clone(),
+        }
+    }
+
+    /// When the last motion ends (s): the settling time counts from here. `None` for a file.
+    pub fn motion_end_s(&self) -> Option<f64> {
+        match self {
+            Trajectory::Planned { pieces, .. } => pieces.last().map(|(t0, p)| t0 + p.duration_s()),
+            Trajectory::PointToPoint { moves, .. } => moves.last().map(|m| m.t0_s + m.duration_s()),
+            _ => None,
+        }
+    }
+
+    /// The setpoint at `t_s` with its exact velocity, acceleration and jerk; `None` for a
+    /// file (positions only).
+    pub fn motion_at(&self, t_s: f64) -> Option<MotionSetpoint<f64>> {
+        let t = t_s.max(0.0);
+        // The ramped phase and its derivatives (`ramped_phase`).
+        let phase = |omega: f64| {
+            let e = (-t / RAMP_S).exp();
+            ScalarState { position: ramped_phase(omega, t), velocity: omega * (1.0 - e), acceleration: omega * e / RAMP_S, jerk: -omega * e / (RAMP_S * RAMP_S) }
+        };
+        match self {
+            Trajectory::Circle { centre_mm, radius_mm, period_s } => {
+                let c = Circle { centre_mm: *centre_mm, radius_mm: *radius_mm, start_rad: 0.0, turns: 1.0 };
+                let p = phase(TAU / period_s);
+                let r = *radius_mm;
+                let s = ScalarState { position: r * p.position, velocity: r * p.velocity, acceleration: r * p.acceleration, jerk: r * p.jerk };
+                Some(c.motion(&s))
+            }
+            Trajectory::Figure8 { centre_mm, half_x_mm, half_y_mm, period_s } => {
+                let f = Figure8 { centre_mm: *centre_mm, half_x_mm: *half_x_mm, half_y_mm: *half_y_mm, loops: 1.0 };
+                Some(f.motion(&phase(TAU / period_s)))
+            }
+            Trajectory::PointToPoint { moves, .. } => {
+                let first = moves.first()?;
+                let mut m = MotionSetpoint::at_rest(first.from_mm);
+                for mv in moves {
+                    if t < mv.t0_s {
+                        break;
+                    }
+                    m = mv.motion(t - mv.t0_s);
+                }
+                Some(m)
+            }
+            Trajectory::Planned { pieces, .. } => {
+                let (_, first) = pieces.first()?;
+                let mut m = first.at(0.0);
+                for (t0, p) in pieces {
+                    if t < *t0 {
+                        break;
+                    }
+                    m = p.at(t - t0);
+                }
+                Some(m)
+            }
+            Trajectory::Samples { .. } => None,
         }
     }
 
@@ -164,6 +365,7 @@ impl Trajectory {
             Trajectory::Circle { period_s, .. } => period_s + 2.0 * RAMP_S,
             Trajectory::Figure8 { period_s, .. } => 2.0 * period_s,
             Trajectory::PointToPoint { moves, dwell_s } => moves.last().map(|m| m.t0_s + m.duration_s() + dwell_s).unwrap_or(0.0),
+            Trajectory::Planned { duration_s, .. } => *duration_s,
             Trajectory::Samples { t_s, .. } => *t_s.last().unwrap_or(&0.0),
         }
     }
@@ -180,18 +382,8 @@ impl Trajectory {
                 let p = ramped_phase(TAU / period_s, t);
                 [centre_mm[0] + half_x_mm * p.sin(), centre_mm[1] + half_y_mm * (2.0 * p).sin()]
             }
-            Trajectory::PointToPoint { moves, .. } => {
-                let Some(first) = moves.first() else { return [0.0; 2] };
-                let mut pos = first.from_mm;
-                for m in moves {
-                    if t < m.t0_s {
-                        break;
-                    }
-                    let d = (m.to_mm[0] - m.from_mm[0]).hypot(m.to_mm[1] - m.from_mm[1]);
-                    let s = if d > 0.0 { m.distance_mm(t - m.t0_s) / d } else { 1.0 };
-                    pos = [m.from_mm[0] + s * (m.to_mm[0] - m.from_mm[0]), m.from_mm[1] + s * (m.to_mm[1] - m.from_mm[1])];
-                }
-                pos
+            Trajectory::PointToPoint { .. } | Trajectory::Planned { .. } => {
+                self.motion_at(t).map(|m| m.position_mm).unwrap_or([0.0; 2])
             }
             Trajectory::Samples { t_s: ts, xy_mm, .. } => {
                 let k = ts.partition_point(|&s| s <= t);
@@ -240,6 +432,42 @@ mod tests {
         assert!(peak_accel(&p2p) > 4.9 * G_MM_S2);
         let end = p2p.at(p2p.natural_duration_s());
         assert!((end[0] - 212.132).abs() < 1e-9 && end[1].abs() < 1e-9);
+    }
+
+    /// The 5 g built-ins reach 5 g (and no more), start and end at rest, and their stated
+    /// derivatives are the derivatives of their positions.
+    #[test]
+    fn the_5g_builtins_have_exact_derivatives() {
+        let spec = MachineSpec::paper();
+        for name in ["p2p", "p2p-trapezoid", "circle-5g", "figure8-5g", "move-10mm", "circle", "figure8"] {
+            let tr = Trajectory::by_name(name, &spec).unwrap();
+            assert_eq!(tr.name(), name);
+            let a = peak_accel(&tr);
+            assert!(a <= 5.0 * G_MM_S2 * 1.001, "{name}: {a}");
+            if name.ends_with("5g") || name.starts_with("p2p") || name == "move-10mm" {
+                assert!(a > 4.9 * G_MM_S2, "{name}: {a}");
+            }
+            let start = tr.motion_at(0.0).unwrap();
+            assert_eq!(start.velocity_mm_s, [0.0; 2], "{name}");
+            let h = 1e-6;
+            let n = (tr.natural_duration_s() / 1e-3) as usize;
+            for k in 1..n {
+                let t = k as f64 * 1e-3 + 0.37e-3;
+                let (lo, mid, hi) = (tr.motion_at(t - h).unwrap(), tr.motion_at(t).unwrap(), tr.motion_at(t + h).unwrap());
+                for i in 0..2 {
+                    let fv = (hi.position_mm[i] - lo.position_mm[i]) / (2.0 * h);
+                    assert!((fv - mid.velocity_mm_s[i]).abs() < 1e-3, "{name} v at {t}: {fv} {}", mid.velocity_mm_s[i]);
+                    if name != "p2p-trapezoid" {
+                        let fa = (hi.velocity_mm_s[i] - lo.velocity_mm_s[i]) / (2.0 * h);
+                        assert!((fa - mid.acceleration_mm_s2[i]).abs() < 1.0, "{name} a at {t}: {fa} {}", mid.acceleration_mm_s2[i]);
+                    }
+                }
+            }
+        }
+        let m = Trajectory::by_name("move-10mm", &spec).unwrap();
+        let end = m.motion_end_s().unwrap();
+        assert!(m.natural_duration_s() >= end + 0.29, "{} {end}", m.natural_duration_s());
+        assert!((m.at(end)[0] - 222.132).abs() < 1e-9);
     }
 
     #[test]

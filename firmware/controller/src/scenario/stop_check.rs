@@ -8,7 +8,11 @@
 //!   its speed at the fault (`J·|ω|/(c + b)`: dynamic braking `c` and viscous friction `b`;
 //!   Coulomb friction only shortens it; a joint that went further was pushed, or its drive does
 //!   not brake); the tool never leaves the calibrated rectangle; the run ends with both joints
-//!   at rest. Dynamic braking is a hardware requirement of the drives (firmware/README.md,
+//!   at rest. Joints coupled through the linkage's inertia ([`CoastModel::coupled_inertia_kg_m2`]):
+//!   the kinetic energy `½ωᵀMω` is what the braking and friction take away (the
+//!   velocity-product torques do no work), `dE/dt ≤ -(c + b)·|ω|²`, so with `λ_min ≤ M ≤ λ_max`
+//!   each joint's travel is at most `∫|ω| ≤ |ω₀|·λ_max·√(λ_max/λ_min)/(c + b)`, `|ω₀|` the
+//!   norm of both joints' speeds. Dynamic braking is a hardware requirement of the drives (firmware/README.md,
 //!   "Faults and stop categories"): once the torque is off the firmware can do nothing more,
 //!   and free-wheeling drives coast out of the workspace from the tour's top speed.
 //! * **1** (controlled stop, then torque off): drive enable on until the loop reports
@@ -56,6 +60,9 @@ pub struct CoastModel {
     pub viscous_nm_s_per_rad: f32,
     /// The drives' dynamic braking with the enable line low (N·m·s/rad at the joint).
     pub dynamic_brake_nm_s_per_rad: f32,
+    /// Joints coupled through a linkage: `λ_max·√(λ_max/λ_min)` of the inertia matrix over the
+    /// workspace (kg·m²; module doc); 0 for independent joints (the per-joint bound).
+    pub coupled_inertia_kg_m2: f32,
 }
 
 impl CoastModel {
@@ -63,6 +70,18 @@ impl CoastModel {
     /// `J·|ω|/(c + b)`, the speed decaying with the time constant `J/(c + b)`.
     pub fn bound_rad(&self, axis: usize, speed_rad_s: f32) -> f32 {
         self.inertia_kg_m2[axis] * speed_rad_s.abs() / (self.dynamic_brake_nm_s_per_rad + self.viscous_nm_s_per_rad)
+    }
+
+    /// Both joints' coast bounds from their speeds: [`CoastModel::bound_rad`] per joint, or with
+    /// coupled joints `J_c·|ω|/(c + b)` for each (module doc).
+    pub fn bounds_rad(&self, speed_rad_s: [f32; 2]) -> [f32; 2] {
+        if self.coupled_inertia_kg_m2 > 0.0 {
+            let speed = libm::hypotf(speed_rad_s[0], speed_rad_s[1]);
+            let b = self.coupled_inertia_kg_m2 * speed / (self.dynamic_brake_nm_s_per_rad + self.viscous_nm_s_per_rad);
+            [b; 2]
+        } else {
+            [0, 1].map(|k| self.bound_rad(k, speed_rad_s[k]))
+        }
     }
 }
 
@@ -123,7 +142,7 @@ impl StopCheck {
         let report = StopReport {
             speed_mm_s,
             planned_mm: planned.map_or(0.0, |p| p.distance_mm()),
-            coast_bound_rad: [0, 1].map(|k| coast.bound_rad(k, plant.joint_rad_s[k])),
+            coast_bound_rad: coast.bounds_rad(plant.joint_rad_s),
             ..StopReport::default()
         };
         StopCheck {

@@ -39,6 +39,7 @@ use controller::status::Status;
 use controller::trajectory::Trajectory;
 use controller::watchdog::TIMEOUT_US;
 use critical_section::Mutex;
+use kinematics_core::trajectory::MotionSetpoint;
 use kinematics_core::CorrectionGrid;
 
 use super::plant::Plant;
@@ -168,11 +169,20 @@ impl Harness {
                 if let (Some(at), Some(report)) = (checker.fault_sample(), checker.stop_report()) {
                     defmt::info!("stop: fault at sample {} ({}): {}", at, status.fault, report);
                 }
-                if self.scenario == Scenario::Track {
+                if matches!(self.scenario, Scenario::Track | Scenario::Track5g) {
                     defmt::info!(
                         "track: grid {}, settled tool error {} mm",
                         checker.grid_check(),
                         checker.settled_tool_error_mm()
+                    );
+                }
+                if self.scenario == Scenario::Track5g {
+                    let m = checker.motion_check();
+                    defmt::info!(
+                        "track-5g: {} samples at 5 g, max following error {} um at the tool (bound {})",
+                        m.samples_at_5g,
+                        m.max_following_error_um,
+                        controller::scenario::MAX_FOLLOWING_ERROR_5G_UM
                     );
                 }
                 semihosting::console("PASS");
@@ -200,11 +210,13 @@ pub struct Injected {
     queued: u32,
 }
 
+/// The tampering acts on the setpoint's position; its derivatives are the trajectory's.
 impl SetpointSource for Injected {
-    fn next_mm(&mut self) -> Option<[f32; 2]> {
-        let p = self.scenario.tamper(&self.injection, self.queued, self.trajectory.next_mm())?;
+    fn next_setpoint(&mut self) -> Option<MotionSetpoint<f32>> {
+        let mut s = self.trajectory.next_setpoint();
+        s.position_mm = self.scenario.tamper(&self.injection, self.queued, s.position_mm)?;
         self.queued = self.queued.wrapping_add(1);
-        Some(p)
+        Some(s)
     }
 }
 

@@ -5,7 +5,8 @@
 //! * [`watchdog`]: the CMSDK APB watchdog, fed by on-time servo steps; its NMI removes torque.
 //! * [`hardware`]: the "registers" between the firmware and the plant (PWM duty per axis, the
 //!   drive-enable line, the encoder counters, the reset-cause flag), atomics.
-//! * [`plant`]: two joint inertias with friction and the drives' dynamic braking, advanced in
+//! * [`plant`]: the five-bar linkage's rigid-body dynamics on two rotors ([`machine`]'s
+//!   numbers), with friction and the drives' dynamic braking, advanced in
 //!   [`Board::begin_sample`]; the harness reads its true state.
 //! * [`across_reset`]: the plant's state kept across a reset of the controller (the machine
 //!   does not stop with it).
@@ -28,6 +29,9 @@ use super::{Board, ServoTimer};
 pub mod across_reset;
 pub mod hardware;
 pub mod harness;
+/// The simulated machine's true dynamic parameters and the calibration image's (shared with
+/// `build.rs`).
+pub mod machine;
 pub mod plant;
 pub mod semihosting;
 pub mod watchdog;
@@ -185,10 +189,18 @@ impl Board for QemuBoard {
     type Timer = CmsdkTimer;
 
     /// The production settings with the built-in tour on (the simulated machine may move by
-    /// itself), the tour adapted to the harness's scenario.
+    /// itself), the tour, its profile and its acceleration adapted to the harness's scenario.
     fn settings() -> Settings {
-        let tour = Harness::scenario().tour_mm(&WORKSPACE_TOUR_MM);
-        Settings { builtin_tour_mm: tour, ..Settings::default() }
+        let scenario = Harness::scenario();
+        let production = Settings::default();
+        let (trajectory_profile, trajectory_accel_mm_s2) =
+            scenario.trajectory((production.trajectory_profile, production.trajectory_accel_mm_s2));
+        Settings {
+            builtin_tour_mm: scenario.tour_mm(&WORKSPACE_TOUR_MM),
+            trajectory_profile,
+            trajectory_accel_mm_s2,
+            ..production
+        }
     }
 
     fn init(settings: &'static Settings) -> Self {
