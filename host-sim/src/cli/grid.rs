@@ -3,10 +3,10 @@
 
 use anyhow::{bail, Context, Result};
 use host_sim::calib::grid::{build_with, format_csv, GridOptions, NoiseReport, Smoothing};
-use host_sim::io::atomic::write_atomic;
+use host_sim::io::atomic::Outputs;
 use host_sim::io::measurement_csv::read_measurements;
 use host_sim::io::model_file::read_model;
-use host_sim::io::plot::{vector_plot, VectorField};
+use host_sim::io::plot::{vector_plot_png, VectorField};
 use host_sim::io::KeyOrder;
 use serde::Serialize;
 use std::path::PathBuf;
@@ -85,13 +85,17 @@ pub fn run(args: &Args) -> Result<()> {
     if csv == args.out {
         bail!("the node table would overwrite the image: give --csv");
     }
+    // Every output staged, then renamed together: a bad --out leaves no node table or plot.
+    let mut outputs = Outputs::new();
+    outputs.bytes(&args.out, &built.image)?;
+    outputs.bytes(&csv, format_csv(&built.nodes).as_bytes())?;
     if let Some(plot) = &args.plot {
         let base: Vec<[f64; 2]> = built.nodes.iter().map(|n| n.target_mm).collect();
         let err: Vec<[f64; 2]> = built.nodes.iter().map(|n| [n.error_mm[0] * 1e3, n.error_mm[1] * 1e3]).collect();
-        vector_plot(plot, "grid nodes: measured − target", &[VectorField { label: "before grid", base_mm: &base, error_um: &err }])?;
+        let png = vector_plot_png("grid nodes: measured − target", &[VectorField { label: "before grid", base_mm: &base, error_um: &err }], &[])?;
+        outputs.bytes(plot, &png)?;
     }
-    write_atomic(&csv, format_csv(&built.nodes).as_bytes())?;
-    write_atomic(&args.out, &built.image)?;
+    outputs.commit()?;
     let stats = built.stats();
     let l = &built.lattice;
     super::print_json(
