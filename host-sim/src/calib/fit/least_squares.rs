@@ -91,8 +91,10 @@ mod tests {
     fn sums_without_a_point_equal_the_fit_on_the_rest() {
         let pts: Vec<DyadPoint> = (0..7)
             .map(|k| {
-                let t = 0.4 + 0.1 * k as f64;
-                DyadPoint { theta_rad: t, x_mm: 200.0 + 3.0 * k as f64, y_mm: 10.0 * t.sin() + 0.01 * (k * k) as f64 }
+                // A dyad of 150 / 151 mm, its distal link at any angle, with a little noise.
+                let (t, phi) = (0.4 + 0.1 * k as f64, -0.9 + 0.23 * k as f64);
+                let noise = 0.01 * ((k * k) % 5) as f64;
+                DyadPoint { theta_rad: t, x_mm: 150.0 * t.cos() + 151.0 * phi.cos() + noise, y_mm: 150.0 * t.sin() + 151.0 * phi.sin() }
             })
             .collect();
         let all = DyadSums::of(&pts);

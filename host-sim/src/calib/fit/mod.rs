@@ -16,6 +16,7 @@ pub mod full;
 pub mod identifiability;
 pub mod least_squares;
 pub mod params;
+pub mod plausibility;
 pub mod poly;
 pub mod subset_search;
 
@@ -366,6 +367,7 @@ pub fn ls_leave_one_out_um(data: &[Measurement], nominal: &FiveBar<f64>) -> Vec<
 pub fn fit(data: &[Measurement], opts: &FitOptions, progress: &mut dyn FnMut(Progress)) -> Result<FitOutcome, CalibError> {
     check_data(data, opts.criterion)?;
     let nominal = opts.spec.nominal;
+    plausibility::check_units(&nominal, data)?;
     let n = data.len();
     match opts.method {
         Method::Poly | Method::Ls => {
@@ -398,6 +400,7 @@ pub fn fit(data: &[Measurement], opts: &FitOptions, progress: &mut dyn FnMut(Pro
                     (m, matches!(opts.points, Points::Chosen(_)).then_some(subset), None)
                 }
             };
+            plausibility::check_model(&model, &nominal, &[None; params::N_PARAMS], data, &plausibility::FitEvidence::default())?;
             let mut s = summary(opts.method, opts.criterion, &model, data, subset.as_deref());
             if opts.method == Method::Ls && subset.is_none() && n >= 3 {
                 // Leave-one-out of the all-points least-squares fit.
@@ -412,6 +415,12 @@ pub fn fit(data: &[Measurement], opts: &FitOptions, progress: &mut dyn FnMut(Pro
                 return Err(invalid!("choosing points applies to poly and ls; full fits every point"));
             }
             let f = fit_full(data, &nominal, &opts.fixed)?;
+            let evidence = plausibility::FitEvidence {
+                condition_number: Some(f.identifiability.condition_number),
+                residual_sigma_um: Some(f.sigma_mm * 1e3),
+                instrument_sigma_um: Some(opts.spec.instrument_sigma_um),
+            };
+            plausibility::check_model(&f.model, &nominal, &f.std_dev, data, &evidence)?;
             let mut s = summary(opts.method, opts.criterion, &f.model, data, None);
             s.std_dev = Some(params::std_dev_map(&f.std_dev).into_iter().map(|(k, v)| (k, round6(v))).collect());
             let held = |k: usize, why: String| Held { param: params::NAMES[k], held_at: "nominal", confounded: why };
