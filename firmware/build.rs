@@ -16,6 +16,8 @@
 //!   with the plant), which the servo feeds forward. The QEMU
 //!   firmware links it into the calibration region (feature `board-qemu`); the real board
 //!   gets its image flashed separately (see README).
+//! * `calibration-2.bin`: the same with the field negated, bundled into the QEMU firmware's
+//!   program (not the region) for the run-time upload scenarios.
 use std::{env, fs, path::PathBuf};
 
 use kinematics_core::grid::{encode_with_dynamics, GridGeometry};
@@ -47,11 +49,14 @@ fn main() {
     println!("cargo:rerun-if-changed=../memory.x");
     println!("cargo:rerun-if-changed=src/board/qemu/machine.rs");
 
-    fs::write(out.join("calibration.bin"), synthetic_image()).expect("write calibration.bin");
+    fs::write(out.join("calibration.bin"), synthetic_image(1.0)).expect("write calibration.bin");
+    // The second image the QEMU upload scenarios upload at run time: the field negated.
+    fs::write(out.join("calibration-2.bin"), synthetic_image(-1.0)).expect("write calibration-2.bin");
 }
 
-/// Grid over the paper's workspace (x 162.132..262.132 mm, y -75..75 mm) in 5 mm cells.
-fn synthetic_image() -> Vec<u8> {
+/// Grid over the paper's workspace (x 162.132..262.132 mm, y -75..75 mm) in 5 mm cells, the
+/// synthetic field times `sign`.
+fn synthetic_image(sign: f32) -> Vec<u8> {
     let geometry = GridGeometry { nx: 21, ny: 31, x0_mm: 162.132, y0_mm: -75.0, step_x_mm: 5.0, step_y_mm: 5.0 };
     let model = FiveBar::<f32>::paper_nominal();
     let mut nodes = Vec::with_capacity(geometry.len());
@@ -60,8 +65,8 @@ fn synthetic_image() -> Vec<u8> {
             let [x, y] = geometry.node_mm(i, j);
             let (u, v) = ((x - 212.132) / 50.0, y / 75.0);
             nodes.push([
-                3.0e-4 * (1.3 * u).sin() + 1.0e-4 * (2.0 * v).cos(),
-                -2.0e-4 * (1.1 * v).sin() + 1.5e-4 * u * v,
+                sign * (3.0e-4 * (1.3 * u).sin() + 1.0e-4 * (2.0 * v).cos()),
+                sign * (-2.0e-4 * (1.1 * v).sin() + 1.5e-4 * u * v),
             ]);
         }
     }

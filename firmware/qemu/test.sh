@@ -74,6 +74,16 @@ run glitch-large   0 "$PASS" glitch-large $(image calibration.bin)
 # torque within its timeout, then resets the machine; the boot after it keeps the drives off
 # while the machine, which moves on through the reset, coasts within category 0's bounds.
 run stalled-task   0 "$WATCHDOG" stalled-task $(image calibration.bin)
+# Incremental encoders: the machine powers up at an unknown pose, homes on its index marks
+# (speed and torque limited), then runs the tour with the grid applied; without joint 2's index
+# mark the search ends at rest and the drives go off.
+run homing         0 "$PASS" homing          $(image calibration.bin)
+run homing-no-index 0 "$PASS" homing-no-index $(image calibration.bin)
+# A calibration uploaded at run time into the inactive slot (the firmware's bundled second
+# image), committed and switched to at rest; the same upload corrupted on the way is refused
+# and the old image stays in force.
+run calibration-upload         0 "$PASS" calibration-upload         $(image calibration.bin)
+run calibration-upload-corrupt 0 "$PASS" calibration-upload-corrupt $(image calibration.bin)
 run corrupt-image  0 "$PASS" bad-image-crc   $(image corrupt.bin)
 run erased-image   0 "$PASS" bad-image-magic $(image erased.bin)
 run no-image       0 "$PASS" bad-image-magic

@@ -50,8 +50,11 @@ mod app {
     use kinematics_core::trajectory::MotionSetpoint;
 
     use controller::calibration::{self, CalibrationState};
+    use controller::calibration_slots::{CalibrationId, SlotStore};
+    use firmware::calibration::RegionFlash;
+    use kinematics_core::Calibration;
     use controller::fault::{Fault, StopCategory};
-    use controller::servo_loop::ServoLoop;
+    use controller::servo_loop::{Mode, ServoLoop, SwitchRefused};
     use controller::settings::Settings;
     use controller::setpoints::{self, QUEUE_SLOTS};
     use controller::status::Status;
@@ -63,6 +66,11 @@ mod app {
     #[shared]
     struct Shared {
         status: Status,
+        /// The calibration slots (the upload task writes the inactive one; a host link's upload
+        /// handler would too, at the same low priority).
+        slots: SlotStore<RegionFlash>,
+        /// A newly committed calibration for the servo task to switch to at rest.
+        new_calibration: Option<(Calibration<'static>, CalibrationId)>,
     }
 
     #[local]
@@ -86,7 +94,13 @@ mod app {
         let reset_cause = board.reset_cause();
         defmt::info!("boot: reset cause {}", reset_cause);
 
-        let (cal_state, cal) = calibration::load(firmware::calibration::region(), settings.allow_uncorrected);
+        // The image in force: the committed slot with the highest sequence, or an image flashed
+        // by probe at the region's start (controller::calibration_slots).
+        let slots = SlotStore::open(firmware::calibration::flash(), settings.machine, settings.home_mm);
+        let calibration_id = slots.active_id();
+        defmt::info!("boot: calibration in force {}", calibration_id);
+        let image = calibration_id.map_or(firmware::calibration::region(), firmware::calibration::slot_bytes);
+        let (cal_state, cal) = calibration::load(image, &settings.machine, settings.home_mm, settings.allow_uncorrected);
         match cal_state {
             CalibrationState::Valid => {}
             CalibrationState::Refused(e) => defmt::error!("calibration image refused ({}): drives stay disabled", e),
@@ -99,19 +113,34 @@ mod app {
         if let Some(fault) = watchdog::fault_after_reset(reset_cause) {
             servo_loop.latch_at_boot(fault);
         }
-        let mut source = board.setpoints(Trajectory::builtin(servo_loop.setpoint_mm(), settings));
+        // Incremental encoders: homing first (at boot if the settings say so; otherwise the
+        // host's Home command starts it). The stream then starts at the home position.
+        let unhomed = servo_loop.mode() == Mode::Unhomed;
+        if unhomed && settings.homing.at_boot {
+            match servo_loop.start_homing(encoder_rad) {
+                Ok(()) => defmt::info!("homing at boot from encoders {} rad", encoder_rad),
+                Err(mode) => defmt::error!("homing refused: {}", mode),
+            }
+        }
+        let start_mm = if unhomed { settings.home_mm } else { servo_loop.setpoint_mm() };
+        let mut source = board.setpoints(Trajectory::builtin(start_mm, settings));
         // The watchdog starts only now, after the slow part of the boot (the QEMU harness scans
         // the trajectory), so that the first servo sample comes well within its timeout; a
         // watchdog that will not start keeps the drives off.
         if let Err(e) = board.start_watchdog() {
             servo_loop.latch_at_boot(Fault::Watchdog(e));
         }
-        match servo_loop.mode().fault() {
-            None => {
+        match (servo_loop.mode(), servo_loop.mode().fault()) {
+            (Mode::Running, _) => {
                 defmt::info!("engaged at {} mm (encoders {} rad)", servo_loop.setpoint_mm(), encoder_rad);
                 board.enable_drives();
             }
-            Some(fault) => {
+            (Mode::Homing, _) => board.enable_drives(),
+            (Mode::Unhomed, _) => {
+                defmt::warn!("not homed: drives disabled until homing (every setpoint refused)");
+                board.disable_drives();
+            }
+            (_, fault) => {
                 defmt::error!("not engaged ({}): drives disabled", fault);
                 board.disable_drives();
             }
@@ -121,9 +150,12 @@ mod app {
         if servo_loop.drives_enabled() {
             setpoints::refill(&mut setpoints_in, &mut source);
         }
-        let status = Status::at_boot(cal_state, &servo_loop, encoder_rad);
+        let status = Status { calibration_id, ..Status::at_boot(cal_state, &servo_loop, encoder_rad) };
         board.timer().start();
-        (Shared { status }, Local { board, servo_loop, setpoints_out, setpoints_in, source })
+        (
+            Shared { status, slots, new_calibration: None },
+            Local { board, servo_loop, setpoints_out, setpoints_in, source },
+        )
     }
 
     #[idle]
@@ -142,14 +174,37 @@ mod app {
     /// (default 3, i.e. 1.5 ms without a fresh command) latch `Fault::DeadlineMissed`: drives
     /// disabled, zero torque (category 0). Last, an on-time step feeds the independent watchdog
     /// (3 ms).
-    #[task(binds = SERVO_TICK, priority = 3, shared = [status], local = [board, servo_loop, setpoints_out])]
+    #[task(binds = SERVO_TICK, priority = 3, shared = [status, new_calibration], local = [board, servo_loop, setpoints_out])]
     fn servo_tick(mut cx: servo_tick::Context) {
         let l = cx.local;
         l.board.timer().acknowledge_tick();
         l.board.begin_sample();
         // Encoders -> sample logic (setpoint intake, mode machine, servo step).
         let encoder_rad = l.board.encoders_rad();
-        let mut sample = l.servo_loop.step(l.setpoints_out, encoder_rad);
+        // A newly committed calibration: switched to at rest (parsed by the upload task, so
+        // this costs a lock and a re-engage), kept pending while the machine moves.
+        let mut switched = None;
+        if let Some((cal, id)) = cx.shared.new_calibration.lock(|n| n.take()) {
+            match l.servo_loop.switch_calibration(cal, encoder_rad) {
+                Ok(()) => switched = Some(id),
+                Err(SwitchRefused::NotAtRest) => cx.shared.new_calibration.lock(|n| *n = Some((cal, id))),
+                // The new calibration cannot engage here: the old one stays in force.
+                Err(SwitchRefused::Engage(_)) => {}
+            }
+        }
+        let mut sample = if l.servo_loop.mode() == Mode::Homing {
+            // Homing (joint space, the setpoint stream waits): the index captures, and the
+            // reference once both indexes are found.
+            let index_rad = l.board.index_rad();
+            let mut sample = l.servo_loop.step_homing(encoder_rad, index_rad);
+            if sample.set_reference {
+                let ok = l.board.reference_at_index(l.servo_loop.settings().homing.index_rad);
+                l.servo_loop.referenced(ok, &mut sample);
+            }
+            sample
+        } else {
+            l.servo_loop.step(l.setpoints_out, encoder_rad)
+        };
         if sample.refill {
             let _ = intake::spawn();
         }
@@ -174,6 +229,9 @@ mod app {
         let stop_mm = l.servo_loop.stop_profile().map_or(0.0, |p| p.distance_mm());
         cx.shared.status.lock(|s| {
             s.record(&sample, mode, &deadline, stop_mm);
+            if switched.is_some() {
+                s.calibration_id = switched;
+            }
             l.board.end_sample(s);
         });
         if sample.index % l.servo_loop.settings().telemetry_period_ticks.max(1) == 0 {
@@ -196,11 +254,50 @@ mod app {
     #[task(priority = 1, shared = [status])]
     async fn telemetry(mut cx: telemetry::Context) {
         let s = cx.shared.status.lock(|s| *s);
+        // The QEMU upload scenarios' run-time upload (never on hardware).
+        if let Some((image, corrupt)) = firmware::calibration::bundled_upload_due(s.ticks) {
+            let _ = upload::spawn(image, corrupt);
+        }
         defmt::info!(
             "t {} ms: {} fault {} overruns {} worst {} us, setpoint {} mm, encoders {} rad, torque {} Nm, max following error {} rad",
             s.ticks / (SAMPLE_RATE_HZ / 1000), s.mode, s.fault, s.overruns, s.worst_step_us, s.setpoint_mm, s.encoder_rad, s.torque_nm,
             s.max_following_error_rad
         );
+    }
+
+    /// A calibration upload into the inactive slot (`controller::calibration_slots`): erase,
+    /// write in chunks, validate and commit; on success the image is parsed here and handed to
+    /// the servo task, which switches at rest. Low priority: flash writes never delay the servo.
+    /// `corrupt` flips one bit on the way (the QEMU scenario of a damaged transfer). The host
+    /// link's upload command drives the same `begin` / `write` / `commit`.
+    #[task(priority = 1, shared = [slots, new_calibration, status])]
+    async fn upload(mut cx: upload::Context, image: &'static [u8], corrupt: bool) {
+        const CHUNK: usize = 200;
+        let result = cx.shared.slots.lock(|slots| {
+            slots.begin(image.len())?;
+            let mut buf = [0u8; CHUNK];
+            for (k, chunk) in image.chunks(CHUNK).enumerate() {
+                let part = &mut buf[..chunk.len()];
+                part.copy_from_slice(chunk);
+                if corrupt && k == 1 {
+                    part[7] ^= 0x40;
+                }
+                slots.write(k * CHUNK, part)?;
+            }
+            slots.commit()
+        });
+        match result {
+            Ok(id) => {
+                defmt::info!("calibration upload committed: {}", id);
+                let bytes = firmware::calibration::slot_bytes(id);
+                match kinematics_core::CorrectionGrid::parse(bytes) {
+                    Ok(grid) => cx.shared.new_calibration.lock(|n| *n = Some((Calibration::from_grid(grid), id))),
+                    Err(e) => defmt::error!("committed image does not parse ({})", e),
+                }
+            }
+            Err(e) => defmt::error!("calibration upload refused: {} (the image in force stays)", e),
+        }
+        cx.shared.status.lock(|s| s.last_upload = Some(result));
     }
 
     /// Fault handling: the reaction (the stop, or the safe state) is already under way from

@@ -22,8 +22,13 @@ pub enum KinematicsError {
     /// Inverse: the target is out of an arm's reach, or reachable only in another assembly
     /// mode. Forward: the distal links cannot meet.
     Unreachable,
-    /// The pose is within the caller's margin of a singularity.
+    /// The pose is within the caller's margin of a singularity, or within the type's floor of
+    /// one whatever the margin (`Real::IK_MIN_TRANSMISSION`, `Real::FK_MIN_TRANSMISSION`) (a singular pose is never a solution).
     NearSingularity(Singularity),
+    /// The model cannot describe a machine (a link that is not positive, a parameter that is
+    /// not finite): IK and FK refuse to compute with it rather than return angles whose FK is
+    /// another point.
+    InvalidModel(crate::model::ModelError),
 }
 
 impl core::fmt::Display for KinematicsError {
@@ -37,6 +42,7 @@ impl core::fmt::Display for KinematicsError {
             KinematicsError::NearSingularity(Singularity::Parallel) => {
                 f.write_str("too close to a parallel singularity (distal links aligned)")
             }
+            KinematicsError::InvalidModel(e) => write!(f, "invalid model: {e}"),
         }
     }
 }

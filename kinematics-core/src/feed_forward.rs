@@ -109,10 +109,11 @@ pub fn predict<T: Real>(setpoint: &MotionSetpoint<T>, dt_s: T) -> MotionSetpoint
     next
 }
 
-/// The mean joint motion over the interval from `now` to `next`, `dt_s` apart (module doc).
+/// The mean joint motion over the interval from `now` to `next`, `1 / rate_hz` apart (module
+/// doc). The servo passes the reciprocal of its sample period, computed once (no division here).
 #[inline]
-pub fn interval_motion<T: Real>(now: &JointSample<T>, next: &JointSample<T>, dt_s: T) -> JointMotion<T> {
-    let rate = T::ONE / dt_s;
+pub fn interval_motion<T: Real>(now: &JointSample<T>, next: &JointSample<T>, rate_hz: T) -> JointMotion<T> {
+    let rate = rate_hz;
     let half = T::HALF;
     let mean = |a: [T; 2], b: [T; 2]| [(a[0] + b[0]) * half, (a[1] + b[1]) * half];
     let diff = |a: [T; 2], b: [T; 2]| [(b[0] - a[0]) * rate, (b[1] - a[1]) * rate];
@@ -143,14 +144,8 @@ pub fn feed_forward_nm(
     match dynamics {
         Some(d) => d.torque_nm(motion),
         None => {
-            let mut tau = [0.0f32; 2];
-            for (i, (t, g)) in tau.iter_mut().zip(axes).enumerate() {
-                let w = motion.velocity_rad_s[i];
-                *t = g.inertia_ff_kg_m2 * motion.acceleration_rad_s2[i]
-                    + g.viscous_ff_nm_s_per_rad * w
-                    + g.coulomb_ff_nm * w / (w.abs() + g.coulomb_ff_speed_rad_s);
-            }
-            Ok(tau)
+            let (w, a) = (motion.velocity_rad_s, motion.acceleration_rad_s2);
+            Ok([axes[0].feed_forward_nm(w[0], a[0]), axes[1].feed_forward_nm(w[1], a[1])])
         }
     }
 }
@@ -178,7 +173,7 @@ mod tests {
             let (a, b) = (traj.at(t), traj.at(t + dt));
             let now = JointSample::at(&m, &a, 0.05).unwrap();
             let next = JointSample::at(&m, &b, 0.05).unwrap();
-            let mean = interval_motion(&now, &next, dt);
+            let mean = interval_motion(&now, &next, 1.0 / dt);
             // The average of θ̈ over the interval, by fine quadrature.
             let n = 64;
             let mut avg = [0.0; 2];
@@ -217,7 +212,7 @@ mod tests {
         let a = MotionSetpoint { position_mm: [210.0, 5.0], velocity_mm_s: [300.0, -200.0], acceleration_mm_s2: [10_000.0, 20_000.0], jerk_mm_s3: [0.0; 2] };
         let now = JointSample::at(&m, &a, 0.05).unwrap();
         let next = JointSample::at(&m, &predict(&a, 5e-4), 0.05).unwrap();
-        let mean = interval_motion(&now, &next, 5e-4);
+        let mean = interval_motion(&now, &next, 1.0 / 5e-4);
         let g = AxisGains {
             kp_nm_per_rad: 0.0,
             ki_nm_per_rad_s: 0.0,

@@ -37,6 +37,9 @@ impl<T: Real> FiveBar<T> {
         if !(theta_rad[0].is_finite() && theta_rad[1].is_finite()) {
             return Err(KinematicsError::NonFinite);
         }
+        if !self.links_positive() {
+            return Err(self.invalid_model());
+        }
         let (s1, c1) = (theta_rad[0] + self.encoder_offset_rad[0]).sin_cos();
         let (s2, c2) = (theta_rad[1] + self.encoder_offset_rad[1]).sin_cos();
         let a0 = self.base_a0_mm;

@@ -33,7 +33,7 @@
 
 use crate::model::{Branch, FiveBar};
 use crate::pose::{cross, Pose};
-use crate::real::{wrap_angle_rad, Real};
+use crate::real::{effective_margin, wrap_near_rad, Real};
 use crate::{KinematicsError, Singularity};
 
 /// One arm solved: its angle and what the checks and `inverse_pose` need, the vectors scaled
@@ -71,7 +71,8 @@ fn solve_arm<T: Real>(r: [T; 2], proximal_mm: T, distal_mm: T, elbow: Branch, of
     // 2ρ²·(C - A) = 2ρ²·r - 2ρ²·(A - A0).
     let two_rho2 = rho2 + rho2;
     Some(Arm {
-        theta_rad: wrap_angle_rad(proximal[1].atan2(proximal[0]) - offset_rad),
+        // An absurd encoder offset (beyond ±3π) gives NaN here: refused as non-finite.
+        theta_rad: wrap_near_rad(proximal[1].atan2(proximal[0]) - offset_rad),
         proximal,
         distal: [two_rho2 * r[0] - proximal[0], two_rho2 * r[1] - proximal[1]],
         rho2,
@@ -114,6 +115,13 @@ impl<T: Real> FiveBar<T> {
         if !all_finite(tool_mm) {
             return Err(KinematicsError::NonFinite);
         }
+        // A link that is not positive solves to angles whose FK is another point (the law of
+        // cosines squares the lengths). A non-finite parameter needs no test here: it makes
+        // the angles or the cross product non-finite, refused below.
+        if !self.links_positive() {
+            return Err(self.invalid_model());
+        }
+        let min_transmission = effective_margin(min_transmission, T::IK_MIN_TRANSMISSION);
         let a0 = self.base_a0_mm;
         let b0 = [a0[0] + self.base_b0_mm[0], a0[1] + self.base_b0_mm[1]];
         let r1 = [tool_mm[0] - a0[0], tool_mm[1] - a0[1]];
@@ -159,7 +167,12 @@ impl<T: Real> FiveBar<T> {
     /// Encoder angles that put the tool point at `tool_mm`, with the full pose.
     ///
     /// `min_transmission` is the smallest acceptable `|sin|` of the transmission angles (see
-    /// [`Pose`]); 0 accepts everything short of an exact singularity. Angles are wrapped into
+    /// [`Pose`]). It is raised to [`Real::IK_MIN_TRANSMISSION`] (∛ε: 6e-6 in f64, 4.9e-3 in
+    /// f32, 0.28°): 0 or a negative margin accepts everything except a singularity and the
+    /// poses so close to one that FK of the angles could round across it; a pose IK accepts
+    /// with margin 0 is one FK returns with margin 0 (FK's floor is lower, √ε). A NaN margin
+    /// refuses every pose. A model whose links are not all positive
+    /// is [`KinematicsError::InvalidModel`]. Angles are wrapped into
     /// `(-π, π]`; the servo unwraps them next to the motor's current position.
     pub fn inverse_pose(&self, tool_mm: [T; 2], min_transmission: T) -> Result<Pose<T>, KinematicsError> {
         let s = self.solve_inverse(tool_mm, min_transmission)?;

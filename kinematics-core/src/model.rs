@@ -158,6 +158,21 @@ impl<T: Real> FiveBar<T> {
         Ok(())
     }
 
+    /// Whether all four links are positive (false for a NaN link): the one model check IK and
+    /// FK make on every call (four comparisons, 7 instructions of the IK on the Cortex-M4F). A
+    /// negative link is what it must catch: the law of cosines would square it into a wrong
+    /// but finite answer.
+    #[inline(always)]
+    pub(crate) fn links_positive(&self) -> bool {
+        self.a_mm > T::ZERO && self.b_mm > T::ZERO && self.c_mm > T::ZERO && self.d_mm > T::ZERO
+    }
+
+    /// The error for a model [`Self::links_positive`] refused: what [`Self::validate`] names.
+    #[cold]
+    pub(crate) fn invalid_model(&self) -> crate::KinematicsError {
+        crate::KinematicsError::InvalidModel(self.validate().err().unwrap_or(ModelError::NonPositiveLink))
+    }
+
     /// The same model in another scalar type (rounding to nearest).
     pub fn cast<U: Real>(&self) -> FiveBar<U> {
         let c = |v: T| U::from_f64(v.to_f64());

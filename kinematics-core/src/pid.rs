@@ -24,8 +24,6 @@
 //! given: the output and the integrator go through [`saturate`] (no `f32::clamp`, which panics
 //! when its bounds are crossed or NaN).
 
-use crate::real::Real;
-
 /// Gains and limits of one axis (joint side: torques in N·m at the link, angles in rad).
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -96,17 +94,42 @@ impl AxisGains {
         }
         Ok(())
     }
+
+    /// The gains' own feed-forward torque (N·m) for a reference moving at `velocity_rad_s`
+    /// with `acceleration_rad_s2`: inertia, viscous and Coulomb terms. The Coulomb term's
+    /// division (14 cycles) is skipped when it is off (`coulomb_ff_nm == 0`, the default).
+    #[inline]
+    pub fn feed_forward_nm(&self, velocity_rad_s: f32, acceleration_rad_s2: f32) -> f32 {
+        let tau = self.inertia_ff_kg_m2 * acceleration_rad_s2 + self.viscous_ff_nm_s_per_rad * velocity_rad_s;
+        if self.coulomb_ff_nm == 0.0 {
+            return tau;
+        }
+        tau + self.coulomb_ff_nm * velocity_rad_s / (velocity_rad_s.abs() + self.coulomb_ff_speed_rad_s)
+    }
 }
 
 /// `value` limited to `[-limit, limit]`: zero when `value` is NaN, or when `limit` is not a
 /// finite non-negative number (gains `validate` refuses; this must not panic on them either).
-/// Two comparisons more than `f32::clamp`, which would panic on such a limit.
+/// `f32::clamp` would panic on such a limit. The usual case (a valid limit, `value` within it)
+/// costs two comparisons: `|value| <= limit` is false for a NaN value or a NaN or negative
+/// limit, `limit <= f32::MAX` for an infinite one; a value beyond a valid limit two or three
+/// more.
 #[inline]
 pub fn saturate(value: f32, limit: f32) -> f32 {
-    if !(0.0..=f32::MAX).contains(&limit) || value.is_nan() {
-        return 0.0;
+    if value.abs() <= limit && limit <= f32::MAX {
+        return value;
     }
-    Real::clamp(value, -limit, limit)
+    // Beyond the limit, or NaN. Neither comparison holds for a NaN value nor for a NaN or
+    // infinite limit (zero then); a negative limit is refused before them.
+    if limit >= 0.0 {
+        if value > limit {
+            return limit;
+        }
+        if value < -limit {
+            return -limit;
+        }
+    }
+    0.0
 }
 
 /// The axis state carried from one sample to the next.
@@ -132,6 +155,7 @@ impl AxisController {
     /// One control sample of length `dt_s`: returns the torque command (N·m), within the limit.
     /// Never panics; the result is always finite and within `±torque_limit_nm` (zero for a
     /// limit that is not a finite non-negative number, or when the terms add up to NaN).
+    #[inline(always)]
     pub fn update(
         &mut self,
         gains: &AxisGains,
@@ -140,15 +164,11 @@ impl AxisController {
         velocity_rad_s: f32,
         dt_s: f32,
     ) -> f32 {
-        let feedforward_nm = gains.inertia_ff_kg_m2 * reference.acceleration_rad_s2
-            + gains.viscous_ff_nm_s_per_rad * reference.velocity_rad_s
-            + gains.coulomb_ff_nm * reference.velocity_rad_s
-                / (reference.velocity_rad_s.abs() + gains.coulomb_ff_speed_rad_s);
         self.feedback(
             gains,
             reference.angle_rad - angle_rad,
             reference.velocity_rad_s - velocity_rad_s,
-            feedforward_nm,
+            gains.feed_forward_nm(reference.velocity_rad_s, reference.acceleration_rad_s2),
             dt_s,
         )
     }
@@ -158,6 +178,7 @@ impl AxisController {
     /// [`AxisController::update`] (which is this with the gains' own feed-forward). The gains'
     /// feed-forward terms are not used here. Never panics, and the same guarantees on the
     /// result as `update` (finite, within the limit, zero for a NaN sum).
+    #[inline(always)]
     pub fn feedback(
         &mut self,
         gains: &AxisGains,

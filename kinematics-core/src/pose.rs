@@ -88,13 +88,18 @@ impl<T: Real> Pose<T> {
         }
         // The transmissions compared multiplied out, `|p × q| >= m·|a·b|` for
         // `|p × q| / (a·b) >= m` (no division; the same test for positive lengths).
-        // `!(x >= m)` also refuses a NaN margin.
+        // `!(x >= m)` also refuses a NaN margin. The serial transmissions are the caller's
+        // business only (FK is well defined with an arm stretched or folded: the tool still
+        // moves with the motors, which a simulated plant sweeping through such a pose needs);
+        // the parallel one is raised to √ε (below the IK's floor, `FiveBar::inverse_pose`), so
+        // FK never returns a point across a parallel singularity it cannot resolve.
         let (p1, q1, p2, q2) = self.link_vectors();
         let serial_1 = cross(p1, q1).abs() >= min_transmission * (model.a_mm * model.b_mm).abs();
         let serial_2 = cross(p2, q2).abs() >= min_transmission * (model.d_mm * model.c_mm).abs();
         if !(serial_1 && serial_2) {
             return Err(KinematicsError::NearSingularity(Singularity::Serial));
         }
+        let min_transmission = crate::real::effective_margin(min_transmission, T::FK_MIN_TRANSMISSION);
         if !(cross(q1, q2).abs() >= min_transmission * (model.b_mm * model.c_mm).abs()) {
             return Err(KinematicsError::NearSingularity(Singularity::Parallel));
         }

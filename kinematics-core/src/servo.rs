@@ -44,10 +44,36 @@
 //! either, see [`crate::pid`].)
 //!
 //! # Cost
-//! One IK (two `atan2`, two `sqrt`), two bilinear lookups, two PIDs: see `cargo qemu-bench`
-//! (`BENCH servo_step`); the motion step adds the joint rates and the inverse dynamics
-//! (`BENCH servo_step_motion`, with the trajectory's evaluation). No allocation, no panic on
-//! any input or setting (property-tested).
+//! `cargo qemu-bench` (`BENCH servo_step`, `servo_step_motion`): instructions under QEMU and
+//! Cortex-M4 cycles estimated by `firmware/qemu/plugin/m4cycles.c`, per call, split by part
+//! with a per-instruction count of the same run attributed through the debug info:
+//!
+//! | `servo_step` (710 instructions, 987 cycles) | instructions | cycles |
+//! |---|---|---|
+//! | hidden-robot IK (inlined; `BENCH ik_f32` with its call: 325 / 461) | 305 | 390 |
+//! | grid lookup and adding the correction | 158 | 206 |
+//! | setpoint jump checks (speed and acceleration from backward differences) | 30 | 34 |
+//! | two PIDs: feed-forward of the gains, PID, saturation, anti-windup | 106 | 145 |
+//! | unwrap, following-error check, reference rates, history, output | 58 | 81 |
+//! | the call, its register saves and the results | 27 | 93 |
+//! | the benchmark loop's own work per call (input, output) | 26 | 38 |
+//!
+//! The motion step (`servo_step_motion`, 1198 / 1787; the parts from the build before the IK's
+//! singularity-floor checks, 1194 / 1786: the trajectory's evaluation 77 / 113 included) is the next setpoint's IK with the joint rates (359 / 562), the inverse dynamics
+//! (156 / 211), the interval's means (48 / 68), the grid (185 / 243), the finiteness of both
+//! setpoints and the differenced speed and acceleration (62 / 81) and the PIDs (78 / 97); the
+//! rest is the stated speed and acceleration, the joint-state slots, the history and the calls.
+//!
+//! What keeps it there, the way `idsp` does it: no division in the step (VDIV is 14 cycles):
+//! `1 / sample_period_s` and the squared limits are computed once in [`Servo::new`], and the
+//! history keeps the previous sample's backward differences, so a second difference is one
+//! subtraction; finiteness is never tested on the way through: a NaN or infinite setpoint or
+//! encoder reading makes a speed or a following error that no limit admits, and only then is
+//! it told apart ([`SetpointRefusal::NonFinite`] from `Jump`, [`ServoFault::NonFiniteFeedback`]
+//! from `FollowingError`); the PID saturates in two comparisons in the usual case
+//! ([`crate::pid::saturate`]) and skips the Coulomb term's division when it is off;
+//! [`AcceptedSetpoint::track`] and the PID are inlined. No allocation, no panic on any input or
+//! setting (property-tested).
 
 use crate::dynamics::{DynamicsError, FiveBarDynamics};
 use crate::feed_forward::{feed_forward_nm, interval_motion, predict, JointSample};
@@ -195,6 +221,7 @@ impl<'a> Calibration<'a> {
     /// one function that turns a target into a motor command, on the MCU and in the host tools.
     /// ([`Servo::accept_motion`] keeps the model's angle from the IK it solved for the setpoint a
     /// sample earlier, and corrects it with [`Calibration::corrected_rad`].)
+    #[inline(always)]
     pub fn command_rad(&self, tool_mm: [f32; 2], min_transmission: f32) -> Result<[f32; 2], SetpointRefusal> {
         let theta = self.model.inverse(tool_mm, min_transmission).map_err(SetpointRefusal::Kinematics)?;
         self.corrected_rad(tool_mm, theta)
@@ -330,18 +357,47 @@ pub struct ServoOutput {
     pub following_error_rad: [f32; 2],
 }
 
-/// History the step needs from earlier samples.
+/// History the step needs from earlier samples: the last tracked setpoint and reference with
+/// the backward differences computed for them, so that a sample's second differences are one
+/// subtraction from its first (no division by `dt²`, no recomputation).
 #[derive(Clone, Copy, Debug, PartialEq)]
 struct History {
-    setpoint_mm: [[f32; 2]; 2],
-    reference_rad: [[f32; 2]; 2],
+    setpoint_mm: [f32; 2],
+    velocity_mm_s: [f32; 2],
+    reference_rad: [f32; 2],
+    reference_velocity_rad_s: [f32; 2],
     encoder_rad: [f32; 2],
+}
+
+/// What the step needs of the settings in the form it uses them, computed once when the servo
+/// is built (the settings do not change afterwards): no division by `dt` in the hot path
+/// (VDIV is 14 cycles on the Cortex-M4), no squaring of the limits.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Derived {
+    /// `1 / sample_period_s` (Hz).
+    rate_hz: f32,
+    /// `max_speed_mm_s²`, at most `f32::MAX`: a non-finite speed never compares below it.
+    max_speed2: f32,
+    /// `max_accel_mm_s2²`, at most `f32::MAX`.
+    max_accel2: f32,
+}
+
+impl Derived {
+    fn of(config: &ServoConfig) -> Self {
+        let square = |v: f32| (v * v).min(f32::MAX);
+        Derived {
+            rate_hz: 1.0 / config.sample_period_s,
+            max_speed2: square(config.max_speed_mm_s),
+            max_accel2: square(config.max_accel_mm_s2),
+        }
+    }
 }
 
 /// The servo of both motors.
 #[derive(Clone, Debug)]
 pub struct Servo {
     config: ServoConfig,
+    derived: Derived,
     axes: [AxisController; 2],
     history: Option<History>,
     fault: Option<ServoFault>,
@@ -401,6 +457,7 @@ impl Servo {
         config.validate()?;
         Ok(Servo {
             config,
+            derived: Derived::of(&config),
             axes: [AxisController::default(); 2],
             history: None,
             fault: None,
@@ -463,8 +520,10 @@ impl Servo {
                 .map_err(EngageError::Kinematics)?;
         }
         self.history = Some(History {
-            setpoint_mm: [tool; 2],
-            reference_rad: [encoder_rad; 2],
+            setpoint_mm: tool,
+            velocity_mm_s: [0.0; 2],
+            reference_rad: encoder_rad,
+            reference_velocity_rad_s: [0.0; 2],
             encoder_rad,
         });
         Ok(tool)
@@ -490,29 +549,22 @@ impl Servo {
     }
 
     /// Engaged, a finite setpoint, and the speed and acceleration the setpoint sequence implies
-    /// (backward differences, returned) within the limits.
+    /// (backward differences, returned) within the limits. A NaN or infinite coordinate makes
+    /// the speed NaN or infinite, which never passes the limit (at most `f32::MAX`): finiteness
+    /// is told apart from a jump only on the way out.
     #[inline]
     fn check_sequence(&self, setpoint_mm: [f32; 2]) -> Result<([f32; 2], [f32; 2]), SetpointRefusal> {
         let Some(h) = &self.history else {
             return Err(SetpointRefusal::NotEngaged);
         };
-        let cfg = &self.config;
-        let dt = cfg.sample_period_s;
-        if !finite2(setpoint_mm) {
-            return Err(SetpointRefusal::NonFinite);
-        }
-        let [p1, p2] = h.setpoint_mm;
-        let v = [(setpoint_mm[0] - p1[0]) / dt, (setpoint_mm[1] - p1[1]) / dt];
-        let a = [
-            (setpoint_mm[0] - 2.0 * p1[0] + p2[0]) / (dt * dt),
-            (setpoint_mm[1] - 2.0 * p1[1] + p2[1]) / (dt * dt),
-        ];
+        let d = &self.derived;
+        let rate = d.rate_hz;
+        let v = [(setpoint_mm[0] - h.setpoint_mm[0]) * rate, (setpoint_mm[1] - h.setpoint_mm[1]) * rate];
+        let a = [(v[0] - h.velocity_mm_s[0]) * rate, (v[1] - h.velocity_mm_s[1]) * rate];
         let speed2 = v[0] * v[0] + v[1] * v[1];
         let accel2 = a[0] * a[0] + a[1] * a[1];
-        if !(speed2 <= cfg.max_speed_mm_s * cfg.max_speed_mm_s)
-            || !(accel2 <= cfg.max_accel_mm_s2 * cfg.max_accel_mm_s2)
-        {
-            return Err(SetpointRefusal::Jump);
+        if !(speed2 <= d.max_speed2 && accel2 <= d.max_accel2) {
+            return Err(if finite2(setpoint_mm) { SetpointRefusal::Jump } else { SetpointRefusal::NonFinite });
         }
         Ok((v, a))
     }
@@ -531,15 +583,13 @@ impl Servo {
         setpoint: &MotionSetpoint<f32>,
         next: Option<&MotionSetpoint<f32>>,
     ) -> Result<AcceptedSetpoint<'_>, SetpointRefusal> {
-        let cfg = self.config;
+        let (cfg, d) = (&self.config, &self.derived);
         if self.history.is_some() {
             if !finite_setpoint(setpoint) {
                 return Err(SetpointRefusal::NonFinite);
             }
             let (v, a) = (setpoint.velocity_mm_s, setpoint.acceleration_mm_s2);
-            if !(v[0] * v[0] + v[1] * v[1] <= cfg.max_speed_mm_s * cfg.max_speed_mm_s)
-                || !(a[0] * a[0] + a[1] * a[1] <= cfg.max_accel_mm_s2 * cfg.max_accel_mm_s2)
-            {
+            if !(v[0] * v[0] + v[1] * v[1] <= d.max_speed2 && a[0] * a[0] + a[1] * a[1] <= d.max_accel2) {
                 return Err(SetpointRefusal::Jump);
             }
         }
@@ -565,7 +615,7 @@ impl Servo {
         if !solved && next_state.solve(&cal.model, &predict(setpoint, cfg.sample_period_s), m).is_err() {
             *next_state = *now_state;
         }
-        let motion = interval_motion(now_state, next_state, cfg.sample_period_s);
+        let motion = interval_motion(now_state, next_state, d.rate_hz);
         let command_rad = cal.corrected_rad(p, now_state.angle_rad)?;
         let ff = feed_forward_nm(&motion, self.dynamics.as_ref(), &cfg.axes).map_err(SetpointRefusal::Kinematics)?;
         Ok(AcceptedSetpoint {
@@ -637,43 +687,47 @@ impl AcceptedSetpoint<'_> {
     /// ([`Servo::accept_motion`]) feeds its feed-forward and the PID acts on the remainder, the
     /// velocity error from backward differences of reference and encoder alike (the measured
     /// velocity is half a sample old, so is the reference's).
+    #[inline(always)]
     pub fn track(self, encoder_rad: [f32; 2]) -> Result<ServoOutput, ServoFault> {
         let servo = self.servo;
         let Some(h) = servo.history else {
             return Err(servo.fault.unwrap_or(ServoFault::NotEngaged));
         };
-        if !finite2(encoder_rad) {
-            return Err(servo.latch(ServoFault::NonFiniteFeedback));
-        }
-        let cfg = servo.config;
+        let cfg = &servo.config;
         let dt = cfg.sample_period_s;
-        let rate = 1.0 / dt;
-        let [r1, r2] = h.reference_rad;
-        let mut out = ServoOutput { torque_nm: [0.0; 2], reference_rad: [0.0; 2], following_error_rad: [0.0; 2] };
+        let rate = servo.derived.rate_hz;
+        let reference = [unwrap_near(self.command_rad[0], h.reference_rad[0]), unwrap_near(self.command_rad[1], h.reference_rad[1])];
+        let error = [reference[0] - encoder_rad[0], reference[1] - encoder_rad[1]];
+        // A NaN or infinite reading makes its error NaN or infinite, beyond any (finite) limit:
+        // one comparison per axis covers both faults, told apart on the way out.
+        let max = cfg.max_following_error_rad;
+        if !(error[0].abs() <= max && error[1].abs() <= max) {
+            let fault = if finite2(encoder_rad) { ServoFault::FollowingError } else { ServoFault::NonFiniteFeedback };
+            return Err(servo.latch(fault));
+        }
+        let mut out = ServoOutput { torque_nm: [0.0; 2], reference_rad: reference, following_error_rad: error };
+        let mut reference_velocity_rad_s = [0.0; 2];
         for k in 0..2 {
-            let reference = unwrap_near(self.command_rad[k], r1[k]);
-            let error = reference - encoder_rad[k];
-            if !(error.abs() <= cfg.max_following_error_rad) {
-                return Err(servo.latch(ServoFault::FollowingError));
-            }
+            let velocity = (reference[k] - h.reference_rad[k]) * rate;
             let moved = encoder_rad[k] - h.encoder_rad[k];
             out.torque_nm[k] = match self.feedforward_nm {
                 None => {
                     let axis_ref = AxisReference {
-                        angle_rad: reference,
-                        velocity_rad_s: (reference - r1[k]) / dt,
-                        acceleration_rad_s2: (reference - 2.0 * r1[k] + r2[k]) / (dt * dt),
+                        angle_rad: reference[k],
+                        velocity_rad_s: velocity,
+                        acceleration_rad_s2: (velocity - h.reference_velocity_rad_s[k]) * rate,
                     };
-                    servo.axes[k].update(&cfg.axes[k], &axis_ref, encoder_rad[k], moved / dt, dt)
+                    servo.axes[k].update(&cfg.axes[k], &axis_ref, encoder_rad[k], moved * rate, dt)
                 }
-                Some(ff) => servo.axes[k].feedback(&cfg.axes[k], error, ((reference - r1[k]) - moved) * rate, ff[k], dt),
+                Some(ff) => servo.axes[k].feedback(&cfg.axes[k], error[k], velocity - moved * rate, ff[k], dt),
             };
-            out.reference_rad[k] = reference;
-            out.following_error_rad[k] = error;
+            reference_velocity_rad_s[k] = velocity;
         }
         servo.history = Some(History {
-            setpoint_mm: [self.setpoint_mm, h.setpoint_mm[0]],
-            reference_rad: [out.reference_rad, r1],
+            setpoint_mm: self.setpoint_mm,
+            velocity_mm_s: self.velocity_mm_s,
+            reference_rad: reference,
+            reference_velocity_rad_s,
             encoder_rad,
         });
         servo.ahead = self.ahead;

@@ -20,6 +20,7 @@ fn every_error_type_is_an_error_with_a_distinct_message() {
         boxed(KinematicsError::Unreachable),
         boxed(KinematicsError::NearSingularity(Singularity::Serial)),
         boxed(KinematicsError::NearSingularity(Singularity::Parallel)),
+        boxed(KinematicsError::InvalidModel(ModelError::NonPositiveLink)),
         boxed(ModelError::NonFinite),
         boxed(ModelError::NonPositiveLink),
         boxed(GridError::Truncated),

@@ -1,11 +1,147 @@
 //! What the firmware does with the calibration image it finds in flash.
 //!
 //! The board reads the image's flash region (see `firmware/src/calibration.rs`); [`load`]
-//! validates it (`CorrectionGrid::parse`: magic, version, header, sizes, CRC, every number) and
-//! applies the policy of [`Settings::allow_uncorrected`](crate::settings::Settings): a refused
-//! image keeps the drives disabled, unless running uncorrected is allowed. Calibration slots
-//! (several images, one selected) will live here.
-use kinematics_core::{Calibration, CorrectionGrid, FiveBar, GridError};
+//! validates it (`CorrectionGrid::parse`: magic, version, header, sizes, CRC, every number),
+//! checks that it was built for this machine ([`MachineIdentity::check`]) and applies the
+//! policy of [`Settings::allow_uncorrected`](crate::settings::Settings): a refused image keeps
+//! the drives disabled, unless running uncorrected is allowed. Which of the region's two slots
+//! holds the image in force, and how a new one is written: [`crate::calibration_slots`].
+//!
+//! # "Built for this machine"
+//! An image carries the hidden robot it corrects (link lengths, base, encoder offsets, working
+//! mode; see `kinematics_core::grid`). A calibration identifies *small* deviations of one
+//! machine from its nominal design; an image whose model is far from the nominal geometry in
+//! the settings ([`MachineIdentity`]) was built for another machine (another design, another
+//! scale), or is garbage that happens to carry a valid CRC. It is refused if:
+//! * its working mode (both elbows and the assembly branch) differs from the settings' (the
+//!   IK would pick another solution: the motors would swing to a mirrored pose);
+//! * any link length differs from the nominal by more than `max_length_deviation_mm`;
+//! * either base position differs by more than `max_base_deviation_mm`;
+//! * either encoder offset differs by more than `max_offset_deviation_rad` (the offsets tie the
+//!   model to the encoder zero homing establishes: an image identified against another zero
+//!   reference would place the tool elsewhere);
+//! * the home position (`Settings::homing.home_mm`) lies outside its grid.
+//!
+//! Defaults: the paper's machine, 2 mm, 2 mm, 0.05 rad (an identified machine differs from its
+//! drawing by tenths of a millimetre and milliradians; a different design by centimetres).
+use kinematics_core::{Calibration, CorrectionGrid, FiveBar, GridError, WorkingMode};
+
+/// The machine the firmware runs: its nominal geometry and how far an image's model may be
+/// from it and still be this machine's calibration (module doc).
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct MachineIdentity {
+    /// The design's nominal model (working mode included).
+    pub nominal: FiveBar<f32>,
+    /// Largest |a, b, c, d - nominal| (mm).
+    pub max_length_deviation_mm: f32,
+    /// Largest deviation of either base position, per coordinate (mm).
+    pub max_base_deviation_mm: f32,
+    /// Largest |encoder offset - nominal| (rad).
+    pub max_offset_deviation_rad: f32,
+}
+
+impl Default for MachineIdentity {
+    fn default() -> Self {
+        MachineIdentity {
+            nominal: FiveBar::paper_nominal(),
+            max_length_deviation_mm: 2.0,
+            max_base_deviation_mm: 2.0,
+            max_offset_deviation_rad: 0.05,
+        }
+    }
+}
+
+/// Why an image that parses was not built for this machine.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum MachineMismatch {
+    /// Another working mode.
+    WorkingMode,
+    /// A link length too far from the nominal.
+    LinkLength,
+    /// A base position too far from the nominal.
+    Base,
+    /// An encoder offset too far from the nominal.
+    EncoderOffset,
+    /// The home position is outside the image's grid.
+    HomeOutsideGrid,
+}
+
+impl core::fmt::Display for MachineMismatch {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(match self {
+            MachineMismatch::WorkingMode => "the image's working mode is not this machine's",
+            MachineMismatch::LinkLength => "a link length of the image's model is too far from this machine's",
+            MachineMismatch::Base => "a base position of the image's model is too far from this machine's",
+            MachineMismatch::EncoderOffset => "an encoder offset of the image's model is too far from this machine's",
+            MachineMismatch::HomeOutsideGrid => "the home position lies outside the image's grid",
+        })
+    }
+}
+
+/// Why an image was refused: it does not parse, or it is another machine's.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum ImageError {
+    /// Format, CRC or numbers (`CorrectionGrid::parse`).
+    Grid(GridError),
+    /// Parses, but was built for another machine.
+    OtherMachine(MachineMismatch),
+}
+
+impl core::fmt::Display for ImageError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            ImageError::Grid(e) => write!(f, "{e}"),
+            ImageError::OtherMachine(e) => write!(f, "{e}"),
+        }
+    }
+}
+
+impl MachineIdentity {
+    /// Whether `grid` was built for this machine (module doc); `home_mm` must lie in its grid.
+    pub fn check(&self, grid: &CorrectionGrid<'_>, home_mm: [f32; 2]) -> Result<(), MachineMismatch> {
+        let (m, n) = (grid.model(), &self.nominal);
+        let same_mode = |a: WorkingMode, b: WorkingMode| a == b;
+        if !same_mode(m.mode, n.mode) {
+            return Err(MachineMismatch::WorkingMode);
+        }
+        // `!(d <= max)` also refuses NaN.
+        let within = |a: f32, b: f32, max: f32| (a - b).abs() <= max;
+        let lengths = [(m.a_mm, n.a_mm), (m.b_mm, n.b_mm), (m.c_mm, n.c_mm), (m.d_mm, n.d_mm)];
+        if !lengths.iter().all(|&(a, b)| within(a, b, self.max_length_deviation_mm)) {
+            return Err(MachineMismatch::LinkLength);
+        }
+        let bases = [m.base_a0_mm, m.base_b0_mm].into_iter().zip([n.base_a0_mm, n.base_b0_mm]);
+        if !bases.flat_map(|(a, b)| [(a[0], b[0]), (a[1], b[1])]).all(|(a, b)| within(a, b, self.max_base_deviation_mm)) {
+            return Err(MachineMismatch::Base);
+        }
+        let offsets = m.encoder_offset_rad.into_iter().zip(n.encoder_offset_rad);
+        if !offsets.into_iter().all(|(a, b)| within(a, b, self.max_offset_deviation_rad)) {
+            return Err(MachineMismatch::EncoderOffset);
+        }
+        if grid.correction_rad(home_mm).is_err() {
+            return Err(MachineMismatch::HomeOutsideGrid);
+        }
+        Ok(())
+    }
+}
+
+/// Parses `bytes` and checks it is this machine's image: the validation of a boot and of an
+/// upload's commit. Returns the grid and the image's length in bytes (with its dynamics
+/// extension, if any).
+pub fn validate_image<'a>(
+    bytes: &'a [u8],
+    machine: &MachineIdentity,
+    home_mm: [f32; 2],
+) -> Result<(CorrectionGrid<'a>, usize), ImageError> {
+    let grid = CorrectionGrid::parse(bytes).map_err(ImageError::Grid)?;
+    machine.check(&grid, home_mm).map_err(ImageError::OtherMachine)?;
+    let g = grid.geometry();
+    let len = if grid.dynamics().is_some() { g.image_len_with_dynamics() } else { g.image_len() };
+    Ok((grid, len))
+}
 
 /// What the boot check found.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -14,18 +150,24 @@ pub enum CalibrationState {
     /// A valid image: model and grid in use.
     Valid,
     /// The image was refused; the drives stay disabled.
-    Refused(GridError),
+    Refused(ImageError),
     /// The image was refused and `allow_uncorrected` is on: nominal model, no grid.
-    Uncorrected(GridError),
+    Uncorrected(ImageError),
 }
 
-/// Validates the image in `region` (the whole flash region: bytes after the image are ignored)
-/// and applies the policy. A refused image yields the paper's nominal model without grid,
-/// which the servo uses only if the state is [`CalibrationState::Uncorrected`].
-pub fn load(region: &[u8], allow_uncorrected: bool) -> (CalibrationState, Calibration<'_>) {
-    let nominal = Calibration { model: FiveBar::<f32>::paper_nominal(), grid: None };
-    match CorrectionGrid::parse(region) {
-        Ok(grid) => (CalibrationState::Valid, Calibration::from_grid(grid)),
+/// Validates the image in `region` (the image in force, or the whole flash region: bytes after
+/// the image are ignored), checks it is this `machine`'s with `home_mm` in its grid, and
+/// applies the policy. A refused image yields the paper's nominal model without grid, which
+/// the servo uses only if the state is [`CalibrationState::Uncorrected`].
+pub fn load<'a>(
+    region: &'a [u8],
+    machine: &MachineIdentity,
+    home_mm: [f32; 2],
+    allow_uncorrected: bool,
+) -> (CalibrationState, Calibration<'a>) {
+    let nominal = Calibration { model: machine.nominal, grid: None };
+    match validate_image(region, machine, home_mm) {
+        Ok((grid, _)) => (CalibrationState::Valid, Calibration::from_grid(grid)),
         Err(e) if allow_uncorrected => (CalibrationState::Uncorrected(e), nominal),
         Err(e) => (CalibrationState::Refused(e), nominal),
     }
@@ -35,6 +177,9 @@ pub fn load(region: &[u8], allow_uncorrected: bool) -> (CalibrationState, Calibr
 mod tests {
     use super::*;
     use kinematics_core::grid::{encode, GridGeometry};
+    use kinematics_core::Branch;
+
+    const HOME_MM: [f32; 2] = [212.132, 0.0];
 
     fn image() -> Vec<u8> {
         let g = GridGeometry { nx: 3, ny: 3, x0_mm: 160.0, y0_mm: -80.0, step_x_mm: 50.0, step_y_mm: 80.0 };
@@ -47,7 +192,7 @@ mod tests {
     fn a_valid_image_gives_its_model_and_grid() {
         let mut region = image();
         region.extend([0xFF; 100]); // erased flash after the image
-        let (state, cal) = load(&region, false);
+        let (state, cal) = load(&region, &MachineIdentity::default(), HOME_MM, false);
         assert_eq!(state, CalibrationState::Valid);
         let grid = cal.grid.expect("grid in use");
         assert_eq!(grid.correction_rad([200.0, 0.0]), Ok([2e-4, -1e-4]));
@@ -57,12 +202,47 @@ mod tests {
     fn a_bad_image_is_refused_unless_uncorrected_running_is_allowed() {
         let mut region = image();
         region[100] ^= 1;
-        let (state, cal) = load(&region, false);
-        assert_eq!(state, CalibrationState::Refused(GridError::BadCrc));
+        let (state, cal) = load(&region, &MachineIdentity::default(), HOME_MM, false);
+        assert_eq!(state, CalibrationState::Refused(ImageError::Grid(GridError::BadCrc)));
         assert!(cal.grid.is_none());
-        let (state, cal) = load(&[0xFF; 4096], true);
-        assert_eq!(state, CalibrationState::Uncorrected(GridError::BadMagic));
+        let (state, cal) = load(&[0xFF; 4096], &MachineIdentity::default(), HOME_MM, true);
+        assert_eq!(state, CalibrationState::Uncorrected(ImageError::Grid(GridError::BadMagic)));
         assert!(cal.grid.is_none());
         assert_eq!(cal.model, FiveBar::paper_nominal());
+    }
+
+    fn image_of(model: &FiveBar<f32>, x0_mm: f32) -> Vec<u8> {
+        let g = GridGeometry { nx: 3, ny: 3, x0_mm, y0_mm: -80.0, step_x_mm: 50.0, step_y_mm: 80.0 };
+        let mut img = vec![0u8; g.image_len()];
+        encode(&mut img, &g, model, &[[0.0; 2]; 9]).unwrap();
+        img
+    }
+
+    /// Each way an image can be another machine's is refused with its reason; a model within
+    /// the tolerances (an identified machine) is accepted.
+    #[test]
+    fn an_image_built_for_another_machine_is_refused() {
+        let m = MachineIdentity::default();
+        let n = FiveBar::paper_nominal();
+        let identified = FiveBar { a_mm: 150.4, d_mm: 149.7, base_b0_mm: [0.3, -0.2], encoder_offset_rad: [2e-3, -1e-3], ..n };
+        assert!(validate_image(&image_of(&identified, 160.0), &m, HOME_MM).is_ok());
+        let mut mirrored = n;
+        mirrored.mode.assembly = match n.mode.assembly {
+            Branch::Positive => Branch::Negative,
+            Branch::Negative => Branch::Positive,
+        };
+        for (model, x0, why) in [
+            (mirrored, 160.0, MachineMismatch::WorkingMode),
+            (FiveBar { c_mm: 153.0, ..n }, 160.0, MachineMismatch::LinkLength),
+            (FiveBar { base_a0_mm: [0.0, 2.5], ..n }, 160.0, MachineMismatch::Base),
+            (FiveBar { encoder_offset_rad: [0.0, 0.1], ..n }, 160.0, MachineMismatch::EncoderOffset),
+            (n, 220.0, MachineMismatch::HomeOutsideGrid),
+        ] {
+            let img = image_of(&model, x0);
+            assert_eq!(validate_image(&img, &m, HOME_MM).err(), Some(ImageError::OtherMachine(why)), "{why:?}");
+            let (state, cal) = load(&img, &m, HOME_MM, false);
+            assert_eq!(state, CalibrationState::Refused(ImageError::OtherMachine(why)));
+            assert!(cal.grid.is_none());
+        }
     }
 }

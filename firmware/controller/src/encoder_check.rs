@@ -170,6 +170,17 @@ impl EncoderCheck {
         EncoderCheck { count_rad, last_rad: encoder_rad, last_step_rad: [0.0; 2], expected: [Expected::default(); 2] }
     }
 
+    /// One count of each axis (rad), as given to `new`.
+    pub fn count_rad(&self) -> [f32; 2] {
+        self.count_rad
+    }
+
+    /// The readings' zero moved (homing set the reference): the readings from now on are the
+    /// old ones plus `offset_rad`. Speeds and the stuck check carry on.
+    pub fn shift(&mut self, offset_rad: [f32; 2]) {
+        self.last_rad = [self.last_rad[0] + offset_rad[0], self.last_rad[1] + offset_rad[1]];
+    }
+
     /// The last sample's joint speeds (rad/s): the difference of the last two readings.
     pub fn speed_rad_s(&self, dt_s: f32) -> [f32; 2] {
         [self.last_step_rad[0] / dt_s, self.last_step_rad[1] / dt_s]

@@ -33,8 +33,10 @@
 //!
 //! Only a reset clears a latched fault. The mode machine is in [`crate::servo_loop`], the stop
 //! profile in [`crate::stop`], the encoder checks in [`crate::encoder_check`].
-use kinematics_core::{EngageError, GridError, ServoFault, SetpointRefusal};
+use kinematics_core::{EngageError, ServoFault, SetpointRefusal};
 
+use crate::calibration::ImageError;
+use crate::homing::HomingFault;
 use crate::encoder_check::EncoderFault;
 use crate::settings::SettingsError;
 use crate::watchdog::WatchdogFault;
@@ -78,8 +80,12 @@ pub enum Fault {
     /// the STM32G474: TIM1's break input, the external safe-torque-off, cleared its main
     /// output enable). Category 0.
     Drive,
+    /// Homing failed ([`HomingFault`]): the index not found within the travel or a reference
+    /// refused (category 1: the search has ended at rest, torque off), a following error while
+    /// homing or the homing plan refused (category 0).
+    Homing(HomingFault),
     /// The calibration image was refused at boot (drives never enabled).
-    Calibration(GridError),
+    Calibration(ImageError),
     /// The settings were refused at boot (drives never enabled).
     Settings(SettingsError),
     /// The servo could not engage at the encoder reading at boot (drives never enabled).
@@ -97,6 +103,8 @@ impl Fault {
         match self {
             Fault::Setpoint(SetpointRefusal::NonFinite) => StopCategory::One,
             Fault::Setpoint(_) | Fault::StopOutsideWorkspace | Fault::Underrun => StopCategory::Two,
+            Fault::Homing(HomingFault::IndexNotFound(_) | HomingFault::Reference) => StopCategory::One,
+            Fault::Homing(HomingFault::FollowingError(_) | HomingFault::Plan) => StopCategory::Zero,
             Fault::Servo(_)
             | Fault::Encoder(_)
             | Fault::StopRefused(_)
@@ -121,6 +129,7 @@ impl core::fmt::Display for Fault {
             Fault::StopRefused(e) => write!(f, "controlled stop refused ({e})"),
             Fault::DeadlineMissed => f.write_str("servo deadline missed repeatedly"),
             Fault::Drive => f.write_str("PWM write failed or drive outputs off (safe-torque-off)"),
+            Fault::Homing(e) => write!(f, "homing: {e}"),
             Fault::Calibration(e) => write!(f, "calibration image refused: {e}"),
             Fault::Settings(e) => write!(f, "settings refused: {e}"),
             Fault::Engage(e) => write!(f, "{e}"),
@@ -135,7 +144,7 @@ impl core::error::Error for Fault {}
 mod tests {
     use super::*;
     use crate::encoder_check::EncoderFaultKind;
-    use kinematics_core::KinematicsError;
+    use kinematics_core::{GridError, KinematicsError};
 
     #[test]
     fn categories_follow_the_table() {

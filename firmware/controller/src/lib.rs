@@ -23,8 +23,13 @@
 //!   does not move under torque);
 //! * [`deadline`]: the servo task's deadline bookkeeping;
 //! * [`status`]: what the servo task publishes every sample;
-//! * [`calibration`]: the policy for the calibration image found in flash;
+//! * [`calibration`]: the policy for the calibration image found in flash, and what "built for
+//!   this machine" means;
+//! * [`calibration_slots`]: the two slots of the calibration region, the upload into the
+//!   inactive one and the atomic switch (power-cut safe);
 //! * [`drive`]: torque-mode amplifiers commanded by PWM duty (torque <-> duty);
+//! * [`homing`]: the homing procedure (index search, reference, move to home) and the check
+//!   that its sweeps keep away from the five-bar's singularities;
 //! * [`encoder`]: quadrature encoders (per-axis counts -> joint angle, the homing hook);
 //! * [`watchdog`]: when the independent watchdog is fed, its timeout, and what a watchdog
 //!   reset means at the next boot;
@@ -43,11 +48,13 @@
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 pub mod calibration;
+pub mod calibration_slots;
 pub mod deadline;
 pub mod drive;
 pub mod encoder;
 pub mod encoder_check;
 pub mod fault;
+pub mod homing;
 #[cfg(any(test, feature = "qemu-harness"))]
 pub mod scenario;
 pub mod servo_loop;

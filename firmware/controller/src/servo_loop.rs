@@ -4,6 +4,10 @@
 //!
 //! ```text
 //!  boot ── settings valid, image valid (or uncorrected allowed), engage accepted ──► Running
+//!    │      (absolute encoders only: with incremental ones the zero is unknown)
+//!    ├──── incremental encoders, image valid ──► Unhomed ── start_homing ──► Homing
+//!    │                                       Homing ── at home, engage accepted ──► Running
+//!    │                                       Homing ── homing fault ──► SafeState
 //!    └──── otherwise ───────────────────────────────────────────────────────────────► SafeState
 //!  Running ──── category 1 or 2 fault ──► Stopping ── profile done ── cat. 2 ──► Holding
 //!     │                                     │                    └── cat. 1, standstill ──► SafeState
@@ -11,7 +15,10 @@
 //!  Stopping, Holding ── category 0 fault ──────────────────────────────────────────► SafeState
 //!  boot after a watchdog reset, watchdog not started ([`ServoLoop::latch_at_boot`]) ──► SafeState
 //! ```
-//! Every mode but `SafeState` has the drives on. `Holding` keeps the servo on the stop's end
+//! Every mode but `SafeState` and `Unhomed` has the drives on. `Unhomed` refuses every setpoint
+//! (the queue is left alone, zero torque, drives off): **the drives never engage on an unhomed
+//! machine for normal motion**. `Homing` runs [`crate::homing`] through
+//! [`ServoLoop::step_homing`], in joint space, instead of the setpoint stream. `Holding` keeps the servo on the stop's end
 //! point (the fault stays latched); `SafeState` is zero torque, drive enable off, the queue
 //! left alone. Only a reset leaves `Holding` or `SafeState`. Stop categories and the table of
 //! faults: [`crate::fault`].
@@ -44,13 +51,15 @@
 //! after a category-1 stop has reached standstill.
 use heapless::spsc::Consumer;
 use kinematics_core::trajectory::MotionSetpoint;
-use kinematics_core::{Calibration, Servo, ServoOutput, StepError};
+use kinematics_core::path::Line;
+use kinematics_core::{Calibration, EngageError, PathMotion, Servo, ServoOutput, StepError, TaskLimits};
 
 use crate::calibration::CalibrationState;
 use crate::deadline::Deadline;
 use crate::encoder::EncoderScale;
 use crate::encoder_check::EncoderCheck;
 use crate::fault::{Fault, StopCategory};
+use crate::homing::{self, Homing, HomingEvent, HomingFault, HomingPhase};
 use crate::setpoints::REFILL_BELOW;
 use crate::settings::{Settings, SettingsError};
 use crate::stop::{MotionState, StopProfile, Workspace};
@@ -69,13 +78,23 @@ pub enum Mode {
     /// Drives disabled, zero torque: a category-0 fault, a category-1 stop done, or a fault at
     /// boot.
     SafeState(Fault),
+    /// Incremental encoders not referenced yet: drives disabled, every setpoint refused, until
+    /// [`ServoLoop::start_homing`].
+    Unhomed,
+    /// Drives enabled, homing ([`ServoLoop::step_homing`]).
+    Homing,
 }
 
 impl Mode {
+    /// Whether the drives are on in this mode: all but the safe state and `Unhomed`.
+    pub fn drives_on(&self) -> bool {
+        !matches!(self, Mode::SafeState(_) | Mode::Unhomed)
+    }
+
     /// The latched fault, if any.
     pub fn fault(&self) -> Option<Fault> {
         match *self {
-            Mode::Running => None,
+            Mode::Running | Mode::Unhomed | Mode::Homing => None,
             Mode::Stopping(f) | Mode::Holding(f) | Mode::SafeState(f) => Some(f),
         }
     }
@@ -105,6 +124,10 @@ pub struct Sample {
     pub fault: Option<Fault>,
     /// This sample entered the safe state: disable the drives now.
     pub torque_off: bool,
+    /// Homing found both indexes (the machine at rest): the app ties each axis's reading at its
+    /// index to `HomingSettings::index_rad` (the board's `EncoderScale::set_reference`) and
+    /// reports the outcome with [`ServoLoop::referenced`] in the same sample.
+    pub set_reference: bool,
     /// The step completed on time: the servo task feeds the independent watchdog at its end.
     /// Set only by [`ServoLoop::record_deadline`] (a sample whose deadline was not recorded
     /// does not feed); in the safe state too (drives off is not a stall).
@@ -139,6 +162,32 @@ pub struct ServoLoop<'a> {
     /// The torque written in the last sample: it acts until the next reading.
     last_torque_nm: [f32; 2],
     samples: u32,
+    /// The homing procedure, from `start_homing` until the servo engages at home.
+    homing: Option<Homing>,
+    /// The offset of the reference homing asked for, until `referenced`.
+    pending_offset_rad: [f32; 2],
+    /// After a calibration switch at rest: the short move from where the new calibration puts
+    /// the tool back to the stream's position, stepped before the queue is read again.
+    blend: Option<Blend>,
+}
+
+/// A jerk-limited straight move the loop steps by itself (after a calibration switch).
+#[derive(Clone, Copy, Debug)]
+struct Blend {
+    motion: PathMotion<f32, Line<f32>>,
+    t_s: f32,
+}
+
+/// Why [`ServoLoop::switch_calibration`] did not switch (now).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum SwitchRefused {
+    /// The machine moves, homes, stops or holds after a fault: try again at the next sample
+    /// (a running machine comes to rest between moves).
+    NotAtRest,
+    /// The new calibration cannot engage at the machine's pose (its kinematics refuse it): the
+    /// old one stays.
+    Engage(EngageError),
 }
 
 impl<'a> ServoLoop<'a> {
@@ -161,22 +210,38 @@ impl<'a> ServoLoop<'a> {
                 let _ = servo.set_dynamics(calibration.grid.as_ref().and_then(|g| g.dynamics().copied()));
                 let engaged = match state {
                     CalibrationState::Refused(e) => Err(Fault::Calibration(e)),
+                    // Incremental encoders: the zero is not known, nothing to engage at.
+                    CalibrationState::Valid | CalibrationState::Uncorrected(_) if !settings.homing.absolute_encoders => {
+                        Ok(None)
+                    }
                     CalibrationState::Valid | CalibrationState::Uncorrected(_) => {
-                        servo.engage(&calibration, encoder_rad).map_err(Fault::Engage)
+                        servo.engage(&calibration, encoder_rad).map(Some).map_err(Fault::Engage)
                     }
                 };
                 (Some(servo), engaged)
             }
         };
+        let margin_mm = settings.stop.workspace_margin_mm;
+        let workspace = calibration.grid.as_ref().map(|g| Workspace::of_grid(g.geometry(), margin_mm));
+        // Homing's sweeps checked against the singularities once, here (hundreds of thousands
+        // of instructions: not in a servo sample), from every start in the calibrated rectangle.
+        let engaged = match (engaged, workspace) {
+            (Ok(None), Some(w)) => {
+                let rect = [w.min_mm[0], w.max_mm[0], w.min_mm[1], w.max_mm[1]];
+                homing::check_plan(&settings.homing, &calibration.model, rect, settings.home_mm)
+                    .map(|_| None)
+                    .map_err(Fault::Homing)
+            }
+            (other, _) => other,
+        };
         let (mode, setpoint_mm) = match engaged {
-            Ok(tool_mm) => (Mode::Running, tool_mm),
+            Ok(Some(tool_mm)) => (Mode::Running, tool_mm),
+            Ok(None) => (Mode::Unhomed, [0.0; 2]),
             Err(fault) => (Mode::SafeState(fault), [0.0; 2]),
         };
         // One count of each axis's encoder: the quantisation the encoder check allows (a refused
         // configuration was refused by `validate` above: the loop is in the safe state).
         let count_rad = settings.encoders.map(|c| EncoderScale::new(&c).map_or(0.0, |s| s.rad_per_count()));
-        let margin_mm = settings.stop.workspace_margin_mm;
-        let workspace = calibration.grid.as_ref().map(|g| Workspace::of_grid(g.geometry(), margin_mm));
         ServoLoop {
             settings,
             calibration,
@@ -191,7 +256,49 @@ impl<'a> ServoLoop<'a> {
             reference_rad: encoder_rad,
             last_torque_nm: [0.0; 2],
             samples: 0,
+            homing: None,
+            pending_offset_rad: [0.0; 2],
+            blend: None,
         }
+    }
+
+    /// Switches to a newly committed calibration (`calibration_slots`), without a jump:
+    /// * running at rest (between moves, nothing queued moving): the servo re-engages at the
+    ///   current reading with the new calibration (the reference is the reading: no torque
+    ///   step), then a jerk-limited move within the stop's limits brings the tool from where
+    ///   the new calibration says it is to the stream's position (micrometres: the two
+    ///   calibrations' difference) before the queue is read again;
+    /// * unhomed or in the safe state (drives off): the calibration is replaced;
+    /// * otherwise ([`SwitchRefused::NotAtRest`]): the caller keeps it pending and tries again.
+    pub fn switch_calibration(&mut self, calibration: Calibration<'a>, encoder_rad: [f32; 2]) -> Result<(), SwitchRefused> {
+        let margin_mm = self.settings.stop.workspace_margin_mm;
+        let workspace = calibration.grid.as_ref().map(|g| Workspace::of_grid(g.geometry(), margin_mm));
+        let dynamics = calibration.grid.as_ref().and_then(|g| g.dynamics().copied());
+        match self.mode {
+            Mode::Unhomed | Mode::SafeState(_) => {}
+            Mode::Running if self.motion.is_at_rest() && self.blend.is_none() => {
+                let Some(servo) = self.servo.as_mut() else { return Err(SwitchRefused::NotAtRest) };
+                let tool_mm = match servo.engage(&calibration, encoder_rad) {
+                    Ok(p) => p,
+                    Err(e) => {
+                        // Back to the old calibration, at the same reading (as at boot).
+                        let _ = servo.engage(&self.calibration, encoder_rad);
+                        let _ = servo.set_dynamics(self.calibration.grid.as_ref().and_then(|g| g.dynamics().copied()));
+                        return Err(SwitchRefused::Engage(e));
+                    }
+                };
+                let _ = servo.set_dynamics(dynamics);
+                let l = &self.settings.stop.limits;
+                let limits = TaskLimits { speed_mm_s: self.settings.trajectory_speed_mm_s, accel_mm_s2: l.decel_mm_s2, jerk_mm_s3: l.jerk_mm_s3 };
+                self.blend = PathMotion::line(tool_mm, self.motion.position_mm, &limits).ok().map(|motion| Blend { motion, t_s: 0.0 });
+                self.setpoint_mm = tool_mm;
+                self.reference_rad = encoder_rad;
+            }
+            _ => return Err(SwitchRefused::NotAtRest),
+        }
+        self.calibration = calibration;
+        self.workspace = workspace;
+        Ok(())
     }
 
     /// The mode after the last sample.
@@ -199,9 +306,115 @@ impl<'a> ServoLoop<'a> {
         self.mode
     }
 
-    /// Whether the drives should be enabled: in every mode but the safe state.
+    /// Whether the drives should be enabled: in every mode but the safe state and `Unhomed`.
     pub fn drives_enabled(&self) -> bool {
-        !matches!(self.mode, Mode::SafeState(_))
+        self.mode.drives_on()
+    }
+
+    /// Where homing is (`None`: not started, or the encoders are absolute).
+    pub fn homing_phase(&self) -> Option<HomingPhase> {
+        self.homing.map(|h| h.phase())
+    }
+
+    /// Starts homing from `Unhomed` (the host's Home command, or the boot with
+    /// `HomingSettings::at_boot`), at the machine's reading `encoder_rad`. The caller enables the
+    /// drives when this returns `Ok`. Refused in any other mode (a latched fault needs a reset;
+    /// a homed machine is not re-homed), and when the homing settings are refused: then
+    /// `Fault::Homing(Plan)` is latched and the machine stays off. Cheap enough for the servo
+    /// task: the plan's kinematic check ran at boot.
+    pub fn start_homing(&mut self, encoder_rad: [f32; 2]) -> Result<(), Mode> {
+        if self.mode != Mode::Unhomed {
+            return Err(self.mode);
+        }
+        match Homing::start(&self.settings.homing, encoder_rad) {
+            Ok(h) => {
+                self.homing = Some(h);
+                self.encoders = EncoderCheck::new(encoder_rad, self.encoders.count_rad());
+                self.last_torque_nm = [0.0; 2];
+                self.reference_rad = encoder_rad;
+                self.mode = Mode::Homing;
+                Ok(())
+            }
+            Err(f) => {
+                self.mode = Mode::SafeState(Fault::Homing(f));
+                Err(self.mode)
+            }
+        }
+    }
+
+    /// One homing sample (mode `Homing`): the encoder check, then the homing procedure's
+    /// joint-space step with `index_rad` the readings at index pulses latched since the last
+    /// sample. At home the task-space servo engages and the mode becomes `Running`; a homing
+    /// fault stops: category 0 at once, category 1 (the search came to rest) torque off.
+    pub fn step_homing(&mut self, encoder_rad: [f32; 2], index_rad: [Option<f32>; 2]) -> Sample {
+        let mut sample = self.begin_sample(encoder_rad);
+        let (Mode::Homing, Some(mut homing)) = (self.mode, self.homing) else { return sample };
+        let dt_s = self.settings.servo.sample_period_s;
+        if let Err(f) = self.encoders.check(encoder_rad, self.last_torque_nm, &self.settings.encoder_limits, dt_s) {
+            self.latch(Fault::Encoder(f), &mut sample);
+            return sample;
+        }
+        let out = homing.step(encoder_rad, index_rad, &self.settings.servo.axes, dt_s);
+        self.homing = Some(homing);
+        sample.torque_nm = out.torque_nm;
+        sample.reference_rad = out.reference_rad;
+        sample.following_error_rad = out.following_error_rad;
+        self.reference_rad = out.reference_rad;
+        match out.event {
+            None => {}
+            Some(HomingEvent::Reference { offset_rad }) => {
+                self.pending_offset_rad = offset_rad;
+                sample.set_reference = true;
+            }
+            Some(HomingEvent::Done) => self.engage_at_home(encoder_rad, &mut sample),
+            Some(HomingEvent::Failed(f)) => self.homing_failed(f, &mut sample),
+        }
+        self.last_torque_nm = sample.torque_nm;
+        sample
+    }
+
+    /// The outcome of the reference [`Sample::set_reference`] asked for (`ok`: the board's scale
+    /// took it). Readings are absolute from the next sample on; the move to home starts.
+    pub fn referenced(&mut self, ok: bool, sample: &mut Sample) {
+        let (Mode::Homing, Some(mut homing)) = (self.mode, self.homing) else { return };
+        let offset = self.pending_offset_rad;
+        let home = if ok {
+            self.calibration.command_rad(self.settings.home_mm, self.settings.servo.min_transmission).map_err(|_| HomingFault::Reference)
+        } else {
+            Err(HomingFault::Reference)
+        };
+        let result = homing.referenced(offset, home);
+        self.homing = Some(homing);
+        match result {
+            Ok(()) => {
+                self.encoders.shift(offset);
+                self.reference_rad = [self.reference_rad[0] + offset[0], self.reference_rad[1] + offset[1]];
+            }
+            Err(f) => self.homing_failed(f, sample),
+        }
+    }
+
+    fn engage_at_home(&mut self, encoder_rad: [f32; 2], sample: &mut Sample) {
+        let Some(servo) = self.servo.as_mut() else {
+            return self.latch(Fault::Servo(kinematics_core::ServoFault::NotEngaged), sample);
+        };
+        match servo.engage(&self.calibration, encoder_rad) {
+            Ok(tool_mm) => {
+                self.mode = Mode::Running;
+                self.setpoint_mm = tool_mm;
+                self.motion = MotionState::at_rest(tool_mm);
+                self.reference_rad = encoder_rad;
+                sample.setpoint_mm = tool_mm;
+            }
+            Err(e) => self.latch(Fault::Engage(e), sample),
+        }
+    }
+
+    /// A homing fault: category 0 removes torque at once; category 1 (the search has come to
+    /// rest at the end of its profile) removes it now too, the machine standing.
+    fn homing_failed(&mut self, f: HomingFault, sample: &mut Sample) {
+        sample.fault = Some(Fault::Homing(f));
+        self.enter_safe_state(Fault::Homing(f), sample);
     }
 
     /// The last setpoint accepted (mm); after boot, where the servo engaged: the first
@@ -231,13 +444,12 @@ impl<'a> ServoLoop<'a> {
         self.settings
     }
 
-    /// One sample (see the module doc): the encoder check, then the next setpoint from `queue`
-    /// or from the stop, through the servo. In the safe state the queue is left alone and the
-    /// torques are zero.
-    pub fn step(&mut self, queue: &mut Consumer<'_, MotionSetpoint<f32>>, encoder_rad: [f32; 2]) -> Sample {
+    /// A new sample at `encoder_rad`: nothing decided yet, zero torque.
+    #[inline]
+    fn begin_sample(&mut self, encoder_rad: [f32; 2]) -> Sample {
         let index = self.samples;
         self.samples = self.samples.wrapping_add(1);
-        let mut sample = Sample {
+        Sample {
             index,
             encoder_rad,
             setpoint_mm: self.setpoint_mm,
@@ -248,9 +460,18 @@ impl<'a> ServoLoop<'a> {
             refill: false,
             fault: None,
             torque_off: false,
+            set_reference: false,
             feed_watchdog: false,
-        };
-        if matches!(self.mode, Mode::SafeState(_)) {
+        }
+    }
+
+    /// One sample (see the module doc): the encoder check, then the next setpoint from `queue`
+    /// or from the stop, through the servo. In the safe state the queue is left alone and the
+    /// torques are zero.
+    pub fn step(&mut self, queue: &mut Consumer<'_, MotionSetpoint<f32>>, encoder_rad: [f32; 2]) -> Sample {
+        let mut sample = self.begin_sample(encoder_rad);
+        if matches!(self.mode, Mode::SafeState(_) | Mode::Unhomed | Mode::Homing) {
+            // Homing runs through `step_homing`; nothing is taken from the queue.
             return sample;
         }
         let dt_s = self.settings.servo.sample_period_s;
@@ -266,6 +487,15 @@ impl<'a> ServoLoop<'a> {
 
     /// `Running`: the next setpoint of the stream, or the start of a stop.
     fn run(&mut self, queue: &mut Consumer<'_, MotionSetpoint<f32>>, encoder_rad: [f32; 2], sample: &mut Sample) {
+        if let Some(blend) = self.blend.as_mut() {
+            // After a calibration switch: the blend's setpoints, the queue left alone.
+            blend.t_s += self.settings.servo.sample_period_s;
+            let setpoint = blend.motion.at(blend.t_s);
+            if blend.t_s >= blend.motion.duration_s() {
+                self.blend = None;
+            }
+            return self.track_setpoint(setpoint, None, encoder_rad, sample);
+        }
         let next = queue.dequeue();
         sample.refill = queue.len() < REFILL_BELOW;
         let setpoint = match next {
@@ -278,9 +508,14 @@ impl<'a> ServoLoop<'a> {
                 MotionSetpoint::at_rest(self.motion.position_mm)
             }
         };
-        let setpoint_mm = setpoint.position_mm;
         // The one after it, if queued: the feed-forward's look-ahead (else it is predicted).
         let ahead = queue.peek().copied();
+        self.track_setpoint(setpoint, ahead, encoder_rad, sample)
+    }
+
+    /// Accepts and tracks one setpoint (`ahead` the next, if known), or starts the stop.
+    fn track_setpoint(&mut self, setpoint: MotionSetpoint<f32>, ahead: Option<MotionSetpoint<f32>>, encoder_rad: [f32; 2], sample: &mut Sample) {
+        let setpoint_mm = setpoint.position_mm;
         let Some(servo) = self.servo.as_mut() else {
             return self.latch(Fault::Servo(kinematics_core::ServoFault::NotEngaged), sample);
         };
@@ -371,7 +606,13 @@ impl<'a> ServoLoop<'a> {
     /// keeps its first fault; in the safe state nothing new is latched.
     pub fn latch(&mut self, fault: Fault, sample: &mut Sample) {
         match self.mode {
-            Mode::SafeState(_) => sample.torque_nm = [0.0; 2],
+            Mode::SafeState(_) | Mode::Unhomed => sample.torque_nm = [0.0; 2],
+            // No task-space stop while homing: every fault removes torque (the homing moves
+            // are slow, the drives' dynamic braking stops them within a fraction of a degree).
+            Mode::Homing => {
+                sample.fault = Some(fault);
+                self.enter_safe_state(fault, sample);
+            }
             _ if fault.stop_category() == StopCategory::Zero => {
                 sample.fault = Some(fault);
                 self.enter_safe_state(fault, sample);
@@ -401,7 +642,7 @@ impl<'a> ServoLoop<'a> {
     /// reset was the watchdog's, or the watchdog could not be started). A fault already
     /// latched at boot (a refused image) stays the one reported.
     pub fn latch_at_boot(&mut self, fault: Fault) {
-        if self.mode == Mode::Running {
+        if matches!(self.mode, Mode::Running | Mode::Unhomed) {
             self.mode = Mode::SafeState(fault);
         }
     }
@@ -414,12 +655,21 @@ mod tests {
     use kinematics_core::grid::{encode, CorrectionGrid, GridGeometry};
     use kinematics_core::{EngageError, FiveBar, GridError, SetpointRefusal};
 
+    use crate::calibration::ImageError;
     use crate::encoder_check::{EncoderFault, EncoderFaultKind};
     use crate::setpoints::QUEUE_SLOTS;
     use crate::stop::stopping_distance_bound_mm;
     use crate::trajectory::{Trajectory, WORKSPACE_TOUR_MM};
 
     const HOME_MM: [f32; 2] = [212.132, 0.0];
+
+    /// The default settings with absolute encoders: the servo engages at boot (the QEMU
+    /// plant's encoders in every scenario but homing's).
+    fn absolute() -> Settings {
+        let mut s = Settings::default();
+        s.homing.absolute_encoders = true;
+        s
+    }
 
     fn image() -> Vec<u8> {
         let g = GridGeometry { nx: 3, ny: 3, x0_mm: 160.0, y0_mm: -80.0, step_x_mm: 50.0, step_y_mm: 80.0 };
@@ -439,7 +689,7 @@ mod tests {
 
     #[test]
     fn boot_engages_where_the_machine_is() {
-        let (settings, img) = (Settings::default(), image());
+        let (settings, img) = (absolute(), image());
         let (l, encoder) = running(&settings, &img);
         assert!(l.drives_enabled());
         let p = l.setpoint_mm();
@@ -449,11 +699,11 @@ mod tests {
 
     #[test]
     fn a_refused_image_keeps_the_loop_safe_and_leaves_the_queue_alone() {
-        let settings = Settings::default();
+        let settings = absolute();
         let cal = Calibration { model: FiveBar::paper_nominal(), grid: None };
         let encoder = cal.command_rad(HOME_MM, 0.05).unwrap();
-        let mut l = ServoLoop::boot(&settings, cal, CalibrationState::Refused(GridError::BadCrc), encoder);
-        assert_eq!(l.mode(), Mode::SafeState(Fault::Calibration(GridError::BadCrc)));
+        let mut l = ServoLoop::boot(&settings, cal, CalibrationState::Refused(ImageError::Grid(GridError::BadCrc)), encoder);
+        assert_eq!(l.mode(), Mode::SafeState(Fault::Calibration(ImageError::Grid(GridError::BadCrc))));
         assert!(!l.drives_enabled());
         let mut q: Queue<MotionSetpoint<f32>, QUEUE_SLOTS> = Queue::new();
         let (mut tx, mut rx) = q.split();
@@ -465,14 +715,14 @@ mod tests {
         }
         assert_eq!(rx.len(), 1, "nothing taken from the queue in the safe state");
         // Uncorrected running allowed: engages with the nominal model.
-        let l = ServoLoop::boot(&settings, cal, CalibrationState::Uncorrected(GridError::BadCrc), encoder);
+        let l = ServoLoop::boot(&settings, cal, CalibrationState::Uncorrected(ImageError::Grid(GridError::BadCrc)), encoder);
         assert_eq!(l.mode(), Mode::Running);
     }
 
     #[test]
     fn boot_refuses_an_encoder_reading_the_kinematics_refuse() {
         // Encoder zero: both arms stretched along x, the distal links cannot meet.
-        let (settings, img) = (Settings::default(), image());
+        let (settings, img) = (absolute(), image());
         let cal = Calibration::from_grid(CorrectionGrid::parse(&img).unwrap());
         let l = ServoLoop::boot(&settings, cal, CalibrationState::Valid, [0.0; 2]);
         assert!(matches!(l.mode(), Mode::SafeState(Fault::Engage(EngageError::Kinematics(_)))), "{:?}", l.mode());
@@ -482,7 +732,7 @@ mod tests {
     fn boot_refuses_an_encoder_configuration_the_scale_refuses() {
         use crate::encoder::EncoderConfigError;
         let img = image();
-        let mut settings = Settings::default();
+        let mut settings = absolute();
         settings.encoders[1].counts_per_rev = 0;
         let cal = Calibration::from_grid(CorrectionGrid::parse(&img).unwrap());
         let encoder = cal.command_rad(HOME_MM, 0.05).unwrap();
@@ -496,7 +746,7 @@ mod tests {
     /// same sample; the stop from rest holds the last accepted setpoint.
     #[test]
     fn a_nan_setpoint_at_rest_removes_torque_at_standstill() {
-        let (settings, img) = (Settings::default(), image());
+        let (settings, img) = (absolute(), image());
         let (mut l, encoder) = running(&settings, &img);
         let mut q: Queue<MotionSetpoint<f32>, QUEUE_SLOTS> = Queue::new();
         let (mut tx, mut rx) = q.split();
@@ -518,7 +768,7 @@ mod tests {
 
     #[test]
     fn an_empty_queue_holds_the_last_setpoint_and_asks_for_a_refill() {
-        let (settings, img) = (Settings::default(), image());
+        let (settings, img) = (absolute(), image());
         let (mut l, encoder) = running(&settings, &img);
         let mut q: Queue<MotionSetpoint<f32>, QUEUE_SLOTS> = Queue::new();
         let (mut tx, mut rx) = q.split();
@@ -538,7 +788,7 @@ mod tests {
 
     #[test]
     fn a_streak_of_overruns_latches_deadline_missed_once() {
-        let (settings, img) = (Settings::default(), image());
+        let (settings, img) = (absolute(), image());
         let (mut l, encoder) = running(&settings, &img);
         let mut q: Queue<MotionSetpoint<f32>, QUEUE_SLOTS> = Queue::new();
         let (_, mut rx) = q.split();
@@ -557,7 +807,7 @@ mod tests {
 
     #[test]
     fn only_an_on_time_step_feeds_the_watchdog_and_the_safe_state_still_does() {
-        let (settings, img) = (Settings::default(), image());
+        let (settings, img) = (absolute(), image());
         let (mut l, encoder) = running(&settings, &img);
         let mut q: Queue<MotionSetpoint<f32>, QUEUE_SLOTS> = Queue::new();
         let (_, mut rx) = q.split();
@@ -582,7 +832,7 @@ mod tests {
     #[test]
     fn a_fault_at_boot_keeps_the_drives_off_and_the_first_reason_is_kept() {
         use crate::watchdog::WatchdogFault;
-        let (settings, img) = (Settings::default(), image());
+        let (settings, img) = (absolute(), image());
         let (mut l, encoder) = running(&settings, &img);
         l.latch_at_boot(Fault::Watchdog(WatchdogFault::Reset));
         assert_eq!(l.mode(), Mode::SafeState(Fault::Watchdog(WatchdogFault::Reset)));
@@ -593,14 +843,14 @@ mod tests {
         assert_eq!((s.torque_nm, s.fault), ([0.0; 2], None));
         // A refused image at boot stays the reason reported.
         let cal = Calibration { model: FiveBar::paper_nominal(), grid: None };
-        let mut l = ServoLoop::boot(&settings, cal, CalibrationState::Refused(GridError::BadCrc), encoder);
+        let mut l = ServoLoop::boot(&settings, cal, CalibrationState::Refused(ImageError::Grid(GridError::BadCrc)), encoder);
         l.latch_at_boot(Fault::Watchdog(WatchdogFault::NotStarted));
-        assert_eq!(l.mode(), Mode::SafeState(Fault::Calibration(GridError::BadCrc)));
+        assert_eq!(l.mode(), Mode::SafeState(Fault::Calibration(ImageError::Grid(GridError::BadCrc))));
     }
 
     #[test]
     fn a_failed_pwm_write_latches_a_drive_fault() {
-        let (settings, img) = (Settings::default(), image());
+        let (settings, img) = (absolute(), image());
         let (mut l, encoder) = running(&settings, &img);
         let mut q: Queue<MotionSetpoint<f32>, QUEUE_SLOTS> = Queue::new();
         let (_, mut rx) = q.split();
@@ -613,7 +863,7 @@ mod tests {
 
     #[test]
     fn the_reference_is_model_ik_plus_the_grid_correction() {
-        let (settings, img) = (Settings::default(), image());
+        let (settings, img) = (absolute(), image());
         let (mut l, encoder) = running(&settings, &img);
         let mut q: Queue<MotionSetpoint<f32>, QUEUE_SLOTS> = Queue::new();
         let (mut tx, mut rx) = q.split();
@@ -738,7 +988,7 @@ mod tests {
     /// the workspace check and the underrun logic never trip.
     #[test]
     fn the_tour_runs_without_a_false_trip() {
-        let (settings, img) = (Settings::default(), image());
+        let (settings, img) = (absolute(), image());
         let mut t = tour();
         let n = t.total_samples() as usize + 200;
         let run = closed(&settings, grid_cal(&img), n, |_| Some(t.next_mm()), |_, e| e);
@@ -793,7 +1043,7 @@ mod tests {
     /// standstill, never before.
     #[test]
     fn a_nan_at_top_speed_brakes_along_the_path_then_removes_torque() {
-        let (settings, img) = (Settings::default(), image());
+        let (settings, img) = (absolute(), image());
         let (run, at, bound) =
             stop_at_top_speed(&settings, &img, 300, |k, p| Some(if k == 0 { [p[0], f32::NAN] } else { p }));
         let nan = Fault::Setpoint(SetpointRefusal::NonFinite);
@@ -813,7 +1063,7 @@ mod tests {
     /// A setpoint jump at top speed: category 2, braked, then held with the drives on.
     #[test]
     fn a_jump_at_top_speed_brakes_then_holds() {
-        let (settings, img) = (Settings::default(), image());
+        let (settings, img) = (absolute(), image());
         let (run, at, bound) = stop_at_top_speed(&settings, &img, 300, |k, p| Some(if k < 1000 { [p[0] + 1.0, p[1]] } else { p }));
         let jump = Fault::Setpoint(SetpointRefusal::Jump);
         assert_eq!(run.samples[at].fault, Some(jump));
@@ -843,7 +1093,7 @@ mod tests {
     /// category 2 from the last setpoint; at rest it just holds.
     #[test]
     fn an_underrun_while_moving_brakes_then_holds() {
-        let (settings, img) = (Settings::default(), image());
+        let (settings, img) = (absolute(), image());
         let (run, at, bound) = stop_at_top_speed(&settings, &img, 300, |k, p| (k >= 1 << 30).then_some(p));
         assert_eq!(run.samples[at].fault, Some(Fault::Underrun));
         assert!(run.samples[at].underrun);
@@ -856,7 +1106,7 @@ mod tests {
     /// tracked), whereas the servo alone would accept setpoints up to the grid's edge.
     #[test]
     fn a_stream_too_fast_for_the_edge_is_stopped_inside() {
-        let (settings, img) = (Settings::default(), image());
+        let (settings, img) = (absolute(), image());
         let g = kinematics_core::servo::STANDARD_GRAVITY_MM_S2;
         // From home towards x = 320 mm (beyond the grid's 260 mm edge) at 2 g / 1.5 m/s.
         let mut t = Trajectory::new(HOME_MM, &[[320.0, 0.0]], 2.0 * g, 1500.0, 0.1, DT_S);
@@ -877,7 +1127,7 @@ mod tests {
     /// mid-stop (the stop never hides a feedback fault).
     #[test]
     fn encoder_faults_remove_torque_at_once_even_during_a_stop() {
-        let (settings, img) = (Settings::default(), image());
+        let (settings, img) = (absolute(), image());
         let (at, _) = top_speed();
         // A jump at top speed starts a category-2 stop; 10 samples into it the encoder of axis
         // 1 freezes (mid-stop, decelerating at 5 g).
@@ -913,7 +1163,7 @@ mod tests {
     /// (category 0) from the low speed it had.
     #[test]
     fn an_encoder_frozen_at_rest_is_stuck_as_soon_as_the_machine_is_asked_to_move() {
-        let (settings, img) = (Settings::default(), image());
+        let (settings, img) = (absolute(), image());
         let cal = grid_cal(&img);
         let mut t = tour();
         // Rest 50 samples at home (the tour starts with a move), joint 1 frozen from sample 20.
@@ -948,7 +1198,7 @@ mod tests {
     /// stop the kinematics refuse on the way ends in category 0.
     #[test]
     fn a_stop_the_servo_refuses_is_category_zero() {
-        let settings = Settings::default();
+        let settings = absolute();
         let cal = Calibration { model: FiveBar::paper_nominal(), grid: None };
         let g = kinematics_core::servo::STANDARD_GRAVITY_MM_S2;
         // A stream along +x: 2 g up to 0.5 m/s, then cruising towards the 300 mm reach (a host
@@ -974,5 +1224,146 @@ mod tests {
         assert_eq!(faults.first(), Some(&Fault::Setpoint(SetpointRefusal::NonFinite)), "{faults:?}");
         assert!(matches!(faults.get(1), Some(Fault::StopRefused(SetpointRefusal::Kinematics(_)))), "{faults:?}");
         assert!(matches!(run.modes[run.modes.len() - 1], Mode::SafeState(Fault::StopRefused(_))));
+    }
+
+    /// The homing plan is checked at boot: settings whose search runs into a singularity keep
+    /// the drives off.
+    #[test]
+    fn a_homing_plan_near_a_singularity_is_refused_at_boot() {
+        use crate::homing::{Direction, HomingFault};
+        let img = image();
+        let mut settings = Settings::default();
+        settings.homing.search_direction = [Direction::Negative, Direction::Positive];
+        settings.homing.index_rad = [0.10, -0.10];
+        let cal = Calibration::from_grid(CorrectionGrid::parse(&img).unwrap());
+        let mut l = ServoLoop::boot(&settings, cal, CalibrationState::Valid, [0.0; 2]);
+        assert_eq!(l.mode(), Mode::SafeState(Fault::Homing(HomingFault::Plan)));
+        assert!(l.start_homing([0.0; 2]).is_err() && !l.drives_enabled());
+    }
+
+    /// Incremental encoders (the default): the loop boots `Unhomed`, drives off, refusing the
+    /// queue; homing against the joint plant (indexes at the settings' angles, counters reading
+    /// 0 at power-on) references the encoders and engages at home; the tour's first setpoint is
+    /// then accepted. An index that never comes ends in the safe state at rest.
+    #[test]
+    fn an_unhomed_machine_refuses_setpoints_until_homing_engages_it_at_home() {
+        use crate::homing::HomingFault;
+        let (settings, img) = (Settings::default(), image());
+        let cal = Calibration::from_grid(CorrectionGrid::parse(&img).unwrap());
+        let power_on = cal.command_rad([230.0, -30.0], 0.05).unwrap();
+        for index_on_axis_2 in [true, false] {
+            let mut plant = Plant { angle_rad: power_on, velocity_rad_s: [0.0; 2], torque_nm: [0.0; 2], enabled: false };
+            let relative = |p: &Plant, offset: [f32; 2]| [0, 1].map(|k| p.encoder_rad()[k] - power_on[k] + offset[k]);
+            let mut l = ServoLoop::boot(&settings, cal, CalibrationState::Valid, [0.0; 2]);
+            assert_eq!(l.mode(), Mode::Unhomed);
+            assert!(!l.drives_enabled());
+            let mut q: Queue<MotionSetpoint<f32>, QUEUE_SLOTS> = Queue::new();
+            let (mut tx, mut rx) = q.split();
+            tx.enqueue(MotionSetpoint::at_rest(HOME_MM)).unwrap();
+            let s = l.step(&mut rx, [0.0; 2]);
+            assert_eq!((s.torque_nm, s.fault), ([0.0; 2], None));
+            assert_eq!(rx.len(), 1, "an unhomed machine takes no setpoint");
+            l.start_homing([0.0; 2]).unwrap();
+            assert_eq!(l.start_homing([0.0; 2]), Err(Mode::Homing), "not twice");
+            plant.enabled = true;
+            let index_rad = settings.homing.index_rad;
+            let (mut offset, mut latched) = ([0.0; 2], [false; 2]);
+            let (mut end, mut before) = (None, plant.angle_rad);
+            for k in 0..20_000 {
+                let reading = relative(&plant, offset);
+                let index = [0, 1].map(|a| {
+                    let crossed = (before[a] - index_rad[a]) * (plant.angle_rad[a] - index_rad[a]) <= 0.0;
+                    (crossed && !latched[a] && (a == 0 || index_on_axis_2)).then(|| {
+                        latched[a] = true;
+                        index_rad[a] - power_on[a]
+                    })
+                });
+                before = plant.angle_rad;
+                let mut s = l.step_homing(reading, index);
+                if s.set_reference {
+                    l.referenced(true, &mut s);
+                    offset = power_on;
+                }
+                assert!(s.torque_nm.iter().all(|t| t.abs() <= settings.homing.torque_limit_nm));
+                if s.torque_off {
+                    plant.enabled = false;
+                }
+                plant.torque_nm = s.torque_nm;
+                plant.advance();
+                if l.mode() != Mode::Homing {
+                    end = Some((k, s));
+                    break;
+                }
+            }
+            let (k, s) = end.expect("homing did not end");
+            if index_on_axis_2 {
+                assert_eq!(l.mode(), Mode::Running, "after {k} samples");
+                let p = l.setpoint_mm();
+                assert!((p[0] - HOME_MM[0]).abs() < 0.01 && (p[1] - HOME_MM[1]).abs() < 0.01, "engaged at {p:?}");
+                // The readings are absolute: the task-space servo takes the queued setpoint.
+                let s = l.step(&mut rx, relative(&plant, offset));
+                assert!(s.fault.is_none() && s.torque_nm != [0.0; 2] && rx.is_empty(), "{s:?}");
+                assert!(plant.enabled);
+            } else {
+                assert_eq!(l.mode(), Mode::SafeState(Fault::Homing(HomingFault::IndexNotFound(1))));
+                assert!(s.torque_off && !plant.enabled);
+                assert!(plant.velocity_rad_s.iter().all(|w| w.abs() < 0.05), "{:?}", plant.velocity_rad_s);
+                assert_eq!(rx.len(), 1);
+            }
+        }
+    }
+
+    /// A calibration committed while the tour runs: the loop switches in the next dwell (not
+    /// while moving), without a torque step; after the blend the reference carries the new
+    /// grid's correction and the tour goes on without a fault.
+    #[test]
+    fn a_new_calibration_is_switched_to_at_rest_without_a_jump() {
+        let settings = absolute();
+        let img = image();
+        let g = GridGeometry { nx: 3, ny: 3, x0_mm: 160.0, y0_mm: -80.0, step_x_mm: 50.0, step_y_mm: 80.0 };
+        let mut new_img = vec![0u8; g.image_len()];
+        encode(&mut new_img, &g, &FiveBar::paper_nominal(), &[[-3e-4, 2e-4]; 9]).unwrap();
+        let (old, new) = (grid_cal(&img), grid_cal(&new_img));
+        let start = old.command_rad(HOME_MM, 0.05).unwrap();
+        let mut plant = Plant { angle_rad: start, velocity_rad_s: [0.0; 2], torque_nm: [0.0; 2], enabled: true };
+        let mut l = ServoLoop::boot(&settings, old, CalibrationState::Valid, plant.encoder_rad());
+        let mut q: Queue<MotionSetpoint<f32>, QUEUE_SLOTS> = Queue::new();
+        let (mut tx, mut rx) = q.split();
+        let mut t = tour();
+        let (mut pending, mut switched_at, mut last_torque, mut worst_step) = (false, None, [0.0f32; 2], 0.0f32);
+        for k in 0..6000 {
+            while tx.ready() && !t.finished() {
+                tx.enqueue(t.next_setpoint()).unwrap();
+            }
+            if k == 700 {
+                pending = true;
+            }
+            if pending {
+                match l.switch_calibration(new, plant.encoder_rad()) {
+                    Ok(()) => {
+                        pending = false;
+                        switched_at = Some(k);
+                    }
+                    Err(e) => assert_eq!(e, SwitchRefused::NotAtRest),
+                }
+            }
+            let s = l.step(&mut rx, plant.encoder_rad());
+            assert!(s.fault.is_none(), "sample {k}: {:?}", s.fault);
+            if switched_at.is_some_and(|at| k >= at && k < at + 50) {
+                worst_step = worst_step.max((s.torque_nm[0] - last_torque[0]).abs()).max((s.torque_nm[1] - last_torque[1]).abs());
+            }
+            last_torque = s.torque_nm;
+            plant.torque_nm = s.torque_nm;
+            plant.advance();
+        }
+        let at = switched_at.expect("never switched");
+        assert!(at > 700, "switched at {at}");
+        // The reference now carries the new correction: commanded minus IK is the new grid's.
+        let p = l.setpoint_mm();
+        let ik = FiveBar::<f32>::paper_nominal().inverse(p, 0.05).unwrap();
+        let d = [l.reference_rad()[0] - ik[0], l.reference_rad()[1] - ik[1]];
+        assert!((d[0] + 3e-4).abs() < 2e-6 && (d[1] - 2e-4).abs() < 2e-6, "{d:?}");
+        println!("switched at sample {at}, largest torque change per sample in the next 50: {worst_step:.3} N·m");
+        assert!(worst_step < 1.0, "{worst_step}");
     }
 }

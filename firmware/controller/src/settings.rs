@@ -8,9 +8,14 @@
 //! refuses (`Fault::Settings`), and no value of them can make the firmware panic.
 use kinematics_core::{ConfigError, ServoConfig};
 
+use crate::calibration::MachineIdentity;
 use crate::encoder::{EncoderConfig, EncoderConfigError, EncoderScale};
 use crate::encoder_check::EncoderLimits;
+use crate::homing::HomingSettings;
 use crate::stop::StopSettings;
+
+/// The default home position (mm): the middle of the paper's workspace.
+pub const HOME_MM: [f32; 2] = [212.132, 0.0];
 
 /// Every run-time setting, with the defaults documented on each field.
 #[derive(Clone, Copy, Debug)]
@@ -66,6 +71,16 @@ pub struct Settings {
     /// Encoder plausibility: the mechanism's speed and acceleration, the stuck-encoder check.
     /// See [`EncoderLimits`].
     pub encoder_limits: EncoderLimits,
+    /// The machine this firmware runs: nominal geometry and how far a calibration image's model
+    /// may be from it (`calibration::MachineIdentity`). Default: the paper's machine, 2 mm /
+    /// 2 mm / 0.05 rad.
+    pub machine: MachineIdentity,
+    /// Homing: absolute encoders (no homing) or the index procedure, its limits and whether it
+    /// runs at boot. See [`HomingSettings`].
+    pub homing: HomingSettings,
+    /// The home position (mm): where homing ends, and what every calibration image's grid must
+    /// contain. Default (212.132, 0), the middle of the paper's workspace.
+    pub home_mm: [f32; 2],
 }
 
 /// Settings [`Settings::validate`] refuses.
@@ -111,6 +126,7 @@ impl Settings {
             EncoderScale::new(config).map_err(|error| SettingsError::Encoder { axis: axis as u8, error })?;
         }
         self.encoder_limits.validate().map_err(SettingsError::Field)?;
+        self.homing.validate().map_err(SettingsError::Field)?;
         let positive = |v: f32| v.is_finite() && v > 0.0;
         for (ok, name) in [
             (positive(self.drive_full_scale_nm), "drive_full_scale_nm"),
@@ -120,6 +136,14 @@ impl Settings {
             (self.trajectory_dwell_s.is_finite() && self.trajectory_dwell_s >= 0.0, "trajectory_dwell_s"),
             (self.overrun_streak_limit >= 1, "overrun_streak_limit"),
             (self.telemetry_period_ticks >= 1, "telemetry_period_ticks"),
+            (self.home_mm.iter().all(|v| v.is_finite()), "home_mm"),
+            (self.machine.nominal.validate().is_ok(), "machine.nominal"),
+            (
+                [self.machine.max_length_deviation_mm, self.machine.max_base_deviation_mm, self.machine.max_offset_deviation_rad]
+                    .iter()
+                    .all(|&v| positive(v)),
+                "machine tolerances",
+            ),
         ] {
             if !ok {
                 return Err(SettingsError::Field(name));
@@ -146,6 +170,9 @@ impl Default for Settings {
             trajectory_dwell_s: 0.1,
             stop: StopSettings::default(),
             encoder_limits: EncoderLimits::default(),
+            machine: MachineIdentity::default(),
+            home_mm: HOME_MM,
+            homing: HomingSettings::default(),
         }
     }
 }

@@ -2,6 +2,7 @@
 //! the last setpoint, reference, encoder reading and torque. Telemetry reads it; so does the
 //! QEMU test harness, next to the simulated drive registers.
 use crate::calibration::CalibrationState;
+use crate::calibration_slots::{CalibrationId, SlotError};
 use crate::deadline::Deadline;
 use crate::fault::Fault;
 use crate::servo_loop::{Mode, Sample, ServoLoop};
@@ -41,6 +42,11 @@ pub struct Status {
     pub max_following_error_rad: f32,
     /// Samples that found the setpoint queue empty (the last setpoint was held).
     pub setpoint_underruns: u32,
+    /// The calibration image in force: its slot, commit sequence and CRC-32 (`None`: no valid
+    /// image). Set at boot and when the servo switches to a newly committed one.
+    pub calibration_id: Option<CalibrationId>,
+    /// The outcome of the last calibration upload (`None`: none since boot).
+    pub last_upload: Option<Result<CalibrationId, SlotError>>,
 }
 
 impl Status {
@@ -63,6 +69,8 @@ impl Status {
             torque_nm: [0.0; 2],
             max_following_error_rad: 0.0,
             setpoint_underruns: 0,
+            calibration_id: None,
+            last_upload: None,
         }
     }
 
@@ -81,7 +89,7 @@ impl Status {
         }
         self.mode = mode;
         self.stop_distance_mm = stop_distance_mm;
-        self.drives_enabled = !matches!(mode, Mode::SafeState(_));
+        self.drives_enabled = mode.drives_on();
         if mode == Mode::Running {
             self.max_following_error_rad = self.max_following_error_rad.max(sample.following_error_rad);
         }

@@ -220,6 +220,14 @@ pub mod timx {
     pub const fn ccmr1(p: &'static str, base: u32) -> Register {
         reg(p, "CCMR1", base + 0x18)
     }
+    /// Capture/compare mode 2 (input mode: channels 3 and 4).
+    pub const fn ccmr2(p: &'static str, base: u32) -> Register {
+        reg(p, "CCMR2", base + 0x1C)
+    }
+    /// Capture/compare 4 (the counter captured at the index pulse).
+    pub const fn ccr4(p: &'static str, base: u32) -> Register {
+        reg(p, "CCR4", base + 0x40)
+    }
     /// Capture/compare enable.
     pub const fn ccer(p: &'static str, base: u32) -> Register {
         reg(p, "CCER", base + 0x20)

@@ -18,6 +18,13 @@
 //! | PB12 | TIM1_BKIN: **safe-torque-off input**, active low | 6 | pull-down: an open STO chain or a broken wire is a break |
 //! | PA6, PA7 | TIM3_CH1/CH2: encoder axis 0 | 2 | pull-ups (weak: fit external ones for open-collector encoders) |
 //! | PB6, PB7 | TIM4_CH1/CH2: encoder axis 1 | 2 | pull-ups; PB6 is UCPD1_CC1, its dead-battery pull-down is disabled |
+//! | PB1 | TIM3_CH4: index pulse of encoder axis 0 (homing) | 2 | pull-down; channel 4 captures the counter on the rising edge |
+//! | PB9 | TIM4_CH4: index pulse of encoder axis 1 (homing) | 2 | pull-down; as PB1 (not PB8: that is BOOT0) |
+//!
+//! **Why the index is a capture, not the encoder-index mode.** RM0440's encoder index (TIMx_ECR)
+//! resets the counter at the index, a jump of the reading the encoder check would latch as a
+//! glitch. Channel 4 as an input capture latches the counter at the index edge and leaves it
+//! counting; homing ties that captured value to the index angle (`EncoderScale::set_reference`).
 //!
 //! **Why the drive enable is a timer output.** A GPIO enable line keeps its level while the core
 //! is halted by a debugger or a HardFault breakpoint. TIM1_CH3 in forced-active mode follows
@@ -125,6 +132,8 @@ pub const STO_BREAK: Pin = pb(12);
 pub const ENCODER_0: [Pin; 2] = [pa(6), pa(7)];
 /// Encoder of axis 1, channels A and B (TIM4).
 pub const ENCODER_1: [Pin; 2] = [pb(6), pb(7)];
+/// Index pulses of the encoders of axes 0 and 1 (TIM3_CH4, TIM4_CH4).
+pub const ENCODER_INDEX: [Pin; 2] = [pb(1), pb(9)];
 
 const fn mode(pin: Pin, mode: u32, why: &'static str) -> Step {
     field(gpio::moder(pin.port, pin.base), 0b11 << (2 * pin.n), mode << (2 * pin.n), why)
@@ -165,6 +174,14 @@ pub const ENCODER_SMCR: u32 = 0b011;
 /// TIM3/TIM4 CCMR1: CC1S = 01 and CC2S = 01 (inputs TI1, TI2), input filters IC1F = IC2F = 0011
 /// (8 samples at 170 MHz).
 pub const ENCODER_CCMR1: u32 = 0b01 | (0b0011 << 4) | (0b01 << 8) | (0b0011 << 12);
+/// TIM3/TIM4 CCMR2: CC4S = 01 (channel 4 an input on TI4, the index pulse), input filter
+/// IC4F = 0011; channel 3 unused.
+pub const INDEX_CCMR2: u32 = (0b01 << 8) | (0b0011 << 12);
+/// TIM3/TIM4 CCER: CC4E, the index capture enabled on the rising edge (CC4P = CC4NP = 0);
+/// channels 1 and 2 (the encoder inputs) not inverted (the sign is `Settings::encoders`).
+pub const INDEX_CCER: u32 = 1 << 12;
+/// TIM3/TIM4 SR: CC4IF, an index pulse was captured (cleared by writing 0).
+pub const SR_CC4IF: u32 = 1 << 4;
 
 // ---------------------------------------------------------------------------------------------
 // The plans.
@@ -261,12 +278,14 @@ pub static TIM1_PWM: [Step; 27] = [
 ];
 
 /// A general-purpose timer as a quadrature counter (encoder mode 3, full 16-bit range).
-const fn encoder_timer(name: &'static str, base: u32) -> [Step; 7] {
+const fn encoder_timer(name: &'static str, base: u32) -> [Step; 9] {
     [
         write(timx::cr1(name, base), 0, "stopped while configured"),
         write(timx::smcr(name, base), ENCODER_SMCR, "encoder mode 3"),
         write(timx::ccmr1(name, base), ENCODER_CCMR1, "TI1, TI2 inputs, filtered"),
-        write(timx::ccer(name, base), 0, "both inputs non-inverted (the sign is Settings::encoders)"),
+        write(timx::ccmr2(name, base), INDEX_CCMR2, "TI4 input: the index pulse, filtered"),
+        write(timx::ccer(name, base), INDEX_CCER, "both inputs non-inverted (the sign is Settings::encoders); index capture on"),
+        write(timx::sr(name, base), 0, "no index captured yet"),
         write(timx::arr(name, base), 0xFFFF, "full 16-bit range (extended to 32 bits in software)"),
         write(timx::cnt(name, base), 0, "count from 0 (homing sets the zero)"),
         write(timx::cr1(name, base), 1, "start counting"),
@@ -274,12 +293,12 @@ const fn encoder_timer(name: &'static str, base: u32) -> [Step; 7] {
 }
 
 /// The encoder of axis 0 (TIM3).
-pub static ENCODER_TIM3: [Step; 7] = encoder_timer("TIM3", base::TIM3);
+pub static ENCODER_TIM3: [Step; 9] = encoder_timer("TIM3", base::TIM3);
 /// The encoder of axis 1 (TIM4).
-pub static ENCODER_TIM4: [Step; 7] = encoder_timer("TIM4", base::TIM4);
+pub static ENCODER_TIM4: [Step; 9] = encoder_timer("TIM4", base::TIM4);
 
 /// The encoder timers' clocks and pins (the pins after the timers, so the first edge counts).
-pub static ENCODER_PINS: [Step; 13] = [
+pub static ENCODER_PINS: [Step; 19] = [
     set(rcc::APB1ENR1, rcc::APB1ENR1_TIM3EN | rcc::APB1ENR1_TIM4EN, "clock TIM3, TIM4"),
     af(ENCODER_0[0], 2, "PA6 = TIM3_CH1"),
     af(ENCODER_0[1], 2, "PA7 = TIM3_CH2"),
@@ -293,6 +312,12 @@ pub static ENCODER_PINS: [Step; 13] = [
     mode(ENCODER_0[1], gpio::MODE_AF, "PA7 to TIM3"),
     mode(ENCODER_1[0], gpio::MODE_AF, "PB6 to TIM4"),
     mode(ENCODER_1[1], gpio::MODE_AF, "PB7 to TIM4"),
+    af(ENCODER_INDEX[0], 2, "PB1 = TIM3_CH4 (index, axis 0)"),
+    af(ENCODER_INDEX[1], 2, "PB9 = TIM4_CH4 (index, axis 1)"),
+    pull(ENCODER_INDEX[0], gpio::PULL_DOWN, "no index without a signal"),
+    pull(ENCODER_INDEX[1], gpio::PULL_DOWN, "no index without a signal"),
+    mode(ENCODER_INDEX[0], gpio::MODE_AF, "PB1 to TIM3"),
+    mode(ENCODER_INDEX[1], gpio::MODE_AF, "PB9 to TIM4"),
 ];
 
 const TIM6: &str = "TIM6";

@@ -337,6 +337,8 @@ fn ds12288_pins_pwm_enable_break_and_encoders() {
         (GPIOA, 7, 2, 0b10, 0b01),
         (GPIOB, 6, 2, 0b10, 0b01),
         (GPIOB, 7, 2, 0b10, 0b01),
+        (GPIOB, 1, 2, 0b10, 0b10),
+        (GPIOB, 9, 2, 0b10, 0b10),
     ] {
         let name = format!("P{}{n}", if port == GPIOA { 'A' } else { 'B' });
         assert_eq!(pin_af(&sim, port, n), af, "{name} AF");
@@ -363,6 +365,10 @@ fn rm0440_encoder_mode_3_on_tim3_and_tim4() {
         assert_eq!(sim.get(tim + ARR), 0xFFFF);
         assert_eq!(sim.get(tim + CR1) & 1, 1, "counting");
         assert_eq!(sim.get(tim + CCER) & 0b1010_1010, 0, "no inversion: the sign is a setting");
+        // The index: channel 4 an input capture on TI4 (CC4S = 01), enabled on the rising edge.
+        let ccmr2 = sim.get(tim + 0x1C);
+        assert_eq!(bits(ccmr2, 9, 8), 0b01, "CC4S = TI4");
+        assert_eq!(bits(sim.get(tim + CCER), 15, 12), 0b0001, "CC4E, rising edge");
     }
     assert_eq!(sim.get(RCC_APB1ENR1) & 0b110, 0b110, "TIM3EN, TIM4EN");
 }

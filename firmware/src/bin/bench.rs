@@ -48,6 +48,7 @@ use kinematics_core::atan2::atan2_f32;
 use kinematics_core::sin_cos::sin_cos_f32;
 use kinematics_core::path::Circle;
 use kinematics_core::servo::STANDARD_GRAVITY_MM_S2;
+use kinematics_core::servo::{ServoOutput, StepError};
 use kinematics_core::{Calibration, CorrectionGrid, FiveBar, FiveBarDynamics, MotionSetpoint, PathMotion, Servo, ServoConfig, TaskLimits};
 
 use firmware::board::{self, CycleCounter};
@@ -123,6 +124,26 @@ fn measure(counter: &CycleCounter, mut body: impl FnMut(usize)) -> u32 {
     let total = counter.since(start);
     window_end();
     total.saturating_sub(empty)
+}
+
+/// One `Servo::step` as the firmware's timer interrupt makes it: a call of its own, so that
+/// nothing of the servo (its settings, its history) stays in registers from one call to the
+/// next, as it could if the step were inlined into the measuring loop.
+#[inline(never)]
+fn step_once(servo: &mut Servo, cal: &Calibration<'_>, setpoint_mm: [f32; 2], encoder_rad: [f32; 2]) -> Result<ServoOutput, StepError> {
+    servo.step(cal, setpoint_mm, encoder_rad)
+}
+
+/// One `Servo::step_motion`, a call of its own (see [`step_once`]).
+#[inline(never)]
+fn step_motion_once(
+    servo: &mut Servo,
+    cal: &Calibration<'_>,
+    setpoint: &MotionSetpoint<f32>,
+    next: &MotionSetpoint<f32>,
+    encoder_rad: [f32; 2],
+) -> Result<ServoOutput, StepError> {
+    servo.step_motion(cal, setpoint, Some(next), encoder_rad)
 }
 
 #[entry]
@@ -272,7 +293,7 @@ fn main() -> ! {
             board::exit(false);
         }
         let mut fault = None;
-        let step = measure(&counter, |i| match servo.step(cal, black_box(setpoints[i]), black_box(encoder)) {
+        let step = measure(&counter, |i| match step_once(&mut servo, cal, black_box(setpoints[i]), black_box(encoder)) {
             Ok(out) => encoder = out.reference_rad,
             Err(f) => fault = fault.or(Some((i, f))),
         });
@@ -316,7 +337,7 @@ fn main() -> ! {
         let mut current = sample(0);
         let step = measure(&counter, |i| {
             let next = sample(black_box(i) + 1);
-            let stepped = servo.step_motion(cal, &current, Some(&next), black_box(encoder));
+            let stepped = step_motion_once(&mut servo, cal, &current, &next, black_box(encoder));
             current = next;
             match stepped {                Ok(out) => encoder = out.reference_rad,
                 Err(f) => fault = fault.or(Some((i, f))),

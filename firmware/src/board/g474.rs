@@ -179,11 +179,18 @@ impl SetDutyCycle for Tim1Pwm {
     }
 }
 
-/// A 16-bit encoder-mode timer extended to 32 bits.
+/// A 16-bit encoder-mode timer extended to 32 bits, with channel 4 capturing the counter at
+/// the encoder's index pulse (homing; `g474_plan::plan::INDEX_CCMR2`).
 pub struct TimEncoder {
     cnt: Register,
+    sr: Register,
+    ccr4: Register,
     last: u16,
     position: AtomicI32,
+    /// The extended count at the first index pulse captured.
+    index: Option<i32>,
+    /// `index` not handed to homing yet.
+    index_new: bool,
 }
 
 impl QuadratureEncoder for TimEncoder {
@@ -193,6 +200,15 @@ impl QuadratureEncoder for TimEncoder {
         self.last = now;
         let p = self.position.load(Ordering::Relaxed).wrapping_add(delta);
         self.position.store(p, Ordering::Relaxed);
+        // An index captured since the last reading: its extended count is this reading minus
+        // the counts since the capture (less than one sample's, far within 16 bits).
+        if self.index.is_none() && read(self.sr) & plan::SR_CC4IF != 0 {
+            let captured = (read(self.ccr4) & 0xFFFF) as u16;
+            self.index = Some(p.wrapping_sub(now.wrapping_sub(captured) as i16 as i32));
+            self.index_new = true;
+            // rc_w0: writing 0 clears CC4IF, 1 leaves the other flags alone.
+            write(self.sr, !plan::SR_CC4IF);
+        }
         p
     }
 }
@@ -244,7 +260,15 @@ impl Board for G474Board {
         }
         let encoder_scales = super::encoder_scales(settings);
         let full_scale_nm = settings.drive_full_scale_nm;
-        let encoder = |tim, base| TimEncoder { cnt: timx::cnt(tim, base), last: 0, position: AtomicI32::new(0) };
+        let encoder = |tim, base| TimEncoder {
+            cnt: timx::cnt(tim, base),
+            sr: timx::sr(tim, base),
+            ccr4: timx::ccr4(tim, base),
+            last: 0,
+            position: AtomicI32::new(0),
+            index: None,
+            index_new: false,
+        };
         let mut board = G474Board {
             timer: Tim6Timer(()),
             encoders: [encoder("TIM3", base::TIM3), encoder("TIM4", base::TIM4)],
@@ -268,6 +292,20 @@ impl Board for G474Board {
             self.encoder_scales[0].joint_rad(self.encoders[0].position_counts()),
             self.encoder_scales[1].joint_rad(self.encoders[1].position_counts()),
         ]
+    }
+
+    /// The index captures of TIM3/TIM4 channel 4 (read with the encoders in `encoders_rad`).
+    fn index_rad(&mut self) -> [Option<f32>; 2] {
+        [0, 1].map(|k| {
+            let e = &mut self.encoders[k];
+            let new = core::mem::take(&mut e.index_new);
+            e.index.filter(|_| new).map(|c| self.encoder_scales[k].joint_rad(c))
+        })
+    }
+
+    fn reference_at_index(&mut self, index_rad: [f32; 2]) -> bool {
+        let counts = [self.encoders[0].index, self.encoders[1].index];
+        super::reference_scales(&mut self.encoder_scales, counts, index_rad)
     }
 
     #[inline]

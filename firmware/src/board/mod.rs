@@ -42,6 +42,18 @@ pub mod qemu;
 #[cfg(feature = "board-qemu")]
 pub use qemu::{bench_init, console, device, exit, CycleCounter, QemuBoard as Selected, COUNT_UNIT};
 
+/// Sets both scales' zero at the captured index counts `counts` (rad `index_rad`), both or
+/// neither. For the boards' `reference_at_index`.
+fn reference_scales(scales: &mut [EncoderScale; 2], counts: [Option<i32>; 2], index_rad: [f32; 2]) -> bool {
+    let [Some(c0), Some(c1)] = counts else { return false };
+    let mut next = *scales;
+    let ok = next[0].set_reference(c0, index_rad[0]).is_ok() && next[1].set_reference(c1, index_rad[1]).is_ok();
+    if ok {
+        *scales = next;
+    }
+    ok
+}
+
 /// Both axes' counts-to-angle scales from `Settings::encoders`; a refused configuration is
 /// logged and reads NaN (the servo then refuses to engage). For the boards' `init`.
 fn encoder_scales(settings: &Settings) -> [EncoderScale; 2] {
@@ -127,6 +139,21 @@ pub trait Board: Sized {
     /// Feeds the watchdog. Only the servo task calls it, last, when
     /// `Sample::feed_watchdog` says the step was on time.
     fn feed_watchdog(&mut self);
+
+    /// The encoder reading (rad) at an index pulse captured since the last call, per axis
+    /// (homing). Hardware without index capture returns none (homing then ends in
+    /// `IndexNotFound`).
+    fn index_rad(&mut self) -> [Option<f32>; 2] {
+        [None; 2]
+    }
+
+    /// Homing's reference: ties each axis's counter value at its captured index pulse to the
+    /// joint angle `index_rad` (`EncoderScale::set_reference`), both axes or neither. `false`:
+    /// an axis has no capture, or the scale refused the reference.
+    fn reference_at_index(&mut self, index_rad: [f32; 2]) -> bool {
+        let _ = index_rad;
+        false
+    }
 
     /// The servo tick's timer (configured by `init`, started by the app at the end of boot).
     fn timer(&mut self) -> &mut Self::Timer;

@@ -71,9 +71,12 @@
 //!   Jacobian at the setpoint, at most [`MAX_FOLLOWING_ERROR_5G_UM`] in every sample.
 use kinematics_core::{wrap_angle_rad, Calibration, CorrectionGrid, GridError, SetpointRefusal};
 
-use crate::calibration::CalibrationState;
+use crate::calibration::{CalibrationState, ImageError};
+use crate::calibration_slots::SlotError;
 use crate::encoder_check::{EncoderFault, EncoderFaultKind};
 use crate::fault::{Fault, StopCategory};
+use crate::homing::HomingFault;
+use crate::servo_loop::Mode;
 use crate::settings::Settings;
 use crate::status::Status;
 use crate::stop::{MotionState, StopProfile};
@@ -177,6 +180,22 @@ pub enum Scenario {
     /// The boot after [`Scenario::StalledTask`]'s watchdog reset (not named on the command
     /// line: [`Scenario::after_reset`]): the drives must never be enabled.
     WatchdogRestart,
+    /// Incremental encoders with index marks, the machine powered up at an unknown pose
+    /// ([`HOMING_POWER_ON_MM`]): homing at boot (speed and torque limited, never a fault), the
+    /// encoder zero it sets must make the readings equal the plant's true angles, then the
+    /// built-in tour with `track`'s checks (the grid applied).
+    Homing,
+    /// The same, but joint 2's index mark is missing: `Homing(IndexNotFound(1))`, the machine at
+    /// rest with the drives off, never running.
+    HomingNoIndex,
+    /// `track`, and at [`UPLOAD_AT_TICKS`] the firmware uploads its bundled second image (the
+    /// first one's correction field negated) into the inactive slot, commits it and switches
+    /// at the next rest: the calibration id shows commit 1, and from the switch on the grid
+    /// check finds the new image's corrections applied.
+    CalibrationUpload,
+    /// The same upload with one byte corrupted on the way: refused (`BadCrc`), the old image
+    /// stays in force (commit 0) and applied to the end.
+    CalibrationUploadCorrupt,
     /// A bad image flashed by the test, refused with this error: drives never enabled.
     BadImage(GridError),
     /// Self-test of the panic path: the harness panics at boot (`qemu/test.sh` expects the
@@ -185,6 +204,28 @@ pub enum Scenario {
     /// Self-test of the HardFault path: the harness executes `udf` at boot.
     HardFault,
 }
+
+/// The homing scenarios' machine (see [`Scenario::homing_sim`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct HomingSim {
+    /// Where the tool stands at power-on (mm); the counters read 0 there.
+    pub power_on_mm: [f32; 2],
+    /// Which axes have an index mark.
+    pub index: [bool; 2],
+}
+
+/// When the upload scenarios upload (sample): 0.5 s into the tour.
+pub const UPLOAD_AT_TICKS: u32 = 1_000;
+
+/// Where the homing scenarios' machine powers up (mm): off home, inside the rectangle.
+pub const HOMING_POWER_ON_MM: [f32; 2] = [235.0, -40.0];
+/// `homing` may run this long (10 s: homing about 3.5 s, then the tour).
+pub const HOMING_MAX_TICKS: u32 = 20_000;
+/// After homing, the firmware's readings must equal the plant's true angles within this (rad):
+/// a few counts (2^22 counts/rev: 1.5 µrad each).
+pub const MAX_HOMED_ENCODER_ERROR_RAD: f32 = 1.0e-5;
+/// The drives' torque resolution (N·m): one PWM duty step at 10 N·m full scale over 4250.
+const DUTY_STEP_NM: f32 = 2.0 * 10.0 / 4250.0;
 
 /// What the harness does to joint 1's encoder reading in a sample.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -249,6 +290,10 @@ impl Scenario {
             "glitch-small" => Scenario::GlitchSmall,
             "glitch-large" => Scenario::GlitchLarge,
             "stalled-task" => Scenario::StalledTask,
+            "calibration-upload" => Scenario::CalibrationUpload,
+            "calibration-upload-corrupt" => Scenario::CalibrationUploadCorrupt,
+            "homing" => Scenario::Homing,
+            "homing-no-index" => Scenario::HomingNoIndex,
             "bad-image-crc" => Scenario::BadImage(GridError::BadCrc),
             "bad-image-magic" => Scenario::BadImage(GridError::BadMagic),
             "panic" => Scenario::Panic,
@@ -348,10 +393,32 @@ impl Scenario {
         self == Scenario::StalledTask && self.inject_at(i) == Some(index)
     }
 
+    /// When the firmware uploads its bundled second image, and whether corrupted on the way
+    /// (`None`: no upload in this scenario).
+    pub fn upload(self) -> Option<(u32, bool)> {
+        match self {
+            Scenario::CalibrationUpload => Some((UPLOAD_AT_TICKS, false)),
+            Scenario::CalibrationUploadCorrupt => Some((UPLOAD_AT_TICKS, true)),
+            _ => None,
+        }
+    }
+
+    /// The homing scenarios' simulated machine: incremental encoders, where it powers up, which
+    /// axes have an index mark (`None`: absolute encoders, no homing).
+    pub fn homing_sim(self) -> Option<HomingSim> {
+        match self {
+            Scenario::Homing => Some(HomingSim { power_on_mm: HOMING_POWER_ON_MM, index: [true, true] }),
+            Scenario::HomingNoIndex => Some(HomingSim { power_on_mm: HOMING_POWER_ON_MM, index: [true, false] }),
+            _ => None,
+        }
+    }
+
     /// Samples after which the scenario fails if it has not concluded.
     pub fn time_limit_ticks(self) -> Option<u32> {
         match self {
             Scenario::Run | Scenario::LongRun => None,
+            Scenario::Homing => Some(HOMING_MAX_TICKS),
+            Scenario::CalibrationUpload | Scenario::CalibrationUploadCorrupt => Some(MAX_TICKS + 1_000),
             _ => Some(MAX_TICKS),
         }
     }
@@ -494,6 +561,10 @@ pub struct Checker<'a> {
     grid: GridCheck,
     settled_tool_error_mm: Option<f32>,
     motion: MotionCheck,
+    /// The sample homing ended and the servo engaged (`homing`).
+    homed_at: Option<u32>,
+    /// Grid checks done when the checked image was replaced (the upload scenarios).
+    grid_checks_at_switch: Option<u32>,
 }
 
 /// What `track-5g`'s motion check found so far (logged with the verdict).
@@ -537,7 +608,23 @@ impl<'a> Checker<'a> {
             grid: GridCheck::default(),
             settled_tool_error_mm: None,
             motion: MotionCheck::default(),
+            homed_at: None,
+            grid_checks_at_switch: None,
         }
+    }
+
+    /// The image in force changed (the harness's own reading of the slots): check the grid
+    /// against `image` from now on.
+    pub fn switch_image(&mut self, image: Result<CorrectionGrid<'a>, GridError>) {
+        self.image = image.map(Calibration::from_grid);
+        self.grid_checks_at_switch = Some(self.grid.checks);
+        // The blend after the switch delays the tour by a few samples.
+        self.track_end_tick += 100;
+    }
+
+    /// The sample homing ended at (`homing`), once it did.
+    pub fn homed_at(&self) -> Option<u32> {
+        self.homed_at
     }
 
     /// `track-5g`'s motion check so far.
@@ -689,6 +776,11 @@ impl<'a> Checker<'a> {
                     max_travel_mm: None,
                 },
             ),
+            Scenario::Homing => self.homing_then_track(o),
+            Scenario::CalibrationUpload | Scenario::CalibrationUploadCorrupt => {
+                self.track(o).map(|v| v.and_then(|()| self.upload_outcome(s)))
+            }
+            Scenario::HomingNoIndex => self.homing_no_index(o),
             Scenario::BadImage(expected) => self.bad_image(o, expected),
             Scenario::StalledTask => self.before_stall(o),
             Scenario::WatchdogRestart => self.watchdog_restart(o),
@@ -811,10 +903,10 @@ impl<'a> Checker<'a> {
     fn bad_image(&mut self, o: &Observation<'_>, expected: GridError) -> Verdict {
         self.never_enabled(o, |s| {
             require(
-                s.calibration == CalibrationState::Refused(expected),
+                s.calibration == CalibrationState::Refused(ImageError::Grid(expected)),
                 "bad image not refused, or refused for another reason",
             )?;
-            require(s.fault == Some(Fault::Calibration(expected)), "calibration fault not reported")
+            require(s.fault == Some(Fault::Calibration(ImageError::Grid(expected))), "calibration fault not reported")
         })
     }
 
@@ -829,6 +921,70 @@ impl<'a> Checker<'a> {
             return Some(now);
         }
         (o.status.ticks >= BAD_IMAGE_TICKS).then(|| reason(o.status))
+    }
+
+    /// While homing: the drives on, no fault, the torque within the homing limit. From the
+    /// first `Running` sample: the readings equal the plant's true angles (the zero is right)
+    /// and `track`'s checks, the tour starting there.
+    fn homing_then_track(&mut self, o: &Observation<'_>) -> Verdict {
+        let s = o.status;
+        if s.fault.is_some() {
+            return Some(Err("unexpected fault"));
+        }
+        match (s.mode, self.homed_at) {
+            (Mode::Homing, None) => {
+                let limit = self.settings.homing.torque_limit_nm + DUTY_STEP_NM;
+                let within = o.drive_torque_nm.iter().all(|t| t.abs() <= limit);
+                return Some(Err("torque above the homing limit")).filter(|_| !within).or_else(|| {
+                    (!o.drive_enable).then_some(Err("drives not enabled while homing"))
+                });
+            }
+            (Mode::Running, None) => {
+                self.homed_at = Some(s.ticks);
+                self.track_end_tick += s.ticks;
+            }
+            (Mode::Running, Some(_)) => {}
+            _ => return Some(Err("neither homing nor running")),
+        }
+        let off = [0, 1].map(|k| (s.encoder_rad[k] - o.plant.joint_rad[k]).abs());
+        if !(off[0] <= MAX_HOMED_ENCODER_ERROR_RAD && off[1] <= MAX_HOMED_ENCODER_ERROR_RAD) {
+            return Some(Err("after homing the readings are not the joints' true angles"));
+        }
+        self.track(o)
+    }
+
+    /// The upload scenarios at the end of the tour: the upload's outcome and the image in force.
+    fn upload_outcome(&self, s: &Status) -> Result<(), &'static str> {
+        let sequence = s.calibration_id.map(|i| i.sequence);
+        if self.scenario == Scenario::CalibrationUploadCorrupt {
+            require(
+                s.last_upload == Some(Err(SlotError::Image(ImageError::Grid(GridError::BadCrc)))),
+                "the corrupted upload was not refused for its CRC",
+            )?;
+            return require(sequence == Some(0) && self.grid_checks_at_switch.is_none(), "the old image did not stay in force");
+        }
+        require(matches!(s.last_upload, Some(Ok(id)) if id.sequence == 1), "the upload was not committed")?;
+        require(sequence == Some(1), "the servo did not switch to the new image")?;
+        let after = self.grid_checks_at_switch.map_or(0, |at| self.grid.checks - at);
+        require(after >= 10, "too few grid checks against the new image")
+    }
+
+    /// `homing-no-index`: homing until joint 2's search ends without an index, then
+    /// `Homing(IndexNotFound(1))`, the safe state, the machine at rest; never running.
+    fn homing_no_index(&mut self, o: &Observation<'_>) -> Verdict {
+        let s = o.status;
+        match (s.mode, s.fault) {
+            (Mode::Homing, None) => (!o.drive_enable).then_some(Err("drives not enabled while homing")),
+            (Mode::SafeState(Fault::Homing(HomingFault::IndexNotFound(1))), Some(Fault::Homing(HomingFault::IndexNotFound(1)))) => {
+                if let Err(why) = safe_state(o) {
+                    return Some(Err(why));
+                }
+                let at = *self.fault_at.get_or_insert(s.ticks);
+                let still = o.plant.joint_rad_s.iter().all(|w| w.abs() < 0.01);
+                (s.ticks >= at + 200).then(|| require(still, "the machine is not at rest after the failed search"))
+            }
+            _ => Some(Err("not homing, or another fault than the missing index")),
+        }
     }
 
     fn long_run(&mut self, o: &Observation<'_>) -> Verdict {
@@ -946,7 +1102,6 @@ fn safe_state(o: &Observation<'_>) -> Result<(), &'static str> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::servo_loop::Mode;
     use kinematics_core::grid::{encode, GridGeometry};
     use kinematics_core::{FiveBar, KinematicsError};
 
@@ -996,6 +1151,8 @@ mod tests {
             torque_nm: [0.1, -0.1],
             max_following_error_rad: 1e-4,
             setpoint_underruns: 0,
+            calibration_id: None,
+            last_upload: None,
         }
     }
 
@@ -1020,6 +1177,48 @@ mod tests {
 
     fn checker(scenario: Scenario, img: &[u8]) -> Checker<'_> {
         Checker::new(scenario, CorrectionGrid::parse(img), &Settings::default(), 3_000, INJECTION, COAST)
+    }
+
+    /// `homing`: torque above the homing limit while homing fails; after homing, readings that
+    /// are not the plant's true angles (a wrong zero) fail; the right zero goes on to `track`.
+    #[test]
+    fn homing_fails_on_torque_above_its_limit_or_a_wrong_zero() {
+        let img = image(D_RAD);
+        let homing = |ticks, torque_nm| Status { mode: Mode::Homing, torque_nm, ..running(ticks, D_RAD) };
+        let mut c = checker(Scenario::Homing, &img);
+        assert_eq!(c.observe(&on(&homing(1, [1.9, -1.9]))), None);
+        assert_eq!(c.observe(&on(&homing(2, [2.5, 0.0]))), Some(Err("torque above the homing limit")));
+        assert_eq!(c.observe(&off(&homing(3, [0.0, 0.0]))), Some(Err("drives not enabled while homing")));
+        let s = running(100, D_RAD);
+        let mut wrong = on(&s);
+        wrong.plant.joint_rad[0] += 1e-3;
+        let mut c = checker(Scenario::Homing, &img);
+        assert_eq!(c.observe(&wrong), Some(Err("after homing the readings are not the joints' true angles")));
+        let mut c = checker(Scenario::Homing, &img);
+        assert_eq!(c.observe(&on(&s)), None);
+        assert_eq!(c.homed_at(), Some(100));
+    }
+
+    /// The upload scenarios' verdict at the end of the tour: committed and switched (with grid
+    /// checks against the new image), or refused for its CRC with the old image kept.
+    #[test]
+    fn the_upload_outcome_is_checked() {
+        use crate::calibration_slots::CalibrationId;
+        let img = image(D_RAD);
+        let id = |sequence| CalibrationId { slot: sequence as u8, sequence, crc32: 7, len: 100 };
+        let c = checker(Scenario::CalibrationUpload, &img);
+        let not_switched = Status { calibration_id: Some(id(0)), last_upload: Some(Ok(id(1))), ..running(1, D_RAD) };
+        assert_eq!(c.upload_outcome(&not_switched), Err("the servo did not switch to the new image"));
+        let switched = Status { calibration_id: Some(id(1)), ..not_switched };
+        assert_eq!(c.upload_outcome(&switched), Err("too few grid checks against the new image"));
+        let c = checker(Scenario::CalibrationUploadCorrupt, &img);
+        let refused = Status {
+            calibration_id: Some(id(0)),
+            last_upload: Some(Err(SlotError::Image(ImageError::Grid(GridError::BadCrc)))),
+            ..running(1, D_RAD)
+        };
+        assert_eq!(c.upload_outcome(&refused), Ok(()));
+        assert!(c.upload_outcome(&switched).is_err());
     }
 
     #[test]
@@ -1361,8 +1560,8 @@ mod tests {
     #[test]
     fn a_bad_image_passes_only_if_the_drives_were_never_enabled() {
         let refused = |ticks| Status {
-            calibration: CalibrationState::Refused(GridError::BadCrc),
-            fault: Some(Fault::Calibration(GridError::BadCrc)),
+            calibration: CalibrationState::Refused(ImageError::Grid(GridError::BadCrc)),
+            fault: Some(Fault::Calibration(ImageError::Grid(GridError::BadCrc))),
             torque_nm: [0.0; 2],
             ..running(ticks, D_RAD)
         };
@@ -1377,7 +1576,7 @@ mod tests {
         assert_eq!(c.observe(&never(&refused(BAD_IMAGE_TICKS))), Some(Ok(())));
         // Enabled once, even if off now.
         assert_eq!(c.observe(&off(&refused(5))), Some(Err("drives enabled at a boot that must keep them off")));
-        let wrong = Status { calibration: CalibrationState::Refused(GridError::BadMagic), ..refused(BAD_IMAGE_TICKS) };
+        let wrong = Status { calibration: CalibrationState::Refused(ImageError::Grid(GridError::BadMagic)), ..refused(BAD_IMAGE_TICKS) };
         assert!(matches!(c.observe(&never(&wrong)), Some(Err(_))));
     }
 

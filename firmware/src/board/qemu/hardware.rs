@@ -22,6 +22,14 @@ static ENCODER_COUNTS: [AtomicI32; 2] = [AtomicI32::new(0), AtomicI32::new(0)];
 /// Encoder fault injection: the counter stops following the plant / shows this many counts more.
 static ENCODER_FROZEN: [AtomicBool; 2] = [AtomicBool::new(false), AtomicBool::new(false)];
 static ENCODER_OFFSET_COUNTS: [AtomicI32; 2] = [AtomicI32::new(0), AtomicI32::new(0)];
+/// An incremental encoder's counter reads 0 at power-on: the plant's count there, subtracted
+/// from every count (0: the counter shows the absolute angle, an absolute encoder).
+static COUNTER_ZERO: [AtomicI32; 2] = [AtomicI32::new(0), AtomicI32::new(0)];
+/// The counter's value at the first index pulse (the encoder timer's index capture).
+static INDEX_COUNTS: [AtomicI32; 2] = [AtomicI32::new(0), AtomicI32::new(0)];
+static INDEX_LATCHED: [AtomicBool; 2] = [AtomicBool::new(false), AtomicBool::new(false)];
+/// A latched index not read yet by [`take_index`].
+static INDEX_NEW: [AtomicBool; 2] = [AtomicBool::new(false), AtomicBool::new(false)];
 
 /// The safe state, from any context (the watchdog's NMI, fault handlers): duty to zero torque
 /// (50 %), then the enable line low.
@@ -68,9 +76,36 @@ pub fn commanded_torque_nm(full_scale_nm: f32) -> [f32; 2] {
 /// counter is frozen; plus the injected offset.
 pub fn set_encoder_counts(axis: usize, counts: i32) {
     if !ENCODER_FROZEN[axis].load(Ordering::Relaxed) {
+        let counts = counts.wrapping_sub(COUNTER_ZERO[axis].load(Ordering::Relaxed));
         let shown = counts.wrapping_add(ENCODER_OFFSET_COUNTS[axis].load(Ordering::Relaxed));
         ENCODER_COUNTS[axis].store(shown, Ordering::Relaxed);
     }
+}
+
+/// Makes `axis`'s counter incremental: it reads 0 where the plant's count is `plant_counts`
+/// (the power-on position).
+pub fn set_counter_zero(axis: usize, plant_counts: i32) {
+    COUNTER_ZERO[axis].store(plant_counts, Ordering::Relaxed);
+}
+
+/// The plant crossed `axis`'s index mark, at plant count `plant_counts`: the counter's value
+/// there is captured (the first pulse only, as the encoder timer's capture with first-index
+/// mode does).
+pub fn index_pulse(axis: usize, plant_counts: i32) {
+    if !INDEX_LATCHED[axis].swap(true, Ordering::SeqCst) {
+        INDEX_COUNTS[axis].store(plant_counts.wrapping_sub(COUNTER_ZERO[axis].load(Ordering::Relaxed)), Ordering::SeqCst);
+        INDEX_NEW[axis].store(true, Ordering::SeqCst);
+    }
+}
+
+/// The captured counter value at `axis`'s index, once per capture.
+pub fn take_index(axis: usize) -> Option<i32> {
+    INDEX_NEW[axis].swap(false, Ordering::SeqCst).then(|| INDEX_COUNTS[axis].load(Ordering::SeqCst))
+}
+
+/// The captured counter value at `axis`'s index, if there was one.
+pub fn index_counts(axis: usize) -> Option<i32> {
+    INDEX_LATCHED[axis].load(Ordering::SeqCst).then(|| INDEX_COUNTS[axis].load(Ordering::SeqCst))
 }
 
 /// Encoder fault injection (the test harness), for the plant's next update of the counter:

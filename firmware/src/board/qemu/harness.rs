@@ -28,7 +28,7 @@
 //! under test too.
 use core::cell::Cell;
 use core::fmt::Write;
-use core::sync::atomic::{AtomicU32, Ordering};
+use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 
 use controller::deadline::DEADLINE_US;
 use controller::scenario::stop_check::{CoastModel, PlantState};
@@ -40,7 +40,8 @@ use controller::trajectory::Trajectory;
 use controller::watchdog::TIMEOUT_US;
 use critical_section::Mutex;
 use kinematics_core::trajectory::MotionSetpoint;
-use kinematics_core::CorrectionGrid;
+use controller::calibration_slots::{CalibrationId, ReadOnly, SlotStore};
+use kinematics_core::{CorrectionGrid, GridError};
 
 use super::plant::Plant;
 use super::{across_reset, clock, hardware, semihosting, CmsdkTimer, COUNTS_PER_REV, TIMER_CLOCK_HZ};
@@ -54,6 +55,26 @@ static STALLED_AT: AtomicU32 = AtomicU32::new(NEVER);
 /// Tool speed at the stall (f32 bits, mm/s).
 static STALL_SPEED: AtomicU32 = AtomicU32::new(0);
 const NEVER: u32 = u32::MAX;
+
+/// The upload scenarios' upload has been started.
+static UPLOAD_STARTED: AtomicBool = AtomicBool::new(false);
+
+/// The upload scenarios (`Scenario::upload`): `Some(corrupt)` once, at the first call at or
+/// after the upload's sample. Called by the app's telemetry task.
+pub fn upload_due(ticks: u32) -> Option<bool> {
+    let scenario = critical_section::with(|cs| SCENARIO.borrow(cs).get());
+    let (at, corrupt) = scenario.upload()?;
+    (ticks >= at && !UPLOAD_STARTED.swap(true, Ordering::SeqCst)).then_some(corrupt)
+}
+
+/// The image in force by the harness's own reading of the slots (not the firmware's).
+fn image_in_force(settings: &Settings) -> (Option<CalibrationId>, Result<CorrectionGrid<'static>, GridError>) {
+    let store = SlotStore::open(ReadOnly(crate::calibration::region()), settings.machine, settings.home_mm);
+    match store.active_id() {
+        Some(id) => (Some(id), CorrectionGrid::parse(crate::calibration::slot_bytes(id))),
+        None => (None, CorrectionGrid::parse(crate::calibration::region())),
+    }
+}
 
 /// Records a watchdog feed (the QEMU board's `feed_watchdog` calls it right after the feed).
 #[inline]
@@ -77,6 +98,8 @@ pub struct Harness {
     sample: u32,
     /// The machine's state when the controller last reset, if it was kept ([`Harness::resumed`]).
     resumed: Option<PlantState>,
+    /// The image in force the checker checks against (its id).
+    checked_id: Option<CalibrationId>,
 }
 
 impl Harness {
@@ -102,7 +125,7 @@ impl Harness {
             Scenario::HardFault => cortex_m::asm::udf(),
             _ => {}
         }
-        Harness { scenario, settings, checker: None, injection: Injection::default(), sample: 0, resumed: None }
+        Harness { scenario, settings, checker: None, injection: Injection::default(), sample: 0, resumed: None, checked_id: None }
     }
 
     /// The machine was in `state` when the controller reset (the plant resumed there): the
@@ -115,7 +138,8 @@ impl Harness {
     /// The board's setpoint source: `trajectory` with the scenario's setpoint faults. `coast`
     /// is the plant's (the checks' bound for a coast with the drives off).
     pub fn setpoints(&mut self, trajectory: Trajectory, coast: CoastModel) -> Injected {
-        let image = CorrectionGrid::parse(crate::calibration::region());
+        let (id, image) = image_in_force(self.settings);
+        self.checked_id = id;
         self.injection = Injection::find(&trajectory, self.settings.servo.sample_period_s);
         if self.scenario.inject_at(&self.injection).is_some() {
             defmt::info!("harness: {} injected at sample {}", self.scenario, self.injection);
@@ -162,6 +186,17 @@ impl Harness {
             semihosting::console("FAIL harness: no setpoint source set up before the first sample");
             semihosting::exit(false)
         };
+        // The firmware switched images: the checker reads the slots itself and checks against
+        // the image in force from now on.
+        if status.calibration_id != self.checked_id && self.scenario.upload().is_some() {
+            let (id, image) = image_in_force(self.settings);
+            if id != status.calibration_id {
+                semihosting::console("FAIL harness: the firmware's image in force is not the slots' committed one");
+                semihosting::exit(false)
+            }
+            self.checked_id = id;
+            checker.switch_image(image);
+        }
         match checker.observe(&observation) {
             None => {}
             Some(Ok(())) => {
@@ -169,7 +204,16 @@ impl Harness {
                 if let (Some(at), Some(report)) = (checker.fault_sample(), checker.stop_report()) {
                     defmt::info!("stop: fault at sample {} ({}): {}", at, status.fault, report);
                 }
-                if matches!(self.scenario, Scenario::Track | Scenario::Track5g) {
+                if let Some(at) = checker.homed_at() {
+                    defmt::info!("homing: homed and engaged at sample {}", at);
+                }
+                if let Some(upload) = status.last_upload {
+                    defmt::info!("upload: {}, image in force {}", upload, status.calibration_id);
+                }
+                if matches!(
+                    self.scenario,
+                    Scenario::Track | Scenario::Track5g | Scenario::Homing | Scenario::CalibrationUpload | Scenario::CalibrationUploadCorrupt
+                ) {
                     defmt::info!(
                         "track: grid {}, settled tool error {} mm",
                         checker.grid_check(),

@@ -18,6 +18,7 @@
 //!   HardFault / unexpected interrupt / panic handlers (print `FAIL ...`, exit 1).
 use controller::drive::{self, DriveError, TorqueDrive};
 use controller::encoder::{EncoderScale, QuadratureEncoder};
+use controller::homing::HomingSettings;
 use controller::settings::Settings;
 use controller::status::Status;
 use controller::trajectory::{Trajectory, WORKSPACE_TOUR_MM};
@@ -195,10 +196,16 @@ impl Board for QemuBoard {
         let production = Settings::default();
         let (trajectory_profile, trajectory_accel_mm_s2) =
             scenario.trajectory((production.trajectory_profile, production.trajectory_accel_mm_s2));
+        // The simulated encoders are absolute (the counters show the joint angle) except in the
+        // homing scenarios, where they are incremental with an index mark and the machine homes
+        // at boot.
+        let homes = scenario.homing_sim().is_some();
+        let homing = HomingSettings { absolute_encoders: !homes, at_boot: homes, ..production.homing };
         Settings {
             builtin_tour_mm: scenario.tour_mm(&WORKSPACE_TOUR_MM),
             trajectory_profile,
             trajectory_accel_mm_s2,
+            homing,
             ..production
         }
     }
@@ -227,6 +234,9 @@ impl Board for QemuBoard {
             board.plant.resume(state);
             board.harness.resumed(state);
         }
+        if let Some(sim) = Harness::scenario().homing_sim() {
+            board.plant.power_on_incremental(sim.power_on_mm, sim.index);
+        }
         board
     }
 
@@ -249,6 +259,15 @@ impl Board for QemuBoard {
 
     fn enable_drives(&mut self) {
         hardware::set_drive_enable(true);
+    }
+
+    fn index_rad(&mut self) -> [Option<f32>; 2] {
+        [0, 1].map(|k| hardware::take_index(k).map(|c| self.encoder_scales[k].joint_rad(c)))
+    }
+
+    fn reference_at_index(&mut self, index_rad: [f32; 2]) -> bool {
+        let counts = [hardware::index_counts(0), hardware::index_counts(1)];
+        super::reference_scales(&mut self.encoder_scales, counts, index_rad)
     }
 
     /// Duty to zero torque, then the enable line low (`hardware::safe_state`, also what the

@@ -132,6 +132,17 @@ pub struct Plant {
     pub jammed: bool,
     /// `λ_max·√(λ_max/λ_min)` of the whole inertia matrix over [`COAST_RECTANGLE_MM`] (kg·m²).
     coupled_inertia_kg_m2: f32,
+    /// Joint angle of each axis's index mark (rad; `None`: the mark is missing).
+    pub index_rad: [Option<f32>; 2],
+}
+
+/// Joint angle of the simulated encoders' index marks (rad): the firmware's default
+/// `HomingSettings::index_rad`.
+pub const INDEX_RAD: [f32; 2] = [1.40, -1.40];
+
+/// The plant's count of joint angle `rad`.
+fn counts_of(rad: f32) -> i32 {
+    libm::roundf(rad * (COUNTS_PER_REV as f32 / (2.0 * core::f32::consts::PI))) as i32
 }
 
 impl Plant {
@@ -147,9 +158,25 @@ impl Plant {
             full_scale_nm,
             jammed: false,
             coupled_inertia_kg_m2: coupled_inertia_kg_m2(&params, &geometry),
+            index_rad: [Some(INDEX_RAD[0]), Some(INDEX_RAD[1])],
         };
         plant.publish_encoders();
         plant
+    }
+
+    /// Incremental encoders: the machine powers up at `tool_mm` (unknown to the firmware) and
+    /// the counters read 0 there; `index` says which axes have their index mark.
+    pub fn power_on_incremental(&mut self, tool_mm: [f32; 2], index: [bool; 2]) {
+        if let Ok(angles) = self.geometry.inverse(tool_mm, 0.0) {
+            self.angle_rad = angles;
+        }
+        for (k, has_index) in index.into_iter().enumerate() {
+            hardware::set_counter_zero(k, counts_of(self.angle_rad[k]));
+            if !has_index {
+                self.index_rad[k] = None;
+            }
+        }
+        self.publish_encoders();
     }
 
     /// The true joint state (the harness checks it, not the encoders).
@@ -177,8 +204,7 @@ impl Plant {
 
     fn publish_encoders(&self) {
         for k in 0..2 {
-            let counts = libm::roundf(self.angle_rad[k] * (COUNTS_PER_REV as f32 / (2.0 * core::f32::consts::PI)));
-            hardware::set_encoder_counts(k, counts as i32);
+            hardware::set_encoder_counts(k, counts_of(self.angle_rad[k]));
         }
     }
 
@@ -191,9 +217,17 @@ impl Plant {
         } else {
             ([0.0; 2], self.params.dynamic_brake_nm_s_per_rad)
         };
+        let before = self.angle_rad;
         if !self.jammed && self.integrate(torque_nm, brake_nm_s_per_rad, period_s).is_none() {
             self.jammed = true;
             self.velocity_rad_s = [0.0; 2];
+        }
+        for (k, (from, to)) in before.into_iter().zip(self.angle_rad).enumerate() {
+            if let Some(i) = self.index_rad[k] {
+                if from != to && (from - i) * (to - i) <= 0.0 {
+                    hardware::index_pulse(k, counts_of(i));
+                }
+            }
         }
         self.publish_encoders();
     }

@@ -1,0 +1,712 @@
+//! Two calibration slots in the CALIBRATION flash region: a new image is written to the slot
+//! not in force, validated, then switched to by one commit record written last, so a power cut
+//! at any byte of an upload leaves the old image in force.
+//!
+//! # Layout
+//! The region (64 KiB on both boards, `memory.x`) is split in two equal slots, A at offset 0
+//! and B at half the region (32 KiB each; 16 pages of 2 KiB on the STM32G474):
+//!
+//! | slot offset | size | contents |
+//! |---:|---:|---|
+//! | 0 | up to `slot_len - 32` | the image (`kinematics_core::grid` format), as uploaded |
+//! | `slot_len - 32` | 32 | the commit record, written after the image has been validated |
+//!
+//! The commit record (little-endian):
+//!
+//! | offset | size | field |
+//! |---:|---:|---|
+//! | 0 | 4 | magic `b"HRCR"` |
+//! | 4 | 2 | record version, `1` |
+//! | 6 | 2 | 0 |
+//! | 8 | 4 | sequence number (the previous image's plus one) |
+//! | 12 | 4 | image length (bytes) |
+//! | 16 | 4 | CRC-32C (Castagnoli) of the image's bytes: the [`CalibrationId`]'s `crc32` |
+//! | 20 | 4 | 0 |
+//! | 24 | 4 | CRC-32/ISO-HDLC of the record's bytes 0..24 |
+//! | 28 | 4 | commit marker `b"DONE"`, in the last write unit programmed |
+//!
+//! # Which image is in force
+//! At boot ([`SlotStore::open`]) a slot counts if its record is complete (magic, version,
+//! record CRC, marker), its image's bytes match the record's length and CRC, and the image
+//! passes [`validate_image`](crate::calibration::validate_image) (format, grid CRC, this
+//! machine). Of the slots that count, the one with the highest sequence number is in force.
+//! If neither has a record, an image at the start of slot A is in force with sequence 0: that
+//! is what flashing the region with a probe (`probe-rs download ... calibration.bin`, the
+//! bring-up path) or the QEMU board's bundled image leaves. (So after an upload, reflash the
+//! region by probe with the whole 64 KiB erased, or slot B's record keeps winning.)
+//!
+//! # The upload and the power-cut guarantee
+//! [`SlotStore::begin`] erases the slot not in force (all of it, its record too);
+//! [`SlotStore::write`] programs the image into it in order; [`SlotStore::commit`] reads the
+//! slot back, validates it, and only then programs the record, marker last. Until the marker's
+//! write unit is complete, the new slot has no valid record and the old one is in force; once it
+//! is, the new one has the higher sequence. Flash programming only clears bits, so a torn write
+//! unit can only leave a record whose marker or CRC does not match. Nothing is ever written to
+//! the slot in force. `tests` cut the power after every byte of every erase and program of an
+//! upload (and after every write unit) and reboot: the old image, or after a completed commit the
+//! new one, is in force every time.
+//!
+//! Hardware caveat (STM32G474): a double word torn by a power cut can hold a double ECC error,
+//! whose read raises an NMI (RM0440, FLASH ECC). The board's flash driver must treat ECCD on a
+//! read of the inactive slot as "no record"; see firmware/README.md.
+//!
+//! Cost: `open` computes two CRCs over the images (a few ms at boot); `write` copies the bytes;
+//! `commit` one CRC and a parse. None of it runs in the servo task: the app calls it from a
+//! low-priority task, and on the G474 the calibration region is in bank 2 while the program
+//! runs from bank 1.
+use crate::calibration::{validate_image, ImageError, MachineIdentity};
+
+/// The record's own CRC (CRC-32/ISO-HDLC, zlib's, as the grid format uses).
+const CRC32: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
+/// The image's CRC in the record and the [`CalibrationId`]: CRC-32C (Castagnoli, iSCSI), not the
+/// grid format's CRC-32/ISO-HDLC. A grid image ends with its own ISO-HDLC CRC (and the dynamics
+/// block with its own): an ISO-HDLC CRC over such bytes is the same constant for every image of
+/// a length (the CRC residue), so it would identify nothing. Another polynomial has no such
+/// relation to the image's contents.
+const IMAGE_CRC: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISCSI);
+
+/// Commit record magic.
+pub const RECORD_MAGIC: [u8; 4] = *b"HRCR";
+/// Commit record version.
+pub const RECORD_VERSION: u16 = 1;
+/// Commit record length (bytes), at the end of each slot.
+pub const RECORD_LEN: usize = 32;
+/// The marker the record's last write unit ends with.
+pub const COMMIT_MARKER: [u8; 4] = *b"DONE";
+
+/// Why the board's flash refused an operation.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum FlashError {
+    /// Offset or length not aligned to the erase or write unit, or outside the region.
+    Alignment,
+    /// The controller reported an error (G474: PROGERR, WRPERR, PGAERR, SIZERR, PGSERR...), or
+    /// a read back differed from what was programmed.
+    Hardware,
+    /// The flash controller stayed busy past its timeout.
+    Timeout,
+}
+
+/// The calibration region's flash, as the slot store needs it. NOR semantics: erase sets a
+/// page to 0xFF, programming only clears bits, one write unit at a time.
+///
+/// Own trait rather than `embedded-storage`'s `NorFlash`: the store reads the region in place
+/// (the servo uses the image where it lies, nothing is copied), which `ReadNorFlash` does not
+/// offer, and the power-cut tests need nothing more than these three calls.
+pub trait SlotFlash {
+    /// The write unit (bytes; 8 on the STM32G474, a double word).
+    const WRITE_SIZE: usize;
+    /// The erase unit (bytes; a 2 KiB page on the STM32G474).
+    const ERASE_SIZE: usize;
+    /// The whole region, memory-mapped.
+    fn region(&self) -> &[u8];
+    /// Erases `[offset, offset + len)`, both multiples of [`SlotFlash::ERASE_SIZE`].
+    fn erase(&mut self, offset: usize, len: usize) -> Result<(), FlashError>;
+    /// Programs `data` (a multiple of [`SlotFlash::WRITE_SIZE`]) at `offset` (aligned).
+    fn program(&mut self, offset: usize, data: &[u8]) -> Result<(), FlashError>;
+}
+
+/// The region read-only (a memory-mapped view): [`SlotStore::open`] over it finds the image in
+/// force without being able to change anything (the QEMU harness's independent reading, host
+/// tools inspecting a dump). Erase and program fail.
+pub struct ReadOnly<'a>(pub &'a [u8]);
+
+impl SlotFlash for ReadOnly<'_> {
+    const WRITE_SIZE: usize = 8;
+    const ERASE_SIZE: usize = 2048;
+    fn region(&self) -> &[u8] {
+        self.0
+    }
+    fn erase(&mut self, _: usize, _: usize) -> Result<(), FlashError> {
+        Err(FlashError::Hardware)
+    }
+    fn program(&mut self, _: usize, _: &[u8]) -> Result<(), FlashError> {
+        Err(FlashError::Hardware)
+    }
+}
+
+/// Which image is in force: the host compares `crc32` with its file's CRC-32.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct CalibrationId {
+    /// 0 (slot A) or 1 (slot B).
+    pub slot: u8,
+    /// The commit's sequence number (0: an image flashed by probe, without record).
+    pub sequence: u32,
+    /// CRC-32C (Castagnoli, `crc::CRC_32_ISCSI`) of the image's bytes: the host computes it
+    /// over its file (see `IMAGE_CRC` for why not zlib's CRC-32).
+    pub crc32: u32,
+    /// The image's length (bytes).
+    pub len: u32,
+}
+
+/// Why an upload step was refused. After any error but [`SlotError::NoUpload`] and
+/// [`SlotError::OutOfOrder`] the upload is abandoned (start again with `begin`); the image in
+/// force is untouched in every case.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum SlotError {
+    /// `write` or `commit` without a `begin`.
+    NoUpload,
+    /// The image would not fit a slot (or is shorter than a grid header): the largest is given.
+    BadLength {
+        /// Largest image a slot holds (bytes).
+        max: u32,
+    },
+    /// `write` at another offset than the next expected one (chunks go in order; a repeated
+    /// chunk is refused, not rewritten): the offset expected.
+    OutOfOrder {
+        /// The next offset the store expects.
+        expected: u32,
+    },
+    /// `write` past the length given to `begin`.
+    TooMuchData,
+    /// `commit` before every byte was written.
+    Incomplete {
+        /// Bytes received.
+        received: u32,
+    },
+    /// The flash refused an operation, or read back something else.
+    Flash(FlashError),
+    /// The uploaded image is not a valid image for this machine.
+    Image(ImageError),
+}
+
+impl core::fmt::Display for SlotError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            SlotError::NoUpload => f.write_str("no upload under way"),
+            SlotError::BadLength { max } => write!(f, "image length not between 76 and {max} bytes"),
+            SlotError::OutOfOrder { expected } => write!(f, "chunk out of order (expected offset {expected})"),
+            SlotError::TooMuchData => f.write_str("more data than announced"),
+            SlotError::Incomplete { received } => write!(f, "image incomplete ({received} bytes received)"),
+            SlotError::Flash(e) => write!(f, "flash error: {e:?}"),
+            SlotError::Image(e) => write!(f, "image refused: {e}"),
+        }
+    }
+}
+
+impl From<FlashError> for SlotError {
+    fn from(e: FlashError) -> Self {
+        SlotError::Flash(e)
+    }
+}
+
+/// Largest write unit the store handles (bytes).
+const MAX_WRITE_SIZE: usize = 16;
+
+#[derive(Clone, Copy, Debug)]
+struct Upload {
+    slot: u8,
+    len: u32,
+    /// Bytes received (programmed, or pending in `tail`).
+    received: u32,
+    /// Bytes received past the last whole write unit.
+    tail: [u8; MAX_WRITE_SIZE],
+    tail_len: usize,
+}
+
+/// The two slots over a board's flash: which image is in force, and the upload into the other.
+pub struct SlotStore<F: SlotFlash> {
+    flash: F,
+    machine: MachineIdentity,
+    home_mm: [f32; 2],
+    active: Option<CalibrationId>,
+    upload: Option<Upload>,
+}
+
+impl<F: SlotFlash> SlotStore<F> {
+    /// Scans both slots and picks the image in force (module doc). `machine` and `home_mm` are
+    /// what an image must have been built for.
+    pub fn open(flash: F, machine: MachineIdentity, home_mm: [f32; 2]) -> Self {
+        let mut store = SlotStore { flash, machine, home_mm, active: None, upload: None };
+        let committed = [0u8, 1].map(|slot| store.committed(slot));
+        store.active = match committed {
+            [Some(a), Some(b)] => Some(if b.sequence.wrapping_sub(a.sequence) as i32 > 0 { b } else { a }),
+            [Some(a), None] => Some(a),
+            [None, Some(b)] => Some(b),
+            [None, None] => store.probe_flashed(),
+        };
+        store
+    }
+
+    /// Bytes per slot.
+    pub fn slot_len(&self) -> usize {
+        // Whole erase pages per slot.
+        let half = self.flash.region().len() / 2;
+        half - half % F::ERASE_SIZE
+    }
+
+    /// Largest image a slot holds (bytes).
+    pub fn capacity(&self) -> usize {
+        self.slot_len().saturating_sub(RECORD_LEN)
+    }
+
+    /// The image in force and its id; `None` if neither slot holds a valid image.
+    pub fn active(&self) -> Option<(&[u8], CalibrationId)> {
+        let id = self.active?;
+        let start = id.slot as usize * self.slot_len();
+        Some((&self.flash.region()[start..start + id.len as usize], id))
+    }
+
+    /// The id of the image in force.
+    pub fn active_id(&self) -> Option<CalibrationId> {
+        self.active
+    }
+
+    /// The slot the next upload goes to: the one not in force (A if none is).
+    pub fn inactive_slot(&self) -> u8 {
+        match self.active {
+            Some(id) => 1 - id.slot,
+            None => 0,
+        }
+    }
+
+    /// Whether an upload is under way, and the bytes it has received.
+    pub fn upload_progress(&self) -> Option<(u32, u32)> {
+        self.upload.map(|u| (u.received, u.len))
+    }
+
+    /// Starts an upload of `len` bytes: erases the slot not in force. An upload already under
+    /// way is abandoned.
+    pub fn begin(&mut self, len: usize) -> Result<(), SlotError> {
+        self.upload = None;
+        let max = self.capacity();
+        if !(kinematics_core::grid::HEADER_LEN + 4..=max).contains(&len) {
+            return Err(SlotError::BadLength { max: max as u32 });
+        }
+        if F::WRITE_SIZE == 0 || F::WRITE_SIZE > MAX_WRITE_SIZE || RECORD_LEN % F::WRITE_SIZE != 0 {
+            return Err(SlotError::Flash(FlashError::Alignment));
+        }
+        let slot = self.inactive_slot();
+        let slot_len = self.slot_len();
+        self.flash.erase(slot as usize * slot_len, slot_len)?;
+        self.upload = Some(Upload { slot, len: len as u32, received: 0, tail: [0xFF; MAX_WRITE_SIZE], tail_len: 0 });
+        Ok(())
+    }
+
+    /// Appends `data` at `offset` (the next byte expected); returns the bytes received so far.
+    pub fn write(&mut self, offset: usize, data: &[u8]) -> Result<u32, SlotError> {
+        let Some(mut up) = self.upload else { return Err(SlotError::NoUpload) };
+        if offset != up.received as usize {
+            return Err(SlotError::OutOfOrder { expected: up.received });
+        }
+        if data.len() > (up.len - up.received) as usize {
+            self.upload = None;
+            return Err(SlotError::TooMuchData);
+        }
+        let base = up.slot as usize * self.slot_len();
+        let w = F::WRITE_SIZE;
+        for &byte in data {
+            up.tail[up.tail_len] = byte;
+            up.tail_len += 1;
+            up.received += 1;
+            if up.tail_len == w {
+                let at = base + up.received as usize - w;
+                if let Err(e) = self.flash.program(at, &up.tail[..w]) {
+                    self.upload = None;
+                    return Err(e.into());
+                }
+                up.tail_len = 0;
+            }
+        }
+        self.upload = Some(up);
+        Ok(up.received)
+    }
+
+    /// Finishes the upload: programs the last partial write unit (padded with 0xFF), reads the
+    /// slot back, validates the image ([`validate_image`]: format, CRC, this machine), then
+    /// programs the commit record, marker last. On success the new image is in force (the
+    /// caller switches the servo to it, see the app) and its id is returned; on any error the
+    /// old image stays in force.
+    pub fn commit(&mut self) -> Result<CalibrationId, SlotError> {
+        let Some(up) = self.upload.take() else { return Err(SlotError::NoUpload) };
+        if up.received != up.len {
+            return Err(SlotError::Incomplete { received: up.received });
+        }
+        let w = F::WRITE_SIZE;
+        let slot_len = self.slot_len();
+        let base = up.slot as usize * slot_len;
+        if up.tail_len > 0 {
+            let mut unit = [0xFFu8; MAX_WRITE_SIZE];
+            unit[..up.tail_len].copy_from_slice(&up.tail[..up.tail_len]);
+            self.flash.program(base + up.len as usize - up.tail_len, &unit[..w])?;
+        }
+        let image = &self.flash.region()[base..base + up.len as usize];
+        let (_, parsed_len) = validate_image(image, &self.machine, self.home_mm).map_err(SlotError::Image)?;
+        // The image must be exactly what was announced (no trailing bytes a CRC does not cover).
+        if parsed_len != up.len as usize {
+            return Err(SlotError::BadLength { max: self.capacity() as u32 });
+        }
+        let crc32 = IMAGE_CRC.checksum(image);
+        let sequence = self.active.map_or(1, |a| a.sequence.wrapping_add(1));
+        let record = encode_record(sequence, up.len, crc32);
+        let at = base + slot_len - RECORD_LEN;
+        for (k, unit) in record.chunks(w).enumerate() {
+            self.flash.program(at + k * w, unit)?;
+        }
+        let id = CalibrationId { slot: up.slot, sequence, crc32, len: up.len };
+        // Read back: the record as the next boot will see it.
+        if self.committed(up.slot) != Some(id) {
+            return Err(SlotError::Flash(FlashError::Hardware));
+        }
+        self.active = Some(id);
+        Ok(id)
+    }
+
+    /// Abandons the upload under way (the half-written slot stays without record).
+    pub fn abort(&mut self) {
+        self.upload = None;
+    }
+
+    /// The board's flash (for the app to hand out the active slot's bytes).
+    pub fn flash(&self) -> &F {
+        &self.flash
+    }
+
+    /// `slot`'s record and image, if they count (module doc).
+    fn committed(&self, slot: u8) -> Option<CalibrationId> {
+        let slot_len = self.slot_len();
+        let bytes = self.flash.region().get(slot as usize * slot_len..(slot as usize + 1) * slot_len)?;
+        let (sequence, len, crc32) = decode_record(&bytes[slot_len - RECORD_LEN..])?;
+        let image = bytes.get(..len as usize).filter(|_| len as usize <= slot_len - RECORD_LEN)?;
+        if IMAGE_CRC.checksum(image) != crc32 {
+            return None;
+        }
+        let (_, parsed_len) = validate_image(image, &self.machine, self.home_mm).ok()?;
+        (parsed_len == len as usize).then_some(CalibrationId { slot, sequence, crc32, len })
+    }
+
+    /// An image at the start of slot A without any record (flashed by probe), sequence 0.
+    fn probe_flashed(&self) -> Option<CalibrationId> {
+        let a = self.flash.region().get(..self.capacity())?;
+        let (_, len) = validate_image(a, &self.machine, self.home_mm).ok()?;
+        Some(CalibrationId { slot: 0, sequence: 0, crc32: IMAGE_CRC.checksum(&a[..len]), len: len as u32 })
+    }
+}
+
+fn encode_record(sequence: u32, len: u32, crc32: u32) -> [u8; RECORD_LEN] {
+    let mut r = [0u8; RECORD_LEN];
+    r[0..4].copy_from_slice(&RECORD_MAGIC);
+    r[4..6].copy_from_slice(&RECORD_VERSION.to_le_bytes());
+    r[8..12].copy_from_slice(&sequence.to_le_bytes());
+    r[12..16].copy_from_slice(&len.to_le_bytes());
+    r[16..20].copy_from_slice(&crc32.to_le_bytes());
+    let own = CRC32.checksum(&r[..24]);
+    r[24..28].copy_from_slice(&own.to_le_bytes());
+    r[28..32].copy_from_slice(&COMMIT_MARKER);
+    r
+}
+
+/// (sequence, length, image CRC) of a complete record.
+fn decode_record(r: &[u8]) -> Option<(u32, u32, u32)> {
+    let word = |at: usize| u32::from_le_bytes([r[at], r[at + 1], r[at + 2], r[at + 3]]);
+    let ok = r.len() == RECORD_LEN
+        && r[0..4] == RECORD_MAGIC
+        && r[4..6] == RECORD_VERSION.to_le_bytes()
+        && r[28..32] == COMMIT_MARKER
+        && CRC32.checksum(&r[..24]) == word(24);
+    ok.then(|| (word(8), word(12), word(16)))
+}
+
+/// A NOR flash in RAM for tests (host) and for the QEMU board: erase sets 0xFF, programming
+/// ANDs the data in (only clears bits), and an optional power budget in byte operations cuts
+/// the power in the middle of an erase or a write unit, leaving it torn.
+#[cfg(any(test, feature = "qemu-harness"))]
+pub mod sim {
+    use super::{FlashError, SlotFlash};
+
+    /// The simulated flash over a caller's buffer.
+    pub struct SimFlash<'a, const W: usize, const E: usize> {
+        /// The region's bytes.
+        pub bytes: &'a mut [u8],
+        /// Byte operations (one erased or programmed byte each) left before the power fails;
+        /// `None`: no power cut.
+        pub budget: Option<usize>,
+        /// Byte operations done so far.
+        pub ops: usize,
+        /// Write units programmed so far.
+        pub units: usize,
+    }
+
+    impl<'a, const W: usize, const E: usize> SimFlash<'a, W, E> {
+        /// Over `bytes`, no power cut.
+        pub fn new(bytes: &'a mut [u8]) -> Self {
+            SimFlash { bytes, budget: None, ops: 0, units: 0 }
+        }
+
+        /// Spends one byte operation; `Err` once the power is gone.
+        fn spend(&mut self) -> Result<(), FlashError> {
+            if let Some(b) = self.budget.as_mut() {
+                if *b == 0 {
+                    return Err(FlashError::Hardware);
+                }
+                *b -= 1;
+            }
+            self.ops += 1;
+            Ok(())
+        }
+    }
+
+    impl<const W: usize, const E: usize> SlotFlash for SimFlash<'_, W, E> {
+        const WRITE_SIZE: usize = W;
+        const ERASE_SIZE: usize = E;
+
+        fn region(&self) -> &[u8] {
+            self.bytes
+        }
+
+        fn erase(&mut self, offset: usize, len: usize) -> Result<(), FlashError> {
+            if offset % E != 0 || len % E != 0 || offset + len > self.bytes.len() {
+                return Err(FlashError::Alignment);
+            }
+            for k in offset..offset + len {
+                self.spend()?;
+                self.bytes[k] = 0xFF;
+            }
+            Ok(())
+        }
+
+        fn program(&mut self, offset: usize, data: &[u8]) -> Result<(), FlashError> {
+            if offset % W != 0 || data.len() % W != 0 || offset + data.len() > self.bytes.len() {
+                return Err(FlashError::Alignment);
+            }
+            for (k, &d) in data.iter().enumerate() {
+                self.spend()?;
+                self.bytes[offset + k] &= d;
+            }
+            self.units += data.len() / W;
+            Ok(())
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::sim::SimFlash;
+    use super::*;
+    use kinematics_core::grid::{encode, encode_with_dynamics, GridGeometry};
+    use kinematics_core::{FiveBar, FiveBarDynamics, GridError};
+
+    const HOME_MM: [f32; 2] = [212.132, 0.0];
+
+    fn image(value: f32) -> Vec<u8> {
+        let g = GridGeometry { nx: 3, ny: 3, x0_mm: 160.0, y0_mm: -80.0, step_x_mm: 50.0, step_y_mm: 80.0 };
+        let mut img = vec![0u8; g.image_len()];
+        encode(&mut img, &g, &FiveBar::paper_nominal(), &[[value, -value]; 9]).unwrap();
+        img
+    }
+
+    fn crc(b: &[u8]) -> u32 {
+        IMAGE_CRC.checksum(b)
+    }
+
+    /// Regression: zlib's CRC-32 over whole grid images is one constant (each image ends with
+    /// its own CRC-32), so it cannot tell images apart; the id's CRC-32C does.
+    #[test]
+    fn different_images_have_different_ids() {
+        let (a, b) = (image(1e-4), image(2e-4));
+        assert_eq!(CRC32.checksum(&a), CRC32.checksum(&b), "the residue the id must not use");
+        assert_ne!(crc(&a), crc(&b));
+    }
+
+    type Small<'a> = SimFlash<'a, 8, 256>;
+
+    fn open(bytes: &mut [u8]) -> SlotStore<Small<'_>> {
+        SlotStore::open(SimFlash::new(bytes), MachineIdentity::default(), HOME_MM)
+    }
+
+    fn upload<F: SlotFlash>(store: &mut SlotStore<F>, img: &[u8], chunk: usize) -> Result<CalibrationId, SlotError> {
+        store.begin(img.len())?;
+        for (k, c) in img.chunks(chunk).enumerate() {
+            store.write(k * chunk, c)?;
+        }
+        store.commit()
+    }
+
+    #[test]
+    fn a_probe_flashed_image_is_in_force_and_an_upload_switches_to_the_other_slot() {
+        let (old, new) = (image(1e-4), image(2e-4));
+        let mut region = vec![0xFFu8; 4096];
+        region[..old.len()].copy_from_slice(&old);
+        let mut store = open(&mut region);
+        assert_eq!(store.slot_len(), 2048);
+        let (bytes, id) = store.active().unwrap();
+        assert_eq!((bytes, id), (&old[..], CalibrationId { slot: 0, sequence: 0, crc32: crc(&old), len: old.len() as u32 }));
+        // Odd chunk sizes: the store buffers partial write units.
+        let id = upload(&mut store, &new, 7).unwrap();
+        assert_eq!(id, CalibrationId { slot: 1, sequence: 1, crc32: crc(&new), len: new.len() as u32 });
+        assert_eq!(store.active().unwrap().0, &new[..]);
+        // The next one goes back to slot A, over the probe-flashed image, and wins on sequence.
+        let third = image(3e-4);
+        assert_eq!(upload(&mut store, &third, 64).unwrap().slot, 0);
+        let store = open(&mut region);
+        assert_eq!(store.active().unwrap(), (&third[..], CalibrationId { slot: 0, sequence: 2, crc32: crc(&third), len: third.len() as u32 }));
+    }
+
+    #[test]
+    fn bad_uploads_are_refused_and_the_old_image_kept() {
+        let old = image(1e-4);
+        let mut region = vec![0xFFu8; 4096];
+        region[..old.len()].copy_from_slice(&old);
+        let mut store = open(&mut region);
+        let before = store.active_id();
+        // Corrupt: one node flipped, the CRC no longer matches.
+        let mut bad = image(2e-4);
+        bad[100] ^= 0x10;
+        assert_eq!(upload(&mut store, &bad, 32), Err(SlotError::Image(ImageError::Grid(GridError::BadCrc))));
+        // Another machine: 160 mm links (a valid image, CRC and all).
+        let g = GridGeometry { nx: 3, ny: 3, x0_mm: 160.0, y0_mm: -80.0, step_x_mm: 50.0, step_y_mm: 80.0 };
+        let mut other = vec![0u8; g.image_len()];
+        let model = FiveBar { a_mm: 160.0, ..FiveBar::paper_nominal() };
+        encode(&mut other, &g, &model, &[[0.0; 2]; 9]).unwrap();
+        assert_eq!(
+            upload(&mut store, &other, 32),
+            Err(SlotError::Image(ImageError::OtherMachine(crate::calibration::MachineMismatch::LinkLength)))
+        );
+        // Lengths, order, protocol.
+        assert_eq!(store.begin(10), Err(SlotError::BadLength { max: 2016 }));
+        assert_eq!(store.begin(5000), Err(SlotError::BadLength { max: 2016 }));
+        assert_eq!(store.write(0, &[1]), Err(SlotError::NoUpload));
+        assert_eq!(store.commit(), Err(SlotError::NoUpload));
+        let good = image(2e-4);
+        store.begin(good.len()).unwrap();
+        store.write(0, &good[..10]).unwrap();
+        assert_eq!(store.write(0, &good[..10]), Err(SlotError::OutOfOrder { expected: 10 }));
+        assert_eq!(store.commit(), Err(SlotError::Incomplete { received: 10 }));
+        store.begin(good.len()).unwrap();
+        assert_eq!(store.write(0, &[0u8; 200]), Err(SlotError::TooMuchData));
+        // Announced longer than the image: trailing bytes are refused, not ignored.
+        let mut padded = good.clone();
+        padded.extend([0u8; 8]);
+        assert!(matches!(upload(&mut store, &padded, 64), Err(SlotError::BadLength { .. })));
+        assert_eq!(store.active_id(), before);
+        assert_eq!(open(&mut region).active_id(), before, "and after a reboot");
+    }
+
+    #[test]
+    fn an_empty_region_has_no_image_and_takes_one() {
+        let mut region = vec![0xFFu8; 4096];
+        let mut store = open(&mut region);
+        assert!(store.active().is_none());
+        let img = image(1e-4);
+        let id = upload(&mut store, &img, 13).unwrap();
+        assert_eq!((id.slot, id.sequence), (0, 1));
+        // QEMU's RAM-backed region starts zeroed, not erased: no record there either.
+        let mut zeros = vec![0u8; 4096];
+        assert!(open(&mut zeros).active().is_none());
+    }
+
+    /// The guarantee: the power fails after every single byte operation (erase or program) of
+    /// an upload, then the machine reboots. The image in force is the old one until the commit
+    /// record's last write unit is complete, and the new one from then on; never none, never a
+    /// mix. Three uploads in a row, so both slots are overwritten, with and without dynamics.
+    #[test]
+    fn a_power_cut_at_every_byte_of_an_upload_leaves_the_old_image_or_the_new_one() {
+        let g = GridGeometry { nx: 3, ny: 3, x0_mm: 160.0, y0_mm: -80.0, step_x_mm: 50.0, step_y_mm: 80.0 };
+        let mut with_dynamics = vec![0u8; g.image_len_with_dynamics()];
+        let dynamics = FiveBarDynamics {
+            motor_inertia_kg_m2: [5e-3, 5e-3],
+            tool_mass_kg: 0.2,
+            distal_inertia_kg_m2: [-2e-4, -2e-4],
+            viscous_nm_s_per_rad: [0.01; 2],
+            coulomb_nm: [0.02; 2],
+            coulomb_speed_rad_s: 0.01,
+        };
+        encode_with_dynamics(&mut with_dynamics, &g, &FiveBar::paper_nominal(), &[[5e-5, 1e-5]; 9], &dynamics).unwrap();
+        let images = [image(1e-4), image(2e-4), with_dynamics, image(3e-4)];
+        let mut region = vec![0xFFu8; 4096];
+        region[..images[0].len()].copy_from_slice(&images[0]);
+        let mut cuts = 0;
+        for step in 1..images.len() {
+            let (old, new) = (&images[step - 1], &images[step]);
+            let snapshot = region.clone();
+            // The uninterrupted upload: how many byte operations it takes.
+            let total = {
+                let mut r = snapshot.clone();
+                let mut store = open(&mut r);
+                upload(&mut store, new, 24).unwrap();
+                store.flash().ops
+            };
+            assert!(total > 2048, "erase and program counted: {total}");
+            for budget in 0..=total {
+                let mut r = snapshot.clone();
+                let mut store = open(&mut r);
+                store.flash.budget = Some(budget);
+                let done = upload(&mut store, new, 24).is_ok();
+                let after = open(&mut r);
+                let (bytes, id) = after.active().expect("an image in force after every cut");
+                if done {
+                    assert_eq!(bytes, &new[..], "cut after {budget} of {total}: committed, the new image");
+                } else {
+                    assert_eq!(bytes, &old[..], "cut after {budget} of {total}: the old image");
+                    assert!(budget < total);
+                }
+                assert_eq!(id.crc32, crc(bytes));
+                cuts += 1;
+            }
+            region = snapshot;
+            let mut store = open(&mut region);
+            upload(&mut store, new, 24).unwrap();
+        }
+        println!("{cuts} power cuts, each followed by a reboot");
+    }
+
+    /// The same at write-unit granularity on the boards' real geometry (64 KiB region, 2 KiB
+    /// pages, 8-byte double words, the QEMU firmware's bundled-size image): a cut after every
+    /// programmed unit and after every erased page.
+    #[test]
+    fn a_power_cut_after_every_write_unit_on_the_real_geometry() {
+        let g = GridGeometry { nx: 21, ny: 31, x0_mm: 162.132, y0_mm: -75.0, step_x_mm: 5.0, step_y_mm: 5.0 };
+        let make = |v: f32| {
+            let mut img = vec![0u8; g.image_len()];
+            encode(&mut img, &g, &FiveBar::paper_nominal(), &vec![[v, -v]; g.len()]).unwrap();
+            img
+        };
+        let (old, new) = (make(1e-4), make(2e-4));
+        let mut region = vec![0xFFu8; 65536];
+        region[..old.len()].copy_from_slice(&old);
+        let snapshot = region.clone();
+        fn open64(r: &mut [u8]) -> SlotStore<SimFlash<'_, 8, 2048>> {
+            SlotStore::open(SimFlash::new(r), MachineIdentity::default(), HOME_MM)
+        }
+        let (ops, units) = {
+            let mut r = snapshot.clone();
+            let mut s = open64(&mut r);
+            upload(&mut s, &new, 256).unwrap();
+            (s.flash().ops, s.flash().units)
+        };
+        let erase_ops = 32768;
+        assert_eq!(ops, erase_ops + units * 8);
+        // Cut points: every erased page, and every byte boundary of every unit programmed.
+        let cuts = (0..=16).map(|p| p * 2048).chain((0..=units).map(|u| erase_ops + u * 8));
+        for budget in cuts {
+            let mut r = snapshot.clone();
+            let mut s = open64(&mut r);
+            s.flash.budget = Some(budget);
+            let done = upload(&mut s, &new, 256).is_ok();
+            let after = open64(&mut r);
+            let expected = if done { &new } else { &old };
+            assert_eq!(after.active().unwrap().0, &expected[..], "cut after {budget} of {ops}");
+            assert_eq!(done, budget == ops);
+        }
+    }
+
+    #[test]
+    fn a_torn_record_never_counts() {
+        // Every prefix of a record, programmed over erased flash, and a record with a flipped
+        // bit in any byte: none decodes.
+        let r = encode_record(7, 148, 0xDEAD_BEEF);
+        assert_eq!(decode_record(&r), Some((7, 148, 0xDEAD_BEEF)));
+        for n in 0..RECORD_LEN {
+            let mut torn = [0xFFu8; RECORD_LEN];
+            torn[..n].copy_from_slice(&r[..n]);
+            assert_eq!(decode_record(&torn), None, "prefix {n}");
+            for bit in 0..8 {
+                let mut flipped = r;
+                flipped[n] ^= 1 << bit;
+                assert_eq!(decode_record(&flipped), None, "byte {n} bit {bit}");
+            }
+        }
+    }
+}
