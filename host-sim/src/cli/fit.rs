@@ -173,6 +173,13 @@ pub fn run(args: &Args) -> Result<()> {
             eprintln!("fit: {} held at nominal: the data confound {why}", params::NAMES[*k]);
         }
     }
+    if let Some(l) = &outcome.summary.leave_one_out {
+        if l.max_um.is_none() {
+            eprintln!("fit: leave-one-out: no point could be predicted from the others (every fit on the rest failed: too few points)");
+        } else if l.failed > 0 {
+            eprintln!("fit: leave-one-out: {} of {} points could not be predicted from the others", l.failed, l.per_point_um.len());
+        }
+    }
     // Every output staged, then renamed together: a bad --plot path leaves no model.json.
     let mut outputs = Outputs::new();
     let mut file = ModelFile::from_model(&outcome.model);

@@ -86,7 +86,7 @@ pub fn number(s: &str, name: &str, line: usize, quantity: Quantity) -> Result<f6
     }
     let limit = quantity.limit();
     if v.abs() > limit {
-        return Err(IoError::Parse(format!("line {line}: '{name}' = {s} is absurd (|value| above {limit:e})")));
+        return Err(IoError::Parse(format!("line {line}: '{name}' = {v:e} is absurd (|value| above {limit:e})")));
     }
     Ok(v)
 }
