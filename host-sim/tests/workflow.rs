@@ -98,12 +98,13 @@ fn workflow(setup: &Setup, dir: &Path) -> (Figures, Vec<u8>) {
     figures.push(("nominal".into(), round(&measure("plan/verify.csv", &[], 2, "v_nominal.csv"))));
     figures.push(("ls".into(), round(&measure("plan/verify.csv", &["--model", &p("model_ls.json")], 3, "v_ls.csv"))));
     figures.push(("full".into(), round(&measure("plan/verify.csv", &["--model", &p("model.json")], 4, "v_full.csv"))));
-    measure("plan/grid.csv", &["--model", &p("model.json")], 5, "grid1.csv");
-    let g1 = json(&ok(&setup.args(&["grid", "--model", &p("model.json"), "--data", &p("grid1.csv"), "--out", &p("grid1.bin")])));
+    measure("plan/grid.csv", &["--model", &p("model.json")], 5, "nodes1.csv");
+    let g1 = json(&ok(&setup.args(&["grid", "--model", &p("model.json"), "--data", &p("nodes1.csv"), "--out", &p("grid1.bin")])));
     assert_eq!(g1["workspace_block"], "written", "{g1}");
     figures.push(("full+grid".into(), round(&measure("plan/verify.csv", &["--grid", &p("grid1.bin")], 6, "v_grid1.csv"))));
-    measure("plan/grid.csv", &["--grid", &p("grid1.bin")], 7, "grid2.csv");
-    ok(&setup.args(&["grid", "--model", &p("model.json"), "--data", &p("grid2.csv"), "--out", &p("grid.bin")]));
+    measure("plan/grid.csv", &["--grid", &p("grid1.bin")], 7, "nodes2.csv");
+    // Round 2 pools both rounds' readings, as the demo does.
+    ok(&setup.args(&["grid", "--model", &p("model.json"), "--data", &p("nodes1.csv"), &p("nodes2.csv"), "--out", &p("grid.bin")]));
     figures.push(("full+grid2".into(), round(&measure("plan/verify.csv", &["--grid", &p("grid.bin")], 8, "v_grid2.csv"))));
     (figures, std::fs::read(dir.join("grid.bin")).unwrap())
 }
@@ -140,8 +141,8 @@ fn the_separate_commands_reproduce_the_demo_on_the_paper_machine() {
     let d = dir.path();
     let dynamics = d.join("dynamics.json");
     std::fs::write(&dynamics, DYNAMICS_JSON).unwrap();
-    let (m, g2, gd) = (d.join("model.json"), d.join("grid2.csv"), d.join("gd.bin"));
-    let v = json(&ok(&["grid", "--model", s(&m), "--data", s(&g2), "--out", s(&gd), "--dynamics", s(&dynamics)]));
+    let (m, g1, g2, gd) = (d.join("model.json"), d.join("nodes1.csv"), d.join("nodes2.csv"), d.join("gd.bin"));
+    let v = json(&ok(&["grid", "--model", s(&m), "--data", s(&g1), s(&g2), "--out", s(&gd), "--dynamics", s(&dynamics)]));
     assert_eq!((&v["workspace_block"], &v["dynamics_block"]), (&"written".into(), &true.into()), "{v}");
     let with = std::fs::read(&gd).unwrap();
     assert_eq!(&with[..image.len()], &image[..]);
@@ -153,7 +154,15 @@ fn the_separate_commands_reproduce_the_demo_on_the_paper_machine() {
     assert_eq!(sim["dynamics_source"], "the --grid image's dynamics block", "{sim}");
     std::fs::write(&dynamics, DYNAMICS_JSON.replace("0.165", "-0.165")).unwrap();
     let bad = d.join("bad.bin");
-    fails(&["grid", "--model", s(&m), "--data", s(&g2), "--out", s(&bad), "--dynamics", s(&dynamics)], "dynamics.json");
+    fails(&["grid", "--model", s(&m), "--data", s(&g1), s(&g2), "--out", s(&bad), "--dynamics", s(&dynamics)], "dynamics.json");
+    assert!(!bad.exists());
+    // `--out nodes1.bin` would write its node table over the measurements it read.
+    let before = std::fs::read(&g1).unwrap();
+    fails(&["grid", "--model", s(&m), "--data", s(&g1), "--out", s(&d.join("nodes1.bin"))], "one of the command's inputs");
+    assert_eq!(std::fs::read(&g1).unwrap(), before);
+    assert!(!d.join("nodes1.bin").exists());
+    // The same file twice would pass its readings off as repeats.
+    fails(&["grid", "--model", s(&m), "--data", s(&g2), "--data", s(&g2), "--out", s(&bad)], "names");
     assert!(!bad.exists());
 }
 
