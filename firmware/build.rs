@@ -21,17 +21,22 @@
 //!   firmware links it into the calibration region (feature `board-qemu`); the real board
 //!   gets its image flashed separately (see README).
 //! * `calibration-2.bin`: the same with the field negated, bundled into the QEMU firmware's
-//!   program (not the region) for the run-time upload scenarios.
+//!   program (not the region) for the run-time upload scenarios. Both come from
+//!   `src/board/qemu/synthetic_image.rs`, which host-sim's in-the-loop test (`link_qemu`)
+//!   includes too: it checks the bundled image's id and uploads the second over the link.
 use std::{env, fs, path::PathBuf};
-
-use kinematics_core::grid::{append_dynamics, append_workspace, encode, GridGeometry, WorkspaceLimits, DYNAMICS_LEN, WORKSPACE_LEN};
-use kinematics_core::{paper, ConvexWorkspace, FiveBar};
 
 // `TRUE_DYNAMICS` (the plant's) and `IMAGE_DYNAMICS`.
 #[allow(dead_code)]
 mod machine {
     include!("src/board/qemu/machine.rs");
 }
+
+// `synthetic_image`, also included by host-sim's in-the-loop test (it uploads the second one).
+mod synthetic {
+    include!("src/board/qemu/synthetic_image.rs");
+}
+use synthetic::synthetic_image;
 
 fn main() {
     let out = PathBuf::from(env::var("OUT_DIR").expect("cargo sets OUT_DIR"));
@@ -52,35 +57,9 @@ fn main() {
     println!("cargo:rerun-if-changed=build.rs");
     println!("cargo:rerun-if-changed=../memory.x");
     println!("cargo:rerun-if-changed=src/board/qemu/machine.rs");
+    println!("cargo:rerun-if-changed=src/board/qemu/synthetic_image.rs");
 
     fs::write(out.join("calibration.bin"), synthetic_image(1.0)).expect("write calibration.bin");
     // The second image the QEMU upload scenarios upload at run time: the field negated.
     fs::write(out.join("calibration-2.bin"), synthetic_image(-1.0)).expect("write calibration-2.bin");
-}
-
-/// Grid over the paper's workspace (x 162.132..262.132 mm, y -75..75 mm) in 5 mm cells, the
-/// synthetic field times `sign`.
-fn synthetic_image(sign: f32) -> Vec<u8> {
-    let geometry = GridGeometry { nx: 21, ny: 31, x0_mm: 162.132, y0_mm: -75.0, step_x_mm: 5.0, step_y_mm: 5.0 };
-    let model = FiveBar::<f32>::paper_nominal();
-    let mut nodes = Vec::with_capacity(geometry.len());
-    for j in 0..geometry.ny {
-        for i in 0..geometry.nx {
-            let [x, y] = geometry.node_mm(i, j);
-            let (u, v) = ((x - 212.132) / 50.0, y / 75.0);
-            nodes.push([
-                sign * (3.0e-4 * (1.3 * u).sin() + 1.0e-4 * (2.0 * v).cos()),
-                sign * (-2.0e-4 * (1.1 * v).sin() + 1.5e-4 * u * v),
-            ]);
-        }
-    }
-    let mut image = vec![0u8; geometry.image_len() + WORKSPACE_LEN + DYNAMICS_LEN];
-    let n = encode(&mut image, &geometry, &model, &nodes).expect("synthetic grid encodes");
-    let (x, y) = (paper::WORKSPACE_X_MM.map(|v| v as f32), paper::WORKSPACE_Y_MM.map(|v| v as f32));
-    let region = ConvexWorkspace::rectangle(x, y).expect("the paper workspace is a rectangle");
-    let limits = WorkspaceLimits { region, stop_margin_mm: paper::STOP_MARGIN_MM as f32 };
-    let end = append_workspace(&mut image, n, n, &limits).expect("the paper workspace lies on its grid");
-    let end = append_dynamics(&mut image, n, end, &machine::IMAGE_DYNAMICS).expect("the QEMU machine's dynamics are valid");
-    image.truncate(end);
-    image
 }

@@ -14,6 +14,7 @@
 //! pointers, and the slot store never writes the slot in force. Nothing borrows the slot being
 //! written while it is written.
 use controller::calibration_slots::{CalibrationId, FlashError, SlotFlash};
+use kinematics_core::{Calibration, CorrectionGrid};
 
 /// The image bundled into the QEMU firmware (see `build.rs`).
 #[cfg(feature = "board-qemu")]
@@ -65,6 +66,20 @@ pub fn slot_bytes(id: CalibrationId) -> &'static [u8] {
     // SAFETY: within the region (checked above); the slot store never writes the slot in
     // force, so the slice is not mutated while borrowed.
     unsafe { core::slice::from_raw_parts(start.add(offset), id.len as usize) }
+}
+
+/// The image `id` names, committed a moment ago, parsed for the servo task (which switches to it
+/// at rest, `ServoLoop::switch_calibration`). Both upload paths hand it over this way: the host
+/// link's commit and the QEMU upload scenarios' task. `None` (logged) if it does not parse,
+/// which the store's validation before the commit rules out.
+pub fn committed(id: CalibrationId) -> Option<(Calibration<'static>, CalibrationId)> {
+    match CorrectionGrid::parse(slot_bytes(id)) {
+        Ok(grid) => Some((Calibration::from_grid(grid), id)),
+        Err(e) => {
+            defmt::error!("committed image does not parse ({})", e);
+            None
+        }
+    }
 }
 
 /// The calibration region's flash driver for the slot store.

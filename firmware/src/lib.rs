@@ -5,8 +5,8 @@
 //! * [`board`]: the [`board::Board`] trait and the two boards (QEMU MPS2-AN386 with a
 //!   simulated plant and the test harness, STM32G474), selected by the `board-*` feature;
 //! * [`calibration`]: the calibration image's flash region, read by address;
-//! * [`link`]: the host link's port trait, the handler's view of the app's resources, and the
-//!   stand-ins for homing and the calibration store.
+//! * [`link`]: the host link's port trait and the handler's view of the app's resources (the
+//!   servo task's homing, the calibration slots).
 #![no_std]
 #![warn(missing_docs)]
 

@@ -1,19 +1,34 @@
-//! The host link on the board: the byte port (a UART), the handler's view of the app's
-//! resources ([`AppDevice`]), and the stand-ins for homing and the calibration store until the
-//! device side (`homing.rs`, `calibration_slots.rs`) is wired.
+//! The host link on the board: the byte port (a UART), and the handler's view of the app's
+//! resources ([`AppDevice`]): the status, the servo task's requests (stop, disable, reset,
+//! home), the motion stream, the calibration slots.
 //!
 //! The app's `link_rx` task (priority 1, the UART's receive interrupt) drains the port into a
-//! [`FrameReader`], hands each frame to the [`LinkHandler`] and writes the one reply; the
-//! `telemetry` task (priority 1) polls the handler for due telemetry samples. Neither runs in
-//! the servo task: what the servo task does for the link is apply a posted
-//! [`ServoRequest`] (one lock, one `take`).
-use controller::calibration::image_id;
-use controller::host_link::{encode_or_reject, CalibrationStore, Device, Homing, HomingRefused, LinkHandler};
+//! [`FrameReader`], hands each frame to the [`LinkHandler`] and writes the one reply, and sends
+//! due telemetry. It never runs in the servo task: what the servo task does for the link is
+//! apply a posted [`ServoRequest`] (one lock, one `take`) and switch to a newly committed
+//! calibration at rest.
+//!
+//! * **Homing** ([`Homing`] for [`AppDevice`]): `Home` posts [`ServoRequest::Home`]; the servo
+//!   task calls `ServoLoop::start_homing` at its next sample and enables the drives if it
+//!   started. The state reported is [`homing_state`] of the published mode and homing phase.
+//! * **Calibration** ([`CalibrationStore`] for [`AppDevice`]): begin, chunks and commit go to the
+//!   shared `SlotStore` (the inactive slot; flash writes here, at priority 1, never in the
+//!   servo task); after a commit the new image is parsed ([`crate::calibration::committed`]) and
+//!   handed to the servo task through `new_calibration`, as the QEMU upload task does. The id
+//!   reported is that of the image the servo uses (the published `Status::calibration_id`), so
+//!   it changes when the servo has switched, not before.
+use controller::calibration_slots::{CalibrationId, SlotError, SlotStore};
+use controller::host_link::{
+    calibration_refusal, encode_or_reject, homing_state, CalibrationStore, Device, Homing, HomingRefused, LinkHandler,
+};
 use controller::motion_stream::MotionStream;
-use controller::servo_loop::ServoRequest;
+use controller::servo_loop::{Mode, ServoRequest};
 use controller::status::Status;
+use kinematics_core::Calibration;
 use link_protocol::{Board, CalibrationRefusal, DeviceMessage, FrameReader, HomingState, MAX_FRAME_LEN};
 use rtic::Mutex;
+
+use crate::calibration::RegionFlash;
 
 /// A byte port to the host: non-blocking read, bounded write.
 pub trait LinkPort {
@@ -32,10 +47,8 @@ pub struct LinkState<P: LinkPort> {
     pub reader: FrameReader,
     /// The command handler.
     pub handler: LinkHandler,
-    /// Homing (stand-in, see [`PowerOnHoming`]).
-    pub homing: PowerOnHoming,
-    /// The calibration store (stand-in, see [`ReadOnlyStore`]).
-    pub store: ReadOnlyStore,
+    /// The settings say the encoders are absolute (the drives may engage unhomed).
+    pub absolute_encoders: bool,
 }
 
 impl<P: LinkPort> LinkState<P> {
@@ -44,7 +57,7 @@ impl<P: LinkPort> LinkState<P> {
         while let Some(byte) = self.port.read_byte() {
             if let Some(received) = self.reader.push(byte) {
                 let mut out = [0u8; MAX_FRAME_LEN];
-                let mut dev = AppDevice { res: device, homing: &mut self.homing, store: &mut self.store };
+                let mut dev = AppDevice::new(device, self.absolute_encoders);
                 let n = self.handler.on_received(received, &mut dev, &mut out);
                 self.port.write(&out[..n]);
             }
@@ -53,7 +66,7 @@ impl<P: LinkPort> LinkState<P> {
 
     /// Resumes a paused source when the servo runs again, and sends a telemetry sample if due.
     pub fn poll(&mut self, device: &mut impl DeviceResources) {
-        let mut dev = AppDevice { res: device, homing: &mut self.homing, store: &mut self.store };
+        let mut dev = AppDevice::new(device, self.absolute_encoders);
         if let Some(message) = self.handler.poll(&mut dev) {
             self.send(&message);
         }
@@ -74,23 +87,34 @@ pub trait DeviceResources {
     fn post(&mut self, request: ServoRequest);
     /// Runs `f` on the motion stream, locked against the intake task.
     fn with_stream<R>(&mut self, f: impl FnOnce(&mut MotionStream) -> R) -> R;
+    /// Runs `f` on the calibration slots.
+    fn with_slots<R>(&mut self, f: impl FnOnce(&mut SlotStore<RegionFlash>) -> R) -> R;
+    /// Records an upload's outcome in the status and hands a committed calibration to the servo
+    /// task (it switches at rest).
+    fn uploaded(&mut self, result: Result<CalibrationId, SlotError>, new: Option<(Calibration<'static>, CalibrationId)>);
 }
 
-/// [`DeviceResources`] over three RTIC mutexes.
-pub struct Locks<S, Q, M> {
+/// [`DeviceResources`] over the app's RTIC mutexes.
+pub struct Locks<S, Q, M, C, N> {
     /// The status.
     pub status: S,
     /// The posted request.
     pub request: Q,
     /// The motion stream.
     pub stream: M,
+    /// The calibration slots.
+    pub slots: C,
+    /// The calibration for the servo task to switch to.
+    pub new_calibration: N,
 }
 
-impl<S, Q, M> DeviceResources for Locks<S, Q, M>
+impl<S, Q, M, C, N> DeviceResources for Locks<S, Q, M, C, N>
 where
     S: Mutex<T = Status>,
     Q: Mutex<T = Option<ServoRequest>>,
     M: Mutex<T = MotionStream>,
+    C: Mutex<T = SlotStore<RegionFlash>>,
+    N: Mutex<T = Option<(Calibration<'static>, CalibrationId)>>,
 {
     fn status(&mut self) -> Status {
         self.status.lock(|s| *s)
@@ -101,22 +125,42 @@ where
     fn with_stream<R>(&mut self, f: impl FnOnce(&mut MotionStream) -> R) -> R {
         self.stream.lock(f)
     }
+    fn with_slots<R>(&mut self, f: impl FnOnce(&mut SlotStore<RegionFlash>) -> R) -> R {
+        self.slots.lock(f)
+    }
+    fn uploaded(&mut self, result: Result<CalibrationId, SlotError>, new: Option<(Calibration<'static>, CalibrationId)>) {
+        if new.is_some() {
+            self.new_calibration.lock(|n| *n = new);
+        }
+        self.status.lock(|s| s.last_upload = Some(result));
+    }
 }
 
-struct AppDevice<'a, D> {
+/// The controller as the handler sees it, for one frame: the app's resources, and the status
+/// read last (what [`Homing::state`] reports from).
+pub struct AppDevice<'a, D> {
     res: &'a mut D,
-    homing: &'a mut PowerOnHoming,
-    store: &'a mut ReadOnlyStore,
+    status: Status,
+    absolute_encoders: bool,
+}
+
+impl<'a, D: DeviceResources> AppDevice<'a, D> {
+    /// Reads the status once.
+    pub fn new(res: &'a mut D, absolute_encoders: bool) -> Self {
+        let status = res.status();
+        AppDevice { res, status, absolute_encoders }
+    }
 }
 
 impl<D: DeviceResources> Device for AppDevice<'_, D> {
-    type Homing = PowerOnHoming;
-    type Calibration = ReadOnlyStore;
+    type Homing = Self;
+    type Calibration = Self;
     fn board(&self) -> Board {
         crate::board::BOARD_ID
     }
     fn status(&mut self) -> Status {
-        self.res.status()
+        self.status = self.res.status();
+        self.status
     }
     fn post(&mut self, request: ServoRequest) {
         self.res.post(request)
@@ -124,59 +168,63 @@ impl<D: DeviceResources> Device for AppDevice<'_, D> {
     fn with_stream<R>(&mut self, f: impl FnOnce(&mut MotionStream) -> R) -> R {
         self.res.with_stream(f)
     }
-    fn homing(&mut self) -> &mut PowerOnHoming {
-        self.homing
+    fn homing(&mut self) -> &mut Self {
+        self
     }
-    fn calibration(&mut self) -> &mut ReadOnlyStore {
-        self.store
+    fn calibration(&mut self) -> &mut Self {
+        self
     }
 }
 
-/// Stand-in until `homing.rs` is wired: the encoder zero is the one the board has at power-on,
-/// which is what the firmware has always engaged on (the QEMU plant's counters start at the
-/// true joint angles; on the real board this is only right with absolute encoders). It reports
-/// `Homed` and `Home` succeeds without moving.
-#[derive(Clone, Copy, Debug, Default)]
-pub struct PowerOnHoming;
-
-impl Homing for PowerOnHoming {
+/// Homing is the servo task's (`controller::homing` through `ServoLoop::step_homing`); the link
+/// asks it to start and reads where it is.
+impl<D: DeviceResources> Homing for AppDevice<'_, D> {
+    /// From `Unhomed`: posts the request (the servo task starts at its next sample; a plan the
+    /// servo loop refuses shows as `Failed`). Under way or done: nothing to do. Failed, or a
+    /// fault latched before homing: refused (a reboot homes again).
     fn start(&mut self) -> Result<(), HomingRefused> {
-        Ok(())
+        match (self.status.mode, self.state()) {
+            (Mode::Unhomed, _) => {
+                self.res.post(ServoRequest::Home);
+                Ok(())
+            }
+            (_, HomingState::InProgress | HomingState::Homed) => Ok(()),
+            _ => Err(HomingRefused),
+        }
     }
     fn state(&self) -> HomingState {
-        HomingState::Homed
+        homing_state(self.status.mode, self.status.homing, self.absolute_encoders)
     }
     fn absolute_encoders(&self) -> bool {
-        true
+        self.absolute_encoders
     }
 }
 
-/// Stand-in until `calibration_slots.rs` is wired: reports the id of the image in the
-/// calibration region and refuses uploads with [`CalibrationRefusal::Flash`] (no flash
-/// writes on this branch), so the image in force always stays.
-#[derive(Clone, Copy, Debug)]
-pub struct ReadOnlyStore {
-    active_id: Option<u32>,
-}
-
-impl ReadOnlyStore {
-    /// The store over the calibration region.
-    pub fn new(region: &[u8]) -> Self {
-        ReadOnlyStore { active_id: image_id(region) }
+/// The two calibration slots (`controller::calibration_slots`) as the link drives them.
+impl<D: DeviceResources> CalibrationStore for AppDevice<'_, D> {
+    fn begin(&mut self, len: u32) -> Result<(), CalibrationRefusal> {
+        self.res.with_slots(|s| s.begin(len as usize)).map_err(calibration_refusal)
     }
-}
-
-impl CalibrationStore for ReadOnlyStore {
-    fn begin(&mut self, _len: u32) -> Result<(), CalibrationRefusal> {
-        Err(CalibrationRefusal::Flash)
-    }
-    fn write(&mut self, _offset: u32, _data: &[u8]) -> Result<u32, CalibrationRefusal> {
-        Err(CalibrationRefusal::NotBegun)
+    fn write(&mut self, offset: u32, data: &[u8]) -> Result<u32, CalibrationRefusal> {
+        self.res.with_slots(|s| s.write(offset as usize, data)).map_err(calibration_refusal)
     }
     fn commit(&mut self) -> Result<u32, CalibrationRefusal> {
-        Err(CalibrationRefusal::NotBegun)
+        let result = self.res.with_slots(SlotStore::commit);
+        match result {
+            Ok(id) => defmt::info!("calibration upload committed over the link: {}", id),
+            Err(e) => defmt::error!("calibration upload refused: {} (the image in force stays)", e),
+        }
+        let new = result.ok().and_then(crate::calibration::committed);
+        let parsed = new.is_some();
+        self.res.uploaded(result, new);
+        match result {
+            Ok(id) if parsed => Ok(id.crc32),
+            Ok(_) => Err(CalibrationRefusal::Invalid),
+            Err(e) => Err(calibration_refusal(e)),
+        }
     }
+    /// The image the servo uses (it switches at rest after a commit).
     fn active_id(&self) -> Option<u32> {
-        self.active_id
+        self.status.calibration_id.map(|id| id.crc32)
     }
 }

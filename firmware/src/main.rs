@@ -72,7 +72,7 @@ mod app {
     use controller::watchdog;
     use controller::SAMPLE_RATE_HZ;
     use firmware::board::{Board, Selected, ServoTimer};
-    use firmware::link::{LinkState, Locks, PowerOnHoming, ReadOnlyStore};
+    use firmware::link::{LinkState, Locks};
     use link_protocol::FrameReader;
 
     /// The servo task pends the link task every this many samples (5 ms), so that a paused
@@ -88,8 +88,8 @@ mod app {
         servo_request: Option<ServoRequest>,
         /// The host link's port, reader, handler (link and telemetry tasks).
         link: LinkState<<Selected as Board>::Link>,
-        /// The calibration slots (the upload task writes the inactive one; a host link's upload
-        /// handler would too, at the same low priority).
+        /// The calibration slots (the link task's upload, and the QEMU upload scenarios' task,
+        /// write the inactive one, both at priority 1).
         slots: SlotStore<RegionFlash>,
         /// A newly committed calibration for the servo task to switch to at rest.
         new_calibration: Option<(Calibration<'static>, CalibrationId)>,
@@ -124,7 +124,7 @@ mod app {
         defmt::info!("boot: calibration in force {}", calibration_id);
         let image = calibration_id.map_or(firmware::calibration::region(), firmware::calibration::slot_bytes);
         let (cal_state, cal) = calibration::load(image, &settings.machine, settings.home_mm, settings.allow_uncorrected);
-        let workspace = cal.grid.as_ref().map(|g| Workspace::of_grid(g.geometry(), settings.stop.workspace_margin_mm));
+        let workspace = cal.grid.as_ref().and_then(|g| Workspace::of_image(g, settings.stop.workspace_margin_mm));
         match cal_state {
             CalibrationState::Valid => {}
             CalibrationState::Refused(e) => defmt::error!("calibration image refused ({}): drives stay disabled", e),
@@ -171,7 +171,12 @@ mod app {
         }
 
         let limits = StreamLimits { task: settings.stream_limits(), stop: settings.stop.limits, workspace };
-        let mut stream = MotionStream::new(limits, servo_loop.setpoint_mm());
+        let mut stream = MotionStream::new(limits, start_mm);
+        if servo_loop.mode() != Mode::Running {
+            // Unhomed, homing or faulted: the stream waits, paused, until the servo runs; the link then
+            // resumes it where the servo engaged (homing ends near, not exactly at, home).
+            stream.pause();
+        }
         let (mut setpoints_in, setpoints_out) = cx.local.queue.split();
         if servo_loop.drives_enabled() {
             if settings.link_motion {
@@ -184,8 +189,7 @@ mod app {
             port: board.link(),
             reader: FrameReader::new(),
             handler: LinkHandler::new(),
-            homing: PowerOnHoming,
-            store: ReadOnlyStore::new(image),
+            absolute_encoders: settings.homing.absolute_encoders,
         };
         if settings.link_motion {
             defmt::info!("setpoints from the host link");
@@ -222,8 +226,9 @@ mod app {
         l.board.begin_sample();
         // Encoders -> sample logic (setpoint intake, mode machine, servo step).
         let encoder_rad = l.board.encoders_rad();
-        // A host request (stop, disable, reset) takes effect in this sample. A refused reset
-        // leaves the mode as it was, which the host reads in the status.
+        // A host request (stop, disable, reset, home) takes effect in this sample; the drives go
+        // on when a reset re-engages or homing starts. A refused reset leaves the mode as it
+        // was, which the host reads in the status.
         if let Some(request) = cx.shared.servo_request.lock(Option::take) {
             if let Ok(true) = l.servo_loop.request(request, l.setpoints_out, encoder_rad) {
                 l.board.enable_drives();
@@ -277,6 +282,7 @@ mod app {
         let stop_mm = l.servo_loop.stop_profile().map_or(0.0, |p| p.distance_mm());
         cx.shared.status.lock(|s| {
             s.record(&sample, mode, &deadline, stop_mm);
+            s.homing = l.servo_loop.homing_phase();
             if switched.is_some() {
                 s.calibration_id = switched;
             }
@@ -311,10 +317,10 @@ mod app {
     /// port, answers every frame (`controller::host_link`), resumes a paused motion source,
     /// sends due telemetry. Its locks on the stream hold off the intake (priority 2) for a
     /// frame's validation at most, never the servo task.
-    #[task(binds = LINK_RX, priority = 1, shared = [status, stream, servo_request, link])]
+    #[task(binds = LINK_RX, priority = 1, shared = [status, stream, servo_request, link, slots, new_calibration])]
     fn link_rx(cx: link_rx::Context) {
-        let link_rx::SharedResources { status, stream, servo_request, mut link, .. } = cx.shared;
-        let mut locks = Locks { status, request: servo_request, stream };
+        let link_rx::SharedResources { status, stream, servo_request, mut link, slots, new_calibration, .. } = cx.shared;
+        let mut locks = Locks { status, request: servo_request, stream, slots, new_calibration };
         link.lock(|link| {
             link.serve(&mut locks);
             link.poll(&mut locks);
@@ -360,10 +366,8 @@ mod app {
         match result {
             Ok(id) => {
                 defmt::info!("calibration upload committed: {}", id);
-                let bytes = firmware::calibration::slot_bytes(id);
-                match kinematics_core::CorrectionGrid::parse(bytes) {
-                    Ok(grid) => cx.shared.new_calibration.lock(|n| *n = Some((Calibration::from_grid(grid), id))),
-                    Err(e) => defmt::error!("committed image does not parse ({})", e),
+                if let Some(new) = firmware::calibration::committed(id) {
+                    cx.shared.new_calibration.lock(|n| *n = Some(new));
                 }
             }
             Err(e) => defmt::error!("calibration upload refused: {} (the image in force stays)", e),

@@ -9,11 +9,12 @@
 //! | [`EncoderOffset`](PhysicalEffect::EncoderOffset) | `encoder_offset` | `drive_*.encoder_offset_deg` | δθ1, δθ2 |
 //! | [`BaseOffset`](PhysicalEffect::BaseOffset) | `base_offset` | part of `link_geometry` | B0 |
 //! | [`Backlash`](PhysicalEffect::Backlash) | `backlash` | `drive_*.backlash_urad` | β1, β2 |
-//! | [`LinkStretch`](PhysicalEffect::LinkStretch) | `link_stretch` | arises from `link_geometry` and compliance | b, c vs ψ |
+//! | [`LinkStretch`](PhysicalEffect::LinkStretch) | `link_stretch` | arises from `link_geometry` and the bars' compliance | b, c vs (θ1, θ2): the distal bars' elongation under the loops' self-stress |
 //! | [`Frame`](PhysicalEffect::Frame) | `frame` | `instrument.frame_offset_mm`, `frame_rotation_deg` | tx, ty, rot |
 //! | [`Scale`](PhysicalEffect::Scale) | `scale` | `instrument.scale_error_ppm` | scale |
 //! | [`GearRatio`](PhysicalEffect::GearRatio) | `gear_ratio` | — | g1, g2 |
-//! | [`LinkGeometry`](PhysicalEffect::LinkGeometry) | `link_geometry` | `sixbar.errors` (every bar length and pin) | shows up as the above, plus the parallelogram mismatch no five-bar has |
+//! | [`ParallelogramMismatch`](PhysicalEffect::ParallelogramMismatch) | `parallelogram_mismatch` | arises from `link_geometry` (followers' and pins' errors) | the loops' misfit: platform and elbow rotations, bearing deflections vs (θ1, θ2) |
+//! | [`LinkGeometry`](PhysicalEffect::LinkGeometry) | `link_geometry` | `sixbar.errors` (every bar length and pin) | shows up as the above: link lengths, base offset, stretch, mismatch |
 //! | [`Clearance`](PhysicalEffect::Clearance) | `clearance` | `sixbar.*_clearance_mm` | — |
 //! | [`EncoderQuantization`](PhysicalEffect::EncoderQuantization) | `encoder_quantization` | `drive_*.encoder_counts_per_motor_rev` | — |
 //! | [`CyclicError`](PhysicalEffect::CyclicError) | `cyclic_error` | `drive_*.cyclic_error_*` | — (reported as unexplained, periodic) |
@@ -39,6 +40,9 @@ pub enum PhysicalEffect {
     Backlash,
     /// Configuration-dependent distal link lengths (internal stress of the overconstrained loops).
     LinkStretch,
+    /// The six-bar's parallelograms disagree: the platform and elbow pieces turn with the
+    /// configuration (no five-bar has it).
+    ParallelogramMismatch,
     /// The instrument's frame: offset and rotation.
     Frame,
     /// The instrument's scale error.
@@ -59,12 +63,13 @@ pub enum PhysicalEffect {
 
 impl PhysicalEffect {
     /// Every effect, in the order of the module doc's table.
-    pub const ALL: [PhysicalEffect; 13] = [
+    pub const ALL: [PhysicalEffect; 14] = [
         PhysicalEffect::LinkLengths,
         PhysicalEffect::EncoderOffset,
         PhysicalEffect::BaseOffset,
         PhysicalEffect::Backlash,
         PhysicalEffect::LinkStretch,
+        PhysicalEffect::ParallelogramMismatch,
         PhysicalEffect::Frame,
         PhysicalEffect::Scale,
         PhysicalEffect::GearRatio,
@@ -83,6 +88,7 @@ impl PhysicalEffect {
             PhysicalEffect::BaseOffset => "base_offset",
             PhysicalEffect::Backlash => "backlash",
             PhysicalEffect::LinkStretch => "link_stretch",
+            PhysicalEffect::ParallelogramMismatch => "parallelogram_mismatch",
             PhysicalEffect::Frame => "frame",
             PhysicalEffect::Scale => "scale",
             PhysicalEffect::GearRatio => "gear_ratio",

@@ -1,41 +1,90 @@
 //! Tests of `host-sim diagnose` on data whose truth is hidden from the workflow.
 //!
-//! The data come from `host_sim::diagnose::synth` (a five-bar truth with effects generated, where
-//! physics allows, in a different form from the library; see its module doc): every library
-//! effect, including those the plant has no switch for. The same workflow on the six-bar plant
-//! through `host-sim measure` is tested in `tests/diagnose_plant.rs`; the studies (robustness
-//! sweep, Table I's power, the example file) are `benches/diagnose_study.rs`.
+//! The data come from `host_sim::diagnose::synth`, which measures the six-bar plant through
+//! THE measurement path (`calib::measure`, as `host-sim measure`) for every effect the plant has
+//! (link lengths, base offset, encoder offsets, backlash, instrument frame and scale, gear-tooth
+//! cyclic error) and adds independent formulas for the rest (the distal bars' stretch from the
+//! plant's own bar tensions, a gear ratio about a fixed reference angle, an instrument drift):
+//! never the library's own effect functions (issue 18). The same workflow on six-bar plants with
+//! part errors is tested in `tests/diagnose_plant.rs`; the studies (the false-positive sweep,
+//! Table I's power, the example file) are `benches/diagnose_study.rs`.
 //!
-//! Cost: each diagnosis is 0.1–0.5 s in the dev profile; the whole file runs in well under a
-//! minute on one core.
+//! Exact confoundings the physics makes (reported, not decided) are accepted as such: an
+//! instrument scale may come out as a common change of all four links; a gear ratio about a
+//! fixed reference angle is the library's ratio (about the data's mean angle) plus an encoder
+//! offset `g·(θ̄ − θ_ref)`, checked to its value.
+//!
+//! Cost: each diagnosis is 0.2–1 s in the dev profile.
 
 use host_sim::diagnose::report::{table, Report};
 use host_sim::diagnose::synth::{generate, Cyclic, Poses, Truth};
 use host_sim::diagnose::{effects::LIBRARY, DiagnoseOptions};
 use host_sim::effect::PhysicalEffect;
 use host_sim::io::measurement_csv::{format_measurements, Measurement};
+use host_sim::machine_spec::MachineSpec;
 use kinematics_core::FiveBar;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 const NOISE_UM: f64 = 2.0;
 
-/// Diagnoses `data` against the nominal model and checks that exactly `expected` effects are
-/// named (any order), that the residual is at the noise level (unless `expect_unexplained`),
-/// and that `unexplained` is what it should be. Returns the report for further checks.
-fn check(
-    data: Vec<Measurement>,
-    noise_um: Option<f64>,
-    expected: &[&str],
-    expect_unexplained: bool,
-    what: &str,
-) -> Report {
-    let r = diagnose(&data, &FiveBar::paper_nominal(), noise_um).expect("diagnosis runs");
-    let mut named: Vec<&str> = r.steps.iter().map(|s| s.effect.as_str()).collect();
+/// The encoder offsets (µrad) a gear ratio about the workspace centre's motor angles adds on
+/// these data: the library's ratio is about the data's circular mean angle.
+fn gear_offset_urad(truth: &Truth, data: &[Measurement]) -> [f64; 2] {
+    let spec = MachineSpec::paper();
+    let reference = spec.nominal.inverse(spec.workspace.centre_mm(), 0.0).unwrap();
+    [0, 1].map(|j| {
+        let (s, c) = data.iter().fold((0.0, 0.0), |(s, c), m| {
+            let t = m.theta_rad()[j];
+            (s + t.sin(), c + t.cos())
+        });
+        truth.gear_ppm[j] * (s.atan2(c) - reference[j])
+    })
+}
+
+/// The named effects, with the physics' exact twins mapped onto the hidden set: `link_lengths`
+/// for a hidden `scale` (a common link change: the pair must then be reported confounded), and
+/// an `encoder_offset` beside a hidden gear ratio when it is the ratio's offset (checked).
+fn named_as_hidden(r: &Report, truth: &Truth, data: &[Measurement], hidden: &[&str], what: &str) -> Vec<String> {
+    let mut named: Vec<String> = r.steps.iter().map(|s| s.effect.clone()).collect();
+    if hidden.contains(&"gear_ratio") && !hidden.contains(&"encoder_offset") {
+        if let Some(step) = r.steps.iter().find(|s| s.effect == "encoder_offset") {
+            let want = gear_offset_urad(truth, data);
+            for (k, name) in ["dtheta1_urad", "dtheta2_urad"].iter().enumerate() {
+                let p = &r.final_params[*name];
+                assert!(
+                    (p.value - want[k]).abs() < 5.0 * p.std_dev + 3.0,
+                    "{what}: encoder_offset beside the gear ratio is not its offset: {name} {p:?} vs {:.1}\n{}",
+                    want[k],
+                    table(r)
+                );
+            }
+            let _ = step;
+            named.retain(|n| n != "encoder_offset");
+        }
+    }
+    if hidden.contains(&"scale") && !hidden.contains(&"link_lengths") && named.iter().any(|n| n == "link_lengths") {
+        assert!(r.confounded.contains(&vec!["link_lengths".to_string(), "scale".to_string()]), "{what}: {:?}", r.confounded);
+        named.retain(|n| n != "link_lengths");
+        if !named.iter().any(|n| n == "scale") {
+            named.push("scale".into());
+        }
+    }
     named.sort();
-    let mut want = expected.to_vec();
+    named
+}
+
+/// Diagnoses the truth's data against the nominal model and checks that exactly `expected`
+/// effects are named (any order; twins as above), that the residual is at the noise level
+/// (unless `expect_unexplained`), and that `unexplained` is what it should be. Returns the
+/// report and the data for further checks.
+fn check(truth: &Truth, poses: Poses, seed: u64, expected: &[&str], expect_unexplained: bool, what: &str) -> (Report, Vec<Measurement>) {
+    let data = generate(truth, poses, seed);
+    let r = diagnose(&data, &FiveBar::paper_nominal(), Some(NOISE_UM)).expect("diagnosis runs");
+    let context = format!("{what}, truth {truth:?}:\n{}\nlog: {:#?}", table(&r), r.selection_log);
+    let named = named_as_hidden(&r, truth, &data, expected, &context);
+    let mut want: Vec<String> = expected.iter().map(|s| s.to_string()).collect();
     want.sort();
-    let context = format!("{what}:\n{}\nlog: {:#?}", table(&r), r.selection_log);
     assert_eq!(named, want, "wrong effects named for {context}");
     assert_eq!(r.unexplained, expect_unexplained, "unexplained flag for {context}");
     if !expect_unexplained {
@@ -47,12 +96,12 @@ fn check(
     for s in &r.steps {
         assert!(s.rms_after_um <= s.rms_before_um + 1e-9, "step {} made it worse: {context}", s.effect);
     }
-    r
+    (r, data)
 }
 
 /// The diagnosis of `data` against `base` with noise σ `noise_um`.
 fn diagnose(data: &[Measurement], base: &FiveBar<f64>, noise_um: Option<f64>) -> Result<Report, host_sim::diagnose::DiagnoseError> {
-    host_sim::diagnose::diagnose(data, &DiagnoseOptions { base: *base, noise_um })
+    host_sim::diagnose::diagnose(data, &DiagnoseOptions::paper(*base, noise_um))
 }
 
 fn truth_with(effects: &[&str], rng: &mut ChaCha8Rng) -> Truth {
@@ -63,48 +112,38 @@ fn truth_with(effects: &[&str], rng: &mut ChaCha8Rng) -> Truth {
     t
 }
 
-/// On this machine (A0 = B0, a rhombus), a shape-dependent distal stretch is partly exactly
-/// what constant link lengths and encoder offsets do (see effects.rs), so those two may be named
-/// alongside it: the library's stretch keeps only the part they cannot reproduce.
-fn expected_for(effect: &str, named: &[&str]) -> Vec<&'static str> {
-    let lib = |n: &str| LIBRARY.iter().find(|e| e.name() == n).map(|e| e.name()).expect("library name");
-    let mut want = vec![lib(effect)];
-    if effect == "link_stretch" {
-        for extra in ["link_lengths", "encoder_offset"] {
-            if named.contains(&extra) {
-                want.push(lib(extra));
+#[test]
+fn each_effect_alone_is_named_exactly_and_the_gap_closes() {
+    // Every library effect the generator has (parallelogram_mismatch needs the six-bar's part
+    // errors: tests/diagnose_plant.rs), two seeds, random and grid poses.
+    for (k, effect) in LIBRARY.iter().enumerate().filter(|(_, e)| e.name() != "parallelogram_mismatch") {
+        for seed in 0..2u64 {
+            let mut rng = ChaCha8Rng::seed_from_u64(100 * k as u64 + seed);
+            let truth = truth_with(&[effect.name()], &mut rng);
+            let poses = if seed == 1 { Poses::Random(300) } else { Poses::Grid5mm };
+            let what = format!("{} alone, seed {seed}", effect.name());
+            let (r, _) = check(&truth, poses, 1000 + seed, &[effect.name()], false, &what);
+            assert!(r.initial_rms_um > 3.0 * r.final_rms_um, "{}: the gap did not shrink", effect.name());
+            if effect.name() == "scale" {
+                assert!(r.confounded.contains(&vec!["link_lengths".to_string(), "scale".to_string()]), "{:?}", r.confounded);
             }
         }
     }
-    want
 }
 
+/// The loops' stress: the distal bars' stretch from the plant's six-bar tensions, alone and
+/// beside link-length errors, encoder offsets or backlash, is named exactly (issue 13: the
+/// former library named link_lengths and then false effects, base_offset, frame, gear_ratio).
 #[test]
-fn each_effect_alone_is_named_exactly_and_the_gap_closes() {
-    for (k, effect) in LIBRARY.iter().enumerate() {
-        for seed in 0..3u64 {
-            let mut rng = ChaCha8Rng::seed_from_u64(100 * k as u64 + seed);
-            let truth = truth_with(&[effect.name()], &mut rng);
-            let poses = if seed == 1 { Poses::Random(400) } else { Poses::Grid5mm };
-            let data = generate(&truth, poses, 1000 + seed);
-            let r = diagnose(&data, &FiveBar::paper_nominal(), Some(NOISE_UM)).expect("diagnosis runs");
-            let named: Vec<&str> = r.steps.iter().map(|s| s.effect.as_str()).collect();
-            let want = expected_for(effect.name(), &named);
-            let r = check(
-                data,
-                Some(NOISE_UM),
-                &want,
-                false,
-                &format!("{} alone, seed {seed}, truth {truth:?}", effect.name()),
-            );
-            assert!(r.initial_rms_um > 3.0 * r.final_rms_um, "{}: the gap did not shrink", effect.name());
-            if effect.name() == "scale" {
-                assert!(
-                    r.confounded.contains(&vec!["link_lengths".to_string(), "scale".to_string()]),
-                    "{:?}",
-                    r.confounded
-                );
-            }
+fn link_stretch_alone_and_beside_other_effects_is_named_exactly() {
+    let cases: [&[&str]; 4] =
+        [&["link_stretch"], &["link_stretch", "link_lengths"], &["link_stretch", "encoder_offset"], &["link_stretch", "backlash"]];
+    for (k, hidden) in cases.iter().enumerate() {
+        for seed in 0..2u64 {
+            let mut rng = ChaCha8Rng::seed_from_u64(3300 + 10 * k as u64 + seed);
+            let truth = truth_with(hidden, &mut rng);
+            let (r, _) = check(&truth, Poses::Random(300), 330 + seed, hidden, false, &format!("{hidden:?}, seed {seed}"));
+            assert!(r.initial_rms_um > 3.0 * r.final_rms_um, "{hidden:?}: the gap did not shrink");
         }
     }
 }
@@ -123,93 +162,108 @@ fn two_effects_at_once_are_both_named() {
     for (k, pair) in pairs.iter().enumerate() {
         let mut rng = ChaCha8Rng::seed_from_u64(7000 + k as u64);
         let truth = truth_with(pair, &mut rng);
-        let data = generate(&truth, Poses::Grid5mm, 77 + k as u64);
-        check(data, Some(NOISE_UM), pair, false, &format!("{pair:?}, truth {truth:?}"));
+        let (r, _) = check(&truth, Poses::Random(300), 77 + k as u64, pair, false, &format!("{pair:?}"));
+        // Confounded pairs: the exact twins, or pairs within the final model (whose shared part
+        // the report states); never one effect of the model and an absent one otherwise, but
+        // for the small encoder offset a gear ratio about a fixed reference angle leaves beside
+        // it (checked to its value by `named_as_hidden`): tens of µrad, which constant link
+        // changes can reproduce on these poses.
+        let in_model = |e: &String| r.steps.iter().any(|s| &s.effect == e);
+        let gear_offset = pair.contains(&"gear_ratio") && !pair.contains(&"encoder_offset");
+        for c in &r.confounded {
+            assert!(
+                c == &["encoder_offset", "frame"]
+                    || c == &["link_lengths", "scale"]
+                    || c.iter().all(in_model)
+                    || (gear_offset && c.contains(&"encoder_offset".to_string())),
+                "{pair:?}: unexpected confounded pair {c:?}\n{}",
+                table(&r)
+            );
+        }
     }
 }
 
 #[test]
 fn noise_only_names_nothing() {
-    for seed in 0..6u64 {
+    for seed in 0..4u64 {
         let truth = Truth { noise_um: NOISE_UM, ..Default::default() };
         let poses = if seed % 2 == 0 { Poses::Grid5mm } else { Poses::Random(300) };
-        let r = check(generate(&truth, poses, seed), Some(NOISE_UM), &[], false, &format!("noise only, seed {seed}"));
+        let (r, _) = check(&truth, poses, seed, &[], false, &format!("noise only, seed {seed}"));
         assert!(r.confounded.is_empty());
     }
 }
 
 #[test]
 fn hidden_gear_tooth_error_is_unexplained_and_described() {
-    for (seed, (motor, cycles, amp)) in [(0usize, 50.0, 40.0), (1, 36.0, 30.0), (0, 90.0, 40.0)].into_iter().enumerate()
-    {
+    for (seed, (motor, cycles, amp)) in [(0usize, 50.0, 40.0), (1, 36.0, 30.0), (0, 90.0, 40.0)].into_iter().enumerate() {
         let truth = Truth {
             noise_um: NOISE_UM,
             cyclic: Some(Cyclic { motor, cycles, amplitude_urad: amp, phase_rad: 0.7 * seed as f64 }),
             ..Default::default()
         };
-        let r = check(
-            generate(&truth, Poses::Grid5mm, 300 + seed as u64),
-            Some(NOISE_UM),
-            &[],
-            true,
-            &format!("cyclic {truth:?}"),
-        );
+        let (r, _) = check(&truth, Poses::Grid5mm, 300 + seed as u64, &[], true, &format!("cyclic {truth:?}"));
         let kind = format!("periodic_theta{}", motor + 1);
         let f = r.final_structure.iter().find(|f| f.kind == kind).expect("periodogram ran");
         assert!(f.significant, "{f:?}");
         assert_eq!(f.cycles_per_rev, Some(cycles), "{f:?}");
         assert!(r.unexplained_description.contains(&format!("{} cycles/rev", cycles)), "{}", r.unexplained_description);
-        // Never named: no library effect claims it.
+        // Fitted as a nuisance, never named: no library effect claims it.
         assert!(r.steps.is_empty());
+        assert!(r.nuisances.iter().any(|n| n.contains(&format!("{cycles} cycles/rev"))), "{:?}", r.nuisances);
     }
-    // Together with a library effect: the effect is named, the cyclic error is left unexplained.
+    // Together with library effects: those are named, the cyclic error is left unexplained.
     let mut rng = ChaCha8Rng::seed_from_u64(5);
-    let mut truth = truth_with(&["backlash"], &mut rng);
+    let mut truth = truth_with(&["backlash", "link_lengths"], &mut rng);
     truth.cyclic = Some(Cyclic { motor: 1, cycles: 60.0, amplitude_urad: 40.0, phase_rad: 0.1 });
-    let r = check(generate(&truth, Poses::Grid5mm, 9), Some(NOISE_UM), &["backlash"], true, "backlash + cyclic");
-    assert!(r
-        .final_structure
-        .iter()
-        .any(|f| f.kind == "periodic_theta2" && f.significant && f.cycles_per_rev == Some(60.0)));
+    let (r, _) = check(&truth, Poses::Random(400), 9, &["backlash", "link_lengths"], true, "backlash + links + cyclic");
+    assert!(r.final_structure.iter().any(|f| f.kind == "periodic_theta2" && f.significant && f.cycles_per_rev == Some(60.0)));
 }
 
 #[test]
 fn hidden_drift_is_unexplained_and_described() {
-    // 6 nm/s over the 1300 s of a grid run: 7.8 µm at the end, in x. Its mean over the run is a
-    // constant instrument offset, which `frame` takes (rightly: the data cannot tell them apart).
-    let truth = Truth { noise_um: NOISE_UM, drift_um_per_s: [0.006, 0.0], ..Default::default() };
-    let r = check(generate(&truth, Poses::Grid5mm, 31), Some(NOISE_UM), &["frame"], true, "drift");
+    // 15 nm/s over the 400 s of a random run (one reading a second): 6 µm at the end, in x,
+    // zero at the start. Before issue 13 its mean was named `frame` (a constant offset); now the
+    // drift is fitted as a nuisance and nothing is named on its account.
+    let truth = Truth { noise_um: NOISE_UM, drift_um_per_s: [0.015, 0.0], ..Default::default() };
+    let (r, _) = check(&truth, Poses::Random(400), 31, &[], true, "drift");
     let f = r.final_structure.iter().find(|f| f.kind == "drift_time").expect("time tested");
     assert!(f.significant, "{f:?}");
-    assert!(r.unexplained_description.contains("drift_time"), "{}", r.unexplained_description);
+    assert!(r.unexplained_description.contains("drift"), "{}", r.unexplained_description);
+    assert!(r.nuisances.iter().any(|n| n.contains("drift")), "{:?}", r.nuisances);
+    // With a library effect beside it: that effect only.
+    let truth = Truth { noise_um: NOISE_UM, drift_um_per_s: [0.01, -0.01], backlash_urad: [150.0, 90.0], ..Default::default() };
+    check(&truth, Poses::Random(400), 32, &["backlash"], true, "drift + backlash");
 }
 
 #[test]
 fn confounded_pairs_are_reported_with_a_separating_measurement() {
     // A common motor offset turns the mechanism about A0 like an instrument rotation.
     let truth = Truth { noise_um: NOISE_UM, encoder_offset_urad: [250.0, 250.0], ..Default::default() };
-    let r = check(generate(&truth, Poses::Grid5mm, 1), Some(NOISE_UM), &["encoder_offset"], false, "common offset");
+    let (r, _) = check(&truth, Poses::Grid5mm, 1, &["encoder_offset"], false, "common offset");
     assert!(r.confounded.contains(&vec!["encoder_offset".to_string(), "frame".to_string()]), "{:?}", r.confounded);
     let o = r.overlaps.iter().find(|o| o.confounded && o.other == "frame").expect("overlap listed");
     assert!(o.separate_by.contains("instrument rotated"), "{}", o.separate_by);
     // A common scale of all links scales every point about A0 like the instrument scale: the
-    // workflow names the simpler one and reports the pair.
+    // workflow names one of them and reports the pair.
     let d = 150.0 * 300e-6 * 1e3; // 300 ppm of every link, µm
     let truth = Truth { noise_um: NOISE_UM, link_delta_um: [d; 4], ..Default::default() };
-    let r = check(generate(&truth, Poses::Grid5mm, 2), Some(NOISE_UM), &["scale"], false, "common link scale");
+    let data = generate(&truth, Poses::Grid5mm, 2);
+    let r = diagnose(&data, &FiveBar::paper_nominal(), Some(NOISE_UM)).unwrap();
+    let named: Vec<&str> = r.steps.iter().map(|s| s.effect.as_str()).collect();
+    assert!(named == ["scale"] || named == ["link_lengths"], "{}", table(&r));
     assert!(r.confounded.contains(&vec!["link_lengths".to_string(), "scale".to_string()]), "{:?}", r.confounded);
     let o = r.overlaps.iter().find(|o| o.confounded).expect("overlap listed");
     assert!(o.separate_by.contains("reference length"), "{}", o.separate_by);
     // Distinct offsets: their common part (here (250 − 150)/√2 = 70.7 along (1, 1)/√2) is still
     // an instrument rotation, significant, so the pair is reported with that part.
     let truth = Truth { noise_um: NOISE_UM, encoder_offset_urad: [250.0, -150.0], ..Default::default() };
-    let r = check(generate(&truth, Poses::Grid5mm, 3), Some(NOISE_UM), &["encoder_offset"], false, "distinct offsets");
+    let (r, _) = check(&truth, Poses::Grid5mm, 3, &["encoder_offset"], false, "distinct offsets");
     assert!(r.confounded.contains(&vec!["encoder_offset".to_string(), "frame".to_string()]), "{:?}", r.confounded);
     let o = r.overlaps.iter().find(|o| o.other == "frame").unwrap();
     assert!((o.shared_value - 70.7).abs() < 5.0, "{o:?}");
     // Opposite offsets have no common part: no rotation hides in them; only a partial overlap.
     let truth = Truth { noise_um: NOISE_UM, encoder_offset_urad: [200.0, -200.0], ..Default::default() };
-    let r = check(generate(&truth, Poses::Grid5mm, 4), Some(NOISE_UM), &["encoder_offset"], false, "opposite offsets");
+    let (r, _) = check(&truth, Poses::Grid5mm, 4, &["encoder_offset"], false, "opposite offsets");
     assert!(r.confounded.is_empty(), "{:?}", r.confounded);
     assert!(r.overlaps.iter().any(|o| o.other == "frame" && !o.confounded && o.principal_cos > 0.999999));
 }
@@ -232,7 +286,10 @@ fn noise_is_estimated_from_repeats_and_backlash_needs_directions() {
             data.push(m);
         }
     }
-    let r = check(data.clone(), None, &["base_offset"], false, "noise from repeats");
+    let r = diagnose(&data, &FiveBar::paper_nominal(), None).unwrap();
+    let named: Vec<&str> = r.steps.iter().map(|s| s.effect.as_str()).collect();
+    assert_eq!(named, ["base_offset"], "{}", table(&r));
+    assert!(!r.unexplained && r.chi2_per_dof.is_some_and(|c| c < 1.21), "{}", table(&r));
     let s = r.noise_um.expect("estimated");
     assert!((s - NOISE_UM).abs() < 0.2 * NOISE_UM, "σ from repeats {s}");
     assert!(r.noise_source.contains("repeated"));
@@ -271,9 +328,9 @@ fn without_a_noise_figure_the_structure_decides() {
     // No --noise-um, no repeats: scores compare against what is left; unexplained needs structure.
     let mut rng = ChaCha8Rng::seed_from_u64(21);
     let truth = truth_with(&["gear_ratio"], &mut rng);
-    let r = diagnose(&generate(&truth, Poses::Grid5mm, 21), &FiveBar::paper_nominal(), None).unwrap();
-    let named: Vec<&str> = r.steps.iter().map(|s| s.effect.as_str()).collect();
-    assert_eq!(named, ["gear_ratio"], "{}", table(&r));
+    let data = generate(&truth, Poses::Grid5mm, 21);
+    let r = diagnose(&data, &FiveBar::paper_nominal(), None).unwrap();
+    assert_eq!(named_as_hidden(&r, &truth, &data, &["gear_ratio"], "no noise figure"), ["gear_ratio"], "{}", table(&r));
     assert!(!r.unexplained && r.noise_um.is_none() && r.chi2_per_dof.is_none());
     let truth = Truth {
         noise_um: NOISE_UM,

@@ -1,10 +1,12 @@
 //! The controller in the loop: the real firmware binary under QEMU (scenario `link`: setpoints
-//! from the host link; UART0 on a TCP socket), driven through `host-sim link`, every CI run:
-//! identify, home, stream a 3 s figure through the workspace and check the tracking from the
-//! telemetry, provoke an underrun (controlled stop, reported) and reset, a limit violation
-//! (refused whole, nothing moved), a calibration upload the controller refuses (the image in
-//! force stays), and garbage while the servo runs (every frame answered, no motion, no
-//! deadline missed: the harness would end QEMU with FAIL).
+//! from the host link, incremental encoders so the machine powers up unhomed; UART0 on a TCP
+//! socket), driven through `host-sim link`, every CI run: identify, home (Unhomed -> Homing ->
+//! Running through the link), upload a calibration image and see it take effect (the id read
+//! back is the file's, and the joints move by the new correction at the same setpoint), a bad
+//! image refused (the image in force stays), stream a 3 s figure through the workspace and
+//! check the tracking from the telemetry, provoke an underrun (controlled stop, reported) and
+//! reset, a limit violation (refused whole, nothing moved), and garbage while the servo runs
+//! (every frame answered, no motion, no deadline missed: the harness would end QEMU with FAIL).
 //!
 //! Needs the thumbv7em-none-eabihf target and qemu-system-arm (`bash tests/run-all.sh`
 //! installs both). The firmware is built into `target/system-tests` (as the same-core test
@@ -13,7 +15,18 @@ use std::net::TcpListener;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output};
 
+use host_sim::link::link_protocol::calibration_image_id;
 use serde_json::Value;
+
+// The QEMU board's synthetic images, the same generator the firmware's build script uses: the
+// bundled image (in force at boot) and the second one (its field negated), uploaded here.
+#[allow(dead_code)]
+mod machine {
+    include!("../../firmware/src/board/qemu/machine.rs");
+}
+mod synthetic {
+    include!("../../firmware/src/board/qemu/synthetic_image.rs");
+}
 
 fn workspace_root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).parent().expect("host-sim is in the workspace").to_path_buf()
@@ -94,15 +107,74 @@ fn the_host_tool_drives_the_firmware_under_qemu() {
         .expect("bash and qemu-system-arm (bash tests/run-all.sh installs it)");
     let _qemu = Qemu(qemu);
 
-    // Identify, home.
+    // Identify: the image in force is the bundled one, and the firmware's id for it is the one
+    // the host computes from the same bytes.
     let id = ok(&addr, &["identify"]);
     assert_eq!(id["board"], "Qemu");
     assert_eq!(id["protocol_version"], 1);
-    let calibration_id = id["calibration_id"].as_u64().expect("the bundled image has an id");
-    ok(&addr, &["home"]);
+    let bundled_id = calibration_image_id(&synthetic::synthetic_image(1.0));
+    assert_eq!(id["calibration_id"].as_u64(), Some(u64::from(bundled_id)), "{id}");
+
+    // Unhomed at power-on: drives off, motion refused; Home runs the index search through the
+    // link and ends Running at home.
     let s = ok(&addr, &["status"]);
-    assert_eq!((s["mode"].as_str(), s["homing"].as_str(), s["drives_enabled"].as_bool()), (Some("Running"), Some("Homed"), Some(true)));
+    assert_eq!((s["mode"].as_str(), s["homing"].as_str(), s["drives_enabled"].as_bool()), (Some("Unhomed"), Some("NotHomed"), Some(false)), "{s}");
+    let refusal = refused(&addr, &["move", "--x-mm", "212", "--y-mm", "0"]);
+    assert!(refusal.contains("NotHomed"), "{refusal}");
+    let h = ok(&addr, &["home"]);
+    let states: Vec<(String, String)> = h["states"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|p| (p[0].as_str().unwrap().to_owned(), p[1].as_str().unwrap().to_owned()))
+        .collect();
+    let pair = |m: &str, h: &str| (m.to_owned(), h.to_owned());
+    assert_eq!(states, [pair("Unhomed", "NotHomed"), pair("Homing", "InProgress"), pair("Running", "Homed")], "{h}");
+    let s = &h["status"];
+    assert_eq!((s["mode"].as_str(), s["homing"].as_str(), s["drives_enabled"].as_bool()), (Some("Running"), Some("Homed"), Some(true)), "{h}");
     let home = xy(&s["setpoint_mm"]);
+    assert!((home[0] - 212.132).hypot(home[1]) < 0.01, "engaged at home: {home:?}");
+    println!("LINK_QEMU home: {:.2} s through {states:?}", h["seconds"].as_f64().unwrap());
+
+    // Upload the second image: the id read back is the file's, the servo switches to it at rest
+    // (identify reports it once it is in force), and the joints move by the correction's change
+    // at the same setpoint: at home the bundled field is (+1e-4, 0) rad, the new one (-1e-4, 0).
+    let image = synthetic::synthetic_image(-1.0);
+    let image_id = calibration_image_id(&image);
+    let grid = work.path().join("grid-2.bin");
+    std::fs::write(&grid, &image).unwrap();
+    let before = ok(&addr, &["status"]);
+    let up = ok(&addr, &["upload", "--grid", grid.to_str().unwrap()]);
+    assert_eq!(up["calibration_id"].as_u64(), Some(u64::from(image_id)), "{up}");
+    let mut in_force = None;
+    for _ in 0..50 {
+        in_force = ok(&addr, &["identify"])["calibration_id"].as_u64();
+        if in_force == Some(u64::from(image_id)) {
+            break;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    assert_eq!(in_force, Some(u64::from(image_id)), "the servo switched to the uploaded image");
+    std::thread::sleep(std::time::Duration::from_millis(300));
+    let after = ok(&addr, &["status"]);
+    assert_eq!((after["mode"].as_str(), after["fault"].as_str()), (Some("Running"), None), "{after}");
+    let (p0, p1) = (xy(&before["setpoint_mm"]), xy(&after["setpoint_mm"]));
+    assert!((p1[0] - p0[0]).hypot(p1[1] - p0[1]) < 0.001, "the same setpoint: {p0:?} -> {p1:?}");
+    let (e0, e1) = (xy(&before["encoder_rad"]), xy(&after["encoder_rad"]));
+    let moved = [e1[0] - e0[0], e1[1] - e0[1]];
+    println!("LINK_QEMU upload: {} bytes, id {image_id:#010x} in force; joints moved {moved:?} rad at the same setpoint", image.len());
+    assert!((moved[0].abs() - 2.0e-4).abs() < 0.3e-4 && moved[1].abs() < 0.3e-4, "the new correction took effect: {moved:?}");
+
+    // A damaged image (one bit flipped in its grid): refused, the image in force stays.
+    let mut damaged = image.clone();
+    damaged[image.len() / 2] ^= 0x10;
+    let bad = work.path().join("damaged-grid.bin");
+    std::fs::write(&bad, &damaged).unwrap();
+    let refusal = refused(&addr, &["upload", "--grid", bad.to_str().unwrap()]);
+    assert!(refusal.contains("Calibration(Invalid)"), "{refusal}");
+    assert_eq!(ok(&addr, &["identify"])["calibration_id"].as_u64(), Some(u64::from(image_id)));
+    let s = ok(&addr, &["status"]);
+    assert_eq!((s["mode"].as_str(), xy(&s["setpoint_mm"])), (Some("Running"), p1), "{s}");
 
     // A 3 s figure (±30 mm × ±40 mm) through the workspace, tracked.
     let csv = work.path().join("telemetry.csv");
@@ -141,13 +213,6 @@ fn the_host_tool_drives_the_firmware_under_qemu() {
     let s = ok(&addr, &["status"]);
     assert_eq!((s["stream_knots_queued"].as_u64(), s["moving"].as_bool()), (Some(0), Some(false)));
     assert_eq!(xy(&s["setpoint_mm"]), held, "nothing moved");
-
-    // A calibration upload the controller refuses: the image in force stays.
-    let image = work.path().join("bad-grid.bin");
-    std::fs::write(&image, vec![0x5Au8; 3000]).unwrap();
-    let refusal = refused(&addr, &["upload", "--grid", image.to_str().unwrap()]);
-    assert!(refusal.contains("Calibration("), "{refusal}");
-    assert_eq!(ok(&addr, &["identify"])["calibration_id"].as_u64(), Some(calibration_id));
 
     // Garbage while the servo runs: every frame answered with an error, no motion, deadline
     // held (a missed deadline would have ended QEMU, and the status says 0 overruns).

@@ -172,14 +172,12 @@ pub fn load<'a>(
     }
 }
 
-/// The id of the image at the start of `region`: its stored CRC-32 (the image's last four
-/// bytes before any dynamics block), `None` if the image is refused. What the host link
-/// reports as the calibration id.
+/// The id of the image at the start of `region` (bytes after it ignored): the link's
+/// calibration id ([`link_protocol::calibration_image_id`], CRC-32C) of the image's own bytes,
+/// grid and extension blocks, as the slot store records it; `None` if the image does not parse.
 pub fn image_id(region: &[u8]) -> Option<u32> {
     let grid = CorrectionGrid::parse(region).ok()?;
-    let end = grid.geometry().image_len();
-    let crc = region.get(end.checked_sub(4)?..end)?;
-    Some(u32::from_le_bytes([crc[0], crc[1], crc[2], crc[3]]))
+    Some(link_protocol::calibration_image_id(region.get(..grid.len_bytes())?))
 }
 
 #[cfg(test)]

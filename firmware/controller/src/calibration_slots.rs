@@ -58,12 +58,11 @@ use crate::calibration::{validate_image, ImageError, MachineIdentity};
 
 /// The record's own CRC (CRC-32/ISO-HDLC, zlib's, as the grid format uses).
 const CRC32: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
-/// The image's CRC in the record and the [`CalibrationId`]: CRC-32C (Castagnoli, iSCSI), not the
-/// grid format's CRC-32/ISO-HDLC. A grid image ends with its own ISO-HDLC CRC (and the dynamics
-/// block with its own): an ISO-HDLC CRC over such bytes is the same constant for every image of
-/// a length (the CRC residue), so it would identify nothing. Another polynomial has no such
-/// relation to the image's contents.
-const IMAGE_CRC: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISCSI);
+/// The image's CRC in the record and the [`CalibrationId`]: the link's calibration id, CRC-32C
+/// ([`link_protocol::calibration_image_id`], which says why not the grid format's CRC).
+fn image_crc(image: &[u8]) -> u32 {
+    link_protocol::calibration_image_id(image)
+}
 
 /// Commit record magic.
 pub const RECORD_MAGIC: [u8; 4] = *b"HRCR";
@@ -134,7 +133,7 @@ pub struct CalibrationId {
     /// The commit's sequence number (0: an image flashed by probe, without record).
     pub sequence: u32,
     /// CRC-32C (Castagnoli, `crc::CRC_32_ISCSI`) of the image's bytes: the host computes it
-    /// over its file (see `IMAGE_CRC` for why not zlib's CRC-32).
+    /// over its file (`link_protocol::calibration_image_id`; not zlib's CRC-32, see there).
     pub crc32: u32,
     /// The image's length (bytes).
     pub len: u32,
@@ -338,7 +337,7 @@ impl<F: SlotFlash> SlotStore<F> {
         if parsed_len != up.len as usize {
             return Err(SlotError::BadLength { max: self.capacity() as u32 });
         }
-        let crc32 = IMAGE_CRC.checksum(image);
+        let crc32 = image_crc(image);
         let sequence = self.active.map_or(1, |a| a.sequence.wrapping_add(1));
         let record = encode_record(sequence, up.len, crc32);
         let at = base + slot_len - RECORD_LEN;
@@ -370,7 +369,7 @@ impl<F: SlotFlash> SlotStore<F> {
         let bytes = self.flash.region().get(slot as usize * slot_len..(slot as usize + 1) * slot_len)?;
         let (sequence, len, crc32) = decode_record(&bytes[slot_len - RECORD_LEN..])?;
         let image = bytes.get(..len as usize).filter(|_| len as usize <= slot_len - RECORD_LEN)?;
-        if IMAGE_CRC.checksum(image) != crc32 {
+        if image_crc(image) != crc32 {
             return None;
         }
         let (_, parsed_len) = validate_image(image, &self.machine, self.home_mm).ok()?;
@@ -381,7 +380,7 @@ impl<F: SlotFlash> SlotStore<F> {
     fn probe_flashed(&self) -> Option<CalibrationId> {
         let a = self.flash.region().get(..self.capacity())?;
         let (_, len) = validate_image(a, &self.machine, self.home_mm).ok()?;
-        Some(CalibrationId { slot: 0, sequence: 0, crc32: IMAGE_CRC.checksum(&a[..len]), len: len as u32 })
+        Some(CalibrationId { slot: 0, sequence: 0, crc32: image_crc(&a[..len]), len: len as u32 })
     }
 }
 
@@ -498,7 +497,7 @@ mod tests {
     }
 
     fn crc(b: &[u8]) -> u32 {
-        IMAGE_CRC.checksum(b)
+        image_crc(b)
     }
 
     /// Regression: zlib's CRC-32 over whole grid images is one constant (each image ends with

@@ -145,12 +145,13 @@ impl Segment {
             return Err(SegmentRefusal::Acceleration);
         }
         if let Some(w) = &limits.workspace {
-            for k in 0..2 {
-                // Extremes of the cubic on this axis: the ends and where its velocity is zero.
-                let (lo, hi) = self.axis_range(k);
-                if !(lo >= w.min_mm[k] && hi <= w.max_mm[k]) {
-                    return Err(SegmentRefusal::Workspace);
-                }
+            // The segment's bounding box (per axis, the extremes of the cubic: the ends and where
+            // its velocity is zero) must lie inside: the workspace is convex, so its four corners
+            // inside put the whole box, and the curve in it, inside. Exact for a rectangular
+            // workspace; conservative next to a slanted edge of a polygon.
+            let ([x0, x1], [y0, y1]) = (self.axis_range(0).into(), self.axis_range(1).into());
+            if ![[x0, y0], [x1, y0], [x0, y1], [x1, y1]].iter().all(|&p| w.contains(p)) {
+                return Err(SegmentRefusal::Workspace);
             }
         }
         let step_s = h / CHECK_POINTS as f32;
@@ -423,7 +424,10 @@ mod tests {
         StreamLimits {
             task: TaskLimits { speed_mm_s: 1500.0, accel_mm_s2: 49_050.0, jerk_mm_s3: 5.0e6 },
             stop: s.stop.limits,
-            workspace: Some(Workspace { min_mm: [167.0, -70.0], max_mm: [257.0, 70.0] }),
+            workspace: Workspace::of_grid(
+                &kinematics_core::grid::GridGeometry { nx: 2, ny: 2, x0_mm: 167.0, y0_mm: -70.0, step_x_mm: 90.0, step_y_mm: 140.0 },
+                0.0,
+            ),
         }
     }
 

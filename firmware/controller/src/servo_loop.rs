@@ -145,6 +145,8 @@ pub enum ServoRequest {
     Disable,
     /// Clear the latched fault and re-engage where the machine is ([`ServoLoop::request`]).
     Reset,
+    /// Start homing ([`ServoLoop::start_homing`]): only from `Unhomed`.
+    Home,
 }
 
 /// Why [`ServoRequest::Reset`] was refused; the mode is unchanged.
@@ -157,6 +159,9 @@ pub enum ResetRefusal {
     Permanent(Fault),
     /// The servo would not engage at the machine's position.
     Engage(kinematics_core::EngageError),
+    /// Incremental encoders and homing never reached home (a fault latched before or during
+    /// homing): the encoder zero is unknown, the drives stay off.
+    NotHomed,
 }
 
 /// A stop under way: its profile and the samples stepped along it.
@@ -676,8 +681,11 @@ impl<'a> ServoLoop<'a> {
     /// setpoint, as a fault would) and do nothing otherwise. `Reset` from `Holding` or
     /// `SafeState` clears the fault, drops what is queued (`queue`: setpoints planned before the
     /// stop) and re-engages at `encoder_rad`, at rest there; it does nothing while running and
-    /// is refused during a stop or after a boot fault. Returns whether the drives must be
-    /// enabled now (they were off).
+    /// is refused during a stop, after a boot fault, and with incremental encoders before homing
+    /// reached home ([`ResetRefusal::NotHomed`]). `Home` starts homing from `Unhomed`
+    /// ([`ServoLoop::start_homing`]: the drives go on) and does nothing in any other mode (a
+    /// refused plan latches its fault there). Returns whether the drives must be enabled now
+    /// (they were off).
     pub fn request(
         &mut self,
         request: ServoRequest,
@@ -702,6 +710,8 @@ impl<'a> ServoLoop<'a> {
             (ServoRequest::Stop, Mode::Running) => Fault::StopCommanded,
             (ServoRequest::Disable, Mode::Running | Mode::Holding(_)) => Fault::DisableCommanded,
             (ServoRequest::Stop | ServoRequest::Disable, _) | (ServoRequest::Reset, Mode::Running) => return Ok(false),
+            // The drives go on with the homing search (its torque is limited).
+            (ServoRequest::Home, _) => return Ok(self.start_homing(encoder_rad).is_ok()),
             (ServoRequest::Reset, Mode::Stopping(_)) => return Err(ResetRefusal::Stopping),
             // Homing decides when the servo engages.
             (ServoRequest::Reset, Mode::Unhomed | Mode::Homing) => return Ok(false),
@@ -724,6 +734,9 @@ impl<'a> ServoLoop<'a> {
     ) -> Result<bool, ResetRefusal> {
         if matches!(fault, Fault::Settings(_) | Fault::Calibration(_)) {
             return Err(ResetRefusal::Permanent(fault));
+        }
+        if !self.settings.homing.absolute_encoders && self.homing_phase() != Some(HomingPhase::Done) {
+            return Err(ResetRefusal::NotHomed);
         }
         let servo = self.servo.as_mut().ok_or(ResetRefusal::Permanent(fault))?;
         let tool_mm = servo.engage(&self.calibration, encoder_rad).map_err(ResetRefusal::Engage)?;
@@ -1417,6 +1430,41 @@ mod tests {
         let mut l = ServoLoop::boot(&settings, cal, CalibrationState::Valid, [0.0; 2]);
         assert_eq!(l.mode(), Mode::SafeState(Fault::Homing(HomingFault::Plan)));
         assert!(l.start_homing([0.0; 2]).is_err() && !l.drives_enabled());
+    }
+
+    /// The host link's Home request: starts homing from `Unhomed` (drives on), nothing twice, and
+    /// nothing on a machine that is already running (a homed machine is not re-homed).
+    #[test]
+    fn a_home_request_starts_homing_only_from_unhomed() {
+        let (settings, img) = (Settings::default(), image());
+        let cal = Calibration::from_grid(CorrectionGrid::parse(&img).unwrap());
+        let mut l = ServoLoop::boot(&settings, cal, CalibrationState::Valid, [0.0; 2]);
+        let mut q: Queue<MotionSetpoint<f32>, QUEUE_SLOTS> = Queue::new();
+        let (_, mut rx) = q.split();
+        assert_eq!(l.mode(), Mode::Unhomed);
+        assert_eq!(l.homing_phase(), None);
+        assert_eq!(l.request(ServoRequest::Home, &mut rx, [0.0; 2]), Ok(true), "drives on");
+        assert_eq!((l.mode(), l.homing_phase()), (Mode::Homing, Some(HomingPhase::Search(0))));
+        assert_eq!(l.request(ServoRequest::Home, &mut rx, [0.0; 2]), Ok(false), "not twice");
+        assert_eq!(l.mode(), Mode::Homing);
+        // A fault while homing: the safe state, and no reset engages the unhomed machine.
+        let mut sample = l.step_homing([0.0; 2], [None; 2]);
+        l.latch(Fault::DeadlineMissed, &mut sample);
+        assert_eq!(l.mode(), Mode::SafeState(Fault::DeadlineMissed));
+        assert_eq!(l.request(ServoRequest::Reset, &mut rx, [0.0; 2]), Err(ResetRefusal::NotHomed));
+        assert!(!l.drives_enabled());
+        // Nor after a fault latched at boot (a watchdog reset) before homing.
+        let mut l = ServoLoop::boot(&settings, cal, CalibrationState::Valid, [0.0; 2]);
+        l.latch_at_boot(Fault::DeadlineMissed);
+        assert_eq!(l.request(ServoRequest::Reset, &mut rx, [0.0; 2]), Err(ResetRefusal::NotHomed));
+        assert_eq!(l.request(ServoRequest::Home, &mut rx, [0.0; 2]), Ok(false));
+        assert!(!l.drives_enabled());
+        let absolute = Settings { homing: crate::homing::HomingSettings { absolute_encoders: true, ..settings.homing }, ..settings };
+        let at = cal.command_rad(HOME_MM, 0.05).unwrap();
+        let mut l = ServoLoop::boot(&absolute, cal, CalibrationState::Valid, at);
+        assert_eq!(l.mode(), Mode::Running);
+        assert_eq!(l.request(ServoRequest::Home, &mut rx, at), Ok(false));
+        assert_eq!((l.mode(), l.homing_phase()), (Mode::Running, None));
     }
 
     /// Incremental encoders (the default): the loop boots `Unhomed`, drives off, refusing the

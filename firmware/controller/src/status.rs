@@ -5,6 +5,7 @@ use crate::calibration::CalibrationState;
 use crate::calibration_slots::{CalibrationId, SlotError};
 use crate::deadline::Deadline;
 use crate::fault::Fault;
+use crate::homing::HomingPhase;
 use crate::servo_loop::{Mode, Sample, ServoLoop};
 
 /// Snapshot the servo task publishes every sample.
@@ -47,6 +48,8 @@ pub struct Status {
     pub calibration_id: Option<CalibrationId>,
     /// The outcome of the last calibration upload (`None`: none since boot).
     pub last_upload: Option<Result<CalibrationId, SlotError>>,
+    /// Where homing is ([`ServoLoop::homing_phase`]; `None`: not started, or absolute encoders).
+    pub homing: Option<HomingPhase>,
 }
 
 impl Status {
@@ -71,6 +74,7 @@ impl Status {
             setpoint_underruns: 0,
             calibration_id: None,
             last_upload: None,
+            homing: servo_loop.homing_phase(),
         }
     }
 

@@ -50,6 +50,19 @@ pub const CALIBRATION_CHUNK_LEN: usize = 128;
 /// Largest calibration image the controller accepts (bytes): a slot of the calibration region.
 pub const MAX_CALIBRATION_IMAGE_LEN: u32 = 64 * 1024;
 
+/// The id of a calibration image, as [`Identity::calibration_id`] and
+/// [`Response::CalibrationId`] report it: the CRC-32C (Castagnoli, `crc::CRC_32_ISCSI`) of the
+/// image's bytes, as uploaded (grid and extension blocks). The host computes it over its
+/// `grid.bin` and compares; the controller's slot store records it with each commit.
+///
+/// Not the grid format's own CRC-32/ISO-HDLC: an image ends with that CRC of its bytes, and an
+/// ISO-HDLC CRC over such bytes is the same constant (the CRC residue) for every image of a
+/// length, so it would identify nothing.
+pub fn calibration_image_id(image: &[u8]) -> u32 {
+    const IMAGE_CRC: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISCSI);
+    IMAGE_CRC.checksum(image)
+}
+
 /// A request from the host.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Request {
@@ -235,7 +248,7 @@ pub struct Identity {
     pub firmware_version: [u16; 3],
     /// The board.
     pub board: Board,
-    /// The id (CRC-32) of the calibration image in force, `None` if none is.
+    /// The id of the calibration image in force ([`calibration_image_id`]), `None` if none is.
     pub calibration_id: Option<u32>,
 }
 

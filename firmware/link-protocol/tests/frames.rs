@@ -164,3 +164,11 @@ fn short_empty_and_oversized_frames_are_refused() {
     assert_eq!(reader.push(0), None, "reported once, empty frames skipped");
     assert_eq!(reader.pending(), 0);
 }
+
+/// The calibration id is CRC-32C (check value of "123456789": 0xE3069283), not zlib's CRC-32
+/// (0xCBF43926): the firmware's slot store and the host tool compute it with this one function.
+#[test]
+fn the_calibration_id_is_crc32c() {
+    assert_eq!(link_protocol::calibration_image_id(b"123456789"), 0xE306_9283);
+    assert_ne!(link_protocol::calibration_image_id(b"123456789"), 0xCBF4_3926);
+}

@@ -12,6 +12,12 @@
 //! the image's workspace block when the grid has one, else the machine file's), any target
 //! outside the grid, or a grid built for another model is an error naming the line; nothing is
 //! written then.
+//!
+//! With a backlash correction (a model file with `backlash_urad`, `calib::backlash`) the targets
+//! are a motion in file order: each motor's approach direction is the sign of its (unwrapped)
+//! command change from the previous target (the first target: +1, the machine's position
+//! before it being unknown), each command is moved by dir·β/2 and the output gets `dir1,dir2`
+//! columns ([`command_all_compensated`], [`format_commands_with_dirs`]).
 
 use super::{invalid, CalibError};
 use crate::io::targets_csv::Target;
@@ -82,6 +88,47 @@ pub fn format_commands(targets: &[Target], angles: &[[f32; 2]]) -> String {
     let mut s = String::from("x_mm,y_mm,theta1_deg,theta2_deg\n");
     for (Target { target_mm: t, .. }, a) in targets.iter().zip(angles) {
         s.push_str(&format!("{},{},{:.9},{:.9}\n", t[0], t[1], (a[0] as f64).to_degrees(), (a[1] as f64).to_degrees()));
+    }
+    s
+}
+
+/// Corrected motor angles (rad) and each target's approach directions.
+pub type CommandsWithDirs = (Vec<[f64; 2]>, Vec<[i8; 2]>);
+
+/// [`command_all`] for a motion through the targets in file order, with the direction-dependent
+/// backlash correction (module doc). Returns the corrected angles (rad, unwrapped next to the
+/// previous command) and each target's approach directions.
+pub fn command_all_compensated(
+    cal: &Calibration<'_>,
+    targets: &[Target],
+    min_transmission: f32,
+    backlash: &super::backlash::Backlash,
+) -> Result<CommandsWithDirs, CalibError> {
+    let raw = command_all(cal, targets, min_transmission)?;
+    let mut previous: Option<[f64; 2]> = None;
+    let mut angles = Vec::with_capacity(raw.len());
+    let mut dirs = Vec::with_capacity(raw.len());
+    for a in raw {
+        let a = [f64::from(a[0]), f64::from(a[1])];
+        let (cmd, dir) = match previous {
+            None => (a, [1, 1]),
+            Some(p) => {
+                let cmd = [0, 1].map(|i| p[i] + kinematics_core::wrap_angle_rad(a[i] - p[i]));
+                (cmd, super::backlash::approach_dir(p, cmd))
+            }
+        };
+        previous = Some(cmd);
+        angles.push(backlash.command_rad(cmd, dir));
+        dirs.push(dir);
+    }
+    Ok((angles, dirs))
+}
+
+/// The output file with directions: `x_mm,y_mm,theta1_deg,theta2_deg,dir1,dir2` per target.
+pub fn format_commands_with_dirs(targets: &[Target], angles_rad: &[[f64; 2]], dirs: &[[i8; 2]]) -> String {
+    let mut s = String::from("x_mm,y_mm,theta1_deg,theta2_deg,dir1,dir2\n");
+    for ((Target { target_mm: t, .. }, a), d) in targets.iter().zip(angles_rad).zip(dirs) {
+        s.push_str(&format!("{},{},{:.9},{:.9},{},{}\n", t[0], t[1], a[0].to_degrees(), a[1].to_degrees(), d[0], d[1]));
     }
     s
 }

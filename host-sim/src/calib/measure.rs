@@ -16,6 +16,7 @@
 //! model cannot reach counts as +1; a visit from a plan's list may prescribe it instead
 //! ([`Visit::dir`]). Each measurement takes 1 s of machine time (`t_s` counts measurements).
 
+use super::backlash::{approach_dir, Backlash};
 use super::machine::{Machine, PlantMachine};
 use super::protocol::{visits, Protocol, Visit};
 use super::CalibError;
@@ -52,6 +53,22 @@ pub fn measure_visits(
     spec: &MachineSpec,
     clock: &mut usize,
 ) -> Result<Vec<Landed>, CalibError> {
+    measure_visits_compensated(machine, cal, None, visits, approach, spec, clock)
+}
+
+/// [`measure_visits`] with the direction-dependent backlash correction
+/// ([`super::backlash::Backlash::command_rad`]) added to every command, each motor's approach
+/// direction taken from the uncorrected command (the correction is microradians: it never
+/// turns a direction).
+pub fn measure_visits_compensated(
+    machine: &mut dyn Machine,
+    cal: &Calibration<'_>,
+    backlash: Option<&Backlash>,
+    visits: &[Visit],
+    approach: Approach,
+    spec: &MachineSpec,
+    clock: &mut usize,
+) -> Result<Vec<Landed>, CalibError> {
     let model = cal.model.cast::<f64>();
     let min_transmission = spec.min_transmission as f32;
     let mut previous = [0.0f64; 2];
@@ -66,8 +83,9 @@ pub fn measure_visits(
         let dir = match (v.dir, approach, model.inverse(v.from_mm, 0.0)) {
             (Some(d), _, _) => d,
             (None, Approach::Positive, _) | (None, Approach::FromVisit, Err(_)) => [1, 1],
-            (None, Approach::FromVisit, Ok(f)) => [0, 1].map(|i| if wrap_angle_rad(cmd[i] - f[i]) >= 0.0 { 1i8 } else { -1 }),
+            (None, Approach::FromVisit, Ok(f)) => approach_dir(f, cmd),
         };
+        let cmd = backlash.map_or(cmd, |b| b.command_rad(cmd, dir));
         let r = machine.measure(cmd, dir).map_err(|e| at_target(e.to_string()))?;
         out.push(Landed {
             row: Measurement {
@@ -98,8 +116,23 @@ pub fn measure_list(
     noise_seed: u64,
     spec: &MachineSpec,
 ) -> Result<Vec<Landed>, CalibError> {
+    measure_list_compensated(machine, cal, None, visits, approach, noise_seed, spec)
+}
+
+/// [`measure_list`] with the direction-dependent backlash correction in every command
+/// ([`measure_visits_compensated`]): `host-sim measure --model` with a model that carries
+/// `backlash_urad`, the demo's pipeline after it has measured the backlash.
+pub fn measure_list_compensated(
+    machine: &mut dyn Machine,
+    cal: &Calibration<'_>,
+    backlash: Option<&Backlash>,
+    visits: &[Visit],
+    approach: Approach,
+    noise_seed: u64,
+    spec: &MachineSpec,
+) -> Result<Vec<Landed>, CalibError> {
     machine.reseed(noise_seed);
-    measure_visits(machine, cal, visits, approach, spec, &mut 0)
+    measure_visits_compensated(machine, cal, backlash, visits, approach, spec, &mut 0)
 }
 
 /// Where measured visits landed against their targets (µm): the figures `measure` prints and
@@ -167,9 +200,20 @@ pub struct MeasureOptions {
 /// Runs a protocol on a plant, commanded through `cal`, approached from each visit's start,
 /// and returns the measurements.
 pub fn measure(plant: &PlantConfig, cal: &Calibration<'_>, opts: &MeasureOptions) -> Result<Vec<Measurement>, CalibError> {
+    measure_compensated(plant, cal, None, opts)
+}
+
+/// [`measure`] with the direction-dependent backlash correction in every command (a model file
+/// with `backlash_urad`: `host-sim measure --model`).
+pub fn measure_compensated(
+    plant: &PlantConfig,
+    cal: &Calibration<'_>,
+    backlash: Option<&Backlash>,
+    opts: &MeasureOptions,
+) -> Result<Vec<Measurement>, CalibError> {
     let mut machine = PlantMachine::from_config(plant.clone(), "measured plant", opts.noise_um, opts.seed)?;
     let visits = visits(opts.protocol, opts.seed, &opts.spec);
-    let landed = measure_list(&mut machine, cal, &visits, Approach::FromVisit, opts.seed, &opts.spec)?;
+    let landed = measure_list_compensated(&mut machine, cal, backlash, &visits, Approach::FromVisit, opts.seed, &opts.spec)?;
     Ok(rows(&landed))
 }
 

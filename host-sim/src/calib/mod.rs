@@ -13,6 +13,7 @@
 //! * [`grid`]: the correction grid flash image from measurements at the nodes;
 //! * [`image`]: the image finished with the machine's extension blocks (the workspace);
 //! * [`command`]: motor angles for targets, exactly as the firmware computes them;
+//! * [`backlash`]: the direction-dependent correction of backlash (command, grid, estimate);
 //! * [`accuracy`]: VDI/DGQ 3441 and ISO 230-2 figures from repeated runs;
 //! * [`dynamics`]: the hidden robot's dynamic parameters from a closed-loop excitation run
 //!   (what the servo feeds forward; issue 14);
@@ -26,6 +27,7 @@
 //! [`MachineSpec`](crate::machine_spec::MachineSpec) in each options struct, never from here.
 
 pub mod accuracy;
+pub mod backlash;
 pub mod command;
 pub mod dynamics;
 pub mod fit;

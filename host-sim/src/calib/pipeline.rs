@@ -35,8 +35,13 @@
 //! [`Approach::Positive`] every motor arrives moving forward (as after an overshoot-and-return
 //! move): unidirectional positioning, so backlash always sits on one side and is calibrated
 //! away; with [`Approach::FromVisit`] each motor arrives as the motion from `approach_mm` away
-//! along a random direction (grid nodes in raster order) makes it; on the paper plant the
-//! 20 µrad backlash then stays in the result (about 6 µm max, 3 µm RMS).
+//! along a random direction (grid nodes in raster order) makes it. Then, after step 3's
+//! measurement, the backlash is measured on [`BACKLASH_POSES`] random poses of its own (noise
+//! seed 10·S + 9; [`super::backlash::estimate`]; kept where > 3σ) and corrected from there on
+//! by direction (each motor's command moved by dir·β/2, [`measure_list_compensated`]; the grids
+//! built from link angles): on the paper plant its 20 µrad, which left 6.3 µm max / 3.0 µm RMS
+//! uncorrected, are taken out (figures in the README). The separate commands do this step with
+//! `diagnose --out-model` (DIAGNOSIS.md, "Closing the loop").
 //!
 //! Output: [`calibrate`] keeps everything in memory ([`Calibrated`]); [`write_outputs`] writes the
 //! plan's lists, the measurement CSVs, `model.json` (`full`), `model_ls.json`, `grid.bin` +
@@ -51,10 +56,14 @@ use super::fit::{fit, FitOptions, Method, ModelFigures, Points};
 use super::grid::{self, BuiltGrid};
 use super::image::finish_image;
 use super::machine::Machine;
-use super::measure::{measure_list, rows, Landed};
-use super::plan::{plan, Plan, PlanOptions};
-use super::protocol::Visit;
+use super::backlash::{self, Backlash};
+use super::measure::{measure_list_compensated, rows, Landed};
+use super::plan::{plan, with_approach, Plan, PlanOptions};
+use super::protocol::{random_visits, Range, Visit};
 use super::{invalid, CalibError};
+use crate::diagnose::loop_closure::SixBarDesign;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
 use crate::io::atomic::write_atomic;
 use crate::io::measurement_csv::{format_measurements, parse_measurements, Measurement};
 use crate::io::targets_csv::format_target_list;
@@ -73,6 +82,8 @@ pub use super::measure::{accuracy, measured_error_vectors_um, true_error_vectors
 
 /// Poses measured for the fits (the plan's identification poses).
 pub const FIT_POSES: usize = super::plan::IDENTIFICATION_POSES;
+/// Random poses measured for the backlash (random approach only).
+pub const BACKLASH_POSES: usize = 200;
 /// Fresh random targets per verification (the plan's verification list).
 pub const VERIFY_TARGETS: usize = super::plan::VERIFY_TARGETS;
 /// The accuracy to reach (issue 6): the 1 µm instrument's noise floor.
@@ -135,6 +146,8 @@ pub struct Calibrated {
     pub grid2_data: Vec<Landed>,
     pub grid2: BuiltGrid,
     pub approach: Approach,
+    /// The backlash measured and corrected by direction (random approach only).
+    pub backlash: Option<Backlash>,
     pub stages: Vec<Stage>,
     /// The accuracy goal `[max, RMS]` (µm), [`goal_um`].
     pub goal_um: [f64; 2],
@@ -192,8 +205,11 @@ pub fn calibrate(machine: &mut dyn Machine, opts: &PipelineOptions, events: &mut
     step(events, "step 0: planning the lists (identification poses chosen for identifiability, grid, verification targets)".into());
     let plan = plan(&PlanOptions::new(spec.clone(), opts.seed)).map_err(|e| e.context("planning"))?;
     let seed = |k: u64| noise_seed(opts.seed, k);
+    let measure_with = |machine: &mut dyn Machine, cal: &Calibration<'_>, b: Option<&Backlash>, v: &[Visit], k: u64, what: &str| {
+        measure_list_compensated(machine, cal, b, v, approach, seed(k), spec).map_err(|e| e.context(what))
+    };
     let measure = |machine: &mut dyn Machine, cal: &Calibration<'_>, v: &[Visit], k: u64, what: &str| {
-        measure_list(machine, cal, v, approach, seed(k), spec).map_err(|e| e.context(what))
+        measure_with(machine, cal, None, v, k, what)
     };
     let read_back = |landed: &[Landed], what: &str| round_trip(&rows(landed)).map_err(|e| e.context(what));
     let nominal = spec.nominal;
@@ -234,26 +250,61 @@ pub fn calibrate(machine: &mut dyn Machine, opts: &PipelineOptions, events: &mut
     let g = &spec.grid;
     step(events, format!("step 3: measuring the {} mm grid ({} x {} nodes) commanded with the full model", g.step_mm, g.nx, g.ny));
     let grid_data = measure(machine, &full_cal, &plan.grid, 5, "measuring the grid")?;
-    let grid = build_grid(&full.model, &read_back(&grid_data, "the grid")?, spec).map_err(|e| e.context("building the grid"))?;
+    // Random approach directions: the backlash is measured on poses of its own (random places,
+    // random directions: on the grid's raster the direction follows the configuration, and
+    // configuration structure no model has would pass for backlash) and corrected from here on
+    // by the direction-dependent command (backlash.rs); the grids are built from link angles.
+    // A motor whose β is not significant (≤ 3σ) gets no correction.
+    let backlash = match approach {
+        Approach::Positive => None,
+        Approach::FromVisit => {
+            let design = SixBarDesign::for_model(&spec.nominal, spec.workspace.centre_mm()).map_err(|e| invalid!("the six-bar design: {e}"))?;
+            let mut rng = ChaCha8Rng::seed_from_u64(opts.seed ^ 0xbac_c1a5);
+            let mut poses = random_visits(BACKLASH_POSES, &mut rng, spec, Range::HalfOpen);
+            with_approach(&mut poses, spec)?;
+            let data = measure(machine, &full_cal, &poses, 9, "measuring the backlash poses")?;
+            let (b, sd) = backlash::estimate(&read_back(&data, "the backlash poses")?, &full.model, &design)
+                .map_err(|e| e.context("estimating the backlash"))?;
+            let kept = [0, 1].map(|j| if b.lost_motion_urad[j] > 3.0 * sd[j] { b.lost_motion_urad[j] } else { 0.0 });
+            step(
+                events,
+                format!(
+                    "backlash from {BACKLASH_POSES} random poses: {:.1} ± {:.1} and {:.1} ± {:.1} µrad; corrected by direction from here on: {:.1}, {:.1} µrad",
+                    b.lost_motion_urad[0], sd[0], b.lost_motion_urad[1], sd[1], kept[0], kept[1]
+                ),
+            );
+            Some(Backlash::new(kept)?)
+        }
+    };
+    // The grids are built from link angles when the backlash is corrected (backlash.rs).
+    let link_rows = |landed: &[Landed], what: &str| -> Result<Vec<Measurement>, CalibError> {
+        let rows = read_back(landed, what)?;
+        match &backlash {
+            Some(b) => b.link_angles(&rows),
+            None => Ok(rows),
+        }
+    };
+    let grid1_rows = link_rows(&grid_data, "the grid, round 1")?;
+    let grid = build_grid(&full.model, &grid1_rows, spec).map_err(|e| e.context("building the grid"))?;
     let grid_cal = grid_calibration(&grid, "built grid")?;
-    let landed = measure(machine, &grid_cal, &plan.verify, 6, "verifying full fit + grid")?;
+    let landed = measure_with(machine, &grid_cal, backlash.as_ref(), &plan.verify, 6, "verifying full fit + grid")?;
     stages.push(stage("full+grid", &format!("full fit + {} mm grid (1 round)", g.step_mm), "~37 (40x)", landed));
     // Round 2: the grid is first order in the error it corrects (grid/mod.rs's doc), so the nodes
     // are measured again through it and the grid rebuilt from what is left.
     step(events, "step 4: measuring the grid nodes again through the grid (round 2) and refining it".into());
-    let grid2_data = measure(machine, &grid_cal, &plan.grid, 7, "measuring the grid, round 2")?;
+    let grid2_data = measure_with(machine, &grid_cal, backlash.as_ref(), &plan.grid, 7, "measuring the grid, round 2")?;
     // Both rounds' readings: the grid refers each to the node's IK command (grid/mod.rs), so the
     // refined grid averages two readings per node and the instrument's noise in it drops by √2.
-    let both: Vec<Measurement> =
-        read_back(&grid_data, "the grid, round 1")?.into_iter().chain(read_back(&grid2_data, "the grid, round 2")?).collect();
+    // With a backlash correction both rounds are in link angles (backlash.rs).
+    let both: Vec<Measurement> = grid1_rows.into_iter().chain(link_rows(&grid2_data, "the grid, round 2")?).collect();
     let grid2 = build_grid(&full.model, &both, spec).map_err(|e| e.context("building the grid, round 2"))?;
     let grid2_cal = grid_calibration(&grid2, "refined grid")?;
     step(events, format!("step 5: verifying full fit + refined grid on the same {n_verify} fresh targets"));
-    let landed = measure(machine, &grid2_cal, &plan.verify, 8, "verifying full fit + refined grid")?;
+    let landed = measure_with(machine, &grid2_cal, backlash.as_ref(), &plan.verify, 8, "verifying full fit + refined grid")?;
     stages.push(stage("full+grid2", &format!("full fit + {} mm grid (2 rounds)", g.step_mm), "-", landed));
     step(events, "calibration done".into());
     let goal_um = goal_um(spec);
-    Ok(Calibrated { machine: description, plan, fit_data, ls_model, full, grid_data, grid, grid2_data, grid2, approach, stages, goal_um })
+    Ok(Calibrated { machine: description, plan, fit_data, ls_model, full, grid_data, grid, grid2_data, grid2, approach, backlash, stages, goal_um })
 }
 
 /// One stage in the summary.
@@ -334,6 +385,9 @@ pub struct Summary {
     pub grid: GridSummary,
     /// The plan's identification design against random poses of the same count.
     pub identification: super::plan::IdentificationReport,
+    /// The backlash corrected by direction (µrad; random approach only).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub backlash_urad: Option<[f64; 2]>,
     #[serde(rename = "final")]
     pub final_: FinalSummary,
     pub files: Vec<String>,
@@ -402,6 +456,7 @@ pub fn summary(cal: &Calibrated, seed: u64, out_dir: &Path, files: &[PathBuf]) -
             round2_noise: cal.grid2.noise.clone(),
         },
         identification: cal.plan.report.identification.clone(),
+        backlash_urad: cal.backlash.map(|b| b.lost_motion_urad.map(round3)),
         final_: FinalSummary {
             max_um: fin.map(|a| round3(a.max_um)),
             rms_um: fin.map(|a| round3(a.rms_um)),
@@ -468,6 +523,7 @@ pub fn write_outputs(cal: &Calibrated, dir: &Path) -> Result<Vec<PathBuf>, IoErr
     let mut full_file = ModelFile::from_model(&cal.full.model);
     full_file.std_dev = params::std_dev_map(&cal.full.std_dev);
     full_file.fit = Some(serde_json::json!({ "method": "full", "source": "host-sim demo", "n_points": cal.fit_data.len() }));
+    full_file.backlash_urad = cal.backlash.map(|b| b.lost_motion_urad);
     write_model_file(&p("model.json"), &full_file)?;
     written.push(p("model.json"));
     let mut ls_file = ModelFile::from_model(&cal.ls_model);

@@ -2,9 +2,9 @@
 //! (`host_sim::calib::command`).
 
 use anyhow::{anyhow, Context, Result};
-use host_sim::calib::command::{check_grid_model, check_in_workspace, command_all, format_commands};
+use host_sim::calib::command::{check_grid_model, check_in_workspace, command_all, command_all_compensated, format_commands, format_commands_with_dirs};
 use host_sim::io::atomic::write_atomic;
-use host_sim::io::model_file::read_model;
+use host_sim::io::model_file::read_model_file;
 use host_sim::io::read_bytes;
 use host_sim::io::targets_csv::read_targets;
 use kinematics_core::{Calibration, CorrectionGrid};
@@ -13,7 +13,9 @@ use std::path::PathBuf;
 /// Motor angles for targets, via the firmware's command path (model IK + grid, f32).
 #[derive(clap::Args, Debug)]
 pub struct Args {
-    /// The model (model.json).
+    /// The model (model.json). If it carries `backlash_urad` (diagnose --out-model, the demo),
+    /// the targets are a motion in file order and each command is corrected by its motors'
+    /// approach directions (written as dir1,dir2 columns).
     #[arg(long)]
     pub model: PathBuf,
     /// Optional correction-grid image; its embedded model must be --model's.
@@ -36,7 +38,9 @@ pub struct Args {
 /// `host-sim command`.
 pub fn run(args: &Args) -> Result<()> {
     let spec = args.machine.spec()?;
-    let model = read_model(&args.model)?;
+    let file = read_model_file(&args.model)?;
+    let model = file.model().map_err(|e| anyhow!("{}: {e}", args.model.display()))?;
+    let backlash = file.backlash().map_err(|e| anyhow!("{}: {e}", args.model.display()))?;
     let image = args.grid.as_deref().map(read_bytes).transpose()?;
     let grid = match (&image, &args.grid) {
         (Some(bytes), Some(path)) => {
@@ -57,8 +61,17 @@ pub fn run(args: &Args) -> Result<()> {
     let region = image_region.as_ref().unwrap_or(&spec.workspace.region);
     check_in_workspace(&targets, region, &spec.name, image_region.is_some()).with_context(in_file)?;
     let min_transmission = args.min_transmission.unwrap_or(spec.min_transmission as f32);
-    let angles = command_all(&cal, &targets, min_transmission).with_context(in_file)?;
-    write_atomic(&args.out, format_commands(&targets, &angles).as_bytes())?;
+    let text = match backlash {
+        None => {
+            let angles = command_all(&cal, &targets, min_transmission).with_context(in_file)?;
+            format_commands(&targets, &angles)
+        }
+        Some(b) => {
+            let (angles, dirs) = command_all_compensated(&cal, &targets, min_transmission, &b).with_context(in_file)?;
+            format_commands_with_dirs(&targets, &angles, &dirs)
+        }
+    };
+    write_atomic(&args.out, text.as_bytes())?;
     eprintln!("command: {} targets -> {}", targets.len(), args.out.display());
     Ok(())
 }

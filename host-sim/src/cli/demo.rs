@@ -44,9 +44,9 @@ pub struct Args {
     /// How every pose is approached: `random` (from 5 mm away along a random direction; the
     /// grid in raster order) or `positive` (every motor reaches its command moving in the
     /// positive direction, as after an overshoot-and-return move: backlash then always sits
-    /// on the same side and the grid calibrates it away). The default is `positive`:
-    /// unidirectional positioning is how a machine with backlash reaches micrometres; with
-    /// `random` the paper plant's 20 µrad backlash (±1.5 µm per motor) stays in the result.
+    /// on the same side and the grid calibrates it away). With `random` the backlash is
+    /// measured on 200 random poses of its own and corrected by each motor's approach
+    /// direction from then on (host-side, `calib::backlash`; model.json gets backlash_urad).
     /// Default: the machine file's policy (`positive` on the paper machine).
     #[arg(long, value_enum)]
     pub approach: Option<ApproachArg>,

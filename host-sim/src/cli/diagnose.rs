@@ -3,10 +3,12 @@
 
 use anyhow::{bail, Context, Result};
 use host_sim::diagnose::plots::write_plots;
+use host_sim::diagnose::loop_closure::SixBarDesign;
+use host_sim::diagnose::model_out::extended_model;
 use host_sim::diagnose::{diagnose_with_history, report, DiagnoseOptions};
 use host_sim::io::atomic::write_atomic;
 use host_sim::io::measurement_csv::read_measurements;
-use host_sim::io::model_file::read_model;
+use host_sim::io::model_file::{read_model, write_model_file};
 use host_sim::io::{json_text, KeyOrder};
 use std::path::PathBuf;
 
@@ -28,6 +30,11 @@ pub struct Args {
     /// Directory for residual plots (PNG).
     #[arg(long)]
     pub plots: Option<PathBuf>,
+    /// Write the extended model (model.json with the named effects added: five-bar parameters
+    /// folded in, backlash as a direction-dependent correction, the rest recorded for the
+    /// grid; `diagnose::model_out`).
+    #[arg(long)]
+    pub out_model: Option<PathBuf>,
     #[command(flatten)]
     pub machine: super::MachineArg,
 }
@@ -35,19 +42,34 @@ pub struct Args {
 /// `host-sim diagnose`.
 pub fn run(args: &Args) -> Result<()> {
     let data = read_measurements(&args.data)?;
+    let spec = args.machine.spec()?;
     let base = match &args.model {
         Some(p) => read_model(p)?,
-        None => args.machine.spec()?.nominal,
+        None => spec.nominal,
     };
+    // The six-bar's own effects are derived from the machine's nominal design, not the current
+    // model (which may carry an instrument offset as its A0).
+    let sixbar = SixBarDesign::for_model(&spec.nominal, spec.workspace.centre_mm())
+        .map_err(|e| anyhow::anyhow!("the machine's six-bar design: {e}"))?;
     if let Some(s) = args.noise_um {
         if !(s.is_finite() && s > 0.0) {
             bail!("--noise-um {s}: must be a positive number of micrometres");
         }
     }
-    let (report, history) = diagnose_with_history(&data, &DiagnoseOptions { base, noise_um: args.noise_um })
+    let (report, history) = diagnose_with_history(&data, &DiagnoseOptions { base, noise_um: args.noise_um, sixbar })
         .with_context(|| format!("diagnosing {}", args.data.display()))?;
     print!("{}", report::table(&report));
+    // Everything computed before anything is written: a model that cannot be made leaves no
+    // report behind either.
+    let extended = match &args.out_model {
+        Some(_) => Some(extended_model(&base, &report).context("adding the named effects to the model")?),
+        None => None,
+    };
     write_atomic(&args.out, json_text(&report, KeyOrder::Declared)?.as_bytes())?;
+    if let (Some(path), Some(e)) = (&args.out_model, &extended) {
+        write_model_file(path, &e.file(&args.data.display().to_string()))?;
+        eprintln!("diagnose: extended model -> {}", path.display());
+    }
     if let Some(dir) = &args.plots {
         write_plots(dir, &data, &report, &history)?;
     }

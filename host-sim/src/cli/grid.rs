@@ -7,7 +7,7 @@ use host_sim::calib::image::{append_dynamics_block, finish_image, WorkspaceBlock
 use host_sim::io::atomic::Outputs;
 use host_sim::io::dynamics_file::read_dynamics;
 use host_sim::io::measurement_csv::read_measurements;
-use host_sim::io::model_file::read_model;
+use host_sim::io::model_file::read_model_file;
 use host_sim::io::plot::{vector_plot_png, VectorField};
 use host_sim::io::KeyOrder;
 use serde::Serialize;
@@ -16,7 +16,8 @@ use std::path::PathBuf;
 /// Build the correction-grid image from measurements at the grid nodes.
 #[derive(clap::Args, Debug)]
 pub struct Args {
-    /// The fitted model (model.json) the nodes were commanded with.
+    /// The fitted model (model.json) the nodes were commanded with. If it carries
+    /// `backlash_urad`, the grid is built from link angles (the data need dir1,dir2).
     #[arg(long)]
     pub model: PathBuf,
     /// Measurements at the nodes; x_target_mm,y_target_mm are the nodes. Several files
@@ -94,13 +95,21 @@ pub fn run(args: &Args) -> Result<()> {
         bail!("--step-mm must be positive, got {step_mm}");
     }
     let smoothing = smoothing(&args.smoothing)?;
-    let model = read_model(&args.model)?;
+    let file = read_model_file(&args.model)?;
+    let model = file.model().map_err(|e| anyhow::anyhow!("{}: {e}", args.model.display()))?;
+    // A model with a backlash correction: the grid is built from link angles (calib::backlash),
+    // free of the lost motion whatever direction each node was approached from.
+    let backlash = file.backlash().map_err(|e| anyhow::anyhow!("{}: {e}", args.model.display()))?;
     let mut data = Vec::new();
     for (k, path) in args.data.iter().enumerate() {
         if args.data[..k].contains(path) {
             bail!("--data names {} twice: its readings would count as repeats", path.display());
         }
-        data.extend(read_measurements(path)?);
+        let rows = read_measurements(path)?;
+        data.extend(match &backlash {
+            Some(b) => b.link_angles(&rows).with_context(|| format!("{} with the model's backlash", path.display()))?,
+            None => rows,
+        });
     }
     let sources = args.data.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(" + ");
     let built = build_with(&model, &data, &GridOptions { step_mm, smoothing, instrument_sigma_um: Some(spec.instrument_sigma_um) })

@@ -40,7 +40,8 @@ pub enum Action {
     Enable,
     /// Controlled stop, then drives off.
     Disable,
-    /// Start homing and wait until it ends.
+    /// Start homing and wait until it ends; reports the (mode, homing) states the status went
+    /// through, the time taken and the status at the end.
     Home,
     /// Controlled stop, then hold.
     Stop,
@@ -58,7 +59,8 @@ pub enum Action {
     /// Stream a trajectory (a knot file, or the built-in figure), wait until it has played,
     /// report the tracking from the telemetry.
     Stream(StreamArgs),
-    /// Upload a calibration image (grid.bin) and read back its id.
+    /// Upload a calibration image (grid.bin) and read back its id: the controller must report
+    /// the file's own (CRC-32C of its bytes), or the command fails.
     Upload {
         /// The image.
         #[arg(long)]
@@ -175,17 +177,33 @@ pub fn run(args: &Args) -> Result<()> {
         Action::Stop => request(&mut client, Command::Stop).and_then(|_| done("stop")),
         Action::Reset => request(&mut client, Command::ResetFault).and_then(|_| done("reset")),
         Action::Home => {
+            use host_sim::link::link_protocol::HomingState;
+            let before = client.status()?;
             request(&mut client, Command::Home)?;
             let start = Instant::now();
+            // The (mode, homing state) pairs the status went through, in order, for the report.
+            let mut states = vec![(before.mode, before.homing)];
             loop {
                 let s = client.status()?;
+                if states.last() != Some(&(s.mode, s.homing)) {
+                    states.push((s.mode, s.homing));
+                }
                 match s.homing {
-                    host_sim::link::link_protocol::HomingState::Homed => return done("home"),
-                    host_sim::link::link_protocol::HomingState::Failed => bail!("homing failed: {s:?}"),
+                    HomingState::Homed => break,
+                    HomingState::Failed => bail!("homing failed: {s:?}"),
                     _ if start.elapsed() > 60 * timeout => bail!("homing did not finish: {s:?}"),
                     _ => std::thread::sleep(Duration::from_millis(50)),
                 }
             }
+            #[derive(Serialize)]
+            struct Homed {
+                done: &'static str,
+                seconds: f64,
+                states: Vec<(ModeCode, HomingState)>,
+                status: StatusReport,
+            }
+            let status = client.status()?;
+            super::print_json(&Homed { done: "home", seconds: start.elapsed().as_secs_f64(), states, status }, KeyOrder::Sorted)
         }
         Action::Move { x_mm, y_mm } => {
             let Response::MovePlanned { duration_s } = request(&mut client, Command::MoveTo { target_mm: [*x_mm, *y_mm] })? else {
@@ -202,11 +220,13 @@ pub fn run(args: &Args) -> Result<()> {
                 eprint!("\rupload {done}/{total} bytes");
             });
             eprintln!();
+            // The id the controller committed, equal to the file's (checked by upload_calibration).
             #[derive(Serialize)]
             struct Uploaded {
-                calibration_id: Option<u32>,
+                calibration_id: u32,
+                bytes: usize,
             }
-            super::print_json(&Uploaded { calibration_id: id? }, KeyOrder::Sorted)
+            super::print_json(&Uploaded { calibration_id: id?, bytes: image.len() }, KeyOrder::Sorted)
         }
         Action::Telemetry { decimation, seconds, csv } => {
             if !(*seconds > 0.0 && seconds.is_finite()) {

@@ -7,48 +7,89 @@
 //! (µm, µrad, ppm): the LM and its finite differences then need no scaling.
 //!
 //! Prediction of the instrument reading for a measured pose (encoder angles θ, approach
-//! directions dir):
+//! directions dir, time t):
 //!
 //! ```text
 //! θg_j = θ_j + offset_j(base model) + δθ_j − dir_j·β_j/2 + g_j·(θ_j − mean θ_j)
+//!        [+ nuisance: A_j·cos(N_j θ_j) + B_j·sin(N_j θ_j)]
 //! a' = a + δa,  d' = d + δd
-//! b' = b + δb + Σ k_b·u_b,  c' = c + δc + Σ k_c·u_c   (link_stretch, two basis functions each, below)
+//! b' = b + δb + Σ ks_i·s_b,i(θ),  c' = c + δc + (1 + kc/100)·Σ ks_i·s_c,i(θ)   (link_stretch)
 //! B0' = B0 + (bx, by)
-//! reading = (1 + s)·R(φ)·FK(...) + (tx, ty)
+//! C = FK(...) + Σ pm_i·m_i(θ)                                         (parallelogram_mismatch)
+//! reading = (1 + s)·R(φ)·C + (tx, ty)  [+ nuisance: (vx, vy)·(t − t0)]
 //! ```
 //!
-//! link_stretch basis. The internal stress of the overconstrained loops depends on the shape of
-//! the mechanism only (the machine is planar; no gravity in its plane). With A0 = B0 and equal
-//! links the shape is one-dimensional: every internal angle is a function of |A0C| alone, and a
-//! rotation of C about A0 turns the mechanism rigidly. A distal link length error δb(shape) moves
-//! C by `∂C/∂b · δb`, while a constant δb, δa and motor offset δθ1 move it by `∂C/∂b · f` with
-//! `f ∈ span{1, cos e1, sin e1}` (e1: the elbow angle between links a and b). So the part of any
-//! stretch that lies in that span is *exactly* what different constant link lengths and encoder
-//! offsets do, and no tool-point measurement can tell them apart. Worse, on the nominal machine
-//! A0ACB is a rhombus: the elbow angle is π − ψ (ψ: angle between the distal links at C), so
-//! `{1, cos e1, sin e1} = {1, cos ψ, sin ψ}` and over the workspace's ψ range (about 1 rad) these
-//! three reproduce any smooth function of ψ up to its third-order terms. The basis therefore keeps
-//! only what they cannot do: `u_b = g − (weighted least-squares projection of g on
-//! {1, cos e1, sin e1} over the data)` for `g = cos 2ψ` and `g = sin 2ψ` (the lowest harmonic of
-//! ψ not reproduced exactly; cos for the even, sin for the odd part about ψ = 90°; weights
-//! |∂C/∂b|²), likewise `u_c` with e2, each scaled to unit RMS over the data, so the four k's are
-//! RMS stretches in µm. Like the "zero mean" rule, the rest stays `link_lengths` /
-//! `encoder_offset`. If nothing is left (rounding only), the effect is switched off with a note.
+//! The six-bar's own effects come from its linearised loop closure (`loop_closure.rs`,
+//! reduced to a few modes over the data by `sixbar_modes.rs`): the overconstrained loops hold the
+//! elbow pieces and the platform at a fixed orientation relative to the base, so a
+//! parallelogram's misfit, the self-stress it causes and the bars' elastic elongation depend on
+//! the absolute link angles θ1, θ2 (not only on the five-bar's shape, which on the paper
+//! machine's rhombus made a shape-only stretch exactly link lengths + encoder offsets):
+//! * `link_stretch`: s_b,i(θ), s_c,i(θ) are the elongations of the two distal bars under the
+//!   self-stress modes (one self-stress drives both, in the design's ratio; unit RMS over the
+//!   data and both bars: ks_i are RMS length changes, µm), and c's compliance relative to b's is
+//!   free around the design's: `c' = c + δc + (1 + kc/100)·Σ ks_i·s_c,i(θ)`;
+//! * `parallelogram_mismatch`: m_i(θ) are the dominant tool displacements of the loops' misfit
+//!   (platform and elbow rotations, bearing deflections) that no constant five-bar parameter
+//!   reproduces (unit RMS over the data: pm_i are RMS displacements, µm).
+//!
+//! Nuisances (not in the library, never named): when the residual shows a periodic error in a
+//! motor angle (> 10 cycles/rev: a gear tooth) or a drift in time, the selection fits it in every
+//! model so that no library effect is chosen on its account (`selection.rs`); it stays
+//! `unexplained` in the report.
 //!
 //! Sign of backlash: a motor that last moved in +θ (dir = +1) drags the link behind it through
 //! the lost motion, so the link sits β/2 short of the encoder angle; β > 0 is lost motion.
 //!
 //! Cost: one closed-form FK per point per evaluation (a few hundred ns); no allocation per point.
 
+use super::loop_closure::{SixBarDesign, N_RAW};
+use super::sixbar_modes::{self, SixBarModes, N_MISMATCH, N_STRETCH};
 use crate::effect::PhysicalEffect;
 use crate::io::measurement_csv::Measurement;
 use kinematics_core::{wrap_angle_rad, FiveBar};
+use nalgebra::DMatrix;
 
 /// Smallest transmission |sin| of a usable point (about 0.06° from a singular configuration).
 pub const MIN_TRANSMISSION: f64 = 1e-3;
 
-/// Number of entries of the full parameter vector.
-pub const N_PARAMS: usize = 20;
+/// Number of entries of the full parameter vector (library effects, then nuisances).
+pub const N_PARAMS: usize = 32;
+
+/// Parameter names with units (index = position in the full vector).
+#[rustfmt::skip]
+pub const PARAM_NAMES: [&str; N_PARAMS] = [
+    "da_um", "db_um", "dc_um", "dd_um",            // 0..4 link_lengths
+    "dtheta1_urad", "dtheta2_urad",                // 4..6 encoder_offset
+    "b0x_um", "b0y_um",                            // 6..8 base_offset
+    "beta1_urad", "beta2_urad",                    // 8..10 backlash
+    "ks1_um", "ks2_um", "ks3_um", "ks4_um", "ks5_um", // 10..15 link_stretch: self-stress modes (RMS stretch)
+    "kc_compliance_pct",                           // 15 link_stretch: c's compliance beyond the design's, %
+    "tx_um", "ty_um", "rot_urad",                  // 16..19 frame
+    "scale_ppm",                                   // 19 scale
+    "gear1_ppm", "gear2_ppm",                      // 20..22 gear_ratio
+    "pm1_um", "pm2_um", "pm3_um", "pm4_um",        // 22..26 parallelogram_mismatch (RMS over the data)
+    "cyclic1_cos_urad", "cyclic1_sin_urad",        // 26..28 nuisance: periodic error, motor 1
+    "cyclic2_cos_urad", "cyclic2_sin_urad",        // 28..30 nuisance: periodic error, motor 2
+    "drift_x_um_per_ks", "drift_y_um_per_ks",      // 30..32 nuisance: instrument drift
+];
+
+/// Index ranges of the parameters.
+pub mod idx {
+    pub const LINKS: usize = 0;
+    pub const OFFSETS: usize = 4;
+    pub const BASE: usize = 6;
+    pub const BACKLASH: usize = 8;
+    pub const STRETCH: usize = 10;
+    /// c's relative compliance (the last link_stretch parameter).
+    pub const STRETCH_RATIO: usize = 15;
+    pub const FRAME: usize = 16;
+    pub const SCALE: usize = 19;
+    pub const GEAR: usize = 20;
+    pub const MISMATCH: usize = 22;
+    pub const CYCLIC: usize = 26;
+    pub const DRIFT: usize = 30;
+}
 
 /// One candidate effect: a [`PhysicalEffect`] with its parameters in the extended forward model.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -63,22 +104,8 @@ pub struct Effect {
     pub needs_dir: bool,
 }
 
-/// Parameter names with units (index = position in the full vector).
-#[rustfmt::skip]
-pub const PARAM_NAMES: [&str; N_PARAMS] = [
-    "da_um", "db_um", "dc_um", "dd_um", // 0..4 link_lengths
-    "dtheta1_urad", "dtheta2_urad",     // 4..6 encoder_offset
-    "b0x_um", "b0y_um",                 // 6..8 base_offset
-    "beta1_urad", "beta2_urad",         // 8..10 backlash
-    "kb_cos2_um", "kc_cos2_um",         // 10..12 link_stretch (RMS stretch over the data, µm), cos 2ψ part
-    "tx_um", "ty_um", "rot_urad",       // 12..15 frame
-    "scale_ppm",                        // 15 scale
-    "gear1_ppm", "gear2_ppm",           // 16..18 gear_ratio
-    "kb_sin2_um", "kc_sin2_um",         // 18..20 link_stretch, sin 2ψ part
-];
-
 /// The library, in a fixed order (ties in the selection go to the earlier one).
-pub const LIBRARY: [Effect; 8] = [
+pub const LIBRARY: [Effect; 9] = [
     Effect {
         kind: PhysicalEffect::LinkLengths,
         params: &[0, 1, 2, 3],
@@ -100,24 +127,33 @@ pub const LIBRARY: [Effect; 8] = [
     },
     Effect {
         kind: PhysicalEffect::LinkStretch,
-        params: &[10, 11, 18, 19],
-        meaning: "configuration-dependent distal link lengths from the internal stress of the overconstrained loops: \
-                  b and c vary with cos 2ψ and sin 2ψ (ψ: angle between the distal links), minus the part constant link \
-                  lengths and encoder offsets reproduce exactly (see effects.rs)",
+        params: &[10, 11, 12, 13, 14, 15],
+        meaning: "the distal bars' elastic elongation under the overconstrained loops' self-stress, a function of the \
+                  absolute link angles (theta1, theta2): the self-stress modes of the six-bar's linearised loop closure \
+                  (ks: RMS stretch over the data, um), both bars by the one self-stress, c's compliance relative to b's \
+                  free around the design's (kc_compliance_pct)",
         needs_dir: false,
     },
     Effect {
         kind: PhysicalEffect::Frame,
-        params: &[12, 13, 14],
+        params: &[16, 17, 18],
         meaning: "instrument frame offset (x, y) and rotation about A0",
         needs_dir: false,
     },
-    Effect { kind: PhysicalEffect::Scale, params: &[15], meaning: "instrument scale error (about A0)", needs_dir: false },
+    Effect { kind: PhysicalEffect::Scale, params: &[19], meaning: "instrument scale error (about A0)", needs_dir: false },
     Effect {
         kind: PhysicalEffect::GearRatio,
-        params: &[16, 17],
+        params: &[20, 21],
         meaning: "transmission ratio error per motor: link angle = encoder angle scaled by (1+g) about the data's mean angle \
                   (the constant part stays encoder_offset)",
+        needs_dir: false,
+    },
+    Effect {
+        kind: PhysicalEffect::ParallelogramMismatch,
+        params: &[22, 23, 24, 25],
+        meaning: "the six-bar's parallelograms disagree (follower and pin errors): the platform and elbow pieces turn and \
+                  the bearings yield with the configuration; four dominant tool-displacement modes of the linearised loop \
+                  closure that no constant five-bar parameter reproduces (pm: RMS displacement over the data, um)",
         needs_dir: false,
     },
 ];
@@ -134,9 +170,34 @@ pub fn effect(name: &str) -> Option<&'static Effect> {
     LIBRARY.iter().find(|e| e.name() == name)
 }
 
-/// A point's shape for the link_stretch basis: (cos 2ψ, sin 2ψ), (cos e1, sin e1),
-/// (cos e2, sin e2), (|∂C/∂b|², |∂C/∂c|²).
-type Shape = ([f64; 2], [f64; 2], [f64; 2], [f64; 2]);
+/// Structures outside the library fitted alongside it (see the module doc).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Nuisance {
+    /// Periodic error of each motor: cycles per revolution of the motor angle.
+    pub cyclic_cycles: [Option<f64>; 2],
+    /// A linear drift of the readings in time.
+    pub drift: bool,
+}
+
+impl Nuisance {
+    /// The parameters the nuisances add to every fit.
+    pub fn params(&self) -> Vec<usize> {
+        let mut p = Vec::new();
+        for j in 0..2 {
+            if self.cyclic_cycles[j].is_some() {
+                p.extend([idx::CYCLIC + 2 * j, idx::CYCLIC + 2 * j + 1]);
+            }
+        }
+        if self.drift {
+            p.extend([idx::DRIFT, idx::DRIFT + 1]);
+        }
+        p
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.params().is_empty()
+    }
+}
 
 /// Everything per point the forward model needs besides the parameters.
 #[derive(Clone, Debug)]
@@ -146,10 +207,14 @@ pub struct Point {
     pub theta_rad: [f64; 2],
     pub dir: [f64; 2],
     pub measured_mm: [f64; 2],
-    /// The link_stretch basis [b·cos2ψ, c·cos2ψ, b·sin2ψ, c·sin2ψ] (unit RMS over the data).
-    pub stretch_u: [f64; 4],
+    /// The link_stretch basis: length change of b (arm 0) and c (arm 1) per µm of each mode.
+    pub stretch_u: [[f64; N_STRETCH]; 2],
+    /// The parallelogram_mismatch basis: tool displacement (µm) per µm of each mode.
+    pub mismatch_um: [[f64; 2]; N_MISMATCH],
     /// θ_j minus its circular mean over the data, wrapped to (−π, π] (the gear_ratio basis), rad.
     pub theta_centred_rad: [f64; 2],
+    /// Time since the first measurement (s; 0 without a time column).
+    pub t_s: f64,
 }
 
 /// The data prepared once for all fits: points plus the base model.
@@ -159,116 +224,94 @@ pub struct Problem {
     pub points: Vec<Point>,
     /// Every point has dir1/dir2.
     pub has_dir: bool,
+    /// Every point has a time.
+    pub has_time: bool,
     /// Points where the base model has no forward solution or is within [`MIN_TRANSMISSION`] of
-    /// a singularity (dropped, by file line).
+    /// a singularity, or the six-bar built on it has no loop response (dropped, by file line).
     pub dropped_lines: Vec<usize>,
-    /// The link_stretch basis is indistinguishable from link lengths and offsets on these poses.
-    pub stretch_degenerate: bool,
+    /// The six-bar's design the loop-closure effects are derived from.
+    pub design: SixBarDesign,
+    /// The six-bar's modes over these points, or why they do not exist.
+    pub sixbar: Result<SixBarModes, String>,
+    /// The circular mean motor angles (the gear_ratio basis' centre), rad.
+    pub mean_theta_rad: [f64; 2],
+    /// Out-of-library structures fitted alongside every model.
+    pub nuisance: Nuisance,
 }
+
+/// The five-bar's constant parameters (the span the mismatch modes are made orthogonal to):
+/// link lengths, encoder offsets, base offset, frame, scale.
+pub const FIVE_BAR_SPAN: [usize; 12] = [0, 1, 2, 3, 4, 5, 6, 7, 16, 17, 18, 19];
 
 impl Problem {
     /// Prepares the points. Points the base model cannot reach are dropped (listed by line).
-    pub fn new(base: FiveBar<f64>, data: &[Measurement]) -> Problem {
+    pub fn new(base: FiveBar<f64>, design: &SixBarDesign, data: &[Measurement]) -> Problem {
         let has_dir = !data.is_empty() && data.iter().all(|m| m.dir.is_some());
+        let has_time = !data.is_empty() && data.iter().all(|m| m.t_s.is_some());
+        let t0 = data.iter().filter_map(|m| m.t_s).fold(f64::INFINITY, f64::min);
         let mut points = Vec::with_capacity(data.len());
-        // Per point: (cos 2ψ, sin 2ψ), (cos e1, sin e1), (cos e2, sin e2), (|∂C/∂b|², |∂C/∂c|²).
-        let mut geo: Vec<Shape> = Vec::with_capacity(data.len());
+        let mut responses = Vec::with_capacity(data.len());
         let mut dropped_lines = Vec::new();
-        let unit = |v: [f64; 2]| {
-            let n = v[0].hypot(v[1]);
-            [v[0] / n, v[1] / n]
-        };
         for (index, m) in data.iter().enumerate() {
             let th = m.theta_rad();
             // A point at (or within ~0.06° of) a singularity has unbounded sensitivities: dropped.
-            let Ok(pose) = base.forward_pose(th, MIN_TRANSMISSION) else {
+            if base.forward_pose(th, MIN_TRANSMISSION).is_err() {
+                dropped_lines.push(m.line);
+                continue;
+            }
+            let Ok(r) = super::loop_closure::response(&base, design, th) else {
                 dropped_lines.push(m.line);
                 continue;
             };
-            let p1 = unit(pose.elbow_a_mm);
-            let p2 = unit([pose.elbow_b_mm[0] - pose.base_b0_mm[0], pose.elbow_b_mm[1] - pose.base_b0_mm[1]]);
-            let q1 = unit([pose.tool_mm[0] - pose.elbow_a_mm[0], pose.tool_mm[1] - pose.elbow_a_mm[1]]);
-            let q2 = unit([pose.tool_mm[0] - pose.elbow_b_mm[0], pose.tool_mm[1] - pose.elbow_b_mm[1]]);
-            // g = cos 2ψ, sin 2ψ (see the module doc for why not cos ψ).
-            let (cp, sp) = (q1[0] * q2[0] + q1[1] * q2[1], q1[0] * q2[1] - q1[1] * q2[0]);
-            let g = [cp * cp - sp * sp, 2.0 * sp * cp];
-            let e1 = [p1[0] * q1[0] + p1[1] * q1[1], p1[0] * q1[1] - p1[1] * q1[0]];
-            let e2 = [p2[0] * q2[0] + p2[1] * q2[1], p2[0] * q2[1] - p2[1] * q2[0]];
-            let sens = |f: &dyn Fn(&mut FiveBar<f64>)| -> f64 {
-                let mut mm = base;
-                f(&mut mm);
-                match mm.forward(th, 0.0) {
-                    Ok(c) => ((c[0] - pose.tool_mm[0]).powi(2) + (c[1] - pose.tool_mm[1]).powi(2)) / 1e-6,
-                    Err(_) => 1.0,
-                }
-            };
-            let w = [sens(&|m| m.b_mm += 1e-3), sens(&|m| m.c_mm += 1e-3)];
-            geo.push((g, e1, e2, w));
+            responses.push(r);
             let d = m.dir.map(|d| [d[0] as f64, d[1] as f64]).unwrap_or([0.0; 2]);
             points.push(Point {
                 index,
                 theta_rad: th,
                 dir: d,
                 measured_mm: m.measured_mm,
-                stretch_u: [0.0; 4],
+                stretch_u: [[0.0; N_STRETCH]; 2],
+                mismatch_um: [[0.0; 2]; N_MISMATCH],
                 theta_centred_rad: [0.0; 2],
+                t_s: if has_time { m.t_s.unwrap_or(t0) - t0 } else { 0.0 },
             });
         }
-        let n = points.len().max(1) as f64;
         // Circular mean: the gear_ratio basis is θ about it, modulo 360° (Table I prints some
         // angles as θ + 360°; a plain mean would turn that bookkeeping into a huge "ratio error").
-        let mean_t = [0, 1].map(|j| {
+        let mean_theta_rad = [0, 1].map(|j| {
             let (s, c) = points.iter().fold((0.0, 0.0), |(s, c), p| (s + p.theta_rad[j].sin(), c + p.theta_rad[j].cos()));
             s.atan2(c)
         });
-        // link_stretch basis: g minus its weighted least-squares projection on
-        // {1, cos e_j, sin e_j} (what constant link lengths and encoder offsets of that arm do).
-        // Order: [b·cos2ψ, c·cos2ψ, b·sin2ψ, c·sin2ψ] (as the parameters 10, 11, 18, 19).
-        let mut u =
-            [vec![0.0; points.len()], vec![0.0; points.len()], vec![0.0; points.len()], vec![0.0; points.len()]];
-        let mut stretch_degenerate = points.len() < 6;
-        // The slot indexes both the basis `u` and (through arm and harmonic) the shapes.
-        #[allow(clippy::needless_range_loop)]
-        for slot in 0..4 {
-            let (arm, harmonic) = (slot % 2, slot / 2);
-            let cols = |i: usize| -> [f64; 3] {
-                let e = if arm == 0 { geo[i].1 } else { geo[i].2 };
-                [1.0, e[0], e[1]]
-            };
-            let mut ata = nalgebra::Matrix3::<f64>::zeros();
-            let mut atb = nalgebra::Vector3::<f64>::zeros();
-            for i in 0..points.len() {
-                let c = nalgebra::Vector3::from(cols(i));
-                let wi = geo[i].3[arm];
-                ata += c * c.transpose() * wi;
-                atb += c * geo[i].0[harmonic] * wi;
-            }
-            let coef = ata.try_inverse().map(|inv| inv * atb).unwrap_or_else(nalgebra::Vector3::zeros);
-            for i in 0..points.len() {
-                let c = cols(i);
-                u[slot][i] = geo[i].0[harmonic] - (coef[0] * c[0] + coef[1] * c[1] + coef[2] * c[2]);
-            }
-            // Normalise to unit RMS so the k's are RMS stretches (µm) over the data. A basis
-            // that is all rounding (nothing left after the projection) switches the effect off.
-            let rms = (u[slot].iter().map(|v| v * v).sum::<f64>() / n).sqrt();
-            if rms <= 1e-7 {
-                stretch_degenerate = true;
-            } else {
-                for v in u[slot].iter_mut() {
-                    *v /= rms;
-                }
+        for p in points.iter_mut() {
+            p.theta_centred_rad = [0, 1].map(|j| wrap_angle_rad(p.theta_rad[j] - mean_theta_rad[j]));
+        }
+        let mut problem = Problem {
+            base,
+            points,
+            has_dir,
+            has_time,
+            dropped_lines,
+            design: design.clone(),
+            sixbar: Err("not computed".into()),
+            mean_theta_rad,
+            nuisance: Nuisance::default(),
+        };
+        problem.sixbar = problem.five_bar_span().and_then(|f| sixbar_modes::modes(&responses, &f, &FIVE_BAR_SPAN));
+        if let Ok(m) = &problem.sixbar {
+            for (p, (s, d)) in problem.points.iter_mut().zip(m.stretch.iter().zip(&m.mismatch_um)) {
+                p.stretch_u = *s;
+                p.mismatch_um = *d;
             }
         }
-        if stretch_degenerate {
-            for slot in u.iter_mut() {
-                slot.iter_mut().for_each(|v| *v = 0.0);
-            }
-        }
-        for (i, p) in points.iter_mut().enumerate() {
-            p.stretch_u = [u[0][i], u[1][i], u[2][i], u[3][i]];
-            p.theta_centred_rad = [0, 1].map(|j| wrap_angle_rad(p.theta_rad[j] - mean_t[j]));
-        }
-        Problem { base, points, has_dir, dropped_lines, stretch_degenerate }
+        problem
+    }
+
+    /// The tool displacement (µm, x,y per point) per unit of each five-bar-span parameter.
+    fn five_bar_span(&self) -> Result<DMatrix<f64>, String> {
+        let j = super::fit::jacobian(self, &[0.0; N_PARAMS], &FIVE_BAR_SPAN)
+            .ok_or_else(|| "a point left the model's workspace while differentiating".to_string())?;
+        // The residual is measured − predicted: the prediction's derivative is −J.
+        Ok(-j)
     }
 
     /// Predicted instrument reading of point `p` with full parameter vector `x`.
@@ -276,20 +319,33 @@ impl Problem {
         let um = 1e-3;
         let urad = 1e-6;
         let mut m = self.base;
+        let s = &p.stretch_u;
         m.a_mm += x[0] * um;
-        m.b_mm += (x[1] + x[10] * p.stretch_u[0] + x[18] * p.stretch_u[2]) * um;
-        m.c_mm += (x[2] + x[11] * p.stretch_u[1] + x[19] * p.stretch_u[3]) * um;
+        let stretch = |arm: usize| -> f64 { (0..N_STRETCH).map(|k| x[idx::STRETCH + k] * s[arm][k]).sum() };
+        m.b_mm += (x[1] + stretch(0)) * um;
+        m.c_mm += (x[2] + (1.0 + x[idx::STRETCH_RATIO] * 0.01) * stretch(1)) * um;
         m.d_mm += x[3] * um;
         m.base_b0_mm[0] += x[6] * um;
         m.base_b0_mm[1] += x[7] * um;
         let th = [0, 1].map(|j| {
-            p.theta_rad[j] + x[4 + j] * urad - p.dir[j] * x[8 + j] * urad * 0.5
-                + x[16 + j] * 1e-6 * p.theta_centred_rad[j]
+            let mut t = p.theta_rad[j] + x[4 + j] * urad - p.dir[j] * x[8 + j] * urad * 0.5
+                + x[idx::GEAR + j] * 1e-6 * p.theta_centred_rad[j];
+            if let Some(n) = self.nuisance.cyclic_cycles[j] {
+                let (sn, cs) = (n * p.theta_rad[j]).sin_cos();
+                t += (x[idx::CYCLIC + 2 * j] * cs + x[idx::CYCLIC + 2 * j + 1] * sn) * urad;
+            }
+            t
         });
-        let c = m.forward(th, 0.0).ok()?;
-        let (s, co) = (x[14] * urad).sin_cos();
-        let k = 1.0 + x[15] * 1e-6;
-        Some([k * (co * c[0] - s * c[1]) + x[12] * um, k * (s * c[0] + co * c[1]) + x[13] * um])
+        let mut c = m.forward(th, 0.0).ok()?;
+        for (k, d) in p.mismatch_um.iter().enumerate() {
+            c[0] += x[idx::MISMATCH + k] * d[0] * um;
+            c[1] += x[idx::MISMATCH + k] * d[1] * um;
+        }
+        let (sn, co) = (x[idx::FRAME + 2] * urad).sin_cos();
+        let k = 1.0 + x[idx::SCALE] * 1e-6;
+        let drift = [x[idx::DRIFT] * p.t_s * 1e-3 * um, x[idx::DRIFT + 1] * p.t_s * 1e-3 * um];
+        let t = [x[idx::FRAME] * um + drift[0], x[idx::FRAME + 1] * um + drift[1]];
+        Some([k * (co * c[0] - sn * c[1]) + t[0], k * (sn * c[0] + co * c[1]) + t[1]])
     }
 
     /// Residuals (measured − predicted, µm), x then y per point; `None` if a point has no FK.
@@ -308,25 +364,67 @@ impl Problem {
         if e.needs_dir && !self.has_dir {
             return Err(format!("{} skipped: the data have no dir1/dir2 columns", e.name()));
         }
-        if e.kind == PhysicalEffect::LinkStretch && self.stretch_degenerate {
-            return Err(
-                "link_stretch skipped: on these poses its basis is exactly what link_lengths and encoder_offset do"
-                    .into(),
-            );
+        if matches!(e.kind, PhysicalEffect::LinkStretch | PhysicalEffect::ParallelogramMismatch) {
+            if let Err(why) = &self.sixbar {
+                return Err(format!("{} skipped: {why}", e.name()));
+            }
         }
         Ok(())
     }
+
+    /// The parameters free in a fit of `effects`: theirs, then the nuisances'.
+    pub fn free_params(&self, effects: &[&Effect]) -> Vec<usize> {
+        let mut p: Vec<usize> = effects.iter().flat_map(|e| e.params.iter().copied()).collect();
+        p.extend(self.nuisance.params());
+        p
+    }
+
+    /// The effective six-bar errors (raw, µm; see `loop_closure`) a fitted parameter vector's
+    /// link_stretch (per distal bar) and parallelogram_mismatch stand for, and the five-bar
+    /// parameter change (by index) the mismatch modes' projection included with the opposite
+    /// sign: what "add it to the model" writes.
+    pub fn effective_sixbar(&self, x: &[f64]) -> Option<EffectiveSixBar> {
+        let m = self.sixbar.as_ref().ok()?;
+        let mut out = EffectiveSixBar { stretch_raw_um: [[0.0; N_RAW]; 2], mismatch_raw_um: [0.0; N_RAW], five_bar_shift: vec![0.0; N_PARAMS] };
+        let ratio = [1.0, 1.0 + x[idx::STRETCH_RATIO] * 0.01];
+        for (bar, r) in out.stretch_raw_um.iter_mut().zip(ratio) {
+            for k in 0..N_STRETCH {
+                let a = x[idx::STRETCH + k] * r;
+                for (v, mode) in bar.iter_mut().zip(&m.stretch_raw[k]) {
+                    *v += a * mode;
+                }
+            }
+        }
+        for k in 0..N_MISMATCH {
+            let a = x[idx::MISMATCH + k];
+            for raw in 0..N_RAW {
+                out.mismatch_raw_um[raw] += a * m.mismatch_raw[k][raw];
+            }
+            for &(p, c) in &m.mismatch_five_bar[k] {
+                out.five_bar_shift[p] -= a * c;
+            }
+        }
+        Some(out)
+    }
 }
 
-/// Indices of the free parameters of a set of effects, in effect order.
-pub fn free_params(effects: &[&Effect]) -> Vec<usize> {
-    effects.iter().flat_map(|e| e.params.iter().copied()).collect()
+/// The six-bar part of a fitted model as effective errors (see [`Problem::effective_sixbar`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct EffectiveSixBar {
+    /// Raw errors whose distal-bar elongation is each bar's stretch.
+    pub stretch_raw_um: [[f64; N_RAW]; 2],
+    /// Raw errors whose loop response, less the distal stretch, is the mismatch.
+    pub mismatch_raw_um: [f64; N_RAW],
+    /// Five-bar parameter change (full parameter vector, problem units) that goes with the
+    /// mismatch.
+    pub five_bar_shift: Vec<f64>,
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::diagnose::fit::jacobian;
+    use crate::diagnose::loop_closure::response;
 
     fn meas(theta_deg: [f64; 2], dir: [i8; 2], m: &FiveBar<f64>) -> Measurement {
         let c = m.forward([theta_deg[0].to_radians(), theta_deg[1].to_radians()], 0.0).unwrap();
@@ -351,9 +449,13 @@ mod tests {
         out
     }
 
+    fn problem(data: &[Measurement]) -> Problem {
+        Problem::new(FiveBar::paper_nominal(), &SixBarDesign::paper(), data)
+    }
+
     #[test]
     fn zero_parameters_reproduce_the_base_model() {
-        let p = Problem::new(FiveBar::paper_nominal(), &grid(&FiveBar::paper_nominal()));
+        let p = problem(&grid(&FiveBar::paper_nominal()));
         let r = p.residuals_um(&[0.0; N_PARAMS]).unwrap();
         assert!(r.iter().all(|v| v.abs() < 1e-9), "{:?}", &r[..4]);
     }
@@ -364,7 +466,7 @@ mod tests {
         truth.a_mm += 0.05;
         truth.encoder_offset_rad = [2e-4, -1e-4];
         truth.base_b0_mm = [0.03, -0.02];
-        let p = Problem::new(FiveBar::paper_nominal(), &grid(&truth));
+        let p = problem(&grid(&truth));
         let mut x = [0.0; N_PARAMS];
         x[0] = 50.0;
         x[4] = 200.0;
@@ -383,25 +485,83 @@ mod tests {
         shifted.encoder_offset_rad = [-50e-6, 0.0];
         let mut data = vec![meas([45.0, -45.0], [1, 1], &shifted)];
         data[0].dir = Some([1, 1]);
-        let p = Problem::new(base, &data);
+        let p = problem(&data);
         let mut x = [0.0; N_PARAMS];
         x[8] = 100.0; // β1 = 100 µrad
         let r = p.residuals_um(&x).unwrap();
         assert!(r.iter().all(|v| v.abs() < 1e-6), "{r:?}");
+        // One point: the six-bar's modes do not exist, and say why.
+        assert!(p.available(effect("parallelogram_mismatch").unwrap()).is_err());
     }
 
     #[test]
-    fn stretch_basis_is_outside_what_lengths_and_offsets_do() {
-        let p = Problem::new(FiveBar::paper_nominal(), &grid(&FiveBar::paper_nominal()));
-        assert!(!p.stretch_degenerate);
+    fn mismatch_modes_are_outside_the_five_bar_span_and_stretch_is_unit_rms() {
+        let p = problem(&grid(&FiveBar::paper_nominal()));
+        assert!(p.sixbar.is_ok(), "{:?}", p.sixbar.as_ref().err());
         let x = [0.0; N_PARAMS];
-        let rigid = jacobian(&p, &x, &[0, 1, 2, 3, 4, 5]).unwrap();
-        let stretch = jacobian(&p, &x, &[10, 11, 18, 19]).unwrap();
-        let cos = crate::diagnose::confounding::max_cos(&rigid, &stretch);
-        assert!(cos < 0.99, "stretch basis overlaps lengths+offsets: cos {cos}");
-        // Unit RMS basis.
+        let rigid = jacobian(&p, &x, &FIVE_BAR_SPAN).unwrap();
+        let mismatch = jacobian(&p, &x, effect("parallelogram_mismatch").unwrap().params).unwrap();
+        let cos = crate::diagnose::confounding::max_cos(&rigid, &mismatch);
+        assert!(cos < 1e-6, "mismatch modes overlap the five-bar's parameters: cos {cos}");
+        // The stretch modes are physical length functions, partly what constant lengths and
+        // offsets do (a constant stretch is a link length), but not wholly: their part outside
+        // that span moves the tool by more than 1 % of the whole.
+        let stretch = jacobian(&p, &x, effect("link_stretch").unwrap().params).unwrap();
+        let svd = rigid.clone().svd(true, false);
+        let (u, sv) = (svd.u.unwrap(), svd.singular_values);
+        let keep: Vec<usize> = (0..sv.len()).filter(|&i| sv[i] > 1e-9 * sv.max()).collect();
+        let q = nalgebra::DMatrix::from_fn(u.nrows(), keep.len(), |r, c| u[(r, keep[c])]);
+        let outside = (&stretch - &q * (q.transpose() * &stretch)).norm() / stretch.norm();
+        assert!(outside > 0.01, "stretch basis inside lengths+offsets: {outside}");
         let n = p.points.len() as f64;
-        let rms = (p.points.iter().map(|q| q.stretch_u[0].powi(2)).sum::<f64>() / n).sqrt();
-        assert!((rms - 1.0).abs() < 1e-9);
+        for k in 0..N_STRETCH {
+            let ms = p.points.iter().map(|q| q.stretch_u[0][k].powi(2) + q.stretch_u[1][k].powi(2)).sum::<f64>() / (2.0 * n);
+            assert!((ms.sqrt() - 1.0).abs() < 1e-9, "mode {k}: {}", ms.sqrt());
+        }
+        for k in 0..N_MISMATCH {
+            let rms = (p.points.iter().map(|q| q.mismatch_um[k][0].powi(2) + q.mismatch_um[k][1].powi(2)).sum::<f64>() / n).sqrt();
+            assert!((rms - 1.0).abs() < 1e-9, "mode {k}: {rms}");
+        }
+    }
+
+    #[test]
+    fn effective_sixbar_errors_reproduce_the_fitted_modes() {
+        // What "add it to the model" writes (raw errors + five-bar shift), evaluated again by
+        // the loop closure at every point, is the fitted modes' contribution.
+        let p = problem(&grid(&FiveBar::paper_nominal()));
+        let mut x = [0.0; N_PARAMS];
+        x[idx::MISMATCH..idx::MISMATCH + 4].copy_from_slice(&[3.0, -2.0, 1.5, 0.7]);
+        x[idx::STRETCH..idx::STRETCH + 6].copy_from_slice(&[4.0, -1.0, 2.5, 0.5, 0.2, 30.0]);
+        let eff = p.effective_sixbar(&x).unwrap();
+        // The five-bar shift's displacement, to first order (as the projection removed it).
+        let j = jacobian(&p, &[0.0; N_PARAMS], &FIVE_BAR_SPAN).unwrap();
+        let shift = nalgebra::DVector::from_iterator(FIVE_BAR_SPAN.len(), FIVE_BAR_SPAN.iter().map(|&k| eff.five_bar_shift[k]));
+        let five_bar_um = -(j * shift);
+        for (i, q) in p.points.iter().enumerate() {
+            let r = response(&p.base, &p.design, q.theta_rad).unwrap();
+            let mut want = [0.0; 2];
+            for (k, d) in q.mismatch_um.iter().enumerate() {
+                want[0] += x[idx::MISMATCH + k] * d[0];
+                want[1] += x[idx::MISMATCH + k] * d[1];
+            }
+            let mut got = [five_bar_um[2 * i], five_bar_um[2 * i + 1]];
+            let mut stretch = [0.0; 2];
+            for raw in 0..N_RAW {
+                let m = eff.mismatch_raw_um[raw];
+                let st = [0, 1].map(|arm| r.distal_elongation[arm][raw]);
+                got[0] += m * (r.tool[raw][0] - r.dc_db[0][0] * st[0] - r.dc_db[1][0] * st[1]);
+                got[1] += m * (r.tool[raw][1] - r.dc_db[0][1] * st[0] - r.dc_db[1][1] * st[1]);
+                for (arm, s) in stretch.iter_mut().enumerate() {
+                    *s += eff.stretch_raw_um[arm][raw] * r.distal_elongation[arm][raw];
+                }
+            }
+            let err = (got[0] - want[0]).hypot(got[1] - want[1]);
+            assert!(err < 1e-6, "point {i}: {got:?} vs {want:?}");
+            for (arm, s) in stretch.iter().enumerate() {
+                let ratio = if arm == 0 { 1.0 } else { 1.3 };
+                let w: f64 = ratio * (0..N_STRETCH).map(|k| x[idx::STRETCH + k] * q.stretch_u[arm][k]).sum::<f64>();
+                assert!((s - w).abs() < 1e-9, "point {i} arm {arm}: {s} vs {w}");
+            }
+        }
     }
 }

@@ -21,9 +21,12 @@
 pub mod confounding;
 pub mod effects;
 pub mod fit;
+pub mod loop_closure;
+pub mod model_out;
 pub mod plots;
 pub mod report;
 pub mod selection;
+pub mod sixbar_modes;
 pub mod structure;
 pub mod synth;
 
@@ -33,6 +36,7 @@ use crate::numeric::stats::max_rms_radial;
 use effects::{Effect, Problem, LIBRARY, N_PARAMS, PARAM_NAMES};
 use fit::Fit;
 use kinematics_core::FiveBar;
+use loop_closure::SixBarDesign;
 use report::{Param, Report, Step};
 use selection::Fitter;
 use std::collections::{BTreeMap, HashMap};
@@ -65,6 +69,17 @@ pub struct DiagnoseOptions {
     /// Measurement noise, one standard deviation per axis (µm); `None`: from repeated poses, if
     /// any.
     pub noise_um: Option<f64>,
+    /// The machine's six-bar design, which `link_stretch` and `parallelogram_mismatch` are
+    /// derived from (`SixBarDesign::for_model` of the machine's nominal five-bar, or its
+    /// drawing).
+    pub sixbar: SixBarDesign,
+}
+
+impl DiagnoseOptions {
+    /// Options for the paper machine's six-bar (the design of its nominal five-bar).
+    pub fn paper(base: FiveBar<f64>, noise_um: Option<f64>) -> Self {
+        DiagnoseOptions { base, noise_um, sixbar: SixBarDesign::paper() }
+    }
 }
 
 /// Residual fields of the start and after each step, for the plots.
@@ -128,11 +143,12 @@ pub fn diagnose_with_history(data: &[Measurement], opts: &DiagnoseOptions) -> Re
             return Err(DiagnoseError::Invalid(format!("the noise σ must be a positive number of micrometres, not {s}")));
         }
     }
-    let problem = Problem::new(opts.base, data);
+    let mut problem = Problem::new(opts.base, &opts.sixbar, data);
     let mut notes = Vec::new();
     if !problem.dropped_lines.is_empty() {
         notes.push(format!(
-            "{} point(s) have no forward solution with the base model, or are at a singularity, and are excluded: lines {:?}",
+            "{} point(s) have no forward solution with the base model, are at a singularity, or its six-bar has no \
+             loop response there, and are excluded: lines {:?}",
             problem.dropped_lines.len(),
             problem.dropped_lines
         ));
@@ -148,23 +164,46 @@ pub fn diagnose_with_history(data: &[Measurement], opts: &DiagnoseOptions) -> Re
         },
     };
     let n = (2 * problem.points.len()) as f64;
-    let sel = selection::select(&problem, noise_um);
+    // Select; if the residual then shows a structure outside the library (a gear tooth's
+    // periodic error, a drift in time), fit it as a nuisance in every model and select again, so
+    // that no library effect is named on its account.
+    let mut sel = selection::select(&problem, noise_um);
+    let mut nuisance_log = Vec::new();
+    for _ in 0..3 {
+        let residual = library_residual(&problem, &sel.fit.p).ok_or(DiagnoseError::NoForwardSolution)?;
+        let found = structure::analyse(&problem, data, &residual);
+        let next = nuisance_for(&problem, &found);
+        if next == problem.nuisance {
+            break;
+        }
+        nuisance_log.push(format!(
+            "out-of-library structure in the residual of [{}]: {}; fitted as a nuisance in every model and selected again",
+            sel.effects.iter().map(|e| e.name()).collect::<Vec<_>>().join(", "),
+            describe_nuisance(&next)
+        ));
+        problem.nuisance = next;
+        sel = selection::select(&problem, noise_um);
+    }
     notes.extend(sel.skipped.iter().cloned());
-    // Cumulative fits in the order the final effects were added: the gap-shrink table.
+    // Cumulative fits in the order the final effects were added: the gap-shrink table. Every
+    // residual reported is the library model's: a nuisance fitted alongside stays in it
+    // (unexplained).
     let mut fitter = Fitter::new(&problem);
     let zero = [0.0; N_PARAMS];
+    let start_residual = problem.residuals_um(&zero).ok_or(DiagnoseError::NoForwardSolution)?;
     let start = fitter.fit(&[], &zero).ok_or(DiagnoseError::NoForwardSolution)?;
-    let initial = max_rms_radial(start.residuals.as_slice());
+    let initial = max_rms_radial(&start_residual);
     let base_mm: Vec<[f64; 2]> = problem.points.iter().map(|p| p.measured_mm).collect();
-    let mut fields = vec![("start".to_string(), pairs(start.residuals.as_slice()))];
+    let mut fields = vec![("start".to_string(), pairs(&start_residual))];
     let mut steps = Vec::new();
-    let mut prev = start.clone();
+    let mut prev_residual = start_residual.clone();
     let mut last = start.clone();
     for k in 0..sel.effects.len() {
         let set = &sel.effects[..=k];
         let f = fitter.fit(set, &sel.fit.p).ok_or(DiagnoseError::Refit(k + 1))?;
+        let residual = library_residual(&problem, &f.p).ok_or(DiagnoseError::Refit(k + 1))?;
         let s2 = (f.cost / (n - f.free.len() as f64).max(1.0)).max(noise_um.map(|s| s * s).unwrap_or(0.0));
-        let (before, after) = (max_rms_radial(prev.residuals.as_slice()), max_rms_radial(f.residuals.as_slice()));
+        let (before, after) = (max_rms_radial(&prev_residual), max_rms_radial(&residual));
         steps.push(Step {
             effect: set[k].name().to_string(),
             params: params_of(&f, &set[k..=k], s2),
@@ -173,15 +212,19 @@ pub fn diagnose_with_history(data: &[Measurement], opts: &DiagnoseOptions) -> Re
             max_before_um: before.max,
             max_after_um: after.max,
         });
-        fields.push((format!("after {}", set[k].name()), pairs(f.residuals.as_slice())));
-        prev = f.clone();
+        fields.push((format!("after {}", set[k].name()), pairs(&residual)));
+        prev_residual = residual;
         last = f;
     }
+    let last_residual = prev_residual;
+    let last_cost: f64 = last_residual.iter().map(|v| v * v).sum();
     let k_final = last.free.len() as f64;
     let dof = (n - k_final).max(1.0);
     let s2_final = (last.cost / dof).max(noise_um.map(|s| s * s).unwrap_or(0.0));
     let final_params = params_of(&last, &sel.effects, s2_final);
-    let last_radial = max_rms_radial(last.residuals.as_slice());
+    let last_radial = max_rms_radial(&last_residual);
+    // The library model's own degrees of freedom (the nuisances' part is in its residual).
+    let dof_library = (n - sel.effects.iter().map(|e| e.params.len()).sum::<usize>() as f64).max(1.0);
     // Confounding with every available candidate.
     let candidates: Vec<&'static Effect> = LIBRARY.iter().filter(|e| problem.available(e).is_ok()).collect();
     let overlaps = confounding::overlaps(&problem, &last, &sel.effects, &candidates, s2_final);
@@ -213,15 +256,19 @@ pub fn diagnose_with_history(data: &[Measurement], opts: &DiagnoseOptions) -> Re
         }
     }
     // Is anything left above the noise, and what does it look like?
-    let initial_structure = structure::analyse(&problem, data, start.residuals.as_slice());
-    let final_structure = structure::analyse(&problem, data, last.residuals.as_slice());
+    let initial_structure = structure::analyse(&problem, data, &start_residual);
+    let final_structure = structure::analyse(&problem, data, &last_residual);
     let significant: Vec<&structure::Finding> = final_structure.iter().filter(|f| f.significant).collect();
-    let chi2_per_dof = noise_um.map(|s| last.cost / dof / (s * s));
+    let chi2_per_dof = noise_um.map(|s| last_cost / dof_library / (s * s));
     let (unexplained, mut unexplained_description) = match chi2_per_dof {
+        Some(_) if !problem.nuisance.is_empty() => (
+            true,
+            format!("a structure outside the library is in the data ({}); no library effect is named on its account", describe_nuisance(&problem.nuisance)),
+        ),
         Some(c) => {
             // χ² test at ~4σ of the χ² distribution, and a practical floor of 10 % over the noise
             // (a slightly misjudged noise figure must not read as a missing effect).
-            let limit = (1.0 + 4.0 * (2.0 / dof).sqrt()).max(1.21);
+            let limit = (1.0 + 4.0 * (2.0 / dof_library).sqrt()).max(1.21);
             if c > limit {
                 (true, format!("residual is {:.2}× the noise variance (limit {:.2}) and no further library effect is significant", c, limit))
             } else {
@@ -249,13 +296,13 @@ pub fn diagnose_with_history(data: &[Measurement], opts: &DiagnoseOptions) -> Re
         unexplained_description.push_str(&format!(
             ". Too few points ({}) to describe its structure; largest radial residuals: {}",
             problem.points.len(),
-            largest_points(data, &problem, last.residuals.as_slice())
+            largest_points(data, &problem, &last_residual)
         ));
     } else if unexplained {
         unexplained_description.push_str(&format!(
             ". No test found a structure (not periodic in a motor angle, not direction-dependent, no drift, not smooth over \
              the workspace): looks like extra noise or isolated outliers; largest radial residuals: {}",
-            largest_points(data, &problem, last.residuals.as_slice())
+            largest_points(data, &problem, &last_residual)
         ));
     }
     let score = format!(
@@ -286,10 +333,85 @@ pub fn diagnose_with_history(data: &[Measurement], opts: &DiagnoseOptions) -> Re
         final_rms_um: last_radial.rms,
         final_max_um: last_radial.max,
         chi2_per_dof,
+        nuisances: nuisance_report(&problem, &last, s2_final, nuisance_log),
         selection_log: sel.log,
         notes,
     };
     Ok((report, History { base_mm, fields, problem }))
+}
+
+/// The residual (µm) of the library part of a fitted parameter vector: the nuisances' terms
+/// zeroed, so what they fit stays in it.
+pub fn library_residual(problem: &Problem, p: &[f64]) -> Option<Vec<f64>> {
+    let mut x: [f64; N_PARAMS] = p.try_into().ok()?;
+    for k in problem.nuisance.params() {
+        x[k] = 0.0;
+    }
+    problem.residuals_um(&x)
+}
+
+/// Shortest period (cycles per motor revolution) fitted as a nuisance: a gear tooth. Slower
+/// structure may be a library effect's (the six-bar's is smooth, 2–7 cycles/rev) and is left to
+/// the library and the report.
+pub const NUISANCE_MIN_CYCLES: f64 = 11.0;
+
+/// The nuisances the residual's significant structure calls for (the current ones kept).
+fn nuisance_for(problem: &Problem, found: &[structure::Finding]) -> effects::Nuisance {
+    let mut next = problem.nuisance;
+    for f in found.iter().filter(|f| f.significant) {
+        match (f.kind.as_str(), f.cycles_per_rev) {
+            ("periodic_theta1", Some(c)) if c >= NUISANCE_MIN_CYCLES && next.cyclic_cycles[0].is_none() => {
+                next.cyclic_cycles[0] = Some(c)
+            }
+            ("periodic_theta2", Some(c)) if c >= NUISANCE_MIN_CYCLES && next.cyclic_cycles[1].is_none() => {
+                next.cyclic_cycles[1] = Some(c)
+            }
+            ("drift_time", _) if problem.has_time => next.drift = true,
+            _ => {}
+        }
+    }
+    next
+}
+
+fn describe_nuisance(n: &effects::Nuisance) -> String {
+    let mut parts = Vec::new();
+    for (j, c) in n.cyclic_cycles.iter().enumerate() {
+        if let Some(c) = c {
+            parts.push(format!("periodic error of motor {} at {c} cycles/rev", j + 1));
+        }
+    }
+    if n.drift {
+        parts.push("drift of the readings in time".to_string());
+    }
+    parts.join(", ")
+}
+
+/// The fitted nuisances, for the report (with how they were found).
+fn nuisance_report(problem: &Problem, fit: &Fit, s2: f64, mut log: Vec<String>) -> Vec<String> {
+    let sd = |k: usize| fit.free.iter().position(|&c| c == k).map(|c| (fit.normal_pinv[(c, c)] * s2).max(0.0).sqrt()).unwrap_or(f64::NAN);
+    for (j, c) in problem.nuisance.cyclic_cycles.iter().enumerate() {
+        if let Some(c) = c {
+            let (a, b) = (fit.p[effects::idx::CYCLIC + 2 * j], fit.p[effects::idx::CYCLIC + 2 * j + 1]);
+            log.push(format!(
+                "motor {}: {c} cycles/rev, amplitude {:.1} µrad (cos {a:.1} ± {:.1}, sin {b:.1} ± {:.1})",
+                j + 1,
+                a.hypot(b),
+                sd(effects::idx::CYCLIC + 2 * j),
+                sd(effects::idx::CYCLIC + 2 * j + 1)
+            ));
+        }
+    }
+    if problem.nuisance.drift {
+        let k = effects::idx::DRIFT;
+        log.push(format!(
+            "drift since the first reading: x {:.2} ± {:.2}, y {:.2} ± {:.2} µm per 1000 s",
+            fit.p[k],
+            sd(k),
+            fit.p[k + 1],
+            sd(k + 1)
+        ));
+    }
+    log
 }
 
 /// The three largest radial residuals, with their file line (or index) and position.

@@ -78,6 +78,10 @@ pub struct Report {
     pub final_max_um: f64,
     /// RSS / (n − k) / σ² of the final model, if σ is known.
     pub chi2_per_dof: Option<f64>,
+    /// Structures outside the library (a gear tooth's periodic error, an instrument drift)
+    /// fitted alongside every model so that no library effect is named on their account, with
+    /// their fitted size; they stay in the residual and make it `unexplained`.
+    pub nuisances: Vec<String>,
     pub selection_log: Vec<String>,
     pub notes: Vec<String>,
 }

@@ -1,21 +1,49 @@
-//! Stepwise selection of effects: forward (add the best significant candidate), then backward and
-//! swap passes while the score improves, repeated until nothing changes.
+//! Stepwise selection of effects: forward (add the best candidate that passes every test), then
+//! backward and swap passes while the score improves, repeated until nothing changes.
 //!
 //! Why not forward only: one flexible effect can soak up parts of two simple ones early on; the
 //! removal and swap passes undo that once the simple ones are in.
 //!
-//! Score: BIC = RSS/σ² + k·ln n (n scalar residuals, k free parameters). Which σ: for every
-//! comparison of two models σ² = max(noise², the smaller of the two models' residual variances
-//! RSS/(n−k)). With the noise known this is the textbook BIC as long as the model is complete;
-//! when structure no effect explains is left, it falls back to the F-test-like comparison against
-//! what is actually left, so an unmodelled cyclic error does not make every tweak "significant".
-//! BIC rather than AIC: its penalty (7 per parameter at n ≈ 1300) keeps false positives on clean
-//! data rare; an effect is added only if it lowers the BIC by more than [`ADD_MARGIN`] ("very
-//! strong" evidence on the Kass–Raftery scale). Cost: each round fits every remaining candidate
-//! (≤ 8 LM fits); results are cached by effect set.
+//! An effect is added (or swapped in) only when it passes all three tests:
+//! 1. **Information criterion**: BIC = RSS/σ² + k·ln n (n scalar residuals, k free parameters).
+//!    Which σ: for every comparison of two models σ² = max(noise², the smaller of the two models'
+//!    residual variances RSS/(n−k)). With the noise known this is the textbook BIC as long as the
+//!    model is complete; when structure no effect explains is left, it falls back to the
+//!    F-test-like comparison against what is actually left, so an unmodelled cyclic error does
+//!    not make every tweak "significant". BIC rather than AIC: its penalty (7 per parameter at
+//!    n ≈ 1300) keeps false positives on clean data rare; an effect must lower the BIC by more
+//!    than [`ADD_MARGIN`] ("very strong" evidence on the Kass–Raftery scale).
+//! 2. **Held-out validation**: the model with the effect must predict points it was not fitted
+//!    to better than the model without it: K-fold cross-validated RSS ([`CV_FOLDS`] folds, by
+//!    point index; leave-one-point-out on ≤ [`LOO_POINTS`] points; each fold's held-out residuals
+//!    from the fit's hat matrix, `fit::cross_validated_rss`) must drop by more than k_effect·σ²
+//!    (what k useless parameters cost a prediction on average). The in-sample fit alone always
+//!    improves; this asks whether the improvement is real on new poses.
+//! 3. **Physical plausibility** ([`plausible`]): the fitted values must be something a machine
+//!    can have — backlash not significantly negative, link changes within 5 % of the link,
+//!    stretch within 0.1 % strain, the mismatch's effective part errors within 1 % of a link,
+//!    encoder offsets and frame rotation within 0.1 rad, gear ratio within 1 %, scale within
+//!    2000 ppm, B0 within 10 % of a link.
+//!
+//! Moves: add one effect (the best that passes all three tests); remove one (while the BIC
+//! improves); **replace**: add one candidate and then drop, one at a time, members that have
+//! become redundant, kept if the BIC improves by more than [`SWAP_MARGIN`] and the candidate passes
+//! the held-out and plausibility tests. Why the last: the six-bar's loop effects reproduce
+//! combinations of simple ones (a stretch is mostly link lengths, a gear ratio and a frame on
+//! these poses; a flexible stretch can fit an encoder offset plus a base offset), so the greedy
+//! forward step can take the wrong side of such a trade; one-for-one swaps cannot undo a
+//! one-for-several choice, the replacement can, in either direction.
+//!
+//! Structures outside the library (a gear tooth's periodic error, an instrument drift) are found
+//! by `structure.rs` on the final residual and then fitted as nuisances in every model
+//! (`Problem::nuisance`, set by the caller, who re-runs the selection): what they explain can
+//! then not be credited to a library effect. Cost: each round fits every remaining candidate
+//! (≤ 9 LM fits), plus K fits for each effect that passes the BIC; results are cached by effect
+//! set.
 
-use super::effects::{free_params, Effect, Problem, LIBRARY, N_PARAMS};
-use super::fit::{fit, Fit};
+use super::effects::{idx, Effect, Problem, LIBRARY, N_PARAMS};
+use super::fit::{cross_validated_rss, fit, Fit};
+use crate::effect::PhysicalEffect;
 use std::collections::BTreeMap;
 
 /// BIC decrease needed to add an effect.
@@ -25,6 +53,10 @@ pub const ADD_MARGIN: f64 = 10.0;
 pub const MIN_DOF_PER_PARAM: f64 = 2.0;
 /// BIC decrease needed to swap one effect for another.
 pub const SWAP_MARGIN: f64 = 2.0;
+/// Folds of the held-out validation (leave-one-point-out on at most [`LOO_POINTS`] points).
+pub const CV_FOLDS: usize = 5;
+/// Up to this many points the validation leaves one point out at a time.
+pub const LOO_POINTS: usize = 20;
 
 /// What the selection decided.
 pub struct Selection {
@@ -38,27 +70,47 @@ pub struct Selection {
     pub skipped: Vec<String>,
 }
 
-/// Fits of effect sets, cached by the sorted names.
+/// Fits of effect sets (with the problem's nuisances), cached by the sorted names.
 pub struct Fitter<'a> {
     pub problem: &'a Problem,
     cache: BTreeMap<Vec<&'static str>, Option<Fit>>,
+    cv_cache: BTreeMap<Vec<&'static str>, Option<f64>>,
+}
+
+fn key(set: &[&'static Effect]) -> Vec<&'static str> {
+    let mut key: Vec<&'static str> = set.iter().map(|e| e.name()).collect();
+    key.sort();
+    key
 }
 
 impl<'a> Fitter<'a> {
     pub fn new(problem: &'a Problem) -> Self {
-        Fitter { problem, cache: BTreeMap::new() }
+        Fitter { problem, cache: BTreeMap::new(), cv_cache: BTreeMap::new() }
     }
 
     /// The LM fit of a set of effects, starting from `start` (entries outside the set ignored).
     pub fn fit(&mut self, set: &[&'static Effect], start: &[f64]) -> Option<Fit> {
-        let mut key: Vec<&'static str> = set.iter().map(|e| e.name()).collect();
-        key.sort();
+        let key = key(set);
         if let Some(f) = self.cache.get(&key) {
             return f.clone();
         }
-        let f = fit(self.problem, start, &free_params(set));
+        let f = fit(self.problem, start, &self.problem.free_params(set));
         self.cache.insert(key, f.clone());
         f
+    }
+
+    /// Cross-validated RSS (µm²) of a set's fit (see [`cross_validated_rss`]); `None` if the
+    /// fit fails or a fold determines a parameter by itself.
+    pub fn cv_rss(&mut self, set: &[&'static Effect], start: &[f64]) -> Option<f64> {
+        let key = key(set);
+        if let Some(v) = self.cv_cache.get(&key) {
+            return *v;
+        }
+        let n = self.problem.points.len();
+        let folds = if n <= LOO_POINTS { n } else { CV_FOLDS };
+        let v = self.fit(set, start).and_then(|f| cross_validated_rss(&f, n, folds));
+        self.cv_cache.insert(key, v);
+        v
     }
 }
 
@@ -67,17 +119,117 @@ fn n_res(p: &Problem) -> f64 {
     (2 * p.points.len()) as f64
 }
 
+/// The common σ² (µm²) of a comparison of two fits (module doc).
+fn common_s2(p: &Problem, noise_um: Option<f64>, a: &Fit, b: &Fit) -> f64 {
+    let n = n_res(p);
+    let va = a.cost / (n - a.free.len() as f64).max(1.0);
+    let vb = b.cost / (n - b.free.len() as f64).max(1.0);
+    va.min(vb).max(noise_um.map(|s| s * s).unwrap_or(0.0)).max(1e-12)
+}
+
 /// BIC difference `score(b) − score(a)` with the common σ² described in the module doc.
 pub fn delta_bic(p: &Problem, noise_um: Option<f64>, a: &Fit, b: &Fit) -> f64 {
     let n = n_res(p);
     let (ka, kb) = (a.free.len() as f64, b.free.len() as f64);
-    let va = a.cost / (n - ka).max(1.0);
-    let vb = b.cost / (n - kb).max(1.0);
-    let s2 = va.min(vb).max(noise_um.map(|s| s * s).unwrap_or(0.0)).max(1e-12);
-    (b.cost - a.cost) / s2 + (kb - ka) * n.ln()
+    (b.cost - a.cost) / common_s2(p, noise_um, a, b) + (kb - ka) * n.ln()
 }
 
-/// Runs the stepwise selection from the empty set (the base model).
+/// Whether an effect's fitted values are something a machine can have (module doc); the error
+/// says which value is not. `s2` scales the standard deviations (µm²).
+pub fn plausible(problem: &Problem, e: &Effect, f: &Fit, s2: f64) -> Result<(), String> {
+    let m = &problem.base;
+    let links = [m.a_mm, m.b_mm, m.c_mm, m.d_mm];
+    let mean_link_um = 250.0 * (m.a_mm + m.b_mm + m.c_mm + m.d_mm);
+    let x = &f.p;
+    let sd = |k: usize| f.free.iter().position(|&c| c == k).map(|c| (f.normal_pinv[(c, c)] * s2).max(0.0).sqrt()).unwrap_or(0.0);
+    let within = |k: usize, limit: f64, what: &str| -> Result<(), String> {
+        if x[k].abs() <= limit {
+            Ok(())
+        } else {
+            Err(format!("{} = {:.1} is beyond a plausible {what} ({limit:.0})", super::effects::PARAM_NAMES[k], x[k]))
+        }
+    };
+    match e.kind {
+        PhysicalEffect::LinkLengths => (0..4).try_for_each(|k| within(idx::LINKS + k, 0.05 * links[k] * 1e3, "5 % of the link")),
+        PhysicalEffect::EncoderOffset => (0..2).try_for_each(|k| within(idx::OFFSETS + k, 1e5, "0.1 rad")),
+        PhysicalEffect::BaseOffset => (0..2).try_for_each(|k| within(idx::BASE + k, 0.1 * mean_link_um, "10 % of a link")),
+        PhysicalEffect::Backlash => (0..2).try_for_each(|k| {
+            let (v, s) = (x[idx::BACKLASH + k], sd(idx::BACKLASH + k));
+            if v < -3.0 * s - 1e-9 {
+                Err(format!(
+                    "{} = {v:.1} ± {s:.1}: negative lost motion (the link ahead of its motor) is not backlash",
+                    super::effects::PARAM_NAMES[idx::BACKLASH + k]
+                ))
+            } else {
+                within(idx::BACKLASH + k, 1e4, "0.01 rad of lost motion")
+            }
+        }),
+        PhysicalEffect::LinkStretch => {
+            let n = super::sixbar_modes::N_STRETCH;
+            (0..n).try_for_each(|k| within(idx::STRETCH + k, 1e-3 * links[1].min(links[2]) * 1e3, "0.1 % strain of a distal bar"))?;
+            // c's compliance within a factor of 3 of the design's (the two bars are alike).
+            let r = x[idx::STRETCH_RATIO];
+            if (-67.0..=200.0).contains(&r) {
+                Ok(())
+            } else {
+                Err(format!("kc_compliance_pct = {r:.0}: c would be {:.2}× as compliant as designed", 1.0 + r / 100.0))
+            }
+        }
+        PhysicalEffect::Frame => within(idx::FRAME + 2, 1e5, "0.1 rad"),
+        PhysicalEffect::Scale => within(idx::SCALE, 2000.0, "instrument scale error (ppm)"),
+        PhysicalEffect::GearRatio => (0..2).try_for_each(|k| within(idx::GEAR + k, 1e4, "1 % ratio error (ppm)")),
+        PhysicalEffect::ParallelogramMismatch => {
+            let worst = problem
+                .effective_sixbar(x)
+                .map(|eff| eff.mismatch_raw_um.iter().fold(0.0f64, |a, v| a.max(v.abs())))
+                .unwrap_or(f64::INFINITY);
+            let limit = 0.01 * mean_link_um;
+            if worst <= limit {
+                Ok(())
+            } else {
+                Err(format!("the mismatch needs part errors of {worst:.0} µm, beyond a plausible 1 % of a link ({limit:.0} µm)"))
+            }
+        }
+        _ => Ok(()),
+    }
+}
+
+/// The held-out test: does adding `c` to `set` predict unseen points better by more than its
+/// parameters cost? Returns the two cross-validated RSS on success, the reason otherwise.
+fn validates(
+    fitter: &mut Fitter<'_>,
+    set: &[&'static Effect],
+    c: &'static Effect,
+    cur: &Fit,
+    new: &Fit,
+    noise_um: Option<f64>,
+) -> Result<(f64, f64), String> {
+    let problem = fitter.problem;
+    let Some(before) = fitter.cv_rss(set, &cur.p) else {
+        return Err("cross-validation fit of the current model failed".into());
+    };
+    let mut trial = set.to_vec();
+    trial.push(c);
+    let Some(after) = fitter.cv_rss(&trial, &new.p) else {
+        return Err(format!("cross-validation fit with {} failed (a point left the workspace)", c.name()));
+    };
+    let s2 = common_s2(problem, noise_um, cur, new);
+    let margin = c.params.len() as f64 * s2;
+    if after < before - margin {
+        Ok((before, after))
+    } else {
+        Err(format!(
+            "{} does not predict held-out points better (cross-validated RSS {:.1} → {:.1} µm², needs a drop > {:.1})",
+            c.name(),
+            before,
+            after,
+            margin
+        ))
+    }
+}
+
+/// Runs the stepwise selection from the empty set (the base model, with the problem's
+/// nuisances).
 pub fn select(problem: &Problem, noise_um: Option<f64>) -> Selection {
     let mut fitter = Fitter::new(problem);
     let mut log = Vec::new();
@@ -114,8 +266,10 @@ pub fn select(problem: &Problem, noise_um: Option<f64>) -> Selection {
                 break;
             }
         }
-        // Forward: best candidate.
-        let mut best: Option<(f64, &'static Effect, Fit)> = None;
+        // Forward: every candidate, best score first. One σ² for the whole round (the smallest
+        // residual variance among the candidates, or the noise): scores that each used their own
+        // would rank two near-equal fits of a large residual by rounding-level differences of σ².
+        let mut fitted: Vec<(&'static Effect, Fit)> = Vec::new();
         let mut tried = Vec::new();
         for &c in &candidates {
             if set.contains(&c) {
@@ -128,33 +282,59 @@ pub fn select(problem: &Problem, noise_um: Option<f64>) -> Selection {
             }
             let mut trial = set.clone();
             trial.push(c);
-            let Some(f) = fitter.fit(&trial, &cur.p) else {
-                tried.push(format!("{} fit failed (a point left the model's workspace)", c.name()));
-                continue;
-            };
-            {
-                let d = delta_bic(problem, noise_um, &cur, &f);
-                tried.push(format!("{} rms {:.1} µm ΔBIC {:.1}", c.name(), (2.0 * f.cost / n).sqrt(), d));
-                if best.as_ref().is_none_or(|b| d < b.0) {
-                    best = Some((d, c, f));
-                }
+            match fitter.fit(&trial, &cur.p) {
+                Some(f) => fitted.push((c, f)),
+                None => tried.push(format!("{} fit failed (a point left the model's workspace)", c.name())),
             }
+        }
+        let s2_round = fitted
+            .iter()
+            .map(|(_, f)| common_s2(problem, noise_um, &cur, f))
+            .fold(f64::INFINITY, f64::min);
+        let mut ranked: Vec<(f64, &'static Effect, Fit)> = Vec::new();
+        for (c, f) in fitted {
+            let d = (f.cost - cur.cost) / s2_round + (f.free.len() as f64 - cur.free.len() as f64) * n.ln();
+            tried.push(format!("{} rms {:.1} µm ΔBIC {:.1}", c.name(), (2.0 * f.cost / n).sqrt(), d));
+            ranked.push((d, c, f));
         }
         log.push(format!(
             "candidates on top of [{}]: {}",
             set.iter().map(|e| e.name()).collect::<Vec<_>>().join(", "),
             tried.join("; ")
         ));
-        let Some((d, c, f)) = best else { break };
-        if d > -ADD_MARGIN {
-            log.push(format!("no candidate significant (best {} ΔBIC {:.1} > −{ADD_MARGIN}): stop", c.name(), d));
-            break;
+        ranked.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let mut chosen = None;
+        for (d, c, f) in ranked {
+            if d > -ADD_MARGIN {
+                log.push(format!("no further candidate significant (best left {} ΔBIC {:.1} > −{ADD_MARGIN})", c.name(), d));
+                break;
+            }
+            if let Err(why) = plausible(problem, c, &f, common_s2(problem, noise_um, &cur, &f)) {
+                log.push(format!("{} not added (ΔBIC {d:.1}): implausible: {why}", c.name()));
+                continue;
+            }
+            match validates(&mut fitter, &set, c, &cur, &f, noise_um) {
+                Ok((before, after)) => {
+                    log.push(format!(
+                        "add {} (ΔBIC {d:.1}; cross-validated RSS {before:.1} → {after:.1} µm²)",
+                        c.name()
+                    ));
+                    chosen = Some((c, f));
+                    break;
+                }
+                Err(why) => log.push(format!("{} not added (ΔBIC {d:.1}): {why}", c.name())),
+            }
         }
-        log.push(format!("add {} (ΔBIC {:.1})", c.name(), d));
+        let Some((c, f)) = chosen else {
+            log.push("stop".into());
+            break;
+        };
         set.push(c);
         cur = f;
-        // Backward and swap passes while they improve the score.
+        // Backward and replacement passes while they improve the score (never back to a set
+        // already left: each move's score uses its own σ², so a cycle is not excluded otherwise).
         let mut changed = true;
+        let mut seen = std::collections::BTreeSet::from([key(&set)]);
         while changed {
             changed = false;
             for i in 0..set.len() {
@@ -165,7 +345,7 @@ pub fn select(problem: &Problem, noise_um: Option<f64>) -> Selection {
                 let removed = trial.remove(i);
                 if let Some(f) = fitter.fit(&trial, &cur.p) {
                     let d = delta_bic(problem, noise_um, &cur, &f);
-                    if d < 0.0 {
+                    if d < 0.0 && seen.insert(key(&trial)) {
                         log.push(format!("remove {} (ΔBIC {:.1})", removed.name(), d));
                         set = trial;
                         cur = f;
@@ -177,35 +357,90 @@ pub fn select(problem: &Problem, noise_um: Option<f64>) -> Selection {
             if changed {
                 continue;
             }
-            'swap: for i in 0..set.len() {
-                for &c in &candidates {
-                    if set.contains(&c) {
-                        continue;
-                    }
-                    let mut trial = set.clone();
-                    let old = std::mem::replace(&mut trial[i], c);
-                    let k_new = trial.iter().map(|e| e.params.len()).sum::<usize>() as f64;
-                    if n - k_new < MIN_DOF_PER_PARAM * k_new {
-                        continue;
-                    }
-                    if let Some(f) = fitter.fit(&trial, &cur.p) {
-                        let d = delta_bic(problem, noise_um, &cur, &f);
-                        if d < -SWAP_MARGIN {
-                            log.push(format!("swap {} for {} (ΔBIC {:.1})", old.name(), c.name(), d));
-                            // The newcomer counts as added last.
-                            trial.remove(i);
-                            trial.push(c);
-                            set = trial;
-                            cur = f;
-                            changed = true;
-                            break 'swap;
-                        }
-                    }
+            if let Some((new_set, f, line)) = replacement(&mut fitter, &candidates, &set, &cur, noise_um) {
+                if seen.insert(key(&new_set)) {
+                    log.push(line);
+                    set = new_set;
+                    cur = f;
+                    changed = true;
                 }
             }
         }
     }
     Selection { effects: set, fit: cur, log, skipped }
+}
+
+/// The best replacement move (module doc): a candidate added and the members it makes redundant
+/// dropped. Returns the new set (the newcomer last), its fit and a log line.
+fn replacement(
+    fitter: &mut Fitter<'_>,
+    candidates: &[&'static Effect],
+    set: &[&'static Effect],
+    cur: &Fit,
+    noise_um: Option<f64>,
+) -> Option<(Vec<&'static Effect>, Fit, String)> {
+    let problem = fitter.problem;
+    let n = n_res(problem);
+    let mut best: Option<(f64, Vec<&'static Effect>, Fit, &'static Effect)> = None;
+    for &c in candidates {
+        if set.contains(&c) || set.is_empty() {
+            continue;
+        }
+        let mut trial: Vec<&'static Effect> = set.to_vec();
+        trial.push(c);
+        let Some(mut f) = fitter.fit(&trial, &cur.p) else { continue };
+        // One σ² for the whole move: the scores of its sets are then comparable.
+        let s2 = common_s2(problem, noise_um, cur, &f);
+        let score = |f: &Fit| f.cost / s2 + f.free.len() as f64 * n.ln();
+        let mut removed = 0;
+        loop {
+            let mut step: Option<(f64, usize, Fit)> = None;
+            for i in 0..trial.len() {
+                if trial[i].name() == c.name() {
+                    continue;
+                }
+                let mut t = trial.clone();
+                t.remove(i);
+                if let Some(g) = fitter.fit(&t, &f.p) {
+                    let sc = score(&g);
+                    if sc < score(&f) && step.as_ref().is_none_or(|b| sc < b.0) {
+                        step = Some((sc, i, g));
+                    }
+                }
+            }
+            let Some((_, i, g)) = step else { break };
+            trial.remove(i);
+            f = g;
+            removed += 1;
+        }
+        let gain = score(cur) - score(&f);
+        if removed == 0 || gain <= SWAP_MARGIN {
+            continue;
+        }
+        let k_new = f.free.len() as f64;
+        if n - k_new < MIN_DOF_PER_PARAM * k_new || plausible(problem, c, &f, s2).is_err() {
+            continue;
+        }
+        if best.as_ref().is_none_or(|b| gain > b.0) {
+            best = Some((gain, trial, f, c));
+        }
+    }
+    let (gain, trial, f, c) = best?;
+    // The replacement must also predict held-out points better.
+    let cv_old = fitter.cv_rss(set, &cur.p)?;
+    let cv_new = fitter.cv_rss(&trial, &f.p)?;
+    if cv_new >= cv_old {
+        return None;
+    }
+    let dropped: Vec<&str> = set.iter().filter(|e| !trial.contains(e)).map(|e| e.name()).collect();
+    let line = format!(
+        "replace [{}] by {} (BIC −{gain:.1}; cross-validated RSS {cv_old:.1} → {cv_new:.1} µm²)",
+        dropped.join(", "),
+        c.name()
+    );
+    let mut ordered: Vec<&'static Effect> = trial.into_iter().filter(|e| e.name() != c.name()).collect();
+    ordered.push(c);
+    Some((ordered, f, line))
 }
 
 fn empty_fit(problem: &Problem) -> Fit {

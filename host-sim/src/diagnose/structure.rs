@@ -233,9 +233,11 @@ pub fn analyse(problem: &Problem, data: &[Measurement], residual_um: &[f64]) -> 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use kinematics_core::FiveBar;
 
-    #[test]
-    fn periodogram_finds_a_joint_ripple_and_ignores_none() {
+    /// The 5 mm grid's poses with approach directions that are not tied to the configuration
+    /// (a fixed pseudo-random pattern), and the problem over them.
+    fn grid_with_directions() -> (FiveBar<f64>, Vec<Measurement>, Problem) {
         let spec = crate::machine_spec::MachineSpec::paper();
         let (nominal, g) = (spec.nominal, spec.grid);
         let mut data = Vec::new();
@@ -243,30 +245,64 @@ mod tests {
             for j in 0..g.ny {
                 let th = nominal.inverse(g.node_mm(i, j), spec.min_transmission).unwrap();
                 let c = nominal.forward(th, 0.0).unwrap();
+                let k = data.len();
+                let dir = [if (k * 7) % 11 < 5 { 1 } else { -1 }, if (k * 13) % 17 < 9 { 1 } else { -1 }];
                 data.push(Measurement {
                     theta_deg: [th[0].to_degrees(), th[1].to_degrees()],
                     measured_mm: c,
                     target_mm: None,
-                    dir: None,
+                    dir: Some(dir),
                     run: None,
                     t_s: None,
                     line: 0,
                 });
             }
         }
-        let p = Problem::new(nominal, &data);
-        // Residual = J · (30 µrad · sin(40 θ2)) on motor 2, plus a little deterministic "noise".
+        let p = Problem::new(nominal, &crate::diagnose::loop_closure::SixBarDesign::paper(), &data);
+        (nominal, data, p)
+    }
+
+    /// Tool residual (µm) of joint errors `dth_urad(point index, point)` on both motors, plus a
+    /// little deterministic "noise".
+    fn residual(nominal: &FiveBar<f64>, p: &Problem, dth_urad: impl Fn(usize, &crate::diagnose::effects::Point) -> [f64; 2]) -> Vec<f64> {
         let mut r = Vec::new();
         for (k, q) in p.points.iter().enumerate() {
             let j = nominal.forward_pose(q.theta_rad, 0.0).unwrap().jacobian().unwrap();
-            let d2 = 30e-6 * (40.0 * q.theta_rad[1]).sin();
+            let d = dth_urad(k, q).map(|v| v * 1e-6);
             let wobble = 1e-3 * ((k * 7919) % 13) as f64 / 13.0;
-            r.push(j[0][1] * d2 * 1e3 + wobble);
-            r.push(j[1][1] * d2 * 1e3 - wobble);
+            r.push((j[0][0] * d[0] + j[0][1] * d[1]) * 1e3 + wobble);
+            r.push((j[1][0] * d[0] + j[1][1] * d[1]) * 1e3 - wobble);
         }
+        r
+    }
+
+    #[test]
+    fn periodogram_finds_a_joint_ripple_and_ignores_none() {
+        let (nominal, data, p) = grid_with_directions();
+        assert!(p.has_dir);
+        // 30 µrad · sin(40 θ2) on motor 2.
+        let r = residual(&nominal, &p, |_, q| [0.0, 30.0 * (40.0 * q.theta_rad[1]).sin()]);
         let f = analyse(&p, &data, &r);
         let per2 = f.iter().find(|f| f.kind == "periodic_theta2").unwrap();
         assert!(per2.significant && per2.cycles_per_rev == Some(40.0), "{per2:?}");
-        assert!(!f.iter().any(|f| f.kind.starts_with("direction")));
+        // The direction test ran on both motors and found nothing: the ripple does not depend
+        // on the approach direction.
+        let dirs: Vec<&Finding> = f.iter().filter(|f| f.kind.starts_with("direction")).collect();
+        assert_eq!(dirs.len(), 2, "{f:?}");
+        assert!(dirs.iter().all(|d| !d.significant), "{dirs:?}");
+    }
+
+    #[test]
+    fn direction_test_finds_a_lost_motion_on_its_motor_only() {
+        // Motor 1 lags by 15 µrad against its approach direction (a 30 µrad backlash): the
+        // test must find it on motor 1, with its size, and not on motor 2.
+        let (nominal, data, p) = grid_with_directions();
+        let r = residual(&nominal, &p, |_, q| [-15.0 * q.dir[0], 0.0]);
+        let f = analyse(&p, &data, &r);
+        let d1 = f.iter().find(|f| f.kind == "direction_motor1").expect("tested");
+        let d2 = f.iter().find(|f| f.kind == "direction_motor2").expect("tested");
+        assert!(d1.significant && d1.share > 0.9, "{d1:?}");
+        assert!(d1.description.contains("-30.0 µrad"), "{d1:?}");
+        assert!(!d2.significant, "{d2:?}");
     }
 }

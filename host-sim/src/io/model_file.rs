@@ -8,7 +8,9 @@
 //!   "base_a0_mm": [0.0, 0.0], "base_b0_mm": [0.0, 0.0], "encoder_offset_deg": [0.0, 0.0],
 //!   "mode": { "elbow_1": "positive", "elbow_2": "negative", "assembly": "positive" },
 //!   "std_dev": { "a_mm": 0.002, ... },          // optional: one standard deviation per fitted parameter
-//!   "fit": { ... }                              // optional: how it was obtained (free-form)
+//!   "fit": { ... },                             // optional: how it was obtained (free-form)
+//!   "backlash_urad": [20.0, 20.0],              // optional: lost motion, corrected by direction
+//!   "diagnosed": { ... }                        // optional: diagnose's other named effects
 //! }
 //! ```
 //! Angles are degrees in files (like the measurement CSV) and radians in code.
@@ -61,6 +63,16 @@ pub struct ModelFile {
     /// How the model was obtained (method, data, errors); free-form.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub fit: Option<serde_json::Value>,
+    /// Lost motion per motor (µrad), corrected by direction in every command
+    /// (`calib::backlash`); absent: no backlash correction. Written by `diagnose --out-model`
+    /// and the demo (random approach).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub backlash_urad: Option<[f64; 2]>,
+    /// What `diagnose --out-model` named that is not a five-bar parameter nor backlash (the
+    /// six-bar's effects, gear ratio, instrument rotation and scale), with its fitted values;
+    /// free-form, for the record: the correction grid built with this model takes them.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub diagnosed: Option<serde_json::Value>,
 }
 
 fn to_name(b: Branch) -> BranchName {
@@ -97,6 +109,8 @@ impl ModelFile {
             },
             std_dev: BTreeMap::new(),
             fit: None,
+            backlash_urad: None,
+            diagnosed: None,
         }
     }
 
@@ -123,7 +137,16 @@ impl ModelFile {
             },
         };
         m.validate().map_err(|e| IoError::Invalid(format!("invalid model: {e}")))?;
+        self.backlash()?;
         Ok(m)
+    }
+
+    /// The backlash correction, validated (finite, 0..=0.01 rad).
+    pub fn backlash(&self) -> Result<Option<crate::calib::backlash::Backlash>, IoError> {
+        self.backlash_urad
+            .map(crate::calib::backlash::Backlash::new)
+            .transpose()
+            .map_err(|e| IoError::Invalid(format!("invalid model: {e}")))
     }
 }
 

@@ -54,6 +54,14 @@ pub enum ClientError {
     /// A knot file or trajectory is unusable.
     #[error("trajectory: {0}")]
     Trajectory(String),
+    /// The controller committed an image whose id is not the file's.
+    #[error("the controller reports calibration id {controller:?} after the upload, the file's is {file:#010x}")]
+    CalibrationId {
+        /// The file's id ([`link_protocol::calibration_image_id`]).
+        file: u32,
+        /// What the controller reported.
+        controller: Option<u32>,
+    },
 }
 
 /// The name of a command, for messages.
@@ -255,12 +263,14 @@ fn controller_free(s: &StatusReport) -> usize {
     link_protocol::STREAM_BUFFER_KNOTS.saturating_sub(usize::from(s.stream_knots_queued))
 }
 
-/// Uploads a calibration image; returns the id the controller reports for it.
+/// Uploads a calibration image; returns its id, which the controller's commit reported and which
+/// is the file's own ([`link_protocol::calibration_image_id`], CRC-32C of its bytes; anything
+/// else is [`ClientError::CalibrationId`]).
 pub fn upload_calibration<S: Read + Write>(
     client: &mut LinkClient<S>,
     image: &[u8],
     progress: Progress<'_>,
-) -> Result<Option<u32>, ClientError> {
+) -> Result<u32, ClientError> {
     client.request(Command::CalibrationBegin { len: image.len() as u32 })?;
     for (i, chunk) in image.chunks(CALIBRATION_CHUNK_LEN).enumerate() {
         let offset = (i * CALIBRATION_CHUNK_LEN) as u32;
@@ -268,8 +278,10 @@ pub fn upload_calibration<S: Read + Write>(
         client.request(Command::CalibrationChunk { offset, data })?;
         progress(offset as usize + chunk.len(), image.len());
     }
+    let file = link_protocol::calibration_image_id(image);
     match client.request(Command::CalibrationCommit)? {
-        Response::CalibrationId(id) => Ok(id),
+        Response::CalibrationId(Some(id)) if id == file => Ok(id),
+        Response::CalibrationId(controller) => Err(ClientError::CalibrationId { file, controller }),
         other => Err(ClientError::Unexpected { command: "calibration commit", reply: Box::new(other) }),
     }
 }

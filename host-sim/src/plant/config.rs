@@ -492,8 +492,8 @@ impl PlantConfig {
     }
 
     /// The ideal plant with only `effect` taken over from `self`. Effects the plant has no
-    /// setting of its own for (`link_lengths`, `base_offset`, `link_stretch`: parts of
-    /// `link_geometry`; `gear_ratio`) are refused.
+    /// setting of its own for (`link_lengths`, `base_offset`, `link_stretch`,
+    /// `parallelogram_mismatch`: parts of `link_geometry`; `gear_ratio`) are refused.
     pub fn with_only(&self, effect: PhysicalEffect) -> Result<Self, PlantError> {
         let mut p = PlantConfig::ideal();
         p.sixbar.model = self.sixbar.model;
@@ -523,7 +523,11 @@ impl PlantConfig {
             }
             PhysicalEffect::Scale => p.instrument.scale_error_ppm = self.instrument.scale_error_ppm,
             PhysicalEffect::InstrumentNoise => p.instrument.noise_sigma_um = self.instrument.noise_sigma_um,
-            PhysicalEffect::LinkLengths | PhysicalEffect::BaseOffset | PhysicalEffect::LinkStretch | PhysicalEffect::GearRatio => {
+            PhysicalEffect::LinkLengths
+            | PhysicalEffect::BaseOffset
+            | PhysicalEffect::LinkStretch
+            | PhysicalEffect::ParallelogramMismatch
+            | PhysicalEffect::GearRatio => {
                 return Err(PlantError::NoSetting(effect));
             }
         }

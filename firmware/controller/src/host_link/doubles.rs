@@ -6,7 +6,7 @@
 //!   published [`Status`], and the machine ([`JointPlant`], the servo loop's own test plant).
 //! * [`HomingDouble`]: homes at once (or refuses); the real procedure is `homing.rs`.
 //! * [`StoreDouble`]: a RAM calibration store with the real image check
-//!   ([`image_id`](crate::calibration::image_id)) and the image's CRC as its id; the real one is the two flash
+//!   ([`image_id`](crate::calibration::image_id), the CRC-32C id the real store reports); the real one is the two flash
 //!   slots of `calibration_slots.rs`.
 use heapless::spsc::Queue;
 use kinematics_core::trajectory::MotionSetpoint;
@@ -169,7 +169,7 @@ impl<'a> Rig<'a> {
     /// Boots the servo loop with the machine at `joints_rad` and the stream holding where it
     /// engaged; `active_id` is the id of the image `calibration` came from.
     pub fn boot(settings: &'a Settings, calibration: Calibration<'a>, joints_rad: [f32; 2], active_id: Option<u32>) -> Self {
-        let workspace = calibration.grid.as_ref().map(|g| Workspace::of_grid(g.geometry(), settings.stop.workspace_margin_mm));
+        let workspace = calibration.grid.as_ref().and_then(|g| Workspace::of_image(g, settings.stop.workspace_margin_mm));
         let servo = ServoLoop::boot(settings, calibration, CalibrationState::Valid, joints_rad);
         let limits = StreamLimits { task: settings.stream_limits(), stop: settings.stop.limits, workspace };
         let stream = MotionStream::new(limits, servo.setpoint_mm());

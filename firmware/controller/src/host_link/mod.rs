@@ -34,7 +34,10 @@ use link_protocol::{
     MIN_TELEMETRY_DECIMATION, PROTOCOL_VERSION,
 };
 
+use crate::calibration::ImageError;
+use crate::calibration_slots::SlotError;
 use crate::fault::Fault;
+use crate::homing::HomingPhase;
 use crate::motion_stream::{MotionStream, MoveRefusal, PushRefusal};
 use crate::servo_loop::{Mode, ServoRequest};
 use crate::status::Status;
@@ -137,6 +140,35 @@ pub fn mode_code(mode: Mode) -> ModeCode {
         Mode::SafeState(_) => ModeCode::SafeState,
         Mode::Unhomed => ModeCode::Unhomed,
         Mode::Homing => ModeCode::Homing,
+    }
+}
+
+/// Where homing is, as the link reports it, from the servo loop's mode and homing phase
+/// ([`crate::servo_loop::ServoLoop::homing_phase`], published in the [`Status`]): homed once the
+/// procedure reached home (whatever faults come later: the encoder zero stays set) or with
+/// absolute encoders; failed when the procedure stopped on a fault (its own, or any fault latched
+/// while it ran); not homed before it started.
+pub fn homing_state(mode: Mode, phase: Option<HomingPhase>, absolute_encoders: bool) -> HomingState {
+    match (mode, phase) {
+        (Mode::Unhomed, _) => HomingState::NotHomed,
+        (Mode::Homing, _) => HomingState::InProgress,
+        (_, Some(HomingPhase::Done)) => HomingState::Homed,
+        _ if absolute_encoders => HomingState::Homed,
+        (Mode::SafeState(Fault::Homing(_)), _) | (_, Some(_)) => HomingState::Failed,
+        (_, None) => HomingState::NotHomed,
+    }
+}
+
+/// The link's name of the slot store's refusal (`calibration_slots`).
+pub fn calibration_refusal(e: SlotError) -> CalibrationRefusal {
+    match e {
+        SlotError::NoUpload => CalibrationRefusal::NotBegun,
+        SlotError::BadLength { .. } => CalibrationRefusal::Length,
+        SlotError::OutOfOrder { .. } => CalibrationRefusal::Offset,
+        SlotError::TooMuchData | SlotError::Incomplete { .. } => CalibrationRefusal::Incomplete,
+        SlotError::Flash(_) => CalibrationRefusal::Flash,
+        SlotError::Image(ImageError::Grid(_)) => CalibrationRefusal::Invalid,
+        SlotError::Image(ImageError::OtherMachine(_)) => CalibrationRefusal::OtherMachine,
     }
 }
 

@@ -352,3 +352,53 @@ proptest! {
         }
     }
 }
+
+/// The link's homing state follows the servo loop's mode and homing phase.
+#[test]
+fn the_homing_state_follows_the_mode_and_the_phase() {
+    use crate::homing::{HomingFault, HomingPhase};
+    use HomingState::*;
+    let enc = Fault::Encoder(crate::encoder_check::EncoderFault { axis: 0, kind: crate::encoder_check::EncoderFaultKind::Speed });
+    let cases = [
+        (Mode::Unhomed, None, false, NotHomed),
+        (Mode::Homing, Some(HomingPhase::Search(1)), false, InProgress),
+        (Mode::Homing, Some(HomingPhase::ToHome), false, InProgress),
+        (Mode::Running, Some(HomingPhase::Done), false, Homed),
+        // A fault after homing: the zero stays set.
+        (Mode::SafeState(enc), Some(HomingPhase::Done), false, Homed),
+        (Mode::Holding(Fault::Underrun), Some(HomingPhase::Done), false, Homed),
+        // A fault while homing, or homing's own.
+        (Mode::SafeState(enc), Some(HomingPhase::Search(0)), false, Failed),
+        (Mode::SafeState(Fault::Homing(HomingFault::IndexNotFound(0))), Some(HomingPhase::Failed(HomingFault::IndexNotFound(0))), false, Failed),
+        (Mode::SafeState(Fault::Homing(HomingFault::Plan)), None, false, Failed),
+        // Never homed, a fault at boot (a watchdog reset): not homed, so no reset engages it.
+        (Mode::SafeState(Fault::DeadlineMissed), None, false, NotHomed),
+        // Absolute encoders.
+        (Mode::Running, None, true, Homed),
+        (Mode::SafeState(Fault::DeadlineMissed), None, true, Homed),
+    ];
+    for (mode, phase, absolute, expected) in cases {
+        assert_eq!(homing_state(mode, phase, absolute), expected, "{mode:?} {phase:?} absolute {absolute}");
+    }
+}
+
+/// Every refusal of the slot store has its name on the link.
+#[test]
+fn the_slot_stores_refusals_have_their_link_names() {
+    use crate::calibration::{ImageError, MachineMismatch};
+    use crate::calibration_slots::{FlashError, SlotError};
+    use kinematics_core::GridError;
+    let cases = [
+        (SlotError::NoUpload, CalibrationRefusal::NotBegun),
+        (SlotError::BadLength { max: 10 }, CalibrationRefusal::Length),
+        (SlotError::OutOfOrder { expected: 3 }, CalibrationRefusal::Offset),
+        (SlotError::TooMuchData, CalibrationRefusal::Incomplete),
+        (SlotError::Incomplete { received: 3 }, CalibrationRefusal::Incomplete),
+        (SlotError::Flash(FlashError::Timeout), CalibrationRefusal::Flash),
+        (SlotError::Image(ImageError::Grid(GridError::BadCrc)), CalibrationRefusal::Invalid),
+        (SlotError::Image(ImageError::OtherMachine(MachineMismatch::WorkingMode)), CalibrationRefusal::OtherMachine),
+    ];
+    for (e, expected) in cases {
+        assert_eq!(calibration_refusal(e), expected, "{e:?}");
+    }
+}

@@ -203,7 +203,8 @@ pub enum Scenario {
     /// The host link drives the machine (`firmware/qemu/link.sh`, `host-sim link`): the setpoints
     /// come from the link's motion stream, the built-in tour is not run, nothing is injected,
     /// and the run never concludes (the host ends QEMU). The harness still checks every sample
-    /// (deadline and watchdog) and fails the run on a missed deadline.
+    /// (deadline and watchdog) and fails the run on a missed deadline. The encoders are
+    /// incremental (the machine powers up unhomed at [`HOMING_POWER_ON_MM`]): the host homes it.
     Link,
     /// Self-test of the panic path: the harness panics at boot (`qemu/test.sh` expects the
     /// panic handler's line and exit 1).
@@ -416,12 +417,14 @@ impl Scenario {
         }
     }
 
-    /// The homing scenarios' simulated machine: incremental encoders, where it powers up, which
-    /// axes have an index mark (`None`: absolute encoders, no homing).
+    /// The homing scenarios' (and `link`'s) simulated machine: incremental encoders, where it
+    /// powers up, which axes have an index mark (`None`: absolute encoders, no homing).
     pub fn homing_sim(self) -> Option<HomingSim> {
         match self {
             Scenario::Homing => Some(HomingSim { power_on_mm: HOMING_POWER_ON_MM, index: [true, true] }),
             Scenario::HomingNoIndex => Some(HomingSim { power_on_mm: HOMING_POWER_ON_MM, index: [false, true] }),
+            // The host link's test homes through the link (`host-sim link home`).
+            Scenario::Link => Some(HomingSim { power_on_mm: HOMING_POWER_ON_MM, index: [true, true] }),
             _ => None,
         }
     }
@@ -1192,6 +1195,7 @@ mod tests {
             setpoint_underruns: 0,
             calibration_id: None,
             last_upload: None,
+            homing: None,
         }
     }
 

@@ -206,10 +206,11 @@ impl Board for QemuBoard {
         let (trajectory_profile, trajectory_accel_mm_s2) =
             scenario.trajectory((production.trajectory_profile, production.trajectory_accel_mm_s2));
         // The simulated encoders are absolute (the counters show the joint angle) except in the
-        // homing scenarios, where they are incremental with an index mark and the machine homes
-        // at boot.
+        // homing scenarios and `link`, where they are incremental with an index mark; the homing
+        // scenarios home at boot, `link` when the host sends Home.
         let homes = scenario.homing_sim().is_some();
-        let homing = HomingSettings { absolute_encoders: !homes, at_boot: homes, ..production.homing };
+        let homing =
+            HomingSettings { absolute_encoders: !homes, at_boot: homes && !scenario.link_motion(), ..production.homing };
         Settings {
             link_motion: scenario.link_motion(),
             builtin_tour_mm: scenario.tour_mm(&WORKSPACE_TOUR_MM),
