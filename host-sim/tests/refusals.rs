@@ -130,6 +130,18 @@ fn every_output_is_written_only_once_all_are_ready() {
     // And with good paths both are written.
     let (ok, _, err) = run(&["grid", "--model", s(&model), "--data", s(&data), "--out", s(&image), "--csv", s(&csv)]);
     assert!(ok && image.exists() && csv.exists(), "{err}");
+    // diagnose --out report.json --out-model BAD: the report is not written either; an extended
+    // model named like the measurements is refused and the measurements are kept.
+    let m = d.join("m.csv");
+    write_measurements(&m, &readings(&random_targets(60, 3), 1e-3, 3)).unwrap();
+    let report = d.join("report.json");
+    refused(&["diagnose", "--data", s(&m), "--out", s(&report), "--out-model", s(&bad)], "a directory", &[&report]);
+    let before = std::fs::read(&m).unwrap();
+    refused(&["diagnose", "--data", s(&m), "--out", s(&report), "--out-model", s(&m)], "one of the command's inputs", &[&report]);
+    assert_eq!(std::fs::read(&m).unwrap(), before, "diagnose overwrote its measurements");
+    let extended = d.join("extended.json");
+    let (ok, _, err) = run(&["diagnose", "--data", s(&m), "--out", s(&report), "--out-model", s(&extended)]);
+    assert!(ok && report.exists() && extended.exists(), "{err}");
 }
 
 #[test]
