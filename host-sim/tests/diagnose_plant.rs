@@ -366,6 +366,15 @@ fn gap_shrink_workflow_writes_the_extended_model_and_the_commands_use_it() {
     // angles; `command` writes each target's approach directions and the corrected angles.
     run(&["measure", "--plant", "paper", "--protocol", "grid", "--seed", "2", "--noise-um", "1", "--model", "model.json", "--out", "g.csv"]);
     run(&["grid", "--model", "model.json", "--data", "g.csv", "--out", "grid.bin"]);
+    // A second round through that grid, pooled with the first (`grid --data` several files):
+    // each file is turned into link angles, every node read twice, and the two rounds agree to
+    // the 1 µm instrument once each reading is referred to its node's command.
+    run(&["measure", "--plant", "paper", "--protocol", "grid", "--seed", "3", "--noise-um", "1", "--model", "model.json", "--grid", "grid.bin", "--out", "g2.csv"]);
+    let pooled: serde_json::Value = serde_json::from_str(&run(&["grid", "--model", "model.json", "--data", "g.csv", "g2.csv", "--out", "grid2.bin"])).unwrap();
+    let noise = &pooled["noise"];
+    assert_eq!((noise["readings_per_node_min"].as_u64(), noise["readings_per_node_max"].as_u64()), (Some(2), Some(2)), "{pooled}");
+    let sigma = noise["repeats_sigma_um"].as_f64().unwrap();
+    assert!(sigma > 0.5 && sigma < 1.5, "the two rounds scatter by {sigma} µm per axis with a 1 µm instrument: {pooled}");
     std::fs::write(p("targets.csv"), "x_mm,y_mm\n200,0\n210,10\n205,-5\n").unwrap();
     run(&["command", "--model", "model.json", "--grid", "grid.bin", "--targets", "targets.csv", "--out", "cmd.csv"]);
     run(&["command", "--model", "fit.json", "--targets", "targets.csv", "--out", "cmd_plain.csv"]);

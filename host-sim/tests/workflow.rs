@@ -6,6 +6,8 @@
 //! * the separate commands reproduce the demo's figures bit for bit (one path: the demo calls
 //!   the same library functions with the same lists and seeds; README's workflow);
 //! * the second machine runs the whole workflow and the demo, reaching its noise floor;
+//! * README's command blocks run as written and reach the figures stated for them (the
+//!   verifications' comments; `verify`'s report figures in README and CALIBRATION.md);
 //! * bad input of the new parts fails cleanly: a target outside the workspace, a plant of
 //!   another machine, a simulation that faults, a demo that misses its goal.
 
@@ -98,12 +100,13 @@ fn workflow(setup: &Setup, dir: &Path) -> (Figures, Vec<u8>) {
     figures.push(("nominal".into(), round(&measure("plan/verify.csv", &[], 2, "v_nominal.csv"))));
     figures.push(("ls".into(), round(&measure("plan/verify.csv", &["--model", &p("model_ls.json")], 3, "v_ls.csv"))));
     figures.push(("full".into(), round(&measure("plan/verify.csv", &["--model", &p("model.json")], 4, "v_full.csv"))));
-    measure("plan/grid.csv", &["--model", &p("model.json")], 5, "grid1.csv");
-    let g1 = json(&ok(&setup.args(&["grid", "--model", &p("model.json"), "--data", &p("grid1.csv"), "--out", &p("grid1.bin")])));
+    measure("plan/grid.csv", &["--model", &p("model.json")], 5, "nodes1.csv");
+    let g1 = json(&ok(&setup.args(&["grid", "--model", &p("model.json"), "--data", &p("nodes1.csv"), "--out", &p("grid1.bin")])));
     assert_eq!(g1["workspace_block"], "written", "{g1}");
     figures.push(("full+grid".into(), round(&measure("plan/verify.csv", &["--grid", &p("grid1.bin")], 6, "v_grid1.csv"))));
-    measure("plan/grid.csv", &["--grid", &p("grid1.bin")], 7, "grid2.csv");
-    ok(&setup.args(&["grid", "--model", &p("model.json"), "--data", &p("grid2.csv"), "--out", &p("grid.bin")]));
+    measure("plan/grid.csv", &["--grid", &p("grid1.bin")], 7, "nodes2.csv");
+    // Round 2 pools both rounds' readings, as the demo does.
+    ok(&setup.args(&["grid", "--model", &p("model.json"), "--data", &p("nodes1.csv"), &p("nodes2.csv"), "--out", &p("grid.bin")]));
     figures.push(("full+grid2".into(), round(&measure("plan/verify.csv", &["--grid", &p("grid.bin")], 8, "v_grid2.csv"))));
     (figures, std::fs::read(dir.join("grid.bin")).unwrap())
 }
@@ -140,8 +143,8 @@ fn the_separate_commands_reproduce_the_demo_on_the_paper_machine() {
     let d = dir.path();
     let dynamics = d.join("dynamics.json");
     std::fs::write(&dynamics, DYNAMICS_JSON).unwrap();
-    let (m, g2, gd) = (d.join("model.json"), d.join("grid2.csv"), d.join("gd.bin"));
-    let v = json(&ok(&["grid", "--model", s(&m), "--data", s(&g2), "--out", s(&gd), "--dynamics", s(&dynamics)]));
+    let (m, g1, g2, gd) = (d.join("model.json"), d.join("nodes1.csv"), d.join("nodes2.csv"), d.join("gd.bin"));
+    let v = json(&ok(&["grid", "--model", s(&m), "--data", s(&g1), s(&g2), "--out", s(&gd), "--dynamics", s(&dynamics)]));
     assert_eq!((&v["workspace_block"], &v["dynamics_block"]), (&"written".into(), &true.into()), "{v}");
     let with = std::fs::read(&gd).unwrap();
     assert_eq!(&with[..image.len()], &image[..]);
@@ -153,7 +156,15 @@ fn the_separate_commands_reproduce_the_demo_on_the_paper_machine() {
     assert_eq!(sim["dynamics_source"], "the --grid image's dynamics block", "{sim}");
     std::fs::write(&dynamics, DYNAMICS_JSON.replace("0.165", "-0.165")).unwrap();
     let bad = d.join("bad.bin");
-    fails(&["grid", "--model", s(&m), "--data", s(&g2), "--out", s(&bad), "--dynamics", s(&dynamics)], "dynamics.json");
+    fails(&["grid", "--model", s(&m), "--data", s(&g1), s(&g2), "--out", s(&bad), "--dynamics", s(&dynamics)], "dynamics.json");
+    assert!(!bad.exists());
+    // `--out nodes1.bin` would write its node table over the measurements it read.
+    let before = std::fs::read(&g1).unwrap();
+    fails(&["grid", "--model", s(&m), "--data", s(&g1), "--out", s(&d.join("nodes1.bin"))], "one of the command's inputs");
+    assert_eq!(std::fs::read(&g1).unwrap(), before);
+    assert!(!d.join("nodes1.bin").exists());
+    // The same file twice would pass its readings off as repeats.
+    fails(&["grid", "--model", s(&m), "--data", s(&g2), "--data", s(&g2), "--out", s(&bad)], "names");
     assert!(!bad.exists());
 }
 
@@ -328,6 +339,78 @@ fn the_readme_workflow_reaches_the_figures_it_states() {
     }
     assert_eq!(checked, 4, "the four verifications carry their figures");
     assert!(dir.path().join("angles.csv").is_file());
+}
+
+/// README's "The customer's accuracy report (`verify`)", run as written (`$H` is the binary,
+/// `$M` the plant options the block defines, `\` continues a line): every command succeeds,
+/// and the figures the README's sentence and CALIBRATION.md's table state for it are what
+/// `verify` printed, to the digits shown (≥ 100: units, ≥ 10: one decimal, else two).
+#[test]
+fn the_readme_verify_block_reaches_the_figures_the_docs_state() {
+    let readme = std::fs::read_to_string(root().join("../README.md")).unwrap();
+    let section = readme.split("### The customer's accuracy report (`verify`)").nth(1).expect("the README section");
+    let block = section.split("```sh\n").nth(1).unwrap().split("```").next().unwrap().replace("\\\n", " ");
+    let plant = block.lines().find_map(|l| l.split("M=\"").nth(1)).unwrap().split('"').next().unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let mut report = None;
+    for line in block.lines().filter(|l| l.starts_with("$H ")) {
+        let command = line.split('#').next().unwrap().replacen("$H ", "", 1).replace("$M", plant);
+        let args: Vec<&str> = command.split_whitespace().collect();
+        let out = Command::new(env!("CARGO_BIN_EXE_host-sim")).args(&args).current_dir(dir.path()).output().unwrap();
+        assert!(out.status.success(), "README: `{line}` failed: {}", String::from_utf8_lossy(&out.stderr));
+        if args[0] == "verify" {
+            report = Some(json(&String::from_utf8_lossy(&out.stdout)));
+        }
+    }
+    let v = report.expect("the block runs verify");
+    let shown = |x: &serde_json::Value| {
+        let x = x.as_f64().unwrap();
+        if x >= 100.0 {
+            format!("{x:.0}")
+        } else if x >= 10.0 {
+            format!("{x:.1}")
+        } else {
+            format!("{x:.2}")
+        }
+    };
+    let (before, after) = (&v["stages"][0], &v["stages"][1]);
+    assert_eq!((before["stage"].as_str(), after["stage"].as_str()), (Some("before"), Some("after")));
+    let pos = |st: &serde_json::Value| format!("{} / {}", shown(&st["position"]["max_um"]), shown(&st["position"]["rms_um"]));
+    let line = |st: &serde_json::Value, k: usize, axis: &str| {
+        let l = &st["lines"][k];
+        assert_eq!(l["axis"].as_str(), Some(axis));
+        l.clone()
+    };
+    let iso = |l: &serde_json::Value, key: &str| shown(&l["iso_230_2"][key]);
+    let vdi = |l: &serde_json::Value, key: &str| shown(&l["vdi_3441"][key]);
+    let (bx, by, ax, ay) = (line(before, 0, "x"), line(before, 1, "y"), line(after, 0, "x"), line(after, 1, "y"));
+    let sentence = format!(
+        "error {} max / RMS before, {} after; ISO 230-2 accuracy A {} → {} (x line) and {} → {} (y line); VDI 3441 P {} → {} and {} → {}.",
+        pos(before),
+        pos(after),
+        iso(&bx, "a_um"),
+        iso(&ax, "a_um"),
+        iso(&by, "a_um"),
+        iso(&ay, "a_um"),
+        vdi(&bx, "p_um"),
+        vdi(&ax, "p_um"),
+        vdi(&by, "p_um"),
+        vdi(&ay, "p_um"),
+    );
+    let one_line = |t: &str| t.split_whitespace().collect::<Vec<_>>().join(" ");
+    assert!(one_line(section).contains(&sentence), "README's verify figures are stale; verify printed: {sentence}");
+    let arbe = |l: &serde_json::Value| ["a_um", "r_um", "e_um", "b_um"].map(|k| iso(l, k)).join(" / ");
+    let p_ps = |l: &serde_json::Value| format!("{} / {}", vdi(l, "p_um"), vdi(l, "ps_um"));
+    let calibration = std::fs::read_to_string(root().join("CALIBRATION.md")).unwrap();
+    for row in [
+        format!("| 2-D position error max / RMS (400 targets) | {} | {} |", pos(before), pos(after)),
+        format!("| x line (y = 0): ISO 230-2 A / R / E / B | {} | {} |", arbe(&bx), arbe(&ax)),
+        format!("| y line (x = 212.132): ISO 230-2 A / R / E / B | {} | {} |", arbe(&by), arbe(&ay)),
+        format!("| x line: VDI 3441 P / Ps | {} | {} |", p_ps(&bx), p_ps(&ax)),
+        format!("| y line: VDI 3441 P / Ps | {} | {} |", p_ps(&by), p_ps(&ay)),
+    ] {
+        assert!(calibration.contains(&row), "CALIBRATION.md's verify table is stale; verify printed: {row}");
+    }
 }
 
 /// `plan`'s files, checked from the files alone on both machines: every target in the

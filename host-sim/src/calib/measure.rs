@@ -159,6 +159,18 @@ pub fn true_error_vectors_um(landed: &[Landed]) -> Vec<[f64; 2]> {
         .collect()
 }
 
+/// Error vectors (µm) of the readings against the targets: measured − target, what the
+/// instrument shows (e.g. at the grid nodes).
+pub fn measured_error_vectors_um(landed: &[Landed]) -> Vec<[f64; 2]> {
+    landed
+        .iter()
+        .map(|l| {
+            let t = l.row.target_mm.unwrap_or(l.row.measured_mm);
+            [(l.row.measured_mm[0] - t[0]) * 1e3, (l.row.measured_mm[1] - t[1]) * 1e3]
+        })
+        .collect()
+}
+
 /// Where measured visits landed, against their targets.
 pub fn accuracy(landed: &[Landed]) -> Accuracy {
     let truth: Vec<f64> = true_error_vectors_um(landed).iter().map(|e| e[0].hypot(e[1])).collect();

@@ -12,7 +12,7 @@
 //! | 1. measure the identification poses, nominal model | [`super::measure::measure_list`] | `measure --targets identify.csv` | 10·S + 1 |
 //! | 2. fit: the paper's `ls` (links only, for comparison) and `full` (LM: links, A0, B0, encoder offsets) | [`super::fit::fit`] | `fit --method ls`, `fit --method full` | — |
 //! | 3. measure the grid nodes commanded with the `full` model; build the grid (+ the workspace block) | `measure_list`, [`super::grid::build`], [`super::image::finish_image`] | `measure --targets grid.csv --model`, `grid` | 10·S + 5 |
-//! | 4. measure the nodes again through that grid; rebuild it (round 2, the image to flash) | the same | `measure --grid`, `grid` | 10·S + 7 |
+//! | 4. measure the nodes again through that grid; rebuild it from both rounds' readings (round 2, the image to flash) | the same | `measure --grid`, `grid --data grid1.csv --data grid2.csv` | 10·S + 7 |
 //! | 5. verify every stage on the verification targets: nominal, `ls`, `full`, `full` + grid, `full` + refined grid | `measure_list`, [`super::measure::accuracy`] | `measure --targets verify.csv [--model M] [--grid G]` | 10·S + 2, 3, 4, 6, 8 |
 //!
 //! Each list is measured as `measure --seed` measures it (the instrument's noise restarted from
@@ -23,6 +23,10 @@
 //! The grid is first order in the error it corrects, so where the fit leaves a large error one
 //! round leaves ~1 % of it and the second removes that (the six-bar plant with A0 held at the
 //! origin: fit ~1 mm, one round 16 µm, two 6 µm); after a good fit both sit at the floor.
+//! Round 2 is built from both rounds' readings (two per node, each referred to the node's IK
+//! command, so the instrument's noise in the grid drops by √2; the grid smooths the node errors
+//! and applies no correction the noise would swamp, see [`super::grid`]): with a 10 µm
+//! instrument this is what brings fit + grid under 6 µm; with 1 µm both rounds sit at the floor.
 //! Accuracy = distance from the target to where the tool really is (the machine's noiseless
 //! truth, instrument frame); the noisy readings are reported too. Every target is commanded
 //! exactly as the firmware does (`Calibration::command_rad`, f32).
@@ -35,7 +39,7 @@
 //! measurement, the backlash is measured on [`BACKLASH_POSES`] random poses of its own (noise
 //! seed 10·S + 9; [`super::backlash::estimate`]; kept where > 3σ) and corrected from there on
 //! by direction (each motor's command moved by dir·β/2, [`measure_list_compensated`]; the grids
-//! built from link angles): on the paper plant its 20 µrad, which left 6.3 µm max / 3.0 µm RMS
+//! built from link angles): on the paper plant its 20 µrad, which left 5.19 µm max / 2.84 µm RMS
 //! uncorrected, are taken out (figures in the README). The separate commands do this step with
 //! `diagnose --out-model` (DIAGNOSIS.md, "Closing the loop").
 //!
@@ -74,7 +78,7 @@ use serde::Serialize;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-pub use super::measure::{accuracy, true_error_vectors_um, Accuracy, Approach};
+pub use super::measure::{accuracy, measured_error_vectors_um, true_error_vectors_um, Accuracy, Approach};
 
 /// Poses measured for the fits (the plan's identification poses).
 pub const FIT_POSES: usize = super::plan::IDENTIFICATION_POSES;
@@ -186,7 +190,7 @@ fn fit_with(method: Method, data: &[Measurement], spec: &MachineSpec) -> Result<
 
 /// The grid from node measurements, as `grid` builds and finishes it.
 fn build_grid(model: &FiveBar<f64>, data: &[Measurement], spec: &MachineSpec) -> Result<BuiltGrid, CalibError> {
-    let mut built = grid::build(model, data, spec.grid.step_mm)?;
+    let mut built = grid::build_with(model, data, &grid::GridOptions::for_machine(spec))?;
     built.image = finish_image(&built.image, spec)?.0;
     Ok(built)
 }
@@ -280,16 +284,20 @@ pub fn calibrate(machine: &mut dyn Machine, opts: &PipelineOptions, events: &mut
             None => Ok(rows),
         }
     };
-    let grid = build_grid(&full.model, &link_rows(&grid_data, "the grid")?, spec).map_err(|e| e.context("building the grid"))?;
+    let grid1_rows = link_rows(&grid_data, "the grid, round 1")?;
+    let grid = build_grid(&full.model, &grid1_rows, spec).map_err(|e| e.context("building the grid"))?;
     let grid_cal = grid_calibration(&grid, "built grid")?;
     let landed = measure_with(machine, &grid_cal, backlash.as_ref(), &plan.verify, 6, "verifying full fit + grid")?;
     stages.push(stage("full+grid", &format!("full fit + {} mm grid (1 round)", g.step_mm), "~37 (40x)", landed));
-    // Round 2: the grid is first order in the error it corrects (grid.rs's doc), so the nodes
+    // Round 2: the grid is first order in the error it corrects (grid/mod.rs's doc), so the nodes
     // are measured again through it and the grid rebuilt from what is left.
     step(events, "step 4: measuring the grid nodes again through the grid (round 2) and refining it".into());
     let grid2_data = measure_with(machine, &grid_cal, backlash.as_ref(), &plan.grid, 7, "measuring the grid, round 2")?;
-    let grid2 = build_grid(&full.model, &link_rows(&grid2_data, "the grid, round 2")?, spec)
-        .map_err(|e| e.context("building the grid, round 2"))?;
+    // Both rounds' readings: the grid refers each to the node's IK command (grid/mod.rs), so the
+    // refined grid averages two readings per node and the instrument's noise in it drops by √2.
+    // With a backlash correction both rounds are in link angles (backlash.rs).
+    let both: Vec<Measurement> = grid1_rows.into_iter().chain(link_rows(&grid2_data, "the grid, round 2")?).collect();
+    let grid2 = build_grid(&full.model, &both, spec).map_err(|e| e.context("building the grid, round 2"))?;
     let grid2_cal = grid_calibration(&grid2, "refined grid")?;
     step(events, format!("step 5: verifying full fit + refined grid on the same {n_verify} fresh targets"));
     let landed = measure_with(machine, &grid2_cal, backlash.as_ref(), &plan.verify, 8, "verifying full fit + refined grid")?;
@@ -348,6 +356,9 @@ pub struct GridSummary {
     pub round2_node_err_max_um: f64,
     pub round2_node_err_rms_um: f64,
     pub image_bytes: usize,
+    /// What each grid knew of the noise and did about it (`grid::NoiseReport`).
+    pub round1_noise: grid::NoiseReport,
+    pub round2_noise: grid::NoiseReport,
 }
 
 /// The final accuracy against the target.
@@ -392,7 +403,8 @@ pub fn summary(cal: &Calibrated, seed: u64, out_dir: &Path, files: &[PathBuf]) -
     let before = cal.stages.first().map_or(f64::NAN, |s| s.accuracy.max_um);
     let fit_rows = rows(&cal.fit_data);
     let (full_res, ls_res) = (residual_um(&cal.full.model, &fit_rows), residual_um(&cal.ls_model, &fit_rows));
-    let (n1, n2) = (cal.grid.stats().node_err, cal.grid2.stats().node_err);
+    let n1 = cal.grid.stats().node_err;
+    let n2 = max_rms(&measured_error_vectors_um(&cal.grid2_data).iter().map(|e| e[0].hypot(e[1])).collect::<Vec<f64>>());
     let fin = cal.final_accuracy();
     Summary {
         machine: cal.machine.clone(),
@@ -440,6 +452,8 @@ pub fn summary(cal: &Calibrated, seed: u64, out_dir: &Path, files: &[PathBuf]) -
             round2_node_err_max_um: round3(n2.max),
             round2_node_err_rms_um: round3(n2.rms),
             image_bytes: cal.grid2.image.len(),
+            round1_noise: cal.grid.noise.clone(),
+            round2_noise: cal.grid2.noise.clone(),
         },
         identification: cal.plan.report.identification.clone(),
         backlash_urad: cal.backlash.map(|b| b.lost_motion_urad.map(round3)),
@@ -558,8 +572,7 @@ pub fn write_outputs(cal: &Calibrated, dir: &Path) -> Result<Vec<PathBuf>, IoErr
     )?;
     written.push(p("errors_final.png"));
     let node_base: Vec<[f64; 2]> = cal.grid.nodes.iter().map(|n| n.target_mm).collect();
-    let node_err = |g: &BuiltGrid| -> Vec<[f64; 2]> { g.nodes.iter().map(|n| [n.error_mm[0] * 1e3, n.error_mm[1] * 1e3]).collect() };
-    let (node_err1, node_err2) = (node_err(&cal.grid), node_err(&cal.grid2));
+    let (node_err1, node_err2) = (measured_error_vectors_um(&cal.grid_data), measured_error_vectors_um(&cal.grid2_data));
     vector_plot(
         &p("grid_nodes.png"),
         "grid nodes: measured − target",

@@ -131,6 +131,7 @@ pub fn run(args: &Args) -> Result<()> {
     write_atomic(&args.out.join("summary.json"), text.as_bytes())?;
     progress(&start, "files written");
     eprintln!("\n{}", format_table(&cal));
+    eprintln!("grid, round 1: {}\ngrid, round 2: {}\n", cal.grid.noise.describe(), cal.grid2.noise.describe());
     print!("{text}");
     if !summary.final_.met {
         bail!(

@@ -6,9 +6,9 @@ use host_sim::diagnose::plots::write_plots;
 use host_sim::diagnose::loop_closure::SixBarDesign;
 use host_sim::diagnose::model_out::extended_model;
 use host_sim::diagnose::{diagnose_with_history, report, DiagnoseOptions};
-use host_sim::io::atomic::write_atomic;
+use host_sim::io::atomic::Outputs;
 use host_sim::io::measurement_csv::read_measurements;
-use host_sim::io::model_file::{read_model, write_model_file};
+use host_sim::io::model_file::{model_file_text, read_model};
 use host_sim::io::{json_text, KeyOrder};
 use std::path::PathBuf;
 
@@ -65,9 +65,17 @@ pub fn run(args: &Args) -> Result<()> {
         Some(_) => Some(extended_model(&base, &report).context("adding the named effects to the model")?),
         None => None,
     };
-    write_atomic(&args.out, json_text(&report, KeyOrder::Declared)?.as_bytes())?;
+    // The report and the extended model staged, then renamed together (io::atomic); neither
+    // may overwrite the measurements or the model read.
+    let mut inputs = vec![args.data.as_path()];
+    inputs.extend(args.model.as_deref());
+    let mut outputs = Outputs::protecting(&inputs);
+    outputs.bytes(&args.out, json_text(&report, KeyOrder::Declared)?.as_bytes())?;
     if let (Some(path), Some(e)) = (&args.out_model, &extended) {
-        write_model_file(path, &e.file(&args.data.display().to_string()))?;
+        outputs.bytes(path, model_file_text(&e.file(&args.data.display().to_string()))?.as_bytes())?;
+    }
+    outputs.commit()?;
+    if let Some(path) = &args.out_model {
         eprintln!("diagnose: extended model -> {}", path.display());
     }
     if let Some(dir) = &args.plots {

@@ -3,12 +3,13 @@
 
 use anyhow::{bail, Context, Result};
 use host_sim::calib::fit::evaluate::{self, Criterion};
-use host_sim::calib::fit::subset_search::Progress;
+use host_sim::calib::fit::subset_search::{Progress, Stage};
 use host_sim::calib::fit::{check_data, fit, params, FitOptions, Method, Points};
 use host_sim::calib::CalibError;
 use host_sim::io::measurement_csv::{read_measurements, Measurement};
-use host_sim::io::model_file::{write_model_file, ModelFile};
-use host_sim::io::plot::{vector_plot, VectorField};
+use host_sim::io::atomic::Outputs;
+use host_sim::io::model_file::{model_file_text, ModelFile};
+use host_sim::io::plot::{vector_plot_png, VectorField};
 use host_sim::io::KeyOrder;
 use host_sim::machine_spec::MachineSpec;
 use kinematics_core::FiveBar;
@@ -125,7 +126,13 @@ fn options(args: &Args, data: &[Measurement], spec: MachineSpec) -> Result<FitOp
                 let k = params::NAMES.iter().position(|n| n == name).with_context(|| {
                     format!("--fix: unknown parameter '{name}' (known: {})", params::NAMES.join(", "))
                 })?;
+                if opts.fixed.contains(&k) {
+                    bail!("--fix: '{name}' is given twice");
+                }
                 opts.fixed.push(k);
+            }
+            if opts.fixed.len() == params::NAMES.len() {
+                bail!("--fix holds all {} parameters: nothing is left to fit", params::NAMES.len());
             }
         }
     }
@@ -152,8 +159,9 @@ pub fn run(args: &Args) -> Result<()> {
     let nominal = spec.nominal;
     let opts = options(args, &data, spec)?;
     // The search reports about once a second.
-    let mut progress = |p: Progress| {
-        eprintln!("subset search: {}/{} subsets, best max error so far {:.1} µm", p.tried, p.total, p.best_max_um);
+    let mut progress = |p: Progress| match p.stage {
+        Stage::SubsetSearch => eprintln!("subset search: {}/{} subsets, best max error so far {:.1} µm", p.tried, p.total, p.best_max_um),
+        Stage::LeaveOneOut => eprintln!("leave-one-out: {}/{} points refitted", p.tried, p.total),
     };
     let outcome = fit(&data, &opts, &mut progress)?;
     if let Some(s) = &outcome.search {
@@ -167,24 +175,35 @@ pub fn run(args: &Args) -> Result<()> {
             eprintln!("fit: {} held at nominal: the data confound {why}", params::NAMES[*k]);
         }
     }
+    if let Some(l) = &outcome.summary.leave_one_out {
+        if l.max_um.is_none() {
+            eprintln!("fit: leave-one-out: no point could be predicted from the others (every fit on the rest failed: too few points)");
+        } else if l.failed > 0 {
+            eprintln!("fit: leave-one-out: {} of {} points could not be predicted from the others", l.failed, l.per_point_um.len());
+        }
+    }
+    // Every output staged, then renamed together: a bad --plot path leaves no model.json.
+    let mut outputs = Outputs::new();
+    let mut file = ModelFile::from_model(&outcome.model);
+    file.std_dev = outcome.std_dev.clone();
+    file.fit = Some(serde_json::to_value(&outcome.summary)?);
+    outputs.bytes(&args.out, model_file_text(&file)?.as_bytes())?;
     if let Some(plot) = &args.plot {
         let base: Vec<[f64; 2]> = data.iter().map(|m| m.measured_mm).collect();
         let vecs = |m: &FiveBar<f64>| -> Vec<[f64; 2]> {
             evaluate::error_vectors_um(m, &data, Criterion::Measured).into_iter().map(|e| e.unwrap_or([f64::NAN; 2])).collect()
         };
         let (before, after) = (vecs(&nominal), vecs(&outcome.model));
-        vector_plot(
-            plot,
+        let png = vector_plot_png(
             "measured − predicted",
             &[
                 VectorField { label: "nominal model", base_mm: &base, error_um: &before },
                 VectorField { label: "fitted model", base_mm: &base, error_um: &after },
             ],
+            &[],
         )?;
+        outputs.bytes(plot, &png)?;
     }
-    let mut file = ModelFile::from_model(&outcome.model);
-    file.std_dev = outcome.std_dev.clone();
-    file.fit = Some(serde_json::to_value(&outcome.summary)?);
-    write_model_file(&args.out, &file)?;
+    outputs.commit()?;
     super::print_json(&outcome.summary, KeyOrder::Sorted)
 }

@@ -2,13 +2,13 @@
 //! nodes (`host_sim::calib::grid`), with a JSON summary.
 
 use anyhow::{bail, Context, Result};
-use host_sim::calib::grid::{build, format_csv};
+use host_sim::calib::grid::{build_with, format_csv, GridOptions, NoiseReport, Smoothing};
 use host_sim::calib::image::{append_dynamics_block, finish_image, WorkspaceBlock};
+use host_sim::io::atomic::Outputs;
 use host_sim::io::dynamics_file::read_dynamics;
-use host_sim::io::atomic::write_atomic;
 use host_sim::io::measurement_csv::read_measurements;
 use host_sim::io::model_file::read_model_file;
-use host_sim::io::plot::{vector_plot, VectorField};
+use host_sim::io::plot::{vector_plot_png, VectorField};
 use host_sim::io::KeyOrder;
 use serde::Serialize;
 use std::path::PathBuf;
@@ -20,9 +20,12 @@ pub struct Args {
     /// `backlash_urad`, the grid is built from link angles (the data need dir1,dir2).
     #[arg(long)]
     pub model: PathBuf,
-    /// Measurements at the nodes; x_target_mm,y_target_mm are the nodes.
-    #[arg(long)]
-    pub data: PathBuf,
+    /// Measurements at the nodes; x_target_mm,y_target_mm are the nodes. Several files
+    /// (`--data grid1.csv grid2.csv`, e.g. both measurement rounds) are pooled: the readings of
+    /// a node are averaged, each referred to the node's own command first, so rounds measured
+    /// through different grids pool correctly.
+    #[arg(long, required = true, num_args = 1..)]
+    pub data: Vec<PathBuf>,
     /// Node spacing (mm), the same along x and y (default: the machine's grid step).
     #[arg(long)]
     pub step_mm: Option<f64>,
@@ -41,6 +44,24 @@ pub struct Args {
     pub dynamics: Option<PathBuf>,
     #[command(flatten)]
     pub machine: super::MachineArg,
+    /// How the nodes' errors are smoothed before they become corrections: `gcv` (the basis and
+    /// the smoothing chosen from the data by generalised cross-validation; repeated readings of
+    /// a node are averaged), `none` (each node's own error, the paper's grid), or a number
+    /// (a fixed smoothing λ in lattice-step units).
+    #[arg(long, default_value = "gcv")]
+    pub smoothing: String,
+}
+
+/// `--smoothing` as the library's option.
+fn smoothing(s: &str) -> Result<Smoothing> {
+    Ok(match s {
+        "gcv" => Smoothing::Gcv,
+        "none" => Smoothing::None,
+        other => match other.parse::<f64>() {
+            Ok(l) if l >= 0.0 && l.is_finite() => Smoothing::Fixed(l),
+            _ => bail!("--smoothing must be gcv, none or a non-negative number, not '{other}'"),
+        },
+    })
 }
 
 /// What `grid` prints.
@@ -62,6 +83,8 @@ struct Summary {
     workspace_block: WorkspaceBlock,
     /// Whether the image carries the dynamics block (`--dynamics`).
     dynamics_block: bool,
+    /// The noise estimate, the smoothing chosen and the residual expected (grid.rs).
+    noise: NoiseReport,
 }
 
 /// `host-sim grid`.
@@ -71,18 +94,29 @@ pub fn run(args: &Args) -> Result<()> {
     if !(step_mm > 0.0 && step_mm.is_finite()) {
         bail!("--step-mm must be positive, got {step_mm}");
     }
+    let smoothing = smoothing(&args.smoothing)?;
     let file = read_model_file(&args.model)?;
     let model = file.model().map_err(|e| anyhow::anyhow!("{}: {e}", args.model.display()))?;
-    let data = read_measurements(&args.data)?;
     // A model with a backlash correction: the grid is built from link angles (calib::backlash),
     // free of the lost motion whatever direction each node was approached from.
-    let data = match file.backlash().map_err(|e| anyhow::anyhow!("{}: {e}", args.model.display()))? {
-        Some(b) => b.link_angles(&data).with_context(|| format!("{} with the model's backlash", args.data.display()))?,
-        None => data,
-    };
-    let mut built = build(&model, &data, step_mm).with_context(|| format!("in {}", args.data.display()))?;
+    let backlash = file.backlash().map_err(|e| anyhow::anyhow!("{}: {e}", args.model.display()))?;
+    let mut data = Vec::new();
+    for (k, path) in args.data.iter().enumerate() {
+        if args.data[..k].contains(path) {
+            bail!("--data names {} twice: its readings would count as repeats", path.display());
+        }
+        let rows = read_measurements(path)?;
+        data.extend(match &backlash {
+            Some(b) => b.link_angles(&rows).with_context(|| format!("{} with the model's backlash", path.display()))?,
+            None => rows,
+        });
+    }
+    let sources = args.data.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(" + ");
+    let built = build_with(&model, &data, &GridOptions { step_mm, smoothing, instrument_sigma_um: Some(spec.instrument_sigma_um) })
+        .with_context(|| format!("in {sources}"))?;
+    eprintln!("grid: {}", built.noise.describe());
     let (image, workspace_block) = finish_image(&built.image, &spec)?;
-    built.image = match &args.dynamics {
+    let image = match &args.dynamics {
         Some(p) => append_dynamics_block(&image, &read_dynamics(p)?).with_context(|| format!("with {}", p.display()))?,
         None => image,
     };
@@ -96,13 +130,20 @@ pub fn run(args: &Args) -> Result<()> {
     if csv == args.out {
         bail!("the node table would overwrite the image: give --csv");
     }
+    // Every output staged, then renamed together: a bad --out leaves no node table or plot.
+    let mut inputs: Vec<&std::path::Path> = args.data.iter().map(PathBuf::as_path).collect();
+    inputs.push(&args.model);
+    inputs.extend(args.dynamics.as_deref());
+    let mut outputs = Outputs::protecting(&inputs);
+    outputs.bytes(&args.out, &image)?;
+    outputs.bytes(&csv, format_csv(&built.nodes).as_bytes())?;
     if let Some(plot) = &args.plot {
         let base: Vec<[f64; 2]> = built.nodes.iter().map(|n| n.target_mm).collect();
         let err: Vec<[f64; 2]> = built.nodes.iter().map(|n| [n.error_mm[0] * 1e3, n.error_mm[1] * 1e3]).collect();
-        vector_plot(plot, "grid nodes: measured − target", &[VectorField { label: "before grid", base_mm: &base, error_um: &err }])?;
+        let png = vector_plot_png("grid nodes: measured − target", &[VectorField { label: "before grid", base_mm: &base, error_um: &err }], &[])?;
+        outputs.bytes(plot, &png)?;
     }
-    write_atomic(&csv, format_csv(&built.nodes).as_bytes())?;
-    write_atomic(&args.out, &built.image)?;
+    outputs.commit()?;
     let stats = built.stats();
     let l = &built.lattice;
     super::print_json(
@@ -116,10 +157,11 @@ pub fn run(args: &Args) -> Result<()> {
             node_err_rms_um: stats.node_err.rms,
             max_abs_dtheta_urad: stats.max_abs_dtheta_urad,
             image: args.out.display().to_string(),
-            image_bytes: built.image.len(),
+            image_bytes: image.len(),
             csv: csv.display().to_string(),
             workspace_block,
             dynamics_block: args.dynamics.is_some(),
+            noise: built.noise.clone(),
         },
         KeyOrder::Sorted,
     )

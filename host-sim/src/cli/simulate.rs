@@ -10,8 +10,8 @@
 //! (a model error, for robustness studies).
 
 use anyhow::{bail, Result};
-use host_sim::io::atomic::write_atomic;
-use host_sim::io::plot::{xy_plot, Mark, Series};
+use host_sim::io::atomic::Outputs;
+use host_sim::io::plot::{xy_plot_png, Mark, Series};
 use host_sim::io::KeyOrder;
 use host_sim::calib::dynamics::identify;
 use host_sim::io::dynamics_file::read_dynamics;
@@ -128,14 +128,15 @@ pub fn run(args: &Args) -> Result<()> {
         feedforward,
     };
     let run = simulate(&cfg, &cal, &trajectory, &opts)?;
+    // Both outputs staged, then renamed together.
+    let mut outputs = Outputs::new();
     if let Some(p) = &args.log {
-        write_atomic(p, format_log(&run.log).as_bytes())?;
+        outputs.bytes(p, format_log(&run.log).as_bytes())?;
     }
     if let Some(p) = &args.plot {
         let set: Vec<[f64; 2]> = run.log.iter().map(|r| r.setpoint_mm).collect();
         let act: Vec<[f64; 2]> = run.log.iter().map(|r| r.tool_mm).collect();
-        xy_plot(
-            p,
+        let png = xy_plot_png(
             &format!("{} on {} plant: commanded vs actual", trajectory.name(), args.plant),
             "x (mm)",
             "y (mm)",
@@ -144,7 +145,9 @@ pub fn run(args: &Args) -> Result<()> {
                 Series { label: "actual tool point", points: &act, mark: Mark::Line },
             ],
         )?;
+        outputs.bytes(p, &png)?;
     }
+    outputs.commit()?;
     let dynamics = match feedforward {
         FeedForward::Dynamics(d) => Some(PARAMETER_NAMES.iter().map(|n| n.to_string()).zip(d.to_array()).collect()),
         _ => None,

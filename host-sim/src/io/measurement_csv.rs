@@ -1,7 +1,8 @@
 //! The measurement CSV: the contract between measuring (a real interferometer or `host-sim
 //! measure`) and every tool that reads measurements (`fit`, `grid`, `diagnose`, `accuracy`).
 //!
-//! A header line, comma separated, columns in any order:
+//! A header line, comma separated (`;` and tab are read too: the delimiter is detected from the
+//! header, see [`super::csv_dialect`]), columns in any order:
 //!
 //! | column | required | meaning |
 //! |---|---|---|
@@ -12,10 +13,16 @@
 //! | `run` | no | repeat index (0, 1, ...) |
 //! | `t_s` | no | time of the measurement (s) |
 //!
-//! Unknown columns are refused (a misspelt optional column would otherwise be silently lost).
-//! Every number must be finite. Errors name the line (1-based, the header is line 1) and column.
+//! Unknown columns are refused by default (a misspelt optional column would otherwise be silently
+//! lost); [`ExtraColumns::Ignore`] reads files that carry more (an instrument's export with its
+//! own columns): the unknown columns are skipped and named in a note, but one that looks like a
+//! known column (the same name but for case, spaces or a missing unit, e.g. `X_target`,
+//! `theta1`) is still refused. Every number must be finite and within the range of its quantity
+//! (`csv_dialect`: |angle| ≤ 1e6°, |length| ≤ 1e6 mm). Errors name the line (1-based, the header
+//! is line 1) and column.
 
 use super::atomic::write_atomic;
+use super::csv_dialect::{self, Quantity};
 use super::{read_text, IoError};
 use std::path::Path;
 
@@ -63,31 +70,105 @@ const COLUMNS: [&str; 10] = [
     "t_s",
 ];
 
+/// The quantity of each column, for its range check.
+const QUANTITIES: [Quantity; 10] = [
+    Quantity::AngleDeg,
+    Quantity::AngleDeg,
+    Quantity::LengthMm,
+    Quantity::LengthMm,
+    Quantity::LengthMm,
+    Quantity::LengthMm,
+    Quantity::Plain,
+    Quantity::Plain,
+    Quantity::Plain,
+    Quantity::TimeS,
+];
+
+/// What to do with columns the format does not know.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum ExtraColumns {
+    /// Refuse the file (the default: a misspelt column would be lost).
+    #[default]
+    Refuse,
+    /// Skip them, with a note; a column that looks like a known one is still refused.
+    Ignore,
+}
+
+/// How to read a measurement file.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct ReadOptions {
+    pub extra_columns: ExtraColumns,
+}
+
+/// Measurements and what the reader noticed (skipped columns, the delimiter when not a comma).
+#[derive(Clone, Debug, PartialEq)]
+pub struct ReadMeasurements {
+    pub rows: Vec<Measurement>,
+    pub notes: Vec<String>,
+}
+
 /// Reads and validates a measurement file.
 pub fn read_measurements(path: &Path) -> Result<Vec<Measurement>, IoError> {
     parse_measurements(&read_text(path)?).map_err(|e| IoError::content(path, e))
 }
 
+/// Reads a measurement file with options.
+pub fn read_measurements_with(path: &Path, opts: &ReadOptions) -> Result<ReadMeasurements, IoError> {
+    parse_measurements_with(&read_text(path)?, opts).map_err(|e| IoError::content(path, e))
+}
+
 /// Parses measurement CSV text (see the module doc for the format).
 pub fn parse_measurements(text: &str) -> Result<Vec<Measurement>, IoError> {
-    let mut reader = csv::ReaderBuilder::new()
-        .trim(csv::Trim::All)
-        .flexible(true)
-        .comment(Some(b'#'))
-        .from_reader(text.as_bytes());
+    parse_measurements_with(text, &ReadOptions::default()).map(|r| r.rows)
+}
+
+/// A column name reduced to what a person would consider the same: lower case, no spaces,
+/// dashes or underscores, and no unit suffix.
+fn loose(name: &str) -> String {
+    let mut s: String = name.to_lowercase().chars().filter(|c| c.is_alphanumeric()).collect();
+    for unit in ["deg", "mm", "s"] {
+        if let Some(stem) = s.strip_suffix(unit) {
+            if !stem.is_empty() {
+                s = stem.to_string();
+                break;
+            }
+        }
+    }
+    s
+}
+
+/// Parses measurement CSV text with options.
+pub fn parse_measurements_with(text: &str, opts: &ReadOptions) -> Result<ReadMeasurements, IoError> {
+    let mut reader = csv_dialect::reader(text);
     let headers = match reader.headers() {
         Ok(h) => h.clone(),
         Err(e) => bail!("line 1: cannot read the header: {e}"),
     };
+    let mut notes = Vec::new();
+    let delimiter = csv_dialect::detect_delimiter(text);
+    if delimiter != b',' {
+        notes.push(format!("{}-separated file", csv_dialect::delimiter_name(delimiter)));
+    }
     let mut index: [Option<usize>; 10] = [None; 10];
+    let mut skipped = Vec::new();
     for (i, name) in headers.iter().enumerate() {
-        let k = COLUMNS
-            .iter()
-            .position(|c| *c == name)
-            .ok_or_else(|| IoError::Parse(format!("line 1: unknown column '{name}' (known: {})", COLUMNS.join(", "))))?;
+        let Some(k) = COLUMNS.iter().position(|c| *c == name) else {
+            let like = COLUMNS.iter().find(|c| loose(c) == loose(name));
+            match (opts.extra_columns, like) {
+                (ExtraColumns::Ignore, None) => {
+                    skipped.push(name.to_string());
+                    continue;
+                }
+                (ExtraColumns::Ignore, Some(c)) => bail!("line 1: column '{name}' looks like '{c}': name it exactly '{c}' (or rename it)"),
+                (ExtraColumns::Refuse, _) => bail!("line 1: unknown column '{name}' (known: {})", COLUMNS.join(", ")),
+            }
+        };
         if index[k].replace(i).is_some() {
             bail!("line 1: column '{name}' appears twice");
         }
+    }
+    if !skipped.is_empty() {
+        notes.push(format!("columns ignored: {}", skipped.join(", ")));
     }
     for required in 0..4 {
         if index[required].is_none() {
@@ -111,15 +192,7 @@ pub fn parse_measurements(text: &str) -> Result<Vec<Measurement>, IoError> {
             match field(k) {
                 None | Some("") if k >= 4 => Ok(None),
                 None | Some("") => bail!("line {line}: '{}' is empty", COLUMNS[k]),
-                Some(s) => {
-                    let v: f64 = s
-                        .parse()
-                        .map_err(|_| IoError::Parse(format!("line {line}: '{}' = '{s}' is not a number", COLUMNS[k])))?;
-                    if !v.is_finite() {
-                        bail!("line {line}: '{}' = '{s}' is not finite", COLUMNS[k]);
-                    }
-                    Ok(Some(v))
-                }
+                Some(s) => csv_dialect::number(s, COLUMNS[k], line, QUANTITIES[k]).map(Some),
             }
         };
         let req = |k: usize| number(k).map(|v| v.expect("required columns are checked above"));
@@ -161,7 +234,7 @@ pub fn parse_measurements(text: &str) -> Result<Vec<Measurement>, IoError> {
     if out.is_empty() {
         bail!("no data rows after the header");
     }
-    Ok(out)
+    Ok(ReadMeasurements { rows: out, notes })
 }
 
 /// Formats measurements as CSV, with the optional columns that every row has.
@@ -225,6 +298,23 @@ mod tests {
     }
 
     #[test]
+    fn other_delimiters_and_extra_columns() {
+        let text = "theta1_deg;theta2_deg;x_mm;y_mm;point;temperature_c\n45;-45;212.132;0;P1;20.5\n";
+        let e = parse_measurements(text).unwrap_err().to_string();
+        assert!(e.contains("unknown column 'point'"), "{e}");
+        let r = parse_measurements_with(text, &ReadOptions { extra_columns: ExtraColumns::Ignore }).unwrap();
+        assert_eq!((r.rows[0].theta_deg, r.rows[0].measured_mm), ([45.0, -45.0], [212.132, 0.0]));
+        assert_eq!(r.notes, vec!["semicolon-separated file".to_string(), "columns ignored: point, temperature_c".into()]);
+        let tab = parse_measurements("theta1_deg\ttheta2_deg\tx_mm\ty_mm\n45\t-45\t212.132\t0\n").unwrap();
+        assert_eq!(tab[0].measured_mm, [212.132, 0.0]);
+        // A misspelt known column is refused even when extra columns are allowed.
+        let e = parse_measurements_with("theta1_deg,theta2_deg,x_mm,y_mm,X_Target\n1,2,3,4,5\n", &ReadOptions { extra_columns: ExtraColumns::Ignore })
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("'X_Target' looks like 'x_target_mm'"), "{e}");
+    }
+
+    #[test]
     fn round_trip_through_text() {
         let rows = vec![Measurement {
             theta_deg: [368.689, 319.378],
@@ -253,6 +343,8 @@ mod tests {
             ("theta1_deg,theta2_deg,x_mm,y_mm,colour\n1,2,3,4,red\n", "unknown column 'colour'"),
             ("theta1_deg,theta2_deg,x_mm,y_mm\n", "no data rows"),
             ("theta1_deg,theta2_deg,x_mm,y_mm,x_target_mm\n1,2,3,4,5\n", "go together"),
+            ("theta1_deg,theta2_deg,x_mm,y_mm\n1e300,2,3,4\n", "line 2: 'theta1_deg' = 1e300 is absurd"),
+            ("theta1_deg,theta2_deg,x_mm,y_mm\n1,2,1e300,4\n", "line 2: 'x_mm' = 1e300 is absurd"),
         ];
         for (text, want) in cases {
             let err = parse_measurements(text).unwrap_err().to_string();

@@ -7,6 +7,7 @@
 //! * [`targets_csv`]: the `x_mm,y_mm` target lists `command` reads, and the plan's lists;
 //! * [`machine_file`]: the machine file (TOML), what `--machine` reads;
 //! * [`plot`]: the PNG plots (paths, error-vector fields);
+//! * [`csv_dialect`]: what every CSV read shares (delimiter detection, number ranges);
 //! * [`atomic`]: every output goes through it: a failed run never leaves a half-written file.
 //! * [`verify_plot`]: the accuracy report's plots (error map, ISO 230-2 chart), as PNG bytes.
 //!
@@ -19,6 +20,7 @@
 //! everything; `source()` is not used, so a chain printed with `{:#}` does not repeat it).
 
 pub mod atomic;
+pub mod csv_dialect;
 pub mod dynamics_file;
 pub mod machine_file;
 pub mod measurement_csv;

@@ -164,10 +164,16 @@ pub fn read_model_file(path: &Path) -> Result<ModelFile, IoError> {
     })
 }
 
+/// A model file's text (the model checked first), for a command that stages it with its other
+/// outputs (`super::atomic::Outputs`).
+pub fn model_file_text(file: &ModelFile) -> Result<String, IoError> {
+    file.model()?;
+    super::json_text(file, super::KeyOrder::Declared)
+}
+
 /// Writes a model file atomically.
 pub fn write_model_file(path: &Path, file: &ModelFile) -> Result<(), IoError> {
-    file.model()?;
-    write_atomic(path, super::json_text(file, super::KeyOrder::Declared)?.as_bytes())
+    write_atomic(path, model_file_text(file)?.as_bytes())
 }
 
 #[cfg(test)]

@@ -2,10 +2,18 @@
 //!
 //! Built on `plotters` with its pure-Rust bitmap backend and an embedded DejaVu Sans font
 //! (`assets/`), so plotting needs no system library or font on the machine. Every plot is
-//! written atomically (see [`super::atomic`]).
+//! rendered to PNG bytes in memory (`*_png`), so a command can stage it with its other outputs
+//! ([`super::atomic::Outputs`]) or embed it in a report; the path-taking forms write one file
+//! atomically.
+//!
+//! Error-vector plots are drawn to be read at a glance: **equal scales** on x and y (a circle
+//! stays a circle, so directions are true), every target marked, arrows with heads, a **scale
+//! arrow** of a round length (1, 2 or 5 × 10ⁿ µm) in the corner, and the summary figures the
+//! caller gives printed on the plot.
 
-use super::atomic::write_atomic_with;
+use super::atomic::write_atomic;
 use super::IoError;
+use plotters::coord::Shift;
 use plotters::prelude::*;
 use plotters::style::{register_font, FontStyle};
 use std::path::Path;
@@ -68,29 +76,62 @@ fn err(e: impl std::fmt::Display) -> IoError {
     IoError::Plot(e.to_string())
 }
 
-/// Draws the legend and writes the bitmap: how every plot ends.
-fn finish<'a, DB: DrawingBackend + 'a, CT: CoordTranslate>(
-    chart: &mut ChartContext<'a, DB, CT>,
-    root: &DrawingArea<DB, plotters::coord::Shift>,
-) -> Result<(), IoError> {
+type Area<'a> = DrawingArea<BitMapBackend<'a>, Shift>;
+
+/// Renders a `width × height` bitmap drawn by `draw` and encodes it as PNG.
+fn render(width: u32, height: u32, draw: impl FnOnce(&Area<'_>) -> Result<(), IoError>) -> Result<Vec<u8>, IoError> {
+    ensure_font();
+    let mut rgb = vec![0u8; width as usize * height as usize * 3];
+    {
+        let root = BitMapBackend::with_buffer(&mut rgb, (width, height)).into_drawing_area();
+        root.fill(&WHITE).map_err(err)?;
+        draw(&root)?;
+        root.present().map_err(err)?;
+    }
+    let mut png_bytes = Vec::new();
+    let mut encoder = png::Encoder::new(&mut png_bytes, width, height);
+    encoder.set_color(png::ColorType::Rgb);
+    encoder.set_depth(png::BitDepth::Eight);
+    let mut writer = encoder.write_header().map_err(err)?;
+    writer.write_image_data(&rgb).map_err(err)?;
+    writer.finish().map_err(err)?;
+    Ok(png_bytes)
+}
+
+/// Draws the legend: how every chart ends.
+fn legend<'a, DB: DrawingBackend + 'a, CT: CoordTranslate>(chart: &mut ChartContext<'a, DB, CT>, position: SeriesLabelPosition) -> Result<(), IoError> {
     chart
         .configure_series_labels()
+        .position(position)
         .background_style(WHITE.mix(0.85))
         .border_style(BLACK)
         .label_font(("sans-serif", 16))
         .draw()
-        .map_err(err)?;
-    root.present().map_err(err)
+        .map_err(err)
 }
 
-/// An x-y plot of several series (lines or dots) with a legend.
-pub fn xy_plot(path: &Path, title: &str, x_label: &str, y_label: &str, series: &[Series<'_>]) -> Result<(), IoError> {
-    ensure_font();
+/// Lines of text in a framed box at pixel `at` (top left) of `area`.
+fn text_box(area: &Area<'_>, at: (i32, i32), lines: &[String]) -> Result<(), IoError> {
+    if lines.is_empty() {
+        return Ok(());
+    }
+    let font = ("sans-serif", 15).into_font();
+    let style = TextStyle::from(font.clone());
+    let width = lines.iter().map(|l| area.estimate_text_size(l, &style).map_or(0, |s| s.0)).max().unwrap_or(0) as i32;
+    let h = 19;
+    area.draw(&Rectangle::new([at, (at.0 + width + 14, at.1 + h * lines.len() as i32 + 8)], WHITE.mix(0.9).filled())).map_err(err)?;
+    area.draw(&Rectangle::new([at, (at.0 + width + 14, at.1 + h * lines.len() as i32 + 8)], BLACK.stroke_width(1))).map_err(err)?;
+    for (k, l) in lines.iter().enumerate() {
+        area.draw(&Text::new(l.clone(), (at.0 + 7, at.1 + 5 + h * k as i32), font.clone())).map_err(err)?;
+    }
+    Ok(())
+}
+
+/// An x-y plot of several series (lines or dots) with a legend, as PNG bytes.
+pub fn xy_plot_png(title: &str, x_label: &str, y_label: &str, series: &[Series<'_>]) -> Result<Vec<u8>, IoError> {
     let (lo, hi) = bounds(series.iter().flat_map(|s| s.points.iter())).ok_or_else(|| IoError::Invalid(format!("plot '{title}': no finite points")))?;
-    write_atomic_with(path, |tmp| {
-        let root = BitMapBackend::new(tmp, (1000, 750)).into_drawing_area();
-        root.fill(&WHITE).map_err(err)?;
-        let mut chart = ChartBuilder::on(&root)
+    render(1000, 750, |root| {
+        let mut chart = ChartBuilder::on(root)
             .caption(title, ("sans-serif", 24))
             .margin(15)
             .x_label_area_size(45)
@@ -105,12 +146,15 @@ pub fn xy_plot(path: &Path, title: &str, x_label: &str, y_label: &str, series: &
                 Mark::Line => chart.draw_series(LineSeries::new(pts, colour.stroke_width(2))).map_err(err)?,
                 Mark::Dots => chart.draw_series(pts.map(|p| Circle::new(p, 3, colour.filled()))).map_err(err)?,
             };
-            drawn
-                .label(s.label)
-                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(3)));
+            drawn.label(s.label).legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(3)));
         }
-        finish(&mut chart, &root)
+        legend(&mut chart, SeriesLabelPosition::UpperLeft)
     })
+}
+
+/// [`xy_plot_png`] written to `path`.
+pub fn xy_plot(path: &Path, title: &str, x_label: &str, y_label: &str, series: &[Series<'_>]) -> Result<(), IoError> {
+    write_atomic(path, &xy_plot_png(title, x_label, y_label, series)?)
 }
 
 /// One field of error vectors: arrows from `base_mm[i]` along `error_um[i]`.
@@ -120,42 +164,79 @@ pub struct VectorField<'a> {
     pub error_um: &'a [[f64; 2]],
 }
 
-/// Error vectors over the workspace, magnified so the largest arrow is about a tenth of the
-/// plot; the magnification and the largest error are printed in the caption. Several fields
-/// (e.g. before and after a calibration step) share one scale so they can be compared.
-pub fn vector_plot(path: &Path, title: &str, fields: &[VectorField<'_>]) -> Result<(), IoError> {
-    ensure_font();
+/// 1, 2 or 5 × 10ⁿ, the largest not above `v` (> 0).
+pub fn round_length(v: f64) -> f64 {
+    let p = 10f64.powf(v.log10().floor());
+    [5.0, 2.0, 1.0].iter().map(|m| m * p).find(|&c| c <= v).unwrap_or(p)
+}
+
+/// An arrow from `a` to `b` (data coordinates, equal scales) with a head of `head` (data units).
+fn arrow(a: (f64, f64), b: (f64, f64), head: f64, style: ShapeStyle) -> Vec<PathElement<(f64, f64)>> {
+    let (dx, dy) = (b.0 - a.0, b.1 - a.1);
+    let len = dx.hypot(dy);
+    let mut v = vec![PathElement::new(vec![a, b], style)];
+    if len > 0.0 {
+        let h = head.min(0.4 * len);
+        let (ux, uy) = (dx / len, dy / len);
+        let (c, s) = (0.5f64.cos(), 0.5f64.sin());
+        for sign in [1.0, -1.0] {
+            let (rx, ry) = (ux * c - sign * uy * s, sign * ux * s + uy * c);
+            v.push(PathElement::new(vec![b, (b.0 - h * rx, b.1 - h * ry)], style));
+        }
+    }
+    v
+}
+
+/// Error vectors over the workspace as PNG bytes (see the module doc): equal scales, marked
+/// targets, arrowheads, a scale arrow, `notes` (summary figures) in a box. The arrows are
+/// magnified so the largest is about a tenth of the plot; several fields (e.g. before and after
+/// a calibration step) share one magnification so they can be compared.
+pub fn vector_plot_png(title: &str, fields: &[VectorField<'_>], notes: &[String]) -> Result<Vec<u8>, IoError> {
     let (lo, hi) = bounds(fields.iter().flat_map(|f| f.base_mm.iter())).ok_or_else(|| IoError::Invalid(format!("plot '{title}': no points")))?;
     let span_mm = (hi[0] - lo[0]).max(hi[1] - lo[1]);
-    let max_um = fields
-        .iter()
-        .flat_map(|f| f.error_um.iter())
-        .map(|e| e[0].hypot(e[1]))
-        .filter(|v| v.is_finite())
-        .fold(0.0f64, f64::max);
+    let max_um = fields.iter().flat_map(|f| f.error_um.iter()).map(|e| e[0].hypot(e[1])).filter(|v| v.is_finite()).fold(0.0f64, f64::max);
     let mm_per_um = if max_um > 0.0 { 0.1 * span_mm / max_um } else { 0.0 };
-    let caption = format!("{title} (largest {max_um:.1} µm; 1 mm of arrow = {:.1} µm)", if mm_per_um > 0.0 { 1.0 / mm_per_um } else { 0.0 });
-    let pad = 0.12 * span_mm;
-    let (lo, hi) = ([lo[0] - pad, lo[1] - pad], [hi[0] + pad, hi[1] + pad]);
-    write_atomic_with(path, |tmp| {
-        let root = BitMapBackend::new(tmp, (1000, 1000)).into_drawing_area();
+    let caption = format!("{title} (largest {max_um:.1} µm)");
+    // Room for the arrows and the boxes around the points.
+    let pad = 0.14 * span_mm;
+    let (mut lo, mut hi) = ([lo[0] - pad, lo[1] - pad], [hi[0] + pad, hi[1] + pad]);
+    // Equal scales: the plot's pixel aspect follows the data's, within bounds; the ranges are then
+    // widened to the plotting area's exact aspect.
+    let (w, area_w) = (1000u32, 1000.0 - 70.0 - 30.0);
+    let data_aspect = (hi[1] - lo[1]) / (hi[0] - lo[0]);
+    let h = (area_w * data_aspect + 45.0 + 30.0 + 45.0).clamp(600.0, 1400.0) as u32;
+    render(w, h, |root| {
+        let build = |lo: [f64; 2], hi: [f64; 2]| {
+            ChartBuilder::on(root)
+                .caption(&caption, ("sans-serif", 20))
+                .margin(15)
+                .x_label_area_size(45)
+                .y_label_area_size(70)
+                .build_cartesian_2d(lo[0]..hi[0], lo[1]..hi[1])
+                .map_err(err)
+        };
+        let (pw, ph) = build(lo, hi)?.plotting_area().dim_in_pixel();
+        let (mm_x, mm_y) = ((hi[0] - lo[0]) / pw as f64, (hi[1] - lo[1]) / ph as f64);
+        let mm_per_px = mm_x.max(mm_y);
+        for (k, px) in [(0, pw as f64), (1, ph as f64)] {
+            let c = 0.5 * (lo[k] + hi[k]);
+            lo[k] = c - 0.5 * px * mm_per_px;
+            hi[k] = c + 0.5 * px * mm_per_px;
+        }
         root.fill(&WHITE).map_err(err)?;
-        let mut chart = ChartBuilder::on(&root)
-            .caption(&caption, ("sans-serif", 20))
-            .margin(15)
-            .x_label_area_size(45)
-            .y_label_area_size(70)
-            .build_cartesian_2d(lo[0]..hi[0], lo[1]..hi[1])
-            .map_err(err)?;
+        let mut chart = build(lo, hi)?;
         chart.configure_mesh().x_desc("x (mm)").y_desc("y (mm)").label_style(("sans-serif", 15)).draw().map_err(err)?;
+        let head = 0.012 * span_mm;
         for (k, f) in fields.iter().enumerate() {
             let colour = COLOURS[k % COLOURS.len()];
-            let arrows = f.base_mm.iter().zip(f.error_um.iter()).filter(|(b, e)| b.iter().chain(e.iter()).all(|v| v.is_finite())).map(
-                move |(b, e)| {
-                    let tip = (b[0] + e[0] * mm_per_um, b[1] + e[1] * mm_per_um);
-                    PathElement::new(vec![(b[0], b[1]), tip], colour.stroke_width(2))
-                },
-            );
+            let style = colour.stroke_width(2);
+            let arrows: Vec<PathElement<(f64, f64)>> = f
+                .base_mm
+                .iter()
+                .zip(f.error_um.iter())
+                .filter(|(b, e)| b.iter().chain(e.iter()).all(|v| v.is_finite()))
+                .flat_map(|(b, e)| arrow((b[0], b[1]), (b[0] + e[0] * mm_per_um, b[1] + e[1] * mm_per_um), head, style))
+                .collect();
             chart
                 .draw_series(arrows)
                 .map_err(err)?
@@ -163,8 +244,25 @@ pub fn vector_plot(path: &Path, title: &str, fields: &[VectorField<'_>]) -> Resu
                 .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(3)));
             chart.draw_series(f.base_mm.iter().map(|b| Circle::new((b[0], b[1]), 2, colour.filled()))).map_err(err)?;
         }
-        finish(&mut chart, &root)
+        // The scale arrow, bottom right.
+        if mm_per_um > 0.0 {
+            let len_um = round_length(0.5 * max_um);
+            let y = lo[1] + 0.04 * (hi[1] - lo[1]);
+            let x1 = hi[0] - 0.04 * (hi[0] - lo[0]);
+            let x0 = x1 - len_um * mm_per_um;
+            chart.draw_series(arrow((x0, y), (x1, y), head, BLACK.stroke_width(3))).map_err(err)?;
+            chart
+                .draw_series(std::iter::once(Text::new(format!("{len_um} µm"), (x0, y + 0.025 * (hi[1] - lo[1])), ("sans-serif", 16).into_font())))
+                .map_err(err)?;
+        }
+        legend(&mut chart, SeriesLabelPosition::UpperRight)?;
+        text_box(root, (90, 50), notes)
     })
+}
+
+/// [`vector_plot_png`] without notes, written to `path`.
+pub fn vector_plot(path: &Path, title: &str, fields: &[VectorField<'_>]) -> Result<(), IoError> {
+    write_atomic(path, &vector_plot_png(title, fields, &[])?)
 }
 
 #[cfg(test)]
@@ -174,10 +272,12 @@ mod tests {
     #[test]
     fn writes_png_files() {
         let dir = tempfile::tempdir().unwrap();
-        let circle: Vec<[f64; 2]> = (0..100).map(|k| {
-            let a = k as f64 * 0.0628;
-            [200.0 + 20.0 * a.cos(), 20.0 * a.sin()]
-        }).collect();
+        let circle: Vec<[f64; 2]> = (0..100)
+            .map(|k| {
+                let a = k as f64 * 0.0628;
+                [200.0 + 20.0 * a.cos(), 20.0 * a.sin()]
+            })
+            .collect();
         let p = dir.path().join("path.png");
         xy_plot(&p, "circle", "x (mm)", "y (mm)", &[Series { label: "cmd", points: &circle, mark: Mark::Line }]).unwrap();
         let bytes = std::fs::read(&p).unwrap();
@@ -188,5 +288,6 @@ mod tests {
         assert_eq!(&std::fs::read(&v).unwrap()[1..4], b"PNG");
         assert!(xy_plot(&dir.path().join("empty.png"), "x", "x", "y", &[]).is_err());
         assert!(!dir.path().join("empty.png").exists());
+        assert_eq!((round_length(7.3), round_length(0.23), round_length(10.0)), (5.0, 0.2, 10.0));
     }
 }

@@ -1,5 +1,6 @@
-//! A list of targets: CSV with the columns `x_mm,y_mm` (any order, `#` comments), what
-//! `host-sim command` reads. Every number must be finite; errors name the line (header = 1).
+//! A list of targets: CSV with the columns `x_mm,y_mm` (any order, `#` comments, `,` `;` or tab
+//! separated), what `host-sim command` reads. Every number must be finite and |value| ≤ 1e6 mm;
+//! errors name the line (header = 1).
 //!
 //! A plan's list (`host-sim plan`, what `measure --targets` and a real session consume) adds
 //! optional columns, each pair both or neither; other columns are refused:
@@ -46,8 +47,7 @@ pub fn parse_targets(text: &str) -> Result<Vec<Target>, IoError> {
 /// Parses a targets CSV text with the plan's optional columns.
 pub fn parse_target_list(text: &str) -> Result<Vec<ListedTarget>, IoError> {
     let parse = |m: String| IoError::Parse(m);
-    let mut reader =
-        csv::ReaderBuilder::new().trim(csv::Trim::All).flexible(true).comment(Some(b'#')).from_reader(text.as_bytes());
+    let mut reader = super::csv_dialect::reader(text);
     let headers = reader.headers().map_err(|e| parse(format!("line 1: cannot read the header: {e}")))?.clone();
     let col = |name: &str| {
         headers.iter().position(|h| h == name).ok_or_else(|| parse(format!("line 1: required column '{name}' is missing")))
@@ -74,14 +74,7 @@ pub fn parse_target_list(text: &str) -> Result<Vec<ListedTarget>, IoError> {
         if record.len() != headers.len() {
             return Err(parse(format!("line {line}: {} fields, the header has {}", record.len(), headers.len())));
         }
-        let num = |i: usize, name: &str| -> Result<f64, IoError> {
-            let v: f64 =
-                record[i].parse().map_err(|_| parse(format!("line {line}: '{name}' = '{}' is not a number", &record[i])))?;
-            if !v.is_finite() {
-                return Err(parse(format!("line {line}: '{name}' = '{}' is not finite", &record[i])));
-            }
-            Ok(v)
-        };
+        let num = |i: usize, name: &str| super::csv_dialect::number(&record[i], name, line, super::csv_dialect::Quantity::LengthMm);
         let sign = |i: usize, name: &str| -> Result<i8, IoError> {
             match &record[i] {
                 "1" | "+1" => Ok(1),

@@ -6,12 +6,15 @@
 //! * [`finite_difference`]: the central-difference Jacobian every fit uses;
 //! * [`svd`]: the column-scaled SVD (identifiability, rank, condition, the pseudo-inverse of
 //!   `JᵀJ`);
+//! * [`lattice_smoother`]: the 2-D Whittaker smoother of lattice values with its smoothing
+//!   chosen by generalised cross-validation (the noise-aware correction grid);
 //! * [`stats`]: max/RMS of error magnitudes and the rounding of reported figures.
 //!
 //! Where a change goes: a new solver behaviour (acceptance, stopping, damping) in `lm.rs` and its
 //! module doc, with a test in `tests/lm.rs`; nothing here knows about five-bars or effects.
 
 pub mod finite_difference;
+pub mod lattice_smoother;
 pub mod lm;
 pub mod stats;
 pub mod svd;

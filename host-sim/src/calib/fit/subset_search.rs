@@ -31,9 +31,19 @@ pub struct Best<M> {
     pub elapsed_s: f64,
 }
 
-/// Where a running search is.
+/// Which long step a [`Progress`] is about.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Stage {
+    /// The subset search: `tried` of `total` subsets.
+    SubsetSearch,
+    /// Leave-one-out refits: `tried` of `total` points.
+    LeaveOneOut,
+}
+
+/// Where a running search (or another long step of a fit, see [`Stage`]) is.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Progress {
+    pub stage: Stage,
     pub tried: u64,
     pub total: u128,
     /// Best maximum error so far (µm; NaN before the first valid model).
@@ -112,7 +122,7 @@ pub fn search<M: Clone>(
             }
             if last_report.elapsed() > Duration::from_secs(1) {
                 last_report = Instant::now();
-                progress(Progress { tried, total, best_max_um: best.as_ref().map_or(f64::NAN, |b| b.max_err_um) });
+                progress(Progress { stage: Stage::SubsetSearch, tried, total, best_max_um: best.as_ref().map_or(f64::NAN, |b| b.max_err_um) });
             }
             if !next_combination(&mut c, n_points) {
                 break;
