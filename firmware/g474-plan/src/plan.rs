@@ -389,7 +389,9 @@ pub static SAFE_STATE: [Step; 5] = [
 /// frame format, FIFO mode and baud rate while UE = 0, then UE, then TE and RE, and their
 /// acknowledgement (TEACK, REACK) before use. The pins go to the LPUART last, so TX idles
 /// high from its first driven instant. A wait that times out leaves the link off, not the
-/// machine: the board logs it and runs without a link (the drives stay as they are).
+/// machine: the board logs it and runs without a link (the drives stay as they are). The app
+/// applies it before it starts the 3 ms watchdog: the acknowledgement wait may take up to
+/// ~100 000 register reads (a few ms) when the LPUART is dead.
 pub static HOST_LINK: [Step; 16] = [
     set(rcc::APB1ENR2, rcc::APB1ENR2_LPUART1EN, "clock LPUART1"),
     field(rcc::CCIPR, rcc::CCIPR_LPUART1SEL_MASK, rcc::CCIPR_LPUART1SEL_PCLK1, "LPUART1 kernel clock = PCLK1, 170 MHz"),
