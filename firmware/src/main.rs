@@ -148,6 +148,9 @@ mod app {
         }
         let start_mm = if unhomed { settings.home_mm } else { servo_loop.setpoint_mm() };
         let mut source = board.setpoints(Trajectory::builtin(start_mm, settings));
+        // The link's port, configured before the watchdog starts: bringing a UART up may wait
+        // for its acknowledgement (G474: a bounded wait of a few ms at most).
+        let port = board.link();
         // The watchdog starts only now, after the slow part of the boot (the QEMU harness scans
         // the trajectory), so that the first servo sample comes well within its timeout; a
         // watchdog that will not start keeps the drives off.
@@ -186,7 +189,7 @@ mod app {
             }
         }
         let link = LinkState {
-            port: board.link(),
+            port,
             reader: FrameReader::new(),
             handler: LinkHandler::new(),
             absolute_encoders: settings.homing.absolute_encoders,

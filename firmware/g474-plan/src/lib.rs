@@ -13,7 +13,9 @@
 //!   encoders, TIM6 tick, pins), [`plan::START_WATCHDOG`] (IWDG),
 //!   [`plan::SAFE_STATE`] / [`plan::ENABLE_OUTPUTS`] (what the fault handlers and the drive
 //!   enable do), and the board's figures (clock, PWM period, watchdog reload);
-//! * [`reset`]: the reset cause from `RCC_CSR`.
+//! * [`reset`]: the reset cause from `RCC_CSR`;
+//! * [`link_uart`]: the host link's byte port on LPUART1 (receive ring, overrun handling,
+//!   bounded transmit), over [`Bus`] so that the host tests run it against a simulated LPUART.
 //!
 //! A wait that times out stops the plan there ([`apply`] returns the step): a clock that does
 //! not start leaves the board in what the earlier steps set, the drive-enable line driven low.
@@ -21,6 +23,7 @@
 #![deny(unsafe_op_in_unsafe_fn)]
 #![warn(missing_docs)]
 
+pub mod link_uart;
 pub mod map;
 pub mod plan;
 pub mod reset;

@@ -19,6 +19,8 @@ pub mod base {
     pub const IWDG: u32 = 0x4000_3000;
     /// PWR (APB1).
     pub const PWR: u32 = 0x4000_7000;
+    /// LPUART1 (APB1): the host link (the NUCLEO-G474RE's ST-LINK virtual COM port).
+    pub const LPUART1: u32 = 0x4000_8000;
     /// TIM1 (APB2).
     pub const TIM1: u32 = 0x4001_2C00;
     /// RCC (AHB1).
@@ -48,8 +50,12 @@ pub mod rcc {
     pub const AHB2ENR: Register = reg("RCC", "AHB2ENR", RCC + 0x4C);
     /// APB1 clock enable 1 (TIM3, TIM4, TIM6, PWR).
     pub const APB1ENR1: Register = reg("RCC", "APB1ENR1", RCC + 0x58);
+    /// APB1 clock enable 2 (LPUART1).
+    pub const APB1ENR2: Register = reg("RCC", "APB1ENR2", RCC + 0x5C);
     /// APB2 clock enable (TIM1).
     pub const APB2ENR: Register = reg("RCC", "APB2ENR", RCC + 0x60);
+    /// Peripherals independent clock configuration (LPUART1's kernel clock).
+    pub const CCIPR: Register = reg("RCC", "CCIPR", RCC + 0x88);
     /// Control/status: LSI and the reset flags.
     pub const CSR: Register = reg("RCC", "CSR", RCC + 0x94);
 
@@ -85,6 +91,12 @@ pub mod rcc {
     pub const APB1ENR1_TIM6EN: u32 = 1 << 4;
     /// APB1ENR1: PWR clock enable.
     pub const APB1ENR1_PWREN: u32 = 1 << 28;
+    /// APB1ENR2: LPUART1 clock enable.
+    pub const APB1ENR2_LPUART1EN: u32 = 1 << 0;
+    /// CCIPR: LPUART1SEL, bits 11:10 (00 = PCLK1, 01 = SYSCLK, 10 = HSI16, 11 = LSE).
+    pub const CCIPR_LPUART1SEL_MASK: u32 = 0b11 << 10;
+    /// CCIPR: LPUART1SEL = PCLK1.
+    pub const CCIPR_LPUART1SEL_PCLK1: u32 = 0b00 << 10;
     /// APB2ENR: TIM1 clock enable.
     pub const APB2ENR_TIM1EN: u32 = 1 << 11;
     /// CSR: remove reset flags (write 1).
@@ -265,6 +277,67 @@ pub mod iwdg {
     pub const KEY_UNLOCK: u32 = 0x5555;
     /// KR: reload the counter (the feed).
     pub const KEY_RELOAD: u32 = 0xAAAA;
+}
+
+/// LPUART1's registers and bits (RM0440 "Low-power universal asynchronous receiver
+/// transmitter (LPUART)", LPUART registers). With FIFO mode on (CR1.FIFOEN), ISR bit 5 reads
+/// "RX FIFO not empty" (RXFNE) and bit 7 "TX FIFO not full" (TXFNF); CR1 bit 5 enables the
+/// interrupt on RXFNE and on an overrun.
+pub mod lpuart {
+    use super::{base::LPUART1, reg};
+    use crate::Register;
+
+    /// Control 1.
+    pub const CR1: Register = reg("LPUART1", "CR1", LPUART1);
+    /// Control 2 (stop bits; reset value: 1 stop bit).
+    pub const CR2: Register = reg("LPUART1", "CR2", LPUART1 + 0x04);
+    /// Control 3 (FIFO thresholds, error interrupt, overrun disable).
+    pub const CR3: Register = reg("LPUART1", "CR3", LPUART1 + 0x08);
+    /// Baud rate: LPUARTDIV, bits 19:0.
+    pub const BRR: Register = reg("LPUART1", "BRR", LPUART1 + 0x0C);
+    /// Interrupt and status.
+    pub const ISR: Register = reg("LPUART1", "ISR", LPUART1 + 0x1C);
+    /// Interrupt flag clear.
+    pub const ICR: Register = reg("LPUART1", "ICR", LPUART1 + 0x20);
+    /// Receive data (reading it pops the RX FIFO).
+    pub const RDR: Register = reg("LPUART1", "RDR", LPUART1 + 0x24);
+    /// Transmit data (writing it pushes the TX FIFO).
+    pub const TDR: Register = reg("LPUART1", "TDR", LPUART1 + 0x28);
+    /// Kernel clock prescaler (PRESCALER bits 3:0; 0 = /1).
+    pub const PRESC: Register = reg("LPUART1", "PRESC", LPUART1 + 0x2C);
+
+    /// CR1: LPUART enable.
+    pub const CR1_UE: u32 = 1 << 0;
+    /// CR1: receiver enable.
+    pub const CR1_RE: u32 = 1 << 2;
+    /// CR1: transmitter enable.
+    pub const CR1_TE: u32 = 1 << 3;
+    /// CR1: interrupt on RXFNE (FIFO mode) or ORE.
+    pub const CR1_RXFNEIE: u32 = 1 << 5;
+    /// CR1: word length bit M0 (with M1 = 0: 8 data bits).
+    pub const CR1_M0: u32 = 1 << 12;
+    /// CR1: word length bit M1.
+    pub const CR1_M1: u32 = 1 << 28;
+    /// CR1: FIFO mode (8-byte RX and TX FIFOs); writable only while UE = 0.
+    pub const CR1_FIFOEN: u32 = 1 << 29;
+    /// ISR: parity error.
+    pub const ISR_PE: u32 = 1 << 0;
+    /// ISR: framing error.
+    pub const ISR_FE: u32 = 1 << 1;
+    /// ISR: noise detected.
+    pub const ISR_NE: u32 = 1 << 2;
+    /// ISR: overrun (a character arrived with the RX FIFO full and was lost).
+    pub const ISR_ORE: u32 = 1 << 3;
+    /// ISR: RX FIFO not empty.
+    pub const ISR_RXFNE: u32 = 1 << 5;
+    /// ISR: TX FIFO not full.
+    pub const ISR_TXFNF: u32 = 1 << 7;
+    /// ISR: transmit enable acknowledge.
+    pub const ISR_TEACK: u32 = 1 << 21;
+    /// ISR: receive enable acknowledge.
+    pub const ISR_REACK: u32 = 1 << 22;
+    /// ICR: the error flags' clear bits are at the flags' positions (PECF, FECF, NCF, ORECF).
+    pub const ICR_ERRORS: u32 = ISR_PE | ISR_FE | ISR_NE | ISR_ORE;
 }
 
 /// GPIO registers of a port at `base` (RM0440 "General-purpose I/Os (GPIO)").

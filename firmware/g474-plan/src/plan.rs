@@ -7,7 +7,8 @@
 //! their pins), [`ENCODER_TIM3`], [`ENCODER_TIM4`], [`ENCODER_PINS`], [`TICK_TIMER`] (TIM6);
 //! at the end of the app's `init`, [`START_WATCHDOG`]. The
 //! drives: [`ENABLE_OUTPUTS`] and [`SAFE_STATE`] (also what HardFault, panic and unexpected
-//! interrupts apply). [`CLEAR_RESET_FLAGS`] after the reset cause was read.
+//! interrupts apply). [`CLEAR_RESET_FLAGS`] after the reset cause was read. [`HOST_LINK`]
+//! (LPUART1, the host link) when the app takes the link's port.
 //!
 //! # Pins (STM32G474RE, DS12288 alternate-function table)
 //! | pin | function | AF | notes |
@@ -20,6 +21,8 @@
 //! | PB6, PB7 | TIM4_CH1/CH2: encoder axis 1 | 2 | pull-ups; PB6 is UCPD1_CC1, its dead-battery pull-down is disabled |
 //! | PB1 | TIM3_CH4: index pulse of encoder axis 0 (homing) | 2 | pull-down; channel 4 captures the counter on the rising edge |
 //! | PB9 | TIM4_CH4: index pulse of encoder axis 1 (homing) | 2 | pull-down; as PB1 (not PB8: that is BOOT0) |
+//! | PA2 | LPUART1_TX: host link out | 12 | the NUCLEO-G474RE's ST-LINK virtual COM port ([`HOST_LINK`]) |
+//! | PA3 | LPUART1_RX: host link in | 12 | pull-up |
 //!
 //! **Why the index is a capture, not the encoder-index mode.** RM0440's encoder index (TIMx_ECR)
 //! resets the counter at the index, a jump of the reading the encoder check would latch as a
@@ -36,7 +39,7 @@
 //! turns PA10 into a GPIO driven low, so the line is held low actively after a fault.
 use controller::watchdog::TIMEOUT_US;
 
-use crate::map::{base, dbgmcu, flash, gpio, iwdg, pwr, rcc, tim1, timx};
+use crate::map::{base, dbgmcu, flash, gpio, iwdg, lpuart, pwr, rcc, tim1, timx};
 use crate::{Action, Register, Step};
 
 // ---------------------------------------------------------------------------------------------
@@ -65,6 +68,17 @@ pub const TIM6_PSC: u32 = 1;
 pub const TICK_TIMER_HZ: u32 = SYSCLK_HZ / (TIM6_PSC + 1);
 /// TIM6 auto-reload for the 2 kHz servo tick.
 pub const TIM6_ARR: u32 = TICK_TIMER_HZ / controller::SAMPLE_RATE_HZ - 1;
+/// The host link's baud rate (LPUART1, 8 data bits, no parity, 1 stop bit). 115 200 Bd is
+/// what every ST-LINK virtual COM port and every host serial driver does exactly; at 11.5 kB/s
+/// a full frame of 8 stream knots takes about 20 ms, which the motion stream's buffer covers.
+pub const LINK_BAUD: u32 = 115_200;
+/// LPUART1's kernel clock (Hz): PCLK1 (`RCC_CCIPR.LPUART1SEL = 00`), APB1 undivided.
+pub const LINK_KERNEL_HZ: u32 = SYSCLK_HZ;
+/// LPUART1_BRR for [`LINK_BAUD`]: RM0440 "LPUART baud rate generation",
+/// `baud = 256 · f_ck / LPUARTDIV` with the prescaler at /1, so LPUARTDIV =
+/// round(256 · 170 MHz / 115 200) = 377 778 (0x5_C3B2; the rate is 115 199.9 Bd, 0.6 ppm
+/// slow). RM0440's limits: LPUARTDIV ≥ 0x300, 20 bits, and 3 · baud ≤ f_ck ≤ 4096 · baud.
+pub const LPUART1_BRR: u32 = ((256 * LINK_KERNEL_HZ as u64 + LINK_BAUD as u64 / 2) / LINK_BAUD as u64) as u32;
 /// The LSI's nominal frequency, the IWDG's clock (Hz).
 pub const LSI_HZ: f32 = 32_000.0;
 /// The LSI's range assumed for the timeout bounds (Hz): DS12288's LSI characteristics, taken
@@ -134,6 +148,14 @@ pub const ENCODER_0: [Pin; 2] = [pa(6), pa(7)];
 pub const ENCODER_1: [Pin; 2] = [pb(6), pb(7)];
 /// Index pulses of the encoders of axes 0 and 1 (TIM3_CH4, TIM4_CH4).
 pub const ENCODER_INDEX: [Pin; 2] = [pb(1), pb(9)];
+/// The host link's transmit line (LPUART1_TX, AF12): the NUCLEO-G474RE's ST-LINK virtual COM
+/// port receives it (UM2505: LPUART1 on PA2/PA3 to the STLINK-V3E).
+pub const LINK_TX: Pin = pa(2);
+/// The host link's receive line (LPUART1_RX, AF12).
+pub const LINK_RX: Pin = pa(3);
+/// The alternate function of LPUART1 on PA2/PA3 (DS12288 alternate-function table: AF7 there
+/// is USART2, AF12 LPUART1).
+pub const LINK_AF: u32 = 12;
 
 const fn mode(pin: Pin, mode: u32, why: &'static str) -> Step {
     field(gpio::moder(pin.port, pin.base), 0b11 << (2 * pin.n), mode << (2 * pin.n), why)
@@ -359,6 +381,34 @@ pub static SAFE_STATE: [Step; 5] = [
     clear(tim1::BDTR, tim1::BDTR_MOE, "TIM1 outputs off (Hi-Z): PWM released, enable dropped"),
     low(DRIVE_ENABLE, "enable output latch low"),
     mode(DRIVE_ENABLE, gpio::MODE_OUTPUT, "enable line actively driven low, whatever TIM1 does"),
+];
+
+/// The host link's UART, LPUART1 at [`LINK_BAUD`] 8N1, FIFO mode, receive interrupt on
+/// (`LINK_RX`, IRQ 91 `LPUART1`), on PA2/PA3. Applied by the board's `link()` after [`BOOT`]
+/// (GPIOA is clocked there). RM0440 "LPUART character transmission/reception procedure": the
+/// frame format, FIFO mode and baud rate while UE = 0, then UE, then TE and RE, and their
+/// acknowledgement (TEACK, REACK) before use. The pins go to the LPUART last, so TX idles
+/// high from its first driven instant. A wait that times out leaves the link off, not the
+/// machine: the board logs it and runs without a link (the drives stay as they are). The app
+/// applies it before it starts the 3 ms watchdog: the acknowledgement wait may take up to
+/// ~100 000 register reads (a few ms) when the LPUART is dead.
+pub static HOST_LINK: [Step; 16] = [
+    set(rcc::APB1ENR2, rcc::APB1ENR2_LPUART1EN, "clock LPUART1"),
+    field(rcc::CCIPR, rcc::CCIPR_LPUART1SEL_MASK, rcc::CCIPR_LPUART1SEL_PCLK1, "LPUART1 kernel clock = PCLK1, 170 MHz"),
+    write(lpuart::CR1, lpuart::CR1_FIFOEN, "disabled (UE = 0) to configure it: FIFO mode, 8 data bits (M1 M0 = 00), no parity"),
+    write(lpuart::CR2, 0, "1 stop bit, no inversion, LSB first"),
+    write(lpuart::CR3, 0, "no flow control (the VCP has none), no DMA, overrun detection on"),
+    write(lpuart::PRESC, 0, "kernel clock undivided"),
+    write(lpuart::BRR, LPUART1_BRR, "LPUARTDIV = 256 x 170 MHz / 115200 Bd = 377778"),
+    set(lpuart::CR1, lpuart::CR1_UE, "enable the LPUART"),
+    set(lpuart::CR1, lpuart::CR1_TE | lpuart::CR1_RE | lpuart::CR1_RXFNEIE, "transmitter, receiver, interrupt on a received byte or an overrun"),
+    wait(lpuart::ISR, lpuart::ISR_TEACK | lpuart::ISR_REACK, lpuart::ISR_TEACK | lpuart::ISR_REACK, 100_000, "TE and RE acknowledged"),
+    write(lpuart::ICR, lpuart::ICR_ERRORS, "no stale error flag"),
+    af(LINK_TX, LINK_AF, "PA2 = LPUART1_TX"),
+    af(LINK_RX, LINK_AF, "PA3 = LPUART1_RX"),
+    pull(LINK_RX, gpio::PULL_UP, "RX idles high while nothing drives it: no false start bits"),
+    mode(LINK_TX, gpio::MODE_AF, "PA2 to LPUART1"),
+    mode(LINK_RX, gpio::MODE_AF, "PA3 to LPUART1"),
 ];
 
 /// Clears the reset flags after they were read (RCC_CSR RMVF).

@@ -9,7 +9,7 @@
 use std::collections::BTreeMap;
 
 use controller::watchdog::{ResetCause, MIN_TIMEOUT_US, TIMEOUT_US};
-use g474_plan::plan::{self, BOOT, CLOCK, ENABLE_OUTPUTS, SAFE_OUTPUTS, SAFE_STATE, START_WATCHDOG};
+use g474_plan::plan::{self, BOOT, CLOCK, ENABLE_OUTPUTS, HOST_LINK, SAFE_OUTPUTS, SAFE_STATE, START_WATCHDOG};
 use g474_plan::reset::reset_cause;
 use g474_plan::{apply, Action, Bus, Step};
 
@@ -20,7 +20,9 @@ const RCC_CFGR: u32 = RCC + 0x08;
 const RCC_PLLCFGR: u32 = RCC + 0x0C;
 const RCC_AHB2ENR: u32 = RCC + 0x4C;
 const RCC_APB1ENR1: u32 = RCC + 0x58;
+const RCC_APB1ENR2: u32 = RCC + 0x5C;
 const RCC_APB2ENR: u32 = RCC + 0x60;
+const RCC_CCIPR: u32 = RCC + 0x88;
 const RCC_CSR: u32 = RCC + 0x94;
 const FLASH_ACR: u32 = 0x4002_2000;
 const PWR: u32 = 0x4000_7000;
@@ -37,6 +39,13 @@ const IWDG_KR: u32 = 0x4000_3000;
 const IWDG_PR: u32 = 0x4000_3004;
 const IWDG_RLR: u32 = 0x4000_3008;
 const IWDG_SR: u32 = 0x4000_300C;
+const LPUART1: u32 = 0x4000_8000;
+const LPUART1_CR1: u32 = LPUART1;
+const LPUART1_CR2: u32 = LPUART1 + 0x04;
+const LPUART1_CR3: u32 = LPUART1 + 0x08;
+const LPUART1_BRR: u32 = LPUART1 + 0x0C;
+const LPUART1_ISR: u32 = LPUART1 + 0x1C;
+const LPUART1_PRESC: u32 = LPUART1 + 0x2C;
 const GPIOA: u32 = 0x4800_0000;
 const GPIOB: u32 = 0x4800_0400;
 // Timer register offsets.
@@ -73,6 +82,8 @@ struct Sim {
     events: Vec<Event>,
     /// Whether the PLL locks when switched on.
     pll_locks: bool,
+    /// Whether LPUART1 acknowledges TE and RE (TEACK, REACK).
+    lpuart_acks: bool,
 }
 
 impl Sim {
@@ -89,7 +100,7 @@ impl Sim {
             (GPIOB + PUPDR, 0x0000_0100),
             (TIM1 + AF1, 1),
         ]);
-        Sim { regs, events: Vec::new(), pll_locks: true }
+        Sim { regs, events: Vec::new(), pll_locks: true, lpuart_acks: true }
     }
 
     fn get(&self, address: u32) -> u32 {
@@ -124,6 +135,12 @@ impl Bus for Sim {
             RCC_CFGR => (v & !0b1100) | ((v & 0b11) << 2),
             // Updates finish at once.
             IWDG_SR => 0,
+            // TEACK (21) follows TE (3), REACK (22) follows RE (2), once UE (0) is set.
+            LPUART1_ISR => {
+                let cr1 = self.get(LPUART1_CR1);
+                let on = (cr1 & 1) * self.lpuart_acks as u32;
+                (((cr1 >> 3) & on) << 21) | (((cr1 >> 2) & on) << 22)
+            }
             _ => v,
         }
     }
@@ -233,7 +250,7 @@ fn rm0440_6_1_5_boost_mode_sequence() {
 /// drive-enable pin an output driven low (SAFE_OUTPUTS ran first) and TIM1 untouched.
 #[test]
 fn a_clock_that_does_not_start_ends_the_boot_with_the_enable_pin_driven_low() {
-    for p in BOOT.iter().chain([&START_WATCHDOG[..]].iter()) {
+    for p in BOOT.iter().chain([&START_WATCHDOG[..], &HOST_LINK[..]].iter()) {
         for s in p.iter() {
             if let Action::WaitFor { polls, .. } = s.action {
                 assert!((1..=1_000_000).contains(&polls), "{}: {polls}", s.why);
@@ -483,7 +500,13 @@ fn rm0440_rcc_csr_reset_cause() {
 /// (each write is meant: no copy left behind).
 #[test]
 fn every_step_says_why_and_the_boot_has_no_repeated_writes() {
-    let all = BOOT.iter().flat_map(|p| p.iter()).chain(START_WATCHDOG.iter()).chain(SAFE_STATE.iter()).chain(ENABLE_OUTPUTS.iter());
+    let all = BOOT
+        .iter()
+        .flat_map(|p| p.iter())
+        .chain(START_WATCHDOG.iter())
+        .chain(SAFE_STATE.iter())
+        .chain(ENABLE_OUTPUTS.iter())
+        .chain(HOST_LINK.iter());
     for s in all {
         assert!(s.why.len() >= 8, "{s:?}");
     }
@@ -495,4 +518,85 @@ fn every_step_says_why_and_the_boot_has_no_repeated_writes() {
     for (k, w) in writes.iter().enumerate() {
         assert!(!writes[..k].contains(w), "{w:x?} written twice");
     }
+}
+
+/// The host link, LPUART1 at 115 200 Bd 8N1 on PA2/PA3 (the NUCLEO-G474RE's ST-LINK virtual COM
+/// port). RM0440 "Low-power universal asynchronous receiver transmitter (LPUART)":
+/// * "LPUART baud rate generation": baud = 256 · f_ck / LPUARTDIV (PRESC /1), LPUARTDIV at
+///   least 0x300 and 20 bits wide, f_ck between 3 and 4096 times the baud rate;
+/// * LPUART_CR1: UE bit 0, RE 2, TE 3, RXFNEIE 5, PCE 10 (no parity), M0 12 and M1 28 (00 =
+///   8 data bits), FIFOEN 29 (writable only with UE = 0); LPUART_CR2 STOP bits 13:12 (00 = 1);
+///   LPUART_CR3 RTSE 8, CTSE 9 (no flow control), DMAR 6, DMAT 7, OVRDIS 12 (0: an overrun is
+///   flagged); ISR TEACK 21, REACK 22;
+/// * "character transmission/reception procedure": the format and the baud rate before UE,
+///   TE and RE after it.
+///
+/// "Reset and clock control (RCC)": RCC_APB1ENR2 LPUART1EN bit 0, RCC_CCIPR LPUART1SEL bits
+/// 11:10 (00 = PCLK1), PCLK1 = 170 MHz with PPRE1 /1. DS12288 alternate functions: PA2 AF12 =
+/// LPUART1_TX, PA3 AF12 = LPUART1_RX (AF7 is USART2, which the Nucleo does not route to the
+/// ST-LINK).
+#[test]
+fn rm0440_lpuart1_host_link_at_115200_8n1_on_pa2_pa3_af12() {
+    let mut sim = Sim::boot();
+    let start = sim.events.len();
+    apply(&HOST_LINK, &mut sim).unwrap();
+    assert_eq!(sim.get(RCC_APB1ENR2) & 1, 1, "LPUART1EN");
+    assert_eq!(bits(sim.get(RCC_CCIPR), 11, 10), 0b00, "LPUART1SEL = PCLK1");
+    assert_eq!(bits(sim.get(RCC_CFGR), 10, 8) & 0b100, 0, "PPRE1 /1: PCLK1 = HCLK");
+    let f_ck: u64 = 170_000_000;
+    let (brr, presc) = (sim.get(LPUART1_BRR) as u64, sim.get(LPUART1_PRESC));
+    assert_eq!(presc, 0, "kernel clock /1");
+    assert!((0x300..=0xF_FFFF).contains(&brr), "LPUARTDIV {brr:#x}");
+    assert!((3 * 115_200..=4096 * 115_200).contains(&f_ck), "f_ck within 3 to 4096 times the baud rate");
+    let baud = 256.0 * f_ck as f64 / brr as f64;
+    assert!((baud / 115_200.0 - 1.0).abs() < 1e-5, "{baud} Bd");
+    assert_eq!((brr, plan::LINK_BAUD, plan::LPUART1_BRR), (377_778, 115_200, 377_778));
+    let cr1 = sim.get(LPUART1_CR1);
+    assert_eq!((bits(cr1, 0, 0), bits(cr1, 2, 2), bits(cr1, 3, 3)), (1, 1, 1), "UE, RE, TE");
+    assert_eq!(bits(cr1, 5, 5), 1, "RXFNEIE: the receive interrupt (LINK_RX)");
+    assert_eq!(bits(cr1, 29, 29), 1, "FIFOEN");
+    assert_eq!((bits(cr1, 12, 12), bits(cr1, 28, 28), bits(cr1, 10, 10)), (0, 0, 0), "8 data bits, no parity");
+    assert_eq!(cr1 & ((1 << 4) | (1 << 6) | (1 << 7) | (1 << 8)), 0, "no IDLE, TC, TXE or PE interrupt");
+    assert_eq!(bits(sim.get(LPUART1_CR2), 13, 12), 0, "1 stop bit");
+    let cr3 = sim.get(LPUART1_CR3);
+    assert_eq!(cr3 & ((1 << 6) | (1 << 7) | (1 << 8) | (1 << 9) | (1 << 12)), 0, "no DMA, no flow control, overruns flagged");
+    // Order: clock, then format and baud with UE = 0, then UE, then TE/RE, then the pins.
+    let events = &sim.events[start..];
+    let at = |f: &dyn Fn(u32, u32) -> bool| events.iter().position(|e| matches!(*e, Event::Write(a, v) if f(a, v))).unwrap();
+    let clock = at(&|a, v| a == RCC_APB1ENR2 && v & 1 == 1);
+    let first_uart = at(&|a, _| (LPUART1..LPUART1 + 0x400).contains(&a));
+    let fifoen = at(&|a, v| a == LPUART1_CR1 && v & (1 << 29) != 0);
+    let brr_w = at(&|a, _| a == LPUART1_BRR);
+    let ue = at(&|a, v| a == LPUART1_CR1 && v & 1 == 1);
+    let te_re = at(&|a, v| a == LPUART1_CR1 && v & 0b1100 == 0b1100);
+    assert!(clock < first_uart && fifoen < ue && brr_w < ue && ue <= te_re);
+    assert_eq!(events.iter().filter(|e| matches!(**e, Event::Write(LPUART1_CR1, v) if v & 1 == 0)).count(), 1, "UE = 0 while configuring");
+    for (n, name) in [(2, "PA2"), (3, "PA3")] {
+        assert_eq!(pin_af(&sim, GPIOA, n), 12, "{name} AF12");
+        assert_eq!(pin_mode(&sim, GPIOA, n), 0b10, "{name} alternate function");
+        let to_uart = at(&|a, v| a == GPIOA + MODER && bits(v, 2 * n + 1, 2 * n) == 0b10);
+        assert!(te_re < to_uart, "{name} handed over after the LPUART is on");
+    }
+    assert_eq!(pin_pull(&sim, GPIOA, 3), 0b01, "RX pulled up");
+    // The link takes no pin of the drives, the break or the encoders (they keep the boot's).
+    let boot = Sim::boot();
+    for (port, n) in [(GPIOA, 6), (GPIOA, 7), (GPIOA, 8), (GPIOA, 9), (GPIOA, 10), (GPIOB, 12)] {
+        assert_eq!(
+            (pin_mode(&sim, port, n), pin_af(&sim, port, n)),
+            (pin_mode(&boot, port, n), pin_af(&boot, port, n)),
+            "pin {port:#x}/{n}"
+        );
+    }
+}
+
+/// An LPUART that never acknowledges its transmitter (its clock is not running) stops the
+/// link's plan at that wait, before PA2 is handed to it: the pin stays as it was at reset
+/// (analog), nothing is driven onto the ST-LINK's line.
+#[test]
+fn a_link_uart_that_does_not_acknowledge_leaves_its_pins_alone() {
+    let mut sim = Sim::boot();
+    sim.lpuart_acks = false;
+    let failed = apply(&HOST_LINK, &mut sim).unwrap_err();
+    assert_eq!(failed.register.address, LPUART1_ISR);
+    assert_eq!((pin_mode(&sim, GPIOA, 2), pin_mode(&sim, GPIOA, 3)), (0b11, 0b11));
 }

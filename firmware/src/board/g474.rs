@@ -25,6 +25,9 @@
 //!   to 32 bits at every read (at most ±32767 counts between two reads, i.e. 98 rad/s at
 //!   2^22 counts/rev), scaled per axis by `Settings::encoders`;
 //! * watchdog: IWDG, 3 ms, fed by on-time servo steps; a reset's cause is read from RCC_CSR;
+//! * host link: LPUART1 on PA2 (TX) / PA3 (RX), AF12, the NUCLEO-G474RE's ST-LINK virtual COM
+//!   port, 115 200 Bd 8N1, receive interrupt `LINK_RX` (IRQ 91) into the link task
+//!   ([`Lpuart1Link`]);
 //! * clock: HSI16 → PLL (M 4, N 85, R 2) = 170 MHz, range-1 boost, 4 wait states, prefetch
 //!   and caches; a PLL that does not lock stops the boot in the safe state;
 //! * logging: defmt over RTT, non-blocking (feature `disable-blocking-mode`, see README); no
@@ -58,9 +61,9 @@ device! {
     DISPATCH_2 = 53,
     /// TIM6 update (54, `TIM6_DACUNDER`, RM0440 vector table): the 2 kHz servo tick.
     SERVO_TICK = 54,
-    /// USART2 (38): the host link's receive interrupt, once the USART is in the register plan
-    /// (not yet: [`UnwiredLink`]; the interrupt is never enabled).
-    LINK_RX = 38,
+    /// LPUART1 (91, RM0440 vector table; the `stm32g4` PAC's `Interrupt::LPUART`): the host
+    /// link's receive interrupt (a byte in the RX FIFO, or an overrun).
+    LINK_RX = 91,
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -244,32 +247,65 @@ fn boot_failed(step: &'static Step) -> ! {
     }
 }
 
-/// The host link's port on the STM32G474, not wired yet: USART2 (the Nucleo's ST-LINK virtual
-/// COM port, PA2/PA3, AF7) must first be added to the register plan (`g474-plan`: RCC
-/// APB1ENR1.USART2EN, the pins, BRR for 115 200 Bd at 170 MHz, CR1 UE|TE|RE|RXNEIE) with its
-/// host test against RM0440. Until then it receives nothing and drops what is written, and the
-/// board runs its built-in settings as before.
-pub struct UnwiredLink;
+/// The host link's port on the STM32G474: LPUART1 on PA2/PA3 at 115 200 Bd, the
+/// NUCLEO-G474RE's ST-LINK virtual COM port (`g474_plan::plan::HOST_LINK`; the byte logic,
+/// host-tested, is `g474_plan::link_uart`). Only the link task (priority 1) uses it.
+pub struct Lpuart1Link {
+    uart: g474_plan::link_uart::LinkUart,
+    /// The counters last logged.
+    logged: g474_plan::link_uart::LinkUartCounts,
+}
 
-impl crate::link::LinkPort for UnwiredLink {
+impl crate::link::LinkPort for Lpuart1Link {
     fn read_byte(&mut self) -> Option<u8> {
-        None
+        let byte = self.uart.read_byte(&mut Mmio);
+        if byte.is_none() {
+            self.log_counts();
+        }
+        byte
     }
-    fn write(&mut self, _bytes: &[u8]) {}
+    fn write(&mut self, bytes: &[u8]) {
+        self.uart.write(&mut Mmio, bytes);
+    }
+}
+
+impl Lpuart1Link {
+    /// Logs the error counters when they changed (once the port is drained, so a burst of
+    /// errors makes one line).
+    fn log_counts(&mut self) {
+        let c = self.uart.counts();
+        if c != self.logged {
+            defmt::warn!(
+                "host link: {} overruns, {} line errors, {} bytes dropped in, {} out (the frames they hit are rejected)",
+                c.overruns, c.line_errors, c.rx_dropped, c.tx_dropped
+            );
+            self.logged = c;
+        }
+    }
 }
 
 impl Board for G474Board {
     /// No test harness on the board: the production settings, no built-in tour.
     type Setpoints = Trajectory;
     type Timer = Tim6Timer;
-    type Link = UnwiredLink;
+    type Link = Lpuart1Link;
 
-    fn link(&mut self) -> UnwiredLink {
-        UnwiredLink
+    /// `plan::HOST_LINK`: LPUART1 at 115 200 Bd, its receive interrupt on (RTIC unmasks
+    /// `LINK_RX` in the NVIC). An LPUART that does not come up is logged and leaves the board
+    /// without a link (and its pins untouched); the machine itself is not affected.
+    fn link(&mut self) -> Lpuart1Link {
+        match apply(&plan::HOST_LINK) {
+            Ok(()) => defmt::info!("host link: LPUART1 (PA2 TX, PA3 RX, ST-LINK VCP), {=u32} Bd 8N1", plan::LINK_BAUD),
+            Err(step) => defmt::error!("host link: LPUART1 {=str} not ready ({=str}): no link", step.register.name, step.why),
+        }
+        let uart = g474_plan::link_uart::LinkUart::new();
+        Lpuart1Link { logged: uart.counts(), uart }
     }
 
+    /// The production settings, the motion from the host link (`link_motion`): the board
+    /// holds still until the host commands a move or a stream.
     fn settings() -> Settings {
-        Settings::default()
+        Settings { link_motion: true, ..Settings::default() }
     }
 
     /// The boot plans (`g474_plan::plan::BOOT`): enable line low, 170 MHz, debug freeze and

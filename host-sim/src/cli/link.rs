@@ -4,8 +4,10 @@
 //! send garbage. JSON report on stdout, progress on stderr.
 //!
 //! Transport: `--tcp HOST:PORT` (QEMU's UART on a socket: `firmware/qemu/run-one.sh` with
-//! `QEMU_SERIAL`). A serial port (the real board) is not built in yet: the client takes any
-//! `Read + Write`, so it is a `serialport` stream away (see firmware/README.md).
+//! `QEMU_SERIAL`) or `--serial PATH [--baud N]` (the real board: the NUCLEO-G474RE's ST-LINK
+//! virtual COM port, e.g. `/dev/ttyACM0`, 115 200 Bd 8N1; see firmware/README.md). The
+//! commands are the same over both: the client takes any `Read + Write`.
+use std::io::{Read, Write};
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
@@ -16,12 +18,24 @@ use host_sim::link::link_protocol::{Command, ModeCode, Response, StatusReport, T
 use host_sim::link::{figure_knots, parse_knots_csv, stream_knots, telemetry_csv, upload_calibration, LinkClient};
 use serde::Serialize;
 
+/// The STM32G474 firmware's link baud rate (`g474_plan::plan::LINK_BAUD`).
+const DEFAULT_BAUD: u32 = 115_200;
+
 /// Talk to a controller over its host link.
 #[derive(clap::Args, Debug)]
+#[command(group(clap::ArgGroup::new("transport").required(true).args(["tcp", "serial"])))]
 pub struct Args {
     /// The controller's link on a TCP socket (QEMU): HOST:PORT.
     #[arg(long)]
-    pub tcp: String,
+    pub tcp: Option<String>,
+    /// The controller's link on a serial port (the real board's ST-LINK virtual COM port, e.g.
+    /// /dev/ttyACM0), 8 data bits, no parity, 1 stop bit, no flow control.
+    #[arg(long)]
+    pub serial: Option<PathBuf>,
+    /// The serial port's baud rate (default 115200, the STM32G474 firmware's). Only with
+    /// --serial.
+    #[arg(long)]
+    pub baud: Option<u32>,
     /// Seconds to wait for each reply (and for the connection).
     #[arg(long, default_value_t = 5.0)]
     pub timeout_s: f64,
@@ -136,12 +150,12 @@ struct StreamReport {
     telemetry_csv: Option<String>,
 }
 
-fn request(client: &mut LinkClient<std::net::TcpStream>, command: Command) -> Result<Response> {
+fn request<S: Read + Write>(client: &mut LinkClient<S>, command: Command) -> Result<Response> {
     Ok(client.request(command)?)
 }
 
 /// Waits until the controller has finished the move or stream (or stopped); returns its status.
-fn wait_idle(client: &mut LinkClient<std::net::TcpStream>, limit: Duration) -> Result<StatusReport> {
+fn wait_idle<S: Read + Write>(client: &mut LinkClient<S>, limit: Duration) -> Result<StatusReport> {
     let start = Instant::now();
     loop {
         let s = client.status()?;
@@ -164,22 +178,43 @@ pub fn run(args: &Args) -> Result<()> {
         bail!("--timeout-s must be a positive number, not {}", args.timeout_s);
     }
     let timeout = Duration::from_secs_f64(args.timeout_s);
-    let mut client = LinkClient::connect_tcp(&args.tcp, timeout).with_context(|| format!("connecting to {}", args.tcp))?;
+    match (&args.tcp, &args.serial) {
+        (Some(_), _) if args.baud.is_some() => bail!("--baud applies to --serial only"),
+        (Some(addr), None) => {
+            let mut client = LinkClient::connect_tcp(addr, timeout).with_context(|| format!("connecting to {addr}"))?;
+            act(&mut client, &args.action, timeout)
+        }
+        (None, Some(path)) => {
+            let baud = args.baud.unwrap_or(DEFAULT_BAUD);
+            if baud == 0 {
+                bail!("--baud must be a positive number of bits per second");
+            }
+            let mut client = LinkClient::open_serial(path, baud, timeout)
+                .with_context(|| format!("opening the serial port {} at {baud} Bd", path.display()))?;
+            act(&mut client, &args.action, timeout)
+        }
+        // clap's `transport` group enforces exactly one of them.
+        _ => bail!("give either --tcp HOST:PORT or --serial PATH"),
+    }
+}
+
+/// Runs `action` over an open link.
+fn act<S: Read + Write>(client: &mut LinkClient<S>, action: &Action, timeout: Duration) -> Result<()> {
     let done = |what| super::print_json(&Done { done: what }, KeyOrder::Sorted);
-    match &args.action {
-        Action::Identify => match request(&mut client, Command::Identify)? {
+    match action {
+        Action::Identify => match request(client, Command::Identify)? {
             Response::Identity(id) => super::print_json(&id, KeyOrder::Sorted),
             other => bail!("unexpected reply: {other:?}"),
         },
         Action::Status => super::print_json(&client.status()?, KeyOrder::Sorted),
-        Action::Enable => request(&mut client, Command::Enable).and_then(|_| done("enable")),
-        Action::Disable => request(&mut client, Command::Disable).and_then(|_| done("disable")),
-        Action::Stop => request(&mut client, Command::Stop).and_then(|_| done("stop")),
-        Action::Reset => request(&mut client, Command::ResetFault).and_then(|_| done("reset")),
+        Action::Enable => request(client, Command::Enable).and_then(|_| done("enable")),
+        Action::Disable => request(client, Command::Disable).and_then(|_| done("disable")),
+        Action::Stop => request(client, Command::Stop).and_then(|_| done("stop")),
+        Action::Reset => request(client, Command::ResetFault).and_then(|_| done("reset")),
         Action::Home => {
             use host_sim::link::link_protocol::HomingState;
             let before = client.status()?;
-            request(&mut client, Command::Home)?;
+            request(client, Command::Home)?;
             let start = Instant::now();
             // The (mode, homing state) pairs the status went through, in order, for the report.
             let mut states = vec![(before.mode, before.homing)];
@@ -206,17 +241,17 @@ pub fn run(args: &Args) -> Result<()> {
             super::print_json(&Homed { done: "home", seconds: start.elapsed().as_secs_f64(), states, status }, KeyOrder::Sorted)
         }
         Action::Move { x_mm, y_mm } => {
-            let Response::MovePlanned { duration_s } = request(&mut client, Command::MoveTo { target_mm: [*x_mm, *y_mm] })? else {
+            let Response::MovePlanned { duration_s } = request(client, Command::MoveTo { target_mm: [*x_mm, *y_mm] })? else {
                 bail!("unexpected reply to move");
             };
             eprintln!("move planned: {duration_s:.3} s");
-            let s = wait_idle(&mut client, timeout + Duration::from_secs_f64(f64::from(duration_s) * 20.0))?;
+            let s = wait_idle(client, timeout + Duration::from_secs_f64(f64::from(duration_s) * 20.0))?;
             super::print_json(&s, KeyOrder::Sorted)
         }
-        Action::Stream(a) => stream(&mut client, a, timeout),
+        Action::Stream(a) => stream(client, a, timeout),
         Action::Upload { grid } => {
             let image = std::fs::read(grid).with_context(|| format!("cannot read {}", grid.display()))?;
-            let id = upload_calibration(&mut client, &image, &mut |done, total| {
+            let id = upload_calibration(client, &image, &mut |done, total| {
                 eprint!("\rupload {done}/{total} bytes");
             });
             eprintln!();
@@ -232,9 +267,9 @@ pub fn run(args: &Args) -> Result<()> {
             if !(*seconds > 0.0 && seconds.is_finite()) {
                 bail!("--seconds must be a positive number, not {seconds}");
             }
-            request(&mut client, Command::Telemetry { decimation: *decimation })?;
+            request(client, Command::Telemetry { decimation: *decimation })?;
             client.listen(Duration::from_secs_f64(*seconds))?;
-            request(&mut client, Command::Telemetry { decimation: 0 })?;
+            request(client, Command::Telemetry { decimation: 0 })?;
             let samples = client.take_telemetry();
             write_atomic(csv, telemetry_csv(&samples).as_bytes())?;
             #[derive(Serialize)]
@@ -290,7 +325,7 @@ pub fn run(args: &Args) -> Result<()> {
     }
 }
 
-fn stream(client: &mut LinkClient<std::net::TcpStream>, a: &StreamArgs, timeout: Duration) -> Result<()> {
+fn stream<S: Read + Write>(client: &mut LinkClient<S>, a: &StreamArgs, timeout: Duration) -> Result<()> {
     let knots = match (&a.file, a.seconds) {
         (Some(f), _) => parse_knots_csv(&std::fs::read_to_string(f).with_context(|| format!("cannot read {}", f.display()))?)
             .with_context(|| format!("in {}", f.display()))?,

@@ -60,7 +60,7 @@ enum Tool {
     Diagnose(diagnose::Args),
     /// The whole calibration on a built-in simulated machine: measure, fit, grid, verify.
     Demo(demo::Args),
-    /// Talk to a controller over its host link (QEMU: TCP): identify, home, move, stream, upload...
+    /// Talk to a controller over its host link (QEMU: --tcp; the real board: --serial): identify, home, move, stream, upload...
     Link(link::Args),
 }
 

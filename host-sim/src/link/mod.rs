@@ -1,6 +1,7 @@
 //! The host side of the controller's link (`link-protocol`): a client over any byte stream (a
-//! TCP socket to QEMU's UART today; a serial port is the same `Read + Write`), typed requests
-//! and replies, streamed motion with flow control, calibration upload, telemetry.
+//! TCP socket to QEMU's UART, [`LinkClient::connect_tcp`]; the real board's serial port,
+//! [`LinkClient::open_serial`]), typed requests and replies, streamed motion with flow control,
+//! calibration upload, telemetry.
 //!
 //! * [`LinkClient`]: one request, one reply (matched by sequence number); telemetry samples
 //!   that arrive meanwhile are kept ([`LinkClient::take_telemetry`]).
@@ -11,6 +12,7 @@
 //!   [`read_knots_csv`]: knots from a file.
 use std::io::{Read, Write};
 use std::net::TcpStream;
+use std::path::Path;
 use std::time::{Duration, Instant};
 
 use link_protocol::{
@@ -26,6 +28,10 @@ pub enum ClientError {
     /// The byte stream failed.
     #[error("link i/o: {0}")]
     Io(#[from] std::io::Error),
+    /// The serial port could not be opened or configured (missing device, no permission,
+    /// not a terminal, a baud rate the driver refuses).
+    #[error("serial port: {0}")]
+    SerialPort(serialport::Error),
     /// No reply in time.
     #[error("no reply from the controller within {0:?}")]
     Timeout(Duration),
@@ -112,6 +118,30 @@ impl LinkClient<TcpStream> {
                 Err(_) => std::thread::sleep(Duration::from_millis(50)),
             }
         }
+    }
+}
+
+/// How long one read of a serial port waits for a byte: short, so that the request deadline
+/// is checked often (a silent controller is noticed within its timeout).
+const SERIAL_READ_TIMEOUT: Duration = Duration::from_millis(20);
+
+impl LinkClient<Box<dyn serialport::SerialPort>> {
+    /// Opens the serial port at `path` (the real board's UART: the ST-LINK virtual COM port
+    /// of a NUCLEO-G474RE is `/dev/ttyACM0` or similar), `baud` bits per second, 8 data bits,
+    /// no parity, 1 stop bit, no flow control, raw mode (the `serialport` crate sets the
+    /// termios); `timeout` bounds each request.
+    pub fn open_serial(path: &Path, baud: u32, timeout: Duration) -> Result<Self, ClientError> {
+        let port = serialport::new(path.to_string_lossy(), baud)
+            .data_bits(serialport::DataBits::Eight)
+            .parity(serialport::Parity::None)
+            .stop_bits(serialport::StopBits::One)
+            .flow_control(serialport::FlowControl::None)
+            .timeout(SERIAL_READ_TIMEOUT)
+            .open()
+            .map_err(ClientError::SerialPort)?;
+        // Bytes the port received before we opened it are not answers to us.
+        port.clear(serialport::ClearBuffer::Input).map_err(ClientError::SerialPort)?;
+        LinkClient::new(port, timeout)
     }
 }
 
