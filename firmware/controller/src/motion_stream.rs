@@ -263,6 +263,13 @@ impl MotionStream {
         matches!(self.play, Play::Move { .. } | Play::Stream { .. } | Play::Starved)
     }
 
+    /// Where it holds, when it holds: the point its last setpoint handed to the queue and
+    /// every later one repeats exactly (the servo loop reaches it up to
+    /// [`QUEUE_SLOTS`](crate::setpoints::QUEUE_SLOTS) samples later).
+    pub fn hold_point_mm(&self) -> Option<[f32; 2]> {
+        (self.play == Play::Hold).then_some(self.from.position_mm)
+    }
+
     /// Paused (see [`MotionStream::pause`]).
     pub fn is_paused(&self) -> bool {
         self.play == Play::Paused

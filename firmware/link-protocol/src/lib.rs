@@ -348,7 +348,8 @@ pub struct StatusReport {
     pub setpoint_underruns: u32,
     /// Knots waiting in the motion stream buffer.
     pub stream_knots_queued: u16,
-    /// A move or stream is under way.
+    /// A move, stream or stop is under way: the machine's setpoint still changes (false only
+    /// once the servo loop's setpoint has reached where the motion ends).
     pub moving: bool,
 }
 

@@ -297,7 +297,8 @@ impl LinkHandler {
     }
 
     fn report(&self, s: &Status, device: &mut impl Device) -> StatusReport {
-        let (queued, moving) = device.with_stream(|m| (m.queued() as u16, m.is_playing()));
+        let queued = device.with_stream(|m| m.queued() as u16);
+        let moving = motion_under_way(s, device);
         StatusReport {
             ticks: s.ticks,
             mode: mode_code(s.mode),
@@ -390,10 +391,21 @@ fn running(mode: Mode) -> Result<(), LinkError> {
     }
 }
 
+/// The machine's setpoint still changes: a move or stream plays (or starved), a stop is under
+/// way, or the source already holds but the servo loop has not yet reached its hold point (the
+/// source runs up to [`QUEUE_SLOTS`](crate::setpoints::QUEUE_SLOTS) samples, 31.5 ms, ahead of
+/// the servo through the setpoint queue; "not moving" before then let a host read a setpoint
+/// short of the end).
+fn motion_under_way(s: &Status, device: &mut impl Device) -> bool {
+    let (playing, hold) = device.with_stream(|m| (m.is_playing(), m.hold_point_mm()));
+    playing
+        || matches!(s.mode, Mode::Stopping(_))
+        || (s.mode == Mode::Running && hold.is_some_and(|p| p != s.setpoint_mm))
+}
+
 /// The calibration store is written only while nothing moves.
 fn idle(s: &Status, device: &mut impl Device) -> Result<(), LinkError> {
-    let moving = device.with_stream(|m| m.is_playing()) || matches!(s.mode, Mode::Stopping(_));
-    if moving {
+    if motion_under_way(s, device) {
         return Err(LinkError::Calibration(CalibrationRefusal::Busy));
     }
     Ok(())

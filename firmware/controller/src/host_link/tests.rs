@@ -208,6 +208,42 @@ fn an_underrun_is_a_controlled_stop_reported_and_a_reset_resumes() {
     assert!(libm::hypotf(end[0] - HOME_MM[0], end[1] - HOME_MM[1]) < 1e-3);
 }
 
+/// The motion source runs ahead of the servo loop through the setpoint queue: when it has
+/// handed over its last setpoint the machine's setpoint is still up to 31.5 ms short of the end.
+/// The status says "moving" until the servo loop's setpoint is the hold point (a host that
+/// waited for "not moving" read a setpoint 18 µm short of the end).
+#[test]
+fn the_status_says_moving_until_the_servo_reaches_the_end_not_the_source() {
+    let (settings, img) = (settings(), image(3e-4));
+    let mut r = rig(&settings, &img);
+    let mut h = LinkHandler::new();
+    let target = [HOME_MM[0] + 20.0, HOME_MM[1] - 10.0];
+    let Ok(Response::MovePlanned { duration_s }) = send(&mut h, &mut r, 1, Command::MoveTo { target_mm: target }) else {
+        panic!()
+    };
+    let mut samples = 0usize;
+    while r.stream.is_playing() {
+        run(&mut h, &mut r, 1);
+        samples += 1;
+        assert!(samples < (duration_s / 5e-4) as usize + 100);
+    }
+    let short = libm::hypotf(r.status.setpoint_mm[0] - target[0], r.status.setpoint_mm[1] - target[1]);
+    assert!(short > 0.0, "the servo is behind the source when the source ends");
+    let Ok(Response::Status(s)) = send(&mut h, &mut r, 2, Command::Status) else { panic!() };
+    assert!(s.moving, "{short} mm short of the end and not moving: {s:?}");
+    let mut behind = 0usize;
+    loop {
+        run(&mut h, &mut r, 1);
+        behind += 1;
+        let Ok(Response::Status(s)) = send(&mut h, &mut r, 3, Command::Status) else { panic!() };
+        if !s.moving {
+            assert_eq!(s.setpoint_mm, target, "not moving means at the end, exactly");
+            break;
+        }
+        assert!(behind < crate::setpoints::QUEUE_SLOTS + 2, "still moving {behind} samples after the source ended");
+    }
+}
+
 #[test]
 fn a_frame_with_one_bad_knot_is_refused_whole_and_nothing_moves() {
     let (settings, img) = (settings(), image(3e-4));
