@@ -121,7 +121,24 @@ impl<T: Real> FiveBar<T> {
         if !self.links_positive() {
             return Err(self.invalid_model());
         }
-        let min_transmission = effective_margin(min_transmission, T::IK_MIN_TRANSMISSION);
+        self.solve_checked(tool_mm, effective_margin(min_transmission, T::IK_MIN_TRANSMISSION))
+    }
+
+    /// [`Self::solve_inverse`] for a model whose links are known positive
+    /// ([`crate::ValidFiveBar`]) and a margin already raised to its floor
+    /// ([`crate::IkMargin`]): the target's checks only.
+    #[inline(always)]
+    pub(crate) fn solve_inverse_valid(&self, tool_mm: [T; 2], min_transmission: T) -> Result<Solved<T>, KinematicsError> {
+        if !all_finite(tool_mm) {
+            return Err(KinematicsError::NonFinite);
+        }
+        self.solve_checked(tool_mm, min_transmission)
+    }
+
+    /// The closed form and the target's checks, for a finite target, positive links and a
+    /// margin at least the floor (or NaN).
+    #[inline(always)]
+    fn solve_checked(&self, tool_mm: [T; 2], min_transmission: T) -> Result<Solved<T>, KinematicsError> {
         let a0 = self.base_a0_mm;
         let b0 = [a0[0] + self.base_b0_mm[0], a0[1] + self.base_b0_mm[1]];
         let r1 = [tool_mm[0] - a0[0], tool_mm[1] - a0[1]];
