@@ -138,7 +138,7 @@ impl<T: Real> FiveBar<T> {
     /// The closed form and the target's checks, for a finite target, positive links and a
     /// margin at least the floor (or NaN).
     #[inline(always)]
-    fn solve_checked(&self, tool_mm: [T; 2], min_transmission: T) -> Result<Solved<T>, KinematicsError> {
+    pub(crate) fn solve_checked(&self, tool_mm: [T; 2], min_transmission: T) -> Result<Solved<T>, KinematicsError> {
         let a0 = self.base_a0_mm;
         let b0 = [a0[0] + self.base_b0_mm[0], a0[1] + self.base_b0_mm[1]];
         let r1 = [tool_mm[0] - a0[0], tool_mm[1] - a0[1]];

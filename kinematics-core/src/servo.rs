@@ -296,8 +296,9 @@ impl<'a> ValidCalibration<'a> {
 /// [`Calibration`] checks its model on every IK, a [`ValidCalibration`] did when it was built.
 /// One implementation of the step serves both (private: the public methods name the type).
 trait SampleModel {
-    /// IK plus grid correction.
-    fn command_rad(&self, tool_mm: [f32; 2], margin: IkMargin<f32>) -> Result<[f32; 2], SetpointRefusal>;
+    /// IK plus grid correction for a target [`Servo::check_sequence`] passed (so finite: the
+    /// IK need not test it again).
+    fn command_rad_of_finite(&self, tool_mm: [f32; 2], margin: IkMargin<f32>) -> Result<[f32; 2], SetpointRefusal>;
     /// The joint state at `setpoint`, in place.
     fn solve_joint(&self, slot: &mut JointSample<f32>, setpoint: &MotionSetpoint<f32>, margin: IkMargin<f32>) -> Result<(), KinematicsError>;
     /// The grid correction added to the model's angles.
@@ -306,8 +307,9 @@ trait SampleModel {
 
 impl SampleModel for Calibration<'_> {
     #[inline(always)]
-    fn command_rad(&self, tool_mm: [f32; 2], margin: IkMargin<f32>) -> Result<[f32; 2], SetpointRefusal> {
-        // `FiveBar::inverse` raises the margin to its floor again: the same value.
+    fn command_rad_of_finite(&self, tool_mm: [f32; 2], margin: IkMargin<f32>) -> Result<[f32; 2], SetpointRefusal> {
+        // `FiveBar::inverse` raises the margin to its floor again (the same value) and checks
+        // the model and the target, as it always did on this path.
         Calibration::command_rad(self, tool_mm, margin.get())
     }
     #[inline(always)]
@@ -322,8 +324,9 @@ impl SampleModel for Calibration<'_> {
 
 impl SampleModel for ValidCalibration<'_> {
     #[inline(always)]
-    fn command_rad(&self, tool_mm: [f32; 2], margin: IkMargin<f32>) -> Result<[f32; 2], SetpointRefusal> {
-        ValidCalibration::command_rad(self, tool_mm, margin)
+    fn command_rad_of_finite(&self, tool_mm: [f32; 2], margin: IkMargin<f32>) -> Result<[f32; 2], SetpointRefusal> {
+        let theta = self.model.inverse_of_finite(tool_mm, margin).map_err(SetpointRefusal::Kinematics)?;
+        corrected_rad(self.grid.as_ref(), tool_mm, theta)
     }
     #[inline(always)]
     fn solve_joint(&self, slot: &mut JointSample<f32>, setpoint: &MotionSetpoint<f32>, margin: IkMargin<f32>) -> Result<(), KinematicsError> {
@@ -654,14 +657,16 @@ impl Servo {
     #[inline(always)]
     fn accept_with(&mut self, cal: &impl SampleModel, setpoint_mm: [f32; 2]) -> Result<AcceptedSetpoint<'_>, SetpointRefusal> {
         let (v, a) = self.check_sequence(setpoint_mm)?;
-        let command_rad = cal.command_rad(setpoint_mm, self.derived.ik_margin)?;
+        let command_rad = cal.command_rad_of_finite(setpoint_mm, self.derived.ik_margin)?;
         Ok(AcceptedSetpoint { servo: self, setpoint_mm, velocity_mm_s: v, accel_mm_s2: a, command_rad, feedforward_nm: None, ahead: None })
     }
 
     /// Engaged, a finite setpoint, and the speed and acceleration the setpoint sequence implies
     /// (backward differences, returned) within the limits. A NaN or infinite coordinate makes
     /// the speed NaN or infinite, which never passes the limit (at most `f32::MAX`): finiteness
-    /// is told apart from a jump only on the way out.
+    /// is told apart from a jump only on the way out. So a setpoint that passes is finite (the
+    /// history's setpoint is: engage's FK result or a setpoint that passed), which the IK of
+    /// [`Servo::accept_valid`] relies on instead of testing it again.
     #[inline]
     fn check_sequence(&self, setpoint_mm: [f32; 2]) -> Result<([f32; 2], [f32; 2]), SetpointRefusal> {
         let Some(h) = &self.history else {

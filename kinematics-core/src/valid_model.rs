@@ -74,6 +74,16 @@ impl<T: Real> ValidFiveBar<T> {
         self.0.solve_inverse_valid(tool_mm, margin.0).map(|s| [s.arm_1.theta_rad, s.arm_2.theta_rad])
     }
 
+    /// [`ValidFiveBar::inverse`] for a target the caller has proven finite (the servo's jump
+    /// check does: a setpoint whose speed from the last, finite, setpoint is below a finite
+    /// limit is finite). Without the target's finiteness test, not without its effect: a
+    /// non-finite target still never passes, it makes `ρ²` infinite or NaN and is refused by
+    /// the reach test, as [`KinematicsError::Unreachable`] instead of `NonFinite`.
+    #[inline(always)]
+    pub(crate) fn inverse_of_finite(&self, tool_mm: [T; 2], margin: IkMargin<T>) -> Result<[T; 2], KinematicsError> {
+        self.0.solve_checked(tool_mm, margin.0).map(|s| [s.arm_1.theta_rad, s.arm_2.theta_rad])
+    }
+
     /// [`FiveBar::inverse_rates`] without the per-call model check and margin floor.
     #[inline]
     pub fn inverse_rates(&self, tool_mm: [T; 2], velocity_mm_s: [T; 2], margin: IkMargin<T>) -> Result<JointMotion<T>, KinematicsError> {
