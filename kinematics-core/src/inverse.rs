@@ -26,8 +26,11 @@
 //!   `m·b·c·4ρ1²ρ2²` (the scale of the two distal vectors).
 //! * Finite: the angles, the elbow vectors and the cross product.
 //!
-//! Cost (`cargo qemu-bench`, Cortex-M4F): `ik_f32` 313 instructions, about 450 cycles
-//! (two `atan2_f32` at 67, two VSQRT, two VDIV inside the `atan2`s). Error: f32 round trips
+//! Cost (`cargo qemu-bench`, Cortex-M4F): `ik_f32` (`FiveBar::inverse`) 325 instructions, 461
+//! estimated cycles, of which 12 instructions check the model's links and raise the margin to
+//! its floor on every call; `ik_f32_valid` ([`crate::ValidFiveBar::inverse`], the model and
+//! the margin checked once, the servo's IK) 310 / 450 (two `atan2_f32`, two VSQRT, two VDIV
+//! inside the `atan2`s). Error: f32 round trips
 //! FK(IK(p)) stay within 0.1 µm (55 nm measured) and f64 within 1 nm over the paper's
 //! workspace, and the f32 IK alone within 0.05 µm of f64 at the tool (`tests/round_trip.rs`).
 
@@ -189,7 +192,8 @@ impl<T: Real> FiveBar<T> {
     /// poses so close to one that FK of the angles could round across it; a pose IK accepts
     /// with margin 0 is one FK returns with margin 0 (FK's floor is lower, √ε). A NaN margin
     /// refuses every pose. A model whose links are not all positive
-    /// is [`KinematicsError::InvalidModel`]. Angles are wrapped into
+    /// is [`KinematicsError::InvalidModel`]. A caller solving many targets with one model (the
+    /// servo) checks it once instead: [`crate::ValidFiveBar::inverse`]. Angles are wrapped into
     /// `(-π, π]`; the servo unwraps them next to the motor's current position.
     pub fn inverse_pose(&self, tool_mm: [T; 2], min_transmission: T) -> Result<Pose<T>, KinematicsError> {
         let s = self.solve_inverse(tool_mm, min_transmission)?;

@@ -45,8 +45,15 @@
 //!
 //! # Cost
 //! `cargo qemu-bench` (`BENCH servo_step`, `servo_step_motion`): instructions under QEMU and
-//! Cortex-M4 cycles estimated by `firmware/qemu/plugin/m4cycles.c`, per call, split by part
-//! with a per-instruction count of the same run attributed through the debug info:
+//! Cortex-M4 cycles estimated by `firmware/qemu/plugin/m4cycles.c`, per call. Through a
+//! [`ValidCalibration`] (`Servo::step_valid`, the firmware's path; issue 16): 692.5
+//! instructions, 977 cycles; through a plain [`Calibration`], whose model every IK checks
+//! (`BENCH servo_step_checking`): 716.5 / 1006. The checked-once path leaves out the IK's model
+//! check (7 instructions), its margin floor (5; [`IkMargin`] is built once in [`Servo::new`])
+//! and its test that the target is finite (the jump check has proven it; see
+//! [`Servo::accept_valid`]). The split by part, with a per-instruction count of the same run
+//! attributed through the debug info, is from the build before, through a plain
+//! [`Calibration`]:
 //!
 //! | `servo_step` (710 instructions, 987 cycles) | instructions | cycles |
 //! |---|---|---|
@@ -58,7 +65,8 @@
 //! | the call, its register saves and the results | 27 | 93 |
 //! | the benchmark loop's own work per call (input, output) | 26 | 38 |
 //!
-//! The motion step (`servo_step_motion`, 1198 / 1787; the parts from the build before the IK's
+//! The motion step (`servo_step_motion`, 1186 / 1773 through a [`ValidCalibration`], 1198 /
+//! 1787 before; the parts from the build before the IK's
 //! singularity-floor checks, 1194 / 1786: the trajectory's evaluation 77 / 113 included) is the next setpoint's IK with the joint rates (359 / 562), the inverse dynamics
 //! (156 / 211), the interval's means (48 / 68), the grid (185 / 243), the finiteness of both
 //! setpoints and the differenced speed and acceleration (62 / 81) and the PIDs (78 / 97); the
@@ -649,7 +657,10 @@ impl Servo {
     }
 
     /// [`Servo::accept`] with a calibration whose model was checked once: the same result,
-    /// without the IK's per-call model check and margin floor.
+    /// without the IK's per-call model check and margin floor, and without its test that the
+    /// setpoint is finite (the jump check before it proves that: the history's setpoint is
+    /// finite and a speed below a finite limit leaves the new one finite; a non-finite one
+    /// is refused there as [`SetpointRefusal::NonFinite`]).
     pub fn accept_valid(&mut self, cal: &ValidCalibration<'_>, setpoint_mm: [f32; 2]) -> Result<AcceptedSetpoint<'_>, SetpointRefusal> {
         self.accept_with(cal, setpoint_mm)
     }
