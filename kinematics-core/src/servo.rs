@@ -48,7 +48,7 @@
 //! Cortex-M4 cycles estimated by `firmware/qemu/plugin/m4cycles.c`, per call. Through a
 //! [`ValidCalibration`] (`Servo::step_valid`, the firmware's path; issue 16): 692.5
 //! instructions, 977 cycles; through a plain [`Calibration`], whose model every IK checks
-//! (`BENCH servo_step_checking`): 716.5 / 1006. The checked-once path leaves out the IK's model
+//! (`BENCH servo_step_checking`): 711.5 / 1001. The checked-once path leaves out the IK's model
 //! check (7 instructions), its margin floor (5; [`IkMargin`] is built once in [`Servo::new`])
 //! and its test that the target is finite (the jump check has proven it; see
 //! [`Servo::accept_valid`]). The split by part, with a per-instruction count of the same run

@@ -163,6 +163,16 @@ fn step_motion_once(
     servo.step_motion_valid(cal, setpoint, Some(next), encoder_rad)
 }
 
+/// Fails the run if a step of benchmark `name` faulted (the first fault, at its call).
+fn exit_on_fault(name: &str, fault: Option<(usize, StepError)>) {
+    if let Some((i, f)) = fault {
+        let mut line: heapless::String<128> = heapless::String::new();
+        let _ = write!(line, "FAIL {} faulted during the benchmark at call {}: {}", name, i, f);
+        board::console(&line);
+        board::exit(false);
+    }
+}
+
 /// Reports the counts of `step` along `setpoints` (the encoders following the reference
 /// exactly), engaged at the first setpoint with `cal`; fails the run if a step faults.
 fn bench_step(
@@ -184,12 +194,7 @@ fn bench_step(
         Ok(out) => encoder = out.reference_rad,
         Err(f) => fault = fault.or(Some((i, f))),
     });
-    if let Some((i, f)) = fault {
-        let mut line: heapless::String<128> = heapless::String::new();
-        let _ = write!(line, "FAIL {} faulted during the benchmark at call {}: {}", name, i, f);
-        board::console(&line);
-        board::exit(false);
-    }
+    exit_on_fault(name, fault);
     report(name, counts as f32 * per_count / N as f32);
 }
 
@@ -378,16 +383,12 @@ fn main() -> ! {
             let next = sample(black_box(i) + 1);
             let stepped = step_motion_once(&mut servo, cal, &current, &next, black_box(encoder));
             current = next;
-            match stepped {                Ok(out) => encoder = out.reference_rad,
+            match stepped {
+                Ok(out) => encoder = out.reference_rad,
                 Err(f) => fault = fault.or(Some((i, f))),
             }
         });
-        if let Some((i, f)) = fault {
-            let mut line: heapless::String<128> = heapless::String::new();
-            let _ = write!(line, "FAIL {} faulted during the benchmark at call {}: {}", name, i, f);
-            board::console(&line);
-            board::exit(false);
-        }
+        exit_on_fault(name, fault);
         report(name, step as f32 * per_count / N as f32);
     }
 
