@@ -138,8 +138,10 @@ impl<T: Real> FiveBar<T> {
         self.solve_checked(tool_mm, min_transmission)
     }
 
-    /// The closed form and the target's checks, for a finite target, positive links and a
-    /// margin at least the floor (or NaN).
+    /// The closed form and the target's checks, for positive links and a margin at least the
+    /// floor (or NaN). The target is tested finite by the callers, or proven finite (the
+    /// servo's); a non-finite one is still refused here, by the reach test (`ρ²` infinite or
+    /// NaN), as `Unreachable`.
     #[inline(always)]
     pub(crate) fn solve_checked(&self, tool_mm: [T; 2], min_transmission: T) -> Result<Solved<T>, KinematicsError> {
         let a0 = self.base_a0_mm;

@@ -91,3 +91,40 @@ impl<T: Real> ValidFiveBar<T> {
         crate::joint_motion::motion_of_solved(&s, velocity_mm_s, None)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The servo's IK without the target's finiteness test still refuses every non-finite or
+    /// overflowing target (as `Unreachable`: `ρ²` is infinite or NaN), and answers a finite
+    /// one exactly as `inverse` does.
+    #[test]
+    fn a_non_finite_target_never_passes_without_the_finiteness_test() {
+        let mut offset = FiveBar::<f32>::paper_nominal();
+        offset.base_a0_mm = [-0.61, 0.27];
+        offset.encoder_offset_rad = [0.004, -0.007];
+        for model in [FiveBar::<f32>::paper_nominal(), offset] {
+            let Ok(v) = ValidFiveBar::new(model) else { panic!("a valid model") };
+            for margin in [IkMargin::new(0.0), IkMargin::new(0.05), IkMargin::new(f32::NAN)] {
+                for p in [
+                    [f32::NAN, 0.0],
+                    [0.0, f32::NAN],
+                    [f32::INFINITY, 0.0],
+                    [f32::NEG_INFINITY, 1.0],
+                    [0.0, f32::INFINITY],
+                    [f32::INFINITY, f32::NEG_INFINITY],
+                    [f32::NAN, f32::INFINITY],
+                    [1e30, 0.0],
+                    [f32::MAX, f32::MAX],
+                ] {
+                    assert_eq!(v.inverse_of_finite(p, margin), Err(KinematicsError::Unreachable), "{p:?}");
+                    assert!(v.inverse(p, margin).is_err());
+                }
+                for p in [[212.132, 0.0], [250.0, 40.0], [180.0, -60.0]] {
+                    assert_eq!(v.inverse_of_finite(p, margin), v.inverse(p, margin), "{p:?}");
+                }
+            }
+        }
+    }
+}
