@@ -34,6 +34,7 @@
 use crate::dynamics::FiveBarDynamics;
 use crate::joint_motion::JointMotion;
 use crate::model::FiveBar;
+use crate::valid_model::{IkMargin, ValidFiveBar};
 use crate::pid::AxisGains;
 use crate::real::{wrap_angle_rad, Real};
 use crate::trajectory::MotionSetpoint;
@@ -77,13 +78,27 @@ impl<T: Real> JointSample<T> {
     #[inline]
     pub fn solve(&mut self, model: &FiveBar<T>, setpoint: &MotionSetpoint<T>, min_transmission: T) -> Result<(), KinematicsError> {
         let m = model.inverse_rates(setpoint.position_mm, setpoint.velocity_mm_s, min_transmission)?;
+        self.set(setpoint, &m);
+        Ok(())
+    }
+
+    /// [`JointSample::solve`] with a model and margin checked once ([`ValidFiveBar::inverse_rates`]).
+    #[inline]
+    pub fn solve_valid(&mut self, model: &ValidFiveBar<T>, setpoint: &MotionSetpoint<T>, margin: IkMargin<T>) -> Result<(), KinematicsError> {
+        let m = model.inverse_rates(setpoint.position_mm, setpoint.velocity_mm_s, margin)?;
+        self.set(setpoint, &m);
+        Ok(())
+    }
+
+    /// Stores a solved IK's joint state for `setpoint`.
+    #[inline(always)]
+    fn set(&mut self, setpoint: &MotionSetpoint<T>, m: &JointMotion<T>) {
         self.position_mm = setpoint.position_mm;
         self.velocity_mm_s = setpoint.velocity_mm_s;
         self.angle_rad = m.angle_rad;
         self.velocity_rad_s = m.velocity_rad_s;
         self.proximal_mm = m.proximal_mm;
         self.distal_mm = m.distal_mm;
-        Ok(())
     }
 
     /// Whether it was computed for `setpoint` (bit for bit: position and velocity).

@@ -104,6 +104,7 @@
 use crate::bilinear::bilinear;
 use crate::dynamics::{FiveBarDynamics, PARAMETERS};
 use crate::model::{Branch, FiveBar, WorkingMode};
+use crate::valid_model::ValidFiveBar;
 use crate::workspace::{ConvexWorkspace, MAX_WORKSPACE_VERTICES};
 
 /// Image magic.
@@ -273,7 +274,8 @@ pub struct WorkspaceLimits {
 #[derive(Clone, Copy, Debug)]
 pub struct CorrectionGrid<'a> {
     geometry: GridGeometry,
-    model: FiveBar<f32>,
+    /// Validated by [`CorrectionGrid::parse`].
+    model: ValidFiveBar<f32>,
     nodes: &'a [u8],
     /// The workspace block's payload, if the image has one.
     workspace: Option<&'a [u8]>,
@@ -392,6 +394,7 @@ impl<'a> CorrectionGrid<'a> {
             },
         };
         model.validate().map_err(|_| GridError::BadModel)?;
+        let model = ValidFiveBar::from_validated(model);
         let nodes = &bytes[HEADER_LEN..total - 4];
         if nodes.chunks_exact(4).any(|c| !f32::from_le_bytes([c[0], c[1], c[2], c[3]]).is_finite()) {
             return Err(GridError::NonFinite);
@@ -428,6 +431,11 @@ impl<'a> CorrectionGrid<'a> {
 
     /// The hidden robot this grid corrects.
     pub fn model(&self) -> &FiveBar<f32> {
+        self.model.model()
+    }
+
+    /// The same model as checked once by [`Self::parse`] (what the servo's IK uses).
+    pub fn valid_model(&self) -> &ValidFiveBar<f32> {
         &self.model
     }
 

@@ -26,8 +26,11 @@
 //!   `m·b·c·4ρ1²ρ2²` (the scale of the two distal vectors).
 //! * Finite: the angles, the elbow vectors and the cross product.
 //!
-//! Cost (`cargo qemu-bench`, Cortex-M4F): `ik_f32` 313 instructions, about 450 cycles
-//! (two `atan2_f32` at 67, two VSQRT, two VDIV inside the `atan2`s). Error: f32 round trips
+//! Cost (`cargo qemu-bench`, Cortex-M4F): `ik_f32` (`FiveBar::inverse`) 325 instructions, 461
+//! estimated cycles, of which 12 instructions check the model's links and raise the margin to
+//! its floor on every call; `ik_f32_valid` ([`crate::ValidFiveBar::inverse`], the model and
+//! the margin checked once, the servo's IK) 310 / 450 (two `atan2_f32`, two VSQRT, two VDIV
+//! inside the `atan2`s). Error: f32 round trips
 //! FK(IK(p)) stay within 0.1 µm (55 nm measured) and f64 within 1 nm over the paper's
 //! workspace, and the f32 IK alone within 0.05 µm of f64 at the tool (`tests/round_trip.rs`).
 
@@ -121,7 +124,26 @@ impl<T: Real> FiveBar<T> {
         if !self.links_positive() {
             return Err(self.invalid_model());
         }
-        let min_transmission = effective_margin(min_transmission, T::IK_MIN_TRANSMISSION);
+        self.solve_checked(tool_mm, effective_margin(min_transmission, T::IK_MIN_TRANSMISSION))
+    }
+
+    /// [`Self::solve_inverse`] for a model whose links are known positive
+    /// ([`crate::ValidFiveBar`]) and a margin already raised to its floor
+    /// ([`crate::IkMargin`]): the target's checks only.
+    #[inline(always)]
+    pub(crate) fn solve_inverse_valid(&self, tool_mm: [T; 2], min_transmission: T) -> Result<Solved<T>, KinematicsError> {
+        if !all_finite(tool_mm) {
+            return Err(KinematicsError::NonFinite);
+        }
+        self.solve_checked(tool_mm, min_transmission)
+    }
+
+    /// The closed form and the target's checks, for positive links and a margin at least the
+    /// floor (or NaN). The target is tested finite by the callers, or proven finite (the
+    /// servo's); a non-finite one is still refused here, by the reach test (`ρ²` infinite or
+    /// NaN), as `Unreachable`.
+    #[inline(always)]
+    pub(crate) fn solve_checked(&self, tool_mm: [T; 2], min_transmission: T) -> Result<Solved<T>, KinematicsError> {
         let a0 = self.base_a0_mm;
         let b0 = [a0[0] + self.base_b0_mm[0], a0[1] + self.base_b0_mm[1]];
         let r1 = [tool_mm[0] - a0[0], tool_mm[1] - a0[1]];
@@ -172,7 +194,8 @@ impl<T: Real> FiveBar<T> {
     /// poses so close to one that FK of the angles could round across it; a pose IK accepts
     /// with margin 0 is one FK returns with margin 0 (FK's floor is lower, √ε). A NaN margin
     /// refuses every pose. A model whose links are not all positive
-    /// is [`KinematicsError::InvalidModel`]. Angles are wrapped into
+    /// is [`KinematicsError::InvalidModel`]. A caller solving many targets with one model (the
+    /// servo) checks it once instead: [`crate::ValidFiveBar::inverse`]. Angles are wrapped into
     /// `(-π, π]`; the servo unwraps them next to the motor's current position.
     pub fn inverse_pose(&self, tool_mm: [T; 2], min_transmission: T) -> Result<Pose<T>, KinematicsError> {
         let s = self.solve_inverse(tool_mm, min_transmission)?;

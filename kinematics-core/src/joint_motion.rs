@@ -20,6 +20,7 @@
 //! inverse_motion_f32` in `cargo qemu-bench`. Error: exact up to rounding (the tests compare
 //! with finite differences of the IK along a trajectory).
 
+use crate::inverse::Solved;
 use crate::model::FiveBar;
 use crate::pose::{cross, Pose};
 use crate::real::Real;
@@ -80,42 +81,7 @@ impl<T: Real> FiveBar<T> {
         min_transmission: T,
     ) -> Result<JointMotion<T>, KinematicsError> {
         let s = self.solve_inverse(tool_mm, min_transmission)?;
-        let mut m = JointMotion {
-            angle_rad: [s.arm_1.theta_rad, s.arm_2.theta_rad],
-            velocity_rad_s: [T::ZERO; 2],
-            acceleration_rad_s2: [T::ZERO; 2],
-            proximal_mm: [[T::ZERO; 2]; 2],
-            distal_mm: [[T::ZERO; 2]; 2],
-            tool_velocity_mm_s: velocity_mm_s,
-            tool_acceleration_mm_s2: acceleration_mm_s2.unwrap_or([T::ZERO; 2]),
-        };
-        for (i, arm) in [&s.arm_1, &s.arm_2].into_iter().enumerate() {
-            // The IK's vectors are scaled by 2ρ².
-            let unscale = T::ONE / (arm.rho2 + arm.rho2);
-            let p = [arm.proximal[0] * unscale, arm.proximal[1] * unscale];
-            let q = [arm.distal[0] * unscale, arm.distal[1] * unscale];
-            let k = cross(p, q);
-            if k == T::ZERO {
-                return Err(KinematicsError::NearSingularity(Singularity::Serial));
-            }
-            let inv_k = T::ONE / k;
-            let w = dot(q, velocity_mm_s) * inv_k;
-            if let Some(acc) = acceleration_mm_s2 {
-                // Ċ - Ȧ with Ȧ = θ̇·p⊥, p⊥ = (-p_y, p_x).
-                let rel = [velocity_mm_s[0] + w * p[1], velocity_mm_s[1] - w * p[0]];
-                m.acceleration_rad_s2[i] = (dot(q, acc) + w * w * dot(q, p) + dot(rel, rel)) * inv_k;
-            }
-            m.velocity_rad_s[i] = w;
-            m.proximal_mm[i] = p;
-            m.distal_mm[i] = q;
-        }
-        // All finite exactly when their sum is (beyond 1e38 no machine moves either).
-        let sum = m.velocity_rad_s[0] + m.velocity_rad_s[1] + m.acceleration_rad_s2[0] + m.acceleration_rad_s2[1];
-        #[allow(clippy::eq_op)] // `sum - sum` is the test
-        if !(sum - sum == T::ZERO) {
-            return Err(KinematicsError::NonFinite);
-        }
-        Ok(m)
+        motion_of_solved(&s, velocity_mm_s, acceleration_mm_s2)
     }
 
     /// The tool's motion for joint angles, velocities and accelerations (the FK's checks).
@@ -129,6 +95,52 @@ impl<T: Real> FiveBar<T> {
         let pose = self.forward_pose(angle_rad, min_transmission)?;
         motion_from_pose(&pose, velocity_rad_s, acceleration_rad_s2)
     }
+}
+
+/// The joint motion of a solved IK: the rates (and accelerations, if asked) from the IK's
+/// link vectors. Shared by [`FiveBar::inverse_motion`] and [`crate::ValidFiveBar::inverse_rates`].
+#[inline(always)]
+pub(crate) fn motion_of_solved<T: Real>(
+    s: &Solved<T>,
+    velocity_mm_s: [T; 2],
+    acceleration_mm_s2: Option<[T; 2]>,
+) -> Result<JointMotion<T>, KinematicsError> {
+    let mut m = JointMotion {
+        angle_rad: [s.arm_1.theta_rad, s.arm_2.theta_rad],
+        velocity_rad_s: [T::ZERO; 2],
+        acceleration_rad_s2: [T::ZERO; 2],
+        proximal_mm: [[T::ZERO; 2]; 2],
+        distal_mm: [[T::ZERO; 2]; 2],
+        tool_velocity_mm_s: velocity_mm_s,
+        tool_acceleration_mm_s2: acceleration_mm_s2.unwrap_or([T::ZERO; 2]),
+    };
+    for (i, arm) in [&s.arm_1, &s.arm_2].into_iter().enumerate() {
+        // The IK's vectors are scaled by 2ρ².
+        let unscale = T::ONE / (arm.rho2 + arm.rho2);
+        let p = [arm.proximal[0] * unscale, arm.proximal[1] * unscale];
+        let q = [arm.distal[0] * unscale, arm.distal[1] * unscale];
+        let k = cross(p, q);
+        if k == T::ZERO {
+            return Err(KinematicsError::NearSingularity(Singularity::Serial));
+        }
+        let inv_k = T::ONE / k;
+        let w = dot(q, velocity_mm_s) * inv_k;
+        if let Some(acc) = acceleration_mm_s2 {
+            // Ċ - Ȧ with Ȧ = θ̇·p⊥, p⊥ = (-p_y, p_x).
+            let rel = [velocity_mm_s[0] + w * p[1], velocity_mm_s[1] - w * p[0]];
+            m.acceleration_rad_s2[i] = (dot(q, acc) + w * w * dot(q, p) + dot(rel, rel)) * inv_k;
+        }
+        m.velocity_rad_s[i] = w;
+        m.proximal_mm[i] = p;
+        m.distal_mm[i] = q;
+    }
+    // All finite exactly when their sum is (beyond 1e38 no machine moves either).
+    let sum = m.velocity_rad_s[0] + m.velocity_rad_s[1] + m.acceleration_rad_s2[0] + m.acceleration_rad_s2[1];
+    #[allow(clippy::eq_op)] // `sum - sum` is the test
+    if !(sum - sum == T::ZERO) {
+        return Err(KinematicsError::NonFinite);
+    }
+    Ok(m)
 }
 
 /// The tool's motion at a solved pose for joint velocities and accelerations.

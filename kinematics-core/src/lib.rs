@@ -9,6 +9,8 @@
 //!   working mode);
 //! * [`inverse`], [`forward`], [`jacobian`]: closed-form IK, FK and the Jacobian and its inverse,
 //!   returning a [`Pose`] whose transmission margins give the singularity checks;
+//! * [`valid_model`]: a model checked once ([`ValidFiveBar`]) and an IK margin raised to its
+//!   floor once ([`IkMargin`]), so the servo's IK per sample repeats neither check;
 //! * [`grid`], [`bilinear`]: the correction grid image read from flash (validated header, CRC),
 //!   interpolated with the paper's Eq. 7, and the chain of extension blocks after it (the
 //!   machine's workspace limits, the identified dynamics);
@@ -55,6 +57,7 @@ pub mod real;
 pub mod servo;
 pub mod sin_cos;
 pub mod trajectory;
+pub mod valid_model;
 pub mod workspace;
 
 pub use error::{KinematicsError, Singularity};
@@ -68,10 +71,11 @@ pub use pose::Pose;
 pub use real::{wrap_angle_rad, Real};
 pub use workspace::{ConvexWorkspace, WorkspaceError, MAX_WORKSPACE_VERTICES};
 pub use servo::{
-    AcceptedSetpoint, Calibration, ConfigError, EngageError, Servo, ServoConfig, ServoFault, ServoOutput, SetpointRefusal,
+    AcceptedSetpoint, Calibration, ConfigError, ValidCalibration, EngageError, Servo, ServoConfig, ServoFault, ServoOutput, SetpointRefusal,
     StepError,
 };
 pub use trajectory::{MotionSetpoint, PathMotion, TaskLimits, Tour, TrajectoryError};
+pub use valid_model::{IkMargin, ValidFiveBar};
 
 /// The default singularity margin: the smallest `|sin|` of a transmission angle accepted
 /// (0.05 is about 2.9° from a singular configuration).

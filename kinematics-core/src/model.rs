@@ -159,7 +159,8 @@ impl<T: Real> FiveBar<T> {
     }
 
     /// Whether all four links are positive (false for a NaN link): the one model check IK and
-    /// FK make on every call (four comparisons, 7 instructions of the IK on the Cortex-M4F). A
+    /// FK make on every call (four comparisons, 7 instructions of the IK on the Cortex-M4F;
+    /// [`crate::ValidFiveBar`] makes it once, with the rest of [`Self::validate`]). A
     /// negative link is what it must catch: the law of cosines would square it into a wrong
     /// but finite answer.
     #[inline(always)]

@@ -45,8 +45,15 @@
 //!
 //! # Cost
 //! `cargo qemu-bench` (`BENCH servo_step`, `servo_step_motion`): instructions under QEMU and
-//! Cortex-M4 cycles estimated by `firmware/qemu/plugin/m4cycles.c`, per call, split by part
-//! with a per-instruction count of the same run attributed through the debug info:
+//! Cortex-M4 cycles estimated by `firmware/qemu/plugin/m4cycles.c`, per call. Through a
+//! [`ValidCalibration`] (`Servo::step_valid`, the firmware's path; issue 16): 692.5
+//! instructions, 977 cycles; through a plain [`Calibration`], whose model every IK checks
+//! (`BENCH servo_step_checking`): 711.5 / 1001. The checked-once path leaves out the IK's model
+//! check (7 instructions), its margin floor (5; [`IkMargin`] is built once in [`Servo::new`])
+//! and its test that the target is finite (the jump check has proven it; see
+//! [`Servo::accept_valid`]). The split by part, with a per-instruction count of the same run
+//! attributed through the debug info, is from the build before, through a plain
+//! [`Calibration`]:
 //!
 //! | `servo_step` (710 instructions, 987 cycles) | instructions | cycles |
 //! |---|---|---|
@@ -58,7 +65,8 @@
 //! | the call, its register saves and the results | 27 | 93 |
 //! | the benchmark loop's own work per call (input, output) | 26 | 38 |
 //!
-//! The motion step (`servo_step_motion`, 1198 / 1787; the parts from the build before the IK's
+//! The motion step (`servo_step_motion`, 1186 / 1773 through a [`ValidCalibration`], 1198 /
+//! 1787 before; the parts from the build before the IK's
 //! singularity-floor checks, 1194 / 1786: the trajectory's evaluation 77 / 113 included) is the next setpoint's IK with the joint rates (359 / 562), the inverse dynamics
 //! (156 / 211), the interval's means (48 / 68), the grid (185 / 243), the finiteness of both
 //! setpoints and the differenced speed and acceleration (62 / 81) and the PIDs (78 / 97); the
@@ -78,7 +86,8 @@
 use crate::dynamics::{DynamicsError, FiveBarDynamics};
 use crate::feed_forward::{feed_forward_nm, interval_motion, predict, JointSample};
 use crate::grid::{CorrectionGrid, GridError};
-use crate::model::FiveBar;
+use crate::model::{FiveBar, ModelError};
+use crate::valid_model::{IkMargin, ValidFiveBar};
 use crate::pid::{AxisController, AxisGains, AxisReference, InvalidGain};
 use crate::real::Real;
 use crate::trajectory::MotionSetpoint;
@@ -229,13 +238,111 @@ impl<'a> Calibration<'a> {
 
     /// The model's encoder angles `theta_rad` for `tool_mm` plus the grid correction there.
     pub fn corrected_rad(&self, tool_mm: [f32; 2], theta_rad: [f32; 2]) -> Result<[f32; 2], SetpointRefusal> {
-        match &self.grid {
-            None => Ok(theta_rad),
-            Some(grid) => {
-                let d = grid.correction_rad(tool_mm).map_err(SetpointRefusal::Grid)?;
-                Ok([theta_rad[0] + d[0], theta_rad[1] + d[1]])
-            }
+        corrected_rad(self.grid.as_ref(), tool_mm, theta_rad)
+    }
+}
+
+/// `theta_rad` plus the grid's correction at `tool_mm` (none without a grid).
+#[inline(always)]
+fn corrected_rad(grid: Option<&CorrectionGrid<'_>>, tool_mm: [f32; 2], theta_rad: [f32; 2]) -> Result<[f32; 2], SetpointRefusal> {
+    match grid {
+        None => Ok(theta_rad),
+        Some(grid) => {
+            let d = grid.correction_rad(tool_mm).map_err(SetpointRefusal::Grid)?;
+            Ok([theta_rad[0] + d[0], theta_rad[1] + d[1]])
         }
+    }
+}
+
+/// A [`Calibration`] whose model passed [`FiveBar::validate`] when it was built: the servo's
+/// IK per sample ([`Servo::step_valid`], [`Servo::accept_valid`],
+/// [`Servo::accept_motion_valid`], [`Servo::step_motion_valid`]) then skips the model check
+/// and the margin floor the [`Calibration`] path repeats on every call (issue 16; the angles
+/// are bit-identical). Its fields are private: an invalid model cannot be put in one.
+#[derive(Clone, Copy, Debug)]
+pub struct ValidCalibration<'a> {
+    model: ValidFiveBar<f32>,
+    grid: Option<CorrectionGrid<'a>>,
+}
+
+impl<'a> ValidCalibration<'a> {
+    /// `cal` if its model is valid ([`FiveBar::validate`]), else the reason.
+    pub fn new(cal: Calibration<'a>) -> Result<Self, ModelError> {
+        Ok(ValidCalibration { model: ValidFiveBar::new(cal.model)?, grid: cal.grid })
+    }
+
+    /// The model and grid of a validated image (its parser validated the model).
+    pub fn from_grid(grid: CorrectionGrid<'a>) -> Self {
+        ValidCalibration { model: *grid.valid_model(), grid: Some(grid) }
+    }
+
+    /// The checked model.
+    pub fn model(&self) -> &ValidFiveBar<f32> {
+        &self.model
+    }
+
+    /// The correction grid, if any.
+    pub fn grid(&self) -> Option<&CorrectionGrid<'a>> {
+        self.grid.as_ref()
+    }
+
+    /// The same calibration as a plain [`Calibration`] (for [`Servo::engage`] and the
+    /// functions that take one).
+    pub fn calibration(&self) -> Calibration<'a> {
+        Calibration { model: *self.model.model(), grid: self.grid }
+    }
+
+    /// [`Calibration::command_rad`] with the model and margin checked once.
+    #[inline(always)]
+    pub fn command_rad(&self, tool_mm: [f32; 2], margin: IkMargin<f32>) -> Result<[f32; 2], SetpointRefusal> {
+        let theta = self.model.inverse(tool_mm, margin).map_err(SetpointRefusal::Kinematics)?;
+        corrected_rad(self.grid.as_ref(), tool_mm, theta)
+    }
+}
+
+/// What the servo's sample needs of a calibration, implemented by both kinds: a
+/// [`Calibration`] checks its model on every IK, a [`ValidCalibration`] did when it was built.
+/// One implementation of the step serves both (private: the public methods name the type).
+trait SampleModel {
+    /// IK plus grid correction for a target [`Servo::check_sequence`] passed (so finite: the
+    /// IK need not test it again).
+    fn command_rad_of_finite(&self, tool_mm: [f32; 2], margin: IkMargin<f32>) -> Result<[f32; 2], SetpointRefusal>;
+    /// The joint state at `setpoint`, in place.
+    fn solve_joint(&self, slot: &mut JointSample<f32>, setpoint: &MotionSetpoint<f32>, margin: IkMargin<f32>) -> Result<(), KinematicsError>;
+    /// The grid correction added to the model's angles.
+    fn corrected_rad(&self, tool_mm: [f32; 2], theta_rad: [f32; 2]) -> Result<[f32; 2], SetpointRefusal>;
+}
+
+impl SampleModel for Calibration<'_> {
+    #[inline(always)]
+    fn command_rad_of_finite(&self, tool_mm: [f32; 2], margin: IkMargin<f32>) -> Result<[f32; 2], SetpointRefusal> {
+        // `FiveBar::inverse` raises the margin to its floor again (the same value) and checks
+        // the model and the target, as it always did on this path.
+        Calibration::command_rad(self, tool_mm, margin.get())
+    }
+    #[inline(always)]
+    fn solve_joint(&self, slot: &mut JointSample<f32>, setpoint: &MotionSetpoint<f32>, margin: IkMargin<f32>) -> Result<(), KinematicsError> {
+        slot.solve(&self.model, setpoint, margin.get())
+    }
+    #[inline(always)]
+    fn corrected_rad(&self, tool_mm: [f32; 2], theta_rad: [f32; 2]) -> Result<[f32; 2], SetpointRefusal> {
+        corrected_rad(self.grid.as_ref(), tool_mm, theta_rad)
+    }
+}
+
+impl SampleModel for ValidCalibration<'_> {
+    #[inline(always)]
+    fn command_rad_of_finite(&self, tool_mm: [f32; 2], margin: IkMargin<f32>) -> Result<[f32; 2], SetpointRefusal> {
+        let theta = self.model.inverse_of_finite(tool_mm, margin).map_err(SetpointRefusal::Kinematics)?;
+        corrected_rad(self.grid.as_ref(), tool_mm, theta)
+    }
+    #[inline(always)]
+    fn solve_joint(&self, slot: &mut JointSample<f32>, setpoint: &MotionSetpoint<f32>, margin: IkMargin<f32>) -> Result<(), KinematicsError> {
+        slot.solve_valid(&self.model, setpoint, margin)
+    }
+    #[inline(always)]
+    fn corrected_rad(&self, tool_mm: [f32; 2], theta_rad: [f32; 2]) -> Result<[f32; 2], SetpointRefusal> {
+        corrected_rad(self.grid.as_ref(), tool_mm, theta_rad)
     }
 }
 
@@ -380,6 +487,8 @@ struct Derived {
     max_speed2: f32,
     /// `max_accel_mm_s2²`, at most `f32::MAX`.
     max_accel2: f32,
+    /// `min_transmission` raised to the IK's floor.
+    ik_margin: IkMargin<f32>,
 }
 
 impl Derived {
@@ -389,6 +498,7 @@ impl Derived {
             rate_hz: 1.0 / config.sample_period_s,
             max_speed2: square(config.max_speed_mm_s),
             max_accel2: square(config.max_accel_mm_s2),
+            ik_margin: IkMargin::new(config.min_transmission),
         }
     }
 }
@@ -543,15 +653,31 @@ impl Servo {
     /// kinematics (reach, singularity margin) and the grid, and returns it with the encoder
     /// angles it commands. A refusal changes nothing.
     pub fn accept(&mut self, cal: &Calibration<'_>, setpoint_mm: [f32; 2]) -> Result<AcceptedSetpoint<'_>, SetpointRefusal> {
+        self.accept_with(cal, setpoint_mm)
+    }
+
+    /// [`Servo::accept`] with a calibration whose model was checked once: the same result,
+    /// without the IK's per-call model check and margin floor, and without its test that the
+    /// setpoint is finite (the jump check before it proves that: the history's setpoint is
+    /// finite and a speed below a finite limit leaves the new one finite; a non-finite one
+    /// is refused there as [`SetpointRefusal::NonFinite`]).
+    pub fn accept_valid(&mut self, cal: &ValidCalibration<'_>, setpoint_mm: [f32; 2]) -> Result<AcceptedSetpoint<'_>, SetpointRefusal> {
+        self.accept_with(cal, setpoint_mm)
+    }
+
+    #[inline(always)]
+    fn accept_with(&mut self, cal: &impl SampleModel, setpoint_mm: [f32; 2]) -> Result<AcceptedSetpoint<'_>, SetpointRefusal> {
         let (v, a) = self.check_sequence(setpoint_mm)?;
-        let command_rad = cal.command_rad(setpoint_mm, self.config.min_transmission)?;
+        let command_rad = cal.command_rad_of_finite(setpoint_mm, self.derived.ik_margin)?;
         Ok(AcceptedSetpoint { servo: self, setpoint_mm, velocity_mm_s: v, accel_mm_s2: a, command_rad, feedforward_nm: None, ahead: None })
     }
 
     /// Engaged, a finite setpoint, and the speed and acceleration the setpoint sequence implies
     /// (backward differences, returned) within the limits. A NaN or infinite coordinate makes
     /// the speed NaN or infinite, which never passes the limit (at most `f32::MAX`): finiteness
-    /// is told apart from a jump only on the way out.
+    /// is told apart from a jump only on the way out. So a setpoint that passes is finite (the
+    /// history's setpoint is: engage's FK result or a setpoint that passed), which the IK of
+    /// [`Servo::accept_valid`] relies on instead of testing it again.
     #[inline]
     fn check_sequence(&self, setpoint_mm: [f32; 2]) -> Result<([f32; 2], [f32; 2]), SetpointRefusal> {
         let Some(h) = &self.history else {
@@ -583,6 +709,26 @@ impl Servo {
         setpoint: &MotionSetpoint<f32>,
         next: Option<&MotionSetpoint<f32>>,
     ) -> Result<AcceptedSetpoint<'_>, SetpointRefusal> {
+        self.accept_motion_with(cal, setpoint, next)
+    }
+
+    /// [`Servo::accept_motion`] with a calibration whose model was checked once.
+    pub fn accept_motion_valid(
+        &mut self,
+        cal: &ValidCalibration<'_>,
+        setpoint: &MotionSetpoint<f32>,
+        next: Option<&MotionSetpoint<f32>>,
+    ) -> Result<AcceptedSetpoint<'_>, SetpointRefusal> {
+        self.accept_motion_with(cal, setpoint, next)
+    }
+
+    #[inline(always)]
+    fn accept_motion_with(
+        &mut self,
+        cal: &impl SampleModel,
+        setpoint: &MotionSetpoint<f32>,
+        next: Option<&MotionSetpoint<f32>>,
+    ) -> Result<AcceptedSetpoint<'_>, SetpointRefusal> {
         let (cfg, d) = (&self.config, &self.derived);
         if self.history.is_some() {
             if !finite_setpoint(setpoint) {
@@ -595,12 +741,12 @@ impl Servo {
         }
         let p = setpoint.position_mm;
         let (velocity_mm_s, accel_mm_s2) = self.check_sequence(p)?;
-        let m = cfg.min_transmission;
+        let m = d.ik_margin;
         // This setpoint's joint state: the last sample's look-ahead if it was this setpoint.
         let now = match self.ahead {
             Some(i) if self.joint[i].is_for(setpoint) => i,
             _ => {
-                self.joint[0].solve(&cal.model, setpoint, m).map_err(SetpointRefusal::Kinematics)?;
+                cal.solve_joint(&mut self.joint[0], setpoint, m).map_err(SetpointRefusal::Kinematics)?;
                 0
             }
         };
@@ -609,10 +755,10 @@ impl Servo {
         // The look-ahead never refuses this setpoint: the prediction stands in for a next one
         // that cannot be used (and, if that is out of reach too, no motion).
         let solved = match next {
-            Some(n) if finite_setpoint(n) => next_state.solve(&cal.model, n, m).is_ok(),
+            Some(n) if finite_setpoint(n) => cal.solve_joint(next_state, n, m).is_ok(),
             _ => false,
         };
-        if !solved && next_state.solve(&cal.model, &predict(setpoint, cfg.sample_period_s), m).is_err() {
+        if !solved && cal.solve_joint(next_state, &predict(setpoint, cfg.sample_period_s), m).is_err() {
             *next_state = *now_state;
         }
         let motion = interval_motion(now_state, next_state, d.rate_hz);
@@ -641,6 +787,17 @@ impl Servo {
         self.accept_motion(cal, setpoint, next).map_err(StepError::Refused)?.track(encoder_rad).map_err(StepError::Fault)
     }
 
+    /// [`Servo::step_motion`] with a calibration whose model was checked once.
+    pub fn step_motion_valid(
+        &mut self,
+        cal: &ValidCalibration<'_>,
+        setpoint: &MotionSetpoint<f32>,
+        next: Option<&MotionSetpoint<f32>>,
+        encoder_rad: [f32; 2],
+    ) -> Result<ServoOutput, StepError> {
+        self.accept_motion_valid(cal, setpoint, next).map_err(StepError::Refused)?.track(encoder_rad).map_err(StepError::Fault)
+    }
+
     /// One sample: [`Servo::accept`] then [`AcceptedSetpoint::track`]. On
     /// `Err(StepError::Refused(_))` nothing changed (the caller may step again with another
     /// setpoint); on `Err(StepError::Fault(_))` the fault is latched. Either way this sample
@@ -652,6 +809,17 @@ impl Servo {
         encoder_rad: [f32; 2],
     ) -> Result<ServoOutput, StepError> {
         self.accept(cal, setpoint_mm).map_err(StepError::Refused)?.track(encoder_rad).map_err(StepError::Fault)
+    }
+
+    /// [`Servo::step`] with a calibration whose model was checked once (the firmware's path):
+    /// the same results, bit for bit, without the IK's per-call model check and margin floor.
+    pub fn step_valid(
+        &mut self,
+        cal: &ValidCalibration<'_>,
+        setpoint_mm: [f32; 2],
+        encoder_rad: [f32; 2],
+    ) -> Result<ServoOutput, StepError> {
+        self.accept_valid(cal, setpoint_mm).map_err(StepError::Refused)?.track(encoder_rad).map_err(StepError::Fault)
     }
 }
 

@@ -9,7 +9,8 @@
 use kinematics_core::grid::{encode, CorrectionGrid, GridGeometry};
 use kinematics_core::path::Circle;
 use kinematics_core::trajectory::{PathMotion, TaskLimits};
-use kinematics_core::{Calibration, FiveBar, FiveBarDynamics, Real, Servo, ServoConfig, WorkingMode};
+use kinematics_core::servo::{ServoOutput, StepError};
+use kinematics_core::{Calibration, FiveBar, FiveBarDynamics, IkMargin, Real, Servo, ServoConfig, ValidCalibration, WorkingMode};
 
 /// Marks an emitted error code (no f32 result has these bits: a NaN payload the core never makes).
 pub const ERROR: u32 = 0x7fc0_de00;
@@ -66,6 +67,23 @@ fn code<E: core::fmt::Debug>(e: E) -> u32 {
     h & 0xff
 }
 
+/// Whether two steps gave the same result, bit for bit (the checked-once path against the
+/// per-call one: issue 16 moved the model's checks out of the sample, not its arithmetic).
+fn same_step(a: &Result<ServoOutput, StepError>, b: &Result<ServoOutput, StepError>) -> bool {
+    match (a, b) {
+        (Ok(a), Ok(b)) => {
+            let bits = |o: &ServoOutput| [o.torque_nm, o.reference_rad, o.following_error_rad].map(|v| v.map(f32::to_bits));
+            bits(a) == bits(b)
+        }
+        (Err(a), Err(b)) => a == b,
+        _ => false,
+    }
+}
+
+/// Marks a disagreement of the checked-once path with the per-call one (outside the `ERROR`
+/// codes; `tests/tests/same_core_on_mcu.rs` fails on it).
+pub const VALID_PATH_DIFFERS: u32 = 0x7fc0_df01;
+
 struct HashWriter<'a>(&'a mut u32);
 
 impl core::fmt::Write for HashWriter<'_> {
@@ -110,8 +128,13 @@ pub fn run(emit: &mut impl FnMut(u32)) {
         return;
     };
     let cal = Calibration::from_grid(grid);
+    let valid = ValidCalibration::from_grid(grid);
     for k in 0..TARGETS {
-        emit_result(emit, cal.command_rad(target_mm(k), 0.05).map_err(code));
+        let command = cal.command_rad(target_mm(k), 0.05);
+        if command.map(|t| t.map(f32::to_bits)) != valid.command_rad(target_mm(k), IkMargin::new(0.05)).map(|t| t.map(f32::to_bits)) {
+            emit(VALID_PATH_DIFFERS);
+        }
+        emit_result(emit, command.map_err(code));
     }
     // 3. The servo closed around a two-inertia plant (the default gains' 7.4e-3 kg·m²) for 400
     //    samples of a 10 mm circle.
@@ -119,13 +142,15 @@ pub fn run(emit: &mut impl FnMut(u32)) {
         emit(ERROR | 0xf1);
         return;
     };
+    // The same servo through the checked-once path, stepped alongside: the same results.
+    let mut servo_valid = servo.clone();
     let centre = [202.132f32, 0.0];
     let Ok(mut angle) = cal.command_rad([centre[0] + 10.0, centre[1]], 0.05) else {
         emit(ERROR | 0xf0);
         return;
     };
     let mut velocity = [0.0f32; 2];
-    if let Err(e) = servo.engage(&cal, angle) {
+    if let Err(e) = servo.engage(&cal, angle).and(servo_valid.engage(&cal, angle)) {
         emit(ERROR | code(e));
         return;
     }
@@ -133,7 +158,12 @@ pub fn run(emit: &mut impl FnMut(u32)) {
         let t = n as f32 * 5e-4;
         let phase = core::f32::consts::TAU * t * t; // angular speed ramps up from zero
         let (s, c) = Real::sin_cos(phase);
-        match servo.step(&cal, [centre[0] + 10.0 * c, centre[1] + 10.0 * s], angle) {
+        let setpoint = [centre[0] + 10.0 * c, centre[1] + 10.0 * s];
+        let stepped = servo.step(&cal, setpoint, angle);
+        if !same_step(&stepped, &servo_valid.step_valid(&valid, setpoint, angle)) {
+            emit(VALID_PATH_DIFFERS);
+        }
+        match stepped {
             Ok(out) => {
                 emit(out.torque_nm[0].to_bits());
                 emit(out.torque_nm[1].to_bits());
@@ -174,12 +204,13 @@ pub fn run(emit: &mut impl FnMut(u32)) {
         return;
     };
     let _ = servo.set_dynamics(Some(dynamics));
+    let mut servo_valid = servo.clone();
     let Ok(mut angle) = cal.command_rad(contour.at(0.0).position_mm, 0.05) else {
         emit(ERROR | 0xf3);
         return;
     };
     let mut velocity = [0.0f32; 2];
-    if let Err(e) = servo.engage(&cal, angle) {
+    if let Err(e) = servo.engage(&cal, angle).and(servo_valid.engage(&cal, angle)) {
         emit(ERROR | code(e));
         return;
     }
@@ -192,7 +223,11 @@ pub fn run(emit: &mut impl FnMut(u32)) {
         }
         // Every other sample with the next setpoint, the others predicting it.
         let next = contour.at((n + 1) as f32 * 5e-4);
-        match servo.step_motion(&cal, &s, (n % 2 == 0).then_some(&next), angle) {
+        let stepped = servo.step_motion(&cal, &s, (n % 2 == 0).then_some(&next), angle);
+        if !same_step(&stepped, &servo_valid.step_motion_valid(&valid, &s, (n % 2 == 0).then_some(&next), angle)) {
+            emit(VALID_PATH_DIFFERS);
+        }
+        match stepped {
             Ok(out) => {
                 emit(out.torque_nm[0].to_bits());
                 emit(out.torque_nm[1].to_bits());

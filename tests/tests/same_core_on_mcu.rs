@@ -1,5 +1,5 @@
 //! The same core on host and target: `tests/golden/cases.rs` (IK, FK, Jacobian, grid lookups, a
-//! closed servo sequence, hostile inputs) runs on the Cortex-M4F under QEMU (the firmware's
+//! closed servo sequence, the same through a model checked once, hostile inputs) runs on the Cortex-M4F under QEMU (the firmware's
 //! `golden` binary) and here on x86; every f32 result and every error must be bit-identical.
 //!
 //! Why it can fail: the MCU takes `sqrt` from the FPU's VSQRT, `atan2` and `sin_cos` from the
@@ -77,6 +77,8 @@ fn every_result_is_bit_identical_on_the_mcu_and_the_host() {
     let errors = host.iter().filter(|&&w| w & 0xffff_ff00 == cases::ERROR).count();
     // The cases must exercise both results and refusals, and the servo sequence must have run.
     assert!(errors >= 5 && host.len() > 1000, "{} words, {errors} errors", host.len());
+    // The servo through a model checked once (issue 16) steps exactly like the per-call path.
+    assert!(!host.contains(&cases::VALID_PATH_DIFFERS), "host: the checked-once path differs from the per-call one");
 
     let mcu = run_on_mcu(&build_golden());
     let first_diff = host.iter().zip(&mcu).position(|(h, m)| h != m);
@@ -84,5 +86,6 @@ fn every_result_is_bit_identical_on_the_mcu_and_the_host() {
         panic!("word {i} differs: host {} vs MCU {}", describe(host[i]), describe(mcu[i]));
     }
     assert_eq!(host.len(), mcu.len(), "same words, different counts");
+    assert!(!mcu.contains(&cases::VALID_PATH_DIFFERS), "MCU: the checked-once path differs from the per-call one");
     println!("{} results bit-identical on host and Cortex-M4F ({errors} refusals among them)", host.len());
 }

@@ -29,7 +29,9 @@
 //! 2. `Running`: the next setpoint from the queue, with its exact derivatives and the one after
 //!    it as the feed-forward's look-ahead (an empty queue holds the last setpoint if the
 //!    machine is at rest, or is [`Fault::Underrun`] if it moves), [`Servo::accept_motion`]
-//!    (the identified dynamics the image carries fed forward, issue 14); a refusal
+//!    (the identified dynamics the image carries fed forward, issue 14; through
+//!    [`Servo::accept_motion_valid`], the model checked once at boot or at a calibration
+//!    switch, issue 16); a refusal
 //!    is [`Fault::Setpoint`]; an accepted setpoint whose stop would end outside the workspace
 //!    ([`Workspace`], the image's workspace polygon or the grid's rectangle, less a margin) is dropped and is
 //!    [`Fault::StopOutsideWorkspace`]; otherwise it is tracked;
@@ -52,7 +54,7 @@
 use heapless::spsc::Consumer;
 use kinematics_core::trajectory::MotionSetpoint;
 use kinematics_core::path::Line;
-use kinematics_core::{Calibration, EngageError, PathMotion, Servo, ServoOutput, StepError, TaskLimits};
+use kinematics_core::{Calibration, EngageError, PathMotion, Servo, ServoOutput, StepError, TaskLimits, ValidCalibration};
 
 use crate::calibration::CalibrationState;
 use crate::deadline::Deadline;
@@ -176,6 +178,10 @@ struct Stop {
 pub struct ServoLoop<'a> {
     settings: &'a Settings,
     calibration: Calibration<'a>,
+    /// `calibration` with its model checked once, what the servo's samples use (its IK then
+    /// repeats no model check: issue 16). `None` when the model is invalid: the samples then
+    /// go through `calibration`, whose IK refuses it on every call, so it is never used.
+    valid: Option<ValidCalibration<'a>>,
     /// Where a stop may end: the image's workspace polygon (or, without one, the grid's
     /// rectangle) less the margin (`None`: no grid, running uncorrected; then only the servo's
     /// reach and singularity checks bound a stop).
@@ -281,6 +287,7 @@ impl<'a> ServoLoop<'a> {
         let count_rad = settings.encoders.map(|c| EncoderScale::new(&c).map_or(0.0, |s| s.rad_per_count()));
         ServoLoop {
             settings,
+            valid: ValidCalibration::new(calibration).ok(),
             calibration,
             workspace,
             servo,
@@ -335,6 +342,7 @@ impl<'a> ServoLoop<'a> {
             _ => return Err(SwitchRefused::NotAtRest),
         }
         self.calibration = calibration;
+        self.valid = ValidCalibration::new(calibration).ok();
         self.workspace = workspace;
         Ok(())
     }
@@ -557,7 +565,11 @@ impl<'a> ServoLoop<'a> {
         let Some(servo) = self.servo.as_mut() else {
             return self.latch(Fault::Servo(kinematics_core::ServoFault::NotEngaged), sample);
         };
-        let accepted = match servo.accept_motion(&self.calibration, &setpoint, ahead.as_ref()) {
+        let accepted = match &self.valid {
+            Some(valid) => servo.accept_motion_valid(valid, &setpoint, ahead.as_ref()),
+            None => servo.accept_motion(&self.calibration, &setpoint, ahead.as_ref()),
+        };
+        let accepted = match accepted {
             Ok(a) => a,
             Err(refusal) => return self.begin_stop(Fault::Setpoint(refusal), encoder_rad, sample),
         };
@@ -601,7 +613,11 @@ impl<'a> ServoLoop<'a> {
         let dt_s = self.settings.servo.sample_period_s;
         let t_s = stop.samples as f32 * dt_s;
         let setpoint_mm = stop.profile.at(t_s);
-        match servo.step(&self.calibration, setpoint_mm, encoder_rad) {
+        let stepped = match &self.valid {
+            Some(valid) => servo.step_valid(valid, setpoint_mm, encoder_rad),
+            None => servo.step(&self.calibration, setpoint_mm, encoder_rad),
+        };
+        match stepped {
             Ok(out) => self.record(&out, setpoint_mm, sample),
             Err(StepError::Refused(r)) => return self.latch(Fault::StopRefused(r), sample),
             Err(StepError::Fault(f)) => return self.latch(Fault::Servo(f), sample),

@@ -2,17 +2,23 @@
 //! `BENCH <name> <instructions per call>` (QEMU; `firmware/qemu/bench.sh` appends the
 //! estimated Cortex-M4 cycles) or `BENCH <name> <cycles per call>` (STM32G474, DWT).
 //!
-//! * `ik_f32`: `FiveBar::<f32>::inverse` (closed-form IK, singularity checks);
+//! * `ik_f32`: `FiveBar::<f32>::inverse` (closed-form IK, singularity checks, the model's
+//!   links and the margin's floor checked on every call);
+//! * `ik_f32_valid`: `ValidFiveBar::<f32>::inverse`, the same IK with the model and margin
+//!   checked once (`IkMargin`): the servo's IK;
 //! * `fk_f32`: `FiveBar::<f32>::forward`;
 //! * `grid_lookup`: `CorrectionGrid::correction_rad` on the image in the calibration region;
-//! * `servo_step`: `Servo::step`, the whole sample (jump checks, IK, correction, two PIDs);
+//! * `servo_step`: `Servo::step_valid`, the whole sample (jump checks, IK, correction, two
+//!   PIDs) with a `ValidCalibration`, the firmware's path (and `servo_step_checking`:
+//!   `Servo::step` with a plain `Calibration`, whose model every IK checks);
 //! * `jerk_profile_at`, `trajectory_line_at`, `trajectory_circle_at`: one sample of a 5 g
 //!   trajectory (the 1-D profile alone, a straight move, a circle), exact derivatives included;
 //! * `inverse_motion_f32`: joint angles, velocities and accelerations for a tool motion;
 //! * `inverse_dynamics_f32`: the hidden robot's inverse dynamics from that joint motion;
 //! * `servo_step_motion`: one sample of 5 g moves back and forth across the workspace: the
 //!   trajectory evaluated (exact derivatives) and `Servo::step_motion` with the identified
-//!   dynamics fed forward (and `servo_step_motion_uncorrected`, without grid);
+//!   dynamics fed forward (`Servo::step_motion_valid`; and `servo_step_motion_uncorrected`,
+//!   without grid);
 //! * `sixbar_solve`: the six-bar's numerical equilibrium solve (host-sim's plant, ported to
 //!   f32 in `bench/sixbar.rs`), warm-started along the servo's 2 kHz path: what controlling
 //!   the real mechanism without the hidden robot would cost per sample (and
@@ -49,7 +55,10 @@ use kinematics_core::sin_cos::sin_cos_f32;
 use kinematics_core::path::Circle;
 use kinematics_core::servo::STANDARD_GRAVITY_MM_S2;
 use kinematics_core::servo::{ServoOutput, StepError};
-use kinematics_core::{Calibration, CorrectionGrid, FiveBar, FiveBarDynamics, MotionSetpoint, PathMotion, Servo, ServoConfig, TaskLimits};
+use kinematics_core::{
+    Calibration, CorrectionGrid, FiveBar, FiveBarDynamics, IkMargin, MotionSetpoint, PathMotion, Servo, ServoConfig, TaskLimits,
+    ValidCalibration, ValidFiveBar,
+};
 
 use firmware::board::{self, CycleCounter};
 use firmware::calibration;
@@ -126,24 +135,67 @@ fn measure(counter: &CycleCounter, mut body: impl FnMut(usize)) -> u32 {
     total.saturating_sub(empty)
 }
 
-/// One `Servo::step` as the firmware's timer interrupt makes it: a call of its own, so that
-/// nothing of the servo (its settings, its history) stays in registers from one call to the
-/// next, as it could if the step were inlined into the measuring loop.
+/// One `Servo::step_valid` as the firmware's timer interrupt makes it (the model checked
+/// once, when the calibration was loaded): a call of its own, so that nothing of the servo
+/// (its settings, its history) stays in registers from one call to the next, as it could if
+/// the step were inlined into the measuring loop.
 #[inline(never)]
-fn step_once(servo: &mut Servo, cal: &Calibration<'_>, setpoint_mm: [f32; 2], encoder_rad: [f32; 2]) -> Result<ServoOutput, StepError> {
+fn step_once(servo: &mut Servo, cal: &ValidCalibration<'_>, setpoint_mm: [f32; 2], encoder_rad: [f32; 2]) -> Result<ServoOutput, StepError> {
+    servo.step_valid(cal, setpoint_mm, encoder_rad)
+}
+
+/// One `Servo::step` with a plain `Calibration` (its model checked by every IK), a call of its
+/// own (see [`step_once`]): what the check costs.
+#[inline(never)]
+fn step_once_checking(servo: &mut Servo, cal: &Calibration<'_>, setpoint_mm: [f32; 2], encoder_rad: [f32; 2]) -> Result<ServoOutput, StepError> {
     servo.step(cal, setpoint_mm, encoder_rad)
 }
 
-/// One `Servo::step_motion`, a call of its own (see [`step_once`]).
+/// One `Servo::step_motion_valid`, a call of its own (see [`step_once`]).
 #[inline(never)]
 fn step_motion_once(
     servo: &mut Servo,
-    cal: &Calibration<'_>,
+    cal: &ValidCalibration<'_>,
     setpoint: &MotionSetpoint<f32>,
     next: &MotionSetpoint<f32>,
     encoder_rad: [f32; 2],
 ) -> Result<ServoOutput, StepError> {
-    servo.step_motion(cal, setpoint, Some(next), encoder_rad)
+    servo.step_motion_valid(cal, setpoint, Some(next), encoder_rad)
+}
+
+/// Fails the run if a step of benchmark `name` faulted (the first fault, at its call).
+fn exit_on_fault(name: &str, fault: Option<(usize, StepError)>) {
+    if let Some((i, f)) = fault {
+        let mut line: heapless::String<128> = heapless::String::new();
+        let _ = write!(line, "FAIL {} faulted during the benchmark at call {}: {}", name, i, f);
+        board::console(&line);
+        board::exit(false);
+    }
+}
+
+/// Reports the counts of `step` along `setpoints` (the encoders following the reference
+/// exactly), engaged at the first setpoint with `cal`; fails the run if a step faults.
+fn bench_step(
+    counter: &CycleCounter,
+    per_count: f32,
+    name: &str,
+    cal: &Calibration<'_>,
+    setpoints: &[[f32; 2]; N],
+    mut step: impl FnMut(&mut Servo, [f32; 2], [f32; 2]) -> Result<ServoOutput, StepError>,
+) {
+    let Ok(mut servo) = Servo::new(ServoConfig::default()) else { board::exit(false) };
+    let Ok(mut encoder) = cal.command_rad(setpoints[0], 0.05) else { board::exit(false) };
+    if servo.engage(cal, encoder).is_err() {
+        board::console("FAIL servo did not engage");
+        board::exit(false);
+    }
+    let mut fault = None;
+    let counts = measure(counter, |i| match step(&mut servo, black_box(setpoints[i]), black_box(encoder)) {
+        Ok(out) => encoder = out.reference_rad,
+        Err(f) => fault = fault.or(Some((i, f))),
+    });
+    exit_on_fault(name, fault);
+    report(name, counts as f32 * per_count / N as f32);
 }
 
 #[entry]
@@ -177,7 +229,7 @@ fn main() -> ! {
             board::exit(false);
         }
     };
-    let cal = Calibration::from_grid(grid);
+    let cal = ValidCalibration::from_grid(grid);
 
     // Points on a 8x8 lattice over the workspace, and their joint angles.
     let mut points = [[0.0f32; 2]; POINTS];
@@ -197,6 +249,13 @@ fn main() -> ! {
         let _ = black_box(model.inverse(black_box(points[i % POINTS]), 0.05));
     });
     report("ik_f32", ik as f32 * per_count / N as f32);
+
+    let Ok(valid) = ValidFiveBar::new(model) else { board::exit(false) };
+    let margin = IkMargin::new(0.05);
+    let ik = measure(&counter, |i| {
+        let _ = black_box(valid.inverse(black_box(points[i % POINTS]), margin));
+    });
+    report("ik_f32_valid", ik as f32 * per_count / N as f32);
 
     let fk = measure(&counter, |i| {
         let _ = black_box(model.forward(black_box(thetas[i % POINTS]), 0.05));
@@ -284,27 +343,12 @@ fn main() -> ! {
         let (sin, cos) = libm::sincosf(phase);
         *s = [212.132 + 20.0 * (cos - 1.0), 20.0 * sin];
     }
-    let uncorrected = Calibration { model, grid: None };
+    let Ok(uncorrected) = ValidCalibration::new(Calibration { model, grid: None }) else { board::exit(false) };
     for (name, cal) in [("servo_step", &cal), ("servo_step_uncorrected", &uncorrected)] {
-        let Ok(mut servo) = Servo::new(ServoConfig::default()) else { board::exit(false) };
-        let Ok(mut encoder) = cal.command_rad(setpoints[0], 0.05) else { board::exit(false) };
-        if servo.engage(cal, encoder).is_err() {
-            board::console("FAIL servo did not engage");
-            board::exit(false);
-        }
-        let mut fault = None;
-        let step = measure(&counter, |i| match step_once(&mut servo, cal, black_box(setpoints[i]), black_box(encoder)) {
-            Ok(out) => encoder = out.reference_rad,
-            Err(f) => fault = fault.or(Some((i, f))),
-        });
-        if let Some((i, f)) = fault {
-            let mut line: heapless::String<128> = heapless::String::new();
-            let _ = write!(line, "FAIL {} faulted during the benchmark at call {}: {}", name, i, f);
-            board::console(&line);
-            board::exit(false);
-        }
-        report(name, step as f32 * per_count / N as f32);
+        bench_step(&counter, per_count, name, &cal.calibration(), &setpoints, |s, p, e| step_once(s, cal, p, e));
     }
+    let checking = cal.calibration();
+    bench_step(&counter, per_count, "servo_step_checking", &checking, &setpoints, |s, p, e| step_once_checking(s, &checking, p, e));
 
     // The motion step: back and forth along the 5 g move without dwell (in motion but for an
     // instant at each end), the next setpoint evaluated from the trajectory at its sample's time
@@ -326,8 +370,8 @@ fn main() -> ! {
         if servo.set_dynamics(Some(dynamics)).is_err() {
             board::exit(false);
         }
-        let Ok(mut encoder) = cal.command_rad(sample(0).position_mm, 0.05) else { board::exit(false) };
-        if servo.engage(cal, encoder).is_err() {
+        let Ok(mut encoder) = cal.command_rad(sample(0).position_mm, IkMargin::new(0.05)) else { board::exit(false) };
+        if servo.engage(&cal.calibration(), encoder).is_err() {
             board::console("FAIL servo did not engage");
             board::exit(false);
         }
@@ -339,16 +383,12 @@ fn main() -> ! {
             let next = sample(black_box(i) + 1);
             let stepped = step_motion_once(&mut servo, cal, &current, &next, black_box(encoder));
             current = next;
-            match stepped {                Ok(out) => encoder = out.reference_rad,
+            match stepped {
+                Ok(out) => encoder = out.reference_rad,
                 Err(f) => fault = fault.or(Some((i, f))),
             }
         });
-        if let Some((i, f)) = fault {
-            let mut line: heapless::String<128> = heapless::String::new();
-            let _ = write!(line, "FAIL {} faulted during the benchmark at call {}: {}", name, i, f);
-            board::console(&line);
-            board::exit(false);
-        }
+        exit_on_fault(name, fault);
         report(name, step as f32 * per_count / N as f32);
     }
 
