@@ -181,7 +181,8 @@ impl<D: DeviceResources> Device for AppDevice<'_, D> {
 impl<D: DeviceResources> Homing for AppDevice<'_, D> {
     /// From `Unhomed`: posts the request (the servo task starts at its next sample; a plan the
     /// servo loop refuses shows as `Failed`). Under way or done: nothing to do. Failed, or a
-    /// fault latched before homing: refused (a reboot homes again).
+    /// fault latched before homing: refused until ResetFault has taken the servo loop back to
+    /// `Unhomed` (drives off); then Home starts again, no reboot needed.
     fn start(&mut self) -> Result<(), HomingRefused> {
         match (self.status.mode, self.state()) {
             (Mode::Unhomed, _) => {

@@ -125,6 +125,13 @@ impl Fault {
             | Fault::Watchdog(_) => StopCategory::Zero,
         }
     }
+
+    /// Faults only a reboot clears: settings or calibration refused at boot, and a watchdog
+    /// that did not start (without it a stalled controller would keep the drives on). The
+    /// servo loop refuses to reset them and the host link answers them as faulted.
+    pub fn needs_reboot(&self) -> bool {
+        matches!(self, Fault::Settings(_) | Fault::Calibration(_) | Fault::Watchdog(WatchdogFault::NotStarted))
+    }
 }
 
 impl core::fmt::Display for Fault {

@@ -14,6 +14,7 @@
 //!     └──── category 0 fault ─────────────────────────────────────────────────────────► SafeState
 //!  Stopping, Holding ── category 0 fault ──────────────────────────────────────────► SafeState
 //!  boot after a watchdog reset, watchdog not started ([`ServoLoop::latch_at_boot`]) ──► SafeState
+//!  SafeState ── reset, never homed (incremental encoders) ──► Unhomed (drives stay off; Home again)
 //! ```
 //! Every mode but `SafeState` and `Unhomed` has the drives on. `Unhomed` refuses every setpoint
 //! (the queue is left alone, zero torque, drives off): **the drives never engage on an unhomed
@@ -157,12 +158,14 @@ pub enum ServoRequest {
 pub enum ResetRefusal {
     /// A controlled stop is under way: reset once it has ended.
     Stopping,
-    /// The fault cannot be cleared without a reboot (settings or calibration refused at boot).
+    /// The fault cannot be cleared without a reboot (settings or calibration refused at boot,
+    /// or the watchdog could not be started: no motion without it).
     Permanent(Fault),
     /// The servo would not engage at the machine's position.
     Engage(kinematics_core::EngageError),
-    /// Incremental encoders and homing never reached home (a fault latched before or during
-    /// homing): the encoder zero is unknown, the drives stay off.
+    /// Incremental encoders and homing never reached home, and the drives are on (a machine
+    /// in the safe state instead goes back to `Unhomed`, see [`ServoLoop::request`]): the
+    /// encoder zero is unknown, nothing engages.
     NotHomed,
 }
 
@@ -697,8 +700,11 @@ impl<'a> ServoLoop<'a> {
     /// setpoint, as a fault would) and do nothing otherwise. `Reset` from `Holding` or
     /// `SafeState` clears the fault, drops what is queued (`queue`: setpoints planned before the
     /// stop) and re-engages at `encoder_rad`, at rest there; it does nothing while running and
-    /// is refused during a stop, after a boot fault, and with incremental encoders before homing
-    /// reached home ([`ResetRefusal::NotHomed`]). `Home` starts homing from `Unhomed`
+    /// is refused during a stop and after a permanent boot fault. With incremental encoders
+    /// before homing reached home it never engages: from `SafeState` (drives off) it clears the
+    /// fault back to `Unhomed`, drives still off, so that `Home` can run again without a reboot
+    /// (a homing that failed, a fault latched before homing); otherwise it is refused
+    /// ([`ResetRefusal::NotHomed`]). `Home` starts homing from `Unhomed`
     /// ([`ServoLoop::start_homing`]: the drives go on) and does nothing in any other mode (a
     /// refused plan latches its fault there). Returns whether the drives must be enabled now
     /// (they were off).
@@ -748,10 +754,20 @@ impl<'a> ServoLoop<'a> {
         queue: &mut Consumer<'_, MotionSetpoint<f32>>,
         encoder_rad: [f32; 2],
     ) -> Result<bool, ResetRefusal> {
-        if matches!(fault, Fault::Settings(_) | Fault::Calibration(_)) {
+        if fault.needs_reboot() {
             return Err(ResetRefusal::Permanent(fault));
         }
         if !self.settings.homing.absolute_encoders && self.homing_phase() != Some(HomingPhase::Done) {
+            if let Mode::SafeState(_) = self.mode {
+                // The zero is unknown: nothing engages. Back to where the boot left an
+                // incremental machine (drives off, every setpoint refused), so Home may run.
+                while queue.dequeue().is_some() {}
+                self.mode = Mode::Unhomed;
+                self.homing = None;
+                self.stop = None;
+                self.last_torque_nm = [0.0; 2];
+                return Ok(false);
+            }
             return Err(ResetRefusal::NotHomed);
         }
         let servo = self.servo.as_mut().ok_or(ResetRefusal::Permanent(fault))?;
@@ -781,6 +797,7 @@ impl<'a> ServoLoop<'a> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::watchdog::WatchdogFault;
     use heapless::spsc::Queue;
     use kinematics_core::grid::{encode, CorrectionGrid, GridGeometry};
     use kinematics_core::{EngageError, FiveBar, GridError, SetpointRefusal};
@@ -961,7 +978,7 @@ mod tests {
 
     #[test]
     fn a_fault_at_boot_keeps_the_drives_off_and_the_first_reason_is_kept() {
-        use crate::watchdog::WatchdogFault;
+
         let (settings, img) = (absolute(), image());
         let (mut l, encoder) = running(&settings, &img);
         l.latch_at_boot(Fault::Watchdog(WatchdogFault::Reset));
@@ -1463,24 +1480,45 @@ mod tests {
         assert_eq!((l.mode(), l.homing_phase()), (Mode::Homing, Some(HomingPhase::Search(0))));
         assert_eq!(l.request(ServoRequest::Home, &mut rx, [0.0; 2]), Ok(false), "not twice");
         assert_eq!(l.mode(), Mode::Homing);
-        // A fault while homing: the safe state, and no reset engages the unhomed machine.
+        // A fault while homing: the safe state; no reset engages the unhomed machine, it goes
+        // back to Unhomed with the drives off, and Home runs again (no reboot).
         let mut sample = l.step_homing([0.0; 2], [None; 2]);
         l.latch(Fault::DeadlineMissed, &mut sample);
         assert_eq!(l.mode(), Mode::SafeState(Fault::DeadlineMissed));
-        assert_eq!(l.request(ServoRequest::Reset, &mut rx, [0.0; 2]), Err(ResetRefusal::NotHomed));
-        assert!(!l.drives_enabled());
-        // Nor after a fault latched at boot (a watchdog reset) before homing.
+        assert_eq!(l.request(ServoRequest::Home, &mut rx, [0.0; 2]), Ok(false), "not before the fault is reset");
+        assert_eq!(l.request(ServoRequest::Reset, &mut rx, [0.0; 2]), Ok(false), "nothing to enable");
+        assert_eq!((l.mode(), l.homing_phase(), l.drives_enabled()), (Mode::Unhomed, None, false));
+        let s = l.step(&mut rx, [0.0; 2]);
+        assert_eq!((s.torque_nm, s.fault), ([0.0; 2], None), "Unhomed: zero torque");
+        assert_eq!(l.request(ServoRequest::Home, &mut rx, [0.0; 2]), Ok(true), "homing again, drives on");
+        assert_eq!((l.mode(), l.homing_phase()), (Mode::Homing, Some(HomingPhase::Search(0))));
+        // The same after a fault latched at boot (a watchdog reset) before homing.
         let mut l = ServoLoop::boot(&settings, cal, CalibrationState::Valid, [0.0; 2]);
         l.latch_at_boot(Fault::DeadlineMissed);
-        assert_eq!(l.request(ServoRequest::Reset, &mut rx, [0.0; 2]), Err(ResetRefusal::NotHomed));
         assert_eq!(l.request(ServoRequest::Home, &mut rx, [0.0; 2]), Ok(false));
         assert!(!l.drives_enabled());
+        assert_eq!(l.request(ServoRequest::Reset, &mut rx, [0.0; 2]), Ok(false));
+        assert_eq!((l.mode(), l.drives_enabled()), (Mode::Unhomed, false));
+        assert_eq!(l.request(ServoRequest::Home, &mut rx, [0.0; 2]), Ok(true));
+        // A watchdog that did not start is permanent: no reset, no homing, drives off.
+        let mut l = ServoLoop::boot(&settings, cal, CalibrationState::Valid, [0.0; 2]);
+        let nowd = Fault::Watchdog(WatchdogFault::NotStarted);
+        l.latch_at_boot(nowd);
+        assert_eq!(l.request(ServoRequest::Reset, &mut rx, [0.0; 2]), Err(ResetRefusal::Permanent(nowd)));
+        assert_eq!(l.request(ServoRequest::Home, &mut rx, [0.0; 2]), Ok(false));
+        assert_eq!((l.mode(), l.drives_enabled()), (Mode::SafeState(nowd), false));
         let absolute = Settings { homing: crate::homing::HomingSettings { absolute_encoders: true, ..settings.homing }, ..settings };
         let at = cal.command_rad(HOME_MM, 0.05).unwrap();
         let mut l = ServoLoop::boot(&absolute, cal, CalibrationState::Valid, at);
         assert_eq!(l.mode(), Mode::Running);
         assert_eq!(l.request(ServoRequest::Home, &mut rx, at), Ok(false));
         assert_eq!((l.mode(), l.homing_phase()), (Mode::Running, None));
+        // Absolute encoders and a watchdog that did not start: no reset engages the drives
+        // (before, a reset cleared it like any fault and the machine ran without a watchdog).
+        let mut l = ServoLoop::boot(&absolute, cal, CalibrationState::Valid, at);
+        l.latch_at_boot(nowd);
+        assert_eq!(l.request(ServoRequest::Reset, &mut rx, at), Err(ResetRefusal::Permanent(nowd)));
+        assert!(!l.drives_enabled());
     }
 
     /// Incremental encoders (the default): the loop boots `Unhomed`, drives off, refusing the

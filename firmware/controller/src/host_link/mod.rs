@@ -19,7 +19,7 @@
 //! | MoveTo | not running, moving, target outside / unplannable | plans the jerk-limited move |
 //! | StreamKnots | not running, index, full, a bad knot | queues the knots (validated whole) |
 //! | Stop | never | controlled stop, then hold (category 2) |
-//! | ResetFault | stopping, not homed, permanent boot fault | clears the fault, re-engages, drives on |
+//! | ResetFault | stopping, permanent fault (settings, calibration, watchdog not started) | clears the fault, re-engages, drives on; never homed (homing failed, a fault before homing): back to `Unhomed`, drives off, Home again |
 //! | Telemetry | never | sets the decimation (at least [`MIN_TELEMETRY_DECIMATION`]) |
 //! | CalibrationBegin/Chunk/Commit | moving; what the [`CalibrationStore`] refuses | writes the inactive slot, switches |
 //!
@@ -234,6 +234,9 @@ impl LinkHandler {
                 Mode::Homing => Err(LinkError::Busy),
                 Mode::Stopping(_) => Err(LinkError::Busy),
                 Mode::Holding(f) | Mode::SafeState(f) if permanent(f) => Err(LinkError::Faulted(fault_code(f))),
+                // Never homed (homing failed, or a fault before it): the servo loop clears the
+                // fault back to Unhomed, drives off, and Home may run again without a reboot.
+                Mode::SafeState(_) if !homed(device) => Ok(self.post(ServoRequest::Reset, status.ticks, device)),
                 Mode::Holding(_) | Mode::SafeState(_) => self.reset(status.ticks, device),
             },
             Command::Stop => Ok(self.post(ServoRequest::Stop, status.ticks, device)),
@@ -289,8 +292,7 @@ impl LinkHandler {
 
     /// Re-engage (Enable, ResetFault): only homed (or with absolute encoders).
     fn reset(&mut self, tick: u32, device: &mut impl Device) -> Result<Response, LinkError> {
-        let homing = device.homing();
-        if homing.state() != HomingState::Homed && !homing.absolute_encoders() {
+        if !homed(device) {
             return Err(LinkError::NotHomed);
         }
         Ok(self.post(ServoRequest::Reset, tick, device))
@@ -375,9 +377,15 @@ fn commanded(f: Fault) -> bool {
     matches!(f, Fault::StopCommanded | Fault::DisableCommanded)
 }
 
+/// The encoder zero is known: homing reached home, or the encoders are absolute.
+fn homed(device: &mut impl Device) -> bool {
+    let homing = device.homing();
+    homing.state() == HomingState::Homed || homing.absolute_encoders()
+}
+
 /// Faults only a reboot clears (the servo loop refuses to reset them).
 fn permanent(f: Fault) -> bool {
-    matches!(f, Fault::Settings(_) | Fault::Calibration(_))
+    f.needs_reboot()
 }
 
 fn running(mode: Mode) -> Result<(), LinkError> {

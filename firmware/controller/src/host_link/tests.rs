@@ -389,6 +389,41 @@ proptest! {
     }
 }
 
+/// A homing that failed (or a fault latched before homing) is recovered without a reboot:
+/// ResetFault takes the servo loop back to Unhomed with the drives off (it never engages on an
+/// unknown zero; Enable stays refused), and Home runs again.
+#[test]
+fn a_failed_homing_is_reset_to_unhomed_and_homed_again_without_a_reboot() {
+    use crate::homing::{HomingFault, HomingPhase};
+    let (incremental, img) = (Settings::default(), image(3e-4));
+    assert!(!incremental.homing.absolute_encoders);
+    let cal = Calibration::from_grid(CorrectionGrid::parse(&img).unwrap());
+    let mut r = Rig::boot(&incremental, cal, cal.command_rad(HOME_MM, 0.05).unwrap(), image_id(&img));
+    r.homing.state = HomingState::NotHomed;
+    let mut h = LinkHandler::new();
+    run(&mut h, &mut r, 2);
+    assert_eq!(r.servo.mode(), Mode::Unhomed);
+    r.post(ServoRequest::Home);
+    run(&mut h, &mut r, 1);
+    assert_eq!(r.servo.mode(), Mode::Homing);
+    // Homing fails (no index found): the safe state, drives off.
+    let failed = Fault::Homing(HomingFault::IndexNotFound(0));
+    let mut sample = r.servo.step_homing(r.plant.encoder_rad(), [None; 2]);
+    r.servo.latch(failed, &mut sample);
+    r.homing.state = HomingState::Failed;
+    run(&mut h, &mut r, 2);
+    assert_eq!((r.status.mode, r.servo.drives_enabled()), (Mode::SafeState(failed), false));
+    assert_eq!(send(&mut h, &mut r, 1, Command::Enable), Err(LinkError::Faulted(FaultCode::Homing)), "no engaging on an unknown zero");
+    assert_eq!(send(&mut h, &mut r, 2, Command::ResetFault), Ok(Response::Done));
+    let statuses = run(&mut h, &mut r, 20);
+    assert!(statuses.iter().all(|s| s.torque_nm == [0.0; 2] && !s.drives_enabled), "the drives stay off");
+    assert_eq!((r.servo.mode(), r.servo.homing_phase()), (Mode::Unhomed, None));
+    // Home runs again (the firmware's Homing::start posts this from Unhomed).
+    r.post(ServoRequest::Home);
+    run(&mut h, &mut r, 1);
+    assert_eq!((r.servo.mode(), r.servo.homing_phase()), (Mode::Homing, Some(HomingPhase::Search(0))));
+}
+
 /// The link's homing state follows the servo loop's mode and homing phase.
 #[test]
 fn the_homing_state_follows_the_mode_and_the_phase() {
