@@ -381,7 +381,7 @@ fn replacement(
 ) -> Option<(Vec<&'static Effect>, Fit, String)> {
     let problem = fitter.problem;
     let n = n_res(problem);
-    let mut best: Option<(f64, Vec<&'static Effect>, Fit, &'static Effect)> = None;
+    let mut moves: Vec<(f64, Vec<&'static Effect>, Fit, &'static Effect, f64)> = Vec::new();
     for &c in candidates {
         if set.contains(&c) || set.is_empty() {
             continue;
@@ -421,26 +421,80 @@ fn replacement(
         if n - k_new < MIN_DOF_PER_PARAM * k_new || plausible(problem, c, &f, s2).is_err() {
             continue;
         }
-        if best.as_ref().is_none_or(|b| gain > b.0) {
-            best = Some((gain, trial, f, c));
+        moves.push((gain, trial, f, c, s2));
+    }
+    // Best gain first; the first that also predicts held-out points well enough is taken (a
+    // move that fails the held-out test must not hide the next one).
+    moves.sort_by(|a, b| b.0.total_cmp(&a.0));
+    for (gain, trial, f, c, s2) in moves {
+        // The held-out test of every move, charged by the net parameters it adds (the add
+        // test's k_effect·σ², [`validates`]): a move that adds parameters must lower the
+        // cross-validated RSS by that much; one that saves parameters may raise it by as much
+        // as they cost (a strict drop would keep the larger of two equally predictive models).
+        let (Some(cv_old), Some(cv_new)) = (fitter.cv_rss(set, &cur.p), fitter.cv_rss(&trial, &f.p)) else {
+            continue;
+        };
+        let dk = f.free.len() as f64 - cur.free.len() as f64;
+        if cv_new >= cv_old - dk * s2 {
+            continue;
+        }
+        let dropped: Vec<&str> = set.iter().filter(|e| !trial.contains(e)).map(|e| e.name()).collect();
+        let line = format!(
+            "replace [{}] by {} (BIC −{gain:.1}; cross-validated RSS {cv_old:.1} → {cv_new:.1} µm², allowed {:.1})",
+            dropped.join(", "),
+            c.name(),
+            cv_old - dk * s2
+        );
+        let mut ordered: Vec<&'static Effect> = trial.into_iter().filter(|e| e.name() != c.name()).collect();
+        ordered.push(c);
+        return Some((ordered, f, line));
+    }
+    None
+}
+
+/// BIC margin within which a one-for-one swap of a named effect leaves the choice open: the
+/// evidence an effect needs to be added at all ([`ADD_MARGIN`]). The selection names an effect
+/// only on that much evidence, so it must not claim one effect over its twin on less.
+pub const AMBIGUOUS_MARGIN: f64 = ADD_MARGIN;
+
+/// A named effect the data cannot tell from a library alternative (see [`ambiguities`]).
+pub struct Ambiguity {
+    /// The effect of the final model.
+    pub effect: &'static Effect,
+    /// The candidate that, put in its place, fits within [`AMBIGUOUS_MARGIN`].
+    pub alternative: &'static Effect,
+    /// BIC of the swapped model minus the final model's (common σ², [`delta_bic`]); negative
+    /// when the alternative scores better but no move could take it (the replacement needs a
+    /// gain > [`SWAP_MARGIN`], plausibility and the held-out test).
+    pub delta_bic: f64,
+}
+
+/// Every one-for-one swap of a member of `set` (fitted as `cur`) with a candidate outside it
+/// whose BIC is within [`AMBIGUOUS_MARGIN`] of the final model's and whose fitted values are
+/// plausible: the pairs the report must call ambiguous rather than pick one silently. Best
+/// alternative (lowest ΔBIC) first. Cost: |set|·|candidates left| LM fits (cached).
+pub fn ambiguities(
+    fitter: &mut Fitter<'_>,
+    candidates: &[&'static Effect],
+    set: &[&'static Effect],
+    cur: &Fit,
+    noise_um: Option<f64>,
+) -> Vec<Ambiguity> {
+    let problem = fitter.problem;
+    let mut out = Vec::new();
+    for (i, &m) in set.iter().enumerate() {
+        for &c in candidates.iter().filter(|c| !set.contains(c)) {
+            let mut trial = set.to_vec();
+            trial[i] = c;
+            let Some(f) = fitter.fit(&trial, &cur.p) else { continue };
+            let d = delta_bic(problem, noise_um, cur, &f);
+            if d < AMBIGUOUS_MARGIN && plausible(problem, c, &f, common_s2(problem, noise_um, cur, &f)).is_ok() {
+                out.push(Ambiguity { effect: m, alternative: c, delta_bic: d });
+            }
         }
     }
-    let (gain, trial, f, c) = best?;
-    // The replacement must also predict held-out points better.
-    let cv_old = fitter.cv_rss(set, &cur.p)?;
-    let cv_new = fitter.cv_rss(&trial, &f.p)?;
-    if cv_new >= cv_old {
-        return None;
-    }
-    let dropped: Vec<&str> = set.iter().filter(|e| !trial.contains(e)).map(|e| e.name()).collect();
-    let line = format!(
-        "replace [{}] by {} (BIC −{gain:.1}; cross-validated RSS {cv_old:.1} → {cv_new:.1} µm²)",
-        dropped.join(", "),
-        c.name()
-    );
-    let mut ordered: Vec<&'static Effect> = trial.into_iter().filter(|e| e.name() != c.name()).collect();
-    ordered.push(c);
-    Some((ordered, f, line))
+    out.sort_by(|a, b| a.delta_bic.total_cmp(&b.delta_bic));
+    out
 }
 
 fn empty_fit(problem: &Problem) -> Fit {
