@@ -202,13 +202,24 @@ fn base_offset_and_gear_ratio_at_half_magnitude_name_no_link_lengths() {
     assert!(r.steps.iter().all(|s| s.effect != "link_lengths"), "{}", table(&r));
 }
 
+/// Another former false positive, a two-for-two trade: frame and gear ratio at half the
+/// magnitude were named link_lengths + base_offset (the first forward step takes link_lengths,
+/// and neither newcomer alone beats the member it would replace). The pair replacement makes
+/// the trade: exactly the hidden pair.
+#[test]
+fn frame_and_gear_ratio_at_half_magnitude_are_not_traded_for_link_lengths_and_base_offset() {
+    let truth = sweep_truth(&["frame", "gear_ratio"], 0.5);
+    check(&truth, Poses::Random(400), 5000, &["frame", "gear_ratio"], false, "sweep pair at 0.5×");
+}
+
 /// A true tie of twins is reported, not picked silently: encoder offsets and a base offset at
-/// half the magnitude beside an instrument drift (a sweep case, random poses) come out as base
-/// offset and instrument frame (a common motor offset *is* a frame rotation about A0; here the
-/// two fit within 1 of BIC), and the report declares `frame` ambiguous with `encoder_offset`,
-/// with the measurement that separates them (table line and `ambiguous` key). The sweep counts
-/// such a declared alternative as no false positive; an effect named without that declaration
-/// stays one (`declares_alternative` is false for any other pair).
+/// half the magnitude beside an instrument drift (a sweep case, random poses; before the pair
+/// replacement named base offset + frame) fit as well with `frame` in place of
+/// `encoder_offset` (a common motor offset *is* a frame rotation about A0; within 1 of BIC), and
+/// the report declares the pair ambiguous, whichever is named, with the measurement that
+/// separates them (table line and `ambiguous` key). The sweep counts such a declared
+/// alternative as no false positive; an effect named without that declaration stays one
+/// (`declares_alternative` is false for any other pair).
 #[test]
 fn a_twin_named_within_the_adding_margin_is_declared_ambiguous() {
     let mut truth = sweep_truth(&["encoder_offset", "base_offset"], 0.5);
