@@ -442,29 +442,41 @@ fn replacement(
     // move that fails the held-out test must not hide the next one).
     moves.sort_by(|a, b| b.0.total_cmp(&a.0));
     for (gain, trial, f, c, s2) in moves {
-        // The held-out test of every move, charged by the net parameters it adds (the add
-        // test's k_effect·σ², [`validates`]): a move that adds parameters must lower the
-        // cross-validated RSS by that much; one that saves parameters may raise it by as much
-        // as they cost (a strict drop would keep the larger of two equally predictive models).
-        let (Some(cv_old), Some(cv_new)) = (fitter.cv_rss(set, &cur.p), fitter.cv_rss(&trial, &f.p)) else {
-            continue;
-        };
-        let dk = f.free.len() as f64 - cur.free.len() as f64;
-        if cv_new >= cv_old - dk * s2 {
-            continue;
-        }
-        let dropped: Vec<&str> = set.iter().filter(|e| !trial.contains(e)).map(|e| e.name()).collect();
-        let line = format!(
-            "replace [{}] by {} (BIC −{gain:.1}; cross-validated RSS {cv_old:.1} → {cv_new:.1} µm², allowed {:.1})",
-            dropped.join(", "),
-            c.name(),
-            cv_old - dk * s2
-        );
+        let Some(line) = move_validates(fitter, set, cur, &trial, &f, s2, c.name(), gain) else { continue };
         let mut ordered: Vec<&'static Effect> = trial.into_iter().filter(|e| e.name() != c.name()).collect();
         ordered.push(c);
         return Some((ordered, f, line));
     }
     None
+}
+
+/// The held-out test of a replacement move from `set` (fitted as `cur`) to `trial` (fitted as
+/// `f`), charged by the net parameters it adds (the add test's k_effect·σ², [`validates`]): a
+/// move that adds parameters must lower the cross-validated RSS by that much; one that saves
+/// parameters may raise it by as much as they cost (a strict drop would keep the larger of two
+/// equally predictive models). Returns the log line if it passes.
+#[allow(clippy::too_many_arguments)]
+fn move_validates(
+    fitter: &mut Fitter<'_>,
+    set: &[&'static Effect],
+    cur: &Fit,
+    trial: &[&'static Effect],
+    f: &Fit,
+    s2: f64,
+    added: &str,
+    gain: f64,
+) -> Option<String> {
+    let cv_old = fitter.cv_rss(set, &cur.p)?;
+    let cv_new = fitter.cv_rss(trial, &f.p)?;
+    let allowed = cv_old - (f.free.len() as f64 - cur.free.len() as f64) * s2;
+    if cv_new >= allowed {
+        return None;
+    }
+    let dropped: Vec<&str> = set.iter().filter(|e| !trial.contains(e)).map(|e| e.name()).collect();
+    Some(format!(
+        "replace [{}] by {added} (BIC −{gain:.1}; cross-validated RSS {cv_old:.1} → {cv_new:.1} µm², allowed {allowed:.1})",
+        dropped.join(", ")
+    ))
 }
 
 /// Pair moves whose linearised score is checked by a real fit, best first.
@@ -567,21 +579,8 @@ fn pair_replacement(
         {
             continue;
         }
-        let (Some(cv_old), Some(cv_new)) = (fitter.cv_rss(set, &cur.p), fitter.cv_rss(&trial, &f.p)) else {
-            continue;
-        };
-        let dk = f.free.len() as f64 - cur.free.len() as f64;
-        if cv_new >= cv_old - dk * s2f {
-            continue;
-        }
-        let dropped: Vec<&str> = set.iter().filter(|e| !trial.contains(e)).map(|e| e.name()).collect();
-        let line = format!(
-            "replace [{}] by {} and {} (BIC −{gain:.1}; cross-validated RSS {cv_old:.1} → {cv_new:.1} µm², allowed {:.1})",
-            dropped.join(", "),
-            ca.name(),
-            cb.name(),
-            cv_old - dk * s2f
-        );
+        let added = format!("{} and {}", ca.name(), cb.name());
+        let Some(line) = move_validates(fitter, set, cur, &trial, &f, s2f, &added, gain) else { continue };
         return Some((trial, f, line));
     }
     None
