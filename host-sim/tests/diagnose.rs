@@ -183,6 +183,73 @@ fn two_effects_at_once_are_both_named() {
     }
 }
 
+/// The sweep's truth for a case (benches/diagnose_study.rs: seed 0 of the first magnitude).
+fn sweep_truth(effects: &[&str], magnitude: f64) -> Truth {
+    let mut rng = ChaCha8Rng::seed_from_u64(99_000 + 7919 * effects.len() as u64);
+    truth_with(effects, &mut rng).scaled(magnitude)
+}
+
+/// A former false positive of the sweep (DIAGNOSIS.md, "No false positives"): base offset and
+/// gear ratio at half the magnitude, random poses. The selection used to keep an extra
+/// `link_lengths` (it stood in for the encoder offset the gear ratio about a fixed angle
+/// leaves, at the same held-out error: the replacement demanded a strict cross-validated drop
+/// even for a move that saves two parameters). Now: exactly the hidden pair (the ratio's offset
+/// checked to its value), residual at the noise level.
+#[test]
+fn base_offset_and_gear_ratio_at_half_magnitude_name_no_link_lengths() {
+    let truth = sweep_truth(&["base_offset", "gear_ratio"], 0.5);
+    let (r, _) = check(&truth, Poses::Random(400), 5000, &["base_offset", "gear_ratio"], false, "sweep pair at 0.5×");
+    assert!(r.steps.iter().all(|s| s.effect != "link_lengths"), "{}", table(&r));
+}
+
+/// Another former false positive, a two-for-two trade: frame and gear ratio at half the
+/// magnitude were named link_lengths + base_offset (the first forward step takes link_lengths,
+/// and neither newcomer alone beats the member it would replace). The pair replacement makes
+/// the trade: exactly the hidden pair.
+#[test]
+fn frame_and_gear_ratio_at_half_magnitude_are_not_traded_for_link_lengths_and_base_offset() {
+    let truth = sweep_truth(&["frame", "gear_ratio"], 0.5);
+    check(&truth, Poses::Random(400), 5000, &["frame", "gear_ratio"], false, "sweep pair at 0.5×");
+}
+
+/// A true tie of twins is reported, not picked silently: encoder offsets and a base offset at
+/// half the magnitude beside an instrument drift (a sweep case, random poses; before the pair
+/// replacement named base offset + frame) fit as well with `frame` in place of
+/// `encoder_offset` (a common motor offset *is* a frame rotation about A0; within 1 of BIC), and
+/// the report declares the pair ambiguous, whichever is named, with the measurement that
+/// separates them (table line and `ambiguous` key). The sweep counts such a declared
+/// alternative as no false positive; an effect named without that declaration stays one
+/// (`declares_alternative` is false for any other pair).
+#[test]
+fn a_twin_named_within_the_adding_margin_is_declared_ambiguous() {
+    let mut truth = sweep_truth(&["encoder_offset", "base_offset"], 0.5);
+    truth.drift_um_per_s = [0.012, -0.008];
+    let data = generate(&truth, Poses::Random(400), 5000);
+    let r = diagnose(&data, &FiveBar::paper_nominal(), Some(NOISE_UM)).expect("diagnosis runs");
+    let context = format!("{}\nlog: {:#?}", table(&r), r.selection_log);
+    let named: Vec<&str> = r.steps.iter().map(|s| s.effect.as_str()).collect();
+    assert!(named.contains(&"base_offset"), "{context}");
+    for e in &named {
+        if *e != "base_offset" && *e != "encoder_offset" {
+            assert!(r.declares_alternative(e, &["encoder_offset"]), "{e} named without declaring the hidden twin: {context}");
+        }
+    }
+    // Whichever twin is named, the other is declared.
+    let a = r
+        .ambiguous
+        .iter()
+        .find(|a| {
+            (a.effect == "frame" && a.alternative == "encoder_offset") || (a.effect == "encoder_offset" && a.alternative == "frame")
+        })
+        .unwrap_or_else(|| panic!("encoder_offset ~ frame not declared ambiguous: {context}"));
+    assert!(a.delta_bic.abs() < host_sim::diagnose::selection::AMBIGUOUS_MARGIN, "{context}");
+    assert!(a.separate_by.contains("rotated"), "{context}");
+    assert!(table(&r).contains(&format!("ambiguous: {} or {}", a.effect, a.alternative)), "{context}");
+    assert!(!r.declares_alternative(&a.effect, &["link_lengths", "backlash"]), "{context}");
+    let json = serde_json::to_value(&r).expect("report serialises");
+    assert!(json["ambiguous"].is_array(), "report has the ambiguous key");
+}
+
 #[test]
 fn noise_only_names_nothing() {
     for seed in 0..4u64 {

@@ -230,6 +230,16 @@ pub fn diagnose_with_history(data: &[Measurement], opts: &DiagnoseOptions) -> Re
     let overlaps = confounding::overlaps(&problem, &last, &sel.effects, &candidates, s2_final);
     let confounded = confounding::confounded(&overlaps);
     let pose_overlaps = confounding::pose_set_overlaps(&problem, &last.p, &candidates, 0.99);
+    // Named effects a library twin could replace at less cost than adding an effect needs.
+    let ambiguous = selection::ambiguities(&mut fitter, &candidates, &sel.effects, &last, noise_um)
+        .into_iter()
+        .map(|a| report::Ambiguous {
+            effect: a.effect.name().to_string(),
+            alternative: a.alternative.name().to_string(),
+            delta_bic: a.delta_bic,
+            separate_by: confounding::separating_measurement(a.effect.name(), a.alternative.name()),
+        })
+        .collect();
     // What the data cannot rule out: every candidate left out, fitted on top of the final model.
     let mut not_detected = Vec::new();
     for &c in candidates.iter().filter(|c| !sel.effects.contains(c)) {
@@ -323,6 +333,7 @@ pub fn diagnose_with_history(data: &[Measurement], opts: &DiagnoseOptions) -> Re
         steps,
         final_params,
         confounded,
+        ambiguous,
         overlaps,
         not_detected,
         pose_overlaps,

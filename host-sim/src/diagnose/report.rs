@@ -42,6 +42,21 @@ pub struct NotDetected {
     pub delta_bic: f64,
 }
 
+/// A named effect that a library alternative, put in its place, fits as well as the data can
+/// tell (BIC within the margin an effect needs to be added): the diagnosis names `effect` but
+/// declares the choice open.
+#[derive(Clone, Debug, Serialize)]
+pub struct Ambiguous {
+    /// The effect of the final model (in `steps`).
+    pub effect: String,
+    /// The library effect that could be there instead.
+    pub alternative: String,
+    /// BIC of the model with `alternative` in place of `effect`, minus the final model's.
+    pub delta_bic: f64,
+    /// What measurement would separate them.
+    pub separate_by: String,
+}
+
 #[derive(Clone, Debug, Serialize)]
 pub struct Report {
     pub points: usize,
@@ -59,6 +74,9 @@ pub struct Report {
     /// Every parameter of the final model (jointly fitted).
     pub final_params: BTreeMap<String, Param>,
     pub confounded: Vec<Vec<String>>,
+    /// Named effects with a library alternative the data cannot rule out (one-for-one swap
+    /// within the adding margin of BIC), with the measurement that separates them.
+    pub ambiguous: Vec<Ambiguous>,
     /// Pairs whose residual signatures overlap (confounded, or partly identical), with the
     /// measurement that would separate them.
     pub overlaps: Vec<Overlap>,
@@ -84,6 +102,16 @@ pub struct Report {
     pub nuisances: Vec<String>,
     pub selection_log: Vec<String>,
     pub notes: Vec<String>,
+}
+
+impl Report {
+    /// Whether the report declares the named `effect` ambiguous with one of `alternatives`
+    /// (`ambiguous`): the diagnosis then does not claim `effect` over it. The false-positive
+    /// sweep counts a named effect that is not hidden as no false positive only in that case
+    /// (DIAGNOSIS.md, "No false positives").
+    pub fn declares_alternative(&self, effect: &str, alternatives: &[&str]) -> bool {
+        self.ambiguous.iter().any(|a| a.effect == effect && alternatives.contains(&a.alternative.as_str()))
+    }
 }
 
 /// The gap-shrink table as text.
@@ -139,6 +167,16 @@ pub fn table(r: &Report) -> String {
             c.join(" ~ "),
             why,
             sep.map(|o| o.separate_by.as_str()).unwrap_or("")
+        ));
+    }
+    for a in &r.ambiguous {
+        s.push_str(&format!(
+            "ambiguous: {} or {} (swapping them changes the BIC by {:+.1}, less than the {} an effect needs); to separate: {}\n",
+            a.effect,
+            a.alternative,
+            a.delta_bic,
+            super::selection::AMBIGUOUS_MARGIN,
+            a.separate_by
         ));
     }
     for o in r.overlaps.iter().filter(|o| !o.confounded) {

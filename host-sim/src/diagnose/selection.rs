@@ -32,7 +32,16 @@
 //! combinations of simple ones (a stretch is mostly link lengths, a gear ratio and a frame on
 //! these poses; a flexible stretch can fit an encoder offset plus a base offset), so the greedy
 //! forward step can take the wrong side of such a trade; one-for-one swaps cannot undo a
-//! one-for-several choice, the replacement can, in either direction.
+//! one-for-several choice, the replacement can, in either direction. Its held-out test is
+//! charged by the move's net parameters (a move that saves parameters may raise the
+//! cross-validated RSS by what they cost). When no one-candidate move helps, the **pair
+//! replacement** ([`pair_replacement`]) adds two candidates at once (a frame and a gear ratio
+//! first fitted as link lengths and a base offset: neither alone beats the members it would
+//! replace), scored on the model linearised about the current fit and checked by real fits.
+//!
+//! After the selection, [`ambiguities`] lists every named effect that a one-for-one swap with a
+//! library twin fits within [`AMBIGUOUS_MARGIN`] of BIC: the report declares those choices
+//! open rather than picking one silently.
 //!
 //! Structures outside the library (a gear tooth's periodic error, an instrument drift) are found
 //! by `structure.rs` on the final residual and then fitted as nuisances in every model
@@ -44,6 +53,7 @@
 use super::effects::{idx, Effect, Problem, LIBRARY, N_PARAMS};
 use super::fit::{cross_validated_rss, fit, Fit};
 use crate::effect::PhysicalEffect;
+use nalgebra::{DMatrix, DVector};
 use std::collections::BTreeMap;
 
 /// BIC decrease needed to add an effect.
@@ -357,7 +367,12 @@ pub fn select(problem: &Problem, noise_um: Option<f64>) -> Selection {
             if changed {
                 continue;
             }
-            if let Some((new_set, f, line)) = replacement(&mut fitter, &candidates, &set, &cur, noise_um) {
+            let single = replacement(&mut fitter, &candidates, &set, &cur, noise_um);
+            let mv = match single {
+                Some(m) if !seen.contains(&key(&m.0)) => Some(m),
+                _ => pair_replacement(&mut fitter, &candidates, &set, &cur, noise_um),
+            };
+            if let Some((new_set, f, line)) = mv {
                 if seen.insert(key(&new_set)) {
                     log.push(line);
                     set = new_set;
@@ -381,7 +396,7 @@ fn replacement(
 ) -> Option<(Vec<&'static Effect>, Fit, String)> {
     let problem = fitter.problem;
     let n = n_res(problem);
-    let mut best: Option<(f64, Vec<&'static Effect>, Fit, &'static Effect)> = None;
+    let mut moves: Vec<(f64, Vec<&'static Effect>, Fit, &'static Effect, f64)> = Vec::new();
     for &c in candidates {
         if set.contains(&c) || set.is_empty() {
             continue;
@@ -421,26 +436,199 @@ fn replacement(
         if n - k_new < MIN_DOF_PER_PARAM * k_new || plausible(problem, c, &f, s2).is_err() {
             continue;
         }
-        if best.as_ref().is_none_or(|b| gain > b.0) {
-            best = Some((gain, trial, f, c));
-        }
+        moves.push((gain, trial, f, c, s2));
     }
-    let (gain, trial, f, c) = best?;
-    // The replacement must also predict held-out points better.
+    // Best gain first; the first that also predicts held-out points well enough is taken (a
+    // move that fails the held-out test must not hide the next one).
+    moves.sort_by(|a, b| b.0.total_cmp(&a.0));
+    for (gain, trial, f, c, s2) in moves {
+        let Some(line) = move_validates(fitter, set, cur, &trial, &f, s2, c.name(), gain) else { continue };
+        let mut ordered: Vec<&'static Effect> = trial.into_iter().filter(|e| e.name() != c.name()).collect();
+        ordered.push(c);
+        return Some((ordered, f, line));
+    }
+    None
+}
+
+/// The held-out test of a replacement move from `set` (fitted as `cur`) to `trial` (fitted as
+/// `f`), charged by the net parameters it adds (the add test's k_effect·σ², [`validates`]): a
+/// move that adds parameters must lower the cross-validated RSS by that much; one that saves
+/// parameters may raise it by as much as they cost (a strict drop would keep the larger of two
+/// equally predictive models). Returns the log line if it passes.
+#[allow(clippy::too_many_arguments)]
+fn move_validates(
+    fitter: &mut Fitter<'_>,
+    set: &[&'static Effect],
+    cur: &Fit,
+    trial: &[&'static Effect],
+    f: &Fit,
+    s2: f64,
+    added: &str,
+    gain: f64,
+) -> Option<String> {
     let cv_old = fitter.cv_rss(set, &cur.p)?;
-    let cv_new = fitter.cv_rss(&trial, &f.p)?;
-    if cv_new >= cv_old {
+    let cv_new = fitter.cv_rss(trial, &f.p)?;
+    let allowed = cv_old - (f.free.len() as f64 - cur.free.len() as f64) * s2;
+    if cv_new >= allowed {
         return None;
     }
     let dropped: Vec<&str> = set.iter().filter(|e| !trial.contains(e)).map(|e| e.name()).collect();
-    let line = format!(
-        "replace [{}] by {} (BIC −{gain:.1}; cross-validated RSS {cv_old:.1} → {cv_new:.1} µm²)",
-        dropped.join(", "),
-        c.name()
-    );
-    let mut ordered: Vec<&'static Effect> = trial.into_iter().filter(|e| e.name() != c.name()).collect();
-    ordered.push(c);
-    Some((ordered, f, line))
+    Some(format!(
+        "replace [{}] by {added} (BIC −{gain:.1}; cross-validated RSS {cv_old:.1} → {cv_new:.1} µm², allowed {allowed:.1})",
+        dropped.join(", ")
+    ))
+}
+
+/// Pair moves whose linearised score is checked by a real fit, best first.
+const PAIR_MOVES_FITTED: usize = 3;
+
+/// The **pair replacement** (module doc): two candidates added together and any members they
+/// make redundant dropped, for the trades a one-candidate move cannot make — two simple effects
+/// that together do what one flexible effect and another do (e.g. a frame and a gear ratio
+/// fitted as link lengths and a base offset), where neither newcomer alone improves on the
+/// members it would replace. Every pair and every non-empty subset of members to drop is
+/// scored on the model linearised about the current fit (one Jacobian of all candidates' and
+/// nuisances' parameters; the residual with the dropped members' parameters set to zero
+/// predicted as r − J_D·p_D; its least-squares RSS on the kept and new columns from the
+/// normal equations), and the [`PAIR_MOVES_FITTED`] best that beat the current score by more
+/// than [`SWAP_MARGIN`] are fitted for real. A move is taken under the replacement's tests:
+/// the real BIC gain over [`SWAP_MARGIN`], residual degrees of freedom, both newcomers
+/// plausible, and the held-out test charged by the net parameters. Cost: one Jacobian
+/// (2 residual evaluations per parameter), ≤ 21·(2^|set| − 1) solves of ≤ 16×16 normal
+/// equations, ≤ 3 LM fits.
+fn pair_replacement(
+    fitter: &mut Fitter<'_>,
+    candidates: &[&'static Effect],
+    set: &[&'static Effect],
+    cur: &Fit,
+    noise_um: Option<f64>,
+) -> Option<(Vec<&'static Effect>, Fit, String)> {
+    let problem = fitter.problem;
+    let n = n_res(problem);
+    let out: Vec<&'static Effect> = candidates.iter().copied().filter(|c| !set.contains(c)).collect();
+    if set.is_empty() || set.len() > 5 || out.len() < 2 {
+        return None;
+    }
+    // Columns: every candidate's parameters, then the nuisances'.
+    let mut cols: Vec<usize> = candidates.iter().flat_map(|e| e.params.iter().copied()).collect();
+    cols.extend(problem.nuisance.params());
+    let j = super::fit::jacobian(problem, &cur.p, &cols)?;
+    // Column-normalised Gram matrix and projections of the residual (scales differ by units).
+    let norms: Vec<f64> = (0..cols.len()).map(|c| j.column(c).norm().max(1e-300)).collect();
+    let jn = DMatrix::from_fn(j.nrows(), j.ncols(), |r, c| j[(r, c)] / norms[c]);
+    let gram = jn.transpose() * &jn;
+    let r = &cur.residuals;
+    let jr = jn.transpose() * r;
+    let rr = r.norm_squared();
+    let col_of = |k: usize| cols.iter().position(|&c| c == k);
+    let s2 = common_s2(problem, noise_um, cur, cur);
+    let score_cur = cur.cost / s2 + cur.free.len() as f64 * n.ln();
+    let mut moves: Vec<(f64, Vec<&'static Effect>, &'static Effect, &'static Effect)> = Vec::new();
+    for a in 0..out.len() {
+        for b in a + 1..out.len() {
+            for mask in 1u32..(1 << set.len()) {
+                let kept: Vec<&'static Effect> =
+                    set.iter().enumerate().filter(|(i, _)| mask & (1 << i) == 0).map(|(_, e)| *e).collect();
+                let dropped: Vec<usize> = set
+                    .iter()
+                    .enumerate()
+                    .filter(|(i, _)| mask & (1 << i) != 0)
+                    .flat_map(|(_, e)| e.params.iter().copied())
+                    .collect();
+                let mut trial = kept.clone();
+                trial.extend([out[a], out[b]]);
+                let free: Vec<usize> = problem.free_params(&trial).into_iter().filter_map(col_of).collect();
+                let k_new = free.len() as f64;
+                if n - k_new < MIN_DOF_PER_PARAM * k_new {
+                    continue;
+                }
+                // Residual with the dropped parameters at zero (normalised coordinates):
+                // r' = r − J_D·p_D.
+                let d: Vec<(usize, f64)> =
+                    dropped.iter().filter_map(|&k| col_of(k).map(|c| (c, cur.p[k] * norms[c]))).collect();
+                let mut rr_d = rr;
+                for &(c, v) in &d {
+                    rr_d -= 2.0 * v * jr[c];
+                    for &(c2, v2) in &d {
+                        rr_d += v * v2 * gram[(c, c2)];
+                    }
+                }
+                let g = DMatrix::from_fn(free.len(), free.len(), |x, y| gram[(free[x], free[y])]);
+                let rhs = DVector::from_fn(free.len(), |x, _| {
+                    jr[free[x]] - d.iter().map(|&(c, v)| v * gram[(free[x], c)]).sum::<f64>()
+                });
+                let Ok(beta) = g.clone().svd(true, true).solve(&rhs, 1e-12) else { continue };
+                let rss = (rr_d - rhs.dot(&beta)).max(0.0);
+                let score = rss / s2 + k_new * n.ln();
+                if score < score_cur - SWAP_MARGIN {
+                    moves.push((score, trial, out[a], out[b]));
+                }
+            }
+        }
+    }
+    moves.sort_by(|x, y| x.0.total_cmp(&y.0));
+    for (_, trial, ca, cb) in moves.into_iter().take(PAIR_MOVES_FITTED) {
+        let Some(f) = fitter.fit(&trial, &cur.p) else { continue };
+        let s2f = common_s2(problem, noise_um, cur, &f);
+        let gain = (cur.cost - f.cost) / s2f - (f.free.len() as f64 - cur.free.len() as f64) * n.ln();
+        let k_new = f.free.len() as f64;
+        if gain <= SWAP_MARGIN
+            || n - k_new < MIN_DOF_PER_PARAM * k_new
+            || plausible(problem, ca, &f, s2f).is_err()
+            || plausible(problem, cb, &f, s2f).is_err()
+        {
+            continue;
+        }
+        let added = format!("{} and {}", ca.name(), cb.name());
+        let Some(line) = move_validates(fitter, set, cur, &trial, &f, s2f, &added, gain) else { continue };
+        return Some((trial, f, line));
+    }
+    None
+}
+
+/// BIC margin within which a one-for-one swap of a named effect leaves the choice open: the
+/// evidence an effect needs to be added at all ([`ADD_MARGIN`]). The selection names an effect
+/// only on that much evidence, so it must not claim one effect over its twin on less.
+pub const AMBIGUOUS_MARGIN: f64 = ADD_MARGIN;
+
+/// A named effect the data cannot tell from a library alternative (see [`ambiguities`]).
+pub struct Ambiguity {
+    /// The effect of the final model.
+    pub effect: &'static Effect,
+    /// The candidate that, put in its place, fits within [`AMBIGUOUS_MARGIN`].
+    pub alternative: &'static Effect,
+    /// BIC of the swapped model minus the final model's (common σ², [`delta_bic`]); negative
+    /// when the alternative scores better but no move could take it (the replacement needs a
+    /// gain > [`SWAP_MARGIN`], plausibility and the held-out test).
+    pub delta_bic: f64,
+}
+
+/// Every one-for-one swap of a member of `set` (fitted as `cur`) with a candidate outside it
+/// whose BIC is within [`AMBIGUOUS_MARGIN`] of the final model's and whose fitted values are
+/// plausible: the pairs the report must call ambiguous rather than pick one silently. Best
+/// alternative (lowest ΔBIC) first. Cost: |set|·|candidates left| LM fits (cached).
+pub fn ambiguities(
+    fitter: &mut Fitter<'_>,
+    candidates: &[&'static Effect],
+    set: &[&'static Effect],
+    cur: &Fit,
+    noise_um: Option<f64>,
+) -> Vec<Ambiguity> {
+    let problem = fitter.problem;
+    let mut out = Vec::new();
+    for (i, &m) in set.iter().enumerate() {
+        for &c in candidates.iter().filter(|c| !set.contains(c)) {
+            let mut trial = set.to_vec();
+            trial[i] = c;
+            let Some(f) = fitter.fit(&trial, &cur.p) else { continue };
+            let d = delta_bic(problem, noise_um, cur, &f);
+            if d < AMBIGUOUS_MARGIN && plausible(problem, c, &f, common_s2(problem, noise_um, cur, &f)).is_ok() {
+                out.push(Ambiguity { effect: m, alternative: c, delta_bic: d });
+            }
+        }
+    }
+    out.sort_by(|a, b| a.delta_bic.total_cmp(&b.delta_bic));
+    out
 }
 
 fn empty_fit(problem: &Problem) -> Fit {
