@@ -141,13 +141,14 @@ fn robust(data: &[Measurement], reject_sigma: f64) -> Result<RobustFit, host_sim
 fn blunder_test_names_exactly_the_planted_rows_and_recovers_the_clean_fit() {
     let clean = robust(&clean_60(), DEFAULT_REJECT_SIGMA).unwrap();
     let report = clean.report.as_ref().unwrap();
-    assert!(report.rejected.is_empty() && report.fits == 1, "clean data lost rows: {report:?}");
+    assert!(report.rejected.is_empty() && report.fits == 1 && report.settled, "clean data lost rows: {report:?}");
     assert_eq!(clean.kept.len(), 60);
 
     let got = robust(&with_three_blunders(), DEFAULT_REJECT_SIGMA).unwrap();
     let report = got.report.as_ref().unwrap();
     let rows: Vec<usize> = report.rejected.iter().map(|r| r.row).collect();
     assert_eq!(rows, [7, 23, 41], "{report:?}");
+    assert!(report.settled, "{report:?}");
     // Each named with its file line and its residual against the fit without it.
     let by_row = |row: usize| report.rejected.iter().find(|r| r.row == row).unwrap();
     assert_eq!(by_row(7).line, 8);

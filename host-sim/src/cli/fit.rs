@@ -174,6 +174,9 @@ fn print_blunders(b: &BlunderReport) {
     for r in &b.rejected {
         eprintln!("  {:>6} {:>6} {:>14.1} {:>10.1}", r.row, r.line, r.residual_um, r.sigma_units);
     }
+    if !b.settled {
+        eprintln!("fit: blunder test: the rejected rows still changed after {} fits; the last fit stands (rows near the threshold)", b.fits);
+    }
 }
 
 /// `host-sim fit`.

@@ -97,6 +97,9 @@ pub struct BlunderReport {
     pub sigma_source: SigmaSource,
     /// Fits run (1 when nothing was rejected).
     pub fits: usize,
+    /// Whether the rejected set stopped changing; `false`: [`MAX_ROUNDS`] ran out and the last
+    /// fit stands (rows near the threshold flip in and out).
+    pub settled: bool,
     pub rejected: Vec<RejectedRow>,
 }
 
@@ -215,6 +218,7 @@ pub fn fit_full_robust(data: &[Measurement], start: &FiveBar<f64>, fixed_by_user
                 sigma_um: round6(sigma_um),
                 sigma_source: source,
                 fits,
+                settled,
                 rejected: rejected
                     .iter()
                     .map(|&i| {
