@@ -1,7 +1,8 @@
 //! `fit --method full` on synthetic five-bars: parameters recovered within their standard
 //! deviations, and confounded parameters detected and held, not fitted.
 
-use host_sim::calib::fit::full::fit_full;
+use host_sim::calib::fit::blunders::{fit_full_robust, RejectOptions, RobustFit, DEFAULT_REJECT_SIGMA};
+use host_sim::calib::fit::full::{fit_full, leave_one_out_exact_um, leave_one_out_linearised_um};
 use host_sim::calib::fit::params::{to_vector, NAMES};
 use host_sim::io::measurement_csv::Measurement;
 use kinematics_core::FiveBar;
@@ -116,4 +117,99 @@ fn refuses_fewer_points_than_parameters() {
     let data = measure(&truth(), &random_targets(4, 5), 0.001, 6);
     let err = format!("{:#}", fit_full(&data, &FiveBar::paper_nominal(), &[]).unwrap_err());
     assert!(err.contains("4 points give 8 equations"), "{err}");
+}
+
+/// The blunder test's data: 60 rows of `truth()` with a 1 µm instrument.
+fn clean_60() -> Vec<Measurement> {
+    measure(&truth(), &random_targets(60, 11), 0.001, 12)
+}
+
+/// Rows 7 (0.5 mm off in x), 23 (0.1 mm off in y) and 41 (x and y swapped): 1-based.
+fn with_three_blunders() -> Vec<Measurement> {
+    let mut d = clean_60();
+    d[6].measured_mm[0] += 0.5;
+    d[22].measured_mm[1] += 0.1;
+    d[40].measured_mm = [d[40].measured_mm[1], d[40].measured_mm[0]];
+    d
+}
+
+fn robust(data: &[Measurement], reject_sigma: f64) -> Result<RobustFit, host_sim::calib::CalibError> {
+    fit_full_robust(data, &FiveBar::paper_nominal(), &[], &RejectOptions { reject_sigma, instrument_sigma_um: 1.0 })
+}
+
+#[test]
+fn blunder_test_names_exactly_the_planted_rows_and_recovers_the_clean_fit() {
+    let clean = robust(&clean_60(), DEFAULT_REJECT_SIGMA).unwrap();
+    let report = clean.report.as_ref().unwrap();
+    assert!(report.rejected.is_empty() && report.fits == 1 && report.settled, "clean data lost rows: {report:?}");
+    assert_eq!(clean.kept.len(), 60);
+
+    let got = robust(&with_three_blunders(), DEFAULT_REJECT_SIGMA).unwrap();
+    let report = got.report.as_ref().unwrap();
+    let rows: Vec<usize> = report.rejected.iter().map(|r| r.row).collect();
+    assert_eq!(rows, [7, 23, 41], "{report:?}");
+    assert!(report.settled, "{report:?}");
+    // Each named with its file line and its residual against the fit without it.
+    let by_row = |row: usize| report.rejected.iter().find(|r| r.row == row).unwrap();
+    assert_eq!(by_row(7).line, 8);
+    assert!((by_row(7).residual_um - 500.0).abs() < 10.0, "{:?}", by_row(7));
+    assert!((by_row(23).residual_um - 100.0).abs() < 10.0, "{:?}", by_row(23));
+    assert!(by_row(41).residual_um > 1e5, "{:?}", by_row(41));
+    assert!(report.rejected.iter().all(|r| r.sigma_units > report.threshold_sigma), "{report:?}");
+    assert_eq!(got.kept.len(), 57);
+    // The parameters agree with the clean fit's within one of its standard deviations.
+    let (a, b) = (to_vector(&got.fit.model), to_vector(&clean.fit.model));
+    for k in 0..NAMES.len() {
+        let sd = clean.fit.std_dev[k].unwrap();
+        assert!((a[k] - b[k]).abs() < sd, "{}: {} vs clean {} (sd {sd})", NAMES[k], a[k], b[k]);
+    }
+    // Off, the blunders stay in and spoil the fit.
+    let off = robust(&with_three_blunders(), 0.0).unwrap();
+    assert!(off.report.is_none() && off.kept.len() == 60);
+    assert!(off.fit.sigma_mm > 100.0 * clean.fit.sigma_mm, "{} vs {}", off.fit.sigma_mm, clean.fit.sigma_mm);
+}
+
+#[test]
+fn blunder_test_refuses_more_than_the_allowed_fraction() {
+    // 60 rows allow 6; plant 8, each 0.3 mm off.
+    let mut d = clean_60();
+    for i in [2, 9, 15, 22, 30, 37, 44, 51] {
+        d[i].measured_mm[0] += 0.3;
+    }
+    let err = format!("{}", robust(&d, DEFAULT_REJECT_SIGMA).unwrap_err());
+    assert!(err.contains("8 of 60 rows") && err.contains("the data or the model are wrong"), "{err}");
+    assert!(err.contains("(rows 3, 10, 16, 23, 31, 38, 45, 52)"), "{err}");
+    // Six such rows are the most 60 rows may lose: fitted, and exactly those named.
+    let mut d = clean_60();
+    for i in [2, 9, 15, 22, 30, 37] {
+        d[i].measured_mm[0] += 0.3;
+    }
+    let got = robust(&d, DEFAULT_REJECT_SIGMA).unwrap();
+    let rows: Vec<usize> = got.report.unwrap().rejected.iter().map(|r| r.row).collect();
+    assert_eq!(rows, [3, 10, 16, 23, 31, 38]);
+    // A threshold that is no number of σ is refused.
+    for k in [-1.0, f64::NAN, 1.0] {
+        assert!(robust(&clean_60(), k).is_err(), "{k}");
+    }
+}
+
+/// Issue 12 item 6: the hat-matrix leave-one-out residuals (used above 200 points) agree with
+/// exact refits on a small set.
+#[test]
+fn linearised_leave_one_out_matches_exact_refits() {
+    let data = measure(&truth(), &random_targets(40, 21), 0.001, 22);
+    let nominal = FiveBar::<f64>::paper_nominal();
+    let f = fit_full(&data, &nominal, &[]).unwrap();
+    let lin = leave_one_out_linearised_um(&f);
+    let exact = leave_one_out_exact_um(&data, &nominal, &[], &mut |_, _| {});
+    let mut worst: f64 = 0.0;
+    for (i, (l, e)) in lin.iter().zip(&exact).enumerate() {
+        let (l, e) = (l.unwrap(), e.unwrap());
+        worst = worst.max((l - e).abs());
+        assert!(l > 0.0 && e > 0.0, "point {}: {l} vs {e}", i + 1);
+    }
+    // Seen: 6.4e-6 µm on residuals of 0.25–3.9 µm. The bound, 1e-3 µm (0.1 % of the noise),
+    // leaves room for the exact refits' own convergence tolerance.
+    eprintln!("linearised vs exact leave-one-out, 40 points: worst difference {worst:.2e} µm");
+    assert!(worst < 1e-3, "worst |linearised − exact| = {worst} µm");
 }

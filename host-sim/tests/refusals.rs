@@ -219,3 +219,48 @@ fn leave_one_out_never_reports_zero_for_failed_refits() {
     assert_eq!(loo["failed"], 6);
     assert!(err.contains("leave-one-out: no point"), "{err}");
 }
+
+/// The blunder test through the binary (issue 11 item 6): the rows it rejects are named on
+/// stderr and in the JSON; too many refuse the fit and write nothing; its flag is validated.
+#[test]
+fn blunders_are_named_or_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let out = d.join("m.json");
+    let mut rows = readings(&random_targets(50, 31), 0.001, 32);
+    rows[4].measured_mm[1] -= 0.4;
+    rows[30].measured_mm = [rows[30].measured_mm[1], rows[30].measured_mm[0]];
+    let p = d.join("two.csv");
+    write_measurements(&p, &rows).unwrap();
+    let (ok, stdout, err) = run(&["fit", "--data", s(&p), "--method", "full", "--out", s(&out)]);
+    assert!(ok, "{err}");
+    assert!(err.contains("blunder test rejected 2 row(s)"), "{err}");
+    let json: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+    let rejected = json["blunders"]["rejected"].as_array().unwrap();
+    let named: Vec<u64> = rejected.iter().map(|r| r["row"].as_u64().unwrap()).collect();
+    assert_eq!(named, [5, 31], "{json}");
+    assert!((rejected[0]["residual_um"].as_f64().unwrap() - 400.0).abs() < 10.0, "{json}");
+    assert_eq!(json["n_points"], 48);
+    // Off, every row is fitted: the swapped row pulls the fit until a pose is unreachable.
+    let off = d.join("off.json");
+    refused(&["fit", "--data", s(&p), "--method", "full", "--reject-sigma", "0", "--out", s(&off)], "unreachable", &[&off]);
+    // Off on clean rows: every row fitted, no `blunders` record.
+    let clean = d.join("clean.csv");
+    write_measurements(&clean, &readings(&random_targets(50, 31), 0.001, 32)).unwrap();
+    let (ok, stdout, err) = run(&["fit", "--data", s(&clean), "--method", "full", "--reject-sigma", "0", "--no-loo", "--out", s(&off)]);
+    let json: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+    assert!(ok && json.get("blunders").is_none() && json["n_points"] == 50, "{err} {json}");
+    // Seven blunders in 50 rows (5 allowed): refused, nothing written.
+    for i in [1, 8, 15, 22, 29, 36, 43] {
+        rows[i].measured_mm[0] += 0.3;
+    }
+    let p = d.join("many.csv");
+    write_measurements(&p, &rows).unwrap();
+    let out = d.join("many.json");
+    refused(&["fit", "--data", s(&p), "--method", "full", "--out", s(&out)], "a fit may reject: the data or the model are wrong", &[&out]);
+    for (flag, want) in [("-1", "not a threshold"), ("NaN", "not a threshold"), ("1", "would reject good rows")] {
+        let flag = format!("--reject-sigma={flag}");
+        refused(&["fit", "--data", s(&p), "--method", "full", &flag, "--out", s(&out)], want, &[&out]);
+    }
+    refused(&["fit", "--data", s(&p), "--method", "ls", "--reject-sigma", "4", "--out", s(&out)], "--reject-sigma applies to --method full", &[&out]);
+}

@@ -184,7 +184,7 @@ pub fn round_trip(rows: &[Measurement]) -> Result<Vec<Measurement>, CalibError> 
 
 /// The `full` fit as `fit --method full --no-loo` runs it.
 fn fit_with(method: Method, data: &[Measurement], spec: &MachineSpec) -> Result<super::fit::FitOutcome, CalibError> {
-    let opts = FitOptions { method, criterion: Criterion::Measured, points: Points::All, fixed: Vec::new(), leave_one_out: false, spec: spec.clone() };
+    let opts = FitOptions { method, criterion: Criterion::Measured, points: Points::All, fixed: Vec::new(), leave_one_out: false, reject_sigma: super::fit::blunders::DEFAULT_REJECT_SIGMA, spec: spec.clone() };
     fit(data, &opts, &mut |_| {})
 }
 

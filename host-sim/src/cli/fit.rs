@@ -2,6 +2,7 @@
 //! JSON summary (see `CALIBRATION.md`).
 
 use anyhow::{bail, Context, Result};
+use host_sim::calib::fit::blunders::{check_options, BlunderReport, RejectOptions, DEFAULT_REJECT_SIGMA};
 use host_sim::calib::fit::evaluate::{self, Criterion};
 use host_sim::calib::fit::subset_search::{Progress, Stage};
 use host_sim::calib::fit::{check_data, fit, params, FitOptions, Method, Points};
@@ -62,6 +63,11 @@ pub struct Args {
     /// `full`: skip the leave-one-out prediction check (N extra fits).
     #[arg(long)]
     pub no_loo: bool,
+    /// `full`: the blunder test's threshold k (σ units, default 4): rows whose leave-one-out
+    /// residual exceeds max(k, √(2 ln(100 N))) σ are rejected, named, and the rest refitted;
+    /// more than 10 % rejected refuses the fit. 0 fits every row. See CALIBRATION.md "Blunders".
+    #[arg(long)]
+    pub reject_sigma: Option<f64>,
     /// Output model.json.
     #[arg(long)]
     pub out: PathBuf,
@@ -90,11 +96,14 @@ fn options(args: &Args, data: &[Measurement], spec: MachineSpec) -> Result<FitOp
             bail!("--points: point {p} does not exist (the data have {n} points, numbered from 1)");
         }
     }
-    let mut opts = FitOptions { method, criterion, points: Points::All, fixed: Vec::new(), leave_one_out: !args.no_loo, spec };
+    let mut opts = FitOptions { method, criterion, points: Points::All, fixed: Vec::new(), leave_one_out: !args.no_loo, reject_sigma: 0.0, spec };
     match method {
         Method::Poly | Method::Ls => {
             if !args.fix.is_empty() {
                 bail!("--fix applies to --method full only (poly and ls fit the four links)");
+            }
+            if args.reject_sigma.is_some() {
+                bail!("--reject-sigma applies to --method full only (poly and ls fit chosen points)");
             }
             opts.points = if args.subset_search {
                 let sizes: Vec<usize> = match (method, args.subset_size) {
@@ -134,6 +143,9 @@ fn options(args: &Args, data: &[Measurement], spec: MachineSpec) -> Result<FitOp
             if opts.fixed.len() == params::NAMES.len() {
                 bail!("--fix holds all {} parameters: nothing is left to fit", params::NAMES.len());
             }
+            opts.reject_sigma = args.reject_sigma.unwrap_or(DEFAULT_REJECT_SIGMA);
+            let reject = RejectOptions { reject_sigma: opts.reject_sigma, instrument_sigma_um: opts.spec.instrument_sigma_um };
+            check_options(&reject).map_err(|e| anyhow::anyhow!("--{e}"))?;
         }
     }
     Ok(opts)
@@ -144,6 +156,26 @@ fn check(data: &[Measurement], criterion: Criterion) -> Result<()> {
     match check_data(data, criterion) {
         Err(CalibError::MissingTargets { line }) => bail!("line {line}: --criterion paper needs x_target_mm,y_target_mm on every row"),
         r => Ok(r?),
+    }
+}
+
+/// The rejected rows as a table on stderr (nothing when none).
+fn print_blunders(b: &BlunderReport) {
+    if b.rejected.is_empty() {
+        return;
+    }
+    eprintln!(
+        "fit: blunder test rejected {} row(s) beyond {:.1} σ (σ = {:.2} µm) and refitted without them:",
+        b.rejected.len(),
+        b.threshold_sigma,
+        b.sigma_um
+    );
+    eprintln!("  {:>6} {:>6} {:>14} {:>10}", "row", "line", "residual_um", "sigma");
+    for r in &b.rejected {
+        eprintln!("  {:>6} {:>6} {:>14.1} {:>10.1}", r.row, r.line, r.residual_um, r.sigma_units);
+    }
+    if !b.settled {
+        eprintln!("fit: blunder test: the rejected rows still changed after {} fits; the last fit stands (rows near the threshold)", b.fits);
     }
 }
 
@@ -174,6 +206,9 @@ pub fn run(args: &Args) -> Result<()> {
         for (k, why) in &f.identifiability.fixed {
             eprintln!("fit: {} held at nominal: the data confound {why}", params::NAMES[*k]);
         }
+    }
+    if let Some(b) = &outcome.summary.blunders {
+        print_blunders(b);
     }
     if let Some(l) = &outcome.summary.leave_one_out {
         if l.max_um.is_none() {

@@ -39,6 +39,13 @@ pub fn max_rms_radial(xy: &[f64]) -> MaxRms {
     MaxRms::from_squares(xy.chunks(2).map(|c| c.iter().map(|v| v * v).sum::<f64>()))
 }
 
+/// The median of `values` (the upper one of an even count), reordering them; `None` when empty.
+/// Cost: O(N) (selection, no sort).
+pub fn median(values: &mut [f64]) -> Option<f64> {
+    let mid = values.len() / 2;
+    (!values.is_empty()).then(|| *values.select_nth_unstable_by(mid, f64::total_cmp).1)
+}
+
 /// `v` rounded to `decimals` decimals (for JSON figures: 3 for µm, 6 for mm and degrees).
 pub fn round_to(v: f64, decimals: i32) -> f64 {
     let f = 10f64.powi(decimals);
@@ -66,6 +73,9 @@ mod tests {
         assert_eq!(max_rms(&[1.0, f64::INFINITY]).max, f64::INFINITY);
         // Two points: (3, 4) and (0, 0): radial 5 and 0.
         assert_eq!(max_rms_radial(&[3.0, 4.0, 0.0, 0.0]), MaxRms { max: 5.0, rms: 12.5f64.sqrt() });
+        assert_eq!(median(&mut [5.0, 1.0, 3.0]), Some(3.0));
+        assert_eq!(median(&mut [4.0, 1.0, 3.0, 2.0]), Some(3.0));
+        assert_eq!(median(&mut []), None);
         assert_eq!((round3(1.23456), round6(-0.1234564)), (1.235, -0.123456));
     }
 }

@@ -11,6 +11,7 @@
 //! Where a change goes: a new method is a [`Method`] variant, its algorithm in its own file and
 //! its arm in [`fit`]; a new figure of a fit is a field of [`FitSummary`] (keys are the JSON's).
 
+pub mod blunders;
 pub mod evaluate;
 pub mod full;
 pub mod identifiability;
@@ -25,7 +26,8 @@ use crate::io::measurement_csv::Measurement;
 use crate::machine_spec::MachineSpec;
 use crate::numeric::{max_rms, round6, MaxRms};
 use evaluate::Criterion;
-use full::{fit_full, leave_one_out_um, FullFit, LooMethod};
+use blunders::{fit_full_robust, BlunderReport, RejectOptions, RobustFit};
+use full::{leave_one_out_um, FullFit, LooMethod};
 use identifiability::WARN_CONDITION;
 use kinematics_core::FiveBar;
 use poly::DyadPoint;
@@ -69,6 +71,8 @@ pub struct FitOptions {
     pub fixed: Vec<usize>,
     /// `full`: predict every point from a fit on the others (N extra fits).
     pub leave_one_out: bool,
+    /// `full`: the blunder test's `k` (σ units, see [`blunders`]); 0 fits every row.
+    pub reject_sigma: f64,
     /// The machine (its nominal model is the start and the base).
     pub spec: MachineSpec,
 }
@@ -184,6 +188,10 @@ pub struct FitSummary {
     pub sigma_um: Option<f64>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub iterations: Option<usize>,
+    /// `full`: the blunder test and the rows it rejected (the summary's other figures are over
+    /// the kept rows).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub blunders: Option<BlunderReport>,
 }
 
 /// A fit's result.
@@ -316,6 +324,7 @@ fn summary(method: Method, criterion: Criterion, model: &FiveBar<f64>, data: &[M
         identifiability: None,
         sigma_um: None,
         iterations: None,
+        blunders: None,
     }
 }
 
@@ -414,7 +423,16 @@ pub fn fit(data: &[Measurement], opts: &FitOptions, progress: &mut dyn FnMut(Pro
             if opts.points != Points::All {
                 return Err(invalid!("choosing points applies to poly and ls; full fits every point"));
             }
-            let f = fit_full(data, &nominal, &opts.fixed)?;
+            let reject = RejectOptions { reject_sigma: opts.reject_sigma, instrument_sigma_um: opts.spec.instrument_sigma_um };
+            let RobustFit { fit: f, kept, report } = fit_full_robust(data, &nominal, &opts.fixed, &reject)?;
+            // The rows fitted: every row unless the blunder test rejected some.
+            let kept_data: Vec<Measurement>;
+            let data = if kept.len() == n {
+                data
+            } else {
+                kept_data = kept.iter().map(|&i| data[i].clone()).collect();
+                &kept_data[..]
+            };
             let evidence = plausibility::FitEvidence {
                 condition_number: Some(f.identifiability.condition_number),
                 residual_sigma_um: Some(f.sigma_mm * 1e3),
@@ -440,6 +458,7 @@ pub fn fit(data: &[Measurement], opts: &FitOptions, progress: &mut dyn FnMut(Pro
             });
             s.sigma_um = Some(round6(f.sigma_mm * 1e3));
             s.iterations = Some(f.iterations);
+            s.blunders = report;
             if opts.leave_one_out {
                 let mut report = throttled(progress, Stage::LeaveOneOut);
                 let (method, loo) = leave_one_out_um(data, &f, &nominal, &opts.fixed, &mut report);
