@@ -111,11 +111,17 @@ fn machine_with(
         })
 }
 
-const CASES: u32 = 3000;
+/// Cases per property: 3000 in CI; `HOSTILE_CASES=N` for a longer fuzz run, e.g.
+/// `HOSTILE_CASES=300000 cargo test -p kinematics-core --release --test hostile_inputs -- --nocapture`
+/// (each test prints how many cases reached the path it checks).
+fn hostile_cases() -> u32 {
+    std::env::var("HOSTILE_CASES").ok().and_then(|v| v.parse().ok()).filter(|&n| n > 0).unwrap_or(3000)
+}
 
 #[test]
 fn inverse_never_panics_nor_returns_nan() {
-    let solved = counted(CASES, (machine(), coordinate(), coordinate(), margin()), |(m, x, y, margin)| {
+    let cases = hostile_cases();
+    let solved = counted(cases, (machine(), coordinate(), coordinate(), margin()), |(m, x, y, margin)| {
         let mut solved = 0;
         for mm in [m, m.cast::<f32>().cast::<f64>()] {
             if let Ok(pose) = mm.inverse_pose([x, y], margin) {
@@ -136,13 +142,14 @@ fn inverse_never_panics_nor_returns_nan() {
         }
         Ok(solved)
     });
-    println!("inverse: {solved} solutions checked in {CASES} cases");
-    assert!(solved >= u64::from(CASES) / 8, "only {solved} inputs were solved: the finite-output check barely ran");
+    println!("inverse: {solved} solutions checked in {cases} cases");
+    assert!(solved >= u64::from(cases) / 8, "only {solved} inputs were solved: the finite-output check barely ran");
 }
 
 #[test]
 fn forward_never_panics_nor_returns_nan() {
-    let solved = counted(CASES, (machine(), angle(), angle(), margin()), |(m, t1, t2, margin)| {
+    let cases = hostile_cases();
+    let solved = counted(cases, (machine(), angle(), angle(), margin()), |(m, t1, t2, margin)| {
         let mut solved = 0;
         if let Ok(p) = m.forward([t1, t2], margin) {
             solved += 1;
@@ -154,14 +161,15 @@ fn forward_never_panics_nor_returns_nan() {
         }
         Ok(solved)
     });
-    println!("forward: {solved} solutions checked in {CASES} cases");
-    assert!(solved >= u64::from(CASES) / 5, "only {solved} inputs were solved");
+    println!("forward: {solved} solutions checked in {cases} cases");
+    assert!(solved >= u64::from(cases) / 5, "only {solved} inputs were solved");
 }
 
 /// Reachable targets of valid machines round-trip (random machines, not just the paper's).
 #[test]
 fn valid_machines_round_trip() {
-    let checked = counted(CASES, (valid_machine(), 100.0..300.0f64, -100.0..100.0f64), |(m, x, y)| {
+    let cases = hostile_cases();
+    let checked = counted(cases, (valid_machine(), 100.0..300.0f64, -100.0..100.0f64), |(m, x, y)| {
         let Ok(theta) = m.inverse([x, y], 0.05) else { return Ok(0) };
         let back = m.forward(theta, 0.0);
         prop_assert!(back.is_ok(), "{:?}", back);
@@ -169,8 +177,8 @@ fn valid_machines_round_trip() {
         prop_assert!((back[0] - x).abs() < 1e-8 && (back[1] - y).abs() < 1e-8, "{:?} vs {:?}", back, [x, y]);
         Ok(1)
     });
-    println!("round trip: {checked} of {CASES} targets reachable and checked");
-    assert!(checked >= u64::from(CASES) / 10, "only {checked} round trips checked");
+    println!("round trip: {checked} of {cases} targets reachable and checked");
+    assert!(checked >= u64::from(cases) / 10, "only {checked} round trips checked");
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -196,6 +204,7 @@ fn fix_crc(img: &mut [u8], total: usize) {
 /// past the magic bytes and still refuse.
 #[test]
 fn grid_parse_refuses_garbage() {
+    let cases = hostile_cases();
     let (_, img) = valid_image();
     let header = img[..12].to_vec();
     // Magic, version, header length and node counts of a real image, then `n` bytes of garbage.
@@ -209,13 +218,13 @@ fn grid_parse_refuses_garbage() {
         // At least as long as the image those counts make (5284 bytes): only the CRC can refuse.
         2 => after_header(5272..5600),
     ];
-    let past_magic = counted(CASES, garbage, |bytes| {
+    let past_magic = counted(cases, garbage, |bytes| {
         let result = CorrectionGrid::parse(&bytes);
         prop_assert!(result.is_err(), "garbage of {} bytes accepted", bytes.len());
         Ok(u64::from(!matches!(result, Err(GridError::BadMagic) | Err(GridError::Truncated))))
     });
-    println!("garbage: {past_magic} of {CASES} inputs got past the magic bytes and the length check");
-    assert!(past_magic >= u64::from(CASES) / 4, "only {past_magic} inputs got past the magic bytes");
+    println!("garbage: {past_magic} of {cases} inputs got past the magic bytes and the length check");
+    assert!(past_magic >= u64::from(cases) / 4, "only {past_magic} inputs got past the magic bytes");
 }
 
 /// One field of the image: where it is and what it holds.
@@ -331,9 +340,10 @@ fn expected(field: Field, raw: u32, g: &GridGeometry, len: usize) -> Result<(), 
 /// written. Every field is tampered, and both outcomes occur for each kind of field.
 #[test]
 fn grid_images_tampered_field_by_field_with_the_crc_fixed() {
+    let cases = hostile_cases();
     let (g, img) = valid_image();
     let outcomes: Vec<Cell<[u64; 2]>> = (0..FIELD_KINDS).map(|_| Cell::new([0; 2])).collect();
-    counted(CASES, (field(), raw_value()), |(field, raw)| {
+    counted(cases, (field(), raw_value()), |(field, raw)| {
         let mut v = img.clone();
         let bytes = raw.to_le_bytes();
         let (at, width) = match field {
@@ -452,13 +462,14 @@ fn sequence() -> impl Strategy<Value = Sequence> {
 /// pose, so the torque checks run on a large share of the steps, at the limit too.
 #[test]
 fn servo_never_panics_nor_commands_nan() {
+    let cases = hostile_cases();
     let img = small_grid();
     let dt = ServoConfig::default().sample_period_s;
     let g_mm_s2 = kinematics_core::servo::STANDARD_GRAVITY_MM_S2;
     let steps = Cell::new(0u64);
     let at_limit = Cell::new(0u64);
     let smooth_refused = Cell::new(0u64);
-    let ok = counted(CASES, sequence(), |seq| {
+    let ok = counted(cases, sequence(), |seq| {
         let mut ok = 0;
         for cal in calibrations(&img) {
             let mut servo = Servo::new(ServoConfig::default()).unwrap();
@@ -660,10 +671,11 @@ fn hostile_settings() -> impl Strategy<Value = [f32; SETTINGS_FIELDS]> {
 /// the limit (zero for a limit that is not a finite non-negative number).
 #[test]
 fn hostile_settings_never_panic() {
+    let cases = hostile_cases();
     let (refused, tracked, direct) = (Cell::new(0u64), Cell::new(0u64), Cell::new(0u64));
     let cal = Calibration { model: FiveBar::paper_nominal(), grid: None };
     let strategy = (hostile_settings(), proptest::collection::vec((-1.0..1.0f32, -1.0..1.0f32, -1e-3..1e-3f32), 1..60));
-    counted(CASES, strategy, |(v, motion)| {
+    counted(cases, strategy, |(v, motion)| {
         let config = settings_from(&v);
         let valid = settings_valid(&v);
         let servo = Servo::new(config);
@@ -713,7 +725,7 @@ fn hostile_settings_never_panic() {
         Ok(reached)
     });
     let (refused, tracked, direct) = (refused.get(), tracked.get(), direct.get());
-    println!("hostile settings: {refused} of {CASES} refused by Servo::new, {tracked} servo steps tracked with the others, {direct} PID updates with raw gains");
-    assert!(refused >= u64::from(CASES) / 4, "only {refused} settings refused: the hostile values barely ran");
-    assert!(tracked >= u64::from(CASES) * 5, "only {tracked} steps tracked with unusual valid settings");
+    println!("hostile settings: {refused} of {cases} refused by Servo::new, {tracked} servo steps tracked with the others, {direct} PID updates with raw gains");
+    assert!(refused >= u64::from(cases) / 4, "only {refused} settings refused: the hostile values barely ran");
+    assert!(tracked >= u64::from(cases) * 5, "only {tracked} steps tracked with unusual valid settings");
 }
