@@ -978,7 +978,6 @@ mod tests {
 
     #[test]
     fn a_fault_at_boot_keeps_the_drives_off_and_the_first_reason_is_kept() {
-
         let (settings, img) = (absolute(), image());
         let (mut l, encoder) = running(&settings, &img);
         l.latch_at_boot(Fault::Watchdog(WatchdogFault::Reset));
