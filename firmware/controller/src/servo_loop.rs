@@ -496,10 +496,16 @@ impl<'a> ServoLoop<'a> {
     /// A new sample at `encoder_rad`: nothing decided yet, zero torque.
     #[inline]
     fn begin_sample(&mut self, encoder_rad: [f32; 2]) -> Sample {
-        let index = self.samples;
+        let sample = self.undecided_sample(encoder_rad);
         self.samples = self.samples.wrapping_add(1);
+        sample
+    }
+
+    /// The sample `begin_sample` would start, without counting it (a request's scratch).
+    #[inline]
+    fn undecided_sample(&self, encoder_rad: [f32; 2]) -> Sample {
         Sample {
-            index,
+            index: self.samples,
             encoder_rad,
             setpoint_mm: self.setpoint_mm,
             reference_rad: self.reference_rad,
@@ -714,20 +720,7 @@ impl<'a> ServoLoop<'a> {
         queue: &mut Consumer<'_, MotionSetpoint<f32>>,
         encoder_rad: [f32; 2],
     ) -> Result<bool, ResetRefusal> {
-        let mut scratch = Sample {
-            index: self.samples,
-            encoder_rad,
-            setpoint_mm: self.setpoint_mm,
-            reference_rad: self.reference_rad,
-            torque_nm: [0.0; 2],
-            following_error_rad: 0.0,
-            underrun: false,
-            refill: false,
-            fault: None,
-            torque_off: false,
-            feed_watchdog: false,
-            set_reference: false,
-        };
+        let mut scratch = self.undecided_sample(encoder_rad);
         let fault = match (request, self.mode) {
             (ServoRequest::Stop, Mode::Running) => Fault::StopCommanded,
             (ServoRequest::Disable, Mode::Running | Mode::Holding(_)) => Fault::DisableCommanded,
