@@ -33,18 +33,10 @@ fn workspace_root() -> PathBuf {
 }
 
 fn build_firmware() -> PathBuf {
-    let root = workspace_root();
-    let target_dir = root.join("target").join("system-tests");
-    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
-    let status = Command::new(cargo)
-        .current_dir(&root)
-        .env("CARGO_TARGET_DIR", &target_dir)
-        .args(["build", "--release", "-p", "firmware", "--bin", "firmware", "--target", "thumbv7em-none-eabihf"])
-        .status()
-        .expect("cargo runs");
-    assert!(status.success(), "the firmware does not build");
-    target_dir.join("thumbv7em-none-eabihf").join("release").join("firmware")
+    build_firmware_bin(&workspace_root(), "firmware")
 }
+
+include!("../../tests/support/firmware_build.rs");
 
 /// QEMU with the firmware; killed when dropped.
 struct Qemu(Child);

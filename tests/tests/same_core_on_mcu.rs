@@ -25,18 +25,10 @@ fn workspace_root() -> PathBuf {
 
 /// Builds the golden firmware and returns its ELF.
 fn build_golden() -> PathBuf {
-    let root = workspace_root();
-    let target_dir = root.join("target").join("system-tests");
-    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
-    let status = Command::new(cargo)
-        .current_dir(&root)
-        .env("CARGO_TARGET_DIR", &target_dir)
-        .args(["build", "--release", "-p", "firmware", "--bin", "golden", "--target", "thumbv7em-none-eabihf"])
-        .status()
-        .expect("cargo runs");
-    assert!(status.success(), "building the golden firmware failed (is the thumbv7em-none-eabihf target installed? bash tests/run-all.sh installs it)");
-    target_dir.join("thumbv7em-none-eabihf/release/golden")
+    build_firmware_bin(&workspace_root(), "golden")
 }
+
+include!("../support/firmware_build.rs");
 
 /// Runs the ELF under QEMU (bounded) and returns its `GOLDEN` words.
 fn run_on_mcu(elf: &PathBuf) -> Vec<u32> {
