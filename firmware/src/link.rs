@@ -49,6 +49,8 @@ pub struct LinkState<P: LinkPort> {
     pub handler: LinkHandler,
     /// The settings say the encoders are absolute (the drives may engage unhomed).
     pub absolute_encoders: bool,
+    /// The settings make the link's stream the motion source (`Settings::link_motion`).
+    pub link_motion: bool,
 }
 
 impl<P: LinkPort> LinkState<P> {
@@ -57,7 +59,7 @@ impl<P: LinkPort> LinkState<P> {
         while let Some(byte) = self.port.read_byte() {
             if let Some(received) = self.reader.push(byte) {
                 let mut out = [0u8; MAX_FRAME_LEN];
-                let mut dev = AppDevice::new(device, self.absolute_encoders);
+                let mut dev = AppDevice::new(device, self.absolute_encoders, self.link_motion);
                 let n = self.handler.on_received(received, &mut dev, &mut out);
                 self.port.write(&out[..n]);
             }
@@ -66,7 +68,7 @@ impl<P: LinkPort> LinkState<P> {
 
     /// Resumes a paused source when the servo runs again, and sends a telemetry sample if due.
     pub fn poll(&mut self, device: &mut impl DeviceResources) {
-        let mut dev = AppDevice::new(device, self.absolute_encoders);
+        let mut dev = AppDevice::new(device, self.absolute_encoders, self.link_motion);
         if let Some(message) = self.handler.poll(&mut dev) {
             self.send(&message);
         }
@@ -142,13 +144,14 @@ pub struct AppDevice<'a, D> {
     res: &'a mut D,
     status: Status,
     absolute_encoders: bool,
+    link_motion: bool,
 }
 
 impl<'a, D: DeviceResources> AppDevice<'a, D> {
     /// Reads the status once.
-    pub fn new(res: &'a mut D, absolute_encoders: bool) -> Self {
+    pub fn new(res: &'a mut D, absolute_encoders: bool, link_motion: bool) -> Self {
         let status = res.status();
-        AppDevice { res, status, absolute_encoders }
+        AppDevice { res, status, absolute_encoders, link_motion }
     }
 }
 
@@ -173,6 +176,9 @@ impl<D: DeviceResources> Device for AppDevice<'_, D> {
     }
     fn calibration(&mut self) -> &mut Self {
         self
+    }
+    fn link_drives_motion(&self) -> bool {
+        self.link_motion
     }
 }
 

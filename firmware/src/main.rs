@@ -193,6 +193,7 @@ mod app {
             reader: FrameReader::new(),
             handler: LinkHandler::new(),
             absolute_encoders: settings.homing.absolute_encoders,
+            link_motion: settings.link_motion,
         };
         if settings.link_motion {
             defmt::info!("setpoints from the host link");

@@ -32,6 +32,10 @@ pub struct Status {
     pub stop_distance_mm: f32,
     /// Last setpoint the servo accepted (mm).
     pub setpoint_mm: [f32; 2],
+    /// The last sample's setpoint differs from the one before it: the setpoint still changes.
+    /// What says "moving" when the motion source is not the host link (the built-in tour),
+    /// whose hold point the link cannot see.
+    pub setpoint_moved: bool,
     /// Encoder angles the servo commanded for that setpoint (model IK plus grid correction,
     /// unwrapped next to the previous reference; rad).
     pub reference_rad: [f32; 2],
@@ -67,6 +71,7 @@ impl Status {
             drives_enabled: servo_loop.drives_enabled(),
             stop_distance_mm: 0.0,
             setpoint_mm: servo_loop.setpoint_mm(),
+            setpoint_moved: false,
             reference_rad: servo_loop.reference_rad(),
             encoder_rad,
             torque_nm: [0.0; 2],
@@ -86,6 +91,7 @@ impl Status {
         self.worst_step_us = deadline.worst_step_us;
         self.encoder_rad = sample.encoder_rad;
         self.torque_nm = sample.torque_nm;
+        self.setpoint_moved = sample.setpoint_mm != self.setpoint_mm;
         self.setpoint_mm = sample.setpoint_mm;
         self.reference_rad = sample.reference_rad;
         if sample.underrun {

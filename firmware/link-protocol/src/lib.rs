@@ -426,7 +426,8 @@ pub enum LinkError {
     Calibration(CalibrationRefusal),
     /// Homing could not start.
     Homing,
-    /// The command is not available on this board or build.
+    /// The command is not available on this board or build, or (moves and streams) the
+    /// controller's motion comes from a built-in source, not the link (`Settings::link_motion`).
     Unsupported,
 }
 

@@ -163,6 +163,9 @@ pub struct Rig<'a> {
     pub homing: HomingDouble,
     /// Calibration store.
     pub store: StoreDouble,
+    /// The link's stream is the motion source (`Settings::link_motion`); true unless a test
+    /// sets it.
+    pub link_motion: bool,
 }
 
 impl<'a> Rig<'a> {
@@ -184,6 +187,7 @@ impl<'a> Rig<'a> {
             plant: JointPlant { angle_rad: joints_rad, velocity_rad_s: [0.0; 2], torque_nm: [0.0; 2], enabled: true },
             homing: HomingDouble { state: HomingState::Homed, refuse: false, absolute: false },
             store: StoreDouble::new(active_id),
+            link_motion: true,
         }
     }
 
@@ -232,5 +236,8 @@ impl Device for Rig<'_> {
     }
     fn calibration(&mut self) -> &mut StoreDouble {
         &mut self.store
+    }
+    fn link_drives_motion(&self) -> bool {
+        self.link_motion
     }
 }

@@ -94,6 +94,10 @@ pub trait Device {
     fn homing(&mut self) -> &mut Self::Homing;
     /// The calibration store.
     fn calibration(&mut self) -> &mut Self::Calibration;
+    /// Whether the link's motion stream is what the servo follows (`Settings::link_motion`);
+    /// otherwise a built-in source (the QEMU tour) moves the machine, and the link refuses
+    /// moves and streams it could not carry out.
+    fn link_drives_motion(&self) -> bool;
 }
 
 /// The firmware's version, as [`Identity`] reports it.
@@ -249,6 +253,7 @@ impl LinkHandler {
                 device.homing().start().map(|()| Response::Done).map_err(|HomingRefused| LinkError::Homing)
             }
             Command::MoveTo { target_mm } => {
+                link_is_source(device)?;
                 running(mode)?;
                 match device.with_stream(|s| s.move_to(*target_mm)) {
                     Ok(duration_s) => Ok(Response::MovePlanned { duration_s }),
@@ -257,6 +262,7 @@ impl LinkHandler {
                 }
             }
             Command::StreamKnots { first_index, knots } => {
+                link_is_source(device)?;
                 running(mode)?;
                 device.with_stream(|s| match s.push(*first_index, knots) {
                     Ok(()) => Ok(Response::StreamAccepted { next_index: s.next_index(), free: s.free() as u16 }),
@@ -399,16 +405,31 @@ fn running(mode: Mode) -> Result<(), LinkError> {
     }
 }
 
-/// The machine's setpoint still changes: a move or stream plays (or starved), a stop is under
-/// way, or the source already holds but the servo loop has not yet reached its hold point (the
-/// source runs up to [`QUEUE_SLOTS`](crate::setpoints::QUEUE_SLOTS) samples, 31.5 ms, ahead of
-/// the servo through the setpoint queue; "not moving" before then let a host read a setpoint
-/// short of the end).
+/// Moves and streams need the link to be the motion source; with a built-in source they would
+/// be accepted and never run.
+fn link_is_source(device: &impl Device) -> Result<(), LinkError> {
+    if device.link_drives_motion() {
+        Ok(())
+    } else {
+        Err(LinkError::Unsupported)
+    }
+}
+
+/// The machine's setpoint still changes: a stop is under way, or, with the link as the motion
+/// source, a move or stream plays (or starved) or the source already holds but the servo loop
+/// has not yet reached its hold point (the source runs up to
+/// [`QUEUE_SLOTS`](crate::setpoints::QUEUE_SLOTS) samples, 31.5 ms, ahead of the servo through
+/// the setpoint queue; "not moving" before then let a host read a setpoint short of the end).
+/// With a built-in source the link cannot see its plan: the last sample's setpoint changed.
 fn motion_under_way(s: &Status, device: &mut impl Device) -> bool {
+    if matches!(s.mode, Mode::Stopping(_)) {
+        return true;
+    }
+    if !device.link_drives_motion() {
+        return s.mode == Mode::Running && s.setpoint_moved;
+    }
     let (playing, hold) = device.with_stream(|m| (m.is_playing(), m.hold_point_mm()));
-    playing
-        || matches!(s.mode, Mode::Stopping(_))
-        || (s.mode == Mode::Running && hold.is_some_and(|p| p != s.setpoint_mm))
+    playing || (s.mode == Mode::Running && hold.is_some_and(|p| p != s.setpoint_mm))
 }
 
 /// The calibration store is written only while nothing moves.

@@ -244,6 +244,44 @@ fn the_status_says_moving_until_the_servo_reaches_the_end_not_the_source() {
     }
 }
 
+/// With a built-in motion source (`Settings::link_motion` off: the QEMU tour) the link's stream
+/// is not what the servo follows: moves and streams are refused (they would be accepted and
+/// never run), and "moving" is the servo's setpoint changing, not the idle stream's hold point
+/// (the boot point) against the setpoint: the old rule said "moving" forever once a tour had
+/// ended anywhere else.
+#[test]
+fn with_a_built_in_source_the_link_refuses_moves_and_moving_follows_the_setpoint() {
+    let (settings, img) = (settings(), image(3e-4));
+    let mut r = rig(&settings, &img);
+    r.link_motion = false;
+    let mut h = LinkHandler::new();
+    let target = [HOME_MM[0] + 15.0, HOME_MM[1] + 8.0];
+    assert_eq!(send(&mut h, &mut r, 1, Command::MoveTo { target_mm: target }), Err(LinkError::Unsupported));
+    let knots = figure_knots(0.2);
+    let frame = heapless::Vec::from_slice(&knots[..4]).unwrap();
+    assert_eq!(send(&mut h, &mut r, 2, Command::StreamKnots { first_index: 0, knots: frame }), Err(LinkError::Unsupported));
+    assert!(!r.stream.is_playing(), "nothing reached the link's stream");
+    // The built-in source: a stream of its own feeds the servo; the link's stays at the boot point.
+    let link_stream = r.stream.clone();
+    let duration_s = r.stream.move_to(target).expect("the tour's move plans");
+    let Ok(Response::Status(s)) = send(&mut h, &mut r, 3, Command::Status) else { panic!() };
+    assert!(!s.moving, "not yet moving: the servo has not taken a sample of the tour");
+    // The queue holds up to QUEUE_SLOTS setpoints of the hold before the first of the move.
+    run(&mut h, &mut r, crate::setpoints::QUEUE_SLOTS + 20);
+    let Ok(Response::Status(s)) = send(&mut h, &mut r, 4, Command::Status) else { panic!() };
+    assert!(s.moving, "the tour runs: {s:?}");
+    run(&mut h, &mut r, (duration_s / 5e-4) as usize + crate::setpoints::QUEUE_SLOTS + 10);
+    assert_eq!(r.status.setpoint_mm, target, "the tour ended at its target");
+    r.stream = link_stream;
+    let Ok(Response::Status(s)) = send(&mut h, &mut r, 5, Command::Status) else { panic!() };
+    assert!(!s.moving, "the tour ended away from the link stream's hold point: not moving ({s:?})");
+    // The same status with the link as the source reads "moving" (the hold point is elsewhere):
+    // the rule depends on which source drives the servo.
+    r.link_motion = true;
+    let Ok(Response::Status(s)) = send(&mut h, &mut r, 6, Command::Status) else { panic!() };
+    assert!(s.moving);
+}
+
 #[test]
 fn a_frame_with_one_bad_knot_is_refused_whole_and_nothing_moves() {
     let (settings, img) = (settings(), image(3e-4));

@@ -1188,6 +1188,7 @@ mod tests {
             drives_enabled: true,
             stop_distance_mm: 0.0,
             setpoint_mm: P_MM,
+            setpoint_moved: false,
             reference_rad: reference,
             encoder_rad: reference,
             torque_nm: [0.1, -0.1],
