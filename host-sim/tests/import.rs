@@ -71,6 +71,9 @@ P003;220.5008;-0.2511;12.3002;0.004\n\
 P005;210.5003;9.7496;12.2998;0.006\n\
 P002;210.4995;-0.2502;12.3000;0.004\n";
 
+/// What a row is compared by: angles, measured point, target, run.
+type Key = ([f64; 2], [f64; 2], Option<[f64; 2]>, Option<u32>);
+
 #[test]
 fn a_semicolon_export_with_metadata_a_missing_point_and_a_repeat() {
     let dir = tempfile::tempdir().unwrap();
@@ -81,7 +84,7 @@ fn a_semicolon_export_with_metadata_a_missing_point_and_a_repeat() {
     ]);
     // Rows in the list's order, the repeat as run 1, point 4 not written.
     let rows = read_rows(&out);
-    let got: Vec<([f64; 2], [f64; 2], Option<[f64; 2]>, Option<u32>)> = rows.iter().map(|m| (m.theta_deg, m.measured_mm, m.target_mm, m.run)).collect();
+    let got: Vec<Key> = rows.iter().map(|m| (m.theta_deg, m.measured_mm, m.target_mm, m.run)).collect();
     assert_eq!(
         got,
         vec![

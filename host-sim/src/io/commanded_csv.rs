@@ -44,33 +44,18 @@ pub fn parse_commanded(text: &str) -> Result<Vec<CommandedRow>, IoError> {
     let (Some(i1), Some(i2)) = (at("theta1_deg"), at("theta2_deg")) else {
         return Err(err("line 1: required columns 'theta1_deg' and 'theta2_deg' (the commanded angles) are missing".into()));
     };
-    let pair = |a: &str, b: &str| match (at(a), at(b)) {
-        (Some(i), Some(j)) => Ok(Some((i, j))),
-        (None, None) => Ok(None),
-        _ => Err(err(format!("line 1: columns '{a}' and '{b}' come together"))),
-    };
-    let (target, dir, run) = (pair("x_mm", "y_mm")?, pair("dir1", "dir2")?, at("run"));
+    let (target, dir, run) = (csv_dialect::column_pair(&headers, "x_mm", "y_mm")?, csv_dialect::column_pair(&headers, "dir1", "dir2")?, at("run"));
     let mut out = Vec::new();
-    for record in reader.records() {
-        let record = record.map_err(|e| err(format!("malformed CSV: {e}")))?;
-        let line = record.position().map_or(0, |p| p.line() as usize);
-        if record.len() != headers.len() {
-            return Err(err(format!("line {line}: {} fields, the header has {}", record.len(), headers.len())));
-        }
+    for record in csv_dialect::records(&mut reader, headers.len()) {
+        let (line, record) = record?;
         let num = |i: usize, q: Quantity| csv_dialect::number(&record[i], &headers[i], line, q);
-        let sign = |i: usize| match &record[i] {
-            "1" | "+1" => Ok(1),
-            "-1" => Ok(-1),
-            v => Err(err(format!("line {line}: '{}' = '{v}' is not +1 or -1", &headers[i]))),
-        };
+        let sign = |i: usize| csv_dialect::direction(&record[i], &headers[i], line);
         out.push(CommandedRow {
             line,
             theta_deg: [num(i1, Quantity::AngleDeg)?, num(i2, Quantity::AngleDeg)?],
             target_mm: target.map(|(i, j)| Ok::<_, IoError>([num(i, Quantity::LengthMm)?, num(j, Quantity::LengthMm)?])).transpose()?,
             dir: dir.map(|(i, j)| Ok::<_, IoError>([sign(i)?, sign(j)?])).transpose()?,
-            run: run
-                .map(|i| record[i].parse::<u32>().map_err(|_| err(format!("line {line}: 'run' = '{}' is not a run index", &record[i]))))
-                .transpose()?,
+            run: run.map(|i| csv_dialect::run_index(&record[i], line)).transpose()?,
         });
     }
     if out.is_empty() {

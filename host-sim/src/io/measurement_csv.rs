@@ -181,12 +181,8 @@ pub fn parse_measurements_with(text: &str, opts: &ReadOptions) -> Result<ReadMea
         }
     }
     let mut out = Vec::new();
-    for record in reader.records() {
-        let record = record.map_err(|e| IoError::Parse(format!("malformed CSV: {e}")))?;
-        let line = record.position().map(|p| p.line() as usize).unwrap_or(0);
-        if record.len() != headers.len() {
-            bail!("line {line}: {} fields, the header has {}", record.len(), headers.len());
-        }
+    for record in csv_dialect::records(&mut reader, headers.len()) {
+        let (line, record) = record?;
         let field = |k: usize| index[k].map(|i| &record[i]);
         let number = |k: usize| -> Result<Option<f64>, IoError> {
             match field(k) {
