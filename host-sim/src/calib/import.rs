@@ -42,6 +42,7 @@ use crate::io::commanded_csv::CommandedRow;
 use crate::io::measurement_csv::Measurement;
 use crate::io::targets_csv::ListedTarget;
 use crate::io::tracker_export::{Export, ExportPoint};
+use crate::numeric::stats::{round3, round6};
 use serde::Serialize;
 use std::collections::BTreeMap;
 
@@ -127,7 +128,8 @@ pub struct ZReport {
     pub points: usize,
     /// max − min of Z (mm).
     pub range_mm: f64,
-    /// |Z − plane|, max and RMS (µm).
+    /// |Z − plane|, max and RMS (µm). The report's figures are rounded (µm to 1 nm, mm and
+    /// mrad to 6 decimals).
     pub plane_residual_max_um: f64,
     pub plane_residual_rms_um: f64,
     /// The plane's angle to the export's XY plane (mrad).
@@ -396,11 +398,11 @@ fn z_check(points: &[&ExportPoint], tolerance_mm: Option<f64>) -> Result<Option<
     let zs = with_z.iter().map(|p| p.1);
     Ok(Some(ZReport {
         points: with_z.len(),
-        range_mm: zs.clone().fold(f64::NEG_INFINITY, f64::max) - zs.fold(f64::INFINITY, f64::min),
-        plane_residual_max_um: max_mm * 1e3,
-        plane_residual_rms_um: rms_mm * 1e3,
-        tilt_mrad: tilt_rad * 1e3,
-        tilt_length_error_um: extent_mm * (1.0 - tilt_rad.cos()) * 1e3,
+        range_mm: round6(zs.clone().fold(f64::NEG_INFINITY, f64::max) - zs.fold(f64::INFINITY, f64::min)),
+        plane_residual_max_um: round3(max_mm * 1e3),
+        plane_residual_rms_um: round3(rms_mm * 1e3),
+        tilt_mrad: round6(tilt_rad * 1e3),
+        tilt_length_error_um: round3(extent_mm * (1.0 - tilt_rad.cos()) * 1e3),
         tolerance_mm,
     }))
 }
@@ -462,7 +464,7 @@ fn frame_check(rows: &[Measurement]) -> Result<Option<FrameReport>, ImportError>
     if rms > 1.0 && mirrored_rms < 0.1 * rms {
         return Err(ImportError::Mirrored { proper_rms_mm: rms, mirrored_rms_mm: mirrored_rms });
     }
-    Ok(Some(FrameReport { scale, rigid_residual_max_mm: max, rigid_residual_rms_mm: rms }))
+    Ok(Some(FrameReport { scale: round6(scale), rigid_residual_max_mm: round6(max), rigid_residual_rms_mm: round6(rms) }))
 }
 
 #[cfg(test)]
