@@ -112,6 +112,11 @@ fn a_semicolon_export_with_metadata_a_missing_point_and_a_repeat() {
     assert_eq!(r["warnings"], serde_json::json!([]));
     // The fit's duplicate check passes: the repeated pose is two rows of different runs.
     host_sim::calib::fit::check_duplicates(&rows).unwrap();
+    // The same job exported in a German locale (decimal commas) reads the same with --decimal-comma.
+    let german = write(dir.path(), "job_de.csv", &SEMICOLON_EXPORT.lines().map(|l| if l.starts_with('P') { l.replace('.', ",") } else { l.to_string() } + "\n").collect::<String>());
+    let out_de = dir.path().join("meas_de.csv");
+    ok(&["import", "--export", s(&german), "--map", "id=Point,x=X [mm],y=Y [mm],z=Z [mm]", "--commanded", s(&commanded), "--decimal-comma", "--out", s(&out_de)]);
+    assert_eq!(std::fs::read(&out_de).unwrap(), std::fs::read(&out).unwrap());
     // --require-all: the missing point is an error, nothing written.
     let fresh = dir.path().join("strict.csv");
     refused(

@@ -9,7 +9,7 @@ use host_sim::io::atomic::Outputs;
 use host_sim::io::commanded_csv::read_commanded;
 use host_sim::io::measurement_csv::format_measurements;
 use host_sim::io::targets_csv::read_target_list;
-use host_sim::io::tracker_export::{parse_export, ColumnMap, LengthUnit};
+use host_sim::io::tracker_export::{parse_export_with, ColumnMap, ExportFormat, LengthUnit};
 use host_sim::io::{json_text, read_text, IoError, KeyOrder};
 use std::path::PathBuf;
 
@@ -44,6 +44,9 @@ pub struct Args {
     /// say none).
     #[arg(long, value_enum)]
     pub units: Option<UnitArg>,
+    /// The export writes numbers with a decimal comma (`212,132`; its delimiter `;` or tab).
+    #[arg(long)]
+    pub decimal_comma: bool,
     /// The prefix of the session's point ids (e.g. `P`); other points (reference nests) are
     /// skipped with a note. Default: every id's, which must be one.
     #[arg(long, value_name = "TEXT")]
@@ -84,7 +87,8 @@ pub fn run(args: &Args) -> Result<()> {
         UnitArg::Mm => LengthUnit::Mm,
         UnitArg::M => LengthUnit::M,
     });
-    let export = parse_export(&read_text(&args.export)?, &map, unit).map_err(|e| IoError::content(&args.export, e))?;
+    let format = ExportFormat { unit, decimal_comma: args.decimal_comma };
+    let export = parse_export_with(&read_text(&args.export)?, &map, format).map_err(|e| IoError::content(&args.export, e))?;
     let commanded = read_commanded(&args.commanded)?;
     let plan = args.plan.as_deref().map(read_target_list).transpose()?;
     let opts = ImportOptions {

@@ -14,7 +14,8 @@
 //! * **Units:** [`LengthUnit`]; when not given, the mapped columns' headers decide (`X [m]`,
 //!   `X (mm)`, `X_m`), and a header without a unit means mm. A unit given that contradicts a
 //!   header's is refused.
-//! * **Numbers:** decimal point; finite, |value| ≤ 1e6 mm after scaling
+//! * **Numbers:** decimal point, or a decimal comma when [`ExportFormat::decimal_comma`] says so
+//!   (then the delimiter must be `;` or tab); finite, |value| ≤ 1e6 mm after scaling
 //!   ([`super::csv_dialect::number`]: a decimal comma is refused with that hint); errors name
 //!   the line (1-based in the file, metadata counted) and the column.
 
@@ -149,9 +150,10 @@ pub struct Export {
     pub notes: Vec<String>,
 }
 
-/// A header field as written, without surrounding quotes.
+/// A header field as written, without surrounding quotes (nor a UTF-8 byte-order mark, which
+/// Windows tools put before the first).
 fn field_name(f: &str) -> &str {
-    f.trim().trim_matches('"').trim()
+    f.trim_start_matches('\u{feff}').trim().trim_matches('"').trim()
 }
 
 /// The header: the first line (not a comment, within [`MAX_HEADER_LINE`]) holding every mapped
@@ -192,11 +194,29 @@ fn find_header(lines: &[&str], map: &ColumnMap) -> Result<(usize, u8, Vec<String
     }
 }
 
-/// Parses an export's text through `map`. `unit`: the coordinates' unit, or `None` to take it
-/// from the headers (mm when they state none).
+/// How the export writes its numbers.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct ExportFormat {
+    /// The coordinates' unit, or `None` to take it from the headers (mm when they state none).
+    pub unit: Option<LengthUnit>,
+    /// Numbers are written with a decimal comma (`212,132`; a `;` or tab delimiter).
+    pub decimal_comma: bool,
+}
+
+/// Parses an export's text through `map`, numbers with a decimal point. `unit`: the
+/// coordinates' unit, or `None` to take it from the headers (mm when they state none).
 pub fn parse_export(text: &str, map: &ColumnMap, unit: Option<LengthUnit>) -> Result<Export, IoError> {
+    parse_export_with(text, map, ExportFormat { unit, decimal_comma: false })
+}
+
+/// Parses an export's text through `map` in `format`.
+pub fn parse_export_with(text: &str, map: &ColumnMap, format: ExportFormat) -> Result<Export, IoError> {
+    let unit = format.unit;
     let lines: Vec<&str> = text.lines().collect();
     let (h, delimiter, fields) = find_header(&lines, map)?;
+    if format.decimal_comma && delimiter == b',' {
+        bail!("line {}: the export is comma-separated, so its numbers cannot have a decimal comma", h + 1);
+    }
     let header_line = h + 1;
     let col = |name: &str| fields.iter().position(|f| f == name).expect("find_header checked every mapped name");
     for name in map.names() {
@@ -233,7 +253,7 @@ pub fn parse_export(text: &str, map: &ColumnMap, unit: Option<LengthUnit>) -> Re
         notes.push(format!("{}-separated file", csv_dialect::delimiter_name(delimiter)));
     }
     let mapped = map.names();
-    let ignored_columns: Vec<String> = fields.iter().filter(|f| !mapped.contains(&f.as_str())).cloned().collect();
+    let ignored_columns: Vec<String> = fields.iter().filter(|f| !f.is_empty() && !mapped.contains(&f.as_str())).cloned().collect();
     if !ignored_columns.is_empty() {
         notes.push(format!("columns ignored: {}", ignored_columns.join(", ")));
     }
@@ -266,7 +286,13 @@ pub fn parse_export(text: &str, map: &ColumnMap, unit: Option<LengthUnit>) -> Re
             if s.is_empty() {
                 bail!("line {line}: '{name}' is empty (point {id})");
             }
-            let v = csv_dialect::number(s, name, line, Quantity::Plain)? * scale;
+            let v = match format.decimal_comma {
+                true => csv_dialect::number(&s.replace(',', "."), name, line, Quantity::Plain),
+                false => csv_dialect::number(s, name, line, Quantity::Plain).map_err(|e| match e.to_string() {
+                    m if m.contains("decimal comma") => IoError::Parse(format!("{m}, or read the file with decimal commas (--decimal-comma)")),
+                    _ => e,
+                }),
+            }? * scale;
             if v.abs() > MAX_ABS_LENGTH_MM {
                 bail!("line {line}: '{name}' = {s} {unit} is absurd (|value| above {MAX_ABS_LENGTH_MM:e} mm)");
             }
@@ -345,6 +371,20 @@ mod tests {
         // No unit in the header: as given.
         let e = parse_export("Name,X,Y\nA1,0.2,0.1\n", &map("id=Name,x=X,y=Y"), Some(LengthUnit::M)).unwrap();
         assert_eq!(e.points[0].xy_mm, [200.0, 100.0]);
+    }
+
+    #[test]
+    fn decimal_commas_a_byte_order_mark_and_crlf() {
+        let m = map("id=Punkt,x=X,y=Y");
+        let text = "\u{feff}Punkt;X;Y;\r\nP1;212,132;-0,5;\r\n";
+        let format = ExportFormat { unit: None, decimal_comma: true };
+        let e = parse_export_with(text, &m, format).unwrap();
+        assert_eq!(e.points[0].xy_mm, [212.132, -0.5]);
+        assert!(e.ignored_columns.is_empty(), "{:?}", e.ignored_columns);
+        let err = parse_export(text, &m, None).unwrap_err().to_string();
+        assert!(err.contains("line 2: 'X' = '212,132' is not a number (a decimal comma? write a point), or read the file with decimal commas"), "{err}");
+        let err = parse_export_with("Punkt,X,Y\nP1,1,2\n", &m, format).unwrap_err().to_string();
+        assert!(err.contains("comma-separated, so its numbers cannot have a decimal comma"), "{err}");
     }
 
     #[test]
