@@ -1,5 +1,6 @@
 //! The measurement CSV: the contract between measuring (a real interferometer or `host-sim
-//! measure`) and every tool that reads measurements (`fit`, `grid`, `diagnose`, `accuracy`).
+//! measure`; a laser tracker's export through `host-sim import`, `calib::import`) and every tool
+//! that reads measurements (`fit`, `grid`, `diagnose`, `accuracy`).
 //!
 //! A header line, comma separated (`;` and tab are read too: the delimiter is detected from the
 //! header, see [`super::csv_dialect`]), columns in any order:
