@@ -17,6 +17,8 @@
 //! * [`accuracy`]: VDI/DGQ 3441 and ISO 230-2 figures from repeated runs;
 //! * [`dynamics`]: the hidden robot's dynamic parameters from a closed-loop excitation run
 //!   (what the servo feeds forward; issue 14);
+//! * [`import`]: a real instrument's export (a laser tracker's points, by id) joined with the
+//!   commanded list into the measurement CSV (`host-sim import`);
 //! * [`pipeline`]: all of it on one machine, as `host-sim demo` runs it.
 //! * [`verify`]: the accuracy report for the customer (the standards' figures and the 2-D
 //!   position error, before and after calibration), from the verification and repeat runs.
@@ -33,6 +35,7 @@ pub mod dynamics;
 pub mod fit;
 pub mod grid;
 pub mod image;
+pub mod import;
 pub mod machine;
 pub mod measure;
 pub mod pipeline;

@@ -11,6 +11,7 @@ mod demo;
 mod diagnose;
 mod fit;
 mod grid;
+mod import;
 mod link;
 mod measure;
 mod plan;
@@ -44,6 +45,9 @@ enum Tool {
     Measure(measure::Args),
     /// Run the closed 2 kHz loop on a simulated plant (JSON summary on stdout).
     Simulate(simulate::Args),
+    /// A laser tracker's / interferometer's point export joined by point id with the commanded
+    /// list (column map, units, repeats, missing points), written as a measurement CSV.
+    Import(import::Args),
     /// Fit the hidden robot to measurements (poly, ls, full).
     Fit(fit::Args),
     /// Build the correction-grid flash image from measurements at the grid nodes.
@@ -70,6 +74,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Tool::Plan(a) => plan::run(&a),
         Tool::Measure(a) => measure::run(&a),
         Tool::Simulate(a) => simulate::run(&a),
+        Tool::Import(a) => import::run(&a),
         Tool::Fit(a) => fit::run(&a),
         Tool::Grid(a) => grid::run(&a),
         Tool::MotorCommand(a) => command::run(&a),

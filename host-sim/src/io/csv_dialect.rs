@@ -44,6 +44,43 @@ pub fn reader(text: &str) -> csv::Reader<&[u8]> {
         .from_reader(text.as_bytes())
 }
 
+/// The data records of `reader` with their lines (1-based, header = 1), each checked to have
+/// the header's `fields` fields.
+pub fn records<'r, R: std::io::Read + 'r>(reader: &'r mut csv::Reader<R>, fields: usize) -> impl Iterator<Item = Result<(usize, csv::StringRecord), IoError>> + 'r {
+    reader.records().map(move |record| {
+        let record = record.map_err(|e| IoError::Parse(format!("malformed CSV: {e}")))?;
+        let line = record.position().map_or(0, |p| p.line() as usize);
+        if record.len() != fields {
+            return Err(IoError::Parse(format!("line {line}: {} fields, the header has {fields}", record.len())));
+        }
+        Ok((line, record))
+    })
+}
+
+/// The columns `a` and `b` of a header, which come together: both (their indices) or neither.
+pub fn column_pair(headers: &csv::StringRecord, a: &str, b: &str) -> Result<Option<(usize, usize)>, IoError> {
+    let at = |name: &str| headers.iter().position(|h| h == name);
+    match (at(a), at(b)) {
+        (Some(i), Some(j)) => Ok(Some((i, j))),
+        (None, None) => Ok(None),
+        _ => Err(IoError::Parse(format!("line 1: columns '{a}' and '{b}' come together"))),
+    }
+}
+
+/// A motor's direction field of column `name`: `1`, `+1` or `-1`.
+pub fn direction(s: &str, name: &str, line: usize) -> Result<i8, IoError> {
+    match s {
+        "1" | "+1" => Ok(1),
+        "-1" => Ok(-1),
+        v => Err(IoError::Parse(format!("line {line}: '{name}' = '{v}' is not +1 or -1"))),
+    }
+}
+
+/// A `run` field: a repeat index (0, 1, ...).
+pub fn run_index(s: &str, line: usize) -> Result<u32, IoError> {
+    s.parse().map_err(|_| IoError::Parse(format!("line {line}: 'run' = '{s}' is not a run index")))
+}
+
 /// The name of a delimiter for messages.
 pub fn delimiter_name(d: u8) -> &'static str {
     match d {

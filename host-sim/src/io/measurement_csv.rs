@@ -1,5 +1,6 @@
 //! The measurement CSV: the contract between measuring (a real interferometer or `host-sim
-//! measure`) and every tool that reads measurements (`fit`, `grid`, `diagnose`, `accuracy`).
+//! measure`; a laser tracker's export through `host-sim import`, `calib::import`) and every tool
+//! that reads measurements (`fit`, `grid`, `diagnose`, `accuracy`).
 //!
 //! A header line, comma separated (`;` and tab are read too: the delimiter is detected from the
 //! header, see [`super::csv_dialect`]), columns in any order:
@@ -181,12 +182,8 @@ pub fn parse_measurements_with(text: &str, opts: &ReadOptions) -> Result<ReadMea
         }
     }
     let mut out = Vec::new();
-    for record in reader.records() {
-        let record = record.map_err(|e| IoError::Parse(format!("malformed CSV: {e}")))?;
-        let line = record.position().map(|p| p.line() as usize).unwrap_or(0);
-        if record.len() != headers.len() {
-            bail!("line {line}: {} fields, the header has {}", record.len(), headers.len());
-        }
+    for record in csv_dialect::records(&mut reader, headers.len()) {
+        let (line, record) = record?;
         let field = |k: usize| index[k].map(|i| &record[i]);
         let number = |k: usize| -> Result<Option<f64>, IoError> {
             match field(k) {

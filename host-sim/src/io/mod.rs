@@ -5,6 +5,9 @@
 //! * [`model_file`]: `model.json`, a fitted hidden robot;
 //! * [`dynamics_file`]: `dynamics.json`, its identified dynamic parameters;
 //! * [`targets_csv`]: the `x_mm,y_mm` target lists `command` reads, and the plan's lists;
+//! * [`commanded_csv`]: the commanded list (`command`'s angles.csv) an instrument's export is
+//!   joined with;
+//! * [`tracker_export`]: a laser tracker's / interferometer's point export, through a column map;
 //! * [`machine_file`]: the machine file (TOML), what `--machine` reads;
 //! * [`plot`]: the PNG plots (paths, error-vector fields);
 //! * [`csv_dialect`]: what every CSV read shares (delimiter detection, number ranges);
@@ -20,6 +23,7 @@
 //! everything; `source()` is not used, so a chain printed with `{:#}` does not repeat it).
 
 pub mod atomic;
+pub mod commanded_csv;
 pub mod csv_dialect;
 pub mod dynamics_file;
 pub mod machine_file;
@@ -27,6 +31,7 @@ pub mod measurement_csv;
 pub mod model_file;
 pub mod plot;
 pub mod targets_csv;
+pub mod tracker_export;
 pub mod verify_plot;
 
 use std::path::{Path, PathBuf};

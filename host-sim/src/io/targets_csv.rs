@@ -15,6 +15,7 @@
 //! Coordinates are written with every digit (`{}`, shortest round trip): a list read back is
 //! the list planned, bit for bit. `command` reads plan lists too (it uses `x_mm,y_mm`).
 
+use super::csv_dialect::{column_pair, direction, number, records, run_index, Quantity};
 use super::{read_text, IoError};
 use std::path::Path;
 
@@ -59,43 +60,20 @@ pub fn parse_target_list(text: &str) -> Result<Vec<ListedTarget>, IoError> {
         )));
     }
     let optional = |name: &str| headers.iter().position(|h| h == name);
-    let pair = |a: &str, b: &str| -> Result<Option<(usize, usize)>, IoError> {
-        match (optional(a), optional(b)) {
-            (Some(i), Some(j)) => Ok(Some((i, j))),
-            (None, None) => Ok(None),
-            _ => Err(parse(format!("line 1: columns '{a}' and '{b}' come together"))),
-        }
-    };
-    let (from, dir, run) = (pair("from_x_mm", "from_y_mm")?, pair("dir1", "dir2")?, optional("run"));
+    let (from, dir, run) = (column_pair(&headers, "from_x_mm", "from_y_mm")?, column_pair(&headers, "dir1", "dir2")?, optional("run"));
     let mut out = Vec::new();
-    for record in reader.records() {
-        let record = record.map_err(|e| parse(format!("malformed CSV: {e}")))?;
-        let line = record.position().map_or(0, |p| p.line() as usize);
-        if record.len() != headers.len() {
-            return Err(parse(format!("line {line}: {} fields, the header has {}", record.len(), headers.len())));
-        }
-        let num = |i: usize, name: &str| super::csv_dialect::number(&record[i], name, line, super::csv_dialect::Quantity::LengthMm);
-        let sign = |i: usize, name: &str| -> Result<i8, IoError> {
-            match &record[i] {
-                "1" | "+1" => Ok(1),
-                "-1" => Ok(-1),
-                v => Err(parse(format!("line {line}: '{name}' = '{v}' is not +1 or -1"))),
-            }
-        };
+    for record in records(&mut reader, headers.len()) {
+        let (line, record) = record?;
+        let num = |i: usize, name: &str| number(&record[i], name, line, Quantity::LengthMm);
         let from_mm = match from {
             Some((i, j)) => Some([num(i, "from_x_mm")?, num(j, "from_y_mm")?]),
             None => None,
         };
         let dir = match dir {
-            Some((i, j)) => Some([sign(i, "dir1")?, sign(j, "dir2")?]),
+            Some((i, j)) => Some([direction(&record[i], "dir1", line)?, direction(&record[j], "dir2", line)?]),
             None => None,
         };
-        let run = match run {
-            Some(i) => Some(
-                record[i].parse::<u32>().map_err(|_| parse(format!("line {line}: 'run' = '{}' is not a run index", &record[i])))?,
-            ),
-            None => None,
-        };
+        let run = run.map(|i| run_index(&record[i], line)).transpose()?;
         out.push(ListedTarget { line, target_mm: [num(ix, "x_mm")?, num(iy, "y_mm")?], from_mm, dir, run });
     }
     if out.is_empty() {
