@@ -145,6 +145,18 @@ fn grid_then_command_match_the_firmware_path() {
         assert_eq!((f[2].to_radians() as f32, f[3].to_radians() as f32), (th[0], th[1]), "{line}");
     }
 
+    // Without --model: the grid's own model, else the machine's nominal (this model.json holds
+    // the nominal): the same angles, byte for byte.
+    let no_model = d.join("a_no_model.csv");
+    let (ok, _, stderr) = run(&["command", "--grid", s(&grid), "--targets", s(&targets), "--out", s(&no_model)]);
+    assert!(ok, "{stderr}");
+    assert_eq!(std::fs::read_to_string(&no_model).unwrap(), text);
+    let (nominal, with_model) = (d.join("a_nominal.csv"), d.join("a_model.csv"));
+    assert!(run(&["command", "--targets", s(&targets), "--out", s(&nominal)]).0);
+    assert!(run(&["command", "--model", s(&model), "--targets", s(&targets), "--out", s(&with_model)]).0);
+    assert_eq!(std::fs::read_to_string(&nominal).unwrap(), std::fs::read_to_string(&with_model).unwrap());
+    assert_ne!(std::fs::read_to_string(&nominal).unwrap(), text, "the grid's correction is not in the nominal angles");
+
     // Bad input: target outside the grid, unreachable target, grid for another model, NaN.
     let outside = write(d, "o.csv", "x_mm,y_mm\n181,-12\n240,0\n");
     fails(&["command", "--model", s(&model), "--grid", s(&grid), "--targets", s(&outside), "--out", s(&d.join("o1.csv"))], "line 3: target (240, 0): ", &d.join("o1.csv"));

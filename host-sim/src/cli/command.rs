@@ -13,12 +13,14 @@ use std::path::PathBuf;
 /// Motor angles for targets, via the firmware's command path (model IK + grid, f32).
 #[derive(clap::Args, Debug)]
 pub struct Args {
-    /// The model (model.json). If it carries `backlash_urad` (diagnose --out-model, the demo),
-    /// the targets are a motion in file order and each command is corrected by its motors'
-    /// approach directions (written as dir1,dir2 columns).
+    /// The model (model.json; default: the machine file's nominal five-bar, what a first
+    /// session on an uncalibrated machine commands with). If it carries `backlash_urad`
+    /// (diagnose --out-model, the demo), the targets are a motion in file order and each command
+    /// is corrected by its motors' approach directions (written as dir1,dir2 columns).
     #[arg(long)]
-    pub model: PathBuf,
-    /// Optional correction-grid image; its embedded model must be --model's.
+    pub model: Option<PathBuf>,
+    /// Optional correction-grid image; its embedded model must be --model's (without --model,
+    /// the image's model is used).
     #[arg(long)]
     pub grid: Option<PathBuf>,
     /// Targets CSV with columns x_mm,y_mm.
@@ -38,19 +40,26 @@ pub struct Args {
 /// `host-sim command`.
 pub fn run(args: &Args) -> Result<()> {
     let spec = args.machine.spec()?;
-    let file = read_model_file(&args.model)?;
-    let model = file.model().map_err(|e| anyhow!("{}: {e}", args.model.display()))?;
-    let backlash = file.backlash().map_err(|e| anyhow!("{}: {e}", args.model.display()))?;
     let image = args.grid.as_deref().map(read_bytes).transpose()?;
     let grid = match (&image, &args.grid) {
-        (Some(bytes), Some(path)) => {
-            let g = CorrectionGrid::parse(bytes).map_err(|e| anyhow!("{}: {e}", path.display()))?;
-            check_grid_model(&g, &model)?;
-            Some(g)
-        }
+        (Some(bytes), Some(path)) => Some(CorrectionGrid::parse(bytes).map_err(|e| anyhow!("{}: {e}", path.display()))?),
         _ => None,
     };
-    let cal = Calibration { model: model.cast::<f32>(), grid };
+    // The model: --model's (the grid's embedded model must be it), else the grid's own, else
+    // the machine's nominal five-bar.
+    let (model, backlash) = match (&args.model, &grid) {
+        (Some(path), _) => {
+            let file = read_model_file(path)?;
+            let model = file.model().map_err(|e| anyhow!("{}: {e}", path.display()))?;
+            if let Some(g) = &grid {
+                check_grid_model(g, &model)?;
+            }
+            (model.cast::<f32>(), file.backlash().map_err(|e| anyhow!("{}: {e}", path.display()))?)
+        }
+        (None, Some(g)) => (*g.model(), None),
+        (None, None) => (spec.nominal.cast::<f32>(), None),
+    };
+    let cal = Calibration { model, grid };
     let targets = read_targets(&args.targets)?;
     let in_file = || format!("in {}", args.targets.display());
     // The workspace the firmware keeps to: the image's when it carries one, else the machine's.
