@@ -47,6 +47,11 @@ pub enum Smoothing {
     Fixed(f64),
     /// None: each node's own mean error (the unsmoothed grid of the paper).
     None,
+    /// This basis and this λ, nothing chosen from the data: re-applies another grid's choice
+    /// (its `NoiseReport`'s `basis` and `lambda`) to other readings. The estimate is then linear
+    /// in the readings, so applied to the nodes' noiseless errors it gives the smoothing's bias
+    /// alone, and the rest of the noisy grid's error is the noise it kept (bench `grid_noise`).
+    Exactly(Basis, f64),
 }
 
 /// The parametric part of the field.
@@ -220,8 +225,13 @@ pub fn estimate(
     smoothing: Smoothing,
 ) -> FieldEstimate {
     let y: Vec<f64> = y_um.iter().flat_map(|v| *v).collect();
+    let exactly;
     let bases: &[Basis] = match (smoothing, shapes) {
         (Smoothing::None, _) | (_, None) => &[Basis::None],
+        (Smoothing::Exactly(b, _), _) => {
+            exactly = [b];
+            &exactly
+        }
         _ => &[Basis::Model, Basis::ModelX, Basis::ModelY, Basis::ModelXy],
     };
     let mut best: Option<(Candidate, FieldEstimate)> = None;
@@ -229,7 +239,7 @@ pub fn estimate(
         let c = Candidate::new(smoother, &y, b, shapes.and_then(|s| basis_matrix(s, coords, b)));
         let lambda = match smoothing {
             Smoothing::None => 0.0,
-            Smoothing::Fixed(l) => l,
+            Smoothing::Fixed(l) | Smoothing::Exactly(_, l) => l,
             Smoothing::Gcv => smoother.minimise(|l| c.evaluate(smoother, l).gcv),
         };
         let e = c.evaluate(smoother, lambda);
@@ -295,6 +305,40 @@ mod tests {
             assert!((e.fitted_um[k][0] - fitted[2 * k]).abs() < 1e-9 && (e.fitted_um[k][1] - fitted[2 * k + 1]).abs() < 1e-9);
         }
         assert!((e.rss - (&yv - fitted).norm_squared()).abs() < 1e-9);
+    }
+
+    /// With the basis and λ given the estimate is linear in the data (what splits a grid's
+    /// error into bias and noise), and it reproduces the estimate that chose them.
+    #[test]
+    fn a_given_basis_and_lambda_make_the_estimate_linear() {
+        let (nx, ny) = (6, 5);
+        let n = nx * ny;
+        let sm = LatticeSmoother::new(nx, ny);
+        let mut s = DMatrix::zeros(2 * n, 2);
+        let coords: Vec<[f64; 2]> = (0..n).map(|k| [(k % nx) as f64 / 2.5 - 1.0, (k / nx) as f64 / 2.0 - 1.0]).collect();
+        for k in 0..n {
+            s[(2 * k, 0)] = ((k % nx) as f64).powi(3);
+            s[(2 * k + 1, 1)] = ((k / nx) as f64).exp();
+        }
+        let mut rng = ChaCha8Rng::seed_from_u64(11);
+        let noise = Normal::new(0.0, 1.0).unwrap();
+        let signal: Vec<[f64; 2]> = (0..n).map(|k| [0.3 * s[(2 * k, 0)] + (k as f64).sin(), 0.2 * s[(2 * k + 1, 1)]]).collect();
+        let noisy_part: Vec<[f64; 2]> = (0..n).map(|_| [noise.sample(&mut rng), noise.sample(&mut rng)]).collect();
+        let y: Vec<[f64; 2]> = signal.iter().zip(&noisy_part).map(|(a, b)| [a[0] + b[0], a[1] + b[1]]).collect();
+        let chosen = estimate(&sm, &y, Some(&s), &coords, Smoothing::Gcv);
+        let again = estimate(&sm, &y, Some(&s), &coords, Smoothing::Exactly(chosen.basis, chosen.lambda));
+        assert_eq!((again.basis, again.lambda), (chosen.basis, chosen.lambda));
+        let exactly = |v: &[[f64; 2]]| estimate(&sm, v, Some(&s), &coords, Smoothing::Exactly(chosen.basis, chosen.lambda)).fitted_um;
+        let (whole, a, b) = (exactly(&y), exactly(&signal), exactly(&noisy_part));
+        for k in 0..n {
+            for c in 0..2 {
+                assert!((again.fitted_um[k][c] - chosen.fitted_um[k][c]).abs() < 1e-9);
+                assert!((whole[k][c] - a[k][c] - b[k][c]).abs() < 1e-9, "node {k}: {} vs {} + {}", whole[k][c], a[k][c], b[k][c]);
+            }
+        }
+        // A basis other than the one GCV chose is taken as given.
+        let other = if chosen.basis == Basis::Model { Basis::ModelXy } else { Basis::Model };
+        assert_eq!(estimate(&sm, &y, Some(&s), &coords, Smoothing::Exactly(other, 1.0)).basis, other);
     }
 
     /// A field made of a shape (steep in one corner) plus noise: GCV takes the shape into the

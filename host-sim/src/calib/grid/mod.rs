@@ -55,7 +55,8 @@
 //! The nodes are weighted equally (their means, not their readings): exact when every node has
 //! the same number of readings (what the protocols measure), and otherwise nodes with more
 //! readings count no more than the others. [`Smoothing::None`] is the unsmoothed grid of
-//! earlier versions (each node's own mean); [`Smoothing::Fixed`] a given λ.
+//! earlier versions (each node's own mean); [`Smoothing::Fixed`] a given λ; [`Smoothing::Exactly`]
+//! another grid's basis and λ (to split its error into bias and noise).
 //!
 //! The node lattice is read from the targets: origin = smallest x and y, spacing = the given step
 //! (must match the targets' spacing); every node must be measured at least once
@@ -324,7 +325,7 @@ pub struct NoiseReport {
     /// `machine file` when the data give none, or `unknown`).
     pub noise_sigma_um: Option<f64>,
     pub noise_source: &'static str,
-    /// `gcv`, `fixed` or `none`.
+    /// `gcv`, `fixed`, `exactly` or `none`.
     pub smoothing: &'static str,
     /// The parametric part chosen (see `field.rs`) and its independent columns.
     pub basis: Basis,
@@ -454,7 +455,7 @@ pub fn build_with(model: &FiveBar<f64>, data: &[Measurement], opts: &GridOptions
             return Err(invalid!("the instrument's σ must be a non-negative number, got {s}"));
         }
     }
-    if let Smoothing::Fixed(l) = opts.smoothing {
+    if let Smoothing::Fixed(l) | Smoothing::Exactly(_, l) = opts.smoothing {
         if !(l >= 0.0 && l.is_finite()) {
             return Err(invalid!("the smoothing λ must be a non-negative number, got {l}"));
         }
@@ -504,7 +505,9 @@ pub fn build_with(model: &FiveBar<f64>, data: &[Measurement], opts: &GridOptions
         }
     };
     let applied = match (opts.smoothing, error_before, expected) {
-        (Smoothing::None, ..) => true,
+        // Another grid's choice re-applied: the estimate as it is (a decomposition, not a
+        // correction to judge).
+        (Smoothing::None | Smoothing::Exactly(..), ..) => true,
         (_, Some(before), Some(after)) => after < before,
         _ => true,
     };
@@ -529,6 +532,7 @@ pub fn build_with(model: &FiveBar<f64>, data: &[Measurement], opts: &GridOptions
         smoothing: match opts.smoothing {
             Smoothing::Gcv => "gcv",
             Smoothing::Fixed(_) => "fixed",
+            Smoothing::Exactly(..) => "exactly",
             Smoothing::None => "none",
         },
         basis: est.basis,
