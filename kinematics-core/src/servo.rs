@@ -83,6 +83,7 @@
 //! [`AcceptedSetpoint::track`] and the PID are inlined. No allocation, no panic on any input or
 //! setting (property-tested).
 
+use crate::disturbance_observer::{DisturbanceObserver, ObserverCoefficients};
 use crate::dynamics::{DynamicsError, FiveBarDynamics};
 use crate::feed_forward::{feed_forward_nm, interval_motion, predict, JointSample};
 use crate::grid::{CorrectionGrid, GridError};
@@ -127,6 +128,7 @@ impl Default for ServoConfig {
     fn default() -> Self {
         const INERTIA_KG_M2: f32 = 7.4e-3;
         const OMEGA_RAD_S: f32 = 1000.0;
+        const OBSERVER_BANDWIDTH_RAD_S: f32 = 2000.0;
         let kp = INERTIA_KG_M2 * OMEGA_RAD_S * OMEGA_RAD_S;
         let axis = AxisGains {
             kp_nm_per_rad: kp,
@@ -140,6 +142,8 @@ impl Default for ServoConfig {
             coulomb_ff_speed_rad_s: 0.01,
             torque_limit_nm: 8.0,
             integral_limit_nm: 2.0,
+            observer_bandwidth_rad_s: OBSERVER_BANDWIDTH_RAD_S,
+            observer_inertia_kg_m2: INERTIA_KG_M2,
         };
         ServoConfig {
             sample_period_s: 5.0e-4,
@@ -489,6 +493,8 @@ struct Derived {
     max_accel2: f32,
     /// `min_transmission` raised to the IK's floor.
     ik_margin: IkMargin<f32>,
+    /// Each axis' disturbance observer, `α` and `J_n/dt`.
+    observer: [ObserverCoefficients; 2],
 }
 
 impl Derived {
@@ -499,6 +505,9 @@ impl Derived {
             max_speed2: square(config.max_speed_mm_s),
             max_accel2: square(config.max_accel_mm_s2),
             ik_margin: IkMargin::new(config.min_transmission),
+            observer: config
+                .axes
+                .map(|a| ObserverCoefficients::new(a.observer_bandwidth_rad_s, a.observer_inertia_kg_m2, config.sample_period_s)),
         }
     }
 }
@@ -509,6 +518,8 @@ pub struct Servo {
     config: ServoConfig,
     derived: Derived,
     axes: [AxisController; 2],
+    /// The motion step's disturbance observers, one per axis.
+    observers: [DisturbanceObserver; 2],
     history: Option<History>,
     fault: Option<ServoFault>,
     /// The identified dynamics the motion step feeds forward.
@@ -569,6 +580,7 @@ impl Servo {
             config,
             derived: Derived::of(&config),
             axes: [AxisController::default(); 2],
+            observers: [DisturbanceObserver::default(); 2],
             history: None,
             fault: None,
             dynamics: None,
@@ -615,6 +627,7 @@ impl Servo {
         self.fault = None;
         self.ahead = None;
         self.axes = [AxisController::default(); 2];
+        self.observers = [DisturbanceObserver::default(); 2];
         if !finite2(encoder_rad) {
             return Err(EngageError::NonFiniteFeedback);
         }
@@ -646,6 +659,7 @@ impl Servo {
         for a in &mut self.axes {
             a.reset();
         }
+        self.observers = [DisturbanceObserver::default(); 2];
         fault
     }
 
@@ -878,6 +892,9 @@ impl AcceptedSetpoint<'_> {
         for k in 0..2 {
             let velocity = (reference[k] - h.reference_rad[k]) * rate;
             let moved = encoder_rad[k] - h.encoder_rad[k];
+            let velocity_error = velocity - moved * rate;
+            let gains = &cfg.axes[k];
+            let observer = &mut servo.observers[k];
             out.torque_nm[k] = match self.feedforward_nm {
                 None => {
                     let axis_ref = AxisReference {
@@ -885,9 +902,18 @@ impl AcceptedSetpoint<'_> {
                         velocity_rad_s: velocity,
                         acceleration_rad_s2: (velocity - h.reference_velocity_rad_s[k]) * rate,
                     };
-                    servo.axes[k].update(&cfg.axes[k], &axis_ref, encoder_rad[k], moved * rate, dt)
+                    let torque = servo.axes[k].update(gains, &axis_ref, encoder_rad[k], moved * rate, dt);
+                    // No model feed-forward to observe the remainder of: the observer starts
+                    // afresh when motion samples resume.
+                    observer.restart(velocity_error, 0.0);
+                    torque
                 }
-                Some(ff) => servo.axes[k].feedback(&cfg.axes[k], error[k], velocity - moved * rate, ff[k], dt),
+                Some(ff) => {
+                    let disturbance = observer.estimate_nm(&servo.derived.observer[k], velocity_error, gains.torque_limit_nm, velocity != 0.0);
+                    let torque = servo.axes[k].feedback(gains, error[k], velocity_error, ff[k] + disturbance, dt);
+                    observer.applied(torque - ff[k]);
+                    torque
+                }
             };
             reference_velocity_rad_s[k] = velocity;
         }
