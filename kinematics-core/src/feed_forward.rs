@@ -238,6 +238,8 @@ mod tests {
             coulomb_ff_speed_rad_s: 0.01,
             torque_limit_nm: 8.0,
             integral_limit_nm: 1.0,
+            observer_bandwidth_rad_s: 0.0,
+            observer_inertia_kg_m2: 0.0,
         };
         let tau = feed_forward_nm(&mean, None, &[g; 2]).unwrap();
         for (i, t) in tau.iter().enumerate() {

@@ -16,7 +16,8 @@
 //!   machine's workspace limits, the identified dynamics);
 //! * [`workspace`]: the machine's convex workspace and the check that a point lies inside it
 //!   with a margin (host tools and firmware share it);
-//! * [`pid`], [`servo`]: position control per axis and the servo step
+//! * [`pid`], [`disturbance_observer`], [`servo`]: position control per axis (with an observer of
+//!   the torque the feed-forward lacks) and the servo step
 //!   (setpoint → IK → correction → torque), with validated settings; a refused setpoint leaves
 //!   the servo engaged (the firmware brakes the machine with it), a feedback fault latches;
 //! * [`jerk_profile`], [`path`], [`trajectory`]: jerk-limited tool motions (time-optimal
@@ -38,6 +39,7 @@
 
 pub mod atan2;
 pub mod bilinear;
+pub mod disturbance_observer;
 pub mod dynamics;
 pub mod error;
 pub mod feed_forward;

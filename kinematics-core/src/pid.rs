@@ -46,6 +46,13 @@ pub struct AxisGains {
     pub torque_limit_nm: f32,
     /// Largest torque the integrator may hold (N·m).
     pub integral_limit_nm: f32,
+    /// Bandwidth of the servo's disturbance observer (rad/s; 0: off): how fast the torque the
+    /// feed-forward lacks is estimated and added (`crate::disturbance_observer`; the servo's
+    /// motion step only, [`AxisController::update`] does not use it).
+    pub observer_bandwidth_rad_s: f32,
+    /// The observer's nominal inertia of the axis (kg·m²): the diagonal of the identified
+    /// inertia matrix; stable for less than twice the axis' true inertia.
+    pub observer_inertia_kg_m2: f32,
 }
 
 /// A gain or limit [`AxisGains::validate`] refuses: the name of the field.
@@ -63,7 +70,8 @@ impl core::error::Error for InvalidGain {}
 
 impl AxisGains {
     /// Checks that a servo can run with these gains: every field finite; the feedback gains
-    /// (`kp`, `ki`, `kd`) and both limits not negative (a negative feedback gain is positive
+    /// (`kp`, `ki`, `kd`, the observer's bandwidth and nominal inertia) and both limits not
+    /// negative (a negative feedback gain is positive
     /// feedback, a negative limit no limit at all); the Coulomb turn-over speed positive (it
     /// divides). The feed-forward terms may have either sign.
     pub fn validate(&self) -> Result<(), InvalidGain> {
@@ -73,6 +81,8 @@ impl AxisGains {
             (self.kd_nm_s_per_rad, "kd_nm_s_per_rad"),
             (self.torque_limit_nm, "torque_limit_nm"),
             (self.integral_limit_nm, "integral_limit_nm"),
+            (self.observer_bandwidth_rad_s, "observer_bandwidth_rad_s"),
+            (self.observer_inertia_kg_m2, "observer_inertia_kg_m2"),
         ];
         for (v, name) in non_negative {
             if !(v.is_finite() && v >= 0.0) {
@@ -228,6 +238,8 @@ mod tests {
             coulomb_ff_speed_rad_s: 0.01,
             torque_limit_nm: 2.0,
             integral_limit_nm: 1.0,
+            observer_bandwidth_rad_s: 0.0,
+            observer_inertia_kg_m2: 0.0,
         }
     }
 
@@ -301,6 +313,8 @@ mod tests {
             coulomb_ff_speed_rad_s: 0.01,
             torque_limit_nm: 100.0,
             integral_limit_nm: 100.0,
+            observer_bandwidth_rad_s: 0.0,
+            observer_inertia_kg_m2: 0.0,
         }
     }
 

@@ -15,6 +15,8 @@
 //! speed and acceleration within the limits), the feed-forward from the identified inverse
 //! dynamics of the mean motion until the next sample ([`crate::feed_forward`];
 //! [`Servo::set_dynamics`]; without them the gains' constant feed-forward on the same motion)
+//! plus each joint's disturbance observer's estimate of what that feed-forward lacks
+//! ([`crate::disturbance_observer`]; `AxisGains::observer_bandwidth_rad_s`, 0 turns it off)
 //! and the PID on the remainder ([`AxisController::feedback`]). No finite-difference lag. The
 //! next setpoint's joint state is kept for the next sample, so each sample solves one IK.
 //!
@@ -46,9 +48,10 @@
 //! # Cost
 //! `cargo qemu-bench` (`BENCH servo_step`, `servo_step_motion`): instructions under QEMU and
 //! Cortex-M4 cycles estimated by `firmware/qemu/plugin/m4cycles.c`, per call. Through a
-//! [`ValidCalibration`] (`Servo::step_valid`, the firmware's path; issue 16): 692.5
-//! instructions, 977 cycles; through a plain [`Calibration`], whose model every IK checks
-//! (`BENCH servo_step_checking`): 711.5 / 1001. The checked-once path leaves out the IK's model
+//! [`ValidCalibration`] (`Servo::step_valid`, the firmware's path; issue 16): 699.5
+//! instructions, 991 cycles; through a plain [`Calibration`], whose model every IK checks
+//! (`BENCH servo_step_checking`): 716.5 / 1013 (692.5 / 977 and 711.5 / 1001 before the
+//! disturbance observers, which this path restarts: 7 instructions). The checked-once path leaves out the IK's model
 //! check (7 instructions), its margin floor (5; [`IkMargin`] is built once in [`Servo::new`])
 //! and its test that the target is finite (the jump check has proven it; see
 //! [`Servo::accept_valid`]). The split by part, with a per-instruction count of the same run
@@ -65,7 +68,8 @@
 //! | the call, its register saves and the results | 27 | 93 |
 //! | the benchmark loop's own work per call (input, output) | 26 | 38 |
 //!
-//! The motion step (`servo_step_motion`, 1186 / 1773 through a [`ValidCalibration`], 1198 /
+//! The motion step (`servo_step_motion`, 1258.5 / 1863 through a [`ValidCalibration`] with the
+//! two disturbance observers, 72.5 / 90 of it; 1186 / 1773 without them, 1198 /
 //! 1787 before; the parts from the build before the IK's
 //! singularity-floor checks, 1194 / 1786: the trajectory's evaluation 77 / 113 included) is the next setpoint's IK with the joint rates (359 / 562), the inverse dynamics
 //! (156 / 211), the interval's means (48 / 68), the grid (185 / 243), the finiteness of both
@@ -83,6 +87,7 @@
 //! [`AcceptedSetpoint::track`] and the PID are inlined. No allocation, no panic on any input or
 //! setting (property-tested).
 
+use crate::disturbance_observer::{DisturbanceObserver, ObserverCoefficients};
 use crate::dynamics::{DynamicsError, FiveBarDynamics};
 use crate::feed_forward::{feed_forward_nm, interval_motion, predict, JointSample};
 use crate::grid::{CorrectionGrid, GridError};
@@ -122,11 +127,16 @@ impl Default for ServoConfig {
     /// tool; nearly constant over the workspace, the coupling term within ±2.4e-3), and a
     /// position bandwidth ω = 1000 rad/s (160 Hz): kp = J·ω², kd = 2ζ·J·ω (ζ = 0.7),
     /// ki = kp·ω/4. At 2 kHz the loop goes unstable near ω = 1400 rad/s; ±20 % of inertia
-    /// moves ω within 900..1120 rad/s. The stiffness is what holds the following error at 5 g
-    /// to a few micrometres when the feed-forward's masses are 20 % off (issue 14).
+    /// moves ω within 900..1120 rad/s. The stiffness alone holds the following error at 5 g
+    /// to about 10 µm when the feed-forward's masses are 20 % off (δ·a/ω², README); the
+    /// disturbance observer ([`crate::disturbance_observer`], 2000 rad/s: `g·dt = 1`, α = 0.5,
+    /// nominal inertia the identified diagonal) takes that to 5-6.4 µm on the paper plant.
+    /// Faster observers gain little (3000 rad/s: 6.1 µm; what remains is the first samples of
+    /// each jerk ramp, which an estimate a sample late cannot see) and pass more quantisation.
     fn default() -> Self {
         const INERTIA_KG_M2: f32 = 7.4e-3;
         const OMEGA_RAD_S: f32 = 1000.0;
+        const OBSERVER_BANDWIDTH_RAD_S: f32 = 2000.0;
         let kp = INERTIA_KG_M2 * OMEGA_RAD_S * OMEGA_RAD_S;
         let axis = AxisGains {
             kp_nm_per_rad: kp,
@@ -140,6 +150,8 @@ impl Default for ServoConfig {
             coulomb_ff_speed_rad_s: 0.01,
             torque_limit_nm: 8.0,
             integral_limit_nm: 2.0,
+            observer_bandwidth_rad_s: OBSERVER_BANDWIDTH_RAD_S,
+            observer_inertia_kg_m2: INERTIA_KG_M2,
         };
         ServoConfig {
             sample_period_s: 5.0e-4,
@@ -489,6 +501,8 @@ struct Derived {
     max_accel2: f32,
     /// `min_transmission` raised to the IK's floor.
     ik_margin: IkMargin<f32>,
+    /// Each axis' disturbance observer, `α` and `J_n/dt`.
+    observer: [ObserverCoefficients; 2],
 }
 
 impl Derived {
@@ -499,6 +513,9 @@ impl Derived {
             max_speed2: square(config.max_speed_mm_s),
             max_accel2: square(config.max_accel_mm_s2),
             ik_margin: IkMargin::new(config.min_transmission),
+            observer: config
+                .axes
+                .map(|a| ObserverCoefficients::new(a.observer_bandwidth_rad_s, a.observer_inertia_kg_m2, config.sample_period_s)),
         }
     }
 }
@@ -509,6 +526,8 @@ pub struct Servo {
     config: ServoConfig,
     derived: Derived,
     axes: [AxisController; 2],
+    /// The motion step's disturbance observers, one per axis.
+    observers: [DisturbanceObserver; 2],
     history: Option<History>,
     fault: Option<ServoFault>,
     /// The identified dynamics the motion step feeds forward.
@@ -569,6 +588,7 @@ impl Servo {
             config,
             derived: Derived::of(&config),
             axes: [AxisController::default(); 2],
+            observers: [DisturbanceObserver::default(); 2],
             history: None,
             fault: None,
             dynamics: None,
@@ -615,6 +635,7 @@ impl Servo {
         self.fault = None;
         self.ahead = None;
         self.axes = [AxisController::default(); 2];
+        self.observers = [DisturbanceObserver::default(); 2];
         if !finite2(encoder_rad) {
             return Err(EngageError::NonFiniteFeedback);
         }
@@ -646,6 +667,7 @@ impl Servo {
         for a in &mut self.axes {
             a.reset();
         }
+        self.observers = [DisturbanceObserver::default(); 2];
         fault
     }
 
@@ -878,6 +900,9 @@ impl AcceptedSetpoint<'_> {
         for k in 0..2 {
             let velocity = (reference[k] - h.reference_rad[k]) * rate;
             let moved = encoder_rad[k] - h.encoder_rad[k];
+            let velocity_error = velocity - moved * rate;
+            let gains = &cfg.axes[k];
+            let observer = &mut servo.observers[k];
             out.torque_nm[k] = match self.feedforward_nm {
                 None => {
                     let axis_ref = AxisReference {
@@ -885,9 +910,18 @@ impl AcceptedSetpoint<'_> {
                         velocity_rad_s: velocity,
                         acceleration_rad_s2: (velocity - h.reference_velocity_rad_s[k]) * rate,
                     };
-                    servo.axes[k].update(&cfg.axes[k], &axis_ref, encoder_rad[k], moved * rate, dt)
+                    let torque = servo.axes[k].update(gains, &axis_ref, encoder_rad[k], moved * rate, dt);
+                    // No model feed-forward to observe the remainder of: the observer starts
+                    // afresh when motion samples resume.
+                    observer.restart(velocity_error, 0.0);
+                    torque
                 }
-                Some(ff) => servo.axes[k].feedback(&cfg.axes[k], error[k], velocity - moved * rate, ff[k], dt),
+                Some(ff) => {
+                    let disturbance = observer.estimate_nm(&servo.derived.observer[k], velocity_error, gains.torque_limit_nm, velocity != 0.0);
+                    let torque = servo.axes[k].feedback(gains, error[k], velocity_error, ff[k] + disturbance, dt);
+                    observer.applied(torque - ff[k]);
+                    torque
+                }
             };
             reference_velocity_rad_s[k] = velocity;
         }

@@ -552,11 +552,13 @@ fn servo_never_panics_nor_commands_nan() {
 // ---------------------------------------------------------------------------------------------
 // Hostile settings: they are meant to come over a link.
 
-/// The 24 numbers of a `ServoConfig`, in a fixed order (axis gains field by field, then the
+/// The 28 numbers of a `ServoConfig`, in a fixed order (axis gains field by field, then the
 /// servo's own).
-const SETTINGS_FIELDS: usize = 24;
+const SETTINGS_FIELDS: usize = 28;
+/// The numbers of one axis' `AxisGains`.
+const GAINS: usize = 11;
 
-fn gains_to_array(g: &AxisGains) -> [f32; 9] {
+fn gains_to_array(g: &AxisGains) -> [f32; GAINS] {
     [
         g.kp_nm_per_rad,
         g.ki_nm_per_rad_s,
@@ -567,6 +569,8 @@ fn gains_to_array(g: &AxisGains) -> [f32; 9] {
         g.coulomb_ff_speed_rad_s,
         g.torque_limit_nm,
         g.integral_limit_nm,
+        g.observer_bandwidth_rad_s,
+        g.observer_inertia_kg_m2,
     ]
 }
 
@@ -581,14 +585,16 @@ fn gains_from(v: &[f32]) -> AxisGains {
         coulomb_ff_speed_rad_s: v[6],
         torque_limit_nm: v[7],
         integral_limit_nm: v[8],
+        observer_bandwidth_rad_s: v[9],
+        observer_inertia_kg_m2: v[10],
     }
 }
 
 fn settings_to_array(c: &ServoConfig) -> [f32; SETTINGS_FIELDS] {
     let mut v = [0.0f32; SETTINGS_FIELDS];
-    v[..9].copy_from_slice(&gains_to_array(&c.axes[0]));
-    v[9..18].copy_from_slice(&gains_to_array(&c.axes[1]));
-    v[18..].copy_from_slice(&[
+    v[..GAINS].copy_from_slice(&gains_to_array(&c.axes[0]));
+    v[GAINS..2 * GAINS].copy_from_slice(&gains_to_array(&c.axes[1]));
+    v[2 * GAINS..].copy_from_slice(&[
         c.sample_period_s,
         c.min_transmission,
         c.max_speed_mm_s,
@@ -601,12 +607,12 @@ fn settings_to_array(c: &ServoConfig) -> [f32; SETTINGS_FIELDS] {
 
 fn settings_from(v: &[f32; SETTINGS_FIELDS]) -> ServoConfig {
     ServoConfig {
-        axes: [gains_from(&v[..9]), gains_from(&v[9..18])],
-        sample_period_s: v[18],
-        min_transmission: v[19],
-        max_speed_mm_s: v[20],
-        max_accel_mm_s2: v[21],
-        max_following_error_rad: v[22],
+        axes: [gains_from(&v[..GAINS]), gains_from(&v[GAINS..2 * GAINS])],
+        sample_period_s: v[22],
+        min_transmission: v[23],
+        max_speed_mm_s: v[24],
+        max_accel_mm_s2: v[25],
+        max_following_error_rad: v[26],
     }
 }
 
@@ -615,17 +621,17 @@ fn settings_from(v: &[f32; SETTINGS_FIELDS]) -> ServoConfig {
 fn settings_valid(v: &[f32; SETTINGS_FIELDS]) -> bool {
     let finite_non_negative = |x: f32| x.is_finite() && x >= 0.0;
     let gains_ok = |g: &[f32]| {
-        [g[0], g[1], g[2], g[7], g[8]].into_iter().all(finite_non_negative)
+        [g[0], g[1], g[2], g[7], g[8], g[9], g[10]].into_iter().all(finite_non_negative)
             && [g[3], g[4], g[5]].into_iter().all(f32::is_finite)
             && g[6].is_finite()
             && g[6] > 0.0
     };
-    gains_ok(&v[..9])
-        && gains_ok(&v[9..18])
-        && v[18].is_finite()
-        && v[18] > 0.0
-        && (0.0..1.0).contains(&v[19])
-        && v[20..23].iter().copied().all(finite_non_negative)
+    gains_ok(&v[..GAINS])
+        && gains_ok(&v[GAINS..2 * GAINS])
+        && v[22].is_finite()
+        && v[22] > 0.0
+        && (0.0..1.0).contains(&v[23])
+        && v[24..27].iter().copied().all(finite_non_negative)
 }
 
 fn hostile_f32() -> impl Strategy<Value = f32> {
@@ -657,7 +663,7 @@ fn hostile_settings() -> impl Strategy<Value = [f32; SETTINGS_FIELDS]> {
                 *x *= s;
             }
             // A margin scaled past 1 would refuse every pose: keep the scaled one sensible.
-            v[19] = v[19].min(0.3);
+            v[23] = v[23].min(0.3);
             for (k, x) in replaced {
                 v[k] = x;
             }

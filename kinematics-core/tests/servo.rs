@@ -202,6 +202,10 @@ fn servo_new_refuses_invalid_settings() {
         (axis(|a| a.torque_limit_nm = -8.0), ConfigError::Gain { axis: 1, gain: InvalidGain("torque_limit_nm") }),
         (axis(|a| a.integral_limit_nm = f32::NAN), ConfigError::Gain { axis: 1, gain: InvalidGain("integral_limit_nm") }),
         (axis(|a| a.ki_nm_per_rad_s = f32::NEG_INFINITY), ConfigError::Gain { axis: 1, gain: InvalidGain("ki_nm_per_rad_s") }),
+        (axis(|a| a.observer_bandwidth_rad_s = -1.0), ConfigError::Gain { axis: 1, gain: InvalidGain("observer_bandwidth_rad_s") }),
+        (axis(|a| a.observer_bandwidth_rad_s = f32::INFINITY), ConfigError::Gain { axis: 1, gain: InvalidGain("observer_bandwidth_rad_s") }),
+        (axis(|a| a.observer_inertia_kg_m2 = f32::NAN), ConfigError::Gain { axis: 1, gain: InvalidGain("observer_inertia_kg_m2") }),
+        (axis(|a| a.observer_inertia_kg_m2 = -7.4e-3), ConfigError::Gain { axis: 1, gain: InvalidGain("observer_inertia_kg_m2") }),
     ] {
         assert_eq!(Servo::new(config).err(), Some(want), "{config:?}");
         assert!(!want.to_string().is_empty());

@@ -67,6 +67,8 @@ fn floats(s: &mut Settings) -> Vec<&mut f32> {
             &mut axis.coulomb_ff_speed_rad_s,
             &mut axis.torque_limit_nm,
             &mut axis.integral_limit_nm,
+            &mut axis.observer_bandwidth_rad_s,
+            &mut axis.observer_inertia_kg_m2,
         ]);
     }
     for e in encoders.iter_mut() {
