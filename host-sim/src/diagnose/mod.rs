@@ -230,13 +230,15 @@ pub fn diagnose_with_history(data: &[Measurement], opts: &DiagnoseOptions) -> Re
     let overlaps = confounding::overlaps(&problem, &last, &sel.effects, &candidates, s2_final);
     let confounded = confounding::confounded(&overlaps);
     let pose_overlaps = confounding::pose_set_overlaps(&problem, &last.p, &candidates, 0.99);
-    // Named effects a library twin could replace at less cost than adding an effect needs.
+    // Named effects a library twin could replace at less cost than adding an effect needs, or
+    // that the twin predicts held-out points better than.
     let ambiguous = selection::ambiguities(&mut fitter, &candidates, &sel.effects, &last, noise_um)
         .into_iter()
         .map(|a| report::Ambiguous {
             effect: a.effect.name().to_string(),
             alternative: a.alternative.name().to_string(),
             delta_bic: a.delta_bic,
+            delta_cv_rss_um2: a.delta_cv_rss_um2,
             separate_by: confounding::separating_measurement(a.effect.name(), a.alternative.name()),
         })
         .collect();

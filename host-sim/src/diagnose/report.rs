@@ -43,8 +43,8 @@ pub struct NotDetected {
 }
 
 /// A named effect that a library alternative, put in its place, fits as well as the data can
-/// tell (BIC within the margin an effect needs to be added): the diagnosis names `effect` but
-/// declares the choice open.
+/// tell (BIC within the margin an effect needs to be added, or a better prediction of held-out
+/// points): the diagnosis names `effect` but declares the choice open.
 #[derive(Clone, Debug, Serialize)]
 pub struct Ambiguous {
     /// The effect of the final model (in `steps`).
@@ -53,6 +53,12 @@ pub struct Ambiguous {
     pub alternative: String,
     /// BIC of the model with `alternative` in place of `effect`, minus the final model's.
     pub delta_bic: f64,
+    /// Cross-validated RSS (µm²) of the model with `alternative` in place of `effect`, minus the
+    /// final model's (below the named effect's k·σ²: the alternative predicts held-out points
+    /// about as well; negative: better); absent when a
+    /// cross-validation fit failed.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub delta_cv_rss_um2: Option<f64>,
     /// What measurement would separate them.
     pub separate_by: String,
 }
@@ -170,14 +176,18 @@ pub fn table(r: &Report) -> String {
         ));
     }
     for a in &r.ambiguous {
-        s.push_str(&format!(
-            "ambiguous: {} or {} (swapping them changes the BIC by {:+.1}, less than the {} an effect needs); to separate: {}\n",
-            a.effect,
-            a.alternative,
-            a.delta_bic,
-            super::selection::AMBIGUOUS_MARGIN,
-            a.separate_by
-        ));
+        let why = if a.delta_bic < super::selection::AMBIGUOUS_MARGIN {
+            format!("swapping them changes the BIC by {:+.1}, less than the {} an effect needs", a.delta_bic, super::selection::AMBIGUOUS_MARGIN)
+        } else {
+            format!(
+                "swapping them changes the BIC by {:+.1}, but {} predicts held-out points as well: cross-validated RSS {:+.1} µm², less than {}'s parameters cost",
+                a.delta_bic,
+                a.alternative,
+                a.delta_cv_rss_um2.unwrap_or(f64::NAN),
+                a.effect
+            )
+        };
+        s.push_str(&format!("ambiguous: {} or {} ({why}); to separate: {}\n", a.effect, a.alternative, a.separate_by));
     }
     for o in r.overlaps.iter().filter(|o| !o.confounded) {
         s.push_str(&format!(
