@@ -30,10 +30,11 @@
 //! # The initial state
 //! At boot, engage and homing the direction the motors came from is unknown: `c = 0`, the
 //! mid-gap (what [`BacklashCompensator::reset`] sets and `Servo::engage` does). The cost: the
-//! first move's first β/2 of reference travel is spent crossing the half of the gap that may
-//! or may not be there, so the first target can be off by up to β/2 in the motor's direction
-//! (10 µrad on the `paper` plant, ~0.5 µm at the tool) if the link was in fact already taken up
-//! in that direction; from the first move on, it is exact to the model.
+//! first β/2 of reference travel of each joint crosses whatever part of the gap is really
+//! there, so during it the link may lead or lag the reference by up to β/2 (no more than
+//! without compensation), and a first move shorter than β/2 in a joint may end up to β/2 off
+//! in that joint (10 µrad on the `paper` plant, ~1.5 µm at the tool). A first move of β/2 or
+//! more takes the gap up whichever side it was on, so its target is already exact.
 //!
 //! # Cost and error
 //! Per axis: one subtraction, one addition, two comparisons, one addition (`BENCH
