@@ -86,21 +86,37 @@
 //! Checks: [`FiveBarDynamics::validate`] (feed-forward from a corrupt block would push the
 //! motors). Refusal: [`GridError::BadDynamics`].
 //!
-//! An image may carry neither block, either, or both, in either order. The writers here
-//! ([`append_workspace`], [`append_dynamics`], [`encode_with_dynamics`]) append a block at a
-//! given end, so a chain is built one block after the other. Compatibility: the first
+//! **`HRBL`, the backlash** (version 1, 24 bytes, [`Backlash`], issue 13): the lost motion
+//! β_j of each drive, which the servo compensates by the play operator on its joint reference
+//! ([`crate::backlash`]). It travels with the model it was identified with (`diagnose
+//! --out-model`'s `backlash_urad`).
+//!
+//! | offset (in the block) | size | field |
+//! |---:|---:|---|
+//! | 12 | 2×4 | f32 `β1, β2` (rad, the whole gap of motor 1 and 2) |
+//! | 20 | 4 | block CRC |
+//!
+//! Checks: [`Backlash::new`] (finite, `0..=`[`crate::backlash::MAX_BACKLASH_RAD`]: a corrupt
+//! gap would push the motor by it). Refusal: [`GridError::BadBacklash`]. Without the block
+//! the servo applies no compensation (as before the block existed). A parser older than the
+//! block stops its chain at the unknown magic `HRBL` and ignores it (and what follows it):
+//! such firmware runs the image uncompensated, never misreads the block; the writers
+//! therefore put the backlash block last.
+//!
+//! An image may carry any of these blocks, in any order. The writers here
+//! ([`append_workspace`], [`append_dynamics`], [`append_backlash`], [`encode_with_dynamics`])
+//! append a block at a given end, so a chain is built one block after the other. Compatibility: the first
 //! dynamics-aware parser (before the chain) read a `HRDY` block only right after the CRC and
 //! ignored everything else; images whose chain starts with `HRDY` read the same there.
 //! A version-2 header was not used for these blocks because it would have changed what a
 //! version-1 image with a tampered version field is refused as.
-//!
-//! Reserved magic: a backlash-compensation block (issue 13) is a further entry of this chain.
 //!
 //! # Outside the grid
 //! A point more than [`EDGE_TOLERANCE_CELLS`] of a cell outside the node rectangle is refused
 //! with [`GridError::OutsideGrid`]: an uncalibrated region is not silently extrapolated. Points
 //! within that tolerance (float rounding of a target on the boundary) take the edge value.
 
+use crate::backlash::Backlash;
 use crate::bilinear::bilinear;
 use crate::dynamics::{FiveBarDynamics, PARAMETERS};
 use crate::model::{Branch, FiveBar, WorkingMode};
@@ -132,6 +148,12 @@ pub const DYNAMICS_MAGIC: [u8; 4] = *b"HRDY";
 pub const DYNAMICS_VERSION: u16 = 1;
 /// Bytes of the dynamics block: the frame and the 9 parameters and the Coulomb speed (f32).
 pub const DYNAMICS_LEN: usize = BLOCK_FRAME_LEN + 4 * (PARAMETERS + 1);
+/// Magic of the backlash block.
+pub const BACKLASH_MAGIC: [u8; 4] = *b"HRBL";
+/// The backlash block's version.
+pub const BACKLASH_VERSION: u16 = 1;
+/// Bytes of the backlash block: the frame and β of both motors (f32).
+pub const BACKLASH_LEN: usize = BLOCK_FRAME_LEN + 8;
 
 const CRC32: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
 
@@ -163,6 +185,9 @@ pub enum GridError {
     /// The dynamics block after the image is corrupt, belongs to another image, repeats or
     /// holds invalid parameters.
     BadDynamics,
+    /// The backlash block after the image is corrupt, belongs to another image, repeats or
+    /// holds a lost motion that is not finite or outside `0..=0.01` rad.
+    BadBacklash,
 }
 
 impl core::fmt::Display for GridError {
@@ -179,6 +204,7 @@ impl core::fmt::Display for GridError {
             GridError::BadEncodeInput => f.write_str("grid encode: buffer or node count mismatch"),
             GridError::BadWorkspace => f.write_str("the image's workspace block is corrupt or invalid"),
             GridError::BadDynamics => f.write_str("the image's dynamics block is corrupt or invalid"),
+            GridError::BadBacklash => f.write_str("the image's backlash block is corrupt or invalid"),
         }
     }
 }
@@ -281,6 +307,8 @@ pub struct CorrectionGrid<'a> {
     workspace: Option<&'a [u8]>,
     /// The dynamics block's parameters, if the image has one.
     dynamics: Option<FiveBarDynamics<f32>>,
+    /// The backlash block's lost motion, if the image has one.
+    backlash: Option<Backlash<f32>>,
     /// Bytes of the image with its chain of blocks (where the chain ended).
     len: usize,
     /// The lookup's constants per axis (x, y), from the geometry.
@@ -405,7 +433,16 @@ impl<'a> CorrectionGrid<'a> {
             CellAxis::of(geometry.x0_mm, geometry.step_x_mm, geometry.nx),
             CellAxis::of(geometry.y0_mm, geometry.step_y_mm, geometry.ny),
         ];
-        Ok(CorrectionGrid { geometry, model, nodes, workspace: extensions.workspace, dynamics: extensions.dynamics, len, axes })
+        Ok(CorrectionGrid {
+            geometry,
+            model,
+            nodes,
+            workspace: extensions.workspace,
+            dynamics: extensions.dynamics,
+            backlash: extensions.backlash,
+            len,
+            axes,
+        })
     }
 
     /// Bytes of the image with its chain of extension blocks: what a copy of the image (an
@@ -417,6 +454,12 @@ impl<'a> CorrectionGrid<'a> {
     /// The identified dynamics, if the image carries the block (validated by [`Self::parse`]).
     pub fn dynamics(&self) -> Option<&FiveBarDynamics<f32>> {
         self.dynamics.as_ref()
+    }
+
+    /// The lost motion of the drives, if the image carries the block (validated by
+    /// [`Self::parse`]): what the servo compensates.
+    pub fn backlash(&self) -> Option<&Backlash<f32>> {
+        self.backlash.as_ref()
     }
 
     /// The workspace limits, if the image carries the block (validated by [`Self::parse`]).
@@ -557,6 +600,7 @@ pub fn encode(
 struct Extensions<'a> {
     workspace: Option<&'a [u8]>,
     dynamics: Option<FiveBarDynamics<f32>>,
+    backlash: Option<Backlash<f32>>,
     /// Bytes of the chain (0 without blocks).
     len: usize,
 }
@@ -598,6 +642,15 @@ fn parse_extensions<'a>(rest: &'a [u8], image_crc: u32, geometry: &GridGeometry)
                 }
                 found.dynamics = Some(decode_dynamics(payload)?);
                 DYNAMICS_LEN
+            }
+            m if m == BACKLASH_MAGIC => {
+                let payload = framed_payload(&rest[at..], BACKLASH_VERSION, BACKLASH_LEN, image_crc)
+                    .ok_or(GridError::BadBacklash)?;
+                if found.backlash.is_some() {
+                    return Err(GridError::BadBacklash);
+                }
+                found.backlash = Some(decode_backlash(payload)?);
+                BACKLASH_LEN
             }
             _ => break,
         };
@@ -645,6 +698,14 @@ fn decode_dynamics(payload: &[u8]) -> Result<FiveBarDynamics<f32>, GridError> {
     let d = FiveBarDynamics::from_array(p, f32_at(payload, 4 * PARAMETERS));
     d.validate().map_err(|_| GridError::BadDynamics)?;
     Ok(d)
+}
+
+/// The backlash block's payload decoded and validated.
+fn decode_backlash(payload: &[u8]) -> Result<Backlash<f32>, GridError> {
+    if payload.len() != BACKLASH_LEN - BLOCK_FRAME_LEN {
+        return Err(GridError::BadBacklash);
+    }
+    Backlash::new([f32_at(payload, 0), f32_at(payload, 4)]).map_err(|_| GridError::BadBacklash)
 }
 
 /// Writes one framed extension block into `out` (exactly `len` bytes): magic, version, length,
@@ -709,6 +770,23 @@ pub fn append_dynamics(out: &mut [u8], image_len: usize, at: usize, dynamics: &F
         }
     });
     Ok(at + DYNAMICS_LEN)
+}
+
+/// Appends the backlash block to the image in `out[..image_len]` (an image from [`encode`],
+/// possibly followed by other blocks: `at` is where this block goes; put it last, see the
+/// module doc) and returns the new end. `out` must hold `at + BACKLASH_LEN` bytes.
+pub fn append_backlash(out: &mut [u8], image_len: usize, at: usize, backlash: &Backlash<f32>) -> Result<usize, GridError> {
+    let crc = image_crc(out, image_len).ok_or(GridError::BadEncodeInput)?;
+    if at < image_len || out.len() < at + BACKLASH_LEN {
+        return Err(GridError::BadEncodeInput);
+    }
+    CorrectionGrid::parse(&out[..image_len])?;
+    let beta = backlash.beta_rad();
+    write_block(&mut out[at..at + BACKLASH_LEN], BACKLASH_MAGIC, BACKLASH_VERSION, BACKLASH_LEN, crc, |p| {
+        p[0..4].copy_from_slice(&beta[0].to_le_bytes());
+        p[4..8].copy_from_slice(&beta[1].to_le_bytes());
+    });
+    Ok(at + BACKLASH_LEN)
 }
 
 /// Writes an image followed by the dynamics block into `out` (at least

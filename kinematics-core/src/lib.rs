@@ -38,6 +38,7 @@
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 pub mod atan2;
+pub mod backlash;
 pub mod bilinear;
 pub mod disturbance_observer;
 pub mod dynamics;
@@ -63,6 +64,7 @@ pub mod valid_model;
 pub mod workspace;
 
 pub use error::{KinematicsError, Singularity};
+pub use backlash::{Backlash, BacklashCompensator, InvalidBacklash};
 pub use dynamics::{DynamicsError, FiveBarDynamics};
 pub use grid::{CorrectionGrid, GridError, GridGeometry, WorkspaceLimits};
 pub use joint_motion::JointMotion;

@@ -2,7 +2,8 @@
 //!
 //! ```text
 //! setpoint (x, y) ──► jump check ──► hidden-robot IK ──► + grid correction      [accept]
-//!      ──► encoder check ──► unwrap ──► feed-forward (finite differences)
+//!      ──► encoder check ──► unwrap ──► + backlash (play of the reference, if the image has
+//!      it) ──► feed-forward (finite differences)
 //!      ──► following-error check ──► PID per axis ──► torque commands            [track]
 //! ```
 //! The firmware calls it from its timer interrupt and `host-sim` calls the very same functions
@@ -19,6 +20,15 @@
 //! ([`crate::disturbance_observer`]; `AxisGains::observer_bandwidth_rad_s`, 0 turns it off)
 //! and the PID on the remainder ([`AxisController::feedback`]). No finite-difference lag. The
 //! next setpoint's joint state is kept for the next sample, so each sample solves one IK.
+//!
+//! # Backlash (issue 13)
+//! With a backlash block in the image ([`Calibration::backlash`]; taken at [`Servo::engage`])
+//! the reference the motors track is the link reference plus the play operator of its
+//! increments ([`crate::backlash`]): within ±β/2, continuous, 0 (mid-gap) at engage and after
+//! a fault. Both steps (plain and motion) form their reference in [`AcceptedSetpoint::track`],
+//! so both compensate. `BENCH servo_step_backlash` 724.5 instructions and
+//! `servo_step_motion_backlash` 1221.4 (20 µrad per drive), against 699.5 and 1189.4 without
+//! the block (one branch: 692.5 and 1186.4 before the compensation existed).
 //!
 //! # Two kinds of error, two phases
 //! A sample is [`Servo::accept`] then [`AcceptedSetpoint::track`] ([`Servo::step`] does both):
@@ -87,6 +97,7 @@
 //! [`AcceptedSetpoint::track`] and the PID are inlined. No allocation, no panic on any input or
 //! setting (property-tested).
 
+use crate::backlash::Backlash;
 use crate::disturbance_observer::{DisturbanceObserver, ObserverCoefficients};
 use crate::dynamics::{DynamicsError, FiveBarDynamics};
 use crate::feed_forward::{feed_forward_nm, interval_motion, predict, JointSample};
@@ -248,6 +259,13 @@ impl<'a> Calibration<'a> {
         self.corrected_rad(tool_mm, theta)
     }
 
+    /// The drives' lost motion the servo compensates: the image's backlash block, if the grid
+    /// carries one ([`CorrectionGrid::backlash`]).
+    #[inline(always)]
+    pub fn backlash(&self) -> Option<Backlash<f32>> {
+        self.grid.as_ref().and_then(|g| g.backlash().copied())
+    }
+
     /// The model's encoder angles `theta_rad` for `tool_mm` plus the grid correction there.
     pub fn corrected_rad(&self, tool_mm: [f32; 2], theta_rad: [f32; 2]) -> Result<[f32; 2], SetpointRefusal> {
         corrected_rad(self.grid.as_ref(), tool_mm, theta_rad)
@@ -296,6 +314,11 @@ impl<'a> ValidCalibration<'a> {
     /// The correction grid, if any.
     pub fn grid(&self) -> Option<&CorrectionGrid<'a>> {
         self.grid.as_ref()
+    }
+
+    /// The lost motion the servo compensates (the grid's backlash block), if any.
+    pub fn backlash(&self) -> Option<Backlash<f32>> {
+        self.grid.as_ref().and_then(|g| g.backlash().copied())
     }
 
     /// The same calibration as a plain [`Calibration`] (for [`Servo::engage`] and the
@@ -536,6 +559,16 @@ pub struct Servo {
     joint: [JointSample<f32>; 2],
     /// Which slot holds the last tracked sample's next setpoint's state.
     ahead: Option<usize>,
+    /// The lost motion the reference compensates: the backlash of the calibration the servo
+    /// was engaged with ([`Calibration::backlash`], the image's block). Taken at engage, not
+    /// per sample: a calibration is engaged before it is stepped, and the correction's state
+    /// below only means something for the gap it was built on.
+    backlash: Option<Backlash<f32>>,
+    /// The backlash correction included in the history's reference (rad, within ±β/2;
+    /// [`crate::backlash`]). Set to 0, the mid-gap, at engage and on a fault (the direction
+    /// the motors came from is unknown there); only a servo with backlash reads or writes it,
+    /// so the step without one pays one branch.
+    backlash_rad: [f32; 2],
 }
 
 /// A setpoint [`Servo::accept`] found acceptable, with what it implies; the servo stays
@@ -594,6 +627,8 @@ impl Servo {
             dynamics: None,
             joint: [JointSample::zero(); 2],
             ahead: None,
+            backlash: None,
+            backlash_rad: [0.0; 2],
         })
     }
 
@@ -634,6 +669,8 @@ impl Servo {
         self.history = None;
         self.fault = None;
         self.ahead = None;
+        self.backlash = cal.backlash();
+        self.backlash_rad = [0.0; 2];
         self.axes = [AxisController::default(); 2];
         self.observers = [DisturbanceObserver::default(); 2];
         if !finite2(encoder_rad) {
@@ -664,6 +701,7 @@ impl Servo {
         self.fault = Some(fault);
         self.history = None;
         self.ahead = None;
+        self.backlash_rad = [0.0; 2];
         for a in &mut self.axes {
             a.reset();
         }
@@ -861,7 +899,8 @@ impl AcceptedSetpoint<'_> {
         self.accel_mm_s2
     }
 
-    /// The encoder angles it commands (IK plus grid correction, before unwrapping; rad).
+    /// The encoder angles it commands (IK plus grid correction, before unwrapping and before
+    /// the backlash compensation `track` adds; rad).
     pub fn command_rad(&self) -> [f32; 2] {
         self.command_rad
     }
@@ -886,7 +925,16 @@ impl AcceptedSetpoint<'_> {
         let cfg = &servo.config;
         let dt = cfg.sample_period_s;
         let rate = servo.derived.rate_hz;
-        let reference = [unwrap_near(self.command_rad[0], h.reference_rad[0]), unwrap_near(self.command_rad[1], h.reference_rad[1])];
+        let mut reference = [unwrap_near(self.command_rad[0], h.reference_rad[0]), unwrap_near(self.command_rad[1], h.reference_rad[1])];
+        // Backlash (issue 13): the motor leads the link reference by the play operator of the
+        // link reference's increments (`crate::backlash`: continuous, never a step of the gap).
+        if let Some(b) = &servo.backlash {
+            let last = servo.backlash_rad;
+            let increment = [0, 1].map(|k| reference[k] - (h.reference_rad[k] - last[k]));
+            let c = b.next_correction_rad(last, increment);
+            servo.backlash_rad = c;
+            reference = [reference[0] + c[0], reference[1] + c[1]];
+        }
         let error = [reference[0] - encoder_rad[0], reference[1] - encoder_rad[1]];
         // A NaN or infinite reading makes its error NaN or infinite, beyond any (finite) limit:
         // one comparison per axis covers both faults, told apart on the way out.

@@ -33,6 +33,7 @@ fn every_error_type_is_an_error_with_a_distinct_message() {
         boxed(GridError::OutsideGrid),
         boxed(GridError::BadEncodeInput),
         boxed(GridError::BadDynamics),
+        boxed(GridError::BadBacklash),
         boxed(DynamicsError::NonFinite),
         boxed(DynamicsError::OutOfRange),
         boxed(ProfileError::NonFinite),

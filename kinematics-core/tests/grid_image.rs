@@ -508,3 +508,122 @@ fn append_dynamics_refuses_what_the_parser_would() {
     img[100] ^= 1;
     assert_eq!(append_dynamics(&mut img, n, n, &dynamics()), Err(GridError::BadCrc));
 }
+
+// ---------------------------------------------------------------------------------------------
+// The backlash block (grid.rs, "HRBL"; issue 13).
+
+use kinematics_core::grid::{append_backlash, BACKLASH_LEN, BACKLASH_MAGIC};
+use kinematics_core::Backlash;
+
+fn backlash() -> Backlash<f32> {
+    Backlash::new([20e-6, 35e-6]).unwrap()
+}
+
+/// The image with the workspace and dynamics blocks, then the backlash block (where the
+/// writers put it).
+fn image_with_backlash() -> Vec<u8> {
+    let mut img = image_with_chain(b"WD");
+    let (n, end) = (geometry().image_len(), img.len());
+    img.resize(end + BACKLASH_LEN, 0x55);
+    assert_eq!(append_backlash(&mut img, n, end, &backlash()), Ok(img.len()));
+    img
+}
+
+#[test]
+fn the_backlash_block_round_trips_with_the_documented_layout() {
+    let img = image_with_backlash();
+    let g = CorrectionGrid::parse(&img).unwrap();
+    assert_eq!(g.backlash(), Some(&backlash()));
+    assert_eq!(g.workspace(), Some(limits()));
+    assert_eq!(g.dynamics(), Some(&dynamics()));
+    assert_eq!(g.len_bytes(), img.len());
+    // The table in grid.rs, byte by byte.
+    let b = &img[img.len() - BACKLASH_LEN..];
+    assert_eq!(b[0..4], BACKLASH_MAGIC);
+    assert_eq!(u16::from_le_bytes([b[4], b[5]]), 1);
+    assert_eq!(u16::from_le_bytes([b[6], b[7]]) as usize, BACKLASH_LEN);
+    assert_eq!(BACKLASH_LEN, 24);
+    assert_eq!(b[8..12], img[geometry().image_len() - 4..geometry().image_len()]);
+    assert_eq!(f32::from_le_bytes([b[12], b[13], b[14], b[15]]), 20e-6);
+    assert_eq!(f32::from_le_bytes([b[16], b[17], b[18], b[19]]), 35e-6);
+    let crc = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC).checksum(&b[..20]);
+    assert_eq!(u32::from_le_bytes([b[20], b[21], b[22], b[23]]), crc);
+    // Images without the block parse as before: no backlash.
+    for order in [&b""[..], b"W", b"D", b"WD", b"DW"] {
+        assert_eq!(CorrectionGrid::parse(&image_with_chain(order)).unwrap().backlash(), None);
+    }
+}
+
+#[test]
+fn an_older_parser_reads_the_image_before_the_backlash_block_unchanged() {
+    // What an older parser reads: the chain up to the first unknown magic. The backlash block
+    // goes last, so the bytes before it are the image with its other blocks, bit for bit, and
+    // `HRBL` ends that parser's chain like erased flash does.
+    let img = image_with_backlash();
+    let before = image_with_chain(b"WD");
+    assert_eq!(&img[..before.len()], &before[..]);
+    let mut older = before.clone();
+    older.extend_from_slice(b"HRXX");
+    older.extend_from_slice(&img[before.len() + 4..]);
+    let g = CorrectionGrid::parse(&older).unwrap();
+    assert_eq!((g.backlash(), g.len_bytes()), (None, before.len()));
+    // The block may also come first in the chain: the parser reads any order.
+    let n = geometry().image_len();
+    let mut first = image();
+    first.resize(n + BACKLASH_LEN, 0);
+    append_backlash(&mut first, n, n, &backlash()).unwrap();
+    first.resize(n + BACKLASH_LEN + DYNAMICS_LEN, 0);
+    append_dynamics(&mut first, n, n + BACKLASH_LEN, &dynamics()).unwrap();
+    let g = CorrectionGrid::parse(&first).unwrap();
+    assert_eq!((g.backlash(), g.dynamics()), (Some(&backlash()), Some(&dynamics())));
+}
+
+#[test]
+fn every_bit_flip_in_the_backlash_block_refuses_the_image() {
+    let img = image_with_backlash();
+    let start = img.len() - BACKLASH_LEN;
+    for byte in start + 4..img.len() {
+        for bit in 0..8 {
+            let mut v = img.clone();
+            v[byte] ^= 1 << bit;
+            assert_eq!(CorrectionGrid::parse(&v).unwrap_err(), GridError::BadBacklash, "byte {byte} bit {bit}");
+        }
+    }
+    assert_eq!(CorrectionGrid::parse(&img[..img.len() - 1]).unwrap_err(), GridError::BadBacklash);
+    // Twice, and left behind by another image.
+    let mut twice = img.clone();
+    twice.extend_from_slice(&img[start..]);
+    assert_eq!(CorrectionGrid::parse(&twice).unwrap_err(), GridError::BadBacklash);
+    let mut other = image();
+    other[HEADER_LEN] ^= 1;
+    let n = other.len();
+    let crc = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC).checksum(&other[..n - 4]);
+    other[n - 4..].copy_from_slice(&crc.to_le_bytes());
+    other.extend_from_slice(&img[start..]);
+    assert_eq!(CorrectionGrid::parse(&other).unwrap_err(), GridError::BadBacklash);
+}
+
+#[test]
+fn a_gap_that_is_not_a_backlash_is_refused_even_with_a_valid_crc() {
+    let img = image_with_backlash();
+    let start = img.len() - BACKLASH_LEN;
+    for bad in [f32::NAN, f32::INFINITY, -1e-6, 0.0101] {
+        let mut v = img.clone();
+        v[start + 16..start + 20].copy_from_slice(&bad.to_le_bytes());
+        let crc = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC).checksum(&v[start..start + 20]);
+        v[start + 20..].copy_from_slice(&crc.to_le_bytes());
+        assert_eq!(CorrectionGrid::parse(&v).unwrap_err(), GridError::BadBacklash, "{bad}");
+    }
+    // The bounds themselves are a backlash.
+    for ok in [0.0f32, 0.01] {
+        let mut v = img.clone();
+        v[start + 16..start + 20].copy_from_slice(&ok.to_le_bytes());
+        let crc = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC).checksum(&v[start..start + 20]);
+        v[start + 20..].copy_from_slice(&crc.to_le_bytes());
+        assert_eq!(CorrectionGrid::parse(&v).unwrap().backlash().unwrap().beta_rad()[1], ok);
+    }
+    // The writer refuses what it cannot place.
+    let n = geometry().image_len();
+    let mut short = image();
+    assert_eq!(append_backlash(&mut short, n, n, &backlash()), Err(GridError::BadEncodeInput));
+}

@@ -445,3 +445,75 @@ mod motion {
         assert_eq!(servo.dynamics(), None);
     }
 }
+
+/// Issue 13: with a backlash block in the image the servo's reference leads the link command
+/// by the play operator of its increments: ±β/2 after a move in each direction (the sign of
+/// each joint's motion), 0 (mid-gap) at engage, continuous on a reversal (never a step of β),
+/// and exactly the link command without the block.
+#[test]
+fn the_reference_compensates_the_images_backlash_continuously() {
+    use kinematics_core::grid::{append_backlash, BACKLASH_LEN};
+    use kinematics_core::Backlash;
+    let g = GridGeometry { nx: 3, ny: 3, x0_mm: 160.0, y0_mm: -80.0, step_x_mm: 50.0, step_y_mm: 80.0 };
+    let n = g.image_len();
+    let mut img = vec![0u8; n + BACKLASH_LEN];
+    encode(&mut img, &g, &FiveBar::paper_nominal(), &[[0.0; 2]; 9]).unwrap();
+    let beta = [20e-6f32, 40e-6];
+    append_backlash(&mut img, n, n, &Backlash::new(beta).unwrap()).unwrap();
+    let with = Calibration::from_grid(CorrectionGrid::parse(&img).unwrap());
+    let without = Calibration::from_grid(CorrectionGrid::parse(&img[..n]).unwrap());
+    assert_eq!(with.backlash().map(|b| b.beta_rad()), Some(beta));
+    assert_eq!(without.backlash(), None);
+    // 2 mm in +x over 0.5 s from rest (smooth), then back: a reversal of both joints.
+    let path = |k: usize| {
+        let s = |u: f32| u * u * (3.0 - 2.0 * u);
+        let u = (k as f32 / 1000.0).min(2.0);
+        let x = if u <= 1.0 { 2.0 * s(u) } else { 2.0 * (1.0 - s(u - 1.0)) };
+        [200.0 + x, 10.0]
+    };
+    for (cal, has) in [(&with, true), (&without, false)] {
+        let mut servo = Servo::new(ServoConfig::default()).unwrap();
+        let mut encoder = cal.command_rad(path(0), 0.05).unwrap();
+        servo.engage(cal, encoder).unwrap();
+        let (mut last_ref, mut last_cmd) = (encoder, encoder);
+        let mut worst_ratio: f32 = 0.0;
+        for k in 0..=2100 {
+            let sp = path(k);
+            let cmd = cal.command_rad(sp, 0.05).unwrap();
+            let out = servo.step(cal, sp, encoder).unwrap();
+            let lead = [out.reference_rad[0] - cmd[0], out.reference_rad[1] - cmd[1]];
+            for j in 0..2 {
+                let half = if has { beta[j] / 2.0 } else { 0.0 };
+                assert!(lead[j].abs() <= half + 1e-6, "sample {k} joint {j}: lead {} beyond β/2", lead[j]);
+                let (dr, dc) = ((out.reference_rad[j] - last_ref[j]).abs(), (cmd[j] - last_cmd[j]).abs());
+                if dc > 1e-6 {
+                    worst_ratio = worst_ratio.max(dr / dc);
+                }
+            }
+            if k == 0 {
+                assert_eq!(lead, [0.0; 2], "mid-gap at engage");
+            }
+            // At the ends of the out and back moves: each joint's lead is ±β/2 by the sign of
+            // the joint motion that brought it there (0 without the block).
+            if has && (k == 1000 || k == 2100) {
+                let dir = |j: usize| (cmd[j] - cal.command_rad(path(if k == 1000 { 0 } else { 1000 }), 0.05).unwrap()[j]).signum();
+                for j in 0..2 {
+                    let want = dir(j) * beta[j] / 2.0;
+                    assert!((lead[j] - want).abs() < 2e-7, "sample {k} joint {j}: lead {} want {want}", lead[j]);
+                }
+            } else if !has {
+                assert!(lead[0].abs() < 1e-7 && lead[1].abs() < 1e-7);
+            }
+            (last_ref, last_cmd, encoder) = (out.reference_rad, cmd, out.reference_rad);
+        }
+        // The motor reference moves at most twice the link command's rate (crossing the gap).
+        assert!(worst_ratio <= 2.0 + 1e-2, "reference/command rate {worst_ratio}");
+        assert!(!has || worst_ratio > 1.5, "the gap is crossed at up to twice the rate: {worst_ratio}");
+        // Engage again: back to the mid-gap (the link taken where the encoder is).
+        let tool = servo.engage(cal, encoder).unwrap();
+        let out = servo.step(cal, tool, encoder).unwrap();
+        let cmd = cal.command_rad(tool, 0.05).unwrap();
+        assert!((out.reference_rad[0] - cmd[0]).abs() < 1e-6 && (out.reference_rad[1] - cmd[1]).abs() < 1e-6);
+        assert!((out.reference_rad[0] - encoder[0]).abs() < 1e-6 && (out.reference_rad[1] - encoder[1]).abs() < 1e-6);
+    }
+}

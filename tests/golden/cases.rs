@@ -6,11 +6,13 @@
 // bits, or `ERROR | code` for a refused input, so that errors must agree too. Transcendentals
 // go through `Real` explicitly: on the host, `f32::sin_cos` would be std's, not the core's.
 
-use kinematics_core::grid::{encode, CorrectionGrid, GridGeometry};
+use kinematics_core::grid::{append_backlash, encode, CorrectionGrid, GridGeometry, BACKLASH_LEN};
 use kinematics_core::path::Circle;
 use kinematics_core::trajectory::{PathMotion, TaskLimits};
 use kinematics_core::servo::{ServoOutput, StepError};
-use kinematics_core::{Calibration, FiveBar, FiveBarDynamics, IkMargin, Real, Servo, ServoConfig, ValidCalibration, WorkingMode};
+use kinematics_core::{
+    Backlash, Calibration, FiveBar, FiveBarDynamics, IkMargin, MotionSetpoint, Real, Servo, ServoConfig, ValidCalibration, WorkingMode,
+};
 
 /// Marks an emitted error code (no f32 result has these bits: a NaN payload the core never makes).
 pub const ERROR: u32 = 0x7fc0_de00;
@@ -239,6 +241,77 @@ pub fn run(emit: &mut impl FnMut(u32)) {
             Err(e) => {
                 emit(ERROR | code(e));
                 return;
+            }
+        }
+    }
+    // 5. Issue 13: the same grid with a backlash block (20 and 35 µrad), the servo (plain and
+    //    motion step) out and back along a line, so that both joints reverse: the reference
+    //    with its play-operator correction and the torques, bit for bit.
+    let mut with_backlash = [0u8; 72 + 8 * 42 + 4 + BACKLASH_LEN];
+    with_backlash[..image.len()].copy_from_slice(&image);
+    let Ok(backlash) = Backlash::new([20e-6f32, 35e-6]) else {
+        emit(ERROR | 0xf4);
+        return;
+    };
+    let Ok(end) = append_backlash(&mut with_backlash, image.len(), image.len(), &backlash) else {
+        emit(ERROR | 0xf5);
+        return;
+    };
+    let Ok(grid) = CorrectionGrid::parse(&with_backlash[..end]) else {
+        emit(ERROR | 0xf6);
+        return;
+    };
+    let (cal, valid) = (Calibration::from_grid(grid), ValidCalibration::from_grid(grid));
+    let line = |n: usize| {
+        // 3 mm out in 0.2 s and back (smoothstep), 10 samples at rest at each end.
+        let u = (n as f32 / 400.0).min(1.0);
+        let w = if n < 410 { u } else { 1.0 - ((n - 410) as f32 / 400.0).min(1.0) };
+        let x = 3.0 * w * w * (3.0 - 2.0 * w);
+        [195.0 + x, 5.0 + 0.5 * x]
+    };
+    for motion in [false, true] {
+        let Ok(mut servo) = Servo::new(ServoConfig::default()) else {
+            emit(ERROR | 0xf7);
+            return;
+        };
+        let mut servo_valid = servo.clone();
+        let Ok(mut angle) = cal.command_rad(line(0), 0.05) else {
+            emit(ERROR | 0xf8);
+            return;
+        };
+        let mut velocity = [0.0f32; 2];
+        if let Err(e) = servo.engage(&cal, angle).and(servo_valid.engage(&cal, angle)) {
+            emit(ERROR | code(e));
+            return;
+        }
+        for n in 0..820 {
+            let stepped = if motion {
+                let at = |n: usize| MotionSetpoint { position_mm: line(n), velocity_mm_s: [0.0; 2], acceleration_mm_s2: [0.0; 2], jerk_mm_s3: [0.0; 2] };
+                let (s, next) = (at(n), at(n + 1));
+                let stepped = servo.step_motion(&cal, &s, Some(&next), angle);
+                if !same_step(&stepped, &servo_valid.step_motion_valid(&valid, &s, Some(&next), angle)) {
+                    emit(VALID_PATH_DIFFERS);
+                }
+                stepped
+            } else {
+                let stepped = servo.step(&cal, line(n), angle);
+                if !same_step(&stepped, &servo_valid.step_valid(&valid, line(n), angle)) {
+                    emit(VALID_PATH_DIFFERS);
+                }
+                stepped
+            };
+            match stepped {
+                Ok(out) => {
+                    out.reference_rad.iter().chain(&out.torque_nm).for_each(|v| emit(v.to_bits()));
+                    for k in 0..2 {
+                        velocity[k] += out.torque_nm[k] / 7.4e-3 * 5e-4;
+                        angle[k] += velocity[k] * 5e-4;
+                    }
+                }
+                Err(e) => {
+                    emit(ERROR | code(e));
+                    return;
+                }
             }
         }
     }

@@ -15,10 +15,12 @@
 //!   trajectory (the 1-D profile alone, a straight move, a circle), exact derivatives included;
 //! * `inverse_motion_f32`: joint angles, velocities and accelerations for a tool motion;
 //! * `inverse_dynamics_f32`: the hidden robot's inverse dynamics from that joint motion;
+//! * `servo_step_backlash`: `servo_step` with a backlash block appended to the image (20 µrad
+//!   per drive): the reference's backlash compensation (`kinematics_core::backlash`) included;
 //! * `servo_step_motion`: one sample of 5 g moves back and forth across the workspace: the
 //!   trajectory evaluated (exact derivatives) and `Servo::step_motion` with the identified
 //!   dynamics fed forward (`Servo::step_motion_valid`; and `servo_step_motion_uncorrected`,
-//!   without grid);
+//!   without grid, and `servo_step_motion_backlash`, with the backlash block);
 //! * `sixbar_solve`: the six-bar's numerical equilibrium solve (host-sim's plant, ported to
 //!   f32 in `bench/sixbar.rs`), warm-started along the servo's 2 kHz path: what controlling
 //!   the real mechanism without the hidden robot would cost per sample (and
@@ -55,6 +57,8 @@ use kinematics_core::sin_cos::sin_cos_f32;
 use kinematics_core::path::Circle;
 use kinematics_core::servo::STANDARD_GRAVITY_MM_S2;
 use kinematics_core::servo::{ServoOutput, StepError};
+use kinematics_core::grid::{append_backlash, BACKLASH_LEN};
+use kinematics_core::Backlash;
 use kinematics_core::{
     Calibration, CorrectionGrid, FiveBar, FiveBarDynamics, IkMargin, MotionSetpoint, PathMotion, Servo, ServoConfig, TaskLimits,
     ValidCalibration, ValidFiveBar,
@@ -347,6 +351,23 @@ fn main() -> ! {
     for (name, cal) in [("servo_step", &cal), ("servo_step_uncorrected", &uncorrected)] {
         bench_step(&counter, per_count, name, &cal.calibration(), &setpoints, |s, p, e| step_once(s, cal, p, e));
     }
+    // The same step with a backlash block in the image (issue 13; 20 µrad per drive, the
+    // `paper` plant's): the servo's reference compensates it (`kinematics_core::backlash`).
+    let mut image = [0u8; 8192];
+    let (image_len, end) = (grid.geometry().image_len(), grid.len_bytes());
+    let Some(flashed) = calibration::region().get(..end) else { board::exit(false) };
+    if end + BACKLASH_LEN > image.len() {
+        board::console("FAIL the calibration image is too large to append a backlash block to");
+        board::exit(false);
+    }
+    image[..end].copy_from_slice(flashed);
+    let Ok(backlash) = Backlash::new([20e-6, 20e-6]) else { board::exit(false) };
+    let Ok(total) = append_backlash(&mut image, image_len, end, &backlash) else { board::exit(false) };
+    let Ok(backlash_grid) = CorrectionGrid::parse(&image[..total]) else { board::exit(false) };
+    let with_backlash = ValidCalibration::from_grid(backlash_grid);
+    bench_step(&counter, per_count, "servo_step_backlash", &with_backlash.calibration(), &setpoints, |s, p, e| {
+        step_once(s, &with_backlash, p, e)
+    });
     let checking = cal.calibration();
     bench_step(&counter, per_count, "servo_step_checking", &checking, &setpoints, |s, p, e| step_once_checking(s, &checking, p, e));
 
@@ -365,7 +386,9 @@ fn main() -> ! {
             back.at((n - move_samples) as f32 * 5.0e-4)
         }
     };
-    for (name, cal) in [("servo_step_motion", &cal), ("servo_step_motion_uncorrected", &uncorrected)] {
+    for (name, cal) in
+        [("servo_step_motion", &cal), ("servo_step_motion_uncorrected", &uncorrected), ("servo_step_motion_backlash", &with_backlash)]
+    {
         let Ok(mut servo) = Servo::new(ServoConfig::default()) else { board::exit(false) };
         if servo.set_dynamics(Some(dynamics)).is_err() {
             board::exit(false);

@@ -18,8 +18,9 @@
 //!   LM fit of the model's effects (the hidden robot's parameters, the six-bar's own effects
 //!   and backlash, jointly: the configuration-dependent part cannot then leak into β).
 //!
-//! Where it runs: on the host (the measurement path, `command`); the firmware's servo does not
-//! apply it yet (see DIAGNOSIS.md, "Closing the loop"). Cost: two additions per command.
+//! Where it runs: on the host (the measurement path, `command`); the firmware's servo applies
+//! the same convention from the image's backlash block (`kinematics_core::backlash`, written by
+//! `calib::image::append_backlash_block`). Cost: two additions per command.
 
 use super::{invalid, CalibError};
 use crate::diagnose::effects::{effect, idx, Problem, N_PARAMS};

@@ -2,7 +2,10 @@
 //! the machine's extension blocks (`kinematics_core::grid`, "Extension blocks"): the workspace
 //! block (`HRWS`: the workspace polygon and the stop margin the firmware's controlled stop
 //! keeps to) and, when the dynamics were identified (`host-sim simulate`/`calib::dynamics`,
-//! `dynamics.json`), the dynamics block (`HRDY`: what the servo feeds forward).
+//! `dynamics.json`), the dynamics block (`HRDY`: what the servo feeds forward) and, when the
+//! model carries a backlash (`backlash_urad`: `diagnose --out-model`, the demo's estimate),
+//! the backlash block last (`HRBL`: what the servo's reference compensates; last, so that a
+//! firmware older than the block still reads the blocks before it).
 //!
 //! Why a step of its own: the grid is built from measurements, the blocks from the machine
 //! file and the identification; `host-sim grid` and the demo's pipeline both finish an image
@@ -10,7 +13,8 @@
 
 use super::{invalid, CalibError};
 use crate::machine_spec::MachineSpec;
-use kinematics_core::grid::{append_dynamics, append_workspace, DYNAMICS_LEN, WORKSPACE_LEN};
+use super::backlash::Backlash;
+use kinematics_core::grid::{append_backlash, append_dynamics, append_workspace, BACKLASH_LEN, DYNAMICS_LEN, WORKSPACE_LEN};
 use kinematics_core::{CorrectionGrid, FiveBarDynamics};
 
 /// What [`finish_image`] appended.
@@ -64,6 +68,25 @@ pub fn append_dynamics_block(image: &[u8], dynamics: &FiveBarDynamics<f64>) -> R
     Ok(out)
 }
 
+/// `image` (a grid image, possibly with blocks already: it must parse) with the backlash
+/// block appended at the end of its chain (so after every other block). Refused: an image that
+/// already carries one, a lost motion the firmware would refuse (in f32).
+pub fn append_backlash_block(image: &[u8], backlash: &Backlash) -> Result<Vec<u8>, CalibError> {
+    let grid = CorrectionGrid::parse(image).map_err(|e| invalid!("the grid image: {e}"))?;
+    if grid.backlash().is_some() {
+        return Err(invalid!("the grid image already carries a backlash block"));
+    }
+    let beta_rad = backlash.lost_motion_urad.map(|b| (b * 1e-6) as f32);
+    let block = kinematics_core::Backlash::new(beta_rad).map_err(|e| invalid!("the backlash block: {e}"))?;
+    let n = grid.geometry().image_len();
+    let end = image.len();
+    let mut out = image.to_vec();
+    out.resize(end + BACKLASH_LEN, 0);
+    let end = append_backlash(&mut out, n, end, &block).map_err(|e| invalid!("the backlash block: {e}"))?;
+    out.truncate(end);
+    Ok(out)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -74,6 +97,19 @@ mod tests {
         let mut img = vec![0u8; g.image_len()];
         encode(&mut img, g, &FiveBar::paper_nominal(), &vec![[1e-5, 0.0]; g.len()]).unwrap();
         img
+    }
+
+    #[test]
+    fn the_backlash_block_goes_last_and_comes_once() {
+        let spec = MachineSpec::paper();
+        let (img, _) = finish_image(&image(&spec.grid.geometry()), &spec).unwrap();
+        let b = Backlash::new([20.0, 35.0]).unwrap();
+        let out = append_backlash_block(&img, &b).unwrap();
+        assert_eq!(&out[..img.len()], &img[..]);
+        let parsed = CorrectionGrid::parse(&out).unwrap();
+        assert_eq!(parsed.backlash().unwrap().beta_rad(), [20e-6f32, 35e-6]);
+        assert!(parsed.workspace().is_some());
+        assert!(append_backlash_block(&out, &b).unwrap_err().to_string().contains("already"));
     }
 
     #[test]

@@ -302,6 +302,13 @@ pub fn calibrate(machine: &mut dyn Machine, opts: &PipelineOptions, events: &mut
     step(events, format!("step 5: verifying full fit + refined grid on the same {n_verify} fresh targets"));
     let landed = measure_with(machine, &grid2_cal, backlash.as_ref(), &plan.verify, 8, "verifying full fit + refined grid")?;
     stages.push(stage("full+grid2", &format!("full fit + {} mm grid (2 rounds)", g.step_mm), "-", landed));
+    // The image to flash carries the estimated backlash (last block, as `host-sim grid` writes
+    // it from the model's `backlash_urad`): the firmware's servo compensates it. Added after
+    // the stages above, which command through the host's compensation (measure_with).
+    let mut grid2 = grid2;
+    if let Some(b) = &backlash {
+        grid2.image = super::image::append_backlash_block(&grid2.image, b)?;
+    }
     step(events, "calibration done".into());
     let goal_um = goal_um(spec);
     Ok(Calibrated { machine: description, plan, fit_data, ls_model, full, grid_data, grid, grid2_data, grid2, approach, backlash, stages, goal_um })

@@ -3,7 +3,7 @@
 
 use anyhow::{bail, Context, Result};
 use host_sim::calib::grid::{build_with, format_csv, GridOptions, NoiseReport, Smoothing};
-use host_sim::calib::image::{append_dynamics_block, finish_image, WorkspaceBlock};
+use host_sim::calib::image::{append_backlash_block, append_dynamics_block, finish_image, WorkspaceBlock};
 use host_sim::io::atomic::Outputs;
 use host_sim::io::dynamics_file::read_dynamics;
 use host_sim::io::measurement_csv::read_measurements;
@@ -17,7 +17,8 @@ use std::path::PathBuf;
 #[derive(clap::Args, Debug)]
 pub struct Args {
     /// The fitted model (model.json) the nodes were commanded with. If it carries
-    /// `backlash_urad`, the grid is built from link angles (the data need dir1,dir2).
+    /// `backlash_urad`, the grid is built from link angles (the data need dir1,dir2) and the
+    /// image carries the backlash block (the firmware's servo compensates it).
     #[arg(long)]
     pub model: PathBuf,
     /// Measurements at the nodes; x_target_mm,y_target_mm are the nodes. Several files
@@ -118,6 +119,12 @@ pub fn run(args: &Args) -> Result<()> {
     let (image, workspace_block) = finish_image(&built.image, &spec)?;
     let image = match &args.dynamics {
         Some(p) => append_dynamics_block(&image, &read_dynamics(p)?).with_context(|| format!("with {}", p.display()))?,
+        None => image,
+    };
+    // The model's backlash goes into the image too (last in its chain): the firmware's servo
+    // compensates it on its reference (kinematics-core/src/backlash.rs).
+    let image = match &backlash {
+        Some(b) => append_backlash_block(&image, b).with_context(|| format!("with the backlash of {}", args.model.display()))?,
         None => image,
     };
     if workspace_block == WorkspaceBlock::GridDoesNotCoverTheWorkspace {
