@@ -79,6 +79,9 @@ pub struct DisturbanceObserver {
     last_velocity_error_rad_s: f32,
     /// `τ_fb,(k-1)` and `τ_fb,(k-2)` (N·m).
     last_feedback_nm: [f32; 2],
+    /// The encoder reading of the sample it last ran on (rad): when the previous sample's
+    /// differs, samples without the observer came between (see [`DisturbanceObserver::is_current`]).
+    last_encoder_rad: f32,
 }
 
 impl DisturbanceObserver {
@@ -112,7 +115,29 @@ impl DisturbanceObserver {
     /// this sample's velocity error and feedback as the history.
     #[inline(always)]
     pub fn restart(&mut self, velocity_error_rad_s: f32, feedback_nm: f32) {
-        *self = DisturbanceObserver { estimate_nm: 0.0, last_velocity_error_rad_s: velocity_error_rad_s, last_feedback_nm: [feedback_nm; 2] };
+        *self = DisturbanceObserver {
+            estimate_nm: 0.0,
+            last_velocity_error_rad_s: velocity_error_rad_s,
+            last_feedback_nm: [feedback_nm; 2],
+            last_encoder_rad: self.last_encoder_rad,
+        };
+    }
+
+    /// Whether its history is the previous sample's: the encoder reading it last ran on is the
+    /// previous sample's. Otherwise samples without the observer came between (the servo's plain
+    /// step, an engage) and it must [`restart`](Self::restart). Why a reading and not a flag the
+    /// plain step clears: the plain step then pays nothing (issue 16's 700 instructions). A gap
+    /// of plain samples that leaves the reading exactly where it was is a machine at rest, where
+    /// the estimate has decayed and the history is what the observer would have seen.
+    #[inline(always)]
+    pub fn is_current(&self, previous_encoder_rad: f32) -> bool {
+        self.last_encoder_rad == previous_encoder_rad
+    }
+
+    /// Records the encoder reading of this sample (after [`DisturbanceObserver::applied`]).
+    #[inline(always)]
+    pub fn ran_at(&mut self, encoder_rad: f32) {
+        self.last_encoder_rad = encoder_rad;
     }
 
     /// The current estimate (N·m).

@@ -26,8 +26,8 @@
 //! the reference the motors track is the link reference plus the play operator of its
 //! increments ([`crate::backlash`]): within ±β/2, continuous, 0 (mid-gap) at engage and after
 //! a fault. Both steps (plain and motion) form their reference in [`AcceptedSetpoint::track`],
-//! so both compensate. `BENCH servo_step_backlash` 725.5 instructions and
-//! `servo_step_motion_backlash` 1301.4 (20 µrad per drive), against 700.5 and 1269.5 without
+//! so both compensate. `BENCH servo_step_backlash` 724.5 instructions and
+//! `servo_step_motion_backlash` 1306.4 (20 µrad per drive), against 698.5 and 1274.5 without
 //! the block (one branch: 692.5 and 1186.4 before the compensation existed).
 //!
 //! # Two kinds of error, two phases
@@ -58,10 +58,10 @@
 //! # Cost
 //! `cargo qemu-bench` (`BENCH servo_step`, `servo_step_motion`): instructions under QEMU and
 //! Cortex-M4 cycles estimated by `firmware/qemu/plugin/m4cycles.c`, per call. Through a
-//! [`ValidCalibration`] (`Servo::step_valid`, the firmware's path; issue 16): 700.5
-//! instructions, 986 cycles (goal 700: 0.5 over); through a plain [`Calibration`], whose
-//! model every IK checks (`BENCH servo_step_checking`): 711.5 / 1000 (692.5 / 977 and
-//! 711.5 / 1001 before the disturbance observers' restart flag and the backlash branch). The checked-once path leaves out the IK's model
+//! [`ValidCalibration`] (`Servo::step_valid`, the firmware's path; issue 16): 698.5
+//! instructions, 983 cycles (goal 700); through a plain [`Calibration`], whose model every
+//! IK checks (`BENCH servo_step_checking`): 710.5 / 998 (692.5 / 977 and 711.5 / 1001 before
+//! the backlash branch; the disturbance observers cost this path nothing). The checked-once path leaves out the IK's model
 //! check (7 instructions), its margin floor (5; [`IkMargin`] is built once in [`Servo::new`])
 //! and its test that the target is finite (the jump check has proven it; see
 //! [`Servo::accept_valid`]). The split by part, with a per-instruction count of the same run
@@ -78,7 +78,7 @@
 //! | the call, its register saves and the results | 27 | 93 |
 //! | the benchmark loop's own work per call (input, output) | 26 | 38 |
 //!
-//! The motion step (`servo_step_motion`, 1269.5 / 1879 through a [`ValidCalibration`] with the
+//! The motion step (`servo_step_motion`, 1274.5 / 1887 through a [`ValidCalibration`] with the
 //! two disturbance observers, 72.5 / 90 of it; 1186 / 1773 without them, 1198 /
 //! 1787 before; the parts from the build before the IK's
 //! singularity-floor checks, 1194 / 1786: the trajectory's evaluation 77 / 113 included) is the next setpoint's IK with the joint rates (359 / 562), the inverse dynamics
@@ -551,11 +551,6 @@ pub struct Servo {
     axes: [AxisController; 2],
     /// The motion step's disturbance observers, one per axis.
     observers: [DisturbanceObserver; 2],
-    /// The last sample was a motion step's: the observers' history is that sample's. Otherwise
-    /// (after engage, a fault, or a plain step) the next motion step restarts them. One flag
-    /// stored per sample instead of restarting both observers on every plain step: 5
-    /// instructions less on the plain step (issue 16's goal of 700).
-    observing: bool,
     history: Option<History>,
     fault: Option<ServoFault>,
     /// The identified dynamics the motion step feeds forward.
@@ -627,7 +622,6 @@ impl Servo {
             derived: Derived::of(&config),
             axes: [AxisController::default(); 2],
             observers: [DisturbanceObserver::default(); 2],
-            observing: false,
             history: None,
             fault: None,
             dynamics: None,
@@ -679,7 +673,6 @@ impl Servo {
         self.backlash_rad = [0.0; 2];
         self.axes = [AxisController::default(); 2];
         self.observers = [DisturbanceObserver::default(); 2];
-        self.observing = false;
         if !finite2(encoder_rad) {
             return Err(EngageError::NonFiniteFeedback);
         }
@@ -713,7 +706,6 @@ impl Servo {
             a.reset();
         }
         self.observers = [DisturbanceObserver::default(); 2];
-        self.observing = false;
         fault
     }
 
@@ -953,7 +945,6 @@ impl AcceptedSetpoint<'_> {
         }
         let mut out = ServoOutput { torque_nm: [0.0; 2], reference_rad: reference, following_error_rad: error };
         let mut reference_velocity_rad_s = [0.0; 2];
-        let restart_observers = !servo.observing;
         for k in 0..2 {
             let velocity = (reference[k] - h.reference_rad[k]) * rate;
             let moved = encoder_rad[k] - h.encoder_rad[k];
@@ -961,7 +952,7 @@ impl AcceptedSetpoint<'_> {
             out.torque_nm[k] = match self.feedforward_nm {
                 None => {
                     // No model feed-forward to observe the remainder of: the observers restart
-                    // when motion samples resume (`observing`).
+                    // when motion samples resume (`DisturbanceObserver::is_current`).
                     let axis_ref = AxisReference {
                         angle_rad: reference[k],
                         velocity_rad_s: velocity,
@@ -972,18 +963,18 @@ impl AcceptedSetpoint<'_> {
                 Some(ff) => {
                     let velocity_error = velocity - moved * rate;
                     let observer = &mut servo.observers[k];
-                    if restart_observers {
+                    if !observer.is_current(h.encoder_rad[k]) {
                         observer.restart(velocity_error, 0.0);
                     }
                     let disturbance = observer.estimate_nm(&servo.derived.observer[k], velocity_error, gains.torque_limit_nm, velocity != 0.0);
                     let torque = servo.axes[k].feedback(gains, error[k], velocity_error, ff[k] + disturbance, dt);
                     observer.applied(torque - ff[k]);
+                    observer.ran_at(encoder_rad[k]);
                     torque
                 }
             };
             reference_velocity_rad_s[k] = velocity;
         }
-        servo.observing = self.feedforward_nm.is_some();
         servo.history = Some(History {
             setpoint_mm: self.setpoint_mm,
             velocity_mm_s: self.velocity_mm_s,
