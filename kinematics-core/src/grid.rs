@@ -727,16 +727,23 @@ pub fn image_crc(image: &[u8], image_len: usize) -> Option<u32> {
     (image_len >= 4 && image.len() >= image_len).then(|| u32_at(image, image_len - 4))
 }
 
+/// What every block writer checks before it writes: the image's CRC (the block carries it),
+/// room for a block of `block_len` bytes at `at` (not inside the image), and an image that
+/// parses. Returns the CRC and the image's geometry.
+fn block_slot(out: &[u8], image_len: usize, at: usize, block_len: usize) -> Result<(u32, GridGeometry), GridError> {
+    let crc = image_crc(out, image_len).ok_or(GridError::BadEncodeInput)?;
+    if at < image_len || out.len() < at + block_len {
+        return Err(GridError::BadEncodeInput);
+    }
+    Ok((crc, CorrectionGrid::parse(&out[..image_len])?.geometry))
+}
+
 /// Appends the workspace block to the image in `out[..image_len]` (an image from [`encode`],
 /// possibly followed by other blocks: `at` is where this block goes) and returns the new end.
 /// `out` must hold `at + WORKSPACE_LEN` bytes. The block is checked as the parser checks it,
 /// the polygon against the image's grid included.
 pub fn append_workspace(out: &mut [u8], image_len: usize, at: usize, limits: &WorkspaceLimits) -> Result<usize, GridError> {
-    let crc = image_crc(out, image_len).ok_or(GridError::BadEncodeInput)?;
-    if at < image_len || out.len() < at + WORKSPACE_LEN {
-        return Err(GridError::BadEncodeInput);
-    }
-    let geometry = CorrectionGrid::parse(&out[..image_len])?.geometry;
+    let (crc, geometry) = block_slot(out, image_len, at, WORKSPACE_LEN)?;
     let margin_ok = limits.stop_margin_mm.is_finite() && limits.stop_margin_mm >= 0.0;
     if !margin_ok || !geometry.covers(&limits.region) {
         return Err(GridError::BadWorkspace);
@@ -758,11 +765,7 @@ pub fn append_workspace(out: &mut [u8], image_len: usize, at: usize, limits: &Wo
 /// `out` must hold `at + DYNAMICS_LEN` bytes; the parameters are validated as the parser does.
 pub fn append_dynamics(out: &mut [u8], image_len: usize, at: usize, dynamics: &FiveBarDynamics<f32>) -> Result<usize, GridError> {
     dynamics.validate().map_err(|_| GridError::BadDynamics)?;
-    let crc = image_crc(out, image_len).ok_or(GridError::BadEncodeInput)?;
-    if at < image_len || out.len() < at + DYNAMICS_LEN {
-        return Err(GridError::BadEncodeInput);
-    }
-    CorrectionGrid::parse(&out[..image_len])?;
+    let (crc, _) = block_slot(out, image_len, at, DYNAMICS_LEN)?;
     let values = dynamics.to_array();
     write_block(&mut out[at..at + DYNAMICS_LEN], DYNAMICS_MAGIC, DYNAMICS_VERSION, DYNAMICS_LEN, crc, |p| {
         for (k, v) in values.iter().chain(core::iter::once(&dynamics.coulomb_speed_rad_s)).enumerate() {
@@ -776,11 +779,7 @@ pub fn append_dynamics(out: &mut [u8], image_len: usize, at: usize, dynamics: &F
 /// possibly followed by other blocks: `at` is where this block goes; put it last, see the
 /// module doc) and returns the new end. `out` must hold `at + BACKLASH_LEN` bytes.
 pub fn append_backlash(out: &mut [u8], image_len: usize, at: usize, backlash: &Backlash<f32>) -> Result<usize, GridError> {
-    let crc = image_crc(out, image_len).ok_or(GridError::BadEncodeInput)?;
-    if at < image_len || out.len() < at + BACKLASH_LEN {
-        return Err(GridError::BadEncodeInput);
-    }
-    CorrectionGrid::parse(&out[..image_len])?;
+    let (crc, _) = block_slot(out, image_len, at, BACKLASH_LEN)?;
     let beta = backlash.beta_rad();
     write_block(&mut out[at..at + BACKLASH_LEN], BACKLASH_MAGIC, BACKLASH_VERSION, BACKLASH_LEN, crc, |p| {
         p[0..4].copy_from_slice(&beta[0].to_le_bytes());
