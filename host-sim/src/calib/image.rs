@@ -55,34 +55,41 @@ pub fn finish_image(image: &[u8], spec: &MachineSpec) -> Result<(Vec<u8>, Worksp
 /// appended at the end of its chain. Refused: an image that already carries one, parameters
 /// that do not validate in f32 (what the firmware reads).
 pub fn append_dynamics_block(image: &[u8], dynamics: &FiveBarDynamics<f64>) -> Result<Vec<u8>, CalibError> {
-    let grid = CorrectionGrid::parse(image).map_err(|e| invalid!("the grid image: {e}"))?;
-    if grid.dynamics().is_some() {
-        return Err(invalid!("the grid image already carries a dynamics block"));
-    }
-    let n = grid.geometry().image_len();
-    let end = image.len();
-    let mut out = image.to_vec();
-    out.resize(end + DYNAMICS_LEN, 0);
-    let end = append_dynamics(&mut out, n, end, &dynamics.cast::<f32>()).map_err(|e| invalid!("the dynamics block: {e}"))?;
-    out.truncate(end);
-    Ok(out)
+    append_block(image, "dynamics", DYNAMICS_LEN, |g| g.dynamics().is_some(), |out, n, end| {
+        append_dynamics(out, n, end, &dynamics.cast::<f32>()).map_err(|e| invalid!("the dynamics block: {e}"))
+    })
 }
 
 /// `image` (a grid image, possibly with blocks already: it must parse) with the backlash
 /// block appended at the end of its chain (so after every other block). Refused: an image that
 /// already carries one, a lost motion the firmware would refuse (in f32).
 pub fn append_backlash_block(image: &[u8], backlash: &Backlash) -> Result<Vec<u8>, CalibError> {
+    append_block(image, "backlash", BACKLASH_LEN, |g| g.backlash().is_some(), |out, n, end| {
+        let beta_rad = backlash.lost_motion_urad.map(|b| (b * 1e-6) as f32);
+        let block = kinematics_core::Backlash::new(beta_rad).map_err(|e| invalid!("the backlash block: {e}"))?;
+        append_backlash(out, n, end, &block).map_err(|e| invalid!("the backlash block: {e}"))
+    })
+}
+
+/// What both block appenders share: `image` must parse and not carry the block yet
+/// (`carries`); `write` gets a copy with `block_len` bytes of room after the image's end, the
+/// image's own length and that end, and returns the new end.
+fn append_block(
+    image: &[u8],
+    name: &str,
+    block_len: usize,
+    carries: impl FnOnce(&CorrectionGrid<'_>) -> bool,
+    write: impl FnOnce(&mut [u8], usize, usize) -> Result<usize, CalibError>,
+) -> Result<Vec<u8>, CalibError> {
     let grid = CorrectionGrid::parse(image).map_err(|e| invalid!("the grid image: {e}"))?;
-    if grid.backlash().is_some() {
-        return Err(invalid!("the grid image already carries a backlash block"));
+    if carries(&grid) {
+        return Err(invalid!("the grid image already carries a {name} block"));
     }
-    let beta_rad = backlash.lost_motion_urad.map(|b| (b * 1e-6) as f32);
-    let block = kinematics_core::Backlash::new(beta_rad).map_err(|e| invalid!("the backlash block: {e}"))?;
     let n = grid.geometry().image_len();
     let end = image.len();
     let mut out = image.to_vec();
-    out.resize(end + BACKLASH_LEN, 0);
-    let end = append_backlash(&mut out, n, end, &block).map_err(|e| invalid!("the backlash block: {e}"))?;
+    out.resize(end + block_len, 0);
+    let end = write(&mut out, n, end)?;
     out.truncate(end);
     Ok(out)
 }
