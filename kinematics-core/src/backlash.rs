@@ -29,7 +29,7 @@
 //!
 //! # The initial state
 //! At boot, engage and homing the direction the motors came from is unknown: `c = 0`, the
-//! mid-gap (what [`BacklashCompensator::reset`] sets and `Servo::engage` does). The cost: the
+//! mid-gap (what `Servo::engage` sets). The cost: the
 //! first β/2 of reference travel of each joint crosses whatever part of the gap is really
 //! there, so during it the link may lead or lag the reference by up to β/2 (no more than
 //! without compensation), and a first move shorter than β/2 in a joint may end up to β/2 off
@@ -114,47 +114,47 @@ impl<T: Real> Backlash<T> {
     }
 }
 
-/// The compensation as a stand-alone filter (host tools, tests): the reference in, the motor
-/// reference out, the last reference and the correction kept. The servo keeps the same two
-/// numbers in its history and calls [`Backlash::next_correction_rad`] itself.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct BacklashCompensator<T> {
-    backlash: Backlash<T>,
-    /// The last reference, `None` before the first (or after [`Self::reset`]).
-    last_reference_rad: Option<[T; 2]>,
-    correction_rad: [T; 2],
-}
-
-impl<T: Real> BacklashCompensator<T> {
-    /// A compensator at the mid-gap (direction unknown).
-    pub fn new(backlash: Backlash<T>) -> Self {
-        BacklashCompensator { backlash, last_reference_rad: None, correction_rad: [T::ZERO; 2] }
-    }
-
-    /// Back to the mid-gap, the next reference taken as the start (boot, engage, homing).
-    pub fn reset(&mut self) {
-        self.last_reference_rad = None;
-        self.correction_rad = [T::ZERO; 2];
-    }
-
-    /// The current correction (rad, within ±β/2).
-    pub fn correction_rad(&self) -> [T; 2] {
-        self.correction_rad
-    }
-
-    /// The motor reference for the link reference `reference_rad`.
-    pub fn motor_reference_rad(&mut self, reference_rad: [T; 2]) -> [T; 2] {
-        let last = self.last_reference_rad.unwrap_or(reference_rad);
-        let increment = [reference_rad[0] - last[0], reference_rad[1] - last[1]];
-        self.correction_rad = self.backlash.next_correction_rad(self.correction_rad, increment);
-        self.last_reference_rad = Some(reference_rad);
-        [reference_rad[0] + self.correction_rad[0], reference_rad[1] + self.correction_rad[1]]
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The compensation as a stand-alone filter for these tests: the reference in, the motor
+    /// reference out, the last reference and the correction kept, as the servo keeps them in
+    /// its history around [`Backlash::next_correction_rad`].
+    #[derive(Clone, Copy, Debug, PartialEq)]
+    struct BacklashCompensator<T> {
+        backlash: Backlash<T>,
+        /// The last reference, `None` before the first (or after [`Self::reset`]).
+        last_reference_rad: Option<[T; 2]>,
+        correction_rad: [T; 2],
+    }
+
+    impl<T: Real> BacklashCompensator<T> {
+        /// A compensator at the mid-gap (direction unknown).
+        fn new(backlash: Backlash<T>) -> Self {
+            BacklashCompensator { backlash, last_reference_rad: None, correction_rad: [T::ZERO; 2] }
+        }
+
+        /// Back to the mid-gap, the next reference taken as the start (boot, engage, homing).
+        fn reset(&mut self) {
+            self.last_reference_rad = None;
+            self.correction_rad = [T::ZERO; 2];
+        }
+
+        /// The current correction (rad, within ±β/2).
+        fn correction_rad(&self) -> [T; 2] {
+            self.correction_rad
+        }
+
+        /// The motor reference for the link reference `reference_rad`.
+        fn motor_reference_rad(&mut self, reference_rad: [T; 2]) -> [T; 2] {
+            let last = self.last_reference_rad.unwrap_or(reference_rad);
+            let increment = [reference_rad[0] - last[0], reference_rad[1] - last[1]];
+            self.correction_rad = self.backlash.next_correction_rad(self.correction_rad, increment);
+            self.last_reference_rad = Some(reference_rad);
+            [reference_rad[0] + self.correction_rad[0], reference_rad[1] + self.correction_rad[1]]
+        }
+    }
 
     /// The plant's play operator (`host-sim` `drive.rs`): the link follows the motor once the
     /// gap is taken up.

@@ -64,7 +64,7 @@ pub mod valid_model;
 pub mod workspace;
 
 pub use error::{KinematicsError, Singularity};
-pub use backlash::{Backlash, BacklashCompensator, InvalidBacklash};
+pub use backlash::{Backlash, InvalidBacklash};
 pub use dynamics::{DynamicsError, FiveBarDynamics};
 pub use grid::{CorrectionGrid, GridError, GridGeometry, WorkspaceLimits};
 pub use joint_motion::JointMotion;
