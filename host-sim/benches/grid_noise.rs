@@ -1,12 +1,17 @@
 //! The noise-aware grid on many simulated machines (figures, not a timed test):
-//! `cargo bench -p host-sim --bench grid_noise [-- NOISE_UM [MACHINES]]` (defaults 10 µm, 24).
+//! `cargo bench -p host-sim --bench grid_noise [-- NOISE_UM [MACHINES [second]]]` (defaults
+//! 10 µm, 24).
 //!
 //! Machine 1 is the `paper` plant, machines 2.. are six-bar plants with random errors (every
 //! bar, pin and pivot N(0, 0.1 mm²), encoder offsets N(0, 0.1°²)), each calibrated by the demo's
 //! pipeline (40 fit poses, two rounds over the 651 grid nodes, one reading per node per round)
 //! with unidirectional approach; accuracy at 400 fresh targets (where the tool really lands).
 //! Prints, per machine, the fit alone, fit + grid after one round and after two, then the mean
-//! and the worst of each column.
+//! and the worst of each column. With `second`: the second machine (`machines/second.toml`, its
+//! plant `plants/second.toml`; one machine, its own errors).
+//!
+//! The column "(1) generic" is round 1's grid from the same readings without the six-bar prior
+//! (`GridOptions::six_bar_prior` off: the generic bases by GCV, the grid before the prior).
 //!
 //! Where the one-round error comes from: the last column is the round-1 grid's estimate (its
 //! basis and λ, `Smoothing::Exactly`) applied to the nodes' noiseless errors (where the tool
@@ -28,8 +33,20 @@ use kinematics_core::{Calibration, CorrectionGrid};
 fn bias_only(machine: &mut PlantMachine, cal: &Calibrated, spec: &MachineSpec) -> Result<(f64, f64), String> {
     let truth: Vec<Measurement> = cal.grid_data.iter().map(|l| Measurement { measured_mm: l.true_mm, ..l.row.clone() }).collect();
     let n = &cal.grid.noise;
-    let opts = GridOptions { step_mm: spec.grid.step_mm, smoothing: Smoothing::Exactly(n.basis, n.lambda), instrument_sigma_um: None };
+    let opts = GridOptions { smoothing: Smoothing::Exactly(n.basis, n.lambda, n.six_bar_lambda), instrument_sigma_um: None, ..GridOptions::for_machine(spec) };
     let g = build_with(&cal.full.model, &truth, &opts).map_err(|e| e.to_string())?;
+    let grid = CorrectionGrid::parse(&g.image).map_err(|e| e.to_string())?;
+    let landed: Vec<Landed> = measure_visits(machine, &Calibration::from_grid(grid), &cal.plan.verify, Approach::Positive, spec, &mut 0).map_err(|e| e.to_string())?;
+    let a = accuracy(&landed);
+    Ok((a.max_um, a.rms_um))
+}
+
+/// max/RMS (µm) at the verification targets of round 1's grid built from the same readings
+/// with the generic bases only.
+fn generic(machine: &mut PlantMachine, cal: &Calibrated, spec: &MachineSpec) -> Result<(f64, f64), String> {
+    let rows: Vec<Measurement> = cal.grid_data.iter().map(|l| l.row.clone()).collect();
+    let opts = GridOptions { six_bar_prior: false, ..GridOptions::for_machine(spec) };
+    let g = build_with(&cal.full.model, &rows, &opts).map_err(|e| e.to_string())?;
     let grid = CorrectionGrid::parse(&g.image).map_err(|e| e.to_string())?;
     let landed: Vec<Landed> = measure_visits(machine, &Calibration::from_grid(grid), &cal.plan.verify, Approach::Positive, spec, &mut 0).map_err(|e| e.to_string())?;
     let a = accuracy(&landed);
@@ -39,17 +56,24 @@ fn bias_only(machine: &mut PlantMachine, cal: &Calibrated, spec: &MachineSpec) -
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).filter(|a| !a.starts_with("--")).collect();
     let noise_um: f64 = args.first().and_then(|s| s.parse().ok()).unwrap_or(10.0);
-    let count: u64 = args.get(1).and_then(|s| s.parse().ok()).unwrap_or(24);
-    let paper = PlantConfig::by_name("paper").expect("built in");
-    let mut columns: [Vec<(f64, f64)>; 4] = Default::default();
+    let second = args.get(2).map(String::as_str) == Some("second");
+    let count: u64 = if second { 1 } else { args.get(1).and_then(|s| s.parse().ok()).unwrap_or(24) };
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let (plant, machine_spec) = if second {
+        let plant = PlantConfig::by_name(&root.join("plants/second.toml").display().to_string()).expect("shipped plant");
+        (plant, host_sim::io::machine_file::read_machine(&root.join("machines/second.toml")).expect("shipped machine file"))
+    } else {
+        (PlantConfig::by_name("paper").expect("built in"), MachineSpec::paper())
+    };
+    let mut columns: [Vec<(f64, f64)>; 5] = Default::default();
     println!("noise-aware grid, instrument σ = {noise_um} µm, {count} machines; max/RMS µm at 400 fresh targets");
-    println!("{:>8} {:>14} {:>16} {:>16} {:>16}", "machine", "fit", "fit + grid (1)", "fit + grid (2)", "(1) bias only");
+    println!("{:>8} {:>14} {:>16} {:>16} {:>16} {:>16}  round 1's basis, effective nodes", "machine", "fit", "fit + grid (1)", "fit + grid (2)", "(1) bias only", "(1) generic");
     for seed in 1..=count {
-        let config = if seed == 1 { paper.clone() } else { paper.with_random_errors(seed, 0.1, 0.1) };
+        let config = if seed == 1 { plant.clone() } else { plant.with_random_errors(seed, 0.1, 0.1) };
         let mut m = PlantMachine::from_config(config, "bench", Some(noise_um), seed).expect("valid plant");
         // The machine file states the instrument the plant has (the fit's plausibility and the
         // grid's noise report compare against it).
-        let spec = MachineSpec { instrument_sigma_um: noise_um, ..MachineSpec::paper() };
+        let spec = MachineSpec { instrument_sigma_um: noise_um, ..machine_spec.clone() };
         let opts = PipelineOptions { seed, approach: Approach::Positive, spec: spec.clone() };
         let cal = match calibrate(&mut m, &opts, &mut |_| {}) {
             Ok(c) => c,
@@ -65,12 +89,20 @@ fn main() {
                 continue;
             }
         };
-        let figures = cal.stages.iter().skip(2).map(|s| (s.accuracy.max_um, s.accuracy.rms_um)).chain([bias]);
+        let generic = match generic(&mut m, &cal, &spec) {
+            Ok(g) => g,
+            Err(e) => {
+                println!("{seed:>8} generic column failed: {e}");
+                continue;
+            }
+        };
+        let figures = cal.stages.iter().skip(2).map(|s| (s.accuracy.max_um, s.accuracy.rms_um)).chain([bias, generic]);
         let cells: Vec<String> = figures.enumerate().map(|(k, (max, rms))| {
             columns[k].push((max, rms));
             format!("{max:.1}/{rms:.2}")
         }).collect();
-        println!("{seed:>8} {:>14} {:>16} {:>16} {:>16}", cells[0], cells[1], cells[2], cells[3]);
+        let n = &cal.grid.noise;
+        println!("{seed:>8} {:>14} {:>16} {:>16} {:>16} {:>16}  {:?}, {:.1}", cells[0], cells[1], cells[2], cells[3], cells[4], n.basis, n.effective_nodes);
     }
     let stat = |v: &[(f64, f64)], f: fn(&(f64, f64)) -> f64| {
         let mean = v.iter().map(f).sum::<f64>() / v.len().max(1) as f64;
@@ -81,6 +113,6 @@ fn main() {
             let (m, r) = (stat(c, |x| x.0), stat(c, |x| x.1));
             if pick == 0 { format!("{:.1}/{:.2}", m.0, r.0) } else { format!("{:.1}/{:.2}", m.1, r.1) }
         }).collect();
-        println!("{label:>8} {:>14} {:>16} {:>16} {:>16}", cells[0], cells[1], cells[2], cells[3]);
+        println!("{label:>8} {:>14} {:>16} {:>16} {:>16} {:>16}", cells[0], cells[1], cells[2], cells[3], cells[4]);
     }
 }

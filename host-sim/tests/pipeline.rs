@@ -72,7 +72,7 @@ fn paper_plant_reaches_the_noise_floor_with_unidirectional_approach() {
     assert!(g2.max_um <= TARGET_MAX_UM && g2.rms_um <= TARGET_RMS_UM, "{g2:?}");
 
     // Random approach directions (issue 13): the backlash is measured on the grid data and
-    // corrected by direction; uncorrected it left 5.19 µm max / 2.84 µm RMS here.
+    // corrected by direction; uncorrected it left 5.13 µm max / 2.81 µm RMS here.
     let mut machine = PlantMachine::by_name("paper", Some(1.0), 1).unwrap();
     let random = run(&mut machine, 1, Approach::FromVisit).unwrap();
     let r2 = random.stages.last().unwrap().accuracy;

@@ -39,7 +39,7 @@
 //! measurement, the backlash is measured on [`BACKLASH_POSES`] random poses of its own (noise
 //! seed 10·S + 9; [`super::backlash::estimate`]; kept where > 3σ) and corrected from there on
 //! by direction (each motor's command moved by dir·β/2, [`measure_list_compensated`]; the grids
-//! built from link angles): on the paper plant its 20 µrad, which left 5.19 µm max / 2.84 µm RMS
+//! built from link angles): on the paper plant its 20 µrad, which left 5.13 µm max / 2.81 µm RMS
 //! uncorrected, are taken out (figures in the README). The separate commands do this step with
 //! `diagnose --out-model` (DIAGNOSIS.md, "Closing the loop").
 //!

@@ -45,12 +45,17 @@ pub struct Args {
     pub dynamics: Option<PathBuf>,
     #[command(flatten)]
     pub machine: super::MachineArg,
-    /// How the nodes' errors are smoothed before they become corrections: `gcv` (the basis and
-    /// the smoothing chosen from the data by generalised cross-validation; repeated readings of
-    /// a node are averaged), `none` (each node's own error, the paper's grid), or a number
-    /// (a fixed smoothing λ in lattice-step units).
+    /// How the nodes' errors are smoothed before they become corrections: `gcv` (the default:
+    /// the smoothing chosen from the data, with the six-bar's loop closure as a prior by
+    /// restricted maximum likelihood, with the generic bases by generalised cross-validation;
+    /// repeated readings of a node are averaged), `none` (each node's own error, the paper's
+    /// grid), or a number (a fixed smoothing λ in lattice-step units, generic bases).
     #[arg(long, default_value = "gcv")]
     pub smoothing: String,
+    /// Smooth with the generic bases only, without the six-bar's loop-closure responses (for a
+    /// machine that is not an overconstrained six-bar of the paper's kind, or to compare).
+    #[arg(long)]
+    pub no_six_bar_prior: bool,
 }
 
 /// `--smoothing` as the library's option.
@@ -113,7 +118,12 @@ pub fn run(args: &Args) -> Result<()> {
         });
     }
     let sources = args.data.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(" + ");
-    let built = build_with(&model, &data, &GridOptions { step_mm, smoothing, instrument_sigma_um: Some(spec.instrument_sigma_um) })
+    let built = build_with(&model, &data, &GridOptions {
+        step_mm,
+        smoothing,
+        instrument_sigma_um: Some(spec.instrument_sigma_um),
+        six_bar_prior: !args.no_six_bar_prior,
+    })
         .with_context(|| format!("in {sources}"))?;
     eprintln!("grid: {}", built.noise.describe());
     let (image, workspace_block) = finish_image(&built.image, &spec)?;

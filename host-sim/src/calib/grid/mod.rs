@@ -37,13 +37,19 @@
 //! 1. averages the readings of each node (a node may be measured any number of times; every
 //!    reading is first referred to the node's own command, so readings taken through different
 //!    grids average correctly), and pools their scatter into the instrument's σ (`repeats`);
-//! 2. smooths the nodes' mean errors (x and y, one smoothing) with the 2-D Whittaker smoother
-//!    of [`crate::numeric::lattice_smoother`], its λ chosen by **generalised
-//!    cross-validation**. Why GCV and not the σ of the repeats: GCV needs no σ, so it works with
-//!    one reading per node (the normal session); a σ from repeats is only as good as the repeats
+//! 2. estimates the error field from the nodes' mean errors (x and y, one smoothing): the
+//!    model's parameter shapes, the six-bar's part-error responses from its linearised loop
+//!    closure under a prior, and the 2-D Whittaker smoother of
+//!    [`crate::numeric::lattice_smoother`] on the rest, both λs by restricted maximum
+//!    likelihood ([`field`], "The six-bar prior": on simulated six-bar machines with a 10 µm
+//!    instrument it leaves a quarter less than the generic bases); without the prior
+//!    ([`GridOptions::six_bar_prior`] off, or when the loop closure has no response at a node)
+//!    the generic bases and the smoother, λ chosen by **generalised cross-validation**. Why
+//!    a criterion from the data (REML, GCV) and not the σ of the repeats: it needs no σ, so it
+//!    works with one reading per node (the normal session); a σ from repeats is only as good as the repeats
 //!    are independent (readings taken back to back share drift and the same approach, so their
-//!    scatter underestimates the noise), while GCV measures the noise as it shows across the
-//!    lattice. The repeats' σ is reported next to the one GCV implies, and is what the expected
+//!    scatter underestimates the noise), while the criterion sees the noise as it shows across the
+//!    lattice. The repeats' σ is reported next to the one the estimate implies, and is what the expected
 //!    residual uses when there are enough repeats (≥ [`MIN_REPEAT_DOF`] degrees of freedom);
 //! 3. estimates what the correction leaves at the nodes (Stein's unbiased risk with that σ:
 //!    `RSS/n − 2σ² + 4σ²·tr H/n` per node, never below the noise it keeps, `2σ²·tr H²/n`) and
@@ -295,12 +301,16 @@ pub struct GridOptions {
     /// data show, and the σ used when the data give none. The smoothing never depends on it
     /// (GCV needs no σ; module doc).
     pub instrument_sigma_um: Option<f64>,
+    /// Describe the field by the six-bar's loop closure under a prior (`field.rs`, the
+    /// default): the machine is the paper's kind of overconstrained six-bar. Off: the generic
+    /// bases only (a machine that is not such a six-bar, or to compare).
+    pub six_bar_prior: bool,
 }
 
 impl GridOptions {
     /// The grid of `spec`'s machine: its lattice step and instrument, smoothing by GCV.
     pub fn for_machine(spec: &MachineSpec) -> Self {
-        GridOptions { step_mm: spec.grid.step_mm, smoothing: Smoothing::Gcv, instrument_sigma_um: Some(spec.instrument_sigma_um) }
+        GridOptions { step_mm: spec.grid.step_mm, smoothing: Smoothing::Gcv, instrument_sigma_um: Some(spec.instrument_sigma_um), six_bar_prior: true }
     }
 }
 
@@ -331,6 +341,9 @@ pub struct NoiseReport {
     pub basis: Basis,
     pub basis_columns: usize,
     pub lambda: f64,
+    /// The six-bar prior's λ (`basis` `six_bar`; 0 otherwise): σ² over the variance of a part
+    /// error, µm² per µm² (`field.rs`, module doc).
+    pub six_bar_lambda: f64,
     /// `tr A / 2`: nodes' worth of freedom the estimated field has (of `nodes`).
     pub effective_nodes: f64,
     pub nodes: usize,
@@ -366,8 +379,13 @@ impl NoiseReport {
         s.push_str(&match self.smoothing {
             "none" => "no smoothing".to_string(),
             how => format!(
-                "smoothing ({how}): basis {:?} ({} columns), λ = {:.3e}, {:.1} effective nodes of {}",
-                self.basis, self.basis_columns, self.lambda, self.effective_nodes, self.nodes
+                "smoothing ({how}): basis {:?} ({} columns{}), λ = {:.3e}, {:.1} effective nodes of {}",
+                self.basis,
+                self.basis_columns,
+                if self.basis == Basis::SixBar { format!(", six-bar prior λ = {:.3e}", self.six_bar_lambda) } else { String::new() },
+                self.lambda,
+                self.effective_nodes,
+                self.nodes
             ),
         });
         s.push_str(&format!(
@@ -421,7 +439,7 @@ impl BuiltGrid {
 
 /// Lattice detection, node means, smoothing (GCV) and image in one call.
 pub fn build(model: &FiveBar<f64>, data: &[Measurement], step_mm: f64) -> Result<BuiltGrid, CalibError> {
-    build_with(model, data, &GridOptions { step_mm, smoothing: Smoothing::Gcv, instrument_sigma_um: None })
+    build_with(model, data, &GridOptions { step_mm, smoothing: Smoothing::Gcv, instrument_sigma_um: None, six_bar_prior: true })
 }
 
 /// The model's parameter shapes `∂FK/∂p` at the nodes' IK (2n × 10, rows x, y per node; µm per
@@ -442,6 +460,28 @@ fn parameter_shapes(model: &FiveBar<f64>, means: &[NodeMeans]) -> Option<DMatrix
     super::fit::params::jacobian(model, &poses).ok().map(|j| j * 1e3)
 }
 
+/// The six-bar's tool displacement per µm of each part error at the nodes' IK (2n × 24, rows x,
+/// y per node; `diagnose::loop_closure`, the design from the model's proportions about the
+/// lattice's centre); `None` where the loop closure has no response (a flat parallelogram, a
+/// node the model cannot reach), and the grid then falls back to the generic bases.
+fn six_bar_responses(model: &FiveBar<f64>, means: &[NodeMeans], lattice: &GridLattice) -> Option<DMatrix<f64>> {
+    use crate::diagnose::loop_closure::{response, SixBarDesign, N_RAW};
+    let centre = [
+        lattice.x0_mm + 0.5 * (lattice.nx - 1) as f64 * lattice.step_mm,
+        lattice.y0_mm + 0.5 * (lattice.ny - 1) as f64 * lattice.step_mm,
+    ];
+    let design = SixBarDesign::for_model(model, centre).ok()?;
+    let mut r = DMatrix::zeros(2 * means.len(), N_RAW);
+    for (k, m) in means.iter().enumerate() {
+        let at = response(model, &design, m.theta_ik).ok()?;
+        for (c, tool) in at.tool.iter().enumerate() {
+            r[(2 * k, c)] = tool[0];
+            r[(2 * k + 1, c)] = tool[1];
+        }
+    }
+    r.iter().all(|v| v.is_finite()).then_some(r)
+}
+
 /// The nodes' coordinates scaled to [−1, 1] over the lattice.
 fn scaled_coords(lattice: &GridLattice) -> Vec<[f64; 2]> {
     let s = |i: usize, n: usize| if n > 1 { 2.0 * i as f64 / (n - 1) as f64 - 1.0 } else { 0.0 };
@@ -455,9 +495,14 @@ pub fn build_with(model: &FiveBar<f64>, data: &[Measurement], opts: &GridOptions
             return Err(invalid!("the instrument's σ must be a non-negative number, got {s}"));
         }
     }
-    if let Smoothing::Fixed(l) | Smoothing::Exactly(_, l) = opts.smoothing {
+    if let Smoothing::Fixed(l) | Smoothing::Exactly(_, l, _) = opts.smoothing {
         if !(l >= 0.0 && l.is_finite()) {
             return Err(invalid!("the smoothing λ must be a non-negative number, got {l}"));
+        }
+    }
+    if let Smoothing::Exactly(Basis::SixBar, _, l) = opts.smoothing {
+        if !(l > 0.0 && l.is_finite()) {
+            return Err(invalid!("the six-bar prior's λ must be a positive number, got {l}"));
         }
     }
     let (lattice, rows) = group_readings(data, opts.step_mm)?;
@@ -480,7 +525,12 @@ pub fn build_with(model: &FiveBar<f64>, data: &[Measurement], opts: &GridOptions
         _ => parameter_shapes(model, &means),
     };
     let smoother = LatticeSmoother::new(lattice.nx, lattice.ny);
-    let est = field::estimate(&smoother, &y, shapes.as_ref(), &scaled_coords(&lattice), opts.smoothing);
+    let responses = match opts.smoothing {
+        Smoothing::None => None,
+        _ if !opts.six_bar_prior => None,
+        _ => six_bar_responses(model, &means, &lattice),
+    };
+    let est = field::estimate(&smoother, &y, shapes.as_ref(), responses.as_ref(), &scaled_coords(&lattice), opts.smoothing);
     // σ of one reading: the estimate's is a node mean's, scaled by the readings.
     let smoother_sigma_um = est.noise_sigma_um().map(|s| s / inv_count.sqrt());
     let (noise_sigma_um, noise_source) = match (repeats_sigma_um, smoother_sigma_um) {
@@ -538,6 +588,7 @@ pub fn build_with(model: &FiveBar<f64>, data: &[Measurement], opts: &GridOptions
         basis: est.basis,
         basis_columns: est.columns,
         lambda: est.lambda,
+        six_bar_lambda: est.prior_lambda,
         effective_nodes: round3(est.dof / 2.0),
         nodes: n,
         noise_kept: round3((est.noise_dof / (2.0 * nf)).sqrt()),
