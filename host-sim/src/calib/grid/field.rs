@@ -56,7 +56,7 @@
 //! smoother read as a Gaussian prior too (`LatticeSmoother::restricted_deviance`). Why not
 //! GCV: measured on 24 simulated machines (`benches/grid_noise.rs`, 10 µm instrument, one
 //! reading per node, max/RMS at 400 fresh targets after one round), the prior with REML's λs
-//! leaves mean 4.3/1.42, worst 6.0/1.93 µm; with GCV's λ for the prior (and no smoother) mean
+//! leaves mean 4.3/1.42, worst 6.04/1.93 µm (22 of 24 within 6); with GCV's λ for the prior (and no smoother) mean
 //! 4.6/1.43, worst 6.7/1.91; GCV's λ for the smoother on the remainder took in noise (worst
 //! 6.8: on a six-bar the remainder is mostly noise, and GCV smooths too little there). The
 //! generic bases by GCV on the same readings: mean 5.4/1.68, worst 7.1/2.06. On a machine whose
