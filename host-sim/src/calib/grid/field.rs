@@ -424,6 +424,39 @@ mod tests {
     use rand_chacha::ChaCha8Rng;
     use rand_distr::{Distribution, Normal};
 
+    /// The smoother's hat matrix `H(λ)` on interleaved x, y values, built column by column.
+    fn explicit_smoother(sm: &LatticeSmoother, lambda: f64) -> DMatrix<f64> {
+        let n = sm.len();
+        let mut h1 = DMatrix::zeros(n, n);
+        for k in 0..n {
+            let mut unit = vec![0.0; n];
+            unit[k] = 1.0;
+            h1.set_column(k, &DVector::from_vec(sm.apply(&sm.coefficients(&unit), lambda)));
+        }
+        let mut h = DMatrix::zeros(2 * n, 2 * n);
+        for a in 0..n {
+            for b in 0..n {
+                h[(2 * a, 2 * b)] = h1[(a, b)];
+                h[(2 * a + 1, 2 * b + 1)] = h1[(a, b)];
+            }
+        }
+        h
+    }
+
+    /// `e`'s traces, fitted field and residual equal those of the explicit hat matrix `a`.
+    fn assert_matches_hat_matrix(e: &FieldEstimate, a: &DMatrix<f64>, y: &[[f64; 2]]) {
+        let n = y.len();
+        assert!((e.dof - a.trace()).abs() < 1e-9, "{} vs {}", e.dof, a.trace());
+        let noise = (a.transpose() * a).trace();
+        assert!((e.noise_dof - noise).abs() < 1e-9, "{} vs {noise}", e.noise_dof);
+        let yv = DVector::from_iterator(2 * n, y.iter().flat_map(|v| *v));
+        let fitted = a * &yv;
+        for k in 0..n {
+            assert!((e.fitted_um[k][0] - fitted[2 * k]).abs() < 1e-9 && (e.fitted_um[k][1] - fitted[2 * k + 1]).abs() < 1e-9);
+        }
+        assert!((e.rss - (&yv - fitted).norm_squared()).abs() < 1e-9);
+    }
+
     /// The traces equal those of the explicit hat matrix `A = P + H(I − P)`.
     #[test]
     fn traces_match_the_explicit_hat_matrix() {
@@ -441,32 +474,11 @@ mod tests {
         let lambda = 0.3;
         let e = estimate(&sm, &y, Some(&s), None, &vec![[0.0; 2]; n], Smoothing::Fixed(lambda));
         assert_eq!((e.basis, e.columns), (Basis::Model, 2));
-        // Explicit: H per component, interleaved.
-        let mut h1 = DMatrix::zeros(n, n);
-        for k in 0..n {
-            let mut unit = vec![0.0; n];
-            unit[k] = 1.0;
-            h1.set_column(k, &nalgebra::DVector::from_vec(sm.apply(&sm.coefficients(&unit), lambda)));
-        }
-        let mut h = DMatrix::zeros(2 * n, 2 * n);
-        for a in 0..n {
-            for b in 0..n {
-                h[(2 * a, 2 * b)] = h1[(a, b)];
-                h[(2 * a + 1, 2 * b + 1)] = h1[(a, b)];
-            }
-        }
+        let h = explicit_smoother(&sm, lambda);
         let q = orthonormal_basis(&s);
         let p = &q * q.transpose();
         let i = DMatrix::identity(2 * n, 2 * n);
-        let a = &p + &h * (&i - &p);
-        assert!((e.dof - a.trace()).abs() < 1e-9, "{} vs {}", e.dof, a.trace());
-        assert!((e.noise_dof - (a.transpose() * &a).trace()).abs() < 1e-9);
-        let yv = nalgebra::DVector::from_iterator(2 * n, y.iter().flat_map(|v| *v));
-        let fitted = &a * &yv;
-        for k in 0..n {
-            assert!((e.fitted_um[k][0] - fitted[2 * k]).abs() < 1e-9 && (e.fitted_um[k][1] - fitted[2 * k + 1]).abs() < 1e-9);
-        }
-        assert!((e.rss - (&yv - fitted).norm_squared()).abs() < 1e-9);
+        assert_matches_hat_matrix(&e, &(&p + &h * (&i - &p)), &y);
     }
 
     /// The six-bar prior's estimate and traces equal those of the explicit hat matrix
@@ -492,19 +504,7 @@ mod tests {
         let (lambda, prior_lambda) = (0.3, 2.0);
         let e = estimate(&sm, &y, Some(&s), Some(&r), &vec![[0.0; 2]; n], Smoothing::Exactly(Basis::SixBar, lambda, prior_lambda));
         assert_eq!((e.basis, e.lambda, e.prior_lambda), (Basis::SixBar, lambda, prior_lambda));
-        let mut h1 = DMatrix::zeros(n, n);
-        for k in 0..n {
-            let mut unit = vec![0.0; n];
-            unit[k] = 1.0;
-            h1.set_column(k, &DVector::from_vec(sm.apply(&sm.coefficients(&unit), lambda)));
-        }
-        let mut h = DMatrix::zeros(2 * n, 2 * n);
-        for a in 0..n {
-            for b in 0..n {
-                h[(2 * a, 2 * b)] = h1[(a, b)];
-                h[(2 * a + 1, 2 * b + 1)] = h1[(a, b)];
-            }
-        }
+        let h = explicit_smoother(&sm, lambda);
         let q = orthonormal_basis(&s);
         let i = DMatrix::identity(2 * n, 2 * n);
         let rest = (&i - &q * q.transpose()) * &r;
@@ -520,15 +520,7 @@ mod tests {
             }
         }
         assert_eq!(e.columns, 2 + kept);
-        let a = &ap + &h * (&i - &ap);
-        assert!((e.dof - a.trace()).abs() < 1e-9, "{} vs {}", e.dof, a.trace());
-        assert!((e.noise_dof - (a.transpose() * &a).trace()).abs() < 1e-9, "{} vs {}", e.noise_dof, (a.transpose() * &a).trace());
-        let yv = DVector::from_iterator(2 * n, y.iter().flat_map(|v| *v));
-        let fitted = &a * &yv;
-        for k in 0..n {
-            assert!((e.fitted_um[k][0] - fitted[2 * k]).abs() < 1e-9 && (e.fitted_um[k][1] - fitted[2 * k + 1]).abs() < 1e-9);
-        }
-        assert!((e.rss - (&yv - fitted).norm_squared()).abs() < 1e-9);
+        assert_matches_hat_matrix(&e, &(&ap + &h * (&i - &ap)), &y);
     }
 
     /// Data of the prior's own form (part errors drawn with variance τ², noise σ²): REML's λ
