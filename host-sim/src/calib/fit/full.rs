@@ -169,6 +169,32 @@ pub fn leave_one_out_exact_um(
 /// against [`leave_one_out_exact_um`] in `tests/full_fit.rs`). `None` for a point the rest
 /// cannot predict (`I − Hᵢᵢ` singular: the point alone determines a direction).
 /// Cost: O(N·k²), no FK evaluation.
+/// Each point's *studentized* deleted residual (µm): `|(I − Hᵢᵢ)^(−1/2)·rᵢ|`, the deleted
+/// residual `(I − Hᵢᵢ)⁻¹·rᵢ` scaled to the spread it has under pure noise. Why: under Gaussian
+/// noise of σ per coordinate the deleted residual's covariance is `σ²(I − Hᵢᵢ)⁻¹`, so a point
+/// of high leverage (a D-optimal pose at the workspace's edge) has a larger one by nature, and
+/// a test of it against a fixed number of σ rejects good high-leverage points; the studentized
+/// one is `N(0, σ²I)` at every point (`blunders.rs` tests it against the Rayleigh bound).
+/// `None` where [`leave_one_out_linearised_um`] has none. Cost: O(N·k²).
+pub fn studentized_deleted_residuals_um(fit: &FullFit) -> Vec<Option<f64>> {
+    let (j, p, r) = (&fit.lm.jacobian, &fit.lm.normal_pinv, &fit.lm.residuals);
+    (0..r.len() / 2)
+        .map(|i| {
+            let ji = j.rows(2 * i, 2);
+            let h = ji * p * ji.transpose();
+            let m = nalgebra::Matrix2::new(1.0 - h[(0, 0)], -0.5 * (h[(0, 1)] + h[(1, 0)]), -0.5 * (h[(0, 1)] + h[(1, 0)]), 1.0 - h[(1, 1)]);
+            let eig = nalgebra::SymmetricEigen::new(m);
+            // A leverage of (nearly) one: the rest of the data do not see this point's direction.
+            if eig.eigenvalues.iter().any(|&l| !(l > 1e-9)) {
+                return None;
+            }
+            let inv_sqrt = eig.eigenvectors * nalgebra::Matrix2::from_diagonal(&eig.eigenvalues.map(|l| 1.0 / l.sqrt())) * eig.eigenvectors.transpose();
+            let v = (inv_sqrt * nalgebra::Vector2::new(r[2 * i], r[2 * i + 1])).norm() * 1e3;
+            v.is_finite().then_some(v)
+        })
+        .collect()
+}
+
 pub fn leave_one_out_linearised_um(fit: &FullFit) -> Vec<Option<f64>> {
     let (j, p, r) = (&fit.lm.jacobian, &fit.lm.normal_pinv, &fit.lm.residuals);
     (0..r.len() / 2)
