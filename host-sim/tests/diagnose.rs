@@ -384,8 +384,8 @@ fn a_weak_drift_on_120_points_at_1_um_names_nothing_on_its_account() {
 }
 
 /// A false positive of the sweep under the graders' conditions (120 random poses, 1 µm): the
-/// loops' stretch beside an instrument scale (seed 2 of the sweep at scale 1) was named stretch
-/// + base_offset + scale in all three variants (none, cyclic, drift). The true set had been
+/// loops' stretch beside an instrument scale (seed 2 of the sweep at scale 1) was named
+/// stretch, base_offset and scale in all three variants (none, cyclic, drift). The true set had been
 /// fitted once from the stretch-only fit, where the LM stalled at 5568 µm² (from zero or from
 /// stretch + link lengths it reaches 221 µm², the noise level), and the cache kept that stall:
 /// the true model looked far worse than one with an absent base offset. Now a cached fit is
