@@ -352,6 +352,79 @@ fn hidden_drift_is_unexplained_and_described() {
     check(&truth, Poses::Random(400), 32, &["backlash"], true, "drift + backlash");
 }
 
+/// The graders' conditions of issue 13 (120 random poses from random approach directions, a
+/// 1 µm instrument) with the sweep's drift (12 / −8 nm/s, one reading a second: 1.4 µm at the
+/// end of the run). The frame's translation (or encoder offsets, or a scale) takes the drift's
+/// mean, and the ramp left about it is below the drift test's |z| > 5 on 120 points: before
+/// the model comparison of `diagnose::suspected_drift`, 4 of these 5 noise-only data sets and
+/// 4 of the 5 with backlash named `frame`, `encoder_offset` or `scale` beside it with
+/// `unexplained: false` (the sweep, `SWEEP_POSES=120 SWEEP_NOISE_UM=1`). Now the drift is
+/// fitted as a nuisance and nothing else is named.
+#[test]
+fn a_weak_drift_on_120_points_at_1_um_names_nothing_on_its_account() {
+    let sigma = 1.0;
+    for hidden in [&[][..], &["backlash"][..]] {
+        for seed in 0..5u64 {
+            // The sweep's truth and data for this case (benches/diagnose_study.rs, scale 1).
+            let mut rng = ChaCha8Rng::seed_from_u64(99_000 + seed + 7919 * hidden.len() as u64);
+            let mut truth = Truth { noise_um: sigma, ..Default::default() };
+            for e in hidden {
+                truth.add_random(PhysicalEffect::from_name(e).unwrap(), &mut rng).unwrap();
+            }
+            truth.drift_um_per_s = [0.012, -0.008];
+            let data = generate(&truth, Poses::Random(120), 5000 + seed);
+            let r = diagnose(&data, &FiveBar::paper_nominal(), Some(sigma)).expect("diagnosis runs");
+            let context = format!("{hidden:?}, seed {seed}:\n{}\nlog: {:#?}", table(&r), r.selection_log);
+            let named: Vec<&str> = r.steps.iter().map(|s| s.effect.as_str()).collect();
+            assert_eq!(named, hidden.to_vec(), "{context}");
+            assert!(r.unexplained, "the drift is outside the library: {context}");
+            assert!(r.nuisances.iter().any(|n| n.contains("drift")), "{:?}: {context}", r.nuisances);
+        }
+    }
+}
+
+/// A false positive of the sweep under the graders' conditions (120 random poses, 1 µm): the
+/// loops' stretch beside an instrument scale (seed 2 of the sweep at scale 1) was named
+/// stretch, base_offset and scale in all three variants (none, cyclic, drift). The true set had been
+/// fitted once from the stretch-only fit, where the LM stalled at 5568 µm² (from zero or from
+/// stretch + link lengths it reaches 221 µm², the noise level), and the cache kept that stall:
+/// the true model looked far worse than one with an absent base offset. Now a cached fit is
+/// refitted when a later start is already better than it: exactly the hidden pair (the scale
+/// possibly as its exact twin, a common link change reported confounded).
+#[test]
+fn stretch_and_scale_on_120_points_at_1_um_name_no_base_offset() {
+    use host_sim::diagnose::effects::{Problem, N_PARAMS};
+    use host_sim::diagnose::loop_closure::SixBarDesign;
+    use host_sim::diagnose::selection::Fitter;
+    let sigma = 1.0;
+    let hidden = ["link_stretch", "scale"];
+    let mut rng = ChaCha8Rng::seed_from_u64(99_000 + 2 + 7919 * 2);
+    let mut truth = Truth { noise_um: sigma, ..Default::default() };
+    for e in hidden {
+        truth.add_random(PhysicalEffect::from_name(e).unwrap(), &mut rng).unwrap();
+    }
+    let data = generate(&truth, Poses::Random(120), 5002);
+    // The mechanism: the fit of a set from a poor start stalls; asked again from a better
+    // start, the fitter returns (and keeps) the better fit.
+    let problem = Problem::new(FiveBar::paper_nominal(), &SixBarDesign::paper(), &data);
+    let effect = |n: &str| LIBRARY.iter().find(|e| e.name() == n).unwrap();
+    let mut fitter = Fitter::new(&problem);
+    let zero = [0.0; N_PARAMS];
+    let stretch = fitter.fit(&[effect("link_stretch")], &zero).unwrap();
+    let stalled = fitter.fit(&[effect("link_stretch"), effect("scale")], &stretch.p).unwrap();
+    let good = Fitter::new(&problem).fit(&[effect("link_stretch"), effect("scale")], &zero).unwrap();
+    assert!(good.cost < 2.0 * 240.0 * sigma * sigma, "fit from zero {}", good.cost);
+    let again = fitter.fit(&[effect("link_stretch"), effect("scale")], &good.p).unwrap();
+    assert!(again.cost <= good.cost + 1e-6, "stalled {} , from zero {}, asked again {}", stalled.cost, good.cost, again.cost);
+    assert!(fitter.fit(&[effect("link_stretch"), effect("scale")], &zero).unwrap().cost <= good.cost + 1e-6);
+    // The diagnosis: exactly the hidden pair.
+    let r = diagnose(&data, &FiveBar::paper_nominal(), Some(sigma)).expect("diagnosis runs");
+    let context = format!("{}\nlog: {:#?}", table(&r), r.selection_log);
+    let named = named_as_hidden(&r, &truth, &data, &hidden, &context);
+    assert_eq!(named, vec!["link_stretch".to_string(), "scale".to_string()], "{context}");
+    assert!(!r.unexplained, "{context}");
+}
+
 #[test]
 fn confounded_pairs_are_reported_with_a_separating_measurement() {
     // A common motor offset turns the mechanism about A0 like an instrument rotation.

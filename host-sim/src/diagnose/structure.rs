@@ -8,7 +8,8 @@
 //!   per revolution. For Gaussian noise the RSS drop over σ̂² is χ²₂, whose tail is exactly
 //!   exp(−z/2); times the number of frequencies tried (Bonferroni) it must stay below 1e-3.
 //! * approach direction: regression of each joint residual on dir_j, |z| > 5;
-//! * time (`t_s`) and repeat index (`run`): linear drift of x and y, |z| > 5;
+//! * time (`t_s`) and repeat index (`run`): linear drift of x and y, |z| > [`DRIFT_Z`] (a weaker
+//!   trend is tried as a nuisance by the model comparison in `diagnose`, see `mod.rs`);
 //! * smooth over the workspace: a quadratic in (x, y) per axis, RSS drop over σ̂² > 30 (χ²₅ tail
 //!   far below 1e-4).
 //!
@@ -66,6 +67,34 @@ pub fn joint_residual_urad(problem: &Problem, residual_um: &[f64]) -> Vec<[f64; 
             }
         })
         .collect()
+}
+
+/// |z| of a linear trend in time (or run) above which the drift test calls it significant.
+pub const DRIFT_Z: f64 = 5.0;
+
+/// The linear trend of each axis of the residual (µm, x,y interleaved) against `t`, with an
+/// intercept: per axis (rate per unit of t, its z, the RSS drop over the demeaned residual).
+fn linear_trends(t: &[f64], residual_um: &[f64]) -> Vec<(f64, f64, f64)> {
+    let n = t.len();
+    let mut out = Vec::new();
+    for axis in 0..2 {
+        let y = DVector::from_fn(n, |r, _| residual_um[2 * r + axis]);
+        let a = DMatrix::from_fn(n, 2, |r, c| if c == 0 { 1.0 } else { t[r] });
+        if let Some((rss, coef, se)) = ls(&a, &y) {
+            out.push((coef[1], coef[1] / se[1].max(1e-300), demeaned_rss(&y) - rss));
+        }
+    }
+    out
+}
+
+/// The largest |z| of the residual's linear trend in time over the two axes (the drift test of
+/// [`analyse`] without its threshold); `None` when the points have no times or all the same.
+pub fn drift_time_z(problem: &Problem, data: &[Measurement], residual_um: &[f64]) -> Option<f64> {
+    let t: Vec<f64> = problem.points.iter().map(|p| data.get(p.index).and_then(|m| m.t_s)).collect::<Option<Vec<f64>>>()?;
+    if t.len() < MIN_POINTS || t.iter().all(|v| *v == t[0]) {
+        return None;
+    }
+    linear_trends(&t, residual_um).into_iter().map(|(_, z, _)| z.abs()).reduce(f64::max)
 }
 
 /// Minimum number of points for the periodogram and the workspace fit.
@@ -176,15 +205,10 @@ pub fn analyse(problem: &Problem, data: &[Measurement], residual_um: &[f64]) -> 
             let mut parts = Vec::new();
             let mut significant = false;
             let mut drop = 0.0;
-            for axis in 0..2 {
-                let y = DVector::from_fn(n, |r, _| residual_um[2 * r + axis]);
-                let a = DMatrix::from_fn(n, 2, |r, c| if c == 0 { 1.0 } else { t[r] });
-                if let Some((rss, coef, se)) = ls(&a, &y) {
-                    let z = coef[1] / se[1].max(1e-300);
-                    significant |= z.abs() > 5.0;
-                    drop += demeaned_rss(&y) - rss;
-                    parts.push(format!("{} {:.3} µm/{unit} (z = {:.1})", ["x", "y"][axis], coef[1], z));
-                }
+            for (axis, (rate, z, d)) in linear_trends(&t, residual_um).into_iter().enumerate() {
+                significant |= z.abs() > DRIFT_Z;
+                drop += d;
+                parts.push(format!("{} {rate:.3} µm/{unit} (z = {z:.1})", ["x", "y"][axis]));
             }
             out.push(Finding {
                 kind: kind.into(),
