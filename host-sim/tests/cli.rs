@@ -125,6 +125,12 @@ fn grid_then_command_match_the_firmware_path() {
     let (ok, stdout, stderr) = run(&["grid", "--model", s(&model), "--data", s(&data), "--step-mm", "5", "--out", s(&grid)]);
     assert!(ok, "{stderr}");
     assert!(stdout.contains("\"nx\": 6") && stdout.contains("\"ny\": 7"), "{stdout}");
+    // The six-bar prior is the default; --no-six-bar-prior takes the generic bases.
+    assert!(stdout.contains("\"basis\": \"six_bar\""), "{stdout}");
+    let generic = d.join("generic.bin");
+    let (ok, generic_out, stderr) = run(&["grid", "--model", s(&model), "--data", s(&data), "--no-six-bar-prior", "--out", s(&generic)]);
+    assert!(ok, "{stderr}");
+    assert!(!generic_out.contains("\"basis\": \"six_bar\"") && generic_out.contains("\"six_bar_lambda\": 0.0"), "{generic_out}");
     let table = std::fs::read_to_string(d.join("grid.csv")).unwrap();
     assert!(table.starts_with("i,j,x_mm,y_mm,dx_um,dy_um,dtheta1_urad,dtheta2_urad\n"));
     assert_eq!(table.lines().count(), 1 + 42);
