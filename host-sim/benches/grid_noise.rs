@@ -28,29 +28,28 @@ use host_sim::machine_spec::MachineSpec;
 use host_sim::plant::PlantConfig;
 use kinematics_core::{Calibration, CorrectionGrid};
 
-/// max/RMS (µm) at the verification targets of the round-1 grid's estimate applied to the
-/// nodes' noiseless errors.
-fn bias_only(machine: &mut PlantMachine, cal: &Calibrated, spec: &MachineSpec) -> Result<(f64, f64), String> {
-    let truth: Vec<Measurement> = cal.grid_data.iter().map(|l| Measurement { measured_mm: l.true_mm, ..l.row.clone() }).collect();
-    let n = &cal.grid.noise;
-    let opts = GridOptions { smoothing: Smoothing::Exactly(n.basis, n.lambda, n.six_bar_lambda), instrument_sigma_um: None, ..GridOptions::for_machine(spec) };
-    let g = build_with(&cal.full.model, &truth, &opts).map_err(|e| e.to_string())?;
+/// max/RMS (µm) at the verification targets of the grid `opts` builds from `rows` with the
+/// fitted model.
+fn grid_accuracy(machine: &mut PlantMachine, cal: &Calibrated, spec: &MachineSpec, rows: &[Measurement], opts: &GridOptions) -> Result<(f64, f64), String> {
+    let g = build_with(&cal.full.model, rows, opts).map_err(|e| e.to_string())?;
     let grid = CorrectionGrid::parse(&g.image).map_err(|e| e.to_string())?;
     let landed: Vec<Landed> = measure_visits(machine, &Calibration::from_grid(grid), &cal.plan.verify, Approach::Positive, spec, &mut 0).map_err(|e| e.to_string())?;
     let a = accuracy(&landed);
     Ok((a.max_um, a.rms_um))
 }
 
-/// max/RMS (µm) at the verification targets of round 1's grid built from the same readings
-/// with the generic bases only.
+/// The round-1 grid's estimate (its basis and λs) applied to the nodes' noiseless errors.
+fn bias_only(machine: &mut PlantMachine, cal: &Calibrated, spec: &MachineSpec) -> Result<(f64, f64), String> {
+    let truth: Vec<Measurement> = cal.grid_data.iter().map(|l| Measurement { measured_mm: l.true_mm, ..l.row.clone() }).collect();
+    let n = &cal.grid.noise;
+    let opts = GridOptions { smoothing: Smoothing::Exactly(n.basis, n.lambda, n.six_bar_lambda), instrument_sigma_um: None, ..GridOptions::for_machine(spec) };
+    grid_accuracy(machine, cal, spec, &truth, &opts)
+}
+
+/// Round 1's grid from the same readings with the generic bases only.
 fn generic(machine: &mut PlantMachine, cal: &Calibrated, spec: &MachineSpec) -> Result<(f64, f64), String> {
     let rows: Vec<Measurement> = cal.grid_data.iter().map(|l| l.row.clone()).collect();
-    let opts = GridOptions { six_bar_prior: false, ..GridOptions::for_machine(spec) };
-    let g = build_with(&cal.full.model, &rows, &opts).map_err(|e| e.to_string())?;
-    let grid = CorrectionGrid::parse(&g.image).map_err(|e| e.to_string())?;
-    let landed: Vec<Landed> = measure_visits(machine, &Calibration::from_grid(grid), &cal.plan.verify, Approach::Positive, spec, &mut 0).map_err(|e| e.to_string())?;
-    let a = accuracy(&landed);
-    Ok((a.max_um, a.rms_um))
+    grid_accuracy(machine, cal, spec, &rows, &GridOptions { six_bar_prior: false, ..GridOptions::for_machine(spec) })
 }
 
 fn main() {
