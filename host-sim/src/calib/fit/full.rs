@@ -169,6 +169,31 @@ pub fn leave_one_out_exact_um(
 /// against [`leave_one_out_exact_um`] in `tests/full_fit.rs`). `None` for a point the rest
 /// cannot predict (`I − Hᵢᵢ` singular: the point alone determines a direction).
 /// Cost: O(N·k²), no FK evaluation.
+pub fn leave_one_out_linearised_um(fit: &FullFit) -> Vec<Option<f64>> {
+    leave_one_out_blocks(fit)
+        .map(|(m, r)| {
+            // A leverage of (nearly) one: the rest of the data do not see this point's direction.
+            if m.determinant().abs() < 1e-9 {
+                return None;
+            }
+            let v = (m.try_inverse()? * r).norm() * 1e3;
+            v.is_finite().then_some(v)
+        })
+        .collect()
+}
+
+/// Per point, `I − Hᵢᵢ` (the 2×2 block of the fit's hat matrix `H = J·(JᵀJ)⁺·Jᵀ`, symmetric)
+/// and its residual `rᵢ` (mm).
+fn leave_one_out_blocks(fit: &FullFit) -> impl Iterator<Item = (nalgebra::Matrix2<f64>, nalgebra::Vector2<f64>)> + '_ {
+    let (j, p, r) = (&fit.lm.jacobian, &fit.lm.normal_pinv, &fit.lm.residuals);
+    (0..r.len() / 2).map(move |i| {
+        let ji = j.rows(2 * i, 2);
+        let h = ji * p * ji.transpose();
+        let m = nalgebra::Matrix2::new(1.0 - h[(0, 0)], -h[(0, 1)], -h[(1, 0)], 1.0 - h[(1, 1)]);
+        (m, nalgebra::Vector2::new(r[2 * i], r[2 * i + 1]))
+    })
+}
+
 /// Each point's *studentized* deleted residual (µm): `|(I − Hᵢᵢ)^(−1/2)·rᵢ|`, the deleted
 /// residual `(I − Hᵢᵢ)⁻¹·rᵢ` scaled to the spread it has under pure noise. Why: under Gaussian
 /// noise of σ per coordinate the deleted residual's covariance is `σ²(I − Hᵢᵢ)⁻¹`, so a point
@@ -177,38 +202,18 @@ pub fn leave_one_out_exact_um(
 /// one is `N(0, σ²I)` at every point (`blunders.rs` tests it against the Rayleigh bound).
 /// `None` where [`leave_one_out_linearised_um`] has none. Cost: O(N·k²).
 pub fn studentized_deleted_residuals_um(fit: &FullFit) -> Vec<Option<f64>> {
-    let (j, p, r) = (&fit.lm.jacobian, &fit.lm.normal_pinv, &fit.lm.residuals);
-    (0..r.len() / 2)
-        .map(|i| {
-            let ji = j.rows(2 * i, 2);
-            let h = ji * p * ji.transpose();
-            let m = nalgebra::Matrix2::new(1.0 - h[(0, 0)], -0.5 * (h[(0, 1)] + h[(1, 0)]), -0.5 * (h[(0, 1)] + h[(1, 0)]), 1.0 - h[(1, 1)]);
-            let eig = nalgebra::SymmetricEigen::new(m);
+    leave_one_out_blocks(fit)
+        .map(|(m, r)| {
+            // Symmetrised against rounding: the block of a symmetric matrix.
+            let eig = nalgebra::SymmetricEigen::new(0.5 * (m + m.transpose()));
             // A leverage of (nearly) one: the rest of the data do not see this point's direction.
             if eig.eigenvalues.iter().any(|&l| !(l > 1e-9)) {
                 return None;
             }
             let inv_sqrt = eig.eigenvectors * nalgebra::Matrix2::from_diagonal(&eig.eigenvalues.map(|l| 1.0 / l.sqrt())) * eig.eigenvectors.transpose();
-            let v = (inv_sqrt * nalgebra::Vector2::new(r[2 * i], r[2 * i + 1])).norm() * 1e3;
+            let v = (inv_sqrt * r).norm() * 1e3;
             v.is_finite().then_some(v)
         })
         .collect()
 }
 
-pub fn leave_one_out_linearised_um(fit: &FullFit) -> Vec<Option<f64>> {
-    let (j, p, r) = (&fit.lm.jacobian, &fit.lm.normal_pinv, &fit.lm.residuals);
-    (0..r.len() / 2)
-        .map(|i| {
-            let ji = j.rows(2 * i, 2);
-            let h = ji * p * ji.transpose();
-            let m = nalgebra::Matrix2::new(1.0 - h[(0, 0)], -h[(0, 1)], -h[(1, 0)], 1.0 - h[(1, 1)]);
-            // A leverage of (nearly) one: the rest of the data do not see this point's direction.
-            if m.determinant().abs() < 1e-9 {
-                return None;
-            }
-            let e = m.try_inverse()? * nalgebra::Vector2::new(r[2 * i], r[2 * i + 1]);
-            let v = e.norm() * 1e3;
-            v.is_finite().then_some(v)
-        })
-        .collect()
-}
