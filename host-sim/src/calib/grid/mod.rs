@@ -530,6 +530,9 @@ pub fn build_with(model: &FiveBar<f64>, data: &[Measurement], opts: &GridOptions
     let smoother = LatticeSmoother::new(lattice.nx, lattice.ny);
     let responses = match opts.smoothing {
         Smoothing::None => None,
+        Smoothing::Exactly(Basis::SixBar, ..) => Some(six_bar_responses(model, &means, &lattice).ok_or_else(|| {
+            invalid!("the six-bar prior's choice cannot be re-applied: the loop closure has no response at every node")
+        })?),
         _ if !opts.six_bar_prior => None,
         _ => six_bar_responses(model, &means, &lattice),
     };
