@@ -38,6 +38,15 @@
 //! replacement** ([`pair_replacement`]) adds two candidates at once (a frame and a gear ratio
 //! first fitted as link lengths and a base offset: neither alone beats the members it would
 //! replace), scored on the model linearised about the current fit and checked by real fits.
+//! A pair move that grows the set (one member out, two in) competes with the forward step's
+//! one-effect extension and must beat the best plausible one by [`SWAP_MARGIN`] too: on a tie
+//! the forward step keeps what the data have already established (the sweep: a base offset
+//! replaced by link lengths and a gear ratio that tied with base offset + stretch, the truth,
+//! on BIC and predicted held-out points worse).
+//!
+//! **Final check** ([`prune_weak`]): every named effect must still lower the BIC by more than
+//! [`ADD_MARGIN`] given the others, or it is dropped (the weakest first), so that a member a
+//! move carried in beside the one it was about is held to the add test too.
 //!
 //! After the selection, [`ambiguities`] lists every named effect that a one-for-one swap with a
 //! library twin fits within [`AMBIGUOUS_MARGIN`] of BIC, or that the twin predicts held-out
@@ -413,7 +422,47 @@ pub fn select(problem: &Problem, noise_um: Option<f64>) -> Selection {
             }
         }
     }
+    prune_weak(&mut fitter, &mut set, &mut cur, noise_um, &mut log);
     Selection { effects: set, fit: cur, log, skipped }
+}
+
+/// The final check: every named effect must still pass the add test given the
+/// others, or it is dropped (the weakest first, refitted, repeated). Why: a replacement move is
+/// judged as a whole (its BIC gain over [`SWAP_MARGIN`], its held-out test by the net
+/// parameters), so a member can enter beside the one the move is really about without the
+/// evidence an effect needs on its own (the sweep: a base offset carried into [backlash, scale]
+/// with a drift by a pair replacement, lowering the BIC by 0.3 where an effect needs 10), and
+/// the removal pass only drops what *raises* the BIC. A set the selection reached by a series of
+/// moves is thus held to the same standard as one it reached by adding alone.
+fn prune_weak(
+    fitter: &mut Fitter<'_>,
+    set: &mut Vec<&'static Effect>,
+    cur: &mut Fit,
+    noise_um: Option<f64>,
+    log: &mut Vec<String>,
+) {
+    let problem = fitter.problem;
+    while !set.is_empty() {
+        // (the member's support, its index, the fit without it)
+        let mut weakest: Option<(f64, usize, Fit)> = None;
+        for i in 0..set.len() {
+            let mut trial = set.clone();
+            trial.remove(i);
+            let Some(f) = fitter.fit(&trial, &cur.p) else { continue };
+            // How much the member lowers the BIC, given the others (positive: it helps).
+            let support = delta_bic(problem, noise_um, cur, &f);
+            if support < ADD_MARGIN && weakest.as_ref().is_none_or(|w| support < w.0) {
+                weakest = Some((support, i, f));
+            }
+        }
+        let Some((support, i, f)) = weakest else { break };
+        log.push(format!(
+            "drop {}: in the final model it lowers the BIC by {support:.1} given the others (an effect needs > {ADD_MARGIN})",
+            set[i].name()
+        ));
+        set.remove(i);
+        *cur = f;
+    }
 }
 
 /// The best replacement move (module doc): a candidate added and the members it makes redundant
@@ -610,11 +659,62 @@ fn pair_replacement(
         {
             continue;
         }
+        // A move that grows the set by one effect competes with the forward step that adds one:
+        // it must beat the best plausible extension of the current set by the swap margin.
+        let score = |g: &Fit| g.cost / s2f + g.free.len() as f64 * n.ln();
+        let mut versus_add = String::new();
+        if trial.len() > set.len() {
+            let best_add = best_extension(fitter, &out, set, cur, s2f);
+            if let Some((c, add_score)) = best_add {
+                if score(&f) >= add_score - SWAP_MARGIN {
+                    continue;
+                }
+                versus_add = format!(", {:.1} below adding {}", add_score - score(&f), c.name());
+            }
+        }
         let added = format!("{} and {}", ca.name(), cb.name());
-        let Some(line) = move_validates(fitter, set, cur, &trial, &f, s2f, &added, gain) else { continue };
+        let Some(mut line) = move_validates(fitter, set, cur, &trial, &f, s2f, &added, gain) else { continue };
+        if !versus_add.is_empty() {
+            line.pop();
+            line.push_str(&versus_add);
+            line.push(')');
+        }
         return Some((trial, f, line));
     }
     None
+}
+
+/// The best plausible one-effect extension of `set` (fitted as `cur`): the candidate whose fit on
+/// top of the set scores lowest, with its score (`cost/s2 + k·ln n`, the caller's σ²), or
+/// `None` when no extension fits plausibly. The alternative a set-growing pair move must beat
+/// ([`pair_replacement`]). Cost: the forward step's fits (cached).
+fn best_extension(
+    fitter: &mut Fitter<'_>,
+    out: &[&'static Effect],
+    set: &[&'static Effect],
+    cur: &Fit,
+    s2: f64,
+) -> Option<(&'static Effect, f64)> {
+    let problem = fitter.problem;
+    let n = n_res(problem);
+    let mut best: Option<(&'static Effect, f64)> = None;
+    for &c in out {
+        let mut trial = set.to_vec();
+        trial.push(c);
+        let k = problem.free_params(&trial).len() as f64;
+        if n - k < MIN_DOF_PER_PARAM * k {
+            continue;
+        }
+        let Some(g) = fitter.fit(&trial, &cur.p) else { continue };
+        if plausible(problem, c, &g, s2).is_err() {
+            continue;
+        }
+        let sc = g.cost / s2 + g.free.len() as f64 * n.ln();
+        if best.is_none_or(|b| sc < b.1) {
+            best = Some((c, sc));
+        }
+    }
+    best
 }
 
 /// BIC margin within which a one-for-one swap of a named effect leaves the choice open: the
