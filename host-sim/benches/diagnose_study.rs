@@ -205,11 +205,12 @@ fn sweep() {
                     t[4] += usize::from(!declared.is_empty());
                     // One line per diagnosis, so that a partial run is readable.
                     println!(
-                        "run {run}: {case:?} + {ool}, scale {f}, seed {seed}: named {named:?}; false {} missed {} unexplained {} ambiguous pairs {}{}",
+                        "run {run}: {case:?} + {ool}, scale {f}, seed {seed}: named {named:?}; false {} missed {} unexplained {} ambiguous pairs {} two-for-two {}{}",
                         !false_pos.is_empty(),
                         !missed.is_empty(),
                         r.unexplained,
                         r.ambiguous.len(),
+                        r.ambiguous_pairs.len(),
                         if declared.is_empty() { String::new() } else { format!(" declared ambiguous {declared:?}") }
                     );
                     if !false_pos.is_empty() || (verbose && (!missed.is_empty() || flag_wrong)) {

@@ -251,6 +251,15 @@ pub fn diagnose_with_history(data: &[Measurement], opts: &DiagnoseOptions) -> Re
             separate_by: confounding::separating_measurement(a.effect.name(), a.alternative.name()),
         })
         .collect();
+    let ambiguous_pairs = selection::pair_ambiguities(&mut fitter, &candidates, &sel.effects, &last, noise_um)
+        .into_iter()
+        .map(|a| report::AmbiguousPair {
+            effects: a.effects.iter().map(|e| e.name().to_string()).collect(),
+            alternatives: a.alternatives.iter().map(|e| e.name().to_string()).collect(),
+            delta_bic: a.delta_bic,
+            delta_cv_rss_um2: a.delta_cv_rss_um2,
+        })
+        .collect();
     // What the data cannot rule out: every candidate left out, fitted on top of the final model.
     let mut not_detected = Vec::new();
     for &c in candidates.iter().filter(|c| !sel.effects.contains(c)) {
@@ -345,6 +354,7 @@ pub fn diagnose_with_history(data: &[Measurement], opts: &DiagnoseOptions) -> Re
         final_params,
         confounded,
         ambiguous,
+        ambiguous_pairs,
         overlaps,
         not_detected,
         pose_overlaps,

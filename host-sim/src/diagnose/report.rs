@@ -63,6 +63,23 @@ pub struct Ambiguous {
     pub separate_by: String,
 }
 
+/// Two named effects that two library alternatives, put in their place together, fit within
+/// the margin an effect needs to be added: the diagnosis names `effects` but declares the
+/// choice open (a trade one-for-one swaps, `ambiguous`, cannot see).
+#[derive(Clone, Debug, Serialize)]
+pub struct AmbiguousPair {
+    /// The two effects of the final model (in `steps`).
+    pub effects: Vec<String>,
+    /// The two library effects that could be there instead.
+    pub alternatives: Vec<String>,
+    /// BIC of the model with `alternatives` in place of `effects`, minus the final model's.
+    pub delta_bic: f64,
+    /// Cross-validated RSS (µm²) of that model minus the final model's (negative: the
+    /// alternatives predict held-out points better); absent when a cross-validation fit failed.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub delta_cv_rss_um2: Option<f64>,
+}
+
 #[derive(Clone, Debug, Serialize)]
 pub struct Report {
     pub points: usize,
@@ -83,6 +100,9 @@ pub struct Report {
     /// Named effects with a library alternative the data cannot rule out (one-for-one swap
     /// within the adding margin of BIC), with the measurement that separates them.
     pub ambiguous: Vec<Ambiguous>,
+    /// Pairs of named effects with a pair of library alternatives the data cannot rule out
+    /// (two-for-two swap within the adding margin of BIC).
+    pub ambiguous_pairs: Vec<AmbiguousPair>,
     /// Pairs whose residual signatures overlap (confounded, or partly identical), with the
     /// measurement that would separate them.
     pub overlaps: Vec<Overlap>,
@@ -112,11 +132,14 @@ pub struct Report {
 
 impl Report {
     /// Whether the report declares the named `effect` ambiguous with one of `alternatives`
-    /// (`ambiguous`): the diagnosis then does not claim `effect` over it. The false-positive
+    /// (`ambiguous`), or, beside another named effect, with two of them (`ambiguous_pairs`): the diagnosis then does not claim `effect` over it. The false-positive
     /// sweep counts a named effect that is not hidden as no false positive only in that case
     /// (DIAGNOSIS.md, "No false positives").
     pub fn declares_alternative(&self, effect: &str, alternatives: &[&str]) -> bool {
         self.ambiguous.iter().any(|a| a.effect == effect && alternatives.contains(&a.alternative.as_str()))
+            || self.ambiguous_pairs.iter().any(|a| {
+                a.effects.iter().any(|e| e == effect) && a.alternatives.iter().all(|c| alternatives.contains(&c.as_str()))
+            })
     }
 }
 
@@ -188,6 +211,16 @@ pub fn table(r: &Report) -> String {
             )
         };
         s.push_str(&format!("ambiguous: {} or {} ({why}); to separate: {}\n", a.effect, a.alternative, a.separate_by));
+    }
+    for a in &r.ambiguous_pairs {
+        s.push_str(&format!(
+            "ambiguous: {} or {} (swapping the two for the two changes the BIC by {:+.1}, less than the {} an effect needs{})\n",
+            a.effects.join(" + "),
+            a.alternatives.join(" + "),
+            a.delta_bic,
+            super::selection::AMBIGUOUS_MARGIN,
+            a.delta_cv_rss_um2.map(|d| format!("; cross-validated RSS {d:+.1} µm²")).unwrap_or_default()
+        ));
     }
     for o in r.overlaps.iter().filter(|o| !o.confounded) {
         s.push_str(&format!(

@@ -51,7 +51,8 @@
 //! After the selection, [`ambiguities`] lists every named effect that a one-for-one swap with a
 //! library twin fits within [`AMBIGUOUS_MARGIN`] of BIC, or that the twin predicts held-out
 //! points better than (the two tests an effect must pass disagree on the pair): the report
-//! declares those choices open rather than picking one silently.
+//! declares those choices open rather than picking one silently; [`pair_ambiguities`] does the
+//! same for two-for-two swaps.
 //!
 //! Structures outside the library (a gear tooth's periodic error, an instrument drift) are found
 //! by `structure.rs` on the final residual and then fitted as nuisances in every model
@@ -782,6 +783,72 @@ pub fn ambiguities(
     }
     out.sort_by(|a, b| a.delta_bic.total_cmp(&b.delta_bic));
     out
+}
+
+/// Two named effects that two library alternatives, put in their place together, fit within
+/// [`AMBIGUOUS_MARGIN`] of BIC (see [`pair_ambiguities`]).
+pub struct PairAmbiguity {
+    /// The two effects of the final model.
+    pub effects: [&'static Effect; 2],
+    /// The two candidates that could be there instead.
+    pub alternatives: [&'static Effect; 2],
+    /// BIC of the swapped model minus the final model's ([`delta_bic`]).
+    pub delta_bic: f64,
+    /// Cross-validated RSS (µm²) of the swapped model minus the final model's; `None` when a
+    /// cross-validation fit failed.
+    pub delta_cv_rss_um2: Option<f64>,
+}
+
+/// Every two-for-two swap of members of `set` (fitted as `cur`) with two candidates outside it
+/// whose fitted values are plausible and whose BIC is within [`AMBIGUOUS_MARGIN`] of the final
+/// model's: the choices [`ambiguities`]' one-for-one swaps cannot see. Why: two simple effects
+/// can together do what two others do, where neither alone stands in for either (the sweep:
+/// base offset + stretch at half magnitude, the truth, and link lengths + a gear ratio within
+/// 0.6 of BIC, the stepwise path reaching the latter); the selection names one side on no
+/// evidence, so the report must say the other is as good. Best alternative first. Cost:
+/// C(|set|, 2)·C(|candidates left|, 2) LM fits (cached) and the cross-validations of those
+/// within the margin.
+pub fn pair_ambiguities(
+    fitter: &mut Fitter<'_>,
+    candidates: &[&'static Effect],
+    set: &[&'static Effect],
+    cur: &Fit,
+    noise_um: Option<f64>,
+) -> Vec<PairAmbiguity> {
+    let problem = fitter.problem;
+    let n = n_res(problem);
+    let out: Vec<&'static Effect> = candidates.iter().copied().filter(|c| !set.contains(c)).collect();
+    let mut found = Vec::new();
+    for i in 0..set.len() {
+        for j in i + 1..set.len() {
+            for a in 0..out.len() {
+                for b in a + 1..out.len() {
+                    let mut trial = set.to_vec();
+                    trial[i] = out[a];
+                    trial[j] = out[b];
+                    let k = problem.free_params(&trial).len() as f64;
+                    if n - k < MIN_DOF_PER_PARAM * k {
+                        continue;
+                    }
+                    let Some(f) = fitter.fit(&trial, &cur.p) else { continue };
+                    let d = delta_bic(problem, noise_um, cur, &f);
+                    let s2 = common_s2(problem, noise_um, cur, &f);
+                    if d >= AMBIGUOUS_MARGIN || [out[a], out[b]].iter().any(|c| plausible(problem, c, &f, s2).is_err()) {
+                        continue;
+                    }
+                    let cv = fitter.cv_rss(set, &cur.p).zip(fitter.cv_rss(&trial, &f.p)).map(|(x, y)| y - x);
+                    found.push(PairAmbiguity {
+                        effects: [set[i], set[j]],
+                        alternatives: [out[a], out[b]],
+                        delta_bic: d,
+                        delta_cv_rss_um2: cv,
+                    });
+                }
+            }
+        }
+    }
+    found.sort_by(|a, b| a.delta_bic.total_cmp(&b.delta_bic));
+    found
 }
 
 fn empty_fit(problem: &Problem) -> Fit {
