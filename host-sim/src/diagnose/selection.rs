@@ -21,7 +21,8 @@
 //!    improves; this asks whether the improvement is real on new poses.
 //! 3. **Physical plausibility** ([`plausible`]): the fitted values must be something a machine
 //!    can have — backlash not significantly negative, link changes within 5 % of the link,
-//!    stretch within 0.1 % strain, the mismatch's effective part errors within 1 % of a link,
+//!    stretch within 0.1 % strain and c's compliance not significantly (3σ) beyond a factor 3
+//!    of b's, the mismatch's effective part errors within 1 % of a link,
 //!    encoder offsets and frame rotation within 0.1 rad, gear ratio within 1 %, scale within
 //!    2000 ppm, B0 within 10 % of a link.
 //!
@@ -218,12 +219,16 @@ pub fn plausible(problem: &Problem, e: &Effect, f: &Fit, s2: f64) -> Result<(), 
         PhysicalEffect::LinkStretch => {
             let n = super::sixbar_modes::N_STRETCH;
             (0..n).try_for_each(|k| within(idx::STRETCH + k, 1e-3 * links[1].min(links[2]) * 1e3, "0.1 % strain of a distal bar"))?;
-            // c's compliance within a factor of 3 of the design's (the two bars are alike).
-            let r = x[idx::STRETCH_RATIO];
-            if (-67.0..=200.0).contains(&r) {
+            // c's compliance within a factor of 3 of the design's (the two bars are alike), or
+            // not significantly outside (3σ, as the backlash's sign): on a small stretch the
+            // ratio is poorly determined (the sweep: −73 ± 28 % at half magnitude beside a base
+            // offset and a frame, the truth's ratio being −40 to +60 %), and a hard bound on an
+            // uncertain value rejected the true effect for link lengths.
+            let (r, s) = (x[idx::STRETCH_RATIO], sd(idx::STRETCH_RATIO));
+            if r + 3.0 * s >= -67.0 && r - 3.0 * s <= 200.0 {
                 Ok(())
             } else {
-                Err(format!("kc_compliance_pct = {r:.0}: c would be {:.2}× as compliant as designed", 1.0 + r / 100.0))
+                Err(format!("kc_compliance_pct = {r:.0} ± {s:.0}: c would be {:.2}× as compliant as designed", 1.0 + r / 100.0))
             }
         }
         PhysicalEffect::Frame => within(idx::FRAME + 2, 1e5, "0.1 rad"),
