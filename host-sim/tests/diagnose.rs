@@ -488,6 +488,34 @@ fn a_two_for_two_tie_is_declared_ambiguous() {
     }
 }
 
+/// The sweep's last triple false positive at half magnitude (graders' conditions, seed 4 with
+/// the cyclic error): base offset + stretch + frame was named base offset + frame + link
+/// lengths. The stretch was fitted (ΔBIC −55 over the frame and base offset) but rejected as
+/// implausible, c's compliance ratio at −73 % against a hard bound of −67 %, though it was
+/// −73 ± 28 %: on a small stretch the ratio is poorly determined. Now the bound is on the
+/// value less 3σ (as the backlash's sign): exactly the hidden three.
+#[test]
+fn a_small_stretch_is_not_rejected_on_an_uncertain_compliance_ratio() {
+    let sigma = 1.0;
+    let hidden = ["base_offset", "link_stretch", "frame"];
+    let id = 4u64;
+    let mut rng = ChaCha8Rng::seed_from_u64(99_000 + id + 7919 * 3);
+    let mut truth = Truth { noise_um: sigma, ..Default::default() };
+    for e in hidden {
+        truth.add_random(PhysicalEffect::from_name(e).unwrap(), &mut rng).unwrap();
+    }
+    let mut truth = truth.scaled(0.5);
+    truth.cyclic = Some(Cyclic { motor: (id % 2) as usize, cycles: [36.0, 50.0, 72.0][(id % 3) as usize], amplitude_urad: 35.0, phase_rad: 0.4 * id as f64 });
+    let data = generate(&truth, Poses::Random(120), 5000 + id);
+    let r = diagnose(&data, &FiveBar::paper_nominal(), Some(sigma)).expect("diagnosis runs");
+    let context = format!("{}\nlog: {:#?}", table(&r), r.selection_log);
+    let named = named_as_hidden(&r, &truth, &data, &hidden, &context);
+    let mut want: Vec<String> = hidden.iter().map(|s| s.to_string()).collect();
+    want.sort();
+    assert_eq!(named, want, "{context}");
+    assert!(r.unexplained, "the cyclic error is outside the library: {context}");
+}
+
 #[test]
 fn confounded_pairs_are_reported_with_a_separating_measurement() {
     // A common motor offset turns the mechanism about A0 like an instrument rotation.
