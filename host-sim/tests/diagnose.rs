@@ -112,6 +112,17 @@ fn truth_with(effects: &[&str], rng: &mut ChaCha8Rng) -> Truth {
     t
 }
 
+/// The false-positive sweep's truth for `hidden` on its data id (`1000·magnitude index + seed`,
+/// benches/diagnose_study.rs) with instrument σ `sigma_um`, before its magnitude factor.
+fn sweep_case_truth(hidden: &[&str], id: u64, sigma_um: f64) -> Truth {
+    let mut rng = ChaCha8Rng::seed_from_u64(99_000 + id + 7919 * hidden.len() as u64);
+    let mut truth = Truth { noise_um: sigma_um, ..Default::default() };
+    for e in hidden {
+        truth.add_random(PhysicalEffect::from_name(e).unwrap(), &mut rng).unwrap();
+    }
+    truth
+}
+
 #[test]
 fn each_effect_alone_is_named_exactly_and_the_gap_closes() {
     // Every library effect the generator has (parallelogram_mismatch needs the six-bar's part
@@ -185,8 +196,7 @@ fn two_effects_at_once_are_both_named() {
 
 /// The sweep's truth for a case (benches/diagnose_study.rs: seed 0 of the first magnitude).
 fn sweep_truth(effects: &[&str], magnitude: f64) -> Truth {
-    let mut rng = ChaCha8Rng::seed_from_u64(99_000 + 7919 * effects.len() as u64);
-    truth_with(effects, &mut rng).scaled(magnitude)
+    sweep_case_truth(effects, 0, NOISE_UM).scaled(magnitude)
 }
 
 /// A former false positive of the sweep (DIAGNOSIS.md, "No false positives"): base offset and
@@ -247,8 +257,7 @@ fn stretch_beside_link_lengths_at_half_magnitude_declares_the_gear_ratio_open() 
 /// ambiguous with one of them (the sweep's rule since this case).
 #[test]
 fn frame_and_gear_ratio_beside_a_drift_name_nothing_undeclared() {
-    let mut rng = ChaCha8Rng::seed_from_u64(99_000 + 1000 + 7919 * 2);
-    let mut truth = truth_with(&["frame", "gear_ratio"], &mut rng).scaled(1.5);
+    let mut truth = sweep_case_truth(&["frame", "gear_ratio"], 1000, NOISE_UM).scaled(1.5);
     truth.drift_um_per_s = [0.012, -0.008];
     let data = generate(&truth, Poses::Random(400), 6000);
     let r = diagnose(&data, &FiveBar::paper_nominal(), Some(NOISE_UM)).expect("diagnosis runs");
@@ -366,11 +375,7 @@ fn a_weak_drift_on_120_points_at_1_um_names_nothing_on_its_account() {
     for hidden in [&[][..], &["backlash"][..]] {
         for seed in 0..5u64 {
             // The sweep's truth and data for this case (benches/diagnose_study.rs, scale 1).
-            let mut rng = ChaCha8Rng::seed_from_u64(99_000 + seed + 7919 * hidden.len() as u64);
-            let mut truth = Truth { noise_um: sigma, ..Default::default() };
-            for e in hidden {
-                truth.add_random(PhysicalEffect::from_name(e).unwrap(), &mut rng).unwrap();
-            }
+            let mut truth = sweep_case_truth(hidden, seed, sigma);
             truth.drift_um_per_s = [0.012, -0.008];
             let data = generate(&truth, Poses::Random(120), 5000 + seed);
             let r = diagnose(&data, &FiveBar::paper_nominal(), Some(sigma)).expect("diagnosis runs");
@@ -398,11 +403,7 @@ fn stretch_and_scale_on_120_points_at_1_um_name_no_base_offset() {
     use host_sim::diagnose::selection::Fitter;
     let sigma = 1.0;
     let hidden = ["link_stretch", "scale"];
-    let mut rng = ChaCha8Rng::seed_from_u64(99_000 + 2 + 7919 * 2);
-    let mut truth = Truth { noise_um: sigma, ..Default::default() };
-    for e in hidden {
-        truth.add_random(PhysicalEffect::from_name(e).unwrap(), &mut rng).unwrap();
-    }
+    let truth = sweep_case_truth(&hidden, 2, sigma);
     let data = generate(&truth, Poses::Random(120), 5002);
     // The mechanism: the fit of a set from a poor start stalls; asked again from a better
     // start, the fitter returns (and keeps) the better fit.
@@ -452,12 +453,7 @@ fn paired_effects_beside_a_drift_at_other_magnitudes_name_exactly_the_pair() {
     ];
     for (hidden, scale, id, drift) in cases {
         // The sweep's truth and data for this case (benches/diagnose_study.rs).
-        let mut rng = ChaCha8Rng::seed_from_u64(99_000 + id + 7919 * 2);
-        let mut truth = Truth { noise_um: sigma, ..Default::default() };
-        for e in hidden {
-            truth.add_random(PhysicalEffect::from_name(e).unwrap(), &mut rng).unwrap();
-        }
-        let mut truth = truth.scaled(scale);
+        let mut truth = sweep_case_truth(&hidden, id, sigma).scaled(scale);
         if drift {
             truth.drift_um_per_s = [0.012, -0.008];
         }
@@ -482,12 +478,7 @@ fn paired_effects_beside_a_drift_at_other_magnitudes_name_exactly_the_pair() {
 fn a_two_for_two_tie_is_declared_ambiguous() {
     let sigma = 1.0;
     let hidden = ["base_offset", "link_stretch"];
-    let mut rng = ChaCha8Rng::seed_from_u64(99_000 + 1 + 7919 * 2);
-    let mut truth = Truth { noise_um: sigma, ..Default::default() };
-    for e in hidden {
-        truth.add_random(PhysicalEffect::from_name(e).unwrap(), &mut rng).unwrap();
-    }
-    let truth = truth.scaled(0.5);
+    let truth = sweep_case_truth(&hidden, 1, sigma).scaled(0.5);
     let data = generate(&truth, Poses::Random(120), 5001);
     let r = diagnose(&data, &FiveBar::paper_nominal(), Some(sigma)).expect("diagnosis runs");
     let context = format!("{}\nlog: {:#?}", table(&r), r.selection_log);
@@ -513,12 +504,7 @@ fn a_small_stretch_is_not_rejected_on_an_uncertain_compliance_ratio() {
     let sigma = 1.0;
     let hidden = ["base_offset", "link_stretch", "frame"];
     let id = 4u64;
-    let mut rng = ChaCha8Rng::seed_from_u64(99_000 + id + 7919 * 3);
-    let mut truth = Truth { noise_um: sigma, ..Default::default() };
-    for e in hidden {
-        truth.add_random(PhysicalEffect::from_name(e).unwrap(), &mut rng).unwrap();
-    }
-    let mut truth = truth.scaled(0.5);
+    let mut truth = sweep_case_truth(&hidden, id, sigma).scaled(0.5);
     truth.cyclic = Some(Cyclic { motor: (id % 2) as usize, cycles: [36.0, 50.0, 72.0][(id % 3) as usize], amplitude_urad: 35.0, phase_rad: 0.4 * id as f64 });
     let data = generate(&truth, Poses::Random(120), 5000 + id);
     let r = diagnose(&data, &FiveBar::paper_nominal(), Some(sigma)).expect("diagnosis runs");
