@@ -179,6 +179,11 @@ fn common_s2(p: &Problem, noise_um: Option<f64>, a: &Fit, b: &Fit) -> f64 {
     va.min(vb).max(noise_um.map(|s| s * s).unwrap_or(0.0)).max(1e-12)
 }
 
+/// The BIC score `RSS/σ² + k·ln n` of a fit with σ² = `s2` on `n` scalar residuals (module doc).
+fn bic(f: &Fit, s2: f64, n: f64) -> f64 {
+    f.cost / s2 + f.free.len() as f64 * n.ln()
+}
+
 /// BIC difference `score(b) − score(a)` with the common σ² described in the module doc.
 pub fn delta_bic(p: &Problem, noise_um: Option<f64>, a: &Fit, b: &Fit) -> f64 {
     let n = n_res(p);
@@ -494,7 +499,7 @@ fn replacement(
         let Some(mut f) = fitter.fit(&trial, &cur.p) else { continue };
         // One σ² for the whole move: the scores of its sets are then comparable.
         let s2 = common_s2(problem, noise_um, cur, &f);
-        let score = |f: &Fit| f.cost / s2 + f.free.len() as f64 * n.ln();
+        let score = |f: &Fit| bic(f, s2, n);
         let mut removed = 0;
         loop {
             let mut step: Option<(f64, usize, Fit)> = None;
@@ -610,7 +615,7 @@ fn pair_replacement(
     let rr = r.norm_squared();
     let col_of = |k: usize| cols.iter().position(|&c| c == k);
     let s2 = common_s2(problem, noise_um, cur, cur);
-    let score_cur = cur.cost / s2 + cur.free.len() as f64 * n.ln();
+    let score_cur = bic(cur, s2, n);
     let mut moves: Vec<(f64, Vec<&'static Effect>, &'static Effect, &'static Effect)> = Vec::new();
     for a in 0..out.len() {
         for b in a + 1..out.len() {
@@ -669,7 +674,7 @@ fn pair_replacement(
         }
         // A move that grows the set by one effect competes with the forward step that adds one:
         // it must beat the best plausible extension of the current set by the swap margin.
-        let score = |g: &Fit| g.cost / s2f + g.free.len() as f64 * n.ln();
+        let score = |g: &Fit| bic(g, s2f, n);
         let mut versus_add = String::new();
         if trial.len() > set.len() {
             let best_add = best_extension(fitter, &out, set, cur, s2f);
@@ -717,7 +722,7 @@ fn best_extension(
         if plausible(problem, c, &g, s2).is_err() {
             continue;
         }
-        let sc = g.cost / s2 + g.free.len() as f64 * n.ln();
+        let sc = bic(&g, s2, n);
         if best.is_none_or(|b| sc < b.1) {
             best = Some((c, sc));
         }
