@@ -40,7 +40,8 @@ use synthetic::synthetic_image;
 
 fn main() {
     let out = PathBuf::from(env::var("OUT_DIR").expect("cargo sets OUT_DIR"));
-    let manifest = PathBuf::from(env::var("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR"));
+    let manifest =
+        PathBuf::from(env::var("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR"));
     let qemu = env::var_os("CARGO_FEATURE_BOARD_QEMU").is_some();
     let g474 = env::var_os("CARGO_FEATURE_BOARD_G474").is_some();
     let memory = match (qemu, g474) {
@@ -61,5 +62,6 @@ fn main() {
 
     fs::write(out.join("calibration.bin"), synthetic_image(1.0)).expect("write calibration.bin");
     // The second image the QEMU upload scenarios upload at run time: the field negated.
-    fs::write(out.join("calibration-2.bin"), synthetic_image(-1.0)).expect("write calibration-2.bin");
+    fs::write(out.join("calibration-2.bin"), synthetic_image(-1.0))
+        .expect("write calibration-2.bin");
 }

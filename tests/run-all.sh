@@ -7,6 +7,7 @@
 #   bash tests/run-all.sh
 #
 # Steps, each must pass:
+#   0. formatting: cargo fmt --all --check
 #   1. host tests of kinematics-core, the firmware's controller crate, host-sim and the
 #      cross-crate tests (cargo test; the same-core test builds the firmware's golden binary and
 #      runs it under QEMU)
@@ -45,6 +46,10 @@ if [ -n "$missing" ]; then
     DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends $missing >/dev/null
 fi
 qemu-system-arm --version | head -n 1
+
+step "formatting (rustfmt.toml)"
+cargo fmt --version >/dev/null 2>&1 || rustup component add rustfmt
+cargo fmt --all --check
 
 step "host tests"
 cargo test --locked

@@ -105,7 +105,10 @@ pub fn flash() -> RegionFlash {
 }
 
 fn check(offset: usize, len: usize, unit: usize, region_len: usize) -> Result<(), FlashError> {
-    if offset % unit != 0 || len % unit != 0 || offset.checked_add(len).is_none_or(|end| end > region_len) {
+    if offset % unit != 0
+        || len % unit != 0
+        || offset.checked_add(len).is_none_or(|end| end > region_len)
+    {
         return Err(FlashError::Alignment);
     }
     Ok(())

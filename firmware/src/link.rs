@@ -19,13 +19,16 @@
 //!   it changes when the servo has switched, not before.
 use controller::calibration_slots::{CalibrationId, SlotError, SlotStore};
 use controller::host_link::{
-    calibration_refusal, encode_or_reject, homing_state, CalibrationStore, Device, Homing, HomingRefused, LinkHandler,
+    calibration_refusal, encode_or_reject, homing_state, CalibrationStore, Device, Homing,
+    HomingRefused, LinkHandler,
 };
 use controller::motion_stream::MotionStream;
 use controller::servo_loop::{Mode, ServoRequest};
 use controller::status::Status;
 use kinematics_core::Calibration;
-use link_protocol::{Board, CalibrationRefusal, DeviceMessage, FrameReader, HomingState, MAX_FRAME_LEN};
+use link_protocol::{
+    Board, CalibrationRefusal, DeviceMessage, FrameReader, HomingState, MAX_FRAME_LEN,
+};
 use rtic::Mutex;
 
 use crate::calibration::RegionFlash;
@@ -93,7 +96,11 @@ pub trait DeviceResources {
     fn with_slots<R>(&mut self, f: impl FnOnce(&mut SlotStore<RegionFlash>) -> R) -> R;
     /// Records an upload's outcome in the status and hands a committed calibration to the servo
     /// task (it switches at rest).
-    fn uploaded(&mut self, result: Result<CalibrationId, SlotError>, new: Option<(Calibration<'static>, CalibrationId)>);
+    fn uploaded(
+        &mut self,
+        result: Result<CalibrationId, SlotError>,
+        new: Option<(Calibration<'static>, CalibrationId)>,
+    );
 }
 
 /// [`DeviceResources`] over the app's RTIC mutexes.
@@ -130,7 +137,11 @@ where
     fn with_slots<R>(&mut self, f: impl FnOnce(&mut SlotStore<RegionFlash>) -> R) -> R {
         self.slots.lock(f)
     }
-    fn uploaded(&mut self, result: Result<CalibrationId, SlotError>, new: Option<(Calibration<'static>, CalibrationId)>) {
+    fn uploaded(
+        &mut self,
+        result: Result<CalibrationId, SlotError>,
+        new: Option<(Calibration<'static>, CalibrationId)>,
+    ) {
         if new.is_some() {
             self.new_calibration.lock(|n| *n = new);
         }
@@ -151,7 +162,12 @@ impl<'a, D: DeviceResources> AppDevice<'a, D> {
     /// Reads the status once.
     pub fn new(res: &'a mut D, absolute_encoders: bool, link_motion: bool) -> Self {
         let status = res.status();
-        AppDevice { res, status, absolute_encoders, link_motion }
+        AppDevice {
+            res,
+            status,
+            absolute_encoders,
+            link_motion,
+        }
     }
 }
 
@@ -210,16 +226,23 @@ impl<D: DeviceResources> Homing for AppDevice<'_, D> {
 /// The two calibration slots (`controller::calibration_slots`) as the link drives them.
 impl<D: DeviceResources> CalibrationStore for AppDevice<'_, D> {
     fn begin(&mut self, len: u32) -> Result<(), CalibrationRefusal> {
-        self.res.with_slots(|s| s.begin(len as usize)).map_err(calibration_refusal)
+        self.res
+            .with_slots(|s| s.begin(len as usize))
+            .map_err(calibration_refusal)
     }
     fn write(&mut self, offset: u32, data: &[u8]) -> Result<u32, CalibrationRefusal> {
-        self.res.with_slots(|s| s.write(offset as usize, data)).map_err(calibration_refusal)
+        self.res
+            .with_slots(|s| s.write(offset as usize, data))
+            .map_err(calibration_refusal)
     }
     fn commit(&mut self) -> Result<u32, CalibrationRefusal> {
         let result = self.res.with_slots(SlotStore::commit);
         match result {
             Ok(id) => defmt::info!("calibration upload committed over the link: {}", id),
-            Err(e) => defmt::error!("calibration upload refused: {} (the image in force stays)", e),
+            Err(e) => defmt::error!(
+                "calibration upload refused: {} (the image in force stays)",
+                e
+            ),
         }
         let new = result.ok().and_then(crate::calibration::committed);
         let parsed = new.is_some();

@@ -58,21 +58,21 @@ mod app {
 
     use controller::calibration::{self, CalibrationState};
     use controller::calibration_slots::{CalibrationId, SlotStore};
-    use firmware::calibration::RegionFlash;
-    use kinematics_core::Calibration;
     use controller::fault::{Fault, StopCategory};
     use controller::host_link::LinkHandler;
     use controller::motion_stream::{MotionStream, StreamLimits};
     use controller::servo_loop::{Mode, ServoLoop, ServoRequest, SwitchRefused};
-    use controller::stop::Workspace;
-    use controller::settings::Settings;
     use controller::setpoints::{self, QUEUE_SLOTS};
+    use controller::settings::Settings;
     use controller::status::Status;
+    use controller::stop::Workspace;
     use controller::trajectory::Trajectory;
     use controller::watchdog;
     use controller::SAMPLE_RATE_HZ;
     use firmware::board::{Board, Selected, ServoTimer};
+    use firmware::calibration::RegionFlash;
     use firmware::link::{LinkState, Locks};
+    use kinematics_core::Calibration;
     use link_protocol::FrameReader;
 
     /// The servo task pends the link task every this many samples (5 ms), so that a paused
@@ -119,16 +119,35 @@ mod app {
 
         // The image in force: the committed slot with the highest sequence, or an image flashed
         // by probe at the region's start (controller::calibration_slots).
-        let slots = SlotStore::open(firmware::calibration::flash(), settings.machine, settings.home_mm);
+        let slots = SlotStore::open(
+            firmware::calibration::flash(),
+            settings.machine,
+            settings.home_mm,
+        );
         let calibration_id = slots.active_id();
         defmt::info!("boot: calibration in force {}", calibration_id);
-        let image = calibration_id.map_or(firmware::calibration::region(), firmware::calibration::slot_bytes);
-        let (cal_state, cal) = calibration::load(image, &settings.machine, settings.home_mm, settings.allow_uncorrected);
-        let workspace = cal.grid.as_ref().and_then(|g| Workspace::of_image(g, settings.stop.workspace_margin_mm));
+        let image = calibration_id.map_or(
+            firmware::calibration::region(),
+            firmware::calibration::slot_bytes,
+        );
+        let (cal_state, cal) = calibration::load(
+            image,
+            &settings.machine,
+            settings.home_mm,
+            settings.allow_uncorrected,
+        );
+        let workspace = cal
+            .grid
+            .as_ref()
+            .and_then(|g| Workspace::of_image(g, settings.stop.workspace_margin_mm));
         match cal_state {
             CalibrationState::Valid => {}
-            CalibrationState::Refused(e) => defmt::error!("calibration image refused ({}): drives stay disabled", e),
-            CalibrationState::Uncorrected(e) => defmt::warn!("calibration image refused ({}): running UNCORRECTED", e),
+            CalibrationState::Refused(e) => {
+                defmt::error!("calibration image refused ({}): drives stay disabled", e)
+            }
+            CalibrationState::Uncorrected(e) => {
+                defmt::warn!("calibration image refused ({}): running UNCORRECTED", e)
+            }
         }
         // Engage at the machine's actual position, unless the calibration forbids it.
         let encoder_rad = board.encoders_rad();
@@ -146,7 +165,11 @@ mod app {
                 Err(mode) => defmt::error!("homing refused: {}", mode),
             }
         }
-        let start_mm = if unhomed { settings.home_mm } else { servo_loop.setpoint_mm() };
+        let start_mm = if unhomed {
+            settings.home_mm
+        } else {
+            servo_loop.setpoint_mm()
+        };
         let mut source = board.setpoints(Trajectory::builtin(start_mm, settings));
         // The link's port, configured before the watchdog starts: bringing a UART up may wait
         // for its acknowledgement (G474: a bounded wait of a few ms at most).
@@ -159,7 +182,11 @@ mod app {
         }
         match (servo_loop.mode(), servo_loop.mode().fault()) {
             (Mode::Running, _) => {
-                defmt::info!("engaged at {} mm (encoders {} rad)", servo_loop.setpoint_mm(), encoder_rad);
+                defmt::info!(
+                    "engaged at {} mm (encoders {} rad)",
+                    servo_loop.setpoint_mm(),
+                    encoder_rad
+                );
                 board.enable_drives();
             }
             (Mode::Homing, _) => board.enable_drives(),
@@ -173,7 +200,11 @@ mod app {
             }
         }
 
-        let limits = StreamLimits { task: settings.stream_limits(), stop: settings.stop.limits, workspace };
+        let limits = StreamLimits {
+            task: settings.stream_limits(),
+            stop: settings.stop.limits,
+            workspace,
+        };
         let mut stream = MotionStream::new(limits, start_mm);
         if servo_loop.mode() != Mode::Running {
             // Unhomed, homing or faulted: the stream waits, paused, until the servo runs; the link then
@@ -198,12 +229,29 @@ mod app {
         if settings.link_motion {
             defmt::info!("setpoints from the host link");
         }
-        let status = Status { calibration_id, ..Status::at_boot(cal_state, &servo_loop, encoder_rad) };
+        let status = Status {
+            calibration_id,
+            ..Status::at_boot(cal_state, &servo_loop, encoder_rad)
+        };
         board.timer().start();
         let link_motion = settings.link_motion;
         (
-            Shared { status, stream, servo_request: None, link, slots, new_calibration: None },
-            Local { board, servo_loop, setpoints_out, setpoints_in, source, link_motion },
+            Shared {
+                status,
+                stream,
+                servo_request: None,
+                link,
+                slots,
+                new_calibration: None,
+            },
+            Local {
+                board,
+                servo_loop,
+                setpoints_out,
+                setpoints_in,
+                source,
+                link_motion,
+            },
         )
     }
 
@@ -244,7 +292,9 @@ mod app {
         if let Some((cal, id)) = cx.shared.new_calibration.lock(|n| n.take()) {
             match l.servo_loop.switch_calibration(cal, encoder_rad) {
                 Ok(()) => switched = Some(id),
-                Err(SwitchRefused::NotAtRest) => cx.shared.new_calibration.lock(|n| *n = Some((cal, id))),
+                Err(SwitchRefused::NotAtRest) => {
+                    cx.shared.new_calibration.lock(|n| *n = Some((cal, id)))
+                }
                 // The new calibration cannot engage here: the old one stays in force.
                 Err(SwitchRefused::Engage(_)) => {}
             }
@@ -255,7 +305,9 @@ mod app {
             let index_rad = l.board.index_rad();
             let mut sample = l.servo_loop.step_homing(encoder_rad, index_rad);
             if sample.set_reference {
-                let ok = l.board.reference_at_index(l.servo_loop.settings().homing.index_rad);
+                let ok = l
+                    .board
+                    .reference_at_index(l.servo_loop.settings().homing.index_rad);
                 l.servo_loop.referenced(ok, &mut sample);
             }
             sample
@@ -310,7 +362,9 @@ mod app {
     async fn intake(mut cx: intake::Context) {
         if *cx.local.link_motion {
             let queue = cx.local.setpoints_in;
-            cx.shared.stream.lock(|stream| setpoints::refill(queue, stream));
+            cx.shared
+                .stream
+                .lock(|stream| setpoints::refill(queue, stream));
         } else {
             setpoints::refill(cx.local.setpoints_in, cx.local.source);
         }
@@ -323,8 +377,22 @@ mod app {
     /// frame's validation at most, never the servo task.
     #[task(binds = LINK_RX, priority = 1, shared = [status, stream, servo_request, link, slots, new_calibration])]
     fn link_rx(cx: link_rx::Context) {
-        let link_rx::SharedResources { status, stream, servo_request, mut link, slots, new_calibration, .. } = cx.shared;
-        let mut locks = Locks { status, request: servo_request, stream, slots, new_calibration };
+        let link_rx::SharedResources {
+            status,
+            stream,
+            servo_request,
+            mut link,
+            slots,
+            new_calibration,
+            ..
+        } = cx.shared;
+        let mut locks = Locks {
+            status,
+            request: servo_request,
+            stream,
+            slots,
+            new_calibration,
+        };
         link.lock(|link| {
             link.serve(&mut locks);
             link.poll(&mut locks);
@@ -374,7 +442,10 @@ mod app {
                     cx.shared.new_calibration.lock(|n| *n = Some(new));
                 }
             }
-            Err(e) => defmt::error!("calibration upload refused: {} (the image in force stays)", e),
+            Err(e) => defmt::error!(
+                "calibration upload refused: {} (the image in force stays)",
+                e
+            ),
         }
         cx.shared.status.lock(|s| s.last_upload = Some(result));
     }
@@ -391,7 +462,11 @@ mod app {
         };
         defmt::error!(
             "FAULT {} at sample {}: {} (setpoint {} mm, encoders {} rad)",
-            fault, s.ticks, reaction, s.setpoint_mm, s.encoder_rad
+            fault,
+            s.ticks,
+            reaction,
+            s.setpoint_mm,
+            s.encoder_rad
         );
     }
 }

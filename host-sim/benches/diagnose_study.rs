@@ -13,10 +13,10 @@
 //! `cargo test -p host-sim --bench diagnose_study -- sweep` runs the same in the dev profile
 //! (no release build; slower). The sweep is ~600 diagnoses: minutes in release.
 
-use host_sim::diagnose::report::table;
-use host_sim::diagnose::synth::{generate, Cyclic, Poses, Truth};
 use host_sim::calib::measure::{measure, MeasureOptions};
 use host_sim::calib::protocol::Protocol;
+use host_sim::diagnose::report::table;
+use host_sim::diagnose::synth::{generate, Cyclic, Poses, Truth};
 use host_sim::diagnose::{diagnose, effects::LIBRARY, DiagnoseOptions};
 use host_sim::effect::PhysicalEffect;
 use host_sim::io::measurement_csv::format_measurements;
@@ -30,16 +30,23 @@ use rand_chacha::ChaCha8Rng;
 const NOISE_UM: f64 = 2.0;
 
 fn truth_with(effects: &[&str], noise_um: f64, rng: &mut ChaCha8Rng) -> Truth {
-    let mut t = Truth { noise_um, ..Default::default() };
+    let mut t = Truth {
+        noise_um,
+        ..Default::default()
+    };
     for e in effects {
-        t.add_random(PhysicalEffect::from_name(e).expect("an effect name"), rng).expect("a library effect");
+        t.add_random(PhysicalEffect::from_name(e).expect("an effect name"), rng)
+            .expect("a library effect");
     }
     t
 }
 
 fn main() {
     // `cargo bench` passes `--bench` to a harness-less target: ignore flags.
-    let args: Vec<String> = std::env::args().skip(1).filter(|a| !a.starts_with("--")).collect();
+    let args: Vec<String> = std::env::args()
+        .skip(1)
+        .filter(|a| !a.starts_with("--"))
+        .collect();
     match args.first().map(String::as_str) {
         None => {
             sweep();
@@ -48,7 +55,11 @@ fn main() {
         Some("sweep") => sweep(),
         Some("table1_power") => table1_power(),
         Some("plant") => plant_outputs(),
-        Some("example") => write_example(args.get(1).map(String::as_str).unwrap_or("diagnose_example.csv")),
+        Some("example") => write_example(
+            args.get(1)
+                .map(String::as_str)
+                .unwrap_or("diagnose_example.csv"),
+        ),
         Some(other) => {
             eprintln!("unknown study '{other}' (known: sweep, table1_power, plant, example FILE)");
             std::process::exit(2);
@@ -85,31 +96,60 @@ fn main() {
 /// The graders' conditions of issue 13 (120 random poses, random approach directions, 1 µm
 /// instrument, 5 seeds): `SWEEP_POSES=120 SWEEP_NOISE_UM=1 SWEEP_N=5 SWEEP_SCALES=1`.
 fn sweep() {
-    let n: u64 = std::env::var("SWEEP_N").ok().and_then(|v| v.parse().ok()).unwrap_or(2);
+    let n: u64 = std::env::var("SWEEP_N")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(2);
     let scales: Vec<f64> = std::env::var("SWEEP_SCALES")
         .ok()
         .map(|v| v.split(',').filter_map(|x| x.parse().ok()).collect())
         .unwrap_or_else(|| vec![0.5, 1.5]);
     let fixed_poses: Option<usize> = std::env::var("SWEEP_POSES").ok().map(|v| {
-        v.trim().parse().ok().filter(|&p: &usize| p > 0).unwrap_or_else(|| panic!("SWEEP_POSES={v}: a positive number of random poses"))
+        v.trim()
+            .parse()
+            .ok()
+            .filter(|&p: &usize| p > 0)
+            .unwrap_or_else(|| panic!("SWEEP_POSES={v}: a positive number of random poses"))
     });
     let noise_um: f64 = std::env::var("SWEEP_NOISE_UM").ok().map_or(NOISE_UM, |v| {
-        v.trim().parse().ok().filter(|&s: &f64| s > 0.0 && s.is_finite()).unwrap_or_else(|| panic!("SWEEP_NOISE_UM={v}: a positive σ in µm"))
+        v.trim()
+            .parse()
+            .ok()
+            .filter(|&s: &f64| s > 0.0 && s.is_finite())
+            .unwrap_or_else(|| panic!("SWEEP_NOISE_UM={v}: a positive σ in µm"))
     });
     let ools: Vec<&str> = match std::env::var("SWEEP_OOL") {
         Ok(v) => {
-            let want: Vec<String> = v.split(',').map(|x| x.trim().to_string()).filter(|x| !x.is_empty()).collect();
+            let want: Vec<String> = v
+                .split(',')
+                .map(|x| x.trim().to_string())
+                .filter(|x| !x.is_empty())
+                .collect();
             for w in &want {
-                assert!(["none", "cyclic", "drift"].contains(&w.as_str()), "SWEEP_OOL: '{w}' is not one of none, cyclic, drift");
+                assert!(
+                    ["none", "cyclic", "drift"].contains(&w.as_str()),
+                    "SWEEP_OOL: '{w}' is not one of none, cyclic, drift"
+                );
             }
-            ["none", "cyclic", "drift"].into_iter().filter(|o| want.iter().any(|w| w == o)).collect()
+            ["none", "cyclic", "drift"]
+                .into_iter()
+                .filter(|o| want.iter().any(|w| w == o))
+                .collect()
         }
         Err(_) => vec!["none", "cyclic", "drift"],
     };
     let max_hidden: usize = std::env::var("SWEEP_MAX_HIDDEN").ok().map_or(3, |v| {
-        v.trim().parse().ok().filter(|m: &usize| (1..=3).contains(m)).unwrap_or_else(|| panic!("SWEEP_MAX_HIDDEN={v}: 1, 2 or 3"))
+        v.trim()
+            .parse()
+            .ok()
+            .filter(|m: &usize| (1..=3).contains(m))
+            .unwrap_or_else(|| panic!("SWEEP_MAX_HIDDEN={v}: 1, 2 or 3"))
     });
-    let effects: Vec<&str> = LIBRARY.iter().map(|e| e.name()).filter(|n| *n != "parallelogram_mismatch").collect();
+    let effects: Vec<&str> = LIBRARY
+        .iter()
+        .map(|e| e.name())
+        .filter(|n| *n != "parallelogram_mismatch")
+        .collect();
     let mut cases: Vec<Vec<&str>> = vec![vec![]];
     cases.extend(effects.iter().map(|e| vec![*e]));
     for i in 0..effects.len() {
@@ -167,12 +207,17 @@ fn sweep() {
                         None => Poses::Grid5mm,
                     };
                     let data = generate(&truth, poses, 5000 + id);
-                    let r = diagnose(&data, &DiagnoseOptions::paper(FiveBar::paper_nominal(), Some(noise_um))).unwrap();
+                    let r = diagnose(
+                        &data,
+                        &DiagnoseOptions::paper(FiveBar::paper_nominal(), Some(noise_um)),
+                    )
+                    .unwrap();
                     let named: Vec<&str> = r.steps.iter().map(|s| s.effect.as_str()).collect();
                     let twin = |e: &str| {
                         (e == "link_lengths"
                             && case.contains(&"scale")
-                            && r.confounded.contains(&vec!["link_lengths".to_string(), "scale".to_string()]))
+                            && r.confounded
+                                .contains(&vec!["link_lengths".to_string(), "scale".to_string()]))
                             || (e == "encoder_offset" && case.contains(&"gear_ratio"))
                     };
                     // Named, not hidden, not an exact twin, but declared ambiguous with a hidden
@@ -187,14 +232,22 @@ fn sweep() {
                     let declared: Vec<&str> = named
                         .iter()
                         .copied()
-                        .filter(|e| !case.contains(e) && !twin(e) && r.declares_alternative(e, &truth_terms))
+                        .filter(|e| {
+                            !case.contains(e) && !twin(e) && r.declares_alternative(e, &truth_terms)
+                        })
                         .collect();
-                    let false_pos: Vec<&str> =
-                        named.iter().copied().filter(|e| !case.contains(e) && !twin(e) && !declared.contains(e)).collect();
+                    let false_pos: Vec<&str> = named
+                        .iter()
+                        .copied()
+                        .filter(|e| !case.contains(e) && !twin(e) && !declared.contains(e))
+                        .collect();
                     let missed: Vec<&str> = case
                         .iter()
                         .copied()
-                        .filter(|e| !(named.contains(e) || (*e == "scale" && named.contains(&"link_lengths"))))
+                        .filter(|e| {
+                            !(named.contains(e)
+                                || (*e == "scale" && named.contains(&"link_lengths")))
+                        })
                         .collect();
                     let flag_wrong = r.unexplained != (ool != "none");
                     let t = tally.entry((case.len(), ool)).or_default();
@@ -243,7 +296,13 @@ fn sweep() {
     );
     println!(
         "{:<8} {:<8} {:>6} {:>16} {:>12} {:>18} {:>18}",
-        "hidden", "extra", "runs", "false positives", "misses", "unexplained wrong", "declared ambiguous"
+        "hidden",
+        "extra",
+        "runs",
+        "false positives",
+        "misses",
+        "unexplained wrong",
+        "declared ambiguous"
     );
     let mut total = [0usize; 5];
     for ((size, ool), t) in &tally {
@@ -273,10 +332,19 @@ fn write_example(path: &str) {
         noise_um: NOISE_UM,
         link_delta_um: [40.0, -25.0, 30.0, -60.0],
         backlash_urad: [120.0, 80.0],
-        cyclic: Some(Cyclic { motor: 0, cycles: 50.0, amplitude_urad: 40.0, phase_rad: 0.3 }),
+        cyclic: Some(Cyclic {
+            motor: 0,
+            cycles: 50.0,
+            amplitude_urad: 40.0,
+            phase_rad: 0.3,
+        }),
         ..Default::default()
     };
-    std::fs::write(path, format_measurements(&generate(&truth, Poses::Grid5mm, 42))).unwrap();
+    std::fs::write(
+        path,
+        format_measurements(&generate(&truth, Poses::Grid5mm, 42)),
+    )
+    .unwrap();
     println!("{truth:?}");
 }
 
@@ -290,9 +358,17 @@ fn table1_power() {
             let mut other: std::collections::BTreeMap<String, usize> = Default::default();
             for seed in 0..n {
                 let mut rng = ChaCha8Rng::seed_from_u64(seed);
-                let mut truth = Truth { noise_um: 20.0, ..Default::default() };
+                let mut truth = Truth {
+                    noise_um: 20.0,
+                    ..Default::default()
+                };
                 if effect != "none" {
-                    truth.add_random(PhysicalEffect::from_name(effect).expect("an effect name"), &mut rng).expect("a library effect");
+                    truth
+                        .add_random(
+                            PhysicalEffect::from_name(effect).expect("an effect name"),
+                            &mut rng,
+                        )
+                        .expect("a library effect");
                 }
                 let mut truth = truth.scaled(f);
                 truth.noise_um = 20.0;
@@ -301,9 +377,17 @@ fn table1_power() {
                     m.dir = None;
                     m.t_s = None;
                 }
-                let r = diagnose(&data, &DiagnoseOptions::paper(FiveBar::paper_nominal(), Some(20.0))).unwrap();
+                let r = diagnose(
+                    &data,
+                    &DiagnoseOptions::paper(FiveBar::paper_nominal(), Some(20.0)),
+                )
+                .unwrap();
                 let named: Vec<&str> = r.steps.iter().map(|s| s.effect.as_str()).collect();
-                let want: Vec<&str> = if effect == "none" { vec![] } else { vec![effect] };
+                let want: Vec<&str> = if effect == "none" {
+                    vec![]
+                } else {
+                    vec![effect]
+                };
                 if named == want {
                     exact += 1;
                 } else {
@@ -316,8 +400,24 @@ fn table1_power() {
 }
 
 /// `host-sim measure` on the paper machine.
-fn measured(p: &PlantConfig, cal: &Calibration<'_>, protocol: Protocol, seed: u64, noise_um: Option<f64>) -> Vec<host_sim::io::measurement_csv::Measurement> {
-    measure(p, cal, &MeasureOptions { protocol, seed, noise_um, spec: MachineSpec::paper() }).unwrap()
+fn measured(
+    p: &PlantConfig,
+    cal: &Calibration<'_>,
+    protocol: Protocol,
+    seed: u64,
+    noise_um: Option<f64>,
+) -> Vec<host_sim::io::measurement_csv::Measurement> {
+    measure(
+        p,
+        cal,
+        &MeasureOptions {
+            protocol,
+            seed,
+            noise_um,
+            spec: MachineSpec::paper(),
+        },
+    )
+    .unwrap()
 }
 
 /// The plant outputs of DIAGNOSIS.md: the six-bar plant measured by `host-sim measure` at 1 µm
@@ -326,15 +426,24 @@ fn measured(p: &PlantConfig, cal: &Calibration<'_>, protocol: Protocol, seed: u6
 /// report for the six-bar's link errors and, for comparison, the same plant solved as its
 /// effective five-bar.
 fn plant_outputs() {
-    let cal = Calibration { model: FiveBar::<f32>::paper_nominal(), grid: None };
+    let cal = Calibration {
+        model: FiveBar::<f32>::paper_nominal(),
+        grid: None,
+    };
     let run = |p: &PlantConfig, protocol: Protocol, seed: u64| {
         let data = measured(p, &cal, protocol, seed, Some(1.0));
-        diagnose(&data, &DiagnoseOptions::paper(FiveBar::paper_nominal(), Some(1.0))).unwrap()
+        diagnose(
+            &data,
+            &DiagnoseOptions::paper(FiveBar::paper_nominal(), Some(1.0)),
+        )
+        .unwrap()
     };
     let mut cyclic = PlantConfig::ideal();
     cyclic.drive_1.cyclic_error_urad = 40.0;
     cyclic.drive_1.cyclic_error_cycles_per_motor_rev = 5.0;
-    let mut both = PlantConfig::paper().with_only(PhysicalEffect::EncoderOffset).unwrap();
+    let mut both = PlantConfig::paper()
+        .with_only(PhysicalEffect::EncoderOffset)
+        .unwrap();
     both.drive_1.backlash_urad = 120.0;
     both.drive_2.backlash_urad = 80.0;
     let mut scale = PlantConfig::ideal();
@@ -345,29 +454,104 @@ fn plant_outputs() {
     let mut backlash = PlantConfig::ideal();
     backlash.drive_1.backlash_urad = 150.0;
     backlash.drive_2.backlash_urad = 90.0;
-    let paper_links = PlantConfig::paper().with_only(PhysicalEffect::LinkGeometry).unwrap();
+    let paper_links = PlantConfig::paper()
+        .with_only(PhysicalEffect::LinkGeometry)
+        .unwrap();
     let mut links_backlash = paper_links.clone();
     links_backlash.drive_1.backlash_urad = 120.0;
     links_backlash.drive_2.backlash_urad = 80.0;
     let mut paper_links_five = paper_links.clone();
     paper_links_five.sixbar.model = PlantModel::Fivebar;
     let cases: Vec<(&str, PlantConfig, Protocol, u64)> = vec![
-        ("noise only", PlantConfig::ideal(), Protocol::Random(150), 40),
-        ("paper clearances", PlantConfig::paper().with_only(PhysicalEffect::Clearance).unwrap(), Protocol::Random(150), 43),
-        ("paper quantization", PlantConfig::paper().with_only(PhysicalEffect::EncoderQuantization).unwrap(), Protocol::Random(150), 44),
-        ("paper encoder offsets", PlantConfig::paper().with_only(PhysicalEffect::EncoderOffset).unwrap(), Protocol::Random(150), 2),
+        (
+            "noise only",
+            PlantConfig::ideal(),
+            Protocol::Random(150),
+            40,
+        ),
+        (
+            "paper clearances",
+            PlantConfig::paper()
+                .with_only(PhysicalEffect::Clearance)
+                .unwrap(),
+            Protocol::Random(150),
+            43,
+        ),
+        (
+            "paper quantization",
+            PlantConfig::paper()
+                .with_only(PhysicalEffect::EncoderQuantization)
+                .unwrap(),
+            Protocol::Random(150),
+            44,
+        ),
+        (
+            "paper encoder offsets",
+            PlantConfig::paper()
+                .with_only(PhysicalEffect::EncoderOffset)
+                .unwrap(),
+            Protocol::Random(150),
+            2,
+        ),
         ("backlash 150/90 µrad", backlash, Protocol::Random(150), 2),
         ("frame 72 µm, 262 µrad", frame, Protocol::Random(150), 3),
-        ("paper instrument frame", PlantConfig::paper().with_only(PhysicalEffect::Frame).unwrap(), Protocol::Random(150), 3),
+        (
+            "paper instrument frame",
+            PlantConfig::paper()
+                .with_only(PhysicalEffect::Frame)
+                .unwrap(),
+            Protocol::Random(150),
+            3,
+        ),
         ("scale 300 ppm", scale, Protocol::Random(150), 4),
-        ("paper offsets + backlash 120/80", both, Protocol::Random(150), 7),
-        ("cyclic 40 µrad, 5/motor rev, motor 1", cyclic, Protocol::Grid, 70),
-        ("paper link errors (six-bar)", paper_links.clone(), Protocol::Random(200), 60),
-        ("paper link errors (effective five-bar)", paper_links_five.clone(), Protocol::Random(200), 60),
-        ("random link errors σ 50 µm, seed 11", PlantConfig::ideal().with_random_errors(11, 0.05, 0.0), Protocol::Random(200), 61),
-        ("random link errors σ 50 µm, seed 12", PlantConfig::ideal().with_random_errors(12, 0.05, 0.0), Protocol::Random(200), 62),
-        ("paper link errors + backlash 120/80 µrad", links_backlash, Protocol::Random(400), 63),
-        ("the paper plant (every effect it has)", PlantConfig::paper(), Protocol::Random(400), 1),
+        (
+            "paper offsets + backlash 120/80",
+            both,
+            Protocol::Random(150),
+            7,
+        ),
+        (
+            "cyclic 40 µrad, 5/motor rev, motor 1",
+            cyclic,
+            Protocol::Grid,
+            70,
+        ),
+        (
+            "paper link errors (six-bar)",
+            paper_links.clone(),
+            Protocol::Random(200),
+            60,
+        ),
+        (
+            "paper link errors (effective five-bar)",
+            paper_links_five.clone(),
+            Protocol::Random(200),
+            60,
+        ),
+        (
+            "random link errors σ 50 µm, seed 11",
+            PlantConfig::ideal().with_random_errors(11, 0.05, 0.0),
+            Protocol::Random(200),
+            61,
+        ),
+        (
+            "random link errors σ 50 µm, seed 12",
+            PlantConfig::ideal().with_random_errors(12, 0.05, 0.0),
+            Protocol::Random(200),
+            62,
+        ),
+        (
+            "paper link errors + backlash 120/80 µrad",
+            links_backlash,
+            Protocol::Random(400),
+            63,
+        ),
+        (
+            "the paper plant (every effect it has)",
+            PlantConfig::paper(),
+            Protocol::Random(400),
+            1,
+        ),
     ];
     println!("| plant (1 µm noise) | protocol | named | confounded | start RMS µm | final RMS µm | χ²/dof | unexplained |");
     println!("|---|---|---|---|---|---|---|---|");
@@ -377,8 +561,16 @@ fn plant_outputs() {
         let conf: Vec<String> = r.confounded.iter().map(|c| c.join("~")).collect();
         println!(
             "| {what} | {protocol:?} | {} | {} | {:.1} | {:.2} | {:.2} | {} |",
-            if named.is_empty() { "—".to_string() } else { named.join(", ") },
-            if conf.is_empty() { "—".to_string() } else { conf.join(", ") },
+            if named.is_empty() {
+                "—".to_string()
+            } else {
+                named.join(", ")
+            },
+            if conf.is_empty() {
+                "—".to_string()
+            } else {
+                conf.join(", ")
+            },
             r.initial_rms_um,
             r.final_rms_um,
             r.chi2_per_dof.unwrap_or(f64::NAN),
@@ -391,7 +583,9 @@ fn plant_outputs() {
     let d: Vec<f64> = six
         .iter()
         .zip(&five)
-        .map(|(a, b)| (a.measured_mm[0] - b.measured_mm[0]).hypot(a.measured_mm[1] - b.measured_mm[1]) * 1e3)
+        .map(|(a, b)| {
+            (a.measured_mm[0] - b.measured_mm[0]).hypot(a.measured_mm[1] - b.measured_mm[1]) * 1e3
+        })
         .collect();
     let m = host_sim::numeric::max_rms(&d);
     println!(
@@ -400,7 +594,13 @@ fn plant_outputs() {
         m.rms,
         m.max
     );
-    for (what, p) in [("six-bar", &paper_links), ("effective five-bar", &paper_links_five)] {
-        println!("\n== paper link errors, {what}, random:200 seed 60\n{}", table(&run(p, Protocol::Random(200), 60)));
+    for (what, p) in [
+        ("six-bar", &paper_links),
+        ("effective five-bar", &paper_links_five),
+    ] {
+        println!(
+            "\n== paper link errors, {what}, random:200 seed 60\n{}",
+            table(&run(p, Protocol::Random(200), 60))
+        );
     }
 }

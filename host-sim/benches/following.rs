@@ -21,15 +21,33 @@ use host_sim::sim::closed_loop::{run_loop_with, FeedForward, LoopSummary};
 use host_sim::sim::trajectory::Trajectory;
 use kinematics_core::{Calibration, FiveBar};
 
-fn run(cfg: &PlantConfig, cal: &Calibration<'_>, spec: &MachineSpec, trajectory: &str, ff: &FeedForward) -> LoopSummary {
+fn run(
+    cfg: &PlantConfig,
+    cal: &Calibration<'_>,
+    spec: &MachineSpec,
+    trajectory: &str,
+    ff: &FeedForward,
+) -> LoopSummary {
     let tr = Trajectory::by_name(trajectory, spec).expect("built-in trajectory");
     let mut plant = Plant::new(cfg, 1);
-    run_loop_with(&mut plant, cal, &tr, tr.natural_duration_s(), spec, ff, None).expect("closed loop")
+    run_loop_with(
+        &mut plant,
+        cal,
+        &tr,
+        tr.natural_duration_s(),
+        spec,
+        ff,
+        None,
+    )
+    .expect("closed loop")
 }
 
 fn main() {
     let spec = MachineSpec::paper();
-    let cal = Calibration { model: FiveBar::<f32>::paper_nominal(), grid: None };
+    let cal = Calibration {
+        model: FiveBar::<f32>::paper_nominal(),
+        grid: None,
+    };
     println!("following error at the tool, 5 g moves (max / RMS um; faults flagged)");
     println!(
         "{:<7} {:<11} {:<28} {:>9} {:>9} {:>12} {:>11}",
@@ -41,21 +59,35 @@ fn main() {
         let d = id.dynamics;
         let cases = [
             ("dynamics (identified)", FeedForward::Dynamics(d)),
-            ("dynamics, masses +20 %", FeedForward::Dynamics(d.scaled_masses([1.2; 5]))),
-            ("dynamics, masses -20 %", FeedForward::Dynamics(d.scaled_masses([0.8; 5]))),
-            ("dynamics, masses +-20 % alt.", FeedForward::Dynamics(d.scaled_masses([1.2, 0.8, 1.2, 0.8, 1.2]))),
+            (
+                "dynamics, masses +20 %",
+                FeedForward::Dynamics(d.scaled_masses([1.2; 5])),
+            ),
+            (
+                "dynamics, masses -20 %",
+                FeedForward::Dynamics(d.scaled_masses([0.8; 5])),
+            ),
+            (
+                "dynamics, masses +-20 % alt.",
+                FeedForward::Dynamics(d.scaled_masses([1.2, 0.8, 1.2, 0.8, 1.2])),
+            ),
             ("constant inertia", FeedForward::Constant),
             ("differences (before)", FeedForward::Differences),
         ];
         for trajectory in ["p2p", "circle-5g", "figure8-5g"] {
             for (name, ff) in &cases {
                 let s = run(&cfg, &cal, &spec, trajectory, ff);
-                let fault = s.fault.as_deref().map(|f| format!("  FAULT {f}")).unwrap_or_default();
+                let fault = s
+                    .fault
+                    .as_deref()
+                    .map(|f| format!("  FAULT {f}"))
+                    .unwrap_or_default();
                 println!(
                     "{plant:<7} {trajectory:<11} {name:<28} {:>9.2} {:>9.2} {:>12} {:>11}{fault}",
                     s.max_following_err_um,
                     s.rms_following_err_um,
-                    s.max_following_err_5g_um.map_or("-".to_string(), |e| format!("{e:.2}")),
+                    s.max_following_err_5g_um
+                        .map_or("-".to_string(), |e| format!("{e:.2}")),
                     s.samples_at_5g,
                 );
             }

@@ -18,7 +18,10 @@ use std::time::Instant;
 fn loop_factor(model: PlantModel, trajectory: &str, seconds: f64) -> (f64, f64) {
     let mut cfg = PlantConfig::paper();
     cfg.sixbar.model = model;
-    let cal = Calibration { model: FiveBar::<f32>::paper_nominal(), grid: None };
+    let cal = Calibration {
+        model: FiveBar::<f32>::paper_nominal(),
+        grid: None,
+    };
     let spec = MachineSpec::paper();
     let tr = Trajectory::by_name(trajectory, &spec).unwrap();
     let mut best: f64 = 0.0;
@@ -46,10 +49,15 @@ fn per_call_ns(n: usize, mut f: impl FnMut(usize)) -> f64 {
 
 fn main() {
     println!("closed loop, paper plant, one core (best of 3):");
-    for (name, model) in [("five-bar plant", PlantModel::Fivebar), ("six-bar plant (compliant, solved)", PlantModel::Sixbar)] {
+    for (name, model) in [
+        ("five-bar plant", PlantModel::Fivebar),
+        ("six-bar plant (compliant, solved)", PlantModel::Sixbar),
+    ] {
         for tr in ["circle", "p2p"] {
             let (f, e) = loop_factor(model, tr, 4.0);
-            println!("  {name:36} {tr:7} realtime factor {f:9.0}x   (max following error {e:.1} um)");
+            println!(
+                "  {name:36} {tr:7} realtime factor {f:9.0}x   (max following error {e:.1} um)"
+            );
         }
     }
 
@@ -58,16 +66,24 @@ fn main() {
     let five = spec.nominal;
     let tr = Trajectory::by_name("circle", &spec).unwrap();
     let path: Vec<[f64; 2]> = (0..8000).map(|k| tr.at(k as f64 * 5e-4)).collect();
-    let path_theta: Vec<[f64; 2]> = path.iter().map(|&p| five.inverse(p, 0.0).unwrap()).collect();
+    let path_theta: Vec<[f64; 2]> = path
+        .iter()
+        .map(|&p| five.inverse(p, 0.0).unwrap())
+        .collect();
     let g = spec.grid;
     let scattered: Vec<[f64; 2]> = (0..2000)
-        .map(|k| five.inverse(g.node_mm(k % g.nx, (k * 7) % g.ny), 0.0).unwrap())
+        .map(|k| {
+            five.inverse(g.node_mm(k % g.nx, (k * 7) % g.ny), 0.0)
+                .unwrap()
+        })
         .collect();
     let cfg = PlantConfig::paper();
     let mut sb = SixBar::new(&cfg.sixbar);
     let mut iters = 0u64;
     let warm = per_call_ns(path_theta.len(), |i| {
-        let s = sb.solve(black_box(path_theta[i % path_theta.len()])).unwrap();
+        let s = sb
+            .solve(black_box(path_theta[i % path_theta.len()]))
+            .unwrap();
         iters += u64::from(s.iterations);
     });
     let warm_iters = iters as f64 / (path_theta.len() as f64 * 1.1);
@@ -84,13 +100,17 @@ fn main() {
         acc += t[0];
     });
     let fk = per_call_ns(200_000, |i| {
-        let c = five.forward(black_box(path_theta[i % path_theta.len()]), 0.0).unwrap();
+        let c = five
+            .forward(black_box(path_theta[i % path_theta.len()]), 0.0)
+            .unwrap();
         acc += c[0];
     });
     let five32 = FiveBar::<f32>::paper_nominal();
     let ik32 = per_call_ns(200_000, |i| {
         let p = path[i % path.len()];
-        let t = five32.inverse(black_box([p[0] as f32, p[1] as f32]), 0.0).unwrap();
+        let t = five32
+            .inverse(black_box([p[0] as f32, p[1] as f32]), 0.0)
+            .unwrap();
         acc += f64::from(t[0]);
     });
     // The plant's dynamics per 2 kHz sample: the linkage's inertia once, 10 RK4 substeps.
@@ -98,7 +118,11 @@ fn main() {
     let start = five.inverse(path[0], 0.0).unwrap();
     dyn_plant.settle(start, [1, 1]).unwrap();
     let dynamics = per_call_ns(20_000, |i| {
-        let tau = if (i / 200) % 2 == 0 { [0.3, -0.2] } else { [-0.3, 0.2] };
+        let tau = if (i / 200) % 2 == 0 {
+            [0.3, -0.2]
+        } else {
+            [-0.3, 0.2]
+        };
         dyn_plant.advance(black_box(tau), 5e-4, 10).unwrap();
     });
     black_box(acc);
@@ -109,7 +133,13 @@ fn main() {
     println!("  five-bar closed-form IK f64                           {ik:9.1} ns");
     println!("  five-bar closed-form FK f64                           {fk:9.1} ns");
     println!("  five-bar closed-form IK f32 (as in the firmware)      {ik32:9.1} ns");
-    println!("  ratio six-bar (warm) / five-bar FK                    {:9.0}x", warm / fk);
-    println!("  ratio six-bar (warm) / five-bar IK                    {:9.0}x", warm / ik);
+    println!(
+        "  ratio six-bar (warm) / five-bar FK                    {:9.0}x",
+        warm / fk
+    );
+    println!(
+        "  ratio six-bar (warm) / five-bar IK                    {:9.0}x",
+        warm / ik
+    );
     println!("  (the six-bar has no closed-form IK at all: an IK would wrap this solve in a 2-D Newton loop)");
 }

@@ -120,7 +120,10 @@ mod tests {
     fn names_round_trip_and_serialize_as_named() {
         for e in PhysicalEffect::ALL {
             assert_eq!(PhysicalEffect::from_name(e.name()), Some(e));
-            assert_eq!(serde_json::to_value(e).unwrap(), serde_json::json!(e.name()));
+            assert_eq!(
+                serde_json::to_value(e).unwrap(),
+                serde_json::json!(e.name())
+            );
         }
         assert_eq!(PhysicalEffect::from_name("links"), None);
     }

@@ -28,7 +28,10 @@
 #![forbid(unsafe_code)]
 #![deny(rust_2018_idioms, unused_must_use, rustdoc::broken_intra_doc_links)]
 // The library reports through its return values; the command line prints.
-#![cfg_attr(not(test), deny(clippy::print_stdout, clippy::print_stderr, clippy::dbg_macro))]
+#![cfg_attr(
+    not(test),
+    deny(clippy::print_stdout, clippy::print_stderr, clippy::dbg_macro)
+)]
 
 pub mod calib;
 pub mod diagnose;

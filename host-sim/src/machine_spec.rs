@@ -89,21 +89,38 @@ pub struct Workspace {
 impl Workspace {
     /// The rectangle `[x0, x1] × [y0, y1]`.
     pub fn rectangle(x_mm: [f64; 2], y_mm: [f64; 2], stop_margin_mm: f64) -> Result<Self, String> {
-        let region = ConvexWorkspace::rectangle(x_mm, y_mm).map_err(|e| format!("workspace rectangle: {e}"))?;
-        Ok(Workspace { x_mm, y_mm, region, is_rectangle: true, stop_margin_mm })
+        let region = ConvexWorkspace::rectangle(x_mm, y_mm)
+            .map_err(|e| format!("workspace rectangle: {e}"))?;
+        Ok(Workspace {
+            x_mm,
+            y_mm,
+            region,
+            is_rectangle: true,
+            stop_margin_mm,
+        })
     }
 
     /// A convex polygon, vertices counter-clockwise.
     pub fn polygon(vertices_mm: &[[f64; 2]], stop_margin_mm: f64) -> Result<Self, String> {
-        let region = ConvexWorkspace::new(vertices_mm).map_err(|e| format!("workspace polygon: {e}"))?;
+        let region =
+            ConvexWorkspace::new(vertices_mm).map_err(|e| format!("workspace polygon: {e}"))?;
         let (x_mm, y_mm) = region.bounds_mm();
-        Ok(Workspace { x_mm, y_mm, region, is_rectangle: false, stop_margin_mm })
+        Ok(Workspace {
+            x_mm,
+            y_mm,
+            region,
+            is_rectangle: false,
+            stop_margin_mm,
+        })
     }
 
     /// The centre (mm): the rectangle's centre, or the polygon's centroid (area-weighted).
     pub fn centre_mm(&self) -> [f64; 2] {
         if self.is_rectangle {
-            return [0.5 * (self.x_mm[0] + self.x_mm[1]), 0.5 * (self.y_mm[0] + self.y_mm[1])];
+            return [
+                0.5 * (self.x_mm[0] + self.x_mm[1]),
+                0.5 * (self.y_mm[0] + self.y_mm[1]),
+            ];
         }
         let v = self.region.vertices_mm();
         let (mut a, mut cx, mut cy) = (0.0, 0.0, 0.0);
@@ -119,7 +136,10 @@ impl Workspace {
 
     /// Half the bounding rectangle's extent along x and y (mm).
     pub fn half_mm(&self) -> [f64; 2] {
-        [0.5 * (self.x_mm[1] - self.x_mm[0]), 0.5 * (self.y_mm[1] - self.y_mm[0])]
+        [
+            0.5 * (self.x_mm[1] - self.x_mm[0]),
+            0.5 * (self.y_mm[1] - self.y_mm[0]),
+        ]
     }
 
     /// Whether `p_mm` is inside (edges included, to `tolerance_mm`).
@@ -181,8 +201,14 @@ impl Workspace {
 
     /// What the firmware reads: the polygon in f32 and the stop margin.
     pub fn limits(&self) -> Result<WorkspaceLimits, String> {
-        let region = self.region.cast::<f32>().map_err(|e| format!("the workspace in f32: {e}"))?;
-        Ok(WorkspaceLimits { region, stop_margin_mm: self.stop_margin_mm as f32 })
+        let region = self
+            .region
+            .cast::<f32>()
+            .map_err(|e| format!("the workspace in f32: {e}"))?;
+        Ok(WorkspaceLimits {
+            region,
+            stop_margin_mm: self.stop_margin_mm as f32,
+        })
     }
 }
 
@@ -199,7 +225,10 @@ pub struct GridLattice {
 impl GridLattice {
     /// Position of node (i, j).
     pub fn node_mm(&self, i: usize, j: usize) -> [f64; 2] {
-        [self.x0_mm + i as f64 * self.step_mm, self.y0_mm + j as f64 * self.step_mm]
+        [
+            self.x0_mm + i as f64 * self.step_mm,
+            self.y0_mm + j as f64 * self.step_mm,
+        ]
     }
 
     /// The far corner, node (nx − 1, ny − 1).
@@ -252,8 +281,12 @@ impl MachineSpec {
         MachineSpec {
             name: "paper".into(),
             nominal: paper::nominal(),
-            workspace: Workspace::rectangle(paper::WORKSPACE_X_MM, paper::WORKSPACE_Y_MM, paper::STOP_MARGIN_MM)
-                .expect("the paper workspace is a rectangle"),
+            workspace: Workspace::rectangle(
+                paper::WORKSPACE_X_MM,
+                paper::WORKSPACE_Y_MM,
+                paper::STOP_MARGIN_MM,
+            )
+            .expect("the paper workspace is a rectangle"),
             grid: GridLattice {
                 x0_mm: paper::WORKSPACE_X_MM[0],
                 y0_mm: paper::WORKSPACE_Y_MM[0],
@@ -273,7 +306,9 @@ impl MachineSpec {
     /// The grid nodes, x fastest (the order of the `grid` protocol and of the flash image).
     pub fn grid_nodes_mm(&self) -> Vec<[f64; 2]> {
         let g = &self.grid;
-        (0..g.ny).flat_map(|j| (0..g.nx).map(move |i| g.node_mm(i, j))).collect()
+        (0..g.ny)
+            .flat_map(|j| (0..g.nx).map(move |i| g.node_mm(i, j)))
+            .collect()
     }
 
     /// Checks that the description is a machine the tools can work on; the message names the
@@ -291,21 +326,38 @@ impl MachineSpec {
             ("approach.distance_mm", self.approach_mm, false),
             ("servo.max_acceleration_g", self.max_acceleration_g, false),
             ("grid.step_mm", self.grid.step_mm, false),
-            ("workspace.stop_margin_mm", self.workspace.stop_margin_mm, true),
+            (
+                "workspace.stop_margin_mm",
+                self.workspace.stop_margin_mm,
+                true,
+            ),
         ];
         for (key, v, zero_ok) in positive {
             let ok = v.is_finite() && (v > 0.0 || (zero_ok && v == 0.0));
             if !ok {
-                return Err(format!("'{key}' must be {}, not {v}", if zero_ok { "a non-negative number" } else { "positive" }));
+                return Err(format!(
+                    "'{key}' must be {}, not {v}",
+                    if zero_ok {
+                        "a non-negative number"
+                    } else {
+                        "positive"
+                    }
+                ));
             }
         }
         if !(self.min_transmission > 0.0 && self.min_transmission < 1.0) {
-            return Err(format!("'servo.min_transmission' must be in (0, 1), not {}", self.min_transmission));
+            return Err(format!(
+                "'servo.min_transmission' must be in (0, 1), not {}",
+                self.min_transmission
+            ));
         }
         let g = &self.grid;
         let max = usize::from(kinematics_core::grid::MAX_NODES_PER_AXIS);
         if !(2..=max).contains(&g.nx) || !(2..=max).contains(&g.ny) {
-            return Err(format!("the grid has {} x {} nodes; 2..={max} per axis", g.nx, g.ny));
+            return Err(format!(
+                "the grid has {} x {} nodes; 2..={max} per axis",
+                g.nx, g.ny
+            ));
         }
         if !(g.x0_mm.is_finite() && g.y0_mm.is_finite()) {
             return Err("the grid's origin is not finite".into());
@@ -314,7 +366,11 @@ impl MachineSpec {
         let tol = 1e-9 * (1.0 + far[0].abs().max(far[1].abs()));
         let ws = &self.workspace;
         for v in ws.region.vertices_mm() {
-            if v[0] < g.x0_mm - tol || v[0] > far[0] + tol || v[1] < g.y0_mm - tol || v[1] > far[1] + tol {
+            if v[0] < g.x0_mm - tol
+                || v[0] > far[0] + tol
+                || v[1] < g.y0_mm - tol
+                || v[1] > far[1] + tol
+            {
                 return Err(format!(
                     "workspace vertex ({}, {}) mm lies outside the grid's rectangle x [{}, {}], y [{}, {}] mm: the grid must cover the workspace",
                     v[0], v[1], g.x0_mm, far[0], g.y0_mm, far[1]
@@ -352,12 +408,21 @@ mod tests {
         let s = MachineSpec::paper();
         // The centre and the lattice's far corner are exactly the paper's printed numbers.
         assert_eq!(s.workspace.centre_mm(), [212.132, 0.0]);
-        assert_eq!(s.grid.node_mm(s.grid.nx - 1, s.grid.ny - 1), [s.workspace.x_mm[1], s.workspace.y_mm[1]]);
+        assert_eq!(
+            s.grid.node_mm(s.grid.nx - 1, s.grid.ny - 1),
+            [s.workspace.x_mm[1], s.workspace.y_mm[1]]
+        );
         let nodes = s.grid_nodes_mm();
-        assert_eq!((nodes.len(), nodes[1], nodes[21]), (651, [167.132, -75.0], [162.132, -70.0]));
+        assert_eq!(
+            (nodes.len(), nodes[1], nodes[21]),
+            (651, [167.132, -75.0], [162.132, -70.0])
+        );
         assert_eq!(s.validate(), Ok(()));
         assert_eq!(s.workspace.chord_mm(0, 0.0), Some([162.132, 262.132]));
-        assert!(s.workspace.contains([162.132, 75.0], 0.0) && !s.workspace.contains([212.132, -200.0], 0.0));
+        assert!(
+            s.workspace.contains([162.132, 75.0], 0.0)
+                && !s.workspace.contains([212.132, -200.0], 0.0)
+        );
         assert!(!s.workspace.contains([50.0, 0.0], 0.0));
     }
 
@@ -366,22 +431,38 @@ mod tests {
         // A triangle: centroid at the vertices' mean; chords by intersection.
         let w = Workspace::polygon(&[[0.0, 0.0], [30.0, 0.0], [0.0, 30.0]], 0.0).unwrap();
         let c = w.centre_mm();
-        assert!((c[0] - 10.0).abs() < 1e-12 && (c[1] - 10.0).abs() < 1e-12, "{c:?}");
+        assert!(
+            (c[0] - 10.0).abs() < 1e-12 && (c[1] - 10.0).abs() < 1e-12,
+            "{c:?}"
+        );
         assert_eq!(w.chord_mm(0, 10.0), Some([0.0, 20.0]));
         assert_eq!(w.chord_mm(1, 0.0), Some([0.0, 30.0]));
         assert_eq!(w.chord_mm(0, 31.0), None);
         assert_eq!((w.x_mm, w.y_mm), ([0.0, 30.0], [0.0, 30.0]));
-        assert!(Workspace::polygon(&[[0.0, 0.0], [0.0, 30.0], [30.0, 0.0]], 0.0).is_err(), "clockwise");
+        assert!(
+            Workspace::polygon(&[[0.0, 0.0], [0.0, 30.0], [30.0, 0.0]], 0.0).is_err(),
+            "clockwise"
+        );
     }
 
     #[test]
     fn validation_names_what_is_wrong() {
         let mut s = MachineSpec::paper();
         s.grid.nx = 20;
-        assert!(s.validate().unwrap_err().contains("outside the grid's rectangle"), "{:?}", s.validate());
+        assert!(
+            s.validate()
+                .unwrap_err()
+                .contains("outside the grid's rectangle"),
+            "{:?}",
+            s.validate()
+        );
         let mut s = MachineSpec::paper();
         s.nominal.a_mm = 50.0;
-        assert!(s.validate().unwrap_err().contains("not reachable"), "{:?}", s.validate());
+        assert!(
+            s.validate().unwrap_err().contains("not reachable"),
+            "{:?}",
+            s.validate()
+        );
         let mut s = MachineSpec::paper();
         s.instrument_sigma_um = f64::NAN;
         assert!(s.validate().unwrap_err().contains("instrument.sigma_um"));

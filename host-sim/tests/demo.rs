@@ -16,13 +16,19 @@ fn demo_runs_the_whole_story_and_writes_every_file() {
         .args(["demo", "--out", out_dir.to_str().unwrap(), "--seed", "3"])
         .output()
         .unwrap();
-    let (stdout, stderr) = (String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
+    let (stdout, stderr) = (
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr),
+    );
     assert!(out.status.success(), "{stderr}");
     eprintln!("{stderr}");
 
     // stdout is exactly one JSON document; the table is on stderr.
     let v: serde_json::Value = serde_json::from_str(&stdout).unwrap();
-    assert!(stderr.contains("full fit + 5 mm grid (2 rounds)") && stderr.contains("met"), "{stderr}");
+    assert!(
+        stderr.contains("full fit + 5 mm grid (2 rounds)") && stderr.contains("met"),
+        "{stderr}"
+    );
     let stages = v["stages"].as_array().unwrap();
     let keys: Vec<&str> = stages.iter().map(|s| s["step"].as_str().unwrap()).collect();
     assert_eq!(keys, ["nominal", "ls", "full", "full+grid", "full+grid2"]);
@@ -34,10 +40,18 @@ fn demo_runs_the_whole_story_and_writes_every_file() {
     // re-measured 700 µm said of its fit); the `full` fit (A0 free) is, the grid improves on
     // it, and the second grid round only refines at the noise floor.
     assert!((1000.0..=1600.0).contains(&max(0)), "before: {} µm", max(0));
-    assert!(max(2) < max(0) / 20.0 && rms(2) < rms(0) / 20.0, "full fit: {stages:?}");
+    assert!(
+        max(2) < max(0) / 20.0 && rms(2) < rms(0) / 20.0,
+        "full fit: {stages:?}"
+    );
     assert!(max(3) < max(2) && rms(3) < rms(2), "grid: {stages:?}");
     for (k, key) in keys.iter().enumerate().skip(3) {
-        assert!(max(k) <= TARGET_MAX_UM && rms(k) <= TARGET_RMS_UM, "{key}: {} / {} µm", max(k), rms(k));
+        assert!(
+            max(k) <= TARGET_MAX_UM && rms(k) <= TARGET_RMS_UM,
+            "{key}: {} / {} µm",
+            max(k),
+            rms(k)
+        );
     }
     assert_eq!(v["final"]["met"], serde_json::json!(true));
     assert_eq!(v["final"]["max_um"], stages[4]["max_um"]);
@@ -47,27 +61,79 @@ fn demo_runs_the_whole_story_and_writes_every_file() {
     for name in FILES {
         let p = out_dir.join(name);
         assert!(p.is_file(), "missing {}", p.display());
-        assert!(v["files"].as_array().unwrap().iter().any(|f| f.as_str().unwrap().ends_with(name)), "{name} not listed");
+        assert!(
+            v["files"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .any(|f| f.as_str().unwrap().ends_with(name)),
+            "{name} not listed"
+        );
     }
-    let leftovers: Vec<_> = std::fs::read_dir(&out_dir).unwrap().map(|e| e.unwrap().file_name()).filter(|n| n.to_string_lossy().starts_with('.')).collect();
+    let leftovers: Vec<_> = std::fs::read_dir(&out_dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name())
+        .filter(|n| n.to_string_lossy().starts_with('.'))
+        .collect();
     assert!(leftovers.is_empty(), "temporary files left: {leftovers:?}");
     let model = read_model(&out_dir.join("model.json")).unwrap();
     read_model(&out_dir.join("model_ls.json")).unwrap();
     let image = std::fs::read(out_dir.join("grid.bin")).unwrap();
     let grid = CorrectionGrid::parse(&image).unwrap();
     assert_eq!((grid.geometry().nx, grid.geometry().ny), (21, 31));
-    assert_eq!(*grid.model(), model.cast::<f32>(), "the grid embeds the fitted model");
-    assert_eq!(read_measurements(&out_dir.join("fit_measurements.csv")).unwrap().len(), 40);
-    assert_eq!(read_measurements(&out_dir.join("grid_measurements.csv")).unwrap().len(), 21 * 31);
-    assert_eq!(read_measurements(&out_dir.join("grid_measurements_round2.csv")).unwrap().len(), 21 * 31);
+    assert_eq!(
+        *grid.model(),
+        model.cast::<f32>(),
+        "the grid embeds the fitted model"
+    );
+    assert_eq!(
+        read_measurements(&out_dir.join("fit_measurements.csv"))
+            .unwrap()
+            .len(),
+        40
+    );
+    assert_eq!(
+        read_measurements(&out_dir.join("grid_measurements.csv"))
+            .unwrap()
+            .len(),
+        21 * 31
+    );
+    assert_eq!(
+        read_measurements(&out_dir.join("grid_measurements_round2.csv"))
+            .unwrap()
+            .len(),
+        21 * 31
+    );
     for k in ["nominal", "ls", "full", "full_grid", "full_grid2"] {
-        assert_eq!(read_measurements(&out_dir.join(format!("verify_{k}.csv"))).unwrap().len(), 400);
+        assert_eq!(
+            read_measurements(&out_dir.join(format!("verify_{k}.csv")))
+                .unwrap()
+                .len(),
+            400
+        );
     }
-    assert_eq!(std::fs::read_to_string(out_dir.join("grid.csv")).unwrap().lines().count(), 1 + 21 * 31);
-    for png in ["errors_fit.png", "errors_grid.png", "errors_final.png", "grid_nodes.png"] {
-        assert_eq!(&std::fs::read(out_dir.join(png)).unwrap()[1..4], b"PNG", "{png}");
+    assert_eq!(
+        std::fs::read_to_string(out_dir.join("grid.csv"))
+            .unwrap()
+            .lines()
+            .count(),
+        1 + 21 * 31
+    );
+    for png in [
+        "errors_fit.png",
+        "errors_grid.png",
+        "errors_final.png",
+        "grid_nodes.png",
+    ] {
+        assert_eq!(
+            &std::fs::read(out_dir.join(png)).unwrap()[1..4],
+            b"PNG",
+            "{png}"
+        );
     }
-    let summary: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out_dir.join("summary.json")).unwrap()).unwrap();
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out_dir.join("summary.json")).unwrap())
+            .unwrap();
     assert_eq!(summary, v, "summary.json is the stdout JSON");
 }
 
@@ -76,7 +142,10 @@ fn demo_is_reproducible_for_a_seed() {
     let dir = tempfile::tempdir().unwrap();
     let run = |sub: &str| {
         let p = dir.path().join(sub);
-        let out = Command::new(env!("CARGO_BIN_EXE_host-sim")).args(["demo", "--out", p.to_str().unwrap(), "--seed", "7"]).output().unwrap();
+        let out = Command::new(env!("CARGO_BIN_EXE_host-sim"))
+            .args(["demo", "--out", p.to_str().unwrap(), "--seed", "7"])
+            .output()
+            .unwrap();
         assert!(out.status.success());
         let mut v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
         v["out_dir"] = serde_json::Value::Null;
@@ -92,9 +161,15 @@ fn demo_into_an_unwritable_place_fails_clearly() {
     // A file where the output directory should be.
     let blocker = dir.path().join("taken");
     std::fs::write(&blocker, b"x").unwrap();
-    let out = Command::new(env!("CARGO_BIN_EXE_host-sim")).args(["demo", "--out", blocker.to_str().unwrap()]).output().unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_host-sim"))
+        .args(["demo", "--out", blocker.to_str().unwrap()])
+        .output()
+        .unwrap();
     assert!(!out.status.success());
     let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(stderr.contains("error:") && stderr.contains("taken"), "{stderr}");
+    assert!(
+        stderr.contains("error:") && stderr.contains("taken"),
+        "{stderr}"
+    );
     assert!(out.stdout.is_empty(), "no JSON on failure");
 }

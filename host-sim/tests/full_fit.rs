@@ -1,7 +1,9 @@
 //! `fit --method full` on synthetic five-bars: parameters recovered within their standard
 //! deviations, and confounded parameters detected and held, not fitted.
 
-use host_sim::calib::fit::blunders::{fit_full_robust, RejectOptions, RobustFit, DEFAULT_REJECT_SIGMA};
+use host_sim::calib::fit::blunders::{
+    fit_full_robust, RejectOptions, RobustFit, DEFAULT_REJECT_SIGMA,
+};
 use host_sim::calib::fit::full::{fit_full, leave_one_out_exact_um, leave_one_out_linearised_um};
 use host_sim::calib::fit::params::{to_vector, NAMES};
 use host_sim::io::measurement_csv::Measurement;
@@ -22,7 +24,12 @@ fn truth() -> FiveBar<f64> {
 }
 
 /// Measurements of `truth` at targets commanded with the nominal model, noise σ (mm).
-fn measure(truth: &FiveBar<f64>, targets: &[[f64; 2]], sigma_mm: f64, seed: u64) -> Vec<Measurement> {
+fn measure(
+    truth: &FiveBar<f64>,
+    targets: &[[f64; 2]],
+    sigma_mm: f64,
+    seed: u64,
+) -> Vec<Measurement> {
     let nominal = FiveBar::<f64>::paper_nominal();
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let noise = Normal::new(0.0, sigma_mm).unwrap();
@@ -47,7 +54,14 @@ fn measure(truth: &FiveBar<f64>, targets: &[[f64; 2]], sigma_mm: f64, seed: u64)
 
 fn random_targets(n: usize, seed: u64) -> Vec<[f64; 2]> {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    (0..n).map(|_| [rng.random_range(162.0..262.0), rng.random_range(-75.0..75.0)]).collect()
+    (0..n)
+        .map(|_| {
+            [
+                rng.random_range(162.0..262.0),
+                rng.random_range(-75.0..75.0),
+            ]
+        })
+        .collect()
 }
 
 #[test]
@@ -55,7 +69,11 @@ fn recovers_perturbed_parameters_within_std_dev() {
     let t = truth();
     let data = measure(&t, &random_targets(60, 1), 0.001, 2);
     let f = fit_full(&data, &FiveBar::paper_nominal(), &[]).unwrap();
-    assert!(f.identifiability.fixed.is_empty(), "{:?}", f.identifiability.fixed);
+    assert!(
+        f.identifiability.fixed.is_empty(),
+        "{:?}",
+        f.identifiability.fixed
+    );
     let (got, want) = (to_vector(&f.model), to_vector(&t));
     let mut worst_z: f64 = 0.0;
     for k in 0..NAMES.len() {
@@ -64,15 +82,32 @@ fn recovers_perturbed_parameters_within_std_dev() {
         let z = (got[k] - want[k]) / sd;
         worst_z = worst_z.max(z.abs());
         // 4σ: eight parameters, a false alarm is ~5e-4.
-        assert!(z.abs() < 4.0, "{}: got {} want {} sd {sd} (z = {z:.2})", NAMES[k], got[k], want[k]);
+        assert!(
+            z.abs() < 4.0,
+            "{}: got {} want {} sd {sd} (z = {z:.2})",
+            NAMES[k],
+            got[k],
+            want[k]
+        );
     }
     // The estimated residual σ matches the noise put in.
     assert!((f.sigma_mm - 0.001).abs() < 0.0003, "sigma {}", f.sigma_mm);
     // And without noise the fit is exact.
-    let exact = fit_full(&measure(&t, &random_targets(20, 3), 1e-12, 4), &FiveBar::paper_nominal(), &[]).unwrap();
+    let exact = fit_full(
+        &measure(&t, &random_targets(20, 3), 1e-12, 4),
+        &FiveBar::paper_nominal(),
+        &[],
+    )
+    .unwrap();
     let (got, want) = (to_vector(&exact.model), to_vector(&t));
     for k in 0..NAMES.len() {
-        assert!((got[k] - want[k]).abs() < 1e-7, "{}: {} vs {}", NAMES[k], got[k], want[k]);
+        assert!(
+            (got[k] - want[k]).abs() < 1e-7,
+            "{}: {} vs {}",
+            NAMES[k],
+            got[k],
+            want[k]
+        );
     }
 }
 
@@ -85,7 +120,10 @@ fn flags_confounded_parameters_on_degenerate_data() {
     // Motor 2 fixed at -45°, motor 1 swept.
     let data: Vec<Measurement> = (0..15)
         .map(|k| {
-            let th = [(30.0 + 2.0 * k as f64).to_radians(), (-45.0f64).to_radians()];
+            let th = [
+                (30.0 + 2.0 * k as f64).to_radians(),
+                (-45.0f64).to_radians(),
+            ];
             let c = t.forward(th, 0.0).unwrap();
             Measurement {
                 theta_deg: [th[0].to_degrees(), th[1].to_degrees()],
@@ -99,13 +137,40 @@ fn flags_confounded_parameters_on_degenerate_data() {
         })
         .collect();
     let f = fit_full(&data, &nominal, &[]).unwrap();
-    let fixed: Vec<&str> = f.identifiability.fixed.iter().map(|(k, _)| NAMES[*k]).collect();
-    assert_eq!(f.identifiability.rank_all, 6, "{:?}", f.identifiability.singular_values_rel);
+    let fixed: Vec<&str> = f
+        .identifiability
+        .fixed
+        .iter()
+        .map(|(k, _)| NAMES[*k])
+        .collect();
+    assert_eq!(
+        f.identifiability.rank_all, 6,
+        "{:?}",
+        f.identifiability.singular_values_rel
+    );
     // Ten parameters, rank 6: the four base coordinates (A0 and B0) are held at nominal.
-    assert_eq!(fixed, vec!["base_b0_y_mm", "base_b0_x_mm", "base_a0_y_mm", "base_a0_x_mm"], "{:?}", f.identifiability.fixed);
+    assert_eq!(
+        fixed,
+        vec![
+            "base_b0_y_mm",
+            "base_b0_x_mm",
+            "base_a0_y_mm",
+            "base_a0_x_mm"
+        ],
+        "{:?}",
+        f.identifiability.fixed
+    );
     let why = &f.identifiability.fixed[0].1;
-    assert!(why.contains("d_mm") || why.contains("encoder_offset_2_rad"), "{why}");
-    assert!(f.std_dev[4].is_none() && f.std_dev[5].is_none() && f.std_dev[8].is_none() && f.std_dev[9].is_none());
+    assert!(
+        why.contains("d_mm") || why.contains("encoder_offset_2_rad"),
+        "{why}"
+    );
+    assert!(
+        f.std_dev[4].is_none()
+            && f.std_dev[5].is_none()
+            && f.std_dev[8].is_none()
+            && f.std_dev[9].is_none()
+    );
     assert!(f.std_dev[3].unwrap().is_finite());
     // The free ones reproduce the data exactly (the elbow B is right even if d is not true d).
     let r = host_sim::calib::fit::params::residuals_mm(&f.model, &data).unwrap();
@@ -115,7 +180,10 @@ fn flags_confounded_parameters_on_degenerate_data() {
 #[test]
 fn refuses_fewer_points_than_parameters() {
     let data = measure(&truth(), &random_targets(4, 5), 0.001, 6);
-    let err = format!("{:#}", fit_full(&data, &FiveBar::paper_nominal(), &[]).unwrap_err());
+    let err = format!(
+        "{:#}",
+        fit_full(&data, &FiveBar::paper_nominal(), &[]).unwrap_err()
+    );
     assert!(err.contains("4 points give 8 equations"), "{err}");
 }
 
@@ -133,15 +201,29 @@ fn with_three_blunders() -> Vec<Measurement> {
     d
 }
 
-fn robust(data: &[Measurement], reject_sigma: f64) -> Result<RobustFit, host_sim::calib::CalibError> {
-    fit_full_robust(data, &FiveBar::paper_nominal(), &[], &RejectOptions { reject_sigma, instrument_sigma_um: 1.0 })
+fn robust(
+    data: &[Measurement],
+    reject_sigma: f64,
+) -> Result<RobustFit, host_sim::calib::CalibError> {
+    fit_full_robust(
+        data,
+        &FiveBar::paper_nominal(),
+        &[],
+        &RejectOptions {
+            reject_sigma,
+            instrument_sigma_um: 1.0,
+        },
+    )
 }
 
 #[test]
 fn blunder_test_names_exactly_the_planted_rows_and_recovers_the_clean_fit() {
     let clean = robust(&clean_60(), DEFAULT_REJECT_SIGMA).unwrap();
     let report = clean.report.as_ref().unwrap();
-    assert!(report.rejected.is_empty() && report.fits == 1 && report.settled, "clean data lost rows: {report:?}");
+    assert!(
+        report.rejected.is_empty() && report.fits == 1 && report.settled,
+        "clean data lost rows: {report:?}"
+    );
     assert_eq!(clean.kept.len(), 60);
 
     let got = robust(&with_three_blunders(), DEFAULT_REJECT_SIGMA).unwrap();
@@ -152,21 +234,46 @@ fn blunder_test_names_exactly_the_planted_rows_and_recovers_the_clean_fit() {
     // Each named with its file line and its residual against the fit without it.
     let by_row = |row: usize| report.rejected.iter().find(|r| r.row == row).unwrap();
     assert_eq!(by_row(7).line, 8);
-    assert!((by_row(7).residual_um - 500.0).abs() < 10.0, "{:?}", by_row(7));
-    assert!((by_row(23).residual_um - 100.0).abs() < 10.0, "{:?}", by_row(23));
+    assert!(
+        (by_row(7).residual_um - 500.0).abs() < 10.0,
+        "{:?}",
+        by_row(7)
+    );
+    assert!(
+        (by_row(23).residual_um - 100.0).abs() < 10.0,
+        "{:?}",
+        by_row(23)
+    );
     assert!(by_row(41).residual_um > 1e5, "{:?}", by_row(41));
-    assert!(report.rejected.iter().all(|r| r.sigma_units > report.threshold_sigma), "{report:?}");
+    assert!(
+        report
+            .rejected
+            .iter()
+            .all(|r| r.sigma_units > report.threshold_sigma),
+        "{report:?}"
+    );
     assert_eq!(got.kept.len(), 57);
     // The parameters agree with the clean fit's within one of its standard deviations.
     let (a, b) = (to_vector(&got.fit.model), to_vector(&clean.fit.model));
     for k in 0..NAMES.len() {
         let sd = clean.fit.std_dev[k].unwrap();
-        assert!((a[k] - b[k]).abs() < sd, "{}: {} vs clean {} (sd {sd})", NAMES[k], a[k], b[k]);
+        assert!(
+            (a[k] - b[k]).abs() < sd,
+            "{}: {} vs clean {} (sd {sd})",
+            NAMES[k],
+            a[k],
+            b[k]
+        );
     }
     // Off, the blunders stay in and spoil the fit.
     let off = robust(&with_three_blunders(), 0.0).unwrap();
     assert!(off.report.is_none() && off.kept.len() == 60);
-    assert!(off.fit.sigma_mm > 100.0 * clean.fit.sigma_mm, "{} vs {}", off.fit.sigma_mm, clean.fit.sigma_mm);
+    assert!(
+        off.fit.sigma_mm > 100.0 * clean.fit.sigma_mm,
+        "{} vs {}",
+        off.fit.sigma_mm,
+        clean.fit.sigma_mm
+    );
 }
 
 #[test]
@@ -177,8 +284,14 @@ fn blunder_test_refuses_more_than_the_allowed_fraction() {
         d[i].measured_mm[0] += 0.3;
     }
     let err = format!("{}", robust(&d, DEFAULT_REJECT_SIGMA).unwrap_err());
-    assert!(err.contains("8 of 60 rows") && err.contains("the data or the model are wrong"), "{err}");
-    assert!(err.contains("(rows 3, 10, 16, 23, 31, 38, 45, 52)"), "{err}");
+    assert!(
+        err.contains("8 of 60 rows") && err.contains("the data or the model are wrong"),
+        "{err}"
+    );
+    assert!(
+        err.contains("(rows 3, 10, 16, 23, 31, 38, 45, 52)"),
+        "{err}"
+    );
     // Six such rows are the most 60 rows may lose: fitted, and exactly those named.
     let mut d = clean_60();
     for i in [2, 9, 15, 22, 30, 37] {
@@ -228,16 +341,45 @@ fn a_precise_instrument_on_the_six_bar_is_no_flood_of_blunders() {
     use host_sim::calib::plan::{plan, PlanOptions};
     use host_sim::machine_spec::MachineSpec;
     use kinematics_core::Calibration;
-    let spec = MachineSpec { instrument_sigma_um: 0.1, ..MachineSpec::paper() };
+    let spec = MachineSpec {
+        instrument_sigma_um: 0.1,
+        ..MachineSpec::paper()
+    };
     let p = plan(&PlanOptions::new(spec.clone(), 1)).unwrap();
-    let nominal = Calibration { model: spec.nominal.cast(), grid: None };
+    let nominal = Calibration {
+        model: spec.nominal.cast(),
+        grid: None,
+    };
     for sigma_um in [0.0, 0.1, 0.3] {
         let mut machine = PlantMachine::by_name("paper", Some(sigma_um), 11).unwrap();
-        let data = rows(&measure_visits(&mut machine, &nominal, &p.identify, Approach::Positive, &spec, &mut 0).unwrap());
-        let got = fit_full_robust(&data, &spec.nominal, &[], &RejectOptions { reject_sigma: DEFAULT_REJECT_SIGMA, instrument_sigma_um: 0.1 })
-            .unwrap_or_else(|e| panic!("σ = {sigma_um} µm: {e}"));
+        let data = rows(
+            &measure_visits(
+                &mut machine,
+                &nominal,
+                &p.identify,
+                Approach::Positive,
+                &spec,
+                &mut 0,
+            )
+            .unwrap(),
+        );
+        let got = fit_full_robust(
+            &data,
+            &spec.nominal,
+            &[],
+            &RejectOptions {
+                reject_sigma: DEFAULT_REJECT_SIGMA,
+                instrument_sigma_um: 0.1,
+            },
+        )
+        .unwrap_or_else(|e| panic!("σ = {sigma_um} µm: {e}"));
         let report = got.report.unwrap();
-        eprintln!("σ = {sigma_um} µm: {} rejected, scale {} µm ({:?})", report.rejected.len(), report.sigma_um, report.sigma_source);
+        eprintln!(
+            "σ = {sigma_um} µm: {} rejected, scale {} µm ({:?})",
+            report.rejected.len(),
+            report.sigma_um,
+            report.sigma_source
+        );
         assert!(report.rejected.len() <= 1, "σ = {sigma_um} µm: {report:?}");
     }
 }

@@ -62,7 +62,10 @@ fn max_error_um(truth: &FiveBar<f64>, cal: &Calibration<'_>) -> f64 {
     let mut rng = ChaCha8Rng::seed_from_u64(7);
     (0..300)
         .map(|_| {
-            let t = [rng.random_range(165.0..260.0), rng.random_range(-75.0..75.0)];
+            let t = [
+                rng.random_range(165.0..260.0),
+                rng.random_range(-75.0..75.0),
+            ];
             let m = &measure(truth, cal, &[t])[0];
             (m.measured_mm[0] - t[0]).hypot(m.measured_mm[1] - t[1]) * 1e3
         })
@@ -73,12 +76,18 @@ fn max_error_um(truth: &FiveBar<f64>, cal: &Calibration<'_>) -> f64 {
 fn commanding_through_the_grid_puts_the_tool_on_the_target() {
     let truth = machine();
     let model = FiveBar::<f64>::paper_nominal();
-    let bare = Calibration { model: model.cast(), grid: None };
+    let bare = Calibration {
+        model: model.cast(),
+        grid: None,
+    };
     let before = max_error_um(&truth, &bare);
     assert!(before > 300.0, "{before}");
     let image = build(&model, &measure(&truth, &bare, &nodes()));
     let grid = CorrectionGrid::parse(&image).unwrap();
-    let cal = Calibration { model: model.cast(), grid: Some(grid) };
+    let cal = Calibration {
+        model: model.cast(),
+        grid: Some(grid),
+    };
     let after = max_error_um(&truth, &cal);
     // First order in a ~0.7 mm error: a wrong sign would double it instead.
     assert!(after < 5.0, "before {before} µm, after {after} µm");
@@ -89,7 +98,10 @@ fn commanding_through_the_grid_puts_the_tool_on_the_target() {
     // (~1 µm in the corners for this 0.7 mm error field; it scales with the error, so a model fit
     // first makes it proportionally smaller).
     let image2 = build(&model, &measure(&truth, &cal, &nodes()));
-    let cal2 = Calibration { model: model.cast(), grid: Some(CorrectionGrid::parse(&image2).unwrap()) };
+    let cal2 = Calibration {
+        model: model.cast(),
+        grid: Some(CorrectionGrid::parse(&image2).unwrap()),
+    };
     let at_nodes = |cal: &Calibration<'_>| {
         measure(&truth, cal, &nodes())
             .iter()
@@ -100,7 +112,10 @@ fn commanding_through_the_grid_puts_the_tool_on_the_target() {
             .fold(0.0, f64::max)
     };
     let (nodes1, nodes2) = (at_nodes(&cal), at_nodes(&cal2));
-    assert!(nodes1 < 5.0 && nodes2 < 0.1, "at the nodes: round 1 {nodes1} µm, round 2 {nodes2} µm");
+    assert!(
+        nodes1 < 5.0 && nodes2 < 0.1,
+        "at the nodes: round 1 {nodes1} µm, round 2 {nodes2} µm"
+    );
     let after2 = max_error_um(&truth, &cal2);
     assert!(after2 < 1.5, "round 2 between nodes {after2} µm");
 }
@@ -109,7 +124,10 @@ fn commanding_through_the_grid_puts_the_tool_on_the_target() {
 fn lattice_errors_name_the_node_or_line() {
     let truth = machine();
     let model = FiveBar::<f64>::paper_nominal();
-    let bare = Calibration { model: model.cast(), grid: None };
+    let bare = Calibration {
+        model: model.cast(),
+        grid: None,
+    };
     let data = measure(&truth, &bare, &nodes());
     let err = |d: &[Measurement], step: f64| format!("{:#}", detect_lattice(d, step).unwrap_err());
 
@@ -122,13 +140,22 @@ fn lattice_errors_name_the_node_or_line() {
     dup[30] = dup[29].clone();
     dup[30].line = 32;
     let e = err(&dup, 5.0);
-    assert!(e.contains("line 32: node (9, 1)") && e.contains("measured twice (also line 31)"), "{e}");
+    assert!(
+        e.contains("line 32: node (9, 1)") && e.contains("measured twice (also line 31)"),
+        "{e}"
+    );
 
     let e = err(&data, 2.5);
-    assert!(e.contains("step mismatch") && e.contains("5 mm apart along x"), "{e}");
+    assert!(
+        e.contains("step mismatch") && e.contains("5 mm apart along x"),
+        "{e}"
+    );
 
     let mut off = data.clone();
     off[3].target_mm = Some([180.5, -75.0]);
     let e = err(&off, 5.0);
-    assert!(e.contains("line 5: target (180.5, -75) is not on the 5 mm lattice"), "{e}");
+    assert!(
+        e.contains("line 5: target (180.5, -75) is not on the 5 mm lattice"),
+        "{e}"
+    );
 }

@@ -29,7 +29,10 @@ mod synthetic {
 }
 
 fn workspace_root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).parent().expect("host-sim is in the workspace").to_path_buf()
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .parent()
+        .expect("host-sim is in the workspace")
+        .to_path_buf()
 }
 
 fn build_firmware() -> PathBuf {
@@ -51,7 +54,10 @@ impl Drop for Qemu {
 }
 
 fn free_port() -> u16 {
-    TcpListener::bind("127.0.0.1:0").and_then(|l| l.local_addr()).expect("a free port").port()
+    TcpListener::bind("127.0.0.1:0")
+        .and_then(|l| l.local_addr())
+        .expect("a free port")
+        .port()
 }
 
 fn host_sim(addr: &str, args: &[&str]) -> Output {
@@ -66,14 +72,22 @@ fn host_sim(addr: &str, args: &[&str]) -> Output {
 fn ok(addr: &str, args: &[&str]) -> Value {
     let out = host_sim(addr, args);
     let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(out.status.success(), "host-sim link {args:?} failed: {}\n{stdout}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "host-sim link {args:?} failed: {}\n{stdout}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     serde_json::from_str(&stdout).unwrap_or_else(|e| panic!("{args:?}: not JSON ({e}): {stdout}"))
 }
 
 /// Runs `host-sim link ARGS`, requires failure, returns its stderr.
 fn refused(addr: &str, args: &[&str]) -> String {
     let out = host_sim(addr, args);
-    assert!(!out.status.success(), "host-sim link {args:?} should have been refused: {}", String::from_utf8_lossy(&out.stdout));
+    assert!(
+        !out.status.success(),
+        "host-sim link {args:?} should have been refused: {}",
+        String::from_utf8_lossy(&out.stdout)
+    );
     String::from_utf8_lossy(&out.stderr).into_owned()
 }
 
@@ -105,12 +119,24 @@ fn the_host_tool_drives_the_firmware_under_qemu() {
     assert_eq!(id["board"], "Qemu");
     assert_eq!(id["protocol_version"], 1);
     let bundled_id = calibration_image_id(&synthetic::synthetic_image(1.0));
-    assert_eq!(id["calibration_id"].as_u64(), Some(u64::from(bundled_id)), "{id}");
+    assert_eq!(
+        id["calibration_id"].as_u64(),
+        Some(u64::from(bundled_id)),
+        "{id}"
+    );
 
     // Unhomed at power-on: drives off, motion refused; Home runs the index search through the
     // link and ends Running at home.
     let s = ok(&addr, &["status"]);
-    assert_eq!((s["mode"].as_str(), s["homing"].as_str(), s["drives_enabled"].as_bool()), (Some("Unhomed"), Some("NotHomed"), Some(false)), "{s}");
+    assert_eq!(
+        (
+            s["mode"].as_str(),
+            s["homing"].as_str(),
+            s["drives_enabled"].as_bool()
+        ),
+        (Some("Unhomed"), Some("NotHomed"), Some(false)),
+        "{s}"
+    );
     let refusal = refused(&addr, &["move", "--x-mm", "212", "--y-mm", "0"]);
     assert!(refusal.contains("NotHomed"), "{refusal}");
     let h = ok(&addr, &["home"]);
@@ -118,15 +144,42 @@ fn the_host_tool_drives_the_firmware_under_qemu() {
         .as_array()
         .unwrap()
         .iter()
-        .map(|p| (p[0].as_str().unwrap().to_owned(), p[1].as_str().unwrap().to_owned()))
+        .map(|p| {
+            (
+                p[0].as_str().unwrap().to_owned(),
+                p[1].as_str().unwrap().to_owned(),
+            )
+        })
         .collect();
     let pair = |m: &str, h: &str| (m.to_owned(), h.to_owned());
-    assert_eq!(states, [pair("Unhomed", "NotHomed"), pair("Homing", "InProgress"), pair("Running", "Homed")], "{h}");
+    assert_eq!(
+        states,
+        [
+            pair("Unhomed", "NotHomed"),
+            pair("Homing", "InProgress"),
+            pair("Running", "Homed")
+        ],
+        "{h}"
+    );
     let s = &h["status"];
-    assert_eq!((s["mode"].as_str(), s["homing"].as_str(), s["drives_enabled"].as_bool()), (Some("Running"), Some("Homed"), Some(true)), "{h}");
+    assert_eq!(
+        (
+            s["mode"].as_str(),
+            s["homing"].as_str(),
+            s["drives_enabled"].as_bool()
+        ),
+        (Some("Running"), Some("Homed"), Some(true)),
+        "{h}"
+    );
     let home = xy(&s["setpoint_mm"]);
-    assert!((home[0] - 212.132).hypot(home[1]) < 0.01, "engaged at home: {home:?}");
-    println!("LINK_QEMU home: {:.2} s through {states:?}", h["seconds"].as_f64().unwrap());
+    assert!(
+        (home[0] - 212.132).hypot(home[1]) < 0.01,
+        "engaged at home: {home:?}"
+    );
+    println!(
+        "LINK_QEMU home: {:.2} s through {states:?}",
+        h["seconds"].as_f64().unwrap()
+    );
 
     // Upload the second image: the id read back is the file's, the servo switches to it at rest
     // (identify reports it once it is in force), and the joints move by the correction's change
@@ -137,7 +190,11 @@ fn the_host_tool_drives_the_firmware_under_qemu() {
     std::fs::write(&grid, &image).unwrap();
     let before = ok(&addr, &["status"]);
     let up = ok(&addr, &["upload", "--grid", grid.to_str().unwrap()]);
-    assert_eq!(up["calibration_id"].as_u64(), Some(u64::from(image_id)), "{up}");
+    assert_eq!(
+        up["calibration_id"].as_u64(),
+        Some(u64::from(image_id)),
+        "{up}"
+    );
     let mut in_force = None;
     for _ in 0..50 {
         in_force = ok(&addr, &["identify"])["calibration_id"].as_u64();
@@ -146,16 +203,30 @@ fn the_host_tool_drives_the_firmware_under_qemu() {
         }
         std::thread::sleep(std::time::Duration::from_millis(20));
     }
-    assert_eq!(in_force, Some(u64::from(image_id)), "the servo switched to the uploaded image");
+    assert_eq!(
+        in_force,
+        Some(u64::from(image_id)),
+        "the servo switched to the uploaded image"
+    );
     std::thread::sleep(std::time::Duration::from_millis(300));
     let after = ok(&addr, &["status"]);
-    assert_eq!((after["mode"].as_str(), after["fault"].as_str()), (Some("Running"), None), "{after}");
+    assert_eq!(
+        (after["mode"].as_str(), after["fault"].as_str()),
+        (Some("Running"), None),
+        "{after}"
+    );
     let (p0, p1) = (xy(&before["setpoint_mm"]), xy(&after["setpoint_mm"]));
-    assert!((p1[0] - p0[0]).hypot(p1[1] - p0[1]) < 0.001, "the same setpoint: {p0:?} -> {p1:?}");
+    assert!(
+        (p1[0] - p0[0]).hypot(p1[1] - p0[1]) < 0.001,
+        "the same setpoint: {p0:?} -> {p1:?}"
+    );
     let (e0, e1) = (xy(&before["encoder_rad"]), xy(&after["encoder_rad"]));
     let moved = [e1[0] - e0[0], e1[1] - e0[1]];
     println!("LINK_QEMU upload: {} bytes, id {image_id:#010x} in force; joints moved {moved:?} rad at the same setpoint", image.len());
-    assert!((moved[0].abs() - 2.0e-4).abs() < 0.3e-4 && moved[1].abs() < 0.3e-4, "the new correction took effect: {moved:?}");
+    assert!(
+        (moved[0].abs() - 2.0e-4).abs() < 0.3e-4 && moved[1].abs() < 0.3e-4,
+        "the new correction took effect: {moved:?}"
+    );
 
     // A damaged image (one bit flipped in its grid): refused, the image in force stays.
     let mut damaged = image.clone();
@@ -164,31 +235,84 @@ fn the_host_tool_drives_the_firmware_under_qemu() {
     std::fs::write(&bad, &damaged).unwrap();
     let refusal = refused(&addr, &["upload", "--grid", bad.to_str().unwrap()]);
     assert!(refusal.contains("Calibration(Invalid)"), "{refusal}");
-    assert_eq!(ok(&addr, &["identify"])["calibration_id"].as_u64(), Some(u64::from(image_id)));
+    assert_eq!(
+        ok(&addr, &["identify"])["calibration_id"].as_u64(),
+        Some(u64::from(image_id))
+    );
     let s = ok(&addr, &["status"]);
-    assert_eq!((s["mode"].as_str(), xy(&s["setpoint_mm"])), (Some("Running"), p1), "{s}");
+    assert_eq!(
+        (s["mode"].as_str(), xy(&s["setpoint_mm"])),
+        (Some("Running"), p1),
+        "{s}"
+    );
 
     // A 3 s figure (±30 mm × ±40 mm) through the workspace, tracked.
     let csv = work.path().join("telemetry.csv");
-    let r = ok(&addr, &["stream", "--seconds", "3", "--knot-ms", "50", "--telemetry-csv", csv.to_str().unwrap()]);
+    let r = ok(
+        &addr,
+        &[
+            "stream",
+            "--seconds",
+            "3",
+            "--knot-ms",
+            "50",
+            "--telemetry-csv",
+            csv.to_str().unwrap(),
+        ],
+    );
     assert_eq!(r["knots_sent"], 60);
     assert_eq!(r["final_status"]["mode"], "Running", "{r}");
     assert!(r["final_status"]["fault"].is_null(), "{r}");
     let samples = r["telemetry_samples"].as_u64().unwrap();
-    assert!(samples >= 250, "telemetry: {samples} samples for 3 s at 100 Hz");
+    assert!(
+        samples >= 250,
+        "telemetry: {samples} samples for 3 s at 100 Hz"
+    );
     let max_error_urad = r["max_following_error_urad"].as_f64().unwrap();
-    assert!(max_error_urad > 0.0 && max_error_urad < 50.0, "following error {max_error_urad} urad");
+    assert!(
+        max_error_urad > 0.0 && max_error_urad < 50.0,
+        "following error {max_error_urad} urad"
+    );
     let text = std::fs::read_to_string(&csv).unwrap();
-    let xs: Vec<f64> = text.lines().skip(1).map(|l| l.split(',').nth(1).unwrap().parse().unwrap()).collect();
-    let span = xs.iter().cloned().fold(f64::MIN, f64::max) - xs.iter().cloned().fold(f64::MAX, f64::min);
-    assert!(span > 50.0, "the figure moved the setpoint over {span} mm along x (60 expected)");
+    let xs: Vec<f64> = text
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').nth(1).unwrap().parse().unwrap())
+        .collect();
+    let span =
+        xs.iter().cloned().fold(f64::MIN, f64::max) - xs.iter().cloned().fold(f64::MAX, f64::min);
+    assert!(
+        span > 50.0,
+        "the figure moved the setpoint over {span} mm along x (60 expected)"
+    );
     let end = xy(&r["final_status"]["setpoint_mm"]);
-    assert!((end[0] - home[0]).hypot(end[1] - home[1]) < 0.01, "back at the start: {end:?} vs {home:?}");
+    assert!(
+        (end[0] - home[0]).hypot(end[1] - home[1]) < 0.01,
+        "back at the start: {end:?} vs {home:?}"
+    );
     println!("LINK_QEMU stream: 60 knots, {samples} telemetry samples, max following error {max_error_urad:.2} urad");
 
     // Underrun: the stream stops coming mid-figure -> controlled stop, held, reported.
-    let r = ok(&addr, &["stream", "--seconds", "3", "--knot-ms", "50", "--cut-after", "20"]);
-    assert_eq!((r["final_status"]["mode"].as_str(), r["final_status"]["fault"].as_str()), (Some("Holding"), Some("Underrun")), "{r}");
+    let r = ok(
+        &addr,
+        &[
+            "stream",
+            "--seconds",
+            "3",
+            "--knot-ms",
+            "50",
+            "--cut-after",
+            "20",
+        ],
+    );
+    assert_eq!(
+        (
+            r["final_status"]["mode"].as_str(),
+            r["final_status"]["fault"].as_str()
+        ),
+        (Some("Holding"), Some("Underrun")),
+        "{r}"
+    );
     let refusal = refused(&addr, &["move", "--x-mm", "212", "--y-mm", "0"]);
     assert!(refusal.contains("Faulted(Underrun)"), "{refusal}");
     ok(&addr, &["reset"]);
@@ -199,11 +323,21 @@ fn the_host_tool_drives_the_firmware_under_qemu() {
 
     // A limit violation: refused whole, nothing moved.
     let bad = work.path().join("bad.csv");
-    std::fs::write(&bad, format!("t_s,x_mm,y_mm,vx_mm_s,vy_mm_s\n0.1,{},{},0,0\n0.2,300,0,0,0\n", held[0], held[1])).unwrap();
+    std::fs::write(
+        &bad,
+        format!(
+            "t_s,x_mm,y_mm,vx_mm_s,vy_mm_s\n0.1,{},{},0,0\n0.2,300,0,0,0\n",
+            held[0], held[1]
+        ),
+    )
+    .unwrap();
     let refusal = refused(&addr, &["stream", "--file", bad.to_str().unwrap()]);
     assert!(refusal.contains("Segment { index: 1"), "{refusal}");
     let s = ok(&addr, &["status"]);
-    assert_eq!((s["stream_knots_queued"].as_u64(), s["moving"].as_bool()), (Some(0), Some(false)));
+    assert_eq!(
+        (s["stream_knots_queued"].as_u64(), s["moving"].as_bool()),
+        (Some(0), Some(false))
+    );
     assert_eq!(xy(&s["setpoint_mm"]), held, "nothing moved");
 
     // Garbage while the servo runs: every frame answered with an error, no motion, deadline
@@ -212,8 +346,19 @@ fn the_host_tool_drives_the_firmware_under_qemu() {
     assert!(g["frames"].as_u64().unwrap() > 10, "{g}");
     assert_eq!(g["answers"], g["frames"], "every frame answered: {g}");
     assert_eq!(g["setpoint_before_mm"], g["setpoint_after_mm"], "{g}");
-    assert_eq!((g["mode"].as_str(), g["overruns"].as_u64()), (Some("Running"), Some(0)), "{g}");
+    assert_eq!(
+        (g["mode"].as_str(), g["overruns"].as_u64()),
+        (Some("Running"), Some(0)),
+        "{g}"
+    );
     let s = ok(&addr, &["status"]);
-    assert_eq!((s["mode"].as_str(), s["overruns"].as_u64()), (Some("Running"), Some(0)), "{s}");
-    println!("LINK_QEMU garbage: {} bytes, {} frames, {} answers, no motion, 0 overruns", g["bytes"], g["frames"], g["answers"]);
+    assert_eq!(
+        (s["mode"].as_str(), s["overruns"].as_u64()),
+        (Some("Running"), Some(0)),
+        "{s}"
+    );
+    println!(
+        "LINK_QEMU garbage: {} bytes, {} frames, {} answers, no motion, 0 overruns",
+        g["bytes"], g["frames"], g["answers"]
+    );
 }

@@ -14,14 +14,21 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use host_sim::link::link_protocol::{
-    decode, encode, Board, Command, DeviceBody, DeviceMessage, FrameReader, Identity, Received, Request, Response,
-    MAX_FRAME_LEN, PROTOCOL_VERSION,
+    decode, encode, Board, Command, DeviceBody, DeviceMessage, FrameReader, Identity, Received,
+    Request, Response, MAX_FRAME_LEN, PROTOCOL_VERSION,
 };
 use serialport::{SerialPort, TTYPort};
 
 fn host_sim(args: &[&str]) -> (i32, String, String) {
-    let out = Process::new(env!("CARGO_BIN_EXE_host-sim")).args(args).output().expect("run host-sim");
-    (out.status.code().unwrap_or(-1), String::from_utf8_lossy(&out.stdout).into(), String::from_utf8_lossy(&out.stderr).into())
+    let out = Process::new(env!("CARGO_BIN_EXE_host-sim"))
+        .args(args)
+        .output()
+        .expect("run host-sim");
+    (
+        out.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&out.stdout).into(),
+        String::from_utf8_lossy(&out.stderr).into(),
+    )
 }
 
 /// A pty pair: the controller's side (the master) and the path of the terminal side the tool
@@ -36,7 +43,10 @@ fn pty() -> (TTYPort, String) {
 }
 
 /// Answers Identify requests on `port` until `stop`; returns the requests it decoded.
-fn fake_controller(mut port: TTYPort, stop: Arc<AtomicBool>) -> std::thread::JoinHandle<Vec<Command>> {
+fn fake_controller(
+    mut port: TTYPort,
+    stop: Arc<AtomicBool>,
+) -> std::thread::JoinHandle<Vec<Command>> {
     std::thread::spawn(move || {
         port.set_timeout(Duration::from_millis(20)).unwrap();
         let mut reader = FrameReader::new();
@@ -52,8 +62,12 @@ fn fake_controller(mut port: TTYPort, stop: Arc<AtomicBool>) -> std::thread::Joi
                 }
             };
             for &b in &buf[..n] {
-                let Some(Received::Frame(frame)) = reader.push(b) else { continue };
-                let Ok(request) = decode::<Request>(frame) else { continue };
+                let Some(Received::Frame(frame)) = reader.push(b) else {
+                    continue;
+                };
+                let Ok(request) = decode::<Request>(frame) else {
+                    continue;
+                };
                 let result = match request.command {
                     Command::Identify => Ok(Response::Identity(Identity {
                         protocol_version: PROTOCOL_VERSION,
@@ -65,7 +79,14 @@ fn fake_controller(mut port: TTYPort, stop: Arc<AtomicBool>) -> std::thread::Joi
                 };
                 seen.push(request.command);
                 let mut out = [0u8; MAX_FRAME_LEN];
-                let len = encode(&DeviceMessage::new(DeviceBody::Reply { seq: request.seq, result }), &mut out).unwrap();
+                let len = encode(
+                    &DeviceMessage::new(DeviceBody::Reply {
+                        seq: request.seq,
+                        result,
+                    }),
+                    &mut out,
+                )
+                .unwrap();
                 port.write_all(&out[..len]).unwrap();
             }
         }
@@ -78,7 +99,16 @@ fn identify_over_a_serial_port() {
     let (master, path) = pty();
     let stop = Arc::new(AtomicBool::new(false));
     let controller = fake_controller(master, stop.clone());
-    let (code, stdout, stderr) = host_sim(&["link", "--serial", &path, "--baud", "115200", "--timeout-s", "5", "identify"]);
+    let (code, stdout, stderr) = host_sim(&[
+        "link",
+        "--serial",
+        &path,
+        "--baud",
+        "115200",
+        "--timeout-s",
+        "5",
+        "identify",
+    ]);
     stop.store(true, Ordering::Relaxed);
     let seen = controller.join().unwrap();
     assert_eq!(code, 0, "{stderr}");
@@ -92,7 +122,8 @@ fn identify_over_a_serial_port() {
 #[test]
 fn a_controller_that_never_answers_times_out_with_an_error() {
     let (_master, path) = pty();
-    let (code, stdout, stderr) = host_sim(&["link", "--serial", &path, "--timeout-s", "0.3", "status"]);
+    let (code, stdout, stderr) =
+        host_sim(&["link", "--serial", &path, "--timeout-s", "0.3", "status"]);
     assert_eq!(code, 1, "{stdout}{stderr}");
     assert!(stderr.contains("no reply from the controller"), "{stderr}");
     assert!(!stderr.contains("panicked"), "{stderr}");
@@ -102,9 +133,13 @@ fn a_controller_that_never_answers_times_out_with_an_error() {
 fn a_missing_device_or_a_file_that_is_not_a_terminal_is_a_clear_error() {
     let dir = tempfile::tempdir().unwrap();
     let missing = dir.path().join("ttyACM9");
-    let (code, stdout, stderr) = host_sim(&["link", "--serial", missing.to_str().unwrap(), "identify"]);
+    let (code, stdout, stderr) =
+        host_sim(&["link", "--serial", missing.to_str().unwrap(), "identify"]);
     assert_eq!((code, stdout.as_str()), (1, ""), "{stderr}");
-    assert!(stderr.contains("opening the serial port") && stderr.contains("ttyACM9"), "{stderr}");
+    assert!(
+        stderr.contains("opening the serial port") && stderr.contains("ttyACM9"),
+        "{stderr}"
+    );
     assert!(stderr.contains("No such file or directory"), "{stderr}");
     let plain = dir.path().join("plain");
     std::fs::write(&plain, b"").unwrap();
@@ -119,13 +154,27 @@ fn the_transport_flags_are_checked() {
     // Neither transport, both, a baud rate for TCP, a zero baud rate: usage errors.
     let (code, _, stderr) = host_sim(&["link", "identify"]);
     assert_eq!(code, 2, "{stderr}");
-    assert!(stderr.contains("--tcp") && stderr.contains("--serial"), "{stderr}");
-    let (code, _, stderr) = host_sim(&["link", "--tcp", "127.0.0.1:1", "--serial", "/dev/null", "identify"]);
+    assert!(
+        stderr.contains("--tcp") && stderr.contains("--serial"),
+        "{stderr}"
+    );
+    let (code, _, stderr) = host_sim(&[
+        "link",
+        "--tcp",
+        "127.0.0.1:1",
+        "--serial",
+        "/dev/null",
+        "identify",
+    ]);
     assert_eq!(code, 2, "{stderr}");
     assert!(stderr.contains("cannot be used with"), "{stderr}");
-    let (code, _, stderr) = host_sim(&["link", "--tcp", "127.0.0.1:1", "--baud", "9600", "identify"]);
+    let (code, _, stderr) =
+        host_sim(&["link", "--tcp", "127.0.0.1:1", "--baud", "9600", "identify"]);
     assert_eq!(code, 1, "{stderr}");
-    assert!(stderr.contains("--baud applies to --serial only"), "{stderr}");
+    assert!(
+        stderr.contains("--baud applies to --serial only"),
+        "{stderr}"
+    );
     let (code, _, stderr) = host_sim(&["link", "--serial", "/dev/null", "--baud", "0", "identify"]);
     assert_eq!(code, 1, "{stderr}");
     assert!(stderr.contains("--baud must be a positive"), "{stderr}");

@@ -17,7 +17,10 @@ impl Residuals for Rosenbrock {
         2
     }
     fn residuals(&self, p: &[f64]) -> Option<DVector<f64>> {
-        Some(DVector::from_vec(vec![10.0 * (p[1] - p[0] * p[0]), 1.0 - p[0]]))
+        Some(DVector::from_vec(vec![
+            10.0 * (p[1] - p[0] * p[0]),
+            1.0 - p[0],
+        ]))
     }
     fn fd_step(&self, _k: usize) -> f64 {
         1e-7
@@ -28,9 +31,19 @@ fn assert_strictly_decreasing(fit: &LmFit, what: &str) {
     let h = &fit.cost_history;
     assert!(h.len() >= 2, "{what}: no accepted step");
     for (k, w) in h.windows(2).enumerate() {
-        assert!(w[1] < w[0], "{what}: cost rose at accepted step {}: {} -> {}", k + 1, w[0], w[1]);
+        assert!(
+            w[1] < w[0],
+            "{what}: cost rose at accepted step {}: {} -> {}",
+            k + 1,
+            w[0],
+            w[1]
+        );
     }
-    assert_eq!(*h.last().unwrap(), fit.cost, "{what}: the history ends at the reported cost");
+    assert_eq!(
+        *h.last().unwrap(),
+        fit.cost,
+        "{what}: the history ends at the reported cost"
+    );
 }
 
 #[test]
@@ -40,8 +53,16 @@ fn rosenbrock_from_the_classic_start() {
     let start = [-1.2, 1.0];
     let fit = levenberg_marquardt(&Rosenbrock, &start, &[0, 1], &LmOptions::default()).unwrap();
     assert_strictly_decreasing(&fit, "Rosenbrock");
-    assert!(fit.rejected_steps > 0, "the overshooting Gauss–Newton steps must have been refused");
-    assert!((fit.p[0] - 1.0).abs() < 1e-9 && (fit.p[1] - 1.0).abs() < 1e-9, "{:?} ({:?})", fit.p, fit.stop);
+    assert!(
+        fit.rejected_steps > 0,
+        "the overshooting Gauss–Newton steps must have been refused"
+    );
+    assert!(
+        (fit.p[0] - 1.0).abs() < 1e-9 && (fit.p[1] - 1.0).abs() < 1e-9,
+        "{:?} ({:?})",
+        fit.p,
+        fit.stop
+    );
     assert!(fit.cost < 1e-20, "{}", fit.cost);
     assert_ne!(fit.stop, Stop::MaxIterations);
     // Only the free parameters move.
@@ -61,7 +82,10 @@ impl Residuals for Line {
         2
     }
     fn residuals(&self, p: &[f64]) -> Option<DVector<f64>> {
-        Some(DVector::from_iterator(self.x.len(), self.x.iter().zip(&self.y).map(|(x, y)| p[0] + p[1] * x - y)))
+        Some(DVector::from_iterator(
+            self.x.len(),
+            self.x.iter().zip(&self.y).map(|(x, y)| p[0] + p[1] * x - y),
+        ))
     }
     fn fd_step(&self, _k: usize) -> f64 {
         1e-3
@@ -71,8 +95,17 @@ impl Residuals for Line {
 #[test]
 fn linear_fit_and_its_covariance() {
     let x: Vec<f64> = (0..10).map(f64::from).collect();
-    let y: Vec<f64> = x.iter().map(|x| 2.0 - 0.5 * x + if (*x as i32) % 2 == 0 { 0.1 } else { -0.1 }).collect();
-    let fit = levenberg_marquardt(&Line { x: x.clone(), y }, &[100.0, 100.0], &[0, 1], &LmOptions::default()).unwrap();
+    let y: Vec<f64> = x
+        .iter()
+        .map(|x| 2.0 - 0.5 * x + if (*x as i32) % 2 == 0 { 0.1 } else { -0.1 })
+        .collect();
+    let fit = levenberg_marquardt(
+        &Line { x: x.clone(), y },
+        &[100.0, 100.0],
+        &[0, 1],
+        &LmOptions::default(),
+    )
+    .unwrap();
     assert_strictly_decreasing(&fit, "line");
     // Normal equations by hand: n = 10, Σx = 45, Σx² = 285.
     let (n, sx, sxx) = (10.0, 45.0, 285.0);
@@ -83,7 +116,11 @@ fn linear_fit_and_its_covariance() {
         assert!((got - w).abs() < 1e-9 * w, "variance {k}: {got} vs {w}");
     }
     // Alternating ±0.1 about the line: the slope and intercept barely move.
-    assert!((fit.p[1] + 0.5).abs() < 0.03 && (fit.p[0] - 2.0).abs() < 0.2, "{:?}", fit.p);
+    assert!(
+        (fit.p[1] + 0.5).abs() < 0.03 && (fit.p[0] - 2.0).abs() < 0.2,
+        "{:?}",
+        fit.p
+    );
     assert_eq!(fit.rank(), 2);
 }
 
@@ -123,12 +160,27 @@ fn five_bar_fit_from_millimetres_and_milliradians_away() {
     truth.encoder_offset_rad = [0.008, -0.006];
     let data = measure(&truth);
     let f = fit_full(&data, &FiveBar::paper_nominal(), &[]).unwrap();
-    assert!(f.identifiability.fixed.is_empty(), "{:?}", f.identifiability.fixed);
+    assert!(
+        f.identifiability.fixed.is_empty(),
+        "{:?}",
+        f.identifiability.fixed
+    );
     assert_strictly_decreasing(&f.lm, "five-bar");
-    assert!(f.lm.cost_history[0] > 1e6 * f.lm.cost_history[1..].last().unwrap().max(1e-30), "{:?}", f.lm.cost_history);
+    assert!(
+        f.lm.cost_history[0] > 1e6 * f.lm.cost_history[1..].last().unwrap().max(1e-30),
+        "{:?}",
+        f.lm.cost_history
+    );
     let (got, want) = (to_vector(&f.model), to_vector(&truth));
     for k in 0..NAMES.len() {
-        assert!((got[k] - want[k]).abs() < 1e-7, "{}: {} vs {} after {:?}", NAMES[k], got[k], want[k], f.lm.stop);
+        assert!(
+            (got[k] - want[k]).abs() < 1e-7,
+            "{}: {} vs {} after {:?}",
+            NAMES[k],
+            got[k],
+            want[k],
+            f.lm.stop
+        );
     }
     assert_ne!(f.lm.stop, Stop::MaxIterations);
 }

@@ -6,13 +6,30 @@ use host_sim::io::measurement_csv::{read_measurements, Measurement};
 use kinematics_core::FiveBar;
 
 fn table1() -> Vec<Measurement> {
-    read_measurements(&std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("data/table1.csv")).unwrap()
+    read_measurements(&std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("data/table1.csv"))
+        .unwrap()
 }
 
-fn best(data: &[Measurement], method: Method, sizes: &[usize], criterion: Criterion) -> (Vec<usize>, FiveBar<f64>, f64) {
+fn best(
+    data: &[Measurement],
+    method: Method,
+    sizes: &[usize],
+    criterion: Criterion,
+) -> (Vec<usize>, FiveBar<f64>, f64) {
     let nominal = FiveBar::<f64>::paper_nominal();
-    let b = subset_search::search(data.len(), sizes, |s| synthesize(data, s, method, &nominal), |m| errors_um(m, data, criterion), &mut |_| {}).unwrap();
-    (b.subset.iter().map(|i| i + 1).collect(), b.model, b.max_err_um)
+    let b = subset_search::search(
+        data.len(),
+        sizes,
+        |s| synthesize(data, s, method, &nominal),
+        |m| errors_um(m, data, criterion),
+        &mut |_| {},
+    )
+    .unwrap();
+    (
+        b.subset.iter().map(|i| i + 1).collect(),
+        b.model,
+        b.max_err_um,
+    )
 }
 
 fn links(m: &FiveBar<f64>) -> [f64; 4] {
@@ -21,7 +38,10 @@ fn links(m: &FiveBar<f64>) -> [f64; 4] {
 
 fn assert_links(got: [f64; 4], want: [f64; 4], tol_mm: f64) {
     for k in 0..4 {
-        assert!((got[k] - want[k]).abs() <= tol_mm, "link {k}: got {got:?}, want {want:?} ± {tol_mm}");
+        assert!(
+            (got[k] - want[k]).abs() <= tol_mm,
+            "link {k}: got {got:?}, want {want:?} ± {tol_mm}"
+        );
     }
 }
 
@@ -40,7 +60,12 @@ fn table1_as_printed_gives_the_papers_subsets() {
     assert_links(links(&m), [150.0366, 150.0319, 150.0103, 149.9656], 0.0005);
     assert!((max - 85.4).abs() < 0.05, "{max}");
     // The nominal model "wins" the paper's criterion outright: it measures closeness to nominal.
-    let nominal_max = max_rms(&errors_um(&FiveBar::paper_nominal(), &data, Criterion::Paper)).max;
+    let nominal_max = max_rms(&errors_um(
+        &FiveBar::paper_nominal(),
+        &data,
+        Criterion::Paper,
+    ))
+    .max;
     assert!(nominal_max < 2.0, "{nominal_max}");
     // By the model's real prediction error the same fits are 1.5 mm off.
     let real_max = max_rms(&errors_um(&m, &data, Criterion::Measured)).max;
@@ -69,7 +94,10 @@ fn unround(data: &[Measurement], frac: &[(usize, [f64; 4])]) -> Vec<Measurement>
 #[test]
 fn table1_rounding_explains_the_printed_numbers() {
     let data = table1();
-    let poly_data = unround(&data, &[(1, [-0.01, 0.49, 0.32, 0.07]), (8, [0.53, -0.9, 0.9, 0.78])]);
+    let poly_data = unround(
+        &data,
+        &[(1, [-0.01, 0.49, 0.32, 0.07]), (8, [0.53, -0.9, 0.9, 0.78])],
+    );
     let (subset, m, max) = best(&poly_data, Method::Poly, &[2], Criterion::Paper);
     assert_eq!(subset, vec![1, 8]);
     assert_links(links(&m), [149.868, 150.000, 150.000, 149.890], 0.0005);

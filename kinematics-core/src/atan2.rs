@@ -88,7 +88,11 @@ pub fn atan2_f32(y: f32, x: f32) -> f32 {
         };
     }
     let rotate = num > TAN_PI_8 * den;
-    let (n, d) = if rotate { (num - den, num + den) } else { (num, den) };
+    let (n, d) = if rotate {
+        (num - den, num + den)
+    } else {
+        (num, den)
+    };
     let t = n / d;
     let t2 = t * t;
     let poly = t + t * t2 * (P1 + t2 * (P2 + t2 * (P3 + t2 * P4)));
@@ -117,19 +121,31 @@ mod tests {
         let mut libm_worst: f64 = 0.0;
         let n = 1 << 20;
         for i in 0..n {
-            let phi = -core::f64::consts::PI + 2.0 * core::f64::consts::PI * (i as f64 + 0.5) / n as f64;
+            let phi =
+                -core::f64::consts::PI + 2.0 * core::f64::consts::PI * (i as f64 + 0.5) / n as f64;
             for radius in [1e-30, 1e-3, 1.0, 150.0, 3.7e4, 1e30] {
                 let (y, x) = ((radius * phi.sin()) as f32, (radius * phi.cos()) as f32);
                 worst = worst.max(error(y, x));
-                libm_worst = libm_worst.max((f64::from(libm::atan2f(y, x)) - libm::atan2(f64::from(y), f64::from(x))).abs());
+                libm_worst = libm_worst.max(
+                    (f64::from(libm::atan2f(y, x)) - libm::atan2(f64::from(y), f64::from(x))).abs(),
+                );
             }
         }
         // The axes, the diagonals and their neighbours, where the octant logic switches.
         let mut edges: f64 = 0.0;
         for v in [1.0f32, 150.0, 1e-20] {
-            for (y, x) in [(0.0, v), (v, 0.0), (v, v), (v, v * TAN_PI_8), (v * TAN_PI_8, v)] {
+            for (y, x) in [
+                (0.0, v),
+                (v, 0.0),
+                (v, v),
+                (v, v * TAN_PI_8),
+                (v * TAN_PI_8, v),
+            ] {
                 for (dy, dx) in [(0, 0), (1, 0), (0, 1)] {
-                    let (y, x) = (f32::from_bits(f32::to_bits(y) + dy), f32::from_bits(f32::to_bits(x) + dx));
+                    let (y, x) = (
+                        f32::from_bits(f32::to_bits(y) + dy),
+                        f32::from_bits(f32::to_bits(x) + dx),
+                    );
                     for (sy, sx) in [(1.0, 1.0), (-1.0, 1.0), (1.0, -1.0), (-1.0, -1.0)] {
                         edges = edges.max(error(sy * y, sx * x));
                     }
@@ -172,8 +188,14 @@ mod tests {
         ] {
             // IEEE's exact result (a multiple of π/4, 0 or NaN) rounded to f32. libm's `atan2f`
             // agrees except for a finite leg against an infinite one, where it rounds π/2 down.
-            let (got, want) = (atan2_f32(y, x), libm::atan2(f64::from(y), f64::from(x)) as f32);
-            assert!(got.to_bits() == want.to_bits() || (got.is_nan() && want.is_nan()), "atan2({y}, {x}) = {got}, not {want}");
+            let (got, want) = (
+                atan2_f32(y, x),
+                libm::atan2(f64::from(y), f64::from(x)) as f32,
+            );
+            assert!(
+                got.to_bits() == want.to_bits() || (got.is_nan() && want.is_nan()),
+                "atan2({y}, {x}) = {got}, not {want}"
+            );
         }
         assert_eq!(atan2_f32(-0.0, 1.0).to_bits(), (-0.0f32).to_bits());
         assert_eq!(atan2_f32(-0.0, -1.0), -core::f32::consts::PI);

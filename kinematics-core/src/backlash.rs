@@ -58,7 +58,11 @@ pub struct InvalidBacklash {
 
 impl core::fmt::Display for InvalidBacklash {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
-        write!(f, "backlash of motor {} is not a lost motion in [0, {MAX_BACKLASH_RAD}] rad", self.axis + 1)
+        write!(
+            f,
+            "backlash of motor {} is not a lost motion in [0, {MAX_BACKLASH_RAD}] rad",
+            self.axis + 1
+        )
     }
 }
 
@@ -81,7 +85,9 @@ impl<T: Real> Backlash<T> {
                 return Err(InvalidBacklash { axis: axis as u8 });
             }
         }
-        Ok(Backlash { half_gap_rad: [beta_rad[0] * T::HALF, beta_rad[1] * T::HALF] })
+        Ok(Backlash {
+            half_gap_rad: [beta_rad[0] * T::HALF, beta_rad[1] * T::HALF],
+        })
     }
 
     /// The whole gap β_j of each motor (rad).
@@ -132,7 +138,11 @@ mod tests {
     impl<T: Real> BacklashCompensator<T> {
         /// A compensator at the mid-gap (direction unknown).
         fn new(backlash: Backlash<T>) -> Self {
-            BacklashCompensator { backlash, last_reference_rad: None, correction_rad: [T::ZERO; 2] }
+            BacklashCompensator {
+                backlash,
+                last_reference_rad: None,
+                correction_rad: [T::ZERO; 2],
+            }
         }
 
         /// Back to the mid-gap, the next reference taken as the start (boot, engage, homing).
@@ -150,9 +160,14 @@ mod tests {
         fn motor_reference_rad(&mut self, reference_rad: [T; 2]) -> [T; 2] {
             let last = self.last_reference_rad.unwrap_or(reference_rad);
             let increment = [reference_rad[0] - last[0], reference_rad[1] - last[1]];
-            self.correction_rad = self.backlash.next_correction_rad(self.correction_rad, increment);
+            self.correction_rad = self
+                .backlash
+                .next_correction_rad(self.correction_rad, increment);
             self.last_reference_rad = Some(reference_rad);
-            [reference_rad[0] + self.correction_rad[0], reference_rad[1] + self.correction_rad[1]]
+            [
+                reference_rad[0] + self.correction_rad[0],
+                reference_rad[1] + self.correction_rad[1],
+            ]
         }
     }
 
@@ -171,10 +186,22 @@ mod tests {
     #[test]
     fn validates_the_gap() {
         assert!(Backlash::new([0.0f32, 0.01]).is_ok());
-        assert_eq!(Backlash::new([-1e-6f64, 0.0]), Err(InvalidBacklash { axis: 0 }));
-        assert_eq!(Backlash::new([0.0f64, 0.0101]), Err(InvalidBacklash { axis: 1 }));
-        assert_eq!(Backlash::new([f32::NAN, 0.0]), Err(InvalidBacklash { axis: 0 }));
-        assert_eq!(Backlash::new([0.0, f64::INFINITY]), Err(InvalidBacklash { axis: 1 }));
+        assert_eq!(
+            Backlash::new([-1e-6f64, 0.0]),
+            Err(InvalidBacklash { axis: 0 })
+        );
+        assert_eq!(
+            Backlash::new([0.0f64, 0.0101]),
+            Err(InvalidBacklash { axis: 1 })
+        );
+        assert_eq!(
+            Backlash::new([f32::NAN, 0.0]),
+            Err(InvalidBacklash { axis: 0 })
+        );
+        assert_eq!(
+            Backlash::new([0.0, f64::INFINITY]),
+            Err(InvalidBacklash { axis: 1 })
+        );
         let b = Backlash::new([20e-6f64, 40e-6]).unwrap();
         assert_eq!(b.beta_rad(), [20e-6, 40e-6]);
         assert_eq!(b.half_gap_rad(), [10e-6, 20e-6]);
@@ -194,7 +221,11 @@ mod tests {
             while (t - r).abs() > step / 2.0 {
                 r += step * (t - r).signum();
                 let m = comp.motor_reference_rad([r, r])[0];
-                assert!((m - last_motor).abs() <= 2.0 * step + 1e-15, "motor step {}", m - last_motor);
+                assert!(
+                    (m - last_motor).abs() <= 2.0 * step + 1e-15,
+                    "motor step {}",
+                    m - last_motor
+                );
                 last_motor = m;
                 link = play(link, m, beta / 2.0);
             }

@@ -43,7 +43,10 @@ mod tests {
             }
         }
         // Edge x = x1: linear between Q11 and Q12.
-        assert!((bilinear(d[0], d[1], d[2], d[3], 0.0, 0.25) - (0.75 * d[0] + 0.25 * d[1])).abs() < 1e-15);
+        assert!(
+            (bilinear(d[0], d[1], d[2], d[3], 0.0, 0.25) - (0.75 * d[0] + 0.25 * d[1])).abs()
+                < 1e-15
+        );
         assert_eq!(bilinear(d[0], d[1], d[2], d[3], 1.0, 1.0), d[3]);
     }
 }

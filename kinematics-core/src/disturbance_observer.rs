@@ -58,14 +58,22 @@ impl ObserverCoefficients {
     /// is off.
     pub fn new(bandwidth_rad_s: f32, inertia_kg_m2: f32, dt_s: f32) -> Self {
         let gdt = bandwidth_rad_s * dt_s;
-        let valid = gdt.is_finite() && gdt >= 0.0 && inertia_kg_m2.is_finite() && inertia_kg_m2 >= 0.0 && dt_s > 0.0;
+        let valid = gdt.is_finite()
+            && gdt >= 0.0
+            && inertia_kg_m2.is_finite()
+            && inertia_kg_m2 >= 0.0
+            && dt_s > 0.0;
         if !valid {
             return ObserverCoefficients::default();
         }
         let inertia_rate = inertia_kg_m2 / dt_s;
         ObserverCoefficients {
             alpha: gdt / (1.0 + gdt),
-            inertia_rate_nm_s_per_rad: if inertia_rate.is_finite() { inertia_rate } else { 0.0 },
+            inertia_rate_nm_s_per_rad: if inertia_rate.is_finite() {
+                inertia_rate
+            } else {
+                0.0
+            },
         }
     }
 }
@@ -94,9 +102,17 @@ impl DisturbanceObserver {
     /// rest, measured on the paper plant). At rest the PID holds the static load, as without
     /// an observer.
     #[inline(always)]
-    pub fn estimate_nm(&mut self, c: &ObserverCoefficients, velocity_error_rad_s: f32, limit_nm: f32, moving: bool) -> f32 {
+    pub fn estimate_nm(
+        &mut self,
+        c: &ObserverCoefficients,
+        velocity_error_rad_s: f32,
+        limit_nm: f32,
+        moving: bool,
+    ) -> f32 {
         let [f1, f2] = self.last_feedback_nm;
-        let raw = c.inertia_rate_nm_s_per_rad * (velocity_error_rad_s - self.last_velocity_error_rad_s) + (f1 + f2) * 0.5;
+        let raw = c.inertia_rate_nm_s_per_rad
+            * (velocity_error_rad_s - self.last_velocity_error_rad_s)
+            + (f1 + f2) * 0.5;
         self.last_velocity_error_rad_s = velocity_error_rad_s;
         let target = if moving { raw } else { 0.0 };
         let e = self.estimate_nm;
@@ -176,14 +192,24 @@ mod tests {
             theta += omega * dt + 0.5 * acc * dt * dt;
             omega += acc * dt;
         }
-        assert!((obs.current_nm() as f64 - d).abs() < 1e-3 * d, "{}", obs.current_nm());
+        assert!(
+            (obs.current_nm() as f64 - d).abs() < 1e-3 * d,
+            "{}",
+            obs.current_nm()
+        );
         // The feedback's own share (kp·e) is gone: the axis sits on its reference.
         assert!(theta.abs() < 1e-7, "{theta}");
     }
 
     #[test]
     fn off_or_refused_settings_estimate_nothing_and_nan_is_contained() {
-        for (g, j, dt) in [(0.0, 7.4e-3, 5e-4), (f32::NAN, 7.4e-3, 5e-4), (-1.0, 7.4e-3, 5e-4), (300.0, f32::INFINITY, 5e-4), (300.0, 7.4e-3, 0.0)] {
+        for (g, j, dt) in [
+            (0.0, 7.4e-3, 5e-4),
+            (f32::NAN, 7.4e-3, 5e-4),
+            (-1.0, 7.4e-3, 5e-4),
+            (300.0, f32::INFINITY, 5e-4),
+            (300.0, 7.4e-3, 0.0),
+        ] {
             let c = ObserverCoefficients::new(g, j, dt);
             assert_eq!(c.alpha, 0.0, "{g} {j} {dt}");
             let mut obs = DisturbanceObserver::default();
@@ -191,9 +217,21 @@ mod tests {
             assert_eq!(obs.estimate_nm(&c, 3.0, 8.0, true), 0.0);
         }
         let c = ObserverCoefficients::new(300.0, 7.4e-3, 5e-4);
-        assert_eq!(DisturbanceObserver::default().estimate_nm(&c, f32::NAN, 8.0, true), 0.0);
-        assert_eq!(DisturbanceObserver::default().estimate_nm(&c, 1e30, 8.0, true), 8.0);
-        assert_eq!(DisturbanceObserver::default().estimate_nm(&c, -1e30, 8.0, true), -8.0);
-        assert_eq!(DisturbanceObserver::default().estimate_nm(&c, 1.0, f32::NAN, true), 0.0);
+        assert_eq!(
+            DisturbanceObserver::default().estimate_nm(&c, f32::NAN, 8.0, true),
+            0.0
+        );
+        assert_eq!(
+            DisturbanceObserver::default().estimate_nm(&c, 1e30, 8.0, true),
+            8.0
+        );
+        assert_eq!(
+            DisturbanceObserver::default().estimate_nm(&c, -1e30, 8.0, true),
+            -8.0
+        );
+        assert_eq!(
+            DisturbanceObserver::default().estimate_nm(&c, 1.0, f32::NAN, true),
+            0.0
+        );
     }
 }

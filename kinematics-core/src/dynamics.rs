@@ -145,9 +145,15 @@ impl<T: Real> FiveBarDynamics<T> {
     /// unchanged). What a model error of ±20 % looks like, for robustness studies.
     pub fn scaled_masses(&self, factors: [T; 5]) -> Self {
         FiveBarDynamics {
-            motor_inertia_kg_m2: [self.motor_inertia_kg_m2[0] * factors[0], self.motor_inertia_kg_m2[1] * factors[1]],
+            motor_inertia_kg_m2: [
+                self.motor_inertia_kg_m2[0] * factors[0],
+                self.motor_inertia_kg_m2[1] * factors[1],
+            ],
             tool_mass_kg: self.tool_mass_kg * factors[2],
-            distal_inertia_kg_m2: [self.distal_inertia_kg_m2[0] * factors[3], self.distal_inertia_kg_m2[1] * factors[4]],
+            distal_inertia_kg_m2: [
+                self.distal_inertia_kg_m2[0] * factors[3],
+                self.distal_inertia_kg_m2[1] * factors[4],
+            ],
             ..*self
         }
     }
@@ -167,7 +173,11 @@ impl<T: Real> FiveBarDynamics<T> {
         velocity_rad_s: [T; 2],
     ) -> Result<(crate::jacobian::Mat2<T>, [T; 2]), KinematicsError> {
         use crate::joint_motion::motion_from_pose;
-        let rigid = FiveBarDynamics { viscous_nm_s_per_rad: [T::ZERO; 2], coulomb_nm: [T::ZERO; 2], ..*self };
+        let rigid = FiveBarDynamics {
+            viscous_nm_s_per_rad: [T::ZERO; 2],
+            coulomb_nm: [T::ZERO; 2],
+            ..*self
+        };
         let h = rigid.torque_nm(&motion_from_pose(pose, velocity_rad_s, [T::ZERO; 2])?)?;
         let m0 = rigid.torque_nm(&motion_from_pose(pose, [T::ZERO; 2], [T::ONE, T::ZERO])?)?;
         let m1 = rigid.torque_nm(&motion_from_pose(pose, [T::ZERO; 2], [T::ZERO, T::ONE])?)?;
@@ -217,12 +227,18 @@ struct Terms<T> {
 }
 
 /// `M⁻¹·r` for a 2×2 inertia matrix; refuses one that is not positive definite.
-pub fn solve_spd<T: Real>(m: &crate::jacobian::Mat2<T>, r: [T; 2]) -> Result<[T; 2], KinematicsError> {
+pub fn solve_spd<T: Real>(
+    m: &crate::jacobian::Mat2<T>,
+    r: [T; 2],
+) -> Result<[T; 2], KinematicsError> {
     let det = m[0][0] * m[1][1] - m[0][1] * m[1][0];
     if !(det > T::ZERO && m[0][0] > T::ZERO) {
         return Err(KinematicsError::NonFinite);
     }
-    Ok([(r[0] * m[1][1] - m[0][1] * r[1]) / det, (m[0][0] * r[1] - r[0] * m[1][0]) / det])
+    Ok([
+        (r[0] * m[1][1] - m[0][1] * r[1]) / det,
+        (m[0][0] * r[1] - r[0] * m[1][0]) / det,
+    ])
 }
 
 #[inline(always)]
@@ -232,12 +248,35 @@ fn dot<T: Real>(u: [T; 2], v: [T; 2]) -> T {
 
 /// The regressor `Y` (2 × [`PARAMETERS`]) of `τ = Y·π` for `motion`, in SI units (the
 /// motion's millimetres are converted). Fails at an exact parallel singularity.
-pub fn regressor<T: Real>(motion: &JointMotion<T>, coulomb_speed_rad_s: T) -> Result<[[T; PARAMETERS]; 2], KinematicsError> {
+pub fn regressor<T: Real>(
+    motion: &JointMotion<T>,
+    coulomb_speed_rad_s: T,
+) -> Result<[[T; PARAMETERS]; 2], KinematicsError> {
     let y = Terms::of(motion, coulomb_speed_rad_s)?;
     let z = T::ZERO;
     Ok([
-        [y.acceleration[0], z, y.tool[0], y.distal_1[0], y.distal_2[0], y.velocity[0], z, y.coulomb[0], z],
-        [z, y.acceleration[1], y.tool[1], y.distal_1[1], y.distal_2[1], z, y.velocity[1], z, y.coulomb[1]],
+        [
+            y.acceleration[0],
+            z,
+            y.tool[0],
+            y.distal_1[0],
+            y.distal_2[0],
+            y.velocity[0],
+            z,
+            y.coulomb[0],
+            z,
+        ],
+        [
+            z,
+            y.acceleration[1],
+            y.tool[1],
+            y.distal_1[1],
+            y.distal_2[1],
+            z,
+            y.velocity[1],
+            z,
+            y.coulomb[1],
+        ],
     ])
 }
 
@@ -262,7 +301,12 @@ impl<T: Real> Terms<T> {
         let (k1, k2) = (cross(p1, q1), cross(p2, q2));
         let q12 = dot(q1, q2);
         // Elbow accelerations Ä = θ̈·p⊥ - θ̇²·p; C̈ - Ä is the distal link's relative one.
-        let rel = |p: [T; 2], w: T, al: T| [acc[0] + al * p[1] + w * w * p[0], acc[1] - al * p[0] + w * w * p[1]];
+        let rel = |p: [T; 2], w: T, al: T| {
+            [
+                acc[0] + al * p[1] + w * w * p[0],
+                acc[1] - al * p[0] + w * w * p[1],
+            ]
+        };
         let phi3 = cross(q1, rel(p1, w1, al1)) * inv_b2;
         let phi4 = cross(q2, rel(p2, w2, al2)) * inv_c2;
         // m_C: Jᵀ·C̈ (mm → m twice).
@@ -271,14 +315,30 @@ impl<T: Real> Terms<T> {
             acceleration: [al1, al2],
             tool: [k1 * cross(acc, q2) * si, k2 * cross(q1, acc) * si],
             // J3: φ̈3·(Jᵀq1⊥ - (q1·p1)e1)/|q1|², with Jᵀq1⊥ = (-k1·(q1·q2), k2·|q1|²)/det.
-            distal_1: [phi3 * (-(k1 * q12 * inv_det) - dot(q1, p1)) * inv_b2, phi3 * k2 * inv_det],
+            distal_1: [
+                phi3 * (-(k1 * q12 * inv_det) - dot(q1, p1)) * inv_b2,
+                phi3 * k2 * inv_det,
+            ],
             // J4: φ̈4·(Jᵀq2⊥ - (q2·p2)e2)/|q2|², with Jᵀq2⊥ = (-k1·|q2|², k2·(q1·q2))/det.
-            distal_2: [-phi4 * k1 * inv_det, phi4 * (k2 * q12 * inv_det - dot(q2, p2)) * inv_c2],
+            distal_2: [
+                -phi4 * k1 * inv_det,
+                phi4 * (k2 * q12 * inv_det - dot(q2, p2)) * inv_c2,
+            ],
             velocity: [w1, w2],
-            coulomb: [w1 / (w1.abs() + coulomb_speed_rad_s), w2 / (w2.abs() + coulomb_speed_rad_s)],
+            coulomb: [
+                w1 / (w1.abs() + coulomb_speed_rad_s),
+                w2 / (w2.abs() + coulomb_speed_rad_s),
+            ],
         };
         // All finite exactly when their sum is (a sum beyond 1e38 is no machine's either).
-        let all = [y.tool, y.distal_1, y.distal_2, y.coulomb, y.acceleration, y.velocity];
+        let all = [
+            y.tool,
+            y.distal_1,
+            y.distal_2,
+            y.coulomb,
+            y.acceleration,
+            y.velocity,
+        ];
         let sum = all.iter().flatten().fold(T::ZERO, |s, v| s + *v);
         #[allow(clippy::eq_op)] // `sum - sum` is the test
         if !(sum - sum == T::ZERO) {
@@ -322,12 +382,27 @@ mod tests {
 
     /// Kinetic energy `T(θ, θ̇)` of the five elements, from the FK alone (velocities by central
     /// differences along θ̇): an independent route to the same physics.
-    fn kinetic_energy(m: &FiveBar<f64>, d: &FiveBarDynamics<f64>, th: [f64; 2], w: [f64; 2]) -> f64 {
+    fn kinetic_energy(
+        m: &FiveBar<f64>,
+        d: &FiveBarDynamics<f64>,
+        th: [f64; 2],
+        w: [f64; 2],
+    ) -> f64 {
         let e = 1e-5;
-        let pose = |s: f64| m.forward_pose([th[0] + s * w[0], th[1] + s * w[1]], 0.0).unwrap();
+        let pose = |s: f64| {
+            m.forward_pose([th[0] + s * w[0], th[1] + s * w[1]], 0.0)
+                .unwrap()
+        };
         let (a, b) = (pose(-e), pose(e));
-        let v = |pa: [f64; 2], pb: [f64; 2]| [(pb[0] - pa[0]) / (2.0 * e) * 1e-3, (pb[1] - pa[1]) / (2.0 * e) * 1e-3];
-        let angle = |p: &crate::pose::Pose<f64>, elbow: [f64; 2]| (p.tool_mm[1] - elbow[1]).atan2(p.tool_mm[0] - elbow[0]);
+        let v = |pa: [f64; 2], pb: [f64; 2]| {
+            [
+                (pb[0] - pa[0]) / (2.0 * e) * 1e-3,
+                (pb[1] - pa[1]) / (2.0 * e) * 1e-3,
+            ]
+        };
+        let angle = |p: &crate::pose::Pose<f64>, elbow: [f64; 2]| {
+            (p.tool_mm[1] - elbow[1]).atan2(p.tool_mm[0] - elbow[0])
+        };
         let vc = v(a.tool_mm, b.tool_mm);
         let w3 = (angle(&b, b.elbow_a_mm) - angle(&a, a.elbow_a_mm)) / (2.0 * e);
         let w4 = (angle(&b, b.elbow_b_mm) - angle(&a, a.elbow_b_mm)) / (2.0 * e);
@@ -343,12 +418,22 @@ mod tests {
     #[test]
     fn torques_match_the_lagrangian() {
         let (m, d) = (machine(), params());
-        let limits = TaskLimits { speed_mm_s: 1500.0, accel_mm_s2: 5.0 * 9_806.65, jerk_mm_s3: 5e6 };
-        let f8 = Figure8 { centre_mm: [212.0, 0.0], half_x_mm: 40.0, half_y_mm: 50.0, loops: 1.0 };
+        let limits = TaskLimits {
+            speed_mm_s: 1500.0,
+            accel_mm_s2: 5.0 * 9_806.65,
+            jerk_mm_s3: 5e6,
+        };
+        let f8 = Figure8 {
+            centre_mm: [212.0, 0.0],
+            half_x_mm: 40.0,
+            half_y_mm: 50.0,
+            loops: 1.0,
+        };
         let traj = PathMotion::plan(f8, &limits, 2000).unwrap();
         let joint = |t: f64| {
             let s = traj.at(t);
-            m.inverse_motion(s.position_mm, s.velocity_mm_s, s.acceleration_mm_s2, 0.0).unwrap()
+            m.inverse_motion(s.position_mm, s.velocity_mm_s, s.acceleration_mm_s2, 0.0)
+                .unwrap()
         };
         // ∂T/∂θ̇ (T is quadratic in θ̇: central differences are exact up to rounding).
         let dt_dw = |th: [f64; 2], w: [f64; 2]| {
@@ -358,7 +443,8 @@ mod tests {
                 let (mut lo, mut hi) = (w, w);
                 lo[i] -= h;
                 hi[i] += h;
-                g[i] = (kinetic_energy(&m, &d, th, hi) - kinetic_energy(&m, &d, th, lo)) / (2.0 * h);
+                g[i] =
+                    (kinetic_energy(&m, &d, th, hi) - kinetic_energy(&m, &d, th, lo)) / (2.0 * h);
             }
             g
         };
@@ -370,14 +456,19 @@ mod tests {
             let tau = d.torque_nm(&j).unwrap();
             let h = 1e-4;
             let (ja, jb) = (joint(t - h), joint(t + h));
-            let (pa, pb) = (dt_dw(ja.angle_rad, ja.velocity_rad_s), dt_dw(jb.angle_rad, jb.velocity_rad_s));
+            let (pa, pb) = (
+                dt_dw(ja.angle_rad, ja.velocity_rad_s),
+                dt_dw(jb.angle_rad, jb.velocity_rad_s),
+            );
             let e = 1e-5;
             let mut lag = [0.0; 2];
             for i in 0..2 {
                 let (mut lo, mut hi) = (j.angle_rad, j.angle_rad);
                 lo[i] -= e;
                 hi[i] += e;
-                let dt_dth = (kinetic_energy(&m, &d, hi, j.velocity_rad_s) - kinetic_energy(&m, &d, lo, j.velocity_rad_s)) / (2.0 * e);
+                let dt_dth = (kinetic_energy(&m, &d, hi, j.velocity_rad_s)
+                    - kinetic_energy(&m, &d, lo, j.velocity_rad_s))
+                    / (2.0 * e);
                 lag[i] = (pb[i] - pa[i]) / (2.0 * h) - dt_dth;
             }
             for i in 0..2 {
@@ -385,7 +476,10 @@ mod tests {
                 scale = scale.max(tau[i].abs());
             }
         }
-        assert!(scale > 0.3, "the motion must load the model: peak {scale} N·m");
+        assert!(
+            scale > 0.3,
+            "the motion must load the model: peak {scale} N·m"
+        );
         std::eprintln!("Lagrangian vs closed form: worst {worst:.3e} N·m of {scale:.3} N·m peak");
         assert!(worst < 1e-4 * scale, "worst {worst} N·m of {scale}");
     }
@@ -393,29 +487,47 @@ mod tests {
     #[test]
     fn torque_is_the_regressor_times_the_parameters_and_friction_opposes_motion() {
         let m = machine();
-        let j = m.inverse_motion([215.0, 20.0], [300.0, -400.0], [20_000.0, 5_000.0], 0.05).unwrap();
-        let d = FiveBarDynamics { viscous_nm_s_per_rad: [0.02, 0.03], coulomb_nm: [0.05, 0.04], ..params() };
+        let j = m
+            .inverse_motion([215.0, 20.0], [300.0, -400.0], [20_000.0, 5_000.0], 0.05)
+            .unwrap();
+        let d = FiveBarDynamics {
+            viscous_nm_s_per_rad: [0.02, 0.03],
+            coulomb_nm: [0.05, 0.04],
+            ..params()
+        };
         let tau = d.torque_nm(&j).unwrap();
         let y = regressor(&j, 0.01).unwrap();
         for i in 0..2 {
             let sum: f64 = (0..PARAMETERS).map(|k| y[i][k] * d.to_array()[k]).sum();
-            assert!((sum - tau[i]).abs() < 1e-12 * (1.0 + tau[i].abs()), "{sum} vs {}", tau[i]);
+            assert!(
+                (sum - tau[i]).abs() < 1e-12 * (1.0 + tau[i].abs()),
+                "{sum} vs {}",
+                tau[i]
+            );
         }
         let mut bad = j;
         bad.velocity_rad_s[1] = f64::NAN;
         assert_eq!(d.torque_nm(&bad), Err(KinematicsError::NonFinite));
         assert_eq!(regressor(&bad, 0.01), Err(KinematicsError::NonFinite));
         // At rest (no acceleration) only friction would act, and there is none at zero speed.
-        let still = m.inverse_motion([215.0, 20.0], [0.0; 2], [0.0; 2], 0.05).unwrap();
+        let still = m
+            .inverse_motion([215.0, 20.0], [0.0; 2], [0.0; 2], 0.05)
+            .unwrap();
         assert_eq!(d.torque_nm(&still).unwrap(), [0.0; 2]);
         // Friction alone: the sign of the joint velocity.
-        let f = FiveBarDynamics::from_array([1e-3, 1e-3, 0.0, 0.0, 0.0, 0.02, 0.03, 0.05, 0.04], 0.01);
-        let slow = m.inverse_motion([215.0, 20.0], [300.0, -400.0], [0.0; 2], 0.05).unwrap();
+        let f =
+            FiveBarDynamics::from_array([1e-3, 1e-3, 0.0, 0.0, 0.0, 0.02, 0.03, 0.05, 0.04], 0.01);
+        let slow = m
+            .inverse_motion([215.0, 20.0], [300.0, -400.0], [0.0; 2], 0.05)
+            .unwrap();
         let t = f.torque_nm(&slow).unwrap();
         let mut with_inertia = [0.0; 2];
         for i in 0..2 {
             with_inertia[i] = 1e-3 * slow.acceleration_rad_s2[i];
-            assert_eq!((t[i] - with_inertia[i]).signum(), slow.velocity_rad_s[i].signum());
+            assert_eq!(
+                (t[i] - with_inertia[i]).signum(),
+                slow.velocity_rad_s[i].signum()
+            );
         }
     }
 
@@ -424,21 +536,33 @@ mod tests {
     fn forward_acceleration_inverts_the_torque() {
         let m = machine();
         let d = params();
-        let j = m.inverse_motion([215.0, 20.0], [300.0, -400.0], [20_000.0, 5_000.0], 0.05).unwrap();
+        let j = m
+            .inverse_motion([215.0, 20.0], [300.0, -400.0], [20_000.0, 5_000.0], 0.05)
+            .unwrap();
         let tau = d.torque_nm(&j).unwrap();
         let pose = m.forward_pose(j.angle_rad, 0.05).unwrap();
-        let acc = d.forward_acceleration(&pose, j.velocity_rad_s, tau).unwrap();
+        let acc = d
+            .forward_acceleration(&pose, j.velocity_rad_s, tau)
+            .unwrap();
         for i in 0..2 {
-            assert!((acc[i] - j.acceleration_rad_s2[i]).abs() < 1e-9 * (1.0 + acc[i].abs()), "{acc:?} vs {:?}", j.acceleration_rad_s2);
+            assert!(
+                (acc[i] - j.acceleration_rad_s2[i]).abs() < 1e-9 * (1.0 + acc[i].abs()),
+                "{acc:?} vs {:?}",
+                j.acceleration_rad_s2
+            );
         }
         use crate::joint_motion::motion_from_pose;
         let col = |k: usize| {
             let mut e = [0.0; 2];
             e[k] = 1.0;
-            d.torque_nm(&motion_from_pose(&pose, [0.0; 2], e).unwrap()).unwrap()
+            d.torque_nm(&motion_from_pose(&pose, [0.0; 2], e).unwrap())
+                .unwrap()
         };
         let (c0, c1) = (col(0), col(1));
-        assert!((c0[1] - c1[0]).abs() < 1e-12 * c0[0].abs(), "M symmetric: {c0:?} {c1:?}");
+        assert!(
+            (c0[1] - c1[0]).abs() < 1e-12 * c0[0].abs(),
+            "M symmetric: {c0:?} {c1:?}"
+        );
         assert!(c0[1].abs() > 1e-5, "the motors are coupled: {c0:?}");
     }
 
@@ -453,10 +577,26 @@ mod tests {
             f(&mut p);
             p.validate()
         };
-        assert_eq!(bad(|p| p.tool_mass_kg = f64::NAN), Err(DynamicsError::NonFinite));
-        assert_eq!(bad(|p| p.motor_inertia_kg_m2[1] = 0.0), Err(DynamicsError::OutOfRange));
-        assert_eq!(bad(|p| p.coulomb_nm[0] = -0.1), Err(DynamicsError::OutOfRange));
-        assert_eq!(bad(|p| p.coulomb_speed_rad_s = 0.0), Err(DynamicsError::OutOfRange));
-        assert_eq!(bad(|p| p.distal_inertia_kg_m2[0] = -1.0), Ok(()), "J may be negative");
+        assert_eq!(
+            bad(|p| p.tool_mass_kg = f64::NAN),
+            Err(DynamicsError::NonFinite)
+        );
+        assert_eq!(
+            bad(|p| p.motor_inertia_kg_m2[1] = 0.0),
+            Err(DynamicsError::OutOfRange)
+        );
+        assert_eq!(
+            bad(|p| p.coulomb_nm[0] = -0.1),
+            Err(DynamicsError::OutOfRange)
+        );
+        assert_eq!(
+            bad(|p| p.coulomb_speed_rad_s = 0.0),
+            Err(DynamicsError::OutOfRange)
+        );
+        assert_eq!(
+            bad(|p| p.distal_inertia_kg_m2[0] = -1.0),
+            Ok(()),
+            "J may be negative"
+        );
     }
 }

@@ -34,10 +34,10 @@
 use crate::dynamics::FiveBarDynamics;
 use crate::joint_motion::JointMotion;
 use crate::model::FiveBar;
-use crate::valid_model::{IkMargin, ValidFiveBar};
 use crate::pid::AxisGains;
 use crate::real::{wrap_angle_rad, Real};
 use crate::trajectory::MotionSetpoint;
+use crate::valid_model::{IkMargin, ValidFiveBar};
 use crate::KinematicsError;
 
 /// The five-bar at one setpoint: the setpoint's position and velocity, the encoder angles and
@@ -62,12 +62,23 @@ impl<T: Real> JointSample<T> {
     /// All zero (a slot to [`JointSample::solve`] into).
     pub fn zero() -> Self {
         let z = [T::ZERO; 2];
-        JointSample { position_mm: z, velocity_mm_s: z, angle_rad: z, velocity_rad_s: z, proximal_mm: [z; 2], distal_mm: [z; 2] }
+        JointSample {
+            position_mm: z,
+            velocity_mm_s: z,
+            angle_rad: z,
+            velocity_rad_s: z,
+            proximal_mm: [z; 2],
+            distal_mm: [z; 2],
+        }
     }
 
     /// The joint state at `setpoint` (its acceleration and jerk are not needed); the IK's
     /// checks.
-    pub fn at(model: &FiveBar<T>, setpoint: &MotionSetpoint<T>, min_transmission: T) -> Result<Self, KinematicsError> {
+    pub fn at(
+        model: &FiveBar<T>,
+        setpoint: &MotionSetpoint<T>,
+        min_transmission: T,
+    ) -> Result<Self, KinematicsError> {
         let mut s = Self::zero();
         s.solve(model, setpoint, min_transmission)?;
         Ok(s)
@@ -76,15 +87,29 @@ impl<T: Real> JointSample<T> {
     /// [`JointSample::at`] in place (the servo keeps two slots and avoids copying them); on
     /// `Err` the slot is left as it was.
     #[inline]
-    pub fn solve(&mut self, model: &FiveBar<T>, setpoint: &MotionSetpoint<T>, min_transmission: T) -> Result<(), KinematicsError> {
-        let m = model.inverse_rates(setpoint.position_mm, setpoint.velocity_mm_s, min_transmission)?;
+    pub fn solve(
+        &mut self,
+        model: &FiveBar<T>,
+        setpoint: &MotionSetpoint<T>,
+        min_transmission: T,
+    ) -> Result<(), KinematicsError> {
+        let m = model.inverse_rates(
+            setpoint.position_mm,
+            setpoint.velocity_mm_s,
+            min_transmission,
+        )?;
         self.set(setpoint, &m);
         Ok(())
     }
 
     /// [`JointSample::solve`] with a model and margin checked once ([`ValidFiveBar::inverse_rates`]).
     #[inline]
-    pub fn solve_valid(&mut self, model: &ValidFiveBar<T>, setpoint: &MotionSetpoint<T>, margin: IkMargin<T>) -> Result<(), KinematicsError> {
+    pub fn solve_valid(
+        &mut self,
+        model: &ValidFiveBar<T>,
+        setpoint: &MotionSetpoint<T>,
+        margin: IkMargin<T>,
+    ) -> Result<(), KinematicsError> {
         let m = model.inverse_rates(setpoint.position_mm, setpoint.velocity_mm_s, margin)?;
         self.set(setpoint, &m);
         Ok(())
@@ -104,7 +129,8 @@ impl<T: Real> JointSample<T> {
     /// Whether it was computed for `setpoint` (bit for bit: position and velocity).
     pub fn is_for(&self, setpoint: &MotionSetpoint<T>) -> bool {
         #[allow(clippy::float_cmp)] // the same numbers, not close ones
-        let same = self.position_mm == setpoint.position_mm && self.velocity_mm_s == setpoint.velocity_mm_s;
+        let same = self.position_mm == setpoint.position_mm
+            && self.velocity_mm_s == setpoint.velocity_mm_s;
         same
     }
 }
@@ -114,7 +140,12 @@ impl<T: Real> JointSample<T> {
 #[inline]
 pub fn predict<T: Real>(setpoint: &MotionSetpoint<T>, dt_s: T) -> MotionSetpoint<T> {
     let (half, sixth) = (T::HALF, T::from_f64(1.0 / 6.0));
-    let (p, v, a, j) = (setpoint.position_mm, setpoint.velocity_mm_s, setpoint.acceleration_mm_s2, setpoint.jerk_mm_s3);
+    let (p, v, a, j) = (
+        setpoint.position_mm,
+        setpoint.velocity_mm_s,
+        setpoint.acceleration_mm_s2,
+        setpoint.jerk_mm_s3,
+    );
     let mut next = *setpoint;
     for i in 0..2 {
         next.position_mm[i] = p[i] + (v[i] + (a[i] * half + j[i] * sixth * dt_s) * dt_s) * dt_s;
@@ -127,7 +158,11 @@ pub fn predict<T: Real>(setpoint: &MotionSetpoint<T>, dt_s: T) -> MotionSetpoint
 /// The mean joint motion over the interval from `now` to `next`, `1 / rate_hz` apart (module
 /// doc). The servo passes the reciprocal of its sample period, computed once (no division here).
 #[inline]
-pub fn interval_motion<T: Real>(now: &JointSample<T>, next: &JointSample<T>, rate_hz: T) -> JointMotion<T> {
+pub fn interval_motion<T: Real>(
+    now: &JointSample<T>,
+    next: &JointSample<T>,
+    rate_hz: T,
+) -> JointMotion<T> {
     let rate = rate_hz;
     let half = T::HALF;
     let mean = |a: [T; 2], b: [T; 2]| [(a[0] + b[0]) * half, (a[1] + b[1]) * half];
@@ -139,8 +174,14 @@ pub fn interval_motion<T: Real>(now: &JointSample<T>, next: &JointSample<T>, rat
             wrap_angle_rad(next.angle_rad[1] - now.angle_rad[1]) * rate,
         ],
         acceleration_rad_s2: diff(now.velocity_rad_s, next.velocity_rad_s),
-        proximal_mm: [mean(now.proximal_mm[0], next.proximal_mm[0]), mean(now.proximal_mm[1], next.proximal_mm[1])],
-        distal_mm: [mean(now.distal_mm[0], next.distal_mm[0]), mean(now.distal_mm[1], next.distal_mm[1])],
+        proximal_mm: [
+            mean(now.proximal_mm[0], next.proximal_mm[0]),
+            mean(now.proximal_mm[1], next.proximal_mm[1]),
+        ],
+        distal_mm: [
+            mean(now.distal_mm[0], next.distal_mm[0]),
+            mean(now.distal_mm[1], next.distal_mm[1]),
+        ],
         // The mean velocity: the inverse dynamics do not use it (the velocity products are in
         // the accelerations), kept for a complete motion.
         tool_velocity_mm_s: diff(now.position_mm, next.position_mm),
@@ -160,7 +201,10 @@ pub fn feed_forward_nm(
         Some(d) => d.torque_nm(motion),
         None => {
             let (w, a) = (motion.velocity_rad_s, motion.acceleration_rad_s2);
-            Ok([axes[0].feed_forward_nm(w[0], a[0]), axes[1].feed_forward_nm(w[1], a[1])])
+            Ok([
+                axes[0].feed_forward_nm(w[0], a[0]),
+                axes[1].feed_forward_nm(w[1], a[1]),
+            ])
         }
     }
 }
@@ -178,8 +222,17 @@ mod tests {
     #[test]
     fn interval_means_are_the_exact_averages() {
         let m = FiveBar::<f64>::paper_nominal();
-        let limits = TaskLimits { speed_mm_s: 1500.0, accel_mm_s2: 5.0 * 9_806.65, jerk_mm_s3: 3e7 };
-        let c = Circle { centre_mm: [212.0, 0.0], radius_mm: 40.0, start_rad: 1.0, turns: 1.0 };
+        let limits = TaskLimits {
+            speed_mm_s: 1500.0,
+            accel_mm_s2: 5.0 * 9_806.65,
+            jerk_mm_s3: 3e7,
+        };
+        let c = Circle {
+            centre_mm: [212.0, 0.0],
+            radius_mm: 40.0,
+            start_rad: 1.0,
+            turns: 1.0,
+        };
         let traj = PathMotion::plan(c, &limits, 4000).unwrap();
         let dt = 5e-4;
         let (mut worst_acc, mut scale) = (0.0f64, 0.0f64);
@@ -194,7 +247,9 @@ mod tests {
             let mut avg = [0.0; 2];
             for q in 0..n {
                 let s = traj.at(t + (q as f64 + 0.5) / n as f64 * dt);
-                let j = m.inverse_motion(s.position_mm, s.velocity_mm_s, s.acceleration_mm_s2, 0.05).unwrap();
+                let j = m
+                    .inverse_motion(s.position_mm, s.velocity_mm_s, s.acceleration_mm_s2, 0.05)
+                    .unwrap();
                 for (sum, a) in avg.iter_mut().zip(j.acceleration_rad_s2) {
                     *sum += a / n as f64;
                 }
@@ -205,26 +260,43 @@ mod tests {
             }
             assert_eq!(now.angle_rad, m.inverse(a.position_mm, 0.05).unwrap());
         }
-        assert!(scale > 100.0 && worst_acc < 1e-3 * scale, "{worst_acc} of {scale}");
+        assert!(
+            scale > 100.0 && worst_acc < 1e-3 * scale,
+            "{worst_acc} of {scale}"
+        );
         // Prediction: on the circle to fourth order in dt, on a straight move exact inside a
         // jerk phase.
         let t = 0.1;
         let (p, q) = (predict(&traj.at(t), dt), traj.at(t + dt));
-        assert!((p.position_mm[0] - q.position_mm[0]).abs() < 1e-6 && (p.velocity_mm_s[1] - q.velocity_mm_s[1]).abs() < 1e-2, "{p:?} {q:?}");
+        assert!(
+            (p.position_mm[0] - q.position_mm[0]).abs() < 1e-6
+                && (p.velocity_mm_s[1] - q.velocity_mm_s[1]).abs() < 1e-2,
+            "{p:?} {q:?}"
+        );
         let line = PathMotion::line([170.0, -60.0], [250.0, 60.0], &limits).unwrap();
         let t = 0.5 * line.law().phases_s().0;
         let (p, q) = (predict(&line.at(t), dt), line.at(t + dt));
         for i in 0..2 {
-            assert!((p.position_mm[i] - q.position_mm[i]).abs() < 1e-12 && (p.velocity_mm_s[i] - q.velocity_mm_s[i]).abs() < 1e-9);
+            assert!(
+                (p.position_mm[i] - q.position_mm[i]).abs() < 1e-12
+                    && (p.velocity_mm_s[i] - q.velocity_mm_s[i]).abs() < 1e-9
+            );
         }
-        assert!(JointSample::at(&m, &traj.at(t), 0.05).unwrap().is_for(&traj.at(t)));
+        assert!(JointSample::at(&m, &traj.at(t), 0.05)
+            .unwrap()
+            .is_for(&traj.at(t)));
         assert!(!JointSample::at(&m, &traj.at(t), 0.05).unwrap().is_for(&q));
     }
 
     #[test]
     fn without_dynamics_the_gains_feed_forward_acts_on_the_mean_motion() {
         let m = FiveBar::<f32>::paper_nominal();
-        let a = MotionSetpoint { position_mm: [210.0, 5.0], velocity_mm_s: [300.0, -200.0], acceleration_mm_s2: [10_000.0, 20_000.0], jerk_mm_s3: [0.0; 2] };
+        let a = MotionSetpoint {
+            position_mm: [210.0, 5.0],
+            velocity_mm_s: [300.0, -200.0],
+            acceleration_mm_s2: [10_000.0, 20_000.0],
+            jerk_mm_s3: [0.0; 2],
+        };
         let now = JointSample::at(&m, &a, 0.05).unwrap();
         let next = JointSample::at(&m, &predict(&a, 5e-4), 0.05).unwrap();
         let mean = interval_motion(&now, &next, 1.0 / 5e-4);

@@ -21,19 +21,32 @@ use crate::KinematicsError;
 impl<T: Real> FiveBar<T> {
     /// The pose reached with encoder angles `theta_rad` (see [`FiveBar::inverse_pose`] for
     /// `min_transmission`).
-    pub fn forward_pose(&self, theta_rad: [T; 2], min_transmission: T) -> Result<Pose<T>, KinematicsError> {
+    pub fn forward_pose(
+        &self,
+        theta_rad: [T; 2],
+        min_transmission: T,
+    ) -> Result<Pose<T>, KinematicsError> {
         self.solve_forward(theta_rad, min_transmission)
     }
 
     /// The tool point reached with encoder angles `theta_rad`.
-    pub fn forward(&self, theta_rad: [T; 2], min_transmission: T) -> Result<[T; 2], KinematicsError> {
-        self.solve_forward(theta_rad, min_transmission).map(|p| p.tool_mm)
+    pub fn forward(
+        &self,
+        theta_rad: [T; 2],
+        min_transmission: T,
+    ) -> Result<[T; 2], KinematicsError> {
+        self.solve_forward(theta_rad, min_transmission)
+            .map(|p| p.tool_mm)
     }
 
     /// The closed form and its checks, inlined into both entry points so that `forward`
     /// neither builds nor returns the whole pose.
     #[inline(always)]
-    fn solve_forward(&self, theta_rad: [T; 2], min_transmission: T) -> Result<Pose<T>, KinematicsError> {
+    fn solve_forward(
+        &self,
+        theta_rad: [T; 2],
+        min_transmission: T,
+    ) -> Result<Pose<T>, KinematicsError> {
         if !(theta_rad[0].is_finite() && theta_rad[1].is_finite()) {
             return Err(KinematicsError::NonFinite);
         }
@@ -65,8 +78,14 @@ impl<T: Real> FiveBar<T> {
             a[0] + (m * s[0] - h * s[1]) * scale,
             a[1] + (m * s[1] + h * s[0]) * scale,
         ];
-        Pose { theta_rad, elbow_a_mm: a, elbow_b_mm: b, tool_mm: tool, base_a0_mm: a0, base_b0_mm: b0 }
-            .check(self, min_transmission)
+        Pose {
+            theta_rad,
+            elbow_a_mm: a,
+            elbow_b_mm: b,
+            tool_mm: tool,
+            base_a0_mm: a0,
+            base_b0_mm: b0,
+        }
+        .check(self, min_transmission)
     }
-
 }

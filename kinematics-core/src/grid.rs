@@ -202,9 +202,15 @@ impl core::fmt::Display for GridError {
             GridError::BadModel => f.write_str("grid image holds an invalid five-bar model"),
             GridError::OutsideGrid => f.write_str("point outside the correction grid"),
             GridError::BadEncodeInput => f.write_str("grid encode: buffer or node count mismatch"),
-            GridError::BadWorkspace => f.write_str("the image's workspace block is corrupt or invalid"),
-            GridError::BadDynamics => f.write_str("the image's dynamics block is corrupt or invalid"),
-            GridError::BadBacklash => f.write_str("the image's backlash block is corrupt or invalid"),
+            GridError::BadWorkspace => {
+                f.write_str("the image's workspace block is corrupt or invalid")
+            }
+            GridError::BadDynamics => {
+                f.write_str("the image's dynamics block is corrupt or invalid")
+            }
+            GridError::BadBacklash => {
+                f.write_str("the image's backlash block is corrupt or invalid")
+            }
         }
     }
 }
@@ -232,7 +238,10 @@ pub struct GridGeometry {
 impl GridGeometry {
     /// Position of node `(i, j)`.
     pub fn node_mm(&self, i: u16, j: u16) -> [f32; 2] {
-        [self.x0_mm + i as f32 * self.step_x_mm, self.y0_mm + j as f32 * self.step_y_mm]
+        [
+            self.x0_mm + i as f32 * self.step_x_mm,
+            self.y0_mm + j as f32 * self.step_y_mm,
+        ]
     }
 
     /// Number of nodes.
@@ -257,10 +266,10 @@ impl GridGeometry {
             let t = (v - origin) / step;
             t >= -EDGE_TOLERANCE_CELLS && t <= n.saturating_sub(1) as f32 + EDGE_TOLERANCE_CELLS
         };
-        region
-            .vertices_mm()
-            .iter()
-            .all(|p| inside(p[0], self.x0_mm, self.step_x_mm, self.nx) && inside(p[1], self.y0_mm, self.step_y_mm, self.ny))
+        region.vertices_mm().iter().all(|p| {
+            inside(p[0], self.x0_mm, self.step_x_mm, self.nx)
+                && inside(p[1], self.y0_mm, self.step_y_mm, self.ny)
+        })
     }
 
     /// Image size followed by the dynamics block.
@@ -334,7 +343,13 @@ struct CellAxis {
 impl CellAxis {
     fn of(origin_mm: f32, step_mm: f32, n: u16) -> Self {
         let last = (n - 1) as f32;
-        CellAxis { origin_mm, inv_step: 1.0 / step_mm, last, upper: last + EDGE_TOLERANCE_CELLS, last_cell: u32::from(n - 2) }
+        CellAxis {
+            origin_mm,
+            inv_step: 1.0 / step_mm,
+            last,
+            upper: last + EDGE_TOLERANCE_CELLS,
+            last_cell: u32::from(n - 2),
+        }
     }
 }
 
@@ -424,7 +439,10 @@ impl<'a> CorrectionGrid<'a> {
         model.validate().map_err(|_| GridError::BadModel)?;
         let model = ValidFiveBar::from_validated(model);
         let nodes = &bytes[HEADER_LEN..total - 4];
-        if nodes.chunks_exact(4).any(|c| !f32::from_le_bytes([c[0], c[1], c[2], c[3]]).is_finite()) {
+        if nodes
+            .chunks_exact(4)
+            .any(|c| !f32::from_le_bytes([c[0], c[1], c[2], c[3]]).is_finite())
+        {
             return Err(GridError::NonFinite);
         }
         let extensions = parse_extensions(&bytes[total..], stored_crc, &geometry)?;
@@ -511,17 +529,25 @@ impl<'a> CorrectionGrid<'a> {
         let k = 8 * (j * self.geometry.nx as usize + i);
         // The cell's indices keep both pairs inside the table (checked at parse); the range
         // checks stay (no `unsafe`), and a pair past the end would refuse the point.
-        let (Some(r1), Some(r2)) = (self.node_pair(k), self.node_pair(k + 8 * self.geometry.nx as usize)) else {
+        let (Some(r1), Some(r2)) = (
+            self.node_pair(k),
+            self.node_pair(k + 8 * self.geometry.nx as usize),
+        ) else {
             return Err(GridError::OutsideGrid);
         };
-        Ok([bilinear(r1[0], r2[0], r1[2], r2[2], u, v), bilinear(r1[1], r2[1], r1[3], r2[3], u, v)])
+        Ok([
+            bilinear(r1[0], r2[0], r1[2], r2[2], u, v),
+            bilinear(r1[1], r2[1], r1[3], r2[3], u, v),
+        ])
     }
 
     /// The two nodes whose table entries start at byte `k`: `[δ1, δ2]` of each.
     #[inline]
     fn node_pair(&self, k: usize) -> Option<[f32; 4]> {
         let b = <&[u8; 16]>::try_from(self.nodes.get(k..k + 16)?).ok()?;
-        Some(core::array::from_fn(|m| f32::from_le_bytes([b[4 * m], b[4 * m + 1], b[4 * m + 2], b[4 * m + 3]])))
+        Some(core::array::from_fn(|m| {
+            f32::from_le_bytes([b[4 * m], b[4 * m + 1], b[4 * m + 2], b[4 * m + 3]])
+        }))
     }
 }
 
@@ -618,15 +644,20 @@ fn framed_payload(rest: &[u8], version: u16, len: usize, image_crc: u32) -> Opti
 
 /// Reads the chain of extension blocks in `rest` (the bytes after an image whose CRC is
 /// `image_crc`) until bytes that are no known magic.
-fn parse_extensions<'a>(rest: &'a [u8], image_crc: u32, geometry: &GridGeometry) -> Result<Extensions<'a>, GridError> {
+fn parse_extensions<'a>(
+    rest: &'a [u8],
+    image_crc: u32,
+    geometry: &GridGeometry,
+) -> Result<Extensions<'a>, GridError> {
     let mut found = Extensions::default();
     let mut at = 0;
     while let Some(magic) = rest.get(at..at + 4) {
         // One arm per known block; anything else ends the chain.
         let len = match magic {
             m if m == WORKSPACE_MAGIC => {
-                let payload = framed_payload(&rest[at..], WORKSPACE_VERSION, WORKSPACE_LEN, image_crc)
-                    .ok_or(GridError::BadWorkspace)?;
+                let payload =
+                    framed_payload(&rest[at..], WORKSPACE_VERSION, WORKSPACE_LEN, image_crc)
+                        .ok_or(GridError::BadWorkspace)?;
                 let limits = decode_workspace(payload)?;
                 if found.workspace.is_some() || !geometry.covers(&limits.region) {
                     return Err(GridError::BadWorkspace);
@@ -635,8 +666,9 @@ fn parse_extensions<'a>(rest: &'a [u8], image_crc: u32, geometry: &GridGeometry)
                 WORKSPACE_LEN
             }
             m if m == DYNAMICS_MAGIC => {
-                let payload = framed_payload(&rest[at..], DYNAMICS_VERSION, DYNAMICS_LEN, image_crc)
-                    .ok_or(GridError::BadDynamics)?;
+                let payload =
+                    framed_payload(&rest[at..], DYNAMICS_VERSION, DYNAMICS_LEN, image_crc)
+                        .ok_or(GridError::BadDynamics)?;
                 if found.dynamics.is_some() {
                     return Err(GridError::BadDynamics);
                 }
@@ -644,8 +676,9 @@ fn parse_extensions<'a>(rest: &'a [u8], image_crc: u32, geometry: &GridGeometry)
                 DYNAMICS_LEN
             }
             m if m == BACKLASH_MAGIC => {
-                let payload = framed_payload(&rest[at..], BACKLASH_VERSION, BACKLASH_LEN, image_crc)
-                    .ok_or(GridError::BadBacklash)?;
+                let payload =
+                    framed_payload(&rest[at..], BACKLASH_VERSION, BACKLASH_LEN, image_crc)
+                        .ok_or(GridError::BadBacklash)?;
                 if found.backlash.is_some() {
                     return Err(GridError::BadBacklash);
                 }
@@ -683,7 +716,10 @@ fn decode_workspace(payload: &[u8]) -> Result<WorkspaceLimits, GridError> {
         }
     }
     let region = ConvexWorkspace::new(&v[..n]).map_err(|_| GridError::BadWorkspace)?;
-    Ok(WorkspaceLimits { region, stop_margin_mm })
+    Ok(WorkspaceLimits {
+        region,
+        stop_margin_mm,
+    })
 }
 
 /// The dynamics block's payload decoded and validated.
@@ -710,7 +746,14 @@ fn decode_backlash(payload: &[u8]) -> Result<Backlash<f32>, GridError> {
 
 /// Writes one framed extension block into `out` (exactly `len` bytes): magic, version, length,
 /// the image's CRC, the payload `fill` writes into `out[12..len - 4]`, the block's CRC.
-fn write_block(out: &mut [u8], magic: [u8; 4], version: u16, len: usize, image_crc: u32, fill: impl FnOnce(&mut [u8])) {
+fn write_block(
+    out: &mut [u8],
+    magic: [u8; 4],
+    version: u16,
+    len: usize,
+    image_crc: u32,
+    fill: impl FnOnce(&mut [u8]),
+) {
     out.fill(0);
     out[0..4].copy_from_slice(&magic);
     out[4..6].copy_from_slice(&version.to_le_bytes());
@@ -730,7 +773,12 @@ pub fn image_crc(image: &[u8], image_len: usize) -> Option<u32> {
 /// What every block writer checks before it writes: the image's CRC (the block carries it),
 /// room for a block of `block_len` bytes at `at` (not inside the image), and an image that
 /// parses. Returns the CRC and the image's geometry.
-fn block_slot(out: &[u8], image_len: usize, at: usize, block_len: usize) -> Result<(u32, GridGeometry), GridError> {
+fn block_slot(
+    out: &[u8],
+    image_len: usize,
+    at: usize,
+    block_len: usize,
+) -> Result<(u32, GridGeometry), GridError> {
     let crc = image_crc(out, image_len).ok_or(GridError::BadEncodeInput)?;
     if at < image_len || out.len() < at + block_len {
         return Err(GridError::BadEncodeInput);
@@ -742,49 +790,89 @@ fn block_slot(out: &[u8], image_len: usize, at: usize, block_len: usize) -> Resu
 /// possibly followed by other blocks: `at` is where this block goes) and returns the new end.
 /// `out` must hold `at + WORKSPACE_LEN` bytes. The block is checked as the parser checks it,
 /// the polygon against the image's grid included.
-pub fn append_workspace(out: &mut [u8], image_len: usize, at: usize, limits: &WorkspaceLimits) -> Result<usize, GridError> {
+pub fn append_workspace(
+    out: &mut [u8],
+    image_len: usize,
+    at: usize,
+    limits: &WorkspaceLimits,
+) -> Result<usize, GridError> {
     let (crc, geometry) = block_slot(out, image_len, at, WORKSPACE_LEN)?;
     let margin_ok = limits.stop_margin_mm.is_finite() && limits.stop_margin_mm >= 0.0;
     if !margin_ok || !geometry.covers(&limits.region) {
         return Err(GridError::BadWorkspace);
     }
     let v = limits.region.vertices_mm();
-    write_block(&mut out[at..at + WORKSPACE_LEN], WORKSPACE_MAGIC, WORKSPACE_VERSION, WORKSPACE_LEN, crc, |p| {
-        p[0..2].copy_from_slice(&(v.len() as u16).to_le_bytes());
-        p[4..8].copy_from_slice(&limits.stop_margin_mm.to_le_bytes());
-        for (k, q) in v.iter().enumerate() {
-            p[8 + 8 * k..12 + 8 * k].copy_from_slice(&q[0].to_le_bytes());
-            p[12 + 8 * k..16 + 8 * k].copy_from_slice(&q[1].to_le_bytes());
-        }
-    });
+    write_block(
+        &mut out[at..at + WORKSPACE_LEN],
+        WORKSPACE_MAGIC,
+        WORKSPACE_VERSION,
+        WORKSPACE_LEN,
+        crc,
+        |p| {
+            p[0..2].copy_from_slice(&(v.len() as u16).to_le_bytes());
+            p[4..8].copy_from_slice(&limits.stop_margin_mm.to_le_bytes());
+            for (k, q) in v.iter().enumerate() {
+                p[8 + 8 * k..12 + 8 * k].copy_from_slice(&q[0].to_le_bytes());
+                p[12 + 8 * k..16 + 8 * k].copy_from_slice(&q[1].to_le_bytes());
+            }
+        },
+    );
     Ok(at + WORKSPACE_LEN)
 }
 
 /// Appends the dynamics block to the image in `out[..image_len]` (an image from [`encode`],
 /// possibly followed by other blocks: `at` is where this block goes) and returns the new end.
 /// `out` must hold `at + DYNAMICS_LEN` bytes; the parameters are validated as the parser does.
-pub fn append_dynamics(out: &mut [u8], image_len: usize, at: usize, dynamics: &FiveBarDynamics<f32>) -> Result<usize, GridError> {
+pub fn append_dynamics(
+    out: &mut [u8],
+    image_len: usize,
+    at: usize,
+    dynamics: &FiveBarDynamics<f32>,
+) -> Result<usize, GridError> {
     dynamics.validate().map_err(|_| GridError::BadDynamics)?;
     let (crc, _) = block_slot(out, image_len, at, DYNAMICS_LEN)?;
     let values = dynamics.to_array();
-    write_block(&mut out[at..at + DYNAMICS_LEN], DYNAMICS_MAGIC, DYNAMICS_VERSION, DYNAMICS_LEN, crc, |p| {
-        for (k, v) in values.iter().chain(core::iter::once(&dynamics.coulomb_speed_rad_s)).enumerate() {
-            p[4 * k..4 + 4 * k].copy_from_slice(&v.to_le_bytes());
-        }
-    });
+    write_block(
+        &mut out[at..at + DYNAMICS_LEN],
+        DYNAMICS_MAGIC,
+        DYNAMICS_VERSION,
+        DYNAMICS_LEN,
+        crc,
+        |p| {
+            for (k, v) in values
+                .iter()
+                .chain(core::iter::once(&dynamics.coulomb_speed_rad_s))
+                .enumerate()
+            {
+                p[4 * k..4 + 4 * k].copy_from_slice(&v.to_le_bytes());
+            }
+        },
+    );
     Ok(at + DYNAMICS_LEN)
 }
 
 /// Appends the backlash block to the image in `out[..image_len]` (an image from [`encode`],
 /// possibly followed by other blocks: `at` is where this block goes; put it last, see the
 /// module doc) and returns the new end. `out` must hold `at + BACKLASH_LEN` bytes.
-pub fn append_backlash(out: &mut [u8], image_len: usize, at: usize, backlash: &Backlash<f32>) -> Result<usize, GridError> {
+pub fn append_backlash(
+    out: &mut [u8],
+    image_len: usize,
+    at: usize,
+    backlash: &Backlash<f32>,
+) -> Result<usize, GridError> {
     let (crc, _) = block_slot(out, image_len, at, BACKLASH_LEN)?;
     let beta = backlash.beta_rad();
-    write_block(&mut out[at..at + BACKLASH_LEN], BACKLASH_MAGIC, BACKLASH_VERSION, BACKLASH_LEN, crc, |p| {
-        p[0..4].copy_from_slice(&beta[0].to_le_bytes());
-        p[4..8].copy_from_slice(&beta[1].to_le_bytes());
-    });
+    write_block(
+        &mut out[at..at + BACKLASH_LEN],
+        BACKLASH_MAGIC,
+        BACKLASH_VERSION,
+        BACKLASH_LEN,
+        crc,
+        |p| {
+            p[0..4].copy_from_slice(&beta[0].to_le_bytes());
+            p[4..8].copy_from_slice(&beta[1].to_le_bytes());
+        },
+    );
     Ok(at + BACKLASH_LEN)
 }
 

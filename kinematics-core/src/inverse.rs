@@ -57,7 +57,14 @@ pub(crate) struct Arm<T> {
 /// Solves one arm for the target `r` (relative to its base): `None` if out of reach.
 /// `offset_rad` is the encoder offset, `min_h` the margin times `2·|p|·|q|`.
 #[inline(always)]
-fn solve_arm<T: Real>(r: [T; 2], proximal_mm: T, distal_mm: T, elbow: Branch, offset_rad: T, min_h: T) -> Option<Arm<T>> {
+fn solve_arm<T: Real>(
+    r: [T; 2],
+    proximal_mm: T,
+    distal_mm: T,
+    elbow: Branch,
+    offset_rad: T,
+    min_h: T,
+) -> Option<Arm<T>> {
     let rho2 = r[0] * r[0] + r[1] * r[1];
     let diff = proximal_mm - distal_mm;
     let sum = proximal_mm + distal_mm;
@@ -97,7 +104,10 @@ fn all_finite<T: Real, const N: usize>(values: [T; N]) -> bool {
 #[inline(always)]
 #[allow(clippy::eq_op)] // `sum - sum` is the test
 fn finite_without_overflow<T: Real, const N: usize>(values: [T; N]) -> bool {
-    values.into_iter().reduce(|a, b| a + b).is_some_and(|sum| sum - sum == T::ZERO)
+    values
+        .into_iter()
+        .reduce(|a, b| a + b)
+        .is_some_and(|sum| sum - sum == T::ZERO)
 }
 
 /// The IK solved up to the angles, with what `inverse_pose` needs to place the elbows.
@@ -114,7 +124,11 @@ impl<T: Real> FiveBar<T> {
     /// arm is finished (angle included) before the next one starts, which keeps few values
     /// alive at a time; the errors come in the same order whatever is computed first.
     #[inline(always)]
-    pub(crate) fn solve_inverse(&self, tool_mm: [T; 2], min_transmission: T) -> Result<Solved<T>, KinematicsError> {
+    pub(crate) fn solve_inverse(
+        &self,
+        tool_mm: [T; 2],
+        min_transmission: T,
+    ) -> Result<Solved<T>, KinematicsError> {
         if !all_finite(tool_mm) {
             return Err(KinematicsError::NonFinite);
         }
@@ -124,14 +138,21 @@ impl<T: Real> FiveBar<T> {
         if !self.links_positive() {
             return Err(self.invalid_model());
         }
-        self.solve_checked(tool_mm, effective_margin(min_transmission, T::IK_MIN_TRANSMISSION))
+        self.solve_checked(
+            tool_mm,
+            effective_margin(min_transmission, T::IK_MIN_TRANSMISSION),
+        )
     }
 
     /// [`Self::solve_inverse`] for a model whose links are known positive
     /// ([`crate::ValidFiveBar`]) and a margin already raised to its floor
     /// ([`crate::IkMargin`]): the target's checks only.
     #[inline(always)]
-    pub(crate) fn solve_inverse_valid(&self, tool_mm: [T; 2], min_transmission: T) -> Result<Solved<T>, KinematicsError> {
+    pub(crate) fn solve_inverse_valid(
+        &self,
+        tool_mm: [T; 2],
+        min_transmission: T,
+    ) -> Result<Solved<T>, KinematicsError> {
         if !all_finite(tool_mm) {
             return Err(KinematicsError::NonFinite);
         }
@@ -143,17 +164,35 @@ impl<T: Real> FiveBar<T> {
     /// servo's); a non-finite one is still refused here, by the reach test (`ρ²` infinite or
     /// NaN), as `Unreachable`.
     #[inline(always)]
-    pub(crate) fn solve_checked(&self, tool_mm: [T; 2], min_transmission: T) -> Result<Solved<T>, KinematicsError> {
+    pub(crate) fn solve_checked(
+        &self,
+        tool_mm: [T; 2],
+        min_transmission: T,
+    ) -> Result<Solved<T>, KinematicsError> {
         let a0 = self.base_a0_mm;
         let b0 = [a0[0] + self.base_b0_mm[0], a0[1] + self.base_b0_mm[1]];
         let r1 = [tool_mm[0] - a0[0], tool_mm[1] - a0[1]];
         let r2 = [tool_mm[0] - b0[0], tool_mm[1] - b0[1]];
         let min_h = |p: T, d: T| min_transmission * (T::TWO * p * d).abs();
         let (off, mode) = (self.encoder_offset_rad, self.mode);
-        let arm_1 = solve_arm(r1, self.a_mm, self.b_mm, mode.elbow_1, off[0], min_h(self.a_mm, self.b_mm))
-            .ok_or(KinematicsError::Unreachable)?;
-        let arm_2 = solve_arm(r2, self.d_mm, self.c_mm, mode.elbow_2, off[1], min_h(self.d_mm, self.c_mm))
-            .ok_or(KinematicsError::Unreachable)?;
+        let arm_1 = solve_arm(
+            r1,
+            self.a_mm,
+            self.b_mm,
+            mode.elbow_1,
+            off[0],
+            min_h(self.a_mm, self.b_mm),
+        )
+        .ok_or(KinematicsError::Unreachable)?;
+        let arm_2 = solve_arm(
+            r2,
+            self.d_mm,
+            self.c_mm,
+            mode.elbow_2,
+            off[1],
+            min_h(self.d_mm, self.c_mm),
+        )
+        .ok_or(KinematicsError::Unreachable)?;
         // (C - A) × (C - B) = (B - A) × (C - A), scaled by 4ρ1²ρ2² > 0: its sign says on which
         // side of A→B the target lies. On the wrong side this target belongs to the other
         // assembly mode (across a parallel singularity) and FK of these angles would give
@@ -183,7 +222,11 @@ impl<T: Real> FiveBar<T> {
         if !(distal_cross.abs() >= min_transmission * (self.b_mm * self.c_mm).abs() * scale) {
             return Err(KinematicsError::NearSingularity(Singularity::Parallel));
         }
-        Ok(Solved { arm_1, arm_2, base_b0_mm: b0 })
+        Ok(Solved {
+            arm_1,
+            arm_2,
+            base_b0_mm: b0,
+        })
     }
 
     /// Encoder angles that put the tool point at `tool_mm`, with the full pose.
@@ -197,12 +240,19 @@ impl<T: Real> FiveBar<T> {
     /// is [`KinematicsError::InvalidModel`]. A caller solving many targets with one model (the
     /// servo) checks it once instead: [`crate::ValidFiveBar::inverse`]. Angles are wrapped into
     /// `(-π, π]`; the servo unwraps them next to the motor's current position.
-    pub fn inverse_pose(&self, tool_mm: [T; 2], min_transmission: T) -> Result<Pose<T>, KinematicsError> {
+    pub fn inverse_pose(
+        &self,
+        tool_mm: [T; 2],
+        min_transmission: T,
+    ) -> Result<Pose<T>, KinematicsError> {
         let s = self.solve_inverse(tool_mm, min_transmission)?;
         let a0 = self.base_a0_mm;
         let place = |base: [T; 2], arm: &Arm<T>| {
             let scale = T::ONE / (T::TWO * arm.rho2);
-            [base[0] + arm.proximal[0] * scale, base[1] + arm.proximal[1] * scale]
+            [
+                base[0] + arm.proximal[0] * scale,
+                base[1] + arm.proximal[1] * scale,
+            ]
         };
         let pose = Pose {
             theta_rad: [s.arm_1.theta_rad, s.arm_2.theta_rad],
@@ -213,7 +263,12 @@ impl<T: Real> FiveBar<T> {
             base_b0_mm: s.base_b0_mm,
         };
         // The angles and margins are checked; the elbows can still overflow on absurd input.
-        if !all_finite([pose.elbow_a_mm[0], pose.elbow_a_mm[1], pose.elbow_b_mm[0], pose.elbow_b_mm[1]]) {
+        if !all_finite([
+            pose.elbow_a_mm[0],
+            pose.elbow_a_mm[1],
+            pose.elbow_b_mm[0],
+            pose.elbow_b_mm[1],
+        ]) {
             return Err(KinematicsError::NonFinite);
         }
         Ok(pose)
@@ -224,6 +279,7 @@ impl<T: Real> FiveBar<T> {
     /// The servo's path: the same closed form and checks as `inverse_pose` without placing
     /// the elbows (no division at all).
     pub fn inverse(&self, tool_mm: [T; 2], min_transmission: T) -> Result<[T; 2], KinematicsError> {
-        self.solve_inverse(tool_mm, min_transmission).map(|s| [s.arm_1.theta_rad, s.arm_2.theta_rad])
+        self.solve_inverse(tool_mm, min_transmission)
+            .map(|s| [s.arm_1.theta_rad, s.arm_2.theta_rad])
     }
 }

@@ -22,7 +22,10 @@ pub type Mat2<T> = [[T; 2]; 2];
 
 /// Multiplies a 2x2 matrix by a vector.
 pub fn mat2_mul_vec<T: Real>(m: &Mat2<T>, v: [T; 2]) -> [T; 2] {
-    [m[0][0] * v[0] + m[0][1] * v[1], m[1][0] * v[0] + m[1][1] * v[1]]
+    [
+        m[0][0] * v[0] + m[0][1] * v[1],
+        m[1][0] * v[0] + m[1][1] * v[1],
+    ]
 }
 
 impl<T: Real> Pose<T> {

@@ -79,7 +79,9 @@ impl core::fmt::Display for ProfileError {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         match self {
             ProfileError::NonFinite => f.write_str("trajectory input is not finite"),
-            ProfileError::NonPositiveLimit => f.write_str("a speed, acceleration or jerk limit is not positive"),
+            ProfileError::NonPositiveLimit => {
+                f.write_str("a speed, acceleration or jerk limit is not positive")
+            }
         }
     }
 }
@@ -113,7 +115,11 @@ pub struct JerkProfile<T> {
 impl<T: Real> JerkProfile<T> {
     /// The time-optimal rest-to-rest profile over `distance` within `limits`.
     pub fn plan(distance: T, limits: &ProfileLimits<T>) -> Result<Self, ProfileError> {
-        let ProfileLimits { velocity: v, acceleration: a, jerk: j } = *limits;
+        let ProfileLimits {
+            velocity: v,
+            acceleration: a,
+            jerk: j,
+        } = *limits;
         if !(distance.is_finite() && v.is_finite() && a.is_finite() && j.is_finite()) {
             return Err(ProfileError::NonFinite);
         }
@@ -123,7 +129,11 @@ impl<T: Real> JerkProfile<T> {
         let d = distance.abs();
         let sign = if distance < T::ZERO { -T::ONE } else { T::ONE };
         // 1. Cruise at V if both ramps to V fit.
-        let (t_j, t_a) = if v * j >= a * a { (a / j, a / j + v / a) } else { ((v / j).sqrt(), T::TWO * (v / j).sqrt()) };
+        let (t_j, t_a) = if v * j >= a * a {
+            (a / j, a / j + v / a)
+        } else {
+            ((v / j).sqrt(), T::TWO * (v / j).sqrt())
+        };
         let (t_j, t_a, t_v) = if v * t_a <= d {
             (t_j, t_a, d / v - t_a)
         } else {
@@ -161,7 +171,22 @@ impl<T: Real> JerkProfile<T> {
         let v2 = v1 + a_p * dt;
         let p3 = p2 + v2 * t_j + a_p * t_j * t_j * T::HALF - p1;
         let v3 = v2 + v1;
-        JerkProfile { distance, sign, jerk, t_j, t_a, t_v, total: T::TWO * t_a + t_v, p1, v1, p2, v2, p3, v3, a_p }
+        JerkProfile {
+            distance,
+            sign,
+            jerk,
+            t_j,
+            t_a,
+            t_v,
+            total: T::TWO * t_a + t_v,
+            p1,
+            v1,
+            p2,
+            v2,
+            p3,
+            v3,
+            a_p,
+        }
     }
 
     /// The same profile run `factor` times slower (`factor > 1`) or faster: `s_k(t) = s(t/k)`,
@@ -218,16 +243,32 @@ impl<T: Real> JerkProfile<T> {
     pub fn at(&self, t_s: T) -> ScalarState<T> {
         let total = self.duration_s();
         // `!(t > 0)` also takes NaN to the start.
-        let t = if !(t_s > T::ZERO) { T::ZERO } else if t_s > total { total } else { t_s };
+        let t = if !(t_s > T::ZERO) {
+            T::ZERO
+        } else if t_s > total {
+            total
+        } else {
+            t_s
+        };
         let back = total - t;
         let s = if t <= back {
             self.first_half(t)
         } else {
             let m = self.first_half(back);
-            ScalarState { position: self.distance - m.position, velocity: m.velocity, acceleration: -m.acceleration, jerk: m.jerk }
+            ScalarState {
+                position: self.distance - m.position,
+                velocity: m.velocity,
+                acceleration: -m.acceleration,
+                jerk: m.jerk,
+            }
         };
         let g = self.sign;
-        ScalarState { position: g * s.position, velocity: g * s.velocity, acceleration: g * s.acceleration, jerk: g * s.jerk }
+        ScalarState {
+            position: g * s.position,
+            velocity: g * s.velocity,
+            acceleration: g * s.acceleration,
+            jerk: g * s.jerk,
+        }
     }
 
     /// The accelerating half (and the first half of the cruise), `0 ≤ t ≤ T/2`, unsigned.
@@ -238,7 +279,12 @@ impl<T: Real> JerkProfile<T> {
         let sixth = T::from_f64(1.0 / 6.0);
         if t < self.t_j {
             let t2 = t * t;
-            ScalarState { position: j * t2 * t * sixth, velocity: j * t2 * half, acceleration: j * t, jerk: j }
+            ScalarState {
+                position: j * t2 * t * sixth,
+                velocity: j * t2 * half,
+                acceleration: j * t,
+                jerk: j,
+            }
         } else if t < self.t_a - self.t_j {
             let u = t - self.t_j;
             ScalarState {
@@ -258,7 +304,12 @@ impl<T: Real> JerkProfile<T> {
             }
         } else {
             let u = t - self.t_a;
-            ScalarState { position: self.p3 + self.v3 * u, velocity: self.v3, acceleration: T::ZERO, jerk: T::ZERO }
+            ScalarState {
+                position: self.p3 + self.v3 * u,
+                velocity: self.v3,
+                acceleration: T::ZERO,
+                jerk: T::ZERO,
+            }
         }
     }
 }
@@ -269,7 +320,11 @@ mod tests {
     use super::*;
 
     fn limits(v: f64, a: f64, j: f64) -> ProfileLimits<f64> {
-        ProfileLimits { velocity: v, acceleration: a, jerk: j }
+        ProfileLimits {
+            velocity: v,
+            acceleration: a,
+            jerk: j,
+        }
     }
 
     /// Samples the profile finely and integrates jerk → acceleration → velocity → position
@@ -286,9 +341,17 @@ mod tests {
             let s = p.at(k as f64 * dt);
             // Trapezoidal integration of the derivatives, each from the next one.
             let dv = (prev.acceleration + s.acceleration) * 0.5 * dt;
-            let dp = (prev.velocity + s.velocity) * 0.5 * dt + (prev.acceleration - s.acceleration) * dt * dt / 12.0;
-            assert!((s.velocity - prev.velocity - dv).abs() <= 1e-6 * lim.velocity + lim.jerk * dt * dt, "v at {k}");
-            assert!((s.position - prev.position - dp).abs() <= 1e-9 * p.distance.abs() + lim.jerk * dt.powi(4), "p at {k}");
+            let dp = (prev.velocity + s.velocity) * 0.5 * dt
+                + (prev.acceleration - s.acceleration) * dt * dt / 12.0;
+            assert!(
+                (s.velocity - prev.velocity - dv).abs() <= 1e-6 * lim.velocity + lim.jerk * dt * dt,
+                "v at {k}"
+            );
+            assert!(
+                (s.position - prev.position - dp).abs()
+                    <= 1e-9 * p.distance.abs() + lim.jerk * dt.powi(4),
+                "p at {k}"
+            );
             assert!(s.velocity.abs() <= lim.velocity * (1.0 + 1e-12));
             assert!(s.acceleration.abs() <= lim.acceleration * (1.0 + 1e-12));
             assert!(s.jerk.abs() <= lim.jerk);
@@ -297,7 +360,10 @@ mod tests {
             prev = s;
         }
         assert_eq!(prev.position, p.distance(), "ends exactly at the distance");
-        assert!(prev.velocity.abs() < 1e-9 * lim.velocity && prev.acceleration.abs() < 1e-9 * lim.acceleration);
+        assert!(
+            prev.velocity.abs() < 1e-9 * lim.velocity
+                && prev.acceleration.abs() < 1e-9 * lim.acceleration
+        );
         assert!((peak_v - p.peak_velocity()).abs() <= 1e-9 * lim.velocity + lim.acceleration * dt);
         assert!((peak_a - p.peak_acceleration()).abs() <= lim.jerk * dt);
     }
@@ -306,15 +372,31 @@ mod tests {
     fn every_case_is_consistent_and_within_its_limits() {
         let g = 9_806.65;
         for (d, lim, case) in [
-            (100.0, limits(1500.0, 5.0 * g, 5e6), "cruise, acceleration limit reached"),
-            (100.0, limits(300.0, 5.0 * g, 5e5), "cruise, acceleration limit not reached"),
-            (10.0, limits(1500.0, 5.0 * g, 1e7), "no cruise, acceleration limit reached"),
+            (
+                100.0,
+                limits(1500.0, 5.0 * g, 5e6),
+                "cruise, acceleration limit reached",
+            ),
+            (
+                100.0,
+                limits(300.0, 5.0 * g, 5e5),
+                "cruise, acceleration limit not reached",
+            ),
+            (
+                10.0,
+                limits(1500.0, 5.0 * g, 1e7),
+                "no cruise, acceleration limit reached",
+            ),
             (0.1, limits(1500.0, 5.0 * g, 1e6), "neither"),
             (-37.5, limits(800.0, 2.0 * g, 2e6), "backwards"),
         ] {
             let p = JerkProfile::plan(d, &lim).unwrap();
             let (t_j, t_a, t_v) = p.phases_s();
-            assert!(t_j >= 0.0 && t_a >= 2.0 * t_j * (1.0 - 1e-12) && t_v >= 0.0, "{case}: {:?}", p.phases_s());
+            assert!(
+                t_j >= 0.0 && t_a >= 2.0 * t_j * (1.0 - 1e-12) && t_v >= 0.0,
+                "{case}: {:?}",
+                p.phases_s()
+            );
             check_consistent(&p, &lim);
         }
     }
@@ -330,12 +412,21 @@ mod tests {
             let p = JerkProfile::plan(d, &lim).unwrap();
             let (t_j, t_a, t_v) = p.phases_s();
             if t_v > 0.0 {
-                assert!((p.peak_velocity() - lim.velocity).abs() < 1e-9 * lim.velocity, "{d}");
+                assert!(
+                    (p.peak_velocity() - lim.velocity).abs() < 1e-9 * lim.velocity,
+                    "{d}"
+                );
             }
             if t_a > 2.0 * t_j * (1.0 + 1e-9) {
-                assert!((p.peak_acceleration() - lim.acceleration).abs() < 1e-9 * lim.acceleration, "{d}");
+                assert!(
+                    (p.peak_acceleration() - lim.acceleration).abs() < 1e-9 * lim.acceleration,
+                    "{d}"
+                );
             }
-            assert!(p.peak_velocity() <= lim.velocity * (1.0 + 1e-12) && p.peak_acceleration() <= lim.acceleration * (1.0 + 1e-12));
+            assert!(
+                p.peak_velocity() <= lim.velocity * (1.0 + 1e-12)
+                    && p.peak_acceleration() <= lim.acceleration * (1.0 + 1e-12)
+            );
         }
     }
 
@@ -345,12 +436,18 @@ mod tests {
         let lim = limits(1500.0, 5.0 * g, 5e6);
         let mut last = 0.0;
         for k in 1..400 {
-            let t = JerkProfile::plan(k as f64 * 0.5, &lim).unwrap().duration_s();
+            let t = JerkProfile::plan(k as f64 * 0.5, &lim)
+                .unwrap()
+                .duration_s();
             assert!(t > last, "{k}");
             last = t;
         }
-        let slow = JerkProfile::plan(50.0, &limits(1500.0, 2.0 * g, 5e6)).unwrap().duration_s();
-        let fast = JerkProfile::plan(50.0, &limits(1500.0, 5.0 * g, 5e6)).unwrap().duration_s();
+        let slow = JerkProfile::plan(50.0, &limits(1500.0, 2.0 * g, 5e6))
+            .unwrap()
+            .duration_s();
+        let fast = JerkProfile::plan(50.0, &limits(1500.0, 5.0 * g, 5e6))
+            .unwrap()
+            .duration_s();
         assert!(fast < slow);
     }
 
@@ -360,13 +457,19 @@ mod tests {
         let p = JerkProfile::plan(30.0, &lim).unwrap();
         let k = 1.7;
         let s = p.time_scaled(k).unwrap();
-        let q = JerkProfile::plan(30.0, &limits(1200.0 / k, 40_000.0 / (k * k), 4e6 / (k * k * k))).unwrap();
+        let q = JerkProfile::plan(
+            30.0,
+            &limits(1200.0 / k, 40_000.0 / (k * k), 4e6 / (k * k * k)),
+        )
+        .unwrap();
         assert!((s.duration_s() - k * p.duration_s()).abs() < 1e-12);
         assert!((q.duration_s() - s.duration_s()).abs() < 1e-9);
         for i in 0..=100 {
             let t = s.duration_s() * i as f64 / 100.0;
             let (a, b, c) = (s.at(t), q.at(t), p.at(t / k));
-            assert!((a.position - b.position).abs() < 1e-9 && (a.position - c.position).abs() < 1e-9);
+            assert!(
+                (a.position - b.position).abs() < 1e-9 && (a.position - c.position).abs() < 1e-9
+            );
             assert!((a.velocity - c.velocity / k).abs() < 1e-9);
             assert!((a.acceleration - c.acceleration / (k * k)).abs() < 1e-6);
         }
@@ -377,11 +480,31 @@ mod tests {
         let lim = limits(1.0, 1.0, 1.0);
         let p = JerkProfile::plan(0.0, &lim).unwrap();
         assert_eq!(p.duration_s(), 0.0);
-        assert_eq!(p.at(1.0), ScalarState { position: 0.0, velocity: 0.0, acceleration: 0.0, jerk: 0.0 });
-        assert_eq!(JerkProfile::plan(f64::NAN, &lim), Err(ProfileError::NonFinite));
-        assert_eq!(JerkProfile::plan(1.0, &limits(1.0, f64::INFINITY, 1.0)), Err(ProfileError::NonFinite));
-        assert_eq!(JerkProfile::plan(1.0, &limits(1.0, 0.0, 1.0)), Err(ProfileError::NonPositiveLimit));
-        assert_eq!(JerkProfile::plan(1.0, &limits(-1.0, 1.0, 1.0)), Err(ProfileError::NonPositiveLimit));
+        assert_eq!(
+            p.at(1.0),
+            ScalarState {
+                position: 0.0,
+                velocity: 0.0,
+                acceleration: 0.0,
+                jerk: 0.0
+            }
+        );
+        assert_eq!(
+            JerkProfile::plan(f64::NAN, &lim),
+            Err(ProfileError::NonFinite)
+        );
+        assert_eq!(
+            JerkProfile::plan(1.0, &limits(1.0, f64::INFINITY, 1.0)),
+            Err(ProfileError::NonFinite)
+        );
+        assert_eq!(
+            JerkProfile::plan(1.0, &limits(1.0, 0.0, 1.0)),
+            Err(ProfileError::NonPositiveLimit)
+        );
+        assert_eq!(
+            JerkProfile::plan(1.0, &limits(-1.0, 1.0, 1.0)),
+            Err(ProfileError::NonPositiveLimit)
+        );
         assert_eq!(p.time_scaled(0.0), Err(ProfileError::NonPositiveLimit));
         assert_eq!(p.time_scaled(f64::NAN), Err(ProfileError::NonFinite));
         // NaN time: the start.
@@ -395,7 +518,15 @@ mod tests {
     fn f32_profile_follows_the_f64_one() {
         let g = 9_806.65;
         let p64 = JerkProfile::plan(85.0, &limits(1500.0, 5.0 * g, 5e6)).unwrap();
-        let p32 = JerkProfile::<f32>::plan(85.0, &ProfileLimits { velocity: 1500.0, acceleration: 5.0 * g as f32, jerk: 5e6 }).unwrap();
+        let p32 = JerkProfile::<f32>::plan(
+            85.0,
+            &ProfileLimits {
+                velocity: 1500.0,
+                acceleration: 5.0 * g as f32,
+                jerk: 5e6,
+            },
+        )
+        .unwrap();
         let mut worst = 0.0f64;
         for k in 0..=1000 {
             let t = p64.duration_s() * k as f64 / 1000.0;

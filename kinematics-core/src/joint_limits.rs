@@ -51,13 +51,23 @@ pub fn joint_peaks<T: Real, P: Path<T>>(
 ) -> Result<JointPeaks<T>, TrajectoryError> {
     let n = samples.max(1);
     let step = motion.duration_s() / T::from_f64(n as f64);
-    let mut peaks = JointPeaks { speed_rad_s: [T::ZERO; 2], torque_nm: [T::ZERO; 2] };
+    let mut peaks = JointPeaks {
+        speed_rad_s: [T::ZERO; 2],
+        torque_nm: [T::ZERO; 2],
+    };
     for k in 0..=n {
         let s = motion.at(T::from_f64(k as f64) * step);
         let j = model
-            .inverse_motion(s.position_mm, s.velocity_mm_s, s.acceleration_mm_s2, min_transmission)
+            .inverse_motion(
+                s.position_mm,
+                s.velocity_mm_s,
+                s.acceleration_mm_s2,
+                min_transmission,
+            )
             .map_err(TrajectoryError::Kinematics)?;
-        let tau = dynamics.torque_nm(&j).map_err(TrajectoryError::Kinematics)?;
+        let tau = dynamics
+            .torque_nm(&j)
+            .map_err(TrajectoryError::Kinematics)?;
         for (i, t) in tau.iter().enumerate() {
             peaks.speed_rad_s[i] = peaks.speed_rad_s[i].max(j.velocity_rad_s[i].abs());
             peaks.torque_nm[i] = peaks.torque_nm[i].max(t.abs());
@@ -76,7 +86,11 @@ pub fn meet_joint_limits<T: Real, P: Path<T>>(
     min_transmission: T,
     samples: usize,
 ) -> Result<PathMotion<T, P>, TrajectoryError> {
-    let positive = limits.speed_rad_s.iter().chain(limits.torque_nm.iter()).all(|v| *v > T::ZERO && v.is_finite());
+    let positive = limits
+        .speed_rad_s
+        .iter()
+        .chain(limits.torque_nm.iter())
+        .all(|v| *v > T::ZERO && v.is_finite());
     if !positive {
         return Err(crate::jerk_profile::ProfileError::NonPositiveLimit.into());
     }
@@ -120,7 +134,11 @@ mod tests {
     }
 
     fn move_5g() -> PathMotion<f64, Line<f64>> {
-        let limits = TaskLimits { speed_mm_s: 1500.0, accel_mm_s2: 5.0 * 9_806.65, jerk_mm_s3: 5e6 };
+        let limits = TaskLimits {
+            speed_mm_s: 1500.0,
+            accel_mm_s2: 5.0 * 9_806.65,
+            jerk_mm_s3: 5e6,
+        };
         PathMotion::line([170.0, -65.0], [255.0, 68.0], &limits).unwrap()
     }
 
@@ -132,7 +150,10 @@ mod tests {
         assert!(free.torque_nm[0] > 1.0, "{free:?}");
         // Half the peak torque of either motor, speeds unlimited.
         let limit = 0.5 * free.torque_nm[0].max(free.torque_nm[1]);
-        let limits = JointLimits { speed_rad_s: [1e3; 2], torque_nm: [limit; 2] };
+        let limits = JointLimits {
+            speed_rad_s: [1e3; 2],
+            torque_nm: [limit; 2],
+        };
         let slow = meet_joint_limits(&m, &model, &dynamics(), &limits, 0.05, 500).unwrap();
         let p = joint_peaks(&slow, &model, &dynamics(), 0.05, 500).unwrap();
         assert!(p.torque_nm[0] <= limit && p.torque_nm[1] <= limit, "{p:?}");
@@ -142,7 +163,10 @@ mod tests {
         let k = slow.duration_s() / m.duration_s();
         assert!(k > 1.3 && k < 1.5, "{k}");
         // The path is the same.
-        assert_eq!(slow.at(slow.duration_s()).position_mm, m.at(m.duration_s()).position_mm);
+        assert_eq!(
+            slow.at(slow.duration_s()).position_mm,
+            m.at(m.duration_s()).position_mm
+        );
     }
 
     #[test]
@@ -151,21 +175,51 @@ mod tests {
         let m = move_5g();
         let free = joint_peaks(&m, &model, &dynamics(), 0.05, 500).unwrap();
         let w = free.speed_rad_s[0].max(free.speed_rad_s[1]);
-        let limits = JointLimits { speed_rad_s: [0.5 * w; 2], torque_nm: [100.0; 2] };
+        let limits = JointLimits {
+            speed_rad_s: [0.5 * w; 2],
+            torque_nm: [100.0; 2],
+        };
         let slow = meet_joint_limits(&m, &model, &dynamics(), &limits, 0.05, 500).unwrap();
         let p = joint_peaks(&slow, &model, &dynamics(), 0.05, 500).unwrap();
         assert!(p.speed_rad_s[0].max(p.speed_rad_s[1]) <= 0.5 * w);
-        let loose = JointLimits { speed_rad_s: [1e3; 2], torque_nm: [100.0; 2] };
-        assert_eq!(meet_joint_limits(&m, &model, &dynamics(), &loose, 0.05, 500).unwrap(), m);
+        let loose = JointLimits {
+            speed_rad_s: [1e3; 2],
+            torque_nm: [100.0; 2],
+        };
+        assert_eq!(
+            meet_joint_limits(&m, &model, &dynamics(), &loose, 0.05, 500).unwrap(),
+            m
+        );
     }
 
     #[test]
     fn friction_above_the_limit_and_paths_out_of_reach_are_refused() {
         let model = FiveBar::paper_nominal();
-        let limits = JointLimits { speed_rad_s: [1e3; 2], torque_nm: [0.04; 2] };
-        assert_eq!(meet_joint_limits(&move_5g(), &model, &dynamics(), &limits, 0.05, 200), Err(TrajectoryError::JointLimits));
-        let far = PathMotion::line([212.0, 0.0], [320.0, 0.0], &TaskLimits { speed_mm_s: 1.0, accel_mm_s2: 1.0, jerk_mm_s3: 1.0 }).unwrap();
-        let ok = JointLimits { speed_rad_s: [1e3; 2], torque_nm: [100.0; 2] };
-        assert!(matches!(meet_joint_limits(&far, &model, &dynamics(), &ok, 0.05, 50), Err(TrajectoryError::Kinematics(_))));
+        let limits = JointLimits {
+            speed_rad_s: [1e3; 2],
+            torque_nm: [0.04; 2],
+        };
+        assert_eq!(
+            meet_joint_limits(&move_5g(), &model, &dynamics(), &limits, 0.05, 200),
+            Err(TrajectoryError::JointLimits)
+        );
+        let far = PathMotion::line(
+            [212.0, 0.0],
+            [320.0, 0.0],
+            &TaskLimits {
+                speed_mm_s: 1.0,
+                accel_mm_s2: 1.0,
+                jerk_mm_s3: 1.0,
+            },
+        )
+        .unwrap();
+        let ok = JointLimits {
+            speed_rad_s: [1e3; 2],
+            torque_nm: [100.0; 2],
+        };
+        assert!(matches!(
+            meet_joint_limits(&far, &model, &dynamics(), &ok, 0.05, 50),
+            Err(TrajectoryError::Kinematics(_))
+        ));
     }
 }

@@ -62,13 +62,23 @@ impl<T: Real> FiveBar<T> {
         acceleration_mm_s2: [T; 2],
         min_transmission: T,
     ) -> Result<JointMotion<T>, KinematicsError> {
-        self.solve_motion(tool_mm, velocity_mm_s, Some(acceleration_mm_s2), min_transmission)
+        self.solve_motion(
+            tool_mm,
+            velocity_mm_s,
+            Some(acceleration_mm_s2),
+            min_transmission,
+        )
     }
 
     /// [`FiveBar::inverse_motion`] without the accelerations (left zero): angles, rates and the
     /// link vectors, for the servo's joint samples.
     #[inline]
-    pub fn inverse_rates(&self, tool_mm: [T; 2], velocity_mm_s: [T; 2], min_transmission: T) -> Result<JointMotion<T>, KinematicsError> {
+    pub fn inverse_rates(
+        &self,
+        tool_mm: [T; 2],
+        velocity_mm_s: [T; 2],
+        min_transmission: T,
+    ) -> Result<JointMotion<T>, KinematicsError> {
         self.solve_motion(tool_mm, velocity_mm_s, None, min_transmission)
     }
 
@@ -135,7 +145,10 @@ pub(crate) fn motion_of_solved<T: Real>(
         m.distal_mm[i] = q;
     }
     // All finite exactly when their sum is (beyond 1e38 no machine moves either).
-    let sum = m.velocity_rad_s[0] + m.velocity_rad_s[1] + m.acceleration_rad_s2[0] + m.acceleration_rad_s2[1];
+    let sum = m.velocity_rad_s[0]
+        + m.velocity_rad_s[1]
+        + m.acceleration_rad_s2[0]
+        + m.acceleration_rad_s2[1];
     #[allow(clippy::eq_op)] // `sum - sum` is the test
     if !(sum - sum == T::ZERO) {
         return Err(KinematicsError::NonFinite);
@@ -156,7 +169,12 @@ pub fn motion_from_pose<T: Real>(
     }
     let inv_det = T::ONE / det;
     // Solves q1·x = r1, q2·x = r2.
-    let solve = |r1: T, r2: T| [(r1 * q2[1] - r2 * q1[1]) * inv_det, (r2 * q1[0] - r1 * q2[0]) * inv_det];
+    let solve = |r1: T, r2: T| {
+        [
+            (r1 * q2[1] - r2 * q1[1]) * inv_det,
+            (r2 * q1[0] - r1 * q2[0]) * inv_det,
+        ]
+    };
     let [w1, w2] = velocity_rad_s;
     let [al1, al2] = acceleration_rad_s2;
     let v = solve(w1 * cross(p1, q1), w2 * cross(p2, q2));
@@ -208,25 +226,48 @@ mod tests {
     #[test]
     fn velocities_and_accelerations_are_the_derivatives_of_the_ik() {
         let m = machine();
-        let limits = TaskLimits { speed_mm_s: 1500.0, accel_mm_s2: 5.0 * 9_806.65, jerk_mm_s3: 5e6 };
-        let circle = Circle { centre_mm: [212.0, 0.0], radius_mm: 40.0, start_rad: 0.5, turns: 1.0 };
+        let limits = TaskLimits {
+            speed_mm_s: 1500.0,
+            accel_mm_s2: 5.0 * 9_806.65,
+            jerk_mm_s3: 5e6,
+        };
+        let circle = Circle {
+            centre_mm: [212.0, 0.0],
+            radius_mm: 40.0,
+            start_rad: 0.5,
+            turns: 1.0,
+        };
         let traj = PathMotion::plan(circle, &limits, 2000).unwrap();
         let h = 1e-5;
         let angle = |t: f64| m.inverse(traj.at(t).position_mm, 0.0).unwrap();
         for k in 1..100 {
             let t = traj.duration_s() * k as f64 / 100.0;
             let s = traj.at(t);
-            let j = m.inverse_motion(s.position_mm, s.velocity_mm_s, s.acceleration_mm_s2, 0.05).unwrap();
+            let j = m
+                .inverse_motion(s.position_mm, s.velocity_mm_s, s.acceleration_mm_s2, 0.05)
+                .unwrap();
             let (a, b, c) = (angle(t - h), angle(t), angle(t + h));
             assert_eq!(j.angle_rad, b);
             for i in 0..2 {
                 let fv = (c[i] - a[i]) / (2.0 * h);
                 let fa = (c[i] - 2.0 * b[i] + a[i]) / (h * h);
-                assert!((fv - j.velocity_rad_s[i]).abs() < 1e-6 * (1.0 + fv.abs()), "v{i} at {t}: {fv} vs {}", j.velocity_rad_s[i]);
-                assert!((fa - j.acceleration_rad_s2[i]).abs() < 2e-3 * (1.0 + fa.abs()), "a{i} at {t}: {fa} vs {}", j.acceleration_rad_s2[i]);
+                assert!(
+                    (fv - j.velocity_rad_s[i]).abs() < 1e-6 * (1.0 + fv.abs()),
+                    "v{i} at {t}: {fv} vs {}",
+                    j.velocity_rad_s[i]
+                );
+                assert!(
+                    (fa - j.acceleration_rad_s2[i]).abs() < 2e-3 * (1.0 + fa.abs()),
+                    "a{i} at {t}: {fa} vs {}",
+                    j.acceleration_rad_s2[i]
+                );
             }
             // The velocities are J⁻¹·v from the pose's inverse Jacobian.
-            let ji = m.inverse_pose(s.position_mm, 0.0).unwrap().inverse_jacobian().unwrap();
+            let ji = m
+                .inverse_pose(s.position_mm, 0.0)
+                .unwrap()
+                .inverse_jacobian()
+                .unwrap();
             for (row, wj) in ji.iter().zip(j.velocity_rad_s) {
                 let w = row[0] * s.velocity_mm_s[0] + row[1] * s.velocity_mm_s[1];
                 assert!((w - wj).abs() < 1e-9 * (1.0 + w.abs()));
@@ -244,7 +285,9 @@ mod tests {
             ([250.0, 65.0], [0.0, 0.0], [1_000.0, -2_000.0]),
         ] {
             let j = m.inverse_motion(p, v, a, 0.05).unwrap();
-            let f = m.forward_motion(j.angle_rad, j.velocity_rad_s, j.acceleration_rad_s2, 0.05).unwrap();
+            let f = m
+                .forward_motion(j.angle_rad, j.velocity_rad_s, j.acceleration_rad_s2, 0.05)
+                .unwrap();
             for i in 0..2 {
                 assert!((f.tool_velocity_mm_s[i] - v[i]).abs() < 1e-9 * (1.0 + v[i].abs()));
                 assert!((f.tool_acceleration_mm_s2[i] - a[i]).abs() < 1e-8 * (1.0 + a[i].abs()));
@@ -259,8 +302,17 @@ mod tests {
     #[test]
     fn refuses_what_the_ik_refuses_and_non_finite_rates() {
         let m = machine();
-        assert_eq!(m.inverse_motion([400.0, 0.0], [0.0; 2], [0.0; 2], 0.05), Err(KinematicsError::Unreachable));
-        assert_eq!(m.inverse_motion([212.0, 0.0], [f64::NAN, 0.0], [0.0; 2], 0.05), Err(KinematicsError::NonFinite));
-        assert_eq!(m.inverse_motion([212.0, 0.0], [0.0; 2], [f64::INFINITY, 0.0], 0.05), Err(KinematicsError::NonFinite));
+        assert_eq!(
+            m.inverse_motion([400.0, 0.0], [0.0; 2], [0.0; 2], 0.05),
+            Err(KinematicsError::Unreachable)
+        );
+        assert_eq!(
+            m.inverse_motion([212.0, 0.0], [f64::NAN, 0.0], [0.0; 2], 0.05),
+            Err(KinematicsError::NonFinite)
+        );
+        assert_eq!(
+            m.inverse_motion([212.0, 0.0], [0.0; 2], [f64::INFINITY, 0.0], 0.05),
+            Err(KinematicsError::NonFinite)
+        );
     }
 }

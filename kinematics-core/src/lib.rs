@@ -63,23 +63,23 @@ pub mod trajectory;
 pub mod valid_model;
 pub mod workspace;
 
-pub use error::{KinematicsError, Singularity};
 pub use backlash::{Backlash, InvalidBacklash};
 pub use dynamics::{DynamicsError, FiveBarDynamics};
+pub use error::{KinematicsError, Singularity};
 pub use grid::{CorrectionGrid, GridError, GridGeometry, WorkspaceLimits};
-pub use joint_motion::JointMotion;
 pub use jacobian::Mat2;
+pub use joint_motion::JointMotion;
 pub use model::{Branch, FiveBar, ModelError, WorkingMode};
 pub use pid::{AxisController, AxisGains, AxisReference, InvalidGain};
 pub use pose::Pose;
 pub use real::{wrap_angle_rad, Real};
-pub use workspace::{ConvexWorkspace, WorkspaceError, MAX_WORKSPACE_VERTICES};
 pub use servo::{
-    AcceptedSetpoint, Calibration, ConfigError, ValidCalibration, EngageError, Servo, ServoConfig, ServoFault, ServoOutput, SetpointRefusal,
-    StepError,
+    AcceptedSetpoint, Calibration, ConfigError, EngageError, Servo, ServoConfig, ServoFault,
+    ServoOutput, SetpointRefusal, StepError, ValidCalibration,
 };
 pub use trajectory::{MotionSetpoint, PathMotion, TaskLimits, Tour, TrajectoryError};
 pub use valid_model::{IkMargin, ValidFiveBar};
+pub use workspace::{ConvexWorkspace, WorkspaceError, MAX_WORKSPACE_VERTICES};
 
 /// The default singularity margin: the smallest `|sin|` of a transmission angle accepted
 /// (0.05 is about 2.9° from a singular configuration).

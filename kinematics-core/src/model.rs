@@ -152,7 +152,10 @@ impl<T: Real> FiveBar<T> {
         if all.iter().any(|v| !v.is_finite()) {
             return Err(ModelError::NonFinite);
         }
-        if [self.a_mm, self.b_mm, self.c_mm, self.d_mm].iter().any(|&l| l <= T::ZERO) {
+        if [self.a_mm, self.b_mm, self.c_mm, self.d_mm]
+            .iter()
+            .any(|&l| l <= T::ZERO)
+        {
             return Err(ModelError::NonPositiveLink);
         }
         Ok(())
@@ -171,7 +174,9 @@ impl<T: Real> FiveBar<T> {
     /// The error for a model [`Self::links_positive`] refused: what [`Self::validate`] names.
     #[cold]
     pub(crate) fn invalid_model(&self) -> crate::KinematicsError {
-        crate::KinematicsError::InvalidModel(self.validate().err().unwrap_or(ModelError::NonPositiveLink))
+        crate::KinematicsError::InvalidModel(
+            self.validate().err().unwrap_or(ModelError::NonPositiveLink),
+        )
     }
 
     /// The same model in another scalar type (rounding to nearest).

@@ -62,7 +62,15 @@ mod tests {
             assert_eq!(span[0] + GRID_STEP_MM * f64::from(n - 1), span[1]);
         }
         // The centre is the square pose of the nominal five-bar: C at 150·√2 on the x axis.
-        let c = nominal::<f64>().forward([core::f64::consts::FRAC_PI_4, -core::f64::consts::FRAC_PI_4], 0.0).unwrap();
-        assert!((c[0] - 0.5 * (WORKSPACE_X_MM[0] + WORKSPACE_X_MM[1])).abs() < 1e-3 && c[1].abs() < 1e-9);
+        let c = nominal::<f64>()
+            .forward(
+                [core::f64::consts::FRAC_PI_4, -core::f64::consts::FRAC_PI_4],
+                0.0,
+            )
+            .unwrap();
+        assert!(
+            (c[0] - 0.5 * (WORKSPACE_X_MM[0] + WORKSPACE_X_MM[1])).abs() < 1e-3
+                && c[1].abs() < 1e-9
+        );
     }
 }

@@ -73,8 +73,16 @@ impl<T: Real> Line<T> {
     pub fn new(from_mm: [T; 2], to_mm: [T; 2]) -> Self {
         let d = [to_mm[0] - from_mm[0], to_mm[1] - from_mm[1]];
         let length_mm = (d[0] * d[0] + d[1] * d[1]).sqrt();
-        let direction = if length_mm > T::ZERO { [d[0] / length_mm, d[1] / length_mm] } else { [T::ZERO; 2] };
-        Line { from_mm, direction, length_mm }
+        let direction = if length_mm > T::ZERO {
+            [d[0] / length_mm, d[1] / length_mm]
+        } else {
+            [T::ZERO; 2]
+        };
+        Line {
+            from_mm,
+            direction,
+            length_mm,
+        }
     }
 
     /// The start point.
@@ -95,7 +103,12 @@ impl<T: Real> Path<T> for Line<T> {
     #[inline]
     fn point(&self, u: T) -> PathPoint<T> {
         let (p, d) = (self.from_mm, self.direction);
-        PathPoint { position_mm: [p[0] + u * d[0], p[1] + u * d[1]], d1: d, d2: [T::ZERO; 2], d3: [T::ZERO; 2] }
+        PathPoint {
+            position_mm: [p[0] + u * d[0], p[1] + u * d[1]],
+            d1: d,
+            d2: [T::ZERO; 2],
+            d3: [T::ZERO; 2],
+        }
     }
     fn max_speed_factor(&self) -> T {
         T::ONE
@@ -180,7 +193,8 @@ impl<T: Real> Path<T> for Figure8<T> {
         }
     }
     fn max_speed_factor(&self) -> T {
-        (self.half_x_mm * self.half_x_mm + T::from_f64(4.0) * self.half_y_mm * self.half_y_mm).sqrt()
+        (self.half_x_mm * self.half_x_mm + T::from_f64(4.0) * self.half_y_mm * self.half_y_mm)
+            .sqrt()
     }
 }
 
@@ -199,9 +213,18 @@ mod tests {
                 let fd1 = (c.position_mm[i] - a.position_mm[i]) / (2.0 * h);
                 let fd2 = (c.d1[i] - a.d1[i]) / (2.0 * h);
                 let fd3 = (c.d2[i] - a.d2[i]) / (2.0 * h);
-                assert!((fd1 - b.d1[i]).abs() < 1e-6 * (1.0 + b.d1[i].abs()), "d1 at {u}");
-                assert!((fd2 - b.d2[i]).abs() < 1e-5 * (1.0 + b.d2[i].abs()), "d2 at {u}");
-                assert!((fd3 - b.d3[i]).abs() < 1e-5 * (1.0 + b.d3[i].abs()), "d3 at {u}");
+                assert!(
+                    (fd1 - b.d1[i]).abs() < 1e-6 * (1.0 + b.d1[i].abs()),
+                    "d1 at {u}"
+                );
+                assert!(
+                    (fd2 - b.d2[i]).abs() < 1e-5 * (1.0 + b.d2[i].abs()),
+                    "d2 at {u}"
+                );
+                assert!(
+                    (fd3 - b.d3[i]).abs() < 1e-5 * (1.0 + b.d3[i].abs()),
+                    "d3 at {u}"
+                );
             }
             let speed = (b.d1[0] * b.d1[0] + b.d1[1] * b.d1[1]).sqrt();
             assert!(speed <= p.max_speed_factor() * (1.0 + 1e-12));
@@ -211,8 +234,18 @@ mod tests {
     #[test]
     fn derivatives_are_the_derivatives() {
         check_derivatives(&Line::new([200.0, -10.0], [230.0, 30.0]));
-        check_derivatives(&Circle { centre_mm: [212.0, 0.0], radius_mm: 40.0, start_rad: 0.3, turns: 1.5 });
-        check_derivatives(&Figure8 { centre_mm: [212.0, 0.0], half_x_mm: 45.0, half_y_mm: 30.0, loops: 1.0 });
+        check_derivatives(&Circle {
+            centre_mm: [212.0, 0.0],
+            radius_mm: 40.0,
+            start_rad: 0.3,
+            turns: 1.5,
+        });
+        check_derivatives(&Figure8 {
+            centre_mm: [212.0, 0.0],
+            half_x_mm: 45.0,
+            half_y_mm: 30.0,
+            loops: 1.0,
+        });
     }
 
     #[test]
@@ -222,8 +255,16 @@ mod tests {
         let end = l.point(50.0).position_mm;
         assert!((end[0] - 230.0).abs() < 1e-12 && (end[1] - 30.0).abs() < 1e-12);
         let z = Line::new([1.0, 2.0], [1.0, 2.0]);
-        assert_eq!((z.length(), z.point(0.0).position_mm, z.direction()), (0.0, [1.0, 2.0], [0.0; 2]));
-        let c = Circle { centre_mm: [0.0, 0.0], radius_mm: 10.0, start_rad: 0.0, turns: 1.0 };
+        assert_eq!(
+            (z.length(), z.point(0.0).position_mm, z.direction()),
+            (0.0, [1.0, 2.0], [0.0; 2])
+        );
+        let c = Circle {
+            centre_mm: [0.0, 0.0],
+            radius_mm: 10.0,
+            start_rad: 0.0,
+            turns: 1.0,
+        };
         let p = c.point(c.length() / 4.0).position_mm;
         assert!(p[0].abs() < 1e-12 && (p[1] - 10.0).abs() < 1e-12);
     }

@@ -62,7 +62,11 @@ pub struct InvalidGain(pub &'static str);
 
 impl core::fmt::Display for InvalidGain {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
-        write!(f, "{} must be finite (and, for a feedback gain or a limit, not negative)", self.0)
+        write!(
+            f,
+            "{} must be finite (and, for a feedback gain or a limit, not negative)",
+            self.0
+        )
     }
 }
 
@@ -110,11 +114,13 @@ impl AxisGains {
     /// division (14 cycles) is skipped when it is off (`coulomb_ff_nm == 0`, the default).
     #[inline]
     pub fn feed_forward_nm(&self, velocity_rad_s: f32, acceleration_rad_s2: f32) -> f32 {
-        let tau = self.inertia_ff_kg_m2 * acceleration_rad_s2 + self.viscous_ff_nm_s_per_rad * velocity_rad_s;
+        let tau = self.inertia_ff_kg_m2 * acceleration_rad_s2
+            + self.viscous_ff_nm_s_per_rad * velocity_rad_s;
         if self.coulomb_ff_nm == 0.0 {
             return tau;
         }
-        tau + self.coulomb_ff_nm * velocity_rad_s / (velocity_rad_s.abs() + self.coulomb_ff_speed_rad_s)
+        tau + self.coulomb_ff_nm * velocity_rad_s
+            / (velocity_rad_s.abs() + self.coulomb_ff_speed_rad_s)
     }
 }
 
@@ -204,7 +210,8 @@ impl AxisController {
         let limit = gains.torque_limit_nm;
         let output = saturate(unsaturated, limit);
         let increment = gains.ki_nm_per_rad_s * error_rad * dt_s;
-        let winds_up = (unsaturated > limit && increment > 0.0) || (unsaturated < -limit && increment < 0.0);
+        let winds_up =
+            (unsaturated > limit && increment > 0.0) || (unsaturated < -limit && increment < 0.0);
         if !winds_up {
             // A NaN sum (only with absurd gains or inputs) empties the integrator.
             self.integral_nm = saturate(self.integral_nm + increment, gains.integral_limit_nm);
@@ -244,7 +251,11 @@ mod tests {
     }
 
     fn still(angle_rad: f32) -> AxisReference {
-        AxisReference { angle_rad, velocity_rad_s: 0.0, acceleration_rad_s2: 0.0 }
+        AxisReference {
+            angle_rad,
+            velocity_rad_s: 0.0,
+            acceleration_rad_s2: 0.0,
+        }
     }
 
     #[test]
@@ -272,26 +283,44 @@ mod tests {
             angle += vel * dt;
         }
         assert!((angle - 0.1).abs() < 1e-5, "angle {angle}");
-        assert!((c.integral_nm() - 0.5).abs() < 1e-3, "integral {}", c.integral_nm());
+        assert!(
+            (c.integral_nm() - 0.5).abs() < 1e-3,
+            "integral {}",
+            c.integral_nm()
+        );
     }
 
     #[test]
     fn coulomb_feed_forward_follows_the_reference_direction() {
-        let g = AxisGains { coulomb_ff_nm: 0.5, ..gains() };
+        let g = AxisGains {
+            coulomb_ff_nm: 0.5,
+            ..gains()
+        };
         let at = |w: f32| {
-            let r = AxisReference { angle_rad: 0.0, velocity_rad_s: w, acceleration_rad_s2: 0.0 };
+            let r = AxisReference {
+                angle_rad: 0.0,
+                velocity_rad_s: w,
+                acceleration_rad_s2: 0.0,
+            };
             // Measured velocity = reference: no kd term; only viscous and Coulomb remain.
             AxisController::default().update(&g, &r, 0.0, w, 5e-4) - 0.1 * w
         };
         assert!((at(10.0) - 0.5).abs() < 1e-3 && (at(-10.0) + 0.5).abs() < 1e-3);
-        assert!((at(0.01) - 0.25).abs() < 1e-6, "half at the turn-over speed");
+        assert!(
+            (at(0.01) - 0.25).abs() < 1e-6,
+            "half at the turn-over speed"
+        );
         assert_eq!(at(0.0), 0.0);
     }
 
     #[test]
     fn feed_forward_supplies_the_acceleration_torque() {
         let mut c = AxisController::default();
-        let r = AxisReference { angle_rad: 0.0, velocity_rad_s: 0.0, acceleration_rad_s2: 100.0 };
+        let r = AxisReference {
+            angle_rad: 0.0,
+            velocity_rad_s: 0.0,
+            acceleration_rad_s2: 100.0,
+        };
         let t = c.update(&gains(), &r, 0.0, 0.0, 5e-4);
         assert!((t - 1.0).abs() < 1e-6);
     }
@@ -319,7 +348,11 @@ mod tests {
     }
 
     /// Reference: 1.25 rad, 4 rad/s, 300 rad/s². Measured: 1.0 rad, -1 rad/s.
-    const REF: AxisReference = AxisReference { angle_rad: 1.25, velocity_rad_s: 4.0, acceleration_rad_s2: 300.0 };
+    const REF: AxisReference = AxisReference {
+        angle_rad: 1.25,
+        velocity_rad_s: 4.0,
+        acceleration_rad_s2: 300.0,
+    };
     const ANGLE_RAD: f32 = 1.0;
     const VELOCITY_RAD_S: f32 = -1.0;
 
@@ -335,48 +368,95 @@ mod tests {
 
     #[test]
     fn kp_acts_on_the_angle_error() {
-        let (t, c) = one_sample(&AxisGains { kp_nm_per_rad: 200.0, ..only() }, 5e-4);
+        let (t, c) = one_sample(
+            &AxisGains {
+                kp_nm_per_rad: 200.0,
+                ..only()
+            },
+            5e-4,
+        );
         assert!(close(t, 200.0 * 0.25), "{t}");
         assert_eq!(c.integral_nm(), 0.0, "kp does not integrate");
     }
 
     #[test]
     fn ki_integrates_the_error_over_dt_from_the_next_sample_on() {
-        let g = AxisGains { ki_nm_per_rad_s: 1000.0, ..only() };
+        let g = AxisGains {
+            ki_nm_per_rad_s: 1000.0,
+            ..only()
+        };
         let (t, mut c) = one_sample(&g, 1e-3);
         assert_eq!(t, 0.0, "the integrator acts from the next sample");
-        assert!(close(c.integral_nm(), 1000.0 * 0.25 * 1e-3), "{}", c.integral_nm());
+        assert!(
+            close(c.integral_nm(), 1000.0 * 0.25 * 1e-3),
+            "{}",
+            c.integral_nm()
+        );
         // A longer sample integrates proportionally more; the output is the integral so far.
         let t = c.update(&g, &REF, ANGLE_RAD, VELOCITY_RAD_S, 2e-3);
         assert!(close(t, 0.25), "{t}");
-        assert!(close(c.integral_nm(), 0.25 + 1000.0 * 0.25 * 2e-3), "{}", c.integral_nm());
+        assert!(
+            close(c.integral_nm(), 0.25 + 1000.0 * 0.25 * 2e-3),
+            "{}",
+            c.integral_nm()
+        );
         // Clamped to the integral limit.
-        let g = AxisGains { integral_limit_nm: 0.1, ..g };
+        let g = AxisGains {
+            integral_limit_nm: 0.1,
+            ..g
+        };
         let (_, c) = one_sample(&g, 1.0);
         assert_eq!(c.integral_nm(), 0.1);
     }
 
     #[test]
     fn kd_acts_on_reference_minus_measured_velocity() {
-        let (t, _) = one_sample(&AxisGains { kd_nm_s_per_rad: 2.0, ..only() }, 5e-4);
+        let (t, _) = one_sample(
+            &AxisGains {
+                kd_nm_s_per_rad: 2.0,
+                ..only()
+            },
+            5e-4,
+        );
         assert!(close(t, 2.0 * (4.0 - -1.0)), "{t}");
     }
 
     #[test]
     fn inertia_feed_forward_acts_on_the_reference_acceleration() {
-        let (t, _) = one_sample(&AxisGains { inertia_ff_kg_m2: 0.01, ..only() }, 5e-4);
+        let (t, _) = one_sample(
+            &AxisGains {
+                inertia_ff_kg_m2: 0.01,
+                ..only()
+            },
+            5e-4,
+        );
         assert!(close(t, 0.01 * 300.0), "{t}");
     }
 
     #[test]
     fn viscous_feed_forward_acts_on_the_reference_velocity() {
-        let (t, _) = one_sample(&AxisGains { viscous_ff_nm_s_per_rad: 0.5, ..only() }, 5e-4);
-        assert!(close(t, 0.5 * 4.0), "{t} (0.5 x the measured velocity would be -0.5)");
+        let (t, _) = one_sample(
+            &AxisGains {
+                viscous_ff_nm_s_per_rad: 0.5,
+                ..only()
+            },
+            5e-4,
+        );
+        assert!(
+            close(t, 0.5 * 4.0),
+            "{t} (0.5 x the measured velocity would be -0.5)"
+        );
     }
 
     #[test]
     fn coulomb_feed_forward_acts_on_the_reference_velocity() {
-        let (t, _) = one_sample(&AxisGains { coulomb_ff_nm: 0.3, ..only() }, 5e-4);
+        let (t, _) = one_sample(
+            &AxisGains {
+                coulomb_ff_nm: 0.3,
+                ..only()
+            },
+            5e-4,
+        );
         assert!(close(t, 0.3 * 4.0 / 4.01), "{t}");
     }
 
@@ -385,42 +465,102 @@ mod tests {
     fn absurd_limits_and_gains_never_panic_and_give_a_finite_limited_torque() {
         for limit in [-1.0, f32::NAN, f32::INFINITY, f32::NEG_INFINITY, -0.0, 0.0] {
             for il in [-1.0, f32::NAN, f32::INFINITY, 1.0] {
-                let g = AxisGains { torque_limit_nm: limit, integral_limit_nm: il, ki_nm_per_rad_s: 1e3, ..gains() };
-                assert!(g.validate().is_err() || (limit == 0.0 && il == 1.0), "{limit} {il}");
+                let g = AxisGains {
+                    torque_limit_nm: limit,
+                    integral_limit_nm: il,
+                    ki_nm_per_rad_s: 1e3,
+                    ..gains()
+                };
+                assert!(
+                    g.validate().is_err() || (limit == 0.0 && il == 1.0),
+                    "{limit} {il}"
+                );
                 let mut c = AxisController::default();
                 for _ in 0..3 {
                     let t = c.update(&g, &REF, ANGLE_RAD, VELOCITY_RAD_S, 5e-4);
-                    assert_eq!(t, 0.0, "limit {limit}: a limit that is not a non-negative number commands nothing");
+                    assert_eq!(
+                        t, 0.0,
+                        "limit {limit}: a limit that is not a non-negative number commands nothing"
+                    );
                     assert!(c.integral_nm().is_finite());
                 }
             }
         }
         // Terms that add up to NaN (inf - inf): zero torque, the integrator emptied, not NaN.
-        let g = AxisGains { kp_nm_per_rad: f32::MAX, kd_nm_s_per_rad: f32::MAX, ..gains() };
-        let r = AxisReference { angle_rad: 10.0, velocity_rad_s: -10.0, acceleration_rad_s2: 0.0 };
+        let g = AxisGains {
+            kp_nm_per_rad: f32::MAX,
+            kd_nm_s_per_rad: f32::MAX,
+            ..gains()
+        };
+        let r = AxisReference {
+            angle_rad: 10.0,
+            velocity_rad_s: -10.0,
+            acceleration_rad_s2: 0.0,
+        };
         let mut c = AxisController::default();
         assert_eq!(c.update(&g, &r, 0.0, 0.0, 5e-4), 0.0);
         assert_eq!(c.update(&g, &r, 0.0, f32::NAN, 5e-4), 0.0);
         assert!(c.integral_nm().is_finite());
         // A zero Coulomb turn-over speed at zero reference speed is 0/0.
-        let g = AxisGains { coulomb_ff_nm: 0.5, coulomb_ff_speed_rad_s: 0.0, ..gains() };
+        let g = AxisGains {
+            coulomb_ff_nm: 0.5,
+            coulomb_ff_speed_rad_s: 0.0,
+            ..gains()
+        };
         assert_eq!(g.validate(), Err(InvalidGain("coulomb_ff_speed_rad_s")));
-        assert_eq!(AxisController::default().update(&g, &still(0.0), 0.0, 0.0, 5e-4), 0.0);
+        assert_eq!(
+            AxisController::default().update(&g, &still(0.0), 0.0, 0.0, 5e-4),
+            0.0
+        );
     }
 
     #[test]
     fn validate_accepts_the_defaults_and_names_the_bad_field() {
         assert_eq!(gains().validate(), Ok(()));
-        assert_eq!(AxisGains { kp_nm_per_rad: -1.0, ..gains() }.validate(), Err(InvalidGain("kp_nm_per_rad")));
-        assert_eq!(AxisGains { kd_nm_s_per_rad: f32::NAN, ..gains() }.validate(), Err(InvalidGain("kd_nm_s_per_rad")));
-        assert_eq!(AxisGains { inertia_ff_kg_m2: f32::INFINITY, ..gains() }.validate(), Err(InvalidGain("inertia_ff_kg_m2")));
+        assert_eq!(
+            AxisGains {
+                kp_nm_per_rad: -1.0,
+                ..gains()
+            }
+            .validate(),
+            Err(InvalidGain("kp_nm_per_rad"))
+        );
+        assert_eq!(
+            AxisGains {
+                kd_nm_s_per_rad: f32::NAN,
+                ..gains()
+            }
+            .validate(),
+            Err(InvalidGain("kd_nm_s_per_rad"))
+        );
+        assert_eq!(
+            AxisGains {
+                inertia_ff_kg_m2: f32::INFINITY,
+                ..gains()
+            }
+            .validate(),
+            Err(InvalidGain("inertia_ff_kg_m2"))
+        );
         // Feed-forward terms may be negative (a drive that pushes the axis).
-        assert_eq!(AxisGains { viscous_ff_nm_s_per_rad: -0.1, ..gains() }.validate(), Ok(()));
+        assert_eq!(
+            AxisGains {
+                viscous_ff_nm_s_per_rad: -0.1,
+                ..gains()
+            }
+            .validate(),
+            Ok(())
+        );
     }
 
     #[test]
     fn feedback_adds_an_external_feed_forward_and_ignores_the_gains_own() {
-        let all = AxisGains { kp_nm_per_rad: 200.0, kd_nm_s_per_rad: 2.0, inertia_ff_kg_m2: 0.01, viscous_ff_nm_s_per_rad: 0.5, ..only() };
+        let all = AxisGains {
+            kp_nm_per_rad: 200.0,
+            kd_nm_s_per_rad: 2.0,
+            inertia_ff_kg_m2: 0.01,
+            viscous_ff_nm_s_per_rad: 0.5,
+            ..only()
+        };
         let mut c = AxisController::default();
         let t = c.feedback(&all, 0.25, 5.0, 1.5, 5e-4);
         assert!(close(t, 200.0 * 0.25 + 2.0 * 5.0 + 1.5), "{t}");
@@ -429,7 +569,16 @@ mod tests {
         let (u, _) = one_sample(&all, 5e-4);
         let f = AxisController::default().feedback(&all, 0.25, 5.0, ff, 5e-4);
         assert!(close(u, f), "{u} vs {f}");
-        let limited = AxisController::default().feedback(&AxisGains { torque_limit_nm: 7.5, ..all }, 0.25, 5.0, 100.0, 5e-4);
+        let limited = AxisController::default().feedback(
+            &AxisGains {
+                torque_limit_nm: 7.5,
+                ..all
+            },
+            0.25,
+            5.0,
+            100.0,
+            5e-4,
+        );
         assert_eq!(limited, 7.5);
     }
 
@@ -445,9 +594,22 @@ mod tests {
         };
         let (t, _) = one_sample(&all, 5e-4);
         assert!(close(t, 50.0 + 10.0 + 3.0 + 2.0 + 0.3 * 4.0 / 4.01), "{t}");
-        let (t, _) = one_sample(&AxisGains { torque_limit_nm: 7.5, ..all }, 5e-4);
+        let (t, _) = one_sample(
+            &AxisGains {
+                torque_limit_nm: 7.5,
+                ..all
+            },
+            5e-4,
+        );
         assert_eq!(t, 7.5);
-        let (t, _) = one_sample(&AxisGains { kp_nm_per_rad: -200.0, torque_limit_nm: 7.5, ..only() }, 5e-4);
+        let (t, _) = one_sample(
+            &AxisGains {
+                kp_nm_per_rad: -200.0,
+                torque_limit_nm: 7.5,
+                ..only()
+            },
+            5e-4,
+        );
         assert_eq!(t, -7.5);
     }
 }

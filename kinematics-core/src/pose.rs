@@ -99,7 +99,8 @@ impl<T: Real> Pose<T> {
         if !(serial_1 && serial_2) {
             return Err(KinematicsError::NearSingularity(Singularity::Serial));
         }
-        let min_transmission = crate::real::effective_margin(min_transmission, T::FK_MIN_TRANSMISSION);
+        let min_transmission =
+            crate::real::effective_margin(min_transmission, T::FK_MIN_TRANSMISSION);
         if !(cross(q1, q2).abs() >= min_transmission * (model.b_mm * model.c_mm).abs()) {
             return Err(KinematicsError::NearSingularity(Singularity::Parallel));
         }

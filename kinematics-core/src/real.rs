@@ -272,7 +272,11 @@ pub(crate) fn wrap_near_rad<T: Real>(angle_rad: T) -> T {
     let hi = T::from_f64(TWO_PI_HI);
     let lo = T::from_f64(TWO_PI_LO);
     let sign = if angle_rad < T::ZERO { -T::ONE } else { T::ONE };
-    let turns = if a < T::from_f64(3.0 * core::f64::consts::PI) { T::ONE } else { T::TWO };
+    let turns = if a < T::from_f64(3.0 * core::f64::consts::PI) {
+        T::ONE
+    } else {
+        T::TWO
+    };
     let k = sign * turns;
     finish_wrap((angle_rad - k * hi) - k * lo)
 }
@@ -316,7 +320,10 @@ mod tests {
             assert!((w - base).abs() < 1e-12, "k={k} w={w}");
         }
         assert_eq!(wrap_angle_rad(core::f64::consts::PI), core::f64::consts::PI);
-        assert_eq!(wrap_angle_rad(-core::f64::consts::PI), core::f64::consts::PI);
+        assert_eq!(
+            wrap_angle_rad(-core::f64::consts::PI),
+            core::f64::consts::PI
+        );
         assert!((wrap_angle_rad(368.689f64.to_radians()) - 8.689f64.to_radians()).abs() < 1e-12);
     }
 
@@ -334,13 +341,24 @@ mod tests {
         for (x, want) in cases {
             for sign in [1.0, -1.0] {
                 let got = wrap_angle_rad(sign * x);
-                assert!((got - sign * want).abs() < 1e-15, "f64 wrap({}) = {got}, want {}", sign * x, sign * want);
+                assert!(
+                    (got - sign * want).abs() < 1e-15,
+                    "f64 wrap({}) = {got}, want {}",
+                    sign * x,
+                    sign * want
+                );
             }
         }
         // f32: 1e9 and f32::MAX are exact f32 values; the answer rounded to f32.
-        for (x, want) in [(1e9f32, 0.577_395_423_501_385_2f64), (f32::MAX, -0.549_049_329_957_454_2)] {
+        for (x, want) in [
+            (1e9f32, 0.577_395_423_501_385_2f64),
+            (f32::MAX, -0.549_049_329_957_454_2),
+        ] {
             let got = wrap_angle_rad(x);
-            assert!((f64::from(got) - want).abs() < 1e-7, "f32 wrap({x}) = {got}, want {want}");
+            assert!(
+                (f64::from(got) - want).abs() < 1e-7,
+                "f32 wrap({x}) = {got}, want {want}"
+            );
         }
     }
 
@@ -350,21 +368,43 @@ mod tests {
     fn wrap_angle_keeps_the_direction_everywhere() {
         let mut checked = 0;
         for e in -3..=38 {
-            for m in [1.0, 1.234_567, 2.5, core::f64::consts::PI, 4.7, core::f64::consts::TAU, 7.9, 9.999] {
+            for m in [
+                1.0,
+                1.234_567,
+                2.5,
+                core::f64::consts::PI,
+                4.7,
+                core::f64::consts::TAU,
+                7.9,
+                9.999,
+            ] {
                 for sign in [1.0f64, -1.0] {
                     let x = sign * m * 10f64.powi(e);
                     let w = wrap_angle_rad(x);
-                    assert!(w > -core::f64::consts::PI && w <= core::f64::consts::PI, "wrap({x}) = {w}");
-                    assert!((libm::sin(w) - libm::sin(x)).abs() < 1e-12 && (libm::cos(w) - libm::cos(x)).abs() < 1e-12, "wrap({x}) = {w}");
+                    assert!(
+                        w > -core::f64::consts::PI && w <= core::f64::consts::PI,
+                        "wrap({x}) = {w}"
+                    );
+                    assert!(
+                        (libm::sin(w) - libm::sin(x)).abs() < 1e-12
+                            && (libm::cos(w) - libm::cos(x)).abs() < 1e-12,
+                        "wrap({x}) = {w}"
+                    );
                     let xf = x as f32;
                     if !xf.is_finite() {
                         continue;
                     }
                     let wf = wrap_angle_rad(xf);
-                    assert!(wf > -core::f32::consts::PI && wf <= core::f32::consts::PI, "wrap({xf}) = {wf}");
+                    assert!(
+                        wf > -core::f32::consts::PI && wf <= core::f32::consts::PI,
+                        "wrap({xf}) = {wf}"
+                    );
                     let xd = f64::from(xf);
                     let (ws, wc) = (libm::sin(f64::from(wf)), libm::cos(f64::from(wf)));
-                    assert!((ws - libm::sin(xd)).abs() < 1e-6 && (wc - libm::cos(xd)).abs() < 1e-6, "wrap({xf}) = {wf}");
+                    assert!(
+                        (ws - libm::sin(xd)).abs() < 1e-6 && (wc - libm::cos(xd)).abs() < 1e-6,
+                        "wrap({xf}) = {wf}"
+                    );
                     checked += 1;
                 }
             }

@@ -103,10 +103,10 @@ use crate::dynamics::{DynamicsError, FiveBarDynamics};
 use crate::feed_forward::{feed_forward_nm, interval_motion, predict, JointSample};
 use crate::grid::{CorrectionGrid, GridError};
 use crate::model::{FiveBar, ModelError};
-use crate::valid_model::{IkMargin, ValidFiveBar};
 use crate::pid::{AxisController, AxisGains, AxisReference, InvalidGain};
 use crate::real::Real;
 use crate::trajectory::MotionSetpoint;
+use crate::valid_model::{IkMargin, ValidFiveBar};
 use crate::KinematicsError;
 
 /// Standard gravity (mm/s²), for limits stated in g.
@@ -198,7 +198,9 @@ pub enum ConfigError {
 impl core::fmt::Display for ConfigError {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         match self {
-            ConfigError::SamplePeriod => f.write_str("sample_period_s must be a positive finite number"),
+            ConfigError::SamplePeriod => {
+                f.write_str("sample_period_s must be a positive finite number")
+            }
             ConfigError::MinTransmission => f.write_str("min_transmission must be in [0, 1)"),
             ConfigError::Limit(name) => write!(f, "{name} must be a finite non-negative number"),
             ConfigError::Gain { axis, gain } => write!(f, "axis {}: {gain}", axis + 1),
@@ -228,7 +230,10 @@ impl ServoConfig {
             }
         }
         for (axis, gains) in self.axes.iter().enumerate() {
-            gains.validate().map_err(|gain| ConfigError::Gain { axis: axis as u8, gain })?;
+            gains.validate().map_err(|gain| ConfigError::Gain {
+                axis: axis as u8,
+                gain,
+            })?;
         }
         Ok(())
     }
@@ -246,7 +251,10 @@ pub struct Calibration<'a> {
 impl<'a> Calibration<'a> {
     /// The model and grid of a validated image.
     pub fn from_grid(grid: CorrectionGrid<'a>) -> Self {
-        Calibration { model: *grid.model(), grid: Some(grid) }
+        Calibration {
+            model: *grid.model(),
+            grid: Some(grid),
+        }
     }
 
     /// Encoder angles that put the tool at `tool_mm`: model IK plus grid correction. This is the
@@ -254,8 +262,15 @@ impl<'a> Calibration<'a> {
     /// ([`Servo::accept_motion`] keeps the model's angle from the IK it solved for the setpoint a
     /// sample earlier, and corrects it with [`Calibration::corrected_rad`].)
     #[inline(always)]
-    pub fn command_rad(&self, tool_mm: [f32; 2], min_transmission: f32) -> Result<[f32; 2], SetpointRefusal> {
-        let theta = self.model.inverse(tool_mm, min_transmission).map_err(SetpointRefusal::Kinematics)?;
+    pub fn command_rad(
+        &self,
+        tool_mm: [f32; 2],
+        min_transmission: f32,
+    ) -> Result<[f32; 2], SetpointRefusal> {
+        let theta = self
+            .model
+            .inverse(tool_mm, min_transmission)
+            .map_err(SetpointRefusal::Kinematics)?;
         self.corrected_rad(tool_mm, theta)
     }
 
@@ -267,18 +282,28 @@ impl<'a> Calibration<'a> {
     }
 
     /// The model's encoder angles `theta_rad` for `tool_mm` plus the grid correction there.
-    pub fn corrected_rad(&self, tool_mm: [f32; 2], theta_rad: [f32; 2]) -> Result<[f32; 2], SetpointRefusal> {
+    pub fn corrected_rad(
+        &self,
+        tool_mm: [f32; 2],
+        theta_rad: [f32; 2],
+    ) -> Result<[f32; 2], SetpointRefusal> {
         corrected_rad(self.grid.as_ref(), tool_mm, theta_rad)
     }
 }
 
 /// `theta_rad` plus the grid's correction at `tool_mm` (none without a grid).
 #[inline(always)]
-fn corrected_rad(grid: Option<&CorrectionGrid<'_>>, tool_mm: [f32; 2], theta_rad: [f32; 2]) -> Result<[f32; 2], SetpointRefusal> {
+fn corrected_rad(
+    grid: Option<&CorrectionGrid<'_>>,
+    tool_mm: [f32; 2],
+    theta_rad: [f32; 2],
+) -> Result<[f32; 2], SetpointRefusal> {
     match grid {
         None => Ok(theta_rad),
         Some(grid) => {
-            let d = grid.correction_rad(tool_mm).map_err(SetpointRefusal::Grid)?;
+            let d = grid
+                .correction_rad(tool_mm)
+                .map_err(SetpointRefusal::Grid)?;
             Ok([theta_rad[0] + d[0], theta_rad[1] + d[1]])
         }
     }
@@ -298,12 +323,18 @@ pub struct ValidCalibration<'a> {
 impl<'a> ValidCalibration<'a> {
     /// `cal` if its model is valid ([`FiveBar::validate`]), else the reason.
     pub fn new(cal: Calibration<'a>) -> Result<Self, ModelError> {
-        Ok(ValidCalibration { model: ValidFiveBar::new(cal.model)?, grid: cal.grid })
+        Ok(ValidCalibration {
+            model: ValidFiveBar::new(cal.model)?,
+            grid: cal.grid,
+        })
     }
 
     /// The model and grid of a validated image (its parser validated the model).
     pub fn from_grid(grid: CorrectionGrid<'a>) -> Self {
-        ValidCalibration { model: *grid.valid_model(), grid: Some(grid) }
+        ValidCalibration {
+            model: *grid.valid_model(),
+            grid: Some(grid),
+        }
     }
 
     /// The checked model.
@@ -324,13 +355,23 @@ impl<'a> ValidCalibration<'a> {
     /// The same calibration as a plain [`Calibration`] (for [`Servo::engage`] and the
     /// functions that take one).
     pub fn calibration(&self) -> Calibration<'a> {
-        Calibration { model: *self.model.model(), grid: self.grid }
+        Calibration {
+            model: *self.model.model(),
+            grid: self.grid,
+        }
     }
 
     /// [`Calibration::command_rad`] with the model and margin checked once.
     #[inline(always)]
-    pub fn command_rad(&self, tool_mm: [f32; 2], margin: IkMargin<f32>) -> Result<[f32; 2], SetpointRefusal> {
-        let theta = self.model.inverse(tool_mm, margin).map_err(SetpointRefusal::Kinematics)?;
+    pub fn command_rad(
+        &self,
+        tool_mm: [f32; 2],
+        margin: IkMargin<f32>,
+    ) -> Result<[f32; 2], SetpointRefusal> {
+        let theta = self
+            .model
+            .inverse(tool_mm, margin)
+            .map_err(SetpointRefusal::Kinematics)?;
         corrected_rad(self.grid.as_ref(), tool_mm, theta)
     }
 }
@@ -341,42 +382,84 @@ impl<'a> ValidCalibration<'a> {
 trait SampleModel {
     /// IK plus grid correction for a target [`Servo::check_sequence`] passed (so finite: the
     /// IK need not test it again).
-    fn command_rad_of_finite(&self, tool_mm: [f32; 2], margin: IkMargin<f32>) -> Result<[f32; 2], SetpointRefusal>;
+    fn command_rad_of_finite(
+        &self,
+        tool_mm: [f32; 2],
+        margin: IkMargin<f32>,
+    ) -> Result<[f32; 2], SetpointRefusal>;
     /// The joint state at `setpoint`, in place.
-    fn solve_joint(&self, slot: &mut JointSample<f32>, setpoint: &MotionSetpoint<f32>, margin: IkMargin<f32>) -> Result<(), KinematicsError>;
+    fn solve_joint(
+        &self,
+        slot: &mut JointSample<f32>,
+        setpoint: &MotionSetpoint<f32>,
+        margin: IkMargin<f32>,
+    ) -> Result<(), KinematicsError>;
     /// The grid correction added to the model's angles.
-    fn corrected_rad(&self, tool_mm: [f32; 2], theta_rad: [f32; 2]) -> Result<[f32; 2], SetpointRefusal>;
+    fn corrected_rad(
+        &self,
+        tool_mm: [f32; 2],
+        theta_rad: [f32; 2],
+    ) -> Result<[f32; 2], SetpointRefusal>;
 }
 
 impl SampleModel for Calibration<'_> {
     #[inline(always)]
-    fn command_rad_of_finite(&self, tool_mm: [f32; 2], margin: IkMargin<f32>) -> Result<[f32; 2], SetpointRefusal> {
+    fn command_rad_of_finite(
+        &self,
+        tool_mm: [f32; 2],
+        margin: IkMargin<f32>,
+    ) -> Result<[f32; 2], SetpointRefusal> {
         // `FiveBar::inverse` raises the margin to its floor again (the same value) and checks
         // the model and the target, as it always did on this path.
         Calibration::command_rad(self, tool_mm, margin.get())
     }
     #[inline(always)]
-    fn solve_joint(&self, slot: &mut JointSample<f32>, setpoint: &MotionSetpoint<f32>, margin: IkMargin<f32>) -> Result<(), KinematicsError> {
+    fn solve_joint(
+        &self,
+        slot: &mut JointSample<f32>,
+        setpoint: &MotionSetpoint<f32>,
+        margin: IkMargin<f32>,
+    ) -> Result<(), KinematicsError> {
         slot.solve(&self.model, setpoint, margin.get())
     }
     #[inline(always)]
-    fn corrected_rad(&self, tool_mm: [f32; 2], theta_rad: [f32; 2]) -> Result<[f32; 2], SetpointRefusal> {
+    fn corrected_rad(
+        &self,
+        tool_mm: [f32; 2],
+        theta_rad: [f32; 2],
+    ) -> Result<[f32; 2], SetpointRefusal> {
         corrected_rad(self.grid.as_ref(), tool_mm, theta_rad)
     }
 }
 
 impl SampleModel for ValidCalibration<'_> {
     #[inline(always)]
-    fn command_rad_of_finite(&self, tool_mm: [f32; 2], margin: IkMargin<f32>) -> Result<[f32; 2], SetpointRefusal> {
-        let theta = self.model.inverse_of_finite(tool_mm, margin).map_err(SetpointRefusal::Kinematics)?;
+    fn command_rad_of_finite(
+        &self,
+        tool_mm: [f32; 2],
+        margin: IkMargin<f32>,
+    ) -> Result<[f32; 2], SetpointRefusal> {
+        let theta = self
+            .model
+            .inverse_of_finite(tool_mm, margin)
+            .map_err(SetpointRefusal::Kinematics)?;
         corrected_rad(self.grid.as_ref(), tool_mm, theta)
     }
     #[inline(always)]
-    fn solve_joint(&self, slot: &mut JointSample<f32>, setpoint: &MotionSetpoint<f32>, margin: IkMargin<f32>) -> Result<(), KinematicsError> {
+    fn solve_joint(
+        &self,
+        slot: &mut JointSample<f32>,
+        setpoint: &MotionSetpoint<f32>,
+        margin: IkMargin<f32>,
+    ) -> Result<(), KinematicsError> {
         slot.solve_valid(&self.model, setpoint, margin)
     }
     #[inline(always)]
-    fn corrected_rad(&self, tool_mm: [f32; 2], theta_rad: [f32; 2]) -> Result<[f32; 2], SetpointRefusal> {
+    fn corrected_rad(
+        &self,
+        tool_mm: [f32; 2],
+        theta_rad: [f32; 2],
+    ) -> Result<[f32; 2], SetpointRefusal> {
         corrected_rad(self.grid.as_ref(), tool_mm, theta_rad)
     }
 }
@@ -478,7 +561,9 @@ pub enum EngageError {
 impl core::fmt::Display for EngageError {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         match self {
-            EngageError::NonFiniteFeedback => f.write_str("engage refused: non-finite encoder reading"),
+            EngageError::NonFiniteFeedback => {
+                f.write_str("engage refused: non-finite encoder reading")
+            }
             EngageError::Kinematics(e) => write!(f, "engage refused: {e}"),
             EngageError::Grid(e) => write!(f, "engage refused: {e}"),
         }
@@ -536,9 +621,13 @@ impl Derived {
             max_speed2: square(config.max_speed_mm_s),
             max_accel2: square(config.max_accel_mm_s2),
             ik_margin: IkMargin::new(config.min_transmission),
-            observer: config
-                .axes
-                .map(|a| ObserverCoefficients::new(a.observer_bandwidth_rad_s, a.observer_inertia_kg_m2, config.sample_period_s)),
+            observer: config.axes.map(|a| {
+                ObserverCoefficients::new(
+                    a.observer_bandwidth_rad_s,
+                    a.observer_inertia_kg_m2,
+                    config.sample_period_s,
+                )
+            }),
         }
     }
 }
@@ -594,7 +683,15 @@ fn finite2(v: [f32; 2]) -> bool {
 /// setpoint either). Cheaper than testing each.
 #[inline(always)]
 fn finite_setpoint(s: &MotionSetpoint<f32>) -> bool {
-    let sum = [s.position_mm, s.velocity_mm_s, s.acceleration_mm_s2, s.jerk_mm_s3].iter().flatten().fold(0.0f32, |a, v| a + v);
+    let sum = [
+        s.position_mm,
+        s.velocity_mm_s,
+        s.acceleration_mm_s2,
+        s.jerk_mm_s3,
+    ]
+    .iter()
+    .flatten()
+    .fold(0.0f32, |a, v| a + v);
     #[allow(clippy::eq_op)] // `sum - sum` is the test
     let finite = sum - sum == 0.0;
     finite
@@ -634,7 +731,10 @@ impl Servo {
 
     /// The identified dynamics the motion step feeds forward (`None`: the gains' constant
     /// feed-forward). Refused if out of range; the servo keeps what it had.
-    pub fn set_dynamics(&mut self, dynamics: Option<FiveBarDynamics<f32>>) -> Result<(), DynamicsError> {
+    pub fn set_dynamics(
+        &mut self,
+        dynamics: Option<FiveBarDynamics<f32>>,
+    ) -> Result<(), DynamicsError> {
         if let Some(d) = &dynamics {
             d.validate()?;
         }
@@ -665,7 +765,11 @@ impl Servo {
     /// Arms the servo at the machine's current position and returns that tool position: the
     /// first setpoints must start there (a setpoint far from it is a jump). Clears a latched
     /// fault; on `Err` the servo is not engaged.
-    pub fn engage(&mut self, cal: &Calibration<'_>, encoder_rad: [f32; 2]) -> Result<[f32; 2], EngageError> {
+    pub fn engage(
+        &mut self,
+        cal: &Calibration<'_>,
+        encoder_rad: [f32; 2],
+    ) -> Result<[f32; 2], EngageError> {
         self.history = None;
         self.fault = None;
         self.ahead = None;
@@ -679,7 +783,10 @@ impl Servo {
         let m = self.config.min_transmission;
         // Undo the correction by one fixed-point step: p = FK(θ - δ(FK(θ))). The correction
         // varies over millimetres, so the second pass is exact to well below a micrometre.
-        let mut tool = cal.model.forward(encoder_rad, 0.0).map_err(EngageError::Kinematics)?;
+        let mut tool = cal
+            .model
+            .forward(encoder_rad, 0.0)
+            .map_err(EngageError::Kinematics)?;
         if let Some(grid) = &cal.grid {
             let d = grid.correction_rad(tool).map_err(EngageError::Grid)?;
             tool = cal
@@ -712,7 +819,11 @@ impl Servo {
     /// Checks `setpoint_mm` against the setpoint history (speed and acceleration limits), the
     /// kinematics (reach, singularity margin) and the grid, and returns it with the encoder
     /// angles it commands. A refusal changes nothing.
-    pub fn accept(&mut self, cal: &Calibration<'_>, setpoint_mm: [f32; 2]) -> Result<AcceptedSetpoint<'_>, SetpointRefusal> {
+    pub fn accept(
+        &mut self,
+        cal: &Calibration<'_>,
+        setpoint_mm: [f32; 2],
+    ) -> Result<AcceptedSetpoint<'_>, SetpointRefusal> {
         self.accept_with(cal, setpoint_mm)
     }
 
@@ -721,15 +832,31 @@ impl Servo {
     /// setpoint is finite (the jump check before it proves that: the history's setpoint is
     /// finite and a speed below a finite limit leaves the new one finite; a non-finite one
     /// is refused there as [`SetpointRefusal::NonFinite`]).
-    pub fn accept_valid(&mut self, cal: &ValidCalibration<'_>, setpoint_mm: [f32; 2]) -> Result<AcceptedSetpoint<'_>, SetpointRefusal> {
+    pub fn accept_valid(
+        &mut self,
+        cal: &ValidCalibration<'_>,
+        setpoint_mm: [f32; 2],
+    ) -> Result<AcceptedSetpoint<'_>, SetpointRefusal> {
         self.accept_with(cal, setpoint_mm)
     }
 
     #[inline(always)]
-    fn accept_with(&mut self, cal: &impl SampleModel, setpoint_mm: [f32; 2]) -> Result<AcceptedSetpoint<'_>, SetpointRefusal> {
+    fn accept_with(
+        &mut self,
+        cal: &impl SampleModel,
+        setpoint_mm: [f32; 2],
+    ) -> Result<AcceptedSetpoint<'_>, SetpointRefusal> {
         let (v, a) = self.check_sequence(setpoint_mm)?;
         let command_rad = cal.command_rad_of_finite(setpoint_mm, self.derived.ik_margin)?;
-        Ok(AcceptedSetpoint { servo: self, setpoint_mm, velocity_mm_s: v, accel_mm_s2: a, command_rad, feedforward_nm: None, ahead: None })
+        Ok(AcceptedSetpoint {
+            servo: self,
+            setpoint_mm,
+            velocity_mm_s: v,
+            accel_mm_s2: a,
+            command_rad,
+            feedforward_nm: None,
+            ahead: None,
+        })
     }
 
     /// Engaged, a finite setpoint, and the speed and acceleration the setpoint sequence implies
@@ -739,18 +866,31 @@ impl Servo {
     /// history's setpoint is: engage's FK result or a setpoint that passed), which the IK of
     /// [`Servo::accept_valid`] relies on instead of testing it again.
     #[inline]
-    fn check_sequence(&self, setpoint_mm: [f32; 2]) -> Result<([f32; 2], [f32; 2]), SetpointRefusal> {
+    fn check_sequence(
+        &self,
+        setpoint_mm: [f32; 2],
+    ) -> Result<([f32; 2], [f32; 2]), SetpointRefusal> {
         let Some(h) = &self.history else {
             return Err(SetpointRefusal::NotEngaged);
         };
         let d = &self.derived;
         let rate = d.rate_hz;
-        let v = [(setpoint_mm[0] - h.setpoint_mm[0]) * rate, (setpoint_mm[1] - h.setpoint_mm[1]) * rate];
-        let a = [(v[0] - h.velocity_mm_s[0]) * rate, (v[1] - h.velocity_mm_s[1]) * rate];
+        let v = [
+            (setpoint_mm[0] - h.setpoint_mm[0]) * rate,
+            (setpoint_mm[1] - h.setpoint_mm[1]) * rate,
+        ];
+        let a = [
+            (v[0] - h.velocity_mm_s[0]) * rate,
+            (v[1] - h.velocity_mm_s[1]) * rate,
+        ];
         let speed2 = v[0] * v[0] + v[1] * v[1];
         let accel2 = a[0] * a[0] + a[1] * a[1];
         if !(speed2 <= d.max_speed2 && accel2 <= d.max_accel2) {
-            return Err(if finite2(setpoint_mm) { SetpointRefusal::Jump } else { SetpointRefusal::NonFinite });
+            return Err(if finite2(setpoint_mm) {
+                SetpointRefusal::Jump
+            } else {
+                SetpointRefusal::NonFinite
+            });
         }
         Ok((v, a))
     }
@@ -795,7 +935,9 @@ impl Servo {
                 return Err(SetpointRefusal::NonFinite);
             }
             let (v, a) = (setpoint.velocity_mm_s, setpoint.acceleration_mm_s2);
-            if !(v[0] * v[0] + v[1] * v[1] <= d.max_speed2 && a[0] * a[0] + a[1] * a[1] <= d.max_accel2) {
+            if !(v[0] * v[0] + v[1] * v[1] <= d.max_speed2
+                && a[0] * a[0] + a[1] * a[1] <= d.max_accel2)
+            {
                 return Err(SetpointRefusal::Jump);
             }
         }
@@ -806,24 +948,34 @@ impl Servo {
         let now = match self.ahead {
             Some(i) if self.joint[i].is_for(setpoint) => i,
             _ => {
-                cal.solve_joint(&mut self.joint[0], setpoint, m).map_err(SetpointRefusal::Kinematics)?;
+                cal.solve_joint(&mut self.joint[0], setpoint, m)
+                    .map_err(SetpointRefusal::Kinematics)?;
                 0
             }
         };
         let (a, b) = self.joint.split_at_mut(1);
-        let (now_state, next_state) = if now == 0 { (&a[0], &mut b[0]) } else { (&b[0], &mut a[0]) };
+        let (now_state, next_state) = if now == 0 {
+            (&a[0], &mut b[0])
+        } else {
+            (&b[0], &mut a[0])
+        };
         // The look-ahead never refuses this setpoint: the prediction stands in for a next one
         // that cannot be used (and, if that is out of reach too, no motion).
         let solved = match next {
             Some(n) if finite_setpoint(n) => cal.solve_joint(next_state, n, m).is_ok(),
             _ => false,
         };
-        if !solved && cal.solve_joint(next_state, &predict(setpoint, cfg.sample_period_s), m).is_err() {
+        if !solved
+            && cal
+                .solve_joint(next_state, &predict(setpoint, cfg.sample_period_s), m)
+                .is_err()
+        {
             *next_state = *now_state;
         }
         let motion = interval_motion(now_state, next_state, d.rate_hz);
         let command_rad = cal.corrected_rad(p, now_state.angle_rad)?;
-        let ff = feed_forward_nm(&motion, self.dynamics.as_ref(), &cfg.axes).map_err(SetpointRefusal::Kinematics)?;
+        let ff = feed_forward_nm(&motion, self.dynamics.as_ref(), &cfg.axes)
+            .map_err(SetpointRefusal::Kinematics)?;
         Ok(AcceptedSetpoint {
             servo: self,
             setpoint_mm: p,
@@ -844,7 +996,10 @@ impl Servo {
         next: Option<&MotionSetpoint<f32>>,
         encoder_rad: [f32; 2],
     ) -> Result<ServoOutput, StepError> {
-        self.accept_motion(cal, setpoint, next).map_err(StepError::Refused)?.track(encoder_rad).map_err(StepError::Fault)
+        self.accept_motion(cal, setpoint, next)
+            .map_err(StepError::Refused)?
+            .track(encoder_rad)
+            .map_err(StepError::Fault)
     }
 
     /// [`Servo::step_motion`] with a calibration whose model was checked once.
@@ -855,7 +1010,10 @@ impl Servo {
         next: Option<&MotionSetpoint<f32>>,
         encoder_rad: [f32; 2],
     ) -> Result<ServoOutput, StepError> {
-        self.accept_motion_valid(cal, setpoint, next).map_err(StepError::Refused)?.track(encoder_rad).map_err(StepError::Fault)
+        self.accept_motion_valid(cal, setpoint, next)
+            .map_err(StepError::Refused)?
+            .track(encoder_rad)
+            .map_err(StepError::Fault)
     }
 
     /// One sample: [`Servo::accept`] then [`AcceptedSetpoint::track`]. On
@@ -868,7 +1026,10 @@ impl Servo {
         setpoint_mm: [f32; 2],
         encoder_rad: [f32; 2],
     ) -> Result<ServoOutput, StepError> {
-        self.accept(cal, setpoint_mm).map_err(StepError::Refused)?.track(encoder_rad).map_err(StepError::Fault)
+        self.accept(cal, setpoint_mm)
+            .map_err(StepError::Refused)?
+            .track(encoder_rad)
+            .map_err(StepError::Fault)
     }
 
     /// [`Servo::step`] with a calibration whose model was checked once (the firmware's path):
@@ -879,7 +1040,10 @@ impl Servo {
         setpoint_mm: [f32; 2],
         encoder_rad: [f32; 2],
     ) -> Result<ServoOutput, StepError> {
-        self.accept_valid(cal, setpoint_mm).map_err(StepError::Refused)?.track(encoder_rad).map_err(StepError::Fault)
+        self.accept_valid(cal, setpoint_mm)
+            .map_err(StepError::Refused)?
+            .track(encoder_rad)
+            .map_err(StepError::Fault)
     }
 }
 
@@ -925,7 +1089,10 @@ impl AcceptedSetpoint<'_> {
         let cfg = &servo.config;
         let dt = cfg.sample_period_s;
         let rate = servo.derived.rate_hz;
-        let mut reference = [unwrap_near(self.command_rad[0], h.reference_rad[0]), unwrap_near(self.command_rad[1], h.reference_rad[1])];
+        let mut reference = [
+            unwrap_near(self.command_rad[0], h.reference_rad[0]),
+            unwrap_near(self.command_rad[1], h.reference_rad[1]),
+        ];
         // Backlash (issue 13): the motor leads the link reference by the play operator of the
         // link reference's increments (`crate::backlash`: continuous, never a step of the gap).
         if let Some(b) = &servo.backlash {
@@ -940,10 +1107,18 @@ impl AcceptedSetpoint<'_> {
         // one comparison per axis covers both faults, told apart on the way out.
         let max = cfg.max_following_error_rad;
         if !(error[0].abs() <= max && error[1].abs() <= max) {
-            let fault = if finite2(encoder_rad) { ServoFault::FollowingError } else { ServoFault::NonFiniteFeedback };
+            let fault = if finite2(encoder_rad) {
+                ServoFault::FollowingError
+            } else {
+                ServoFault::NonFiniteFeedback
+            };
             return Err(servo.latch(fault));
         }
-        let mut out = ServoOutput { torque_nm: [0.0; 2], reference_rad: reference, following_error_rad: error };
+        let mut out = ServoOutput {
+            torque_nm: [0.0; 2],
+            reference_rad: reference,
+            following_error_rad: error,
+        };
         let mut reference_velocity_rad_s = [0.0; 2];
         for k in 0..2 {
             let velocity = (reference[k] - h.reference_rad[k]) * rate;
@@ -966,8 +1141,19 @@ impl AcceptedSetpoint<'_> {
                     if !observer.is_current(h.encoder_rad[k]) {
                         observer.restart(velocity_error, 0.0);
                     }
-                    let disturbance = observer.estimate_nm(&servo.derived.observer[k], velocity_error, gains.torque_limit_nm, velocity != 0.0);
-                    let torque = servo.axes[k].feedback(gains, error[k], velocity_error, ff[k] + disturbance, dt);
+                    let disturbance = observer.estimate_nm(
+                        &servo.derived.observer[k],
+                        velocity_error,
+                        gains.torque_limit_nm,
+                        velocity != 0.0,
+                    );
+                    let torque = servo.axes[k].feedback(
+                        gains,
+                        error[k],
+                        velocity_error,
+                        ff[k] + disturbance,
+                        dt,
+                    );
                     observer.applied(torque - ff[k]);
                     observer.ran_at(encoder_rad[k]);
                     torque

@@ -87,7 +87,9 @@ mod tests {
             let x = -max + 2.0 * max * (i as f32 / points as f32);
             let (s, c) = sin_cos_f32(x);
             let xd = f64::from(x);
-            worst = worst.max((f64::from(s) - libm::sin(xd)).abs()).max((f64::from(c) - libm::cos(xd)).abs());
+            worst = worst
+                .max((f64::from(s) - libm::sin(xd)).abs())
+                .max((f64::from(c) - libm::cos(xd)).abs());
         }
         worst
     }
@@ -98,13 +100,18 @@ mod tests {
         let far = worst_error(MAX_ARG_RAD, 1 << 21);
         let mut at_multiples: f64 = 0.0;
         for k in -5215..=5215 {
-            for x in [k as f32 * core::f32::consts::FRAC_PI_4, f32::from_bits((k as f32 * core::f32::consts::FRAC_PI_4).to_bits() + 1)] {
+            for x in [
+                k as f32 * core::f32::consts::FRAC_PI_4,
+                f32::from_bits((k as f32 * core::f32::consts::FRAC_PI_4).to_bits() + 1),
+            ] {
                 if libm::fabsf(x) > MAX_ARG_RAD {
                     continue;
                 }
                 let (s, c) = sin_cos_f32(x);
                 let xd = f64::from(x);
-                at_multiples = at_multiples.max((f64::from(s) - libm::sin(xd)).abs()).max((f64::from(c) - libm::cos(xd)).abs());
+                at_multiples = at_multiples
+                    .max((f64::from(s) - libm::sin(xd)).abs())
+                    .max((f64::from(c) - libm::cos(xd)).abs());
             }
         }
         println!("sin_cos_f32 worst error: {near:.2e} on |x| <= 7, {far:.2e} on |x| <= {MAX_ARG_RAD}, {at_multiples:.2e} at multiples of pi/4");

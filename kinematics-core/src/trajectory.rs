@@ -47,15 +47,25 @@ pub struct MotionSetpoint<T> {
 impl<T: Real> MotionSetpoint<T> {
     /// At rest at `position_mm`.
     pub fn at_rest(position_mm: [T; 2]) -> Self {
-        MotionSetpoint { position_mm, velocity_mm_s: [T::ZERO; 2], acceleration_mm_s2: [T::ZERO; 2], jerk_mm_s3: [T::ZERO; 2] }
+        MotionSetpoint {
+            position_mm,
+            velocity_mm_s: [T::ZERO; 2],
+            acceleration_mm_s2: [T::ZERO; 2],
+            jerk_mm_s3: [T::ZERO; 2],
+        }
     }
 
     /// Every number finite.
     pub fn is_finite(&self) -> bool {
-        [self.position_mm, self.velocity_mm_s, self.acceleration_mm_s2, self.jerk_mm_s3]
-            .iter()
-            .flatten()
-            .all(|v| v.is_finite())
+        [
+            self.position_mm,
+            self.velocity_mm_s,
+            self.acceleration_mm_s2,
+            self.jerk_mm_s3,
+        ]
+        .iter()
+        .flatten()
+        .all(|v| v.is_finite())
     }
 }
 
@@ -74,7 +84,11 @@ pub struct TaskLimits<T> {
 impl<T: Real> TaskLimits<T> {
     /// The scalar limits of a parameter whose curve speed `|c'|` is at most `factor`.
     fn per_parameter(&self, factor: T) -> ProfileLimits<T> {
-        ProfileLimits { velocity: self.speed_mm_s / factor, acceleration: self.accel_mm_s2 / factor, jerk: self.jerk_mm_s3 / factor }
+        ProfileLimits {
+            velocity: self.speed_mm_s / factor,
+            acceleration: self.accel_mm_s2 / factor,
+            jerk: self.jerk_mm_s3 / factor,
+        }
     }
 }
 
@@ -106,7 +120,9 @@ impl core::fmt::Display for TrajectoryError {
             TrajectoryError::Profile(e) => write!(f, "{e}"),
             TrajectoryError::TooManyWaypoints => f.write_str("more waypoints than the tour holds"),
             TrajectoryError::EmptyPath => f.write_str("the path has no length"),
-            TrajectoryError::JointLimits => f.write_str("the joint speed or torque limits cannot be met by slowing down"),
+            TrajectoryError::JointLimits => {
+                f.write_str("the joint speed or torque limits cannot be met by slowing down")
+            }
             TrajectoryError::Kinematics(e) => write!(f, "the path is not feasible: {e}"),
         }
     }
@@ -138,8 +154,16 @@ fn norm<T: Real>(v: [T; 2]) -> T {
 
 impl<T: Real> PathMotion<T, Line<T>> {
     /// The time-optimal straight move from `from_mm` to `to_mm` within `limits`.
-    pub fn line(from_mm: [T; 2], to_mm: [T; 2], limits: &TaskLimits<T>) -> Result<Self, TrajectoryError> {
-        if !(from_mm[0].is_finite() && from_mm[1].is_finite() && to_mm[0].is_finite() && to_mm[1].is_finite()) {
+    pub fn line(
+        from_mm: [T; 2],
+        to_mm: [T; 2],
+        limits: &TaskLimits<T>,
+    ) -> Result<Self, TrajectoryError> {
+        if !(from_mm[0].is_finite()
+            && from_mm[1].is_finite()
+            && to_mm[0].is_finite()
+            && to_mm[1].is_finite())
+        {
             return Err(TrajectoryError::Profile(ProfileError::NonFinite));
         }
         let path = Line::new(from_mm, to_mm);
@@ -159,7 +183,11 @@ impl<T: Real, P: Path<T>> PathMotion<T, P> {
     pub fn plan(path: P, limits: &TaskLimits<T>, samples: usize) -> Result<Self, TrajectoryError> {
         let length = path.length();
         if !(length > T::ZERO) {
-            return Err(if length.is_finite() { TrajectoryError::EmptyPath } else { ProfileError::NonFinite.into() });
+            return Err(if length.is_finite() {
+                TrajectoryError::EmptyPath
+            } else {
+                ProfileError::NonFinite.into()
+            });
         }
         let law = JerkProfile::plan(length, &limits.per_parameter(path.max_speed_factor()))?;
         let first = PathMotion { path, law };
@@ -172,7 +200,10 @@ impl<T: Real, P: Path<T>> PathMotion<T, P> {
 
     /// The same motion `factor` times slower (speeds / k, accelerations / k², jerks / k³).
     pub fn time_scaled(&self, factor: T) -> Result<Self, TrajectoryError> {
-        Ok(PathMotion { path: self.path, law: self.law.time_scaled(factor)? })
+        Ok(PathMotion {
+            path: self.path,
+            law: self.law.time_scaled(factor)?,
+        })
     }
 
     /// The path.
@@ -199,7 +230,11 @@ impl<T: Real, P: Path<T>> PathMotion<T, P> {
     /// Peak norms over `samples + 1` equally spaced instants (ends included).
     pub fn peaks(&self, samples: usize) -> Peaks<T> {
         let n = samples.max(1);
-        let mut p = Peaks { speed_mm_s: T::ZERO, accel_mm_s2: T::ZERO, jerk_mm_s3: T::ZERO };
+        let mut p = Peaks {
+            speed_mm_s: T::ZERO,
+            accel_mm_s2: T::ZERO,
+            jerk_mm_s3: T::ZERO,
+        };
         let step = self.duration_s() / T::from_f64(n as f64);
         for k in 0..=n {
             let m = self.at(T::from_f64(k as f64) * step);
@@ -223,7 +258,12 @@ pub struct Tour<T, const N: usize> {
 impl<T: Real, const N: usize> Tour<T, N> {
     /// From `start_mm` through `waypoints_mm` (at most `N`) within `limits`, resting `dwell_s`
     /// after each move.
-    pub fn plan(start_mm: [T; 2], waypoints_mm: &[[T; 2]], limits: &TaskLimits<T>, dwell_s: T) -> Result<Self, TrajectoryError> {
+    pub fn plan(
+        start_mm: [T; 2],
+        waypoints_mm: &[[T; 2]],
+        limits: &TaskLimits<T>,
+        dwell_s: T,
+    ) -> Result<Self, TrajectoryError> {
         if waypoints_mm.len() > N {
             return Err(TrajectoryError::TooManyWaypoints);
         }
@@ -237,13 +277,23 @@ impl<T: Real, const N: usize> Tour<T, N> {
             *slot = PathMotion::line(from, to, limits)?;
             from = to;
         }
-        Ok(Tour { moves, len: waypoints_mm.len(), dwell_s, start_mm })
+        Ok(Tour {
+            moves,
+            len: waypoints_mm.len(),
+            dwell_s,
+            start_mm,
+        })
     }
 
     /// No moves: holds `start_mm` (never fails).
     pub fn hold(start_mm: [T; 2]) -> Self {
         let rest = PathMotion::new(Line::new(start_mm, start_mm), JerkProfile::rest());
-        Tour { moves: [rest; N], len: 0, dwell_s: T::ZERO, start_mm }
+        Tour {
+            moves: [rest; N],
+            len: 0,
+            dwell_s: T::ZERO,
+            start_mm,
+        }
     }
 
     /// The moves, in order.
@@ -276,7 +326,9 @@ impl<T: Real, const N: usize> Tour<T, N> {
 
     /// Every move and dwell (s).
     pub fn duration_s(&self) -> T {
-        self.moves().iter().fold(T::ZERO, |t, m| t + m.duration_s() + self.dwell_s)
+        self.moves()
+            .iter()
+            .fold(T::ZERO, |t, m| t + m.duration_s() + self.dwell_s)
     }
 
     /// The setpoint at `t_s` from the start of the tour (at rest at the end after it).
@@ -304,7 +356,11 @@ mod tests {
     const G: f64 = 9_806.65;
 
     fn limits() -> TaskLimits<f64> {
-        TaskLimits { speed_mm_s: 1500.0, accel_mm_s2: 5.0 * G, jerk_mm_s3: 5e6 }
+        TaskLimits {
+            speed_mm_s: 1500.0,
+            accel_mm_s2: 5.0 * G,
+            jerk_mm_s3: 5e6,
+        }
     }
 
     /// Derivatives against central differences of the next-lower one.
@@ -316,8 +372,16 @@ mod tests {
             for i in 0..2 {
                 let fv = (c.position_mm[i] - a.position_mm[i]) / (2.0 * h);
                 let fa = (c.velocity_mm_s[i] - a.velocity_mm_s[i]) / (2.0 * h);
-                assert!((fv - b.velocity_mm_s[i]).abs() < 1e-3, "v at {t}: {fv} {}", b.velocity_mm_s[i]);
-                assert!((fa - b.acceleration_mm_s2[i]).abs() < 1.0 + 1e-5 * b.acceleration_mm_s2[i].abs(), "a at {t}");
+                assert!(
+                    (fv - b.velocity_mm_s[i]).abs() < 1e-3,
+                    "v at {t}: {fv} {}",
+                    b.velocity_mm_s[i]
+                );
+                assert!(
+                    (fa - b.acceleration_mm_s2[i]).abs()
+                        < 1.0 + 1e-5 * b.acceleration_mm_s2[i].abs(),
+                    "a at {t}"
+                );
             }
         }
     }
@@ -327,7 +391,10 @@ mod tests {
         let m = PathMotion::line([170.0, -65.0], [250.0, 60.0], &limits()).unwrap();
         check_derivatives(&m);
         let p = m.peaks(4000);
-        assert!((p.speed_mm_s - 1500.0).abs() < 1e-6 && (p.accel_mm_s2 - 5.0 * G).abs() < 1e-6, "{p:?}");
+        assert!(
+            (p.speed_mm_s - 1500.0).abs() < 1e-6 && (p.accel_mm_s2 - 5.0 * G).abs() < 1e-6,
+            "{p:?}"
+        );
         for k in 0..=100 {
             let s = m.at(m.duration_s() * k as f64 / 100.0);
             // On the line: the offset from the start is parallel to the direction.
@@ -340,27 +407,60 @@ mod tests {
 
     #[test]
     fn contours_meet_their_tightest_limit_exactly() {
-        let circle = Circle { centre_mm: [212.0, 0.0], radius_mm: 40.0, start_rad: 0.0, turns: 2.0 };
+        let circle = Circle {
+            centre_mm: [212.0, 0.0],
+            radius_mm: 40.0,
+            start_rad: 0.0,
+            turns: 2.0,
+        };
         let m = PathMotion::plan(circle, &limits(), 4000).unwrap();
         check_derivatives(&m);
         let p = m.peaks(4000);
-        assert!((p.accel_mm_s2 - 5.0 * G).abs() < 1e-6 * G || (p.jerk_mm_s3 - 5e6).abs() < 1.0, "{p:?}");
-        assert!(p.accel_mm_s2 <= 5.0 * G * (1.0 + 1e-9) && p.jerk_mm_s3 <= 5e6 * (1.0 + 1e-9) && p.speed_mm_s <= 1500.0);
+        assert!(
+            (p.accel_mm_s2 - 5.0 * G).abs() < 1e-6 * G || (p.jerk_mm_s3 - 5e6).abs() < 1.0,
+            "{p:?}"
+        );
+        assert!(
+            p.accel_mm_s2 <= 5.0 * G * (1.0 + 1e-9)
+                && p.jerk_mm_s3 <= 5e6 * (1.0 + 1e-9)
+                && p.speed_mm_s <= 1500.0
+        );
         // On the circle.
         for k in 0..=100 {
             let s = m.at(m.duration_s() * k as f64 / 100.0);
             let r = ((s.position_mm[0] - 212.0).powi(2) + s.position_mm[1].powi(2)).sqrt();
             assert!((r - 40.0).abs() < 1e-9);
         }
-        let f8 = Figure8 { centre_mm: [212.0, 0.0], half_x_mm: 45.0, half_y_mm: 30.0, loops: 1.0 };
+        let f8 = Figure8 {
+            centre_mm: [212.0, 0.0],
+            half_x_mm: 45.0,
+            half_y_mm: 30.0,
+            loops: 1.0,
+        };
         let m = PathMotion::plan(f8, &limits(), 4000).unwrap();
         check_derivatives(&m);
         let p = m.peaks(20_000);
-        assert!(p.accel_mm_s2 <= 5.0 * G * 1.001 && p.speed_mm_s <= 1500.0 * 1.001 && p.jerk_mm_s3 <= 5e6 * 1.001, "{p:?}");
-        let tight = [p.accel_mm_s2 / (5.0 * G), p.speed_mm_s / 1500.0, p.jerk_mm_s3 / 5e6];
+        assert!(
+            p.accel_mm_s2 <= 5.0 * G * 1.001
+                && p.speed_mm_s <= 1500.0 * 1.001
+                && p.jerk_mm_s3 <= 5e6 * 1.001,
+            "{p:?}"
+        );
+        let tight = [
+            p.accel_mm_s2 / (5.0 * G),
+            p.speed_mm_s / 1500.0,
+            p.jerk_mm_s3 / 5e6,
+        ];
         assert!(tight.iter().any(|r| *r > 0.999), "{tight:?}");
         assert_eq!(
-            PathMotion::plan(Circle { turns: 0.0, ..circle }, &limits(), 10),
+            PathMotion::plan(
+                Circle {
+                    turns: 0.0,
+                    ..circle
+                },
+                &limits(),
+                10
+            ),
             Err(TrajectoryError::EmptyPath)
         );
     }
@@ -375,18 +475,30 @@ mod tests {
             at += m.duration_s();
             for dt in [0.0, 0.05, 0.1] {
                 let s = t.at(at + dt);
-                assert!((s.position_mm[0] - w[0]).abs() < 1e-9 && (s.position_mm[1] - w[1]).abs() < 1e-9);
+                assert!(
+                    (s.position_mm[0] - w[0]).abs() < 1e-9
+                        && (s.position_mm[1] - w[1]).abs() < 1e-9
+                );
                 assert!(norm(s.velocity_mm_s) < 1e-9, "{:?}", s.velocity_mm_s);
             }
             at += 0.1;
         }
         assert!((t.duration_s() - at).abs() < 1e-12);
         assert_eq!(t.at(at + 5.0).position_mm, [180.0, -50.0]);
-        assert_eq!(Tour::<f64, 2>::plan([0.0; 2], &wp, &limits(), 0.1).err(), Some(TrajectoryError::TooManyWaypoints));
-        assert_eq!(Tour::<f64, 4>::plan([0.0; 2], &[[f64::NAN, 0.0]], &limits(), 0.1).err(), Some(ProfileError::NonFinite.into()));
+        assert_eq!(
+            Tour::<f64, 2>::plan([0.0; 2], &wp, &limits(), 0.1).err(),
+            Some(TrajectoryError::TooManyWaypoints)
+        );
+        assert_eq!(
+            Tour::<f64, 4>::plan([0.0; 2], &[[f64::NAN, 0.0]], &limits(), 0.1).err(),
+            Some(ProfileError::NonFinite.into())
+        );
         let empty: Tour<f64, 4> = Tour::plan([1.0, 2.0], &[], &limits(), 0.1).unwrap();
         assert_eq!((empty.duration_s(), empty.end_mm()), (0.0, [1.0, 2.0]));
         let hold: Tour<f64, 4> = Tour::hold([1.0, 2.0]);
-        assert_eq!((hold.duration_s(), hold.end_mm(), hold.at(3.0).position_mm), (0.0, [1.0, 2.0], [1.0, 2.0]));
+        assert_eq!(
+            (hold.duration_s(), hold.end_mm(), hold.at(3.0).position_mm),
+            (0.0, [1.0, 2.0], [1.0, 2.0])
+        );
     }
 }

@@ -71,7 +71,9 @@ impl<T: Real> ValidFiveBar<T> {
     /// for every target ([`KinematicsError::InvalidModel`] cannot occur).
     #[inline]
     pub fn inverse(&self, tool_mm: [T; 2], margin: IkMargin<T>) -> Result<[T; 2], KinematicsError> {
-        self.0.solve_inverse_valid(tool_mm, margin.0).map(|s| [s.arm_1.theta_rad, s.arm_2.theta_rad])
+        self.0
+            .solve_inverse_valid(tool_mm, margin.0)
+            .map(|s| [s.arm_1.theta_rad, s.arm_2.theta_rad])
     }
 
     /// [`ValidFiveBar::inverse`] for a target the caller has proven finite (the servo's jump
@@ -80,13 +82,24 @@ impl<T: Real> ValidFiveBar<T> {
     /// non-finite target still never passes, it makes `ρ²` infinite or NaN and is refused by
     /// the reach test, as [`KinematicsError::Unreachable`] instead of `NonFinite`.
     #[inline(always)]
-    pub(crate) fn inverse_of_finite(&self, tool_mm: [T; 2], margin: IkMargin<T>) -> Result<[T; 2], KinematicsError> {
-        self.0.solve_checked(tool_mm, margin.0).map(|s| [s.arm_1.theta_rad, s.arm_2.theta_rad])
+    pub(crate) fn inverse_of_finite(
+        &self,
+        tool_mm: [T; 2],
+        margin: IkMargin<T>,
+    ) -> Result<[T; 2], KinematicsError> {
+        self.0
+            .solve_checked(tool_mm, margin.0)
+            .map(|s| [s.arm_1.theta_rad, s.arm_2.theta_rad])
     }
 
     /// [`FiveBar::inverse_rates`] without the per-call model check and margin floor.
     #[inline]
-    pub fn inverse_rates(&self, tool_mm: [T; 2], velocity_mm_s: [T; 2], margin: IkMargin<T>) -> Result<JointMotion<T>, KinematicsError> {
+    pub fn inverse_rates(
+        &self,
+        tool_mm: [T; 2],
+        velocity_mm_s: [T; 2],
+        margin: IkMargin<T>,
+    ) -> Result<JointMotion<T>, KinematicsError> {
         let s = self.0.solve_inverse_valid(tool_mm, margin.0)?;
         crate::joint_motion::motion_of_solved(&s, velocity_mm_s, None)
     }
@@ -105,8 +118,14 @@ mod tests {
         offset.base_a0_mm = [-0.61, 0.27];
         offset.encoder_offset_rad = [0.004, -0.007];
         for model in [FiveBar::<f32>::paper_nominal(), offset] {
-            let Ok(v) = ValidFiveBar::new(model) else { panic!("a valid model") };
-            for margin in [IkMargin::new(0.0), IkMargin::new(0.05), IkMargin::new(f32::NAN)] {
+            let Ok(v) = ValidFiveBar::new(model) else {
+                panic!("a valid model")
+            };
+            for margin in [
+                IkMargin::new(0.0),
+                IkMargin::new(0.05),
+                IkMargin::new(f32::NAN),
+            ] {
                 for p in [
                     [f32::NAN, 0.0],
                     [0.0, f32::NAN],
@@ -118,11 +137,19 @@ mod tests {
                     [1e30, 0.0],
                     [f32::MAX, f32::MAX],
                 ] {
-                    assert_eq!(v.inverse_of_finite(p, margin), Err(KinematicsError::Unreachable), "{p:?}");
+                    assert_eq!(
+                        v.inverse_of_finite(p, margin),
+                        Err(KinematicsError::Unreachable),
+                        "{p:?}"
+                    );
                     assert!(v.inverse(p, margin).is_err());
                 }
                 for p in [[212.132, 0.0], [250.0, 40.0], [180.0, -60.0]] {
-                    assert_eq!(v.inverse_of_finite(p, margin), v.inverse(p, margin), "{p:?}");
+                    assert_eq!(
+                        v.inverse_of_finite(p, margin),
+                        v.inverse(p, margin),
+                        "{p:?}"
+                    );
                 }
             }
         }

@@ -40,11 +40,14 @@ pub enum WorkspaceError {
 impl core::fmt::Display for WorkspaceError {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         match self {
-            WorkspaceError::VertexCount => write!(f, "a workspace polygon has 3..={MAX_WORKSPACE_VERTICES} vertices"),
+            WorkspaceError::VertexCount => write!(
+                f,
+                "a workspace polygon has 3..={MAX_WORKSPACE_VERTICES} vertices"
+            ),
             WorkspaceError::NonFinite => f.write_str("a workspace vertex is not finite"),
-            WorkspaceError::NotConvex => {
-                f.write_str("the workspace polygon is not strictly convex with its vertices counter-clockwise")
-            }
+            WorkspaceError::NotConvex => f.write_str(
+                "the workspace polygon is not strictly convex with its vertices counter-clockwise",
+            ),
         }
     }
 }
@@ -86,7 +89,10 @@ impl<T: Real> ConvexWorkspace<T> {
             // Every other vertex strictly to the left of this edge: convex, counter-clockwise,
             // simple, no repeated or collinear vertices (O(n²), n ≤ 16, once).
             for (k, v) in vertices_mm.iter().enumerate() {
-                if k != i && k != (i + 1) % n && !(e[0] * (v[1] - p[1]) - e[1] * (v[0] - p[0]) > T::ZERO) {
+                if k != i
+                    && k != (i + 1) % n
+                    && !(e[0] * (v[1] - p[1]) - e[1] * (v[0] - p[0]) > T::ZERO)
+                {
                     return Err(WorkspaceError::NotConvex);
                 }
             }
@@ -103,7 +109,12 @@ impl<T: Real> ConvexWorkspace<T> {
 
     /// The rectangle `[x0, x1] × [y0, y1]` (vertices from the lower left, counter-clockwise).
     pub fn rectangle(x_mm: [T; 2], y_mm: [T; 2]) -> Result<Self, WorkspaceError> {
-        Self::new(&[[x_mm[0], y_mm[0]], [x_mm[1], y_mm[0]], [x_mm[1], y_mm[1]], [x_mm[0], y_mm[1]]])
+        Self::new(&[
+            [x_mm[0], y_mm[0]],
+            [x_mm[1], y_mm[0]],
+            [x_mm[1], y_mm[1]],
+            [x_mm[0], y_mm[1]],
+        ])
     }
 
     /// The vertices, counter-clockwise.
@@ -169,10 +180,20 @@ mod tests {
     fn a_rectangle_checks_exactly_with_and_without_margin() {
         let w = paper();
         assert_eq!(w.vertices_mm().len(), 4);
-        for p in [[162.132, -75.0], [262.132, 75.0], [212.132, 0.0], [162.132, 10.0]] {
+        for p in [
+            [162.132, -75.0],
+            [262.132, 75.0],
+            [212.132, 0.0],
+            [162.132, 10.0],
+        ] {
             assert!(w.contains(p, 0.0), "{p:?}");
         }
-        for p in [[162.13, 0.0], [212.0, 75.001], [f32::NAN, 0.0], [300.0, 0.0]] {
+        for p in [
+            [162.13, 0.0],
+            [212.0, 75.001],
+            [f32::NAN, 0.0],
+            [300.0, 0.0],
+        ] {
             assert!(!w.contains(p, 0.0), "{p:?}");
         }
         assert!(w.contains([162.24, -74.89], 0.1) && !w.contains([162.2, 0.0], 0.1));
@@ -184,7 +205,14 @@ mod tests {
     #[test]
     fn a_convex_polygon_and_its_margin() {
         // A hexagon: the paper rectangle with two corners cut at 45°.
-        let v = [[172.0f64, -75.0], [262.0, -75.0], [262.0, 65.0], [252.0, 75.0], [162.0, 75.0], [162.0, -65.0]];
+        let v = [
+            [172.0f64, -75.0],
+            [262.0, -75.0],
+            [262.0, 65.0],
+            [252.0, 75.0],
+            [162.0, 75.0],
+            [162.0, -65.0],
+        ];
         let w = ConvexWorkspace::new(&v).unwrap();
         assert!(w.contains([170.0, -70.0], 0.0) && !w.contains([163.0, -74.0], 0.0));
         // (258, 70) is 1/√2·(262+75−65... ) from the cut: x + y ≤ 327 → distance (327−328)/√2 < 0.
@@ -203,22 +231,47 @@ mod tests {
         assert!(ConvexWorkspace::new(&sq).is_ok());
         let mut cw = sq;
         cw.reverse();
-        assert_eq!(ConvexWorkspace::new(&cw), Err(WorkspaceError::NotConvex), "clockwise");
+        assert_eq!(
+            ConvexWorkspace::new(&cw),
+            Err(WorkspaceError::NotConvex),
+            "clockwise"
+        );
         let concave = [[0.0, 0.0], [2.0, 0.0], [1.0, 0.5], [2.0, 2.0], [0.0, 2.0]];
-        assert_eq!(ConvexWorkspace::new(&concave), Err(WorkspaceError::NotConvex));
+        assert_eq!(
+            ConvexWorkspace::new(&concave),
+            Err(WorkspaceError::NotConvex)
+        );
         let collinear = [[0.0, 0.0], [1.0, 0.0], [2.0, 0.0], [2.0, 1.0]];
-        assert_eq!(ConvexWorkspace::new(&collinear), Err(WorkspaceError::NotConvex));
+        assert_eq!(
+            ConvexWorkspace::new(&collinear),
+            Err(WorkspaceError::NotConvex)
+        );
         let repeated = [[0.0, 0.0], [1.0, 0.0], [1.0, 0.0], [0.0, 1.0]];
-        assert_eq!(ConvexWorkspace::new(&repeated), Err(WorkspaceError::NotConvex));
+        assert_eq!(
+            ConvexWorkspace::new(&repeated),
+            Err(WorkspaceError::NotConvex)
+        );
         // A pentagram: every turn has the same sign, but it winds twice.
         let star: [[f64; 2]; 5] = core::array::from_fn(|k| {
             let a = core::f64::consts::TAU * (2 * k) as f64 / 5.0;
             [libm::cos(a), libm::sin(a)]
         });
         assert_eq!(ConvexWorkspace::new(&star), Err(WorkspaceError::NotConvex));
-        assert_eq!(ConvexWorkspace::new(&sq[..2]), Err(WorkspaceError::VertexCount));
-        assert_eq!(ConvexWorkspace::new(&[[0.0, 0.0]; 17]), Err(WorkspaceError::VertexCount));
-        assert_eq!(ConvexWorkspace::new(&[[0.0, 0.0], [1.0, f64::NAN], [0.0, 1.0]]), Err(WorkspaceError::NonFinite));
-        assert_eq!(ConvexWorkspace::<f64>::rectangle([1.0, 0.0], [0.0, 1.0]), Err(WorkspaceError::NotConvex));
+        assert_eq!(
+            ConvexWorkspace::new(&sq[..2]),
+            Err(WorkspaceError::VertexCount)
+        );
+        assert_eq!(
+            ConvexWorkspace::new(&[[0.0, 0.0]; 17]),
+            Err(WorkspaceError::VertexCount)
+        );
+        assert_eq!(
+            ConvexWorkspace::new(&[[0.0, 0.0], [1.0, f64::NAN], [0.0, 1.0]]),
+            Err(WorkspaceError::NonFinite)
+        );
+        assert_eq!(
+            ConvexWorkspace::<f64>::rectangle([1.0, 0.0], [0.0, 1.0]),
+            Err(WorkspaceError::NotConvex)
+        );
     }
 }

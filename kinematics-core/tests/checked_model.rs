@@ -20,11 +20,29 @@ fn ik_and_fk_refuse_a_model_whose_links_are_not_positive() {
         for bad in [-150.0, 0.0, -0.0, f64::NAN] {
             let mut m = paper();
             *[&mut m.a_mm, &mut m.b_mm, &mut m.c_mm, &mut m.d_mm][link] = bad;
-            let want = if bad.is_nan() { ModelError::NonFinite } else { ModelError::NonPositiveLink };
-            assert_eq!(m.inverse(target, 0.0), Err(KinematicsError::InvalidModel(want)), "link {link} = {bad}");
-            assert!(matches!(m.inverse_pose(target, 0.0), Err(KinematicsError::InvalidModel(_))));
-            assert_eq!(m.forward(angles, 0.0), Err(KinematicsError::InvalidModel(want)), "link {link} = {bad}");
-            assert!(matches!(m.forward_pose(angles, 0.0), Err(KinematicsError::InvalidModel(_))));
+            let want = if bad.is_nan() {
+                ModelError::NonFinite
+            } else {
+                ModelError::NonPositiveLink
+            };
+            assert_eq!(
+                m.inverse(target, 0.0),
+                Err(KinematicsError::InvalidModel(want)),
+                "link {link} = {bad}"
+            );
+            assert!(matches!(
+                m.inverse_pose(target, 0.0),
+                Err(KinematicsError::InvalidModel(_))
+            ));
+            assert_eq!(
+                m.forward(angles, 0.0),
+                Err(KinematicsError::InvalidModel(want)),
+                "link {link} = {bad}"
+            );
+            assert!(matches!(
+                m.forward_pose(angles, 0.0),
+                Err(KinematicsError::InvalidModel(_))
+            ));
             refused += 1;
         }
     }
@@ -32,7 +50,10 @@ fn ik_and_fk_refuse_a_model_whose_links_are_not_positive() {
     // f32 too (the MCU's path).
     let mut m = FiveBar::<f32>::paper_nominal();
     m.a_mm = -150.0;
-    assert_eq!(m.inverse([212.132, 0.0], 0.0), Err(KinematicsError::InvalidModel(ModelError::NonPositiveLink)));
+    assert_eq!(
+        m.inverse([212.132, 0.0], 0.0),
+        Err(KinematicsError::InvalidModel(ModelError::NonPositiveLink))
+    );
 }
 
 /// With margin 0 every pose the IK accepts has an FK (margin 0 too) that returns the target:
@@ -49,7 +70,9 @@ fn margin_zero_never_accepts_a_pose_fk_cannot_return() {
             for y in [0.0, 1e-9, -1e-9, 1e-4, 37.5] {
                 match m.inverse([x, y], 0.0) {
                     Ok(th) => {
-                        let back = m.forward(th, 0.0).unwrap_or_else(|e| panic!("{name} ({x}, {y}): FK of an accepted IK: {e}"));
+                        let back = m.forward(th, 0.0).unwrap_or_else(|e| {
+                            panic!("{name} ({x}, {y}): FK of an accepted IK: {e}")
+                        });
                         let err = ((back[0] - x).powi(2) + (back[1] - y).powi(2)).sqrt();
                         assert!(err < 1e-6, "{name} ({x}, {y}): FK(IK) off by {err} mm");
                         accepted += 1;
@@ -60,7 +83,10 @@ fn margin_zero_never_accepts_a_pose_fk_cannot_return() {
             }
         }
         assert!(accepted > 100_000, "{name}: {accepted} accepted");
-        assert!(refused_singular >= 3, "{name}: the scan must meet singularities ({refused_singular})");
+        assert!(
+            refused_singular >= 3,
+            "{name}: the scan must meet singularities ({refused_singular})"
+        );
     }
     // f32, the MCU's type: FK of every pose the IK accepts with margin 0 succeeds; near its
     // floor (a transmission of 4.9e-3) f32 rounding is amplified, so the round trip there is
@@ -73,7 +99,9 @@ fn margin_zero_never_accepts_a_pose_fk_cannot_return() {
         let x = 0.005 * i as f32;
         for y in [0.0f32, 1e-6, -1e-6, 0.01, 37.5] {
             if let Ok(th) = m.inverse([x, y], 0.0) {
-                let back = m.forward(th, 0.0).unwrap_or_else(|e| panic!("f32 ({x}, {y}): FK of an accepted IK: {e}"));
+                let back = m
+                    .forward(th, 0.0)
+                    .unwrap_or_else(|e| panic!("f32 ({x}, {y}): FK of an accepted IK: {e}"));
                 let err = ((back[0] - x).powi(2) + (back[1] - y).powi(2)).sqrt();
                 worst = worst.max(err);
                 accepted += 1;
@@ -98,5 +126,8 @@ fn margin_semantics() {
     assert_eq!(m.forward(th, -1.0), m.forward(th, 0.0));
     assert!(m.forward(th, f64::NAN).is_err());
     // Exactly at full reach (|C| = a + b): both arms stretched, refused with margin 0.
-    assert_eq!(m.inverse([300.0, 0.0], 0.0), Err(KinematicsError::NearSingularity(Singularity::Serial)));
+    assert_eq!(
+        m.inverse([300.0, 0.0], 0.0),
+        Err(KinematicsError::NearSingularity(Singularity::Serial))
+    );
 }

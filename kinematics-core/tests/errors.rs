@@ -5,8 +5,8 @@ use std::error::Error;
 
 use kinematics_core::jerk_profile::ProfileError;
 use kinematics_core::{
-    ConfigError, DynamicsError, EngageError, GridError, InvalidGain, KinematicsError, ModelError, ServoFault, SetpointRefusal,
-    Singularity, StepError, TrajectoryError,
+    ConfigError, DynamicsError, EngageError, GridError, InvalidGain, KinematicsError, ModelError,
+    ServoFault, SetpointRefusal, Singularity, StepError, TrajectoryError,
 };
 
 fn boxed(e: impl Error + 'static) -> Box<dyn Error> {
@@ -56,7 +56,10 @@ fn every_error_type_is_an_error_with_a_distinct_message() {
         boxed(ConfigError::SamplePeriod),
         boxed(ConfigError::MinTransmission),
         boxed(ConfigError::Limit("max_speed_mm_s")),
-        boxed(ConfigError::Gain { axis: 0, gain: InvalidGain("kp_nm_per_rad") }),
+        boxed(ConfigError::Gain {
+            axis: 0,
+            gain: InvalidGain("kp_nm_per_rad"),
+        }),
         boxed(InvalidGain("ki_nm_per_rad_s")),
     ];
     let messages: Vec<String> = all.iter().map(|e| e.to_string()).collect();
@@ -67,11 +70,15 @@ fn every_error_type_is_an_error_with_a_distinct_message() {
         assert!(all[k].source().is_none());
     }
     assert!(messages.iter().any(|m| m.contains("version 7")));
-    assert!(messages.iter().any(|m| m.contains("setpoint refused: pose out of reach")));
+    assert!(messages
+        .iter()
+        .any(|m| m.contains("setpoint refused: pose out of reach")));
     assert!(messages.iter().any(|m| m.contains("axis 1: kp_nm_per_rad")));
     // `StepError` wraps the two without a message of its own: it reads as what it wraps.
-    let step: Vec<Box<dyn Error>> =
-        vec![boxed(StepError::Refused(SetpointRefusal::Jump)), boxed(StepError::Fault(ServoFault::FollowingError))];
+    let step: Vec<Box<dyn Error>> = vec![
+        boxed(StepError::Refused(SetpointRefusal::Jump)),
+        boxed(StepError::Fault(ServoFault::FollowingError)),
+    ];
     assert_eq!(step[0].to_string(), SetpointRefusal::Jump.to_string());
     assert_eq!(step[1].to_string(), ServoFault::FollowingError.to_string());
 }

@@ -5,7 +5,14 @@ use kinematics_core::grid::{encode, CorrectionGrid, GridError, GridGeometry, HEA
 use kinematics_core::FiveBar;
 
 fn geometry() -> GridGeometry {
-    GridGeometry { nx: 21, ny: 31, x0_mm: 162.132, y0_mm: -75.0, step_x_mm: 5.0, step_y_mm: 5.0 }
+    GridGeometry {
+        nx: 21,
+        ny: 31,
+        x0_mm: 162.132,
+        y0_mm: -75.0,
+        step_x_mm: 5.0,
+        step_y_mm: 5.0,
+    }
 }
 
 /// A bilinear field f(x, y) = c0 + c1 x + c2 y + c3 x y per motor: interpolation must be exact.
@@ -19,7 +26,10 @@ fn field(p: [f32; 2]) -> [f32; 2] {
 
 fn image() -> Vec<u8> {
     let g = geometry();
-    let nodes: Vec<[f32; 2]> = (0..g.ny).flat_map(|j| (0..g.nx).map(move |i| (i, j))).map(|(i, j)| field(g.node_mm(i, j))).collect();
+    let nodes: Vec<[f32; 2]> = (0..g.ny)
+        .flat_map(|j| (0..g.nx).map(move |i| (i, j)))
+        .map(|(i, j)| field(g.node_mm(i, j)))
+        .collect();
     let mut buf = vec![0u8; g.image_len()];
     let n = encode(&mut buf, &g, &FiveBar::paper_nominal(), &nodes).unwrap();
     assert_eq!(n, buf.len());
@@ -33,11 +43,17 @@ fn round_trip_and_exact_on_bilinear_field() {
     assert_eq!(*grid.geometry(), geometry());
     assert_eq!(*grid.model(), FiveBar::paper_nominal());
     for k in 0..500 {
-        let p = [162.132 + (k as f32 * 0.7919) % 100.0, -75.0 + (k as f32 * 1.3771) % 150.0];
+        let p = [
+            162.132 + (k as f32 * 0.7919) % 100.0,
+            -75.0 + (k as f32 * 1.3771) % 150.0,
+        ];
         let got = grid.correction_rad(p).unwrap();
         let want = field(p);
         for m in 0..2 {
-            assert!((got[m] - want[m]).abs() < 2e-9, "{p:?}: {got:?} vs {want:?}");
+            assert!(
+                (got[m] - want[m]).abs() < 2e-9,
+                "{p:?}: {got:?} vs {want:?}"
+            );
         }
     }
 }
@@ -55,7 +71,10 @@ fn nodes_edges_and_corners_take_the_node_values() {
     assert_eq!(grid.node_rad(0, 31), [0.0; 2]);
     assert_eq!(grid.node_rad(u16::MAX, u16::MAX), [0.0; 2]);
     // On the edge x = x_max, halfway between two nodes: the mean of those two nodes.
-    let mid = [g.node_mm(20, 4)[0], (g.node_mm(20, 4)[1] + g.node_mm(20, 5)[1]) / 2.0];
+    let mid = [
+        g.node_mm(20, 4)[0],
+        (g.node_mm(20, 4)[1] + g.node_mm(20, 5)[1]) / 2.0,
+    ];
     let (a, b) = (grid.node_rad(20, 4), grid.node_rad(20, 5));
     let got = grid.correction_rad(mid).unwrap();
     assert!((got[0] - (a[0] + b[0]) / 2.0).abs() < 1e-10);
@@ -65,10 +84,22 @@ fn nodes_edges_and_corners_take_the_node_values() {
 fn outside_the_grid_is_refused_and_rounding_at_the_edge_is_not() {
     let img = image();
     let grid = CorrectionGrid::parse(&img).unwrap();
-    assert_eq!(grid.correction_rad([162.0, 0.0]), Err(GridError::OutsideGrid));
-    assert_eq!(grid.correction_rad([200.0, 75.1]), Err(GridError::OutsideGrid));
-    assert_eq!(grid.correction_rad([f32::NAN, 0.0]), Err(GridError::OutsideGrid));
-    assert_eq!(grid.correction_rad([f32::INFINITY, 0.0]), Err(GridError::OutsideGrid));
+    assert_eq!(
+        grid.correction_rad([162.0, 0.0]),
+        Err(GridError::OutsideGrid)
+    );
+    assert_eq!(
+        grid.correction_rad([200.0, 75.1]),
+        Err(GridError::OutsideGrid)
+    );
+    assert_eq!(
+        grid.correction_rad([f32::NAN, 0.0]),
+        Err(GridError::OutsideGrid)
+    );
+    assert_eq!(
+        grid.correction_rad([f32::INFINITY, 0.0]),
+        Err(GridError::OutsideGrid)
+    );
     // 0.1 µm outside the last node: float rounding of a boundary target, takes the edge value.
     assert!(grid.correction_rad([262.1321, 75.0]).is_ok());
 }
@@ -88,16 +119,39 @@ fn refusal_starts_within_twice_the_edge_tolerance_on_every_edge() {
     let (x_lo, x_hi) = (g.x0_mm, g.node_mm(g.nx - 1, 0)[0]);
     let (y_lo, y_hi) = (g.y0_mm, g.node_mm(0, g.ny - 1)[1]);
     let (x_mid, y_mid) = ((x_lo + x_hi) / 2.0, (y_lo + y_hi) / 2.0);
-    let edges = [([x_lo, y_mid], [-1.0, 0.0]), ([x_hi, y_mid], [1.0, 0.0]), ([x_mid, y_lo], [0.0, -1.0]), ([x_mid, y_hi], [0.0, 1.0])];
+    let edges = [
+        ([x_lo, y_mid], [-1.0, 0.0]),
+        ([x_hi, y_mid], [1.0, 0.0]),
+        ([x_mid, y_lo], [0.0, -1.0]),
+        ([x_mid, y_hi], [0.0, 1.0]),
+    ];
     for (edge, outward) in edges {
-        let at = |k: f32| [edge[0] + k * TOLERANCE_MM * outward[0], edge[1] + k * TOLERANCE_MM * outward[1]];
-        assert_eq!(grid.correction_rad(at(2.0)), Err(GridError::OutsideGrid), "1 µm outside {edge:?}");
-        assert_eq!(grid.correction_rad(at(5.0)), Err(GridError::OutsideGrid), "2.5 µm outside {edge:?}");
-        let inside = grid.correction_rad(at(0.5)).unwrap_or_else(|e| panic!("{e} 0.25 µm outside {edge:?}"));
+        let at = |k: f32| {
+            [
+                edge[0] + k * TOLERANCE_MM * outward[0],
+                edge[1] + k * TOLERANCE_MM * outward[1],
+            ]
+        };
+        assert_eq!(
+            grid.correction_rad(at(2.0)),
+            Err(GridError::OutsideGrid),
+            "1 µm outside {edge:?}"
+        );
+        assert_eq!(
+            grid.correction_rad(at(5.0)),
+            Err(GridError::OutsideGrid),
+            "2.5 µm outside {edge:?}"
+        );
+        let inside = grid
+            .correction_rad(at(0.5))
+            .unwrap_or_else(|e| panic!("{e} 0.25 µm outside {edge:?}"));
         // Taking the edge value: the same as on the edge itself, to f32 rounding.
         let on_edge = grid.correction_rad(edge).unwrap();
         for k in 0..2 {
-            assert!((inside[k] - on_edge[k]).abs() < 1e-9, "{inside:?} vs {on_edge:?}");
+            assert!(
+                (inside[k] - on_edge[k]).abs() < 1e-9,
+                "{inside:?} vs {on_edge:?}"
+            );
         }
     }
 }
@@ -109,7 +163,10 @@ fn every_single_bit_flip_is_rejected() {
     for byte in 0..img.len() {
         for bit in 0..8 {
             flipped[byte] ^= 1 << bit;
-            assert!(CorrectionGrid::parse(&flipped).is_err(), "flip of byte {byte} bit {bit} accepted");
+            assert!(
+                CorrectionGrid::parse(&flipped).is_err(),
+                "flip of byte {byte} bit {bit} accepted"
+            );
             flipped[byte] ^= 1 << bit;
         }
     }
@@ -122,10 +179,22 @@ fn trailing_flash_is_ignored_but_truncation_is_not() {
     let len = img.len();
     img.extend(std::iter::repeat_n(0xFF, 4096));
     assert!(CorrectionGrid::parse(&img).is_ok());
-    assert_eq!(CorrectionGrid::parse(&img[..len - 1]).unwrap_err(), GridError::Truncated);
-    assert_eq!(CorrectionGrid::parse(&img[..10]).unwrap_err(), GridError::Truncated);
-    assert_eq!(CorrectionGrid::parse(&[0xFF; 8192]).unwrap_err(), GridError::BadMagic);
-    assert_eq!(CorrectionGrid::parse(&[]).unwrap_err(), GridError::Truncated);
+    assert_eq!(
+        CorrectionGrid::parse(&img[..len - 1]).unwrap_err(),
+        GridError::Truncated
+    );
+    assert_eq!(
+        CorrectionGrid::parse(&img[..10]).unwrap_err(),
+        GridError::Truncated
+    );
+    assert_eq!(
+        CorrectionGrid::parse(&[0xFF; 8192]).unwrap_err(),
+        GridError::BadMagic
+    );
+    assert_eq!(
+        CorrectionGrid::parse(&[]).unwrap_err(),
+        GridError::Truncated
+    );
 }
 
 /// Re-encodes with a tampered header and a *valid* CRC: the semantic checks must catch it.
@@ -141,22 +210,40 @@ fn consistent_but_invalid_images_are_rejected() {
     let img = image();
     let mut v = img.clone();
     v[4] = 2;
-    assert_eq!(CorrectionGrid::parse(&with_valid_crc(v)).unwrap_err(), GridError::UnsupportedVersion(2));
+    assert_eq!(
+        CorrectionGrid::parse(&with_valid_crc(v)).unwrap_err(),
+        GridError::UnsupportedVersion(2)
+    );
     let mut v = img.clone();
     v[24..28].copy_from_slice(&(-5.0f32).to_le_bytes());
-    assert_eq!(CorrectionGrid::parse(&with_valid_crc(v)).unwrap_err(), GridError::NonFinite);
+    assert_eq!(
+        CorrectionGrid::parse(&with_valid_crc(v)).unwrap_err(),
+        GridError::NonFinite
+    );
     let mut v = img.clone();
     v[32..36].copy_from_slice(&0.0f32.to_le_bytes());
-    assert_eq!(CorrectionGrid::parse(&with_valid_crc(v)).unwrap_err(), GridError::BadModel);
+    assert_eq!(
+        CorrectionGrid::parse(&with_valid_crc(v)).unwrap_err(),
+        GridError::BadModel
+    );
     let mut v = img.clone();
     v[HEADER_LEN..HEADER_LEN + 4].copy_from_slice(&f32::NAN.to_le_bytes());
-    assert_eq!(CorrectionGrid::parse(&with_valid_crc(v)).unwrap_err(), GridError::NonFinite);
+    assert_eq!(
+        CorrectionGrid::parse(&with_valid_crc(v)).unwrap_err(),
+        GridError::NonFinite
+    );
     let mut v = img.clone();
     v[12] |= 0x10;
-    assert_eq!(CorrectionGrid::parse(&with_valid_crc(v)).unwrap_err(), GridError::BadHeader);
+    assert_eq!(
+        CorrectionGrid::parse(&with_valid_crc(v)).unwrap_err(),
+        GridError::BadHeader
+    );
     let mut v = img;
     v[8..10].copy_from_slice(&1u16.to_le_bytes());
-    assert_eq!(CorrectionGrid::parse(&with_valid_crc(v)).unwrap_err(), GridError::BadHeader);
+    assert_eq!(
+        CorrectionGrid::parse(&with_valid_crc(v)).unwrap_err(),
+        GridError::BadHeader
+    );
 }
 
 #[test]
@@ -164,8 +251,14 @@ fn encode_refuses_bad_input() {
     let g = geometry();
     let mut buf = vec![0u8; g.image_len()];
     let m = FiveBar::paper_nominal();
-    assert_eq!(encode(&mut buf, &g, &m, &[[0.0; 2]; 3]), Err(GridError::BadEncodeInput));
-    assert_eq!(encode(&mut buf[..100], &g, &m, &vec![[0.0; 2]; g.len()]), Err(GridError::BadEncodeInput));
+    assert_eq!(
+        encode(&mut buf, &g, &m, &[[0.0; 2]; 3]),
+        Err(GridError::BadEncodeInput)
+    );
+    assert_eq!(
+        encode(&mut buf[..100], &g, &m, &vec![[0.0; 2]; g.len()]),
+        Err(GridError::BadEncodeInput)
+    );
     let mut nodes = vec![[0.0f32; 2]; g.len()];
     nodes[5][1] = f32::NAN;
     assert_eq!(encode(&mut buf, &g, &m, &nodes), Err(GridError::NonFinite));
@@ -174,20 +267,35 @@ fn encode_refuses_bad_input() {
 // ---------------------------------------------------------------------------------------------
 // Extension blocks (grid.rs, "Extension blocks"): the workspace block and the chain.
 
-use kinematics_core::grid::{append_workspace, image_crc, WorkspaceLimits, WORKSPACE_LEN, WORKSPACE_MAGIC};
+use kinematics_core::grid::{
+    append_workspace, image_crc, WorkspaceLimits, WORKSPACE_LEN, WORKSPACE_MAGIC,
+};
 use kinematics_core::ConvexWorkspace;
 
 /// A hexagon inside the grid (the rectangle with two corners cut).
 fn limits() -> WorkspaceLimits {
-    let v = [[172.0, -75.0], [262.0, -75.0], [262.0, 65.0], [252.0, 75.0], [163.0, 75.0], [163.0, -66.0]];
-    WorkspaceLimits { region: ConvexWorkspace::new(&v).unwrap(), stop_margin_mm: 0.25 }
+    let v = [
+        [172.0, -75.0],
+        [262.0, -75.0],
+        [262.0, 65.0],
+        [252.0, 75.0],
+        [163.0, 75.0],
+        [163.0, -66.0],
+    ];
+    WorkspaceLimits {
+        region: ConvexWorkspace::new(&v).unwrap(),
+        stop_margin_mm: 0.25,
+    }
 }
 
 fn image_with_workspace() -> Vec<u8> {
     let mut img = image();
     let n = img.len();
     img.resize(n + WORKSPACE_LEN, 0xAA);
-    assert_eq!(append_workspace(&mut img, n, n, &limits()), Ok(n + WORKSPACE_LEN));
+    assert_eq!(
+        append_workspace(&mut img, n, n, &limits()),
+        Ok(n + WORKSPACE_LEN)
+    );
     img
 }
 
@@ -197,17 +305,32 @@ fn the_workspace_block_round_trips_and_a_version_1_reader_still_reads_the_grid()
     let grid = CorrectionGrid::parse(&img).unwrap();
     assert_eq!(grid.workspace(), Some(limits()));
     let v1 = image();
-    assert_eq!(&img[..v1.len()], &v1[..], "the first image_len bytes are exactly the version-1 image");
+    assert_eq!(
+        &img[..v1.len()],
+        &v1[..],
+        "the first image_len bytes are exactly the version-1 image"
+    );
     assert_eq!(CorrectionGrid::parse(&v1).unwrap().workspace(), None);
-    assert_eq!(CorrectionGrid::parse(&v1).unwrap().correction_rad([200.0, 10.0]), grid.correction_rad([200.0, 10.0]));
+    assert_eq!(
+        CorrectionGrid::parse(&v1)
+            .unwrap()
+            .correction_rad([200.0, 10.0]),
+        grid.correction_rad([200.0, 10.0])
+    );
     // In a flash region: erased bytes end the chain.
     let mut region = img.clone();
     region.extend([0xFF; 4096]);
-    assert_eq!(CorrectionGrid::parse(&region).unwrap().workspace(), Some(limits()));
+    assert_eq!(
+        CorrectionGrid::parse(&region).unwrap().workspace(),
+        Some(limits())
+    );
     // Any other bytes that are no known magic end it too.
     let mut region = img.clone();
     region.extend(b"HRXX and then anything");
-    assert_eq!(CorrectionGrid::parse(&region).unwrap().workspace(), Some(limits()));
+    assert_eq!(
+        CorrectionGrid::parse(&region).unwrap().workspace(),
+        Some(limits())
+    );
 }
 
 #[test]
@@ -220,7 +343,11 @@ fn every_bit_flip_in_the_workspace_block_refuses_the_image() {
         for bit in 0..8 {
             let mut v = img.clone();
             v[byte] ^= 1 << bit;
-            assert_eq!(CorrectionGrid::parse(&v).unwrap_err(), GridError::BadWorkspace, "byte {byte} bit {bit}");
+            assert_eq!(
+                CorrectionGrid::parse(&v).unwrap_err(),
+                GridError::BadWorkspace,
+                "byte {byte} bit {bit}"
+            );
         }
     }
     for byte in start..start + 4 {
@@ -228,8 +355,16 @@ fn every_bit_flip_in_the_workspace_block_refuses_the_image() {
         v[byte] ^= 0x40;
         assert_eq!(CorrectionGrid::parse(&v).unwrap().workspace(), None);
     }
-    assert_eq!(CorrectionGrid::parse(&img[..img.len() - 1]).unwrap_err(), GridError::BadWorkspace, "truncated");
-    assert_eq!(CorrectionGrid::parse(&img[..start + 4]).unwrap_err(), GridError::BadWorkspace, "magic only");
+    assert_eq!(
+        CorrectionGrid::parse(&img[..img.len() - 1]).unwrap_err(),
+        GridError::BadWorkspace,
+        "truncated"
+    );
+    assert_eq!(
+        CorrectionGrid::parse(&img[..start + 4]).unwrap_err(),
+        GridError::BadWorkspace,
+        "magic only"
+    );
 }
 
 /// Rewrites the block's CRC after a payload edit: the checks behind the CRC must still refuse.
@@ -237,7 +372,8 @@ fn with_payload_edit(edit: impl FnOnce(&mut [u8])) -> Result<(), GridError> {
     let mut img = image_with_workspace();
     let start = geometry().image_len();
     edit(&mut img[start + 12..start + WORKSPACE_LEN - 4]);
-    let crc = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC).checksum(&img[start..start + WORKSPACE_LEN - 4]);
+    let crc = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC)
+        .checksum(&img[start..start + WORKSPACE_LEN - 4]);
     img[start + WORKSPACE_LEN - 4..start + WORKSPACE_LEN].copy_from_slice(&crc.to_le_bytes());
     CorrectionGrid::parse(&img).map(|_| ())
 }
@@ -247,14 +383,32 @@ fn a_workspace_that_is_not_a_workspace_is_refused_even_with_a_valid_crc() {
     assert_eq!(with_payload_edit(|_| {}), Ok(()));
     let bad = GridError::BadWorkspace;
     // Vertex count 2 and 17; reserved bytes; a negative or NaN margin.
-    assert_eq!(with_payload_edit(|p| p[0..2].copy_from_slice(&2u16.to_le_bytes())), Err(bad));
-    assert_eq!(with_payload_edit(|p| p[0..2].copy_from_slice(&17u16.to_le_bytes())), Err(bad));
+    assert_eq!(
+        with_payload_edit(|p| p[0..2].copy_from_slice(&2u16.to_le_bytes())),
+        Err(bad)
+    );
+    assert_eq!(
+        with_payload_edit(|p| p[0..2].copy_from_slice(&17u16.to_le_bytes())),
+        Err(bad)
+    );
     assert_eq!(with_payload_edit(|p| p[2] = 1), Err(bad));
-    assert_eq!(with_payload_edit(|p| p[4..8].copy_from_slice(&(-0.1f32).to_le_bytes())), Err(bad));
-    assert_eq!(with_payload_edit(|p| p[4..8].copy_from_slice(&f32::NAN.to_le_bytes())), Err(bad));
+    assert_eq!(
+        with_payload_edit(|p| p[4..8].copy_from_slice(&(-0.1f32).to_le_bytes())),
+        Err(bad)
+    );
+    assert_eq!(
+        with_payload_edit(|p| p[4..8].copy_from_slice(&f32::NAN.to_le_bytes())),
+        Err(bad)
+    );
     // A concave polygon (vertex 2 pulled inwards), a vertex outside the grid, junk in an unused slot.
-    assert_eq!(with_payload_edit(|p| p[8 + 16..12 + 16].copy_from_slice(&200.0f32.to_le_bytes())), Err(bad));
-    assert_eq!(with_payload_edit(|p| p[8 + 8..12 + 8].copy_from_slice(&263.0f32.to_le_bytes())), Err(bad));
+    assert_eq!(
+        with_payload_edit(|p| p[8 + 16..12 + 16].copy_from_slice(&200.0f32.to_le_bytes())),
+        Err(bad)
+    );
+    assert_eq!(
+        with_payload_edit(|p| p[8 + 8..12 + 8].copy_from_slice(&263.0f32.to_le_bytes())),
+        Err(bad)
+    );
     assert_eq!(with_payload_edit(|p| p[8 + 8 * 6] = 1), Err(bad));
 }
 
@@ -266,7 +420,10 @@ fn a_block_comes_at_most_once_and_belongs_to_its_image() {
     // The same block twice: refused.
     let mut twice = img.clone();
     twice.extend_from_slice(&block);
-    assert_eq!(CorrectionGrid::parse(&twice).unwrap_err(), GridError::BadWorkspace);
+    assert_eq!(
+        CorrectionGrid::parse(&twice).unwrap_err(),
+        GridError::BadWorkspace
+    );
     // A block left behind by another image (one node changed, image CRC rewritten).
     let mut other = image();
     other[HEADER_LEN] ^= 1;
@@ -274,8 +431,16 @@ fn a_block_comes_at_most_once_and_belongs_to_its_image() {
     let crc = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC).checksum(&other[..n - 4]);
     other[n - 4..].copy_from_slice(&crc.to_le_bytes());
     other.extend_from_slice(&block);
-    assert_eq!(CorrectionGrid::parse(&other).unwrap_err(), GridError::BadWorkspace);
-    assert_eq!(image_crc(&img, start), Some(u32::from_le_bytes(img[start - 4..start].try_into().unwrap())));
+    assert_eq!(
+        CorrectionGrid::parse(&other).unwrap_err(),
+        GridError::BadWorkspace
+    );
+    assert_eq!(
+        image_crc(&img, start),
+        Some(u32::from_le_bytes(
+            img[start - 4..start].try_into().unwrap()
+        ))
+    );
     assert_eq!(&img[start..start + 4], &WORKSPACE_MAGIC);
 }
 
@@ -285,15 +450,36 @@ fn append_workspace_refuses_what_the_parser_would() {
     let n = img.len();
     img.resize(n + WORKSPACE_LEN, 0);
     // Outside the grid's rectangle.
-    let outside = WorkspaceLimits { region: ConvexWorkspace::rectangle([150.0, 250.0], [-70.0, 70.0]).unwrap(), stop_margin_mm: 0.1 };
-    assert_eq!(append_workspace(&mut img, n, n, &outside), Err(GridError::BadWorkspace));
-    let negative = WorkspaceLimits { stop_margin_mm: -1.0, ..limits() };
-    assert_eq!(append_workspace(&mut img, n, n, &negative), Err(GridError::BadWorkspace));
+    let outside = WorkspaceLimits {
+        region: ConvexWorkspace::rectangle([150.0, 250.0], [-70.0, 70.0]).unwrap(),
+        stop_margin_mm: 0.1,
+    };
+    assert_eq!(
+        append_workspace(&mut img, n, n, &outside),
+        Err(GridError::BadWorkspace)
+    );
+    let negative = WorkspaceLimits {
+        stop_margin_mm: -1.0,
+        ..limits()
+    };
+    assert_eq!(
+        append_workspace(&mut img, n, n, &negative),
+        Err(GridError::BadWorkspace)
+    );
     // Too small a buffer, a position inside the image, a corrupt image.
-    assert_eq!(append_workspace(&mut img[..n + 10], n, n, &limits()), Err(GridError::BadEncodeInput));
-    assert_eq!(append_workspace(&mut img, n, n - 1, &limits()), Err(GridError::BadEncodeInput));
+    assert_eq!(
+        append_workspace(&mut img[..n + 10], n, n, &limits()),
+        Err(GridError::BadEncodeInput)
+    );
+    assert_eq!(
+        append_workspace(&mut img, n, n - 1, &limits()),
+        Err(GridError::BadEncodeInput)
+    );
     img[100] ^= 1;
-    assert_eq!(append_workspace(&mut img, n, n, &limits()), Err(GridError::BadCrc));
+    assert_eq!(
+        append_workspace(&mut img, n, n, &limits()),
+        Err(GridError::BadCrc)
+    );
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -312,9 +498,19 @@ fn dynamics() -> kinematics_core::FiveBarDynamics<f32> {
 
 fn image_with_dynamics() -> Vec<u8> {
     let g = geometry();
-    let nodes: Vec<[f32; 2]> = (0..g.ny).flat_map(|j| (0..g.nx).map(move |i| (i, j))).map(|(i, j)| field(g.node_mm(i, j))).collect();
+    let nodes: Vec<[f32; 2]> = (0..g.ny)
+        .flat_map(|j| (0..g.nx).map(move |i| (i, j)))
+        .map(|(i, j)| field(g.node_mm(i, j)))
+        .collect();
     let mut buf = vec![0u8; g.image_len_with_dynamics()];
-    let n = kinematics_core::grid::encode_with_dynamics(&mut buf, &g, &FiveBar::paper_nominal(), &nodes, &dynamics()).unwrap();
+    let n = kinematics_core::grid::encode_with_dynamics(
+        &mut buf,
+        &g,
+        &FiveBar::paper_nominal(),
+        &nodes,
+        &dynamics(),
+    )
+    .unwrap();
     assert_eq!(n, buf.len());
     buf
 }
@@ -329,7 +525,10 @@ fn the_dynamics_extension_round_trips_and_a_version_1_reader_still_reads_the_gri
     assert_eq!(&img[..v1.len()], &v1[..]);
     let old = CorrectionGrid::parse(&v1).unwrap();
     assert_eq!(old.dynamics(), None);
-    assert_eq!(old.correction_rad([200.0, 10.0]), grid.correction_rad([200.0, 10.0]));
+    assert_eq!(
+        old.correction_rad([200.0, 10.0]),
+        grid.correction_rad([200.0, 10.0])
+    );
     // Erased flash after a plain image: no extension.
     let mut region = v1.clone();
     region.extend([0xFF; 256]);
@@ -337,7 +536,10 @@ fn the_dynamics_extension_round_trips_and_a_version_1_reader_still_reads_the_gri
     // And after an image with the extension.
     let mut region = img.clone();
     region.extend([0xFF; 256]);
-    assert_eq!(CorrectionGrid::parse(&region).unwrap().dynamics(), Some(&dynamics()));
+    assert_eq!(
+        CorrectionGrid::parse(&region).unwrap().dynamics(),
+        Some(&dynamics())
+    );
 }
 
 #[test]
@@ -350,7 +552,11 @@ fn every_bit_flip_in_the_extension_refuses_the_image() {
         for bit in 0..8 {
             let mut v = img.clone();
             v[byte] ^= 1 << bit;
-            assert_eq!(CorrectionGrid::parse(&v).unwrap_err(), GridError::BadDynamics, "byte {byte} bit {bit}");
+            assert_eq!(
+                CorrectionGrid::parse(&v).unwrap_err(),
+                GridError::BadDynamics,
+                "byte {byte} bit {bit}"
+            );
         }
     }
     for byte in start..start + 4 {
@@ -359,7 +565,10 @@ fn every_bit_flip_in_the_extension_refuses_the_image() {
         assert_eq!(CorrectionGrid::parse(&v).unwrap().dynamics(), None);
     }
     // Truncated inside the block.
-    assert_eq!(CorrectionGrid::parse(&img[..img.len() - 1]).unwrap_err(), GridError::BadDynamics);
+    assert_eq!(
+        CorrectionGrid::parse(&img[..img.len() - 1]).unwrap_err(),
+        GridError::BadDynamics
+    );
 }
 
 #[test]
@@ -373,7 +582,10 @@ fn an_extension_left_behind_by_another_image_is_refused() {
     let crc = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC).checksum(&other[..n - 4]);
     other[n - 4..].copy_from_slice(&crc.to_le_bytes());
     other.extend_from_slice(&img[start..]);
-    assert_eq!(CorrectionGrid::parse(&other).unwrap_err(), GridError::BadDynamics);
+    assert_eq!(
+        CorrectionGrid::parse(&other).unwrap_err(),
+        GridError::BadDynamics
+    );
 }
 
 #[test]
@@ -381,18 +593,30 @@ fn invalid_dynamics_are_not_encoded_nor_accepted() {
     let g = geometry();
     let nodes = vec![[0.0f32; 2]; g.len()];
     let mut buf = vec![0u8; g.image_len_with_dynamics()];
-    let bad = kinematics_core::FiveBarDynamics { motor_inertia_kg_m2: [0.0, 1e-3], ..dynamics() };
+    let bad = kinematics_core::FiveBarDynamics {
+        motor_inertia_kg_m2: [0.0, 1e-3],
+        ..dynamics()
+    };
     let m = FiveBar::paper_nominal();
-    assert_eq!(kinematics_core::grid::encode_with_dynamics(&mut buf, &g, &m, &nodes, &bad), Err(GridError::BadDynamics));
+    assert_eq!(
+        kinematics_core::grid::encode_with_dynamics(&mut buf, &g, &m, &nodes, &bad),
+        Err(GridError::BadDynamics)
+    );
     let mut short = vec![0u8; g.image_len()];
-    assert_eq!(kinematics_core::grid::encode_with_dynamics(&mut short, &g, &m, &nodes, &dynamics()), Err(GridError::BadEncodeInput));
+    assert_eq!(
+        kinematics_core::grid::encode_with_dynamics(&mut short, &g, &m, &nodes, &dynamics()),
+        Err(GridError::BadEncodeInput)
+    );
     // A negative friction written with a valid CRC: refused on parsing.
     let mut img = image_with_dynamics();
     let start = g.image_len();
     img[start + 12 + 4 * 7..start + 16 + 4 * 7].copy_from_slice(&(-0.05f32).to_le_bytes());
     let crc = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC).checksum(&img[start..start + 52]);
     img[start + 52..start + 56].copy_from_slice(&crc.to_le_bytes());
-    assert_eq!(CorrectionGrid::parse(&img).unwrap_err(), GridError::BadDynamics);
+    assert_eq!(
+        CorrectionGrid::parse(&img).unwrap_err(),
+        GridError::BadDynamics
+    );
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -406,7 +630,11 @@ fn image_with_chain(order: &[u8]) -> Vec<u8> {
     let n = img.len();
     let mut end = n;
     for b in order {
-        let len = if *b == b'W' { WORKSPACE_LEN } else { DYNAMICS_LEN };
+        let len = if *b == b'W' {
+            WORKSPACE_LEN
+        } else {
+            DYNAMICS_LEN
+        };
         img.resize(end + len, 0x55);
         end = match b {
             b'W' => append_workspace(&mut img, n, end, &limits()),
@@ -421,19 +649,52 @@ fn image_with_chain(order: &[u8]) -> Vec<u8> {
 #[test]
 fn images_with_neither_either_or_both_blocks_in_either_order_are_read() {
     let plain = image();
-    let reference = CorrectionGrid::parse(&plain).unwrap().correction_rad([200.0, 10.0]).unwrap();
+    let reference = CorrectionGrid::parse(&plain)
+        .unwrap()
+        .correction_rad([200.0, 10.0])
+        .unwrap();
     for order in [&b""[..], b"W", b"D", b"WD", b"DW"] {
         for tail in [&[][..], &[0xFF; 300][..], &b"HRXX unknown bytes"[..]] {
             let mut img = image_with_chain(order);
             img.extend_from_slice(tail);
             let g = CorrectionGrid::parse(&img).unwrap();
             let name = core::str::from_utf8(order).unwrap();
-            assert_eq!(g.workspace(), order.contains(&b'W').then(limits), "{name} + {} bytes", tail.len());
-            assert_eq!(g.dynamics(), order.contains(&b'D').then(dynamics).as_ref(), "{name}");
-            assert_eq!(g.correction_rad([200.0, 10.0]).unwrap(), reference, "{name}");
-            assert_eq!(&img[..plain.len()], &plain[..], "{name}: a version-1 reader sees the same image");
-            let chain: usize = order.iter().map(|b| if *b == b'W' { WORKSPACE_LEN } else { DYNAMICS_LEN }).sum();
-            assert_eq!(g.len_bytes(), plain.len() + chain, "{name}: the image's bytes end with its chain, not the region");
+            assert_eq!(
+                g.workspace(),
+                order.contains(&b'W').then(limits),
+                "{name} + {} bytes",
+                tail.len()
+            );
+            assert_eq!(
+                g.dynamics(),
+                order.contains(&b'D').then(dynamics).as_ref(),
+                "{name}"
+            );
+            assert_eq!(
+                g.correction_rad([200.0, 10.0]).unwrap(),
+                reference,
+                "{name}"
+            );
+            assert_eq!(
+                &img[..plain.len()],
+                &plain[..],
+                "{name}: a version-1 reader sees the same image"
+            );
+            let chain: usize = order
+                .iter()
+                .map(|b| {
+                    if *b == b'W' {
+                        WORKSPACE_LEN
+                    } else {
+                        DYNAMICS_LEN
+                    }
+                })
+                .sum();
+            assert_eq!(
+                g.len_bytes(),
+                plain.len() + chain,
+                "{name}: the image's bytes end with its chain, not the region"
+            );
         }
     }
 }
@@ -450,16 +711,27 @@ fn a_corrupt_second_block_refuses_the_whole_image() {
         for byte in [second_at + 12, img.len() - 1] {
             let mut v = img.clone();
             v[byte] ^= 0x01;
-            assert_eq!(CorrectionGrid::parse(&v).unwrap_err(), err, "{:?} byte {byte}", core::str::from_utf8(order));
+            assert_eq!(
+                CorrectionGrid::parse(&v).unwrap_err(),
+                err,
+                "{:?} byte {byte}",
+                core::str::from_utf8(order)
+            );
         }
         // Truncated in the second block.
-        assert_eq!(CorrectionGrid::parse(&img[..img.len() - 3]).unwrap_err(), err);
+        assert_eq!(
+            CorrectionGrid::parse(&img[..img.len() - 3]).unwrap_err(),
+            err
+        );
     }
     // Each magic at most once, also with another block between the two.
     let mut twice = image_with_chain(b"DW");
     let d = twice[n..n + DYNAMICS_LEN].to_vec();
     twice.extend_from_slice(&d);
-    assert_eq!(CorrectionGrid::parse(&twice).unwrap_err(), GridError::BadDynamics);
+    assert_eq!(
+        CorrectionGrid::parse(&twice).unwrap_err(),
+        GridError::BadDynamics
+    );
 }
 
 #[test]
@@ -501,12 +773,27 @@ fn append_dynamics_refuses_what_the_parser_would() {
     let mut img = image();
     let n = img.len();
     img.resize(n + DYNAMICS_LEN, 0);
-    let bad = kinematics_core::FiveBarDynamics { coulomb_speed_rad_s: f32::NAN, ..dynamics() };
-    assert_eq!(append_dynamics(&mut img, n, n, &bad), Err(GridError::BadDynamics));
-    assert_eq!(append_dynamics(&mut img[..n + 55], n, n, &dynamics()), Err(GridError::BadEncodeInput));
-    assert_eq!(append_dynamics(&mut img, n, n - 1, &dynamics()), Err(GridError::BadEncodeInput));
+    let bad = kinematics_core::FiveBarDynamics {
+        coulomb_speed_rad_s: f32::NAN,
+        ..dynamics()
+    };
+    assert_eq!(
+        append_dynamics(&mut img, n, n, &bad),
+        Err(GridError::BadDynamics)
+    );
+    assert_eq!(
+        append_dynamics(&mut img[..n + 55], n, n, &dynamics()),
+        Err(GridError::BadEncodeInput)
+    );
+    assert_eq!(
+        append_dynamics(&mut img, n, n - 1, &dynamics()),
+        Err(GridError::BadEncodeInput)
+    );
     img[100] ^= 1;
-    assert_eq!(append_dynamics(&mut img, n, n, &dynamics()), Err(GridError::BadCrc));
+    assert_eq!(
+        append_dynamics(&mut img, n, n, &dynamics()),
+        Err(GridError::BadCrc)
+    );
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -525,7 +812,10 @@ fn image_with_backlash() -> Vec<u8> {
     let mut img = image_with_chain(b"WD");
     let (n, end) = (geometry().image_len(), img.len());
     img.resize(end + BACKLASH_LEN, 0x55);
-    assert_eq!(append_backlash(&mut img, n, end, &backlash()), Ok(img.len()));
+    assert_eq!(
+        append_backlash(&mut img, n, end, &backlash()),
+        Ok(img.len())
+    );
     img
 }
 
@@ -543,14 +833,22 @@ fn the_backlash_block_round_trips_with_the_documented_layout() {
     assert_eq!(u16::from_le_bytes([b[4], b[5]]), 1);
     assert_eq!(u16::from_le_bytes([b[6], b[7]]) as usize, BACKLASH_LEN);
     assert_eq!(BACKLASH_LEN, 24);
-    assert_eq!(b[8..12], img[geometry().image_len() - 4..geometry().image_len()]);
+    assert_eq!(
+        b[8..12],
+        img[geometry().image_len() - 4..geometry().image_len()]
+    );
     assert_eq!(f32::from_le_bytes([b[12], b[13], b[14], b[15]]), 20e-6);
     assert_eq!(f32::from_le_bytes([b[16], b[17], b[18], b[19]]), 35e-6);
     let crc = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC).checksum(&b[..20]);
     assert_eq!(u32::from_le_bytes([b[20], b[21], b[22], b[23]]), crc);
     // Images without the block parse as before: no backlash.
     for order in [&b""[..], b"W", b"D", b"WD", b"DW"] {
-        assert_eq!(CorrectionGrid::parse(&image_with_chain(order)).unwrap().backlash(), None);
+        assert_eq!(
+            CorrectionGrid::parse(&image_with_chain(order))
+                .unwrap()
+                .backlash(),
+            None
+        );
     }
 }
 
@@ -575,7 +873,10 @@ fn an_older_parser_reads_the_image_before_the_backlash_block_unchanged() {
     first.resize(n + BACKLASH_LEN + DYNAMICS_LEN, 0);
     append_dynamics(&mut first, n, n + BACKLASH_LEN, &dynamics()).unwrap();
     let g = CorrectionGrid::parse(&first).unwrap();
-    assert_eq!((g.backlash(), g.dynamics()), (Some(&backlash()), Some(&dynamics())));
+    assert_eq!(
+        (g.backlash(), g.dynamics()),
+        (Some(&backlash()), Some(&dynamics()))
+    );
 }
 
 #[test]
@@ -586,21 +887,34 @@ fn every_bit_flip_in_the_backlash_block_refuses_the_image() {
         for bit in 0..8 {
             let mut v = img.clone();
             v[byte] ^= 1 << bit;
-            assert_eq!(CorrectionGrid::parse(&v).unwrap_err(), GridError::BadBacklash, "byte {byte} bit {bit}");
+            assert_eq!(
+                CorrectionGrid::parse(&v).unwrap_err(),
+                GridError::BadBacklash,
+                "byte {byte} bit {bit}"
+            );
         }
     }
-    assert_eq!(CorrectionGrid::parse(&img[..img.len() - 1]).unwrap_err(), GridError::BadBacklash);
+    assert_eq!(
+        CorrectionGrid::parse(&img[..img.len() - 1]).unwrap_err(),
+        GridError::BadBacklash
+    );
     // Twice, and left behind by another image.
     let mut twice = img.clone();
     twice.extend_from_slice(&img[start..]);
-    assert_eq!(CorrectionGrid::parse(&twice).unwrap_err(), GridError::BadBacklash);
+    assert_eq!(
+        CorrectionGrid::parse(&twice).unwrap_err(),
+        GridError::BadBacklash
+    );
     let mut other = image();
     other[HEADER_LEN] ^= 1;
     let n = other.len();
     let crc = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC).checksum(&other[..n - 4]);
     other[n - 4..].copy_from_slice(&crc.to_le_bytes());
     other.extend_from_slice(&img[start..]);
-    assert_eq!(CorrectionGrid::parse(&other).unwrap_err(), GridError::BadBacklash);
+    assert_eq!(
+        CorrectionGrid::parse(&other).unwrap_err(),
+        GridError::BadBacklash
+    );
 }
 
 #[test]
@@ -612,7 +926,11 @@ fn a_gap_that_is_not_a_backlash_is_refused_even_with_a_valid_crc() {
         v[start + 16..start + 20].copy_from_slice(&bad.to_le_bytes());
         let crc = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC).checksum(&v[start..start + 20]);
         v[start + 20..].copy_from_slice(&crc.to_le_bytes());
-        assert_eq!(CorrectionGrid::parse(&v).unwrap_err(), GridError::BadBacklash, "{bad}");
+        assert_eq!(
+            CorrectionGrid::parse(&v).unwrap_err(),
+            GridError::BadBacklash,
+            "{bad}"
+        );
     }
     // The bounds themselves are a backlash.
     for ok in [0.0f32, 0.01] {
@@ -620,10 +938,20 @@ fn a_gap_that_is_not_a_backlash_is_refused_even_with_a_valid_crc() {
         v[start + 16..start + 20].copy_from_slice(&ok.to_le_bytes());
         let crc = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC).checksum(&v[start..start + 20]);
         v[start + 20..].copy_from_slice(&crc.to_le_bytes());
-        assert_eq!(CorrectionGrid::parse(&v).unwrap().backlash().unwrap().beta_rad()[1], ok);
+        assert_eq!(
+            CorrectionGrid::parse(&v)
+                .unwrap()
+                .backlash()
+                .unwrap()
+                .beta_rad()[1],
+            ok
+        );
     }
     // The writer refuses what it cannot place.
     let n = geometry().image_len();
     let mut short = image();
-    assert_eq!(append_backlash(&mut short, n, n, &backlash()), Err(GridError::BadEncodeInput));
+    assert_eq!(
+        append_backlash(&mut short, n, n, &backlash()),
+        Err(GridError::BadEncodeInput)
+    );
 }

@@ -5,10 +5,12 @@
 
 use std::cell::Cell;
 
-use kinematics_core::grid::{encode, CorrectionGrid, GridError, GridGeometry, HEADER_LEN, MAGIC, MAX_NODES_PER_AXIS};
+use kinematics_core::grid::{
+    encode, CorrectionGrid, GridError, GridGeometry, HEADER_LEN, MAGIC, MAX_NODES_PER_AXIS,
+};
 use kinematics_core::{
-    AxisController, AxisGains, AxisReference, Branch, Calibration, FiveBar, Servo, ServoConfig, ServoOutput, StepError,
-    WorkingMode,
+    AxisController, AxisGains, AxisReference, Branch, Calibration, FiveBar, Servo, ServoConfig,
+    ServoOutput, StepError, WorkingMode,
 };
 use proptest::prelude::*;
 use proptest::test_runner::{Config, FileFailurePersistence, TestCaseError, TestRunner};
@@ -16,7 +18,11 @@ use proptest::test_runner::{Config, FileFailurePersistence, TestCaseError, TestR
 /// Runs `property` on `cases` inputs drawn from `strategy` (a failing case is shrunk and the
 /// test fails with it) and returns the sum of what the cases returned: how many times they
 /// reached the path under test.
-fn counted<S: Strategy>(cases: u32, strategy: S, property: impl Fn(S::Value) -> Result<u64, TestCaseError>) -> u64
+fn counted<S: Strategy>(
+    cases: u32,
+    strategy: S,
+    property: impl Fn(S::Value) -> Result<u64, TestCaseError>,
+) -> u64
 where
     S::Value: std::fmt::Debug,
 {
@@ -24,7 +30,11 @@ where
     // Failing seeds are saved next to this file and replayed first (cargo runs integration
     // tests in the package directory).
     let persistence = FileFailurePersistence::Direct("tests/hostile_inputs.proptest-regressions");
-    let config = Config { cases, failure_persistence: Some(Box::new(persistence)), ..Config::default() };
+    let config = Config {
+        cases,
+        failure_persistence: Some(Box::new(persistence)),
+        ..Config::default()
+    };
     let mut runner = TestRunner::new(config);
     let result = runner.run(&strategy, |input| {
         let n = property(input)?;
@@ -81,7 +91,12 @@ fn machine() -> impl Strategy<Value = FiveBar<f64>> {
 
 /// Valid machines of any proportions.
 fn valid_machine() -> impl Strategy<Value = FiveBar<f64>> {
-    machine_with(50.0..300.0f64, 50.0..300.0f64, 50.0..300.0f64, 50.0..300.0f64)
+    machine_with(
+        50.0..300.0f64,
+        50.0..300.0f64,
+        50.0..300.0f64,
+        50.0..300.0f64,
+    )
 }
 
 fn machine_with(
@@ -107,7 +122,11 @@ fn machine_with(
             base_a0_mm: [base.2, base.3],
             base_b0_mm: [base.0, base.1],
             encoder_offset_rad: [off.0, off.1],
-            mode: WorkingMode { elbow_1: e1, elbow_2: e2, assembly: asm },
+            mode: WorkingMode {
+                elbow_1: e1,
+                elbow_2: e2,
+                assembly: asm,
+            },
         })
 }
 
@@ -115,70 +134,109 @@ fn machine_with(
 /// `HOSTILE_CASES=300000 cargo test -p kinematics-core --release --test hostile_inputs -- --nocapture`
 /// (each test prints how many cases reached the path it checks).
 fn hostile_cases() -> u32 {
-    std::env::var("HOSTILE_CASES").ok().and_then(|v| v.parse().ok()).filter(|&n| n > 0).unwrap_or(3000)
+    std::env::var("HOSTILE_CASES")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .filter(|&n| n > 0)
+        .unwrap_or(3000)
 }
 
 #[test]
 fn inverse_never_panics_nor_returns_nan() {
     let cases = hostile_cases();
-    let solved = counted(cases, (machine(), coordinate(), coordinate(), margin()), |(m, x, y, margin)| {
-        let mut solved = 0;
-        for mm in [m, m.cast::<f32>().cast::<f64>()] {
-            if let Ok(pose) = mm.inverse_pose([x, y], margin) {
-                solved += 1;
-                prop_assert!(pose.theta_rad.iter().chain(pose.tool_mm.iter()).all(|v| v.is_finite()));
-                if let Ok(j) = pose.inverse_jacobian() {
-                    prop_assert!(j.iter().flatten().all(|v| v.is_finite()));
-                }
-                if let Ok(j) = pose.jacobian() {
-                    prop_assert!(j.iter().flatten().all(|v| v.is_finite()));
+    let solved = counted(
+        cases,
+        (machine(), coordinate(), coordinate(), margin()),
+        |(m, x, y, margin)| {
+            let mut solved = 0;
+            for mm in [m, m.cast::<f32>().cast::<f64>()] {
+                if let Ok(pose) = mm.inverse_pose([x, y], margin) {
+                    solved += 1;
+                    prop_assert!(pose
+                        .theta_rad
+                        .iter()
+                        .chain(pose.tool_mm.iter())
+                        .all(|v| v.is_finite()));
+                    if let Ok(j) = pose.inverse_jacobian() {
+                        prop_assert!(j.iter().flatten().all(|v| v.is_finite()));
+                    }
+                    if let Ok(j) = pose.jacobian() {
+                        prop_assert!(j.iter().flatten().all(|v| v.is_finite()));
+                    }
                 }
             }
-        }
-        let m32 = m.cast::<f32>();
-        if let Ok(t) = m32.inverse([x as f32, y as f32], margin as f32) {
-            solved += 1;
-            prop_assert!(t.iter().all(|v| v.is_finite()));
-        }
-        Ok(solved)
-    });
+            let m32 = m.cast::<f32>();
+            if let Ok(t) = m32.inverse([x as f32, y as f32], margin as f32) {
+                solved += 1;
+                prop_assert!(t.iter().all(|v| v.is_finite()));
+            }
+            Ok(solved)
+        },
+    );
     println!("inverse: {solved} solutions checked in {cases} cases");
-    assert!(solved >= u64::from(cases) / 8, "only {solved} inputs were solved: the finite-output check barely ran");
+    assert!(
+        solved >= u64::from(cases) / 8,
+        "only {solved} inputs were solved: the finite-output check barely ran"
+    );
 }
 
 #[test]
 fn forward_never_panics_nor_returns_nan() {
     let cases = hostile_cases();
-    let solved = counted(cases, (machine(), angle(), angle(), margin()), |(m, t1, t2, margin)| {
-        let mut solved = 0;
-        if let Ok(p) = m.forward([t1, t2], margin) {
-            solved += 1;
-            prop_assert!(p.iter().all(|v| v.is_finite()));
-        }
-        if let Ok(p) = m.cast::<f32>().forward([t1 as f32, t2 as f32], margin as f32) {
-            solved += 1;
-            prop_assert!(p.iter().all(|v| v.is_finite()));
-        }
-        Ok(solved)
-    });
+    let solved = counted(
+        cases,
+        (machine(), angle(), angle(), margin()),
+        |(m, t1, t2, margin)| {
+            let mut solved = 0;
+            if let Ok(p) = m.forward([t1, t2], margin) {
+                solved += 1;
+                prop_assert!(p.iter().all(|v| v.is_finite()));
+            }
+            if let Ok(p) = m
+                .cast::<f32>()
+                .forward([t1 as f32, t2 as f32], margin as f32)
+            {
+                solved += 1;
+                prop_assert!(p.iter().all(|v| v.is_finite()));
+            }
+            Ok(solved)
+        },
+    );
     println!("forward: {solved} solutions checked in {cases} cases");
-    assert!(solved >= u64::from(cases) / 5, "only {solved} inputs were solved");
+    assert!(
+        solved >= u64::from(cases) / 5,
+        "only {solved} inputs were solved"
+    );
 }
 
 /// Reachable targets of valid machines round-trip (random machines, not just the paper's).
 #[test]
 fn valid_machines_round_trip() {
     let cases = hostile_cases();
-    let checked = counted(cases, (valid_machine(), 100.0..300.0f64, -100.0..100.0f64), |(m, x, y)| {
-        let Ok(theta) = m.inverse([x, y], 0.05) else { return Ok(0) };
-        let back = m.forward(theta, 0.0);
-        prop_assert!(back.is_ok(), "{:?}", back);
-        let back = back.unwrap();
-        prop_assert!((back[0] - x).abs() < 1e-8 && (back[1] - y).abs() < 1e-8, "{:?} vs {:?}", back, [x, y]);
-        Ok(1)
-    });
+    let checked = counted(
+        cases,
+        (valid_machine(), 100.0..300.0f64, -100.0..100.0f64),
+        |(m, x, y)| {
+            let Ok(theta) = m.inverse([x, y], 0.05) else {
+                return Ok(0);
+            };
+            let back = m.forward(theta, 0.0);
+            prop_assert!(back.is_ok(), "{:?}", back);
+            let back = back.unwrap();
+            prop_assert!(
+                (back[0] - x).abs() < 1e-8 && (back[1] - y).abs() < 1e-8,
+                "{:?} vs {:?}",
+                back,
+                [x, y]
+            );
+            Ok(1)
+        },
+    );
     println!("round trip: {checked} of {cases} targets reachable and checked");
-    assert!(checked >= u64::from(cases) / 10, "only {checked} round trips checked");
+    assert!(
+        checked >= u64::from(cases) / 10,
+        "only {checked} round trips checked"
+    );
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -186,8 +244,17 @@ fn valid_machines_round_trip() {
 
 /// A valid image over the paper's workspace with a smooth correction field.
 fn valid_image() -> (GridGeometry, Vec<u8>) {
-    let g = GridGeometry { nx: 21, ny: 31, x0_mm: 162.132, y0_mm: -75.0, step_x_mm: 5.0, step_y_mm: 5.0 };
-    let nodes: Vec<[f32; 2]> = (0..g.len()).map(|k| [1e-4 * (k as f32).sin(), -2e-4 * (k as f32 * 0.3).cos()]).collect();
+    let g = GridGeometry {
+        nx: 21,
+        ny: 31,
+        x0_mm: 162.132,
+        y0_mm: -75.0,
+        step_x_mm: 5.0,
+        step_y_mm: 5.0,
+    };
+    let nodes: Vec<[f32; 2]> = (0..g.len())
+        .map(|k| [1e-4 * (k as f32).sin(), -2e-4 * (k as f32 * 0.3).cos()])
+        .collect();
     let mut img = vec![0u8; g.image_len()];
     encode(&mut img, &g, &FiveBar::paper_nominal(), &nodes).unwrap();
     (g, img)
@@ -210,7 +277,8 @@ fn grid_parse_refuses_garbage() {
     // Magic, version, header length and node counts of a real image, then `n` bytes of garbage.
     let after_header = move |n: std::ops::Range<usize>| {
         let header = header.clone();
-        proptest::collection::vec(any::<u8>(), n).prop_map(move |tail| [header.clone(), tail].concat())
+        proptest::collection::vec(any::<u8>(), n)
+            .prop_map(move |tail| [header.clone(), tail].concat())
     };
     let garbage = prop_oneof![
         1 => proptest::collection::vec(any::<u8>(), 0..400),
@@ -221,10 +289,18 @@ fn grid_parse_refuses_garbage() {
     let past_magic = counted(cases, garbage, |bytes| {
         let result = CorrectionGrid::parse(&bytes);
         prop_assert!(result.is_err(), "garbage of {} bytes accepted", bytes.len());
-        Ok(u64::from(!matches!(result, Err(GridError::BadMagic) | Err(GridError::Truncated))))
+        Ok(u64::from(!matches!(
+            result,
+            Err(GridError::BadMagic) | Err(GridError::Truncated)
+        )))
     });
-    println!("garbage: {past_magic} of {cases} inputs got past the magic bytes and the length check");
-    assert!(past_magic >= u64::from(cases) / 4, "only {past_magic} inputs got past the magic bytes");
+    println!(
+        "garbage: {past_magic} of {cases} inputs got past the magic bytes and the length check"
+    );
+    assert!(
+        past_magic >= u64::from(cases) / 4,
+        "only {past_magic} inputs got past the magic bytes"
+    );
 }
 
 /// One field of the image: where it is and what it holds.
@@ -309,7 +385,11 @@ fn expected(field: Field, raw: u32, g: &GridGeometry, len: usize) -> Result<(), 
         Field::HeaderLen if u16v as usize == HEADER_LEN => Ok(()),
         Field::HeaderLen => Err(GridError::BadHeader),
         Field::Nx | Field::Ny => {
-            let (nx, ny) = if matches!(field, Field::Nx) { (u16v, g.ny) } else { (g.nx, u16v) };
+            let (nx, ny) = if matches!(field, Field::Nx) {
+                (u16v, g.ny)
+            } else {
+                (g.nx, u16v)
+            };
             if !counts(u16v) {
                 Err(GridError::BadHeader)
             } else if total(nx, ny) > len {
@@ -358,14 +438,26 @@ fn grid_images_tampered_field_by_field_with_the_crc_fixed() {
         };
         v[at..at + width].copy_from_slice(&bytes[..width]);
         // The CRC goes where the tampered header says the image ends, if that is inside.
-        let (nx, ny) = (u16::from_le_bytes([v[8], v[9]]), u16::from_le_bytes([v[10], v[11]]));
+        let (nx, ny) = (
+            u16::from_le_bytes([v[8], v[9]]),
+            u16::from_le_bytes([v[10], v[11]]),
+        );
         let total = HEADER_LEN + 8 * nx as usize * ny as usize + 4;
-        if (2..=MAX_NODES_PER_AXIS).contains(&nx) && (2..=MAX_NODES_PER_AXIS).contains(&ny) && total <= v.len() {
+        if (2..=MAX_NODES_PER_AXIS).contains(&nx)
+            && (2..=MAX_NODES_PER_AXIS).contains(&ny)
+            && total <= v.len()
+        {
             fix_crc(&mut v, total);
         }
         let want = expected(field, raw, &g, v.len());
         let got = CorrectionGrid::parse(&v);
-        prop_assert_eq!(got.as_ref().map(|_| ()).map_err(|e| *e), want, "{:?} = {:#x}", field, raw);
+        prop_assert_eq!(
+            got.as_ref().map(|_| ()).map_err(|e| *e),
+            want,
+            "{:?} = {:#x}",
+            field,
+            raw
+        );
         let kind = field_kind(field);
         let mut o = outcomes[kind].get();
         o[usize::from(got.is_ok())] += 1;
@@ -406,14 +498,22 @@ fn grid_images_tampered_field_by_field_with_the_crc_fixed() {
                 }
                 Field::Magic | Field::Version | Field::HeaderLen => true,
             };
-            prop_assert!(read_back, "{:?} = {:#x} accepted but not read back", field, raw);
+            prop_assert!(
+                read_back,
+                "{:?} = {:#x} accepted but not read back",
+                field,
+                raw
+            );
         }
         Ok(1)
     });
     for (kind, o) in outcomes.iter().enumerate() {
         let [refused, accepted] = o.get();
         println!("field kind {kind}: {refused} refused, {accepted} accepted");
-        assert!(refused >= 20 && accepted >= 5, "field kind {kind}: {refused} refused, {accepted} accepted");
+        assert!(
+            refused >= 20 && accepted >= 5,
+            "field kind {kind}: {refused} refused, {accepted} accepted"
+        );
     }
 }
 
@@ -423,11 +523,24 @@ fn grid_images_tampered_field_by_field_with_the_crc_fixed() {
 const HOME_MM: [f32; 2] = [212.132, 0.0];
 
 fn calibrations(img: &[u8]) -> [Calibration<'_>; 2] {
-    [Calibration { model: FiveBar::paper_nominal(), grid: None }, Calibration::from_grid(CorrectionGrid::parse(img).unwrap())]
+    [
+        Calibration {
+            model: FiveBar::paper_nominal(),
+            grid: None,
+        },
+        Calibration::from_grid(CorrectionGrid::parse(img).unwrap()),
+    ]
 }
 
 fn small_grid() -> Vec<u8> {
-    let g = GridGeometry { nx: 3, ny: 3, x0_mm: 160.0, y0_mm: -80.0, step_x_mm: 50.0, step_y_mm: 80.0 };
+    let g = GridGeometry {
+        nx: 3,
+        ny: 3,
+        x0_mm: 160.0,
+        y0_mm: -80.0,
+        step_x_mm: 50.0,
+        step_y_mm: 80.0,
+    };
     let mut img = vec![0u8; g.image_len()];
     encode(&mut img, &g, &FiveBar::paper_nominal(), &[[1e-4, -1e-4]; 9]).unwrap();
     img
@@ -437,17 +550,26 @@ fn small_grid() -> Vec<u8> {
 #[derive(Clone, Debug)]
 enum Sequence {
     /// Arbitrary setpoints and encoder readings from an arbitrary engage.
-    Hostile { steps: Vec<(f64, f64, f64, f64)>, start: (f64, f64) },
+    Hostile {
+        steps: Vec<(f64, f64, f64, f64)>,
+        start: (f64, f64),
+    },
     /// From the engaged home pose: setpoint accelerations within ±1 g per axis (fractions), the
     /// encoders one sample behind the reference plus noise (rad); at `spike`, one hostile step.
-    Smooth { steps: Vec<(f32, f32, f32, f32)>, spike: Option<(usize, (f64, f64, f64, f64))> },
+    Smooth {
+        steps: Vec<(f32, f32, f32, f32)>,
+        spike: Option<(usize, (f64, f64, f64, f64))>,
+    },
 }
 
 fn sequence() -> impl Strategy<Value = Sequence> {
     let hostile_step = || (any_f64(), any_f64(), any_f64(), any_f64());
     let noise = || prop_oneof![3 => -2e-3..2e-3f32, 1 => -1.5e-2..1.5e-2f32];
     prop_oneof![
-        (proptest::collection::vec(hostile_step(), 1..40), (-3.0..3.0f64, -3.0..3.0f64))
+        (
+            proptest::collection::vec(hostile_step(), 1..40),
+            (-3.0..3.0f64, -3.0..3.0f64)
+        )
             .prop_map(|(steps, start)| Sequence::Hostile { steps, start }),
         (
             proptest::collection::vec((-1.0..1.0f32, -1.0..1.0f32, noise(), noise()), 1..100),
@@ -473,14 +595,22 @@ fn servo_never_panics_nor_commands_nan() {
         let mut ok = 0;
         for cal in calibrations(&img) {
             let mut servo = Servo::new(ServoConfig::default()).unwrap();
-            let mut check = |servo: &Servo, before: (Option<kinematics_core::ServoFault>, bool), result: Result<ServoOutput, StepError>| {
+            let mut check = |servo: &Servo,
+                             before: (Option<kinematics_core::ServoFault>, bool),
+                             result: Result<ServoOutput, StepError>| {
                 steps.set(steps.get() + 1);
                 match result {
                     Ok(out) => {
                         ok += 1;
                         for k in 0..2 {
-                            let (t, limit) = (out.torque_nm[k], servo.config().axes[k].torque_limit_nm);
-                            prop_assert!(t.is_finite() && t.abs() <= limit, "torque {} (limit {})", t, limit);
+                            let (t, limit) =
+                                (out.torque_nm[k], servo.config().axes[k].torque_limit_nm);
+                            prop_assert!(
+                                t.is_finite() && t.abs() <= limit,
+                                "torque {} (limit {})",
+                                t,
+                                limit
+                            );
                             if t.abs() == limit {
                                 at_limit.set(at_limit.get() + 1);
                             }
@@ -544,9 +674,19 @@ fn servo_never_panics_nor_commands_nan() {
     });
     let (steps, at_limit) = (steps.get(), at_limit.get());
     println!("servo: {ok} of {steps} steps returned Ok, {at_limit} torques at the limit");
-    assert_eq!(smooth_refused.get(), 0, "smooth sequences within the limits were refused");
-    assert!(ok * 3 >= steps, "only {ok} of {steps} steps returned Ok: the torque checks barely ran");
-    assert!(at_limit >= 100, "only {at_limit} torques at the limit: the limit check barely ran");
+    assert_eq!(
+        smooth_refused.get(),
+        0,
+        "smooth sequences within the limits were refused"
+    );
+    assert!(
+        ok * 3 >= steps,
+        "only {ok} of {steps} steps returned Ok: the torque checks barely ran"
+    );
+    assert!(
+        at_limit >= 100,
+        "only {at_limit} torques at the limit: the limit check barely ran"
+    );
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -621,7 +761,9 @@ fn settings_from(v: &[f32; SETTINGS_FIELDS]) -> ServoConfig {
 fn settings_valid(v: &[f32; SETTINGS_FIELDS]) -> bool {
     let finite_non_negative = |x: f32| x.is_finite() && x >= 0.0;
     let gains_ok = |g: &[f32]| {
-        [g[0], g[1], g[2], g[7], g[8], g[9], g[10]].into_iter().all(finite_non_negative)
+        [g[0], g[1], g[2], g[7], g[8], g[9], g[10]]
+            .into_iter()
+            .all(finite_non_negative)
             && [g[3], g[4], g[5]].into_iter().all(f32::is_finite)
             && g[6].is_finite()
             && g[6] > 0.0
@@ -679,23 +821,52 @@ fn hostile_settings() -> impl Strategy<Value = [f32; SETTINGS_FIELDS]> {
 fn hostile_settings_never_panic() {
     let cases = hostile_cases();
     let (refused, tracked, direct) = (Cell::new(0u64), Cell::new(0u64), Cell::new(0u64));
-    let cal = Calibration { model: FiveBar::paper_nominal(), grid: None };
-    let strategy = (hostile_settings(), proptest::collection::vec((-1.0..1.0f32, -1.0..1.0f32, -1e-3..1e-3f32), 1..60));
+    let cal = Calibration {
+        model: FiveBar::paper_nominal(),
+        grid: None,
+    };
+    let strategy = (
+        hostile_settings(),
+        proptest::collection::vec((-1.0..1.0f32, -1.0..1.0f32, -1e-3..1e-3f32), 1..60),
+    );
     counted(cases, strategy, |(v, motion)| {
         let config = settings_from(&v);
         let valid = settings_valid(&v);
         let servo = Servo::new(config);
-        prop_assert_eq!(servo.is_ok(), valid, "{:?}: {:?}", config, servo.as_ref().err());
+        prop_assert_eq!(
+            servo.is_ok(),
+            valid,
+            "{:?}: {:?}",
+            config,
+            servo.as_ref().err()
+        );
         // The PID on its own, with whatever gains, at a reference far off and near.
         for gains in &config.axes {
-            for (reference, angle, velocity) in [(1.0f32, 0.0f32, 0.0f32), (1e-3, 0.0, 50.0), (-2.0, 1.0, -3.0)] {
-                let r = AxisReference { angle_rad: reference, velocity_rad_s: velocity, acceleration_rad_s2: 1e4 };
+            for (reference, angle, velocity) in [
+                (1.0f32, 0.0f32, 0.0f32),
+                (1e-3, 0.0, 50.0),
+                (-2.0, 1.0, -3.0),
+            ] {
+                let r = AxisReference {
+                    angle_rad: reference,
+                    velocity_rad_s: velocity,
+                    acceleration_rad_s2: 1e4,
+                };
                 let mut c = AxisController::default();
                 for _ in 0..3 {
                     let t = c.update(gains, &r, angle, 0.0, config.sample_period_s);
                     let limit = gains.torque_limit_nm;
-                    let bound = if limit.is_finite() && limit >= 0.0 { limit } else { 0.0 };
-                    prop_assert!(t.is_finite() && t.abs() <= bound, "torque {} with {:?}", t, gains);
+                    let bound = if limit.is_finite() && limit >= 0.0 {
+                        limit
+                    } else {
+                        0.0
+                    };
+                    prop_assert!(
+                        t.is_finite() && t.abs() <= bound,
+                        "torque {} with {:?}",
+                        t,
+                        gains
+                    );
                     prop_assert!(c.integral_nm().is_finite());
                     direct.set(direct.get() + 1);
                 }
@@ -705,8 +876,12 @@ fn hostile_settings_never_panic() {
             refused.set(refused.get() + 1);
             return Ok(0);
         };
-        let Ok(mut encoder) = cal.command_rad(HOME_MM, config.min_transmission) else { return Ok(0) };
-        let Ok(mut p) = servo.engage(&cal, encoder) else { return Ok(0) };
+        let Ok(mut encoder) = cal.command_rad(HOME_MM, config.min_transmission) else {
+            return Ok(0);
+        };
+        let Ok(mut p) = servo.engage(&cal, encoder) else {
+            return Ok(0);
+        };
         let dt = config.sample_period_s;
         let mut vel = [0.0f32; 2];
         let mut reached = 0;
@@ -718,7 +893,9 @@ fn hostile_settings_never_panic() {
                 Ok(out) => {
                     for k in 0..2 {
                         let limit = config.axes[k].torque_limit_nm;
-                        prop_assert!(out.torque_nm[k].is_finite() && out.torque_nm[k].abs() <= limit);
+                        prop_assert!(
+                            out.torque_nm[k].is_finite() && out.torque_nm[k].abs() <= limit
+                        );
                     }
                     encoder = [out.reference_rad[0] + noise, out.reference_rad[1] - noise];
                     reached += 1;
@@ -732,6 +909,12 @@ fn hostile_settings_never_panic() {
     });
     let (refused, tracked, direct) = (refused.get(), tracked.get(), direct.get());
     println!("hostile settings: {refused} of {cases} refused by Servo::new, {tracked} servo steps tracked with the others, {direct} PID updates with raw gains");
-    assert!(refused >= u64::from(cases) / 4, "only {refused} settings refused: the hostile values barely ran");
-    assert!(tracked >= u64::from(cases) * 5, "only {tracked} steps tracked with unusual valid settings");
+    assert!(
+        refused >= u64::from(cases) / 4,
+        "only {refused} settings refused: the hostile values barely ran"
+    );
+    assert!(
+        tracked >= u64::from(cases) * 5,
+        "only {tracked} steps tracked with unusual valid settings"
+    );
 }

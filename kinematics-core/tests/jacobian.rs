@@ -30,8 +30,14 @@ fn machines() -> Vec<FiveBar<f64>> {
     ]
 }
 
-const POINTS_MM: [[f64; 2]; 6] =
-    [[212.132, 0.0], [170.0, 60.0], [250.0, -70.0], [190.0, -40.0], [230.0, 30.0], [175.0, 0.0]];
+const POINTS_MM: [[f64; 2]; 6] = [
+    [212.132, 0.0],
+    [170.0, 60.0],
+    [250.0, -70.0],
+    [190.0, -40.0],
+    [230.0, 30.0],
+    [175.0, 0.0],
+];
 
 #[test]
 fn jacobian_matches_finite_differences_of_fk() {
@@ -39,7 +45,9 @@ fn jacobian_matches_finite_differences_of_fk() {
     let mut checked = 0;
     for m in machines() {
         for p in POINTS_MM {
-            let Ok(pose) = m.inverse_pose(p, 0.05) else { continue };
+            let Ok(pose) = m.inverse_pose(p, 0.05) else {
+                continue;
+            };
             checked += 1;
             let j = pose.jacobian().unwrap();
             for col in 0..2 {
@@ -51,14 +59,22 @@ fn jacobian_matches_finite_differences_of_fk() {
                 let fm = m.forward(tm, 0.0).unwrap();
                 for row in 0..2 {
                     let fd = (fp[row] - fm[row]) / (2.0 * h);
-                    assert!((j[row][col] - fd).abs() < 1e-5 * (1.0 + fd.abs()), "{m:?} {p:?} J[{row}][{col}] {} vs fd {fd}", j[row][col]);
+                    assert!(
+                        (j[row][col] - fd).abs() < 1e-5 * (1.0 + fd.abs()),
+                        "{m:?} {p:?} J[{row}][{col}] {} vs fd {fd}",
+                        j[row][col]
+                    );
                 }
             }
         }
     }
     // Every machine and point above is reachable with margin: a pose refused here would skip
     // the check silently.
-    assert_eq!(checked, machines().len() * POINTS_MM.len(), "only {checked} poses checked");
+    assert_eq!(
+        checked,
+        machines().len() * POINTS_MM.len(),
+        "only {checked} poses checked"
+    );
 }
 
 #[test]
@@ -67,7 +83,9 @@ fn inverse_jacobian_matches_finite_differences_of_ik_and_inverts_j() {
     let mut checked = 0;
     for m in machines() {
         for p in POINTS_MM {
-            let Ok(pose) = m.inverse_pose(p, 0.05) else { continue };
+            let Ok(pose) = m.inverse_pose(p, 0.05) else {
+                continue;
+            };
             checked += 1;
             let ji = pose.inverse_jacobian().unwrap();
             for col in 0..2 {
@@ -79,7 +97,11 @@ fn inverse_jacobian_matches_finite_differences_of_ik_and_inverts_j() {
                 let tm = m.inverse(pm, 0.0).unwrap();
                 for row in 0..2 {
                     let fd = (tp[row] - tm[row]) / (2.0 * h);
-                    assert!((ji[row][col] - fd).abs() < 1e-7 * (1.0 + fd.abs()), "J⁻¹[{row}][{col}] {} vs {fd}", ji[row][col]);
+                    assert!(
+                        (ji[row][col] - fd).abs() < 1e-7 * (1.0 + fd.abs()),
+                        "J⁻¹[{row}][{col}] {} vs {fd}",
+                        ji[row][col]
+                    );
                 }
             }
             let j = pose.jacobian().unwrap();
@@ -90,7 +112,11 @@ fn inverse_jacobian_matches_finite_differences_of_ik_and_inverts_j() {
     }
     // Every machine and point above is reachable with margin: a pose refused here would skip
     // the check silently.
-    assert_eq!(checked, machines().len() * POINTS_MM.len(), "only {checked} poses checked");
+    assert_eq!(
+        checked,
+        machines().len() * POINTS_MM.len(),
+        "only {checked} poses checked"
+    );
 }
 
 /// Eq. 8 with the proximal links in the denominators:
@@ -101,13 +127,17 @@ fn corrected_eq8_equals_the_inverse_jacobian() {
     let mut checked = 0;
     for m in machines() {
         for p in POINTS_MM {
-            let Ok(pose) = m.inverse_pose(p, 0.05) else { continue };
+            let Ok(pose) = m.inverse_pose(p, 0.05) else {
+                continue;
+            };
             checked += 1;
             let ji = pose.inverse_jacobian().unwrap();
             let th1 = pose.theta_rad[0] + m.encoder_offset_rad[0];
             let th2 = pose.theta_rad[1] + m.encoder_offset_rad[1];
-            let th3 = (pose.tool_mm[1] - pose.elbow_a_mm[1]).atan2(pose.tool_mm[0] - pose.elbow_a_mm[0]);
-            let th4 = (pose.tool_mm[1] - pose.elbow_b_mm[1]).atan2(pose.tool_mm[0] - pose.elbow_b_mm[0]);
+            let th3 =
+                (pose.tool_mm[1] - pose.elbow_a_mm[1]).atan2(pose.tool_mm[0] - pose.elbow_a_mm[0]);
+            let th4 =
+                (pose.tool_mm[1] - pose.elbow_b_mm[1]).atan2(pose.tool_mm[0] - pose.elbow_b_mm[0]);
             let d = [0.013, -0.021];
             let eq8 = [
                 -(th3.cos() * d[0] + th3.sin() * d[1]) / (m.a_mm * (th1 - th3).sin()),
@@ -119,11 +149,18 @@ fn corrected_eq8_equals_the_inverse_jacobian() {
             }
             if m.a_mm != m.b_mm {
                 let printed = -(th3.cos() * d[0] + th3.sin() * d[1]) / (m.b_mm * (th1 - th3).sin());
-                assert!((printed - ours[0]).abs() > 1e-9, "the printed Eq. 8 should differ");
+                assert!(
+                    (printed - ours[0]).abs() > 1e-9,
+                    "the printed Eq. 8 should differ"
+                );
             }
         }
     }
     // Every machine and point above is reachable with margin: a pose refused here would skip
     // the check silently.
-    assert_eq!(checked, machines().len() * POINTS_MM.len(), "only {checked} poses checked");
+    assert_eq!(
+        checked,
+        machines().len() * POINTS_MM.len(),
+        "only {checked} poses checked"
+    );
 }

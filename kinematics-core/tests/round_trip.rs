@@ -27,8 +27,12 @@ fn worst_round_trip<T: Real>(model: &FiveBar<T>) -> f64 {
     let mut worst: f64 = 0.0;
     for p in workspace_points() {
         let pt = [T::from_f64(p[0]), T::from_f64(p[1])];
-        let theta = model.inverse(pt, T::ZERO).unwrap_or_else(|e| panic!("IK failed at {p:?}: {e}"));
-        let back = model.forward(theta, T::ZERO).unwrap_or_else(|e| panic!("FK failed at {p:?}: {e}"));
+        let theta = model
+            .inverse(pt, T::ZERO)
+            .unwrap_or_else(|e| panic!("IK failed at {p:?}: {e}"));
+        let back = model
+            .forward(theta, T::ZERO)
+            .unwrap_or_else(|e| panic!("FK failed at {p:?}: {e}"));
         // Compare with the target as represented in T (the f32 input is already rounded).
         let err = (back[0].to_f64() - pt[0].to_f64()).hypot(back[1].to_f64() - pt[1].to_f64());
         worst = worst.max(err);
@@ -78,7 +82,10 @@ fn forward_then_inverse_returns_the_angles() {
         let theta = m.inverse(p, 0.0).unwrap();
         let back = m.inverse(m.forward(theta, 0.0).unwrap(), 0.0).unwrap();
         for k in 0..2 {
-            assert!((back[k] - theta[k]).abs() < 1e-11, "{p:?}: {theta:?} vs {back:?}");
+            assert!(
+                (back[k] - theta[k]).abs() < 1e-11,
+                "{p:?}: {theta:?} vs {back:?}"
+            );
         }
     }
 }
@@ -93,12 +100,21 @@ fn every_working_mode_round_trips_where_it_is_assembled() {
         for e2 in branches {
             for asm in branches {
                 let mut m = irregular();
-                m.mode = WorkingMode { elbow_1: e1, elbow_2: e2, assembly: asm };
+                m.mode = WorkingMode {
+                    elbow_1: e1,
+                    elbow_2: e2,
+                    assembly: asm,
+                };
                 for k in 0..400 {
                     let th = [-3.0 + 0.015 * k as f64, 2.5 - 0.011 * k as f64];
-                    let Ok(pose) = m.forward_pose(th, 0.05) else { continue };
-                    let Ok(back) = m.inverse(pose.tool_mm, 0.0) else { continue };
-                    let same = (0..2).all(|i| kinematics_core::wrap_angle_rad(back[i] - th[i]).abs() < 1e-9);
+                    let Ok(pose) = m.forward_pose(th, 0.05) else {
+                        continue;
+                    };
+                    let Ok(back) = m.inverse(pose.tool_mm, 0.0) else {
+                        continue;
+                    };
+                    let same = (0..2)
+                        .all(|i| kinematics_core::wrap_angle_rad(back[i] - th[i]).abs() < 1e-9);
                     // IK in this mode must either reproduce the angles or give the other elbow.
                     if same {
                         checked += 1;
@@ -124,10 +140,15 @@ fn worst_f32_ik_and_fk_um(m: &FiveBar<f64>) -> (f64, f64) {
     let (mut ik, mut fk) = (0.0f64, 0.0f64);
     for p in workspace_points() {
         let p = [p[0] as f32, p[1] as f32];
-        let theta = m32.inverse(p, 0.0).unwrap_or_else(|e| panic!("f32 IK at {p:?}: {e}"));
+        let theta = m32
+            .inverse(p, 0.0)
+            .unwrap_or_else(|e| panic!("f32 IK at {p:?}: {e}"));
         let reached = m64.forward(widen(theta), 0.0).expect("f64 FK");
         ik = ik.max((reached[0] - f64::from(p[0])).hypot(reached[1] - f64::from(p[1])) * 1e3);
-        let fk32 = widen(m32.forward(theta, 0.0).unwrap_or_else(|e| panic!("f32 FK at {p:?}: {e}")));
+        let fk32 = widen(
+            m32.forward(theta, 0.0)
+                .unwrap_or_else(|e| panic!("f32 FK at {p:?}: {e}")),
+        );
         fk = fk.max((fk32[0] - reached[0]).hypot(fk32[1] - reached[1]) * 1e3);
     }
     (ik, fk)
@@ -135,9 +156,14 @@ fn worst_f32_ik_and_fk_um(m: &FiveBar<f64>) -> (f64, f64) {
 
 #[test]
 fn f32_ik_and_fk_each_within_0_1_um() {
-    for (name, m) in [("paper nominal", FiveBar::<f64>::paper_nominal()), ("irregular", irregular())] {
+    for (name, m) in [
+        ("paper nominal", FiveBar::<f64>::paper_nominal()),
+        ("irregular", irregular()),
+    ] {
         let (ik, fk) = worst_f32_ik_and_fk_um(&m);
-        println!("{name}: f32 IK worst {ik:.4} um, f32 FK worst {fk:.4} um (at the tool, against f64)");
+        println!(
+            "{name}: f32 IK worst {ik:.4} um, f32 FK worst {fk:.4} um (at the tool, against f64)"
+        );
         assert!(ik < 0.1 && fk < 0.1, "{name}: IK {ik} um, FK {fk} um");
     }
 }

@@ -23,7 +23,13 @@ fn table_i_desired_positions_give_the_printed_angles() {
         for (got, want) in th.iter().zip([t1, t2]) {
             let diff = wrap_angle_rad(got - want.to_radians()).to_degrees();
             // Printed to 0.001°: agree within half the last digit.
-            assert!(diff.abs() <= 0.0005 + 1e-9, "point {}: got {} want {}", i + 1, got.to_degrees(), want);
+            assert!(
+                diff.abs() <= 0.0005 + 1e-9,
+                "point {}: got {} want {}",
+                i + 1,
+                got.to_degrees(),
+                want
+            );
         }
     }
 }

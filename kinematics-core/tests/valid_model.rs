@@ -6,8 +6,8 @@
 
 use kinematics_core::trajectory::{PathMotion, TaskLimits};
 use kinematics_core::{
-    Calibration, FiveBar, IkMargin, KinematicsError, ModelError, Real, Servo, ServoConfig, SetpointRefusal, StepError,
-    ValidCalibration, ValidFiveBar, WorkingMode,
+    Calibration, FiveBar, IkMargin, KinematicsError, ModelError, Real, Servo, ServoConfig,
+    SetpointRefusal, StepError, ValidCalibration, ValidFiveBar, WorkingMode,
 };
 use proptest::prelude::*;
 
@@ -31,7 +31,14 @@ fn calibrated<T: Real>() -> FiveBar<T> {
 fn an_invalid_model_cannot_be_checked() {
     let mut refused = 0;
     for field in 0..10 {
-        for bad in [-150.0f32, 0.0, -0.0, f32::NAN, f32::INFINITY, f32::NEG_INFINITY] {
+        for bad in [
+            -150.0f32,
+            0.0,
+            -0.0,
+            f32::NAN,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+        ] {
             let mut m = calibrated::<f32>();
             match field {
                 0 => m.a_mm = bad,
@@ -44,8 +51,19 @@ fn an_invalid_model_cannot_be_checked() {
             }
             let want = m.validate();
             if want.is_err() {
-                assert_eq!(ValidFiveBar::new(m).err(), want.err(), "field {field} = {bad}");
-                assert_eq!(ValidCalibration::new(Calibration { model: m, grid: None }).err(), want.err());
+                assert_eq!(
+                    ValidFiveBar::new(m).err(),
+                    want.err(),
+                    "field {field} = {bad}"
+                );
+                assert_eq!(
+                    ValidCalibration::new(Calibration {
+                        model: m,
+                        grid: None
+                    })
+                    .err(),
+                    want.err()
+                );
                 refused += 1;
             } else {
                 assert_eq!(ValidFiveBar::new(m).map(|v| *v.model()), Ok(m));
@@ -54,7 +72,10 @@ fn an_invalid_model_cannot_be_checked() {
     }
     // Links: six bad values each; bases and offsets: the three non-finite ones.
     assert_eq!(refused, 4 * 6 + 6 * 3);
-    assert_eq!(ValidFiveBar::new(calibrated::<f64>()).map(|v| *v.model()), Ok(calibrated::<f64>()));
+    assert_eq!(
+        ValidFiveBar::new(calibrated::<f64>()).map(|v| *v.model()),
+        Ok(calibrated::<f64>())
+    );
 }
 
 /// The margin's floor applied once: the IK's floor for 0, negative and tiny margins, the
@@ -67,8 +88,16 @@ fn the_margin_is_raised_to_the_floor() {
     assert_eq!(IkMargin::new(0.05f32).get(), 0.05);
     assert!(IkMargin::new(f32::NAN).get().is_nan());
     let v = ValidFiveBar::new(calibrated::<f32>()).unwrap();
-    assert_eq!(v.inverse([212.0, 0.0], IkMargin::new(f32::NAN)), Err(KinematicsError::NearSingularity(kinematics_core::Singularity::Serial)));
-    assert_eq!(v.inverse([212.0, 0.0], IkMargin::new(f32::NAN)), calibrated::<f32>().inverse([212.0, 0.0], f32::NAN));
+    assert_eq!(
+        v.inverse([212.0, 0.0], IkMargin::new(f32::NAN)),
+        Err(KinematicsError::NearSingularity(
+            kinematics_core::Singularity::Serial
+        ))
+    );
+    assert_eq!(
+        v.inverse([212.0, 0.0], IkMargin::new(f32::NAN)),
+        calibrated::<f32>().inverse([212.0, 0.0], f32::NAN)
+    );
 }
 
 fn bits<const N: usize>(v: [f32; N]) -> [u32; N] {
@@ -110,7 +139,16 @@ proptest! {
 fn valid_ik_refuses_hostile_targets_like_the_per_call_ik() {
     let m = calibrated::<f32>();
     let v = ValidFiveBar::new(m).unwrap();
-    for p in [[f32::NAN, 0.0], [0.0, f32::INFINITY], [f32::NEG_INFINITY, 1.0], [1e30, 1e30], [f32::MAX, 0.0], [0.0, 0.0], [-0.61, 0.27], [400.0, 0.0]] {
+    for p in [
+        [f32::NAN, 0.0],
+        [0.0, f32::INFINITY],
+        [f32::NEG_INFINITY, 1.0],
+        [1e30, 1e30],
+        [f32::MAX, 0.0],
+        [0.0, 0.0],
+        [-0.61, 0.27],
+        [400.0, 0.0],
+    ] {
         let got = v.inverse(p, IkMargin::new(0.05));
         assert!(got.is_err(), "{p:?}");
         assert_eq!(got, m.inverse(p, 0.05), "{p:?}");
@@ -122,9 +160,16 @@ fn valid_ik_refuses_hostile_targets_like_the_per_call_ik() {
 /// same hostile setpoints with the same reasons.
 #[test]
 fn the_servo_steps_the_same_through_a_valid_calibration() {
-    let cal = Calibration { model: calibrated::<f32>(), grid: None };
+    let cal = Calibration {
+        model: calibrated::<f32>(),
+        grid: None,
+    };
     let valid = ValidCalibration::new(cal).unwrap();
-    let limits = TaskLimits { speed_mm_s: 1500.0, accel_mm_s2: 49_033.25, jerk_mm_s3: 5.0e6 };
+    let limits = TaskLimits {
+        speed_mm_s: 1500.0,
+        accel_mm_s2: 49_033.25,
+        jerk_mm_s3: 5.0e6,
+    };
     let line = PathMotion::line([180.0f32, -50.0], [250.0, 60.0], &limits).unwrap();
     for motion_step in [false, true] {
         let mut servo = Servo::new(ServoConfig::default()).unwrap();
@@ -138,14 +183,24 @@ fn the_servo_steps_the_same_through_a_valid_calibration() {
             let s = line.at(n as f32 * 5e-4);
             let next = line.at((n + 1) as f32 * 5e-4);
             let (a, b) = if motion_step {
-                (servo.step_motion(&cal, &s, Some(&next), angle), twin.step_motion_valid(&valid, &s, Some(&next), angle))
+                (
+                    servo.step_motion(&cal, &s, Some(&next), angle),
+                    twin.step_motion_valid(&valid, &s, Some(&next), angle),
+                )
             } else {
-                (servo.step(&cal, s.position_mm, angle), twin.step_valid(&valid, s.position_mm, angle))
+                (
+                    servo.step(&cal, s.position_mm, angle),
+                    twin.step_valid(&valid, s.position_mm, angle),
+                )
             };
             let (a, b) = (a.unwrap(), b.unwrap());
             assert_eq!(bits(a.torque_nm), bits(b.torque_nm), "sample {n}");
             assert_eq!(bits(a.reference_rad), bits(b.reference_rad), "sample {n}");
-            assert_eq!(bits(a.following_error_rad), bits(b.following_error_rad), "sample {n}");
+            assert_eq!(
+                bits(a.following_error_rad),
+                bits(b.following_error_rad),
+                "sample {n}"
+            );
             // The encoders follow the reference (the servo is not the subject here).
             angle = a.reference_rad;
             compared += 1;
@@ -153,13 +208,21 @@ fn the_servo_steps_the_same_through_a_valid_calibration() {
         assert!(compared > 100);
         // Hostile setpoints: refused alike, and both servos stay engaged.
         let here = line.at(line.duration_s()).position_mm;
-        for bad in [[f32::NAN, 0.0], [here[0], f32::INFINITY], [here[0] + 50.0, here[1]], [f32::MAX, f32::MAX]] {
+        for bad in [
+            [f32::NAN, 0.0],
+            [here[0], f32::INFINITY],
+            [here[0] + 50.0, here[1]],
+            [f32::MAX, f32::MAX],
+        ] {
             let a = servo.step(&cal, bad, angle);
             let b = twin.step_valid(&valid, bad, angle);
             assert!(matches!(a, Err(StepError::Refused(_))), "{bad:?}: {a:?}");
             assert_eq!(a, b, "{bad:?}");
         }
-        assert_eq!(servo.step(&cal, [f32::NAN, 0.0], angle), Err(StepError::Refused(SetpointRefusal::NonFinite)));
+        assert_eq!(
+            servo.step(&cal, [f32::NAN, 0.0], angle),
+            Err(StepError::Refused(SetpointRefusal::NonFinite))
+        );
         assert!(servo.is_engaged() && twin.is_engaged());
     }
 }
@@ -168,17 +231,25 @@ fn the_servo_steps_the_same_through_a_valid_calibration() {
 /// sample (its IK checks the model), and cannot become a `ValidCalibration`.
 #[test]
 fn an_invalid_model_is_never_used_by_the_servo() {
-    let good = Calibration { model: FiveBar::<f32>::paper_nominal(), grid: None };
+    let good = Calibration {
+        model: FiveBar::<f32>::paper_nominal(),
+        grid: None,
+    };
     let target = [212.132f32, 0.0];
     let angle = good.command_rad(target, 0.05).unwrap();
     let mut servo = Servo::new(ServoConfig::default()).unwrap();
     servo.engage(&good, angle).unwrap();
     let mut bad = good;
     bad.model.b_mm = -150.0;
-    assert_eq!(ValidCalibration::new(bad).err(), Some(ModelError::NonPositiveLink));
+    assert_eq!(
+        ValidCalibration::new(bad).err(),
+        Some(ModelError::NonPositiveLink)
+    );
     assert_eq!(
         servo.step(&bad, target, angle),
-        Err(StepError::Refused(SetpointRefusal::Kinematics(KinematicsError::InvalidModel(ModelError::NonPositiveLink))))
+        Err(StepError::Refused(SetpointRefusal::Kinematics(
+            KinematicsError::InvalidModel(ModelError::NonPositiveLink)
+        )))
     );
     assert!(servo.is_engaged());
 }

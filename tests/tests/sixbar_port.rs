@@ -74,11 +74,16 @@ fn worst_difference_um(cfg: &PlantConfig, targets: &[[f64; 2]]) -> (f64, f64) {
     let mut port = sixbar::SixBar::new(&params(&cfg.sixbar));
     let (mut worst, mut iterations) = (0.0f64, 0u32);
     for t in targets {
-        let theta = five.inverse([t[0] as f32, t[1] as f32], 0.0).expect("target in the workspace");
-        let h = host.solve([f64::from(theta[0]), f64::from(theta[1])]).expect("host-sim solves");
+        let theta = five
+            .inverse([t[0] as f32, t[1] as f32], 0.0)
+            .expect("target in the workspace");
+        let h = host
+            .solve([f64::from(theta[0]), f64::from(theta[1])])
+            .expect("host-sim solves");
         let p = port.solve(theta).expect("the port solves");
         iterations += p.iterations;
-        let d = (f64::from(p.tool_mm[0]) - h.tool_mm[0]).hypot(f64::from(p.tool_mm[1]) - h.tool_mm[1]);
+        let d =
+            (f64::from(p.tool_mm[0]) - h.tool_mm[0]).hypot(f64::from(p.tool_mm[1]) - h.tool_mm[1]);
         worst = worst.max(d * 1e3);
     }
     (worst, f64::from(iterations) / targets.len() as f64)
@@ -102,7 +107,10 @@ fn the_port_lands_on_host_sims_tool_point() {
     for (name, cfg) in [
         ("paper without clearances", no_clearance),
         ("paper", PlantConfig::paper()),
-        ("random errors, seed 3", PlantConfig::paper().with_random_errors(3, 0.05, 0.0)),
+        (
+            "random errors, seed 3",
+            PlantConfig::paper().with_random_errors(3, 0.05, 0.0),
+        ),
     ] {
         for (what, targets) in [("grid", &grid), ("path", &path)] {
             let (worst_um, iterations) = worst_difference_um(&cfg, targets);

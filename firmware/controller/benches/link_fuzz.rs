@@ -15,7 +15,8 @@ use controller::settings::Settings;
 use kinematics_core::grid::{encode as encode_grid, GridGeometry};
 use kinematics_core::{Calibration, CorrectionGrid, FiveBar};
 use link_protocol::{
-    decode, encode, Command, DeviceBody, DeviceMessage, FrameReader, Knot, Request, CALIBRATION_CHUNK_LEN, MAX_FRAME_LEN,
+    decode, encode, Command, DeviceBody, DeviceMessage, FrameReader, Knot, Request,
+    CALIBRATION_CHUNK_LEN, MAX_FRAME_LEN,
 };
 
 /// xorshift64*: a fuzz driver needs speed and reproducibility, not statistical quality.
@@ -47,23 +48,35 @@ fn command(rng: &mut Rng) -> Command {
         2 => Command::Enable,
         3 => Command::Disable,
         4 => Command::Home,
-        5 => Command::MoveTo { target_mm: [rng.f32(), rng.f32()] },
+        5 => Command::MoveTo {
+            target_mm: [rng.f32(), rng.f32()],
+        },
         6 => {
             let n = rng.below(9);
             let mut knots = heapless::Vec::new();
             for _ in 0..n {
                 let _ = knots.push(knot(rng));
             }
-            Command::StreamKnots { first_index: rng.below(3) as u32, knots }
+            Command::StreamKnots {
+                first_index: rng.below(3) as u32,
+                knots,
+            }
         }
         7 => Command::Stop,
         8 => Command::ResetFault,
-        9 => Command::Telemetry { decimation: rng.next() as u16 },
-        10 => Command::CalibrationBegin { len: rng.next() as u32 },
+        9 => Command::Telemetry {
+            decimation: rng.next() as u16,
+        },
+        10 => Command::CalibrationBegin {
+            len: rng.next() as u32,
+        },
         11 => {
             let n = rng.below(CALIBRATION_CHUNK_LEN + 1);
             let data = heapless::Vec::from_iter((0..n).map(|_| rng.next() as u8));
-            Command::CalibrationChunk { offset: rng.below(1000) as u32, data }
+            Command::CalibrationChunk {
+                offset: rng.below(1000) as u32,
+                data,
+            }
         }
         12 => Command::CalibrationCommit,
         _ => Command::CalibrationId,
@@ -71,14 +84,26 @@ fn command(rng: &mut Rng) -> Command {
 }
 
 fn main() {
-    let frames: u64 = std::env::var("LINK_FUZZ_FRAMES").ok().and_then(|v| v.parse().ok()).unwrap_or(1_000_000);
-    let g = GridGeometry { nx: 3, ny: 3, x0_mm: 160.0, y0_mm: -80.0, step_x_mm: 50.0, step_y_mm: 80.0 };
+    let frames: u64 = std::env::var("LINK_FUZZ_FRAMES")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(1_000_000);
+    let g = GridGeometry {
+        nx: 3,
+        ny: 3,
+        x0_mm: 160.0,
+        y0_mm: -80.0,
+        step_x_mm: 50.0,
+        step_y_mm: 80.0,
+    };
     let mut img = vec![0u8; g.image_len()];
     encode_grid(&mut img, &g, &FiveBar::paper_nominal(), &[[3e-4, -2e-4]; 9]).expect("grid image");
     let mut settings = Settings::default();
     settings.homing.absolute_encoders = true;
     let cal = Calibration::from_grid(CorrectionGrid::parse(&img).expect("grid parses"));
-    let joints = cal.command_rad([212.132, 0.0], 0.05).expect("home is reachable");
+    let joints = cal
+        .command_rad([212.132, 0.0], 0.05)
+        .expect("home is reachable");
     let mut rig = Rig::boot(&settings, cal, joints, image_id(&img));
     rig.step();
     let home = rig.status.setpoint_mm;
@@ -100,7 +125,11 @@ fn main() {
             1 => {
                 mutated += 1;
                 let mut frame = [0u8; MAX_FRAME_LEN];
-                let n = encode(&Request::new(rng.next() as u16, command(&mut rng)), &mut frame).expect("fits");
+                let n = encode(
+                    &Request::new(rng.next() as u16, command(&mut rng)),
+                    &mut frame,
+                )
+                .expect("fits");
                 wire.extend_from_slice(&frame[..n]);
                 let flips = 1 + rng.below(4);
                 let original = wire.clone();
@@ -115,7 +144,11 @@ fn main() {
             _ => {
                 truncated += 1;
                 let mut frame = [0u8; MAX_FRAME_LEN];
-                let n = encode(&Request::new(rng.next() as u16, command(&mut rng)), &mut frame).expect("fits");
+                let n = encode(
+                    &Request::new(rng.next() as u16, command(&mut rng)),
+                    &mut frame,
+                )
+                .expect("fits");
                 let cut = 1 + rng.below(n - 2);
                 wire.extend_from_slice(&frame[..cut]);
             }
@@ -140,7 +173,10 @@ fn main() {
         rig.step();
         assert_eq!(rig.posted, 0, "frame {i}: a request reached the servo");
         assert!(!rig.stream.is_playing(), "frame {i}: motion queued");
-        assert_eq!(rig.status.setpoint_mm, home, "frame {i}: the setpoint moved");
+        assert_eq!(
+            rig.status.setpoint_mm, home,
+            "frame {i}: the setpoint moved"
+        );
         assert_eq!(rig.status.mode, Mode::Running, "frame {i}");
     }
     let s = started.elapsed().as_secs_f64();

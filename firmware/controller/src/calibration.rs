@@ -72,9 +72,15 @@ impl core::fmt::Display for MachineMismatch {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         f.write_str(match self {
             MachineMismatch::WorkingMode => "the image's working mode is not this machine's",
-            MachineMismatch::LinkLength => "a link length of the image's model is too far from this machine's",
-            MachineMismatch::Base => "a base position of the image's model is too far from this machine's",
-            MachineMismatch::EncoderOffset => "an encoder offset of the image's model is too far from this machine's",
+            MachineMismatch::LinkLength => {
+                "a link length of the image's model is too far from this machine's"
+            }
+            MachineMismatch::Base => {
+                "a base position of the image's model is too far from this machine's"
+            }
+            MachineMismatch::EncoderOffset => {
+                "an encoder offset of the image's model is too far from this machine's"
+            }
             MachineMismatch::HomeOutsideGrid => "the home position lies outside the image's grid",
         })
     }
@@ -101,7 +107,11 @@ impl core::fmt::Display for ImageError {
 
 impl MachineIdentity {
     /// Whether `grid` was built for this machine (module doc); `home_mm` must lie in its grid.
-    pub fn check(&self, grid: &CorrectionGrid<'_>, home_mm: [f32; 2]) -> Result<(), MachineMismatch> {
+    pub fn check(
+        &self,
+        grid: &CorrectionGrid<'_>,
+        home_mm: [f32; 2],
+    ) -> Result<(), MachineMismatch> {
         let (m, n) = (grid.model(), &self.nominal);
         let same_mode = |a: WorkingMode, b: WorkingMode| a == b;
         if !same_mode(m.mode, n.mode) {
@@ -109,16 +119,32 @@ impl MachineIdentity {
         }
         // `!(d <= max)` also refuses NaN.
         let within = |a: f32, b: f32, max: f32| (a - b).abs() <= max;
-        let lengths = [(m.a_mm, n.a_mm), (m.b_mm, n.b_mm), (m.c_mm, n.c_mm), (m.d_mm, n.d_mm)];
-        if !lengths.iter().all(|&(a, b)| within(a, b, self.max_length_deviation_mm)) {
+        let lengths = [
+            (m.a_mm, n.a_mm),
+            (m.b_mm, n.b_mm),
+            (m.c_mm, n.c_mm),
+            (m.d_mm, n.d_mm),
+        ];
+        if !lengths
+            .iter()
+            .all(|&(a, b)| within(a, b, self.max_length_deviation_mm))
+        {
             return Err(MachineMismatch::LinkLength);
         }
-        let bases = [m.base_a0_mm, m.base_b0_mm].into_iter().zip([n.base_a0_mm, n.base_b0_mm]);
-        if !bases.flat_map(|(a, b)| [(a[0], b[0]), (a[1], b[1])]).all(|(a, b)| within(a, b, self.max_base_deviation_mm)) {
+        let bases = [m.base_a0_mm, m.base_b0_mm]
+            .into_iter()
+            .zip([n.base_a0_mm, n.base_b0_mm]);
+        if !bases
+            .flat_map(|(a, b)| [(a[0], b[0]), (a[1], b[1])])
+            .all(|(a, b)| within(a, b, self.max_base_deviation_mm))
+        {
             return Err(MachineMismatch::Base);
         }
         let offsets = m.encoder_offset_rad.into_iter().zip(n.encoder_offset_rad);
-        if !offsets.into_iter().all(|(a, b)| within(a, b, self.max_offset_deviation_rad)) {
+        if !offsets
+            .into_iter()
+            .all(|(a, b)| within(a, b, self.max_offset_deviation_rad))
+        {
             return Err(MachineMismatch::EncoderOffset);
         }
         if grid.correction_rad(home_mm).is_err() {
@@ -137,7 +163,9 @@ pub fn validate_image<'a>(
     home_mm: [f32; 2],
 ) -> Result<(CorrectionGrid<'a>, usize), ImageError> {
     let grid = CorrectionGrid::parse(bytes).map_err(ImageError::Grid)?;
-    machine.check(&grid, home_mm).map_err(ImageError::OtherMachine)?;
+    machine
+        .check(&grid, home_mm)
+        .map_err(ImageError::OtherMachine)?;
     let len = grid.len_bytes();
     Ok((grid, len))
 }
@@ -164,7 +192,10 @@ pub fn load<'a>(
     home_mm: [f32; 2],
     allow_uncorrected: bool,
 ) -> (CalibrationState, Calibration<'a>) {
-    let nominal = Calibration { model: machine.nominal, grid: None };
+    let nominal = Calibration {
+        model: machine.nominal,
+        grid: None,
+    };
     match validate_image(region, machine, home_mm) {
         Ok((grid, _)) => (CalibrationState::Valid, Calibration::from_grid(grid)),
         Err(e) if allow_uncorrected => (CalibrationState::Uncorrected(e), nominal),
@@ -177,7 +208,9 @@ pub fn load<'a>(
 /// grid and extension blocks, as the slot store records it; `None` if the image does not parse.
 pub fn image_id(region: &[u8]) -> Option<u32> {
     let grid = CorrectionGrid::parse(region).ok()?;
-    Some(link_protocol::calibration_image_id(region.get(..grid.len_bytes())?))
+    Some(link_protocol::calibration_image_id(
+        region.get(..grid.len_bytes())?,
+    ))
 }
 
 #[cfg(test)]
@@ -189,7 +222,14 @@ mod tests {
     const HOME_MM: [f32; 2] = [212.132, 0.0];
 
     fn image() -> Vec<u8> {
-        let g = GridGeometry { nx: 3, ny: 3, x0_mm: 160.0, y0_mm: -80.0, step_x_mm: 50.0, step_y_mm: 80.0 };
+        let g = GridGeometry {
+            nx: 3,
+            ny: 3,
+            x0_mm: 160.0,
+            y0_mm: -80.0,
+            step_x_mm: 50.0,
+            step_y_mm: 80.0,
+        };
         let mut img = vec![0u8; g.image_len()];
         encode(&mut img, &g, &FiveBar::paper_nominal(), &[[2e-4, -1e-4]; 9]).unwrap();
         img
@@ -209,14 +249,25 @@ mod tests {
     /// blocks, whichever it has, not with the grid's CRC nor the region.
     #[test]
     fn the_image_length_includes_its_chain_of_blocks() {
-        use kinematics_core::grid::{append_dynamics, append_workspace, WorkspaceLimits, DYNAMICS_LEN, WORKSPACE_LEN};
+        use kinematics_core::grid::{
+            append_dynamics, append_workspace, WorkspaceLimits, DYNAMICS_LEN, WORKSPACE_LEN,
+        };
         use kinematics_core::{ConvexWorkspace, FiveBarDynamics};
         let plain = image();
         let n = plain.len();
         let mut img = plain.clone();
         img.resize(n + WORKSPACE_LEN + DYNAMICS_LEN, 0);
         let region = ConvexWorkspace::rectangle([165.0, 255.0], [-75.0, 75.0]).unwrap();
-        let end = append_workspace(&mut img, n, n, &WorkspaceLimits { region, stop_margin_mm: 0.1 }).unwrap();
+        let end = append_workspace(
+            &mut img,
+            n,
+            n,
+            &WorkspaceLimits {
+                region,
+                stop_margin_mm: 0.1,
+            },
+        )
+        .unwrap();
         let d = FiveBarDynamics {
             motor_inertia_kg_m2: [5e-3; 2],
             tool_mass_kg: 0.2,
@@ -232,9 +283,15 @@ mod tests {
         assert_eq!(len, end);
         assert!(grid.workspace().is_some() && grid.dynamics().is_some());
         // Cut to that length, the image still has both blocks.
-        let (grid, _) = validate_image(&region[..len], &MachineIdentity::default(), HOME_MM).unwrap();
+        let (grid, _) =
+            validate_image(&region[..len], &MachineIdentity::default(), HOME_MM).unwrap();
         assert!(grid.workspace().is_some() && grid.dynamics().is_some());
-        assert_eq!(validate_image(&plain, &MachineIdentity::default(), HOME_MM).unwrap().1, n);
+        assert_eq!(
+            validate_image(&plain, &MachineIdentity::default(), HOME_MM)
+                .unwrap()
+                .1,
+            n
+        );
     }
 
     #[test]
@@ -242,16 +299,29 @@ mod tests {
         let mut region = image();
         region[100] ^= 1;
         let (state, cal) = load(&region, &MachineIdentity::default(), HOME_MM, false);
-        assert_eq!(state, CalibrationState::Refused(ImageError::Grid(GridError::BadCrc)));
+        assert_eq!(
+            state,
+            CalibrationState::Refused(ImageError::Grid(GridError::BadCrc))
+        );
         assert!(cal.grid.is_none());
         let (state, cal) = load(&[0xFF; 4096], &MachineIdentity::default(), HOME_MM, true);
-        assert_eq!(state, CalibrationState::Uncorrected(ImageError::Grid(GridError::BadMagic)));
+        assert_eq!(
+            state,
+            CalibrationState::Uncorrected(ImageError::Grid(GridError::BadMagic))
+        );
         assert!(cal.grid.is_none());
         assert_eq!(cal.model, FiveBar::paper_nominal());
     }
 
     fn image_of(model: &FiveBar<f32>, x0_mm: f32) -> Vec<u8> {
-        let g = GridGeometry { nx: 3, ny: 3, x0_mm, y0_mm: -80.0, step_x_mm: 50.0, step_y_mm: 80.0 };
+        let g = GridGeometry {
+            nx: 3,
+            ny: 3,
+            x0_mm,
+            y0_mm: -80.0,
+            step_x_mm: 50.0,
+            step_y_mm: 80.0,
+        };
         let mut img = vec![0u8; g.image_len()];
         encode(&mut img, &g, model, &[[0.0; 2]; 9]).unwrap();
         img
@@ -263,7 +333,13 @@ mod tests {
     fn an_image_built_for_another_machine_is_refused() {
         let m = MachineIdentity::default();
         let n = FiveBar::paper_nominal();
-        let identified = FiveBar { a_mm: 150.4, d_mm: 149.7, base_b0_mm: [0.3, -0.2], encoder_offset_rad: [2e-3, -1e-3], ..n };
+        let identified = FiveBar {
+            a_mm: 150.4,
+            d_mm: 149.7,
+            base_b0_mm: [0.3, -0.2],
+            encoder_offset_rad: [2e-3, -1e-3],
+            ..n
+        };
         assert!(validate_image(&image_of(&identified, 160.0), &m, HOME_MM).is_ok());
         let mut mirrored = n;
         mirrored.mode.assembly = match n.mode.assembly {
@@ -272,15 +348,40 @@ mod tests {
         };
         for (model, x0, why) in [
             (mirrored, 160.0, MachineMismatch::WorkingMode),
-            (FiveBar { c_mm: 153.0, ..n }, 160.0, MachineMismatch::LinkLength),
-            (FiveBar { base_a0_mm: [0.0, 2.5], ..n }, 160.0, MachineMismatch::Base),
-            (FiveBar { encoder_offset_rad: [0.0, 0.1], ..n }, 160.0, MachineMismatch::EncoderOffset),
+            (
+                FiveBar { c_mm: 153.0, ..n },
+                160.0,
+                MachineMismatch::LinkLength,
+            ),
+            (
+                FiveBar {
+                    base_a0_mm: [0.0, 2.5],
+                    ..n
+                },
+                160.0,
+                MachineMismatch::Base,
+            ),
+            (
+                FiveBar {
+                    encoder_offset_rad: [0.0, 0.1],
+                    ..n
+                },
+                160.0,
+                MachineMismatch::EncoderOffset,
+            ),
             (n, 220.0, MachineMismatch::HomeOutsideGrid),
         ] {
             let img = image_of(&model, x0);
-            assert_eq!(validate_image(&img, &m, HOME_MM).err(), Some(ImageError::OtherMachine(why)), "{why:?}");
+            assert_eq!(
+                validate_image(&img, &m, HOME_MM).err(),
+                Some(ImageError::OtherMachine(why)),
+                "{why:?}"
+            );
             let (state, cal) = load(&img, &m, HOME_MM, false);
-            assert_eq!(state, CalibrationState::Refused(ImageError::OtherMachine(why)));
+            assert_eq!(
+                state,
+                CalibrationState::Refused(ImageError::OtherMachine(why))
+            );
             assert!(cal.grid.is_none());
         }
     }

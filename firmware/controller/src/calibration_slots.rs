@@ -175,10 +175,16 @@ impl core::fmt::Display for SlotError {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         match self {
             SlotError::NoUpload => f.write_str("no upload under way"),
-            SlotError::BadLength { max } => write!(f, "image length not between 76 and {max} bytes"),
-            SlotError::OutOfOrder { expected } => write!(f, "chunk out of order (expected offset {expected})"),
+            SlotError::BadLength { max } => {
+                write!(f, "image length not between 76 and {max} bytes")
+            }
+            SlotError::OutOfOrder { expected } => {
+                write!(f, "chunk out of order (expected offset {expected})")
+            }
             SlotError::TooMuchData => f.write_str("more data than announced"),
-            SlotError::Incomplete { received } => write!(f, "image incomplete ({received} bytes received)"),
+            SlotError::Incomplete { received } => {
+                write!(f, "image incomplete ({received} bytes received)")
+            }
             SlotError::Flash(e) => write!(f, "flash error: {e:?}"),
             SlotError::Image(e) => write!(f, "image refused: {e}"),
         }
@@ -218,10 +224,20 @@ impl<F: SlotFlash> SlotStore<F> {
     /// Scans both slots and picks the image in force (module doc). `machine` and `home_mm` are
     /// what an image must have been built for.
     pub fn open(flash: F, machine: MachineIdentity, home_mm: [f32; 2]) -> Self {
-        let mut store = SlotStore { flash, machine, home_mm, active: None, upload: None };
+        let mut store = SlotStore {
+            flash,
+            machine,
+            home_mm,
+            active: None,
+            upload: None,
+        };
         let committed = [0u8, 1].map(|slot| store.committed(slot));
         store.active = match committed {
-            [Some(a), Some(b)] => Some(if b.sequence.wrapping_sub(a.sequence) as i32 > 0 { b } else { a }),
+            [Some(a), Some(b)] => Some(if b.sequence.wrapping_sub(a.sequence) as i32 > 0 {
+                b
+            } else {
+                a
+            }),
             [Some(a), None] => Some(a),
             [None, Some(b)] => Some(b),
             [None, None] => store.probe_flashed(),
@@ -280,15 +296,25 @@ impl<F: SlotFlash> SlotStore<F> {
         let slot = self.inactive_slot();
         let slot_len = self.slot_len();
         self.flash.erase(slot as usize * slot_len, slot_len)?;
-        self.upload = Some(Upload { slot, len: len as u32, received: 0, tail: [0xFF; MAX_WRITE_SIZE], tail_len: 0 });
+        self.upload = Some(Upload {
+            slot,
+            len: len as u32,
+            received: 0,
+            tail: [0xFF; MAX_WRITE_SIZE],
+            tail_len: 0,
+        });
         Ok(())
     }
 
     /// Appends `data` at `offset` (the next byte expected); returns the bytes received so far.
     pub fn write(&mut self, offset: usize, data: &[u8]) -> Result<u32, SlotError> {
-        let Some(mut up) = self.upload else { return Err(SlotError::NoUpload) };
+        let Some(mut up) = self.upload else {
+            return Err(SlotError::NoUpload);
+        };
         if offset != up.received as usize {
-            return Err(SlotError::OutOfOrder { expected: up.received });
+            return Err(SlotError::OutOfOrder {
+                expected: up.received,
+            });
         }
         if data.len() > (up.len - up.received) as usize {
             self.upload = None;
@@ -319,9 +345,13 @@ impl<F: SlotFlash> SlotStore<F> {
     /// caller switches the servo to it, see the app) and its id is returned; on any error the
     /// old image stays in force.
     pub fn commit(&mut self) -> Result<CalibrationId, SlotError> {
-        let Some(up) = self.upload.take() else { return Err(SlotError::NoUpload) };
+        let Some(up) = self.upload.take() else {
+            return Err(SlotError::NoUpload);
+        };
         if up.received != up.len {
-            return Err(SlotError::Incomplete { received: up.received });
+            return Err(SlotError::Incomplete {
+                received: up.received,
+            });
         }
         let w = F::WRITE_SIZE;
         let slot_len = self.slot_len();
@@ -329,13 +359,17 @@ impl<F: SlotFlash> SlotStore<F> {
         if up.tail_len > 0 {
             let mut unit = [0xFFu8; MAX_WRITE_SIZE];
             unit[..up.tail_len].copy_from_slice(&up.tail[..up.tail_len]);
-            self.flash.program(base + up.len as usize - up.tail_len, &unit[..w])?;
+            self.flash
+                .program(base + up.len as usize - up.tail_len, &unit[..w])?;
         }
         let image = &self.flash.region()[base..base + up.len as usize];
-        let (_, parsed_len) = validate_image(image, &self.machine, self.home_mm).map_err(SlotError::Image)?;
+        let (_, parsed_len) =
+            validate_image(image, &self.machine, self.home_mm).map_err(SlotError::Image)?;
         // The image must be exactly what was announced (no trailing bytes a CRC does not cover).
         if parsed_len != up.len as usize {
-            return Err(SlotError::BadLength { max: self.capacity() as u32 });
+            return Err(SlotError::BadLength {
+                max: self.capacity() as u32,
+            });
         }
         let crc32 = image_crc(image);
         let sequence = self.active.map_or(1, |a| a.sequence.wrapping_add(1));
@@ -344,7 +378,12 @@ impl<F: SlotFlash> SlotStore<F> {
         for (k, unit) in record.chunks(w).enumerate() {
             self.flash.program(at + k * w, unit)?;
         }
-        let id = CalibrationId { slot: up.slot, sequence, crc32, len: up.len };
+        let id = CalibrationId {
+            slot: up.slot,
+            sequence,
+            crc32,
+            len: up.len,
+        };
         // Read back: the record as the next boot will see it.
         if self.committed(up.slot) != Some(id) {
             return Err(SlotError::Flash(FlashError::Hardware));
@@ -366,21 +405,36 @@ impl<F: SlotFlash> SlotStore<F> {
     /// `slot`'s record and image, if they count (module doc).
     fn committed(&self, slot: u8) -> Option<CalibrationId> {
         let slot_len = self.slot_len();
-        let bytes = self.flash.region().get(slot as usize * slot_len..(slot as usize + 1) * slot_len)?;
+        let bytes = self
+            .flash
+            .region()
+            .get(slot as usize * slot_len..(slot as usize + 1) * slot_len)?;
         let (sequence, len, crc32) = decode_record(&bytes[slot_len - RECORD_LEN..])?;
-        let image = bytes.get(..len as usize).filter(|_| len as usize <= slot_len - RECORD_LEN)?;
+        let image = bytes
+            .get(..len as usize)
+            .filter(|_| len as usize <= slot_len - RECORD_LEN)?;
         if image_crc(image) != crc32 {
             return None;
         }
         let (_, parsed_len) = validate_image(image, &self.machine, self.home_mm).ok()?;
-        (parsed_len == len as usize).then_some(CalibrationId { slot, sequence, crc32, len })
+        (parsed_len == len as usize).then_some(CalibrationId {
+            slot,
+            sequence,
+            crc32,
+            len,
+        })
     }
 
     /// An image at the start of slot A without any record (flashed by probe), sequence 0.
     fn probe_flashed(&self) -> Option<CalibrationId> {
         let a = self.flash.region().get(..self.capacity())?;
         let (_, len) = validate_image(a, &self.machine, self.home_mm).ok()?;
-        Some(CalibrationId { slot: 0, sequence: 0, crc32: image_crc(&a[..len]), len: len as u32 })
+        Some(CalibrationId {
+            slot: 0,
+            sequence: 0,
+            crc32: image_crc(&a[..len]),
+            len: len as u32,
+        })
     }
 }
 
@@ -431,7 +485,12 @@ pub mod sim {
     impl<'a, const W: usize, const E: usize> SimFlash<'a, W, E> {
         /// Over `bytes`, no power cut.
         pub fn new(bytes: &'a mut [u8]) -> Self {
-            SimFlash { bytes, budget: None, ops: 0, units: 0 }
+            SimFlash {
+                bytes,
+                budget: None,
+                ops: 0,
+                units: 0,
+            }
         }
 
         /// Spends one byte operation; `Err` once the power is gone.
@@ -490,9 +549,22 @@ mod tests {
     const HOME_MM: [f32; 2] = [212.132, 0.0];
 
     fn image(value: f32) -> Vec<u8> {
-        let g = GridGeometry { nx: 3, ny: 3, x0_mm: 160.0, y0_mm: -80.0, step_x_mm: 50.0, step_y_mm: 80.0 };
+        let g = GridGeometry {
+            nx: 3,
+            ny: 3,
+            x0_mm: 160.0,
+            y0_mm: -80.0,
+            step_x_mm: 50.0,
+            step_y_mm: 80.0,
+        };
         let mut img = vec![0u8; g.image_len()];
-        encode(&mut img, &g, &FiveBar::paper_nominal(), &[[value, -value]; 9]).unwrap();
+        encode(
+            &mut img,
+            &g,
+            &FiveBar::paper_nominal(),
+            &[[value, -value]; 9],
+        )
+        .unwrap();
         img
     }
 
@@ -505,7 +577,11 @@ mod tests {
     #[test]
     fn different_images_have_different_ids() {
         let (a, b) = (image(1e-4), image(2e-4));
-        assert_eq!(CRC32.checksum(&a), CRC32.checksum(&b), "the residue the id must not use");
+        assert_eq!(
+            CRC32.checksum(&a),
+            CRC32.checksum(&b),
+            "the residue the id must not use"
+        );
         assert_ne!(crc(&a), crc(&b));
     }
 
@@ -515,7 +591,11 @@ mod tests {
         SlotStore::open(SimFlash::new(bytes), MachineIdentity::default(), HOME_MM)
     }
 
-    fn upload<F: SlotFlash>(store: &mut SlotStore<F>, img: &[u8], chunk: usize) -> Result<CalibrationId, SlotError> {
+    fn upload<F: SlotFlash>(
+        store: &mut SlotStore<F>,
+        img: &[u8],
+        chunk: usize,
+    ) -> Result<CalibrationId, SlotError> {
         store.begin(img.len())?;
         for (k, c) in img.chunks(chunk).enumerate() {
             store.write(k * chunk, c)?;
@@ -531,16 +611,46 @@ mod tests {
         let mut store = open(&mut region);
         assert_eq!(store.slot_len(), 2048);
         let (bytes, id) = store.active().unwrap();
-        assert_eq!((bytes, id), (&old[..], CalibrationId { slot: 0, sequence: 0, crc32: crc(&old), len: old.len() as u32 }));
+        assert_eq!(
+            (bytes, id),
+            (
+                &old[..],
+                CalibrationId {
+                    slot: 0,
+                    sequence: 0,
+                    crc32: crc(&old),
+                    len: old.len() as u32
+                }
+            )
+        );
         // Odd chunk sizes: the store buffers partial write units.
         let id = upload(&mut store, &new, 7).unwrap();
-        assert_eq!(id, CalibrationId { slot: 1, sequence: 1, crc32: crc(&new), len: new.len() as u32 });
+        assert_eq!(
+            id,
+            CalibrationId {
+                slot: 1,
+                sequence: 1,
+                crc32: crc(&new),
+                len: new.len() as u32
+            }
+        );
         assert_eq!(store.active().unwrap().0, &new[..]);
         // The next one goes back to slot A, over the probe-flashed image, and wins on sequence.
         let third = image(3e-4);
         assert_eq!(upload(&mut store, &third, 64).unwrap().slot, 0);
         let store = open(&mut region);
-        assert_eq!(store.active().unwrap(), (&third[..], CalibrationId { slot: 0, sequence: 2, crc32: crc(&third), len: third.len() as u32 }));
+        assert_eq!(
+            store.active().unwrap(),
+            (
+                &third[..],
+                CalibrationId {
+                    slot: 0,
+                    sequence: 2,
+                    crc32: crc(&third),
+                    len: third.len() as u32
+                }
+            )
+        );
     }
 
     #[test]
@@ -553,15 +663,30 @@ mod tests {
         // Corrupt: one node flipped, the CRC no longer matches.
         let mut bad = image(2e-4);
         bad[100] ^= 0x10;
-        assert_eq!(upload(&mut store, &bad, 32), Err(SlotError::Image(ImageError::Grid(GridError::BadCrc))));
+        assert_eq!(
+            upload(&mut store, &bad, 32),
+            Err(SlotError::Image(ImageError::Grid(GridError::BadCrc)))
+        );
         // Another machine: 160 mm links (a valid image, CRC and all).
-        let g = GridGeometry { nx: 3, ny: 3, x0_mm: 160.0, y0_mm: -80.0, step_x_mm: 50.0, step_y_mm: 80.0 };
+        let g = GridGeometry {
+            nx: 3,
+            ny: 3,
+            x0_mm: 160.0,
+            y0_mm: -80.0,
+            step_x_mm: 50.0,
+            step_y_mm: 80.0,
+        };
         let mut other = vec![0u8; g.image_len()];
-        let model = FiveBar { a_mm: 160.0, ..FiveBar::paper_nominal() };
+        let model = FiveBar {
+            a_mm: 160.0,
+            ..FiveBar::paper_nominal()
+        };
         encode(&mut other, &g, &model, &[[0.0; 2]; 9]).unwrap();
         assert_eq!(
             upload(&mut store, &other, 32),
-            Err(SlotError::Image(ImageError::OtherMachine(crate::calibration::MachineMismatch::LinkLength)))
+            Err(SlotError::Image(ImageError::OtherMachine(
+                crate::calibration::MachineMismatch::LinkLength
+            )))
         );
         // Lengths, order, protocol.
         assert_eq!(store.begin(10), Err(SlotError::BadLength { max: 2016 }));
@@ -571,14 +696,20 @@ mod tests {
         let good = image(2e-4);
         store.begin(good.len()).unwrap();
         store.write(0, &good[..10]).unwrap();
-        assert_eq!(store.write(0, &good[..10]), Err(SlotError::OutOfOrder { expected: 10 }));
+        assert_eq!(
+            store.write(0, &good[..10]),
+            Err(SlotError::OutOfOrder { expected: 10 })
+        );
         assert_eq!(store.commit(), Err(SlotError::Incomplete { received: 10 }));
         store.begin(good.len()).unwrap();
         assert_eq!(store.write(0, &[0u8; 200]), Err(SlotError::TooMuchData));
         // Announced longer than the image: trailing bytes are refused, not ignored.
         let mut padded = good.clone();
         padded.extend([0u8; 8]);
-        assert!(matches!(upload(&mut store, &padded, 64), Err(SlotError::BadLength { .. })));
+        assert!(matches!(
+            upload(&mut store, &padded, 64),
+            Err(SlotError::BadLength { .. })
+        ));
         assert_eq!(store.active_id(), before);
         assert_eq!(open(&mut region).active_id(), before, "and after a reboot");
     }
@@ -602,7 +733,14 @@ mod tests {
     /// mix. Three uploads in a row, so both slots are overwritten, with and without dynamics.
     #[test]
     fn a_power_cut_at_every_byte_of_an_upload_leaves_the_old_image_or_the_new_one() {
-        let g = GridGeometry { nx: 3, ny: 3, x0_mm: 160.0, y0_mm: -80.0, step_x_mm: 50.0, step_y_mm: 80.0 };
+        let g = GridGeometry {
+            nx: 3,
+            ny: 3,
+            x0_mm: 160.0,
+            y0_mm: -80.0,
+            step_x_mm: 50.0,
+            step_y_mm: 80.0,
+        };
         let mut with_dynamics = vec![0u8; g.image_len_with_dynamics()];
         let dynamics = FiveBarDynamics {
             motor_inertia_kg_m2: [5e-3, 5e-3],
@@ -612,7 +750,14 @@ mod tests {
             coulomb_nm: [0.02; 2],
             coulomb_speed_rad_s: 0.01,
         };
-        encode_with_dynamics(&mut with_dynamics, &g, &FiveBar::paper_nominal(), &[[5e-5, 1e-5]; 9], &dynamics).unwrap();
+        encode_with_dynamics(
+            &mut with_dynamics,
+            &g,
+            &FiveBar::paper_nominal(),
+            &[[5e-5, 1e-5]; 9],
+            &dynamics,
+        )
+        .unwrap();
         let images = [image(1e-4), image(2e-4), with_dynamics, image(3e-4)];
         let mut region = vec![0xFFu8; 4096];
         region[..images[0].len()].copy_from_slice(&images[0]);
@@ -636,9 +781,17 @@ mod tests {
                 let after = open(&mut r);
                 let (bytes, id) = after.active().expect("an image in force after every cut");
                 if done {
-                    assert_eq!(bytes, &new[..], "cut after {budget} of {total}: committed, the new image");
+                    assert_eq!(
+                        bytes,
+                        &new[..],
+                        "cut after {budget} of {total}: committed, the new image"
+                    );
                 } else {
-                    assert_eq!(bytes, &old[..], "cut after {budget} of {total}: the old image");
+                    assert_eq!(
+                        bytes,
+                        &old[..],
+                        "cut after {budget} of {total}: the old image"
+                    );
                     assert!(budget < total);
                 }
                 assert_eq!(id.crc32, crc(bytes));
@@ -656,10 +809,23 @@ mod tests {
     /// programmed unit and after every erased page.
     #[test]
     fn a_power_cut_after_every_write_unit_on_the_real_geometry() {
-        let g = GridGeometry { nx: 21, ny: 31, x0_mm: 162.132, y0_mm: -75.0, step_x_mm: 5.0, step_y_mm: 5.0 };
+        let g = GridGeometry {
+            nx: 21,
+            ny: 31,
+            x0_mm: 162.132,
+            y0_mm: -75.0,
+            step_x_mm: 5.0,
+            step_y_mm: 5.0,
+        };
         let make = |v: f32| {
             let mut img = vec![0u8; g.image_len()];
-            encode(&mut img, &g, &FiveBar::paper_nominal(), &vec![[v, -v]; g.len()]).unwrap();
+            encode(
+                &mut img,
+                &g,
+                &FiveBar::paper_nominal(),
+                &vec![[v, -v]; g.len()],
+            )
+            .unwrap();
             img
         };
         let (old, new) = (make(1e-4), make(2e-4));
@@ -678,7 +844,9 @@ mod tests {
         let erase_ops = 32768;
         assert_eq!(ops, erase_ops + units * 8);
         // Cut points: every erased page, and every byte boundary of every unit programmed.
-        let cuts = (0..=16).map(|p| p * 2048).chain((0..=units).map(|u| erase_ops + u * 8));
+        let cuts = (0..=16)
+            .map(|p| p * 2048)
+            .chain((0..=units).map(|u| erase_ops + u * 8));
         for budget in cuts {
             let mut r = snapshot.clone();
             let mut s = open64(&mut r);
@@ -686,7 +854,11 @@ mod tests {
             let done = upload(&mut s, &new, 256).is_ok();
             let after = open64(&mut r);
             let expected = if done { &new } else { &old };
-            assert_eq!(after.active().unwrap().0, &expected[..], "cut after {budget} of {ops}");
+            assert_eq!(
+                after.active().unwrap().0,
+                &expected[..],
+                "cut after {budget} of {ops}"
+            );
             assert_eq!(done, budget == ops);
         }
     }

@@ -74,12 +74,18 @@ mod tests {
         let mut d = Deadline::default();
         assert!(!d.record(10.0, true, 3));
         assert!(!d.record(12.0, true, 3));
-        assert!(!d.record(8.0, false, 3), "an on-time sample ends the streak");
+        assert!(
+            !d.record(8.0, false, 3),
+            "an on-time sample ends the streak"
+        );
         assert_eq!((d.overruns, d.streak), (2, 0));
         assert!(!d.record(600.0, true, 3));
         assert!(!d.record(700.0, true, 3));
         assert!(d.record(650.0, true, 3), "third in a row");
-        assert!(d.record(650.0, true, 3), "and it stays reached while the streak lasts");
+        assert!(
+            d.record(650.0, true, 3),
+            "and it stays reached while the streak lasts"
+        );
         assert_eq!((d.overruns, d.streak), (6, 4));
         assert_eq!(d.worst_step_us, 700.0);
     }

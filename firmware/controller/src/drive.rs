@@ -48,7 +48,10 @@ impl<P: SetDutyCycle> TorqueDrive<P> {
 
 /// Commands both axes; returns the torques commanded after duty rounding, or the first error
 /// (axis 1 is not written after axis 0 failed).
-pub fn set_torques_nm<P: SetDutyCycle>(drives: &mut [TorqueDrive<P>; 2], torque_nm: [f32; 2]) -> Result<[f32; 2], DriveError> {
+pub fn set_torques_nm<P: SetDutyCycle>(
+    drives: &mut [TorqueDrive<P>; 2],
+    torque_nm: [f32; 2],
+) -> Result<[f32; 2], DriveError> {
     let a = drives[0].set_torque_nm(torque_nm[0])?;
     let b = drives[1].set_torque_nm(torque_nm[1])?;
     Ok([a, b])
@@ -127,15 +130,33 @@ mod tests {
 
     #[test]
     fn a_drive_writes_the_duty_and_reports_the_torque_it_commands() {
-        let mut d = TorqueDrive { pwm: Recorder { duty: 0, fail: false }, full_scale_nm: FULL_NM };
+        let mut d = TorqueDrive {
+            pwm: Recorder {
+                duty: 0,
+                fail: false,
+            },
+            full_scale_nm: FULL_NM,
+        };
         let got = d.set_torque_nm(2.5).unwrap();
         assert_eq!(d.pwm.duty, torque_to_duty(2.5, FULL_NM, MAX));
         assert!((got - 2.5).abs() <= FULL_NM / MAX as f32);
         d.pwm.fail = true;
         assert_eq!(d.set_torque_nm(1.0), Err(DriveError));
         let mut both = [
-            TorqueDrive { pwm: Recorder { duty: 0, fail: false }, full_scale_nm: FULL_NM },
-            TorqueDrive { pwm: Recorder { duty: 0, fail: false }, full_scale_nm: FULL_NM },
+            TorqueDrive {
+                pwm: Recorder {
+                    duty: 0,
+                    fail: false,
+                },
+                full_scale_nm: FULL_NM,
+            },
+            TorqueDrive {
+                pwm: Recorder {
+                    duty: 0,
+                    fail: false,
+                },
+                full_scale_nm: FULL_NM,
+            },
         ];
         let got = set_torques_nm(&mut both, [-FULL_NM, 0.0]).unwrap();
         assert_eq!(got, [-FULL_NM, 0.0]);

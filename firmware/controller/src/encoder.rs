@@ -55,8 +55,11 @@ pub struct EncoderConfig {
 impl EncoderConfig {
     /// A 2^22 counts/rev encoder on a direct-drive joint, counting up for positive angles (the
     /// QEMU board's simulated machine, and the default until the real encoders are known).
-    pub const DIRECT_DRIVE_2_22: EncoderConfig =
-        EncoderConfig { counts_per_rev: 1 << 22, sign: EncoderSign::Normal, gear_ratio: 1.0 };
+    pub const DIRECT_DRIVE_2_22: EncoderConfig = EncoderConfig {
+        counts_per_rev: 1 << 22,
+        sign: EncoderSign::Normal,
+        gear_ratio: 1.0,
+    };
 }
 
 /// Why an [`EncoderConfig`] was refused.
@@ -78,7 +81,9 @@ impl core::fmt::Display for EncoderConfigError {
         f.write_str(match self {
             EncoderConfigError::ZeroCountsPerRev => "encoder counts per revolution is 0",
             EncoderConfigError::GearRatio => "gear ratio is not a finite number above 0",
-            EncoderConfigError::Resolution => "one encoder count is not between 1e-12 and 0.01 rad of joint angle",
+            EncoderConfigError::Resolution => {
+                "one encoder count is not between 1e-12 and 0.01 rad of joint angle"
+            }
         })
     }
 }
@@ -104,7 +109,10 @@ pub struct EncoderScale {
 impl EncoderScale {
     /// What an axis with a refused configuration reads: NaN, which the servo refuses at engage
     /// (`EngageError::NonFiniteFeedback`), so the drives stay disabled.
-    pub const REFUSED: EncoderScale = EncoderScale { rad_per_count: f32::NAN, zero_counts: 0 };
+    pub const REFUSED: EncoderScale = EncoderScale {
+        rad_per_count: f32::NAN,
+        zero_counts: 0,
+    };
 
     /// The scale for `config`, zero at counter reading 0 (the power-on position) until
     /// [`EncoderScale::set_reference`].
@@ -124,12 +132,17 @@ impl EncoderScale {
             EncoderSign::Normal => magnitude,
             EncoderSign::Reversed => -magnitude,
         };
-        Ok(EncoderScale { rad_per_count, zero_counts: 0 })
+        Ok(EncoderScale {
+            rad_per_count,
+            zero_counts: 0,
+        })
     }
 
     /// The scales of both axes; an axis whose configuration is refused reads
     /// [`EncoderScale::REFUSED`] (NaN) and its error is returned next to it.
-    pub fn both(configs: &[EncoderConfig; 2]) -> ([EncoderScale; 2], [Option<EncoderConfigError>; 2]) {
+    pub fn both(
+        configs: &[EncoderConfig; 2],
+    ) -> ([EncoderScale; 2], [Option<EncoderConfigError>; 2]) {
         let mut scales = [EncoderScale::REFUSED; 2];
         let mut errors = [None; 2];
         for k in 0..2 {
@@ -174,7 +187,12 @@ mod tests {
     use core::f32::consts::{FRAC_PI_2, PI, TAU};
 
     fn scale(counts_per_rev: u32, sign: EncoderSign, gear_ratio: f32) -> EncoderScale {
-        EncoderScale::new(&EncoderConfig { counts_per_rev, sign, gear_ratio }).unwrap()
+        EncoderScale::new(&EncoderConfig {
+            counts_per_rev,
+            sign,
+            gear_ratio,
+        })
+        .unwrap()
     }
 
     #[test]
@@ -191,7 +209,10 @@ mod tests {
         assert!((geared.joint_rad(500_000) - TAU).abs() < 1e-5);
         assert!((geared.joint_rad(125_000) - FRAC_PI_2).abs() < 1e-6);
         // 4096 counts per revolution at 1:1: a quarter turn.
-        assert_eq!(scale(4096, EncoderSign::Normal, 1.0).joint_rad(1024), FRAC_PI_2);
+        assert_eq!(
+            scale(4096, EncoderSign::Normal, 1.0).joint_rad(1024),
+            FRAC_PI_2
+        );
     }
 
     /// What the direction test of the bring-up guide looks for: the joint turns positive (the
@@ -203,7 +224,10 @@ mod tests {
         let counter_after_positive_quarter_turn = -(cpr as f32 * ratio / 4.0) as i32;
         let wrong = scale(cpr, EncoderSign::Normal, ratio);
         let right = scale(cpr, EncoderSign::Reversed, ratio);
-        assert!(wrong.joint_rad(counter_after_positive_quarter_turn) < 0.0, "the motion reads negative");
+        assert!(
+            wrong.joint_rad(counter_after_positive_quarter_turn) < 0.0,
+            "the motion reads negative"
+        );
         assert!((right.joint_rad(counter_after_positive_quarter_turn) - FRAC_PI_2).abs() < 1e-6);
         assert_eq!(right.rad_per_count(), -wrong.rad_per_count());
     }
@@ -215,7 +239,11 @@ mod tests {
         assert_eq!(s.joint_rad(1000), 1000.0 * s.rad_per_count());
         // The index pulse at counter 123_456 marks joint angle 0.8 rad.
         s.set_reference(123_456, 0.8).unwrap();
-        assert!((s.joint_rad(123_456) - 0.8).abs() < 2e-6, "{}", s.joint_rad(123_456));
+        assert!(
+            (s.joint_rad(123_456) - 0.8).abs() < 2e-6,
+            "{}",
+            s.joint_rad(123_456)
+        );
         assert!((s.joint_rad(123_456 + (1 << 20)) - (0.8 + FRAC_PI_2)).abs() < 2e-6);
         // Reversed and geared: the reference holds the same way.
         let mut r = scale(4096, EncoderSign::Reversed, 20.0);
@@ -223,8 +251,14 @@ mod tests {
         assert!((r.joint_rad(-5000) + 1.2).abs() < 1e-4);
         // A non-finite or absurd reference is refused and the zero kept.
         let before = r;
-        assert_eq!(r.set_reference(0, f32::NAN), Err(EncoderConfigError::Resolution));
-        assert_eq!(r.set_reference(0, 1e30), Err(EncoderConfigError::Resolution));
+        assert_eq!(
+            r.set_reference(0, f32::NAN),
+            Err(EncoderConfigError::Resolution)
+        );
+        assert_eq!(
+            r.set_reference(0, 1e30),
+            Err(EncoderConfigError::Resolution)
+        );
         assert_eq!(r, before);
     }
 
@@ -241,20 +275,79 @@ mod tests {
     fn bad_configurations_are_refused_and_read_nan() {
         let ok = EncoderConfig::DIRECT_DRIVE_2_22;
         for (bad, why) in [
-            (EncoderConfig { counts_per_rev: 0, ..ok }, EncoderConfigError::ZeroCountsPerRev),
-            (EncoderConfig { gear_ratio: 0.0, ..ok }, EncoderConfigError::GearRatio),
-            (EncoderConfig { gear_ratio: -50.0, ..ok }, EncoderConfigError::GearRatio),
-            (EncoderConfig { gear_ratio: f32::NAN, ..ok }, EncoderConfigError::GearRatio),
-            (EncoderConfig { gear_ratio: f32::INFINITY, ..ok }, EncoderConfigError::GearRatio),
-            (EncoderConfig { gear_ratio: 1e-30, ..ok }, EncoderConfigError::Resolution),
-            (EncoderConfig { counts_per_rev: 100, gear_ratio: 1.0, ..ok }, EncoderConfigError::Resolution),
-            (EncoderConfig { counts_per_rev: u32::MAX, gear_ratio: 1e6, ..ok }, EncoderConfigError::Resolution),
+            (
+                EncoderConfig {
+                    counts_per_rev: 0,
+                    ..ok
+                },
+                EncoderConfigError::ZeroCountsPerRev,
+            ),
+            (
+                EncoderConfig {
+                    gear_ratio: 0.0,
+                    ..ok
+                },
+                EncoderConfigError::GearRatio,
+            ),
+            (
+                EncoderConfig {
+                    gear_ratio: -50.0,
+                    ..ok
+                },
+                EncoderConfigError::GearRatio,
+            ),
+            (
+                EncoderConfig {
+                    gear_ratio: f32::NAN,
+                    ..ok
+                },
+                EncoderConfigError::GearRatio,
+            ),
+            (
+                EncoderConfig {
+                    gear_ratio: f32::INFINITY,
+                    ..ok
+                },
+                EncoderConfigError::GearRatio,
+            ),
+            (
+                EncoderConfig {
+                    gear_ratio: 1e-30,
+                    ..ok
+                },
+                EncoderConfigError::Resolution,
+            ),
+            (
+                EncoderConfig {
+                    counts_per_rev: 100,
+                    gear_ratio: 1.0,
+                    ..ok
+                },
+                EncoderConfigError::Resolution,
+            ),
+            (
+                EncoderConfig {
+                    counts_per_rev: u32::MAX,
+                    gear_ratio: 1e6,
+                    ..ok
+                },
+                EncoderConfigError::Resolution,
+            ),
         ] {
             assert_eq!(EncoderScale::new(&bad), Err(why), "{bad:?}");
         }
-        let (scales, errors) = EncoderScale::both(&[ok, EncoderConfig { counts_per_rev: 0, ..ok }]);
+        let (scales, errors) = EncoderScale::both(&[
+            ok,
+            EncoderConfig {
+                counts_per_rev: 0,
+                ..ok
+            },
+        ]);
         assert_eq!(errors, [None, Some(EncoderConfigError::ZeroCountsPerRev)]);
         assert_eq!(scales[0].joint_rad(1 << 21), PI);
-        assert!(scales[1].joint_rad(1234).is_nan(), "a refused axis reads NaN, which the servo refuses");
+        assert!(
+            scales[1].joint_rad(1234).is_nan(),
+            "a refused axis reads NaN, which the servo refuses"
+        );
     }
 }

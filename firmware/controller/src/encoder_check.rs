@@ -136,7 +136,9 @@ impl core::fmt::Display for EncoderFault {
         let what = match self.kind {
             EncoderFaultKind::NonFinite => "non-finite reading",
             EncoderFaultKind::Speed => "speed beyond the mechanism's",
-            EncoderFaultKind::Acceleration => "acceleration beyond the drives' (a glitch, or a reading that stopped)",
+            EncoderFaultKind::Acceleration => {
+                "acceleration beyond the drives' (a glitch, or a reading that stopped)"
+            }
             EncoderFaultKind::Stuck => "no motion under torque (stuck encoder or blocked axis)",
         };
         write!(f, "axis {}: {}", self.axis + 1, what)
@@ -167,7 +169,12 @@ impl EncoderCheck {
     /// the sign is ignored, and a non-finite value counts as 0: the unwidened bounds).
     pub fn new(encoder_rad: [f32; 2], count_rad: [f32; 2]) -> Self {
         let count_rad = count_rad.map(|c| if c.is_finite() { c.abs() } else { 0.0 });
-        EncoderCheck { count_rad, last_rad: encoder_rad, last_step_rad: [0.0; 2], expected: [Expected::default(); 2] }
+        EncoderCheck {
+            count_rad,
+            last_rad: encoder_rad,
+            last_step_rad: [0.0; 2],
+            expected: [Expected::default(); 2],
+        }
     }
 
     /// One count of each axis (rad), as given to `new`.
@@ -178,7 +185,10 @@ impl EncoderCheck {
     /// The readings' zero moved (homing set the reference): the readings from now on are the
     /// old ones plus `offset_rad`. Speeds and the stuck check carry on.
     pub fn shift(&mut self, offset_rad: [f32; 2]) {
-        self.last_rad = [self.last_rad[0] + offset_rad[0], self.last_rad[1] + offset_rad[1]];
+        self.last_rad = [
+            self.last_rad[0] + offset_rad[0],
+            self.last_rad[1] + offset_rad[1],
+        ];
     }
 
     /// The last sample's joint speeds (rad/s): the difference of the last two readings.
@@ -197,7 +207,10 @@ impl EncoderCheck {
     ) -> Result<(), EncoderFault> {
         let mut next = *self;
         for k in 0..2 {
-            let fault = |kind| EncoderFault { axis: k as u8, kind };
+            let fault = |kind| EncoderFault {
+                axis: k as u8,
+                kind,
+            };
             if !encoder_rad[k].is_finite() {
                 return Err(fault(EncoderFaultKind::NonFinite));
             }
@@ -206,7 +219,9 @@ impl EncoderCheck {
             if !(step.abs() <= limits.max_speed_rad_s * dt_s + count) {
                 return Err(fault(EncoderFaultKind::Speed));
             }
-            if !((step - self.last_step_rad[k]).abs() <= limits.max_accel_rad_s2 * dt_s * dt_s + 2.0 * count) {
+            if !((step - self.last_step_rad[k]).abs()
+                <= limits.max_accel_rad_s2 * dt_s * dt_s + 2.0 * count)
+            {
                 return Err(fault(EncoderFaultKind::Acceleration));
             }
             let e = &mut next.expected[k];
@@ -257,7 +272,14 @@ mod tests {
         torque: impl FnMut(usize, f32, f32) -> f32,
         reading: impl FnMut(usize, f32) -> f32,
     ) -> Option<(usize, EncoderFault)> {
-        run_with(COUNT_RAD, samples, inertia_kg_m2, friction_nm, torque, reading)
+        run_with(
+            COUNT_RAD,
+            samples,
+            inertia_kg_m2,
+            friction_nm,
+            torque,
+            reading,
+        )
     }
 
     /// [`run`] with an encoder of `count_rad` per count (the reading passed to `reading` is
@@ -279,7 +301,11 @@ mod tests {
             // The torque of the previous sample acts for one period (10 sub-steps).
             for _ in 0..10 {
                 let h = DT_S / 10.0;
-                let f = if speed.abs() > 1e-4 { friction_nm * speed.signum() } else { tau.clamp(-friction_nm, friction_nm) };
+                let f = if speed.abs() > 1e-4 {
+                    friction_nm * speed.signum()
+                } else {
+                    tau.clamp(-friction_nm, friction_nm)
+                };
                 speed += (tau - f) / inertia_kg_m2 * h;
                 angle += speed * h;
             }
@@ -301,7 +327,19 @@ mod tests {
             4000,
             2.2e-3,
             0.18,
-            |k, _, w| if k < 3000 { if (k / 80) % 2 == 0 { 2.0 } else { -2.0 } } else if w.abs() > 0.1 { -2.0 * w.signum() } else { 0.15 },
+            |k, _, w| {
+                if k < 3000 {
+                    if (k / 80) % 2 == 0 {
+                        2.0
+                    } else {
+                        -2.0
+                    }
+                } else if w.abs() > 0.1 {
+                    -2.0 * w.signum()
+                } else {
+                    0.15
+                }
+            },
             |_, r| r,
         );
         assert_eq!(fault, None);
@@ -310,18 +348,55 @@ mod tests {
     #[test]
     fn glitches_are_caught_in_their_sample_or_when_the_reading_returns() {
         for delta in [1.6e-3f32, 5e-3, 0.02, -0.05] {
-            let fault = run(600, 2.2e-3, 0.03, |_, _, _| 0.2, |k, r| if k == 400 { r + delta } else { r });
+            let fault = run(
+                600,
+                2.2e-3,
+                0.03,
+                |_, _, _| 0.2,
+                |k, r| if k == 400 { r + delta } else { r },
+            );
             let (at, f) = fault.unwrap_or_else(|| panic!("glitch {delta} not caught"));
             assert_eq!((at, f.axis), (400, 0), "{delta}");
-            assert!(matches!(f.kind, EncoderFaultKind::Acceleration | EncoderFaultKind::Speed), "{f:?}");
+            assert!(
+                matches!(
+                    f.kind,
+                    EncoderFaultKind::Acceleration | EncoderFaultKind::Speed
+                ),
+                "{f:?}"
+            );
         }
         // Between half the bound and the bound: caught when the reading comes back (-2δ).
         for delta in [0.8e-3f32, -1.2e-3] {
-            let fault = run(600, 2.2e-3, 0.03, |_, _, _| 0.2, |k, r| if k == 400 { r + delta } else { r });
-            assert_eq!(fault, Some((401, EncoderFault { axis: 0, kind: EncoderFaultKind::Acceleration })), "{delta}");
+            let fault = run(
+                600,
+                2.2e-3,
+                0.03,
+                |_, _, _| 0.2,
+                |k, r| if k == 400 { r + delta } else { r },
+            );
+            assert_eq!(
+                fault,
+                Some((
+                    401,
+                    EncoderFault {
+                        axis: 0,
+                        kind: EncoderFaultKind::Acceleration
+                    }
+                )),
+                "{delta}"
+            );
         }
         // Below half the bound it is noise to this check (the servo takes it as a small kick).
-        assert_eq!(run(600, 2.2e-3, 0.03, |_, _, _| 0.2, |k, r| if k == 400 { r + 0.7e-3 } else { r }), None);
+        assert_eq!(
+            run(
+                600,
+                2.2e-3,
+                0.03,
+                |_, _, _| 0.2,
+                |k, r| if k == 400 { r + 0.7e-3 } else { r }
+            ),
+            None
+        );
     }
 
     #[test]
@@ -341,16 +416,46 @@ mod tests {
                 last
             },
         );
-        assert_eq!(fault, Some((100, EncoderFault { axis: 0, kind: EncoderFaultKind::Acceleration })));
+        assert_eq!(
+            fault,
+            Some((
+                100,
+                EncoderFault {
+                    axis: 0,
+                    kind: EncoderFaultKind::Acceleration
+                }
+            ))
+        );
     }
 
     #[test]
     fn a_jump_faster_than_the_mechanism_is_a_speed_fault() {
-        let fault = run(300, 2.2e-3, 0.03, |_, _, _| 0.0, |k, r| if k >= 200 { r + 0.2 } else { r });
-        assert_eq!(fault, Some((200, EncoderFault { axis: 0, kind: EncoderFaultKind::Speed })));
+        let fault = run(
+            300,
+            2.2e-3,
+            0.03,
+            |_, _, _| 0.0,
+            |k, r| if k >= 200 { r + 0.2 } else { r },
+        );
+        assert_eq!(
+            fault,
+            Some((
+                200,
+                EncoderFault {
+                    axis: 0,
+                    kind: EncoderFaultKind::Speed
+                }
+            ))
+        );
         let mut c = EncoderCheck::new([0.0; 2], [COUNT_RAD; 2]);
         let e = c.check([0.0, f32::NAN], [0.0; 2], &EncoderLimits::default(), DT_S);
-        assert_eq!(e, Err(EncoderFault { axis: 1, kind: EncoderFaultKind::NonFinite }));
+        assert_eq!(
+            e,
+            Err(EncoderFault {
+                axis: 1,
+                kind: EncoderFaultKind::NonFinite
+            })
+        );
     }
 
     /// The stated detection times: a reading frozen at rest, under a constant torque: the
@@ -360,7 +465,9 @@ mod tests {
         let l = EncoderLimits::default();
         for (torque, samples) in [(8.0f32, 1usize), (1.0, 2), (0.5, 3)] {
             let a = (torque - l.hold_torque_nm) / l.max_inertia_kg_m2;
-            let stated = (1..).find(|&n: &usize| a * (n as f32 * DT_S).powi(2) / 2.0 > l.stuck_motion_rad).unwrap();
+            let stated = (1..)
+                .find(|&n: &usize| a * (n as f32 * DT_S).powi(2) / 2.0 > l.stuck_motion_rad)
+                .unwrap();
             assert_eq!(stated, samples, "{torque} N·m");
             let mut c = EncoderCheck::new([0.5, 0.5], [COUNT_RAD; 2]);
             let mut found = None;
@@ -370,7 +477,17 @@ mod tests {
                     break;
                 }
             }
-            assert_eq!(found, Some((samples, EncoderFault { axis: 1, kind: EncoderFaultKind::Stuck })), "{torque} N·m");
+            assert_eq!(
+                found,
+                Some((
+                    samples,
+                    EncoderFault {
+                        axis: 1,
+                        kind: EncoderFaultKind::Stuck
+                    }
+                )),
+                "{torque} N·m"
+            );
         }
     }
 
@@ -382,11 +499,24 @@ mod tests {
         // away from a reading that does not follow: the torque acting at sample k is
         // 0.05·(k-1), past hold_torque from sample 6 on.
         let ramp = |k: usize, _: f32, _: f32| (k as f32 * 0.05).min(8.0);
-        assert_eq!(run(60, 2.2e-3, 0.03, ramp, |_, r| r), None, "free: it moves");
+        assert_eq!(
+            run(60, 2.2e-3, 0.03, ramp, |_, r| r),
+            None,
+            "free: it moves"
+        );
         let blocked = run(100, 2.2e-3, 0.03, ramp, |_, _| quantise(0.9));
         // Expected motion after m samples of excess 0.05·j N·m (j = 1..m) over 3e-3 kg·m²:
         // dt²·16.7·m³/6 rad roughly, past 1e-4 at m = 5: sample 10.
-        assert_eq!(blocked, Some((10, EncoderFault { axis: 0, kind: EncoderFaultKind::Stuck })));
+        assert_eq!(
+            blocked,
+            Some((
+                10,
+                EncoderFault {
+                    axis: 0,
+                    kind: EncoderFaultKind::Stuck
+                }
+            ))
+        );
     }
 
     #[test]
@@ -397,7 +527,11 @@ mod tests {
             // A static load held with 0.19 N·m; axis 2 alternates ±0.5 N·m every sample (a
             // chattering servo at rest: never one sign long enough to move).
             let t2 = if k % 2 == 0 { 0.5 } else { -0.5 };
-            assert_eq!(c.check([0.5, 0.5], [0.19, t2], &l, DT_S), Ok(()), "sample {k}");
+            assert_eq!(
+                c.check([0.5, 0.5], [0.19, t2], &l, DT_S),
+                Ok(()),
+                "sample {k}"
+            );
         }
     }
 
@@ -410,29 +544,83 @@ mod tests {
         let count = core::f32::consts::TAU / 4096.0;
         let reversing = |k: usize, _: f32, w: f32| {
             if k < 3000 {
-                if (k / 80) % 2 == 0 { 2.0 } else { -2.0 }
+                if (k / 80) % 2 == 0 {
+                    2.0
+                } else {
+                    -2.0
+                }
             } else if w.abs() > 0.1 {
                 -2.0 * w.signum()
             } else {
                 0.15
             }
         };
-        assert_eq!(run_with(count, 4000, 2.2e-3, 0.18, reversing, |_, r| r), None);
+        assert_eq!(
+            run_with(count, 4000, 2.2e-3, 0.18, reversing, |_, r| r),
+            None
+        );
         // 0.5 N·m from rest: the expected motion passes stuck_motion (1e-4 rad) long before the
         // axis has moved one count.
-        assert_eq!(run_with(count, 400, 2.2e-3, 0.03, |_, _, _| 0.5, |_, r| r), None);
-        let glitch = run_with(count, 600, 2.2e-3, 0.03, |_, _, _| 0.2, |k, r| if k == 400 { r + 4.0 * count } else { r });
-        assert!(matches!(glitch, Some((400, EncoderFault { axis: 0, kind: EncoderFaultKind::Acceleration }))), "{glitch:?}");
-        let stuck = run_with(count, 400, 2.2e-3, 0.03, |_, _, _| 0.5, |_, _| quantise_to(0.9, count));
-        assert!(matches!(stuck, Some((_, EncoderFault { axis: 0, kind: EncoderFaultKind::Stuck }))), "{stuck:?}");
+        assert_eq!(
+            run_with(count, 400, 2.2e-3, 0.03, |_, _, _| 0.5, |_, r| r),
+            None
+        );
+        let glitch = run_with(
+            count,
+            600,
+            2.2e-3,
+            0.03,
+            |_, _, _| 0.2,
+            |k, r| if k == 400 { r + 4.0 * count } else { r },
+        );
+        assert!(
+            matches!(
+                glitch,
+                Some((
+                    400,
+                    EncoderFault {
+                        axis: 0,
+                        kind: EncoderFaultKind::Acceleration
+                    }
+                ))
+            ),
+            "{glitch:?}"
+        );
+        let stuck = run_with(
+            count,
+            400,
+            2.2e-3,
+            0.03,
+            |_, _, _| 0.5,
+            |_, _| quantise_to(0.9, count),
+        );
+        assert!(
+            matches!(
+                stuck,
+                Some((
+                    _,
+                    EncoderFault {
+                        axis: 0,
+                        kind: EncoderFaultKind::Stuck
+                    }
+                ))
+            ),
+            "{stuck:?}"
+        );
     }
 
     #[test]
     fn limits_validate() {
         assert_eq!(EncoderLimits::default().validate(), Ok(()));
-        let l = EncoderLimits { hold_torque_nm: f32::NAN, ..EncoderLimits::default() };
+        let l = EncoderLimits {
+            hold_torque_nm: f32::NAN,
+            ..EncoderLimits::default()
+        };
         assert_eq!(l.validate(), Err("encoder_limits.hold_torque_nm"));
-        let l = EncoderLimits { max_accel_rad_s2: -1.0, ..EncoderLimits::default() };
+        let l = EncoderLimits {
+            max_accel_rad_s2: -1.0,
+            ..EncoderLimits::default()
+        };
         assert_eq!(l.validate(), Err("encoder_limits.max_accel_rad_s2"));
     }
 }

@@ -39,8 +39,8 @@
 use kinematics_core::{EngageError, ServoFault, SetpointRefusal};
 
 use crate::calibration::ImageError;
-use crate::homing::HomingFault;
 use crate::encoder_check::EncoderFault;
+use crate::homing::HomingFault;
 use crate::settings::SettingsError;
 use crate::watchdog::WatchdogFault;
 
@@ -110,9 +110,14 @@ impl Fault {
     pub fn stop_category(&self) -> StopCategory {
         match self {
             Fault::Setpoint(SetpointRefusal::NonFinite) => StopCategory::One,
-            Fault::Setpoint(_) | Fault::StopOutsideWorkspace | Fault::Underrun | Fault::StopCommanded => StopCategory::Two,
+            Fault::Setpoint(_)
+            | Fault::StopOutsideWorkspace
+            | Fault::Underrun
+            | Fault::StopCommanded => StopCategory::Two,
             Fault::DisableCommanded => StopCategory::One,
-            Fault::Homing(HomingFault::IndexNotFound(_) | HomingFault::Reference) => StopCategory::One,
+            Fault::Homing(HomingFault::IndexNotFound(_) | HomingFault::Reference) => {
+                StopCategory::One
+            }
             Fault::Homing(HomingFault::FollowingError(_) | HomingFault::Plan) => StopCategory::Zero,
             Fault::Servo(_)
             | Fault::Encoder(_)
@@ -130,7 +135,10 @@ impl Fault {
     /// that did not start (without it a stalled controller would keep the drives on). The
     /// servo loop refuses to reset them and the host link answers them as faulted.
     pub fn needs_reboot(&self) -> bool {
-        matches!(self, Fault::Settings(_) | Fault::Calibration(_) | Fault::Watchdog(WatchdogFault::NotStarted))
+        matches!(
+            self,
+            Fault::Settings(_) | Fault::Calibration(_) | Fault::Watchdog(WatchdogFault::NotStarted)
+        )
     }
 }
 
@@ -138,7 +146,9 @@ impl core::fmt::Display for Fault {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         match self {
             Fault::Setpoint(e) => write!(f, "setpoint: {e}"),
-            Fault::StopOutsideWorkspace => f.write_str("setpoint refused: its stop would leave the workspace"),
+            Fault::StopOutsideWorkspace => {
+                f.write_str("setpoint refused: its stop would leave the workspace")
+            }
             Fault::Underrun => f.write_str("setpoint queue ran empty while moving"),
             Fault::Servo(e) => write!(f, "servo: {e}"),
             Fault::Encoder(e) => write!(f, "encoder: {e}"),
@@ -170,12 +180,24 @@ mod tests {
         for (fault, want) in [
             (Fault::Setpoint(SetpointRefusal::NonFinite), One),
             (Fault::Setpoint(SetpointRefusal::Jump), Two),
-            (Fault::Setpoint(SetpointRefusal::Grid(GridError::OutsideGrid)), Two),
-            (Fault::Setpoint(SetpointRefusal::Kinematics(KinematicsError::Unreachable)), Two),
+            (
+                Fault::Setpoint(SetpointRefusal::Grid(GridError::OutsideGrid)),
+                Two,
+            ),
+            (
+                Fault::Setpoint(SetpointRefusal::Kinematics(KinematicsError::Unreachable)),
+                Two,
+            ),
             (Fault::StopOutsideWorkspace, Two),
             (Fault::Underrun, Two),
             (Fault::Servo(ServoFault::FollowingError), Zero),
-            (Fault::Encoder(EncoderFault { axis: 1, kind: EncoderFaultKind::Stuck }), Zero),
+            (
+                Fault::Encoder(EncoderFault {
+                    axis: 1,
+                    kind: EncoderFaultKind::Stuck,
+                }),
+                Zero,
+            ),
             (Fault::StopRefused(SetpointRefusal::Jump), Zero),
             (Fault::DeadlineMissed, Zero),
             (Fault::Drive, Zero),

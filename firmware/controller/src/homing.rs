@@ -136,14 +136,26 @@ impl HomingSettings {
     pub fn validate(&self) -> Result<(), &'static str> {
         let positive = |v: f32| v.is_finite() && v > 0.0;
         for (ok, name) in [
-            (self.index_rad.iter().all(|v| v.is_finite()), "homing.index_rad"),
-            (self.max_travel_rad.iter().all(|&v| positive(v)), "homing.max_travel_rad"),
+            (
+                self.index_rad.iter().all(|v| v.is_finite()),
+                "homing.index_rad",
+            ),
+            (
+                self.max_travel_rad.iter().all(|&v| positive(v)),
+                "homing.max_travel_rad",
+            ),
             (positive(self.speed_rad_s), "homing.speed_rad_s"),
             (positive(self.accel_rad_s2), "homing.accel_rad_s2"),
             (positive(self.jerk_rad_s3), "homing.jerk_rad_s3"),
             (positive(self.torque_limit_nm), "homing.torque_limit_nm"),
-            (positive(self.following_error_rad), "homing.following_error_rad"),
-            ((0.0..1.0).contains(&self.min_transmission), "homing.min_transmission"),
+            (
+                positive(self.following_error_rad),
+                "homing.following_error_rad",
+            ),
+            (
+                (0.0..1.0).contains(&self.min_transmission),
+                "homing.min_transmission",
+            ),
             (matches!(self.order, [0, 1] | [1, 0]), "homing.order"),
         ] {
             if !ok {
@@ -154,7 +166,11 @@ impl HomingSettings {
     }
 
     fn limits(&self) -> ProfileLimits<f32> {
-        ProfileLimits { velocity: self.speed_rad_s, acceleration: self.accel_rad_s2, jerk: self.jerk_rad_s3 }
+        ProfileLimits {
+            velocity: self.speed_rad_s,
+            acceleration: self.accel_rad_s2,
+            jerk: self.jerk_rad_s3,
+        }
     }
 }
 
@@ -176,10 +192,18 @@ pub enum HomingFault {
 impl core::fmt::Display for HomingFault {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         match self {
-            HomingFault::IndexNotFound(a) => write!(f, "axis {}: index not found within the homing travel", a + 1),
-            HomingFault::FollowingError(a) => write!(f, "axis {}: following error while homing", a + 1),
+            HomingFault::IndexNotFound(a) => write!(
+                f,
+                "axis {}: index not found within the homing travel",
+                a + 1
+            ),
+            HomingFault::FollowingError(a) => {
+                write!(f, "axis {}: following error while homing", a + 1)
+            }
             HomingFault::Reference => f.write_str("home position or encoder reference refused"),
-            HomingFault::Plan => f.write_str("homing settings refused (limits, or a sweep near a singularity)"),
+            HomingFault::Plan => {
+                f.write_str("homing settings refused (limits, or a sweep near a singularity)")
+            }
         }
     }
 }
@@ -245,9 +269,20 @@ impl Move {
     fn new(from_rad: [f32; 2], to_rad: [f32; 2], limits: &ProfileLimits<f32>) -> Option<Self> {
         let d = [to_rad[0] - from_rad[0], to_rad[1] - from_rad[1]];
         let len = libm::hypotf(d[0], d[1]);
-        let direction = if len > 0.0 { [d[0] / len, d[1] / len] } else { [0.0; 2] };
+        let direction = if len > 0.0 {
+            [d[0] / len, d[1] / len]
+        } else {
+            [0.0; 2]
+        };
         let profile = JerkProfile::plan(len, limits).ok()?;
-        Some(Move { from_rad, direction, profile, t_s: 0.0, s_offset: 0.0, cut_pending: false })
+        Some(Move {
+            from_rad,
+            direction,
+            profile,
+            t_s: 0.0,
+            s_offset: 0.0,
+            cut_pending: false,
+        })
     }
 
     /// Reference angle, velocity, acceleration per axis at the current time.
@@ -287,7 +322,10 @@ impl Move {
     }
 
     fn shift(&mut self, offset_rad: [f32; 2]) {
-        self.from_rad = [self.from_rad[0] + offset_rad[0], self.from_rad[1] + offset_rad[1]];
+        self.from_rad = [
+            self.from_rad[0] + offset_rad[0],
+            self.from_rad[1] + offset_rad[1],
+        ];
     }
 }
 
@@ -327,17 +365,27 @@ impl Homing {
     fn search_move(&self, n: u8, from_rad: [f32; 2]) -> Result<Move, HomingFault> {
         let axis = self.settings.order[n as usize] as usize;
         let mut to = from_rad;
-        to[axis] += self.settings.search_direction[axis].sign() * self.settings.max_travel_rad[axis];
+        to[axis] +=
+            self.settings.search_direction[axis].sign() * self.settings.max_travel_rad[axis];
         Move::new(from_rad, to, &self.settings.limits()).ok_or(HomingFault::Plan)
     }
 
     /// The reference is set: readings are absolute from the next sample; `home_rad` is the
     /// encoder angles of the home position (IK plus grid). Starts the move to home.
-    pub fn referenced(&mut self, offset_rad: [f32; 2], home_rad: Result<[f32; 2], HomingFault>) -> Result<(), HomingFault> {
+    pub fn referenced(
+        &mut self,
+        offset_rad: [f32; 2],
+        home_rad: Result<[f32; 2], HomingFault>,
+    ) -> Result<(), HomingFault> {
         self.mv.shift(offset_rad);
-        self.last_encoder_rad = [self.last_encoder_rad[0] + offset_rad[0], self.last_encoder_rad[1] + offset_rad[1]];
+        self.last_encoder_rad = [
+            self.last_encoder_rad[0] + offset_rad[0],
+            self.last_encoder_rad[1] + offset_rad[1],
+        ];
         let here = self.mv.at().map(|r| r.angle_rad);
-        let result = home_rad.and_then(|home| Move::new(here, home, &self.settings.limits()).ok_or(HomingFault::Reference));
+        let result = home_rad.and_then(|home| {
+            Move::new(here, home, &self.settings.limits()).ok_or(HomingFault::Reference)
+        });
         match result {
             Ok(mv) => {
                 self.mv = mv;
@@ -381,8 +429,12 @@ impl Homing {
         // The PID on the profile, torque-limited.
         for k in 0..2 {
             let velocity = (encoder_rad[k] - self.last_encoder_rad[k]) / dt_s;
-            let g = AxisGains { torque_limit_nm: self.settings.torque_limit_nm.min(gains[k].torque_limit_nm), ..gains[k] };
-            out.torque_nm[k] = self.pid[k].update(&g, &reference[k], encoder_rad[k], velocity, dt_s);
+            let g = AxisGains {
+                torque_limit_nm: self.settings.torque_limit_nm.min(gains[k].torque_limit_nm),
+                ..gains[k]
+            };
+            out.torque_nm[k] =
+                self.pid[k].update(&g, &reference[k], encoder_rad[k], velocity, dt_s);
         }
         self.last_encoder_rad = encoder_rad;
         match self.phase {
@@ -409,7 +461,9 @@ impl Homing {
                             Err(f) => return self.fail(f, out),
                         }
                     } else {
-                        let offset = [0, 1].map(|k| self.settings.index_rad[k] - self.index_reading_rad[k].unwrap_or(0.0));
+                        let offset = [0, 1].map(|k| {
+                            self.settings.index_rad[k] - self.index_reading_rad[k].unwrap_or(0.0)
+                        });
                         // Hold at the end until `referenced` plans the move to home.
                         self.mv = match Move::new(end, end, &self.settings.limits()) {
                             Some(m) => m,
@@ -481,7 +535,8 @@ pub fn plan_margin(
                 let steps = (libm::hypotf(d[0], d[1]) / step_rad) as usize + 1;
                 for s in 0..=steps {
                     let f = s as f32 / steps as f32;
-                    let t = transmission([from[0] + d[0] * f, from[1] + d[1] * f]).ok_or(start_mm)?;
+                    let t =
+                        transmission([from[0] + d[0] * f, from[1] + d[1] * f]).ok_or(start_mm)?;
                     *worst = worst.min(t);
                 }
                 Ok(())
@@ -505,7 +560,12 @@ pub fn plan_margin(
 }
 
 /// [`plan_margin`] against `settings.min_transmission`, on a 9×9 lattice.
-pub fn check_plan(settings: &HomingSettings, model: &FiveBar<f32>, rect_mm: [f32; 4], home_mm: [f32; 2]) -> Result<f32, HomingFault> {
+pub fn check_plan(
+    settings: &HomingSettings,
+    model: &FiveBar<f32>,
+    rect_mm: [f32; 4],
+    home_mm: [f32; 2],
+) -> Result<f32, HomingFault> {
     match plan_margin(settings, model, rect_mm, home_mm, 9) {
         Ok(m) if m >= settings.min_transmission => Ok(m),
         _ => Err(HomingFault::Plan),
@@ -536,12 +596,21 @@ mod tests {
             index_rad: [0.10, -0.10],
             ..s
         };
-        assert_eq!(check_plan(&closing, &model, RECT_MM, HOME_MM), Err(HomingFault::Plan));
+        assert_eq!(
+            check_plan(&closing, &model, RECT_MM, HOME_MM),
+            Err(HomingFault::Plan)
+        );
         // An index inside the range (behind some start points): refused.
-        let inside = HomingSettings { index_rad: [0.8, -1.40], ..s };
+        let inside = HomingSettings {
+            index_rad: [0.8, -1.40],
+            ..s
+        };
         assert!(plan_margin(&inside, &model, RECT_MM, HOME_MM, 9).is_err());
         // A travel too short for the far side of the rectangle: refused.
-        let short = HomingSettings { max_travel_rad: [0.5, 0.5], ..s };
+        let short = HomingSettings {
+            max_travel_rad: [0.5, 0.5],
+            ..s
+        };
         assert!(plan_margin(&short, &model, RECT_MM, HOME_MM, 9).is_err());
     }
 
@@ -568,7 +637,8 @@ mod tests {
                 self.velocity_rad_s[k] += (torque[k] - friction) / 7.5e-3 * DT_S;
                 self.angle_rad[k] += self.velocity_rad_s[k] * DT_S;
                 if let Some(i) = self.index_at_rad[k] {
-                    if (before - i) * (self.angle_rad[k] - i) <= 0.0 && before != self.angle_rad[k] {
+                    if (before - i) * (self.angle_rad[k] - i) <= 0.0 && before != self.angle_rad[k]
+                    {
                         crossed[k] = Some(i - self.power_on_rad[k]);
                     }
                 }
@@ -589,11 +659,21 @@ mod tests {
     fn run(s: &HomingSettings, mut j: Joints, home_rad: [f32; 2], samples: usize) -> Run {
         let gains = kinematics_core::ServoConfig::default().axes;
         let mut h = Homing::start(s, j.reading([0.0; 2])).unwrap();
-        let mut r = Run { events: vec![], max_torque_nm: 0.0, max_speed_rad_s: 0.0, max_error_rad: 0.0, joints: Joints { ..j }, homing: h };
+        let mut r = Run {
+            events: vec![],
+            max_torque_nm: 0.0,
+            max_speed_rad_s: 0.0,
+            max_error_rad: 0.0,
+            joints: Joints { ..j },
+            homing: h,
+        };
         let (mut offset, mut index) = ([0.0; 2], [None; 2]);
         for k in 0..samples {
             let out = h.step(j.reading(offset), index, &gains, DT_S);
-            r.max_torque_nm = r.max_torque_nm.max(out.torque_nm[0].abs()).max(out.torque_nm[1].abs());
+            r.max_torque_nm = r
+                .max_torque_nm
+                .max(out.torque_nm[0].abs())
+                .max(out.torque_nm[1].abs());
             r.max_error_rad = r.max_error_rad.max(out.following_error_rad);
             if let Some(e) = out.event {
                 r.events.push((k, e));
@@ -606,7 +686,10 @@ mod tests {
                 }
             }
             index = j.advance(out.torque_nm);
-            r.max_speed_rad_s = r.max_speed_rad_s.max(j.velocity_rad_s[0].abs()).max(j.velocity_rad_s[1].abs());
+            r.max_speed_rad_s = r
+                .max_speed_rad_s
+                .max(j.velocity_rad_s[0].abs())
+                .max(j.velocity_rad_s[1].abs());
         }
         r.joints = j;
         r.homing = h;
@@ -621,25 +704,60 @@ mod tests {
         // Power-on somewhere in the rectangle; the counters read 0 there.
         for start_mm in [[214.0, 3.0], [165.0, -70.0], [258.0, 70.0]] {
             let start = model.inverse(start_mm, 0.0).unwrap();
-            let j = Joints { angle_rad: start, velocity_rad_s: [0.0; 2], power_on_rad: start, index_at_rad: [Some(1.40), Some(-1.40)] };
+            let j = Joints {
+                angle_rad: start,
+                velocity_rad_s: [0.0; 2],
+                power_on_rad: start,
+                index_at_rad: [Some(1.40), Some(-1.40)],
+            };
             let r = run(&s, j, home_rad, 40_000);
             let kinds: Vec<_> = r.events.iter().map(|e| e.1).collect();
-            assert!(matches!(kinds[..], [HomingEvent::Reference { .. }, HomingEvent::Done]), "{kinds:?}");
-            let HomingEvent::Reference { offset_rad } = kinds[0] else { unreachable!() };
+            assert!(
+                matches!(
+                    kinds[..],
+                    [HomingEvent::Reference { .. }, HomingEvent::Done]
+                ),
+                "{kinds:?}"
+            );
+            let HomingEvent::Reference { offset_rad } = kinds[0] else {
+                unreachable!()
+            };
             // The offset is the power-on angle, to the joint's index resolution.
             for k in 0..2 {
-                assert!((offset_rad[k] - start[k]).abs() < 1e-6, "{start_mm:?} axis {k}: {offset_rad:?} vs {start:?}");
+                assert!(
+                    (offset_rad[k] - start[k]).abs() < 1e-6,
+                    "{start_mm:?} axis {k}: {offset_rad:?} vs {start:?}"
+                );
             }
             // At home, within the servo's precision, at rest.
             for k in 0..2 {
-                assert!((r.joints.angle_rad[k] - home_rad[k]).abs() < 2e-4, "{:?} vs {home_rad:?}", r.joints.angle_rad);
+                assert!(
+                    (r.joints.angle_rad[k] - home_rad[k]).abs() < 2e-4,
+                    "{:?} vs {home_rad:?}",
+                    r.joints.angle_rad
+                );
                 assert!(r.joints.velocity_rad_s[k].abs() < 0.05);
             }
             assert_eq!(r.homing.phase(), HomingPhase::Done);
-            assert!(r.max_torque_nm <= s.torque_limit_nm + 1e-6, "{}", r.max_torque_nm);
-            assert!(r.max_speed_rad_s <= s.speed_rad_s * 1.05, "{}", r.max_speed_rad_s);
-            assert!(r.max_error_rad < s.following_error_rad, "{}", r.max_error_rad);
-            println!("homed from {start_mm:?} in {} samples, worst following error {:.2e} rad", r.events[1].0, r.max_error_rad);
+            assert!(
+                r.max_torque_nm <= s.torque_limit_nm + 1e-6,
+                "{}",
+                r.max_torque_nm
+            );
+            assert!(
+                r.max_speed_rad_s <= s.speed_rad_s * 1.05,
+                "{}",
+                r.max_speed_rad_s
+            );
+            assert!(
+                r.max_error_rad < s.following_error_rad,
+                "{}",
+                r.max_error_rad
+            );
+            println!(
+                "homed from {start_mm:?} in {} samples, worst following error {:.2e} rad",
+                r.events[1].0, r.max_error_rad
+            );
         }
     }
 
@@ -647,15 +765,34 @@ mod tests {
     fn an_index_that_never_comes_ends_at_rest_within_the_travel() {
         let s = HomingSettings::default();
         let start = [0.8, -0.75];
-        let j = Joints { angle_rad: start, velocity_rad_s: [0.0; 2], power_on_rad: start, index_at_rad: [Some(1.40), None] };
+        let j = Joints {
+            angle_rad: start,
+            velocity_rad_s: [0.0; 2],
+            power_on_rad: start,
+            index_at_rad: [Some(1.40), None],
+        };
         let r = run(&s, j, [0.0; 2], 40_000);
         let last = r.events.last().unwrap().1;
         assert_eq!(last, HomingEvent::Failed(HomingFault::IndexNotFound(1)));
-        assert!(!r.events.iter().any(|e| matches!(e.1, HomingEvent::Reference { .. })));
+        assert!(!r
+            .events
+            .iter()
+            .any(|e| matches!(e.1, HomingEvent::Reference { .. })));
         // Axis 2 travelled its whole search and stands at its end, at rest.
-        assert!((r.joints.angle_rad[1] - (start[1] - s.max_travel_rad[1])).abs() < 1e-3, "{:?}", r.joints.angle_rad);
-        assert!(r.joints.velocity_rad_s[1].abs() < 0.05, "{:?}", r.joints.velocity_rad_s);
-        assert_eq!(r.homing.phase(), HomingPhase::Failed(HomingFault::IndexNotFound(1)));
+        assert!(
+            (r.joints.angle_rad[1] - (start[1] - s.max_travel_rad[1])).abs() < 1e-3,
+            "{:?}",
+            r.joints.angle_rad
+        );
+        assert!(
+            r.joints.velocity_rad_s[1].abs() < 0.05,
+            "{:?}",
+            r.joints.velocity_rad_s
+        );
+        assert_eq!(
+            r.homing.phase(),
+            HomingPhase::Failed(HomingFault::IndexNotFound(1))
+        );
     }
 
     #[test]
@@ -684,11 +821,23 @@ mod tests {
     fn bad_settings_are_refused() {
         let d = HomingSettings::default();
         for bad in [
-            HomingSettings { speed_rad_s: 0.0, ..d },
-            HomingSettings { torque_limit_nm: f32::NAN, ..d },
+            HomingSettings {
+                speed_rad_s: 0.0,
+                ..d
+            },
+            HomingSettings {
+                torque_limit_nm: f32::NAN,
+                ..d
+            },
             HomingSettings { order: [0, 0], ..d },
-            HomingSettings { index_rad: [f32::INFINITY, 0.0], ..d },
-            HomingSettings { min_transmission: 1.0, ..d },
+            HomingSettings {
+                index_rad: [f32::INFINITY, 0.0],
+                ..d
+            },
+            HomingSettings {
+                min_transmission: 1.0,
+                ..d
+            },
         ] {
             assert!(bad.validate().is_err(), "{bad:?}");
             assert_eq!(Homing::start(&bad, [0.0; 2]).err(), Some(HomingFault::Plan));

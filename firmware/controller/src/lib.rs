@@ -66,8 +66,8 @@ pub mod motion_stream;
 #[cfg(any(test, feature = "qemu-harness"))]
 pub mod scenario;
 pub mod servo_loop;
-pub mod settings;
 pub mod setpoints;
+pub mod settings;
 pub mod status;
 pub mod stop;
 pub mod trajectory;

@@ -111,7 +111,14 @@ impl Segment {
             c[k] = (3.0 * slope - 2.0 * from.velocity_mm_s[k] - to.velocity_mm_s[k]) / h;
             d[k] = (from.velocity_mm_s[k] + to.velocity_mm_s[k] - 2.0 * slope) / (h * h);
         }
-        Segment { t0_us: from.t_us, t1_us: to.t_us, a: from.position_mm, b: from.velocity_mm_s, c, d }
+        Segment {
+            t0_us: from.t_us,
+            t1_us: to.t_us,
+            a: from.position_mm,
+            b: from.velocity_mm_s,
+            c,
+            d,
+        }
     }
 
     fn duration_s(&self) -> f32 {
@@ -150,7 +157,10 @@ impl Segment {
             // inside put the whole box, and the curve in it, inside. Exact for a rectangular
             // workspace; conservative next to a slanted edge of a polygon.
             let ([x0, x1], [y0, y1]) = (self.axis_range(0).into(), self.axis_range(1).into());
-            if ![[x0, y0], [x1, y0], [x0, y1], [x1, y1]].iter().all(|&p| w.contains(p)) {
+            if ![[x0, y0], [x1, y0], [x0, y1], [x1, y1]]
+                .iter()
+                .all(|&p| w.contains(p))
+            {
                 return Err(SegmentRefusal::Workspace);
             }
         }
@@ -160,7 +170,11 @@ impl Segment {
             let s = self.at(i as f32 * step_s);
             speed_max = speed_max.max(norm(s.velocity_mm_s));
             if let Some(w) = &limits.workspace {
-                let state = MotionState { position_mm: s.position_mm, velocity_mm_s: s.velocity_mm_s, accel_mm_s2: s.acceleration_mm_s2 };
+                let state = MotionState {
+                    position_mm: s.position_mm,
+                    velocity_mm_s: s.velocity_mm_s,
+                    accel_mm_s2: s.acceleration_mm_s2,
+                };
                 if !w.contains(StopProfile::plan(&state, &limits.stop).end_mm()) {
                     return Err(SegmentRefusal::Workspace);
                 }
@@ -206,10 +220,17 @@ enum Play {
     /// At rest at the knot's position.
     Hold,
     /// A planned move, `sample` samples in.
-    Move { motion: PathMotion<f32, Line<f32>>, target_mm: [f32; 2], sample: u32 },
+    Move {
+        motion: PathMotion<f32, Line<f32>>,
+        target_mm: [f32; 2],
+        sample: u32,
+    },
     /// Playing knots; `segment` is the one under way (from the last consumed knot to the
     /// buffer's front), `sample` the samples since the stream started.
-    Stream { segment: Option<Segment>, sample: u32 },
+    Stream {
+        segment: Option<Segment>,
+        sample: u32,
+    },
     /// The stream ran out of knots while moving: no setpoints until [`MotionStream::hold`].
     Starved,
     /// Stopped by the link (a stop, disable or reset was requested): no setpoints until
@@ -235,14 +256,29 @@ pub struct MotionStream {
 impl MotionStream {
     /// Holding at `position_mm`.
     pub fn new(limits: StreamLimits, position_mm: [f32; 2]) -> Self {
-        let rest = Knot { t_us: 0, position_mm, velocity_mm_s: [0.0; 2] };
-        MotionStream { limits, knots: Deque::new(), from: rest, tail: rest, received: 0, play: Play::Hold, underruns: 0 }
+        let rest = Knot {
+            t_us: 0,
+            position_mm,
+            velocity_mm_s: [0.0; 2],
+        };
+        MotionStream {
+            limits,
+            knots: Deque::new(),
+            from: rest,
+            tail: rest,
+            received: 0,
+            play: Play::Hold,
+            underruns: 0,
+        }
     }
 
     /// Drops any move or stream and holds at `position_mm` (after a stop, a reset, an enable:
     /// where the servo loop's setpoint is).
     pub fn hold(&mut self, position_mm: [f32; 2]) {
-        *self = MotionStream { underruns: self.underruns, ..MotionStream::new(self.limits, position_mm) };
+        *self = MotionStream {
+            underruns: self.underruns,
+            ..MotionStream::new(self.limits, position_mm)
+        };
     }
 
     /// A move or stream is under way (or starved, or paused).
@@ -260,7 +296,10 @@ impl MotionStream {
 
     /// A move or stream is under way or starved (not holding, not paused).
     pub fn is_playing(&self) -> bool {
-        matches!(self.play, Play::Move { .. } | Play::Stream { .. } | Play::Starved)
+        matches!(
+            self.play,
+            Play::Move { .. } | Play::Stream { .. } | Play::Starved
+        )
     }
 
     /// Where it holds, when it holds: the point its last setpoint handed to the queue and
@@ -312,12 +351,17 @@ impl MotionStream {
                 return Err(MoveRefusal::Target);
             }
         }
-        let motion = PathMotion::line(self.from.position_mm, target_mm, &self.limits.task).map_err(|_| MoveRefusal::Target)?;
+        let motion = PathMotion::line(self.from.position_mm, target_mm, &self.limits.task)
+            .map_err(|_| MoveRefusal::Target)?;
         let duration_s = motion.duration_s();
         if !duration_s.is_finite() {
             return Err(MoveRefusal::Target);
         }
-        self.play = Play::Move { motion, target_mm, sample: 0 };
+        self.play = Play::Move {
+            motion,
+            target_mm,
+            sample: 0,
+        };
         Ok(duration_s)
     }
 
@@ -329,18 +373,35 @@ impl MotionStream {
             Play::Hold if starting => {}
             Play::Stream { .. } if !starting && first_index == self.received => {}
             Play::Hold | Play::Stream { .. } => {
-                return Err(PushRefusal::Index(if matches!(self.play, Play::Hold) { 0 } else { self.received }))
+                return Err(PushRefusal::Index(if matches!(self.play, Play::Hold) {
+                    0
+                } else {
+                    self.received
+                }))
             }
             Play::Move { .. } | Play::Starved | Play::Paused => return Err(PushRefusal::Busy),
         }
         if knots.len() > self.free() {
             return Err(PushRefusal::Full(self.free() as u16));
         }
-        let mut prev = if starting { Knot { t_us: 0, velocity_mm_s: [0.0; 2], ..self.from } } else { self.tail };
+        let mut prev = if starting {
+            Knot {
+                t_us: 0,
+                velocity_mm_s: [0.0; 2],
+                ..self.from
+            }
+        } else {
+            self.tail
+        };
         for (i, k) in knots.iter().enumerate() {
             let index = first_index.saturating_add(i as u32);
             let refuse = |r| PushRefusal::Knot(index, r);
-            if !k.position_mm.iter().chain(k.velocity_mm_s.iter()).all(|v| v.is_finite()) {
+            if !k
+                .position_mm
+                .iter()
+                .chain(k.velocity_mm_s.iter())
+                .all(|v| v.is_finite())
+            {
                 return Err(refuse(SegmentRefusal::NotFinite));
             }
             if k.t_us <= prev.t_us {
@@ -349,14 +410,23 @@ impl MotionStream {
             if k.t_us - prev.t_us > MAX_SEGMENT_US {
                 return Err(refuse(SegmentRefusal::TooLong));
             }
-            Segment::between(&prev, k).check(&self.limits).map_err(refuse)?;
+            Segment::between(&prev, k)
+                .check(&self.limits)
+                .map_err(refuse)?;
             prev = *k;
         }
         // All good: queue them.
         if starting {
-            self.from = Knot { t_us: 0, velocity_mm_s: [0.0; 2], ..self.from };
+            self.from = Knot {
+                t_us: 0,
+                velocity_mm_s: [0.0; 2],
+                ..self.from
+            };
             self.received = 0;
-            self.play = Play::Stream { segment: None, sample: 0 };
+            self.play = Play::Stream {
+                segment: None,
+                sample: 0,
+            };
         }
         for k in knots {
             // Room was checked above.
@@ -368,14 +438,21 @@ impl MotionStream {
     }
 
     /// The next stream setpoint, at `sample` samples after the stream's start.
-    fn stream_setpoint(&mut self, segment: Option<Segment>, sample: u32) -> Option<MotionSetpoint<f32>> {
+    fn stream_setpoint(
+        &mut self,
+        segment: Option<Segment>,
+        sample: u32,
+    ) -> Option<MotionSetpoint<f32>> {
         let t_us = sample.saturating_add(1).saturating_mul(SAMPLE_US);
         let mut segment = segment;
         // Advance to the segment containing t (knots are consumed as their time passes).
         loop {
             if let Some(s) = segment {
                 if t_us <= s.t1_us {
-                    self.play = Play::Stream { segment, sample: sample + 1 };
+                    self.play = Play::Stream {
+                        segment,
+                        sample: sample + 1,
+                    };
                     return Some(s.at((t_us - s.t0_us) as f32 * 1.0e-6));
                 }
             }
@@ -404,13 +481,21 @@ impl SetpointSource for MotionStream {
     fn next_setpoint(&mut self) -> Option<MotionSetpoint<f32>> {
         match self.play {
             Play::Hold => Some(MotionSetpoint::at_rest(self.from.position_mm)),
-            Play::Move { motion, target_mm, sample } => {
+            Play::Move {
+                motion,
+                target_mm,
+                sample,
+            } => {
                 let t_s = (sample + 1) as f32 * (SAMPLE_US as f32 * 1.0e-6);
                 if t_s >= motion.duration_s() {
                     self.hold(target_mm);
                     return Some(MotionSetpoint::at_rest(target_mm));
                 }
-                self.play = Play::Move { motion, target_mm, sample: sample + 1 };
+                self.play = Play::Move {
+                    motion,
+                    target_mm,
+                    sample: sample + 1,
+                };
                 Some(motion.at(t_s))
             }
             Play::Stream { segment, sample } => self.stream_setpoint(segment, sample),
@@ -429,17 +514,32 @@ mod tests {
     fn limits() -> StreamLimits {
         let s = Settings::default();
         StreamLimits {
-            task: TaskLimits { speed_mm_s: 1500.0, accel_mm_s2: 49_050.0, jerk_mm_s3: 5.0e6 },
+            task: TaskLimits {
+                speed_mm_s: 1500.0,
+                accel_mm_s2: 49_050.0,
+                jerk_mm_s3: 5.0e6,
+            },
             stop: s.stop.limits,
             workspace: Workspace::of_grid(
-                &kinematics_core::grid::GridGeometry { nx: 2, ny: 2, x0_mm: 167.0, y0_mm: -70.0, step_x_mm: 90.0, step_y_mm: 140.0 },
+                &kinematics_core::grid::GridGeometry {
+                    nx: 2,
+                    ny: 2,
+                    x0_mm: 167.0,
+                    y0_mm: -70.0,
+                    step_x_mm: 90.0,
+                    step_y_mm: 140.0,
+                },
                 0.0,
             ),
         }
     }
 
     fn knot(t_ms: u32, p: [f32; 2], v: [f32; 2]) -> Knot {
-        Knot { t_us: t_ms * 1000, position_mm: p, velocity_mm_s: v }
+        Knot {
+            t_us: t_ms * 1000,
+            position_mm: p,
+            velocity_mm_s: v,
+        }
     }
 
     /// A smooth back-and-forth along x: p = START + A sin²(πt/T), as knots every 10 ms.
@@ -463,14 +563,25 @@ mod tests {
     #[test]
     fn hermite_passes_through_the_knots_with_their_velocity_and_exact_derivatives() {
         let mut s = MotionStream::new(limits(), START_MM);
-        let k = [knot(20, [213.0, 0.5], [100.0, 50.0]), knot(40, [214.0, 1.0], [0.0, 0.0])];
+        let k = [
+            knot(20, [213.0, 0.5], [100.0, 50.0]),
+            knot(40, [214.0, 1.0], [0.0, 0.0]),
+        ];
         s.push(0, &k).unwrap();
         let sp: Vec<_> = drain(&mut s, 80).into_iter().map(Option::unwrap).collect();
         // Sample 39 is t = 20 ms (the first knot), sample 79 is 40 ms.
         for (i, kn) in [(39, k[0]), (79, k[1])] {
             for a in 0..2 {
-                assert!((sp[i].position_mm[a] - kn.position_mm[a]).abs() < 1e-4, "{i} {:?}", sp[i]);
-                assert!((sp[i].velocity_mm_s[a] - kn.velocity_mm_s[a]).abs() < 1e-2, "{i} {:?}", sp[i]);
+                assert!(
+                    (sp[i].position_mm[a] - kn.position_mm[a]).abs() < 1e-4,
+                    "{i} {:?}",
+                    sp[i]
+                );
+                assert!(
+                    (sp[i].velocity_mm_s[a] - kn.velocity_mm_s[a]).abs() < 1e-2,
+                    "{i} {:?}",
+                    sp[i]
+                );
             }
         }
         // Derivatives: central differences of the positions agree with the velocities, of the
@@ -479,13 +590,24 @@ mod tests {
         for i in [5, 22, 45, 70] {
             for a in 0..2 {
                 let v = (sp[i + 1].position_mm[a] - sp[i - 1].position_mm[a]) / (2.0 * dt);
-                assert!((v - sp[i].velocity_mm_s[a]).abs() < 0.5, "{i}: {v} vs {:?}", sp[i]);
+                assert!(
+                    (v - sp[i].velocity_mm_s[a]).abs() < 0.5,
+                    "{i}: {v} vs {:?}",
+                    sp[i]
+                );
                 let acc = (sp[i + 1].velocity_mm_s[a] - sp[i - 1].velocity_mm_s[a]) / (2.0 * dt);
-                assert!((acc - sp[i].acceleration_mm_s2[a]).abs() < 50.0, "{i}: {acc} vs {:?}", sp[i]);
+                assert!(
+                    (acc - sp[i].acceleration_mm_s2[a]).abs() < 50.0,
+                    "{i}: {acc} vs {:?}",
+                    sp[i]
+                );
             }
         }
         // Ended at rest: holds the last knot.
-        assert_eq!(s.next_setpoint(), Some(MotionSetpoint::at_rest([214.0, 1.0])));
+        assert_eq!(
+            s.next_setpoint(),
+            Some(MotionSetpoint::at_rest([214.0, 1.0]))
+        );
         assert!(!s.is_moving());
     }
 
@@ -503,10 +625,17 @@ mod tests {
         assert_eq!(s.next_setpoint(), None, "starved while moving");
         assert!(s.is_starved() && s.is_moving());
         assert_eq!(s.underruns(), 1);
-        assert_eq!(s.push(16, &knots[16..24]), Err(PushRefusal::Busy), "a starved stream takes no more knots");
+        assert_eq!(
+            s.push(16, &knots[16..24]),
+            Err(PushRefusal::Busy),
+            "a starved stream takes no more knots"
+        );
         s.hold([213.0, 0.0]);
         assert!(!s.is_moving());
-        assert_eq!(s.next_setpoint(), Some(MotionSetpoint::at_rest([213.0, 0.0])));
+        assert_eq!(
+            s.next_setpoint(),
+            Some(MotionSetpoint::at_rest([213.0, 0.0]))
+        );
     }
 
     #[test]
@@ -536,7 +665,11 @@ mod tests {
         for (bad, why) in cases {
             assert_eq!(s.push(0, &bad), Err(PushRefusal::Knot(5, why)), "{why:?}");
             assert_eq!((s.queued(), s.is_moving()), (0, false), "nothing queued");
-            assert_eq!(s.next_setpoint(), Some(MotionSetpoint::at_rest(START_MM)), "nothing moved");
+            assert_eq!(
+                s.next_setpoint(),
+                Some(MotionSetpoint::at_rest(START_MM)),
+                "nothing moved"
+            );
         }
         s.push(0, &good).unwrap();
         assert_eq!(s.queued(), 8);
@@ -548,19 +681,31 @@ mod tests {
         let good = sine_knots(8);
         l.task.speed_mm_s = 100.0; // the sine peaks at 20·π/0.4 = 157 mm/s
         let mut s = MotionStream::new(l, START_MM);
-        assert!(matches!(s.push(0, &good), Err(PushRefusal::Knot(_, SegmentRefusal::Speed))));
+        assert!(matches!(
+            s.push(0, &good),
+            Err(PushRefusal::Knot(_, SegmentRefusal::Speed))
+        ));
         l.task.speed_mm_s = 1500.0;
         l.task.jerk_mm_s3 = 1.0e3;
         let mut s = MotionStream::new(l, START_MM);
-        assert!(matches!(s.push(0, &good), Err(PushRefusal::Knot(0, SegmentRefusal::Jerk))));
+        assert!(matches!(
+            s.push(0, &good),
+            Err(PushRefusal::Knot(0, SegmentRefusal::Jerk))
+        ));
     }
 
     #[test]
     fn a_stop_that_would_leave_the_workspace_is_refused() {
         // At 1000 mm/s towards the edge 10 mm away: the stop (5 g) needs ~10 mm more.
         let mut s = MotionStream::new(limits(), [245.0, 0.0]);
-        let k = [knot(20, [250.0, 0.0], [500.0, 0.0]), knot(25, [253.0, 0.0], [700.0, 0.0])];
-        assert_eq!(s.push(0, &k), Err(PushRefusal::Knot(1, SegmentRefusal::Workspace)));
+        let k = [
+            knot(20, [250.0, 0.0], [500.0, 0.0]),
+            knot(25, [253.0, 0.0], [700.0, 0.0]),
+        ];
+        assert_eq!(
+            s.push(0, &k),
+            Err(PushRefusal::Knot(1, SegmentRefusal::Workspace))
+        );
     }
 
     #[test]
@@ -569,10 +714,19 @@ mod tests {
         let mut s = MotionStream::new(limits(), START_MM);
         assert_eq!(s.push(3, &knots[..8]), Err(PushRefusal::Index(0)));
         s.push(0, &knots[..8]).unwrap();
-        assert_eq!(s.push(0, &knots[8..16]), Err(PushRefusal::Index(8)), "no restart while streaming");
-        assert_eq!(s.push(9, &knots[8..16]), Err(PushRefusal::Index(8)), "a lost frame is detected");
+        assert_eq!(
+            s.push(0, &knots[8..16]),
+            Err(PushRefusal::Index(8)),
+            "no restart while streaming"
+        );
+        assert_eq!(
+            s.push(9, &knots[8..16]),
+            Err(PushRefusal::Index(8)),
+            "a lost frame is detected"
+        );
         for i in 1..8 {
-            s.push(i * 8, &knots[i as usize * 8..(i as usize + 1) * 8]).unwrap();
+            s.push(i * 8, &knots[i as usize * 8..(i as usize + 1) * 8])
+                .unwrap();
         }
         assert_eq!(s.free(), 0);
         assert_eq!(s.push(64, &knots[64..72]), Err(PushRefusal::Full(0)));
@@ -593,13 +747,19 @@ mod tests {
         for p in &sp {
             let v = libm::hypotf(p.velocity_mm_s[0], p.velocity_mm_s[1]);
             let a = libm::hypotf(p.acceleration_mm_s2[0], p.acceleration_mm_s2[1]);
-            assert!(v <= l.speed_mm_s * 1.001 && a <= l.accel_mm_s2 * 1.001, "{p:?}");
+            assert!(
+                v <= l.speed_mm_s * 1.001 && a <= l.accel_mm_s2 * 1.001,
+                "{p:?}"
+            );
         }
         assert_eq!(*sp.last().unwrap(), MotionSetpoint::at_rest([240.0, 30.0]));
         assert!(!s.is_moving());
         // The next stream starts from there.
         s.push(0, &[knot(100, [240.0, 31.0], [0.0, 0.0])]).unwrap();
         let first = s.next_setpoint().unwrap();
-        assert!((first.position_mm[0] - 240.0).abs() < 1e-3 && (first.position_mm[1] - 30.0).abs() < 1e-3);
+        assert!(
+            (first.position_mm[0] - 240.0).abs() < 1e-3
+                && (first.position_mm[1] - 30.0).abs() < 1e-3
+        );
     }
 }

@@ -53,9 +53,12 @@
 //! reach; a stop never steps the velocity; torque is removed only in category 0 (at once) or
 //! after a category-1 stop has reached standstill.
 use heapless::spsc::Consumer;
-use kinematics_core::trajectory::MotionSetpoint;
 use kinematics_core::path::Line;
-use kinematics_core::{Calibration, EngageError, PathMotion, Servo, ServoOutput, StepError, TaskLimits, ValidCalibration};
+use kinematics_core::trajectory::MotionSetpoint;
+use kinematics_core::{
+    Calibration, EngageError, PathMotion, Servo, ServoOutput, StepError, TaskLimits,
+    ValidCalibration,
+};
 
 use crate::calibration::CalibrationState;
 use crate::deadline::Deadline;
@@ -243,37 +246,58 @@ impl<'a> ServoLoop<'a> {
         state: CalibrationState,
         encoder_rad: [f32; 2],
     ) -> Self {
-        let servo = settings.validate().and_then(|()| Servo::new(settings.servo).map_err(SettingsError::Servo));
+        let servo = settings
+            .validate()
+            .and_then(|()| Servo::new(settings.servo).map_err(SettingsError::Servo));
         let (servo, engaged) = match servo {
             Err(e) => (None, Err(Fault::Settings(e))),
             Ok(mut servo) => {
                 // Validated when the image was parsed; `set_dynamics` checks again and keeps
                 // none if not (the gains' constant feed-forward then).
-                let _ = servo.set_dynamics(calibration.grid.as_ref().and_then(|g| g.dynamics().copied()));
+                let _ = servo.set_dynamics(
+                    calibration
+                        .grid
+                        .as_ref()
+                        .and_then(|g| g.dynamics().copied()),
+                );
                 let engaged = match state {
                     CalibrationState::Refused(e) => Err(Fault::Calibration(e)),
                     // Incremental encoders: the zero is not known, nothing to engage at.
-                    CalibrationState::Valid | CalibrationState::Uncorrected(_) if !settings.homing.absolute_encoders => {
+                    CalibrationState::Valid | CalibrationState::Uncorrected(_)
+                        if !settings.homing.absolute_encoders =>
+                    {
                         Ok(None)
                     }
-                    CalibrationState::Valid | CalibrationState::Uncorrected(_) => {
-                        servo.engage(&calibration, encoder_rad).map(Some).map_err(Fault::Engage)
-                    }
+                    CalibrationState::Valid | CalibrationState::Uncorrected(_) => servo
+                        .engage(&calibration, encoder_rad)
+                        .map(Some)
+                        .map_err(Fault::Engage),
                 };
                 (Some(servo), engaged)
             }
         };
         let margin_mm = settings.stop.workspace_margin_mm;
-        let workspace = calibration.grid.as_ref().and_then(|g| Workspace::of_image(g, margin_mm));
+        let workspace = calibration
+            .grid
+            .as_ref()
+            .and_then(|g| Workspace::of_image(g, margin_mm));
         // Homing's sweeps checked against the singularities once, here (hundreds of thousands
         // of instructions: not in a servo sample), from every start in the calibrated rectangle
         // (the grid's, less the margin: the machine may be anywhere the grid covers at power-on,
         // also outside a polygon workspace).
-        let calibrated = calibration.grid.as_ref().and_then(|g| Workspace::of_grid(g.geometry(), margin_mm));
+        let calibrated = calibration
+            .grid
+            .as_ref()
+            .and_then(|g| Workspace::of_grid(g.geometry(), margin_mm));
         let engaged = match (engaged, calibrated) {
             (Ok(None), Some(w)) => {
                 let ([x0, x1], [y0, y1]) = w.region().bounds_mm();
-                let rect = [x0 + margin_mm, x1 - margin_mm, y0 + margin_mm, y1 - margin_mm];
+                let rect = [
+                    x0 + margin_mm,
+                    x1 - margin_mm,
+                    y0 + margin_mm,
+                    y1 - margin_mm,
+                ];
                 homing::check_plan(&settings.homing, &calibration.model, rect, settings.home_mm)
                     .map(|_| None)
                     .map_err(Fault::Homing)
@@ -287,7 +311,9 @@ impl<'a> ServoLoop<'a> {
         };
         // One count of each axis's encoder: the quantisation the encoder check allows (a refused
         // configuration was refused by `validate` above: the loop is in the safe state).
-        let count_rad = settings.encoders.map(|c| EncoderScale::new(&c).map_or(0.0, |s| s.rad_per_count()));
+        let count_rad = settings
+            .encoders
+            .map(|c| EncoderScale::new(&c).map_or(0.0, |s| s.rad_per_count()));
         ServoLoop {
             settings,
             valid: ValidCalibration::new(calibration).ok(),
@@ -318,27 +344,50 @@ impl<'a> ServoLoop<'a> {
     ///   calibrations' difference) before the queue is read again;
     /// * unhomed or in the safe state (drives off): the calibration is replaced;
     /// * otherwise ([`SwitchRefused::NotAtRest`]): the caller keeps it pending and tries again.
-    pub fn switch_calibration(&mut self, calibration: Calibration<'a>, encoder_rad: [f32; 2]) -> Result<(), SwitchRefused> {
+    pub fn switch_calibration(
+        &mut self,
+        calibration: Calibration<'a>,
+        encoder_rad: [f32; 2],
+    ) -> Result<(), SwitchRefused> {
         let margin_mm = self.settings.stop.workspace_margin_mm;
-        let workspace = calibration.grid.as_ref().and_then(|g| Workspace::of_image(g, margin_mm));
-        let dynamics = calibration.grid.as_ref().and_then(|g| g.dynamics().copied());
+        let workspace = calibration
+            .grid
+            .as_ref()
+            .and_then(|g| Workspace::of_image(g, margin_mm));
+        let dynamics = calibration
+            .grid
+            .as_ref()
+            .and_then(|g| g.dynamics().copied());
         match self.mode {
             Mode::Unhomed | Mode::SafeState(_) => {}
             Mode::Running if self.motion.is_at_rest() && self.blend.is_none() => {
-                let Some(servo) = self.servo.as_mut() else { return Err(SwitchRefused::NotAtRest) };
+                let Some(servo) = self.servo.as_mut() else {
+                    return Err(SwitchRefused::NotAtRest);
+                };
                 let tool_mm = match servo.engage(&calibration, encoder_rad) {
                     Ok(p) => p,
                     Err(e) => {
                         // Back to the old calibration, at the same reading (as at boot).
                         let _ = servo.engage(&self.calibration, encoder_rad);
-                        let _ = servo.set_dynamics(self.calibration.grid.as_ref().and_then(|g| g.dynamics().copied()));
+                        let _ = servo.set_dynamics(
+                            self.calibration
+                                .grid
+                                .as_ref()
+                                .and_then(|g| g.dynamics().copied()),
+                        );
                         return Err(SwitchRefused::Engage(e));
                     }
                 };
                 let _ = servo.set_dynamics(dynamics);
                 let l = &self.settings.stop.limits;
-                let limits = TaskLimits { speed_mm_s: self.settings.trajectory_speed_mm_s, accel_mm_s2: l.decel_mm_s2, jerk_mm_s3: l.jerk_mm_s3 };
-                self.blend = PathMotion::line(tool_mm, self.motion.position_mm, &limits).ok().map(|motion| Blend { motion, t_s: 0.0 });
+                let limits = TaskLimits {
+                    speed_mm_s: self.settings.trajectory_speed_mm_s,
+                    accel_mm_s2: l.decel_mm_s2,
+                    jerk_mm_s3: l.jerk_mm_s3,
+                };
+                self.blend = PathMotion::line(tool_mm, self.motion.position_mm, &limits)
+                    .ok()
+                    .map(|motion| Blend { motion, t_s: 0.0 });
                 self.setpoint_mm = tool_mm;
                 self.reference_rad = encoder_rad;
             }
@@ -397,9 +446,16 @@ impl<'a> ServoLoop<'a> {
     /// fault stops: category 0 at once, category 1 (the search came to rest) torque off.
     pub fn step_homing(&mut self, encoder_rad: [f32; 2], index_rad: [Option<f32>; 2]) -> Sample {
         let mut sample = self.begin_sample(encoder_rad);
-        let (Mode::Homing, Some(mut homing)) = (self.mode, self.homing) else { return sample };
+        let (Mode::Homing, Some(mut homing)) = (self.mode, self.homing) else {
+            return sample;
+        };
         let dt_s = self.settings.servo.sample_period_s;
-        if let Err(f) = self.encoders.check(encoder_rad, self.last_torque_nm, &self.settings.encoder_limits, dt_s) {
+        if let Err(f) = self.encoders.check(
+            encoder_rad,
+            self.last_torque_nm,
+            &self.settings.encoder_limits,
+            dt_s,
+        ) {
             self.latch(Fault::Encoder(f), &mut sample);
             return sample;
         }
@@ -425,10 +481,14 @@ impl<'a> ServoLoop<'a> {
     /// The outcome of the reference [`Sample::set_reference`] asked for (`ok`: the board's scale
     /// took it). Readings are absolute from the next sample on; the move to home starts.
     pub fn referenced(&mut self, ok: bool, sample: &mut Sample) {
-        let (Mode::Homing, Some(mut homing)) = (self.mode, self.homing) else { return };
+        let (Mode::Homing, Some(mut homing)) = (self.mode, self.homing) else {
+            return;
+        };
         let offset = self.pending_offset_rad;
         let home = if ok {
-            self.calibration.command_rad(self.settings.home_mm, self.settings.servo.min_transmission).map_err(|_| HomingFault::Reference)
+            self.calibration
+                .command_rad(self.settings.home_mm, self.settings.servo.min_transmission)
+                .map_err(|_| HomingFault::Reference)
         } else {
             Err(HomingFault::Reference)
         };
@@ -437,7 +497,10 @@ impl<'a> ServoLoop<'a> {
         match result {
             Ok(()) => {
                 self.encoders.shift(offset);
-                self.reference_rad = [self.reference_rad[0] + offset[0], self.reference_rad[1] + offset[1]];
+                self.reference_rad = [
+                    self.reference_rad[0] + offset[0],
+                    self.reference_rad[1] + offset[1],
+                ];
             }
             Err(f) => self.homing_failed(f, sample),
         }
@@ -445,7 +508,10 @@ impl<'a> ServoLoop<'a> {
 
     fn engage_at_home(&mut self, encoder_rad: [f32; 2], sample: &mut Sample) {
         let Some(servo) = self.servo.as_mut() else {
-            return self.latch(Fault::Servo(kinematics_core::ServoFault::NotEngaged), sample);
+            return self.latch(
+                Fault::Servo(kinematics_core::ServoFault::NotEngaged),
+                sample,
+            );
         };
         match servo.engage(&self.calibration, encoder_rad) {
             Ok(tool_mm) => {
@@ -523,14 +589,23 @@ impl<'a> ServoLoop<'a> {
     /// One sample (see the module doc): the encoder check, then the next setpoint from `queue`
     /// or from the stop, through the servo. In the safe state the queue is left alone and the
     /// torques are zero.
-    pub fn step(&mut self, queue: &mut Consumer<'_, MotionSetpoint<f32>>, encoder_rad: [f32; 2]) -> Sample {
+    pub fn step(
+        &mut self,
+        queue: &mut Consumer<'_, MotionSetpoint<f32>>,
+        encoder_rad: [f32; 2],
+    ) -> Sample {
         let mut sample = self.begin_sample(encoder_rad);
         if matches!(self.mode, Mode::SafeState(_) | Mode::Unhomed | Mode::Homing) {
             // Homing runs through `step_homing`; nothing is taken from the queue.
             return sample;
         }
         let dt_s = self.settings.servo.sample_period_s;
-        let checked = self.encoders.check(encoder_rad, self.last_torque_nm, &self.settings.encoder_limits, dt_s);
+        let checked = self.encoders.check(
+            encoder_rad,
+            self.last_torque_nm,
+            &self.settings.encoder_limits,
+            dt_s,
+        );
         match checked {
             Err(f) => self.latch(Fault::Encoder(f), &mut sample),
             Ok(()) if self.mode == Mode::Running => self.run(queue, encoder_rad, &mut sample),
@@ -541,7 +616,12 @@ impl<'a> ServoLoop<'a> {
     }
 
     /// `Running`: the next setpoint of the stream, or the start of a stop.
-    fn run(&mut self, queue: &mut Consumer<'_, MotionSetpoint<f32>>, encoder_rad: [f32; 2], sample: &mut Sample) {
+    fn run(
+        &mut self,
+        queue: &mut Consumer<'_, MotionSetpoint<f32>>,
+        encoder_rad: [f32; 2],
+        sample: &mut Sample,
+    ) {
         if let Some(blend) = self.blend.as_mut() {
             // After a calibration switch: the blend's setpoints, the queue left alone.
             blend.t_s += self.settings.servo.sample_period_s;
@@ -569,10 +649,19 @@ impl<'a> ServoLoop<'a> {
     }
 
     /// Accepts and tracks one setpoint (`ahead` the next, if known), or starts the stop.
-    fn track_setpoint(&mut self, setpoint: MotionSetpoint<f32>, ahead: Option<MotionSetpoint<f32>>, encoder_rad: [f32; 2], sample: &mut Sample) {
+    fn track_setpoint(
+        &mut self,
+        setpoint: MotionSetpoint<f32>,
+        ahead: Option<MotionSetpoint<f32>>,
+        encoder_rad: [f32; 2],
+        sample: &mut Sample,
+    ) {
         let setpoint_mm = setpoint.position_mm;
         let Some(servo) = self.servo.as_mut() else {
-            return self.latch(Fault::Servo(kinematics_core::ServoFault::NotEngaged), sample);
+            return self.latch(
+                Fault::Servo(kinematics_core::ServoFault::NotEngaged),
+                sample,
+            );
         };
         let accepted = match &self.valid {
             Some(valid) => servo.accept_motion_valid(valid, &setpoint, ahead.as_ref()),
@@ -583,7 +672,12 @@ impl<'a> ServoLoop<'a> {
             Err(refusal) => return self.begin_stop(Fault::Setpoint(refusal), encoder_rad, sample),
         };
         let dt_s = self.settings.servo.sample_period_s;
-        let state = MotionState::from_differences(setpoint_mm, accepted.velocity_mm_s(), accepted.accel_mm_s2(), dt_s);
+        let state = MotionState::from_differences(
+            setpoint_mm,
+            accepted.velocity_mm_s(),
+            accepted.accel_mm_s2(),
+            dt_s,
+        );
         if let Some(workspace) = &self.workspace {
             if !workspace.contains(StopProfile::plan(&state, &self.settings.stop.limits).end_mm()) {
                 // `accepted` is not tracked: the servo stays as it was.
@@ -607,7 +701,10 @@ impl<'a> ServoLoop<'a> {
         }
         sample.fault = Some(fault);
         self.mode = Mode::Stopping(fault);
-        self.stop = Some(Stop { profile: StopProfile::plan(&self.motion, &self.settings.stop.limits), samples: 0 });
+        self.stop = Some(Stop {
+            profile: StopProfile::plan(&self.motion, &self.settings.stop.limits),
+            samples: 0,
+        });
         self.follow_stop(encoder_rad, sample);
     }
 
@@ -615,7 +712,10 @@ impl<'a> ServoLoop<'a> {
     /// remove torque at standstill (category 1).
     fn follow_stop(&mut self, encoder_rad: [f32; 2], sample: &mut Sample) {
         let (Some(mut stop), Some(servo)) = (self.stop, self.servo.as_mut()) else {
-            return self.latch(Fault::Servo(kinematics_core::ServoFault::NotEngaged), sample);
+            return self.latch(
+                Fault::Servo(kinematics_core::ServoFault::NotEngaged),
+                sample,
+            );
         };
         stop.samples = stop.samples.saturating_add(1);
         self.stop = Some(stop);
@@ -631,7 +731,9 @@ impl<'a> ServoLoop<'a> {
             Err(StepError::Refused(r)) => return self.latch(Fault::StopRefused(r), sample),
             Err(StepError::Fault(f)) => return self.latch(Fault::Servo(f), sample),
         }
-        let Mode::Stopping(fault) = self.mode else { return };
+        let Mode::Stopping(fault) = self.mode else {
+            return;
+        };
         if !stop.profile.finished(t_s) {
             return;
         }
@@ -653,7 +755,9 @@ impl<'a> ServoLoop<'a> {
         sample.setpoint_mm = setpoint_mm;
         sample.reference_rad = out.reference_rad;
         sample.torque_nm = out.torque_nm;
-        sample.following_error_rad = out.following_error_rad[0].abs().max(out.following_error_rad[1].abs());
+        sample.following_error_rad = out.following_error_rad[0]
+            .abs()
+            .max(out.following_error_rad[1].abs());
     }
 
     fn enter_safe_state(&mut self, fault: Fault, sample: &mut Sample) {
@@ -683,7 +787,10 @@ impl<'a> ServoLoop<'a> {
             Mode::Running => {
                 sample.fault = Some(fault);
                 self.mode = Mode::Stopping(fault);
-                self.stop = Some(Stop { profile: StopProfile::plan(&self.motion, &self.settings.stop.limits), samples: 0 });
+                self.stop = Some(Stop {
+                    profile: StopProfile::plan(&self.motion, &self.settings.stop.limits),
+                    samples: 0,
+                });
             }
             Mode::Stopping(_) | Mode::Holding(_) => {}
         }
@@ -695,7 +802,10 @@ impl<'a> ServoLoop<'a> {
     /// drives are disabled (they were the best available). Sets [`Sample::feed_watchdog`] when
     /// the step was on time ([`watchdog::step_on_time`]).
     pub fn record_deadline(&mut self, step_us: f32, overrun: bool, sample: &mut Sample) {
-        if self.deadline.record(step_us, overrun, self.settings.overrun_streak_limit) {
+        if self
+            .deadline
+            .record(step_us, overrun, self.settings.overrun_streak_limit)
+        {
             self.latch(Fault::DeadlineMissed, sample);
         }
         sample.feed_watchdog = watchdog::step_on_time(step_us, overrun);
@@ -724,13 +834,16 @@ impl<'a> ServoLoop<'a> {
         let fault = match (request, self.mode) {
             (ServoRequest::Stop, Mode::Running) => Fault::StopCommanded,
             (ServoRequest::Disable, Mode::Running | Mode::Holding(_)) => Fault::DisableCommanded,
-            (ServoRequest::Stop | ServoRequest::Disable, _) | (ServoRequest::Reset, Mode::Running) => return Ok(false),
+            (ServoRequest::Stop | ServoRequest::Disable, _)
+            | (ServoRequest::Reset, Mode::Running) => return Ok(false),
             // The drives go on with the homing search (its torque is limited).
             (ServoRequest::Home, _) => return Ok(self.start_homing(encoder_rad).is_ok()),
             (ServoRequest::Reset, Mode::Stopping(_)) => return Err(ResetRefusal::Stopping),
             // Homing decides when the servo engages.
             (ServoRequest::Reset, Mode::Unhomed | Mode::Homing) => return Ok(false),
-            (ServoRequest::Reset, Mode::Holding(f) | Mode::SafeState(f)) => return self.reset(f, queue, encoder_rad),
+            (ServoRequest::Reset, Mode::Holding(f) | Mode::SafeState(f)) => {
+                return self.reset(f, queue, encoder_rad)
+            }
         };
         if let Mode::Holding(_) = self.mode {
             // Disable while holding: torque off at once, the machine is at rest.
@@ -750,7 +863,8 @@ impl<'a> ServoLoop<'a> {
         if fault.needs_reboot() {
             return Err(ResetRefusal::Permanent(fault));
         }
-        if !self.settings.homing.absolute_encoders && self.homing_phase() != Some(HomingPhase::Done) {
+        if !self.settings.homing.absolute_encoders && self.homing_phase() != Some(HomingPhase::Done)
+        {
             if let Mode::SafeState(_) = self.mode {
                 // The zero is unknown: nothing engages. Back to where the boot left an
                 // incremental machine (drives off, every setpoint refused), so Home may run.
@@ -764,7 +878,9 @@ impl<'a> ServoLoop<'a> {
             return Err(ResetRefusal::NotHomed);
         }
         let servo = self.servo.as_mut().ok_or(ResetRefusal::Permanent(fault))?;
-        let tool_mm = servo.engage(&self.calibration, encoder_rad).map_err(ResetRefusal::Engage)?;
+        let tool_mm = servo
+            .engage(&self.calibration, encoder_rad)
+            .map_err(ResetRefusal::Engage)?;
         while queue.dequeue().is_some() {}
         let was_off = !self.drives_enabled();
         self.mode = Mode::Running;
@@ -812,7 +928,14 @@ mod tests {
     }
 
     fn image() -> Vec<u8> {
-        let g = GridGeometry { nx: 3, ny: 3, x0_mm: 160.0, y0_mm: -80.0, step_x_mm: 50.0, step_y_mm: 80.0 };
+        let g = GridGeometry {
+            nx: 3,
+            ny: 3,
+            x0_mm: 160.0,
+            y0_mm: -80.0,
+            step_x_mm: 50.0,
+            step_y_mm: 80.0,
+        };
         let mut img = vec![0u8; g.image_len()];
         encode(&mut img, &g, &FiveBar::paper_nominal(), &[[3e-4, -2e-4]; 9]).unwrap();
         img
@@ -833,17 +956,31 @@ mod tests {
         let (l, encoder) = running(&settings, &img);
         assert!(l.drives_enabled());
         let p = l.setpoint_mm();
-        assert!((p[0] - HOME_MM[0]).abs() < 1e-3 && (p[1] - HOME_MM[1]).abs() < 1e-3, "{p:?}");
+        assert!(
+            (p[0] - HOME_MM[0]).abs() < 1e-3 && (p[1] - HOME_MM[1]).abs() < 1e-3,
+            "{p:?}"
+        );
         assert_eq!(l.reference_rad(), encoder);
     }
 
     #[test]
     fn a_refused_image_keeps_the_loop_safe_and_leaves_the_queue_alone() {
         let settings = absolute();
-        let cal = Calibration { model: FiveBar::paper_nominal(), grid: None };
+        let cal = Calibration {
+            model: FiveBar::paper_nominal(),
+            grid: None,
+        };
         let encoder = cal.command_rad(HOME_MM, 0.05).unwrap();
-        let mut l = ServoLoop::boot(&settings, cal, CalibrationState::Refused(ImageError::Grid(GridError::BadCrc)), encoder);
-        assert_eq!(l.mode(), Mode::SafeState(Fault::Calibration(ImageError::Grid(GridError::BadCrc))));
+        let mut l = ServoLoop::boot(
+            &settings,
+            cal,
+            CalibrationState::Refused(ImageError::Grid(GridError::BadCrc)),
+            encoder,
+        );
+        assert_eq!(
+            l.mode(),
+            Mode::SafeState(Fault::Calibration(ImageError::Grid(GridError::BadCrc)))
+        );
         assert!(!l.drives_enabled());
         let mut q: Queue<MotionSetpoint<f32>, QUEUE_SLOTS> = Queue::new();
         let (mut tx, mut rx) = q.split();
@@ -853,9 +990,18 @@ mod tests {
             assert_eq!(s.torque_nm, [0.0; 2]);
             assert_eq!((s.fault, s.underrun, s.refill), (None, false, false));
         }
-        assert_eq!(rx.len(), 1, "nothing taken from the queue in the safe state");
+        assert_eq!(
+            rx.len(),
+            1,
+            "nothing taken from the queue in the safe state"
+        );
         // Uncorrected running allowed: engages with the nominal model.
-        let l = ServoLoop::boot(&settings, cal, CalibrationState::Uncorrected(ImageError::Grid(GridError::BadCrc)), encoder);
+        let l = ServoLoop::boot(
+            &settings,
+            cal,
+            CalibrationState::Uncorrected(ImageError::Grid(GridError::BadCrc)),
+            encoder,
+        );
         assert_eq!(l.mode(), Mode::Running);
     }
 
@@ -865,7 +1011,14 @@ mod tests {
         let (settings, img) = (absolute(), image());
         let cal = Calibration::from_grid(CorrectionGrid::parse(&img).unwrap());
         let l = ServoLoop::boot(&settings, cal, CalibrationState::Valid, [0.0; 2]);
-        assert!(matches!(l.mode(), Mode::SafeState(Fault::Engage(EngageError::Kinematics(_)))), "{:?}", l.mode());
+        assert!(
+            matches!(
+                l.mode(),
+                Mode::SafeState(Fault::Engage(EngageError::Kinematics(_)))
+            ),
+            "{:?}",
+            l.mode()
+        );
     }
 
     #[test]
@@ -877,7 +1030,10 @@ mod tests {
         let cal = Calibration::from_grid(CorrectionGrid::parse(&img).unwrap());
         let encoder = cal.command_rad(HOME_MM, 0.05).unwrap();
         let l = ServoLoop::boot(&settings, cal, CalibrationState::Valid, encoder);
-        let want = Fault::Settings(SettingsError::Encoder { axis: 1, error: EncoderConfigError::ZeroCountsPerRev });
+        let want = Fault::Settings(SettingsError::Encoder {
+            axis: 1,
+            error: EncoderConfigError::ZeroCountsPerRev,
+        });
         assert_eq!(l.mode(), Mode::SafeState(want));
     }
 
@@ -891,18 +1047,29 @@ mod tests {
         let mut q: Queue<MotionSetpoint<f32>, QUEUE_SLOTS> = Queue::new();
         let (mut tx, mut rx) = q.split();
         tx.enqueue(MotionSetpoint::at_rest(HOME_MM)).unwrap();
-        tx.enqueue(MotionSetpoint::at_rest([f32::NAN, 0.0])).unwrap();
+        tx.enqueue(MotionSetpoint::at_rest([f32::NAN, 0.0]))
+            .unwrap();
         tx.enqueue(MotionSetpoint::at_rest(HOME_MM)).unwrap();
         let s = l.step(&mut rx, encoder);
         assert!(s.fault.is_none() && !s.torque_off);
         let s = l.step(&mut rx, encoder);
         let nan = Fault::Setpoint(SetpointRefusal::NonFinite);
-        assert_eq!((s.fault, s.torque_off, s.torque_nm), (Some(nan), true, [0.0; 2]));
-        assert_eq!(s.setpoint_mm, HOME_MM, "the last accepted setpoint, not the NaN");
+        assert_eq!(
+            (s.fault, s.torque_off, s.torque_nm),
+            (Some(nan), true, [0.0; 2])
+        );
+        assert_eq!(
+            s.setpoint_mm, HOME_MM,
+            "the last accepted setpoint, not the NaN"
+        );
         assert_eq!(l.mode(), Mode::SafeState(nan));
         assert_eq!(l.stop_profile().map(|p| p.distance_mm()), Some(0.0));
         let s = l.step(&mut rx, encoder);
-        assert_eq!((s.fault, s.torque_nm, s.torque_off), (None, [0.0; 2], false), "latched once, zero ever after");
+        assert_eq!(
+            (s.fault, s.torque_nm, s.torque_off),
+            (None, [0.0; 2], false),
+            "latched once, zero ever after"
+        );
         assert_eq!(rx.len(), 1);
     }
 
@@ -916,7 +1083,8 @@ mod tests {
         assert!(s.underrun && s.refill && s.fault.is_none());
         assert_eq!(s.setpoint_mm, l.setpoint_mm());
         while tx.ready() {
-            tx.enqueue(MotionSetpoint::at_rest(l.setpoint_mm())).unwrap();
+            tx.enqueue(MotionSetpoint::at_rest(l.setpoint_mm()))
+                .unwrap();
         }
         let s = l.step(&mut rx, encoder);
         assert!(!s.underrun && !s.refill, "{} left", rx.len());
@@ -936,7 +1104,11 @@ mod tests {
             let mut s = l.step(&mut rx, encoder);
             l.record_deadline(700.0, true, &mut s);
             let last = k + 1 == settings.overrun_streak_limit;
-            assert_eq!(s.fault, last.then_some(Fault::DeadlineMissed), "overrun {k}");
+            assert_eq!(
+                s.fault,
+                last.then_some(Fault::DeadlineMissed),
+                "overrun {k}"
+            );
         }
         assert_eq!(l.mode(), Mode::SafeState(Fault::DeadlineMissed));
         let mut s = l.step(&mut rx, encoder);
@@ -974,17 +1146,31 @@ mod tests {
         let (settings, img) = (absolute(), image());
         let (mut l, encoder) = running(&settings, &img);
         l.latch_at_boot(Fault::Watchdog(WatchdogFault::Reset));
-        assert_eq!(l.mode(), Mode::SafeState(Fault::Watchdog(WatchdogFault::Reset)));
+        assert_eq!(
+            l.mode(),
+            Mode::SafeState(Fault::Watchdog(WatchdogFault::Reset))
+        );
         let mut q: Queue<MotionSetpoint<f32>, QUEUE_SLOTS> = Queue::new();
         let (mut tx, mut rx) = q.split();
         tx.enqueue(MotionSetpoint::at_rest(HOME_MM)).unwrap();
         let s = l.step(&mut rx, [encoder[0] + 1e-3, encoder[1]]);
         assert_eq!((s.torque_nm, s.fault), ([0.0; 2], None));
         // A refused image at boot stays the reason reported.
-        let cal = Calibration { model: FiveBar::paper_nominal(), grid: None };
-        let mut l = ServoLoop::boot(&settings, cal, CalibrationState::Refused(ImageError::Grid(GridError::BadCrc)), encoder);
+        let cal = Calibration {
+            model: FiveBar::paper_nominal(),
+            grid: None,
+        };
+        let mut l = ServoLoop::boot(
+            &settings,
+            cal,
+            CalibrationState::Refused(ImageError::Grid(GridError::BadCrc)),
+            encoder,
+        );
         l.latch_at_boot(Fault::Watchdog(WatchdogFault::NotStarted));
-        assert_eq!(l.mode(), Mode::SafeState(Fault::Calibration(ImageError::Grid(GridError::BadCrc))));
+        assert_eq!(
+            l.mode(),
+            Mode::SafeState(Fault::Calibration(ImageError::Grid(GridError::BadCrc)))
+        );
     }
 
     #[test]
@@ -996,7 +1182,10 @@ mod tests {
         let mut s = l.step(&mut rx, [encoder[0] + 1e-5, encoder[1]]);
         assert!(s.torque_nm[0] != 0.0);
         l.latch(Fault::Drive, &mut s);
-        assert_eq!((s.fault, s.torque_nm, s.torque_off), (Some(Fault::Drive), [0.0; 2], true));
+        assert_eq!(
+            (s.fault, s.torque_nm, s.torque_off),
+            (Some(Fault::Drive), [0.0; 2], true)
+        );
         assert!(!l.drives_enabled());
     }
 
@@ -1009,8 +1198,14 @@ mod tests {
         tx.enqueue(MotionSetpoint::at_rest(HOME_MM)).unwrap();
         let s = l.step(&mut rx, encoder);
         assert!(s.fault.is_none());
-        let ik = FiveBar::<f32>::paper_nominal().inverse(HOME_MM, 0.05).unwrap();
-        assert!((s.reference_rad[0] - ik[0] - 3e-4).abs() < 1e-6, "{:?} vs {ik:?}", s.reference_rad);
+        let ik = FiveBar::<f32>::paper_nominal()
+            .inverse(HOME_MM, 0.05)
+            .unwrap();
+        assert!(
+            (s.reference_rad[0] - ik[0] - 3e-4).abs() < 1e-6,
+            "{:?} vs {ik:?}",
+            s.reference_rad
+        );
         assert!((s.reference_rad[1] - ik[1] + 2e-4).abs() < 1e-6);
     }
 
@@ -1054,12 +1249,22 @@ mod tests {
         mut request: impl FnMut(usize) -> Option<ServoRequest>,
     ) -> Run {
         let start = cal.command_rad(HOME_MM, 0.05).unwrap();
-        let mut plant = Plant { angle_rad: start, velocity_rad_s: [0.0; 2], torque_nm: [0.0; 2], enabled: true };
+        let mut plant = Plant {
+            angle_rad: start,
+            velocity_rad_s: [0.0; 2],
+            torque_nm: [0.0; 2],
+            enabled: true,
+        };
         let mut l = ServoLoop::boot(settings, cal, CalibrationState::Valid, plant.encoder_rad());
         assert_eq!(l.mode(), Mode::Running);
         let mut q: Queue<MotionSetpoint<f32>, QUEUE_SLOTS> = Queue::new();
         let (mut tx, mut rx) = q.split();
-        let mut run = Run { samples: vec![], modes: vec![], angles: vec![], enabled: vec![] };
+        let mut run = Run {
+            samples: vec![],
+            modes: vec![],
+            angles: vec![],
+            enabled: vec![],
+        };
         for k in 0..n {
             if let Some(p) = setpoint(k) {
                 // Full once the loop stops taking setpoints (stopping, holding, safe state).
@@ -1108,8 +1313,13 @@ mod tests {
 
     fn tool_mm(cal: &Calibration<'_>, theta: [f32; 2]) -> [f32; 2] {
         let p = cal.model.forward(theta, 0.0).unwrap();
-        let d = cal.grid.as_ref().map_or([0.0; 2], |g| g.correction_rad(p).unwrap_or([0.0; 2]));
-        cal.model.forward([theta[0] - d[0], theta[1] - d[1]], 0.0).unwrap()
+        let d = cal
+            .grid
+            .as_ref()
+            .map_or([0.0; 2], |g| g.correction_rad(p).unwrap_or([0.0; 2]));
+        cal.model
+            .forward([theta[0] - d[0], theta[1] - d[1]], 0.0)
+            .unwrap()
     }
 
     fn grid_cal(img: &[u8]) -> Calibration<'_> {
@@ -1123,11 +1333,21 @@ mod tests {
         let (settings, img) = (absolute(), image());
         let mut t = tour();
         let n = t.total_samples() as usize + 200;
-        let run = closed(&settings, grid_cal(&img), n, |_| Some(t.next_mm()), |_, e| e);
+        let run = closed(
+            &settings,
+            grid_cal(&img),
+            n,
+            |_| Some(t.next_mm()),
+            |_, e| e,
+        );
         let faults: Vec<_> = run.samples.iter().filter_map(|s| s.fault).collect();
         assert!(faults.is_empty(), "{faults:?}");
         assert!(run.modes.iter().all(|m| *m == Mode::Running));
-        let worst = run.samples.iter().map(|s| s.following_error_rad).fold(0.0, f32::max);
+        let worst = run
+            .samples
+            .iter()
+            .map(|s| s.following_error_rad)
+            .fold(0.0, f32::max);
         assert!(worst < 2e-4, "following error {worst}");
     }
 
@@ -1142,31 +1362,56 @@ mod tests {
     ) -> (Run, usize, f32) {
         let (at, _) = top_speed();
         let mut t = tour();
-        let run = closed(settings, grid_cal(img), at + n, |k| inject(k.wrapping_sub(at), t.next_mm()), |_, e| e);
+        let run = closed(
+            settings,
+            grid_cal(img),
+            at + n,
+            |k| inject(k.wrapping_sub(at), t.next_mm()),
+            |_, e| e,
+        );
         let [p1, p2, p3] = [1, 2, 3].map(|j| run.samples[at - j].setpoint_mm);
         let v = [0, 1].map(|k| (p1[k] - p2[k]) / DT_S);
         let a = [0, 1].map(|k| (p1[k] - 2.0 * p2[k] + p3[k]) / (DT_S * DT_S));
         let m = MotionState::from_differences(p1, v, a, DT_S);
-        let along = (m.accel_mm_s2[0] * m.velocity_mm_s[0] + m.accel_mm_s2[1] * m.velocity_mm_s[1]) / m.speed_mm_s();
-        (run, at, stopping_distance_bound_mm(m.speed_mm_s(), along, &settings.stop.limits))
+        let along = (m.accel_mm_s2[0] * m.velocity_mm_s[0] + m.accel_mm_s2[1] * m.velocity_mm_s[1])
+            / m.speed_mm_s();
+        (
+            run,
+            at,
+            stopping_distance_bound_mm(m.speed_mm_s(), along, &settings.stop.limits),
+        )
     }
 
     /// Checks a controlled stop from sample `at`: the stop's setpoints end at the stated
     /// distance `bound_mm` from its origin (the last accepted setpoint) within 0.1 %; the tool
     /// gets no further from the origin than that plus 0.1 mm (tracking) and stays inside the
     /// calibrated rectangle. Returns (planned, travelled) in mm.
-    fn check_controlled_stop(cal: &Calibration<'_>, run: &Run, at: usize, bound_mm: f32) -> (f32, f32) {
+    fn check_controlled_stop(
+        cal: &Calibration<'_>,
+        run: &Run,
+        at: usize,
+        bound_mm: f32,
+    ) -> (f32, f32) {
         let from = run.samples[at - 1].setpoint_mm;
         let end = run.samples[run.samples.len() - 1].setpoint_mm;
         let planned = libm::hypotf(end[0] - from[0], end[1] - from[1]);
-        assert!((planned - bound_mm).abs() <= 1e-3 * bound_mm, "planned {planned} mm, stated {bound_mm}");
+        assert!(
+            (planned - bound_mm).abs() <= 1e-3 * bound_mm,
+            "planned {planned} mm, stated {bound_mm}"
+        );
         let mut furthest = 0.0f32;
         for k in at..run.angles.len() {
             let p = tool_mm(cal, run.angles[k]);
             furthest = furthest.max(libm::hypotf(p[0] - from[0], p[1] - from[1]));
-            assert!((160.0..=260.0).contains(&p[0]) && (-80.0..=80.0).contains(&p[1]), "left the rectangle: {p:?}");
+            assert!(
+                (160.0..=260.0).contains(&p[0]) && (-80.0..=80.0).contains(&p[1]),
+                "left the rectangle: {p:?}"
+            );
         }
-        assert!(furthest <= planned + 0.1 && furthest >= planned - 0.1, "stopped in {furthest} mm, planned {planned}");
+        assert!(
+            furthest <= planned + 0.1 && furthest >= planned - 0.1,
+            "stopped in {furthest} mm, planned {planned}"
+        );
         (planned, furthest)
     }
 
@@ -1176,15 +1421,26 @@ mod tests {
     #[test]
     fn a_nan_at_top_speed_brakes_along_the_path_then_removes_torque() {
         let (settings, img) = (absolute(), image());
-        let (run, at, bound) =
-            stop_at_top_speed(&settings, &img, 300, |k, p| Some(if k == 0 { [p[0], f32::NAN] } else { p }));
+        let (run, at, bound) = stop_at_top_speed(&settings, &img, 300, |k, p| {
+            Some(if k == 0 { [p[0], f32::NAN] } else { p })
+        });
         let nan = Fault::Setpoint(SetpointRefusal::NonFinite);
         assert_eq!(run.samples[at].fault, Some(nan));
-        assert!(run.samples[at].torque_nm != [0.0; 2], "the fault's sample already brakes");
-        let off = run.samples.iter().position(|s| s.torque_off).expect("torque never removed");
+        assert!(
+            run.samples[at].torque_nm != [0.0; 2],
+            "the fault's sample already brakes"
+        );
+        let off = run
+            .samples
+            .iter()
+            .position(|s| s.torque_off)
+            .expect("torque never removed");
         let stop = (settings.stop.limits.decel_mm_s2, bound);
         let duration = ((off - at) as f32) * DT_S;
-        assert!(duration < 0.05 + 0.005, "torque removed {duration} s after the fault ({stop:?})");
+        assert!(
+            duration < 0.05 + 0.005,
+            "torque removed {duration} s after the fault ({stop:?})"
+        );
         assert!(run.enabled[..off].iter().all(|&e| e) && run.enabled[off..].iter().all(|&e| !e));
         assert!(run.samples[off..].iter().all(|s| s.torque_nm == [0.0; 2]));
         assert_eq!(run.modes[off], Mode::SafeState(nan));
@@ -1196,7 +1452,9 @@ mod tests {
     #[test]
     fn a_jump_at_top_speed_brakes_then_holds() {
         let (settings, img) = (absolute(), image());
-        let (run, at, bound) = stop_at_top_speed(&settings, &img, 300, |k, p| Some(if k < 1000 { [p[0] + 1.0, p[1]] } else { p }));
+        let (run, at, bound) = stop_at_top_speed(&settings, &img, 300, |k, p| {
+            Some(if k < 1000 { [p[0] + 1.0, p[1]] } else { p })
+        });
         let jump = Fault::Setpoint(SetpointRefusal::Jump);
         assert_eq!(run.samples[at].fault, Some(jump));
         assert_eq!(run.modes[run.modes.len() - 1], Mode::Holding(jump));
@@ -1207,17 +1465,27 @@ mod tests {
         // samples within a micrometre.
         let cal = grid_cal(&img);
         let end = run.samples[run.samples.len() - 1].setpoint_mm;
-        let stop_end = at + run.modes[at..].iter().position(|m| matches!(m, Mode::Holding(_))).unwrap();
+        let stop_end = at
+            + run.modes[at..]
+                .iter()
+                .position(|m| matches!(m, Mode::Holding(_)))
+                .unwrap();
         let error = |a: &[f32; 2]| {
             let p = tool_mm(&cal, *a);
             libm::hypotf(p[0] - end[0], p[1] - end[1])
         };
-        let worst = run.angles[stop_end + 100..].iter().map(error).fold(0.0, f32::max);
+        let worst = run.angles[stop_end + 100..]
+            .iter()
+            .map(error)
+            .fold(0.0, f32::max);
         assert!(worst < 0.02, "holding {worst} mm off the stop's end");
         let last = tool_mm(&cal, run.angles[run.angles.len() - 1]);
         for a in &run.angles[run.angles.len() - 50..] {
             let p = tool_mm(&cal, *a);
-            assert!(libm::hypotf(p[0] - last[0], p[1] - last[1]) < 1e-3, "still moving: {p:?} vs {last:?}");
+            assert!(
+                libm::hypotf(p[0] - last[0], p[1] - last[1]) < 1e-3,
+                "still moving: {p:?} vs {last:?}"
+            );
         }
     }
 
@@ -1226,10 +1494,14 @@ mod tests {
     #[test]
     fn an_underrun_while_moving_brakes_then_holds() {
         let (settings, img) = (absolute(), image());
-        let (run, at, bound) = stop_at_top_speed(&settings, &img, 300, |k, p| (k >= 1 << 30).then_some(p));
+        let (run, at, bound) =
+            stop_at_top_speed(&settings, &img, 300, |k, p| (k >= 1 << 30).then_some(p));
         assert_eq!(run.samples[at].fault, Some(Fault::Underrun));
         assert!(run.samples[at].underrun);
-        assert_eq!(run.modes[run.modes.len() - 1], Mode::Holding(Fault::Underrun));
+        assert_eq!(
+            run.modes[run.modes.len() - 1],
+            Mode::Holding(Fault::Underrun)
+        );
         check_controlled_stop(&grid_cal(&img), &run, at, bound);
     }
 
@@ -1255,24 +1527,45 @@ mod tests {
                 _ => None,
             },
         );
-        assert_eq!(run.samples[at].fault, None, "a request takes effect from the next sample's stop");
+        assert_eq!(
+            run.samples[at].fault, None,
+            "a request takes effect from the next sample's stop"
+        );
         assert_eq!(run.modes[at], Mode::Stopping(Fault::StopCommanded));
-        assert_eq!(run.modes[at + 1], Mode::Stopping(Fault::StopCommanded), "reset refused during the stop");
+        assert_eq!(
+            run.modes[at + 1],
+            Mode::Stopping(Fault::StopCommanded),
+            "reset refused during the stop"
+        );
         assert_eq!(run.modes[at + 399], Mode::Holding(Fault::StopCommanded));
-        assert_eq!(run.modes[at + 400], Mode::Running, "the reset dropped the tour's queued setpoints");
+        assert_eq!(
+            run.modes[at + 400],
+            Mode::Running,
+            "the reset dropped the tour's queued setpoints"
+        );
         // The stop braked along the path, within its bound from the last accepted setpoint.
         let from = run.samples[at - 1].setpoint_mm;
         let end = run.samples[at + 399].setpoint_mm;
-        let v = libm::hypotf(from[0] - run.samples[at - 2].setpoint_mm[0], from[1] - run.samples[at - 2].setpoint_mm[1]) / DT_S;
+        let v = libm::hypotf(
+            from[0] - run.samples[at - 2].setpoint_mm[0],
+            from[1] - run.samples[at - 2].setpoint_mm[1],
+        ) / DT_S;
         let travelled = libm::hypotf(end[0] - from[0], end[1] - from[1]);
         let bound = stopping_distance_bound_mm(v, 2.0 * 9806.65, &settings.stop.limits);
-        assert!(travelled > 0.0 && travelled <= bound, "{travelled} mm, bound {bound} mm");
+        assert!(
+            travelled > 0.0 && travelled <= bound,
+            "{travelled} mm, bound {bound} mm"
+        );
 
         // Direct: disable at rest, reset turns the drives back on, a boot fault is permanent.
         let (mut l, enc) = running(&settings, &img);
         let mut q: Queue<MotionSetpoint<f32>, QUEUE_SLOTS> = Queue::new();
         let (mut tx, mut rx) = q.split();
-        assert_eq!(l.request(ServoRequest::Reset, &mut rx, enc), Ok(false), "running: nothing to reset");
+        assert_eq!(
+            l.request(ServoRequest::Reset, &mut rx, enc),
+            Ok(false),
+            "running: nothing to reset"
+        );
         assert_eq!(l.request(ServoRequest::Disable, &mut rx, enc), Ok(false));
         let mut torque_off = false;
         for _ in 0..200 {
@@ -1281,13 +1574,28 @@ mod tests {
         assert!(torque_off);
         assert_eq!(l.mode(), Mode::SafeState(Fault::DisableCommanded));
         let _ = tx.enqueue(MotionSetpoint::at_rest([200.0, 10.0]));
-        assert_eq!(l.request(ServoRequest::Reset, &mut rx, enc), Ok(true), "drives back on");
+        assert_eq!(
+            l.request(ServoRequest::Reset, &mut rx, enc),
+            Ok(true),
+            "drives back on"
+        );
         assert_eq!(l.mode(), Mode::Running);
         assert_eq!(rx.len(), 0, "the stale setpoint was dropped");
         let boot_fault = Fault::Calibration(ImageError::Grid(GridError::BadCrc));
-        let nominal = Calibration { model: FiveBar::paper_nominal(), grid: None };
-        let mut l = ServoLoop::boot(&settings, nominal, CalibrationState::Refused(ImageError::Grid(GridError::BadCrc)), enc);
-        assert_eq!(l.request(ServoRequest::Reset, &mut rx, enc), Err(ResetRefusal::Permanent(boot_fault)));
+        let nominal = Calibration {
+            model: FiveBar::paper_nominal(),
+            grid: None,
+        };
+        let mut l = ServoLoop::boot(
+            &settings,
+            nominal,
+            CalibrationState::Refused(ImageError::Grid(GridError::BadCrc)),
+            enc,
+        );
+        assert_eq!(
+            l.request(ServoRequest::Reset, &mut rx, enc),
+            Err(ResetRefusal::Permanent(boot_fault))
+        );
     }
 
     /// A stream that heads for the edge of the calibrated rectangle too fast to stop before it
@@ -1299,10 +1607,19 @@ mod tests {
         let cal = grid_cal(&img);
         let (run, at) = towards_x_320(&settings, cal);
         assert_eq!(run.samples[at].fault, Some(Fault::StopOutsideWorkspace));
-        assert!(run.samples.iter().all(|s| s.setpoint_mm[0] <= 260.0 - settings.stop.workspace_margin_mm));
-        assert!(matches!(run.modes[run.modes.len() - 1], Mode::Holding(Fault::StopOutsideWorkspace)));
+        assert!(run
+            .samples
+            .iter()
+            .all(|s| s.setpoint_mm[0] <= 260.0 - settings.stop.workspace_margin_mm));
+        assert!(matches!(
+            run.modes[run.modes.len() - 1],
+            Mode::Holding(Fault::StopOutsideWorkspace)
+        ));
         let end = tool_mm(&cal, run.angles[run.angles.len() - 1]);
-        assert!(end[0] <= 260.0 - 0.09 && end[0] > 230.0, "stopped at {end:?}");
+        assert!(
+            end[0] <= 260.0 - 0.09 && end[0] > 230.0,
+            "stopped at {end:?}"
+        );
         // The speed when refused: well above what could stop in the last millimetre.
         let v = (run.samples[at - 1].setpoint_mm[0] - run.samples[at - 2].setpoint_mm[0]) / DT_S;
         assert!(v > 1000.0, "{v} mm/s");
@@ -1329,14 +1646,31 @@ mod tests {
         let mut img = image();
         let n = img.len();
         img.resize(n + WORKSPACE_LEN, 0);
-        let region = ConvexWorkspace::new(&[[170.0, -70.0], [240.0, -70.0], [240.0, 70.0], [170.0, 70.0]]).unwrap();
-        append_workspace(&mut img, n, n, &WorkspaceLimits { region, stop_margin_mm: 0.5 }).unwrap();
+        let region =
+            ConvexWorkspace::new(&[[170.0, -70.0], [240.0, -70.0], [240.0, 70.0], [170.0, 70.0]])
+                .unwrap();
+        append_workspace(
+            &mut img,
+            n,
+            n,
+            &WorkspaceLimits {
+                region,
+                stop_margin_mm: 0.5,
+            },
+        )
+        .unwrap();
         let cal = grid_cal(&img);
         let (run, at) = towards_x_320(&settings, cal);
         assert_eq!(run.samples[at].fault, Some(Fault::StopOutsideWorkspace));
-        assert!(run.samples.iter().all(|s| s.setpoint_mm[0] <= 240.0 - 0.5), "a setpoint beyond the polygon's edge");
+        assert!(
+            run.samples.iter().all(|s| s.setpoint_mm[0] <= 240.0 - 0.5),
+            "a setpoint beyond the polygon's edge"
+        );
         let end = tool_mm(&cal, run.angles[run.angles.len() - 1]);
-        assert!(end[0] <= 240.0 - 0.45 && end[0] > 215.0, "stopped at {end:?}");
+        assert!(
+            end[0] <= 240.0 - 0.45 && end[0] > 215.0,
+            "stopped at {end:?}"
+        );
     }
 
     /// An encoder frozen during a stop, and a glitch while moving: category 0 at once, even
@@ -1353,22 +1687,60 @@ mod tests {
             &settings,
             grid_cal(&img),
             at + 100,
-            |k| Some(if k >= at { [t.next_mm()[0] + 1.0, 0.0] } else { t.next_mm() }),
-            |k, e| if k >= at + 10 { [e[0], *frozen.get_or_insert(e[1])] } else { e },
+            |k| {
+                Some(if k >= at {
+                    [t.next_mm()[0] + 1.0, 0.0]
+                } else {
+                    t.next_mm()
+                })
+            },
+            |k, e| {
+                if k >= at + 10 {
+                    [e[0], *frozen.get_or_insert(e[1])]
+                } else {
+                    e
+                }
+            },
         );
-        let bad = run.samples.iter().position(|s| s.fault.is_some_and(|f| f.stop_category() == StopCategory::Zero)).unwrap();
+        let bad = run
+            .samples
+            .iter()
+            .position(|s| {
+                s.fault
+                    .is_some_and(|f| f.stop_category() == StopCategory::Zero)
+            })
+            .unwrap();
         // Joint 2 turns slower than 3 rad/s there: the stuck check, not the acceleration check,
         // finds it, within a few samples.
-        assert!((at + 10..=at + 20).contains(&bad), "found at {bad}, frozen at {}", at + 10);
-        assert!(matches!(run.samples[bad].fault, Some(Fault::Encoder(EncoderFault { axis: 1, .. }))));
+        assert!(
+            (at + 10..=at + 20).contains(&bad),
+            "found at {bad}, frozen at {}",
+            at + 10
+        );
+        assert!(matches!(
+            run.samples[bad].fault,
+            Some(Fault::Encoder(EncoderFault { axis: 1, .. }))
+        ));
         assert!(run.samples[bad].torque_off && run.samples[bad].torque_nm == [0.0; 2]);
-        assert!(matches!(run.modes[run.modes.len() - 1], Mode::SafeState(Fault::Encoder(_))));
+        assert!(matches!(
+            run.modes[run.modes.len() - 1],
+            Mode::SafeState(Fault::Encoder(_))
+        ));
         // A 5 mrad glitch at top speed: caught in its sample.
         let mut t = tour();
-        let run = closed(&settings, grid_cal(&img), at + 10, |_| Some(t.next_mm()), |k, e| if k == at { [e[0] + 5e-3, e[1]] } else { e });
+        let run = closed(
+            &settings,
+            grid_cal(&img),
+            at + 10,
+            |_| Some(t.next_mm()),
+            |k, e| if k == at { [e[0] + 5e-3, e[1]] } else { e },
+        );
         assert_eq!(
             run.samples[at].fault,
-            Some(Fault::Encoder(EncoderFault { axis: 0, kind: EncoderFaultKind::Acceleration }))
+            Some(Fault::Encoder(EncoderFault {
+                axis: 0,
+                kind: EncoderFaultKind::Acceleration
+            }))
         );
         assert!(run.samples[at].torque_off);
     }
@@ -1389,10 +1761,26 @@ mod tests {
             cal,
             1000,
             |k| Some(if k < 50 { HOME_MM } else { t.next_mm() }),
-            |k, e| if k >= 20 { [*frozen.get_or_insert(e[0]), e[1]] } else { e },
+            |k, e| {
+                if k >= 20 {
+                    [*frozen.get_or_insert(e[0]), e[1]]
+                } else {
+                    e
+                }
+            },
         );
-        let bad = run.samples.iter().position(|s| s.fault.is_some()).expect("not detected");
-        assert_eq!(run.samples[bad].fault, Some(Fault::Encoder(EncoderFault { axis: 0, kind: EncoderFaultKind::Stuck })));
+        let bad = run
+            .samples
+            .iter()
+            .position(|s| s.fault.is_some())
+            .expect("not detected");
+        assert_eq!(
+            run.samples[bad].fault,
+            Some(Fault::Encoder(EncoderFault {
+                axis: 0,
+                kind: EncoderFaultKind::Stuck
+            }))
+        );
         assert!(run.samples[bad].torque_off);
         let p0 = tool_mm(&cal, run.angles[19]);
         let off = |k: usize| {
@@ -1406,7 +1794,10 @@ mod tests {
             bad - 50
         );
         assert!(bad > 50 && bad <= 50 + 30, "detected at sample {bad}");
-        assert!(at_detection < 0.5, "tool {at_detection} mm off at detection");
+        assert!(
+            at_detection < 0.5,
+            "tool {at_detection} mm off at detection"
+        );
         assert!(coasted < 3.0, "coasted to {coasted} mm");
     }
 
@@ -1415,7 +1806,10 @@ mod tests {
     #[test]
     fn a_stop_the_servo_refuses_is_category_zero() {
         let settings = absolute();
-        let cal = Calibration { model: FiveBar::paper_nominal(), grid: None };
+        let cal = Calibration {
+            model: FiveBar::paper_nominal(),
+            grid: None,
+        };
         let g = kinematics_core::servo::STANDARD_GRAVITY_MM_S2;
         // A stream along +x: 2 g up to 0.5 m/s, then cruising towards the 300 mm reach (a host
         // stream could do that, meaning to brake late); a NaN once past 297 mm, where the
@@ -1437,9 +1831,22 @@ mod tests {
             |_, e| e,
         );
         let faults: Vec<Fault> = run.samples.iter().filter_map(|s| s.fault).collect();
-        assert_eq!(faults.first(), Some(&Fault::Setpoint(SetpointRefusal::NonFinite)), "{faults:?}");
-        assert!(matches!(faults.get(1), Some(Fault::StopRefused(SetpointRefusal::Kinematics(_)))), "{faults:?}");
-        assert!(matches!(run.modes[run.modes.len() - 1], Mode::SafeState(Fault::StopRefused(_))));
+        assert_eq!(
+            faults.first(),
+            Some(&Fault::Setpoint(SetpointRefusal::NonFinite)),
+            "{faults:?}"
+        );
+        assert!(
+            matches!(
+                faults.get(1),
+                Some(Fault::StopRefused(SetpointRefusal::Kinematics(_)))
+            ),
+            "{faults:?}"
+        );
+        assert!(matches!(
+            run.modes[run.modes.len() - 1],
+            Mode::SafeState(Fault::StopRefused(_))
+        ));
     }
 
     /// The homing plan is checked at boot: settings whose search runs into a singularity keep
@@ -1468,22 +1875,55 @@ mod tests {
         let (_, mut rx) = q.split();
         assert_eq!(l.mode(), Mode::Unhomed);
         assert_eq!(l.homing_phase(), None);
-        assert_eq!(l.request(ServoRequest::Home, &mut rx, [0.0; 2]), Ok(true), "drives on");
-        assert_eq!((l.mode(), l.homing_phase()), (Mode::Homing, Some(HomingPhase::Search(0))));
-        assert_eq!(l.request(ServoRequest::Home, &mut rx, [0.0; 2]), Ok(false), "not twice");
+        assert_eq!(
+            l.request(ServoRequest::Home, &mut rx, [0.0; 2]),
+            Ok(true),
+            "drives on"
+        );
+        assert_eq!(
+            (l.mode(), l.homing_phase()),
+            (Mode::Homing, Some(HomingPhase::Search(0)))
+        );
+        assert_eq!(
+            l.request(ServoRequest::Home, &mut rx, [0.0; 2]),
+            Ok(false),
+            "not twice"
+        );
         assert_eq!(l.mode(), Mode::Homing);
         // A fault while homing: the safe state; no reset engages the unhomed machine, it goes
         // back to Unhomed with the drives off, and Home runs again (no reboot).
         let mut sample = l.step_homing([0.0; 2], [None; 2]);
         l.latch(Fault::DeadlineMissed, &mut sample);
         assert_eq!(l.mode(), Mode::SafeState(Fault::DeadlineMissed));
-        assert_eq!(l.request(ServoRequest::Home, &mut rx, [0.0; 2]), Ok(false), "not before the fault is reset");
-        assert_eq!(l.request(ServoRequest::Reset, &mut rx, [0.0; 2]), Ok(false), "nothing to enable");
-        assert_eq!((l.mode(), l.homing_phase(), l.drives_enabled()), (Mode::Unhomed, None, false));
+        assert_eq!(
+            l.request(ServoRequest::Home, &mut rx, [0.0; 2]),
+            Ok(false),
+            "not before the fault is reset"
+        );
+        assert_eq!(
+            l.request(ServoRequest::Reset, &mut rx, [0.0; 2]),
+            Ok(false),
+            "nothing to enable"
+        );
+        assert_eq!(
+            (l.mode(), l.homing_phase(), l.drives_enabled()),
+            (Mode::Unhomed, None, false)
+        );
         let s = l.step(&mut rx, [0.0; 2]);
-        assert_eq!((s.torque_nm, s.fault), ([0.0; 2], None), "Unhomed: zero torque");
-        assert_eq!(l.request(ServoRequest::Home, &mut rx, [0.0; 2]), Ok(true), "homing again, drives on");
-        assert_eq!((l.mode(), l.homing_phase()), (Mode::Homing, Some(HomingPhase::Search(0))));
+        assert_eq!(
+            (s.torque_nm, s.fault),
+            ([0.0; 2], None),
+            "Unhomed: zero torque"
+        );
+        assert_eq!(
+            l.request(ServoRequest::Home, &mut rx, [0.0; 2]),
+            Ok(true),
+            "homing again, drives on"
+        );
+        assert_eq!(
+            (l.mode(), l.homing_phase()),
+            (Mode::Homing, Some(HomingPhase::Search(0)))
+        );
         // The same after a fault latched at boot (a watchdog reset) before homing.
         let mut l = ServoLoop::boot(&settings, cal, CalibrationState::Valid, [0.0; 2]);
         l.latch_at_boot(Fault::DeadlineMissed);
@@ -1496,10 +1936,22 @@ mod tests {
         let mut l = ServoLoop::boot(&settings, cal, CalibrationState::Valid, [0.0; 2]);
         let nowd = Fault::Watchdog(WatchdogFault::NotStarted);
         l.latch_at_boot(nowd);
-        assert_eq!(l.request(ServoRequest::Reset, &mut rx, [0.0; 2]), Err(ResetRefusal::Permanent(nowd)));
+        assert_eq!(
+            l.request(ServoRequest::Reset, &mut rx, [0.0; 2]),
+            Err(ResetRefusal::Permanent(nowd))
+        );
         assert_eq!(l.request(ServoRequest::Home, &mut rx, [0.0; 2]), Ok(false));
-        assert_eq!((l.mode(), l.drives_enabled()), (Mode::SafeState(nowd), false));
-        let absolute = Settings { homing: crate::homing::HomingSettings { absolute_encoders: true, ..settings.homing }, ..settings };
+        assert_eq!(
+            (l.mode(), l.drives_enabled()),
+            (Mode::SafeState(nowd), false)
+        );
+        let absolute = Settings {
+            homing: crate::homing::HomingSettings {
+                absolute_encoders: true,
+                ..settings.homing
+            },
+            ..settings
+        };
         let at = cal.command_rad(HOME_MM, 0.05).unwrap();
         let mut l = ServoLoop::boot(&absolute, cal, CalibrationState::Valid, at);
         assert_eq!(l.mode(), Mode::Running);
@@ -1509,7 +1961,10 @@ mod tests {
         // (before, a reset cleared it like any fault and the machine ran without a watchdog).
         let mut l = ServoLoop::boot(&absolute, cal, CalibrationState::Valid, at);
         l.latch_at_boot(nowd);
-        assert_eq!(l.request(ServoRequest::Reset, &mut rx, at), Err(ResetRefusal::Permanent(nowd)));
+        assert_eq!(
+            l.request(ServoRequest::Reset, &mut rx, at),
+            Err(ResetRefusal::Permanent(nowd))
+        );
         assert!(!l.drives_enabled());
     }
 
@@ -1524,8 +1979,15 @@ mod tests {
         let cal = Calibration::from_grid(CorrectionGrid::parse(&img).unwrap());
         let power_on = cal.command_rad([230.0, -30.0], 0.05).unwrap();
         for index_on_axis_2 in [true, false] {
-            let mut plant = Plant { angle_rad: power_on, velocity_rad_s: [0.0; 2], torque_nm: [0.0; 2], enabled: false };
-            let relative = |p: &Plant, offset: [f32; 2]| [0, 1].map(|k| p.encoder_rad()[k] - power_on[k] + offset[k]);
+            let mut plant = Plant {
+                angle_rad: power_on,
+                velocity_rad_s: [0.0; 2],
+                torque_nm: [0.0; 2],
+                enabled: false,
+            };
+            let relative = |p: &Plant, offset: [f32; 2]| {
+                [0, 1].map(|k| p.encoder_rad()[k] - power_on[k] + offset[k])
+            };
             let mut l = ServoLoop::boot(&settings, cal, CalibrationState::Valid, [0.0; 2]);
             assert_eq!(l.mode(), Mode::Unhomed);
             assert!(!l.drives_enabled());
@@ -1544,7 +2006,8 @@ mod tests {
             for k in 0..20_000 {
                 let reading = relative(&plant, offset);
                 let index = [0, 1].map(|a| {
-                    let crossed = (before[a] - index_rad[a]) * (plant.angle_rad[a] - index_rad[a]) <= 0.0;
+                    let crossed =
+                        (before[a] - index_rad[a]) * (plant.angle_rad[a] - index_rad[a]) <= 0.0;
                     (crossed && !latched[a] && (a == 0 || index_on_axis_2)).then(|| {
                         latched[a] = true;
                         index_rad[a] - power_on[a]
@@ -1556,7 +2019,10 @@ mod tests {
                     l.referenced(true, &mut s);
                     offset = power_on;
                 }
-                assert!(s.torque_nm.iter().all(|t| t.abs() <= settings.homing.torque_limit_nm));
+                assert!(s
+                    .torque_nm
+                    .iter()
+                    .all(|t| t.abs() <= settings.homing.torque_limit_nm));
                 if s.torque_off {
                     plant.enabled = false;
                 }
@@ -1571,15 +2037,28 @@ mod tests {
             if index_on_axis_2 {
                 assert_eq!(l.mode(), Mode::Running, "after {k} samples");
                 let p = l.setpoint_mm();
-                assert!((p[0] - HOME_MM[0]).abs() < 0.01 && (p[1] - HOME_MM[1]).abs() < 0.01, "engaged at {p:?}");
+                assert!(
+                    (p[0] - HOME_MM[0]).abs() < 0.01 && (p[1] - HOME_MM[1]).abs() < 0.01,
+                    "engaged at {p:?}"
+                );
                 // The readings are absolute: the task-space servo takes the queued setpoint.
                 let s = l.step(&mut rx, relative(&plant, offset));
-                assert!(s.fault.is_none() && s.torque_nm != [0.0; 2] && rx.is_empty(), "{s:?}");
+                assert!(
+                    s.fault.is_none() && s.torque_nm != [0.0; 2] && rx.is_empty(),
+                    "{s:?}"
+                );
                 assert!(plant.enabled);
             } else {
-                assert_eq!(l.mode(), Mode::SafeState(Fault::Homing(HomingFault::IndexNotFound(1))));
+                assert_eq!(
+                    l.mode(),
+                    Mode::SafeState(Fault::Homing(HomingFault::IndexNotFound(1)))
+                );
                 assert!(s.torque_off && !plant.enabled);
-                assert!(plant.velocity_rad_s.iter().all(|w| w.abs() < 0.05), "{:?}", plant.velocity_rad_s);
+                assert!(
+                    plant.velocity_rad_s.iter().all(|w| w.abs() < 0.05),
+                    "{:?}",
+                    plant.velocity_rad_s
+                );
                 assert_eq!(rx.len(), 1);
             }
         }
@@ -1592,17 +2071,36 @@ mod tests {
     fn a_new_calibration_is_switched_to_at_rest_without_a_jump() {
         let settings = absolute();
         let img = image();
-        let g = GridGeometry { nx: 3, ny: 3, x0_mm: 160.0, y0_mm: -80.0, step_x_mm: 50.0, step_y_mm: 80.0 };
+        let g = GridGeometry {
+            nx: 3,
+            ny: 3,
+            x0_mm: 160.0,
+            y0_mm: -80.0,
+            step_x_mm: 50.0,
+            step_y_mm: 80.0,
+        };
         let mut new_img = vec![0u8; g.image_len()];
-        encode(&mut new_img, &g, &FiveBar::paper_nominal(), &[[-3e-4, 2e-4]; 9]).unwrap();
+        encode(
+            &mut new_img,
+            &g,
+            &FiveBar::paper_nominal(),
+            &[[-3e-4, 2e-4]; 9],
+        )
+        .unwrap();
         let (old, new) = (grid_cal(&img), grid_cal(&new_img));
         let start = old.command_rad(HOME_MM, 0.05).unwrap();
-        let mut plant = Plant { angle_rad: start, velocity_rad_s: [0.0; 2], torque_nm: [0.0; 2], enabled: true };
+        let mut plant = Plant {
+            angle_rad: start,
+            velocity_rad_s: [0.0; 2],
+            torque_nm: [0.0; 2],
+            enabled: true,
+        };
         let mut l = ServoLoop::boot(&settings, old, CalibrationState::Valid, plant.encoder_rad());
         let mut q: Queue<MotionSetpoint<f32>, QUEUE_SLOTS> = Queue::new();
         let (mut tx, mut rx) = q.split();
         let mut t = tour();
-        let (mut pending, mut switched_at, mut last_torque, mut worst_step) = (false, None, [0.0f32; 2], 0.0f32);
+        let (mut pending, mut switched_at, mut last_torque, mut worst_step) =
+            (false, None, [0.0f32; 2], 0.0f32);
         for k in 0..6000 {
             while tx.ready() && !t.finished() {
                 tx.enqueue(t.next_setpoint()).unwrap();
@@ -1622,7 +2120,9 @@ mod tests {
             let s = l.step(&mut rx, plant.encoder_rad());
             assert!(s.fault.is_none(), "sample {k}: {:?}", s.fault);
             if switched_at.is_some_and(|at| k >= at && k < at + 50) {
-                worst_step = worst_step.max((s.torque_nm[0] - last_torque[0]).abs()).max((s.torque_nm[1] - last_torque[1]).abs());
+                worst_step = worst_step
+                    .max((s.torque_nm[0] - last_torque[0]).abs())
+                    .max((s.torque_nm[1] - last_torque[1]).abs());
             }
             last_torque = s.torque_nm;
             plant.torque_nm = s.torque_nm;
@@ -1634,7 +2134,10 @@ mod tests {
         let p = l.setpoint_mm();
         let ik = FiveBar::<f32>::paper_nominal().inverse(p, 0.05).unwrap();
         let d = [l.reference_rad()[0] - ik[0], l.reference_rad()[1] - ik[1]];
-        assert!((d[0] + 3e-4).abs() < 2e-6 && (d[1] - 2e-4).abs() < 2e-6, "{d:?}");
+        assert!(
+            (d[0] + 3e-4).abs() < 2e-6 && (d[1] - 2e-4).abs() < 2e-6,
+            "{d:?}"
+        );
         println!("switched at sample {at}, largest torque change per sample in the next 50: {worst_step:.3} N·m");
         assert!(worst_step < 1.0, "{worst_step}");
     }

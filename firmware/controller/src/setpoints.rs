@@ -28,7 +28,9 @@ pub trait SetpointSource {
 /// Fills the queue from `source` until it is full or the source has nothing more.
 pub fn refill(queue: &mut Producer<'_, MotionSetpoint<f32>>, source: &mut impl SetpointSource) {
     while queue.ready() {
-        let Some(p) = source.next_setpoint() else { return };
+        let Some(p) = source.next_setpoint() else {
+            return;
+        };
         let _ = queue.enqueue(p);
     }
 }
@@ -44,7 +46,10 @@ mod tests {
         fn next_setpoint(&mut self) -> Option<MotionSetpoint<f32>> {
             (self.0 < self.1).then(|| {
                 self.0 += 1.0;
-                MotionSetpoint { velocity_mm_s: [self.0, 0.0], ..MotionSetpoint::at_rest([self.0, -self.0]) }
+                MotionSetpoint {
+                    velocity_mm_s: [self.0, 0.0],
+                    ..MotionSetpoint::at_rest([self.0, -self.0])
+                }
             })
         }
     }
@@ -56,10 +61,18 @@ mod tests {
         let mut source = Counter(0.0, f32::INFINITY);
         refill(&mut tx, &mut source);
         assert_eq!(rx.len(), QUEUE_SLOTS - 1);
-        assert_eq!(source.0, (QUEUE_SLOTS - 1) as f32, "no setpoint drawn and dropped");
+        assert_eq!(
+            source.0,
+            (QUEUE_SLOTS - 1) as f32,
+            "no setpoint drawn and dropped"
+        );
         let first = rx.dequeue();
         assert_eq!(first.map(|s| s.position_mm), Some([1.0, -1.0]));
-        assert_eq!(first.map(|s| s.velocity_mm_s), Some([1.0, 0.0]), "the derivatives travel with the position");
+        assert_eq!(
+            first.map(|s| s.velocity_mm_s),
+            Some([1.0, 0.0]),
+            "the derivatives travel with the position"
+        );
         refill(&mut tx, &mut source);
         assert_eq!(rx.len(), QUEUE_SLOTS - 1);
         assert_eq!(rx.dequeue().map(|s| s.position_mm), Some([2.0, -2.0]));

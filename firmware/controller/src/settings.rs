@@ -134,29 +134,54 @@ impl Settings {
     pub fn validate(&self) -> Result<(), SettingsError> {
         self.servo.validate().map_err(SettingsError::Servo)?;
         if self.servo.sample_period_s != crate::SAMPLE_PERIOD_S {
-            return Err(SettingsError::Field("servo.sample_period_s (must be the timer's)"));
+            return Err(SettingsError::Field(
+                "servo.sample_period_s (must be the timer's)",
+            ));
         }
-        self.stop.validate(self.servo.max_accel_mm_s2).map_err(SettingsError::Field)?;
+        self.stop
+            .validate(self.servo.max_accel_mm_s2)
+            .map_err(SettingsError::Field)?;
         for (axis, config) in self.encoders.iter().enumerate() {
-            EncoderScale::new(config).map_err(|error| SettingsError::Encoder { axis: axis as u8, error })?;
+            EncoderScale::new(config).map_err(|error| SettingsError::Encoder {
+                axis: axis as u8,
+                error,
+            })?;
         }
-        self.encoder_limits.validate().map_err(SettingsError::Field)?;
+        self.encoder_limits
+            .validate()
+            .map_err(SettingsError::Field)?;
         self.homing.validate().map_err(SettingsError::Field)?;
         let positive = |v: f32| v.is_finite() && v > 0.0;
         for (ok, name) in [
             (positive(self.drive_full_scale_nm), "drive_full_scale_nm"),
-            (positive(self.trajectory_accel_mm_s2), "trajectory_accel_mm_s2"),
-            (positive(self.trajectory_speed_mm_s), "trajectory_speed_mm_s"),
-            (positive(self.trajectory_jerk_mm_s3), "trajectory_jerk_mm_s3"),
-            (self.trajectory_dwell_s.is_finite() && self.trajectory_dwell_s >= 0.0, "trajectory_dwell_s"),
+            (
+                positive(self.trajectory_accel_mm_s2),
+                "trajectory_accel_mm_s2",
+            ),
+            (
+                positive(self.trajectory_speed_mm_s),
+                "trajectory_speed_mm_s",
+            ),
+            (
+                positive(self.trajectory_jerk_mm_s3),
+                "trajectory_jerk_mm_s3",
+            ),
+            (
+                self.trajectory_dwell_s.is_finite() && self.trajectory_dwell_s >= 0.0,
+                "trajectory_dwell_s",
+            ),
             (self.overrun_streak_limit >= 1, "overrun_streak_limit"),
             (self.telemetry_period_ticks >= 1, "telemetry_period_ticks"),
             (self.home_mm.iter().all(|v| v.is_finite()), "home_mm"),
             (self.machine.nominal.validate().is_ok(), "machine.nominal"),
             (
-                [self.machine.max_length_deviation_mm, self.machine.max_base_deviation_mm, self.machine.max_offset_deviation_rad]
-                    .iter()
-                    .all(|&v| positive(v)),
+                [
+                    self.machine.max_length_deviation_mm,
+                    self.machine.max_base_deviation_mm,
+                    self.machine.max_offset_deviation_rad,
+                ]
+                .iter()
+                .all(|&v| positive(v)),
                 "machine tolerances",
             ),
         ] {
@@ -171,7 +196,10 @@ impl Settings {
 impl Default for Settings {
     fn default() -> Self {
         Settings {
-            servo: ServoConfig { sample_period_s: crate::SAMPLE_PERIOD_S, ..ServoConfig::default() },
+            servo: ServoConfig {
+                sample_period_s: crate::SAMPLE_PERIOD_S,
+                ..ServoConfig::default()
+            },
             allow_uncorrected: false,
             overrun_streak_limit: 3,
             drive_full_scale_nm: 10.0,
@@ -204,7 +232,11 @@ mod tests {
         assert!(s.builtin_tour_mm.is_empty());
         assert!(!s.allow_uncorrected);
         // The servo's torque limit, not the PWM range, must saturate first.
-        assert!(s.servo.axes.iter().all(|a| a.torque_limit_nm < s.drive_full_scale_nm));
+        assert!(s
+            .servo
+            .axes
+            .iter()
+            .all(|a| a.torque_limit_nm < s.drive_full_scale_nm));
         assert_eq!(s.validate(), Ok(()));
         // The default encoders are valid (a refused one would keep the drives off).
         for e in &s.encoders {
@@ -217,35 +249,99 @@ mod tests {
         let d = Settings::default();
         let mut servo = d.servo;
         servo.axes[0].torque_limit_nm = -1.0;
-        assert!(matches!(Settings { servo, ..d }.validate(), Err(SettingsError::Servo(_))));
-        let servo = ServoConfig { sample_period_s: 1e-3, ..d.servo };
-        assert!(matches!(Settings { servo, ..d }.validate(), Err(SettingsError::Field(_))));
+        assert!(matches!(
+            Settings { servo, ..d }.validate(),
+            Err(SettingsError::Servo(_))
+        ));
+        let servo = ServoConfig {
+            sample_period_s: 1e-3,
+            ..d.servo
+        };
+        assert!(matches!(
+            Settings { servo, ..d }.validate(),
+            Err(SettingsError::Field(_))
+        ));
         for (bad, name) in [
-            (Settings { drive_full_scale_nm: 0.0, ..d }, "drive_full_scale_nm"),
-            (Settings { trajectory_accel_mm_s2: f32::NAN, ..d }, "trajectory_accel_mm_s2"),
-            (Settings { trajectory_dwell_s: -1.0, ..d }, "trajectory_dwell_s"),
-            (Settings { trajectory_jerk_mm_s3: 0.0, ..d }, "trajectory_jerk_mm_s3"),
-            (Settings { overrun_streak_limit: 0, ..d }, "overrun_streak_limit"),
-            (Settings { telemetry_period_ticks: 0, ..d }, "telemetry_period_ticks"),
+            (
+                Settings {
+                    drive_full_scale_nm: 0.0,
+                    ..d
+                },
+                "drive_full_scale_nm",
+            ),
+            (
+                Settings {
+                    trajectory_accel_mm_s2: f32::NAN,
+                    ..d
+                },
+                "trajectory_accel_mm_s2",
+            ),
+            (
+                Settings {
+                    trajectory_dwell_s: -1.0,
+                    ..d
+                },
+                "trajectory_dwell_s",
+            ),
+            (
+                Settings {
+                    trajectory_jerk_mm_s3: 0.0,
+                    ..d
+                },
+                "trajectory_jerk_mm_s3",
+            ),
+            (
+                Settings {
+                    overrun_streak_limit: 0,
+                    ..d
+                },
+                "overrun_streak_limit",
+            ),
+            (
+                Settings {
+                    telemetry_period_ticks: 0,
+                    ..d
+                },
+                "telemetry_period_ticks",
+            ),
         ] {
             assert_eq!(bad.validate(), Err(SettingsError::Field(name)));
         }
         let mut stop = d.stop;
         stop.limits.jerk_mm_s3 = f32::INFINITY;
-        assert_eq!(Settings { stop, ..d }.validate(), Err(SettingsError::Field("stop.limits.jerk_mm_s3")));
-        let encoder_limits = EncoderLimits { stuck_motion_rad: 0.0, ..d.encoder_limits };
-        assert_eq!(Settings { encoder_limits, ..d }.validate(), Err(SettingsError::Field("encoder_limits.stuck_motion_rad")));
+        assert_eq!(
+            Settings { stop, ..d }.validate(),
+            Err(SettingsError::Field("stop.limits.jerk_mm_s3"))
+        );
+        let encoder_limits = EncoderLimits {
+            stuck_motion_rad: 0.0,
+            ..d.encoder_limits
+        };
+        assert_eq!(
+            Settings {
+                encoder_limits,
+                ..d
+            }
+            .validate(),
+            Err(SettingsError::Field("encoder_limits.stuck_motion_rad"))
+        );
         let mut encoders = d.encoders;
         encoders[1].gear_ratio = -50.0;
         assert_eq!(
             Settings { encoders, ..d }.validate(),
-            Err(SettingsError::Encoder { axis: 1, error: EncoderConfigError::GearRatio })
+            Err(SettingsError::Encoder {
+                axis: 1,
+                error: EncoderConfigError::GearRatio
+            })
         );
         encoders[1].gear_ratio = 1.0;
         encoders[0].counts_per_rev = 0;
         assert_eq!(
             Settings { encoders, ..d }.validate(),
-            Err(SettingsError::Encoder { axis: 0, error: EncoderConfigError::ZeroCountsPerRev })
+            Err(SettingsError::Encoder {
+                axis: 0,
+                error: EncoderConfigError::ZeroCountsPerRev
+            })
         );
     }
 }

@@ -58,7 +58,11 @@ pub struct Status {
 
 impl Status {
     /// The status after boot, before the first sample, with the encoders read at boot.
-    pub fn at_boot(calibration: CalibrationState, servo_loop: &ServoLoop<'_>, encoder_rad: [f32; 2]) -> Self {
+    pub fn at_boot(
+        calibration: CalibrationState,
+        servo_loop: &ServoLoop<'_>,
+        encoder_rad: [f32; 2],
+    ) -> Self {
         let mode = servo_loop.mode();
         Status {
             mode,
@@ -85,7 +89,13 @@ impl Status {
 
     /// Records the sample the servo loop just ran (`mode` is the loop's mode after it,
     /// `stop_distance_mm` that of its stop, if any).
-    pub fn record(&mut self, sample: &Sample, mode: Mode, deadline: &Deadline, stop_distance_mm: f32) {
+    pub fn record(
+        &mut self,
+        sample: &Sample,
+        mode: Mode,
+        deadline: &Deadline,
+        stop_distance_mm: f32,
+    ) {
         self.ticks = sample.index.wrapping_add(1);
         self.overruns = deadline.overruns;
         self.worst_step_us = deadline.worst_step_us;
@@ -101,7 +111,8 @@ impl Status {
         self.stop_distance_mm = stop_distance_mm;
         self.drives_enabled = mode.drives_on();
         if mode == Mode::Running {
-            self.max_following_error_rad = self.max_following_error_rad.max(sample.following_error_rad);
+            self.max_following_error_rad =
+                self.max_following_error_rad.max(sample.following_error_rad);
         }
         if let Some(fault) = sample.fault.or(mode.fault()) {
             if self.fault.is_none() {

@@ -87,7 +87,10 @@ impl Default for StopSettings {
     fn default() -> Self {
         let g = kinematics_core::servo::STANDARD_GRAVITY_MM_S2;
         StopSettings {
-            limits: StopLimits { decel_mm_s2: 5.0 * g, jerk_mm_s3: 5.0 * g / 5.0e-3 },
+            limits: StopLimits {
+                decel_mm_s2: 5.0 * g,
+                jerk_mm_s3: 5.0 * g / 5.0e-3,
+            },
             workspace_margin_mm: 0.1,
             standstill_rad_s: 0.01,
             settle_timeout_s: 0.05,
@@ -102,7 +105,9 @@ impl StopSettings {
     /// setpoints would be refused as jumps. Returns the name of the first bad field.
     pub fn validate(&self, max_accel_mm_s2: f32) -> Result<(), &'static str> {
         let positive = |v: f32| v.is_finite() && v > 0.0;
-        if !positive(self.limits.decel_mm_s2) || !(self.limits.decel_mm_s2 * 1.02 <= max_accel_mm_s2) {
+        if !positive(self.limits.decel_mm_s2)
+            || !(self.limits.decel_mm_s2 * 1.02 <= max_accel_mm_s2)
+        {
             return Err("stop.limits.decel_mm_s2");
         }
         if !positive(self.limits.jerk_mm_s3) {
@@ -136,7 +141,11 @@ pub struct MotionState {
 impl MotionState {
     /// At rest at `position_mm`.
     pub fn at_rest(position_mm: [f32; 2]) -> Self {
-        MotionState { position_mm, velocity_mm_s: [0.0; 2], accel_mm_s2: [0.0; 2] }
+        MotionState {
+            position_mm,
+            velocity_mm_s: [0.0; 2],
+            accel_mm_s2: [0.0; 2],
+        }
     }
 
     /// From the backward differences the servo computes for a setpoint
@@ -144,11 +153,19 @@ impl MotionState {
     /// sample, i.e. the velocity half a sample ago, so the velocity at the setpoint is that plus
     /// `accel·dt/2`. With it the first stop setpoint continues the sequence without an
     /// acceleration step.
-    pub fn from_differences(position_mm: [f32; 2], velocity_mm_s: [f32; 2], accel_mm_s2: [f32; 2], dt_s: f32) -> Self {
+    pub fn from_differences(
+        position_mm: [f32; 2],
+        velocity_mm_s: [f32; 2],
+        accel_mm_s2: [f32; 2],
+        dt_s: f32,
+    ) -> Self {
         let half = 0.5 * dt_s;
         MotionState {
             position_mm,
-            velocity_mm_s: [velocity_mm_s[0] + accel_mm_s2[0] * half, velocity_mm_s[1] + accel_mm_s2[1] * half],
+            velocity_mm_s: [
+                velocity_mm_s[0] + accel_mm_s2[0] * half,
+                velocity_mm_s[1] + accel_mm_s2[1] * half,
+            ],
             accel_mm_s2,
         }
     }
@@ -191,7 +208,10 @@ impl Workspace {
     /// setting, [`StopSettings::workspace_margin_mm`]); without a block, [`Self::of_grid`].
     pub fn of_image(grid: &CorrectionGrid<'_>, margin_mm: f32) -> Option<Self> {
         match grid.workspace() {
-            Some(limits) => Some(Workspace { region: limits.region, margin_mm: limits.stop_margin_mm.max(margin_mm) }),
+            Some(limits) => Some(Workspace {
+                region: limits.region,
+                margin_mm: limits.stop_margin_mm.max(margin_mm),
+            }),
             None => Self::of_grid(grid.geometry(), margin_mm),
         }
     }
@@ -253,7 +273,11 @@ impl StopProfile {
         };
         let w0 = state.speed_mm_s();
         let finite = w0.is_finite() && (state.accel_mm_s2[0] + state.accel_mm_s2[1]).is_finite();
-        if !(w0 > REST_SPEED_MM_S) || !finite || !(limits.jerk_mm_s3 > 0.0) || !(limits.decel_mm_s2 > 0.0) {
+        if !(w0 > REST_SPEED_MM_S)
+            || !finite
+            || !(limits.jerk_mm_s3 > 0.0)
+            || !(limits.decel_mm_s2 > 0.0)
+        {
             return p;
         }
         let u = [state.velocity_mm_s[0] / w0, state.velocity_mm_s[1] / w0];
@@ -262,10 +286,18 @@ impl StopProfile {
         if a0 < 0.0 && a0 * a0 > 2.0 * j * w0 {
             j = a0 * a0 / (2.0 * w0);
         }
-        let a = if -a0 > limits.decel_mm_s2 { -a0 } else { limits.decel_mm_s2 };
+        let a = if -a0 > limits.decel_mm_s2 {
+            -a0
+        } else {
+            limits.decel_mm_s2
+        };
         // Speed left after building up to `a` and releasing it again, held at `a` meanwhile.
         let cruise = w0 + a0 * a0 / (2.0 * j) - a * a / j;
-        let (peak, t2) = if cruise >= 0.0 { (a, cruise / a) } else { (libm::sqrtf(j * w0 + 0.5 * a0 * a0), 0.0) };
+        let (peak, t2) = if cruise >= 0.0 {
+            (a, cruise / a)
+        } else {
+            (libm::sqrtf(j * w0 + 0.5 * a0 * a0), 0.0)
+        };
         let t1 = ((a0 + peak) / j).max(0.0);
         let t3 = peak / j;
         let w1 = w0 + a0 * t1 - 0.5 * j * t1 * t1;
@@ -315,7 +347,12 @@ impl StopProfile {
     /// Distance along the path `t_s` after the origin (mm); the full distance from the end on.
     pub fn distance_at(&self, t_s: f32) -> f32 {
         let [t1, t2, t3] = self.t_s;
-        let (w0, a0, j, a) = (self.speed0_mm_s, self.accel0_mm_s2, self.jerk_mm_s3, self.peak_decel_mm_s2);
+        let (w0, a0, j, a) = (
+            self.speed0_mm_s,
+            self.accel0_mm_s2,
+            self.jerk_mm_s3,
+            self.peak_decel_mm_s2,
+        );
         if !(t_s > 0.0) {
             0.0
         } else if t_s < t1 {
@@ -342,7 +379,10 @@ impl StopProfile {
     }
 
     fn point_at(&self, s_mm: f32) -> [f32; 2] {
-        [self.origin_mm[0] + self.direction[0] * s_mm, self.origin_mm[1] + self.direction[1] * s_mm]
+        [
+            self.origin_mm[0] + self.direction[0] * s_mm,
+            self.origin_mm[1] + self.direction[1] * s_mm,
+        ]
     }
 }
 
@@ -351,7 +391,11 @@ impl StopProfile {
 /// shorten the stop), with the acceleration ramped out first when positive (module doc).
 /// [`StopProfile::distance_mm`] is at most this, and equal to it when the deceleration reaches
 /// its limit.
-pub fn stopping_distance_bound_mm(speed_mm_s: f32, accel_along_mm_s2: f32, limits: &StopLimits) -> f32 {
+pub fn stopping_distance_bound_mm(
+    speed_mm_s: f32,
+    accel_along_mm_s2: f32,
+    limits: &StopLimits,
+) -> f32 {
     let (v, a, j) = (speed_mm_s, limits.decel_mm_s2, limits.jerk_mm_s3);
     let up = accel_along_mm_s2.max(0.0);
     let w = v + up * up / (2.0 * j);
@@ -369,7 +413,11 @@ mod tests {
     }
 
     fn moving(v: [f32; 2], a: [f32; 2]) -> MotionState {
-        MotionState { position_mm: [212.0, 0.0], velocity_mm_s: v, accel_mm_s2: a }
+        MotionState {
+            position_mm: [212.0, 0.0],
+            velocity_mm_s: v,
+            accel_mm_s2: a,
+        }
     }
 
     /// The stop's setpoints at the servo rate after the two setpoints `before` the origin.
@@ -391,8 +439,11 @@ mod tests {
 
     #[test]
     fn at_rest_is_an_empty_stop() {
-        for s in [MotionState::at_rest([200.0, 5.0]), moving([0.05, -0.05], [5000.0, 0.0]), moving([f32::NAN, 1.0], [0.0; 2])]
-        {
+        for s in [
+            MotionState::at_rest([200.0, 5.0]),
+            moving([0.05, -0.05], [5000.0, 0.0]),
+            moving([f32::NAN, 1.0], [0.0; 2]),
+        ] {
             let p = StopProfile::plan(&s, &limits());
             assert_eq!((p.distance_mm(), p.duration_s()), (0.0, 0.0), "{s:?}");
             assert_eq!(p.at(0.01), s.position_mm);
@@ -407,13 +458,24 @@ mod tests {
         let v = [1500.0 * 0.6, -1500.0 * 0.8];
         let p = StopProfile::plan(&moving(v, [0.0; 2]), &limits());
         let bound = stopping_distance_bound_mm(1500.0, 0.0, &limits());
-        assert!((p.distance_mm() - bound).abs() < 1e-3 * bound, "{} vs {bound}", p.distance_mm());
+        assert!(
+            (p.distance_mm() - bound).abs() < 1e-3 * bound,
+            "{} vs {bound}",
+            p.distance_mm()
+        );
         assert!((bound - 26.69).abs() < 0.01, "{bound}");
         let a = limits().decel_mm_s2;
-        assert!((p.duration_s() - (1500.0 / a + 5e-3)).abs() < 1e-5, "{}", p.duration_s());
+        assert!(
+            (p.duration_s() - (1500.0 / a + 5e-3)).abs() < 1e-5,
+            "{}",
+            p.duration_s()
+        );
         let end = p.end_mm();
         let along = [(end[0] - 212.0) / p.distance_mm(), end[1] / p.distance_mm()];
-        assert!((along[0] - 0.6).abs() < 1e-5 && (along[1] + 0.8).abs() < 1e-5, "{along:?}");
+        assert!(
+            (along[0] - 0.6).abs() < 1e-5 && (along[1] + 0.8).abs() < 1e-5,
+            "{along:?}"
+        );
         assert_eq!(p.peak_decel_mm_s2(), a);
         // The tour's top speed, 1.38 m/s: 22.9 mm; the servo's limit, 3 m/s: 99 mm (the figures
         // in the module doc and README).
@@ -445,7 +507,8 @@ mod tests {
                     let a = [0, 1].map(|k| (along_g * u[k] + normal_g * n[k]) * g);
                     // The two setpoints before the origin, consistent with (v, a) at the origin.
                     let o = [212.0f64, 0.0];
-                    let back = |t: f64| [0, 1].map(|k| (o[k] - v[k] * t + 0.5 * a[k] * t * t) as f32);
+                    let back =
+                        |t: f64| [0, 1].map(|k| (o[k] - v[k] * t + 0.5 * a[k] * t * t) as f32);
                     let state = MotionState {
                         position_mm: [o[0] as f32, o[1] as f32],
                         velocity_mm_s: v.map(|x| x as f32),
@@ -468,7 +531,8 @@ mod tests {
                         assert!(change <= allowed * 1.01, "{tag}: acceleration changes {change} at sample {k} (allowed {allowed})");
                     }
                     // Monotonic along u, at rest at the end, where `distance_mm` says.
-                    let along = |q: &[f32; 2]| (q[0] as f64 - o[0]) * u[0] + (q[1] as f64 - o[1]) * u[1];
+                    let along =
+                        |q: &[f32; 2]| (q[0] as f64 - o[0]) * u[0] + (q[1] as f64 - o[1]) * u[1];
                     let mut last_s = 0.0f64;
                     for q in &pts[2..] {
                         let s = along(q);
@@ -476,11 +540,23 @@ mod tests {
                         last_s = s;
                     }
                     assert_eq!(pts[pts.len() - 1], pts[pts.len() - 2], "{tag}: not at rest");
-                    assert!((last_s - p.distance_mm() as f64).abs() < 1e-3, "{tag}: {last_s} vs {}", p.distance_mm());
+                    assert!(
+                        (last_s - p.distance_mm() as f64).abs() < 1e-3,
+                        "{tag}: {last_s} vs {}",
+                        p.distance_mm()
+                    );
                     let bound = stopping_distance_bound_mm(speed, (along_g * g) as f32, &lim);
-                    assert!(p.distance_mm() <= bound * 1.0001 + 1e-4, "{tag}: {} > bound {bound}", p.distance_mm());
+                    assert!(
+                        p.distance_mm() <= bound * 1.0001 + 1e-4,
+                        "{tag}: {} > bound {bound}",
+                        p.distance_mm()
+                    );
                     if along_g >= 0.0 && p.peak_decel_mm_s2() == lim.decel_mm_s2 {
-                        assert!(p.distance_mm() >= bound * 0.9999 - 1e-4, "{tag}: {} < bound {bound}", p.distance_mm());
+                        assert!(
+                            p.distance_mm() >= bound * 0.9999 - 1e-4,
+                            "{tag}: {} < bound {bound}",
+                            p.distance_mm()
+                        );
                         reached_peak += 1;
                     }
                     checked += 1;
@@ -493,10 +569,21 @@ mod tests {
 
     #[test]
     fn workspace_is_the_grid_rectangle_less_the_margin() {
-        let g = GridGeometry { nx: 21, ny: 31, x0_mm: 162.132, y0_mm: -75.0, step_x_mm: 5.0, step_y_mm: 5.0 };
+        let g = GridGeometry {
+            nx: 21,
+            ny: 31,
+            x0_mm: 162.132,
+            y0_mm: -75.0,
+            step_x_mm: 5.0,
+            step_y_mm: 5.0,
+        };
         let w = Workspace::of_grid(&g, 0.1).unwrap();
         assert!(w.contains([162.24, -74.89]) && w.contains([262.02, 74.89]));
-        assert!(!w.contains([162.2, 0.0]) && !w.contains([200.0, 74.95]) && !w.contains([f32::NAN, 0.0]));
+        assert!(
+            !w.contains([162.2, 0.0])
+                && !w.contains([200.0, 74.95])
+                && !w.contains([f32::NAN, 0.0])
+        );
     }
 
     /// An image that carries the machine's workspace: its polygon and the larger of the two
@@ -504,19 +591,48 @@ mod tests {
     #[test]
     fn workspace_comes_from_the_image_when_it_has_one() {
         use kinematics_core::grid::{append_workspace, encode, WorkspaceLimits, WORKSPACE_LEN};
-        let g = GridGeometry { nx: 21, ny: 31, x0_mm: 162.132, y0_mm: -75.0, step_x_mm: 5.0, step_y_mm: 5.0 };
+        let g = GridGeometry {
+            nx: 21,
+            ny: 31,
+            x0_mm: 162.132,
+            y0_mm: -75.0,
+            step_x_mm: 5.0,
+            step_y_mm: 5.0,
+        };
         let mut img = std::vec![0u8; g.image_len() + WORKSPACE_LEN];
-        let n = encode(&mut img, &g, &kinematics_core::FiveBar::paper_nominal(), &std::vec![[0.0; 2]; g.len()]).unwrap();
+        let n = encode(
+            &mut img,
+            &g,
+            &kinematics_core::FiveBar::paper_nominal(),
+            &std::vec![[0.0; 2]; g.len()],
+        )
+        .unwrap();
         let plain = CorrectionGrid::parse(&img[..n]).unwrap();
-        assert_eq!(Workspace::of_image(&plain, 0.1), Workspace::of_grid(&g, 0.1));
+        assert_eq!(
+            Workspace::of_image(&plain, 0.1),
+            Workspace::of_grid(&g, 0.1)
+        );
         // A hexagon: the rectangle with its upper right corner cut along x + y = 317.
-        let v = [[162.132, -75.0], [262.132, -75.0], [262.132, 54.868], [242.132, 74.868], [162.132, 74.868]];
-        let limits = WorkspaceLimits { region: ConvexWorkspace::new(&v).unwrap(), stop_margin_mm: 0.5 };
+        let v = [
+            [162.132, -75.0],
+            [262.132, -75.0],
+            [262.132, 54.868],
+            [242.132, 74.868],
+            [162.132, 74.868],
+        ];
+        let limits = WorkspaceLimits {
+            region: ConvexWorkspace::new(&v).unwrap(),
+            stop_margin_mm: 0.5,
+        };
         append_workspace(&mut img, n, n, &limits).unwrap();
         let grid = CorrectionGrid::parse(&img).unwrap();
         let w = Workspace::of_image(&grid, 0.1).unwrap();
         assert_eq!(w.margin_mm(), 0.5, "the image's soft limit is the larger");
-        assert_eq!(Workspace::of_image(&grid, 2.0).unwrap().margin_mm(), 2.0, "the setting is the larger");
+        assert_eq!(
+            Workspace::of_image(&grid, 2.0).unwrap().margin_mm(),
+            2.0,
+            "the setting is the larger"
+        );
         assert!(w.contains([212.0, 0.0]) && w.contains([162.7, 0.0]) && !w.contains([162.5, 0.0]));
         // Inside the grid's rectangle but beyond the cut corner: refused.
         assert!(Workspace::of_grid(&g, 0.1).unwrap().contains([255.0, 70.0]));
@@ -533,11 +649,30 @@ mod tests {
             f(&mut s);
             s.validate(max)
         };
-        assert_eq!(bad(|s| s.limits.decel_mm_s2 = f32::NAN), Err("stop.limits.decel_mm_s2"));
-        assert_eq!(bad(|s| s.limits.decel_mm_s2 = 6.0 * 9806.65), Err("stop.limits.decel_mm_s2"), "beyond the servo's limit");
-        assert_eq!(bad(|s| s.limits.jerk_mm_s3 = 0.0), Err("stop.limits.jerk_mm_s3"));
-        assert_eq!(bad(|s| s.workspace_margin_mm = -1.0), Err("stop.workspace_margin_mm"));
-        assert_eq!(bad(|s| s.standstill_rad_s = f32::INFINITY), Err("stop.standstill_rad_s"));
-        assert_eq!(bad(|s| s.settle_timeout_s = f32::NAN), Err("stop.settle_timeout_s"));
+        assert_eq!(
+            bad(|s| s.limits.decel_mm_s2 = f32::NAN),
+            Err("stop.limits.decel_mm_s2")
+        );
+        assert_eq!(
+            bad(|s| s.limits.decel_mm_s2 = 6.0 * 9806.65),
+            Err("stop.limits.decel_mm_s2"),
+            "beyond the servo's limit"
+        );
+        assert_eq!(
+            bad(|s| s.limits.jerk_mm_s3 = 0.0),
+            Err("stop.limits.jerk_mm_s3")
+        );
+        assert_eq!(
+            bad(|s| s.workspace_margin_mm = -1.0),
+            Err("stop.workspace_margin_mm")
+        );
+        assert_eq!(
+            bad(|s| s.standstill_rad_s = f32::INFINITY),
+            Err("stop.standstill_rad_s")
+        );
+        assert_eq!(
+            bad(|s| s.settle_timeout_s = f32::NAN),
+            Err("stop.settle_timeout_s")
+        );
     }
 }

@@ -17,8 +17,8 @@
 use heapless::Vec;
 use kinematics_core::trajectory::{MotionSetpoint, TaskLimits, Tour};
 
-use crate::settings::Settings;
 use crate::setpoints::SetpointSource;
+use crate::settings::Settings;
 
 /// The jerk limit of the jerk-limited profile by default (mm/s³): 5 g is reached in 10 ms.
 pub const DEFAULT_JERK_MM_S3: f32 = 5.0e6;
@@ -100,7 +100,8 @@ impl Trajectory {
         sample_period_s: f32,
     ) -> Self {
         let waypoints_mm = &waypoints_mm[..waypoints_mm.len().min(MAX_WAYPOINTS - 1)];
-        let tour = Tour::plan(start_mm, waypoints_mm, limits, dwell_s).unwrap_or_else(|_| Tour::hold(start_mm));
+        let tour = Tour::plan(start_mm, waypoints_mm, limits, dwell_s)
+            .unwrap_or_else(|_| Tour::hold(start_mm));
         let mut waypoints: Vec<[f32; 2], MAX_WAYPOINTS> = Vec::new();
         let mut move_samples: Vec<u32, MAX_WAYPOINTS> = Vec::new();
         let _ = waypoints.push(start_mm);
@@ -136,14 +137,22 @@ impl Trajectory {
                     accel_mm_s2: settings.trajectory_accel_mm_s2,
                     jerk_mm_s3: settings.trajectory_jerk_mm_s3,
                 };
-                Trajectory::jerk_limited(start_mm, settings.builtin_tour_mm, &limits, settings.trajectory_dwell_s, crate::SAMPLE_PERIOD_S)
+                Trajectory::jerk_limited(
+                    start_mm,
+                    settings.builtin_tour_mm,
+                    &limits,
+                    settings.trajectory_dwell_s,
+                    crate::SAMPLE_PERIOD_S,
+                )
             }
         }
     }
 
     /// Samples until the last waypoint is reached and its dwell is over.
     pub fn total_samples(&self) -> u32 {
-        self.move_samples.iter().fold(0u32, |sum, n| sum.saturating_add(n.saturating_add(self.dwell_samples)))
+        self.move_samples.iter().fold(0u32, |sum, n| {
+            sum.saturating_add(n.saturating_add(self.dwell_samples))
+        })
     }
 
     /// Whether every move is done (the generator then holds the last waypoint).
@@ -166,14 +175,21 @@ impl Trajectory {
         let Some(&n) = self.move_samples.get(self.segment) else {
             return MotionSetpoint::at_rest(self.end_mm());
         };
-        let (p, q) = (self.waypoints[self.segment], self.waypoints[self.segment + 1]);
+        let (p, q) = (
+            self.waypoints[self.segment],
+            self.waypoints[self.segment + 1],
+        );
         let setpoint = match &self.jerk_limited {
             Some(tour) => match tour.moves().get(self.segment) {
                 Some(m) if self.sample < n => m.at(self.sample as f32 * self.sample_period_s),
                 _ => MotionSetpoint::at_rest(q),
             },
             None => {
-                let tau = if self.sample >= n { 1.0 } else { self.sample as f32 / n as f32 };
+                let tau = if self.sample >= n {
+                    1.0
+                } else {
+                    self.sample as f32 / n as f32
+                };
                 // s(τ) and its derivatives in t (τ = t/T, T = n·dt).
                 let s = tau * tau * tau * (10.0 + tau * (-15.0 + 6.0 * tau));
                 let rate = 1.0 / (n as f32 * self.sample_period_s);
@@ -229,7 +245,14 @@ mod tests {
     const G_MM_S2: f32 = kinematics_core::servo::STANDARD_GRAVITY_MM_S2;
 
     fn tour() -> Trajectory {
-        Trajectory::new([212.132, 0.0], &WORKSPACE_TOUR_MM, 2.0 * G_MM_S2, 1500.0, 0.1, DT_S)
+        Trajectory::new(
+            [212.132, 0.0],
+            &WORKSPACE_TOUR_MM,
+            2.0 * G_MM_S2,
+            1500.0,
+            0.1,
+            DT_S,
+        )
     }
 
     #[test]
@@ -247,7 +270,11 @@ mod tests {
         let mut t = tour();
         let n = t.total_samples();
         assert!(n > 1000, "{n} samples");
-        assert_eq!(t.next_mm(), [212.132, 0.0], "the first setpoint is where the servo engaged");
+        assert_eq!(
+            t.next_mm(),
+            [212.132, 0.0],
+            "the first setpoint is where the servo engaged"
+        );
         for _ in 1..n {
             assert!(!t.finished());
             t.next_mm();
@@ -271,7 +298,10 @@ mod tests {
                 .map(|run| run.len())
                 .max()
                 .unwrap_or(0);
-            assert!(longest_rest >= dwell, "{w:?}: rested {longest_rest} samples");
+            assert!(
+                longest_rest >= dwell,
+                "{w:?}: rested {longest_rest} samples"
+            );
         }
     }
 
@@ -282,8 +312,10 @@ mod tests {
     fn speed_and_acceleration_stay_within_their_limits() {
         let (accel, speed) = (2.0 * G_MM_S2, 1500.0f32);
         let mut t = tour();
-        let p: std::vec::Vec<[f64; 2]> =
-            (0..t.total_samples() + 10).map(|_| t.next_mm()).map(|q| [q[0] as f64, q[1] as f64]).collect();
+        let p: std::vec::Vec<[f64; 2]> = (0..t.total_samples() + 10)
+            .map(|_| t.next_mm())
+            .map(|q| [q[0] as f64, q[1] as f64])
+            .collect();
         let dt = DT_S as f64;
         let (mut max_v, mut max_a) = (0.0f64, 0.0f64);
         for k in 2..p.len() {
@@ -296,9 +328,15 @@ mod tests {
             max_a = max_a.max(a);
         }
         // f32 setpoints near 250 mm carry 15 nm of rounding: ~120 mm/s² in a second difference.
-        assert!(max_a <= accel as f64 * 1.01 + 200.0, "peak acceleration {max_a} mm/s²");
+        assert!(
+            max_a <= accel as f64 * 1.01 + 200.0,
+            "peak acceleration {max_a} mm/s²"
+        );
         assert!(max_v <= speed as f64 * 1.01, "peak speed {max_v} mm/s");
-        assert!(max_a >= 0.9 * accel as f64, "peak acceleration only {max_a} mm/s²");
+        assert!(
+            max_a >= 0.9 * accel as f64,
+            "peak acceleration only {max_a} mm/s²"
+        );
     }
 
     #[test]
@@ -313,21 +351,31 @@ mod tests {
     /// pose, with the encoders following the reference exactly.
     #[test]
     fn the_servo_accepts_the_whole_tour() {
-        let cal = Calibration { model: FiveBar::paper_nominal(), grid: None };
+        let cal = Calibration {
+            model: FiveBar::paper_nominal(),
+            grid: None,
+        };
         let mut servo = Servo::new(Settings::default().servo).unwrap();
         let mut encoder = cal.command_rad([212.132, 0.0], 0.05).unwrap();
         servo.engage(&cal, encoder).unwrap();
         let mut t = tour();
         for k in 0..t.total_samples() {
-            let out = servo.step(&cal, t.next_mm(), encoder).unwrap_or_else(|f| panic!("sample {k}: {f}"));
+            let out = servo
+                .step(&cal, t.next_mm(), encoder)
+                .unwrap_or_else(|f| panic!("sample {k}: {f}"));
             encoder = out.reference_rad;
         }
     }
 
     #[test]
     fn absurd_limits_do_not_panic() {
-        for (accel, speed, dwell, dt) in [(0.0, 1500.0, 0.1, DT_S), (f32::NAN, 0.0, f32::INFINITY, DT_S), (1.0, 1.0, 1e30, 1e-30)] {
-            let mut t = Trajectory::new([212.132, 0.0], &WORKSPACE_TOUR_MM, accel, speed, dwell, dt);
+        for (accel, speed, dwell, dt) in [
+            (0.0, 1500.0, 0.1, DT_S),
+            (f32::NAN, 0.0, f32::INFINITY, DT_S),
+            (1.0, 1.0, 1e30, 1e-30),
+        ] {
+            let mut t =
+                Trajectory::new([212.132, 0.0], &WORKSPACE_TOUR_MM, accel, speed, dwell, dt);
             let _ = t.total_samples();
             for _ in 0..10 {
                 let _ = t.next_mm();
@@ -340,10 +388,20 @@ mod tests {
     #[test]
     fn setpoints_carry_their_exact_derivatives() {
         let g = 5.0 * G_MM_S2;
-        let limits = TaskLimits { speed_mm_s: 1500.0, accel_mm_s2: g, jerk_mm_s3: DEFAULT_JERK_MM_S3 };
+        let limits = TaskLimits {
+            speed_mm_s: 1500.0,
+            accel_mm_s2: g,
+            jerk_mm_s3: DEFAULT_JERK_MM_S3,
+        };
         for (name, mut t) in [
-            ("quintic", Trajectory::new([212.132, 0.0], &WORKSPACE_TOUR_MM, g, 1500.0, 0.05, DT_S)),
-            ("jerk-limited", Trajectory::jerk_limited([212.132, 0.0], &WORKSPACE_TOUR_MM, &limits, 0.05, DT_S)),
+            (
+                "quintic",
+                Trajectory::new([212.132, 0.0], &WORKSPACE_TOUR_MM, g, 1500.0, 0.05, DT_S),
+            ),
+            (
+                "jerk-limited",
+                Trajectory::jerk_limited([212.132, 0.0], &WORKSPACE_TOUR_MM, &limits, 0.05, DT_S),
+            ),
         ] {
             let s: std::vec::Vec<_> = (0..t.total_samples()).map(|_| t.next_setpoint()).collect();
             let (mut worst_v, mut worst_a, mut peak_a) = (0.0f32, 0.0f32, 0.0f32);
@@ -356,7 +414,10 @@ mod tests {
                     worst_v = worst_v.max((fv - s[k].velocity_mm_s[i]).abs());
                     worst_a = worst_a.max((fa - s[k].acceleration_mm_s2[i]).abs());
                 }
-                peak_a = peak_a.max(libm::hypotf(s[k].acceleration_mm_s2[0], s[k].acceleration_mm_s2[1]));
+                peak_a = peak_a.max(libm::hypotf(
+                    s[k].acceleration_mm_s2[0],
+                    s[k].acceleration_mm_s2[1],
+                ));
             }
             assert!(worst_v < 30.0, "{name}: {worst_v} mm/s");
             assert!(worst_a < 3000.0, "{name}: {worst_a} mm/s²");
@@ -364,15 +425,23 @@ mod tests {
             assert_eq!(s[s.len() - 1].velocity_mm_s, [0.0; 2], "{name}");
         }
         // The jerk-limited tour is the shorter one at the same limits.
-        let q = Trajectory::new([212.132, 0.0], &WORKSPACE_TOUR_MM, g, 1500.0, 0.05, DT_S).total_samples();
-        let j = Trajectory::jerk_limited([212.132, 0.0], &WORKSPACE_TOUR_MM, &limits, 0.05, DT_S).total_samples();
+        let q = Trajectory::new([212.132, 0.0], &WORKSPACE_TOUR_MM, g, 1500.0, 0.05, DT_S)
+            .total_samples();
+        let j = Trajectory::jerk_limited([212.132, 0.0], &WORKSPACE_TOUR_MM, &limits, 0.05, DT_S)
+            .total_samples();
         assert!(j < q, "{j} vs {q}");
     }
 
     #[test]
     fn builtin_uses_the_settings_tour() {
-        let settings = Settings { builtin_tour_mm: &WORKSPACE_TOUR_MM, ..Settings::default() };
-        assert_eq!(Trajectory::builtin([212.132, 0.0], &settings).total_samples(), tour().total_samples());
+        let settings = Settings {
+            builtin_tour_mm: &WORKSPACE_TOUR_MM,
+            ..Settings::default()
+        };
+        assert_eq!(
+            Trajectory::builtin([212.132, 0.0], &settings).total_samples(),
+            tour().total_samples()
+        );
         assert!(Trajectory::builtin([212.132, 0.0], &Settings::default()).finished());
     }
 }

@@ -78,7 +78,9 @@ pub enum WatchdogFault {
 impl core::fmt::Display for WatchdogFault {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         f.write_str(match self {
-            WatchdogFault::Reset => "reset by the watchdog (the servo task stalled); power-cycle or press reset",
+            WatchdogFault::Reset => {
+                "reset by the watchdog (the servo task stalled); power-cycle or press reset"
+            }
             WatchdogFault::NotStarted => "the watchdog could not be started",
         })
     }
@@ -109,7 +111,10 @@ mod tests {
         assert!(!step_on_time(15.0, true), "the next tick already came");
         assert!(!step_on_time(700.0, true));
         assert!(!step_on_time(500.0, false), "at the deadline is late");
-        assert!(!step_on_time(f32::NAN, false), "a step time that cannot be read does not feed");
+        assert!(
+            !step_on_time(f32::NAN, false),
+            "a step time that cannot be read does not feed"
+        );
         assert!(!step_on_time(f32::INFINITY, false));
     }
 
@@ -121,13 +126,20 @@ mod tests {
         let streak_us = (Settings::default().overrun_streak_limit + 1) as f32 * DEADLINE_US;
         assert_eq!(streak_us, MIN_TIMEOUT_US);
         let (lsi_fast, lsi_slow) = (34.0 / 32.0, 29.5 / 32.0);
-        assert!(TIMEOUT_US / lsi_fast > MIN_TIMEOUT_US + 0.5 * DEADLINE_US, "{}", TIMEOUT_US / lsi_fast);
+        assert!(
+            TIMEOUT_US / lsi_fast > MIN_TIMEOUT_US + 0.5 * DEADLINE_US,
+            "{}",
+            TIMEOUT_US / lsi_fast
+        );
         assert!(TIMEOUT_US / lsi_slow < 3_500.0, "{}", TIMEOUT_US / lsi_slow);
     }
 
     #[test]
     fn only_a_watchdog_reset_keeps_the_drives_off_at_the_next_boot() {
-        assert_eq!(fault_after_reset(ResetCause::Watchdog), Some(Fault::Watchdog(WatchdogFault::Reset)));
+        assert_eq!(
+            fault_after_reset(ResetCause::Watchdog),
+            Some(Fault::Watchdog(WatchdogFault::Reset))
+        );
         for cause in [
             ResetCause::PowerOnOrBrownOut,
             ResetCause::Pin,

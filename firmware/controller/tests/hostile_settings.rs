@@ -13,8 +13,8 @@
 
 use controller::calibration::CalibrationState;
 use controller::servo_loop::{Mode, ServoLoop};
-use controller::settings::Settings;
 use controller::setpoints::QUEUE_SLOTS;
+use controller::settings::Settings;
 use heapless::spsc::Queue;
 use kinematics_core::trajectory::MotionSetpoint;
 use kinematics_core::{Calibration, FiveBar};
@@ -106,7 +106,10 @@ fn hostile_settings() -> impl Strategy<Value = Draw> {
 }
 
 fn build(draw: &Draw) -> Settings {
-    let mut s = Settings { builtin_tour_mm: &[], ..Settings::default() };
+    let mut s = Settings {
+        builtin_tour_mm: &[],
+        ..Settings::default()
+    };
     // Absolute encoders, so that valid settings engage at boot and the servo runs: with the
     // default incremental ones every draw would boot `Unhomed`, drives off, and the torque
     // checks below would hold trivially.
@@ -132,7 +135,11 @@ fn build(draw: &Draw) -> Settings {
 
 /// Draws per run: 3000, or `HOSTILE_CASES`.
 fn hostile_cases() -> u32 {
-    std::env::var("HOSTILE_CASES").ok().and_then(|v| v.parse().ok()).filter(|&n| n > 0).unwrap_or(3000)
+    std::env::var("HOSTILE_CASES")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .filter(|&n| n > 0)
+        .unwrap_or(3000)
 }
 
 proptest! {
@@ -203,14 +210,25 @@ fn the_draws_reach_valid_and_refused_settings() {
         let settings = build(&draw);
         if settings.validate().is_ok() {
             valid += 1;
-            let l = ServoLoop::boot(&settings, Calibration { model, grid: None }, CalibrationState::Valid, start);
+            let l = ServoLoop::boot(
+                &settings,
+                Calibration { model, grid: None },
+                CalibrationState::Valid,
+                start,
+            );
             engaged += usize::from(l.mode() == Mode::Running && l.drives_enabled());
         } else {
             refused += 1;
         }
     }
-    assert!(valid >= 100 && refused >= 100, "{valid} valid, {refused} refused of 2000 draws");
+    assert!(
+        valid >= 100 && refused >= 100,
+        "{valid} valid, {refused} refused of 2000 draws"
+    );
     println!("hostile settings: {valid} valid ({engaged} engaged at boot), {refused} refused of 2000 draws");
     // The property's torque-limit check runs on a servo that is on.
-    assert!(engaged * 2 >= valid, "only {engaged} of {valid} valid draws engaged the drives at boot");
+    assert!(
+        engaged * 2 >= valid,
+        "only {engaged} of {valid} valid draws engaged the drives at boot"
+    );
 }

@@ -120,12 +120,39 @@ pub fn apply<B: Bus>(plan: &'static [Step], bus: &mut B) -> Result<(), &'static 
 mod tests {
     use super::*;
 
-    const R: Register = Register { peripheral: "X", name: "R", address: 0x10 };
+    const R: Register = Register {
+        peripheral: "X",
+        name: "R",
+        address: 0x10,
+    };
     static PLAN: [Step; 4] = [
-        Step { register: R, action: Action::Write(0xF0), why: "" },
-        Step { register: R, action: Action::Modify { clear: 0x30, set: 0x01 }, why: "" },
-        Step { register: R, action: Action::WaitFor { mask: 0x100, value: 0x100, polls: 5 }, why: "never" },
-        Step { register: R, action: Action::Write(0), why: "not reached" },
+        Step {
+            register: R,
+            action: Action::Write(0xF0),
+            why: "",
+        },
+        Step {
+            register: R,
+            action: Action::Modify {
+                clear: 0x30,
+                set: 0x01,
+            },
+            why: "",
+        },
+        Step {
+            register: R,
+            action: Action::WaitFor {
+                mask: 0x100,
+                value: 0x100,
+                polls: 5,
+            },
+            why: "never",
+        },
+        Step {
+            register: R,
+            action: Action::Write(0),
+            why: "not reached",
+        },
     ];
 
     #[derive(Default)]
@@ -151,8 +178,16 @@ mod tests {
         let mut bus = Log::default();
         let failed = apply(&PLAN, &mut bus).unwrap_err();
         assert_eq!(failed.why, "never");
-        assert_eq!(bus.writes, [0xF0, 0xC1], "write, then read-modify-write; nothing after the wait");
-        assert_eq!(bus.reads, 1 + 6, "the modify's read, then the first read and 5 polls");
+        assert_eq!(
+            bus.writes,
+            [0xF0, 0xC1],
+            "write, then read-modify-write; nothing after the wait"
+        );
+        assert_eq!(
+            bus.reads,
+            1 + 6,
+            "the modify's read, then the first read and 5 polls"
+        );
         // The same plan up to the wait succeeds.
         let mut bus = Log::default();
         assert_eq!(apply(&PLAN[..2], &mut bus), Ok(()));

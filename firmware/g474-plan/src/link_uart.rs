@@ -63,7 +63,15 @@ impl Default for LinkUart {
 impl LinkUart {
     /// An empty ring (the LPUART itself is configured by [`crate::plan::HOST_LINK`]).
     pub const fn new() -> Self {
-        LinkUart { rx: Deque::new(), counts: LinkUartCounts { overruns: 0, line_errors: 0, rx_dropped: 0, tx_dropped: 0 } }
+        LinkUart {
+            rx: Deque::new(),
+            counts: LinkUartCounts {
+                overruns: 0,
+                line_errors: 0,
+                rx_dropped: 0,
+                tx_dropped: 0,
+            },
+        }
     }
 
     /// The counters so far.

@@ -4,7 +4,11 @@
 use crate::Register;
 
 const fn reg(peripheral: &'static str, name: &'static str, address: u32) -> Register {
-    Register { peripheral, name, address }
+    Register {
+        peripheral,
+        name,
+        address,
+    }
 }
 
 /// Peripheral base addresses (RM0440 "Memory map and register boundary addresses").

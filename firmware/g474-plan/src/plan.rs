@@ -78,7 +78,8 @@ pub const LINK_KERNEL_HZ: u32 = SYSCLK_HZ;
 /// `baud = 256 · f_ck / LPUARTDIV` with the prescaler at /1, so LPUARTDIV =
 /// round(256 · 170 MHz / 115 200) = 377 778 (0x5_C3B2; the rate is 115 199.9 Bd, 0.6 ppm
 /// slow). RM0440's limits: LPUARTDIV ≥ 0x300, 20 bits, and 3 · baud ≤ f_ck ≤ 4096 · baud.
-pub const LPUART1_BRR: u32 = ((256 * LINK_KERNEL_HZ as u64 + LINK_BAUD as u64 / 2) / LINK_BAUD as u64) as u32;
+pub const LPUART1_BRR: u32 =
+    ((256 * LINK_KERNEL_HZ as u64 + LINK_BAUD as u64 / 2) / LINK_BAUD as u64) as u32;
 /// The LSI's nominal frequency, the IWDG's clock (Hz).
 pub const LSI_HZ: f32 = 32_000.0;
 /// The LSI's range assumed for the timeout bounds (Hz): DS12288's LSI characteristics, taken
@@ -98,22 +99,55 @@ pub fn iwdg_timeout_us(lsi_hz: f32) -> f32 {
 // Step builders.
 
 const fn write(register: Register, value: u32, why: &'static str) -> Step {
-    Step { register, action: Action::Write(value), why }
+    Step {
+        register,
+        action: Action::Write(value),
+        why,
+    }
 }
 const fn set(register: Register, bits: u32, why: &'static str) -> Step {
-    Step { register, action: Action::Modify { clear: 0, set: bits }, why }
+    Step {
+        register,
+        action: Action::Modify {
+            clear: 0,
+            set: bits,
+        },
+        why,
+    }
 }
 const fn clear(register: Register, bits: u32, why: &'static str) -> Step {
-    Step { register, action: Action::Modify { clear: bits, set: 0 }, why }
+    Step {
+        register,
+        action: Action::Modify {
+            clear: bits,
+            set: 0,
+        },
+        why,
+    }
 }
 const fn field(register: Register, mask: u32, value: u32, why: &'static str) -> Step {
-    Step { register, action: Action::Modify { clear: mask, set: value }, why }
+    Step {
+        register,
+        action: Action::Modify {
+            clear: mask,
+            set: value,
+        },
+        why,
+    }
 }
 const fn wait(register: Register, mask: u32, value: u32, polls: u32, why: &'static str) -> Step {
-    Step { register, action: Action::WaitFor { mask, value, polls }, why }
+    Step {
+        register,
+        action: Action::WaitFor { mask, value, polls },
+        why,
+    }
 }
 const fn delay(register: Register, cycles: u32, why: &'static str) -> Step {
-    Step { register, action: Action::Delay { cycles }, why }
+    Step {
+        register,
+        action: Action::Delay { cycles },
+        why,
+    }
 }
 
 /// A pin: port name, port base, number.
@@ -128,10 +162,18 @@ pub struct Pin {
 }
 
 const fn pa(n: u32) -> Pin {
-    Pin { port: "GPIOA", base: base::GPIOA, n }
+    Pin {
+        port: "GPIOA",
+        base: base::GPIOA,
+        n,
+    }
 }
 const fn pb(n: u32) -> Pin {
-    Pin { port: "GPIOB", base: base::GPIOB, n }
+    Pin {
+        port: "GPIOB",
+        base: base::GPIOB,
+        n,
+    }
 }
 
 /// PWM of axis 0 (TIM1_CH1).
@@ -158,13 +200,27 @@ pub const LINK_RX: Pin = pa(3);
 pub const LINK_AF: u32 = 12;
 
 const fn mode(pin: Pin, mode: u32, why: &'static str) -> Step {
-    field(gpio::moder(pin.port, pin.base), 0b11 << (2 * pin.n), mode << (2 * pin.n), why)
+    field(
+        gpio::moder(pin.port, pin.base),
+        0b11 << (2 * pin.n),
+        mode << (2 * pin.n),
+        why,
+    )
 }
 const fn pull(pin: Pin, pull: u32, why: &'static str) -> Step {
-    field(gpio::pupdr(pin.port, pin.base), 0b11 << (2 * pin.n), pull << (2 * pin.n), why)
+    field(
+        gpio::pupdr(pin.port, pin.base),
+        0b11 << (2 * pin.n),
+        pull << (2 * pin.n),
+        why,
+    )
 }
 const fn af(pin: Pin, af: u32, why: &'static str) -> Step {
-    let register = if pin.n < 8 { gpio::afrl(pin.port, pin.base) } else { gpio::afrh(pin.port, pin.base) };
+    let register = if pin.n < 8 {
+        gpio::afrl(pin.port, pin.base)
+    } else {
+        gpio::afrh(pin.port, pin.base)
+    };
     let shift = 4 * (pin.n % 8);
     field(register, 0xF << shift, af << shift, why)
 }
@@ -211,10 +267,25 @@ pub const SR_CC4IF: u32 = 1 << 4;
 /// First, at the reset clock: the drive-enable line an output driven low (a pull-down holds it
 /// through reset until here). Nothing can fail before this.
 pub static SAFE_OUTPUTS: [Step; 4] = [
-    set(rcc::AHB2ENR, rcc::AHB2ENR_GPIOAEN | rcc::AHB2ENR_GPIOBEN, "clock the GPIO ports of the drive, break and encoder pins"),
-    low(DRIVE_ENABLE, "drive-enable output latch low before the pin becomes an output"),
-    pull(DRIVE_ENABLE, gpio::PULL_DOWN, "drive enable pulled low whenever nothing drives it"),
-    mode(DRIVE_ENABLE, gpio::MODE_OUTPUT, "drive enable actively low from the first microseconds of the boot"),
+    set(
+        rcc::AHB2ENR,
+        rcc::AHB2ENR_GPIOAEN | rcc::AHB2ENR_GPIOBEN,
+        "clock the GPIO ports of the drive, break and encoder pins",
+    ),
+    low(
+        DRIVE_ENABLE,
+        "drive-enable output latch low before the pin becomes an output",
+    ),
+    pull(
+        DRIVE_ENABLE,
+        gpio::PULL_DOWN,
+        "drive enable pulled low whenever nothing drives it",
+    ),
+    mode(
+        DRIVE_ENABLE,
+        gpio::MODE_OUTPUT,
+        "drive enable actively low from the first microseconds of the boot",
+    ),
 ];
 
 /// HSI16 → PLL (M 4, N 85, R 2) → 170 MHz (RM0440 §6.1.5 "Dynamic voltage scaling management"
@@ -304,12 +375,32 @@ const fn encoder_timer(name: &'static str, base: u32) -> [Step; 9] {
     [
         write(timx::cr1(name, base), 0, "stopped while configured"),
         write(timx::smcr(name, base), ENCODER_SMCR, "encoder mode 3"),
-        write(timx::ccmr1(name, base), ENCODER_CCMR1, "TI1, TI2 inputs, filtered"),
-        write(timx::ccmr2(name, base), INDEX_CCMR2, "TI4 input: the index pulse, filtered"),
-        write(timx::ccer(name, base), INDEX_CCER, "both inputs non-inverted (the sign is Settings::encoders); index capture on"),
+        write(
+            timx::ccmr1(name, base),
+            ENCODER_CCMR1,
+            "TI1, TI2 inputs, filtered",
+        ),
+        write(
+            timx::ccmr2(name, base),
+            INDEX_CCMR2,
+            "TI4 input: the index pulse, filtered",
+        ),
+        write(
+            timx::ccer(name, base),
+            INDEX_CCER,
+            "both inputs non-inverted (the sign is Settings::encoders); index capture on",
+        ),
         write(timx::sr(name, base), 0, "no index captured yet"),
-        write(timx::arr(name, base), 0xFFFF, "full 16-bit range (extended to 32 bits in software)"),
-        write(timx::cnt(name, base), 0, "count from 0 (homing sets the zero)"),
+        write(
+            timx::arr(name, base),
+            0xFFFF,
+            "full 16-bit range (extended to 32 bits in software)",
+        ),
+        write(
+            timx::cnt(name, base),
+            0,
+            "count from 0 (homing sets the zero)",
+        ),
         write(timx::cr1(name, base), 1, "start counting"),
     ]
 }
@@ -321,12 +412,20 @@ pub static ENCODER_TIM4: [Step; 9] = encoder_timer("TIM4", base::TIM4);
 
 /// The encoder timers' clocks and pins (the pins after the timers, so the first edge counts).
 pub static ENCODER_PINS: [Step; 19] = [
-    set(rcc::APB1ENR1, rcc::APB1ENR1_TIM3EN | rcc::APB1ENR1_TIM4EN, "clock TIM3, TIM4"),
+    set(
+        rcc::APB1ENR1,
+        rcc::APB1ENR1_TIM3EN | rcc::APB1ENR1_TIM4EN,
+        "clock TIM3, TIM4",
+    ),
     af(ENCODER_0[0], 2, "PA6 = TIM3_CH1"),
     af(ENCODER_0[1], 2, "PA7 = TIM3_CH2"),
     af(ENCODER_1[0], 2, "PB6 = TIM4_CH1"),
     af(ENCODER_1[1], 2, "PB7 = TIM4_CH2"),
-    pull(ENCODER_0[0], gpio::PULL_UP, "weak pull-up (open-collector encoders need external ones too)"),
+    pull(
+        ENCODER_0[0],
+        gpio::PULL_UP,
+        "weak pull-up (open-collector encoders need external ones too)",
+    ),
     pull(ENCODER_0[1], gpio::PULL_UP, "weak pull-up"),
     pull(ENCODER_1[0], gpio::PULL_UP, "weak pull-up"),
     pull(ENCODER_1[1], gpio::PULL_UP, "weak pull-up"),
@@ -336,8 +435,16 @@ pub static ENCODER_PINS: [Step; 19] = [
     mode(ENCODER_1[1], gpio::MODE_AF, "PB7 to TIM4"),
     af(ENCODER_INDEX[0], 2, "PB1 = TIM3_CH4 (index, axis 0)"),
     af(ENCODER_INDEX[1], 2, "PB9 = TIM4_CH4 (index, axis 1)"),
-    pull(ENCODER_INDEX[0], gpio::PULL_DOWN, "no index without a signal"),
-    pull(ENCODER_INDEX[1], gpio::PULL_DOWN, "no index without a signal"),
+    pull(
+        ENCODER_INDEX[0],
+        gpio::PULL_DOWN,
+        "no index without a signal",
+    ),
+    pull(
+        ENCODER_INDEX[1],
+        gpio::PULL_DOWN,
+        "no index without a signal",
+    ),
     mode(ENCODER_INDEX[0], gpio::MODE_AF, "PB1 to TIM3"),
     mode(ENCODER_INDEX[1], gpio::MODE_AF, "PB9 to TIM4"),
 ];
@@ -347,30 +454,68 @@ const TIM6: &str = "TIM6";
 /// TIM6, the 2 kHz servo tick: configured, not started (the app starts it at the end of init).
 pub static TICK_TIMER: [Step; 7] = [
     set(rcc::APB1ENR1, rcc::APB1ENR1_TIM6EN, "clock TIM6"),
-    write(timx::cr1(TIM6, base::TIM6), 1 << 2, "URS: only an overflow sets the update flag"),
+    write(
+        timx::cr1(TIM6, base::TIM6),
+        1 << 2,
+        "URS: only an overflow sets the update flag",
+    ),
     write(timx::psc(TIM6, base::TIM6), TIM6_PSC, "counter at 85 MHz"),
-    write(timx::arr(TIM6, base::TIM6), TIM6_ARR, "85 MHz / 42500 = 2 kHz"),
-    write(timx::egr(TIM6, base::TIM6), 1, "UG: load PSC and ARR (URS keeps it from setting the flag)"),
+    write(
+        timx::arr(TIM6, base::TIM6),
+        TIM6_ARR,
+        "85 MHz / 42500 = 2 kHz",
+    ),
+    write(
+        timx::egr(TIM6, base::TIM6),
+        1,
+        "UG: load PSC and ARR (URS keeps it from setting the flag)",
+    ),
     write(timx::sr(TIM6, base::TIM6), 0, "no tick pending"),
-    write(timx::dier(TIM6, base::TIM6), 1, "UIE: the update interrupt is SERVO_TICK (IRQ 54)"),
+    write(
+        timx::dier(TIM6, base::TIM6),
+        1,
+        "UIE: the update interrupt is SERVO_TICK (IRQ 54)",
+    ),
 ];
 
 /// Starts the IWDG with [`TIMEOUT_US`] (RM0440 "Independent watchdog (IWDG)", §42.3 in Rev 4:
 /// start, unlock, prescaler, reload, wait for the update, refresh). It cannot be stopped.
 pub static START_WATCHDOG: [Step; 6] = [
-    write(iwdg::KR, iwdg::KEY_START, "start the watchdog (and the LSI)"),
+    write(
+        iwdg::KR,
+        iwdg::KEY_START,
+        "start the watchdog (and the LSI)",
+    ),
     write(iwdg::KR, iwdg::KEY_UNLOCK, "unlock PR and RLR"),
     write(iwdg::PR, IWDG_PR, "LSI / 4: 125 µs per count"),
-    write(iwdg::RLR, IWDG_RLR, "24 counts: 3 ms (2.82 to 3.25 ms over the LSI's range)"),
-    wait(iwdg::SR, 0b111, 0, 1_000_000, "prescaler and reload updated (a few LSI cycles)"),
+    write(
+        iwdg::RLR,
+        IWDG_RLR,
+        "24 counts: 3 ms (2.82 to 3.25 ms over the LSI's range)",
+    ),
+    wait(
+        iwdg::SR,
+        0b111,
+        0,
+        1_000_000,
+        "prescaler and reload updated (a few LSI cycles)",
+    ),
     write(iwdg::KR, iwdg::KEY_RELOAD, "reload with the new timeout"),
 ];
 
 /// The drives on: PA10 to TIM1 (CH3, forced active), then MOE. A break that is active keeps
 /// MOE low (the enable line stays low): the first PWM write then reports the outputs off.
 pub static ENABLE_OUTPUTS: [Step; 2] = [
-    mode(DRIVE_ENABLE, gpio::MODE_AF, "the drive enable follows TIM1_CH3, i.e. MOE"),
-    set(tim1::BDTR, tim1::BDTR_MOE, "main outputs on: PWM and drive enable"),
+    mode(
+        DRIVE_ENABLE,
+        gpio::MODE_AF,
+        "the drive enable follows TIM1_CH3, i.e. MOE",
+    ),
+    set(
+        tim1::BDTR,
+        tim1::BDTR_MOE,
+        "main outputs on: PWM and drive enable",
+    ),
 ];
 
 /// The safe state, from any context (fault handlers included; registers only, no RAM): duty
@@ -378,9 +523,17 @@ pub static ENABLE_OUTPUTS: [Step; 2] = [
 pub static SAFE_STATE: [Step; 5] = [
     write(tim1::CCR1, PWM_ZERO_TORQUE_DUTY, "axis 0 to zero torque"),
     write(tim1::CCR2, PWM_ZERO_TORQUE_DUTY, "axis 1 to zero torque"),
-    clear(tim1::BDTR, tim1::BDTR_MOE, "TIM1 outputs off (Hi-Z): PWM released, enable dropped"),
+    clear(
+        tim1::BDTR,
+        tim1::BDTR_MOE,
+        "TIM1 outputs off (Hi-Z): PWM released, enable dropped",
+    ),
     low(DRIVE_ENABLE, "enable output latch low"),
-    mode(DRIVE_ENABLE, gpio::MODE_OUTPUT, "enable line actively driven low, whatever TIM1 does"),
+    mode(
+        DRIVE_ENABLE,
+        gpio::MODE_OUTPUT,
+        "enable line actively driven low, whatever TIM1 does",
+    ),
 ];
 
 /// The host link's UART, LPUART1 at [`LINK_BAUD`] 8N1, FIFO mode, receive interrupt on
@@ -394,26 +547,69 @@ pub static SAFE_STATE: [Step; 5] = [
 /// ~100 000 register reads (a few ms) when the LPUART is dead.
 pub static HOST_LINK: [Step; 16] = [
     set(rcc::APB1ENR2, rcc::APB1ENR2_LPUART1EN, "clock LPUART1"),
-    field(rcc::CCIPR, rcc::CCIPR_LPUART1SEL_MASK, rcc::CCIPR_LPUART1SEL_PCLK1, "LPUART1 kernel clock = PCLK1, 170 MHz"),
-    write(lpuart::CR1, lpuart::CR1_FIFOEN, "disabled (UE = 0) to configure it: FIFO mode, 8 data bits (M1 M0 = 00), no parity"),
+    field(
+        rcc::CCIPR,
+        rcc::CCIPR_LPUART1SEL_MASK,
+        rcc::CCIPR_LPUART1SEL_PCLK1,
+        "LPUART1 kernel clock = PCLK1, 170 MHz",
+    ),
+    write(
+        lpuart::CR1,
+        lpuart::CR1_FIFOEN,
+        "disabled (UE = 0) to configure it: FIFO mode, 8 data bits (M1 M0 = 00), no parity",
+    ),
     write(lpuart::CR2, 0, "1 stop bit, no inversion, LSB first"),
-    write(lpuart::CR3, 0, "no flow control (the VCP has none), no DMA, overrun detection on"),
+    write(
+        lpuart::CR3,
+        0,
+        "no flow control (the VCP has none), no DMA, overrun detection on",
+    ),
     write(lpuart::PRESC, 0, "kernel clock undivided"),
-    write(lpuart::BRR, LPUART1_BRR, "LPUARTDIV = 256 x 170 MHz / 115200 Bd = 377778"),
+    write(
+        lpuart::BRR,
+        LPUART1_BRR,
+        "LPUARTDIV = 256 x 170 MHz / 115200 Bd = 377778",
+    ),
     set(lpuart::CR1, lpuart::CR1_UE, "enable the LPUART"),
-    set(lpuart::CR1, lpuart::CR1_TE | lpuart::CR1_RE | lpuart::CR1_RXFNEIE, "transmitter, receiver, interrupt on a received byte or an overrun"),
-    wait(lpuart::ISR, lpuart::ISR_TEACK | lpuart::ISR_REACK, lpuart::ISR_TEACK | lpuart::ISR_REACK, 100_000, "TE and RE acknowledged"),
+    set(
+        lpuart::CR1,
+        lpuart::CR1_TE | lpuart::CR1_RE | lpuart::CR1_RXFNEIE,
+        "transmitter, receiver, interrupt on a received byte or an overrun",
+    ),
+    wait(
+        lpuart::ISR,
+        lpuart::ISR_TEACK | lpuart::ISR_REACK,
+        lpuart::ISR_TEACK | lpuart::ISR_REACK,
+        100_000,
+        "TE and RE acknowledged",
+    ),
     write(lpuart::ICR, lpuart::ICR_ERRORS, "no stale error flag"),
     af(LINK_TX, LINK_AF, "PA2 = LPUART1_TX"),
     af(LINK_RX, LINK_AF, "PA3 = LPUART1_RX"),
-    pull(LINK_RX, gpio::PULL_UP, "RX idles high while nothing drives it: no false start bits"),
+    pull(
+        LINK_RX,
+        gpio::PULL_UP,
+        "RX idles high while nothing drives it: no false start bits",
+    ),
     mode(LINK_TX, gpio::MODE_AF, "PA2 to LPUART1"),
     mode(LINK_RX, gpio::MODE_AF, "PA3 to LPUART1"),
 ];
 
 /// Clears the reset flags after they were read (RCC_CSR RMVF).
-pub static CLEAR_RESET_FLAGS: [Step; 1] = [set(rcc::CSR, rcc::CSR_RMVF, "clear the reset flags for the next boot")];
+pub static CLEAR_RESET_FLAGS: [Step; 1] = [set(
+    rcc::CSR,
+    rcc::CSR_RMVF,
+    "clear the reset flags for the next boot",
+)];
 
 /// The boot plans in the order the board applies them.
-pub static BOOT: [&[Step]; 8] =
-    [&SAFE_OUTPUTS, &CLOCK, &DEBUG_AND_POWER, &TIM1_PWM, &ENCODER_TIM3, &ENCODER_TIM4, &ENCODER_PINS, &TICK_TIMER];
+pub static BOOT: [&[Step]; 8] = [
+    &SAFE_OUTPUTS,
+    &CLOCK,
+    &DEBUG_AND_POWER,
+    &TIM1_PWM,
+    &ENCODER_TIM3,
+    &ENCODER_TIM4,
+    &ENCODER_PINS,
+    &TICK_TIMER,
+];

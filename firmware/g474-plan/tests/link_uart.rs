@@ -83,7 +83,11 @@ impl Bus for Lpuart {
                 if self.isr_reads % self.byte_reads == 0 {
                     self.tick();
                 }
-                let rx = if !self.rx_fifo.is_empty() || self.rx_stuck { RXFNE } else { 0 };
+                let rx = if !self.rx_fifo.is_empty() || self.rx_stuck {
+                    RXFNE
+                } else {
+                    0
+                };
                 let tx = if self.tx_fifo.len() < FIFO { TXFNF } else { 0 };
                 self.flags | rx | tx
             }
@@ -95,7 +99,10 @@ impl Bus for Lpuart {
         match address {
             ICR => self.flags &= !value,
             TDR => {
-                assert!(self.tx_fifo.len() < FIFO, "TDR written with the TX FIFO full");
+                assert!(
+                    self.tx_fifo.len() < FIFO,
+                    "TDR written with the TX FIFO full"
+                );
                 self.tx_fifo.push_back(value as u8);
             }
             _ => panic!("write of {address:#x}"),
@@ -185,7 +192,11 @@ fn a_dead_transmitter_drops_the_write_and_returns() {
     port.write(&mut bus, &[7; 100]);
     assert_eq!(bus.tx_fifo.len(), FIFO, "the FIFO took 8");
     assert_eq!(port.counts().tx_dropped, 92);
-    assert!(bus.isr_reads < 3 * TX_PATIENCE_POLLS + 1_000, "{} ISR reads", bus.isr_reads);
+    assert!(
+        bus.isr_reads < 3 * TX_PATIENCE_POLLS + 1_000,
+        "{} ISR reads",
+        bus.isr_reads
+    );
 }
 
 /// More than the ring holds, never read: the excess is dropped and counted, the oldest kept.

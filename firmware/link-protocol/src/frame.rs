@@ -16,12 +16,16 @@ const CRC_LEN: usize = 4;
 /// [`FrameError::Overflow`] if it does not fit [`MAX_FRAME_LEN`] or `out`.
 pub fn encode<T: Serialize>(message: &T, out: &mut [u8]) -> Result<usize, FrameError> {
     let mut raw = [0u8; MAX_PAYLOAD_LEN + CRC_LEN];
-    let n = postcard::to_slice(message, &mut raw[..MAX_PAYLOAD_LEN]).map_err(|_| FrameError::Overflow)?.len();
+    let n = postcard::to_slice(message, &mut raw[..MAX_PAYLOAD_LEN])
+        .map_err(|_| FrameError::Overflow)?
+        .len();
     let crc = CRC32.checksum(&raw[..n]);
     raw[n..n + CRC_LEN].copy_from_slice(&crc.to_le_bytes());
     let limit = out.len().min(MAX_FRAME_LEN);
     // Room for the delimiter after the COBS bytes.
-    let body = out.get_mut(..limit.saturating_sub(1)).ok_or(FrameError::Overflow)?;
+    let body = out
+        .get_mut(..limit.saturating_sub(1))
+        .ok_or(FrameError::Overflow)?;
     let len = cobs::try_encode(&raw[..n + CRC_LEN], body).map_err(|_| FrameError::Overflow)?;
     out[len] = 0;
     Ok(len + 1)
@@ -47,7 +51,8 @@ where
         return Err(FrameError::Crc);
     }
     // Every message starts with its version: read it before believing the rest.
-    let (version, _) = postcard::take_from_bytes::<u16>(payload).map_err(|_| FrameError::Malformed)?;
+    let (version, _) =
+        postcard::take_from_bytes::<u16>(payload).map_err(|_| FrameError::Malformed)?;
     if version != PROTOCOL_VERSION {
         return Err(FrameError::Version(version));
     }
@@ -85,7 +90,11 @@ impl Default for FrameReader {
 impl FrameReader {
     /// An empty reader.
     pub const fn new() -> Self {
-        FrameReader { buf: [0; MAX_FRAME_LEN], len: 0, overflow: false }
+        FrameReader {
+            buf: [0; MAX_FRAME_LEN],
+            len: 0,
+            overflow: false,
+        }
     }
 
     /// Takes one byte; at a delimiter, returns the frame it ended (or that it was too long).

@@ -77,7 +77,11 @@ pub struct Request {
 impl Request {
     /// A request of this protocol version.
     pub fn new(seq: u16, command: Command) -> Self {
-        Request { version: PROTOCOL_VERSION, seq, command }
+        Request {
+            version: PROTOCOL_VERSION,
+            seq,
+            command,
+        }
     }
 }
 
@@ -179,7 +183,10 @@ pub struct DeviceMessage {
 impl DeviceMessage {
     /// A message of this protocol version.
     pub fn new(body: DeviceBody) -> Self {
-        DeviceMessage { version: PROTOCOL_VERSION, body }
+        DeviceMessage {
+            version: PROTOCOL_VERSION,
+            body,
+        }
     }
 }
 

@@ -11,7 +11,11 @@ fn pair() -> impl Strategy<Value = [f32; 2]> {
     [finite(), finite()]
 }
 fn knot() -> impl Strategy<Value = Knot> {
-    (any::<u32>(), pair(), pair()).prop_map(|(t_us, position_mm, velocity_mm_s)| Knot { t_us, position_mm, velocity_mm_s })
+    (any::<u32>(), pair(), pair()).prop_map(|(t_us, position_mm, velocity_mm_s)| Knot {
+        t_us,
+        position_mm,
+        velocity_mm_s,
+    })
 }
 
 fn command() -> impl Strategy<Value = Command> {
@@ -22,22 +26,40 @@ fn command() -> impl Strategy<Value = Command> {
         Just(Command::Disable),
         Just(Command::Home),
         pair().prop_map(|target_mm| Command::MoveTo { target_mm }),
-        (any::<u32>(), prop::collection::vec(knot(), 0..=MAX_KNOTS_PER_FRAME)).prop_map(|(first_index, k)| {
-            Command::StreamKnots { first_index, knots: heapless::Vec::from_slice(&k).unwrap() }
-        }),
+        (
+            any::<u32>(),
+            prop::collection::vec(knot(), 0..=MAX_KNOTS_PER_FRAME)
+        )
+            .prop_map(|(first_index, k)| {
+                Command::StreamKnots {
+                    first_index,
+                    knots: heapless::Vec::from_slice(&k).unwrap(),
+                }
+            }),
         Just(Command::Stop),
         Just(Command::ResetFault),
         any::<u16>().prop_map(|decimation| Command::Telemetry { decimation }),
         any::<u32>().prop_map(|len| Command::CalibrationBegin { len }),
-        (any::<u32>(), prop::collection::vec(any::<u8>(), 0..=CALIBRATION_CHUNK_LEN)).prop_map(|(offset, d)| {
-            Command::CalibrationChunk { offset, data: heapless::Vec::from_slice(&d).unwrap() }
-        }),
+        (
+            any::<u32>(),
+            prop::collection::vec(any::<u8>(), 0..=CALIBRATION_CHUNK_LEN)
+        )
+            .prop_map(|(offset, d)| {
+                Command::CalibrationChunk {
+                    offset,
+                    data: heapless::Vec::from_slice(&d).unwrap(),
+                }
+            }),
         Just(Command::CalibrationCommit),
         Just(Command::CalibrationId),
     ]
 }
 
-fn roundtrip<T: serde::Serialize + for<'de> serde::Deserialize<'de> + PartialEq + core::fmt::Debug>(m: &T) {
+fn roundtrip<
+    T: serde::Serialize + for<'de> serde::Deserialize<'de> + PartialEq + core::fmt::Debug,
+>(
+    m: &T,
+) {
     let mut buf = [0u8; MAX_FRAME_LEN];
     let n = encode(m, &mut buf).expect("every message fits a frame");
     assert!(n <= MAX_FRAME_LEN);
@@ -90,11 +112,27 @@ proptest! {
 
 #[test]
 fn the_largest_messages_fit() {
-    let knot = Knot { t_us: u32::MAX, position_mm: [f32::MAX; 2], velocity_mm_s: [f32::MIN; 2] };
+    let knot = Knot {
+        t_us: u32::MAX,
+        position_mm: [f32::MAX; 2],
+        velocity_mm_s: [f32::MIN; 2],
+    };
     let knots = heapless::Vec::from_slice(&[knot; MAX_KNOTS_PER_FRAME]).unwrap();
-    roundtrip(&Request::new(u16::MAX, Command::StreamKnots { first_index: u32::MAX, knots }));
+    roundtrip(&Request::new(
+        u16::MAX,
+        Command::StreamKnots {
+            first_index: u32::MAX,
+            knots,
+        },
+    ));
     let data = heapless::Vec::from_slice(&[0xFFu8; CALIBRATION_CHUNK_LEN]).unwrap();
-    roundtrip(&Request::new(u16::MAX, Command::CalibrationChunk { offset: u32::MAX, data }));
+    roundtrip(&Request::new(
+        u16::MAX,
+        Command::CalibrationChunk {
+            offset: u32::MAX,
+            data,
+        },
+    ));
     let status = StatusReport {
         ticks: u32::MAX,
         mode: ModeCode::SafeState,
@@ -110,7 +148,10 @@ fn the_largest_messages_fit() {
         stream_knots_queued: u16::MAX,
         moving: true,
     };
-    roundtrip(&DeviceMessage::new(DeviceBody::Reply { seq: u16::MAX, result: Ok(Response::Status(status)) }));
+    roundtrip(&DeviceMessage::new(DeviceBody::Reply {
+        seq: u16::MAX,
+        result: Ok(Response::Status(status)),
+    }));
     let t = TelemetrySample {
         tick: u32::MAX,
         setpoint_mm: [1.0; 2],
@@ -122,16 +163,35 @@ fn the_largest_messages_fit() {
         fault: Some(FaultCode::Underrun),
     };
     roundtrip(&DeviceMessage::new(DeviceBody::Telemetry(t)));
-    let e = LinkError::Segment { index: u32::MAX, reason: SegmentRefusal::Workspace };
-    roundtrip(&DeviceMessage::new(DeviceBody::Reply { seq: 1, result: Err(e) }));
-    roundtrip(&DeviceMessage::new(DeviceBody::FrameRejected(FrameError::Version(u16::MAX))));
+    let e = LinkError::Segment {
+        index: u32::MAX,
+        reason: SegmentRefusal::Workspace,
+    };
+    roundtrip(&DeviceMessage::new(DeviceBody::Reply {
+        seq: 1,
+        result: Err(e),
+    }));
+    roundtrip(&DeviceMessage::new(DeviceBody::FrameRejected(
+        FrameError::Version(u16::MAX),
+    )));
 }
 
 #[test]
 fn another_version_is_refused_with_its_number() {
     let mut buf = [0u8; MAX_FRAME_LEN];
-    let n = encode(&Request { version: 7, seq: 3, command: Command::Enable }, &mut buf).unwrap();
-    assert_eq!(decode::<Request>(&mut buf[..n - 1]), Err(FrameError::Version(7)));
+    let n = encode(
+        &Request {
+            version: 7,
+            seq: 3,
+            command: Command::Enable,
+        },
+        &mut buf,
+    )
+    .unwrap();
+    assert_eq!(
+        decode::<Request>(&mut buf[..n - 1]),
+        Err(FrameError::Version(7))
+    );
 }
 
 #[test]
@@ -155,7 +215,10 @@ fn a_good_crc_on_bytes_that_are_no_message_is_malformed() {
 fn short_empty_and_oversized_frames_are_refused() {
     assert_eq!(decode::<Request>(&mut []), Err(FrameError::Cobs));
     assert_eq!(decode::<Request>(&mut [2, 7]), Err(FrameError::Short));
-    assert_eq!(decode::<Request>(&mut [0x11; MAX_FRAME_LEN + 1]), Err(FrameError::TooLong));
+    assert_eq!(
+        decode::<Request>(&mut [0x11; MAX_FRAME_LEN + 1]),
+        Err(FrameError::TooLong)
+    );
     let mut reader = FrameReader::new();
     for _ in 0..1000 {
         assert_eq!(reader.push(0x55), None);
@@ -169,6 +232,12 @@ fn short_empty_and_oversized_frames_are_refused() {
 /// (0xCBF43926): the firmware's slot store and the host tool compute it with this one function.
 #[test]
 fn the_calibration_id_is_crc32c() {
-    assert_eq!(link_protocol::calibration_image_id(b"123456789"), 0xE306_9283);
-    assert_ne!(link_protocol::calibration_image_id(b"123456789"), 0xCBF4_3926);
+    assert_eq!(
+        link_protocol::calibration_image_id(b"123456789"),
+        0xE306_9283
+    );
+    assert_ne!(
+        link_protocol::calibration_image_id(b"123456789"),
+        0xCBF4_3926
+    );
 }

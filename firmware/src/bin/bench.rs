@@ -48,20 +48,20 @@
 #[cfg(feature = "board-g474")]
 use defmt_rtt as _;
 
-use core::hint::black_box;
 use core::fmt::Write;
+use core::hint::black_box;
 
 use cortex_m_rt::entry;
 use kinematics_core::atan2::atan2_f32;
-use kinematics_core::sin_cos::sin_cos_f32;
+use kinematics_core::grid::{append_backlash, BACKLASH_LEN};
 use kinematics_core::path::Circle;
 use kinematics_core::servo::STANDARD_GRAVITY_MM_S2;
 use kinematics_core::servo::{ServoOutput, StepError};
-use kinematics_core::grid::{append_backlash, BACKLASH_LEN};
+use kinematics_core::sin_cos::sin_cos_f32;
 use kinematics_core::Backlash;
 use kinematics_core::{
-    Calibration, CorrectionGrid, FiveBar, FiveBarDynamics, IkMargin, MotionSetpoint, PathMotion, Servo, ServoConfig, TaskLimits,
-    ValidCalibration, ValidFiveBar,
+    Calibration, CorrectionGrid, FiveBar, FiveBarDynamics, IkMargin, MotionSetpoint, PathMotion,
+    Servo, ServoConfig, TaskLimits, ValidCalibration, ValidFiveBar,
 };
 
 use firmware::board::{self, CycleCounter};
@@ -144,14 +144,24 @@ fn measure(counter: &CycleCounter, mut body: impl FnMut(usize)) -> u32 {
 /// (its settings, its history) stays in registers from one call to the next, as it could if
 /// the step were inlined into the measuring loop.
 #[inline(never)]
-fn step_once(servo: &mut Servo, cal: &ValidCalibration<'_>, setpoint_mm: [f32; 2], encoder_rad: [f32; 2]) -> Result<ServoOutput, StepError> {
+fn step_once(
+    servo: &mut Servo,
+    cal: &ValidCalibration<'_>,
+    setpoint_mm: [f32; 2],
+    encoder_rad: [f32; 2],
+) -> Result<ServoOutput, StepError> {
     servo.step_valid(cal, setpoint_mm, encoder_rad)
 }
 
 /// One `Servo::step` with a plain `Calibration` (its model checked by every IK), a call of its
 /// own (see [`step_once`]): what the check costs.
 #[inline(never)]
-fn step_once_checking(servo: &mut Servo, cal: &Calibration<'_>, setpoint_mm: [f32; 2], encoder_rad: [f32; 2]) -> Result<ServoOutput, StepError> {
+fn step_once_checking(
+    servo: &mut Servo,
+    cal: &Calibration<'_>,
+    setpoint_mm: [f32; 2],
+    encoder_rad: [f32; 2],
+) -> Result<ServoOutput, StepError> {
     servo.step(cal, setpoint_mm, encoder_rad)
 }
 
@@ -171,7 +181,11 @@ fn step_motion_once(
 fn exit_on_fault(name: &str, fault: Option<(usize, StepError)>) {
     if let Some((i, f)) = fault {
         let mut line: heapless::String<128> = heapless::String::new();
-        let _ = write!(line, "FAIL {} faulted during the benchmark at call {}: {}", name, i, f);
+        let _ = write!(
+            line,
+            "FAIL {} faulted during the benchmark at call {}: {}",
+            name, i, f
+        );
         board::console(&line);
         board::exit(false);
     }
@@ -187,16 +201,22 @@ fn bench_step(
     setpoints: &[[f32; 2]; N],
     mut step: impl FnMut(&mut Servo, [f32; 2], [f32; 2]) -> Result<ServoOutput, StepError>,
 ) {
-    let Ok(mut servo) = Servo::new(ServoConfig::default()) else { board::exit(false) };
-    let Ok(mut encoder) = cal.command_rad(setpoints[0], 0.05) else { board::exit(false) };
+    let Ok(mut servo) = Servo::new(ServoConfig::default()) else {
+        board::exit(false)
+    };
+    let Ok(mut encoder) = cal.command_rad(setpoints[0], 0.05) else {
+        board::exit(false)
+    };
     if servo.engage(cal, encoder).is_err() {
         board::console("FAIL servo did not engage");
         board::exit(false);
     }
     let mut fault = None;
-    let counts = measure(counter, |i| match step(&mut servo, black_box(setpoints[i]), black_box(encoder)) {
-        Ok(out) => encoder = out.reference_rad,
-        Err(f) => fault = fault.or(Some((i, f))),
+    let counts = measure(counter, |i| {
+        match step(&mut servo, black_box(setpoints[i]), black_box(encoder)) {
+            Ok(out) => encoder = out.reference_rad,
+            Err(f) => fault = fault.or(Some((i, f))),
+        }
     });
     exit_on_fault(name, fault);
     report(name, counts as f32 * per_count / N as f32);
@@ -208,14 +228,25 @@ fn main() -> ! {
     // PLL, range-1 boost, 4 flash wait states, prefetch and I/D caches (the board's own clock
     // plan; without it the chip runs on HSI16 at 16 MHz with 0 wait states). QEMU: nothing.
     board::bench_init();
-    let Some(core) = cortex_m::Peripherals::take() else { board::exit(false) };
+    let Some(core) = cortex_m::Peripherals::take() else {
+        board::exit(false)
+    };
     let counter = CycleCounter::new(core);
 
     // What one count is worth, in instructions (QEMU) or cycles (hardware: 1.0).
     let (short, long) = (known_loop(&counter, 100_000), known_loop(&counter, 300_000));
-    let per_count = if long > short { 400_000.0 / (long - short) as f32 } else { 0.0 };
+    let per_count = if long > short {
+        400_000.0 / (long - short) as f32
+    } else {
+        0.0
+    };
     let mut line: heapless::String<96> = heapless::String::new();
-    let _ = write!(line, "# {} per counter tick: {:.3} (measured with a known loop)", board::COUNT_UNIT, per_count);
+    let _ = write!(
+        line,
+        "# {} per counter tick: {:.3} (measured with a known loop)",
+        board::COUNT_UNIT,
+        per_count
+    );
     board::console(&line);
     let mut line: heapless::String<96> = heapless::String::new();
     let _ = write!(line, "# calls per figure: {}", N);
@@ -254,7 +285,9 @@ fn main() -> ! {
     });
     report("ik_f32", ik as f32 * per_count / N as f32);
 
-    let Ok(valid) = ValidFiveBar::new(model) else { board::exit(false) };
+    let Ok(valid) = ValidFiveBar::new(model) else {
+        board::exit(false)
+    };
     let margin = IkMargin::new(0.05);
     let ik = measure(&counter, |i| {
         let _ = black_box(valid.inverse(black_box(points[i % POINTS]), margin));
@@ -295,11 +328,25 @@ fn main() -> ! {
 
     // Trajectory evaluation and dynamics (issue 14): a 5 g move across the workspace and a
     // 40 mm circle at 5 g, sampled at instants spread over their durations.
-    let limits = TaskLimits { speed_mm_s: 1500.0, accel_mm_s2: 5.0 * STANDARD_GRAVITY_MM_S2, jerk_mm_s3: 5.0e6 };
-    let Ok(line) = PathMotion::line([170.0, -65.0], [255.0, 68.0], &limits) else { board::exit(false) };
-    let circle = Circle { centre_mm: [212.132, 0.0], radius_mm: 40.0, start_rad: 0.0, turns: 1.0 };
-    let Ok(contour) = PathMotion::plan(circle, &limits, 200) else { board::exit(false) };
-    let times = |d: f32| core::array::from_fn::<f32, POINTS, _>(|k| d * k as f32 / (POINTS - 1) as f32);
+    let limits = TaskLimits {
+        speed_mm_s: 1500.0,
+        accel_mm_s2: 5.0 * STANDARD_GRAVITY_MM_S2,
+        jerk_mm_s3: 5.0e6,
+    };
+    let Ok(line) = PathMotion::line([170.0, -65.0], [255.0, 68.0], &limits) else {
+        board::exit(false)
+    };
+    let circle = Circle {
+        centre_mm: [212.132, 0.0],
+        radius_mm: 40.0,
+        start_rad: 0.0,
+        turns: 1.0,
+    };
+    let Ok(contour) = PathMotion::plan(circle, &limits, 200) else {
+        board::exit(false)
+    };
+    let times =
+        |d: f32| core::array::from_fn::<f32, POINTS, _>(|k| d * k as f32 / (POINTS - 1) as f32);
     let (line_t, circle_t) = (times(line.duration_s()), times(contour.duration_s()));
     let profile = *line.law();
     let at = measure(&counter, |i| {
@@ -317,14 +364,26 @@ fn main() -> ! {
     let setpoints_5g: [MotionSetpoint<f32>; POINTS] = core::array::from_fn(|k| line.at(line_t[k]));
     let motion = measure(&counter, |i| {
         let s = black_box(&setpoints_5g[i % POINTS]);
-        let _ = black_box(model.inverse_motion(s.position_mm, s.velocity_mm_s, s.acceleration_mm_s2, 0.05));
+        let _ = black_box(model.inverse_motion(
+            s.position_mm,
+            s.velocity_mm_s,
+            s.acceleration_mm_s2,
+            0.05,
+        ));
     });
     report("inverse_motion_f32", motion as f32 * per_count / N as f32);
     let mut motions = [None; POINTS];
     for (m, s) in motions.iter_mut().zip(&setpoints_5g) {
-        *m = model.inverse_motion(s.position_mm, s.velocity_mm_s, s.acceleration_mm_s2, 0.05).ok();
+        *m = model
+            .inverse_motion(s.position_mm, s.velocity_mm_s, s.acceleration_mm_s2, 0.05)
+            .ok();
     }
-    let Some(motions) = motions.into_iter().collect::<Option<heapless::Vec<_, POINTS>>>() else { board::exit(false) };
+    let Some(motions) = motions
+        .into_iter()
+        .collect::<Option<heapless::Vec<_, POINTS>>>()
+    else {
+        board::exit(false)
+    };
     let dynamics = FiveBarDynamics {
         motor_inertia_kg_m2: [3.9e-3; 2],
         tool_mass_kg: 0.165,
@@ -347,36 +406,70 @@ fn main() -> ! {
         let (sin, cos) = libm::sincosf(phase);
         *s = [212.132 + 20.0 * (cos - 1.0), 20.0 * sin];
     }
-    let Ok(uncorrected) = ValidCalibration::new(Calibration { model, grid: None }) else { board::exit(false) };
-    for (name, cal) in [("servo_step", &cal), ("servo_step_uncorrected", &uncorrected)] {
-        bench_step(&counter, per_count, name, &cal.calibration(), &setpoints, |s, p, e| step_once(s, cal, p, e));
+    let Ok(uncorrected) = ValidCalibration::new(Calibration { model, grid: None }) else {
+        board::exit(false)
+    };
+    for (name, cal) in [
+        ("servo_step", &cal),
+        ("servo_step_uncorrected", &uncorrected),
+    ] {
+        bench_step(
+            &counter,
+            per_count,
+            name,
+            &cal.calibration(),
+            &setpoints,
+            |s, p, e| step_once(s, cal, p, e),
+        );
     }
     // The same step with a backlash block in the image (issue 13; 20 µrad per drive, the
     // `paper` plant's): the servo's reference compensates it (`kinematics_core::backlash`).
     let mut image = [0u8; 8192];
     let (image_len, end) = (grid.geometry().image_len(), grid.len_bytes());
-    let Some(flashed) = calibration::region().get(..end) else { board::exit(false) };
+    let Some(flashed) = calibration::region().get(..end) else {
+        board::exit(false)
+    };
     if end + BACKLASH_LEN > image.len() {
         board::console("FAIL the calibration image is too large to append a backlash block to");
         board::exit(false);
     }
     image[..end].copy_from_slice(flashed);
-    let Ok(backlash) = Backlash::new([20e-6, 20e-6]) else { board::exit(false) };
-    let Ok(total) = append_backlash(&mut image, image_len, end, &backlash) else { board::exit(false) };
-    let Ok(backlash_grid) = CorrectionGrid::parse(&image[..total]) else { board::exit(false) };
+    let Ok(backlash) = Backlash::new([20e-6, 20e-6]) else {
+        board::exit(false)
+    };
+    let Ok(total) = append_backlash(&mut image, image_len, end, &backlash) else {
+        board::exit(false)
+    };
+    let Ok(backlash_grid) = CorrectionGrid::parse(&image[..total]) else {
+        board::exit(false)
+    };
     let with_backlash = ValidCalibration::from_grid(backlash_grid);
-    bench_step(&counter, per_count, "servo_step_backlash", &with_backlash.calibration(), &setpoints, |s, p, e| {
-        step_once(s, &with_backlash, p, e)
-    });
+    bench_step(
+        &counter,
+        per_count,
+        "servo_step_backlash",
+        &with_backlash.calibration(),
+        &setpoints,
+        |s, p, e| step_once(s, &with_backlash, p, e),
+    );
     let checking = cal.calibration();
-    bench_step(&counter, per_count, "servo_step_checking", &checking, &setpoints, |s, p, e| step_once_checking(s, &checking, p, e));
+    bench_step(
+        &counter,
+        per_count,
+        "servo_step_checking",
+        &checking,
+        &setpoints,
+        |s, p, e| step_once_checking(s, &checking, p, e),
+    );
 
     // The motion step: back and forth along the 5 g move without dwell (in motion but for an
     // instant at each end), the next setpoint evaluated from the trajectory at its sample's time
     // within the move (integer sample counts, as the firmware's setpoint source keeps them),
     // then `Servo::step_motion` with it as the look-ahead and the identified dynamics fed
     // forward.
-    let Ok(back) = PathMotion::line([255.0, 68.0], [170.0, -65.0], &limits) else { board::exit(false) };
+    let Ok(back) = PathMotion::line([255.0, 68.0], [170.0, -65.0], &limits) else {
+        board::exit(false)
+    };
     let move_samples = libm::ceilf(line.duration_s() / 5.0e-4) as usize;
     let sample = |k: usize| {
         let n = k % (2 * move_samples);
@@ -386,14 +479,20 @@ fn main() -> ! {
             back.at((n - move_samples) as f32 * 5.0e-4)
         }
     };
-    for (name, cal) in
-        [("servo_step_motion", &cal), ("servo_step_motion_uncorrected", &uncorrected), ("servo_step_motion_backlash", &with_backlash)]
-    {
-        let Ok(mut servo) = Servo::new(ServoConfig::default()) else { board::exit(false) };
+    for (name, cal) in [
+        ("servo_step_motion", &cal),
+        ("servo_step_motion_uncorrected", &uncorrected),
+        ("servo_step_motion_backlash", &with_backlash),
+    ] {
+        let Ok(mut servo) = Servo::new(ServoConfig::default()) else {
+            board::exit(false)
+        };
         if servo.set_dynamics(Some(dynamics)).is_err() {
             board::exit(false);
         }
-        let Ok(mut encoder) = cal.command_rad(sample(0).position_mm, IkMargin::new(0.05)) else { board::exit(false) };
+        let Ok(mut encoder) = cal.command_rad(sample(0).position_mm, IkMargin::new(0.05)) else {
+            board::exit(false)
+        };
         if servo.engage(&cal.calibration(), encoder).is_err() {
             board::console("FAIL servo did not engage");
             board::exit(false);
@@ -419,14 +518,20 @@ fn main() -> ! {
     // plant benchmark does), warm-started from the previous sample like the plant.
     let mut links = [[0.0f32; 2]; N];
     for (k, l) in links.iter_mut().enumerate() {
-        let Ok(t) = model.inverse(setpoints[k], 0.0) else { board::exit(false) };
+        let Ok(t) = model.inverse(setpoints[k], 0.0) else {
+            board::exit(false)
+        };
         *l = t;
     }
     let mut plant = sixbar::SixBar::new(&sixbar::SixBarParams::paper());
     for (name, scattered) in [("sixbar_solve", false), ("sixbar_solve_scattered", true)] {
         let (mut iterations, mut failed) = (0u32, None);
         let solve = measure(&counter, |i| {
-            let link = if scattered { thetas[(i * 7) % POINTS] } else { links[i] };
+            let link = if scattered {
+                thetas[(i * 7) % POINTS]
+            } else {
+                links[i]
+            };
             match plant.solve(black_box(link)) {
                 Ok(sol) => {
                     iterations += sol.iterations;
@@ -441,9 +546,19 @@ fn main() -> ! {
             board::console(&line);
             board::exit(false);
         }
-        let what = if scattered { "from one lattice point to another" } else { "warm start along the 2 kHz path" };
+        let what = if scattered {
+            "from one lattice point to another"
+        } else {
+            "warm start along the 2 kHz path"
+        };
         let mut line: heapless::String<128> = heapless::String::new();
-        let _ = write!(line, "# {}: {:.2} LM iterations per solve ({})", name, iterations as f32 / N as f32, what);
+        let _ = write!(
+            line,
+            "# {}: {:.2} LM iterations per solve ({})",
+            name,
+            iterations as f32 / N as f32,
+            what
+        );
         board::console(&line);
         report(name, solve as f32 * per_count / N as f32);
     }

@@ -177,7 +177,14 @@ impl SetDutyCycle for Tim1Pwm {
     /// loop latches it as `Fault::Drive` while running).
     fn set_duty_cycle(&mut self, duty: u16) -> Result<(), OutputsOff> {
         let duty = duty.min(PWM_MAX_DUTY) as u32;
-        write(if self.channel == 1 { tim1::CCR1 } else { tim1::CCR2 }, duty);
+        write(
+            if self.channel == 1 {
+                tim1::CCR1
+            } else {
+                tim1::CCR2
+            },
+            duty,
+        );
         if read(tim1::BDTR) & tim1::BDTR_MOE == 0 {
             return Err(OutputsOff);
         }
@@ -295,17 +302,30 @@ impl Board for G474Board {
     /// without a link (and its pins untouched); the machine itself is not affected.
     fn link(&mut self) -> Lpuart1Link {
         match apply(&plan::HOST_LINK) {
-            Ok(()) => defmt::info!("host link: LPUART1 (PA2 TX, PA3 RX, ST-LINK VCP), {=u32} Bd 8N1", plan::LINK_BAUD),
-            Err(step) => defmt::error!("host link: LPUART1 {=str} not ready ({=str}): no link", step.register.name, step.why),
+            Ok(()) => defmt::info!(
+                "host link: LPUART1 (PA2 TX, PA3 RX, ST-LINK VCP), {=u32} Bd 8N1",
+                plan::LINK_BAUD
+            ),
+            Err(step) => defmt::error!(
+                "host link: LPUART1 {=str} not ready ({=str}): no link",
+                step.register.name,
+                step.why
+            ),
         }
         let uart = g474_plan::link_uart::LinkUart::new();
-        Lpuart1Link { logged: uart.counts(), uart }
+        Lpuart1Link {
+            logged: uart.counts(),
+            uart,
+        }
     }
 
     /// The production settings, the motion from the host link (`link_motion`): the board
     /// holds still until the host commands a move or a stream.
     fn settings() -> Settings {
-        Settings { link_motion: true, ..Settings::default() }
+        Settings {
+            link_motion: true,
+            ..Settings::default()
+        }
     }
 
     /// The boot plans (`g474_plan::plan::BOOT`): enable line low, 170 MHz, debug freeze and
@@ -332,8 +352,14 @@ impl Board for G474Board {
             encoders: [encoder("TIM3", base::TIM3), encoder("TIM4", base::TIM4)],
             encoder_scales,
             drives: [
-                TorqueDrive { pwm: Tim1Pwm { channel: 1 }, full_scale_nm },
-                TorqueDrive { pwm: Tim1Pwm { channel: 2 }, full_scale_nm },
+                TorqueDrive {
+                    pwm: Tim1Pwm { channel: 1 },
+                    full_scale_nm,
+                },
+                TorqueDrive {
+                    pwm: Tim1Pwm { channel: 2 },
+                    full_scale_nm,
+                },
             ],
         };
         board.disable_drives();
@@ -357,7 +383,9 @@ impl Board for G474Board {
         [0, 1].map(|k| {
             let e = &mut self.encoders[k];
             let new = core::mem::take(&mut e.index_new);
-            e.index.filter(|_| new).map(|c| self.encoder_scales[k].joint_rad(c))
+            e.index
+                .filter(|_| new)
+                .map(|c| self.encoder_scales[k].joint_rad(c))
         })
     }
 
@@ -390,7 +418,9 @@ impl Board for G474Board {
 
     /// `plan::START_WATCHDOG`: IWDG at 3 ms (2.82 to 3.25 ms over the LSI's range).
     fn start_watchdog(&mut self) -> Result<(), WatchdogFault> {
-        apply(&plan::START_WATCHDOG).map(|_| ()).map_err(|_| WatchdogFault::NotStarted)
+        apply(&plan::START_WATCHDOG)
+            .map(|_| ())
+            .map_err(|_| WatchdogFault::NotStarted)
     }
 
     #[inline]
@@ -421,7 +451,12 @@ pub fn console(line: &str) {
 pub fn bench_init() {
     for p in [&plan::SAFE_OUTPUTS[..], &plan::CLOCK[..]] {
         if let Err(step) = apply(p) {
-            defmt::println!("FAIL clock: {=str} {=str} not ready ({=str})", step.register.peripheral, step.register.name, step.why);
+            defmt::println!(
+                "FAIL clock: {=str} {=str} not ready ({=str})",
+                step.register.peripheral,
+                step.register.name,
+                step.why
+            );
             exit(false);
         }
     }
@@ -434,7 +469,11 @@ pub fn exit(pass: bool) -> ! {
     safe_state();
     defmt::println!("exit: {}", if pass { "pass" } else { "fail" });
     if cortex_m::peripheral::DCB::is_debugger_attached() {
-        let status = if pass { cortex_m_semihosting::debug::EXIT_SUCCESS } else { cortex_m_semihosting::debug::EXIT_FAILURE };
+        let status = if pass {
+            cortex_m_semihosting::debug::EXIT_SUCCESS
+        } else {
+            cortex_m_semihosting::debug::EXIT_FAILURE
+        };
         cortex_m_semihosting::debug::exit(status);
     }
     loop {
@@ -466,7 +505,10 @@ unsafe extern "C" fn hard_fault(faulting_sp: u32) -> ! {
         let pc = unsafe { core::ptr::read_volatile((faulting_sp as *const u32).add(6)) };
         defmt::error!("HardFault at pc {=u32:#x}: drives disabled", pc);
     } else {
-        defmt::error!("HardFault: stack overflow (sp {=u32:#x}): drives disabled", faulting_sp);
+        defmt::error!(
+            "HardFault: stack overflow (sp {=u32:#x}): drives disabled",
+            faulting_sp
+        );
     }
     loop {
         cortex_m::asm::wfi();

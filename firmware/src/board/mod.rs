@@ -19,8 +19,8 @@
 use controller::deadline::step_time_us;
 use controller::drive::DriveError;
 use controller::encoder::EncoderScale;
-use controller::settings::Settings;
 use controller::setpoints::SetpointSource;
+use controller::settings::Settings;
 use controller::status::Status;
 use controller::trajectory::Trajectory;
 use controller::watchdog::{ResetCause, WatchdogFault};
@@ -36,7 +36,9 @@ mod hard_fault_macro;
 #[cfg(feature = "board-g474")]
 pub mod g474;
 #[cfg(feature = "board-g474")]
-pub use g474::{bench_init, console, device, exit, CycleCounter, G474Board as Selected, COUNT_UNIT};
+pub use g474::{
+    bench_init, console, device, exit, CycleCounter, G474Board as Selected, COUNT_UNIT,
+};
 /// What the host link's `Identify` reports as the board.
 #[cfg(feature = "board-g474")]
 pub const BOARD_ID: link_protocol::Board = link_protocol::Board::Stm32G474;
@@ -44,17 +46,26 @@ pub const BOARD_ID: link_protocol::Board = link_protocol::Board::Stm32G474;
 #[cfg(feature = "board-qemu")]
 pub mod qemu;
 #[cfg(feature = "board-qemu")]
-pub use qemu::{bench_init, console, device, exit, CycleCounter, QemuBoard as Selected, COUNT_UNIT};
+pub use qemu::{
+    bench_init, console, device, exit, CycleCounter, QemuBoard as Selected, COUNT_UNIT,
+};
 /// What the host link's `Identify` reports as the board.
 #[cfg(feature = "board-qemu")]
 pub const BOARD_ID: link_protocol::Board = link_protocol::Board::Qemu;
 
 /// Sets both scales' zero at the captured index counts `counts` (rad `index_rad`), both or
 /// neither. For the boards' `reference_at_index`.
-fn reference_scales(scales: &mut [EncoderScale; 2], counts: [Option<i32>; 2], index_rad: [f32; 2]) -> bool {
-    let [Some(c0), Some(c1)] = counts else { return false };
+fn reference_scales(
+    scales: &mut [EncoderScale; 2],
+    counts: [Option<i32>; 2],
+    index_rad: [f32; 2],
+) -> bool {
+    let [Some(c0), Some(c1)] = counts else {
+        return false;
+    };
     let mut next = *scales;
-    let ok = next[0].set_reference(c0, index_rad[0]).is_ok() && next[1].set_reference(c1, index_rad[1]).is_ok();
+    let ok = next[0].set_reference(c0, index_rad[0]).is_ok()
+        && next[1].set_reference(c1, index_rad[1]).is_ok();
     if ok {
         *scales = next;
     }

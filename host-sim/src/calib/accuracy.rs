@@ -109,7 +109,9 @@ fn mean_sd(v: &[f64]) -> (f64, f64) {
 }
 
 /// The figures of one line from per-target deviations `(position, up devs, down devs)` (µm).
-pub fn line_figures(targets: &[TargetDevs]) -> Result<(Iso230, Vdi3441, Vec<TargetStats>), CalibError> {
+pub fn line_figures(
+    targets: &[TargetDevs],
+) -> Result<(Iso230, Vdi3441, Vec<TargetStats>), CalibError> {
     let mut stats = Vec::new();
     for (p, up, down) in targets {
         if up.len() < 2 || down.len() < 2 {
@@ -121,25 +123,39 @@ pub fn line_figures(targets: &[TargetDevs]) -> Result<(Iso230, Vdi3441, Vec<Targ
         }
         let (mu, su) = mean_sd(up);
         let (md, sd) = mean_sd(down);
-        stats.push(TargetStats { position_mm: *p, n_up: up.len(), n_down: down.len(), mean_up_um: mu, mean_down_um: md, s_up_um: su, s_down_um: sd });
+        stats.push(TargetStats {
+            position_mm: *p,
+            n_up: up.len(),
+            n_down: down.len(),
+            mean_up_um: mu,
+            mean_down_um: md,
+            s_up_um: su,
+            s_down_um: sd,
+        });
     }
     if stats.len() < 2 {
         return Err(invalid!("a line needs at least 2 targets"));
     }
-    let max = |f: &dyn Fn(&TargetStats) -> f64| stats.iter().map(f).fold(f64::NEG_INFINITY, f64::max);
+    let max =
+        |f: &dyn Fn(&TargetStats) -> f64| stats.iter().map(f).fold(f64::NEG_INFINITY, f64::max);
     let min = |f: &dyn Fn(&TargetStats) -> f64| stats.iter().map(f).fold(f64::INFINITY, f64::min);
     let b = |t: &TargetStats| t.mean_up_um - t.mean_down_um;
     let mid = |t: &TargetStats| 0.5 * (t.mean_up_um + t.mean_down_um);
     let iso = Iso230 {
         a_um: max(&|t| (t.mean_up_um + 2.0 * t.s_up_um).max(t.mean_down_um + 2.0 * t.s_down_um))
             - min(&|t| (t.mean_up_um - 2.0 * t.s_up_um).min(t.mean_down_um - 2.0 * t.s_down_um)),
-        r_um: max(&|t| (2.0 * t.s_up_um + 2.0 * t.s_down_um + b(t).abs()).max(4.0 * t.s_up_um).max(4.0 * t.s_down_um)),
+        r_um: max(&|t| {
+            (2.0 * t.s_up_um + 2.0 * t.s_down_um + b(t).abs())
+                .max(4.0 * t.s_up_um)
+                .max(4.0 * t.s_down_um)
+        }),
         r_up_um: max(&|t| 4.0 * t.s_up_um),
         r_down_um: max(&|t| 4.0 * t.s_down_um),
         b_um: max(&|t| b(t).abs()),
         b_mean_um: stats.iter().map(b).sum::<f64>() / stats.len() as f64,
         m_um: max(&mid) - min(&mid),
-        e_um: max(&|t| t.mean_up_um.max(t.mean_down_um)) - min(&|t| t.mean_up_um.min(t.mean_down_um)),
+        e_um: max(&|t| t.mean_up_um.max(t.mean_down_um))
+            - min(&|t| t.mean_up_um.min(t.mean_down_um)),
     };
     let ps = |t: &TargetStats| 6.0 * 0.5 * (t.s_up_um + t.s_down_um);
     let half = |t: &TargetStats| 0.5 * (b(t).abs() + ps(t));
@@ -161,17 +177,31 @@ pub fn directions(data: &[Measurement], a: usize) -> Vec<i8> {
     }
     // Rows without a target (refused by `analyse`) count as at the origin.
     let t = |r: usize| data[r].target_mm.unwrap_or_default();
-    let sign = |d: f64| if d > 0.0 { 1 } else if d < 0.0 { -1 } else { 0 };
+    let sign = |d: f64| {
+        if d > 0.0 {
+            1
+        } else if d < 0.0 {
+            -1
+        } else {
+            0
+        }
+    };
     for rows in by_run.values() {
         for (k, &r) in rows.iter().enumerate() {
             dir[r] = if k == 0 {
-                rows.windows(2).map(|w| sign(t(w[1])[a] - t(w[0])[a])).find(|&s| s != 0).unwrap_or(0)
+                rows.windows(2)
+                    .map(|w| sign(t(w[1])[a] - t(w[0])[a]))
+                    .find(|&s| s != 0)
+                    .unwrap_or(0)
             } else {
                 let p = rows[k - 1];
                 if t(p) == t(r) {
                     -dir[p]
                 } else if t(p)[a] != t(r)[a] && t(p)[1 - a] != t(r)[1 - a] {
-                    let next = rows[k..].windows(2).map(|w| sign(t(w[1])[a] - t(w[0])[a])).find(|&s| s != 0);
+                    let next = rows[k..]
+                        .windows(2)
+                        .map(|w| sign(t(w[1])[a] - t(w[0])[a]))
+                        .find(|&s| s != 0);
                     next.unwrap_or_else(|| sign(t(r)[a] - t(p)[a]))
                 } else if t(p)[a] != t(r)[a] {
                     sign(t(r)[a] - t(p)[a])
@@ -216,7 +246,10 @@ type TargetSums = BTreeMap<(i64, i64), ([f64; 2], [f64; 2], usize)>;
 pub fn analyse(data: &[Measurement]) -> Result<(Vec<LineStats>, Vec<String>), CalibError> {
     for m in data {
         if m.target_mm.is_none() || m.run.is_none() {
-            return Err(invalid!("line {}: accuracy needs x_target_mm,y_target_mm and run on every row", m.line));
+            return Err(invalid!(
+                "line {}: accuracy needs x_target_mm,y_target_mm and run on every row",
+                m.line
+            ));
         }
     }
     let key = |v: f64| (v * 1e6).round() as i64;
@@ -230,8 +263,12 @@ pub fn analyse(data: &[Measurement]) -> Result<(Vec<LineStats>, Vec<String>), Ca
         let mut groups: AxisGroups = BTreeMap::new();
         for (r, m) in data.iter().enumerate().filter(|(r, _)| on[*r]) {
             let t = m.target_mm.unwrap_or_default();
-            let g = groups.entry(key(t[other])).or_insert((t[other], BTreeMap::new()));
-            let e = g.1.entry(key(t[a])).or_insert((t[a], Vec::new(), Vec::new()));
+            let g = groups
+                .entry(key(t[other]))
+                .or_insert((t[other], BTreeMap::new()));
+            let e =
+                g.1.entry(key(t[a]))
+                    .or_insert((t[a], Vec::new(), Vec::new()));
             let dev_um = (m.measured_mm[a] - t[a]) * 1e3;
             match dir[r] {
                 1 => e.1.push(dev_um),
@@ -245,7 +282,10 @@ pub fn analyse(data: &[Measurement]) -> Result<(Vec<LineStats>, Vec<String>), Ca
             }
             let t: Vec<TargetDevs> = targets.into_values().collect();
             match line_figures(&t) {
-                Err(e) => skipped.push(format!("{axis} line at {} = {at} mm: {e}", ["x", "y"][other])),
+                Err(e) => skipped.push(format!(
+                    "{axis} line at {} = {at} mm: {e}",
+                    ["x", "y"][other]
+                )),
                 Ok((iso, vdi, stats)) => {
                     let length_mm = t.last().expect("≥2").0 - t[0].0;
                     let per = |v: f64| v / (length_mm / 1000.0);
@@ -261,7 +301,15 @@ pub fn analyse(data: &[Measurement]) -> Result<(Vec<LineStats>, Vec<String>), Ca
                         ("p_pm", per(vdi.p_um) / 2.0),
                         ("ps_pm", per(vdi.ps_um) / 2.0),
                     ]);
-                    lines.push(LineStats { axis, at_mm: at, length_mm, iso_230_2: iso, vdi_3441: vdi, per_m, targets: stats });
+                    lines.push(LineStats {
+                        axis,
+                        at_mm: at,
+                        length_mm,
+                        iso_230_2: iso,
+                        vdi_3441: vdi,
+                        per_m,
+                        targets: stats,
+                    });
                 }
             }
         }
@@ -269,7 +317,9 @@ pub fn analyse(data: &[Measurement]) -> Result<(Vec<LineStats>, Vec<String>), Ca
     if lines.is_empty() {
         return Err(invalid!(
             "no axis line has at least 2 targets with 2 approaches from each direction{}",
-            skipped.first().map_or(String::new(), |s| format!(" (e.g. {s})"))
+            skipped
+                .first()
+                .map_or(String::new(), |s| format!(" (e.g. {s})"))
         ));
     }
     Ok((lines, skipped))
@@ -320,7 +370,9 @@ pub fn report(data: &[Measurement]) -> Result<AccuracyReport, CalibError> {
         if l.is_empty() {
             return None;
         }
-        let m = |f: &dyn Fn(&LineStats) -> f64| l.iter().map(|x| f(x)).fold(f64::NEG_INFINITY, f64::max);
+        let m = |f: &dyn Fn(&LineStats) -> f64| {
+            l.iter().map(|x| f(x)).fold(f64::NEG_INFINITY, f64::max)
+        };
         Some(AxisWorst {
             lines: l.len(),
             worst_p_um: m(&|x| x.vdi_3441.p_um),
@@ -349,12 +401,17 @@ pub fn mean_error_per_target(data: &[Measurement]) -> Vec<([f64; 2], [f64; 2])> 
     let mut by_target: TargetSums = BTreeMap::new();
     for m in data {
         let Some(t) = m.target_mm else { continue };
-        let e = by_target.entry(((t[0] * 1e6).round() as i64, (t[1] * 1e6).round() as i64)).or_insert((t, [0.0; 2], 0));
+        let e = by_target
+            .entry(((t[0] * 1e6).round() as i64, (t[1] * 1e6).round() as i64))
+            .or_insert((t, [0.0; 2], 0));
         e.1[0] += (m.measured_mm[0] - t[0]) * 1e3;
         e.1[1] += (m.measured_mm[1] - t[1]) * 1e3;
         e.2 += 1;
     }
-    by_target.values().map(|v| (v.0, [v.1[0] / v.2 as f64, v.1[1] / v.2 as f64])).collect()
+    by_target
+        .values()
+        .map(|v| (v.0, [v.1[0] / v.2 as f64, v.1[1] / v.2 as f64]))
+        .collect()
 }
 
 #[cfg(test)]
@@ -376,7 +433,10 @@ mod tests {
     /// A hand-computed x line: targets 0, 10, 20 mm; two runs of up 0→20 then down 20→0.
     fn known() -> Vec<Measurement> {
         // deviations (µm): up [t0, t10, t20], down [t20, t10, t0]
-        let runs = [([1.0, 2.0, 0.0], [1.0, 0.0, -1.0]), ([3.0, 2.0, 4.0], [1.0, 2.0, -1.0])];
+        let runs = [
+            ([1.0, 2.0, 0.0], [1.0, 0.0, -1.0]),
+            ([3.0, 2.0, 4.0], [1.0, 2.0, -1.0]),
+        ];
         let mut v = Vec::new();
         for (k, (up, down)) in runs.iter().enumerate() {
             for (i, d) in up.iter().enumerate() {
@@ -392,9 +452,17 @@ mod tests {
     #[test]
     fn directions_follow_the_documented_rule() {
         let d = known();
-        assert_eq!(directions(&d, 0), vec![1, 1, 1, -1, -1, -1, 1, 1, 1, -1, -1, -1]);
+        assert_eq!(
+            directions(&d, 0),
+            vec![1, 1, 1, -1, -1, -1, 1, 1, 1, -1, -1, -1]
+        );
         // A raster: x moves, then a y step (x direction kept), then x back.
-        let r = vec![row(0, 0.0, 0.0, 0.0), row(0, 5.0, 0.0, 0.0), row(0, 5.0, 5.0, 0.0), row(0, 0.0, 5.0, 0.0)];
+        let r = vec![
+            row(0, 0.0, 0.0, 0.0),
+            row(0, 5.0, 0.0, 0.0),
+            row(0, 5.0, 5.0, 0.0),
+            row(0, 0.0, 5.0, 0.0),
+        ];
         assert_eq!(directions(&r, 0), vec![1, 1, 1, -1]);
         assert_eq!(directions(&r, 1), vec![1, 1, 1, 1]);
     }
@@ -424,22 +492,48 @@ mod tests {
     fn crossing_lines_keep_their_own_approaches() {
         let mut d = Vec::new();
         for run in 0..2 {
-            for (x, y) in [(0.0, 0.0), (10.0, 0.0), (20.0, 0.0), (20.0, 0.0), (10.0, 0.0), (0.0, 0.0)] {
+            for (x, y) in [
+                (0.0, 0.0),
+                (10.0, 0.0),
+                (20.0, 0.0),
+                (20.0, 0.0),
+                (10.0, 0.0),
+                (0.0, 0.0),
+            ] {
                 d.push(row(run, x, y, 1.0));
             }
-            for (x, y) in [(10.0, -10.0), (10.0, 0.0), (10.0, 10.0), (10.0, 10.0), (10.0, 0.0), (10.0, -10.0)] {
+            for (x, y) in [
+                (10.0, -10.0),
+                (10.0, 0.0),
+                (10.0, 10.0),
+                (10.0, 10.0),
+                (10.0, 0.0),
+                (10.0, -10.0),
+            ] {
                 d.push(row(run, x, y, 5.0));
             }
         }
-        assert_eq!(on_pass(&d, 0)[..12], [true, true, true, true, true, true, false, false, false, false, false, false]);
-        assert_eq!(on_pass(&d, 1)[..12], [false, false, false, false, false, false, true, true, true, true, true, true]);
+        assert_eq!(
+            on_pass(&d, 0)[..12],
+            [true, true, true, true, true, true, false, false, false, false, false, false]
+        );
+        assert_eq!(
+            on_pass(&d, 1)[..12],
+            [false, false, false, false, false, false, true, true, true, true, true, true]
+        );
         let (lines, skipped) = analyse(&d).unwrap();
         assert!(skipped.is_empty(), "{skipped:?}");
         let x = lines.iter().find(|l| l.axis == "x").unwrap();
         let centre = &x.targets[1];
-        assert_eq!((centre.position_mm, centre.n_up, centre.n_down), (10.0, 2, 2));
+        assert_eq!(
+            (centre.position_mm, centre.n_up, centre.n_down),
+            (10.0, 2, 2)
+        );
         // Only the x passes' deviations (1 µm), not the y passes' x deviation (5 µm).
-        assert!((centre.mean_up_um - 1.0).abs() < 1e-9 && (centre.mean_down_um - 1.0).abs() < 1e-9, "{centre:?}");
+        assert!(
+            (centre.mean_up_um - 1.0).abs() < 1e-9 && (centre.mean_down_um - 1.0).abs() < 1e-9,
+            "{centre:?}"
+        );
     }
 
     #[test]
@@ -450,7 +544,8 @@ mod tests {
         let l = &lines[0];
         assert_eq!((l.axis, l.at_mm, l.length_mm), ("x", 0.0, 20.0));
         let r2 = 2f64.sqrt();
-        let close = |a: f64, b: f64, what: &str| assert!((a - b).abs() < 1e-9, "{what}: {a} vs {b}");
+        let close =
+            |a: f64, b: f64, what: &str| assert!((a - b).abs() < 1e-9, "{what}: {a} vs {b}");
         let iso = &l.iso_230_2;
         close(iso.b_um, 3.0, "B");
         close(iso.b_mean_um, 5.0 / 3.0, "B mean");
@@ -473,6 +568,9 @@ mod tests {
     fn too_few_repeats_is_reported() {
         let d: Vec<Measurement> = known().into_iter().filter(|m| m.run == Some(0)).collect();
         let e = analyse(&d).unwrap_err().to_string();
-        assert!(e.contains("target 0 mm has 1 approaches in + and 1 in − direction"), "{e}");
+        assert!(
+            e.contains("target 0 mm has 1 approaches in + and 1 in − direction"),
+            "{e}"
+        );
     }
 }

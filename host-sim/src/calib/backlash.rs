@@ -60,7 +60,12 @@ impl Backlash {
     pub fn link_angles(&self, rows: &[Measurement]) -> Result<Vec<Measurement>, CalibError> {
         rows.iter()
             .map(|m| {
-                let dir = m.dir.ok_or_else(|| invalid!("line {}: a backlash correction needs the dir1,dir2 columns", m.line))?;
+                let dir = m.dir.ok_or_else(|| {
+                    invalid!(
+                        "line {}: a backlash correction needs the dir1,dir2 columns",
+                        m.line
+                    )
+                })?;
                 let mut out = m.clone();
                 for ((t, d), b) in out.theta_deg.iter_mut().zip(dir).zip(self.lost_motion_urad) {
                     *t -= (f64::from(d) * b * 0.5e-6).to_degrees();
@@ -74,25 +79,48 @@ impl Backlash {
 /// The approach direction of each motor for a move from `from_rad` to `to_rad` (+1 when the
 /// change, wrapped, is ≥ 0): the rule of the measurement path.
 pub fn approach_dir(from_rad: [f64; 2], to_rad: [f64; 2]) -> [i8; 2] {
-    [0, 1].map(|j| if kinematics_core::wrap_angle_rad(to_rad[j] - from_rad[j]) >= 0.0 { 1 } else { -1 })
+    [0, 1].map(|j| {
+        if kinematics_core::wrap_angle_rad(to_rad[j] - from_rad[j]) >= 0.0 {
+            1
+        } else {
+            -1
+        }
+    })
 }
 
 /// β (µrad) and its standard deviation from measurements with approach directions, against
 /// `base` (the fitted model they were commanded with): one LM fit of link lengths, encoder
 /// offsets, base offset, the six-bar's link stretch and parallelogram mismatch and backlash
 /// together (module doc). A negative fitted β (within the noise of zero) is returned as 0.
-pub fn estimate(data: &[Measurement], base: &FiveBar<f64>, design: &SixBarDesign) -> Result<(Backlash, [f64; 2]), CalibError> {
+pub fn estimate(
+    data: &[Measurement],
+    base: &FiveBar<f64>,
+    design: &SixBarDesign,
+) -> Result<(Backlash, [f64; 2]), CalibError> {
     let problem = Problem::new(*base, design, data);
     if !problem.has_dir {
-        return Err(invalid!("estimating backlash needs the dir1,dir2 columns on every row"));
+        return Err(invalid!(
+            "estimating backlash needs the dir1,dir2 columns on every row"
+        ));
     }
     for d in 0..2 {
-        let both = problem.points.iter().any(|p| p.dir[d] > 0.0) && problem.points.iter().any(|p| p.dir[d] < 0.0);
+        let both = problem.points.iter().any(|p| p.dir[d] > 0.0)
+            && problem.points.iter().any(|p| p.dir[d] < 0.0);
         if !both {
-            return Err(invalid!("motor {} approaches from one side only: its backlash cannot be measured", d + 1));
+            return Err(invalid!(
+                "motor {} approaches from one side only: its backlash cannot be measured",
+                d + 1
+            ));
         }
     }
-    let names = ["link_lengths", "encoder_offset", "base_offset", "backlash", "link_stretch", "parallelogram_mismatch"];
+    let names = [
+        "link_lengths",
+        "encoder_offset",
+        "base_offset",
+        "backlash",
+        "link_stretch",
+        "parallelogram_mismatch",
+    ];
     let mut free = Vec::new();
     for name in names {
         let e = effect(name).ok_or_else(|| invalid!("internal: no effect {name}"))?;
@@ -100,12 +128,16 @@ pub fn estimate(data: &[Measurement], base: &FiveBar<f64>, design: &SixBarDesign
             free.extend_from_slice(e.params);
         }
     }
-    let f = fit(&problem, &[0.0; N_PARAMS], &free).ok_or_else(|| invalid!("the backlash fit failed (a point left the workspace)"))?;
+    let f = fit(&problem, &[0.0; N_PARAMS], &free)
+        .ok_or_else(|| invalid!("the backlash fit failed (a point left the workspace)"))?;
     let n = f.residuals.len() as f64;
     let s2 = f.cost / (n - f.free.len() as f64).max(1.0);
     let sd = [0, 1].map(|j| {
         let k = idx::BACKLASH + j;
-        f.free.iter().position(|&c| c == k).map_or(f64::NAN, |c| (f.normal_pinv[(c, c)] * s2).max(0.0).sqrt())
+        f.free
+            .iter()
+            .position(|&c| c == k)
+            .map_or(f64::NAN, |c| (f.normal_pinv[(c, c)] * s2).max(0.0).sqrt())
     });
     let beta = [0, 1].map(|j| f.p[idx::BACKLASH + j].max(0.0));
     Ok((Backlash::new(beta)?, sd))
@@ -134,12 +166,21 @@ mod tests {
         assert!((back[0].theta_deg[1].to_radians() + 0.3).abs() < 1e-12);
         let mut no_dir = row;
         no_dir.dir = None;
-        assert!(b.link_angles(&[no_dir]).unwrap_err().to_string().contains("line 2"));
+        assert!(b
+            .link_angles(&[no_dir])
+            .unwrap_err()
+            .to_string()
+            .contains("line 2"));
     }
 
     #[test]
     fn refuses_what_is_not_a_backlash() {
-        for bad in [[-1.0, 0.0], [f64::NAN, 0.0], [0.0, 2e4], [0.0, f64::INFINITY]] {
+        for bad in [
+            [-1.0, 0.0],
+            [f64::NAN, 0.0],
+            [0.0, 2e4],
+            [0.0, f64::INFINITY],
+        ] {
             assert!(Backlash::new(bad).is_err(), "{bad:?}");
         }
     }

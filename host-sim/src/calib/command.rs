@@ -29,7 +29,12 @@ pub const WORKSPACE_TOLERANCE_MM: f64 = 1e-3;
 
 /// Refuses the first target outside `region` (the machine `machine`'s workspace, as its file
 /// or, `from_image`, its grid image's workspace block states it), naming its line.
-pub fn check_in_workspace(targets: &[Target], region: &ConvexWorkspace<f64>, machine: &str, from_image: bool) -> Result<(), CalibError> {
+pub fn check_in_workspace(
+    targets: &[Target],
+    region: &ConvexWorkspace<f64>,
+    machine: &str,
+    from_image: bool,
+) -> Result<(), CalibError> {
     for &Target { line, target_mm: t } in targets {
         if !region.contains(t, -WORKSPACE_TOLERANCE_MM) {
             return Err(invalid!(
@@ -58,8 +63,16 @@ pub fn check_grid_model(grid: &CorrectionGrid<'_>, model: &FiveBar<f64>) -> Resu
         ("base_a0_y_mm", got.base_a0_mm[1], want.base_a0_mm[1]),
         ("base_b0_x_mm", got.base_b0_mm[0], want.base_b0_mm[0]),
         ("base_b0_y_mm", got.base_b0_mm[1], want.base_b0_mm[1]),
-        ("encoder_offset_1_rad", got.encoder_offset_rad[0], want.encoder_offset_rad[0]),
-        ("encoder_offset_2_rad", got.encoder_offset_rad[1], want.encoder_offset_rad[1]),
+        (
+            "encoder_offset_1_rad",
+            got.encoder_offset_rad[0],
+            want.encoder_offset_rad[0],
+        ),
+        (
+            "encoder_offset_2_rad",
+            got.encoder_offset_rad[1],
+            want.encoder_offset_rad[1],
+        ),
     ];
     for (name, g, w) in pairs {
         if g != w {
@@ -67,13 +80,21 @@ pub fn check_grid_model(grid: &CorrectionGrid<'_>, model: &FiveBar<f64>) -> Resu
         }
     }
     if got.mode != want.mode {
-        return Err(invalid!("the grid was built for another working mode: {:?} vs {:?}", got.mode, want.mode));
+        return Err(invalid!(
+            "the grid was built for another working mode: {:?} vs {:?}",
+            got.mode,
+            want.mode
+        ));
     }
     Ok(())
 }
 
 /// Commands every target; the first failure names its line.
-pub fn command_all(cal: &Calibration<'_>, targets: &[Target], min_transmission: f32) -> Result<Vec<[f32; 2]>, CalibError> {
+pub fn command_all(
+    cal: &Calibration<'_>,
+    targets: &[Target],
+    min_transmission: f32,
+) -> Result<Vec<[f32; 2]>, CalibError> {
     targets
         .iter()
         .map(|&Target { line, target_mm: t }| {
@@ -87,7 +108,13 @@ pub fn command_all(cal: &Calibration<'_>, targets: &[Target], min_transmission: 
 pub fn format_commands(targets: &[Target], angles: &[[f32; 2]]) -> String {
     let mut s = String::from("x_mm,y_mm,theta1_deg,theta2_deg\n");
     for (Target { target_mm: t, .. }, a) in targets.iter().zip(angles) {
-        s.push_str(&format!("{},{},{:.9},{:.9}\n", t[0], t[1], (a[0] as f64).to_degrees(), (a[1] as f64).to_degrees()));
+        s.push_str(&format!(
+            "{},{},{:.9},{:.9}\n",
+            t[0],
+            t[1],
+            (a[0] as f64).to_degrees(),
+            (a[1] as f64).to_degrees()
+        ));
     }
     s
 }
@@ -125,10 +152,22 @@ pub fn command_all_compensated(
 }
 
 /// The output file with directions: `x_mm,y_mm,theta1_deg,theta2_deg,dir1,dir2` per target.
-pub fn format_commands_with_dirs(targets: &[Target], angles_rad: &[[f64; 2]], dirs: &[[i8; 2]]) -> String {
+pub fn format_commands_with_dirs(
+    targets: &[Target],
+    angles_rad: &[[f64; 2]],
+    dirs: &[[i8; 2]],
+) -> String {
     let mut s = String::from("x_mm,y_mm,theta1_deg,theta2_deg,dir1,dir2\n");
     for ((Target { target_mm: t, .. }, a), d) in targets.iter().zip(angles_rad).zip(dirs) {
-        s.push_str(&format!("{},{},{:.9},{:.9},{},{}\n", t[0], t[1], a[0].to_degrees(), a[1].to_degrees(), d[0], d[1]));
+        s.push_str(&format!(
+            "{},{},{:.9},{:.9},{},{}\n",
+            t[0],
+            t[1],
+            a[0].to_degrees(),
+            a[1].to_degrees(),
+            d[0],
+            d[1]
+        ));
     }
     s
 }

@@ -90,33 +90,81 @@ pub fn excitation(spec: &MachineSpec) -> Result<Trajectory, CalibError> {
     let (x, y) = (spec.workspace.x_mm, spec.workspace.y_mm);
     let (lo, hi) = ([x[0] + 10.0, y[0] + 10.0], [x[1] - 10.0, y[1] - 10.0]);
     let fast = rated_limits(spec);
-    let slow = TaskLimits { speed_mm_s: 300.0, accel_mm_s2: STANDARD_GRAVITY_MM_S2, jerk_mm_s3: 1e6 };
-    let contour = TaskLimits { jerk_mm_s3: 2e7, ..fast };
-    let line = |a: [f64; 2], b: [f64; 2], l: &TaskLimits<f64>| {
-        PathMotion::line(a, b, l).map(Piece::Line).map_err(|e| invalid!("excitation move: {e}"))
+    let slow = TaskLimits {
+        speed_mm_s: 300.0,
+        accel_mm_s2: STANDARD_GRAVITY_MM_S2,
+        jerk_mm_s3: 1e6,
     };
-    let corners = [c, lo, hi, [lo[0], hi[1]], [hi[0], lo[1]], [lo[0], c[1]], [hi[0], c[1]], [c[0], lo[1]], [c[0], hi[1]], c];
+    let contour = TaskLimits {
+        jerk_mm_s3: 2e7,
+        ..fast
+    };
+    let line = |a: [f64; 2], b: [f64; 2], l: &TaskLimits<f64>| {
+        PathMotion::line(a, b, l)
+            .map(Piece::Line)
+            .map_err(|e| invalid!("excitation move: {e}"))
+    };
+    let corners = [
+        c,
+        lo,
+        hi,
+        [lo[0], hi[1]],
+        [hi[0], lo[1]],
+        [lo[0], c[1]],
+        [hi[0], c[1]],
+        [c[0], lo[1]],
+        [c[0], hi[1]],
+        c,
+    ];
     let mut pieces = Vec::new();
     for l in [&fast, &slow] {
         for w in corners.windows(2) {
             pieces.push(line(w[0], w[1], l)?);
         }
     }
-    let circle = Circle { centre_mm: [c[0] - 30.0, c[1]], radius_mm: 30.0, start_rad: 0.0, turns: 2.0 };
-    pieces.push(Piece::Circle(PathMotion::plan(circle, &contour, 4000).map_err(|e| invalid!("excitation circle: {e}"))?));
-    let f8 = Figure8 { centre_mm: c, half_x_mm: 40.0, half_y_mm: 60.0, loops: 1.0 };
-    pieces.push(Piece::Figure8(PathMotion::plan(f8, &contour, 4000).map_err(|e| invalid!("excitation figure-eight: {e}"))?));
+    let circle = Circle {
+        centre_mm: [c[0] - 30.0, c[1]],
+        radius_mm: 30.0,
+        start_rad: 0.0,
+        turns: 2.0,
+    };
+    pieces.push(Piece::Circle(
+        PathMotion::plan(circle, &contour, 4000).map_err(|e| invalid!("excitation circle: {e}"))?,
+    ));
+    let f8 = Figure8 {
+        centre_mm: c,
+        half_x_mm: 40.0,
+        half_y_mm: 60.0,
+        loops: 1.0,
+    };
+    pieces.push(Piece::Figure8(
+        PathMotion::plan(f8, &contour, 4000)
+            .map_err(|e| invalid!("excitation figure-eight: {e}"))?,
+    ));
     Ok(Trajectory::sequence("excitation", pieces, 0.05))
 }
 
 /// Runs [`excitation`] on a plant built from `plant` (servo commanding through `cal`, constant
 /// feed-forward) and fits the parameters to what it logged.
-pub fn identify(plant: &PlantConfig, cal: &Calibration<'_>, spec: &MachineSpec, seed: u64) -> Result<Identified, CalibError> {
+pub fn identify(
+    plant: &PlantConfig,
+    cal: &Calibration<'_>,
+    spec: &MachineSpec,
+    seed: u64,
+) -> Result<Identified, CalibError> {
     let trajectory = excitation(spec)?;
     let mut p = Plant::new(plant, seed);
     let mut log = Vec::new();
-    let run = run_loop_with(&mut p, cal, &trajectory, trajectory.natural_duration_s(), spec, &FeedForward::Constant, Some(&mut log))
-        .map_err(|e| invalid!("the excitation run failed: {e}"))?;
+    let run = run_loop_with(
+        &mut p,
+        cal,
+        &trajectory,
+        trajectory.natural_duration_s(),
+        spec,
+        &FeedForward::Constant,
+        Some(&mut log),
+    )
+    .map_err(|e| invalid!("the excitation run failed: {e}"))?;
     if let Some(f) = run.fault {
         return Err(invalid!("the excitation run faulted: {f}"));
     }
@@ -129,19 +177,36 @@ pub fn identify(plant: &PlantConfig, cal: &Calibration<'_>, spec: &MachineSpec, 
 /// derivative (per sample, per sample²).
 fn savitzky_golay() -> [Vec<f64>; 3] {
     let n = 2 * HALF_WINDOW;
-    let times: Vec<f64> = (0..n).map(|i| i as f64 - HALF_WINDOW as f64 + 0.5).collect();
+    let times: Vec<f64> = (0..n)
+        .map(|i| i as f64 - HALF_WINDOW as f64 + 0.5)
+        .collect();
     let a = DMatrix::from_fn(n, 4, |r, c| times[r].powi(c as i32));
     // (AᵀA)⁻¹Aᵀ: row c gives the coefficient of τ^c, so the value, slope and curvature at τ = 0
     // are rows 0, 1 and 2·row 2.
-    let pinv = (a.transpose() * &a).try_inverse().expect("a cubic on 20 distinct points") * a.transpose();
-    [pinv.row(0).iter().copied().collect(), pinv.row(1).iter().copied().collect(), pinv.row(2).iter().map(|v| 2.0 * v).collect()]
+    let pinv = (a.transpose() * &a)
+        .try_inverse()
+        .expect("a cubic on 20 distinct points")
+        * a.transpose();
+    [
+        pinv.row(0).iter().copied().collect(),
+        pinv.row(1).iter().copied().collect(),
+        pinv.row(2).iter().map(|v| 2.0 * v).collect(),
+    ]
 }
 
 /// Fits the parameters to a closed-loop log (see the module doc): `model` is the hidden robot
 /// the encoders are read with, `dt_s` the sample period, `torque_limit_nm` the amplifiers'.
-pub fn fit(model: &FiveBar<f64>, log: &[LogRow], dt_s: f64, torque_limit_nm: [f64; 2]) -> Result<Identified, CalibError> {
+pub fn fit(
+    model: &FiveBar<f64>,
+    log: &[LogRow],
+    dt_s: f64,
+    torque_limit_nm: [f64; 2],
+) -> Result<Identified, CalibError> {
     if log.len() < 2 * HALF_WINDOW + 2 {
-        return Err(invalid!("{} samples: too few to identify dynamics from", log.len()));
+        return Err(invalid!(
+            "{} samples: too few to identify dynamics from",
+            log.len()
+        ));
     }
     if !(dt_s > 0.0 && dt_s.is_finite()) {
         return Err(invalid!("sample period {dt_s} s"));
@@ -164,12 +229,20 @@ pub fn fit(model: &FiveBar<f64>, log: &[LogRow], dt_s: f64, torque_limit_nm: [f6
         }
         let saturated = (0..2).any(|k| tau[k].abs() >= 0.99 * torque_limit_nm[k]);
         let at_rest = w[0].abs() < REST_RAD_S && w[1].abs() < REST_RAD_S;
-        let finite = th.iter().chain(&w).chain(&al).chain(&tau).all(|v| v.is_finite());
+        let finite = th
+            .iter()
+            .chain(&w)
+            .chain(&al)
+            .chain(&tau)
+            .all(|v| v.is_finite());
         if saturated || at_rest || !finite {
             skipped += 1;
             continue;
         }
-        let Ok(y) = model.forward_motion(th, w, al, 0.0).and_then(|m| regressor(&m, COULOMB_SPEED_RAD_S)) else {
+        let Ok(y) = model
+            .forward_motion(th, w, al, 0.0)
+            .and_then(|m| regressor(&m, COULOMB_SPEED_RAD_S))
+        else {
             skipped += 1;
             continue;
         };
@@ -189,15 +262,22 @@ pub fn fit(model: &FiveBar<f64>, log: &[LogRow], dt_s: f64, torque_limit_nm: [f6
     let (columns, absorbed): (Vec<usize>, Vec<String>) = if full_svd.min_relative() > BASE_TOL {
         ((0..PARAMETERS).collect(), Vec::new())
     } else {
-        let keep = (0..PARAMETERS).filter(|k| !DISTAL.iter().any(|(d, _)| d == k)).collect();
-        let why = DISTAL.iter().map(|&(d, into)| format!("{} in {}", PARAMETER_NAMES[d], PARAMETER_NAMES[into])).collect();
+        let keep = (0..PARAMETERS)
+            .filter(|k| !DISTAL.iter().any(|(d, _)| d == k))
+            .collect();
+        let why = DISTAL
+            .iter()
+            .map(|&(d, into)| format!("{} in {}", PARAMETER_NAMES[d], PARAMETER_NAMES[into]))
+            .collect();
         (keep, why)
     };
     let y = full.select_columns(&columns);
     let svd = ScaledSvd::new(&y);
     if svd.rank(RANK_TOL) < columns.len() || svd.min_relative() < BASE_TOL {
         let dir = svd.smallest_direction();
-        let worst = (0..columns.len()).max_by(|&a, &b| dir[a].abs().total_cmp(&dir[b].abs())).unwrap_or(0);
+        let worst = (0..columns.len())
+            .max_by(|&a, &b| dir[a].abs().total_cmp(&dir[b].abs()))
+            .unwrap_or(0);
         return Err(invalid!(
             "the data cannot identify the dynamics: {} is not excited (relative singular value {:.1e})",
             PARAMETER_NAMES[columns[worst]],
@@ -223,8 +303,16 @@ pub fn fit(model: &FiveBar<f64>, log: &[LogRow], dt_s: f64, torque_limit_nm: [f6
         }
     }
     let dynamics = FiveBarDynamics::from_array(p, COULOMB_SPEED_RAD_S);
-    dynamics.validate().map_err(|e| invalid!("identified dynamics are not physical ({e}): {p:?}"))?;
-    let named = |v: &[f64]| PARAMETER_NAMES.iter().zip(v).map(|(n, v)| (n.to_string(), *v)).collect::<Vec<_>>();
+    dynamics
+        .validate()
+        .map_err(|e| invalid!("identified dynamics are not physical ({e}): {p:?}"))?;
+    let named = |v: &[f64]| {
+        PARAMETER_NAMES
+            .iter()
+            .zip(v)
+            .map(|(n, v)| (n.to_string(), *v))
+            .collect::<Vec<_>>()
+    };
     Ok(Identified {
         dynamics,
         parameters: named(&p),
@@ -244,7 +332,10 @@ mod tests {
     use crate::sim::closed_loop::run_loop;
 
     fn nominal() -> Calibration<'static> {
-        Calibration { model: FiveBar::<f32>::paper_nominal(), grid: None }
+        Calibration {
+            model: FiveBar::<f32>::paper_nominal(),
+            grid: None,
+        }
     }
 
     /// On the ideal plant (no friction, exact geometry) the identified parameters are the
@@ -263,7 +354,13 @@ mod tests {
         let (got, want) = (id.dynamics.to_array(), truth.to_array());
         eprintln!("identified {:?}\ntruth      {:?}\n{id:?}", got, want);
         for k in [0, 1, 2] {
-            assert!((got[k] - want[k]).abs() < 0.02 * want[k].abs(), "{}: {} vs {}", PARAMETER_NAMES[k], got[k], want[k]);
+            assert!(
+                (got[k] - want[k]).abs() < 0.02 * want[k].abs(),
+                "{}: {} vs {}",
+                PARAMETER_NAMES[k],
+                got[k],
+                want[k]
+            );
         }
         assert_eq!([got[3], got[4]], [0.0; 2]);
         for v in &got[5..] {
@@ -280,8 +377,20 @@ mod tests {
         let still = Trajectory::tour("still", &[c, c], &rated_limits(&spec), 1.0).unwrap();
         let mut log = Vec::new();
         run_loop(&mut p, &nominal(), &still, 0.5, &spec, Some(&mut log)).unwrap();
-        let e = fit(&FiveBar::paper_nominal(), &log, spec.sample_period_s, [8.0; 2]).unwrap_err();
+        let e = fit(
+            &FiveBar::paper_nominal(),
+            &log,
+            spec.sample_period_s,
+            [8.0; 2],
+        )
+        .unwrap_err();
         assert!(e.to_string().contains("cannot identify"), "{e}");
-        assert!(fit(&FiveBar::paper_nominal(), &log[..10], spec.sample_period_s, [8.0; 2]).is_err());
+        assert!(fit(
+            &FiveBar::paper_nominal(),
+            &log[..10],
+            spec.sample_period_s,
+            [8.0; 2]
+        )
+        .is_err());
     }
 }

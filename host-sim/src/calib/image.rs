@@ -11,10 +11,12 @@
 //! file and the identification; `host-sim grid` and the demo's pipeline both finish an image
 //! here, so the firmware gets the same image from either. Cost: one CRC over the image.
 
+use super::backlash::Backlash;
 use super::{invalid, CalibError};
 use crate::machine_spec::MachineSpec;
-use super::backlash::Backlash;
-use kinematics_core::grid::{append_backlash, append_dynamics, append_workspace, BACKLASH_LEN, DYNAMICS_LEN, WORKSPACE_LEN};
+use kinematics_core::grid::{
+    append_backlash, append_dynamics, append_workspace, BACKLASH_LEN, DYNAMICS_LEN, WORKSPACE_LEN,
+};
 use kinematics_core::{CorrectionGrid, FiveBarDynamics};
 
 /// What [`finish_image`] appended.
@@ -30,18 +32,29 @@ pub enum WorkspaceBlock {
 
 /// Whether the grid of `image` covers `spec`'s workspace polygon.
 pub fn covers_workspace(image: &[u8], spec: &MachineSpec) -> Result<bool, CalibError> {
-    let g = *CorrectionGrid::parse(image).map_err(|e| invalid!("the grid image: {e}"))?.geometry();
-    let limits = spec.workspace.limits().map_err(|e| invalid!("machine '{}': {e}", spec.name))?;
+    let g = *CorrectionGrid::parse(image)
+        .map_err(|e| invalid!("the grid image: {e}"))?
+        .geometry();
+    let limits = spec
+        .workspace
+        .limits()
+        .map_err(|e| invalid!("machine '{}': {e}", spec.name))?;
     Ok(g.covers(&limits.region))
 }
 
 /// The grid image `image` with `spec`'s workspace block appended when its grid covers the
 /// workspace (see [`WorkspaceBlock`]).
-pub fn finish_image(image: &[u8], spec: &MachineSpec) -> Result<(Vec<u8>, WorkspaceBlock), CalibError> {
+pub fn finish_image(
+    image: &[u8],
+    spec: &MachineSpec,
+) -> Result<(Vec<u8>, WorkspaceBlock), CalibError> {
     if !covers_workspace(image, spec)? {
         return Ok((image.to_vec(), WorkspaceBlock::GridDoesNotCoverTheWorkspace));
     }
-    let limits = spec.workspace.limits().map_err(|e| invalid!("machine '{}': {e}", spec.name))?;
+    let limits = spec
+        .workspace
+        .limits()
+        .map_err(|e| invalid!("machine '{}': {e}", spec.name))?;
     let n = image.len();
     let mut out = image.to_vec();
     out.resize(n + WORKSPACE_LEN, 0);
@@ -54,21 +67,38 @@ pub fn finish_image(image: &[u8], spec: &MachineSpec) -> Result<(Vec<u8>, Worksp
 /// `image` (a grid image, possibly with blocks already: it must parse) with the dynamics block
 /// appended at the end of its chain. Refused: an image that already carries one, parameters
 /// that do not validate in f32 (what the firmware reads).
-pub fn append_dynamics_block(image: &[u8], dynamics: &FiveBarDynamics<f64>) -> Result<Vec<u8>, CalibError> {
-    append_block(image, "dynamics", DYNAMICS_LEN, |g| g.dynamics().is_some(), |out, n, end| {
-        append_dynamics(out, n, end, &dynamics.cast::<f32>()).map_err(|e| invalid!("the dynamics block: {e}"))
-    })
+pub fn append_dynamics_block(
+    image: &[u8],
+    dynamics: &FiveBarDynamics<f64>,
+) -> Result<Vec<u8>, CalibError> {
+    append_block(
+        image,
+        "dynamics",
+        DYNAMICS_LEN,
+        |g| g.dynamics().is_some(),
+        |out, n, end| {
+            append_dynamics(out, n, end, &dynamics.cast::<f32>())
+                .map_err(|e| invalid!("the dynamics block: {e}"))
+        },
+    )
 }
 
 /// `image` (a grid image, possibly with blocks already: it must parse) with the backlash
 /// block appended at the end of its chain (so after every other block). Refused: an image that
 /// already carries one, a lost motion the firmware would refuse (in f32).
 pub fn append_backlash_block(image: &[u8], backlash: &Backlash) -> Result<Vec<u8>, CalibError> {
-    append_block(image, "backlash", BACKLASH_LEN, |g| g.backlash().is_some(), |out, n, end| {
-        let beta_rad = backlash.lost_motion_urad.map(|b| (b * 1e-6) as f32);
-        let block = kinematics_core::Backlash::new(beta_rad).map_err(|e| invalid!("the backlash block: {e}"))?;
-        append_backlash(out, n, end, &block).map_err(|e| invalid!("the backlash block: {e}"))
-    })
+    append_block(
+        image,
+        "backlash",
+        BACKLASH_LEN,
+        |g| g.backlash().is_some(),
+        |out, n, end| {
+            let beta_rad = backlash.lost_motion_urad.map(|b| (b * 1e-6) as f32);
+            let block = kinematics_core::Backlash::new(beta_rad)
+                .map_err(|e| invalid!("the backlash block: {e}"))?;
+            append_backlash(out, n, end, &block).map_err(|e| invalid!("the backlash block: {e}"))
+        },
+    )
 }
 
 /// What both block appenders share: `image` must parse and not carry the block yet
@@ -102,7 +132,13 @@ mod tests {
 
     fn image(g: &GridGeometry) -> Vec<u8> {
         let mut img = vec![0u8; g.image_len()];
-        encode(&mut img, g, &FiveBar::paper_nominal(), &vec![[1e-5, 0.0]; g.len()]).unwrap();
+        encode(
+            &mut img,
+            g,
+            &FiveBar::paper_nominal(),
+            &vec![[1e-5, 0.0]; g.len()],
+        )
+        .unwrap();
         img
     }
 
@@ -116,7 +152,10 @@ mod tests {
         let parsed = CorrectionGrid::parse(&out).unwrap();
         assert_eq!(parsed.backlash().unwrap().beta_rad(), [20e-6f32, 35e-6]);
         assert!(parsed.workspace().is_some());
-        assert!(append_backlash_block(&out, &b).unwrap_err().to_string().contains("already"));
+        assert!(append_backlash_block(&out, &b)
+            .unwrap_err()
+            .to_string()
+            .contains("already"));
     }
 
     #[test]
@@ -128,9 +167,19 @@ mod tests {
         assert_eq!(out.len(), full.len() + WORKSPACE_LEN);
         let w = CorrectionGrid::parse(&out).unwrap().workspace().unwrap();
         assert_eq!(w, spec.workspace.limits().unwrap());
-        let part = image(&GridGeometry { nx: 6, ny: 7, x0_mm: 180.0, y0_mm: -15.0, step_x_mm: 5.0, step_y_mm: 5.0 });
+        let part = image(&GridGeometry {
+            nx: 6,
+            ny: 7,
+            x0_mm: 180.0,
+            y0_mm: -15.0,
+            step_x_mm: 5.0,
+            step_y_mm: 5.0,
+        });
         let (out, block) = finish_image(&part, &spec).unwrap();
-        assert_eq!((block, out), (WorkspaceBlock::GridDoesNotCoverTheWorkspace, part));
+        assert_eq!(
+            (block, out),
+            (WorkspaceBlock::GridDoesNotCoverTheWorkspace, part)
+        );
     }
 
     #[test]
@@ -150,11 +199,20 @@ mod tests {
         let g = CorrectionGrid::parse(&out).unwrap();
         assert_eq!(g.dynamics(), Some(&d.cast::<f32>()));
         assert_eq!(g.workspace(), Some(spec.workspace.limits().unwrap()));
-        assert!(append_dynamics_block(&out, &d).unwrap_err().to_string().contains("already"));
-        let bad = FiveBarDynamics { tool_mass_kg: -1.0, ..d };
+        assert!(append_dynamics_block(&out, &d)
+            .unwrap_err()
+            .to_string()
+            .contains("already"));
+        let bad = FiveBarDynamics {
+            tool_mass_kg: -1.0,
+            ..d
+        };
         assert!(append_dynamics_block(&img, &bad).is_err());
         // In f64 positive, in f32 zero: refused as the firmware would refuse it.
-        let tiny = FiveBarDynamics { motor_inertia_kg_m2: [1e-60, 1e-3], ..d };
+        let tiny = FiveBarDynamics {
+            motor_inertia_kg_m2: [1e-60, 1e-3],
+            ..d
+        };
         assert!(append_dynamics_block(&img, &tiny).is_err());
     }
 }

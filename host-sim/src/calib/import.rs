@@ -84,7 +84,13 @@ pub struct ImportOptions {
 
 impl Default for ImportOptions {
     fn default() -> Self {
-        ImportOptions { id_prefix: None, first_id: 1, unlisted: Unlisted::Refuse, missing: Missing::Note, z_tolerance_mm: None }
+        ImportOptions {
+            id_prefix: None,
+            first_id: 1,
+            unlisted: Unlisted::Refuse,
+            missing: Missing::Note,
+            z_tolerance_mm: None,
+        }
     }
 }
 
@@ -92,23 +98,51 @@ impl Default for ImportOptions {
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum ImportError {
     #[error("line {line}: point id '{id}' {reason}")]
-    PointId { line: usize, id: String, reason: String },
+    PointId {
+        line: usize,
+        id: String,
+        reason: String,
+    },
     #[error("point ids with different prefixes: '{first}' (line {first_line}) and '{other}' (line {other_line}); give the session's prefix (--id-prefix) to skip the other points")]
-    MixedPrefixes { first: String, first_line: usize, other: String, other_line: usize },
+    MixedPrefixes {
+        first: String,
+        first_line: usize,
+        other: String,
+        other_line: usize,
+    },
     #[error("line {line}: point '{id}' is number {number}, but the list's rows are numbers {first_id}..={last_id} ({rows} rows; --first-id sets the first); skip such points with --skip-unlisted")]
-    Unlisted { line: usize, id: String, number: u64, first_id: u64, last_id: u64, rows: usize },
+    Unlisted {
+        line: usize,
+        id: String,
+        number: u64,
+        first_id: u64,
+        last_id: u64,
+        rows: usize,
+    },
     #[error("{} of the list's {rows} rows have no reading: points {}", numbers.len(), short_list(numbers))]
     Missing { numbers: Vec<u64>, rows: usize },
     #[error("line {line}: point '{id}' is read again, but the list is a repeat list (its rows carry runs 0..={max_run}) and a second reading has no run of its own; delete the extra reading")]
-    RepeatedInRunList { line: usize, id: String, max_run: u32 },
+    RepeatedInRunList {
+        line: usize,
+        id: String,
+        max_run: u32,
+    },
     #[error("the plan list and the commanded list differ: {0}")]
     PlanMismatch(String),
     #[error("line {line}: point '{id}' is {residual_mm:.4} mm off the best-fit plane of the points' Z, above the tolerance {tolerance_mm} mm")]
-    ZTolerance { line: usize, id: String, residual_mm: f64, tolerance_mm: f64 },
+    ZTolerance {
+        line: usize,
+        id: String,
+        residual_mm: f64,
+        tolerance_mm: f64,
+    },
     #[error("the export's points span {scale:.4}× the targets' distances: {hint}")]
     Scale { scale: f64, hint: String },
     #[error("the export's frame is mirrored relative to the machine's (rigid residual {proper_rms_mm:.3} mm RMS, {mirrored_rms_mm:.3} mm with one axis flipped): the tracker sees the plane from the other side; flip an axis of its frame and export again")]
-    Mirrored { proper_rms_mm: f64, mirrored_rms_mm: f64 },
+    Mirrored {
+        proper_rms_mm: f64,
+        mirrored_rms_mm: f64,
+    },
     #[error("no point of the export is a row of the list")]
     Nothing,
 }
@@ -190,10 +224,17 @@ struct Row {
 }
 
 /// The list rows, the plan's run and dir merged in where the commanded list has none.
-fn merge(commanded: &[CommandedRow], plan: Option<&[ListedTarget]>) -> Result<Vec<Row>, ImportError> {
+fn merge(
+    commanded: &[CommandedRow],
+    plan: Option<&[ListedTarget]>,
+) -> Result<Vec<Row>, ImportError> {
     if let Some(p) = plan {
         if p.len() != commanded.len() {
-            return Err(ImportError::PlanMismatch(format!("{} plan rows, {} commanded", p.len(), commanded.len())));
+            return Err(ImportError::PlanMismatch(format!(
+                "{} plan rows, {} commanded",
+                p.len(),
+                commanded.len()
+            )));
         }
     }
     commanded
@@ -230,14 +271,27 @@ fn split_id(p: &ExportPoint) -> Result<(&str, u64), ImportError> {
     let digits = p.id.bytes().rev().take_while(u8::is_ascii_digit).count();
     let (prefix, number) = p.id.split_at(p.id.len() - digits);
     if number.is_empty() {
-        return Err(ImportError::PointId { line: p.line, id: p.id.clone(), reason: "ends in no number (ids are a prefix and the point number, e.g. P017)".into() });
+        return Err(ImportError::PointId {
+            line: p.line,
+            id: p.id.clone(),
+            reason: "ends in no number (ids are a prefix and the point number, e.g. P017)".into(),
+        });
     }
-    let n = number.parse().map_err(|_| ImportError::PointId { line: p.line, id: p.id.clone(), reason: "has a number too large".into() })?;
+    let n = number.parse().map_err(|_| ImportError::PointId {
+        line: p.line,
+        id: p.id.clone(),
+        reason: "has a number too large".into(),
+    })?;
     Ok((prefix, n))
 }
 
 /// Joins `export` with the commanded list (and the plan's list it was commanded for).
-pub fn import(export: &Export, commanded: &[CommandedRow], plan: Option<&[ListedTarget]>, opts: &ImportOptions) -> Result<Imported, ImportError> {
+pub fn import(
+    export: &Export,
+    commanded: &[CommandedRow],
+    plan: Option<&[ListedTarget]>,
+    opts: &ImportOptions,
+) -> Result<Imported, ImportError> {
     let rows = merge(commanded, plan)?;
     let n = rows.len();
     let last_id = opts.first_id + n as u64 - 1;
@@ -250,7 +304,9 @@ pub fn import(export: &Export, commanded: &[CommandedRow], plan: Option<&[Listed
     for p in &export.points {
         let number = match &opts.id_prefix {
             Some(want) => match p.id.strip_prefix(want.as_str()) {
-                Some(rest) if !rest.is_empty() && rest.bytes().all(|b| b.is_ascii_digit()) => split_id(p)?.1,
+                Some(rest) if !rest.is_empty() && rest.bytes().all(|b| b.is_ascii_digit()) => {
+                    split_id(p)?.1
+                }
                 _ => {
                     skipped.push(p.id.clone());
                     continue;
@@ -261,7 +317,12 @@ pub fn import(export: &Export, commanded: &[CommandedRow], plan: Option<&[Listed
                 match &prefix_seen {
                     None => prefix_seen = Some((prefix.to_string(), p.line)),
                     Some((first, first_line)) if first != prefix => {
-                        return Err(ImportError::MixedPrefixes { first: first.clone(), first_line: *first_line, other: prefix.to_string(), other_line: p.line });
+                        return Err(ImportError::MixedPrefixes {
+                            first: first.clone(),
+                            first_line: *first_line,
+                            other: prefix.to_string(),
+                            other_line: p.line,
+                        });
                     }
                     Some(_) => {}
                 }
@@ -270,27 +331,55 @@ pub fn import(export: &Export, commanded: &[CommandedRow], plan: Option<&[Listed
         };
         if number < opts.first_id || number > last_id {
             match opts.unlisted {
-                Unlisted::Refuse => return Err(ImportError::Unlisted { line: p.line, id: p.id.clone(), number, first_id: opts.first_id, last_id, rows: n }),
+                Unlisted::Refuse => {
+                    return Err(ImportError::Unlisted {
+                        line: p.line,
+                        id: p.id.clone(),
+                        number,
+                        first_id: opts.first_id,
+                        last_id,
+                        rows: n,
+                    })
+                }
                 Unlisted::Skip => {
                     skipped.push(p.id.clone());
                     continue;
                 }
             }
         }
-        readings.entry((number - opts.first_id) as usize).or_default().push(p);
+        readings
+            .entry((number - opts.first_id) as usize)
+            .or_default()
+            .push(p);
     }
     if !skipped.is_empty() {
-        notes.push(format!("{} point(s) skipped (not the session's): {}", skipped.len(), skipped.join(", ")));
+        notes.push(format!(
+            "{} point(s) skipped (not the session's): {}",
+            skipped.len(),
+            skipped.join(", ")
+        ));
     }
     if readings.is_empty() {
         return Err(ImportError::Nothing);
     }
     let number = |k: usize| opts.first_id + k as u64;
-    let missing: Vec<u64> = (0..n).filter(|k| !readings.contains_key(k)).map(number).collect();
+    let missing: Vec<u64> = (0..n)
+        .filter(|k| !readings.contains_key(k))
+        .map(number)
+        .collect();
     if !missing.is_empty() {
         match opts.missing {
-            Missing::Refuse => return Err(ImportError::Missing { numbers: missing, rows: n }),
-            Missing::Note => notes.push(format!("{} of the list's {n} rows have no reading (not written): points {}", missing.len(), short_list(&missing))),
+            Missing::Refuse => {
+                return Err(ImportError::Missing {
+                    numbers: missing,
+                    rows: n,
+                })
+            }
+            Missing::Note => notes.push(format!(
+                "{} of the list's {n} rows have no reading (not written): points {}",
+                missing.len(),
+                short_list(&missing)
+            )),
         }
     }
     let runs: Vec<u32> = rows.iter().filter_map(|r| r.run).collect();
@@ -302,7 +391,11 @@ pub fn import(export: &Export, commanded: &[CommandedRow], plan: Option<&[Listed
     for (&k, points) in &readings {
         if points.len() > 1 {
             if repeat_list {
-                return Err(ImportError::RepeatedInRunList { line: points[1].line, id: points[1].id.clone(), max_run });
+                return Err(ImportError::RepeatedInRunList {
+                    line: points[1].line,
+                    id: points[1].id.clone(),
+                    max_run,
+                });
             }
             repeated.push(number(k));
         }
@@ -321,7 +414,11 @@ pub fn import(export: &Export, commanded: &[CommandedRow], plan: Option<&[Listed
         }
     }
     if !repeated.is_empty() {
-        notes.push(format!("{} point(s) read more than once, each reading kept with its run index: points {}", repeated.len(), short_list(&repeated)));
+        notes.push(format!(
+            "{} point(s) read more than once, each reading kept with its run index: points {}",
+            repeated.len(),
+            short_list(&repeated)
+        ));
     }
     let z = z_check(&used, opts.z_tolerance_mm)?;
     if let Some(z) = &z {
@@ -347,7 +444,11 @@ pub fn import(export: &Export, commanded: &[CommandedRow], plan: Option<&[Listed
         imported: out.len(),
         rows_measured: readings.len(),
         first_id: opts.first_id,
-        id_prefix: opts.id_prefix.clone().or(prefix_seen.map(|p| p.0)).unwrap_or_default(),
+        id_prefix: opts
+            .id_prefix
+            .clone()
+            .or(prefix_seen.map(|p| p.0))
+            .unwrap_or_default(),
         missing,
         repeated,
         skipped,
@@ -360,14 +461,24 @@ pub fn import(export: &Export, commanded: &[CommandedRow], plan: Option<&[Listed
 }
 
 /// Z of the imported points against their best-fit plane (module doc).
-fn z_check(points: &[&ExportPoint], tolerance_mm: Option<f64>) -> Result<Option<ZReport>, ImportError> {
-    let with_z: Vec<(&ExportPoint, f64)> = points.iter().filter_map(|p| p.z_mm.map(|z| (*p, z))).collect();
+fn z_check(
+    points: &[&ExportPoint],
+    tolerance_mm: Option<f64>,
+) -> Result<Option<ZReport>, ImportError> {
+    let with_z: Vec<(&ExportPoint, f64)> = points
+        .iter()
+        .filter_map(|p| p.z_mm.map(|z| (*p, z)))
+        .collect();
     if with_z.is_empty() {
         return Ok(None);
     }
     let count = with_z.len() as f64;
     let mean = |f: &dyn Fn(&(&ExportPoint, f64)) -> f64| with_z.iter().map(f).sum::<f64>() / count;
-    let (mx, my, mz) = (mean(&|p| p.0.xy_mm[0]), mean(&|p| p.0.xy_mm[1]), mean(&|p| p.1));
+    let (mx, my, mz) = (
+        mean(&|p| p.0.xy_mm[0]),
+        mean(&|p| p.0.xy_mm[1]),
+        mean(&|p| p.1),
+    );
     // z − z̄ = b (x − x̄) + c (y − ȳ), least squares; a plane needs points not on one line.
     let (mut sxx, mut sxy, mut syy, mut sxz, mut syz) = (0.0, 0.0, 0.0, 0.0, 0.0);
     for (p, z) in &with_z {
@@ -379,14 +490,27 @@ fn z_check(points: &[&ExportPoint], tolerance_mm: Option<f64>) -> Result<Option<
         syz += dy * dz;
     }
     let det = sxx * syy - sxy * sxy;
-    let (b, c) = if with_z.len() >= 3 && det > 1e-9 * (sxx + syy).powi(2) { ((sxz * syy - syz * sxy) / det, (syz * sxx - sxz * sxy) / det) } else { (0.0, 0.0) };
-    let residual = |(p, z): &(&ExportPoint, f64)| z - mz - b * (p.xy_mm[0] - mx) - c * (p.xy_mm[1] - my);
-    let worst = with_z.iter().max_by(|a, b2| residual(a).abs().total_cmp(&residual(b2).abs())).expect("not empty");
+    let (b, c) = if with_z.len() >= 3 && det > 1e-9 * (sxx + syy).powi(2) {
+        ((sxz * syy - syz * sxy) / det, (syz * sxx - sxz * sxy) / det)
+    } else {
+        (0.0, 0.0)
+    };
+    let residual =
+        |(p, z): &(&ExportPoint, f64)| z - mz - b * (p.xy_mm[0] - mx) - c * (p.xy_mm[1] - my);
+    let worst = with_z
+        .iter()
+        .max_by(|a, b2| residual(a).abs().total_cmp(&residual(b2).abs()))
+        .expect("not empty");
     let max_mm = residual(worst).abs();
     let rms_mm = (with_z.iter().map(|p| residual(p).powi(2)).sum::<f64>() / count).sqrt();
     if let Some(t) = tolerance_mm {
         if max_mm > t {
-            return Err(ImportError::ZTolerance { line: worst.0.line, id: worst.0.id.clone(), residual_mm: max_mm, tolerance_mm: t });
+            return Err(ImportError::ZTolerance {
+                line: worst.0.line,
+                id: worst.0.id.clone(),
+                residual_mm: max_mm,
+                tolerance_mm: t,
+            });
         }
     }
     let tilt_rad = b.hypot(c).atan();
@@ -398,7 +522,9 @@ fn z_check(points: &[&ExportPoint], tolerance_mm: Option<f64>) -> Result<Option<
     let zs = with_z.iter().map(|p| p.1);
     Ok(Some(ZReport {
         points: with_z.len(),
-        range_mm: round6(zs.clone().fold(f64::NEG_INFINITY, f64::max) - zs.fold(f64::INFINITY, f64::min)),
+        range_mm: round6(
+            zs.clone().fold(f64::NEG_INFINITY, f64::max) - zs.fold(f64::INFINITY, f64::min),
+        ),
         plane_residual_max_um: round3(max_mm * 1e3),
         plane_residual_rms_um: round3(rms_mm * 1e3),
         tilt_mrad: round6(tilt_rad * 1e3),
@@ -410,7 +536,12 @@ fn z_check(points: &[&ExportPoint], tolerance_mm: Option<f64>) -> Result<Option<
 /// The best rigid motion (rotation + shift) from `from` to `to`: its RMS and max residual.
 fn rigid_residual(from: &[[f64; 2]], to: &[[f64; 2]]) -> (f64, f64) {
     let n = from.len() as f64;
-    let centre = |v: &[[f64; 2]]| [v.iter().map(|p| p[0]).sum::<f64>() / n, v.iter().map(|p| p[1]).sum::<f64>() / n];
+    let centre = |v: &[[f64; 2]]| {
+        [
+            v.iter().map(|p| p[0]).sum::<f64>() / n,
+            v.iter().map(|p| p[1]).sum::<f64>() / n,
+        ]
+    };
     let (cf, ct) = (centre(from), centre(to));
     let (mut dot, mut cross) = (0.0, 0.0);
     for (f, t) in from.iter().zip(to) {
@@ -427,21 +558,34 @@ fn rigid_residual(from: &[[f64; 2]], to: &[[f64; 2]]) -> (f64, f64) {
             (c * a[0] - s * a[1] + ct[0] - t[0]).hypot(s * a[0] + c * a[1] + ct[1] - t[1])
         })
         .collect();
-    ((r.iter().map(|v| v * v).sum::<f64>() / n).sqrt(), r.iter().copied().fold(0.0, f64::max))
+    (
+        (r.iter().map(|v| v * v).sum::<f64>() / n).sqrt(),
+        r.iter().copied().fold(0.0, f64::max),
+    )
 }
 
 /// The export's points against the targets (module doc, *The frame*); `None` without targets
 /// spanning ≥ 1 mm RMS.
 fn frame_check(rows: &[Measurement]) -> Result<Option<FrameReport>, ImportError> {
-    let pairs: Vec<([f64; 2], [f64; 2])> = rows.iter().filter_map(|m| m.target_mm.map(|t| (t, m.measured_mm))).collect();
+    let pairs: Vec<([f64; 2], [f64; 2])> = rows
+        .iter()
+        .filter_map(|m| m.target_mm.map(|t| (t, m.measured_mm)))
+        .collect();
     if pairs.len() < 3 {
         return Ok(None);
     }
     let (targets, measured): (Vec<[f64; 2]>, Vec<[f64; 2]>) = pairs.into_iter().unzip();
     let spread = |v: &[[f64; 2]]| {
         let n = v.len() as f64;
-        let c = [v.iter().map(|p| p[0]).sum::<f64>() / n, v.iter().map(|p| p[1]).sum::<f64>() / n];
-        (v.iter().map(|p| (p[0] - c[0]).powi(2) + (p[1] - c[1]).powi(2)).sum::<f64>() / n).sqrt()
+        let c = [
+            v.iter().map(|p| p[0]).sum::<f64>() / n,
+            v.iter().map(|p| p[1]).sum::<f64>() / n,
+        ];
+        (v.iter()
+            .map(|p| (p[0] - c[0]).powi(2) + (p[1] - c[1]).powi(2))
+            .sum::<f64>()
+            / n)
+            .sqrt()
     };
     let st = spread(&targets);
     if st < 1.0 {
@@ -462,9 +606,16 @@ fn frame_check(rows: &[Measurement]) -> Result<Option<FrameReport>, ImportError>
     let flipped: Vec<[f64; 2]> = measured.iter().map(|p| [p[0], -p[1]]).collect();
     let (mirrored_rms, _) = rigid_residual(&targets, &flipped);
     if rms > 1.0 && mirrored_rms < 0.1 * rms {
-        return Err(ImportError::Mirrored { proper_rms_mm: rms, mirrored_rms_mm: mirrored_rms });
+        return Err(ImportError::Mirrored {
+            proper_rms_mm: rms,
+            mirrored_rms_mm: mirrored_rms,
+        });
     }
-    Ok(Some(FrameReport { scale: round6(scale), rigid_residual_max_mm: round6(max), rigid_residual_rms_mm: round6(rms) }))
+    Ok(Some(FrameReport {
+        scale: round6(scale),
+        rigid_residual_max_mm: round6(max),
+        rigid_residual_rms_mm: round6(rms),
+    }))
 }
 
 #[cfg(test)]
@@ -478,7 +629,12 @@ mod tests {
     fn list(n: usize) -> Vec<CommandedRow> {
         let mut text = String::from("x_mm,y_mm,theta1_deg,theta2_deg\n");
         for k in 1..=n {
-            text.push_str(&format!("{},{},{k},{}\n", 180 + 10 * (k % 5), -40 + 10 * (k / 5) as i64, 2 * k));
+            text.push_str(&format!(
+                "{},{},{k},{}\n",
+                180 + 10 * (k % 5),
+                -40 + 10 * (k / 5) as i64,
+                2 * k
+            ));
         }
         parse_commanded(&text).unwrap()
     }
@@ -487,55 +643,147 @@ mod tests {
     fn export(rows: &[(&str, usize)], z: impl Fn(usize) -> f64) -> Export {
         let mut text = String::from("Point;X;Y;Z\n");
         for &(id, k) in rows {
-            text.push_str(&format!("{id};{};{};{}\n", 181 + 10 * (k % 5), -38 + 10 * (k / 5) as i64, z(k)));
+            text.push_str(&format!(
+                "{id};{};{};{}\n",
+                181 + 10 * (k % 5),
+                -38 + 10 * (k / 5) as i64,
+                z(k)
+            ));
         }
-        parse_export(&text, &ColumnMap::parse("id=Point,x=X,y=Y,z=Z").unwrap(), None).unwrap()
+        parse_export(
+            &text,
+            &ColumnMap::parse("id=Point,x=X,y=Y,z=Z").unwrap(),
+            None,
+        )
+        .unwrap()
     }
 
     #[test]
     fn ids_join_rows_with_repeats_missing_and_notes() {
-        let e = export(&[("P003", 3), ("P001", 1), ("P003", 3), ("P004", 4)], |_| 5.0);
+        let e = export(
+            &[("P003", 3), ("P001", 1), ("P003", 3), ("P004", 4)],
+            |_| 5.0,
+        );
         let got = import(&e, &list(4), None, &ImportOptions::default()).unwrap();
         // List order; the repeated point's readings as runs 0 and 1.
-        let keys: Vec<([f64; 2], Option<u32>)> = got.rows.iter().map(|m| (m.theta_deg, m.run)).collect();
-        assert_eq!(keys, vec![([1.0, 2.0], Some(0)), ([3.0, 6.0], Some(0)), ([3.0, 6.0], Some(1)), ([4.0, 8.0], Some(0))]);
+        let keys: Vec<([f64; 2], Option<u32>)> =
+            got.rows.iter().map(|m| (m.theta_deg, m.run)).collect();
+        assert_eq!(
+            keys,
+            vec![
+                ([1.0, 2.0], Some(0)),
+                ([3.0, 6.0], Some(0)),
+                ([3.0, 6.0], Some(1)),
+                ([4.0, 8.0], Some(0))
+            ]
+        );
         assert_eq!(got.rows[0].measured_mm, [191.0, -38.0]);
         assert_eq!(got.rows[0].target_mm, Some([190.0, -40.0]));
         let r = &got.report;
-        assert_eq!((r.missing.clone(), r.repeated.clone(), r.imported, r.rows_measured), (vec![2], vec![3], 4, 3));
+        assert_eq!(
+            (
+                r.missing.clone(),
+                r.repeated.clone(),
+                r.imported,
+                r.rows_measured
+            ),
+            (vec![2], vec![3], 4, 3)
+        );
         assert_eq!(r.id_prefix, "P");
-        assert!(r.notes.iter().any(|n| n.contains("have no reading (not written): points 2")), "{:?}", r.notes);
+        assert!(
+            r.notes
+                .iter()
+                .any(|n| n.contains("have no reading (not written): points 2")),
+            "{:?}",
+            r.notes
+        );
         let f = r.frame.as_ref().unwrap();
-        assert!((f.scale - 1.0).abs() < 1e-12 && f.rigid_residual_max_mm < 1e-9, "{f:?}");
+        assert!(
+            (f.scale - 1.0).abs() < 1e-12 && f.rigid_residual_max_mm < 1e-9,
+            "{f:?}"
+        );
         assert!(r.warnings.is_empty(), "{:?}", r.warnings);
         // The same export with --require-all: an error naming the point.
-        let opts = ImportOptions { missing: Missing::Refuse, ..Default::default() };
-        assert_eq!(import(&e, &list(4), None, &opts).unwrap_err(), ImportError::Missing { numbers: vec![2], rows: 4 });
+        let opts = ImportOptions {
+            missing: Missing::Refuse,
+            ..Default::default()
+        };
+        assert_eq!(
+            import(&e, &list(4), None, &opts).unwrap_err(),
+            ImportError::Missing {
+                numbers: vec![2],
+                rows: 4
+            }
+        );
     }
 
     #[test]
     fn numbering_prefixes_and_unlisted_points() {
         let e = export(&[("P0", 0), ("P1", 1), ("P2", 2)], |_| 0.0);
         // Counting from 0 needs --first-id 0.
-        assert!(matches!(import(&e, &list(3), None, &ImportOptions::default()).unwrap_err(), ImportError::Unlisted { number: 0, line: 2, .. }));
-        let opts = ImportOptions { first_id: 0, ..Default::default() };
+        assert!(matches!(
+            import(&e, &list(3), None, &ImportOptions::default()).unwrap_err(),
+            ImportError::Unlisted {
+                number: 0,
+                line: 2,
+                ..
+            }
+        ));
+        let opts = ImportOptions {
+            first_id: 0,
+            ..Default::default()
+        };
         let got = import(&e, &list(3), None, &opts).unwrap();
         assert_eq!(got.rows[0].theta_deg, [1.0, 2.0]);
         // A point beyond the list: an error, or skipped with a note.
         let e = export(&[("P1", 1), ("P2", 2), ("P9", 3)], |_| 0.0);
-        let err = import(&e, &list(3), None, &ImportOptions::default()).unwrap_err().to_string();
-        assert!(err.starts_with("line 4: point 'P9' is number 9, but the list's rows are numbers 1..=3"), "{err}");
-        let got = import(&e, &list(3), None, &ImportOptions { unlisted: Unlisted::Skip, ..Default::default() }).unwrap();
+        let err = import(&e, &list(3), None, &ImportOptions::default())
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.starts_with(
+                "line 4: point 'P9' is number 9, but the list's rows are numbers 1..=3"
+            ),
+            "{err}"
+        );
+        let got = import(
+            &e,
+            &list(3),
+            None,
+            &ImportOptions {
+                unlisted: Unlisted::Skip,
+                ..Default::default()
+            },
+        )
+        .unwrap();
         assert_eq!(got.report.skipped, vec!["P9".to_string()]);
         // Reference points with another prefix: refused without --id-prefix, skipped with it.
         let e = export(&[("BASE1", 1), ("P1", 1), ("P2", 2), ("P3", 3)], |_| 0.0);
         let err = import(&e, &list(3), None, &ImportOptions::default()).unwrap_err();
-        assert!(matches!(&err, ImportError::MixedPrefixes { first, other, .. } if first == "BASE" && other == "P"), "{err}");
-        let got = import(&e, &list(3), None, &ImportOptions { id_prefix: Some("P".into()), ..Default::default() }).unwrap();
-        assert_eq!((got.report.skipped.clone(), got.rows.len()), (vec!["BASE1".to_string()], 3));
+        assert!(
+            matches!(&err, ImportError::MixedPrefixes { first, other, .. } if first == "BASE" && other == "P"),
+            "{err}"
+        );
+        let got = import(
+            &e,
+            &list(3),
+            None,
+            &ImportOptions {
+                id_prefix: Some("P".into()),
+                ..Default::default()
+            },
+        )
+        .unwrap();
+        assert_eq!(
+            (got.report.skipped.clone(), got.rows.len()),
+            (vec!["BASE1".to_string()], 3)
+        );
         // An id without a number.
         let e = export(&[("P1", 1), ("Home", 2)], |_| 0.0);
-        assert!(import(&e, &list(3), None, &ImportOptions::default()).unwrap_err().to_string().contains("point id 'Home' ends in no number"));
+        assert!(import(&e, &list(3), None, &ImportOptions::default())
+            .unwrap_err()
+            .to_string()
+            .contains("point id 'Home' ends in no number"));
     }
 
     #[test]
@@ -543,18 +791,45 @@ mod tests {
         let ids: Vec<(String, usize)> = (1..=10).map(|k| (format!("P{k}"), k)).collect();
         let rows: Vec<(&str, usize)> = ids.iter().map(|(s, k)| (s.as_str(), *k)).collect();
         // A plane tilted 10 mrad along x (dz/dx = tan 10 mrad), one point 0.05 mm off it.
-        let z = |k: usize| (181.0 + 10.0 * (k % 5) as f64) * 0.01f64.tan() + if k == 7 { 0.05 } else { 0.0 };
-        let got = import(&export(&rows, z), &list(10), None, &ImportOptions::default()).unwrap();
+        let z = |k: usize| {
+            (181.0 + 10.0 * (k % 5) as f64) * 0.01f64.tan() + if k == 7 { 0.05 } else { 0.0 }
+        };
+        let got = import(
+            &export(&rows, z),
+            &list(10),
+            None,
+            &ImportOptions::default(),
+        )
+        .unwrap();
         let zr = got.report.z.as_ref().unwrap();
         assert_eq!(zr.points, 10);
         assert!((zr.tilt_mrad - 10.0).abs() < 0.5, "{zr:?}");
-        assert!(zr.plane_residual_max_um > 35.0 && zr.plane_residual_max_um < 50.0, "{zr:?}");
-        assert!(got.report.warnings.iter().any(|w| w.contains("tilted")), "{:?}", got.report.warnings);
-        let opts = ImportOptions { z_tolerance_mm: Some(0.02), ..Default::default() };
+        assert!(
+            zr.plane_residual_max_um > 35.0 && zr.plane_residual_max_um < 50.0,
+            "{zr:?}"
+        );
+        assert!(
+            got.report.warnings.iter().any(|w| w.contains("tilted")),
+            "{:?}",
+            got.report.warnings
+        );
+        let opts = ImportOptions {
+            z_tolerance_mm: Some(0.02),
+            ..Default::default()
+        };
         let err = import(&export(&rows, z), &list(10), None, &opts).unwrap_err();
-        assert!(matches!(&err, ImportError::ZTolerance { id, line: 8, .. } if id == "P7"), "{err}");
+        assert!(
+            matches!(&err, ImportError::ZTolerance { id, line: 8, .. } if id == "P7"),
+            "{err}"
+        );
         // A level plane: no warning.
-        let got = import(&export(&rows, |_| 3.0), &list(10), None, &ImportOptions::default()).unwrap();
+        let got = import(
+            &export(&rows, |_| 3.0),
+            &list(10),
+            None,
+            &ImportOptions::default(),
+        )
+        .unwrap();
         assert!(got.report.warnings.is_empty() && got.report.z.as_ref().unwrap().tilt_mrad == 0.0);
     }
 
@@ -569,30 +844,90 @@ mod tests {
             }
             parse_export(&t, &ColumnMap::parse("id=Point,x=X,y=Y").unwrap(), None).unwrap()
         };
-        let target = |k: usize| ((180 + 10 * (k % 5)) as f64, (-40 + 10 * (k / 5) as i64) as f64);
+        let target = |k: usize| {
+            (
+                (180 + 10 * (k % 5)) as f64,
+                (-40 + 10 * (k / 5) as i64) as f64,
+            )
+        };
         // Metres read as mm.
-        let err = import(&text(&|k| (target(k).0 / 1e3, target(k).1 / 1e3)), &list(10), None, &ImportOptions::default()).unwrap_err();
-        assert!(err.to_string().contains("looks like metres read as mm"), "{err}");
+        let err = import(
+            &text(&|k| (target(k).0 / 1e3, target(k).1 / 1e3)),
+            &list(10),
+            None,
+            &ImportOptions::default(),
+        )
+        .unwrap_err();
+        assert!(
+            err.to_string().contains("looks like metres read as mm"),
+            "{err}"
+        );
         // Seen from the other side of the plane.
-        let err = import(&text(&|k| (target(k).0, -target(k).1)), &list(10), None, &ImportOptions::default()).unwrap_err();
+        let err = import(
+            &text(&|k| (target(k).0, -target(k).1)),
+            &list(10),
+            None,
+            &ImportOptions::default(),
+        )
+        .unwrap_err();
         assert!(matches!(err, ImportError::Mirrored { .. }), "{err}");
         // Numbered one row off: a warning with the figure.
-        let got = import(&text(&|k| target(k - 1 + (k == 1) as usize * 10)), &list(10), None, &ImportOptions::default()).unwrap();
-        assert!(got.report.warnings.iter().any(|w| w.contains("check the numbering")), "{:?}", got.report);
+        let got = import(
+            &text(&|k| target(k - 1 + (k == 1) as usize * 10)),
+            &list(10),
+            None,
+            &ImportOptions::default(),
+        )
+        .unwrap();
+        assert!(
+            got.report
+                .warnings
+                .iter()
+                .any(|w| w.contains("check the numbering")),
+            "{:?}",
+            got.report
+        );
     }
 
     #[test]
     fn the_plan_list_brings_runs_and_a_repeat_list_refuses_a_second_reading() {
-        let plan = parse_target_list("x_mm,y_mm,dir1,dir2,run\n190,-40,1,1,0\n200,-40,1,1,0\n190,-40,-1,-1,1\n").unwrap();
-        let commanded = parse_commanded("x_mm,y_mm,theta1_deg,theta2_deg\n190,-40,1,2\n200,-40,2,4\n190,-40,1,2\n").unwrap();
+        let plan = parse_target_list(
+            "x_mm,y_mm,dir1,dir2,run\n190,-40,1,1,0\n200,-40,1,1,0\n190,-40,-1,-1,1\n",
+        )
+        .unwrap();
+        let commanded = parse_commanded(
+            "x_mm,y_mm,theta1_deg,theta2_deg\n190,-40,1,2\n200,-40,2,4\n190,-40,1,2\n",
+        )
+        .unwrap();
         let e = export(&[("P1", 1), ("P2", 2), ("P3", 1)], |_| 0.0);
         let got = import(&e, &commanded, Some(&plan), &ImportOptions::default()).unwrap();
-        assert_eq!(got.rows.iter().map(|m| (m.run, m.dir)).collect::<Vec<_>>(), vec![(Some(0), Some([1, 1])), (Some(0), Some([1, 1])), (Some(1), Some([-1, -1]))]);
+        assert_eq!(
+            got.rows.iter().map(|m| (m.run, m.dir)).collect::<Vec<_>>(),
+            vec![
+                (Some(0), Some([1, 1])),
+                (Some(0), Some([1, 1])),
+                (Some(1), Some([-1, -1]))
+            ]
+        );
         let e = export(&[("P1", 1), ("P2", 2), ("P3", 1), ("P1", 1)], |_| 0.0);
-        assert!(matches!(import(&e, &commanded, Some(&plan), &ImportOptions::default()).unwrap_err(), ImportError::RepeatedInRunList { line: 5, max_run: 1, .. }));
+        assert!(matches!(
+            import(&e, &commanded, Some(&plan), &ImportOptions::default()).unwrap_err(),
+            ImportError::RepeatedInRunList {
+                line: 5,
+                max_run: 1,
+                ..
+            }
+        ));
         // A plan that is not the commanded list's.
         let other = parse_target_list("x_mm,y_mm\n190,-40\n210,-40\n190,-40\n").unwrap();
-        let err = import(&e, &commanded, Some(&other), &ImportOptions::default()).unwrap_err().to_string();
-        assert!(err.contains("row 2 (plan line 3, commanded line 3): target (210, -40) against (200, -40)"), "{err}");
+        let err = import(&e, &commanded, Some(&other), &ImportOptions::default())
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains(
+                "row 2 (plan line 3, commanded line 3): target (210, -40) against (200, -40)"
+            ),
+            "{err}"
+        );
     }
 }

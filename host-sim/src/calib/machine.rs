@@ -49,7 +49,11 @@ pub trait Machine {
     /// Drives the motors to the encoder angles `command_rad` (continuous, not wrapped),
     /// approaching each from the side `approach_dir` (+1: from below, i.e. the motor last moved
     /// in the positive direction; -1: from above), lets it settle and reads the tool point.
-    fn measure(&mut self, command_rad: [f64; 2], approach_dir: [i8; 2]) -> Result<Reading, CalibError>;
+    fn measure(
+        &mut self,
+        command_rad: [f64; 2],
+        approach_dir: [i8; 2],
+    ) -> Result<Reading, CalibError>;
 
     /// Restarts the instrument's noise stream as a machine built with `seed` starts it (each
     /// list a session of its own: `host-sim measure --seed`, and the demo's lists).
@@ -90,9 +94,13 @@ impl StandInMachine {
         noise_sigma_mm: f64,
         seed: u64,
     ) -> Result<Self, CalibError> {
-        five_bar.validate().map_err(|e| invalid!("stand-in machine: {e}"))?;
+        five_bar
+            .validate()
+            .map_err(|e| invalid!("stand-in machine: {e}"))?;
         if !(noise_sigma_mm >= 0.0 && noise_sigma_mm.is_finite() && distortion_scale.is_finite()) {
-            return Err(invalid!("stand-in machine: noise σ must be a non-negative number and the distortion finite"));
+            return Err(invalid!(
+                "stand-in machine: noise σ must be a non-negative number and the distortion finite"
+            ));
         }
         Ok(StandInMachine {
             five_bar,
@@ -121,8 +129,14 @@ impl StandInMachine {
             b_mm: nominal.b_mm + k * dl[1],
             c_mm: nominal.c_mm + k * dl[2],
             d_mm: nominal.d_mm + k * dl[3],
-            base_b0_mm: [nominal.base_b0_mm[0] + k * db[0], nominal.base_b0_mm[1] + k * db[1]],
-            encoder_offset_rad: [nominal.encoder_offset_rad[0] + k * doff[0], nominal.encoder_offset_rad[1] + k * doff[1]],
+            base_b0_mm: [
+                nominal.base_b0_mm[0] + k * db[0],
+                nominal.base_b0_mm[1] + k * db[1],
+            ],
+            encoder_offset_rad: [
+                nominal.encoder_offset_rad[0] + k * doff[0],
+                nominal.encoder_offset_rad[1] + k * doff[1],
+            ],
             ..nominal
         };
         // The error is nearly linear in k: a few secant steps hit the target to < 1 %.
@@ -135,16 +149,29 @@ impl StandInMachine {
             }
             k *= PAPER_WORST_ERROR_MM / worst;
         }
-        StandInMachine::new(spec, with(k), distortion_scale, spec.instrument_sigma_um * 1e-3, seed)
+        StandInMachine::new(
+            spec,
+            with(k),
+            distortion_scale,
+            spec.instrument_sigma_um * 1e-3,
+            seed,
+        )
     }
 
     /// Where the tool really is for encoder angles `theta_rad` (mm): the true five-bar's FK
     /// plus the smooth distortion.
     pub fn tool_mm(&self, theta_rad: [f64; 2]) -> Result<[f64; 2], CalibError> {
         let c = self.five_bar.forward(theta_rad, 0.0).map_err(|e| {
-            invalid!("stand-in machine cannot reach encoder angles ({:.4}, {:.4}) rad: {e}", theta_rad[0], theta_rad[1])
+            invalid!(
+                "stand-in machine cannot reach encoder angles ({:.4}, {:.4}) rad: {e}",
+                theta_rad[0],
+                theta_rad[1]
+            )
         })?;
-        let (centre, half) = (self.spec.workspace.centre_mm(), self.spec.workspace.half_mm());
+        let (centre, half) = (
+            self.spec.workspace.centre_mm(),
+            self.spec.workspace.half_mm(),
+        );
         let u = (c[0] - centre[0]) / half[0];
         let v = (c[1] - centre[1]) / half[1];
         let s = self.distortion_scale;
@@ -159,7 +186,11 @@ impl StandInMachine {
     pub fn worst_nominal_error_mm(&self) -> Result<f64, CalibError> {
         let mut worst = 0.0f64;
         for t in self.spec.grid_nodes_mm() {
-            let th = self.spec.nominal.inverse(t, 0.0).map_err(|e| invalid!("nominal IK of ({}, {}): {e}", t[0], t[1]))?;
+            let th = self
+                .spec
+                .nominal
+                .inverse(t, 0.0)
+                .map_err(|e| invalid!("nominal IK of ({}, {}): {e}", t[0], t[1]))?;
             let p = self.tool_mm(th)?;
             worst = worst.max((p[0] - t[0]).hypot(p[1] - t[1]));
         }
@@ -186,14 +217,22 @@ impl Machine for StandInMachine {
         )
     }
 
-    fn measure(&mut self, command_rad: [f64; 2], _approach_dir: [i8; 2]) -> Result<Reading, CalibError> {
+    fn measure(
+        &mut self,
+        command_rad: [f64; 2],
+        _approach_dir: [i8; 2],
+    ) -> Result<Reading, CalibError> {
         let true_mm = self.tool_mm(command_rad)?;
         let mut measured_mm = true_mm;
         for v in &mut measured_mm {
             let n: f64 = StandardNormal.sample(&mut self.rng);
             *v += self.noise_sigma_mm * n;
         }
-        Ok(Reading { encoder_rad: command_rad, measured_mm, true_mm })
+        Ok(Reading {
+            encoder_rad: command_rad,
+            measured_mm,
+            true_mm,
+        })
     }
 
     fn reseed(&mut self, seed: u64) {
@@ -213,15 +252,37 @@ pub const PLANT_BASE_TOLERANCE_MM: f64 = 10.0;
 /// finds.
 pub fn check_plant_fits(plant: &PlantConfig, spec: &MachineSpec) -> Result<(), CalibError> {
     let (p, m) = (plant.sixbar.nominal_five_bar(), &spec.nominal);
-    let links = [("a", p.a_mm, m.a_mm), ("b", p.b_mm, m.b_mm), ("c", p.c_mm, m.c_mm), ("d", p.d_mm, m.d_mm)];
-    let b0 = |f: &FiveBar<f64>| [f.base_a0_mm[0] + f.base_b0_mm[0], f.base_a0_mm[1] + f.base_b0_mm[1]];
+    let links = [
+        ("a", p.a_mm, m.a_mm),
+        ("b", p.b_mm, m.b_mm),
+        ("c", p.c_mm, m.c_mm),
+        ("d", p.d_mm, m.d_mm),
+    ];
+    let b0 = |f: &FiveBar<f64>| {
+        [
+            f.base_a0_mm[0] + f.base_b0_mm[0],
+            f.base_a0_mm[1] + f.base_b0_mm[1],
+        ]
+    };
     let far = |u: [f64; 2], v: [f64; 2]| (u[0] - v[0]).hypot(u[1] - v[1]) > PLANT_BASE_TOLERANCE_MM;
-    let what = if let Some((name, pl, ml)) = links.iter().find(|(_, pl, ml)| !((pl - ml).abs() <= PLANT_LINK_TOLERANCE * ml)) {
+    let what = if let Some((name, pl, ml)) = links
+        .iter()
+        .find(|(_, pl, ml)| !((pl - ml).abs() <= PLANT_LINK_TOLERANCE * ml))
+    {
         format!("its link {name} is {pl} mm, the machine's {ml} mm")
     } else if far(p.base_a0_mm, m.base_a0_mm) || far(b0(&p), b0(m)) {
-        format!("its axes A0 {:?}, B0 {:?} mm are not the machine's {:?}, {:?}", p.base_a0_mm, b0(&p), m.base_a0_mm, b0(m))
+        format!(
+            "its axes A0 {:?}, B0 {:?} mm are not the machine's {:?}, {:?}",
+            p.base_a0_mm,
+            b0(&p),
+            m.base_a0_mm,
+            b0(m)
+        )
     } else if p.mode != m.mode {
-        format!("its working mode {:?} is not the machine's {:?}", p.mode, m.mode)
+        format!(
+            "its working mode {:?} is not the machine's {:?}",
+            p.mode, m.mode
+        )
     } else {
         return Ok(());
     };
@@ -247,14 +308,24 @@ impl PlantMachine {
     }
 
     /// A plant from its configuration (e.g. one with randomly drawn errors), named `name`.
-    pub fn from_config(mut config: PlantConfig, name: &str, noise_um: Option<f64>, seed: u64) -> Result<Self, CalibError> {
+    pub fn from_config(
+        mut config: PlantConfig,
+        name: &str,
+        noise_um: Option<f64>,
+        seed: u64,
+    ) -> Result<Self, CalibError> {
         if let Some(n) = noise_um {
             if !(n >= 0.0 && n.is_finite()) {
-                return Err(invalid!("the instrument noise σ must be a non-negative number of µm, not {n}"));
+                return Err(invalid!(
+                    "the instrument noise σ must be a non-negative number of µm, not {n}"
+                ));
             }
             config.instrument.noise_sigma_um = n;
         }
-        Ok(PlantMachine { plant: Plant::new(&config, seed), name: name.to_string() })
+        Ok(PlantMachine {
+            plant: Plant::new(&config, seed),
+            name: name.to_string(),
+        })
     }
 }
 
@@ -267,11 +338,19 @@ impl Machine for PlantMachine {
         )
     }
 
-    fn measure(&mut self, command_rad: [f64; 2], approach_dir: [i8; 2]) -> Result<Reading, CalibError> {
+    fn measure(
+        &mut self,
+        command_rad: [f64; 2],
+        approach_dir: [i8; 2],
+    ) -> Result<Reading, CalibError> {
         let (encoder_rad, solution) = self.plant.settle(command_rad, approach_dir)?;
         let true_mm = self.plant.instrument.frame_mm(solution.tool_mm);
         let measured_mm = self.plant.instrument.read_mm(solution.tool_mm);
-        Ok(Reading { encoder_rad, measured_mm, true_mm })
+        Ok(Reading {
+            encoder_rad,
+            measured_mm,
+            true_mm,
+        })
     }
 
     fn reseed(&mut self, seed: u64) {
@@ -289,10 +368,19 @@ mod tests {
         for seed in [1, 2, 3] {
             let m = StandInMachine::paper_like(&spec, seed).unwrap();
             let w = m.worst_nominal_error_mm().unwrap();
-            assert!((w - PAPER_WORST_ERROR_MM).abs() < 0.02, "seed {seed}: {w} mm");
-            assert_eq!(m.five_bar, StandInMachine::paper_like(&spec, seed).unwrap().five_bar);
+            assert!(
+                (w - PAPER_WORST_ERROR_MM).abs() < 0.02,
+                "seed {seed}: {w} mm"
+            );
+            assert_eq!(
+                m.five_bar,
+                StandInMachine::paper_like(&spec, seed).unwrap().five_bar
+            );
         }
-        assert_ne!(StandInMachine::paper_like(&spec, 1).unwrap().five_bar, StandInMachine::paper_like(&spec, 2).unwrap().five_bar);
+        assert_ne!(
+            StandInMachine::paper_like(&spec, 1).unwrap().five_bar,
+            StandInMachine::paper_like(&spec, 2).unwrap().five_bar
+        );
     }
 
     #[test]
@@ -301,11 +389,16 @@ mod tests {
         assert!(check_plant_fits(&PlantConfig::paper(), &spec).is_ok());
         let mut other = spec.clone();
         other.nominal.c_mm = 170.0;
-        let e = check_plant_fits(&PlantConfig::paper(), &other).unwrap_err().to_string();
+        let e = check_plant_fits(&PlantConfig::paper(), &other)
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("link c is 150 mm, the machine's 170 mm"), "{e}");
         other.nominal.c_mm = 150.0;
         other.nominal.base_b0_mm = [0.0, -60.0];
-        assert!(check_plant_fits(&PlantConfig::paper(), &other).unwrap_err().to_string().contains("axes"));
+        assert!(check_plant_fits(&PlantConfig::paper(), &other)
+            .unwrap_err()
+            .to_string()
+            .contains("axes"));
         // A plant built around the other machine fits it.
         let plant = PlantConfig::ideal_for(&other.nominal, &other.grid_nodes_mm()).unwrap();
         assert!(check_plant_fits(&plant, &other).is_ok());
@@ -319,7 +412,11 @@ mod tests {
         let ra: Vec<Reading> = (0..200).map(|_| a.measure(th, [1, 1]).unwrap()).collect();
         let rb: Vec<Reading> = (0..200).map(|_| b.measure(th, [1, 1]).unwrap()).collect();
         assert_eq!(ra, rb);
-        let var = ra.iter().map(|r| (r.measured_mm[0] - r.true_mm[0]).powi(2)).sum::<f64>() / 200.0;
+        let var = ra
+            .iter()
+            .map(|r| (r.measured_mm[0] - r.true_mm[0]).powi(2))
+            .sum::<f64>()
+            / 200.0;
         let sigma_um = var.sqrt() * 1e3;
         assert!((0.8..1.2).contains(&sigma_um), "{sigma_um}");
     }

@@ -74,9 +74,14 @@ pub fn measure_visits_compensated(
     let mut previous = [0.0f64; 2];
     let mut out = Vec::with_capacity(visits.len());
     for v in visits {
-        let at_target = |reason: String| CalibError::Target { target_mm: v.target_mm, reason };
+        let at_target = |reason: String| CalibError::Target {
+            target_mm: v.target_mm,
+            reason,
+        };
         let t32 = [v.target_mm[0] as f32, v.target_mm[1] as f32];
-        let cmd = cal.command_rad(t32, min_transmission).map_err(|e| at_target(e.to_string()))?;
+        let cmd = cal
+            .command_rad(t32, min_transmission)
+            .map_err(|e| at_target(e.to_string()))?;
         // The motors turn continuously: unwrap next to the previous command.
         let cmd = [0, 1].map(|i| previous[i] + wrap_angle_rad(f64::from(cmd[i]) - previous[i]));
         previous = cmd;
@@ -86,7 +91,9 @@ pub fn measure_visits_compensated(
             (None, Approach::FromVisit, Ok(f)) => approach_dir(f, cmd),
         };
         let cmd = backlash.map_or(cmd, |b| b.command_rad(cmd, dir));
-        let r = machine.measure(cmd, dir).map_err(|e| at_target(e.to_string()))?;
+        let r = machine
+            .measure(cmd, dir)
+            .map_err(|e| at_target(e.to_string()))?;
         out.push(Landed {
             row: Measurement {
                 theta_deg: [r.encoder_rad[0].to_degrees(), r.encoder_rad[1].to_degrees()],
@@ -166,14 +173,20 @@ pub fn measured_error_vectors_um(landed: &[Landed]) -> Vec<[f64; 2]> {
         .iter()
         .map(|l| {
             let t = l.row.target_mm.unwrap_or(l.row.measured_mm);
-            [(l.row.measured_mm[0] - t[0]) * 1e3, (l.row.measured_mm[1] - t[1]) * 1e3]
+            [
+                (l.row.measured_mm[0] - t[0]) * 1e3,
+                (l.row.measured_mm[1] - t[1]) * 1e3,
+            ]
         })
         .collect()
 }
 
 /// Where measured visits landed, against their targets.
 pub fn accuracy(landed: &[Landed]) -> Accuracy {
-    let truth: Vec<f64> = true_error_vectors_um(landed).iter().map(|e| e[0].hypot(e[1])).collect();
+    let truth: Vec<f64> = true_error_vectors_um(landed)
+        .iter()
+        .map(|e| e[0].hypot(e[1]))
+        .collect();
     let measured: Vec<f64> = landed
         .iter()
         .map(|l| {
@@ -182,7 +195,13 @@ pub fn accuracy(landed: &[Landed]) -> Accuracy {
         })
         .collect();
     let (t, m) = (max_rms(&truth), max_rms(&measured));
-    Accuracy { max_um: t.max, rms_um: t.rms, measured_max_um: m.max, measured_rms_um: m.rms, n_targets: landed.len() }
+    Accuracy {
+        max_um: t.max,
+        rms_um: t.rms,
+        measured_max_um: m.max,
+        measured_rms_um: m.rms,
+        n_targets: landed.len(),
+    }
 }
 
 /// What `host-sim measure` runs (the library API of the protocols; the command itself also
@@ -199,7 +218,11 @@ pub struct MeasureOptions {
 
 /// Runs a protocol on a plant, commanded through `cal`, approached from each visit's start,
 /// and returns the measurements.
-pub fn measure(plant: &PlantConfig, cal: &Calibration<'_>, opts: &MeasureOptions) -> Result<Vec<Measurement>, CalibError> {
+pub fn measure(
+    plant: &PlantConfig,
+    cal: &Calibration<'_>,
+    opts: &MeasureOptions,
+) -> Result<Vec<Measurement>, CalibError> {
     measure_compensated(plant, cal, None, opts)
 }
 
@@ -211,9 +234,18 @@ pub fn measure_compensated(
     backlash: Option<&Backlash>,
     opts: &MeasureOptions,
 ) -> Result<Vec<Measurement>, CalibError> {
-    let mut machine = PlantMachine::from_config(plant.clone(), "measured plant", opts.noise_um, opts.seed)?;
+    let mut machine =
+        PlantMachine::from_config(plant.clone(), "measured plant", opts.noise_um, opts.seed)?;
     let visits = visits(opts.protocol, opts.seed, &opts.spec);
-    let landed = measure_list_compensated(&mut machine, cal, backlash, &visits, Approach::FromVisit, opts.seed, &opts.spec)?;
+    let landed = measure_list_compensated(
+        &mut machine,
+        cal,
+        backlash,
+        &visits,
+        Approach::FromVisit,
+        opts.seed,
+        &opts.spec,
+    )?;
     Ok(rows(&landed))
 }
 
@@ -223,11 +255,30 @@ mod tests {
     use kinematics_core::FiveBar;
 
     fn nominal() -> Calibration<'static> {
-        Calibration { model: FiveBar::<f32>::paper_nominal(), grid: None }
+        Calibration {
+            model: FiveBar::<f32>::paper_nominal(),
+            grid: None,
+        }
     }
 
-    fn run(plant: &PlantConfig, protocol: Protocol, seed: u64, cal: &Calibration<'_>, noise_um: Option<f64>) -> Vec<Measurement> {
-        measure(plant, cal, &MeasureOptions { protocol, seed, noise_um, spec: MachineSpec::paper() }).unwrap()
+    fn run(
+        plant: &PlantConfig,
+        protocol: Protocol,
+        seed: u64,
+        cal: &Calibration<'_>,
+        noise_um: Option<f64>,
+    ) -> Vec<Measurement> {
+        measure(
+            plant,
+            cal,
+            &MeasureOptions {
+                protocol,
+                seed,
+                noise_um,
+                spec: MachineSpec::paper(),
+            },
+        )
+        .unwrap()
     }
 
     fn worst_error_mm(rows: &[Measurement]) -> f64 {
@@ -249,13 +300,30 @@ mod tests {
 
     #[test]
     fn paper_plant_resembles_table1() {
-        let rows = run(&PlantConfig::paper(), Protocol::Grid, 1, &nominal(), Some(0.0));
+        let rows = run(
+            &PlantConfig::paper(),
+            Protocol::Grid,
+            1,
+            &nominal(),
+            Some(0.0),
+        );
         assert_eq!(rows.len(), 21 * 31);
         let worst = worst_error_mm(&rows);
-        let t1 = run(&PlantConfig::paper(), Protocol::Table1, 1, &nominal(), Some(0.0));
+        let t1 = run(
+            &PlantConfig::paper(),
+            Protocol::Table1,
+            1,
+            &nominal(),
+            Some(0.0),
+        );
         for m in &t1 {
             let t = m.target_mm.unwrap();
-            eprintln!("{:?} err {:.3} {:.3}", t, m.measured_mm[0] - t[0], m.measured_mm[1] - t[1]);
+            eprintln!(
+                "{:?} err {:.3} {:.3}",
+                t,
+                m.measured_mm[0] - t[0],
+                m.measured_mm[1] - t[1]
+            );
         }
         eprintln!("worst over grid {worst}");
         assert!((1.3..1.8).contains(&worst), "worst error {worst} mm");
@@ -266,7 +334,13 @@ mod tests {
 
     #[test]
     fn protocols_and_directions() {
-        let rows = run(&PlantConfig::paper(), Protocol::Random(40), 3, &nominal(), None);
+        let rows = run(
+            &PlantConfig::paper(),
+            Protocol::Random(40),
+            3,
+            &nominal(),
+            None,
+        );
         let mut seen = std::collections::HashSet::new();
         for m in &rows {
             seen.insert(m.dir.unwrap());
@@ -278,7 +352,12 @@ mod tests {
     fn unreachable_target_is_an_error() {
         let mut cal = nominal();
         cal.model.a_mm = 50.0;
-        let opts = MeasureOptions { protocol: Protocol::Table1, seed: 1, noise_um: None, spec: MachineSpec::paper() };
+        let opts = MeasureOptions {
+            protocol: Protocol::Table1,
+            seed: 1,
+            noise_um: None,
+            spec: MachineSpec::paper(),
+        };
         let err = measure(&PlantConfig::ideal(), &cal, &opts).unwrap_err();
         assert!(err.to_string().contains("target (212.132, 0.000)"), "{err}");
     }
@@ -288,32 +367,47 @@ mod tests {
     #[test]
     fn the_repeat_protocol_gives_both_axis_lines() {
         use crate::effect::PhysicalEffect;
-        let cfg = PlantConfig::paper().with_only(PhysicalEffect::Backlash).unwrap();
+        let cfg = PlantConfig::paper()
+            .with_only(PhysicalEffect::Backlash)
+            .unwrap();
         let rows = run(&cfg, Protocol::Repeat, 1, &nominal(), Some(0.2));
         let r = crate::calib::accuracy::report(&rows).unwrap();
         assert!(r.skipped.is_empty(), "{:?}", r.skipped);
         let axes: Vec<&str> = r.lines.iter().map(|l| l.axis).collect();
         assert_eq!(axes, ["x", "y"]);
         for l in &r.lines {
-            assert!(l.iso_230_2.b_um > 0.5, "{} line: reversal {} µm", l.axis, l.iso_230_2.b_um);
+            assert!(
+                l.iso_230_2.b_um > 0.5,
+                "{} line: reversal {} µm",
+                l.axis,
+                l.iso_230_2.b_um
+            );
         }
     }
 
     #[test]
     fn backlash_alone_shows_as_a_direction_dependent_error() {
         use crate::effect::PhysicalEffect;
-        let cfg = PlantConfig::paper().with_only(PhysicalEffect::Backlash).unwrap();
+        let cfg = PlantConfig::paper()
+            .with_only(PhysicalEffect::Backlash)
+            .unwrap();
         let rows = run(&cfg, Protocol::Repeat, 1, &nominal(), None);
         // On the x line (y = 0) motor 1 and 2 move in opposite directions; ascending and
         // descending passes must be displaced in opposite directions by about J·β/2.
         let mut shift = [0.0f64; 2];
         let mut n = [0usize; 2];
-        for m in rows.iter().filter(|m| m.run == Some(0) && m.target_mm.unwrap()[1] == 0.0) {
+        for m in rows
+            .iter()
+            .filter(|m| m.run == Some(0) && m.target_mm.unwrap()[1] == 0.0)
+        {
             let k = usize::from(m.dir.unwrap()[0] < 0);
             shift[k] += m.measured_mm[0] - m.target_mm.unwrap()[0];
             n[k] += 1;
         }
         let (a, b) = (shift[0] / n[0] as f64 * 1e3, shift[1] / n[1] as f64 * 1e3);
-        assert!(a * b < 0.0 && a.abs() > 0.5 && b.abs() > 0.5, "mean x error by direction: {a} um, {b} um");
+        assert!(
+            a * b < 0.0 && a.abs() > 0.5 && b.abs() > 0.5,
+            "mean x error by direction: {a} um, {b} um"
+        );
     }
 }

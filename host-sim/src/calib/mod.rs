@@ -71,7 +71,10 @@ pub enum CalibError {
 impl CalibError {
     /// This error as the cause of a failure in `context`.
     pub fn context(self, context: impl Into<String>) -> CalibError {
-        CalibError::Context { context: context.into(), reason: self.to_string() }
+        CalibError::Context {
+            context: context.into(),
+            reason: self.to_string(),
+        }
     }
 }
 

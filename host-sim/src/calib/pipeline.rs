@@ -49,6 +49,7 @@
 //! [`summary`] is the JSON report. The machine is behind [`super::machine::Machine`]. Cost:
 //! ~2.2 k measurements, the plan's selection and two fits: about a second.
 
+use super::backlash::{self, Backlash};
 use super::fit::evaluate::{self, Criterion};
 use super::fit::full::FullFit;
 use super::fit::params::{self, NAMES};
@@ -56,29 +57,30 @@ use super::fit::{fit, FitOptions, Method, ModelFigures, Points};
 use super::grid::{self, BuiltGrid};
 use super::image::finish_image;
 use super::machine::Machine;
-use super::backlash::{self, Backlash};
 use super::measure::{measure_list_compensated, rows, Landed};
+use super::plan::list_rows;
 use super::plan::{plan, with_approach, Plan, PlanOptions};
 use super::protocol::{random_visits, Range, Visit};
 use super::{invalid, CalibError};
 use crate::diagnose::loop_closure::SixBarDesign;
-use rand::SeedableRng;
-use rand_chacha::ChaCha8Rng;
 use crate::io::atomic::write_atomic;
 use crate::io::measurement_csv::{format_measurements, parse_measurements, Measurement};
-use crate::io::targets_csv::format_target_list;
-use super::plan::list_rows;
 use crate::io::model_file::{write_model_file, ModelFile};
 use crate::io::plot::{vector_plot, VectorField};
+use crate::io::targets_csv::format_target_list;
 use crate::io::IoError;
 use crate::machine_spec::MachineSpec;
 use crate::numeric::{max_rms, round3, MaxRms};
 use kinematics_core::{Calibration, CorrectionGrid, FiveBar};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-pub use super::measure::{accuracy, measured_error_vectors_um, true_error_vectors_um, Accuracy, Approach};
+pub use super::measure::{
+    accuracy, measured_error_vectors_um, true_error_vectors_um, Accuracy, Approach,
+};
 
 /// Poses measured for the fits (the plan's identification poses).
 pub const FIT_POSES: usize = super::plan::IDENTIFICATION_POSES;
@@ -161,13 +163,15 @@ impl Calibrated {
 
     /// The accuracy target (noise floor) met by the last stage.
     pub fn target_met(&self) -> bool {
-        self.final_accuracy().is_some_and(|a| a.max_um <= self.goal_um[0] && a.rms_um <= self.goal_um[1])
+        self.final_accuracy()
+            .is_some_and(|a| a.max_um <= self.goal_um[0] && a.rms_um <= self.goal_um[1])
     }
 }
 
 /// A grid image as the firmware reads it.
 fn grid_calibration<'g>(g: &'g BuiltGrid, what: &str) -> Result<Calibration<'g>, CalibError> {
-    let parsed = CorrectionGrid::parse(&g.image).map_err(|e| invalid!("the {what} image does not parse: {e}"))?;
+    let parsed = CorrectionGrid::parse(&g.image)
+        .map_err(|e| invalid!("the {what} image does not parse: {e}"))?;
     Ok(Calibration::from_grid(parsed))
 }
 
@@ -183,45 +187,98 @@ pub fn round_trip(rows: &[Measurement]) -> Result<Vec<Measurement>, CalibError> 
 }
 
 /// The `full` fit as `fit --method full --no-loo` runs it.
-fn fit_with(method: Method, data: &[Measurement], spec: &MachineSpec) -> Result<super::fit::FitOutcome, CalibError> {
-    let opts = FitOptions { method, criterion: Criterion::Measured, points: Points::All, fixed: Vec::new(), leave_one_out: false, reject_sigma: super::fit::blunders::DEFAULT_REJECT_SIGMA, spec: spec.clone() };
+fn fit_with(
+    method: Method,
+    data: &[Measurement],
+    spec: &MachineSpec,
+) -> Result<super::fit::FitOutcome, CalibError> {
+    let opts = FitOptions {
+        method,
+        criterion: Criterion::Measured,
+        points: Points::All,
+        fixed: Vec::new(),
+        leave_one_out: false,
+        reject_sigma: super::fit::blunders::DEFAULT_REJECT_SIGMA,
+        spec: spec.clone(),
+    };
     fit(data, &opts, &mut |_| {})
 }
 
 /// The grid from node measurements, as `grid` builds and finishes it.
-fn build_grid(model: &FiveBar<f64>, data: &[Measurement], spec: &MachineSpec) -> Result<BuiltGrid, CalibError> {
+fn build_grid(
+    model: &FiveBar<f64>,
+    data: &[Measurement],
+    spec: &MachineSpec,
+) -> Result<BuiltGrid, CalibError> {
     let mut built = grid::build_with(model, data, &grid::GridOptions::for_machine(spec))?;
     built.image = finish_image(&built.image, spec)?.0;
     Ok(built)
 }
 
 /// Runs the calibration on `machine` (the steps of the module doc); `events` hears progress.
-pub fn calibrate(machine: &mut dyn Machine, opts: &PipelineOptions, events: &mut dyn FnMut(Event)) -> Result<Calibrated, CalibError> {
+pub fn calibrate(
+    machine: &mut dyn Machine,
+    opts: &PipelineOptions,
+    events: &mut dyn FnMut(Event),
+) -> Result<Calibrated, CalibError> {
     let approach = opts.approach;
     // The plan under the run's approach policy: its rows carry the directions.
-    let spec = &MachineSpec { approach, ..opts.spec.clone() };
+    let spec = &MachineSpec {
+        approach,
+        ..opts.spec.clone()
+    };
     let step = |events: &mut dyn FnMut(Event), s: String| events(Event::Step(s));
     let description = machine.describe();
     step(events, "step 0: planning the lists (identification poses chosen for identifiability, grid, verification targets)".into());
-    let plan = plan(&PlanOptions::new(spec.clone(), opts.seed)).map_err(|e| e.context("planning"))?;
+    let plan =
+        plan(&PlanOptions::new(spec.clone(), opts.seed)).map_err(|e| e.context("planning"))?;
     let seed = |k: u64| noise_seed(opts.seed, k);
-    let measure_with = |machine: &mut dyn Machine, cal: &Calibration<'_>, b: Option<&Backlash>, v: &[Visit], k: u64, what: &str| {
-        measure_list_compensated(machine, cal, b, v, approach, seed(k), spec).map_err(|e| e.context(what))
+    let measure_with = |machine: &mut dyn Machine,
+                        cal: &Calibration<'_>,
+                        b: Option<&Backlash>,
+                        v: &[Visit],
+                        k: u64,
+                        what: &str| {
+        measure_list_compensated(machine, cal, b, v, approach, seed(k), spec)
+            .map_err(|e| e.context(what))
     };
-    let measure = |machine: &mut dyn Machine, cal: &Calibration<'_>, v: &[Visit], k: u64, what: &str| {
-        measure_with(machine, cal, None, v, k, what)
-    };
-    let read_back = |landed: &[Landed], what: &str| round_trip(&rows(landed)).map_err(|e| e.context(what));
+    let measure =
+        |machine: &mut dyn Machine, cal: &Calibration<'_>, v: &[Visit], k: u64, what: &str| {
+            measure_with(machine, cal, None, v, k, what)
+        };
+    let read_back =
+        |landed: &[Landed], what: &str| round_trip(&rows(landed)).map_err(|e| e.context(what));
     let nominal = spec.nominal;
-    let nominal_cal = Calibration { model: nominal.cast(), grid: None };
+    let nominal_cal = Calibration {
+        model: nominal.cast(),
+        grid: None,
+    };
     let (n_fit, n_verify) = (plan.identify.len(), plan.verify.len());
 
-    step(events, format!("step 1: measuring {n_fit} identification poses commanded with the nominal model"));
-    let fit_data = measure(machine, &nominal_cal, &plan.identify, 1, "measuring the fit poses")?;
+    step(
+        events,
+        format!("step 1: measuring {n_fit} identification poses commanded with the nominal model"),
+    );
+    let fit_data = measure(
+        machine,
+        &nominal_cal,
+        &plan.identify,
+        1,
+        "measuring the fit poses",
+    )?;
     let fit_rows = read_back(&fit_data, "the fit poses")?;
     let mut stages = Vec::new();
-    step(events, format!("verifying the nominal model on {n_verify} fresh targets"));
-    let landed = measure(machine, &nominal_cal, &plan.verify, 2, "verifying the nominal model")?;
+    step(
+        events,
+        format!("verifying the nominal model on {n_verify} fresh targets"),
+    );
+    let landed = measure(
+        machine,
+        &nominal_cal,
+        &plan.verify,
+        2,
+        "verifying the nominal model",
+    )?;
     let stage = |key, description: &str, paper, landed: Vec<Landed>| Stage {
         key,
         description: description.to_string(),
@@ -229,11 +286,21 @@ pub fn calibrate(machine: &mut dyn Machine, opts: &PipelineOptions, events: &mut
         accuracy: accuracy(&landed),
         landed,
     };
-    stages.push(stage("nominal", "before calibration (nominal model)", "~1500", landed));
+    stages.push(stage(
+        "nominal",
+        "before calibration (nominal model)",
+        "~1500",
+        landed,
+    ));
 
     step(events, "step 2: fitting the hidden robot: the paper's ls (links only) and full (LM: links, A0, B0, offsets)".into());
-    let ls_model = fit_with(Method::Ls, &fit_rows, spec).map_err(|e| e.context("ls fit"))?.model;
-    let ls_cal = Calibration { model: ls_model.cast(), grid: None };
+    let ls_model = fit_with(Method::Ls, &fit_rows, spec)
+        .map_err(|e| e.context("ls fit"))?
+        .model;
+    let ls_cal = Calibration {
+        model: ls_model.cast(),
+        grid: None,
+    };
     let landed = measure(machine, &ls_cal, &plan.verify, 3, "verifying the ls model")?;
     stages.push(stage("ls", "paper's ls fit (4 links)", "~700", landed));
     let full = fit_with(Method::Full, &fit_rows, spec)
@@ -241,14 +308,37 @@ pub fn calibrate(machine: &mut dyn Machine, opts: &PipelineOptions, events: &mut
         .full
         .ok_or_else(|| invalid!("internal: the full fit reported no full fit"))?;
     for (k, why) in &full.identifiability.fixed {
-        events(Event::Held { param: NAMES[*k], why: why.clone() });
+        events(Event::Held {
+            param: NAMES[*k],
+            why: why.clone(),
+        });
     }
-    let full_cal = Calibration { model: full.model.cast(), grid: None };
-    let landed = measure(machine, &full_cal, &plan.verify, 4, "verifying the full model")?;
-    stages.push(stage("full", "full fit (LM: links, A0, B0, offsets)", "-", landed));
+    let full_cal = Calibration {
+        model: full.model.cast(),
+        grid: None,
+    };
+    let landed = measure(
+        machine,
+        &full_cal,
+        &plan.verify,
+        4,
+        "verifying the full model",
+    )?;
+    stages.push(stage(
+        "full",
+        "full fit (LM: links, A0, B0, offsets)",
+        "-",
+        landed,
+    ));
 
     let g = &spec.grid;
-    step(events, format!("step 3: measuring the {} mm grid ({} x {} nodes) commanded with the full model", g.step_mm, g.nx, g.ny));
+    step(
+        events,
+        format!(
+            "step 3: measuring the {} mm grid ({} x {} nodes) commanded with the full model",
+            g.step_mm, g.nx, g.ny
+        ),
+    );
     let grid_data = measure(machine, &full_cal, &plan.grid, 5, "measuring the grid")?;
     // Random approach directions: the backlash is measured on poses of its own (random places,
     // random directions: on the grid's raster the direction follows the configuration, and
@@ -258,14 +348,31 @@ pub fn calibrate(machine: &mut dyn Machine, opts: &PipelineOptions, events: &mut
     let backlash = match approach {
         Approach::Positive => None,
         Approach::FromVisit => {
-            let design = SixBarDesign::for_model(&spec.nominal, spec.workspace.centre_mm()).map_err(|e| invalid!("the six-bar design: {e}"))?;
+            let design = SixBarDesign::for_model(&spec.nominal, spec.workspace.centre_mm())
+                .map_err(|e| invalid!("the six-bar design: {e}"))?;
             let mut rng = ChaCha8Rng::seed_from_u64(opts.seed ^ 0xbac_c1a5);
             let mut poses = random_visits(BACKLASH_POSES, &mut rng, spec, Range::HalfOpen);
             with_approach(&mut poses, spec)?;
-            let data = measure(machine, &full_cal, &poses, 9, "measuring the backlash poses")?;
-            let (b, sd) = backlash::estimate(&read_back(&data, "the backlash poses")?, &full.model, &design)
-                .map_err(|e| e.context("estimating the backlash"))?;
-            let kept = [0, 1].map(|j| if b.lost_motion_urad[j] > 3.0 * sd[j] { b.lost_motion_urad[j] } else { 0.0 });
+            let data = measure(
+                machine,
+                &full_cal,
+                &poses,
+                9,
+                "measuring the backlash poses",
+            )?;
+            let (b, sd) = backlash::estimate(
+                &read_back(&data, "the backlash poses")?,
+                &full.model,
+                &design,
+            )
+            .map_err(|e| e.context("estimating the backlash"))?;
+            let kept = [0, 1].map(|j| {
+                if b.lost_motion_urad[j] > 3.0 * sd[j] {
+                    b.lost_motion_urad[j]
+                } else {
+                    0.0
+                }
+            });
             step(
                 events,
                 format!(
@@ -285,23 +392,65 @@ pub fn calibrate(machine: &mut dyn Machine, opts: &PipelineOptions, events: &mut
         }
     };
     let grid1_rows = link_rows(&grid_data, "the grid, round 1")?;
-    let grid = build_grid(&full.model, &grid1_rows, spec).map_err(|e| e.context("building the grid"))?;
+    let grid =
+        build_grid(&full.model, &grid1_rows, spec).map_err(|e| e.context("building the grid"))?;
     let grid_cal = grid_calibration(&grid, "built grid")?;
-    let landed = measure_with(machine, &grid_cal, backlash.as_ref(), &plan.verify, 6, "verifying full fit + grid")?;
-    stages.push(stage("full+grid", &format!("full fit + {} mm grid (1 round)", g.step_mm), "~37 (40x)", landed));
+    let landed = measure_with(
+        machine,
+        &grid_cal,
+        backlash.as_ref(),
+        &plan.verify,
+        6,
+        "verifying full fit + grid",
+    )?;
+    stages.push(stage(
+        "full+grid",
+        &format!("full fit + {} mm grid (1 round)", g.step_mm),
+        "~37 (40x)",
+        landed,
+    ));
     // Round 2: the grid is first order in the error it corrects (grid/mod.rs's doc), so the nodes
     // are measured again through it and the grid rebuilt from what is left.
-    step(events, "step 4: measuring the grid nodes again through the grid (round 2) and refining it".into());
-    let grid2_data = measure_with(machine, &grid_cal, backlash.as_ref(), &plan.grid, 7, "measuring the grid, round 2")?;
+    step(
+        events,
+        "step 4: measuring the grid nodes again through the grid (round 2) and refining it".into(),
+    );
+    let grid2_data = measure_with(
+        machine,
+        &grid_cal,
+        backlash.as_ref(),
+        &plan.grid,
+        7,
+        "measuring the grid, round 2",
+    )?;
     // Both rounds' readings: the grid refers each to the node's IK command (grid/mod.rs), so the
     // refined grid averages two readings per node and the instrument's noise in it drops by √2.
     // With a backlash correction both rounds are in link angles (backlash.rs).
-    let both: Vec<Measurement> = grid1_rows.into_iter().chain(link_rows(&grid2_data, "the grid, round 2")?).collect();
-    let grid2 = build_grid(&full.model, &both, spec).map_err(|e| e.context("building the grid, round 2"))?;
+    let both: Vec<Measurement> = grid1_rows
+        .into_iter()
+        .chain(link_rows(&grid2_data, "the grid, round 2")?)
+        .collect();
+    let grid2 = build_grid(&full.model, &both, spec)
+        .map_err(|e| e.context("building the grid, round 2"))?;
     let grid2_cal = grid_calibration(&grid2, "refined grid")?;
-    step(events, format!("step 5: verifying full fit + refined grid on the same {n_verify} fresh targets"));
-    let landed = measure_with(machine, &grid2_cal, backlash.as_ref(), &plan.verify, 8, "verifying full fit + refined grid")?;
-    stages.push(stage("full+grid2", &format!("full fit + {} mm grid (2 rounds)", g.step_mm), "-", landed));
+    step(
+        events,
+        format!("step 5: verifying full fit + refined grid on the same {n_verify} fresh targets"),
+    );
+    let landed = measure_with(
+        machine,
+        &grid2_cal,
+        backlash.as_ref(),
+        &plan.verify,
+        8,
+        "verifying full fit + refined grid",
+    )?;
+    stages.push(stage(
+        "full+grid2",
+        &format!("full fit + {} mm grid (2 rounds)", g.step_mm),
+        "-",
+        landed,
+    ));
     // The image to flash carries the estimated backlash (last block, as `host-sim grid` writes
     // it from the model's `backlash_urad`): the firmware's servo compensates it. Added after
     // the stages above, which command through the host's compensation (measure_with).
@@ -311,7 +460,21 @@ pub fn calibrate(machine: &mut dyn Machine, opts: &PipelineOptions, events: &mut
     }
     step(events, "calibration done".into());
     let goal_um = goal_um(spec);
-    Ok(Calibrated { machine: description, plan, fit_data, ls_model, full, grid_data, grid, grid2_data, grid2, approach, backlash, stages, goal_um })
+    Ok(Calibrated {
+        machine: description,
+        plan,
+        fit_data,
+        ls_model,
+        full,
+        grid_data,
+        grid,
+        grid2_data,
+        grid2,
+        approach,
+        backlash,
+        stages,
+        goal_um,
+    })
 }
 
 /// One stage in the summary.
@@ -409,9 +572,17 @@ fn residual_um(m: &FiveBar<f64>, data: &[crate::io::measurement_csv::Measurement
 pub fn summary(cal: &Calibrated, seed: u64, out_dir: &Path, files: &[PathBuf]) -> Summary {
     let before = cal.stages.first().map_or(f64::NAN, |s| s.accuracy.max_um);
     let fit_rows = rows(&cal.fit_data);
-    let (full_res, ls_res) = (residual_um(&cal.full.model, &fit_rows), residual_um(&cal.ls_model, &fit_rows));
+    let (full_res, ls_res) = (
+        residual_um(&cal.full.model, &fit_rows),
+        residual_um(&cal.ls_model, &fit_rows),
+    );
     let n1 = cal.grid.stats().node_err;
-    let n2 = max_rms(&measured_error_vectors_um(&cal.grid2_data).iter().map(|e| e[0].hypot(e[1])).collect::<Vec<f64>>());
+    let n2 = max_rms(
+        &measured_error_vectors_um(&cal.grid2_data)
+            .iter()
+            .map(|e| e[0].hypot(e[1]))
+            .collect::<Vec<f64>>(),
+    );
     let fin = cal.final_accuracy();
     Summary {
         machine: cal.machine.clone(),
@@ -440,7 +611,13 @@ pub fn summary(cal: &Calibrated, seed: u64, out_dir: &Path, files: &[PathBuf]) -
             sigma_um: round3(cal.full.sigma_mm * 1e3),
             fit_residual_max_um: round3(full_res.max),
             fit_residual_rms_um: round3(full_res.rms),
-            fixed: cal.full.identifiability.fixed.iter().map(|(k, _)| NAMES[*k]).collect(),
+            fixed: cal
+                .full
+                .identifiability
+                .fixed
+                .iter()
+                .map(|(k, _)| NAMES[*k])
+                .collect(),
             iterations: cal.full.iterations,
         },
         fit_ls: LsFitSummary {
@@ -501,7 +678,10 @@ pub const FILES: [&str; 21] = [
 ];
 
 fn stage<'a>(cal: &'a Calibrated, key: &str) -> Result<&'a Stage, IoError> {
-    cal.stages.iter().find(|s| s.key == key).ok_or_else(|| IoError::Invalid(format!("internal: no stage '{key}'")))
+    cal.stages
+        .iter()
+        .find(|s| s.key == key)
+        .ok_or_else(|| IoError::Invalid(format!("internal: no stage '{key}'")))
 }
 
 /// Writes every output into `dir` (each file atomically) and returns the paths, in [`FILES`]
@@ -515,13 +695,28 @@ pub fn write_outputs(cal: &Calibrated, dir: &Path) -> Result<Vec<PathBuf>, IoErr
         Ok(())
     };
     for (name, list) in cal.plan.lists() {
-        text(&format!("plan_{name}.csv"), format_target_list(&list_rows(list)).as_bytes())?;
+        text(
+            &format!("plan_{name}.csv"),
+            format_target_list(&list_rows(list)).as_bytes(),
+        )?;
     }
-    text("fit_measurements.csv", format_measurements(&rows(&cal.fit_data)).as_bytes())?;
-    text("grid_measurements.csv", format_measurements(&rows(&cal.grid_data)).as_bytes())?;
-    text("grid_measurements_round2.csv", format_measurements(&rows(&cal.grid2_data)).as_bytes())?;
+    text(
+        "fit_measurements.csv",
+        format_measurements(&rows(&cal.fit_data)).as_bytes(),
+    )?;
+    text(
+        "grid_measurements.csv",
+        format_measurements(&rows(&cal.grid_data)).as_bytes(),
+    )?;
+    text(
+        "grid_measurements_round2.csv",
+        format_measurements(&rows(&cal.grid2_data)).as_bytes(),
+    )?;
     for s in &cal.stages {
-        text(&format!("verify_{}.csv", s.key.replace('+', "_")), format_measurements(&rows(&s.landed)).as_bytes())?;
+        text(
+            &format!("verify_{}.csv", s.key.replace('+', "_")),
+            format_measurements(&rows(&s.landed)).as_bytes(),
+        )?;
     }
     // The grid to flash: round 2. (Round 1 is in the round-2 data: nodes commanded through it.)
     text("grid.bin", &cal.grid2.image)?;
@@ -529,19 +724,31 @@ pub fn write_outputs(cal: &Calibrated, dir: &Path) -> Result<Vec<PathBuf>, IoErr
 
     let mut full_file = ModelFile::from_model(&cal.full.model);
     full_file.std_dev = params::std_dev_map(&cal.full.std_dev);
-    full_file.fit = Some(serde_json::json!({ "method": "full", "source": "host-sim demo", "n_points": cal.fit_data.len() }));
+    full_file.fit = Some(
+        serde_json::json!({ "method": "full", "source": "host-sim demo", "n_points": cal.fit_data.len() }),
+    );
     full_file.backlash_urad = cal.backlash.map(|b| b.lost_motion_urad);
     write_model_file(&p("model.json"), &full_file)?;
     written.push(p("model.json"));
     let mut ls_file = ModelFile::from_model(&cal.ls_model);
-    ls_file.fit = Some(serde_json::json!({ "method": "ls", "source": "host-sim demo", "n_points": cal.fit_data.len() }));
+    ls_file.fit = Some(
+        serde_json::json!({ "method": "ls", "source": "host-sim demo", "n_points": cal.fit_data.len() }),
+    );
     write_model_file(&p("model_ls.json"), &ls_file)?;
     written.push(p("model_ls.json"));
 
     // Plots: the same fresh targets for every stage; fields in one plot share one scale.
-    let (nominal, ls, full) = (stage(cal, "nominal")?, stage(cal, "ls")?, stage(cal, "full")?);
+    let (nominal, ls, full) = (
+        stage(cal, "nominal")?,
+        stage(cal, "ls")?,
+        stage(cal, "full")?,
+    );
     let (gridded, gridded2) = (stage(cal, "full+grid")?, stage(cal, "full+grid2")?);
-    let base: Vec<[f64; 2]> = gridded.landed.iter().map(|l| l.row.target_mm.unwrap_or(l.true_mm)).collect();
+    let base: Vec<[f64; 2]> = gridded
+        .landed
+        .iter()
+        .map(|l| l.row.target_mm.unwrap_or(l.true_mm))
+        .collect();
     let (e_nom, e_ls, e_full, e_grid, e_grid2) = (
         true_error_vectors_um(&nominal.landed),
         true_error_vectors_um(&ls.landed),
@@ -553,9 +760,21 @@ pub fn write_outputs(cal: &Calibrated, dir: &Path) -> Result<Vec<PathBuf>, IoErr
         &p("errors_fit.png"),
         "step 2, fit: true − target at fresh targets",
         &[
-            VectorField { label: "nominal model", base_mm: &base, error_um: &e_nom },
-            VectorField { label: "paper's ls fit", base_mm: &base, error_um: &e_ls },
-            VectorField { label: "full fit", base_mm: &base, error_um: &e_full },
+            VectorField {
+                label: "nominal model",
+                base_mm: &base,
+                error_um: &e_nom,
+            },
+            VectorField {
+                label: "paper's ls fit",
+                base_mm: &base,
+                error_um: &e_ls,
+            },
+            VectorField {
+                label: "full fit",
+                base_mm: &base,
+                error_um: &e_full,
+            },
         ],
     )?;
     written.push(p("errors_fit.png"));
@@ -563,9 +782,21 @@ pub fn write_outputs(cal: &Calibrated, dir: &Path) -> Result<Vec<PathBuf>, IoErr
         &p("errors_grid.png"),
         "step 3, grid: true − target at fresh targets",
         &[
-            VectorField { label: "full fit", base_mm: &base, error_um: &e_full },
-            VectorField { label: "full fit + grid (1 round)", base_mm: &base, error_um: &e_grid },
-            VectorField { label: "full fit + grid (2 rounds)", base_mm: &base, error_um: &e_grid2 },
+            VectorField {
+                label: "full fit",
+                base_mm: &base,
+                error_um: &e_full,
+            },
+            VectorField {
+                label: "full fit + grid (1 round)",
+                base_mm: &base,
+                error_um: &e_grid,
+            },
+            VectorField {
+                label: "full fit + grid (2 rounds)",
+                base_mm: &base,
+                error_um: &e_grid2,
+            },
         ],
     )?;
     written.push(p("errors_grid.png"));
@@ -573,19 +804,38 @@ pub fn write_outputs(cal: &Calibrated, dir: &Path) -> Result<Vec<PathBuf>, IoErr
         &p("errors_final.png"),
         "after calibration: true − target at fresh targets",
         &[
-            VectorField { label: "full fit + grid (1 round)", base_mm: &base, error_um: &e_grid },
-            VectorField { label: "full fit + grid (2 rounds)", base_mm: &base, error_um: &e_grid2 },
+            VectorField {
+                label: "full fit + grid (1 round)",
+                base_mm: &base,
+                error_um: &e_grid,
+            },
+            VectorField {
+                label: "full fit + grid (2 rounds)",
+                base_mm: &base,
+                error_um: &e_grid2,
+            },
         ],
     )?;
     written.push(p("errors_final.png"));
     let node_base: Vec<[f64; 2]> = cal.grid.nodes.iter().map(|n| n.target_mm).collect();
-    let (node_err1, node_err2) = (measured_error_vectors_um(&cal.grid_data), measured_error_vectors_um(&cal.grid2_data));
+    let (node_err1, node_err2) = (
+        measured_error_vectors_um(&cal.grid_data),
+        measured_error_vectors_um(&cal.grid2_data),
+    );
     vector_plot(
         &p("grid_nodes.png"),
         "grid nodes: measured − target",
         &[
-            VectorField { label: "round 1 (full fit)", base_mm: &node_base, error_um: &node_err1 },
-            VectorField { label: "round 2 (through the round-1 grid)", base_mm: &node_base, error_um: &node_err2 },
+            VectorField {
+                label: "round 1 (full fit)",
+                base_mm: &node_base,
+                error_um: &node_err1,
+            },
+            VectorField {
+                label: "round 2 (through the round-1 grid)",
+                base_mm: &node_base,
+                error_um: &node_err2,
+            },
         ],
     )?;
     written.push(p("grid_nodes.png"));

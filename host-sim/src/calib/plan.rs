@@ -150,7 +150,12 @@ pub struct Plan {
 impl Plan {
     /// The lists by name (the file stems `plan` writes), in session order.
     pub fn lists(&self) -> [(&'static str, &[Visit]); 4] {
-        [("identify", &self.identify), ("grid", &self.grid), ("verify", &self.verify), ("repeat", &self.repeat)]
+        [
+            ("identify", &self.identify),
+            ("grid", &self.grid),
+            ("verify", &self.verify),
+            ("repeat", &self.repeat),
+        ]
     }
 }
 
@@ -173,11 +178,20 @@ pub fn with_approach(list: &mut [Visit], spec: &MachineSpec) -> Result<(), Calib
         v.dir = Some(match spec.approach {
             Approach::Positive => [1, 1],
             Approach::FromVisit => {
-                let to = m
-                    .inverse(v.target_mm, spec.min_transmission)
-                    .map_err(|e| CalibError::Target { target_mm: v.target_mm, reason: e.to_string() })?;
+                let to = m.inverse(v.target_mm, spec.min_transmission).map_err(|e| {
+                    CalibError::Target {
+                        target_mm: v.target_mm,
+                        reason: e.to_string(),
+                    }
+                })?;
                 match m.inverse(v.from_mm, 0.0) {
-                    Ok(from) => [0, 1].map(|i| if wrap_angle_rad(to[i] - from[i]) >= 0.0 { 1 } else { -1 }),
+                    Ok(from) => [0, 1].map(|i| {
+                        if wrap_angle_rad(to[i] - from[i]) >= 0.0 {
+                            1
+                        } else {
+                            -1
+                        }
+                    }),
                     Err(_) => [1, 1],
                 }
             }
@@ -195,7 +209,10 @@ fn poses_at(spec: &MachineSpec, targets: &[[f64; 2]]) -> Result<Vec<Measurement>
             let th = spec
                 .nominal
                 .inverse(t, spec.min_transmission)
-                .map_err(|e| CalibError::Target { target_mm: t, reason: e.to_string() })?;
+                .map_err(|e| CalibError::Target {
+                    target_mm: t,
+                    reason: e.to_string(),
+                })?;
             Ok(Measurement {
                 theta_deg: [th[0].to_degrees(), th[1].to_degrees()],
                 measured_mm: t,
@@ -251,12 +268,15 @@ fn d_optimal(j: &DMatrix<f64>, n: usize) -> (Vec<usize>, usize) {
     let (count, m) = (j.nrows() / 2, j.ncols());
     let block = |i: usize| j.rows(2 * i, 2).into_owned();
     // Greedy from a tiny ridge: each step the candidate adding the most information.
-    let scale = (0..m).map(|c| j.column(c).norm_squared()).sum::<f64>() / (count.max(1) as f64 * m as f64);
+    let scale =
+        (0..m).map(|c| j.column(c).norm_squared()).sum::<f64>() / (count.max(1) as f64 * m as f64);
     let mut info = DMatrix::<f64>::identity(m, m) * (1e-9 * scale.max(f64::MIN_POSITIVE));
     let mut chosen: Vec<usize> = Vec::with_capacity(n);
     let mut taken = vec![false; count];
     for _ in 0..n {
-        let Some(inv) = info.clone().try_inverse() else { break };
+        let Some(inv) = info.clone().try_inverse() else {
+            break;
+        };
         let mut best = (f64::NEG_INFINITY, usize::MAX);
         for i in (0..count).filter(|&i| !taken[i]) {
             let b = block(i);
@@ -315,10 +335,13 @@ fn d_optimal(j: &DMatrix<f64>, n: usize) -> (Vec<usize>, usize) {
 fn identification(opts: &PlanOptions) -> Result<(Vec<Visit>, IdentificationReport), CalibError> {
     let spec = &opts.spec;
     let mut rng = candidate_rng(opts.seed);
-    let candidates: Vec<Visit> = (0..opts.candidates).map(|_| random_visit(&mut rng, spec, Range::HalfOpen)).collect();
+    let candidates: Vec<Visit> = (0..opts.candidates)
+        .map(|_| random_visit(&mut rng, spec, Range::HalfOpen))
+        .collect();
     let targets: Vec<[f64; 2]> = candidates.iter().map(|v| v.target_mm).collect();
     let poses = poses_at(spec, &targets)?;
-    let j_all = params::jacobian(&spec.nominal, &poses).map_err(|e| invalid!("the identification Jacobian: {e}"))?;
+    let j_all = params::jacobian(&spec.nominal, &poses)
+        .map_err(|e| invalid!("the identification Jacobian: {e}"))?;
     let free = identifiability::check(&j_all, &[]).free;
     let mut j = j_all.select_columns(&free);
     // Scale every column by its RMS over the candidates: unit-free, the same for every design.
@@ -335,7 +358,10 @@ fn identification(opts: &PlanOptions) -> Result<(Vec<Visit>, IdentificationRepor
         Selection::DOptimal => d_optimal(&j, n),
     };
     if chosen.len() != n {
-        return Err(invalid!("could choose only {} identification poses of {n}", chosen.len()));
+        return Err(invalid!(
+            "could choose only {} identification poses of {n}",
+            chosen.len()
+        ));
     }
     let report = IdentificationReport {
         selection: opts.selection,
@@ -350,7 +376,15 @@ fn identification(opts: &PlanOptions) -> Result<(Vec<Visit>, IdentificationRepor
 
 /// A list as a targets file holds it (`crate::io::targets_csv`, the plan's columns).
 pub fn list_rows(list: &[Visit]) -> Vec<ListedTarget> {
-    list.iter().map(|v| ListedTarget { line: 0, target_mm: v.target_mm, from_mm: Some(v.from_mm), dir: v.dir, run: Some(v.run) }).collect()
+    list.iter()
+        .map(|v| ListedTarget {
+            line: 0,
+            target_mm: v.target_mm,
+            from_mm: Some(v.from_mm),
+            dir: v.dir,
+            run: Some(v.run),
+        })
+        .collect()
 }
 
 /// The visits of a targets file's rows: each row's approach start, or the previous row's target
@@ -361,22 +395,35 @@ pub fn visits_from_rows(rows: &[ListedTarget], spec: &MachineSpec) -> Vec<Visit>
     rows.iter()
         .map(|r| {
             let t = r.target_mm;
-            let from_mm = r.from_mm.or(previous).unwrap_or([t[0] - spec.approach_mm, t[1]]);
+            let from_mm = r
+                .from_mm
+                .or(previous)
+                .unwrap_or([t[0] - spec.approach_mm, t[1]]);
             previous = Some(t);
-            Visit { target_mm: t, from_mm, run: r.run.unwrap_or(0), dir: r.dir }
+            Visit {
+                target_mm: t,
+                from_mm,
+                run: r.run.unwrap_or(0),
+                dir: r.dir,
+            }
         })
         .collect()
 }
 
 /// Distance from `p` to the nearest target of `lists` (mm).
 fn nearest_mm(p: [f64; 2], lists: &[&[Visit]]) -> f64 {
-    lists.iter().flat_map(|l| l.iter()).map(|v| (v.target_mm[0] - p[0]).hypot(v.target_mm[1] - p[1])).fold(f64::INFINITY, f64::min)
+    lists
+        .iter()
+        .flat_map(|l| l.iter())
+        .map(|v| (v.target_mm[0] - p[0]).hypot(v.target_mm[1] - p[1]))
+        .fold(f64::INFINITY, f64::min)
 }
 
 /// Plans the session (module doc).
 pub fn plan(opts: &PlanOptions) -> Result<Plan, CalibError> {
     let spec = &opts.spec;
-    spec.validate().map_err(|e| invalid!("machine '{}': {e}", spec.name))?;
+    spec.validate()
+        .map_err(|e| invalid!("machine '{}': {e}", spec.name))?;
     let n = opts.identification_poses;
     if !(6..=MAX_LIST_TARGETS).contains(&n) {
         return Err(invalid!("{n} identification poses: the full fit needs at least 6 (12 equations for 10 parameters), at most {MAX_LIST_TARGETS}"));
@@ -385,7 +432,10 @@ pub fn plan(opts: &PlanOptions) -> Result<Plan, CalibError> {
         return Err(invalid!("{} candidates for {n} identification poses: need at least as many as the poses, at most {MAX_LIST_TARGETS}", opts.candidates));
     }
     if opts.verify_targets == 0 || opts.verify_targets > MAX_LIST_TARGETS {
-        return Err(invalid!("{} verification targets: need 1..={MAX_LIST_TARGETS}", opts.verify_targets));
+        return Err(invalid!(
+            "{} verification targets: need 1..={MAX_LIST_TARGETS}",
+            opts.verify_targets
+        ));
     }
     let (mut identify, identification) = identification(opts)?;
     let mut grid = visits(Protocol::Grid, opts.seed, spec);
@@ -401,17 +451,31 @@ pub fn plan(opts: &PlanOptions) -> Result<Plan, CalibError> {
     for list in [&mut identify, &mut grid, &mut verify, &mut repeat] {
         with_approach(list, spec)?;
     }
-    let min_distance = verify.iter().map(|v| nearest_mm(v.target_mm, &[&identify, &grid, &repeat])).fold(f64::INFINITY, f64::min);
+    let min_distance = verify
+        .iter()
+        .map(|v| nearest_mm(v.target_mm, &[&identify, &grid, &repeat]))
+        .fold(f64::INFINITY, f64::min);
     let report = PlanReport {
         machine: spec.name.clone(),
         seed: opts.seed,
         approach: spec.approach,
         approach_mm: spec.approach_mm,
         identification,
-        lists: vec![("identify", identify.len()), ("grid", grid.len()), ("verify", verify.len()), ("repeat", repeat.len())],
+        lists: vec![
+            ("identify", identify.len()),
+            ("grid", grid.len()),
+            ("verify", verify.len()),
+            ("repeat", repeat.len()),
+        ],
         verify_min_distance_to_others_mm: min_distance,
     };
-    Ok(Plan { identify, grid, verify, repeat, report })
+    Ok(Plan {
+        identify,
+        grid,
+        verify,
+        repeat,
+        report,
+    })
 }
 
 #[cfg(test)]
@@ -422,7 +486,15 @@ mod tests {
     #[test]
     fn the_plan_of_the_paper_machine() {
         let p = plan(&PlanOptions::new(MachineSpec::paper(), 1)).unwrap();
-        assert_eq!((p.identify.len(), p.grid.len(), p.verify.len(), p.repeat.len()), (40, 651, 400, 220));
+        assert_eq!(
+            (
+                p.identify.len(),
+                p.grid.len(),
+                p.verify.len(),
+                p.repeat.len()
+            ),
+            (40, 651, 400, 220)
+        );
         // Every row says how to approach: the paper machine positions unidirectionally.
         for (_, list) in p.lists() {
             assert!(list.iter().all(|v| v.dir == Some([1, 1])));
@@ -432,13 +504,24 @@ mod tests {
         // The chosen poses identify the model better than random poses of the same count.
         let id = &p.report.identification;
         eprintln!("{id:?}");
-        assert!(id.chosen.condition_number < id.random_same_count.condition_number, "{id:?}");
-        assert!(id.chosen.observability_o1 > id.random_same_count.observability_o1, "{id:?}");
-        assert!(id.chosen.log10_det > id.random_same_count.log10_det, "{id:?}");
+        assert!(
+            id.chosen.condition_number < id.random_same_count.condition_number,
+            "{id:?}"
+        );
+        assert!(
+            id.chosen.observability_o1 > id.random_same_count.observability_o1,
+            "{id:?}"
+        );
+        assert!(
+            id.chosen.log10_det > id.random_same_count.log10_det,
+            "{id:?}"
+        );
         // Distinct poses, every one inside the workspace.
         for (k, v) in p.identify.iter().enumerate() {
             assert!(MachineSpec::paper().workspace.contains(v.target_mm, 0.0));
-            assert!(p.identify[k + 1..].iter().all(|w| w.target_mm != v.target_mm));
+            assert!(p.identify[k + 1..]
+                .iter()
+                .all(|w| w.target_mm != v.target_mm));
         }
     }
 
@@ -449,9 +532,17 @@ mod tests {
         o.selection = Selection::Random;
         let p = plan(&o).unwrap();
         let mut rng = candidate_rng(5);
-        let first: Vec<[f64; 2]> = (0..40).map(|_| random_visit(&mut rng, &spec, Range::HalfOpen).target_mm).collect();
-        assert_eq!(p.identify.iter().map(|v| v.target_mm).collect::<Vec<_>>(), first);
-        assert_eq!(p.report.identification.chosen, p.report.identification.random_same_count);
+        let first: Vec<[f64; 2]> = (0..40)
+            .map(|_| random_visit(&mut rng, &spec, Range::HalfOpen).target_mm)
+            .collect();
+        assert_eq!(
+            p.identify.iter().map(|v| v.target_mm).collect::<Vec<_>>(),
+            first
+        );
+        assert_eq!(
+            p.report.identification.chosen,
+            p.report.identification.random_same_count
+        );
         let a = plan(&PlanOptions::new(spec.clone(), 5)).unwrap();
         let b = plan(&PlanOptions::new(spec, 5)).unwrap();
         assert_eq!(a.identify, b.identify);
@@ -475,7 +566,11 @@ mod tests {
         let p = plan(&PlanOptions::new(MachineSpec::paper(), 3)).unwrap();
         for (name, list) in p.lists() {
             let back = parse_target_list(&format_target_list(&list_rows(list))).unwrap();
-            assert_eq!(visits_from_rows(&back, &MachineSpec::paper()), list, "{name}");
+            assert_eq!(
+                visits_from_rows(&back, &MachineSpec::paper()),
+                list,
+                "{name}"
+            );
         }
     }
 

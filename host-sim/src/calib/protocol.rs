@@ -53,11 +53,17 @@ impl Protocol {
             "repeat" => Ok(Protocol::Repeat),
             _ => {
                 let Some(n) = s.strip_prefix("random:") else {
-                    return Err(invalid!("unknown protocol '{s}' (known: table1, grid, random:N, repeat)"));
+                    return Err(invalid!(
+                        "unknown protocol '{s}' (known: table1, grid, random:N, repeat)"
+                    ));
                 };
-                let n: usize = n.parse().map_err(|_| invalid!("protocol '{s}': N in random:N must be a positive integer"))?;
+                let n: usize = n.parse().map_err(|_| {
+                    invalid!("protocol '{s}': N in random:N must be a positive integer")
+                })?;
                 if n == 0 || n > MAX_RANDOM_TARGETS {
-                    return Err(invalid!("protocol '{s}': N must be in 1..={MAX_RANDOM_TARGETS}"));
+                    return Err(invalid!(
+                        "protocol '{s}': N must be in 1..={MAX_RANDOM_TARGETS}"
+                    ));
                 }
                 Ok(Protocol::Random(n))
             }
@@ -92,7 +98,18 @@ pub enum Range {
 /// bounding rectangle's point leaves the polygon.
 pub fn table1_targets(ws: &Workspace) -> [[f64; 2]; 9] {
     let ([x0, x1], [y0, y1], [cx, cy]) = (ws.x_mm, ws.y_mm, ws.centre_mm());
-    [[cx, cy], [cx, y1], [x1, y1], [x1, cy], [x1, y0], [cx, y0], [x0, y0], [x0, cy], [x0, y1]].map(|p| ws.pulled_inside(p, 0.0))
+    [
+        [cx, cy],
+        [cx, y1],
+        [x1, y1],
+        [x1, cy],
+        [x1, y0],
+        [cx, y0],
+        [x0, y0],
+        [x0, cy],
+        [x0, y1],
+    ]
+    .map(|p| ws.pulled_inside(p, 0.0))
 }
 
 /// Visits of `targets` in order, each approached from the previous one (the first from
@@ -100,14 +117,24 @@ pub fn table1_targets(ws: &Workspace) -> [[f64; 2]; 9] {
 fn in_sequence(targets: &[[f64; 2]], first_from: [f64; 2], run: u32, out: &mut Vec<Visit>) {
     let mut from = first_from;
     for &t in targets {
-        out.push(Visit { target_mm: t, from_mm: from, run, dir: None });
+        out.push(Visit {
+            target_mm: t,
+            from_mm: from,
+            run,
+            dir: None,
+        });
         from = t;
     }
 }
 
 /// `n` uniform random targets in the workspace, each approached from `approach_mm` away along
 /// a random direction (run 0).
-pub fn random_visits(n: usize, rng: &mut ChaCha8Rng, spec: &MachineSpec, range: Range) -> Vec<Visit> {
+pub fn random_visits(
+    n: usize,
+    rng: &mut ChaCha8Rng,
+    spec: &MachineSpec,
+    range: Range,
+) -> Vec<Visit> {
     (0..n).map(|_| random_visit(rng, spec, range)).collect()
 }
 
@@ -123,7 +150,12 @@ pub fn random_visit(rng: &mut ChaCha8Rng, spec: &MachineSpec, range: Range) -> V
         };
         let a: f64 = rng.random_range(0.0..std::f64::consts::TAU);
         if ws.is_rectangle || ws.contains(t, 0.0) {
-            return Visit { target_mm: t, from_mm: [t[0] - d * a.cos(), t[1] - d * a.sin()], run: 0, dir: None };
+            return Visit {
+                target_mm: t,
+                from_mm: [t[0] - d * a.cos(), t[1] - d * a.sin()],
+                run: 0,
+                dir: None,
+            };
         }
     }
 }
@@ -138,7 +170,9 @@ fn random_stream_seed(seed: u64, n: usize) -> u64 {
 fn line_targets(ws: &Workspace, axis: usize) -> Vec<[f64; 2]> {
     let centre = ws.centre_mm();
     let at = centre[1 - axis];
-    let [lo, hi] = ws.chord_mm(axis, at).unwrap_or([centre[axis], centre[axis]]);
+    let [lo, hi] = ws
+        .chord_mm(axis, at)
+        .unwrap_or([centre[axis], centre[axis]]);
     let step = ((hi - lo) / 10.0 * 1000.0).floor() / 1000.0;
     (0..=10)
         .map(|k| {
@@ -197,7 +231,10 @@ mod tests {
         let spec = MachineSpec::paper();
         assert_eq!(visits(Protocol::Repeat, 0, &spec).len(), 5 * 2 * 2 * 11);
         // Table I as the paper prints it.
-        let t1: Vec<[f64; 2]> = visits(Protocol::Table1, 0, &spec).iter().map(|v| v.target_mm).collect();
+        let t1: Vec<[f64; 2]> = visits(Protocol::Table1, 0, &spec)
+            .iter()
+            .map(|v| v.target_mm)
+            .collect();
         let printed = [
             [212.132, 0.0],
             [212.132, 75.0],
@@ -211,7 +248,10 @@ mod tests {
         ];
         assert_eq!(t1, printed);
         let g = visits(Protocol::Grid, 0, &spec);
-        assert_eq!((g.len(), g[0].from_mm, g[1].from_mm), (651, [157.132, -75.0], g[0].target_mm));
+        assert_eq!(
+            (g.len(), g[0].from_mm, g[1].from_mm),
+            (651, [157.132, -75.0], g[0].target_mm)
+        );
         // The repeat lines: every 10 mm along x at y = 0, every 15 mm along y at x = 212.132.
         let r = visits(Protocol::Repeat, 0, &spec);
         assert_eq!(r[1].target_mm, [172.132, 0.0]);
@@ -229,7 +269,10 @@ mod tests {
         let fresh = visits(Protocol::Random(400), 1, &spec);
         assert_eq!(fit, visits(Protocol::Random(40), 1, &spec));
         for v in &fit {
-            let nearest = fresh.iter().map(|f| (f.target_mm[0] - v.target_mm[0]).hypot(f.target_mm[1] - v.target_mm[1])).fold(f64::INFINITY, f64::min);
+            let nearest = fresh
+                .iter()
+                .map(|f| (f.target_mm[0] - v.target_mm[0]).hypot(f.target_mm[1] - v.target_mm[1]))
+                .fold(f64::INFINITY, f64::min);
             assert!(nearest > 1e-3, "{:?} reused ({nearest} mm)", v.target_mm);
         }
     }
@@ -237,11 +280,21 @@ mod tests {
     #[test]
     fn a_polygon_workspace_keeps_every_target_inside() {
         let mut spec = MachineSpec::paper();
-        let cut = [[162.132, -75.0], [262.132, -75.0], [262.132, 35.0], [222.132, 75.0], [162.132, 75.0]];
+        let cut = [
+            [162.132, -75.0],
+            [262.132, -75.0],
+            [262.132, 35.0],
+            [222.132, 75.0],
+            [162.132, 75.0],
+        ];
         spec.workspace = Workspace::polygon(&cut, 0.1).unwrap();
         for p in [Protocol::Random(300), Protocol::Table1, Protocol::Repeat] {
             for v in visits(p, 3, &spec) {
-                assert!(spec.workspace.contains(v.target_mm, 1e-9), "{p:?}: {:?}", v.target_mm);
+                assert!(
+                    spec.workspace.contains(v.target_mm, 1e-9),
+                    "{p:?}: {:?}",
+                    v.target_mm
+                );
             }
         }
         // Table I's upper right corner is where the diagonal from the centre meets the cut.

@@ -26,14 +26,33 @@ pub fn run(args: &Args) -> Result<()> {
     let spec = args.machine.spec()?;
     let data = read_measurements(&args.data)?;
     // Figures outside the workspace are no accuracy of this machine: say so (the figures stand).
-    let outside = data.iter().filter(|m| m.target_mm.is_some_and(|t| !spec.workspace.contains(t, 1e-3))).count();
+    let outside = data
+        .iter()
+        .filter(|m| {
+            m.target_mm
+                .is_some_and(|t| !spec.workspace.contains(t, 1e-3))
+        })
+        .count();
     if outside > 0 {
-        eprintln!("accuracy: {outside} of {} rows have targets outside machine '{}''s workspace", data.len(), spec.name);
+        eprintln!(
+            "accuracy: {outside} of {} rows have targets outside machine '{}''s workspace",
+            data.len(),
+            spec.name
+        );
     }
     let r = report(&data).map_err(|e| anyhow!("{}: {e}", args.data.display()))?;
     if let Some(plot) = &args.plot {
-        let (base, err): (Vec<[f64; 2]>, Vec<[f64; 2]>) = mean_error_per_target(&data).into_iter().unzip();
-        vector_plot(plot, "mean error at each target", &[VectorField { label: "measured − target", base_mm: &base, error_um: &err }])?;
+        let (base, err): (Vec<[f64; 2]>, Vec<[f64; 2]>) =
+            mean_error_per_target(&data).into_iter().unzip();
+        vector_plot(
+            plot,
+            "mean error at each target",
+            &[VectorField {
+                label: "measured − target",
+                base_mm: &base,
+                error_um: &err,
+            }],
+        )?;
     }
     super::print_json(&r, KeyOrder::Sorted)
 }

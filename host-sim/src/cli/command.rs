@@ -2,7 +2,10 @@
 //! (`host_sim::calib::command`).
 
 use anyhow::{anyhow, Context, Result};
-use host_sim::calib::command::{check_grid_model, check_in_workspace, command_all, command_all_compensated, format_commands, format_commands_with_dirs};
+use host_sim::calib::command::{
+    check_grid_model, check_in_workspace, command_all, command_all_compensated, format_commands,
+    format_commands_with_dirs,
+};
 use host_sim::io::atomic::write_atomic;
 use host_sim::io::model_file::read_model_file;
 use host_sim::io::read_bytes;
@@ -42,7 +45,9 @@ pub fn run(args: &Args) -> Result<()> {
     let spec = args.machine.spec()?;
     let image = args.grid.as_deref().map(read_bytes).transpose()?;
     let grid = match (&image, &args.grid) {
-        (Some(bytes), Some(path)) => Some(CorrectionGrid::parse(bytes).map_err(|e| anyhow!("{}: {e}", path.display()))?),
+        (Some(bytes), Some(path)) => {
+            Some(CorrectionGrid::parse(bytes).map_err(|e| anyhow!("{}: {e}", path.display()))?)
+        }
         _ => None,
     };
     // The model: --model's (the grid's embedded model must be it), else the grid's own, else
@@ -50,11 +55,17 @@ pub fn run(args: &Args) -> Result<()> {
     let (model, backlash) = match (&args.model, &grid) {
         (Some(path), _) => {
             let file = read_model_file(path)?;
-            let model = file.model().map_err(|e| anyhow!("{}: {e}", path.display()))?;
+            let model = file
+                .model()
+                .map_err(|e| anyhow!("{}: {e}", path.display()))?;
             if let Some(g) = &grid {
                 check_grid_model(g, &model)?;
             }
-            (model.cast::<f32>(), file.backlash().map_err(|e| anyhow!("{}: {e}", path.display()))?)
+            (
+                model.cast::<f32>(),
+                file.backlash()
+                    .map_err(|e| anyhow!("{}: {e}", path.display()))?,
+            )
         }
         (None, Some(g)) => (*g.model(), None),
         (None, None) => (spec.nominal.cast::<f32>(), None),
@@ -64,23 +75,35 @@ pub fn run(args: &Args) -> Result<()> {
     let in_file = || format!("in {}", args.targets.display());
     // The workspace the firmware keeps to: the image's when it carries one, else the machine's.
     let image_region = match cal.grid.as_ref().and_then(|g| g.workspace()) {
-        Some(w) => Some(w.region.cast::<f64>().map_err(|e| anyhow!("the grid's workspace block: {e}"))?),
+        Some(w) => Some(
+            w.region
+                .cast::<f64>()
+                .map_err(|e| anyhow!("the grid's workspace block: {e}"))?,
+        ),
         None => None,
     };
     let region = image_region.as_ref().unwrap_or(&spec.workspace.region);
-    check_in_workspace(&targets, region, &spec.name, image_region.is_some()).with_context(in_file)?;
-    let min_transmission = args.min_transmission.unwrap_or(spec.min_transmission as f32);
+    check_in_workspace(&targets, region, &spec.name, image_region.is_some())
+        .with_context(in_file)?;
+    let min_transmission = args
+        .min_transmission
+        .unwrap_or(spec.min_transmission as f32);
     let text = match backlash {
         None => {
             let angles = command_all(&cal, &targets, min_transmission).with_context(in_file)?;
             format_commands(&targets, &angles)
         }
         Some(b) => {
-            let (angles, dirs) = command_all_compensated(&cal, &targets, min_transmission, &b).with_context(in_file)?;
+            let (angles, dirs) = command_all_compensated(&cal, &targets, min_transmission, &b)
+                .with_context(in_file)?;
             format_commands_with_dirs(&targets, &angles, &dirs)
         }
     };
     write_atomic(&args.out, text.as_bytes())?;
-    eprintln!("command: {} targets -> {}", targets.len(), args.out.display());
+    eprintln!(
+        "command: {} targets -> {}",
+        targets.len(),
+        args.out.display()
+    );
     Ok(())
 }

@@ -9,7 +9,8 @@
 use anyhow::{bail, Result};
 use host_sim::calib::machine::{check_plant_fits, Machine, PlantMachine, StandInMachine};
 use host_sim::calib::pipeline::{
-    calibrate, summary, write_outputs, Approach, Calibrated, Event, PipelineOptions};
+    calibrate, summary, write_outputs, Approach, Calibrated, Event, PipelineOptions,
+};
 use host_sim::io::atomic::write_atomic;
 use host_sim::io::{json_text, KeyOrder};
 use std::path::PathBuf;
@@ -108,7 +109,12 @@ pub fn run(args: &Args) -> Result<()> {
         name => {
             let plant = host_sim::plant::PlantConfig::by_name(name)?;
             check_plant_fits(&plant, &spec)?;
-            Box::new(PlantMachine::from_config(plant, name, Some(noise_um), args.seed)?)
+            Box::new(PlantMachine::from_config(
+                plant,
+                name,
+                Some(noise_um),
+                args.seed,
+            )?)
         }
     };
     let approach = match args.approach {
@@ -119,11 +125,27 @@ pub fn run(args: &Args) -> Result<()> {
     let start = Instant::now();
     let mut events = |e: Event| match e {
         Event::Step(what) => progress(&start, &what),
-        Event::Held { param, why } => eprintln!("demo: full fit: {param} held at nominal: the data confound {why}"),
+        Event::Held { param, why } => {
+            eprintln!("demo: full fit: {param} held at nominal: the data confound {why}")
+        }
     };
-    let cal = calibrate(machine.as_mut(), &PipelineOptions { seed: args.seed, approach, spec }, &mut events)?;
+    let cal = calibrate(
+        machine.as_mut(),
+        &PipelineOptions {
+            seed: args.seed,
+            approach,
+            spec,
+        },
+        &mut events,
+    )?;
     let start = Instant::now();
-    progress(&start, &format!("writing CSVs, models, grid image and plots into {}", args.out.display()));
+    progress(
+        &start,
+        &format!(
+            "writing CSVs, models, grid image and plots into {}",
+            args.out.display()
+        ),
+    );
     let mut files = write_outputs(&cal, &args.out)?;
     files.push(args.out.join("summary.json"));
     let summary = summary(&cal, args.seed, &args.out, &files);
@@ -131,7 +153,11 @@ pub fn run(args: &Args) -> Result<()> {
     write_atomic(&args.out.join("summary.json"), text.as_bytes())?;
     progress(&start, "files written");
     eprintln!("\n{}", format_table(&cal));
-    eprintln!("grid, round 1: {}\ngrid, round 2: {}\n", cal.grid.noise.describe(), cal.grid2.noise.describe());
+    eprintln!(
+        "grid, round 1: {}\ngrid, round 2: {}\n",
+        cal.grid.noise.describe(),
+        cal.grid2.noise.describe()
+    );
     print!("{text}");
     if !summary.final_.met {
         bail!(

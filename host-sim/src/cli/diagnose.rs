@@ -2,9 +2,9 @@
 //! JSON and plots out (`host_sim::diagnose`, `DIAGNOSIS.md`).
 
 use anyhow::{bail, Context, Result};
-use host_sim::diagnose::plots::write_plots;
 use host_sim::diagnose::loop_closure::SixBarDesign;
 use host_sim::diagnose::model_out::extended_model;
+use host_sim::diagnose::plots::write_plots;
 use host_sim::diagnose::{diagnose_with_history, report, DiagnoseOptions};
 use host_sim::io::atomic::Outputs;
 use host_sim::io::measurement_csv::read_measurements;
@@ -56,13 +56,22 @@ pub fn run(args: &Args) -> Result<()> {
             bail!("--noise-um {s}: must be a positive number of micrometres");
         }
     }
-    let (report, history) = diagnose_with_history(&data, &DiagnoseOptions { base, noise_um: args.noise_um, sixbar })
-        .with_context(|| format!("diagnosing {}", args.data.display()))?;
+    let (report, history) = diagnose_with_history(
+        &data,
+        &DiagnoseOptions {
+            base,
+            noise_um: args.noise_um,
+            sixbar,
+        },
+    )
+    .with_context(|| format!("diagnosing {}", args.data.display()))?;
     print!("{}", report::table(&report));
     // Everything computed before anything is written: a model that cannot be made leaves no
     // report behind either.
     let extended = match &args.out_model {
-        Some(_) => Some(extended_model(&base, &report).context("adding the named effects to the model")?),
+        Some(_) => {
+            Some(extended_model(&base, &report).context("adding the named effects to the model")?)
+        }
         None => None,
     };
     // The report and the extended model staged, then renamed together (io::atomic); neither
@@ -70,9 +79,15 @@ pub fn run(args: &Args) -> Result<()> {
     let mut inputs = vec![args.data.as_path()];
     inputs.extend(args.model.as_deref());
     let mut outputs = Outputs::protecting(&inputs);
-    outputs.bytes(&args.out, json_text(&report, KeyOrder::Declared)?.as_bytes())?;
+    outputs.bytes(
+        &args.out,
+        json_text(&report, KeyOrder::Declared)?.as_bytes(),
+    )?;
     if let (Some(path), Some(e)) = (&args.out_model, &extended) {
-        outputs.bytes(path, model_file_text(&e.file(&args.data.display().to_string()))?.as_bytes())?;
+        outputs.bytes(
+            path,
+            model_file_text(&e.file(&args.data.display().to_string()))?.as_bytes(),
+        )?;
     }
     outputs.commit()?;
     if let Some(path) = &args.out_model {

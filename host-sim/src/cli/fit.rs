@@ -2,13 +2,15 @@
 //! JSON summary (see `CALIBRATION.md`).
 
 use anyhow::{bail, Context, Result};
-use host_sim::calib::fit::blunders::{check_options, BlunderReport, RejectOptions, DEFAULT_REJECT_SIGMA};
+use host_sim::calib::fit::blunders::{
+    check_options, BlunderReport, RejectOptions, DEFAULT_REJECT_SIGMA,
+};
 use host_sim::calib::fit::evaluate::{self, Criterion};
 use host_sim::calib::fit::subset_search::{Progress, Stage};
 use host_sim::calib::fit::{check_data, fit, params, FitOptions, Method, Points};
 use host_sim::calib::CalibError;
-use host_sim::io::measurement_csv::{read_measurements, Measurement};
 use host_sim::io::atomic::Outputs;
+use host_sim::io::measurement_csv::{read_measurements, Measurement};
 use host_sim::io::model_file::{model_file_text, ModelFile};
 use host_sim::io::plot::{vector_plot_png, VectorField};
 use host_sim::io::KeyOrder;
@@ -96,22 +98,38 @@ fn options(args: &Args, data: &[Measurement], spec: MachineSpec) -> Result<FitOp
             bail!("--points: point {p} does not exist (the data have {n} points, numbered from 1)");
         }
     }
-    let mut opts = FitOptions { method, criterion, points: Points::All, fixed: Vec::new(), leave_one_out: !args.no_loo, reject_sigma: 0.0, spec };
+    let mut opts = FitOptions {
+        method,
+        criterion,
+        points: Points::All,
+        fixed: Vec::new(),
+        leave_one_out: !args.no_loo,
+        reject_sigma: 0.0,
+        spec,
+    };
     match method {
         Method::Poly | Method::Ls => {
             if !args.fix.is_empty() {
                 bail!("--fix applies to --method full only (poly and ls fit the four links)");
             }
             if args.reject_sigma.is_some() {
-                bail!("--reject-sigma applies to --method full only (poly and ls fit chosen points)");
+                bail!(
+                    "--reject-sigma applies to --method full only (poly and ls fit chosen points)"
+                );
             }
             opts.points = if args.subset_search {
                 let sizes: Vec<usize> = match (method, args.subset_size) {
                     (Method::Poly, None | Some(2)) => vec![2],
-                    (Method::Poly, Some(s)) => bail!("--subset-size {s}: poly uses exactly 2 points"),
-                    (_, Some(s)) if s < 2 || s > n => bail!("--subset-size {s}: must be between 2 and the {n} points"),
+                    (Method::Poly, Some(s)) => {
+                        bail!("--subset-size {s}: poly uses exactly 2 points")
+                    }
+                    (_, Some(s)) if s < 2 || s > n => {
+                        bail!("--subset-size {s}: must be between 2 and the {n} points")
+                    }
                     (_, Some(s)) => vec![s],
-                    (_, None) if n < 3 => bail!("ls subset search needs at least 3 points, the data have {n}"),
+                    (_, None) if n < 3 => {
+                        bail!("ls subset search needs at least 3 points, the data have {n}")
+                    }
                     (_, None) => (3..=n).collect(),
                 };
                 Points::Search { sizes }
@@ -132,19 +150,31 @@ fn options(args: &Args, data: &[Measurement], spec: MachineSpec) -> Result<FitOp
                 bail!("--subset-search, --subset-size and --points apply to poly and ls; full fits every point");
             }
             for name in &args.fix {
-                let k = params::NAMES.iter().position(|n| n == name).with_context(|| {
-                    format!("--fix: unknown parameter '{name}' (known: {})", params::NAMES.join(", "))
-                })?;
+                let k = params::NAMES
+                    .iter()
+                    .position(|n| n == name)
+                    .with_context(|| {
+                        format!(
+                            "--fix: unknown parameter '{name}' (known: {})",
+                            params::NAMES.join(", ")
+                        )
+                    })?;
                 if opts.fixed.contains(&k) {
                     bail!("--fix: '{name}' is given twice");
                 }
                 opts.fixed.push(k);
             }
             if opts.fixed.len() == params::NAMES.len() {
-                bail!("--fix holds all {} parameters: nothing is left to fit", params::NAMES.len());
+                bail!(
+                    "--fix holds all {} parameters: nothing is left to fit",
+                    params::NAMES.len()
+                );
             }
             opts.reject_sigma = args.reject_sigma.unwrap_or(DEFAULT_REJECT_SIGMA);
-            let reject = RejectOptions { reject_sigma: opts.reject_sigma, instrument_sigma_um: opts.spec.instrument_sigma_um };
+            let reject = RejectOptions {
+                reject_sigma: opts.reject_sigma,
+                instrument_sigma_um: opts.spec.instrument_sigma_um,
+            };
             check_options(&reject).map_err(|e| anyhow::anyhow!("--{e}"))?;
         }
     }
@@ -154,7 +184,9 @@ fn options(args: &Args, data: &[Measurement], spec: MachineSpec) -> Result<FitOp
 /// The data checks, their messages naming the flag that asked for them.
 fn check(data: &[Measurement], criterion: Criterion) -> Result<()> {
     match check_data(data, criterion) {
-        Err(CalibError::MissingTargets { line }) => bail!("line {line}: --criterion paper needs x_target_mm,y_target_mm on every row"),
+        Err(CalibError::MissingTargets { line }) => {
+            bail!("line {line}: --criterion paper needs x_target_mm,y_target_mm on every row")
+        }
         r => Ok(r?),
     }
 }
@@ -170,9 +202,15 @@ fn print_blunders(b: &BlunderReport) {
         b.threshold_sigma,
         b.sigma_um
     );
-    eprintln!("  {:>6} {:>6} {:>14} {:>10}", "row", "line", "residual_um", "sigma");
+    eprintln!(
+        "  {:>6} {:>6} {:>14} {:>10}",
+        "row", "line", "residual_um", "sigma"
+    );
     for r in &b.rejected {
-        eprintln!("  {:>6} {:>6} {:>14.1} {:>10.1}", r.row, r.line, r.residual_um, r.sigma_units);
+        eprintln!(
+            "  {:>6} {:>6} {:>14.1} {:>10.1}",
+            r.row, r.line, r.residual_um, r.sigma_units
+        );
     }
     if !b.settled {
         eprintln!("fit: blunder test: the rejected rows still changed after {} fits; the last fit stands (rows near the threshold)", b.fits);
@@ -192,7 +230,10 @@ pub fn run(args: &Args) -> Result<()> {
     let opts = options(args, &data, spec)?;
     // The search reports about once a second.
     let mut progress = |p: Progress| match p.stage {
-        Stage::SubsetSearch => eprintln!("subset search: {}/{} subsets, best max error so far {:.1} µm", p.tried, p.total, p.best_max_um),
+        Stage::SubsetSearch => eprintln!(
+            "subset search: {}/{} subsets, best max error so far {:.1} µm",
+            p.tried, p.total, p.best_max_um
+        ),
         Stage::LeaveOneOut => eprintln!("leave-one-out: {}/{} points refitted", p.tried, p.total),
     };
     let outcome = fit(&data, &opts, &mut progress)?;
@@ -204,7 +245,10 @@ pub fn run(args: &Args) -> Result<()> {
     }
     if let Some(f) = &outcome.full {
         for (k, why) in &f.identifiability.fixed {
-            eprintln!("fit: {} held at nominal: the data confound {why}", params::NAMES[*k]);
+            eprintln!(
+                "fit: {} held at nominal: the data confound {why}",
+                params::NAMES[*k]
+            );
         }
     }
     if let Some(b) = &outcome.summary.blunders {
@@ -214,7 +258,11 @@ pub fn run(args: &Args) -> Result<()> {
         if l.max_um.is_none() {
             eprintln!("fit: leave-one-out: no point could be predicted from the others (every fit on the rest failed: too few points)");
         } else if l.failed > 0 {
-            eprintln!("fit: leave-one-out: {} of {} points could not be predicted from the others", l.failed, l.per_point_um.len());
+            eprintln!(
+                "fit: leave-one-out: {} of {} points could not be predicted from the others",
+                l.failed,
+                l.per_point_um.len()
+            );
         }
     }
     // Every output staged, then renamed together: a bad --plot path leaves no model.json.
@@ -226,14 +274,25 @@ pub fn run(args: &Args) -> Result<()> {
     if let Some(plot) = &args.plot {
         let base: Vec<[f64; 2]> = data.iter().map(|m| m.measured_mm).collect();
         let vecs = |m: &FiveBar<f64>| -> Vec<[f64; 2]> {
-            evaluate::error_vectors_um(m, &data, Criterion::Measured).into_iter().map(|e| e.unwrap_or([f64::NAN; 2])).collect()
+            evaluate::error_vectors_um(m, &data, Criterion::Measured)
+                .into_iter()
+                .map(|e| e.unwrap_or([f64::NAN; 2]))
+                .collect()
         };
         let (before, after) = (vecs(&nominal), vecs(&outcome.model));
         let png = vector_plot_png(
             "measured − predicted",
             &[
-                VectorField { label: "nominal model", base_mm: &base, error_um: &before },
-                VectorField { label: "fitted model", base_mm: &base, error_um: &after },
+                VectorField {
+                    label: "nominal model",
+                    base_mm: &base,
+                    error_um: &before,
+                },
+                VectorField {
+                    label: "fitted model",
+                    base_mm: &base,
+                    error_um: &after,
+                },
             ],
             &[],
         )?;

@@ -3,7 +3,9 @@
 
 use anyhow::{bail, Context, Result};
 use host_sim::calib::grid::{build_with, format_csv, GridOptions, NoiseReport, Smoothing};
-use host_sim::calib::image::{append_backlash_block, append_dynamics_block, finish_image, WorkspaceBlock};
+use host_sim::calib::image::{
+    append_backlash_block, append_dynamics_block, finish_image, WorkspaceBlock,
+};
 use host_sim::io::atomic::Outputs;
 use host_sim::io::dynamics_file::read_dynamics;
 use host_sim::io::measurement_csv::read_measurements;
@@ -102,39 +104,59 @@ pub fn run(args: &Args) -> Result<()> {
     }
     let smoothing = smoothing(&args.smoothing)?;
     let file = read_model_file(&args.model)?;
-    let model = file.model().map_err(|e| anyhow::anyhow!("{}: {e}", args.model.display()))?;
+    let model = file
+        .model()
+        .map_err(|e| anyhow::anyhow!("{}: {e}", args.model.display()))?;
     // A model with a backlash correction: the grid is built from link angles (calib::backlash),
     // free of the lost motion whatever direction each node was approached from.
-    let backlash = file.backlash().map_err(|e| anyhow::anyhow!("{}: {e}", args.model.display()))?;
+    let backlash = file
+        .backlash()
+        .map_err(|e| anyhow::anyhow!("{}: {e}", args.model.display()))?;
     let mut data = Vec::new();
     for (k, path) in args.data.iter().enumerate() {
         if args.data[..k].contains(path) {
-            bail!("--data names {} twice: its readings would count as repeats", path.display());
+            bail!(
+                "--data names {} twice: its readings would count as repeats",
+                path.display()
+            );
         }
         let rows = read_measurements(path)?;
         data.extend(match &backlash {
-            Some(b) => b.link_angles(&rows).with_context(|| format!("{} with the model's backlash", path.display()))?,
+            Some(b) => b
+                .link_angles(&rows)
+                .with_context(|| format!("{} with the model's backlash", path.display()))?,
             None => rows,
         });
     }
-    let sources = args.data.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(" + ");
-    let built = build_with(&model, &data, &GridOptions {
-        step_mm,
-        smoothing,
-        instrument_sigma_um: Some(spec.instrument_sigma_um),
-        six_bar_prior: !args.no_six_bar_prior,
-    })
-        .with_context(|| format!("in {sources}"))?;
+    let sources = args
+        .data
+        .iter()
+        .map(|p| p.display().to_string())
+        .collect::<Vec<_>>()
+        .join(" + ");
+    let built = build_with(
+        &model,
+        &data,
+        &GridOptions {
+            step_mm,
+            smoothing,
+            instrument_sigma_um: Some(spec.instrument_sigma_um),
+            six_bar_prior: !args.no_six_bar_prior,
+        },
+    )
+    .with_context(|| format!("in {sources}"))?;
     eprintln!("grid: {}", built.noise.describe());
     let (image, workspace_block) = finish_image(&built.image, &spec)?;
     let image = match &args.dynamics {
-        Some(p) => append_dynamics_block(&image, &read_dynamics(p)?).with_context(|| format!("with {}", p.display()))?,
+        Some(p) => append_dynamics_block(&image, &read_dynamics(p)?)
+            .with_context(|| format!("with {}", p.display()))?,
         None => image,
     };
     // The model's backlash goes into the image too (last in its chain): the firmware's servo
     // compensates it on its reference (kinematics-core/src/backlash.rs).
     let image = match &backlash {
-        Some(b) => append_backlash_block(&image, b).with_context(|| format!("with the backlash of {}", args.model.display()))?,
+        Some(b) => append_backlash_block(&image, b)
+            .with_context(|| format!("with the backlash of {}", args.model.display()))?,
         None => image,
     };
     if workspace_block == WorkspaceBlock::GridDoesNotCoverTheWorkspace {
@@ -143,7 +165,10 @@ pub fn run(args: &Args) -> Result<()> {
             spec.name
         );
     }
-    let csv = args.csv.clone().unwrap_or_else(|| args.out.with_extension("csv"));
+    let csv = args
+        .csv
+        .clone()
+        .unwrap_or_else(|| args.out.with_extension("csv"));
     if csv == args.out {
         bail!("the node table would overwrite the image: give --csv");
     }
@@ -156,8 +181,20 @@ pub fn run(args: &Args) -> Result<()> {
     outputs.bytes(&csv, format_csv(&built.nodes).as_bytes())?;
     if let Some(plot) = &args.plot {
         let base: Vec<[f64; 2]> = built.nodes.iter().map(|n| n.target_mm).collect();
-        let err: Vec<[f64; 2]> = built.nodes.iter().map(|n| [n.error_mm[0] * 1e3, n.error_mm[1] * 1e3]).collect();
-        let png = vector_plot_png("grid nodes: measured − target", &[VectorField { label: "before grid", base_mm: &base, error_um: &err }], &[])?;
+        let err: Vec<[f64; 2]> = built
+            .nodes
+            .iter()
+            .map(|n| [n.error_mm[0] * 1e3, n.error_mm[1] * 1e3])
+            .collect();
+        let png = vector_plot_png(
+            "grid nodes: measured − target",
+            &[VectorField {
+                label: "before grid",
+                base_mm: &base,
+                error_um: &err,
+            }],
+            &[],
+        )?;
         outputs.bytes(plot, &png)?;
     }
     outputs.commit()?;

@@ -87,19 +87,36 @@ pub fn run(args: &Args) -> Result<()> {
         UnitArg::Mm => LengthUnit::Mm,
         UnitArg::M => LengthUnit::M,
     });
-    let format = ExportFormat { unit, decimal_comma: args.decimal_comma };
-    let export = parse_export_with(&read_text(&args.export)?, &map, format).map_err(|e| IoError::content(&args.export, e))?;
+    let format = ExportFormat {
+        unit,
+        decimal_comma: args.decimal_comma,
+    };
+    let export = parse_export_with(&read_text(&args.export)?, &map, format)
+        .map_err(|e| IoError::content(&args.export, e))?;
     let commanded = read_commanded(&args.commanded)?;
     let plan = args.plan.as_deref().map(read_target_list).transpose()?;
     let opts = ImportOptions {
         id_prefix: args.id_prefix.clone(),
         first_id: args.first_id,
-        unlisted: if args.skip_unlisted { Unlisted::Skip } else { Unlisted::Refuse },
-        missing: if args.require_all { Missing::Refuse } else { Missing::Note },
+        unlisted: if args.skip_unlisted {
+            Unlisted::Skip
+        } else {
+            Unlisted::Refuse
+        },
+        missing: if args.require_all {
+            Missing::Refuse
+        } else {
+            Missing::Note
+        },
         z_tolerance_mm: args.z_tolerance_mm,
     };
-    let imported = import(&export, &commanded, plan.as_deref(), &opts)
-        .with_context(|| format!("importing {} with {}", args.export.display(), args.commanded.display()))?;
+    let imported = import(&export, &commanded, plan.as_deref(), &opts).with_context(|| {
+        format!(
+            "importing {} with {}",
+            args.export.display(),
+            args.commanded.display()
+        )
+    })?;
     let report = &imported.report;
     let text = json_text(report, KeyOrder::Sorted)?;
     // The measurement CSV and the report together, or neither; never over an input.

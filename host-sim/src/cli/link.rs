@@ -15,7 +15,9 @@ use anyhow::{bail, Context, Result};
 use host_sim::io::atomic::write_atomic;
 use host_sim::io::KeyOrder;
 use host_sim::link::link_protocol::{Command, ModeCode, Response, StatusReport, TelemetrySample};
-use host_sim::link::{figure_knots, parse_knots_csv, stream_knots, telemetry_csv, upload_calibration, LinkClient};
+use host_sim::link::{
+    figure_knots, parse_knots_csv, stream_knots, telemetry_csv, upload_calibration, LinkClient,
+};
 use serde::Serialize;
 
 /// The STM32G474 firmware's link baud rate (`g474_plan::plan::LINK_BAUD`).
@@ -175,13 +177,17 @@ fn wait_idle<S: Read + Write>(client: &mut LinkClient<S>, limit: Duration) -> Re
 /// `host-sim link`.
 pub fn run(args: &Args) -> Result<()> {
     if !(args.timeout_s > 0.0 && args.timeout_s.is_finite()) {
-        bail!("--timeout-s must be a positive number, not {}", args.timeout_s);
+        bail!(
+            "--timeout-s must be a positive number, not {}",
+            args.timeout_s
+        );
     }
     let timeout = Duration::from_secs_f64(args.timeout_s);
     match (&args.tcp, &args.serial) {
         (Some(_), _) if args.baud.is_some() => bail!("--baud applies to --serial only"),
         (Some(addr), None) => {
-            let mut client = LinkClient::connect_tcp(addr, timeout).with_context(|| format!("connecting to {addr}"))?;
+            let mut client = LinkClient::connect_tcp(addr, timeout)
+                .with_context(|| format!("connecting to {addr}"))?;
             act(&mut client, &args.action, timeout)
         }
         (None, Some(path)) => {
@@ -189,8 +195,9 @@ pub fn run(args: &Args) -> Result<()> {
             if baud == 0 {
                 bail!("--baud must be a positive number of bits per second");
             }
-            let mut client = LinkClient::open_serial(path, baud, timeout)
-                .with_context(|| format!("opening the serial port {} at {baud} Bd", path.display()))?;
+            let mut client = LinkClient::open_serial(path, baud, timeout).with_context(|| {
+                format!("opening the serial port {} at {baud} Bd", path.display())
+            })?;
             act(&mut client, &args.action, timeout)
         }
         // clap's `transport` group enforces exactly one of them.
@@ -199,7 +206,11 @@ pub fn run(args: &Args) -> Result<()> {
 }
 
 /// Runs `action` over an open link.
-fn act<S: Read + Write>(client: &mut LinkClient<S>, action: &Action, timeout: Duration) -> Result<()> {
+fn act<S: Read + Write>(
+    client: &mut LinkClient<S>,
+    action: &Action,
+    timeout: Duration,
+) -> Result<()> {
     let done = |what| super::print_json(&Done { done: what }, KeyOrder::Sorted);
     match action {
         Action::Identify => match request(client, Command::Identify)? {
@@ -238,19 +249,37 @@ fn act<S: Read + Write>(client: &mut LinkClient<S>, action: &Action, timeout: Du
                 status: StatusReport,
             }
             let status = client.status()?;
-            super::print_json(&Homed { done: "home", seconds: start.elapsed().as_secs_f64(), states, status }, KeyOrder::Sorted)
+            super::print_json(
+                &Homed {
+                    done: "home",
+                    seconds: start.elapsed().as_secs_f64(),
+                    states,
+                    status,
+                },
+                KeyOrder::Sorted,
+            )
         }
         Action::Move { x_mm, y_mm } => {
-            let Response::MovePlanned { duration_s } = request(client, Command::MoveTo { target_mm: [*x_mm, *y_mm] })? else {
+            let Response::MovePlanned { duration_s } = request(
+                client,
+                Command::MoveTo {
+                    target_mm: [*x_mm, *y_mm],
+                },
+            )?
+            else {
                 bail!("unexpected reply to move");
             };
             eprintln!("move planned: {duration_s:.3} s");
-            let s = wait_idle(client, timeout + Duration::from_secs_f64(f64::from(duration_s) * 20.0))?;
+            let s = wait_idle(
+                client,
+                timeout + Duration::from_secs_f64(f64::from(duration_s) * 20.0),
+            )?;
             super::print_json(&s, KeyOrder::Sorted)
         }
         Action::Stream(a) => stream(client, a, timeout),
         Action::Upload { grid } => {
-            let image = std::fs::read(grid).with_context(|| format!("cannot read {}", grid.display()))?;
+            let image =
+                std::fs::read(grid).with_context(|| format!("cannot read {}", grid.display()))?;
             let id = upload_calibration(client, &image, &mut |done, total| {
                 eprint!("\rupload {done}/{total} bytes");
             });
@@ -261,13 +290,28 @@ fn act<S: Read + Write>(client: &mut LinkClient<S>, action: &Action, timeout: Du
                 calibration_id: u32,
                 bytes: usize,
             }
-            super::print_json(&Uploaded { calibration_id: id?, bytes: image.len() }, KeyOrder::Sorted)
+            super::print_json(
+                &Uploaded {
+                    calibration_id: id?,
+                    bytes: image.len(),
+                },
+                KeyOrder::Sorted,
+            )
         }
-        Action::Telemetry { decimation, seconds, csv } => {
+        Action::Telemetry {
+            decimation,
+            seconds,
+            csv,
+        } => {
             if !(*seconds > 0.0 && seconds.is_finite()) {
                 bail!("--seconds must be a positive number, not {seconds}");
             }
-            request(client, Command::Telemetry { decimation: *decimation })?;
+            request(
+                client,
+                Command::Telemetry {
+                    decimation: *decimation,
+                },
+            )?;
             client.listen(Duration::from_secs_f64(*seconds))?;
             request(client, Command::Telemetry { decimation: 0 })?;
             let samples = client.take_telemetry();
@@ -277,7 +321,13 @@ fn act<S: Read + Write>(client: &mut LinkClient<S>, action: &Action, timeout: Du
                 samples: usize,
                 csv: String,
             }
-            super::print_json(&Recorded { samples: samples.len(), csv: csv.display().to_string() }, KeyOrder::Sorted)
+            super::print_json(
+                &Recorded {
+                    samples: samples.len(),
+                    csv: csv.display().to_string(),
+                },
+                KeyOrder::Sorted,
+            )
         }
         Action::Garbage { bytes, seed } => {
             let before = client.status()?;
@@ -325,10 +375,16 @@ fn act<S: Read + Write>(client: &mut LinkClient<S>, action: &Action, timeout: Du
     }
 }
 
-fn stream<S: Read + Write>(client: &mut LinkClient<S>, a: &StreamArgs, timeout: Duration) -> Result<()> {
+fn stream<S: Read + Write>(
+    client: &mut LinkClient<S>,
+    a: &StreamArgs,
+    timeout: Duration,
+) -> Result<()> {
     let knots = match (&a.file, a.seconds) {
-        (Some(f), _) => parse_knots_csv(&std::fs::read_to_string(f).with_context(|| format!("cannot read {}", f.display()))?)
-            .with_context(|| format!("in {}", f.display()))?,
+        (Some(f), _) => parse_knots_csv(
+            &std::fs::read_to_string(f).with_context(|| format!("cannot read {}", f.display()))?,
+        )
+        .with_context(|| format!("in {}", f.display()))?,
         (None, s) => {
             let seconds = s.unwrap_or(3.0);
             if !(seconds > 1.0 && seconds < 600.0) {
@@ -338,15 +394,31 @@ fn stream<S: Read + Write>(client: &mut LinkClient<S>, a: &StreamArgs, timeout: 
             if !(1..=1000).contains(&a.knot_ms) {
                 bail!("--knot-ms must be between 1 and 1000, not {}", a.knot_ms);
             }
-            figure_knots([f64::from(start[0]), f64::from(start[1])], [a.amp_mm[0], a.amp_mm[1]], a.freq_hz, seconds, a.knot_ms)
+            figure_knots(
+                [f64::from(start[0]), f64::from(start[1])],
+                [a.amp_mm[0], a.amp_mm[1]],
+                a.freq_hz,
+                seconds,
+                a.knot_ms,
+            )
         }
     };
     let total = knots.len();
     let send = a.cut_after.map_or(total, |n| n.min(total));
-    request(client, Command::Telemetry { decimation: a.decimation })?;
-    let streamed = stream_knots(client, &knots[..send], Duration::from_millis(20), &mut |done, total| {
-        eprint!("\rstream {done}/{total} knots");
-    });
+    request(
+        client,
+        Command::Telemetry {
+            decimation: a.decimation,
+        },
+    )?;
+    let streamed = stream_knots(
+        client,
+        &knots[..send],
+        Duration::from_millis(20),
+        &mut |done, total| {
+            eprint!("\rstream {done}/{total} knots");
+        },
+    );
     eprintln!();
     streamed?;
     let duration_s = f64::from(knots[send - 1].t_us) * 1e-6;
@@ -354,7 +426,10 @@ fn stream<S: Read + Write>(client: &mut LinkClient<S>, a: &StreamArgs, timeout: 
     request(client, Command::Telemetry { decimation: 0 })?;
     client.listen(Duration::from_millis(100))?;
     let samples: Vec<TelemetrySample> = client.take_telemetry();
-    let max_error = samples.iter().map(|t| f64::from(t.following_error_rad)).fold(0.0, f64::max);
+    let max_error = samples
+        .iter()
+        .map(|t| f64::from(t.following_error_rad))
+        .fold(0.0, f64::max);
     if let Some(csv) = &a.telemetry_csv {
         write_atomic(csv, telemetry_csv(&samples).as_bytes())?;
     }

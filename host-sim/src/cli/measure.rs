@@ -9,8 +9,8 @@ use host_sim::calib::machine::{check_plant_fits, PlantMachine};
 use host_sim::calib::measure::{accuracy, measure_list_compensated, rows, Accuracy, Approach};
 use host_sim::calib::plan::visits_from_rows;
 use host_sim::calib::protocol::{visits, Protocol};
-use host_sim::io::model_file::read_model_file;
 use host_sim::io::measurement_csv::write_measurements;
+use host_sim::io::model_file::read_model_file;
 use host_sim::io::targets_csv::read_target_list;
 use host_sim::io::KeyOrder;
 use host_sim::plant::PlantConfig;
@@ -105,19 +105,37 @@ pub fn run(args: &Args) -> Result<()> {
         _ => bail!("give --protocol (table1, grid, random:N, repeat) or --targets FILE"),
     };
     let approach: Approach = args.approach.map_or(Approach::FromVisit, Approach::from);
-    let (model, bytes) = super::load_calibration(args.model.as_deref(), args.grid.as_deref(), &spec.nominal)?;
-    let cal = Calibration { model, grid: super::parse_grid(&bytes)? };
+    let (model, bytes) =
+        super::load_calibration(args.model.as_deref(), args.grid.as_deref(), &spec.nominal)?;
+    let cal = Calibration {
+        model,
+        grid: super::parse_grid(&bytes)?,
+    };
     super::check_noise_um(args.noise_um)?;
     // A model with a backlash correction (diagnose --out-model, the demo with random
     // approach): every command corrected by its motors' approach directions, as the servo would.
     let backlash = match &args.model {
-        Some(p) => read_model_file(p)?.backlash().map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))?,
+        Some(p) => read_model_file(p)?
+            .backlash()
+            .map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))?,
         None => None,
     };
     let mut machine = PlantMachine::from_config(plant, &args.plant, args.noise_um, args.seed)?;
-    let landed = measure_list_compensated(&mut machine, &cal, backlash.as_ref(), &list, approach, args.seed, &spec)?;
+    let landed = measure_list_compensated(
+        &mut machine,
+        &cal,
+        backlash.as_ref(),
+        &list,
+        approach,
+        args.seed,
+        &spec,
+    )?;
     write_measurements(&args.out, &rows(&landed))?;
-    eprintln!("measure: {} measurements written to {}", landed.len(), args.out.display());
+    eprintln!(
+        "measure: {} measurements written to {}",
+        landed.len(),
+        args.out.display()
+    );
     let approach = match (args.approach, args.targets.is_some()) {
         (Some(a), _) => Approach::from(a).name().to_string(),
         (None, true) => "as the list says (random where it says nothing)".into(),

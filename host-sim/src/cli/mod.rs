@@ -109,23 +109,35 @@ impl MachineArg {
 /// Prints a JSON document on stdout (one document, pretty, final newline).
 fn print_json(value: &impl serde::Serialize, order: KeyOrder) -> Result<()> {
     use std::io::Write as _;
-    write!(std::io::stdout(), "{}", json_text(value, order)?).map_err(|e| anyhow!("cannot write to stdout: {e}"))
+    write!(std::io::stdout(), "{}", json_text(value, order)?)
+        .map_err(|e| anyhow!("cannot write to stdout: {e}"))
 }
 
 /// Reads `--model` and `--grid`: the model to command with (the grid's own when a grid is given,
 /// which `--model` must then equal; `nominal` without either) and the grid image bytes.
-fn load_calibration(model: Option<&Path>, grid: Option<&Path>, nominal: &FiveBar<f64>) -> Result<(FiveBar<f32>, Option<Vec<u8>>)> {
+fn load_calibration(
+    model: Option<&Path>,
+    grid: Option<&Path>,
+    nominal: &FiveBar<f64>,
+) -> Result<(FiveBar<f32>, Option<Vec<u8>>)> {
     let from_model = match model {
         Some(p) => Some(read_model(p)?.cast::<f32>()),
         None => None,
     };
     let bytes = match grid {
         None => None,
-        Some(p) => Some(std::fs::read(p).with_context(|| format!("cannot read grid {}", p.display()))?),
+        Some(p) => {
+            Some(std::fs::read(p).with_context(|| format!("cannot read grid {}", p.display()))?)
+        }
     };
     let model = match (&bytes, from_model) {
         (Some(b), m) => {
-            let g = CorrectionGrid::parse(b).map_err(|e| anyhow!("grid {}: {e}", grid.map(|p| p.display().to_string()).unwrap_or_default()))?;
+            let g = CorrectionGrid::parse(b).map_err(|e| {
+                anyhow!(
+                    "grid {}: {e}",
+                    grid.map(|p| p.display().to_string()).unwrap_or_default()
+                )
+            })?;
             if let Some(m) = m {
                 if m != *g.model() {
                     bail!("the model in --model differs from the model stored in --grid");
@@ -141,13 +153,18 @@ fn load_calibration(model: Option<&Path>, grid: Option<&Path>, nominal: &FiveBar
 
 /// A parsed grid image (for `Calibration`), its errors naming the flag.
 fn parse_grid(bytes: &Option<Vec<u8>>) -> Result<Option<CorrectionGrid<'_>>> {
-    bytes.as_deref().map(|b| CorrectionGrid::parse(b).map_err(|e| anyhow!("grid: {e}"))).transpose()
+    bytes
+        .as_deref()
+        .map(|b| CorrectionGrid::parse(b).map_err(|e| anyhow!("grid: {e}")))
+        .transpose()
 }
 
 /// `--noise-um`: a non-negative number.
 fn check_noise_um(n: Option<f64>) -> Result<()> {
     match n {
-        Some(n) if !(n >= 0.0 && n.is_finite()) => bail!("--noise-um must be a non-negative number, not {n}"),
+        Some(n) if !(n >= 0.0 && n.is_finite()) => {
+            bail!("--noise-um must be a non-negative number, not {n}")
+        }
         _ => Ok(()),
     }
 }

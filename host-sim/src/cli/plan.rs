@@ -51,7 +51,9 @@ pub fn run(args: &Args) -> Result<()> {
     let spec = args.machine.spec()?;
     let mut opts = PlanOptions::new(spec, args.seed);
     opts.identification_poses = args.identification_poses;
-    opts.candidates = args.candidates.unwrap_or(host_sim::calib::plan::CANDIDATES_PER_POSE.saturating_mul(args.identification_poses));
+    opts.candidates = args.candidates.unwrap_or(
+        host_sim::calib::plan::CANDIDATES_PER_POSE.saturating_mul(args.identification_poses),
+    );
     opts.selection = match args.selection {
         SelectionArg::DOptimal => Selection::DOptimal,
         SelectionArg::Random => Selection::Random,
@@ -59,8 +61,16 @@ pub fn run(args: &Args) -> Result<()> {
     opts.verify_targets = args.verify_targets;
     let p = plan(&opts).context("planning")?;
     // Every file is ready before the first is written.
-    let mut files: Vec<(PathBuf, String)> =
-        p.lists().iter().map(|(name, list)| (args.out.join(format!("{name}.csv")), format_target_list(&list_rows(list)))).collect();
+    let mut files: Vec<(PathBuf, String)> = p
+        .lists()
+        .iter()
+        .map(|(name, list)| {
+            (
+                args.out.join(format!("{name}.csv")),
+                format_target_list(&list_rows(list)),
+            )
+        })
+        .collect();
     let report = json_text(&p.report, KeyOrder::Sorted)?;
     files.push((args.out.join("plan.json"), report.clone()));
     for (path, text) in &files {
@@ -78,7 +88,10 @@ pub fn run(args: &Args) -> Result<()> {
         id.random_same_count.observability_o1
     );
     for (name, n) in &p.report.lists {
-        eprintln!("plan: {n} targets in {}", args.out.join(format!("{name}.csv")).display());
+        eprintln!(
+            "plan: {n} targets in {}",
+            args.out.join(format!("{name}.csv")).display()
+        );
     }
     print!("{report}");
     Ok(())

@@ -10,11 +10,11 @@
 //! (a model error, for robustness studies).
 
 use anyhow::{bail, Result};
+use host_sim::calib::dynamics::identify;
 use host_sim::io::atomic::Outputs;
+use host_sim::io::dynamics_file::read_dynamics;
 use host_sim::io::plot::{xy_plot_png, Mark, Series};
 use host_sim::io::KeyOrder;
-use host_sim::calib::dynamics::identify;
-use host_sim::io::dynamics_file::read_dynamics;
 use host_sim::plant::{PlantConfig, PlantModel};
 use host_sim::sim::closed_loop::{FeedForward, LoopSummary};
 use host_sim::sim::simulate::{format_log, simulate, SimulateOptions, MAX_SECONDS};
@@ -90,29 +90,51 @@ pub fn run(args: &Args) -> Result<()> {
         Some(other) => bail!("unknown --plant-model '{other}' (known: sixbar, fivebar)"),
     }
     let trajectory = Trajectory::by_name(&args.trajectory, &spec)?;
-    let seconds = args.seconds.unwrap_or_else(|| trajectory.natural_duration_s());
+    let seconds = args
+        .seconds
+        .unwrap_or_else(|| trajectory.natural_duration_s());
     if !(seconds > 0.0 && seconds <= MAX_SECONDS) {
         bail!("--seconds must be in (0, {MAX_SECONDS}], not {seconds}");
     }
     if !(args.mass_error_pct > -100.0 && args.mass_error_pct <= 1000.0) {
-        bail!("--mass-error-pct must be in (-100, 1000], not {}", args.mass_error_pct);
+        bail!(
+            "--mass-error-pct must be in (-100, 1000], not {}",
+            args.mass_error_pct
+        );
     }
-    let (model, bytes) = super::load_calibration(args.model.as_deref(), args.grid.as_deref(), &spec.nominal)?;
-    let cal = Calibration { model, grid: super::parse_grid(&bytes)? };
+    let (model, bytes) =
+        super::load_calibration(args.model.as_deref(), args.grid.as_deref(), &spec.nominal)?;
+    let cal = Calibration {
+        model,
+        grid: super::parse_grid(&bytes)?,
+    };
     let (feedforward, source) = match args.feedforward.as_str() {
         "differences" => (FeedForward::Differences, None),
         "constant" => (FeedForward::Constant, None),
         "dynamics" => {
             let (d, source) = match (&args.dynamics, cal.grid.as_ref().and_then(|g| g.dynamics())) {
                 (Some(p), _) => (read_dynamics(p)?, format!("--dynamics {}", p.display())),
-                (None, Some(d)) => (d.cast::<f64>(), "the --grid image's dynamics block".to_string()),
+                (None, Some(d)) => (
+                    d.cast::<f64>(),
+                    "the --grid image's dynamics block".to_string(),
+                ),
                 (None, None) => {
                     let id = identify(&cfg, &cal, &spec, args.seed)?;
-                    (id.dynamics, format!("identified on the plant (excitation run, residual {:.4} N·m RMS)", id.residual_rms_nm))
+                    (
+                        id.dynamics,
+                        format!(
+                            "identified on the plant (excitation run, residual {:.4} N·m RMS)",
+                            id.residual_rms_nm
+                        ),
+                    )
                 }
             };
             let k = 1.0 + args.mass_error_pct / 100.0;
-            let source = if args.mass_error_pct != 0.0 { format!("{source}, masses and inertias x{k}") } else { source };
+            let source = if args.mass_error_pct != 0.0 {
+                format!("{source}, masses and inertias x{k}")
+            } else {
+                source
+            };
             (FeedForward::Dynamics(d.scaled_masses([k; 5])), Some(source))
         }
         other => bail!("unknown --feedforward '{other}' (known: dynamics, constant, differences)"),
@@ -137,22 +159,47 @@ pub fn run(args: &Args) -> Result<()> {
         let set: Vec<[f64; 2]> = run.log.iter().map(|r| r.setpoint_mm).collect();
         let act: Vec<[f64; 2]> = run.log.iter().map(|r| r.tool_mm).collect();
         let png = xy_plot_png(
-            &format!("{} on {} plant: commanded vs actual", trajectory.name(), args.plant),
+            &format!(
+                "{} on {} plant: commanded vs actual",
+                trajectory.name(),
+                args.plant
+            ),
             "x (mm)",
             "y (mm)",
             &[
-                Series { label: "commanded (setpoints)", points: &set, mark: Mark::Line },
-                Series { label: "actual tool point", points: &act, mark: Mark::Line },
+                Series {
+                    label: "commanded (setpoints)",
+                    points: &set,
+                    mark: Mark::Line,
+                },
+                Series {
+                    label: "actual tool point",
+                    points: &act,
+                    mark: Mark::Line,
+                },
             ],
         )?;
         outputs.bytes(p, &png)?;
     }
     outputs.commit()?;
     let dynamics = match feedforward {
-        FeedForward::Dynamics(d) => Some(PARAMETER_NAMES.iter().map(|n| n.to_string()).zip(d.to_array()).collect()),
+        FeedForward::Dynamics(d) => Some(
+            PARAMETER_NAMES
+                .iter()
+                .map(|n| n.to_string())
+                .zip(d.to_array())
+                .collect(),
+        ),
         _ => None,
     };
-    super::print_json(&Output { summary: &run.summary, dynamics_source: source, dynamics }, KeyOrder::Declared)?;
+    super::print_json(
+        &Output {
+            summary: &run.summary,
+            dynamics_source: source,
+            dynamics,
+        },
+        KeyOrder::Declared,
+    )?;
     // A run that faulted is a failed run: the summary says why, the exit status says so.
     if let Some(fault) = &run.summary.fault {
         bail!("the simulation faulted: {fault}");

@@ -48,24 +48,64 @@ pub fn run(args: &Args) -> Result<()> {
     let spec = args.machine.spec()?;
     let mut outs = vec![&args.out];
     outs.extend(&args.json);
-    let inputs: Vec<&PathBuf> = [Some(&args.after_verify), Some(&args.after_repeat), args.before_verify.as_ref(), args.before_repeat.as_ref()].into_iter().flatten().collect();
+    let inputs: Vec<&PathBuf> = [
+        Some(&args.after_verify),
+        Some(&args.after_repeat),
+        args.before_verify.as_ref(),
+        args.before_repeat.as_ref(),
+    ]
+    .into_iter()
+    .flatten()
+    .collect();
     if let Some(clash) = outs.iter().find(|o| inputs.contains(o)) {
         bail!("the output {} is one of the inputs", clash.display());
     }
     if args.json.as_ref() == Some(&args.out) {
         bail!("--out and --json name the same file");
     }
-    let after = StageData { verify: read(&args.after_verify)?, repeat: read(&args.after_repeat)? };
+    let after = StageData {
+        verify: read(&args.after_verify)?,
+        repeat: read(&args.after_repeat)?,
+    };
     let before = match (&args.before_verify, &args.before_repeat) {
-        (Some(v), Some(r)) => Some(StageData { verify: read(v)?, repeat: read(r)? }),
+        (Some(v), Some(r)) => Some(StageData {
+            verify: read(v)?,
+            repeat: read(r)?,
+        }),
         (None, None) => None,
         _ => bail!("--before-verify and --before-repeat come together"),
     };
-    let report = verify(&VerifyOptions { spec: spec.clone(), before, after }).map_err(|e| anyhow!("{e}"))?;
-    let mut listed = vec![("after calibration, verification".to_string(), args.after_verify.display().to_string()), ("after calibration, repeat runs".into(), args.after_repeat.display().to_string())];
+    let report = verify(&VerifyOptions {
+        spec: spec.clone(),
+        before,
+        after,
+    })
+    .map_err(|e| anyhow!("{e}"))?;
+    let mut listed = vec![
+        (
+            "after calibration, verification".to_string(),
+            args.after_verify.display().to_string(),
+        ),
+        (
+            "after calibration, repeat runs".into(),
+            args.after_repeat.display().to_string(),
+        ),
+    ];
     if let (Some(v), Some(r)) = (&args.before_verify, &args.before_repeat) {
-        listed.insert(0, ("before calibration, repeat runs".into(), r.display().to_string()));
-        listed.insert(0, ("before calibration, verification".into(), v.display().to_string()));
+        listed.insert(
+            0,
+            (
+                "before calibration, repeat runs".into(),
+                r.display().to_string(),
+            ),
+        );
+        listed.insert(
+            0,
+            (
+                "before calibration, verification".into(),
+                v.display().to_string(),
+            ),
+        );
     }
     let page = html::render(&report, &spec, &listed).context("rendering the report")?;
     let json = json_text(&report, KeyOrder::Sorted)?;
@@ -76,7 +116,10 @@ pub fn run(args: &Args) -> Result<()> {
     }
     for s in &report.stages {
         let p = &s.position;
-        eprintln!("verify: {}: 2-D position error max {:.2} µm, RMS {:.2} µm ({} targets)", s.stage, p.max_um, p.rms_um, p.n_points);
+        eprintln!(
+            "verify: {}: 2-D position error max {:.2} µm, RMS {:.2} µm ({} targets)",
+            s.stage, p.max_um, p.rms_um, p.n_points
+        );
         for l in &s.lines {
             eprintln!(
                 "verify: {}: {}: ISO 230-2 A {:.2} R {:.2} E {:.2} B {:.2} µm; VDI 3441 P {:.2} Ps {:.2} µm",

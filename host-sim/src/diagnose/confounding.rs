@@ -83,15 +83,21 @@ fn orthonormal_basis(m: &DMatrix<f64>) -> DMatrix<f64> {
         return m.clone();
     }
     let svd = m.clone().svd(true, false);
-    let Some(u) = svd.u else { return DMatrix::zeros(m.nrows(), 0) };
+    let Some(u) = svd.u else {
+        return DMatrix::zeros(m.nrows(), 0);
+    };
     let smax = svd.singular_values.max();
-    let keep: Vec<usize> =
-        (0..svd.singular_values.len()).filter(|&i| svd.singular_values[i] > 1e-9 * smax.max(1e-300)).collect();
+    let keep: Vec<usize> = (0..svd.singular_values.len())
+        .filter(|&i| svd.singular_values[i] > 1e-9 * smax.max(1e-300))
+        .collect();
     DMatrix::from_fn(m.nrows(), keep.len(), |r, c| u[(r, keep[c])])
 }
 
 fn columns(j: &DMatrix<f64>, all: &[usize], params: &[usize]) -> DMatrix<f64> {
-    let idx: Vec<usize> = params.iter().filter_map(|p| all.iter().position(|q| q == p)).collect();
+    let idx: Vec<usize> = params
+        .iter()
+        .filter_map(|p| all.iter().position(|q| q == p))
+        .collect();
     DMatrix::from_fn(j.nrows(), idx.len(), |r, c| j[(r, idx[c])])
 }
 
@@ -140,8 +146,13 @@ pub fn overlaps(
     s2_um2: f64,
 ) -> Vec<Overlap> {
     let x = &fit.p;
-    let all: Vec<usize> = candidates.iter().flat_map(|e| e.params.iter().copied()).collect();
-    let Some(j) = jacobian(problem, x, &all) else { return vec![] };
+    let all: Vec<usize> = candidates
+        .iter()
+        .flat_map(|e| e.params.iter().copied())
+        .collect();
+    let Some(j) = jacobian(problem, x, &all) else {
+        return vec![];
+    };
     let mut out: Vec<Overlap> = Vec::new();
     for &e in final_set {
         for &c in candidates {
@@ -154,14 +165,28 @@ pub fn overlaps(
                 .flat_map(|f| f.params.iter().copied())
                 .collect();
             let q = orthonormal_basis(&columns(&j, &all, &rest));
-            let je = drop_vanished(project_out(&columns(&j, &all, e.params), &q), &columns(&j, &all, e.params));
-            let jc = drop_vanished(project_out(&columns(&j, &all, c.params), &q), &columns(&j, &all, c.params));
+            let je = drop_vanished(
+                project_out(&columns(&j, &all, e.params), &q),
+                &columns(&j, &all, e.params),
+            );
+            let jc = drop_vanished(
+                project_out(&columns(&j, &all, c.params), &q),
+                &columns(&j, &all, c.params),
+            );
             let pe = DVector::from_iterator(e.params.len(), e.params.iter().map(|&k| x[k]));
             let ve = &je * pe;
             let qc = orthonormal_basis(&jc);
-            let explained = if qc.ncols() > 0 { &qc * (qc.transpose() * &ve) } else { ve.clone() * 0.0 };
+            let explained = if qc.ncols() > 0 {
+                &qc * (qc.transpose() * &ve)
+            } else {
+                ve.clone() * 0.0
+            };
             let miss = (&ve - &explained).norm_squared();
-            let cos = if ve.norm() > 0.0 { explained.norm() / ve.norm() } else { 0.0 };
+            let cos = if ve.norm() > 0.0 {
+                explained.norm() / ve.norm()
+            } else {
+                0.0
+            };
             let swap_chi2 = miss / s2_um2.max(1e-12);
             let principal_cos = max_cos(&je, &jc);
             let (shared_direction, shared_value, shared_z) = if principal_cos >= PARTIAL_COS {
@@ -169,8 +194,9 @@ pub fn overlaps(
             } else {
                 (String::new(), 0.0, 0.0)
             };
-            let confounded =
-                (swap_chi2 < SWAP_CHI2 && ve.norm_squared() / s2_um2.max(1e-12) > SWAP_CHI2) || shared_z > SHARED_Z;
+            let confounded = (swap_chi2 < SWAP_CHI2
+                && ve.norm_squared() / s2_um2.max(1e-12) > SWAP_CHI2)
+                || shared_z > SHARED_Z;
             if confounded || principal_cos >= PARTIAL_COS {
                 out.push(Overlap {
                     effect: e.name().into(),
@@ -194,14 +220,27 @@ pub fn overlaps(
 /// The exactly shared part of effect `e` with another candidate: the null direction of
 /// `[J_E, J_C]` restricted to E's parameters (unit vector in E's parameter units), E's fitted value
 /// along it and that value's z-score under the final fit's covariance.
-fn shared_part(e: &Effect, je: &DMatrix<f64>, jc: &DMatrix<f64>, fit: &Fit, s2_um2: f64) -> (String, f64, f64) {
+fn shared_part(
+    e: &Effect,
+    je: &DMatrix<f64>,
+    jc: &DMatrix<f64>,
+    fit: &Fit,
+    s2_um2: f64,
+) -> (String, f64, f64) {
     let (ke, kc) = (je.ncols(), jc.ncols());
     let mut m = DMatrix::zeros(je.nrows(), ke + kc);
     m.columns_mut(0, ke).copy_from(je);
     m.columns_mut(ke, kc).copy_from(jc);
     let svd = m.svd(false, true);
-    let Some(vt) = svd.v_t else { return (String::new(), 0.0, 0.0) };
-    let Some((imin, _)) = svd.singular_values.iter().enumerate().min_by(|a, b| a.1.total_cmp(b.1)) else {
+    let Some(vt) = svd.v_t else {
+        return (String::new(), 0.0, 0.0);
+    };
+    let Some((imin, _)) = svd
+        .singular_values
+        .iter()
+        .enumerate()
+        .min_by(|a, b| a.1.total_cmp(b.1))
+    else {
         return (String::new(), 0.0, 0.0);
     };
     let d = DVector::from_iterator(ke, (0..ke).map(|i| vt[(imin, i)]));
@@ -211,11 +250,23 @@ fn shared_part(e: &Effect, je: &DMatrix<f64>, jc: &DMatrix<f64>, fit: &Fit, s2_u
     }
     let mut d = d / norm;
     // Sign: make the largest component positive, for a readable description.
-    if d.iter().fold(0.0f64, |a, &v| if v.abs() > a.abs() { v } else { a }) < 0.0 {
+    if d.iter()
+        .fold(0.0f64, |a, &v| if v.abs() > a.abs() { v } else { a })
+        < 0.0
+    {
         d = -d;
     }
-    let cols: Vec<Option<usize>> = e.params.iter().map(|k| fit.free.iter().position(|f| f == k)).collect();
-    let alpha: f64 = e.params.iter().zip(d.iter()).map(|(&k, &w)| fit.p[k] * w).sum();
+    let cols: Vec<Option<usize>> = e
+        .params
+        .iter()
+        .map(|k| fit.free.iter().position(|f| f == k))
+        .collect();
+    let alpha: f64 = e
+        .params
+        .iter()
+        .zip(d.iter())
+        .map(|(&k, &w)| fit.p[k] * w)
+        .sum();
     let mut var = 0.0;
     for (a, ca) in cols.iter().enumerate() {
         for (b, cb) in cols.iter().enumerate() {
@@ -224,7 +275,11 @@ fn shared_part(e: &Effect, je: &DMatrix<f64>, jc: &DMatrix<f64>, fit: &Fit, s2_u
             }
         }
     }
-    let z = if var > 0.0 { alpha.abs() / var.sqrt() } else { 0.0 };
+    let z = if var > 0.0 {
+        alpha.abs() / var.sqrt()
+    } else {
+        0.0
+    };
     let desc: Vec<String> = e
         .params
         .iter()
@@ -266,20 +321,33 @@ pub fn pose_set_overlaps(
     candidates: &[&'static Effect],
     min_cos: f64,
 ) -> Vec<PoseOverlap> {
-    let all: Vec<usize> = candidates.iter().flat_map(|e| e.params.iter().copied()).collect();
-    let Some(j) = jacobian(problem, x, &all) else { return vec![] };
+    let all: Vec<usize> = candidates
+        .iter()
+        .flat_map(|e| e.params.iter().copied())
+        .collect();
+    let Some(j) = jacobian(problem, x, &all) else {
+        return vec![];
+    };
     let mut out = Vec::new();
     for (i, a) in candidates.iter().enumerate() {
         for b in &candidates[i + 1..] {
             let cos = max_cos(&columns(&j, &all, a.params), &columns(&j, &all, b.params));
             if cos >= min_cos {
-                out.push(PoseOverlap { a: a.name().into(), b: b.name().into(), principal_cos: cos });
+                out.push(PoseOverlap {
+                    a: a.name().into(),
+                    b: b.name().into(),
+                    principal_cos: cos,
+                });
             }
         }
     }
     // Largest cosine first; cosines equal to 1e-9 (e.g. two exact confoundings, 1 to rounding)
     // in name order, so rounding noise does not reorder the report.
     let key = |o: &PoseOverlap| (o.principal_cos * 1e9).round();
-    out.sort_by(|p, q| key(q).total_cmp(&key(p)).then_with(|| (&p.a, &p.b).cmp(&(&q.a, &q.b))));
+    out.sort_by(|p, q| {
+        key(q)
+            .total_cmp(&key(p))
+            .then_with(|| (&p.a, &p.b).cmp(&(&q.a, &q.b)))
+    });
     out
 }

@@ -248,7 +248,10 @@ impl Problem {
     pub fn new(base: FiveBar<f64>, design: &SixBarDesign, data: &[Measurement]) -> Problem {
         let has_dir = !data.is_empty() && data.iter().all(|m| m.dir.is_some());
         let has_time = !data.is_empty() && data.iter().all(|m| m.t_s.is_some());
-        let t0 = data.iter().filter_map(|m| m.t_s).fold(f64::INFINITY, f64::min);
+        let t0 = data
+            .iter()
+            .filter_map(|m| m.t_s)
+            .fold(f64::INFINITY, f64::min);
         let mut points = Vec::with_capacity(data.len());
         let mut responses = Vec::with_capacity(data.len());
         let mut dropped_lines = Vec::new();
@@ -264,7 +267,10 @@ impl Problem {
                 continue;
             };
             responses.push(r);
-            let d = m.dir.map(|d| [d[0] as f64, d[1] as f64]).unwrap_or([0.0; 2]);
+            let d = m
+                .dir
+                .map(|d| [d[0] as f64, d[1] as f64])
+                .unwrap_or([0.0; 2]);
             points.push(Point {
                 index,
                 theta_rad: th,
@@ -273,17 +279,24 @@ impl Problem {
                 stretch_u: [[0.0; N_STRETCH]; 2],
                 mismatch_um: [[0.0; 2]; N_MISMATCH],
                 theta_centred_rad: [0.0; 2],
-                t_s: if has_time { m.t_s.unwrap_or(t0) - t0 } else { 0.0 },
+                t_s: if has_time {
+                    m.t_s.unwrap_or(t0) - t0
+                } else {
+                    0.0
+                },
             });
         }
         // Circular mean: the gear_ratio basis is θ about it, modulo 360° (Table I prints some
         // angles as θ + 360°; a plain mean would turn that bookkeeping into a huge "ratio error").
         let mean_theta_rad = [0, 1].map(|j| {
-            let (s, c) = points.iter().fold((0.0, 0.0), |(s, c), p| (s + p.theta_rad[j].sin(), c + p.theta_rad[j].cos()));
+            let (s, c) = points.iter().fold((0.0, 0.0), |(s, c), p| {
+                (s + p.theta_rad[j].sin(), c + p.theta_rad[j].cos())
+            });
             s.atan2(c)
         });
         for p in points.iter_mut() {
-            p.theta_centred_rad = [0, 1].map(|j| wrap_angle_rad(p.theta_rad[j] - mean_theta_rad[j]));
+            p.theta_centred_rad =
+                [0, 1].map(|j| wrap_angle_rad(p.theta_rad[j] - mean_theta_rad[j]));
         }
         let mut problem = Problem {
             base,
@@ -296,9 +309,15 @@ impl Problem {
             mean_theta_rad,
             nuisance: Nuisance::default(),
         };
-        problem.sixbar = problem.five_bar_span().and_then(|f| sixbar_modes::modes(&responses, &f, &FIVE_BAR_SPAN));
+        problem.sixbar = problem
+            .five_bar_span()
+            .and_then(|f| sixbar_modes::modes(&responses, &f, &FIVE_BAR_SPAN));
         if let Ok(m) = &problem.sixbar {
-            for (p, (s, d)) in problem.points.iter_mut().zip(m.stretch.iter().zip(&m.mismatch_um)) {
+            for (p, (s, d)) in problem
+                .points
+                .iter_mut()
+                .zip(m.stretch.iter().zip(&m.mismatch_um))
+            {
                 p.stretch_u = *s;
                 p.mismatch_um = *d;
             }
@@ -308,8 +327,9 @@ impl Problem {
 
     /// The tool displacement (µm, x,y per point) per unit of each five-bar-span parameter.
     fn five_bar_span(&self) -> Result<DMatrix<f64>, String> {
-        let j = super::fit::jacobian(self, &[0.0; N_PARAMS], &FIVE_BAR_SPAN)
-            .ok_or_else(|| "a point left the model's workspace while differentiating".to_string())?;
+        let j = super::fit::jacobian(self, &[0.0; N_PARAMS], &FIVE_BAR_SPAN).ok_or_else(|| {
+            "a point left the model's workspace while differentiating".to_string()
+        })?;
         // The residual is measured − predicted: the prediction's derivative is −J.
         Ok(-j)
     }
@@ -321,7 +341,11 @@ impl Problem {
         let mut m = self.base;
         let s = &p.stretch_u;
         m.a_mm += x[0] * um;
-        let stretch = |arm: usize| -> f64 { (0..N_STRETCH).map(|k| x[idx::STRETCH + k] * s[arm][k]).sum() };
+        let stretch = |arm: usize| -> f64 {
+            (0..N_STRETCH)
+                .map(|k| x[idx::STRETCH + k] * s[arm][k])
+                .sum()
+        };
         m.b_mm += (x[1] + stretch(0)) * um;
         m.c_mm += (x[2] + (1.0 + x[idx::STRETCH_RATIO] * 0.01) * stretch(1)) * um;
         m.d_mm += x[3] * um;
@@ -343,9 +367,18 @@ impl Problem {
         }
         let (sn, co) = (x[idx::FRAME + 2] * urad).sin_cos();
         let k = 1.0 + x[idx::SCALE] * 1e-6;
-        let drift = [x[idx::DRIFT] * p.t_s * 1e-3 * um, x[idx::DRIFT + 1] * p.t_s * 1e-3 * um];
-        let t = [x[idx::FRAME] * um + drift[0], x[idx::FRAME + 1] * um + drift[1]];
-        Some([k * (co * c[0] - sn * c[1]) + t[0], k * (sn * c[0] + co * c[1]) + t[1]])
+        let drift = [
+            x[idx::DRIFT] * p.t_s * 1e-3 * um,
+            x[idx::DRIFT + 1] * p.t_s * 1e-3 * um,
+        ];
+        let t = [
+            x[idx::FRAME] * um + drift[0],
+            x[idx::FRAME + 1] * um + drift[1],
+        ];
+        Some([
+            k * (co * c[0] - sn * c[1]) + t[0],
+            k * (sn * c[0] + co * c[1]) + t[1],
+        ])
     }
 
     /// Residuals (measured − predicted, µm), x then y per point; `None` if a point has no FK.
@@ -362,9 +395,15 @@ impl Problem {
     /// Whether an effect can be fitted on these data (and why not).
     pub fn available(&self, e: &Effect) -> Result<(), String> {
         if e.needs_dir && !self.has_dir {
-            return Err(format!("{} skipped: the data have no dir1/dir2 columns", e.name()));
+            return Err(format!(
+                "{} skipped: the data have no dir1/dir2 columns",
+                e.name()
+            ));
         }
-        if matches!(e.kind, PhysicalEffect::LinkStretch | PhysicalEffect::ParallelogramMismatch) {
+        if matches!(
+            e.kind,
+            PhysicalEffect::LinkStretch | PhysicalEffect::ParallelogramMismatch
+        ) {
             if let Err(why) = &self.sixbar {
                 return Err(format!("{} skipped: {why}", e.name()));
             }
@@ -374,7 +413,10 @@ impl Problem {
 
     /// The parameters free in a fit of `effects`: theirs, then the nuisances'.
     pub fn free_params(&self, effects: &[&Effect]) -> Vec<usize> {
-        let mut p: Vec<usize> = effects.iter().flat_map(|e| e.params.iter().copied()).collect();
+        let mut p: Vec<usize> = effects
+            .iter()
+            .flat_map(|e| e.params.iter().copied())
+            .collect();
         p.extend(self.nuisance.params());
         p
     }
@@ -385,7 +427,11 @@ impl Problem {
     /// sign: what "add it to the model" writes.
     pub fn effective_sixbar(&self, x: &[f64]) -> Option<EffectiveSixBar> {
         let m = self.sixbar.as_ref().ok()?;
-        let mut out = EffectiveSixBar { stretch_raw_um: [[0.0; N_RAW]; 2], mismatch_raw_um: [0.0; N_RAW], five_bar_shift: vec![0.0; N_PARAMS] };
+        let mut out = EffectiveSixBar {
+            stretch_raw_um: [[0.0; N_RAW]; 2],
+            mismatch_raw_um: [0.0; N_RAW],
+            five_bar_shift: vec![0.0; N_PARAMS],
+        };
         let ratio = [1.0, 1.0 + x[idx::STRETCH_RATIO] * 0.01];
         for (bar, r) in out.stretch_raw_um.iter_mut().zip(ratio) {
             for k in 0..N_STRETCH {
@@ -427,8 +473,18 @@ mod tests {
     use crate::diagnose::loop_closure::response;
 
     fn meas(theta_deg: [f64; 2], dir: [i8; 2], m: &FiveBar<f64>) -> Measurement {
-        let c = m.forward([theta_deg[0].to_radians(), theta_deg[1].to_radians()], 0.0).unwrap();
-        Measurement { theta_deg, measured_mm: c, target_mm: None, dir: Some(dir), run: None, t_s: None, line: 0 }
+        let c = m
+            .forward([theta_deg[0].to_radians(), theta_deg[1].to_radians()], 0.0)
+            .unwrap();
+        Measurement {
+            theta_deg,
+            measured_mm: c,
+            target_mm: None,
+            dir: Some(dir),
+            run: None,
+            t_s: None,
+            line: 0,
+        }
     }
 
     fn grid(m: &FiveBar<f64>) -> Vec<Measurement> {
@@ -441,7 +497,10 @@ mod tests {
                 let th = nominal.inverse(t, spec.min_transmission).unwrap();
                 out.push(meas(
                     [th[0].to_degrees(), th[1].to_degrees()],
-                    [if i % 2 == 0 { 1 } else { -1 }, if j % 2 == 0 { 1 } else { -1 }],
+                    [
+                        if i % 2 == 0 { 1 } else { -1 },
+                        if j % 2 == 0 { 1 } else { -1 },
+                    ],
                     m,
                 ));
             }
@@ -491,7 +550,9 @@ mod tests {
         let r = p.residuals_um(&x).unwrap();
         assert!(r.iter().all(|v| v.abs() < 1e-6), "{r:?}");
         // One point: the six-bar's modes do not exist, and say why.
-        assert!(p.available(effect("parallelogram_mismatch").unwrap()).is_err());
+        assert!(p
+            .available(effect("parallelogram_mismatch").unwrap())
+            .is_err());
     }
 
     #[test]
@@ -502,7 +563,10 @@ mod tests {
         let rigid = jacobian(&p, &x, &FIVE_BAR_SPAN).unwrap();
         let mismatch = jacobian(&p, &x, effect("parallelogram_mismatch").unwrap().params).unwrap();
         let cos = crate::diagnose::confounding::max_cos(&rigid, &mismatch);
-        assert!(cos < 1e-6, "mismatch modes overlap the five-bar's parameters: cos {cos}");
+        assert!(
+            cos < 1e-6,
+            "mismatch modes overlap the five-bar's parameters: cos {cos}"
+        );
         // The stretch modes are physical length functions, partly what constant lengths and
         // offsets do (a constant stretch is a link length), but not wholly: their part outside
         // that span moves the tool by more than 1 % of the whole.
@@ -512,14 +576,28 @@ mod tests {
         let keep: Vec<usize> = (0..sv.len()).filter(|&i| sv[i] > 1e-9 * sv.max()).collect();
         let q = nalgebra::DMatrix::from_fn(u.nrows(), keep.len(), |r, c| u[(r, keep[c])]);
         let outside = (&stretch - &q * (q.transpose() * &stretch)).norm() / stretch.norm();
-        assert!(outside > 0.01, "stretch basis inside lengths+offsets: {outside}");
+        assert!(
+            outside > 0.01,
+            "stretch basis inside lengths+offsets: {outside}"
+        );
         let n = p.points.len() as f64;
         for k in 0..N_STRETCH {
-            let ms = p.points.iter().map(|q| q.stretch_u[0][k].powi(2) + q.stretch_u[1][k].powi(2)).sum::<f64>() / (2.0 * n);
+            let ms = p
+                .points
+                .iter()
+                .map(|q| q.stretch_u[0][k].powi(2) + q.stretch_u[1][k].powi(2))
+                .sum::<f64>()
+                / (2.0 * n);
             assert!((ms.sqrt() - 1.0).abs() < 1e-9, "mode {k}: {}", ms.sqrt());
         }
         for k in 0..N_MISMATCH {
-            let rms = (p.points.iter().map(|q| q.mismatch_um[k][0].powi(2) + q.mismatch_um[k][1].powi(2)).sum::<f64>() / n).sqrt();
+            let rms = (p
+                .points
+                .iter()
+                .map(|q| q.mismatch_um[k][0].powi(2) + q.mismatch_um[k][1].powi(2))
+                .sum::<f64>()
+                / n)
+                .sqrt();
             assert!((rms - 1.0).abs() < 1e-9, "mode {k}: {rms}");
         }
     }
@@ -535,7 +613,10 @@ mod tests {
         let eff = p.effective_sixbar(&x).unwrap();
         // The five-bar shift's displacement, to first order (as the projection removed it).
         let j = jacobian(&p, &[0.0; N_PARAMS], &FIVE_BAR_SPAN).unwrap();
-        let shift = nalgebra::DVector::from_iterator(FIVE_BAR_SPAN.len(), FIVE_BAR_SPAN.iter().map(|&k| eff.five_bar_shift[k]));
+        let shift = nalgebra::DVector::from_iterator(
+            FIVE_BAR_SPAN.len(),
+            FIVE_BAR_SPAN.iter().map(|&k| eff.five_bar_shift[k]),
+        );
         let five_bar_um = -(j * shift);
         for (i, q) in p.points.iter().enumerate() {
             let r = response(&p.base, &p.design, q.theta_rad).unwrap();
@@ -559,7 +640,10 @@ mod tests {
             assert!(err < 1e-6, "point {i}: {got:?} vs {want:?}");
             for (arm, s) in stretch.iter().enumerate() {
                 let ratio = if arm == 0 { 1.0 } else { 1.3 };
-                let w: f64 = ratio * (0..N_STRETCH).map(|k| x[idx::STRETCH + k] * q.stretch_u[arm][k]).sum::<f64>();
+                let w: f64 = ratio
+                    * (0..N_STRETCH)
+                        .map(|k| x[idx::STRETCH + k] * q.stretch_u[arm][k])
+                        .sum::<f64>();
                 assert!((s - w).abs() < 1e-9, "point {i} arm {arm}: {s} vs {w}");
             }
         }

@@ -67,7 +67,10 @@ pub fn cross_validated_rss(fit: &Fit, n_points: usize, folds: usize) -> Option<f
     }
     let mut rss = 0.0;
     for fold in 0..folds.max(1) {
-        let rows: Vec<usize> = (0..n_points).filter(|i| i % folds == fold).flat_map(|i| [2 * i, 2 * i + 1]).collect();
+        let rows: Vec<usize> = (0..n_points)
+            .filter(|i| i % folds == fold)
+            .flat_map(|i| [2 * i, 2 * i + 1])
+            .collect();
         if rows.is_empty() {
             continue;
         }

@@ -77,7 +77,8 @@ impl SixBarDesign {
     /// workspace centre (equal to the `paper` plant's drawing).
     pub fn paper() -> Self {
         let spec = crate::machine_spec::MachineSpec::paper();
-        Self::for_model(&spec.nominal, spec.workspace.centre_mm()).expect("the paper machine reaches its workspace centre")
+        Self::for_model(&spec.nominal, spec.workspace.centre_mm())
+            .expect("the paper machine reaches its workspace centre")
     }
 
     /// The nominal design of a plant's six-bar (its drawing: the errors are ignored). The plant
@@ -87,7 +88,11 @@ impl SixBarDesign {
         let (g, h) = (cfg.parallelogram_1_offset_mm, cfg.parallelogram_2_offset_mm);
         let w2 = cfg.platform_half_width_mm;
         let k = |section: f64| cfg.youngs_modulus_n_per_mm2 * section / cfg.link_mm;
-        let arm = [k(cfg.follower_bar_section_mm2), k(cfg.main_bar_section_mm2), k(cfg.follower_bar_section_mm2)];
+        let arm = [
+            k(cfg.follower_bar_section_mm2),
+            k(cfg.main_bar_section_mm2),
+            k(cfg.follower_bar_section_mm2),
+        ];
         SixBarDesign {
             platform_pin_mm: [[0.0, w2], [0.0, -w2]],
             offset_mm: [[g, h], [mirror(g), mirror(h)]],
@@ -106,9 +111,12 @@ impl SixBarDesign {
     /// followers (120 vs 40 mm² of aluminium), bearings 20 kN/mm.
     pub fn for_model(model: &FiveBar<f64>, centre_mm: [f64; 2]) -> Result<Self, String> {
         let l = 0.25 * (model.a_mm + model.b_mm + model.c_mm + model.d_mm);
-        let pose = model
-            .inverse_pose(centre_mm, 0.0)
-            .map_err(|e| format!("the workspace centre ({:.3}, {:.3}) mm: {e}", centre_mm[0], centre_mm[1]))?;
+        let pose = model.inverse_pose(centre_mm, 0.0).map_err(|e| {
+            format!(
+                "the workspace centre ({:.3}, {:.3}) mm: {e}",
+                centre_mm[0], centre_mm[1]
+            )
+        })?;
         let unit = |v: [f64; 2]| {
             let n = v[0].hypot(v[1]);
             [v[0] / n, v[1] / n]
@@ -186,8 +194,14 @@ pub enum LoopError {
 
 /// The linear responses of the six-bar built on `model` by `design`, at encoder angles
 /// `theta_rad` (the model's own offsets applied, as in its forward kinematics).
-pub fn response(model: &FiveBar<f64>, design: &SixBarDesign, theta_rad: [f64; 2]) -> Result<Response, LoopError> {
-    let pose = model.forward_pose(theta_rad, 0.0).map_err(|e| LoopError::NoPose(e.to_string()))?;
+pub fn response(
+    model: &FiveBar<f64>,
+    design: &SixBarDesign,
+    theta_rad: [f64; 2],
+) -> Result<Response, LoopError> {
+    let pose = model
+        .forward_pose(theta_rad, 0.0)
+        .map_err(|e| LoopError::NoPose(e.to_string()))?;
     let [p_d, p_e] = design.platform_pin_mm;
     let c = pose.tool_mm;
     let elbow = [add(pose.elbow_a_mm, p_d), add(pose.elbow_b_mm, p_e)];
@@ -198,9 +212,21 @@ pub fn response(model: &FiveBar<f64>, design: &SixBarDesign, theta_rad: [f64; 2]
     for arm in 0..2 {
         let [g, h] = design.offset_mm[arm];
         let [kf, kq, kg] = design.bar_k_n_per_mm[arm];
-        bars.push((End::Ground(add(motor[arm], g)), End::Body(arm, add(elbow[arm], g), g), kf));
-        bars.push((End::Body(arm, elbow[arm], [0.0; 2]), End::Body(2, add(c, pin[arm]), pin[arm]), kq));
-        bars.push((End::Body(arm, add(elbow[arm], h), h), End::Body(2, add(add(c, pin[arm]), h), add(pin[arm], h)), kg));
+        bars.push((
+            End::Ground(add(motor[arm], g)),
+            End::Body(arm, add(elbow[arm], g), g),
+            kf,
+        ));
+        bars.push((
+            End::Body(arm, elbow[arm], [0.0; 2]),
+            End::Body(2, add(c, pin[arm]), pin[arm]),
+            kq,
+        ));
+        bars.push((
+            End::Body(arm, add(elbow[arm], h), h),
+            End::Body(2, add(add(c, pin[arm]), h), add(pin[arm], h)),
+            kg,
+        ));
     }
     // Compatibility rows (10 × 9), stiffnesses, and each bar's direction.
     let mut rows: Vec<(Row9, f64)> = Vec::with_capacity(10);
@@ -303,7 +329,10 @@ pub fn response(model: &FiveBar<f64>, design: &SixBarDesign, theta_rad: [f64; 2]
 }
 
 /// ∂C/∂b and ∂C/∂c of the five-bar at these angles (µm per µm), by central differences.
-fn five_bar_distal_sensitivity(model: &FiveBar<f64>, theta_rad: [f64; 2]) -> Result<[[f64; 2]; 2], LoopError> {
+fn five_bar_distal_sensitivity(
+    model: &FiveBar<f64>,
+    theta_rad: [f64; 2],
+) -> Result<[[f64; 2]; 2], LoopError> {
     let h = 1e-4;
     let mut out = [[0.0; 2]; 2];
     for (k, slot) in out.iter_mut().enumerate() {
@@ -314,7 +343,8 @@ fn five_bar_distal_sensitivity(model: &FiveBar<f64>, theta_rad: [f64; 2]) -> Res
             } else {
                 m.c_mm += s;
             }
-            m.forward(theta_rad, 0.0).map_err(|e| LoopError::NoPose(e.to_string()))
+            m.forward(theta_rad, 0.0)
+                .map_err(|e| LoopError::NoPose(e.to_string()))
         };
         let (hi, lo) = (eval(h)?, eval(-h)?);
         *slot = [(hi[0] - lo[0]) / (2.0 * h), (hi[1] - lo[1]) / (2.0 * h)];
@@ -325,9 +355,18 @@ fn five_bar_distal_sensitivity(model: &FiveBar<f64>, theta_rad: [f64; 2]) -> Res
 /// The raw errors (µm) of a plant's six-bar errors (mm): what [`response`] multiplies.
 pub fn raw_of_plant(e: &crate::plant::config::SixBarErrors) -> [f64; N_RAW] {
     let d = |q: [f64; 2], p: [f64; 2]| [1e3 * (q[0] - p[0]), 1e3 * (q[1] - p[1])];
-    let f = [d(e.elbow_1_pin_f_mm, e.ground_follower_1_mm), d(e.elbow_2_pin_f_mm, e.ground_follower_2_mm)];
-    let q = [d(e.platform_pin_d_mm, e.elbow_1_pin_q_mm), d(e.platform_pin_e_mm, e.elbow_2_pin_q_mm)];
-    let g = [d(e.platform_pin_dd_mm, e.elbow_1_pin_g_mm), d(e.platform_pin_ee_mm, e.elbow_2_pin_g_mm)];
+    let f = [
+        d(e.elbow_1_pin_f_mm, e.ground_follower_1_mm),
+        d(e.elbow_2_pin_f_mm, e.ground_follower_2_mm),
+    ];
+    let q = [
+        d(e.platform_pin_d_mm, e.elbow_1_pin_q_mm),
+        d(e.platform_pin_e_mm, e.elbow_2_pin_q_mm),
+    ];
+    let g = [
+        d(e.platform_pin_dd_mm, e.elbow_1_pin_g_mm),
+        d(e.platform_pin_ee_mm, e.elbow_2_pin_g_mm),
+    ];
     let motor = [e.ground_motor_1_mm, e.ground_motor_2_mm];
     let mut raw = [0.0; N_RAW];
     for arm in 0..2 {
@@ -335,7 +374,11 @@ pub fn raw_of_plant(e: &crate::plant::config::SixBarErrors) -> [f64; N_RAW] {
         raw[o..o + 3].copy_from_slice(&[1e3 * e.bar_f_length_mm[arm], f[arm][0], f[arm][1]]);
         raw[o + 3..o + 6].copy_from_slice(&[1e3 * e.bar_q_length_mm[arm], q[arm][0], q[arm][1]]);
         raw[o + 6..o + 9].copy_from_slice(&[1e3 * e.bar_g_length_mm[arm], g[arm][0], g[arm][1]]);
-        raw[18 + 3 * arm..21 + 3 * arm].copy_from_slice(&[1e3 * motor[arm][0], 1e3 * motor[arm][1], 1e3 * e.lever_length_mm[arm]]);
+        raw[18 + 3 * arm..21 + 3 * arm].copy_from_slice(&[
+            1e3 * motor[arm][0],
+            1e3 * motor[arm][1],
+            1e3 * e.lever_length_mm[arm],
+        ]);
     }
     raw
 }
@@ -349,7 +392,11 @@ mod tests {
 
     fn poses() -> Vec<[f64; 2]> {
         let spec = MachineSpec::paper();
-        spec.grid_nodes_mm().into_iter().step_by(7).map(|t| spec.nominal.inverse(t, 0.0).unwrap()).collect()
+        spec.grid_nodes_mm()
+            .into_iter()
+            .step_by(7)
+            .map(|t| spec.nominal.inverse(t, 0.0).unwrap())
+            .collect()
     }
 
     #[test]
@@ -357,13 +404,29 @@ mod tests {
         let spec = MachineSpec::paper();
         let rule = SixBarDesign::for_model(&spec.nominal, spec.workspace.centre_mm()).unwrap();
         let plant = SixBarDesign::of_plant(&PlantConfig::ideal().sixbar);
-        for (a, b) in rule.platform_pin_mm.iter().flatten().zip(plant.platform_pin_mm.iter().flatten()) {
+        for (a, b) in rule
+            .platform_pin_mm
+            .iter()
+            .flatten()
+            .zip(plant.platform_pin_mm.iter().flatten())
+        {
             assert!((a - b).abs() < 1e-9, "{rule:?} vs {plant:?}");
         }
-        for (a, b) in rule.offset_mm.iter().flatten().flatten().zip(plant.offset_mm.iter().flatten().flatten()) {
+        for (a, b) in rule
+            .offset_mm
+            .iter()
+            .flatten()
+            .flatten()
+            .zip(plant.offset_mm.iter().flatten().flatten())
+        {
             assert!((a - b).abs() < 1e-3, "{rule:?} vs {plant:?}");
         }
-        for (a, b) in rule.bar_k_n_per_mm.iter().flatten().zip(plant.bar_k_n_per_mm.iter().flatten()) {
+        for (a, b) in rule
+            .bar_k_n_per_mm
+            .iter()
+            .flatten()
+            .zip(plant.bar_k_n_per_mm.iter().flatten())
+        {
             assert!((a / b - 1.0).abs() < 1e-12);
         }
     }
@@ -378,11 +441,15 @@ mod tests {
             let raw = raw_of_plant(&cfg.sixbar.errors);
             let design = SixBarDesign::of_plant(&cfg.sixbar);
             let mut sb = SixBar::new(&cfg.sixbar);
-            let (mut worst, mut size, mut rot_worst, mut rot_size) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
+            let (mut worst, mut size, mut rot_worst, mut rot_size) =
+                (0.0f64, 0.0f64, 0.0f64, 0.0f64);
             for th in poses() {
                 let sol = sb.solve(th).unwrap();
                 let nominal = spec.nominal.forward(th, 0.0).unwrap();
-                let truth = [(sol.tool_mm[0] - nominal[0]) * 1e3, (sol.tool_mm[1] - nominal[1]) * 1e3];
+                let truth = [
+                    (sol.tool_mm[0] - nominal[0]) * 1e3,
+                    (sol.tool_mm[1] - nominal[1]) * 1e3,
+                ];
                 let r = response(&spec.nominal, &design, th).unwrap();
                 let mut pred = [0.0; 2];
                 let mut rot = 0.0;
@@ -397,8 +464,14 @@ mod tests {
                 rot_size = rot_size.max(rot.abs());
             }
             // Second-order terms of 10 µm errors on 150 mm links: well below 0.1 µm.
-            assert!(worst < 0.01 * size && worst < 0.2, "seed {seed}: worst {worst} µm of {size} µm");
-            assert!(rot_worst < 0.01 * rot_size, "seed {seed}: platform rotation off by {rot_worst} µrad of {rot_size}");
+            assert!(
+                worst < 0.01 * size && worst < 0.2,
+                "seed {seed}: worst {worst} µm of {size} µm"
+            );
+            assert!(
+                rot_worst < 0.01 * rot_size,
+                "seed {seed}: platform rotation off by {rot_worst} µrad of {rot_size}"
+            );
         }
     }
 }

@@ -78,7 +78,11 @@ pub struct DiagnoseOptions {
 impl DiagnoseOptions {
     /// Options for the paper machine's six-bar (the design of its nominal five-bar).
     pub fn paper(base: FiveBar<f64>, noise_um: Option<f64>) -> Self {
-        DiagnoseOptions { base, noise_um, sixbar: SixBarDesign::paper() }
+        DiagnoseOptions {
+            base,
+            noise_um,
+            sixbar: SixBarDesign::paper(),
+        }
     }
 }
 
@@ -124,8 +128,16 @@ fn params_of(fit: &Fit, effects: &[&'static Effect], s2: f64) -> BTreeMap<String
     for e in effects {
         for &k in e.params {
             let col = fit.free.iter().position(|&f| f == k);
-            let sd = col.map(|c| (fit.normal_pinv[(c, c)] * s2).max(0.0).sqrt()).unwrap_or(f64::NAN);
-            out.insert(PARAM_NAMES[k].to_string(), Param { value: fit.p[k], std_dev: sd });
+            let sd = col
+                .map(|c| (fit.normal_pinv[(c, c)] * s2).max(0.0).sqrt())
+                .unwrap_or(f64::NAN);
+            out.insert(
+                PARAM_NAMES[k].to_string(),
+                Param {
+                    value: fit.p[k],
+                    std_dev: sd,
+                },
+            );
         }
     }
     out
@@ -136,11 +148,16 @@ fn pairs(r: &[f64]) -> Vec<[f64; 2]> {
 }
 
 /// [`diagnose`], also returning the residual fields for plotting.
-pub fn diagnose_with_history(data: &[Measurement], opts: &DiagnoseOptions) -> Result<(Report, History), DiagnoseError> {
+pub fn diagnose_with_history(
+    data: &[Measurement],
+    opts: &DiagnoseOptions,
+) -> Result<(Report, History), DiagnoseError> {
     let noise_um_arg = opts.noise_um;
     if let Some(s) = noise_um_arg {
         if !(s.is_finite() && s > 0.0) {
-            return Err(DiagnoseError::Invalid(format!("the noise σ must be a positive number of micrometres, not {s}")));
+            return Err(DiagnoseError::Invalid(format!(
+                "the noise σ must be a positive number of micrometres, not {s}"
+            )));
         }
     }
     let mut problem = Problem::new(opts.base, &opts.sixbar, data);
@@ -159,8 +176,14 @@ pub fn diagnose_with_history(data: &[Measurement], opts: &DiagnoseOptions) -> Re
     let (noise_um, noise_source) = match noise_um_arg {
         Some(s) => (Some(s), "given (--noise-um)".to_string()),
         None => match noise_from_repeats_um(data) {
-            Some((s, dof)) => (Some(s), format!("estimated from repeated poses ({dof} degrees of freedom)")),
-            None => (None, "unknown: no --noise-um and no repeated poses".to_string()),
+            Some((s, dof)) => (
+                Some(s),
+                format!("estimated from repeated poses ({dof} degrees of freedom)"),
+            ),
+            None => (
+                None,
+                "unknown: no --noise-um and no repeated poses".to_string(),
+            ),
         },
     };
     let n = (2 * problem.points.len()) as f64;
@@ -170,7 +193,8 @@ pub fn diagnose_with_history(data: &[Measurement], opts: &DiagnoseOptions) -> Re
     let mut sel = selection::select(&problem, noise_um);
     let mut nuisance_log = Vec::new();
     for _ in 0..3 {
-        let residual = library_residual(&problem, &sel.fit.p).ok_or(DiagnoseError::NoForwardSolution)?;
+        let residual =
+            library_residual(&problem, &sel.fit.p).ok_or(DiagnoseError::NoForwardSolution)?;
         let found = structure::analyse(&problem, data, &residual);
         let next = nuisance_for(&problem, &found);
         if next == problem.nuisance {
@@ -178,7 +202,9 @@ pub fn diagnose_with_history(data: &[Measurement], opts: &DiagnoseOptions) -> Re
             // library effect on account of the drift's mean (a constant offset that a frame
             // translation, encoder offsets or link lengths reproduce; what is left, a ramp about
             // its mean, is then too weak for |z| > DRIFT_Z). Decide by the model comparison.
-            if let Some((with_drift, line)) = suspected_drift(&mut problem, data, &residual, &sel, noise_um) {
+            if let Some((with_drift, line)) =
+                suspected_drift(&mut problem, data, &residual, &sel, noise_um)
+            {
                 nuisance_log.push(line);
                 sel = with_drift;
                 continue;
@@ -199,8 +225,12 @@ pub fn diagnose_with_history(data: &[Measurement], opts: &DiagnoseOptions) -> Re
     // (unexplained).
     let mut fitter = Fitter::new(&problem);
     let zero = [0.0; N_PARAMS];
-    let start_residual = problem.residuals_um(&zero).ok_or(DiagnoseError::NoForwardSolution)?;
-    let start = fitter.fit(&[], &zero).ok_or(DiagnoseError::NoForwardSolution)?;
+    let start_residual = problem
+        .residuals_um(&zero)
+        .ok_or(DiagnoseError::NoForwardSolution)?;
+    let start = fitter
+        .fit(&[], &zero)
+        .ok_or(DiagnoseError::NoForwardSolution)?;
     let initial = max_rms_radial(&start_residual);
     let base_mm: Vec<[f64; 2]> = problem.points.iter().map(|p| p.measured_mm).collect();
     let mut fields = vec![("start".to_string(), pairs(&start_residual))];
@@ -209,9 +239,12 @@ pub fn diagnose_with_history(data: &[Measurement], opts: &DiagnoseOptions) -> Re
     let mut last = start.clone();
     for k in 0..sel.effects.len() {
         let set = &sel.effects[..=k];
-        let f = fitter.fit(set, &sel.fit.p).ok_or(DiagnoseError::Refit(k + 1))?;
+        let f = fitter
+            .fit(set, &sel.fit.p)
+            .ok_or(DiagnoseError::Refit(k + 1))?;
         let residual = library_residual(&problem, &f.p).ok_or(DiagnoseError::Refit(k + 1))?;
-        let s2 = (f.cost / (n - f.free.len() as f64).max(1.0)).max(noise_um.map(|s| s * s).unwrap_or(0.0));
+        let s2 = (f.cost / (n - f.free.len() as f64).max(1.0))
+            .max(noise_um.map(|s| s * s).unwrap_or(0.0));
         let (before, after) = (max_rms_radial(&prev_residual), max_rms_radial(&residual));
         steps.push(Step {
             effect: set[k].name().to_string(),
@@ -233,9 +266,13 @@ pub fn diagnose_with_history(data: &[Measurement], opts: &DiagnoseOptions) -> Re
     let final_params = params_of(&last, &sel.effects, s2_final);
     let last_radial = max_rms_radial(&last_residual);
     // The library model's own degrees of freedom (the nuisances' part is in its residual).
-    let dof_library = (n - sel.effects.iter().map(|e| e.params.len()).sum::<usize>() as f64).max(1.0);
+    let dof_library =
+        (n - sel.effects.iter().map(|e| e.params.len()).sum::<usize>() as f64).max(1.0);
     // Confounding with every available candidate.
-    let candidates: Vec<&'static Effect> = LIBRARY.iter().filter(|e| problem.available(e).is_ok()).collect();
+    let candidates: Vec<&'static Effect> = LIBRARY
+        .iter()
+        .filter(|e| problem.available(e).is_ok())
+        .collect();
     let overlaps = confounding::overlaps(&problem, &last, &sel.effects, &candidates, s2_final);
     let confounded = confounding::confounded(&overlaps);
     let pose_overlaps = confounding::pose_set_overlaps(&problem, &last.p, &candidates, 0.99);
@@ -251,15 +288,20 @@ pub fn diagnose_with_history(data: &[Measurement], opts: &DiagnoseOptions) -> Re
             separate_by: confounding::separating_measurement(a.effect.name(), a.alternative.name()),
         })
         .collect();
-    let ambiguous_pairs = selection::pair_ambiguities(&mut fitter, &candidates, &sel.effects, &last, noise_um)
-        .into_iter()
-        .map(|a| report::AmbiguousPair {
-            effects: a.effects.iter().map(|e| e.name().to_string()).collect(),
-            alternatives: a.alternatives.iter().map(|e| e.name().to_string()).collect(),
-            delta_bic: a.delta_bic,
-            delta_cv_rss_um2: a.delta_cv_rss_um2,
-        })
-        .collect();
+    let ambiguous_pairs =
+        selection::pair_ambiguities(&mut fitter, &candidates, &sel.effects, &last, noise_um)
+            .into_iter()
+            .map(|a| report::AmbiguousPair {
+                effects: a.effects.iter().map(|e| e.name().to_string()).collect(),
+                alternatives: a
+                    .alternatives
+                    .iter()
+                    .map(|e| e.name().to_string())
+                    .collect(),
+                delta_bic: a.delta_bic,
+                delta_cv_rss_um2: a.delta_cv_rss_um2,
+            })
+            .collect();
     // What the data cannot rule out: every candidate left out, fitted on top of the final model.
     let mut not_detected = Vec::new();
     for &c in candidates.iter().filter(|c| !sel.effects.contains(c)) {
@@ -269,7 +311,8 @@ pub fn diagnose_with_history(data: &[Measurement], opts: &DiagnoseOptions) -> Re
             continue;
         }
         if let Some(f) = fitter.fit(&set, &last.p) {
-            let s2 = (f.cost / (n - f.free.len() as f64).max(1.0)).max(noise_um.map(|s| s * s).unwrap_or(0.0));
+            let s2 = (f.cost / (n - f.free.len() as f64).max(1.0))
+                .max(noise_um.map(|s| s * s).unwrap_or(0.0));
             // Column-normalised Jacobian singular below 1e-6: some direction of the candidate is
             // exactly what the final model already does (no bound exists).
             let identifiable = f.svd.min() > 1e-6;
@@ -288,7 +331,8 @@ pub fn diagnose_with_history(data: &[Measurement], opts: &DiagnoseOptions) -> Re
     // Is anything left above the noise, and what does it look like?
     let initial_structure = structure::analyse(&problem, data, &start_residual);
     let final_structure = structure::analyse(&problem, data, &last_residual);
-    let significant: Vec<&structure::Finding> = final_structure.iter().filter(|f| f.significant).collect();
+    let significant: Vec<&structure::Finding> =
+        final_structure.iter().filter(|f| f.significant).collect();
     let chi2_per_dof = noise_um.map(|s| last_cost / dof_library / (s * s));
     let (unexplained, mut unexplained_description) = match chi2_per_dof {
         Some(_) if !problem.nuisance.is_empty() => (
@@ -320,7 +364,10 @@ pub fn diagnose_with_history(data: &[Measurement], opts: &DiagnoseOptions) -> Re
         }
     };
     if !significant.is_empty() {
-        let d: Vec<String> = significant.iter().map(|f| format!("[{}] {}", f.kind, f.description)).collect();
+        let d: Vec<String> = significant
+            .iter()
+            .map(|f| format!("[{}] {}", f.kind, f.description))
+            .collect();
         unexplained_description.push_str(&format!(". Structure of the residual: {}", d.join("; ")));
     } else if unexplained && final_structure.iter().any(|f| f.kind == "too_few_points") {
         unexplained_description.push_str(&format!(
@@ -369,7 +416,14 @@ pub fn diagnose_with_history(data: &[Measurement], opts: &DiagnoseOptions) -> Re
         selection_log: sel.log,
         notes,
     };
-    Ok((report, History { base_mm, fields, problem }))
+    Ok((
+        report,
+        History {
+            base_mm,
+            fields,
+            problem,
+        },
+    ))
 }
 
 /// The residual (µm) of the library part of a fitted parameter vector: the nuisances' terms
@@ -452,10 +506,14 @@ fn nuisance_for(problem: &Problem, found: &[structure::Finding]) -> effects::Nui
     let mut next = problem.nuisance;
     for f in found.iter().filter(|f| f.significant) {
         match (f.kind.as_str(), f.cycles_per_rev) {
-            ("periodic_theta1", Some(c)) if c >= NUISANCE_MIN_CYCLES && next.cyclic_cycles[0].is_none() => {
+            ("periodic_theta1", Some(c))
+                if c >= NUISANCE_MIN_CYCLES && next.cyclic_cycles[0].is_none() =>
+            {
                 next.cyclic_cycles[0] = Some(c)
             }
-            ("periodic_theta2", Some(c)) if c >= NUISANCE_MIN_CYCLES && next.cyclic_cycles[1].is_none() => {
+            ("periodic_theta2", Some(c))
+                if c >= NUISANCE_MIN_CYCLES && next.cyclic_cycles[1].is_none() =>
+            {
                 next.cyclic_cycles[1] = Some(c)
             }
             ("drift_time", _) if problem.has_time => next.drift = true,
@@ -469,7 +527,10 @@ fn describe_nuisance(n: &effects::Nuisance) -> String {
     let mut parts = Vec::new();
     for (j, c) in n.cyclic_cycles.iter().enumerate() {
         if let Some(c) = c {
-            parts.push(format!("periodic error of motor {} at {c} cycles/rev", j + 1));
+            parts.push(format!(
+                "periodic error of motor {} at {c} cycles/rev",
+                j + 1
+            ));
         }
     }
     if n.drift {
@@ -480,10 +541,19 @@ fn describe_nuisance(n: &effects::Nuisance) -> String {
 
 /// The fitted nuisances, for the report (with how they were found).
 fn nuisance_report(problem: &Problem, fit: &Fit, s2: f64, mut log: Vec<String>) -> Vec<String> {
-    let sd = |k: usize| fit.free.iter().position(|&c| c == k).map(|c| (fit.normal_pinv[(c, c)] * s2).max(0.0).sqrt()).unwrap_or(f64::NAN);
+    let sd = |k: usize| {
+        fit.free
+            .iter()
+            .position(|&c| c == k)
+            .map(|c| (fit.normal_pinv[(c, c)] * s2).max(0.0).sqrt())
+            .unwrap_or(f64::NAN)
+    };
     for (j, c) in problem.nuisance.cyclic_cycles.iter().enumerate() {
         if let Some(c) = c {
-            let (a, b) = (fit.p[effects::idx::CYCLIC + 2 * j], fit.p[effects::idx::CYCLIC + 2 * j + 1]);
+            let (a, b) = (
+                fit.p[effects::idx::CYCLIC + 2 * j],
+                fit.p[effects::idx::CYCLIC + 2 * j + 1],
+            );
             log.push(format!(
                 "motor {}: {c} cycles/rev, amplitude {:.1} µrad (cos {a:.1} ± {:.1}, sin {b:.1} ± {:.1})",
                 j + 1,
@@ -508,7 +578,11 @@ fn nuisance_report(problem: &Problem, fit: &Fit, s2: f64, mut log: Vec<String>) 
 
 /// The three largest radial residuals, with their file line (or index) and position.
 fn largest_points(data: &[Measurement], problem: &Problem, residual_um: &[f64]) -> String {
-    let kept: Vec<&Measurement> = problem.points.iter().filter_map(|p| data.get(p.index)).collect();
+    let kept: Vec<&Measurement> = problem
+        .points
+        .iter()
+        .filter_map(|p| data.get(p.index))
+        .collect();
     let mut idx: Vec<usize> = (0..problem.points.len()).collect();
     let mag = |i: usize| residual_um[2 * i].hypot(residual_um[2 * i + 1]);
     idx.sort_by(|&a, &b| mag(b).total_cmp(&mag(a)));
@@ -517,7 +591,12 @@ fn largest_points(data: &[Measurement], problem: &Problem, residual_um: &[f64]) 
         .map(|&i| {
             let p = problem.points[i].measured_mm;
             let line = kept.get(i).map(|m| m.line).unwrap_or(0);
-            format!("{:.0} µm at line {line} ({:.1}, {:.1}) mm", mag(i), p[0], p[1])
+            format!(
+                "{:.0} µm at line {line} ({:.1}, {:.1}) mm",
+                mag(i),
+                p[0],
+                p[1]
+            )
         })
         .collect::<Vec<_>>()
         .join(", ")

@@ -35,14 +35,19 @@ pub struct ExtendedModel {
 }
 
 /// Folds the report's named effects into `base` (the model the diagnosis ran against).
-pub fn extended_model(base: &FiveBar<f64>, report: &Report) -> Result<ExtendedModel, DiagnoseError> {
+pub fn extended_model(
+    base: &FiveBar<f64>,
+    report: &Report,
+) -> Result<ExtendedModel, DiagnoseError> {
     let value = |name: &str| -> Result<f64, DiagnoseError> {
         report
             .final_params
             .get(name)
             .map(|p| p.value)
             .filter(|v| v.is_finite())
-            .ok_or_else(|| DiagnoseError::Invalid(format!("the report has no finite value of {name}")))
+            .ok_or_else(|| {
+                DiagnoseError::Invalid(format!("the report has no finite value of {name}"))
+            })
     };
     let mut m = *base;
     let mut backlash_urad = None;
@@ -63,7 +68,9 @@ pub fn extended_model(base: &FiveBar<f64>, report: &Report) -> Result<ExtendedMo
                 m.base_b0_mm[0] += value("b0x_um")? * 1e-3;
                 m.base_b0_mm[1] += value("b0y_um")? * 1e-3;
             }
-            "backlash" => backlash_urad = Some([value("beta1_urad")?.max(0.0), value("beta2_urad")?.max(0.0)]),
+            "backlash" => {
+                backlash_urad = Some([value("beta1_urad")?.max(0.0), value("beta2_urad")?.max(0.0)])
+            }
             other => {
                 if other == "frame" {
                     m.base_a0_mm[0] += value("tx_um")? * 1e-3;
@@ -73,7 +80,12 @@ pub fn extended_model(base: &FiveBar<f64>, report: &Report) -> Result<ExtendedMo
                     .params
                     .keys()
                     .filter(|k| other != "frame" || k.as_str() == "rot_urad")
-                    .filter_map(|k| report.final_params.get(k).map(|p| (k.clone(), [p.value, p.std_dev])))
+                    .filter_map(|k| {
+                        report
+                            .final_params
+                            .get(k)
+                            .map(|p| (k.clone(), [p.value, p.std_dev]))
+                    })
                     .collect::<BTreeMap<_, _>>();
                 if !params.is_empty() {
                     for_the_grid.insert(other.to_string(), params);
@@ -81,8 +93,14 @@ pub fn extended_model(base: &FiveBar<f64>, report: &Report) -> Result<ExtendedMo
             }
         }
     }
-    m.validate().map_err(|e| DiagnoseError::Invalid(format!("the extended model is not a five-bar: {e}")))?;
-    Ok(ExtendedModel { model: m, backlash_urad, for_the_grid })
+    m.validate().map_err(|e| {
+        DiagnoseError::Invalid(format!("the extended model is not a five-bar: {e}"))
+    })?;
+    Ok(ExtendedModel {
+        model: m,
+        backlash_urad,
+        for_the_grid,
+    })
 }
 
 impl ExtendedModel {

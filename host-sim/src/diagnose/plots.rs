@@ -15,11 +15,20 @@ use std::path::Path;
 type Abscissa<'a> = (&'a str, &'a str, Box<dyn Fn(usize) -> f64 + 'a>);
 
 /// Writes every plot into `dir`.
-pub fn write_plots(dir: &Path, data: &[Measurement], report: &Report, h: &History) -> Result<(), IoError> {
+pub fn write_plots(
+    dir: &Path,
+    data: &[Measurement],
+    report: &Report,
+    h: &History,
+) -> Result<(), IoError> {
     vector_plot(
         &dir.join("residual_start.png"),
         "residual of the starting model",
-        &[VectorField { label: "start", base_mm: &h.base_mm, error_um: &h.fields[0].1 }],
+        &[VectorField {
+            label: "start",
+            base_mm: &h.base_mm,
+            error_um: &h.fields[0].1,
+        }],
     )?;
     for k in 1..h.fields.len() {
         let name = &report.steps[k - 1].effect;
@@ -27,21 +36,46 @@ pub fn write_plots(dir: &Path, data: &[Measurement], report: &Report, h: &Histor
             &dir.join(format!("residual_step{k}_{name}.png")),
             &format!("step {k}: {name}"),
             &[
-                VectorField { label: "before", base_mm: &h.base_mm, error_um: &h.fields[k - 1].1 },
-                VectorField { label: "after", base_mm: &h.base_mm, error_um: &h.fields[k].1 },
+                VectorField {
+                    label: "before",
+                    base_mm: &h.base_mm,
+                    error_um: &h.fields[k - 1].1,
+                },
+                VectorField {
+                    label: "after",
+                    base_mm: &h.base_mm,
+                    error_um: &h.fields[k].1,
+                },
             ],
         )?;
     }
-    let Some((_, last)) = h.fields.last() else { return Ok(()) };
+    let Some((_, last)) = h.fields.last() else {
+        return Ok(());
+    };
     let first = &h.fields[0].1;
     let pts = &h.problem.points;
     let radial = |r: &[[f64; 2]], f: &dyn Fn(usize) -> f64| -> Vec<[f64; 2]> {
-        r.iter().enumerate().map(|(i, e)| [f(i), e[0].hypot(e[1])]).collect()
+        r.iter()
+            .enumerate()
+            .map(|(i, e)| [f(i), e[0].hypot(e[1])])
+            .collect()
     };
     let configs: [Abscissa<'_>; 3] = [
-        ("theta1", "θ1 (deg)", Box::new(|i| pts[i].theta_rad[0].to_degrees())),
-        ("theta2", "θ2 (deg)", Box::new(|i| pts[i].theta_rad[1].to_degrees())),
-        ("theta_diff", "θ1 − θ2 (deg)", Box::new(|i| (pts[i].theta_rad[0] - pts[i].theta_rad[1]).to_degrees())),
+        (
+            "theta1",
+            "θ1 (deg)",
+            Box::new(|i| pts[i].theta_rad[0].to_degrees()),
+        ),
+        (
+            "theta2",
+            "θ2 (deg)",
+            Box::new(|i| pts[i].theta_rad[1].to_degrees()),
+        ),
+        (
+            "theta_diff",
+            "θ1 − θ2 (deg)",
+            Box::new(|i| (pts[i].theta_rad[0] - pts[i].theta_rad[1]).to_degrees()),
+        ),
     ];
     for (file, label, f) in configs.iter() {
         let a = radial(first, f.as_ref());
@@ -52,8 +86,16 @@ pub fn write_plots(dir: &Path, data: &[Measurement], report: &Report, h: &Histor
             label,
             "radial residual (µm)",
             &[
-                Series { label: "start", points: &a, mark: Mark::Dots },
-                Series { label: "final", points: &b, mark: Mark::Dots },
+                Series {
+                    label: "start",
+                    points: &a,
+                    mark: Mark::Dots,
+                },
+                Series {
+                    label: "final",
+                    points: &b,
+                    mark: Mark::Dots,
+                },
             ],
         )?;
     }
@@ -61,14 +103,24 @@ pub fn write_plots(dir: &Path, data: &[Measurement], report: &Report, h: &Histor
     let flat: Vec<f64> = last.iter().flat_map(|e| [e[0], e[1]]).collect();
     let joint = structure::joint_residual_urad(&h.problem, &flat);
     for j in 0..2 {
-        let pts_j: Vec<[f64; 2]> =
-            joint.iter().enumerate().map(|(i, d)| [pts[i].theta_rad[j].to_degrees(), d[j]]).collect();
+        let pts_j: Vec<[f64; 2]> = joint
+            .iter()
+            .enumerate()
+            .map(|(i, d)| [pts[i].theta_rad[j].to_degrees(), d[j]])
+            .collect();
         xy_plot(
             &dir.join(format!("final_joint_residual_motor{}.png", j + 1)),
-            &format!("final residual in joint space, motor {} vs its angle", j + 1),
+            &format!(
+                "final residual in joint space, motor {} vs its angle",
+                j + 1
+            ),
             &format!("θ{} (deg)", j + 1),
             &format!("δθ{} (µrad)", j + 1),
-            &[Series { label: "final", points: &pts_j, mark: Mark::Dots }],
+            &[Series {
+                label: "final",
+                points: &pts_j,
+                mark: Mark::Dots,
+            }],
         )?;
     }
     if h.problem.has_dir {
@@ -91,21 +143,42 @@ pub fn write_plots(dir: &Path, data: &[Measurement], report: &Report, h: &Histor
             "θ1 (deg)",
             "radial residual (µm)",
             &[
-                Series { label: "dir1 = +1", points: &plus, mark: Mark::Dots },
-                Series { label: "dir1 = −1", points: &minus, mark: Mark::Dots },
+                Series {
+                    label: "dir1 = +1",
+                    points: &plus,
+                    mark: Mark::Dots,
+                },
+                Series {
+                    label: "dir1 = −1",
+                    points: &minus,
+                    mark: Mark::Dots,
+                },
             ],
         )?;
     }
-    let times: Option<Vec<f64>> = h.problem.points.iter().map(|p| data.get(p.index).and_then(|m| m.t_s)).collect();
+    let times: Option<Vec<f64>> = h
+        .problem
+        .points
+        .iter()
+        .map(|p| data.get(p.index).and_then(|m| m.t_s))
+        .collect();
     if let Some(t) = times {
         if t.len() == last.len() {
-            let a: Vec<[f64; 2]> = last.iter().zip(&t).map(|(e, t)| [*t, e[0].hypot(e[1])]).collect();
+            let a: Vec<[f64; 2]> = last
+                .iter()
+                .zip(&t)
+                .map(|(e, t)| [*t, e[0].hypot(e[1])])
+                .collect();
             xy_plot(
                 &dir.join("final_residual_vs_time.png"),
                 "final radial residual vs time",
                 "t (s)",
                 "radial residual (µm)",
-                &[Series { label: "final", points: &a, mark: Mark::Dots }],
+                &[Series {
+                    label: "final",
+                    points: &a,
+                    mark: Mark::Dots,
+                }],
             )?;
         }
     }

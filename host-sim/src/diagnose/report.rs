@@ -136,9 +136,14 @@ impl Report {
     /// sweep counts a named effect that is not hidden as no false positive only in that case
     /// (DIAGNOSIS.md, "No false positives").
     pub fn declares_alternative(&self, effect: &str, alternatives: &[&str]) -> bool {
-        self.ambiguous.iter().any(|a| a.effect == effect && alternatives.contains(&a.alternative.as_str()))
+        self.ambiguous
+            .iter()
+            .any(|a| a.effect == effect && alternatives.contains(&a.alternative.as_str()))
             || self.ambiguous_pairs.iter().any(|a| {
-                a.effects.iter().any(|e| e == effect) && a.alternatives.iter().all(|c| alternatives.contains(&c.as_str()))
+                a.effects.iter().any(|e| e == effect)
+                    && a.alternatives
+                        .iter()
+                        .all(|c| alternatives.contains(&c.as_str()))
             })
     }
 }
@@ -155,8 +160,11 @@ pub fn table(r: &Report) -> String {
         0, "(start)", "", r.initial_rms_um, "", r.initial_max_um
     ));
     for (k, st) in r.steps.iter().enumerate() {
-        let params: Vec<String> =
-            st.params.iter().map(|(n, p)| format!("{n} = {:.2} ± {:.2}", p.value, p.std_dev)).collect();
+        let params: Vec<String> = st
+            .params
+            .iter()
+            .map(|(n, p)| format!("{n} = {:.2} ± {:.2}", p.value, p.std_dev))
+            .collect();
         s.push_str(&format!(
             "{:<4} {:<15} {:>10.1} {:>10.1} {:>10.1} {:>10.1}  {}\n",
             k + 1,
@@ -168,7 +176,10 @@ pub fn table(r: &Report) -> String {
             params.join(", ")
         ));
     }
-    s.push_str(&format!("final radial RMS {:.2} µm, max {:.2} µm", r.final_rms_um, r.final_max_um));
+    s.push_str(&format!(
+        "final radial RMS {:.2} µm, max {:.2} µm",
+        r.final_rms_um, r.final_max_um
+    ));
     if let Some(c) = r.chi2_per_dof {
         s.push_str(&format!(
             ", χ²/dof {:.2} (noise {:.2} µm per axis, {})",
@@ -179,11 +190,15 @@ pub fn table(r: &Report) -> String {
     }
     s.push('\n');
     for c in &r.confounded {
-        let sep =
-            r.overlaps.iter().find(|o| (o.effect == c[0] && o.other == c[1]) || (o.effect == c[1] && o.other == c[0]));
+        let sep = r.overlaps.iter().find(|o| {
+            (o.effect == c[0] && o.other == c[1]) || (o.effect == c[1] && o.other == c[0])
+        });
         let why = match sep {
             Some(o) if o.swap_chi2 < super::confounding::SWAP_CHI2 => {
-                format!("{} can reproduce what {} explains (swap costs χ² {:.1})", o.other, o.effect, o.swap_chi2)
+                format!(
+                    "{} can reproduce what {} explains (swap costs χ² {:.1})",
+                    o.other, o.effect, o.swap_chi2
+                )
             }
             Some(o) => format!(
                 "the part {} = {:.2} of {} (z = {:.0}) acts exactly like {}",
@@ -200,7 +215,11 @@ pub fn table(r: &Report) -> String {
     }
     for a in &r.ambiguous {
         let why = if a.delta_bic < super::selection::AMBIGUOUS_MARGIN {
-            format!("swapping them changes the BIC by {:+.1}, less than the {} an effect needs", a.delta_bic, super::selection::AMBIGUOUS_MARGIN)
+            format!(
+                "swapping them changes the BIC by {:+.1}, less than the {} an effect needs",
+                a.delta_bic,
+                super::selection::AMBIGUOUS_MARGIN
+            )
         } else {
             format!(
                 "swapping them changes the BIC by {:+.1}, but {} predicts held-out points as well: cross-validated RSS {:+.1} µm², less than {}'s parameters cost",
@@ -210,7 +229,10 @@ pub fn table(r: &Report) -> String {
                 a.effect
             )
         };
-        s.push_str(&format!("ambiguous: {} or {} ({why}); to separate: {}\n", a.effect, a.alternative, a.separate_by));
+        s.push_str(&format!(
+            "ambiguous: {} or {} ({why}); to separate: {}\n",
+            a.effect, a.alternative, a.separate_by
+        ));
     }
     for a in &r.ambiguous_pairs {
         s.push_str(&format!(
@@ -229,16 +251,22 @@ pub fn table(r: &Report) -> String {
         ));
     }
     if !r.pose_overlaps.is_empty() {
-        let p: Vec<String> =
-            r.pose_overlaps.iter().map(|o| format!("{}~{} ({:.4})", o.a, o.b, o.principal_cos)).collect();
+        let p: Vec<String> = r
+            .pose_overlaps
+            .iter()
+            .map(|o| format!("{}~{} ({:.4})", o.a, o.b, o.principal_cos))
+            .collect();
         s.push_str(&format!(
             "on these poses some combination of each pair acts alike (principal cos): {}\n",
             p.join(", ")
         ));
     }
     for nd in &r.not_detected {
-        let p: Vec<String> =
-            nd.params.iter().map(|(n, p)| format!("{n} = {:.2} ± {:.2}", p.value, p.std_dev)).collect();
+        let p: Vec<String> = nd
+            .params
+            .iter()
+            .map(|(n, p)| format!("{n} = {:.2} ± {:.2}", p.value, p.std_dev))
+            .collect();
         if nd.identifiable {
             s.push_str(&format!(
                 "not detected: {} (ΔBIC {:.1}; if present: {})\n",
@@ -253,6 +281,9 @@ pub fn table(r: &Report) -> String {
             ));
         }
     }
-    s.push_str(&format!("unexplained: {} — {}\n", r.unexplained, r.unexplained_description));
+    s.push_str(&format!(
+        "unexplained: {} — {}\n",
+        r.unexplained, r.unexplained_description
+    ));
     s
 }

@@ -107,7 +107,11 @@ fn key(set: &[&'static Effect]) -> Vec<&'static str> {
 
 impl<'a> Fitter<'a> {
     pub fn new(problem: &'a Problem) -> Self {
-        Fitter { problem, cache: BTreeMap::new(), cv_cache: BTreeMap::new() }
+        Fitter {
+            problem,
+            cache: BTreeMap::new(),
+            cv_cache: BTreeMap::new(),
+        }
     }
 
     /// The LM fit of a set of effects, starting from `start` (entries outside the set ignored).
@@ -125,7 +129,11 @@ impl<'a> Fitter<'a> {
         let free = self.problem.free_params(set);
         if let Some(cached) = self.cache.get(&key) {
             let Some(c) = cached else { return None };
-            let x: Vec<f64> = start.iter().enumerate().map(|(k, v)| if free.contains(&k) { *v } else { 0.0 }).collect();
+            let x: Vec<f64> = start
+                .iter()
+                .enumerate()
+                .map(|(k, v)| if free.contains(&k) { *v } else { 0.0 })
+                .collect();
             if x.as_slice() == c.p.as_slice() {
                 return Some(c.clone());
             }
@@ -160,7 +168,9 @@ impl<'a> Fitter<'a> {
         }
         let n = self.problem.points.len();
         let folds = if n <= LOO_POINTS { n } else { CV_FOLDS };
-        let v = self.fit(set, start).and_then(|f| cross_validated_rss(&f, n, folds));
+        let v = self
+            .fit(set, start)
+            .and_then(|f| cross_validated_rss(&f, n, folds));
         self.cv_cache.insert(key, v);
         v
     }
@@ -176,7 +186,9 @@ fn common_s2(p: &Problem, noise_um: Option<f64>, a: &Fit, b: &Fit) -> f64 {
     let n = n_res(p);
     let va = a.cost / (n - a.free.len() as f64).max(1.0);
     let vb = b.cost / (n - b.free.len() as f64).max(1.0);
-    va.min(vb).max(noise_um.map(|s| s * s).unwrap_or(0.0)).max(1e-12)
+    va.min(vb)
+        .max(noise_um.map(|s| s * s).unwrap_or(0.0))
+        .max(1e-12)
 }
 
 /// The BIC score `RSS/σ² + k·ln n` of a fit with σ² = `s2` on `n` scalar residuals (module doc).
@@ -198,12 +210,22 @@ pub fn plausible(problem: &Problem, e: &Effect, f: &Fit, s2: f64) -> Result<(), 
     let links = [m.a_mm, m.b_mm, m.c_mm, m.d_mm];
     let mean_link_um = 250.0 * (m.a_mm + m.b_mm + m.c_mm + m.d_mm);
     let x = &f.p;
-    let sd = |k: usize| f.free.iter().position(|&c| c == k).map(|c| (f.normal_pinv[(c, c)] * s2).max(0.0).sqrt()).unwrap_or(0.0);
+    let sd = |k: usize| {
+        f.free
+            .iter()
+            .position(|&c| c == k)
+            .map(|c| (f.normal_pinv[(c, c)] * s2).max(0.0).sqrt())
+            .unwrap_or(0.0)
+    };
     let within = |k: usize, limit: f64, what: &str| -> Result<(), String> {
         if x[k].abs() <= limit {
             Ok(())
         } else {
-            Err(format!("{} = {:.1} is beyond a plausible {what} ({limit:.0})", super::effects::PARAM_NAMES[k], x[k]))
+            Err(format!(
+                "{} = {:.1} is beyond a plausible {what} ({limit:.0})",
+                super::effects::PARAM_NAMES[k],
+                x[k]
+            ))
         }
     };
     match e.kind {
@@ -274,7 +296,10 @@ fn validates(
     let mut trial = set.to_vec();
     trial.push(c);
     let Some(after) = fitter.cv_rss(&trial, &new.p) else {
-        return Err(format!("cross-validation fit with {} failed (a point left the workspace)", c.name()));
+        return Err(format!(
+            "cross-validation fit with {} failed (a point left the workspace)",
+            c.name()
+        ));
     };
     let s2 = common_s2(problem, noise_um, cur, new);
     let margin = c.params.len() as f64 * s2;
@@ -315,7 +340,12 @@ pub fn select(problem: &Problem, noise_um: Option<f64>) -> Selection {
         Some(f) => f,
         None => {
             log.push("the base model has no forward solution at some point".into());
-            return Selection { effects: set, fit: empty_fit(problem), log, skipped };
+            return Selection {
+                effects: set,
+                fit: empty_fit(problem),
+                log,
+                skipped,
+            };
         }
     };
     for _round in 0..3 * LIBRARY.len() {
@@ -340,14 +370,22 @@ pub fn select(problem: &Problem, noise_um: Option<f64>) -> Selection {
             }
             let k_new = (cur.free.len() + c.params.len()) as f64;
             if n - k_new < MIN_DOF_PER_PARAM * k_new {
-                tried.push(format!("{} not tried: {} parameters on {} residuals", c.name(), k_new, n));
+                tried.push(format!(
+                    "{} not tried: {} parameters on {} residuals",
+                    c.name(),
+                    k_new,
+                    n
+                ));
                 continue;
             }
             let mut trial = set.clone();
             trial.push(c);
             match fitter.fit(&trial, &cur.p) {
                 Some(f) => fitted.push((c, f)),
-                None => tried.push(format!("{} fit failed (a point left the model's workspace)", c.name())),
+                None => tried.push(format!(
+                    "{} fit failed (a point left the model's workspace)",
+                    c.name()
+                )),
             }
         }
         let s2_round = fitted
@@ -356,8 +394,14 @@ pub fn select(problem: &Problem, noise_um: Option<f64>) -> Selection {
             .fold(f64::INFINITY, f64::min);
         let mut ranked: Vec<(f64, &'static Effect, Fit)> = Vec::new();
         for (c, f) in fitted {
-            let d = (f.cost - cur.cost) / s2_round + (f.free.len() as f64 - cur.free.len() as f64) * n.ln();
-            tried.push(format!("{} rms {:.1} µm ΔBIC {:.1}", c.name(), (2.0 * f.cost / n).sqrt(), d));
+            let d = (f.cost - cur.cost) / s2_round
+                + (f.free.len() as f64 - cur.free.len() as f64) * n.ln();
+            tried.push(format!(
+                "{} rms {:.1} µm ΔBIC {:.1}",
+                c.name(),
+                (2.0 * f.cost / n).sqrt(),
+                d
+            ));
             ranked.push((d, c, f));
         }
         log.push(format!(
@@ -369,11 +413,18 @@ pub fn select(problem: &Problem, noise_um: Option<f64>) -> Selection {
         let mut chosen = None;
         for (d, c, f) in ranked {
             if d > -ADD_MARGIN {
-                log.push(format!("no further candidate significant (best left {} ΔBIC {:.1} > −{ADD_MARGIN})", c.name(), d));
+                log.push(format!(
+                    "no further candidate significant (best left {} ΔBIC {:.1} > −{ADD_MARGIN})",
+                    c.name(),
+                    d
+                ));
                 break;
             }
             if let Err(why) = plausible(problem, c, &f, common_s2(problem, noise_um, &cur, &f)) {
-                log.push(format!("{} not added (ΔBIC {d:.1}): implausible: {why}", c.name()));
+                log.push(format!(
+                    "{} not added (ΔBIC {d:.1}): implausible: {why}",
+                    c.name()
+                ));
                 continue;
             }
             match validates(&mut fitter, &set, c, &cur, &f, noise_um) {
@@ -436,7 +487,12 @@ pub fn select(problem: &Problem, noise_um: Option<f64>) -> Selection {
         }
     }
     prune_weak(&mut fitter, &mut set, &mut cur, noise_um, &mut log);
-    Selection { effects: set, fit: cur, log, skipped }
+    Selection {
+        effects: set,
+        fit: cur,
+        log,
+        skipped,
+    }
 }
 
 /// The final check: every named effect must still pass the add test given the
@@ -461,14 +517,18 @@ fn prune_weak(
         for i in 0..set.len() {
             let mut trial = set.clone();
             trial.remove(i);
-            let Some(f) = fitter.fit(&trial, &cur.p) else { continue };
+            let Some(f) = fitter.fit(&trial, &cur.p) else {
+                continue;
+            };
             // How much the member lowers the BIC, given the others (positive: it helps).
             let support = delta_bic(problem, noise_um, cur, &f);
             if support < ADD_MARGIN && weakest.as_ref().is_none_or(|w| support < w.0) {
                 weakest = Some((support, i, f));
             }
         }
-        let Some((support, i, f)) = weakest else { break };
+        let Some((support, i, f)) = weakest else {
+            break;
+        };
         log.push(format!(
             "drop {}: in the final model it lowers the BIC by {support:.1} given the others (an effect needs > {ADD_MARGIN})",
             set[i].name()
@@ -496,7 +556,9 @@ fn replacement(
         }
         let mut trial: Vec<&'static Effect> = set.to_vec();
         trial.push(c);
-        let Some(mut f) = fitter.fit(&trial, &cur.p) else { continue };
+        let Some(mut f) = fitter.fit(&trial, &cur.p) else {
+            continue;
+        };
         // One σ² for the whole move: the scores of its sets are then comparable.
         let s2 = common_s2(problem, noise_um, cur, &f);
         let score = |f: &Fit| bic(f, s2, n);
@@ -535,8 +597,11 @@ fn replacement(
     // move that fails the held-out test must not hide the next one).
     moves.sort_by(|a, b| b.0.total_cmp(&a.0));
     for (gain, trial, f, c, s2) in moves {
-        let Some(line) = move_validates(fitter, set, cur, &trial, &f, s2, c.name(), gain) else { continue };
-        let mut ordered: Vec<&'static Effect> = trial.into_iter().filter(|e| e.name() != c.name()).collect();
+        let Some(line) = move_validates(fitter, set, cur, &trial, &f, s2, c.name(), gain) else {
+            continue;
+        };
+        let mut ordered: Vec<&'static Effect> =
+            trial.into_iter().filter(|e| e.name() != c.name()).collect();
         ordered.push(c);
         return Some((ordered, f, line));
     }
@@ -565,7 +630,11 @@ fn move_validates(
     if cv_new >= allowed {
         return None;
     }
-    let dropped: Vec<&str> = set.iter().filter(|e| !trial.contains(e)).map(|e| e.name()).collect();
+    let dropped: Vec<&str> = set
+        .iter()
+        .filter(|e| !trial.contains(e))
+        .map(|e| e.name())
+        .collect();
     Some(format!(
         "replace [{}] by {added} (BIC −{gain:.1}; cross-validated RSS {cv_old:.1} → {cv_new:.1} µm², allowed {allowed:.1})",
         dropped.join(", ")
@@ -598,16 +667,25 @@ fn pair_replacement(
 ) -> Option<(Vec<&'static Effect>, Fit, String)> {
     let problem = fitter.problem;
     let n = n_res(problem);
-    let out: Vec<&'static Effect> = candidates.iter().copied().filter(|c| !set.contains(c)).collect();
+    let out: Vec<&'static Effect> = candidates
+        .iter()
+        .copied()
+        .filter(|c| !set.contains(c))
+        .collect();
     if set.is_empty() || set.len() > 5 || out.len() < 2 {
         return None;
     }
     // Columns: every candidate's parameters, then the nuisances'.
-    let mut cols: Vec<usize> = candidates.iter().flat_map(|e| e.params.iter().copied()).collect();
+    let mut cols: Vec<usize> = candidates
+        .iter()
+        .flat_map(|e| e.params.iter().copied())
+        .collect();
     cols.extend(problem.nuisance.params());
     let j = super::fit::jacobian(problem, &cur.p, &cols)?;
     // Column-normalised Gram matrix and projections of the residual (scales differ by units).
-    let norms: Vec<f64> = (0..cols.len()).map(|c| j.column(c).norm().max(1e-300)).collect();
+    let norms: Vec<f64> = (0..cols.len())
+        .map(|c| j.column(c).norm().max(1e-300))
+        .collect();
     let jn = DMatrix::from_fn(j.nrows(), j.ncols(), |r, c| j[(r, c)] / norms[c]);
     let gram = jn.transpose() * &jn;
     let r = &cur.residuals;
@@ -620,8 +698,12 @@ fn pair_replacement(
     for a in 0..out.len() {
         for b in a + 1..out.len() {
             for mask in 1u32..(1 << set.len()) {
-                let kept: Vec<&'static Effect> =
-                    set.iter().enumerate().filter(|(i, _)| mask & (1 << i) == 0).map(|(_, e)| *e).collect();
+                let kept: Vec<&'static Effect> = set
+                    .iter()
+                    .enumerate()
+                    .filter(|(i, _)| mask & (1 << i) == 0)
+                    .map(|(_, e)| *e)
+                    .collect();
                 let dropped: Vec<usize> = set
                     .iter()
                     .enumerate()
@@ -630,15 +712,21 @@ fn pair_replacement(
                     .collect();
                 let mut trial = kept.clone();
                 trial.extend([out[a], out[b]]);
-                let free: Vec<usize> = problem.free_params(&trial).into_iter().filter_map(col_of).collect();
+                let free: Vec<usize> = problem
+                    .free_params(&trial)
+                    .into_iter()
+                    .filter_map(col_of)
+                    .collect();
                 let k_new = free.len() as f64;
                 if n - k_new < MIN_DOF_PER_PARAM * k_new {
                     continue;
                 }
                 // Residual with the dropped parameters at zero (normalised coordinates):
                 // r' = r − J_D·p_D.
-                let d: Vec<(usize, f64)> =
-                    dropped.iter().filter_map(|&k| col_of(k).map(|c| (c, cur.p[k] * norms[c]))).collect();
+                let d: Vec<(usize, f64)> = dropped
+                    .iter()
+                    .filter_map(|&k| col_of(k).map(|c| (c, cur.p[k] * norms[c])))
+                    .collect();
                 let mut rr_d = rr;
                 for &(c, v) in &d {
                     rr_d -= 2.0 * v * jr[c];
@@ -650,7 +738,9 @@ fn pair_replacement(
                 let rhs = DVector::from_fn(free.len(), |x, _| {
                     jr[free[x]] - d.iter().map(|&(c, v)| v * gram[(free[x], c)]).sum::<f64>()
                 });
-                let Ok(beta) = g.clone().svd(true, true).solve(&rhs, 1e-12) else { continue };
+                let Ok(beta) = g.clone().svd(true, true).solve(&rhs, 1e-12) else {
+                    continue;
+                };
                 let rss = (rr_d - rhs.dot(&beta)).max(0.0);
                 let score = rss / s2 + k_new * n.ln();
                 if score < score_cur - SWAP_MARGIN {
@@ -661,9 +751,12 @@ fn pair_replacement(
     }
     moves.sort_by(|x, y| x.0.total_cmp(&y.0));
     for (_, trial, ca, cb) in moves.into_iter().take(PAIR_MOVES_FITTED) {
-        let Some(f) = fitter.fit(&trial, &cur.p) else { continue };
+        let Some(f) = fitter.fit(&trial, &cur.p) else {
+            continue;
+        };
         let s2f = common_s2(problem, noise_um, cur, &f);
-        let gain = (cur.cost - f.cost) / s2f - (f.free.len() as f64 - cur.free.len() as f64) * n.ln();
+        let gain =
+            (cur.cost - f.cost) / s2f - (f.free.len() as f64 - cur.free.len() as f64) * n.ln();
         let k_new = f.free.len() as f64;
         if gain <= SWAP_MARGIN
             || n - k_new < MIN_DOF_PER_PARAM * k_new
@@ -686,7 +779,9 @@ fn pair_replacement(
             }
         }
         let added = format!("{} and {}", ca.name(), cb.name());
-        let Some(mut line) = move_validates(fitter, set, cur, &trial, &f, s2f, &added, gain) else { continue };
+        let Some(mut line) = move_validates(fitter, set, cur, &trial, &f, s2f, &added, gain) else {
+            continue;
+        };
         if !versus_add.is_empty() {
             line.pop();
             line.push_str(&versus_add);
@@ -718,7 +813,9 @@ fn best_extension(
         if n - k < MIN_DOF_PER_PARAM * k {
             continue;
         }
-        let Some(g) = fitter.fit(&trial, &cur.p) else { continue };
+        let Some(g) = fitter.fit(&trial, &cur.p) else {
+            continue;
+        };
         if plausible(problem, c, &g, s2).is_err() {
             continue;
         }
@@ -777,19 +874,29 @@ pub fn ambiguities(
         for &c in candidates.iter().filter(|c| !set.contains(c)) {
             let mut trial = set.to_vec();
             trial[i] = c;
-            let Some(f) = fitter.fit(&trial, &cur.p) else { continue };
+            let Some(f) = fitter.fit(&trial, &cur.p) else {
+                continue;
+            };
             let d = delta_bic(problem, noise_um, cur, &f);
             let s2 = common_s2(problem, noise_um, cur, &f);
             if plausible(problem, c, &f, s2).is_err() {
                 continue;
             }
-            let cv = fitter.cv_rss(set, &cur.p).zip(fitter.cv_rss(&trial, &f.p)).map(|(a, b)| b - a);
+            let cv = fitter
+                .cv_rss(set, &cur.p)
+                .zip(fitter.cv_rss(&trial, &f.p))
+                .map(|(a, b)| b - a);
             // The held-out test an effect passed to be added, applied against its twin: the
             // named effect must predict held-out points better than the twin in its place by
             // more than its parameters cost (k·σ², as against its absence).
             let held_out_open = cv.is_some_and(|dcv| dcv < m.params.len() as f64 * s2);
             if d < AMBIGUOUS_MARGIN || held_out_open {
-                out.push(Ambiguity { effect: m, alternative: c, delta_bic: d, delta_cv_rss_um2: cv });
+                out.push(Ambiguity {
+                    effect: m,
+                    alternative: c,
+                    delta_bic: d,
+                    delta_cv_rss_um2: cv,
+                });
             }
         }
     }
@@ -829,7 +936,11 @@ pub fn pair_ambiguities(
 ) -> Vec<PairAmbiguity> {
     let problem = fitter.problem;
     let n = n_res(problem);
-    let out: Vec<&'static Effect> = candidates.iter().copied().filter(|c| !set.contains(c)).collect();
+    let out: Vec<&'static Effect> = candidates
+        .iter()
+        .copied()
+        .filter(|c| !set.contains(c))
+        .collect();
     let mut found = Vec::new();
     for i in 0..set.len() {
         for j in i + 1..set.len() {
@@ -842,13 +953,22 @@ pub fn pair_ambiguities(
                     if n - k < MIN_DOF_PER_PARAM * k {
                         continue;
                     }
-                    let Some(f) = fitter.fit(&trial, &cur.p) else { continue };
+                    let Some(f) = fitter.fit(&trial, &cur.p) else {
+                        continue;
+                    };
                     let d = delta_bic(problem, noise_um, cur, &f);
                     let s2 = common_s2(problem, noise_um, cur, &f);
-                    if d >= AMBIGUOUS_MARGIN || [out[a], out[b]].iter().any(|c| plausible(problem, c, &f, s2).is_err()) {
+                    if d >= AMBIGUOUS_MARGIN
+                        || [out[a], out[b]]
+                            .iter()
+                            .any(|c| plausible(problem, c, &f, s2).is_err())
+                    {
                         continue;
                     }
-                    let cv = fitter.cv_rss(set, &cur.p).zip(fitter.cv_rss(&trial, &f.p)).map(|(x, y)| y - x);
+                    let cv = fitter
+                        .cv_rss(set, &cur.p)
+                        .zip(fitter.cv_rss(&trial, &f.p))
+                        .map(|(x, y)| y - x);
                     found.push(PairAmbiguity {
                         effects: [set[i], set[j]],
                         alternatives: [out[a], out[b]],

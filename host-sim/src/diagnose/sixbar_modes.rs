@@ -61,8 +61,15 @@ pub struct SixBarModes {
 }
 
 /// Per-point loop responses, or why a point has none.
-pub fn responses(model: &FiveBar<f64>, design: &SixBarDesign, thetas: &[[f64; 2]]) -> Vec<Option<Response>> {
-    thetas.iter().map(|&th| response(model, design, th).ok()).collect()
+pub fn responses(
+    model: &FiveBar<f64>,
+    design: &SixBarDesign,
+    thetas: &[[f64; 2]],
+) -> Vec<Option<Response>> {
+    thetas
+        .iter()
+        .map(|&th| response(model, design, th).ok())
+        .collect()
 }
 
 /// An orthonormal basis of the column space of `a` (SVD, relative tolerance 1e-9).
@@ -73,14 +80,20 @@ fn column_basis(a: &DMatrix<f64>) -> DMatrix<f64> {
     let svd = a.clone().svd(true, false);
     let u = svd.u.expect("u requested");
     let smax = svd.singular_values.max();
-    let keep: Vec<usize> = (0..svd.singular_values.len()).filter(|&i| svd.singular_values[i] > 1e-9 * smax).collect();
+    let keep: Vec<usize> = (0..svd.singular_values.len())
+        .filter(|&i| svd.singular_values[i] > 1e-9 * smax)
+        .collect();
     DMatrix::from_fn(a.nrows(), keep.len(), |r, c| u[(r, keep[c])])
 }
 
 /// Computes the modes. `five_bar` is the 2n × k matrix of the tool displacement per unit of
 /// each five-bar parameter listed in `five_bar_params` (x, y interleaved per point); responses
 /// must all be present. `Err` says why the modes do not exist on these poses.
-pub fn modes(responses: &[Response], five_bar: &DMatrix<f64>, five_bar_params: &[usize]) -> Result<SixBarModes, String> {
+pub fn modes(
+    responses: &[Response],
+    five_bar: &DMatrix<f64>,
+    five_bar_params: &[usize],
+) -> Result<SixBarModes, String> {
     let n = responses.len();
     if n < MIN_POINTS {
         return Err(format!("{n} points: too few to tell the six-bar's own effects from the five-bar's (need {MIN_POINTS})"));
@@ -131,7 +144,11 @@ pub fn modes(responses: &[Response], five_bar: &DMatrix<f64>, five_bar_params: &
         }
         // The five-bar part the projection removed: c = F⁺·(M·v).
         let c = &pinv * (&mism * &v);
-        out.mismatch_five_bar[m] = five_bar_params.iter().zip(c.iter()).map(|(&p, &c)| (p, c * scale)).collect();
+        out.mismatch_five_bar[m] = five_bar_params
+            .iter()
+            .zip(c.iter())
+            .map(|(&p, &c)| (p, c * scale))
+            .collect();
     }
     // Stretch: both distal bars' elongation under the one self-stress, as it moves the tool.
     let mut tool = DMatrix::<f64>::zeros(2 * n, N_RAW);
@@ -156,10 +173,17 @@ pub fn modes(responses: &[Response], five_bar: &DMatrix<f64>, five_bar_params: &
         let v = vt.row(k).transpose();
         let f: Vec<[f64; 2]> = responses
             .iter()
-            .map(|r| [0, 1].map(|arm| (0..N_RAW).map(|raw| r.distal_elongation[arm][raw] * v[raw]).sum()))
+            .map(|r| {
+                [0, 1].map(|arm| {
+                    (0..N_RAW)
+                        .map(|raw| r.distal_elongation[arm][raw] * v[raw])
+                        .sum()
+                })
+            })
             .collect();
         // Unit RMS over the data and both bars.
-        let rms = (f.iter().map(|x| x[0] * x[0] + x[1] * x[1]).sum::<f64>() / (2 * n) as f64).sqrt();
+        let rms =
+            (f.iter().map(|x| x[0] * x[0] + x[1] * x[1]).sum::<f64>() / (2 * n) as f64).sqrt();
         if !(rms > 0.0) {
             continue;
         }
@@ -188,5 +212,6 @@ fn pseudo_inverse(a: &DMatrix<f64>) -> DMatrix<f64> {
     }
     let svd = a.clone().svd(true, true);
     let smax = svd.singular_values.max();
-    svd.pseudo_inverse(1e-9 * smax).unwrap_or_else(|_| DMatrix::zeros(a.ncols(), a.nrows()))
+    svd.pseudo_inverse(1e-9 * smax)
+        .unwrap_or_else(|_| DMatrix::zeros(a.ncols(), a.nrows()))
 }

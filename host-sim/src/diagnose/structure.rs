@@ -59,10 +59,17 @@ pub fn joint_residual_urad(problem: &Problem, residual_um: &[f64]) -> Vec<[f64; 
         .iter()
         .enumerate()
         .map(|(i, p)| {
-            let ji = problem.base.forward_pose(p.theta_rad, 0.0).ok().and_then(|pose| pose.inverse_jacobian().ok());
+            let ji = problem
+                .base
+                .forward_pose(p.theta_rad, 0.0)
+                .ok()
+                .and_then(|pose| pose.inverse_jacobian().ok());
             let r = [residual_um[2 * i], residual_um[2 * i + 1]];
             match ji {
-                Some(m) => [(m[0][0] * r[0] + m[0][1] * r[1]) * 1e3, (m[1][0] * r[0] + m[1][1] * r[1]) * 1e3],
+                Some(m) => [
+                    (m[0][0] * r[0] + m[0][1] * r[1]) * 1e3,
+                    (m[1][0] * r[0] + m[1][1] * r[1]) * 1e3,
+                ],
                 None => [0.0, 0.0],
             }
         })
@@ -90,11 +97,18 @@ fn linear_trends(t: &[f64], residual_um: &[f64]) -> Vec<(f64, f64, f64)> {
 /// The largest |z| of the residual's linear trend in time over the two axes (the drift test of
 /// [`analyse`] without its threshold); `None` when the points have no times or all the same.
 pub fn drift_time_z(problem: &Problem, data: &[Measurement], residual_um: &[f64]) -> Option<f64> {
-    let t: Vec<f64> = problem.points.iter().map(|p| data.get(p.index).and_then(|m| m.t_s)).collect::<Option<Vec<f64>>>()?;
+    let t: Vec<f64> = problem
+        .points
+        .iter()
+        .map(|p| data.get(p.index).and_then(|m| m.t_s))
+        .collect::<Option<Vec<f64>>>()?;
     if t.len() < MIN_POINTS || t.iter().all(|v| *v == t[0]) {
         return None;
     }
-    linear_trends(&t, residual_um).into_iter().map(|(_, z, _)| z.abs()).reduce(f64::max)
+    linear_trends(&t, residual_um)
+        .into_iter()
+        .map(|(_, z, _)| z.abs())
+        .reduce(f64::max)
 }
 
 /// Minimum number of points for the periodogram and the workspace fit.
@@ -117,8 +131,17 @@ pub fn analyse(problem: &Problem, data: &[Measurement], residual_um: &[f64]) -> 
     }
     let total_ss: f64 = residual_um.iter().map(|v| v * v).sum::<f64>().max(1e-300);
     let joint = joint_residual_urad(problem, residual_um);
-    let dth = [joint.iter().map(|d| d[0]).collect::<Vec<f64>>(), joint.iter().map(|d| d[1]).collect::<Vec<f64>>()];
-    let th = [0, 1].map(|j| problem.points.iter().map(|p| p.theta_rad[j]).collect::<Vec<f64>>());
+    let dth = [
+        joint.iter().map(|d| d[0]).collect::<Vec<f64>>(),
+        joint.iter().map(|d| d[1]).collect::<Vec<f64>>(),
+    ];
+    let th = [0, 1].map(|j| {
+        problem
+            .points
+            .iter()
+            .map(|p| p.theta_rad[j])
+            .collect::<Vec<f64>>()
+    });
     // Periodogram per motor.
     let n_max = 360usize;
     let tried = (n_max - 1) as f64;
@@ -171,7 +194,13 @@ pub fn analyse(problem: &Problem, data: &[Measurement], residual_um: &[f64]) -> 
         #[allow(clippy::needless_range_loop)]
         for j in 0..2 {
             let y = DVector::from_vec(dth[j].clone());
-            let a = DMatrix::from_fn(n, 2, |r, c| if c == 0 { 1.0 } else { problem.points[r].dir[j] });
+            let a = DMatrix::from_fn(n, 2, |r, c| {
+                if c == 0 {
+                    1.0
+                } else {
+                    problem.points[r].dir[j]
+                }
+            });
             if let Some((rss, coef, se)) = ls(&a, &y) {
                 let z = coef[1] / se[1].max(1e-300);
                 let rss0 = demeaned_rss(&y);
@@ -191,11 +220,25 @@ pub fn analyse(problem: &Problem, data: &[Measurement], residual_um: &[f64]) -> 
         }
     }
     // Time and run.
-    let kept: Vec<&Measurement> = problem.points.iter().filter_map(|p| data.get(p.index)).collect();
+    let kept: Vec<&Measurement> = problem
+        .points
+        .iter()
+        .filter_map(|p| data.get(p.index))
+        .collect();
     if kept.len() == n {
         let series: [(&str, Option<Vec<f64>>, &str); 2] = [
-            ("drift_time", kept.iter().map(|m| m.t_s).collect::<Option<Vec<f64>>>(), "s"),
-            ("drift_run", kept.iter().map(|m| m.run.map(|r| r as f64)).collect::<Option<Vec<f64>>>(), "run"),
+            (
+                "drift_time",
+                kept.iter().map(|m| m.t_s).collect::<Option<Vec<f64>>>(),
+                "s",
+            ),
+            (
+                "drift_run",
+                kept.iter()
+                    .map(|m| m.run.map(|r| r as f64))
+                    .collect::<Option<Vec<f64>>>(),
+                "run",
+            ),
         ];
         for (kind, t, unit) in series {
             let Some(t) = t else { continue };
@@ -208,7 +251,10 @@ pub fn analyse(problem: &Problem, data: &[Measurement], residual_um: &[f64]) -> 
             for (axis, (rate, z, d)) in linear_trends(&t, residual_um).into_iter().enumerate() {
                 significant |= z.abs() > DRIFT_Z;
                 drop += d;
-                parts.push(format!("{} {rate:.3} µm/{unit} (z = {z:.1})", ["x", "y"][axis]));
+                parts.push(format!(
+                    "{} {rate:.3} µm/{unit} (z = {z:.1})",
+                    ["x", "y"][axis]
+                ));
             }
             out.push(Finding {
                 kind: kind.into(),
@@ -224,8 +270,10 @@ pub fn analyse(problem: &Problem, data: &[Measurement], residual_um: &[f64]) -> 
         let mut drop = 0.0;
         let mut z_max = 0.0f64;
         let pos: Vec<[f64; 2]> = problem.points.iter().map(|p| p.measured_mm).collect();
-        let (cx, cy) =
-            (pos.iter().map(|p| p[0]).sum::<f64>() / n as f64, pos.iter().map(|p| p[1]).sum::<f64>() / n as f64);
+        let (cx, cy) = (
+            pos.iter().map(|p| p[0]).sum::<f64>() / n as f64,
+            pos.iter().map(|p| p[1]).sum::<f64>() / n as f64,
+        );
         for axis in 0..2 {
             let y = DVector::from_fn(n, |r, _| residual_um[2 * r + axis]);
             let a = DMatrix::from_fn(n, 6, |r, c| {
@@ -267,10 +315,15 @@ mod tests {
         let mut data = Vec::new();
         for i in 0..g.nx {
             for j in 0..g.ny {
-                let th = nominal.inverse(g.node_mm(i, j), spec.min_transmission).unwrap();
+                let th = nominal
+                    .inverse(g.node_mm(i, j), spec.min_transmission)
+                    .unwrap();
                 let c = nominal.forward(th, 0.0).unwrap();
                 let k = data.len();
-                let dir = [if (k * 7) % 11 < 5 { 1 } else { -1 }, if (k * 13) % 17 < 9 { 1 } else { -1 }];
+                let dir = [
+                    if (k * 7) % 11 < 5 { 1 } else { -1 },
+                    if (k * 13) % 17 < 9 { 1 } else { -1 },
+                ];
                 data.push(Measurement {
                     theta_deg: [th[0].to_degrees(), th[1].to_degrees()],
                     measured_mm: c,
@@ -282,16 +335,28 @@ mod tests {
                 });
             }
         }
-        let p = Problem::new(nominal, &crate::diagnose::loop_closure::SixBarDesign::paper(), &data);
+        let p = Problem::new(
+            nominal,
+            &crate::diagnose::loop_closure::SixBarDesign::paper(),
+            &data,
+        );
         (nominal, data, p)
     }
 
     /// Tool residual (µm) of joint errors `dth_urad(point index, point)` on both motors, plus a
     /// little deterministic "noise".
-    fn residual(nominal: &FiveBar<f64>, p: &Problem, dth_urad: impl Fn(usize, &crate::diagnose::effects::Point) -> [f64; 2]) -> Vec<f64> {
+    fn residual(
+        nominal: &FiveBar<f64>,
+        p: &Problem,
+        dth_urad: impl Fn(usize, &crate::diagnose::effects::Point) -> [f64; 2],
+    ) -> Vec<f64> {
         let mut r = Vec::new();
         for (k, q) in p.points.iter().enumerate() {
-            let j = nominal.forward_pose(q.theta_rad, 0.0).unwrap().jacobian().unwrap();
+            let j = nominal
+                .forward_pose(q.theta_rad, 0.0)
+                .unwrap()
+                .jacobian()
+                .unwrap();
             let d = dth_urad(k, q).map(|v| v * 1e-6);
             let wobble = 1e-3 * ((k * 7919) % 13) as f64 / 13.0;
             r.push((j[0][0] * d[0] + j[0][1] * d[1]) * 1e3 + wobble);
@@ -305,13 +370,21 @@ mod tests {
         let (nominal, data, p) = grid_with_directions();
         assert!(p.has_dir);
         // 30 µrad · sin(40 θ2) on motor 2.
-        let r = residual(&nominal, &p, |_, q| [0.0, 30.0 * (40.0 * q.theta_rad[1]).sin()]);
+        let r = residual(&nominal, &p, |_, q| {
+            [0.0, 30.0 * (40.0 * q.theta_rad[1]).sin()]
+        });
         let f = analyse(&p, &data, &r);
         let per2 = f.iter().find(|f| f.kind == "periodic_theta2").unwrap();
-        assert!(per2.significant && per2.cycles_per_rev == Some(40.0), "{per2:?}");
+        assert!(
+            per2.significant && per2.cycles_per_rev == Some(40.0),
+            "{per2:?}"
+        );
         // The direction test ran on both motors and found nothing: the ripple does not depend
         // on the approach direction.
-        let dirs: Vec<&Finding> = f.iter().filter(|f| f.kind.starts_with("direction")).collect();
+        let dirs: Vec<&Finding> = f
+            .iter()
+            .filter(|f| f.kind.starts_with("direction"))
+            .collect();
         assert_eq!(dirs.len(), 2, "{f:?}");
         assert!(dirs.iter().all(|d| !d.significant), "{dirs:?}");
     }
@@ -323,8 +396,14 @@ mod tests {
         let (nominal, data, p) = grid_with_directions();
         let r = residual(&nominal, &p, |_, q| [-15.0 * q.dir[0], 0.0]);
         let f = analyse(&p, &data, &r);
-        let d1 = f.iter().find(|f| f.kind == "direction_motor1").expect("tested");
-        let d2 = f.iter().find(|f| f.kind == "direction_motor2").expect("tested");
+        let d1 = f
+            .iter()
+            .find(|f| f.kind == "direction_motor1")
+            .expect("tested");
+        let d2 = f
+            .iter()
+            .find(|f| f.kind == "direction_motor2")
+            .expect("tested");
         assert!(d1.significant && d1.share > 0.9, "{d1:?}");
         assert!(d1.description.contains("-30.0 µrad"), "{d1:?}");
         assert!(!d2.significant, "{d2:?}");

@@ -28,8 +28,8 @@
 //!
 //! Cost: one equilibrium solve per pose (plus one for the stretch's stressed six-bar).
 
-use crate::calib::measure::{measure_visits, rows, Approach};
 use crate::calib::machine::PlantMachine;
+use crate::calib::measure::{measure_visits, rows, Approach};
 use crate::calib::protocol::{random_visits, visits, Protocol, Range};
 use crate::effect::PhysicalEffect;
 use crate::io::measurement_csv::Measurement;
@@ -115,12 +115,24 @@ fn mag(rng: &mut ChaCha8Rng, lo: f64, hi: f64) -> f64 {
 impl Truth {
     /// One library effect switched on with a random magnitude well above 2 µm noise; effects the
     /// diagnosis library does not name have no random form here (an error naming the effect).
-    pub fn add_random(&mut self, effect: PhysicalEffect, rng: &mut ChaCha8Rng) -> Result<(), String> {
+    pub fn add_random(
+        &mut self,
+        effect: PhysicalEffect,
+        rng: &mut ChaCha8Rng,
+    ) -> Result<(), String> {
         match effect {
-            PhysicalEffect::LinkLengths => self.link_delta_um = [(); 4].map(|_| mag(rng, 20.0, 100.0)),
-            PhysicalEffect::EncoderOffset => self.encoder_offset_urad = [(); 2].map(|_| mag(rng, 100.0, 400.0)),
-            PhysicalEffect::BaseOffset => self.base_offset_um = [(); 2].map(|_| mag(rng, 30.0, 120.0)),
-            PhysicalEffect::Backlash => self.backlash_urad = [(); 2].map(|_| rng.random_range(60.0..200.0)),
+            PhysicalEffect::LinkLengths => {
+                self.link_delta_um = [(); 4].map(|_| mag(rng, 20.0, 100.0))
+            }
+            PhysicalEffect::EncoderOffset => {
+                self.encoder_offset_urad = [(); 2].map(|_| mag(rng, 100.0, 400.0))
+            }
+            PhysicalEffect::BaseOffset => {
+                self.base_offset_um = [(); 2].map(|_| mag(rng, 30.0, 120.0))
+            }
+            PhysicalEffect::Backlash => {
+                self.backlash_urad = [(); 2].map(|_| rng.random_range(60.0..200.0))
+            }
             PhysicalEffect::LinkStretch => {
                 self.stretch = Some(Stretch {
                     seed: rng.random_range(0..1_000_000),
@@ -129,10 +141,20 @@ impl Truth {
                     compliance_ratio: rng.random_range(0.6..1.6),
                 })
             }
-            PhysicalEffect::Frame => self.frame = [mag(rng, 30.0, 120.0), mag(rng, 30.0, 120.0), mag(rng, 100.0, 400.0)],
+            PhysicalEffect::Frame => {
+                self.frame = [
+                    mag(rng, 30.0, 120.0),
+                    mag(rng, 30.0, 120.0),
+                    mag(rng, 100.0, 400.0),
+                ]
+            }
             PhysicalEffect::Scale => self.scale_ppm = mag(rng, 150.0, 500.0),
             PhysicalEffect::GearRatio => self.gear_ppm = [(); 2].map(|_| mag(rng, 300.0, 1000.0)),
-            other => return Err(format!("{other} is not in the diagnosis library: no random form")),
+            other => {
+                return Err(format!(
+                    "{other} is not in the diagnosis library: no random form"
+                ))
+            }
         }
         Ok(())
     }
@@ -209,25 +231,39 @@ pub fn try_generate(truth: &Truth, poses: Poses, seed: u64) -> Result<Vec<Measur
     let spec = MachineSpec::paper();
     let plant = truth.plant();
     let noise = Some(truth.noise_um.max(0.0));
-    let mut machine = PlantMachine::from_config(plant, "synth", noise, seed).map_err(|e| e.to_string())?;
-    let cal = Calibration { model: spec.nominal.cast::<f32>(), grid: None };
+    let mut machine =
+        PlantMachine::from_config(plant, "synth", noise, seed).map_err(|e| e.to_string())?;
+    let cal = Calibration {
+        model: spec.nominal.cast::<f32>(),
+        grid: None,
+    };
     let v = match poses {
         // The diagnosis tests' random poses keep the stream they were written and checked
         // against (`random:N` before issue 12 made its stream depend on N as well). On the new
         // stream one case of tests/diagnose.rs (gear_ratio + base_offset, seed 80) also names
         // link_lengths: motor 2's gear ratio is nearly a link-length change on those poses, and
         // the report does not flag it as confounded (noted in DIAGNOSIS.md's limits).
-        Poses::Random(n) => random_visits(n, &mut ChaCha8Rng::seed_from_u64(seed ^ HISTORICAL_RANDOM_STREAM), &spec, Range::Closed),
+        Poses::Random(n) => random_visits(
+            n,
+            &mut ChaCha8Rng::seed_from_u64(seed ^ HISTORICAL_RANDOM_STREAM),
+            &spec,
+            Range::Closed,
+        ),
         _ => visits(protocol(poses), seed, &spec),
     };
-    let landed = measure_visits(&mut machine, &cal, &v, Approach::FromVisit, &spec, &mut 0).map_err(|e| e.to_string())?;
+    let landed = measure_visits(&mut machine, &cal, &v, Approach::FromVisit, &spec, &mut 0)
+        .map_err(|e| e.to_string())?;
     let mut out = rows(&landed);
     add_formula_effects(truth, &spec, &mut out)?;
     Ok(out)
 }
 
 /// The independent formulas (stretch, gear ratio, drift) added to plant readings.
-fn add_formula_effects(truth: &Truth, spec: &MachineSpec, rows: &mut [Measurement]) -> Result<(), String> {
+fn add_formula_effects(
+    truth: &Truth,
+    spec: &MachineSpec,
+    rows: &mut [Measurement],
+) -> Result<(), String> {
     let stretch = truth.stretch.filter(|s| s.rms_um != 0.0);
     if stretch.is_none() && truth.gear_ppm == [0.0; 2] && truth.drift_um_per_s == [0.0; 2] {
         return Ok(());
@@ -238,12 +274,23 @@ fn add_formula_effects(truth: &Truth, spec: &MachineSpec, rows: &mut [Measuremen
     m.b_mm += truth.link_delta_um[1] * 1e-3;
     m.c_mm += truth.link_delta_um[2] * 1e-3;
     m.d_mm += truth.link_delta_um[3] * 1e-3;
-    m.base_b0_mm = [truth.base_offset_um[0] * 1e-3, truth.base_offset_um[1] * 1e-3];
-    let theta_ref = spec.nominal.inverse(spec.workspace.centre_mm(), 0.0).map_err(|e| e.to_string())?;
+    m.base_b0_mm = [
+        truth.base_offset_um[0] * 1e-3,
+        truth.base_offset_um[1] * 1e-3,
+    ];
+    let theta_ref = spec
+        .nominal
+        .inverse(spec.workspace.centre_mm(), 0.0)
+        .map_err(|e| e.to_string())?;
     let link = |r: &Measurement| -> [f64; 2] {
         let th = r.theta_rad();
-        let dir = r.dir.map(|d| [f64::from(d[0]), f64::from(d[1])]).unwrap_or([0.0; 2]);
-        [0, 1].map(|j| th[j] + truth.encoder_offset_urad[j] * 1e-6 - dir[j] * truth.backlash_urad[j] * 0.5e-6)
+        let dir = r
+            .dir
+            .map(|d| [f64::from(d[0]), f64::from(d[1])])
+            .unwrap_or([0.0; 2]);
+        [0, 1].map(|j| {
+            th[j] + truth.encoder_offset_urad[j] * 1e-6 - dir[j] * truth.backlash_urad[j] * 0.5e-6
+        })
     };
     // Distal elongation per pose from the stressed six-bar's tensions.
     let mut elongation_um = vec![[0.0; 2]; rows.len()];
@@ -255,7 +302,8 @@ fn add_formula_effects(truth: &Truth, spec: &MachineSpec, rows: &mut [Measuremen
             let sol = six.solve(link(r)).map_err(|e| e.to_string())?;
             tension.push([sol.bar_tension_n[1], sol.bar_tension_n[4]]);
         }
-        let rms = (tension.iter().map(|t| t[0] * t[0]).sum::<f64>() / tension.len().max(1) as f64).sqrt();
+        let rms =
+            (tension.iter().map(|t| t[0] * t[0]).sum::<f64>() / tension.len().max(1) as f64).sqrt();
         if rms > 0.0 {
             let compliance = [s.rms_um / rms, s.compliance_ratio * s.rms_um / rms];
             for (e, t) in elongation_um.iter_mut().zip(&tension) {

@@ -32,7 +32,10 @@ pub fn check_destination(path: &Path) -> Result<(), IoError> {
     };
     match std::fs::symlink_metadata(path) {
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(()),
-        Err(e) => Err(IoError::Write { path: path.to_path_buf(), message: e.to_string() }),
+        Err(e) => Err(IoError::Write {
+            path: path.to_path_buf(),
+            message: e.to_string(),
+        }),
         Ok(m) => {
             let t = m.file_type();
             if t.is_file() {
@@ -73,9 +76,14 @@ fn prepare(path: &Path) -> Result<(&Path, String), IoError> {
         Some(d) if !d.as_os_str().is_empty() => d,
         _ => Path::new("."),
     };
-    let file_name = path.file_name().ok_or_else(|| IoError::NoFileName { path: path.to_path_buf() })?;
+    let file_name = path.file_name().ok_or_else(|| IoError::NoFileName {
+        path: path.to_path_buf(),
+    })?;
     check_destination(path)?;
-    std::fs::create_dir_all(dir).map_err(|e| IoError::CreateDir { dir: dir.to_path_buf(), message: e.to_string() })?;
+    std::fs::create_dir_all(dir).map_err(|e| IoError::CreateDir {
+        dir: dir.to_path_buf(),
+        message: e.to_string(),
+    })?;
     Ok((dir, file_name.to_string_lossy().into_owned()))
 }
 
@@ -103,7 +111,13 @@ impl Outputs {
     /// output named like an input (`grid --out grid1.bin` writes its node table to
     /// `grid1.csv`, which may be the measurements just read) is an error, not a lost file.
     pub fn protecting(inputs: &[&Path]) -> Self {
-        Outputs { staged: Vec::new(), inputs: inputs.iter().filter_map(|p| std::fs::canonicalize(p).ok()).collect() }
+        Outputs {
+            staged: Vec::new(),
+            inputs: inputs
+                .iter()
+                .filter_map(|p| std::fs::canonicalize(p).ok())
+                .collect(),
+        }
     }
 
     /// The destinations staged so far.
@@ -114,30 +128,52 @@ impl Outputs {
     /// Stages `bytes` for `path`.
     pub fn bytes(&mut self, path: &Path, bytes: &[u8]) -> Result<(), IoError> {
         self.with(path, |tmp| {
-            let mut f = std::fs::File::create(tmp).map_err(|e| IoError::Write { path: tmp.to_path_buf(), message: e.to_string() })?;
+            let mut f = std::fs::File::create(tmp).map_err(|e| IoError::Write {
+                path: tmp.to_path_buf(),
+                message: e.to_string(),
+            })?;
             f.write_all(bytes)
                 .and_then(|()| f.sync_all())
-                .map_err(|e| IoError::Write { path: tmp.to_path_buf(), message: e.to_string() })
+                .map_err(|e| IoError::Write {
+                    path: tmp.to_path_buf(),
+                    message: e.to_string(),
+                })
         })
     }
 
     /// Stages a file that `write` produces at a temporary path (for writers that insist on a
     /// path); the temporary keeps the destination's extension last.
-    pub fn with(&mut self, path: &Path, write: impl FnOnce(&Path) -> Result<(), IoError>) -> Result<(), IoError> {
+    pub fn with(
+        &mut self,
+        path: &Path,
+        write: impl FnOnce(&Path) -> Result<(), IoError>,
+    ) -> Result<(), IoError> {
         if self.staged.iter().any(|s| s.path == path) {
-            return Err(IoError::Write { path: path.to_path_buf(), message: "the same file is given for two outputs".into() });
+            return Err(IoError::Write {
+                path: path.to_path_buf(),
+                message: "the same file is given for two outputs".into(),
+            });
         }
         if std::fs::canonicalize(path).is_ok_and(|c| self.inputs.contains(&c)) {
-            return Err(IoError::Write { path: path.to_path_buf(), message: "it is one of the command's inputs; name the output another way".into() });
+            return Err(IoError::Write {
+                path: path.to_path_buf(),
+                message: "it is one of the command's inputs; name the output another way".into(),
+            });
         }
         let (dir, file_name) = prepare(path)?;
         let n = COUNTER.fetch_add(1, Ordering::Relaxed);
         let tmp = dir.join(format!(".tmp{}-{n}-{file_name}", std::process::id()));
         if let Err(e) = write(&tmp) {
             let _ = std::fs::remove_file(&tmp);
-            return Err(IoError::Write { path: path.to_path_buf(), message: e.to_string() });
+            return Err(IoError::Write {
+                path: path.to_path_buf(),
+                message: e.to_string(),
+            });
         }
-        self.staged.push(Staged { path: path.to_path_buf(), tmp });
+        self.staged.push(Staged {
+            path: path.to_path_buf(),
+            tmp,
+        });
         Ok(())
     }
 
@@ -157,9 +193,18 @@ impl Outputs {
                 let written = if done.is_empty() {
                     String::new()
                 } else {
-                    format!(" (already written: {})", done.iter().map(|p: &PathBuf| p.display().to_string()).collect::<Vec<_>>().join(", "))
+                    format!(
+                        " (already written: {})",
+                        done.iter()
+                            .map(|p: &PathBuf| p.display().to_string())
+                            .collect::<Vec<_>>()
+                            .join(", ")
+                    )
                 };
-                return Err(IoError::Write { path: s.path.clone(), message: format!("{e}{written}") });
+                return Err(IoError::Write {
+                    path: s.path.clone(),
+                    message: format!("{e}{written}"),
+                });
             }
             done.push(s.path.clone());
         }
@@ -184,7 +229,10 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), IoError> {
 
 /// Lets `write` produce a file at a temporary path, then renames it over `path`; on error the
 /// temporary is removed. For writers that insist on a path.
-pub fn write_atomic_with(path: &Path, write: impl FnOnce(&Path) -> Result<(), IoError>) -> Result<(), IoError> {
+pub fn write_atomic_with(
+    path: &Path,
+    write: impl FnOnce(&Path) -> Result<(), IoError>,
+) -> Result<(), IoError> {
     let mut o = Outputs::new();
     o.with(path, write)?;
     o.commit().map(|_| ())
@@ -195,7 +243,10 @@ mod tests {
     use super::*;
 
     fn names(dir: &Path) -> Vec<String> {
-        let mut v: Vec<String> = std::fs::read_dir(dir).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+        let mut v: Vec<String> = std::fs::read_dir(dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
         v.sort();
         v
     }
@@ -206,7 +257,10 @@ mod tests {
         let p = dir.path().join("sub/out.txt");
         write_atomic(&p, b"hello").unwrap();
         assert_eq!(std::fs::read(&p).unwrap(), b"hello");
-        let names: Vec<_> = std::fs::read_dir(p.parent().unwrap()).unwrap().map(|e| e.unwrap().file_name()).collect();
+        let names: Vec<_> = std::fs::read_dir(p.parent().unwrap())
+            .unwrap()
+            .map(|e| e.unwrap().file_name())
+            .collect();
         assert_eq!(names.len(), 1, "{names:?}");
     }
 
@@ -218,7 +272,10 @@ mod tests {
         std::fs::create_dir(&p).unwrap();
         std::fs::write(p.join("x"), b"x").unwrap();
         assert!(write_atomic(&p, b"data").is_err());
-        let names: Vec<_> = std::fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
+        let names: Vec<_> = std::fs::read_dir(dir.path())
+            .unwrap()
+            .map(|e| e.unwrap().file_name())
+            .collect();
         assert_eq!(names, vec![std::ffi::OsString::from("taken")]);
     }
 
@@ -230,7 +287,10 @@ mod tests {
         let mut out = Outputs::protecting(&[&input]);
         out.bytes(&dir.path().join("grid1.bin"), b"image").unwrap();
         // The same file by another spelling.
-        let e = out.bytes(&dir.path().join("./grid1.csv"), b"table").unwrap_err().to_string();
+        let e = out
+            .bytes(&dir.path().join("./grid1.csv"), b"table")
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("one of the command's inputs"), "{e}");
         drop(out);
         assert_eq!(std::fs::read(&input).unwrap(), b"measurements");
@@ -247,16 +307,28 @@ mod tests {
         std::os::unix::fs::symlink(&target, &link).unwrap();
         let e = write_atomic(&link, b"new").unwrap_err().to_string();
         assert!(e.contains("symbolic link"), "{e}");
-        assert!(std::fs::symlink_metadata(&link).unwrap().file_type().is_symlink());
+        assert!(std::fs::symlink_metadata(&link)
+            .unwrap()
+            .file_type()
+            .is_symlink());
         assert_eq!(std::fs::read(&target).unwrap(), b"keep");
         let fifo = dir.path().join("fifo");
-        assert!(std::process::Command::new("mkfifo").arg(&fifo).status().unwrap().success());
+        assert!(std::process::Command::new("mkfifo")
+            .arg(&fifo)
+            .status()
+            .unwrap()
+            .success());
         let e = write_atomic(&fifo, b"x").unwrap_err().to_string();
         assert!(e.contains("a FIFO"), "{e}");
         use std::os::unix::fs::FileTypeExt;
-        assert!(std::fs::symlink_metadata(&fifo).unwrap().file_type().is_fifo());
+        assert!(std::fs::symlink_metadata(&fifo)
+            .unwrap()
+            .file_type()
+            .is_fifo());
         // A device is refused before anything is written (checked, never written to).
-        let e = check_destination(Path::new("/dev/null")).unwrap_err().to_string();
+        let e = check_destination(Path::new("/dev/null"))
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("a device"), "{e}");
         assert_eq!(names(dir.path()), vec!["fifo", "link.txt", "target.txt"]);
     }
@@ -271,10 +343,18 @@ mod tests {
         o.bytes(&good, b"table").unwrap();
         assert!(o.bytes(&bad, b"image").is_err());
         drop(o);
-        assert_eq!(names(dir.path()), vec!["taken"], "nothing written, no temporary left");
+        assert_eq!(
+            names(dir.path()),
+            vec!["taken"],
+            "nothing written, no temporary left"
+        );
         let mut o = Outputs::new();
         o.bytes(&good, b"a").unwrap();
-        assert!(o.bytes(&good, b"b").unwrap_err().to_string().contains("two outputs"));
+        assert!(o
+            .bytes(&good, b"b")
+            .unwrap_err()
+            .to_string()
+            .contains("two outputs"));
         assert_eq!(o.commit().unwrap(), vec![good.clone()]);
         assert_eq!(std::fs::read(&good).unwrap(), b"a");
     }

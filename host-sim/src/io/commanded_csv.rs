@@ -30,13 +30,24 @@ pub struct CommandedRow {
     pub run: Option<u32>,
 }
 
-const COLUMNS: [&str; 7] = ["theta1_deg", "theta2_deg", "x_mm", "y_mm", "dir1", "dir2", "run"];
+const COLUMNS: [&str; 7] = [
+    "theta1_deg",
+    "theta2_deg",
+    "x_mm",
+    "y_mm",
+    "dir1",
+    "dir2",
+    "run",
+];
 
 /// Parses a commanded list (module doc).
 pub fn parse_commanded(text: &str) -> Result<Vec<CommandedRow>, IoError> {
     let err = |m: String| IoError::Parse(m);
     let mut reader = csv_dialect::reader(text);
-    let headers = reader.headers().map_err(|e| err(format!("line 1: cannot read the header: {e}")))?.clone();
+    let headers = reader
+        .headers()
+        .map_err(|e| err(format!("line 1: cannot read the header: {e}")))?
+        .clone();
     if let Some(h) = headers.iter().find(|h| !COLUMNS.contains(h)) {
         return Err(err(format!("line 1: unknown column '{h}' (a commanded list has theta1_deg,theta2_deg and optionally x_mm,y_mm, dir1,dir2, run)")));
     }
@@ -44,7 +55,11 @@ pub fn parse_commanded(text: &str) -> Result<Vec<CommandedRow>, IoError> {
     let (Some(i1), Some(i2)) = (at("theta1_deg"), at("theta2_deg")) else {
         return Err(err("line 1: required columns 'theta1_deg' and 'theta2_deg' (the commanded angles) are missing".into()));
     };
-    let (target, dir, run) = (csv_dialect::column_pair(&headers, "x_mm", "y_mm")?, csv_dialect::column_pair(&headers, "dir1", "dir2")?, at("run"));
+    let (target, dir, run) = (
+        csv_dialect::column_pair(&headers, "x_mm", "y_mm")?,
+        csv_dialect::column_pair(&headers, "dir1", "dir2")?,
+        at("run"),
+    );
     let mut out = Vec::new();
     for record in csv_dialect::records(&mut reader, headers.len()) {
         let (line, record) = record?;
@@ -53,9 +68,17 @@ pub fn parse_commanded(text: &str) -> Result<Vec<CommandedRow>, IoError> {
         out.push(CommandedRow {
             line,
             theta_deg: [num(i1, Quantity::AngleDeg)?, num(i2, Quantity::AngleDeg)?],
-            target_mm: target.map(|(i, j)| Ok::<_, IoError>([num(i, Quantity::LengthMm)?, num(j, Quantity::LengthMm)?])).transpose()?,
-            dir: dir.map(|(i, j)| Ok::<_, IoError>([sign(i)?, sign(j)?])).transpose()?,
-            run: run.map(|i| csv_dialect::run_index(&record[i], line)).transpose()?,
+            target_mm: target
+                .map(|(i, j)| {
+                    Ok::<_, IoError>([num(i, Quantity::LengthMm)?, num(j, Quantity::LengthMm)?])
+                })
+                .transpose()?,
+            dir: dir
+                .map(|(i, j)| Ok::<_, IoError>([sign(i)?, sign(j)?]))
+                .transpose()?,
+            run: run
+                .map(|i| csv_dialect::run_index(&record[i], line))
+                .transpose()?,
         });
     }
     if out.is_empty() {
@@ -77,20 +100,47 @@ mod tests {
     fn what_command_writes_reads_back() {
         let rows = parse_commanded("x_mm,y_mm,theta1_deg,theta2_deg,dir1,dir2\n212.132,0,45.000000000,135.000000000,1,-1\n200,-5,50,140,-1,1\n").unwrap();
         assert_eq!(rows.len(), 2);
-        assert_eq!(rows[0], CommandedRow { line: 2, theta_deg: [45.0, 135.0], target_mm: Some([212.132, 0.0]), dir: Some([1, -1]), run: None });
+        assert_eq!(
+            rows[0],
+            CommandedRow {
+                line: 2,
+                theta_deg: [45.0, 135.0],
+                target_mm: Some([212.132, 0.0]),
+                dir: Some([1, -1]),
+                run: None
+            }
+        );
         assert_eq!(rows[1].line, 3);
         let bare = parse_commanded("theta2_deg;theta1_deg;run\n1;2;3\n").unwrap();
-        assert_eq!(bare[0], CommandedRow { line: 2, theta_deg: [2.0, 1.0], target_mm: None, dir: None, run: Some(3) });
+        assert_eq!(
+            bare[0],
+            CommandedRow {
+                line: 2,
+                theta_deg: [2.0, 1.0],
+                target_mm: None,
+                dir: None,
+                run: Some(3)
+            }
+        );
     }
 
     #[test]
     fn errors() {
         for (text, want) in [
             ("x_mm,y_mm\n1,2\n", "'theta1_deg' and 'theta2_deg'"),
-            ("theta1_deg,theta2_deg,x_mm\n1,2,3\n", "'x_mm' and 'y_mm' come together"),
+            (
+                "theta1_deg,theta2_deg,x_mm\n1,2,3\n",
+                "'x_mm' and 'y_mm' come together",
+            ),
             ("theta1_deg,theta2_deg,z\n1,2,3\n", "unknown column 'z'"),
-            ("theta1_deg,theta2_deg\n1,nan\n", "line 2: 'theta2_deg' = 'nan' is not finite"),
-            ("theta1_deg,theta2_deg,dir1,dir2\n1,2,1,0\n", "line 2: 'dir2' = '0' is not +1 or -1"),
+            (
+                "theta1_deg,theta2_deg\n1,nan\n",
+                "line 2: 'theta2_deg' = 'nan' is not finite",
+            ),
+            (
+                "theta1_deg,theta2_deg,dir1,dir2\n1,2,1,0\n",
+                "line 2: 'dir2' = '0' is not +1 or -1",
+            ),
             ("theta1_deg,theta2_deg\n", "no commanded points"),
         ] {
             let e = parse_commanded(text).unwrap_err().to_string();

@@ -23,7 +23,11 @@ pub const MAX_ABS_TIME_S: f64 = 1e12;
 
 /// The delimiter of a CSV text, from its header line (the first line that is not a comment).
 pub fn detect_delimiter(text: &str) -> u8 {
-    let header = text.lines().map(str::trim).find(|l| !l.is_empty() && !l.starts_with('#')).unwrap_or("");
+    let header = text
+        .lines()
+        .map(str::trim)
+        .find(|l| !l.is_empty() && !l.starts_with('#'))
+        .unwrap_or("");
     let count = |c: char| header.matches(c).count();
     let mut best = (b',', count(','));
     for (d, c) in [(b';', ';'), (b'\t', '\t')] {
@@ -46,24 +50,36 @@ pub fn reader(text: &str) -> csv::Reader<&[u8]> {
 
 /// The data records of `reader` with their lines (1-based, header = 1), each checked to have
 /// the header's `fields` fields.
-pub fn records<'r, R: std::io::Read + 'r>(reader: &'r mut csv::Reader<R>, fields: usize) -> impl Iterator<Item = Result<(usize, csv::StringRecord), IoError>> + 'r {
+pub fn records<'r, R: std::io::Read + 'r>(
+    reader: &'r mut csv::Reader<R>,
+    fields: usize,
+) -> impl Iterator<Item = Result<(usize, csv::StringRecord), IoError>> + 'r {
     reader.records().map(move |record| {
         let record = record.map_err(|e| IoError::Parse(format!("malformed CSV: {e}")))?;
         let line = record.position().map_or(0, |p| p.line() as usize);
         if record.len() != fields {
-            return Err(IoError::Parse(format!("line {line}: {} fields, the header has {fields}", record.len())));
+            return Err(IoError::Parse(format!(
+                "line {line}: {} fields, the header has {fields}",
+                record.len()
+            )));
         }
         Ok((line, record))
     })
 }
 
 /// The columns `a` and `b` of a header, which come together: both (their indices) or neither.
-pub fn column_pair(headers: &csv::StringRecord, a: &str, b: &str) -> Result<Option<(usize, usize)>, IoError> {
+pub fn column_pair(
+    headers: &csv::StringRecord,
+    a: &str,
+    b: &str,
+) -> Result<Option<(usize, usize)>, IoError> {
     let at = |name: &str| headers.iter().position(|h| h == name);
     match (at(a), at(b)) {
         (Some(i), Some(j)) => Ok(Some((i, j))),
         (None, None) => Ok(None),
-        _ => Err(IoError::Parse(format!("line 1: columns '{a}' and '{b}' come together"))),
+        _ => Err(IoError::Parse(format!(
+            "line 1: columns '{a}' and '{b}' come together"
+        ))),
     }
 }
 
@@ -72,13 +88,16 @@ pub fn direction(s: &str, name: &str, line: usize) -> Result<i8, IoError> {
     match s {
         "1" | "+1" => Ok(1),
         "-1" => Ok(-1),
-        v => Err(IoError::Parse(format!("line {line}: '{name}' = '{v}' is not +1 or -1"))),
+        v => Err(IoError::Parse(format!(
+            "line {line}: '{name}' = '{v}' is not +1 or -1"
+        ))),
     }
 }
 
 /// A `run` field: a repeat index (0, 1, ...).
 pub fn run_index(s: &str, line: usize) -> Result<u32, IoError> {
-    s.parse().map_err(|_| IoError::Parse(format!("line {line}: 'run' = '{s}' is not a run index")))
+    s.parse()
+        .map_err(|_| IoError::Parse(format!("line {line}: 'run' = '{s}' is not a run index")))
 }
 
 /// The name of a delimiter for messages.
@@ -115,15 +134,25 @@ impl Quantity {
 /// the messages name the line and column.
 pub fn number(s: &str, name: &str, line: usize, quantity: Quantity) -> Result<f64, IoError> {
     let v: f64 = s.parse().map_err(|_| {
-        let hint = if s.contains(',') && s.replace(',', ".").parse::<f64>().is_ok() { " (a decimal comma? write a point)" } else { "" };
-        IoError::Parse(format!("line {line}: '{name}' = '{s}' is not a number{hint}"))
+        let hint = if s.contains(',') && s.replace(',', ".").parse::<f64>().is_ok() {
+            " (a decimal comma? write a point)"
+        } else {
+            ""
+        };
+        IoError::Parse(format!(
+            "line {line}: '{name}' = '{s}' is not a number{hint}"
+        ))
     })?;
     if !v.is_finite() {
-        return Err(IoError::Parse(format!("line {line}: '{name}' = '{s}' is not finite")));
+        return Err(IoError::Parse(format!(
+            "line {line}: '{name}' = '{s}' is not finite"
+        )));
     }
     let limit = quantity.limit();
     if v.abs() > limit {
-        return Err(IoError::Parse(format!("line {line}: '{name}' = {v:e} is absurd (|value| above {limit:e})")));
+        return Err(IoError::Parse(format!(
+            "line {line}: '{name}' = {v:e} is absurd (|value| above {limit:e})"
+        )));
     }
     Ok(v)
 }
@@ -137,9 +166,23 @@ mod tests {
         assert_eq!(detect_delimiter("# c\nx_mm;y_mm\n1;2\n"), b';');
         assert_eq!(detect_delimiter("x_mm\ty_mm\n"), b'\t');
         assert_eq!(detect_delimiter("x_mm,y_mm\n"), b',');
-        assert_eq!(number("1e300", "theta1_deg", 3, Quantity::AngleDeg).unwrap_err().to_string(), "line 3: 'theta1_deg' = 1e300 is absurd (|value| above 1e6)");
-        assert!(number("212,1", "x_mm", 2, Quantity::LengthMm).unwrap_err().to_string().contains("decimal comma"));
-        assert!(number("inf", "x_mm", 2, Quantity::LengthMm).unwrap_err().to_string().contains("not finite"));
-        assert_eq!(number("-368.5", "t", 2, Quantity::AngleDeg).unwrap(), -368.5);
+        assert_eq!(
+            number("1e300", "theta1_deg", 3, Quantity::AngleDeg)
+                .unwrap_err()
+                .to_string(),
+            "line 3: 'theta1_deg' = 1e300 is absurd (|value| above 1e6)"
+        );
+        assert!(number("212,1", "x_mm", 2, Quantity::LengthMm)
+            .unwrap_err()
+            .to_string()
+            .contains("decimal comma"));
+        assert!(number("inf", "x_mm", 2, Quantity::LengthMm)
+            .unwrap_err()
+            .to_string()
+            .contains("not finite"));
+        assert_eq!(
+            number("-368.5", "t", 2, Quantity::AngleDeg).unwrap(),
+            -368.5
+        );
     }
 }

@@ -65,10 +65,16 @@ impl DynamicsFile {
     /// The parameters, validated.
     pub fn dynamics(&self) -> Result<FiveBarDynamics<f64>, IoError> {
         if self.format != FORMAT {
-            return Err(IoError::Invalid(format!("not a dynamics file: format is '{}', expected '{FORMAT}'", self.format)));
+            return Err(IoError::Invalid(format!(
+                "not a dynamics file: format is '{}', expected '{FORMAT}'",
+                self.format
+            )));
         }
         if self.version != 1 {
-            return Err(IoError::Invalid(format!("unsupported dynamics file version {}", self.version)));
+            return Err(IoError::Invalid(format!(
+                "unsupported dynamics file version {}",
+                self.version
+            )));
         }
         let d = FiveBarDynamics {
             motor_inertia_kg_m2: self.motor_inertia_kg_m2,
@@ -78,25 +84,30 @@ impl DynamicsFile {
             coulomb_nm: self.coulomb_nm,
             coulomb_speed_rad_s: self.coulomb_speed_rad_s,
         };
-        d.validate().map_err(|e| IoError::Invalid(format!("invalid dynamics: {e}")))?;
+        d.validate()
+            .map_err(|e| IoError::Invalid(format!("invalid dynamics: {e}")))?;
         Ok(d)
     }
 }
 
 /// Reads and validates a dynamics file.
 pub fn read_dynamics(path: &Path) -> Result<FiveBarDynamics<f64>, IoError> {
-    let file: DynamicsFile = serde_json::from_str(&read_text(path)?).map_err(|e| IoError::NotA {
-        path: path.to_path_buf(),
-        what: "dynamics file",
-        message: e.to_string(),
-    })?;
+    let file: DynamicsFile =
+        serde_json::from_str(&read_text(path)?).map_err(|e| IoError::NotA {
+            path: path.to_path_buf(),
+            what: "dynamics file",
+            message: e.to_string(),
+        })?;
     file.dynamics().map_err(|e| IoError::content(path, e))
 }
 
 /// Writes a dynamics file atomically (refused if its parameters are invalid).
 pub fn write_dynamics_file(path: &Path, file: &DynamicsFile) -> Result<(), IoError> {
     file.dynamics()?;
-    write_atomic(path, super::json_text(file, super::KeyOrder::Declared)?.as_bytes())
+    write_atomic(
+        path,
+        super::json_text(file, super::KeyOrder::Declared)?.as_bytes(),
+    )
 }
 
 #[cfg(test)]
@@ -123,15 +134,28 @@ mod tests {
         write_dynamics_file(&p, &f).unwrap();
         assert_eq!(read_dynamics(&p).unwrap(), params());
         // Invalid values are neither written nor read.
-        let bad = DynamicsFile { coulomb_nm: [-0.1, 0.0], ..f.clone() };
+        let bad = DynamicsFile {
+            coulomb_nm: [-0.1, 0.0],
+            ..f.clone()
+        };
         let q = dir.path().join("bad.json");
         assert!(write_dynamics_file(&q, &bad).is_err());
         assert!(!q.exists(), "nothing half-written");
         std::fs::write(&q, serde_json::to_string(&bad).unwrap()).unwrap();
-        assert!(read_dynamics(&q).unwrap_err().to_string().contains("invalid dynamics"));
+        assert!(read_dynamics(&q)
+            .unwrap_err()
+            .to_string()
+            .contains("invalid dynamics"));
         std::fs::write(&q, r#"{"format": "hidden-robot-model"}"#).unwrap();
         assert!(read_dynamics(&q).is_err());
-        std::fs::write(&q, serde_json::to_string(&DynamicsFile { version: 2, ..f }).unwrap()).unwrap();
-        assert!(read_dynamics(&q).unwrap_err().to_string().contains("version 2"));
+        std::fs::write(
+            &q,
+            serde_json::to_string(&DynamicsFile { version: 2, ..f }).unwrap(),
+        )
+        .unwrap();
+        assert!(read_dynamics(&q)
+            .unwrap_err()
+            .to_string()
+            .contains("version 2"));
     }
 }

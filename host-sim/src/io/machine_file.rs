@@ -113,12 +113,16 @@ fn nodes(key: &str, span: [f64; 2], step: f64) -> Result<usize, String> {
         return Err(format!("'grid.step_mm' must be positive, not {step}"));
     }
     if !(span[0].is_finite() && span[1].is_finite() && span[1] > span[0]) {
-        return Err(format!("'grid.{key}' must be [low, high] with low < high, not {span:?}"));
+        return Err(format!(
+            "'grid.{key}' must be [low, high] with low < high, not {span:?}"
+        ));
     }
     let cells = (span[1] - span[0]) / step;
     let whole = cells.round();
     if (cells - whole).abs() > 1e-9 * whole.max(1.0) || whole > 1e6 {
-        return Err(format!("'grid.{key}' = {span:?} is not a whole number of {step} mm steps ({cells} steps)"));
+        return Err(format!(
+            "'grid.{key}' = {span:?} is not a whole number of {step} mm steps ({cells} steps)"
+        ));
     }
     Ok(whole as usize + 1)
 }
@@ -126,7 +130,10 @@ fn nodes(key: &str, span: [f64; 2], step: f64) -> Result<usize, String> {
 impl MachineFile {
     fn into_spec(self) -> Result<MachineSpec, String> {
         if self.format_version != FORMAT_VERSION {
-            return Err(format!("'format_version' = {}: this host-sim reads version {FORMAT_VERSION}", self.format_version));
+            return Err(format!(
+                "'format_version' = {}: this host-sim reads version {FORMAT_VERSION}",
+                self.format_version
+            ));
         }
         if self.name.trim().is_empty() {
             return Err("'name' is empty".into());
@@ -152,15 +159,30 @@ impl MachineFile {
             base_a0_mm: n.a0_mm,
             base_b0_mm: [n.b0_mm[0] - n.a0_mm[0], n.b0_mm[1] - n.a0_mm[1]],
             encoder_offset_rad: self.encoders.zero_offset_deg.map(f64::to_radians),
-            mode: WorkingMode { elbow_1: n.elbow_1.into(), elbow_2: n.elbow_2.into(), assembly: n.assembly.into() },
+            mode: WorkingMode {
+                elbow_1: n.elbow_1.into(),
+                elbow_2: n.elbow_2.into(),
+                assembly: n.assembly.into(),
+            },
         };
-        let links = [("a_mm", n.a_mm), ("b_mm", n.b_mm), ("c_mm", n.c_mm), ("d_mm", n.d_mm)];
+        let links = [
+            ("a_mm", n.a_mm),
+            ("b_mm", n.b_mm),
+            ("c_mm", n.c_mm),
+            ("d_mm", n.d_mm),
+        ];
         for (key, v) in links {
             if !(v > 0.0 && v.is_finite()) {
-                return Err(format!("'nominal.{key}' must be a positive length, not {v}"));
+                return Err(format!(
+                    "'nominal.{key}' must be a positive length, not {v}"
+                ));
             }
         }
-        for (key, v) in [("nominal.a0_mm", n.a0_mm), ("nominal.b0_mm", n.b0_mm), ("encoders.zero_offset_deg", self.encoders.zero_offset_deg)] {
+        for (key, v) in [
+            ("nominal.a0_mm", n.a0_mm),
+            ("nominal.b0_mm", n.b0_mm),
+            ("encoders.zero_offset_deg", self.encoders.zero_offset_deg),
+        ] {
             if !v.iter().all(|x| x.is_finite()) {
                 return Err(format!("'{key}' is not finite: {v:?}"));
             }
@@ -202,13 +224,18 @@ impl MachineFile {
 
 /// Parses and checks a machine file's text.
 pub fn parse_machine(text: &str) -> Result<MachineSpec, IoError> {
-    let file: MachineFile = toml::from_str(text).map_err(|e| IoError::Parse(e.to_string().trim_end().to_string()))?;
+    let file: MachineFile =
+        toml::from_str(text).map_err(|e| IoError::Parse(e.to_string().trim_end().to_string()))?;
     file.into_spec().map_err(IoError::Parse)
 }
 
 /// Reads a machine file.
 pub fn read_machine(path: &Path) -> Result<MachineSpec, IoError> {
-    parse_machine(&read_text(path)?).map_err(|e| IoError::NotA { path: path.to_path_buf(), what: "machine file", message: e.to_string() })
+    parse_machine(&read_text(path)?).map_err(|e| IoError::NotA {
+        path: path.to_path_buf(),
+        what: "machine file",
+        message: e.to_string(),
+    })
 }
 
 /// The paper machine, from the shipped file (the default of every tool).
@@ -238,21 +265,45 @@ mod tests {
 
     #[test]
     fn bad_files_are_refused_naming_the_key() {
-        refused("format_version = 1", "format_version = 2", "this host-sim reads version 1");
+        refused(
+            "format_version = 1",
+            "format_version = 2",
+            "this host-sim reads version 1",
+        );
         refused("step_mm = 5.0", "step_mn = 5.0", "step_mn");
         refused("sigma_um = 1.0", "sigma_um = 1.0\ncolour = 3", "colour");
         refused("a_mm = 150.0", "a_mm = -150.0", "nominal.a_mm");
         refused("a_mm = 150.0", "a_mm = nan", "nominal.a_mm");
         refused("sign = [1, 1]", "sign = [1, -1]", "only +1 is supported");
-        refused("step_mm = 5.0", "step_mm = 3.0", "not a whole number of 3 mm steps");
+        refused(
+            "step_mm = 5.0",
+            "step_mm = 3.0",
+            "not a whole number of 3 mm steps",
+        );
         refused("policy = \"positive\"", "policy = \"sideways\"", "sideways");
         refused("elbow_1 = \"positive\"", "elbow_1 = \"up\"", "up");
         refused("y_mm = [-75.0, 75.0]\nstop_margin_mm", "vertices_mm = [[162.132, -75.0], [262.132, -75.0], [212.0, 75.0]]\ny_mm = [-75.0, 75.0]\nstop_margin_mm", "either");
-        refused("stop_margin_mm = 0.1", "stop_margin_mm = -0.1", "workspace.stop_margin_mm");
-        refused("distance_mm = 5.0", "distance_mm = 0.0", "approach.distance_mm");
+        refused(
+            "stop_margin_mm = 0.1",
+            "stop_margin_mm = -0.1",
+            "workspace.stop_margin_mm",
+        );
+        refused(
+            "distance_mm = 5.0",
+            "distance_mm = 0.0",
+            "approach.distance_mm",
+        );
         // The grid must cover the workspace, every node be reachable.
-        refused("[grid]\nx_mm = [162.132, 262.132]", "[grid]\nx_mm = [167.132, 262.132]", "outside the grid's rectangle");
-        refused("[grid]\nx_mm = [162.132, 262.132]", "[grid]\nx_mm = [162.132, 312.132]", "not reachable");
+        refused(
+            "[grid]\nx_mm = [162.132, 262.132]",
+            "[grid]\nx_mm = [167.132, 262.132]",
+            "outside the grid's rectangle",
+        );
+        refused(
+            "[grid]\nx_mm = [162.132, 262.132]",
+            "[grid]\nx_mm = [162.132, 312.132]",
+            "not reachable",
+        );
     }
 
     /// Every key of the shipped files (between them, every key the reader knows: the paper's
@@ -277,10 +328,14 @@ mod tests {
         assert!(all.len() >= 27, "{all:?}");
         for key in &all {
             // A row of the key table: "| `key` | unit | ..." (x_mm and y_mm share a row).
-            let row = doc.lines().find(|l| l.starts_with('|') && l.contains(&format!("`{key}`")));
+            let row = doc
+                .lines()
+                .find(|l| l.starts_with('|') && l.contains(&format!("`{key}`")));
             let row = row.unwrap_or_else(|| panic!("MACHINE.md does not document '{key}'"));
             let unit = row.split('|').nth(2).unwrap().trim();
-            let want = ["_mm", "_um", "_deg", "_s", "_g"].iter().find(|u| key.ends_with(*u));
+            let want = ["_mm", "_um", "_deg", "_s", "_g"]
+                .iter()
+                .find(|u| key.ends_with(*u));
             let said = match want {
                 Some(&"_mm") => unit == "mm",
                 Some(&"_um") => unit == "µm",
@@ -302,13 +357,26 @@ mod tests {
         assert!(!s.workspace.is_rectangle && s.workspace.region.vertices_mm().len() == 8);
         // Its shipped plant is built around exactly this five-bar, with ideal_for's
         // parallelogram offsets (rounded to 1 µm in the file).
-        let plant = crate::plant::PlantConfig::by_name(concat!(env!("CARGO_MANIFEST_DIR"), "/plants/second.toml")).unwrap();
+        let plant = crate::plant::PlantConfig::by_name(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/plants/second.toml"
+        ))
+        .unwrap();
         let ideal = crate::plant::PlantConfig::ideal_for(&s.nominal, &s.grid_nodes_mm()).unwrap();
         let mut want = ideal.sixbar.nominal_five_bar();
         want.encoder_offset_rad = [0.0; 2];
         assert_eq!(plant.sixbar.nominal_five_bar(), want);
-        for (p, i) in plant.sixbar.parallelogram_offsets_mm().iter().flatten().zip(ideal.sixbar.parallelogram_offsets_mm().iter().flatten()) {
-            assert!((p[0] - i[0]).abs() < 1e-3 && (p[1] - i[1]).abs() < 1e-3, "{p:?} vs {i:?}");
+        for (p, i) in plant
+            .sixbar
+            .parallelogram_offsets_mm()
+            .iter()
+            .flatten()
+            .zip(ideal.sixbar.parallelogram_offsets_mm().iter().flatten())
+        {
+            assert!(
+                (p[0] - i[0]).abs() < 1e-3 && (p[1] - i[1]).abs() < 1e-3,
+                "{p:?} vs {i:?}"
+            );
         }
         crate::calib::machine::check_plant_fits(&plant, &s).unwrap();
     }
@@ -316,12 +384,25 @@ mod tests {
     #[test]
     fn a_polygon_workspace_and_a_second_geometry_read() {
         let cut = "vertices_mm = [[162.132, -75.0], [262.132, -75.0], [262.132, 35.0], [222.132, 75.0], [162.132, 75.0]]";
-        let s = edited("x_mm = [162.132, 262.132]\ny_mm = [-75.0, 75.0]\nstop_margin_mm", &format!("{cut}\nstop_margin_mm")).unwrap();
+        let s = edited(
+            "x_mm = [162.132, 262.132]\ny_mm = [-75.0, 75.0]\nstop_margin_mm",
+            &format!("{cut}\nstop_margin_mm"),
+        )
+        .unwrap();
         assert!(!s.workspace.is_rectangle);
-        assert!(s.workspace.contains([212.132, 0.0], 0.0) && !s.workspace.contains([260.0, 70.0], 0.0));
+        assert!(
+            s.workspace.contains([212.132, 0.0], 0.0) && !s.workspace.contains([260.0, 70.0], 0.0)
+        );
         let s = edited("b0_mm = [0.0, 0.0]", "b0_mm = [0.0, -2.0]").unwrap();
         assert_eq!(s.nominal.base_b0_mm, [0.0, -2.0]);
-        let s = edited("zero_offset_deg = [0.0, 0.0]", "zero_offset_deg = [0.5, -0.25]").unwrap();
-        assert_eq!(s.nominal.encoder_offset_rad, [0.5f64.to_radians(), -0.25f64.to_radians()]);
+        let s = edited(
+            "zero_offset_deg = [0.0, 0.0]",
+            "zero_offset_deg = [0.5, -0.25]",
+        )
+        .unwrap();
+        assert_eq!(
+            s.nominal.encoder_offset_rad,
+            [0.5f64.to_radians(), -0.25f64.to_radians()]
+        );
     }
 }

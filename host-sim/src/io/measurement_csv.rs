@@ -54,7 +54,10 @@ pub struct Measurement {
 impl Measurement {
     /// Motor angles in radians (what the kinematics take).
     pub fn theta_rad(&self) -> [f64; 2] {
-        [self.theta_deg[0].to_radians(), self.theta_deg[1].to_radians()]
+        [
+            self.theta_deg[0].to_radians(),
+            self.theta_deg[1].to_radians(),
+        ]
     }
 }
 
@@ -114,7 +117,10 @@ pub fn read_measurements(path: &Path) -> Result<Vec<Measurement>, IoError> {
 }
 
 /// Reads a measurement file with options.
-pub fn read_measurements_with(path: &Path, opts: &ReadOptions) -> Result<ReadMeasurements, IoError> {
+pub fn read_measurements_with(
+    path: &Path,
+    opts: &ReadOptions,
+) -> Result<ReadMeasurements, IoError> {
     parse_measurements_with(&read_text(path)?, opts).map_err(|e| IoError::content(path, e))
 }
 
@@ -126,7 +132,11 @@ pub fn parse_measurements(text: &str) -> Result<Vec<Measurement>, IoError> {
 /// A column name reduced to what a person would consider the same: lower case, no spaces,
 /// dashes or underscores, and no unit suffix.
 fn loose(name: &str) -> String {
-    let mut s: String = name.to_lowercase().chars().filter(|c| c.is_alphanumeric()).collect();
+    let mut s: String = name
+        .to_lowercase()
+        .chars()
+        .filter(|c| c.is_alphanumeric())
+        .collect();
     for unit in ["deg", "mm", "s"] {
         if let Some(stem) = s.strip_suffix(unit) {
             if !stem.is_empty() {
@@ -139,7 +149,10 @@ fn loose(name: &str) -> String {
 }
 
 /// Parses measurement CSV text with options.
-pub fn parse_measurements_with(text: &str, opts: &ReadOptions) -> Result<ReadMeasurements, IoError> {
+pub fn parse_measurements_with(
+    text: &str,
+    opts: &ReadOptions,
+) -> Result<ReadMeasurements, IoError> {
     let mut reader = csv_dialect::reader(text);
     let headers = match reader.headers() {
         Ok(h) => h.clone(),
@@ -148,7 +161,10 @@ pub fn parse_measurements_with(text: &str, opts: &ReadOptions) -> Result<ReadMea
     let mut notes = Vec::new();
     let delimiter = csv_dialect::detect_delimiter(text);
     if delimiter != b',' {
-        notes.push(format!("{}-separated file", csv_dialect::delimiter_name(delimiter)));
+        notes.push(format!(
+            "{}-separated file",
+            csv_dialect::delimiter_name(delimiter)
+        ));
     }
     let mut index: [Option<usize>; 10] = [None; 10];
     let mut skipped = Vec::new();
@@ -178,7 +194,11 @@ pub fn parse_measurements_with(text: &str, opts: &ReadOptions) -> Result<ReadMea
     }
     for (a, b) in [(4, 5), (6, 7)] {
         if index[a].is_some() != index[b].is_some() {
-            bail!("line 1: columns '{}' and '{}' go together", COLUMNS[a], COLUMNS[b]);
+            bail!(
+                "line 1: columns '{}' and '{}' go together",
+                COLUMNS[a],
+                COLUMNS[b]
+            );
         }
     }
     let mut out = Vec::new();
@@ -197,7 +217,11 @@ pub fn parse_measurements_with(text: &str, opts: &ReadOptions) -> Result<ReadMea
             match (number(a)?, number(b)?) {
                 (Some(x), Some(y)) => Ok(Some([x, y])),
                 (None, None) => Ok(None),
-                _ => bail!("line {line}: '{}' and '{}' must both be given or both be empty", COLUMNS[a], COLUMNS[b]),
+                _ => bail!(
+                    "line {line}: '{}' and '{}' must both be given or both be empty",
+                    COLUMNS[a],
+                    COLUMNS[b]
+                ),
             }
         };
         let dir = match pair(6, 7)? {
@@ -287,7 +311,10 @@ mod tests {
 
     #[test]
     fn columns_in_any_order_and_optional_ones() {
-        let m = parse_measurements("y_mm,x_mm,theta2_deg,theta1_deg,dir1,dir2\n0,212.132,-45,45,1,-1\n").unwrap();
+        let m = parse_measurements(
+            "y_mm,x_mm,theta2_deg,theta1_deg,dir1,dir2\n0,212.132,-45,45,1,-1\n",
+        )
+        .unwrap();
         assert_eq!(m[0].theta_deg, [45.0, -45.0]);
         assert_eq!(m[0].measured_mm, [212.132, 0.0]);
         assert_eq!(m[0].dir, Some([1, -1]));
@@ -296,18 +323,40 @@ mod tests {
 
     #[test]
     fn other_delimiters_and_extra_columns() {
-        let text = "theta1_deg;theta2_deg;x_mm;y_mm;point;temperature_c\n45;-45;212.132;0;P1;20.5\n";
+        let text =
+            "theta1_deg;theta2_deg;x_mm;y_mm;point;temperature_c\n45;-45;212.132;0;P1;20.5\n";
         let e = parse_measurements(text).unwrap_err().to_string();
         assert!(e.contains("unknown column 'point'"), "{e}");
-        let r = parse_measurements_with(text, &ReadOptions { extra_columns: ExtraColumns::Ignore }).unwrap();
-        assert_eq!((r.rows[0].theta_deg, r.rows[0].measured_mm), ([45.0, -45.0], [212.132, 0.0]));
-        assert_eq!(r.notes, vec!["semicolon-separated file".to_string(), "columns ignored: point, temperature_c".into()]);
-        let tab = parse_measurements("theta1_deg\ttheta2_deg\tx_mm\ty_mm\n45\t-45\t212.132\t0\n").unwrap();
+        let r = parse_measurements_with(
+            text,
+            &ReadOptions {
+                extra_columns: ExtraColumns::Ignore,
+            },
+        )
+        .unwrap();
+        assert_eq!(
+            (r.rows[0].theta_deg, r.rows[0].measured_mm),
+            ([45.0, -45.0], [212.132, 0.0])
+        );
+        assert_eq!(
+            r.notes,
+            vec![
+                "semicolon-separated file".to_string(),
+                "columns ignored: point, temperature_c".into()
+            ]
+        );
+        let tab = parse_measurements("theta1_deg\ttheta2_deg\tx_mm\ty_mm\n45\t-45\t212.132\t0\n")
+            .unwrap();
         assert_eq!(tab[0].measured_mm, [212.132, 0.0]);
         // A misspelt known column is refused even when extra columns are allowed.
-        let e = parse_measurements_with("theta1_deg,theta2_deg,x_mm,y_mm,X_Target\n1,2,3,4,5\n", &ReadOptions { extra_columns: ExtraColumns::Ignore })
-            .unwrap_err()
-            .to_string();
+        let e = parse_measurements_with(
+            "theta1_deg,theta2_deg,x_mm,y_mm,X_Target\n1,2,3,4,5\n",
+            &ReadOptions {
+                extra_columns: ExtraColumns::Ignore,
+            },
+        )
+        .unwrap_err()
+        .to_string();
         assert!(e.contains("'X_Target' looks like 'x_target_mm'"), "{e}");
     }
 
@@ -332,20 +381,50 @@ mod tests {
     #[test]
     fn errors_name_the_line_and_column() {
         let cases = [
-            ("theta1_deg,theta2_deg,x_mm\n1,2,3\n", "required column 'y_mm'"),
-            ("theta1_deg,theta2_deg,x_mm,y_mm\n1,2,3,4\n1,2,NaN,4\n", "line 3: 'x_mm' = 'NaN' is not finite"),
-            ("theta1_deg,theta2_deg,x_mm,y_mm\n1,2,3\n", "line 2: 3 fields"),
-            ("theta1_deg,theta2_deg,x_mm,y_mm\n1,2,abc,4\n", "line 2: 'x_mm' = 'abc' is not a number"),
-            ("theta1_deg,theta2_deg,x_mm,y_mm,dir1,dir2\n1,2,3,4,0,1\n", "'dir1' must be +1 or -1"),
-            ("theta1_deg,theta2_deg,x_mm,y_mm,colour\n1,2,3,4,red\n", "unknown column 'colour'"),
+            (
+                "theta1_deg,theta2_deg,x_mm\n1,2,3\n",
+                "required column 'y_mm'",
+            ),
+            (
+                "theta1_deg,theta2_deg,x_mm,y_mm\n1,2,3,4\n1,2,NaN,4\n",
+                "line 3: 'x_mm' = 'NaN' is not finite",
+            ),
+            (
+                "theta1_deg,theta2_deg,x_mm,y_mm\n1,2,3\n",
+                "line 2: 3 fields",
+            ),
+            (
+                "theta1_deg,theta2_deg,x_mm,y_mm\n1,2,abc,4\n",
+                "line 2: 'x_mm' = 'abc' is not a number",
+            ),
+            (
+                "theta1_deg,theta2_deg,x_mm,y_mm,dir1,dir2\n1,2,3,4,0,1\n",
+                "'dir1' must be +1 or -1",
+            ),
+            (
+                "theta1_deg,theta2_deg,x_mm,y_mm,colour\n1,2,3,4,red\n",
+                "unknown column 'colour'",
+            ),
             ("theta1_deg,theta2_deg,x_mm,y_mm\n", "no data rows"),
-            ("theta1_deg,theta2_deg,x_mm,y_mm,x_target_mm\n1,2,3,4,5\n", "go together"),
-            ("theta1_deg,theta2_deg,x_mm,y_mm\n1e300,2,3,4\n", "line 2: 'theta1_deg' = 1e300 is absurd"),
-            ("theta1_deg,theta2_deg,x_mm,y_mm\n1,2,1e300,4\n", "line 2: 'x_mm' = 1e300 is absurd"),
+            (
+                "theta1_deg,theta2_deg,x_mm,y_mm,x_target_mm\n1,2,3,4,5\n",
+                "go together",
+            ),
+            (
+                "theta1_deg,theta2_deg,x_mm,y_mm\n1e300,2,3,4\n",
+                "line 2: 'theta1_deg' = 1e300 is absurd",
+            ),
+            (
+                "theta1_deg,theta2_deg,x_mm,y_mm\n1,2,1e300,4\n",
+                "line 2: 'x_mm' = 1e300 is absurd",
+            ),
         ];
         for (text, want) in cases {
             let err = parse_measurements(text).unwrap_err().to_string();
-            assert!(err.contains(want), "for {text:?}: got '{err}', want '{want}'");
+            assert!(
+                err.contains(want),
+                "for {text:?}: got '{err}', want '{want}'"
+            );
         }
     }
 }

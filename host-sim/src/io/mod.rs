@@ -50,7 +50,11 @@ pub enum IoError {
     Parse(String),
     /// The file is not of the expected kind at all.
     #[error("{} is not a valid {what}: {message}", path.display())]
-    NotA { path: PathBuf, what: &'static str, message: String },
+    NotA {
+        path: PathBuf,
+        what: &'static str,
+        message: String,
+    },
     /// Data that must not be written (e.g. an invalid model).
     #[error("{0}")]
     Invalid(String),
@@ -71,12 +75,18 @@ pub enum IoError {
 impl IoError {
     /// A read error of `path` from any displayable cause.
     pub fn read(path: &Path, cause: impl std::fmt::Display) -> Self {
-        IoError::Read { path: path.to_path_buf(), message: cause.to_string() }
+        IoError::Read {
+            path: path.to_path_buf(),
+            message: cause.to_string(),
+        }
     }
 
     /// A format error of the text read from `path`.
     pub fn content(path: &Path, cause: impl std::fmt::Display) -> Self {
-        IoError::Content { path: path.to_path_buf(), message: cause.to_string() }
+        IoError::Content {
+            path: path.to_path_buf(),
+            message: cause.to_string(),
+        }
     }
 }
 
@@ -105,7 +115,9 @@ pub fn json_text(value: &impl serde::Serialize, order: KeyOrder) -> Result<Strin
     let mut text = match order {
         KeyOrder::Declared => serde_json::to_string_pretty(value).map_err(err)?,
         // A `Value`'s objects are ordered maps.
-        KeyOrder::Sorted => serde_json::to_string_pretty(&serde_json::to_value(value).map_err(err)?).map_err(err)?,
+        KeyOrder::Sorted => {
+            serde_json::to_string_pretty(&serde_json::to_value(value).map_err(err)?).map_err(err)?
+        }
     };
     text.push('\n');
     Ok(text)

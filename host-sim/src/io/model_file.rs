@@ -101,7 +101,10 @@ impl ModelFile {
             d_mm: m.d_mm,
             base_a0_mm: m.base_a0_mm,
             base_b0_mm: m.base_b0_mm,
-            encoder_offset_deg: [m.encoder_offset_rad[0].to_degrees(), m.encoder_offset_rad[1].to_degrees()],
+            encoder_offset_deg: [
+                m.encoder_offset_rad[0].to_degrees(),
+                m.encoder_offset_rad[1].to_degrees(),
+            ],
             mode: ModeFile {
                 elbow_1: to_name(m.mode.elbow_1),
                 elbow_2: to_name(m.mode.elbow_2),
@@ -117,10 +120,16 @@ impl ModelFile {
     /// The model, validated.
     pub fn model(&self) -> Result<FiveBar<f64>, IoError> {
         if self.format != FORMAT {
-            return Err(IoError::Invalid(format!("not a model file: format is '{}', expected '{FORMAT}'", self.format)));
+            return Err(IoError::Invalid(format!(
+                "not a model file: format is '{}', expected '{FORMAT}'",
+                self.format
+            )));
         }
         if self.version != 1 {
-            return Err(IoError::Invalid(format!("unsupported model file version {}", self.version)));
+            return Err(IoError::Invalid(format!(
+                "unsupported model file version {}",
+                self.version
+            )));
         }
         let m = FiveBar {
             a_mm: self.a_mm,
@@ -129,14 +138,18 @@ impl ModelFile {
             d_mm: self.d_mm,
             base_a0_mm: self.base_a0_mm,
             base_b0_mm: self.base_b0_mm,
-            encoder_offset_rad: [self.encoder_offset_deg[0].to_radians(), self.encoder_offset_deg[1].to_radians()],
+            encoder_offset_rad: [
+                self.encoder_offset_deg[0].to_radians(),
+                self.encoder_offset_deg[1].to_radians(),
+            ],
             mode: WorkingMode {
                 elbow_1: from_name(self.mode.elbow_1),
                 elbow_2: from_name(self.mode.elbow_2),
                 assembly: from_name(self.mode.assembly),
             },
         };
-        m.validate().map_err(|e| IoError::Invalid(format!("invalid model: {e}")))?;
+        m.validate()
+            .map_err(|e| IoError::Invalid(format!("invalid model: {e}")))?;
         self.backlash()?;
         Ok(m)
     }
@@ -152,7 +165,9 @@ impl ModelFile {
 
 /// Reads and validates a model file.
 pub fn read_model(path: &Path) -> Result<FiveBar<f64>, IoError> {
-    read_model_file(path)?.model().map_err(|e| IoError::content(path, e))
+    read_model_file(path)?
+        .model()
+        .map_err(|e| IoError::content(path, e))
 }
 
 /// Reads a model file with its standard deviations and fit record.
@@ -205,7 +220,8 @@ mod tests {
         let mut f = ModelFile::from_model(&FiveBar::paper_nominal());
         f.format = "something".into();
         assert!(f.model().is_err());
-        let text = serde_json::to_string(&ModelFile::from_model(&FiveBar::paper_nominal())).unwrap();
+        let text =
+            serde_json::to_string(&ModelFile::from_model(&FiveBar::paper_nominal())).unwrap();
         let typo = text.replace("\"a_mm\"", "\"a_m\"");
         assert!(serde_json::from_str::<ModelFile>(&typo).is_err());
     }

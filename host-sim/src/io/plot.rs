@@ -69,7 +69,10 @@ fn bounds<'a>(points: impl Iterator<Item = &'a [f64; 2]>) -> Option<([f64; 2], [
     }
     // Pad by 5 % (and never to a zero-width range).
     let pad = |k: usize| ((hi[k] - lo[k]) * 0.05).max(1e-9);
-    Some(([lo[0] - pad(0), lo[1] - pad(1)], [hi[0] + pad(0), hi[1] + pad(1)]))
+    Some((
+        [lo[0] - pad(0), lo[1] - pad(1)],
+        [hi[0] + pad(0), hi[1] + pad(1)],
+    ))
 }
 
 fn err(e: impl std::fmt::Display) -> IoError {
@@ -79,7 +82,11 @@ fn err(e: impl std::fmt::Display) -> IoError {
 type Area<'a> = DrawingArea<BitMapBackend<'a>, Shift>;
 
 /// Renders a `width × height` bitmap drawn by `draw` and encodes it as PNG.
-fn render(width: u32, height: u32, draw: impl FnOnce(&Area<'_>) -> Result<(), IoError>) -> Result<Vec<u8>, IoError> {
+fn render(
+    width: u32,
+    height: u32,
+    draw: impl FnOnce(&Area<'_>) -> Result<(), IoError>,
+) -> Result<Vec<u8>, IoError> {
     ensure_font();
     let mut rgb = vec![0u8; width as usize * height as usize * 3];
     {
@@ -99,7 +106,10 @@ fn render(width: u32, height: u32, draw: impl FnOnce(&Area<'_>) -> Result<(), Io
 }
 
 /// Draws the legend: how every chart ends.
-fn legend<'a, DB: DrawingBackend + 'a, CT: CoordTranslate>(chart: &mut ChartContext<'a, DB, CT>, position: SeriesLabelPosition) -> Result<(), IoError> {
+fn legend<'a, DB: DrawingBackend + 'a, CT: CoordTranslate>(
+    chart: &mut ChartContext<'a, DB, CT>,
+    position: SeriesLabelPosition,
+) -> Result<(), IoError> {
     chart
         .configure_series_labels()
         .position(position)
@@ -117,19 +127,42 @@ fn text_box(area: &Area<'_>, at: (i32, i32), lines: &[String]) -> Result<(), IoE
     }
     let font = ("sans-serif", 15).into_font();
     let style = TextStyle::from(font.clone());
-    let width = lines.iter().map(|l| area.estimate_text_size(l, &style).map_or(0, |s| s.0)).max().unwrap_or(0) as i32;
+    let width = lines
+        .iter()
+        .map(|l| area.estimate_text_size(l, &style).map_or(0, |s| s.0))
+        .max()
+        .unwrap_or(0) as i32;
     let h = 19;
-    area.draw(&Rectangle::new([at, (at.0 + width + 14, at.1 + h * lines.len() as i32 + 8)], WHITE.mix(0.9).filled())).map_err(err)?;
-    area.draw(&Rectangle::new([at, (at.0 + width + 14, at.1 + h * lines.len() as i32 + 8)], BLACK.stroke_width(1))).map_err(err)?;
+    area.draw(&Rectangle::new(
+        [at, (at.0 + width + 14, at.1 + h * lines.len() as i32 + 8)],
+        WHITE.mix(0.9).filled(),
+    ))
+    .map_err(err)?;
+    area.draw(&Rectangle::new(
+        [at, (at.0 + width + 14, at.1 + h * lines.len() as i32 + 8)],
+        BLACK.stroke_width(1),
+    ))
+    .map_err(err)?;
     for (k, l) in lines.iter().enumerate() {
-        area.draw(&Text::new(l.clone(), (at.0 + 7, at.1 + 5 + h * k as i32), font.clone())).map_err(err)?;
+        area.draw(&Text::new(
+            l.clone(),
+            (at.0 + 7, at.1 + 5 + h * k as i32),
+            font.clone(),
+        ))
+        .map_err(err)?;
     }
     Ok(())
 }
 
 /// An x-y plot of several series (lines or dots) with a legend, as PNG bytes.
-pub fn xy_plot_png(title: &str, x_label: &str, y_label: &str, series: &[Series<'_>]) -> Result<Vec<u8>, IoError> {
-    let (lo, hi) = bounds(series.iter().flat_map(|s| s.points.iter())).ok_or_else(|| IoError::Invalid(format!("plot '{title}': no finite points")))?;
+pub fn xy_plot_png(
+    title: &str,
+    x_label: &str,
+    y_label: &str,
+    series: &[Series<'_>],
+) -> Result<Vec<u8>, IoError> {
+    let (lo, hi) = bounds(series.iter().flat_map(|s| s.points.iter()))
+        .ok_or_else(|| IoError::Invalid(format!("plot '{title}': no finite points")))?;
     render(1000, 750, |root| {
         let mut chart = ChartBuilder::on(root)
             .caption(title, ("sans-serif", 24))
@@ -138,22 +171,44 @@ pub fn xy_plot_png(title: &str, x_label: &str, y_label: &str, series: &[Series<'
             .y_label_area_size(70)
             .build_cartesian_2d(lo[0]..hi[0], lo[1]..hi[1])
             .map_err(err)?;
-        chart.configure_mesh().x_desc(x_label).y_desc(y_label).label_style(("sans-serif", 15)).draw().map_err(err)?;
+        chart
+            .configure_mesh()
+            .x_desc(x_label)
+            .y_desc(y_label)
+            .label_style(("sans-serif", 15))
+            .draw()
+            .map_err(err)?;
         for (k, s) in series.iter().enumerate() {
             let colour = COLOURS[k % COLOURS.len()];
-            let pts = s.points.iter().filter(|p| p[0].is_finite() && p[1].is_finite()).map(|p| (p[0], p[1]));
+            let pts = s
+                .points
+                .iter()
+                .filter(|p| p[0].is_finite() && p[1].is_finite())
+                .map(|p| (p[0], p[1]));
             let drawn = match s.mark {
-                Mark::Line => chart.draw_series(LineSeries::new(pts, colour.stroke_width(2))).map_err(err)?,
-                Mark::Dots => chart.draw_series(pts.map(|p| Circle::new(p, 3, colour.filled()))).map_err(err)?,
+                Mark::Line => chart
+                    .draw_series(LineSeries::new(pts, colour.stroke_width(2)))
+                    .map_err(err)?,
+                Mark::Dots => chart
+                    .draw_series(pts.map(|p| Circle::new(p, 3, colour.filled())))
+                    .map_err(err)?,
             };
-            drawn.label(s.label).legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(3)));
+            drawn.label(s.label).legend(move |(x, y)| {
+                PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(3))
+            });
         }
         legend(&mut chart, SeriesLabelPosition::UpperLeft)
     })
 }
 
 /// [`xy_plot_png`] written to `path`.
-pub fn xy_plot(path: &Path, title: &str, x_label: &str, y_label: &str, series: &[Series<'_>]) -> Result<(), IoError> {
+pub fn xy_plot(
+    path: &Path,
+    title: &str,
+    x_label: &str,
+    y_label: &str,
+    series: &[Series<'_>],
+) -> Result<(), IoError> {
     write_atomic(path, &xy_plot_png(title, x_label, y_label, series)?)
 }
 
@@ -167,11 +222,20 @@ pub struct VectorField<'a> {
 /// 1, 2 or 5 × 10ⁿ, the largest not above `v` (> 0).
 pub fn round_length(v: f64) -> f64 {
     let p = 10f64.powf(v.log10().floor());
-    [5.0, 2.0, 1.0].iter().map(|m| m * p).find(|&c| c <= v).unwrap_or(p)
+    [5.0, 2.0, 1.0]
+        .iter()
+        .map(|m| m * p)
+        .find(|&c| c <= v)
+        .unwrap_or(p)
 }
 
 /// An arrow from `a` to `b` (data coordinates, equal scales) with a head of `head` (data units).
-fn arrow(a: (f64, f64), b: (f64, f64), head: f64, style: ShapeStyle) -> Vec<PathElement<(f64, f64)>> {
+fn arrow(
+    a: (f64, f64),
+    b: (f64, f64),
+    head: f64,
+    style: ShapeStyle,
+) -> Vec<PathElement<(f64, f64)>> {
     let (dx, dy) = (b.0 - a.0, b.1 - a.1);
     let len = dx.hypot(dy);
     let mut v = vec![PathElement::new(vec![a, b], style)];
@@ -181,7 +245,10 @@ fn arrow(a: (f64, f64), b: (f64, f64), head: f64, style: ShapeStyle) -> Vec<Path
         let (c, s) = (0.5f64.cos(), 0.5f64.sin());
         for sign in [1.0, -1.0] {
             let (rx, ry) = (ux * c - sign * uy * s, sign * ux * s + uy * c);
-            v.push(PathElement::new(vec![b, (b.0 - h * rx, b.1 - h * ry)], style));
+            v.push(PathElement::new(
+                vec![b, (b.0 - h * rx, b.1 - h * ry)],
+                style,
+            ));
         }
     }
     v
@@ -191,11 +258,25 @@ fn arrow(a: (f64, f64), b: (f64, f64), head: f64, style: ShapeStyle) -> Vec<Path
 /// targets, arrowheads, a scale arrow, `notes` (summary figures) in a box. The arrows are
 /// magnified so the largest is about a tenth of the plot; several fields (e.g. before and after
 /// a calibration step) share one magnification so they can be compared.
-pub fn vector_plot_png(title: &str, fields: &[VectorField<'_>], notes: &[String]) -> Result<Vec<u8>, IoError> {
-    let (lo, hi) = bounds(fields.iter().flat_map(|f| f.base_mm.iter())).ok_or_else(|| IoError::Invalid(format!("plot '{title}': no points")))?;
+pub fn vector_plot_png(
+    title: &str,
+    fields: &[VectorField<'_>],
+    notes: &[String],
+) -> Result<Vec<u8>, IoError> {
+    let (lo, hi) = bounds(fields.iter().flat_map(|f| f.base_mm.iter()))
+        .ok_or_else(|| IoError::Invalid(format!("plot '{title}': no points")))?;
     let span_mm = (hi[0] - lo[0]).max(hi[1] - lo[1]);
-    let max_um = fields.iter().flat_map(|f| f.error_um.iter()).map(|e| e[0].hypot(e[1])).filter(|v| v.is_finite()).fold(0.0f64, f64::max);
-    let mm_per_um = if max_um > 0.0 { 0.1 * span_mm / max_um } else { 0.0 };
+    let max_um = fields
+        .iter()
+        .flat_map(|f| f.error_um.iter())
+        .map(|e| e[0].hypot(e[1]))
+        .filter(|v| v.is_finite())
+        .fold(0.0f64, f64::max);
+    let mm_per_um = if max_um > 0.0 {
+        0.1 * span_mm / max_um
+    } else {
+        0.0
+    };
     let caption = format!("{title} (largest {max_um:.1} µm)");
     // Room for the arrows and the boxes around the points.
     let pad = 0.14 * span_mm;
@@ -225,7 +306,13 @@ pub fn vector_plot_png(title: &str, fields: &[VectorField<'_>], notes: &[String]
         }
         root.fill(&WHITE).map_err(err)?;
         let mut chart = build(lo, hi)?;
-        chart.configure_mesh().x_desc("x (mm)").y_desc("y (mm)").label_style(("sans-serif", 15)).draw().map_err(err)?;
+        chart
+            .configure_mesh()
+            .x_desc("x (mm)")
+            .y_desc("y (mm)")
+            .label_style(("sans-serif", 15))
+            .draw()
+            .map_err(err)?;
         let head = 0.012 * span_mm;
         for (k, f) in fields.iter().enumerate() {
             let colour = COLOURS[k % COLOURS.len()];
@@ -235,14 +322,29 @@ pub fn vector_plot_png(title: &str, fields: &[VectorField<'_>], notes: &[String]
                 .iter()
                 .zip(f.error_um.iter())
                 .filter(|(b, e)| b.iter().chain(e.iter()).all(|v| v.is_finite()))
-                .flat_map(|(b, e)| arrow((b[0], b[1]), (b[0] + e[0] * mm_per_um, b[1] + e[1] * mm_per_um), head, style))
+                .flat_map(|(b, e)| {
+                    arrow(
+                        (b[0], b[1]),
+                        (b[0] + e[0] * mm_per_um, b[1] + e[1] * mm_per_um),
+                        head,
+                        style,
+                    )
+                })
                 .collect();
             chart
                 .draw_series(arrows)
                 .map_err(err)?
                 .label(f.label)
-                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(3)));
-            chart.draw_series(f.base_mm.iter().map(|b| Circle::new((b[0], b[1]), 2, colour.filled()))).map_err(err)?;
+                .legend(move |(x, y)| {
+                    PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(3))
+                });
+            chart
+                .draw_series(
+                    f.base_mm
+                        .iter()
+                        .map(|b| Circle::new((b[0], b[1]), 2, colour.filled())),
+                )
+                .map_err(err)?;
         }
         // The scale arrow, bottom right.
         if mm_per_um > 0.0 {
@@ -250,9 +352,15 @@ pub fn vector_plot_png(title: &str, fields: &[VectorField<'_>], notes: &[String]
             let y = lo[1] + 0.04 * (hi[1] - lo[1]);
             let x1 = hi[0] - 0.04 * (hi[0] - lo[0]);
             let x0 = x1 - len_um * mm_per_um;
-            chart.draw_series(arrow((x0, y), (x1, y), head, BLACK.stroke_width(3))).map_err(err)?;
             chart
-                .draw_series(std::iter::once(Text::new(format!("{len_um} µm"), (x0, y + 0.025 * (hi[1] - lo[1])), ("sans-serif", 16).into_font())))
+                .draw_series(arrow((x0, y), (x1, y), head, BLACK.stroke_width(3)))
+                .map_err(err)?;
+            chart
+                .draw_series(std::iter::once(Text::new(
+                    format!("{len_um} µm"),
+                    (x0, y + 0.025 * (hi[1] - lo[1])),
+                    ("sans-serif", 16).into_font(),
+                )))
                 .map_err(err)?;
         }
         legend(&mut chart, SeriesLabelPosition::UpperRight)?;
@@ -279,15 +387,38 @@ mod tests {
             })
             .collect();
         let p = dir.path().join("path.png");
-        xy_plot(&p, "circle", "x (mm)", "y (mm)", &[Series { label: "cmd", points: &circle, mark: Mark::Line }]).unwrap();
+        xy_plot(
+            &p,
+            "circle",
+            "x (mm)",
+            "y (mm)",
+            &[Series {
+                label: "cmd",
+                points: &circle,
+                mark: Mark::Line,
+            }],
+        )
+        .unwrap();
         let bytes = std::fs::read(&p).unwrap();
         assert_eq!(&bytes[1..4], b"PNG");
         let v = dir.path().join("vec.png");
         let errs: Vec<[f64; 2]> = circle.iter().map(|p| [p[1], -p[0] * 0.01]).collect();
-        vector_plot(&v, "errors", &[VectorField { label: "before", base_mm: &circle, error_um: &errs }]).unwrap();
+        vector_plot(
+            &v,
+            "errors",
+            &[VectorField {
+                label: "before",
+                base_mm: &circle,
+                error_um: &errs,
+            }],
+        )
+        .unwrap();
         assert_eq!(&std::fs::read(&v).unwrap()[1..4], b"PNG");
         assert!(xy_plot(&dir.path().join("empty.png"), "x", "x", "y", &[]).is_err());
         assert!(!dir.path().join("empty.png").exists());
-        assert_eq!((round_length(7.3), round_length(0.23), round_length(10.0)), (5.0, 0.2, 10.0));
+        assert_eq!(
+            (round_length(7.3), round_length(0.23), round_length(10.0)),
+            (5.0, 0.2, 10.0)
+        );
     }
 }

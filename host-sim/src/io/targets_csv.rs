@@ -38,20 +38,40 @@ pub struct ListedTarget {
 }
 
 /// The columns a targets file may have.
-const COLUMNS: [&str; 7] = ["x_mm", "y_mm", "from_x_mm", "from_y_mm", "dir1", "dir2", "run"];
+const COLUMNS: [&str; 7] = [
+    "x_mm",
+    "y_mm",
+    "from_x_mm",
+    "from_y_mm",
+    "dir1",
+    "dir2",
+    "run",
+];
 
 /// Parses a targets CSV text.
 pub fn parse_targets(text: &str) -> Result<Vec<Target>, IoError> {
-    Ok(parse_target_list(text)?.into_iter().map(|t| Target { line: t.line, target_mm: t.target_mm }).collect())
+    Ok(parse_target_list(text)?
+        .into_iter()
+        .map(|t| Target {
+            line: t.line,
+            target_mm: t.target_mm,
+        })
+        .collect())
 }
 
 /// Parses a targets CSV text with the plan's optional columns.
 pub fn parse_target_list(text: &str) -> Result<Vec<ListedTarget>, IoError> {
     let parse = |m: String| IoError::Parse(m);
     let mut reader = super::csv_dialect::reader(text);
-    let headers = reader.headers().map_err(|e| parse(format!("line 1: cannot read the header: {e}")))?.clone();
+    let headers = reader
+        .headers()
+        .map_err(|e| parse(format!("line 1: cannot read the header: {e}")))?
+        .clone();
     let col = |name: &str| {
-        headers.iter().position(|h| h == name).ok_or_else(|| parse(format!("line 1: required column '{name}' is missing")))
+        headers
+            .iter()
+            .position(|h| h == name)
+            .ok_or_else(|| parse(format!("line 1: required column '{name}' is missing")))
     };
     let (ix, iy) = (col("x_mm")?, col("y_mm")?);
     if let Some(h) = headers.iter().find(|h| !COLUMNS.contains(h)) {
@@ -60,7 +80,11 @@ pub fn parse_target_list(text: &str) -> Result<Vec<ListedTarget>, IoError> {
         )));
     }
     let optional = |name: &str| headers.iter().position(|h| h == name);
-    let (from, dir, run) = (column_pair(&headers, "from_x_mm", "from_y_mm")?, column_pair(&headers, "dir1", "dir2")?, optional("run"));
+    let (from, dir, run) = (
+        column_pair(&headers, "from_x_mm", "from_y_mm")?,
+        column_pair(&headers, "dir1", "dir2")?,
+        optional("run"),
+    );
     let mut out = Vec::new();
     for record in records(&mut reader, headers.len()) {
         let (line, record) = record?;
@@ -70,11 +94,20 @@ pub fn parse_target_list(text: &str) -> Result<Vec<ListedTarget>, IoError> {
             None => None,
         };
         let dir = match dir {
-            Some((i, j)) => Some([direction(&record[i], "dir1", line)?, direction(&record[j], "dir2", line)?]),
+            Some((i, j)) => Some([
+                direction(&record[i], "dir1", line)?,
+                direction(&record[j], "dir2", line)?,
+            ]),
             None => None,
         };
         let run = run.map(|i| run_index(&record[i], line)).transpose()?;
-        out.push(ListedTarget { line, target_mm: [num(ix, "x_mm")?, num(iy, "y_mm")?], from_mm, dir, run });
+        out.push(ListedTarget {
+            line,
+            target_mm: [num(ix, "x_mm")?, num(iy, "y_mm")?],
+            from_mm,
+            dir,
+            run,
+        });
     }
     if out.is_empty() {
         return Err(parse("no targets after the header".into()));
@@ -95,9 +128,17 @@ pub fn read_target_list(path: &Path) -> Result<Vec<ListedTarget>, IoError> {
 /// A plan's list as CSV: `x_mm,y_mm`, then each optional pair every row has.
 pub fn format_target_list(rows: &[ListedTarget]) -> String {
     let all = |f: &dyn Fn(&ListedTarget) -> bool| !rows.is_empty() && rows.iter().all(f);
-    let (has_from, has_dir, has_run) = (all(&|t| t.from_mm.is_some()), all(&|t| t.dir.is_some()), all(&|t| t.run.is_some()));
+    let (has_from, has_dir, has_run) = (
+        all(&|t| t.from_mm.is_some()),
+        all(&|t| t.dir.is_some()),
+        all(&|t| t.run.is_some()),
+    );
     let mut s = String::from("x_mm,y_mm");
-    for (has, cols) in [(has_from, ",from_x_mm,from_y_mm"), (has_dir, ",dir1,dir2"), (has_run, ",run")] {
+    for (has, cols) in [
+        (has_from, ",from_x_mm,from_y_mm"),
+        (has_dir, ",dir1,dir2"),
+        (has_run, ",run"),
+    ] {
         if has {
             s.push_str(cols);
         }
@@ -126,16 +167,40 @@ mod tests {
     #[test]
     fn columns_comments_and_errors() {
         let t = parse_targets("y_mm,x_mm\n0,212.132\n-5,200\n# comment\n").unwrap();
-        assert_eq!(t, vec![Target { line: 2, target_mm: [212.132, 0.0] }, Target { line: 3, target_mm: [200.0, -5.0] }]);
+        assert_eq!(
+            t,
+            vec![
+                Target {
+                    line: 2,
+                    target_mm: [212.132, 0.0]
+                },
+                Target {
+                    line: 3,
+                    target_mm: [200.0, -5.0]
+                }
+            ]
+        );
         for (text, want) in [
-            ("x_mm,y_mm\n181,nan\n", "line 2: 'y_mm' = 'nan' is not finite"),
+            (
+                "x_mm,y_mm\n181,nan\n",
+                "line 2: 'y_mm' = 'nan' is not finite",
+            ),
             ("x_mm\n1\n", "required column 'y_mm'"),
             ("x_mm,y_mm,z_mm\n1,2,3\n", "unknown column 'z_mm'"),
             ("x_mm,y_mm\n", "no targets"),
             ("x_mm,y_mm,dir1\n1,2,1\n", "'dir1' and 'dir2' come together"),
-            ("x_mm,y_mm,dir1,dir2\n1,2,1,0\n", "line 2: 'dir2' = '0' is not +1 or -1"),
-            ("x_mm,y_mm,run\n1,2,-1\n", "line 2: 'run' = '-1' is not a run index"),
-            ("x_mm,y_mm,from_x_mm,from_y_mm\n1,2,inf,0\n", "line 2: 'from_x_mm' = 'inf' is not finite"),
+            (
+                "x_mm,y_mm,dir1,dir2\n1,2,1,0\n",
+                "line 2: 'dir2' = '0' is not +1 or -1",
+            ),
+            (
+                "x_mm,y_mm,run\n1,2,-1\n",
+                "line 2: 'run' = '-1' is not a run index",
+            ),
+            (
+                "x_mm,y_mm,from_x_mm,from_y_mm\n1,2,inf,0\n",
+                "line 2: 'from_x_mm' = 'inf' is not finite",
+            ),
         ] {
             let e = parse_targets(text).unwrap_err().to_string();
             assert!(e.contains(want), "{text:?}: {e}");
@@ -145,11 +210,26 @@ mod tests {
     #[test]
     fn a_plan_list_round_trips_bit_for_bit() {
         let rows = vec![
-            ListedTarget { line: 0, target_mm: [212.13199999999998, -0.1 + 0.2], from_mm: Some([207.1, 1e-17]), dir: Some([1, -1]), run: Some(3) },
-            ListedTarget { line: 0, target_mm: [162.132, 75.0], from_mm: Some([157.132, 75.0]), dir: Some([-1, 1]), run: Some(0) },
+            ListedTarget {
+                line: 0,
+                target_mm: [212.13199999999998, -0.1 + 0.2],
+                from_mm: Some([207.1, 1e-17]),
+                dir: Some([1, -1]),
+                run: Some(3),
+            },
+            ListedTarget {
+                line: 0,
+                target_mm: [162.132, 75.0],
+                from_mm: Some([157.132, 75.0]),
+                dir: Some([-1, 1]),
+                run: Some(0),
+            },
         ];
         let text = format_target_list(&rows);
-        assert!(text.starts_with("x_mm,y_mm,from_x_mm,from_y_mm,dir1,dir2,run\n"), "{text}");
+        assert!(
+            text.starts_with("x_mm,y_mm,from_x_mm,from_y_mm,dir1,dir2,run\n"),
+            "{text}"
+        );
         let back = parse_target_list(&text).unwrap();
         for (a, b) in rows.iter().zip(&back) {
             assert_eq!(ListedTarget { line: 0, ..*b }, *a);

@@ -64,8 +64,19 @@ impl ColumnMap {
                 bail!("column map: '{key}' is given twice");
             }
         }
-        let need = |v: Option<String>, key: &str| v.ok_or_else(|| IoError::Parse(format!("column map: '{key}=COLUMN' is missing (id, x and y are required)")));
-        let map = ColumnMap { id: need(id, "id")?, x: need(x, "x")?, y: need(y, "y")?, z };
+        let need = |v: Option<String>, key: &str| {
+            v.ok_or_else(|| {
+                IoError::Parse(format!(
+                    "column map: '{key}=COLUMN' is missing (id, x and y are required)"
+                ))
+            })
+        };
+        let map = ColumnMap {
+            id: need(id, "id")?,
+            x: need(x, "x")?,
+            y: need(y, "y")?,
+            z,
+        };
         let names = map.names();
         for (i, a) in names.iter().enumerate() {
             if names[..i].contains(a) {
@@ -103,7 +114,13 @@ impl LengthUnit {
     /// The unit a column header states (`X [m]`, `X (mm)`, `x_m`, `X/mm`), if any.
     pub fn from_header(name: &str) -> Option<LengthUnit> {
         let n = name.trim().to_lowercase();
-        let bracketed = |u: &str| ["[", "(", "/", "_", " ", "in "].iter().any(|open| n.ends_with(&format!("{open}{u}")) || n.ends_with(&format!("{open}{u}]")) || n.ends_with(&format!("{open}{u})")));
+        let bracketed = |u: &str| {
+            ["[", "(", "/", "_", " ", "in "].iter().any(|open| {
+                n.ends_with(&format!("{open}{u}"))
+                    || n.ends_with(&format!("{open}{u}]"))
+                    || n.ends_with(&format!("{open}{u})"))
+            })
+        };
         if bracketed("mm") {
             Some(LengthUnit::Mm)
         } else if bracketed("m") {
@@ -153,7 +170,10 @@ pub struct Export {
 /// A header field as written, without surrounding quotes (nor a UTF-8 byte-order mark, which
 /// Windows tools put before the first).
 fn field_name(f: &str) -> &str {
-    f.trim_start_matches('\u{feff}').trim().trim_matches('"').trim()
+    f.trim_start_matches('\u{feff}')
+        .trim()
+        .trim_matches('"')
+        .trim()
 }
 
 /// The header: the first line (not a comment, within [`MAX_HEADER_LINE`]) holding every mapped
@@ -166,7 +186,10 @@ fn find_header(lines: &[&str], map: &ColumnMap) -> Result<(usize, u8, Vec<String
             continue;
         }
         for d in [b';', b'\t', b','] {
-            let fields: Vec<String> = line.split(d as char).map(|f| field_name(f).to_string()).collect();
+            let fields: Vec<String> = line
+                .split(d as char)
+                .map(|f| field_name(f).to_string())
+                .collect();
             if wanted.iter().all(|w| fields.iter().any(|f| f == w)) {
                 return Ok((i, d, fields));
             }
@@ -175,14 +198,30 @@ fn find_header(lines: &[&str], map: &ColumnMap) -> Result<(usize, u8, Vec<String
             }
         }
     }
-    let missing = |fields: &[String]| wanted.iter().filter(|w| !fields.iter().any(|f| f == *w)).map(|w| format!("'{w}'")).collect::<Vec<_>>().join(", ");
+    let missing = |fields: &[String]| {
+        wanted
+            .iter()
+            .filter(|w| !fields.iter().any(|f| f == *w))
+            .map(|w| format!("'{w}'"))
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
     match widest {
         Some((i, fields)) => {
             let like: Vec<String> = wanted
                 .iter()
-                .filter_map(|w| fields.iter().find(|f| f.eq_ignore_ascii_case(w) && f != w).map(|f| format!("'{f}' for '{w}'")))
+                .filter_map(|w| {
+                    fields
+                        .iter()
+                        .find(|f| f.eq_ignore_ascii_case(w) && f != w)
+                        .map(|f| format!("'{f}' for '{w}'"))
+                })
                 .collect();
-            let hint = if like.is_empty() { String::new() } else { format!(" (names are exact: {}?)", like.join(", ")) };
+            let hint = if like.is_empty() {
+                String::new()
+            } else {
+                format!(" (names are exact: {}?)", like.join(", "))
+            };
             bail!(
                 "the column map names {} but no line has it; the header looks like line {}: {}{hint}",
                 missing(&fields),
@@ -190,7 +229,10 @@ fn find_header(lines: &[&str], map: &ColumnMap) -> Result<(usize, u8, Vec<String
                 fields.iter().map(|f| format!("'{f}'")).collect::<Vec<_>>().join(", ")
             )
         }
-        None => bail!("no header line with the columns {} (and no line with two or more fields)", missing(&[])),
+        None => bail!(
+            "no header line with the columns {} (and no line with two or more fields)",
+            missing(&[])
+        ),
     }
 }
 
@@ -205,27 +247,58 @@ pub struct ExportFormat {
 
 /// Parses an export's text through `map`, numbers with a decimal point. `unit`: the
 /// coordinates' unit, or `None` to take it from the headers (mm when they state none).
-pub fn parse_export(text: &str, map: &ColumnMap, unit: Option<LengthUnit>) -> Result<Export, IoError> {
-    parse_export_with(text, map, ExportFormat { unit, decimal_comma: false })
+pub fn parse_export(
+    text: &str,
+    map: &ColumnMap,
+    unit: Option<LengthUnit>,
+) -> Result<Export, IoError> {
+    parse_export_with(
+        text,
+        map,
+        ExportFormat {
+            unit,
+            decimal_comma: false,
+        },
+    )
 }
 
 /// Parses an export's text through `map` in `format`.
-pub fn parse_export_with(text: &str, map: &ColumnMap, format: ExportFormat) -> Result<Export, IoError> {
+pub fn parse_export_with(
+    text: &str,
+    map: &ColumnMap,
+    format: ExportFormat,
+) -> Result<Export, IoError> {
     let unit = format.unit;
     let lines: Vec<&str> = text.lines().collect();
     let (h, delimiter, fields) = find_header(&lines, map)?;
     if format.decimal_comma && delimiter == b',' {
-        bail!("line {}: the export is comma-separated, so its numbers cannot have a decimal comma", h + 1);
+        bail!(
+            "line {}: the export is comma-separated, so its numbers cannot have a decimal comma",
+            h + 1
+        );
     }
     let header_line = h + 1;
-    let col = |name: &str| fields.iter().position(|f| f == name).expect("find_header checked every mapped name");
+    let col = |name: &str| {
+        fields
+            .iter()
+            .position(|f| f == name)
+            .expect("find_header checked every mapped name")
+    };
     for name in map.names() {
         if fields.iter().filter(|f| *f == name).count() > 1 {
             bail!("line {header_line}: column '{name}' appears twice");
         }
     }
-    let (ii, ix, iy, iz) = (col(&map.id), col(&map.x), col(&map.y), map.z.as_deref().map(col));
-    let stated: Vec<(&str, LengthUnit)> = map.names()[1..].iter().filter_map(|n| LengthUnit::from_header(n).map(|u| (*n, u))).collect();
+    let (ii, ix, iy, iz) = (
+        col(&map.id),
+        col(&map.x),
+        col(&map.y),
+        map.z.as_deref().map(col),
+    );
+    let stated: Vec<(&str, LengthUnit)> = map.names()[1..]
+        .iter()
+        .filter_map(|n| LengthUnit::from_header(n).map(|u| (*n, u)))
+        .collect();
     let mut notes = Vec::new();
     let unit = match (unit, stated.first()) {
         (Some(u), _) => {
@@ -250,10 +323,17 @@ pub fn parse_export_with(text: &str, map: &ColumnMap, format: ExportFormat) -> R
         notes.push(format!("{h} line(s) before the header skipped (metadata)"));
     }
     if delimiter != b',' {
-        notes.push(format!("{}-separated file", csv_dialect::delimiter_name(delimiter)));
+        notes.push(format!(
+            "{}-separated file",
+            csv_dialect::delimiter_name(delimiter)
+        ));
     }
     let mapped = map.names();
-    let ignored_columns: Vec<String> = fields.iter().filter(|f| !f.is_empty() && !mapped.contains(&f.as_str())).cloned().collect();
+    let ignored_columns: Vec<String> = fields
+        .iter()
+        .filter(|f| !f.is_empty() && !mapped.contains(&f.as_str()))
+        .cloned()
+        .collect();
     if !ignored_columns.is_empty() {
         notes.push(format!("columns ignored: {}", ignored_columns.join(", ")));
     }
@@ -269,13 +349,18 @@ pub fn parse_export_with(text: &str, map: &ColumnMap, format: ExportFormat) -> R
     let scale = unit.to_mm();
     let mut points = Vec::new();
     for record in reader.records() {
-        let record = record.map_err(|e| IoError::Parse(format!("malformed CSV after line {header_line}: {e}")))?;
+        let record = record
+            .map_err(|e| IoError::Parse(format!("malformed CSV after line {header_line}: {e}")))?;
         let line = header_line + record.position().map_or(0, |p| p.line() as usize);
         if record.iter().all(str::is_empty) {
             continue;
         }
         if record.len() != fields.len() {
-            bail!("line {line}: {} fields, the header (line {header_line}) has {}", record.len(), fields.len());
+            bail!(
+                "line {line}: {} fields, the header (line {header_line}) has {}",
+                record.len(),
+                fields.len()
+            );
         }
         let id = record[ii].trim_matches('"').trim().to_string();
         if id.is_empty() {
@@ -288,9 +373,13 @@ pub fn parse_export_with(text: &str, map: &ColumnMap, format: ExportFormat) -> R
             }
             let v = match format.decimal_comma {
                 true => csv_dialect::number(&s.replace(',', "."), name, line, Quantity::Plain),
-                false => csv_dialect::number(s, name, line, Quantity::Plain).map_err(|e| match e.to_string() {
-                    m if m.contains("decimal comma") => IoError::Parse(format!("{m}, or read the file with decimal commas (--decimal-comma)")),
-                    _ => e,
+                false => csv_dialect::number(s, name, line, Quantity::Plain).map_err(|e| {
+                    match e.to_string() {
+                        m if m.contains("decimal comma") => IoError::Parse(format!(
+                            "{m}, or read the file with decimal commas (--decimal-comma)"
+                        )),
+                        _ => e,
+                    }
                 }),
             }? * scale;
             if v.abs() > MAX_ABS_LENGTH_MM {
@@ -303,12 +392,24 @@ pub fn parse_export_with(text: &str, map: &ColumnMap, format: ExportFormat) -> R
             (Some(i), Some(name)) => Some(coordinate(i, name)?),
             _ => None,
         };
-        points.push(ExportPoint { line, id, xy_mm, z_mm });
+        points.push(ExportPoint {
+            line,
+            id,
+            xy_mm,
+            z_mm,
+        });
     }
     if points.is_empty() {
         bail!("no points after the header (line {header_line})");
     }
-    Ok(Export { points, header_line, delimiter, unit, ignored_columns, notes })
+    Ok(Export {
+        points,
+        header_line,
+        delimiter,
+        unit,
+        ignored_columns,
+        notes,
+    })
 }
 
 #[cfg(test)]
@@ -321,7 +422,15 @@ mod tests {
 
     #[test]
     fn column_maps() {
-        assert_eq!(map("id=Point, x=X [mm],y=Y [mm],z=Z [mm]"), ColumnMap { id: "Point".into(), x: "X [mm]".into(), y: "Y [mm]".into(), z: Some("Z [mm]".into()) });
+        assert_eq!(
+            map("id=Point, x=X [mm],y=Y [mm],z=Z [mm]"),
+            ColumnMap {
+                id: "Point".into(),
+                x: "X [mm]".into(),
+                y: "Y [mm]".into(),
+                z: Some("Z [mm]".into())
+            }
+        );
         assert_eq!(map("x=X,y=Y,id=Name").z, None);
         for (text, want) in [
             ("id=Point,x=X", "'y=COLUMN' is missing"),
@@ -355,10 +464,28 @@ mod tests {
         assert_eq!(e.delimiter, b';');
         assert_eq!(e.unit, LengthUnit::Mm);
         assert_eq!(e.ignored_columns, vec!["RMS".to_string()]);
-        assert_eq!(e.points[0], ExportPoint { line: 5, id: "P001".into(), xy_mm: [212.132, 0.5], z_mm: Some(10.001) });
+        assert_eq!(
+            e.points[0],
+            ExportPoint {
+                line: 5,
+                id: "P001".into(),
+                xy_mm: [212.132, 0.5],
+                z_mm: Some(10.001)
+            }
+        );
         assert_eq!(e.points[1].line, 6);
-        assert!(e.notes.iter().any(|n| n.contains("3 line(s) before the header")), "{:?}", e.notes);
-        assert!(e.notes.iter().any(|n| n.contains("columns ignored: RMS")), "{:?}", e.notes);
+        assert!(
+            e.notes
+                .iter()
+                .any(|n| n.contains("3 line(s) before the header")),
+            "{:?}",
+            e.notes
+        );
+        assert!(
+            e.notes.iter().any(|n| n.contains("columns ignored: RMS")),
+            "{:?}",
+            e.notes
+        );
     }
 
     #[test]
@@ -367,9 +494,17 @@ mod tests {
         let e = parse_export(text, &map("id=Name,x=X_m,y=Y_m"), None).unwrap();
         assert_eq!(e.unit, LengthUnit::M);
         assert_eq!(e.points[0].id, "7");
-        assert!((e.points[0].xy_mm[0] - 212.132).abs() < 1e-9 && (e.points[0].xy_mm[1] + 0.5).abs() < 1e-12);
+        assert!(
+            (e.points[0].xy_mm[0] - 212.132).abs() < 1e-9
+                && (e.points[0].xy_mm[1] + 0.5).abs() < 1e-12
+        );
         // No unit in the header: as given.
-        let e = parse_export("Name,X,Y\nA1,0.2,0.1\n", &map("id=Name,x=X,y=Y"), Some(LengthUnit::M)).unwrap();
+        let e = parse_export(
+            "Name,X,Y\nA1,0.2,0.1\n",
+            &map("id=Name,x=X,y=Y"),
+            Some(LengthUnit::M),
+        )
+        .unwrap();
         assert_eq!(e.points[0].xy_mm, [200.0, 100.0]);
     }
 
@@ -377,38 +512,97 @@ mod tests {
     fn decimal_commas_a_byte_order_mark_and_crlf() {
         let m = map("id=Punkt,x=X,y=Y");
         let text = "\u{feff}Punkt;X;Y;\r\nP1;212,132;-0,5;\r\n";
-        let format = ExportFormat { unit: None, decimal_comma: true };
+        let format = ExportFormat {
+            unit: None,
+            decimal_comma: true,
+        };
         let e = parse_export_with(text, &m, format).unwrap();
         assert_eq!(e.points[0].xy_mm, [212.132, -0.5]);
         assert!(e.ignored_columns.is_empty(), "{:?}", e.ignored_columns);
         let err = parse_export(text, &m, None).unwrap_err().to_string();
         assert!(err.contains("line 2: 'X' = '212,132' is not a number (a decimal comma? write a point), or read the file with decimal commas"), "{err}");
-        let err = parse_export_with("Punkt,X,Y\nP1,1,2\n", &m, format).unwrap_err().to_string();
-        assert!(err.contains("comma-separated, so its numbers cannot have a decimal comma"), "{err}");
+        let err = parse_export_with("Punkt,X,Y\nP1,1,2\n", &m, format)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("comma-separated, so its numbers cannot have a decimal comma"),
+            "{err}"
+        );
     }
 
     #[test]
     fn errors_name_the_line_and_column() {
         let m = map("id=Point,x=X,y=Y,z=Z");
         for (text, unit, want) in [
-            ("Point,X,Y\nP1,1,2\n", None, "names 'Z' but no line has it; the header looks like line 1: 'Point', 'X', 'Y'"),
-            ("point,X,Y,Z\nP1,1,2,3\n", None, "(names are exact: 'point' for 'Point'?)"),
-            ("Point,X,Y,Z\nP1,1,abc,3\n", None, "line 2: 'Y' = 'abc' is not a number"),
-            ("meta\nPoint,X,Y,Z\nP1,1,2,3\nP2,NaN,2,3\n", None, "line 4: 'X' = 'NaN' is not finite"),
-            ("Point,X,Y,Z\nP1,1,,3\n", None, "line 2: 'Y' is empty (point P1)"),
+            (
+                "Point,X,Y\nP1,1,2\n",
+                None,
+                "names 'Z' but no line has it; the header looks like line 1: 'Point', 'X', 'Y'",
+            ),
+            (
+                "point,X,Y,Z\nP1,1,2,3\n",
+                None,
+                "(names are exact: 'point' for 'Point'?)",
+            ),
+            (
+                "Point,X,Y,Z\nP1,1,abc,3\n",
+                None,
+                "line 2: 'Y' = 'abc' is not a number",
+            ),
+            (
+                "meta\nPoint,X,Y,Z\nP1,1,2,3\nP2,NaN,2,3\n",
+                None,
+                "line 4: 'X' = 'NaN' is not finite",
+            ),
+            (
+                "Point,X,Y,Z\nP1,1,,3\n",
+                None,
+                "line 2: 'Y' is empty (point P1)",
+            ),
             ("Point;X;Y;Z\nP1;1,5;2;3\n", None, "decimal comma"),
-            ("Point,X,Y,Z\nP1,1,2\n", None, "line 2: 3 fields, the header (line 1) has 4"),
-            ("Point,X,Y,Z\n,1,2,3\n", None, "line 2: the point id ('Point') is empty"),
+            (
+                "Point,X,Y,Z\nP1,1,2\n",
+                None,
+                "line 2: 3 fields, the header (line 1) has 4",
+            ),
+            (
+                "Point,X,Y,Z\n,1,2,3\n",
+                None,
+                "line 2: the point id ('Point') is empty",
+            ),
             ("Point,X,Y,Z\n", None, "no points after the header"),
-            ("Point,X,Y,Z\nP1,2e3,2,3\n", Some(LengthUnit::M), "line 2: 'X' = 2e3 m is absurd"),
-            ("Point,X,Y,Z,X\nP1,1,2,3,4\n", None, "column 'X' appears twice"),
+            (
+                "Point,X,Y,Z\nP1,2e3,2,3\n",
+                Some(LengthUnit::M),
+                "line 2: 'X' = 2e3 m is absurd",
+            ),
+            (
+                "Point,X,Y,Z,X\nP1,1,2,3,4\n",
+                None,
+                "column 'X' appears twice",
+            ),
         ] {
             let e = parse_export(text, &m, unit).unwrap_err().to_string();
             assert!(e.contains(want), "{text:?}: {e}");
         }
-        let e = parse_export("P,X [m],Y [mm]\n1,2,3\n", &map("id=P,x=X [m],y=Y [mm]"), None).unwrap_err().to_string();
+        let e = parse_export(
+            "P,X [m],Y [mm]\n1,2,3\n",
+            &map("id=P,x=X [m],y=Y [mm]"),
+            None,
+        )
+        .unwrap_err()
+        .to_string();
         assert!(e.contains("the columns disagree on the unit"), "{e}");
-        let e = parse_export("P,X [m],Y [m]\n1,2,3\n", &map("id=P,x=X [m],y=Y [m]"), Some(LengthUnit::Mm)).unwrap_err().to_string();
-        assert!(e.contains("column 'X [m]' says m but the unit given is mm"), "{e}");
+        let e = parse_export(
+            "P,X [m],Y [m]\n1,2,3\n",
+            &map("id=P,x=X [m],y=Y [m]"),
+            Some(LengthUnit::Mm),
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.contains("column 'X [m]' says m but the unit given is mm"),
+            "{e}"
+        );
     }
 }

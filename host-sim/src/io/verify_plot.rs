@@ -43,7 +43,10 @@ fn encode_png(rgb: &[u8], (w, h): (u32, u32)) -> Result<Vec<u8>, IoError> {
 }
 
 /// Draws `draw` on a white `size` canvas and returns the PNG bytes.
-fn render<T>(size: (u32, u32), draw: impl FnOnce(&DrawingArea<BitMapBackend<'_>, Shift>) -> Result<T, IoError>) -> Result<(Vec<u8>, T), IoError> {
+fn render<T>(
+    size: (u32, u32),
+    draw: impl FnOnce(&DrawingArea<BitMapBackend<'_>, Shift>) -> Result<T, IoError>,
+) -> Result<(Vec<u8>, T), IoError> {
     ensure_font();
     let mut rgb = vec![255u8; size.0 as usize * size.1 as usize * 3];
     let out = {
@@ -57,10 +60,24 @@ fn render<T>(size: (u32, u32), draw: impl FnOnce(&DrawingArea<BitMapBackend<'_>,
 }
 
 /// Writes `lines` top-left in `area` (the title bold-sized, the rest smaller).
-fn text_band(area: &DrawingArea<BitMapBackend<'_>, Shift>, title: &str, lines: &[String]) -> Result<(), IoError> {
-    area.draw(&Text::new(title.to_string(), (15, 8), ("sans-serif", 22).into_font().color(&BLACK))).map_err(err)?;
+fn text_band(
+    area: &DrawingArea<BitMapBackend<'_>, Shift>,
+    title: &str,
+    lines: &[String],
+) -> Result<(), IoError> {
+    area.draw(&Text::new(
+        title.to_string(),
+        (15, 8),
+        ("sans-serif", 22).into_font().color(&BLACK),
+    ))
+    .map_err(err)?;
     for (k, l) in lines.iter().enumerate() {
-        area.draw(&Text::new(l.clone(), (15, 38 + 21 * k as i32), ("sans-serif", 17).into_font().color(&BLACK))).map_err(err)?;
+        area.draw(&Text::new(
+            l.clone(),
+            (15, 38 + 21 * k as i32),
+            ("sans-serif", 17).into_font().color(&BLACK),
+        ))
+        .map_err(err)?;
     }
     Ok(())
 }
@@ -68,7 +85,11 @@ fn text_band(area: &DrawingArea<BitMapBackend<'_>, Shift>, title: &str, lines: &
 /// The largest 1, 2 or 5 × 10ᵏ not above `v` (> 0).
 pub fn round_length_below(v: f64) -> f64 {
     let p = 10f64.powf(v.log10().floor());
-    [5.0, 2.0, 1.0].iter().map(|m| m * p).find(|&c| c <= v * (1.0 + 1e-12)).unwrap_or(p)
+    [5.0, 2.0, 1.0]
+        .iter()
+        .map(|m| m * p)
+        .find(|&c| c <= v * (1.0 + 1e-12))
+        .unwrap_or(p)
 }
 
 /// What the map shows (module doc).
@@ -102,11 +123,19 @@ fn equal_scale(lo: [f64; 2], hi: [f64; 2], px: (u32, u32)) -> ([f64; 2], [f64; 2
     let (w, h) = (f64::from(px.0.max(1)), f64::from(px.1.max(1)));
     let s = ((hi[0] - lo[0]) / w).max((hi[1] - lo[1]) / h);
     let c = [0.5 * (lo[0] + hi[0]), 0.5 * (lo[1] + hi[1])];
-    ([c[0] - 0.5 * s * w, c[1] - 0.5 * s * h], [c[0] + 0.5 * s * w, c[1] + 0.5 * s * h])
+    (
+        [c[0] - 0.5 * s * w, c[1] - 0.5 * s * h],
+        [c[0] + 0.5 * s * w, c[1] + 0.5 * s * h],
+    )
 }
 
 /// An arrow from `from` to `to` (data coordinates, equal scales) with a head `head` long.
-fn arrow(from: (f64, f64), to: (f64, f64), head: f64, style: ShapeStyle) -> Vec<PathElement<(f64, f64)>> {
+fn arrow(
+    from: (f64, f64),
+    to: (f64, f64),
+    head: f64,
+    style: ShapeStyle,
+) -> Vec<PathElement<(f64, f64)>> {
     let (dx, dy) = (to.0 - from.0, to.1 - from.1);
     let len = dx.hypot(dy);
     let mut parts = vec![PathElement::new(vec![from, to], style)];
@@ -116,7 +145,10 @@ fn arrow(from: (f64, f64), to: (f64, f64), head: f64, style: ShapeStyle) -> Vec<
         for side in [1.0, -1.0] {
             let (c, s) = (0.42f64.cos(), side * 0.42f64.sin());
             let back = (-(ux * c - uy * s) * h, -(ux * s + uy * c) * h);
-            parts.push(PathElement::new(vec![to, (to.0 + back.0, to.1 + back.1)], style));
+            parts.push(PathElement::new(
+                vec![to, (to.0 + back.0, to.1 + back.1)],
+                style,
+            ));
         }
     }
     parts
@@ -133,11 +165,26 @@ const MAP_ARROW_SHARE: f64 = 0.07;
 /// The error-vector map (module doc) as PNG bytes, and its scales.
 pub fn error_map_png(map: &ErrorMap<'_>) -> Result<(Vec<u8>, MapScale), IoError> {
     if map.targets_mm.len() != map.error_um.len() {
-        return Err(IoError::Invalid(format!("map '{}': {} targets, {} errors", map.title, map.targets_mm.len(), map.error_um.len())));
+        return Err(IoError::Invalid(format!(
+            "map '{}': {} targets, {} errors",
+            map.title,
+            map.targets_mm.len(),
+            map.error_um.len()
+        )));
     }
     let finite = |p: &[f64; 2]| p.iter().all(|v| v.is_finite());
-    if !map.targets_mm.iter().chain(map.error_um).chain(map.outline_mm).all(finite) || map.targets_mm.is_empty() {
-        return Err(IoError::Invalid(format!("map '{}': no targets, or a coordinate that is not finite", map.title)));
+    if !map
+        .targets_mm
+        .iter()
+        .chain(map.error_um)
+        .chain(map.outline_mm)
+        .all(finite)
+        || map.targets_mm.is_empty()
+    {
+        return Err(IoError::Invalid(format!(
+            "map '{}': no targets, or a coordinate that is not finite",
+            map.title
+        )));
     }
     let pts = map.targets_mm.iter().chain(map.outline_mm);
     let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
@@ -150,13 +197,29 @@ pub fn error_map_png(map: &ErrorMap<'_>) -> Result<(Vec<u8>, MapScale), IoError>
     let span = (hi[0] - lo[0]).max(hi[1] - lo[1]).max(1e-3);
     let pad = 0.1 * span;
     let (lo, hi) = ([lo[0] - pad, lo[1] - pad], [hi[0] + pad, hi[1] + pad]);
-    let max_um = map.error_um.iter().map(|e| e[0].hypot(e[1])).fold(0.0, f64::max);
-    let mm_per_um = if max_um > 0.0 { MAP_ARROW_SHARE * span / max_um } else { 0.0 };
-    let scale_um = if max_um > 0.0 { round_length_below(0.6 * max_um) } else { 0.0 };
+    let max_um = map
+        .error_um
+        .iter()
+        .map(|e| e[0].hypot(e[1]))
+        .fold(0.0, f64::max);
+    let mm_per_um = if max_um > 0.0 {
+        MAP_ARROW_SHARE * span / max_um
+    } else {
+        0.0
+    };
+    let scale_um = if max_um > 0.0 {
+        round_length_below(0.6 * max_um)
+    } else {
+        0.0
+    };
     // Canvas height from the extent's aspect (the equal-scale widening then corrects the rest).
     let plot_w = MAP_WIDTH_PX - 2 * MAP_MARGIN_PX - MAP_Y_LABEL_PX;
-    let plot_h = (f64::from(plot_w) * (hi[1] - lo[1]) / (hi[0] - lo[0])).clamp(400.0, 1100.0) as u32;
-    let size = (MAP_WIDTH_PX, plot_h + MAP_BAND_PX + 2 * MAP_MARGIN_PX + MAP_X_LABEL_PX);
+    let plot_h =
+        (f64::from(plot_w) * (hi[1] - lo[1]) / (hi[0] - lo[0])).clamp(400.0, 1100.0) as u32;
+    let size = (
+        MAP_WIDTH_PX,
+        plot_h + MAP_BAND_PX + 2 * MAP_MARGIN_PX + MAP_X_LABEL_PX,
+    );
     let (png, scale) = render(size, |root| {
         let (band, body) = root.split_vertically(MAP_BAND_PX);
         text_band(&band, map.title, map.summary)?;
@@ -180,30 +243,56 @@ pub fn error_map_png(map: &ErrorMap<'_>) -> Result<(Vec<u8>, MapScale), IoError>
             .draw()
             .map_err(err)?;
         let drawn_px = chart.plotting_area().dim_in_pixel();
-        let mm_per_px = [(hi[0] - lo[0]) / f64::from(drawn_px.0), (hi[1] - lo[1]) / f64::from(drawn_px.1)];
+        let mm_per_px = [
+            (hi[0] - lo[0]) / f64::from(drawn_px.0),
+            (hi[1] - lo[1]) / f64::from(drawn_px.1),
+        ];
         if !map.outline_mm.is_empty() {
             let mut ring: Vec<(f64, f64)> = map.outline_mm.iter().map(|p| (p[0], p[1])).collect();
             ring.push(ring[0]);
-            chart.draw_series(std::iter::once(PathElement::new(ring, RGBColor(150, 150, 150).stroke_width(1)))).map_err(err)?;
+            chart
+                .draw_series(std::iter::once(PathElement::new(
+                    ring,
+                    RGBColor(150, 150, 150).stroke_width(1),
+                )))
+                .map_err(err)?;
         }
         let colour = COLOURS[map.colour % COLOURS.len()];
         let head = 7.0 * mm_per_px[0];
         for (t, e) in map.targets_mm.iter().zip(map.error_um) {
             let tip = (t[0] + e[0] * mm_per_um, t[1] + e[1] * mm_per_um);
-            chart.draw_series(arrow((t[0], t[1]), tip, head, colour.stroke_width(2))).map_err(err)?;
+            chart
+                .draw_series(arrow((t[0], t[1]), tip, head, colour.stroke_width(2)))
+                .map_err(err)?;
         }
-        chart.draw_series(map.targets_mm.iter().map(|t| Circle::new((t[0], t[1]), 2, BLACK.filled()))).map_err(err)?;
+        chart
+            .draw_series(
+                map.targets_mm
+                    .iter()
+                    .map(|t| Circle::new((t[0], t[1]), 2, BLACK.filled())),
+            )
+            .map_err(err)?;
         if scale_um > 0.0 {
             // The scale arrow: bottom left, inside the padding below the targets.
             let from = (lo[0] + 40.0 * mm_per_px[0], lo[1] + 25.0 * mm_per_px[1]);
             let to = (from.0 + scale_um * mm_per_um, from.1);
-            chart.draw_series(arrow(from, to, head, BLACK.stroke_width(3))).map_err(err)?;
+            chart
+                .draw_series(arrow(from, to, head, BLACK.stroke_width(3)))
+                .map_err(err)?;
             let label = format!("{} µm", fmt_um(scale_um));
             chart
-                .draw_series(std::iter::once(Text::new(label, (from.0, from.1 + 22.0 * mm_per_px[1]), ("sans-serif", 17).into_font())))
+                .draw_series(std::iter::once(Text::new(
+                    label,
+                    (from.0, from.1 + 22.0 * mm_per_px[1]),
+                    ("sans-serif", 17).into_font(),
+                )))
                 .map_err(err)?;
         }
-        Ok(MapScale { mm_per_px, arrow_mm_per_um: mm_per_um, scale_arrow_um: scale_um })
+        Ok(MapScale {
+            mm_per_px,
+            arrow_mm_per_um: mm_per_um,
+            scale_arrow_um: scale_um,
+        })
     })?;
     Ok((png, scale))
 }
@@ -240,18 +329,41 @@ const PANEL_BAND_PX: u32 = 80;
 
 /// The ISO 230-2 deviation-versus-position chart of one axis line (module doc), panels side
 /// by side; `position` names the axis ("x (mm)").
-pub fn deviation_chart_png(title: &str, position: &str, panels: &[DeviationPanel<'_>]) -> Result<Vec<u8>, IoError> {
+pub fn deviation_chart_png(
+    title: &str,
+    position: &str,
+    panels: &[DeviationPanel<'_>],
+) -> Result<Vec<u8>, IoError> {
     if panels.is_empty() || panels.iter().any(|p| p.points.len() < 2) {
-        return Err(IoError::Invalid(format!("chart '{title}': every panel needs at least 2 targets")));
+        return Err(IoError::Invalid(format!(
+            "chart '{title}': every panel needs at least 2 targets"
+        )));
     }
-    let finite = |d: &DeviationPoint| [d.position_mm, d.mean_up_um, d.s_up_um, d.mean_down_um, d.s_down_um].iter().all(|v| v.is_finite());
+    let finite = |d: &DeviationPoint| {
+        [
+            d.position_mm,
+            d.mean_up_um,
+            d.s_up_um,
+            d.mean_down_um,
+            d.s_down_um,
+        ]
+        .iter()
+        .all(|v| v.is_finite())
+    };
     if !panels.iter().flat_map(|p| p.points).all(finite) {
-        return Err(IoError::Invalid(format!("chart '{title}': a figure is not finite")));
+        return Err(IoError::Invalid(format!(
+            "chart '{title}': a figure is not finite"
+        )));
     }
     let size = (PANEL_PX.0 * panels.len() as u32, PANEL_PX.1 + 40);
     let (png, ()) = render(size, |root| {
         let (head, body) = root.split_vertically(40);
-        head.draw(&Text::new(title.to_string(), (15, 8), ("sans-serif", 22).into_font())).map_err(err)?;
+        head.draw(&Text::new(
+            title.to_string(),
+            (15, 8),
+            ("sans-serif", 22).into_font(),
+        ))
+        .map_err(err)?;
         for (area, panel) in body.split_evenly((1, panels.len())).iter().zip(panels) {
             let (plot, band) = area.split_vertically(PANEL_PX.1 - PANEL_BAND_PX);
             draw_panel(&plot, position, panel)?;
@@ -262,13 +374,32 @@ pub fn deviation_chart_png(title: &str, position: &str, panels: &[DeviationPanel
     Ok(png)
 }
 
-fn draw_panel(area: &DrawingArea<BitMapBackend<'_>, Shift>, position: &str, panel: &DeviationPanel<'_>) -> Result<(), IoError> {
+fn draw_panel(
+    area: &DrawingArea<BitMapBackend<'_>, Shift>,
+    position: &str,
+    panel: &DeviationPanel<'_>,
+) -> Result<(), IoError> {
     let p = panel.points;
-    let x_lo = p.iter().map(|d| d.position_mm).fold(f64::INFINITY, f64::min);
-    let x_hi = p.iter().map(|d| d.position_mm).fold(f64::NEG_INFINITY, f64::max);
-    let y_lo = p.iter().map(|d| (d.mean_up_um - 2.0 * d.s_up_um).min(d.mean_down_um - 2.0 * d.s_down_um)).fold(0.0, f64::min);
-    let y_hi = p.iter().map(|d| (d.mean_up_um + 2.0 * d.s_up_um).max(d.mean_down_um + 2.0 * d.s_down_um)).fold(0.0, f64::max);
-    let (xp, yp) = (0.04 * (x_hi - x_lo).max(1e-3), 0.12 * (y_hi - y_lo).max(1e-3));
+    let x_lo = p
+        .iter()
+        .map(|d| d.position_mm)
+        .fold(f64::INFINITY, f64::min);
+    let x_hi = p
+        .iter()
+        .map(|d| d.position_mm)
+        .fold(f64::NEG_INFINITY, f64::max);
+    let y_lo = p
+        .iter()
+        .map(|d| (d.mean_up_um - 2.0 * d.s_up_um).min(d.mean_down_um - 2.0 * d.s_down_um))
+        .fold(0.0, f64::min);
+    let y_hi = p
+        .iter()
+        .map(|d| (d.mean_up_um + 2.0 * d.s_up_um).max(d.mean_down_um + 2.0 * d.s_down_um))
+        .fold(0.0, f64::max);
+    let (xp, yp) = (
+        0.04 * (x_hi - x_lo).max(1e-3),
+        0.12 * (y_hi - y_lo).max(1e-3),
+    );
     let mut chart = ChartBuilder::on(area)
         .caption(&panel.title, ("sans-serif", 19))
         .margin(12)
@@ -286,37 +417,93 @@ fn draw_panel(area: &DrawingArea<BitMapBackend<'_>, Shift>, position: &str, pane
         .map_err(err)?;
     let (up, down, mid) = (COLOURS[0], COLOURS[1], BLACK);
     // ±2s bands first (under the lines).
-    for (colour, mean, s) in [(up, &|d: &DeviationPoint| d.mean_up_um, &|d: &DeviationPoint| d.s_up_um), (down, &|d: &DeviationPoint| d.mean_down_um, &|d: &DeviationPoint| d.s_down_um)]
-        as [(RGBColor, &dyn Fn(&DeviationPoint) -> f64, &dyn Fn(&DeviationPoint) -> f64); 2]
+    for (colour, mean, s) in [
+        (
+            up,
+            &|d: &DeviationPoint| d.mean_up_um,
+            &|d: &DeviationPoint| d.s_up_um,
+        ),
+        (
+            down,
+            &|d: &DeviationPoint| d.mean_down_um,
+            &|d: &DeviationPoint| d.s_down_um,
+        ),
+    ]
+        as [(
+            RGBColor,
+            &dyn Fn(&DeviationPoint) -> f64,
+            &dyn Fn(&DeviationPoint) -> f64,
+        ); 2]
     {
-        let mut ring: Vec<(f64, f64)> = p.iter().map(|d| (d.position_mm, mean(d) + 2.0 * s(d))).collect();
-        ring.extend(p.iter().rev().map(|d| (d.position_mm, mean(d) - 2.0 * s(d))));
-        chart.draw_series(std::iter::once(Polygon::new(ring, colour.mix(0.18).filled()))).map_err(err)?;
+        let mut ring: Vec<(f64, f64)> = p
+            .iter()
+            .map(|d| (d.position_mm, mean(d) + 2.0 * s(d)))
+            .collect();
+        ring.extend(
+            p.iter()
+                .rev()
+                .map(|d| (d.position_mm, mean(d) - 2.0 * s(d))),
+        );
+        chart
+            .draw_series(std::iter::once(Polygon::new(
+                ring,
+                colour.mix(0.18).filled(),
+            )))
+            .map_err(err)?;
         for sign in [1.0, -1.0] {
             chart
-                .draw_series(LineSeries::new(p.iter().map(|d| (d.position_mm, mean(d) + sign * 2.0 * s(d))), colour.mix(0.6).stroke_width(1)))
+                .draw_series(LineSeries::new(
+                    p.iter()
+                        .map(|d| (d.position_mm, mean(d) + sign * 2.0 * s(d))),
+                    colour.mix(0.6).stroke_width(1),
+                ))
                 .map_err(err)?;
         }
     }
-    chart.draw_series(std::iter::once(PathElement::new(vec![(x_lo - xp, 0.0), (x_hi + xp, 0.0)], RGBColor(120, 120, 120).stroke_width(1)))).map_err(err)?;
-    let line = |f: &dyn Fn(&DeviationPoint) -> f64| p.iter().map(|d| (d.position_mm, f(d))).collect::<Vec<_>>();
+    chart
+        .draw_series(std::iter::once(PathElement::new(
+            vec![(x_lo - xp, 0.0), (x_hi + xp, 0.0)],
+            RGBColor(120, 120, 120).stroke_width(1),
+        )))
+        .map_err(err)?;
+    let line = |f: &dyn Fn(&DeviationPoint) -> f64| {
+        p.iter().map(|d| (d.position_mm, f(d))).collect::<Vec<_>>()
+    };
     chart
         .draw_series(LineSeries::new(line(&|d| d.mean_up_um), up.stroke_width(2)))
         .map_err(err)?
         .label("mean ↑ (band: ± 2s↑)")
         .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], up.stroke_width(3)));
     chart
-        .draw_series(LineSeries::new(line(&|d| d.mean_down_um), down.stroke_width(2)))
+        .draw_series(LineSeries::new(
+            line(&|d| d.mean_down_um),
+            down.stroke_width(2),
+        ))
         .map_err(err)?
         .label("mean ↓ (band: ± 2s↓)")
         .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], down.stroke_width(3)));
     chart
-        .draw_series(DashedLineSeries::new(line(&|d| 0.5 * (d.mean_up_um + d.mean_down_um)), 8, 5, mid.stroke_width(2)))
+        .draw_series(DashedLineSeries::new(
+            line(&|d| 0.5 * (d.mean_up_um + d.mean_down_um)),
+            8,
+            5,
+            mid.stroke_width(2),
+        ))
         .map_err(err)?
         .label("mean bidirectional")
         .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], mid.stroke_width(2)));
-    chart.draw_series(p.iter().map(|d| TriangleMarker::new((d.position_mm, d.mean_up_um), 6, up.filled()))).map_err(err)?;
-    chart.draw_series(p.iter().map(|d| Circle::new((d.position_mm, d.mean_down_um), 4, down.filled()))).map_err(err)?;
+    chart
+        .draw_series(
+            p.iter()
+                .map(|d| TriangleMarker::new((d.position_mm, d.mean_up_um), 6, up.filled())),
+        )
+        .map_err(err)?;
+    chart
+        .draw_series(
+            p.iter()
+                .map(|d| Circle::new((d.position_mm, d.mean_down_um), 4, down.filled())),
+        )
+        .map_err(err)?;
     chart
         .configure_series_labels()
         .position(SeriesLabelPosition::UpperRight)
@@ -348,25 +535,60 @@ mod tests {
     #[test]
     fn the_error_map_has_equal_axis_scales() {
         for (w, h) in [(100.0, 150.0), (300.0, 20.0), (10.0, 10.0)] {
-            let targets: Vec<[f64; 2]> = (0..30).map(|k| [w * (k % 6) as f64 / 5.0, h * (k / 6) as f64 / 4.0]).collect();
+            let targets: Vec<[f64; 2]> = (0..30)
+                .map(|k| [w * (k % 6) as f64 / 5.0, h * (k / 6) as f64 / 4.0])
+                .collect();
             let errors: Vec<[f64; 2]> = (0..30).map(|k| [k as f64, -2.0]).collect();
             let outline = [[0.0, 0.0], [w, 0.0], [w, h], [0.0, h]];
-            let (png, s) = error_map_png(&ErrorMap { title: "t", summary: &["max".into()], targets_mm: &targets, error_um: &errors, outline_mm: &outline, colour: 0 }).unwrap();
+            let (png, s) = error_map_png(&ErrorMap {
+                title: "t",
+                summary: &["max".into()],
+                targets_mm: &targets,
+                error_um: &errors,
+                outline_mm: &outline,
+                colour: 0,
+            })
+            .unwrap();
             assert!(is_png(&png));
-            assert!((s.mm_per_px[0] / s.mm_per_px[1] - 1.0).abs() < 0.01, "{w}x{h}: {:?}", s.mm_per_px);
+            assert!(
+                (s.mm_per_px[0] / s.mm_per_px[1] - 1.0).abs() < 0.01,
+                "{w}x{h}: {:?}",
+                s.mm_per_px
+            );
             let longest = 29f64.hypot(2.0);
             assert!((longest * s.arrow_mm_per_um - MAP_ARROW_SHARE * w.max(h)).abs() < 1e-9);
             assert_eq!(s.scale_arrow_um, 10.0);
         }
-        let bad = error_map_png(&ErrorMap { title: "t", summary: &[], targets_mm: &[[0.0, f64::NAN]], error_um: &[[0.0, 0.0]], outline_mm: &[], colour: 0 });
+        let bad = error_map_png(&ErrorMap {
+            title: "t",
+            summary: &[],
+            targets_mm: &[[0.0, f64::NAN]],
+            error_um: &[[0.0, 0.0]],
+            outline_mm: &[],
+            colour: 0,
+        });
         assert!(bad.is_err());
     }
 
     #[test]
     fn the_deviation_chart_draws_and_refuses_nan() {
-        let pts: Vec<DeviationPoint> = (0..5).map(|k| DeviationPoint { position_mm: 10.0 * k as f64, mean_up_um: 1.0, s_up_um: 0.5, mean_down_um: -1.0, s_down_um: 0.2 }).collect();
-        let panel = |p| DeviationPanel { title: "after".into(), figures: vec!["A = 3 µm".into()], points: p };
-        assert!(is_png(&deviation_chart_png("x line", "x (mm)", &[panel(&pts), panel(&pts)]).unwrap()));
+        let pts: Vec<DeviationPoint> = (0..5)
+            .map(|k| DeviationPoint {
+                position_mm: 10.0 * k as f64,
+                mean_up_um: 1.0,
+                s_up_um: 0.5,
+                mean_down_um: -1.0,
+                s_down_um: 0.2,
+            })
+            .collect();
+        let panel = |p| DeviationPanel {
+            title: "after".into(),
+            figures: vec!["A = 3 µm".into()],
+            points: p,
+        };
+        assert!(is_png(
+            &deviation_chart_png("x line", "x (mm)", &[panel(&pts), panel(&pts)]).unwrap()
+        ));
         let mut nan = pts.clone();
         nan[2].s_up_um = f64::NAN;
         assert!(deviation_chart_png("x line", "x (mm)", &[panel(&nan)]).is_err());

@@ -16,8 +16,9 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use link_protocol::{
-    decode, encode, Command, DeviceBody, DeviceMessage, FrameReader, Knot, LinkError, Received, Request, Response,
-    StatusReport, TelemetrySample, CALIBRATION_CHUNK_LEN, MAX_FRAME_LEN, MAX_KNOTS_PER_FRAME,
+    decode, encode, Command, DeviceBody, DeviceMessage, FrameReader, Knot, LinkError, Received,
+    Request, Response, StatusReport, TelemetrySample, CALIBRATION_CHUNK_LEN, MAX_FRAME_LEN,
+    MAX_KNOTS_PER_FRAME,
 };
 
 pub use link_protocol;
@@ -140,7 +141,8 @@ impl LinkClient<Box<dyn serialport::SerialPort>> {
             .open()
             .map_err(ClientError::SerialPort)?;
         // Bytes the port received before we opened it are not answers to us.
-        port.clear(serialport::ClearBuffer::Input).map_err(ClientError::SerialPort)?;
+        port.clear(serialport::ClearBuffer::Input)
+            .map_err(ClientError::SerialPort)?;
         LinkClient::new(port, timeout)
     }
 }
@@ -151,7 +153,15 @@ impl<S: Read + Write> LinkClient<S> {
     pub fn new(mut io: S, timeout: Duration) -> Result<Self, ClientError> {
         // A zero ends whatever half frame an earlier client left in the controller's reader.
         io.write_all(&[0])?;
-        Ok(LinkClient { io, reader: FrameReader::new(), seq: 0, telemetry: Vec::new(), pending: Default::default(), bad_frames: 0, timeout })
+        Ok(LinkClient {
+            io,
+            reader: FrameReader::new(),
+            seq: 0,
+            telemetry: Vec::new(),
+            pending: Default::default(),
+            bad_frames: 0,
+            timeout,
+        })
     }
 
     /// Sends raw bytes (the garbage test) and waits for the answers they provoke: the
@@ -159,7 +169,10 @@ impl<S: Read + Write> LinkClient<S> {
     /// message (a rejection, unless the run happens to be a valid frame). Returns (frames sent,
     /// answers received); waits at most the client's timeout for the answers.
     pub fn send_raw(&mut self, bytes: &[u8]) -> Result<(usize, usize), ClientError> {
-        let frames = bytes.split(|&b| b == 0).filter(|run| !run.is_empty()).count()
+        let frames = bytes
+            .split(|&b| b == 0)
+            .filter(|run| !run.is_empty())
+            .count()
             - usize::from(bytes.last().is_some_and(|&b| b != 0));
         self.io.write_all(bytes)?;
         let deadline = Instant::now() + self.timeout;
@@ -180,13 +193,17 @@ impl<S: Read + Write> LinkClient<S> {
         self.seq = self.seq.wrapping_add(1);
         let seq = self.seq;
         let mut frame = [0u8; MAX_FRAME_LEN];
-        let n = encode(&Request::new(seq, command), &mut frame).map_err(ClientError::FrameRejected)?;
+        let n =
+            encode(&Request::new(seq, command), &mut frame).map_err(ClientError::FrameRejected)?;
         self.io.write_all(&frame[..n])?;
         let deadline = Instant::now() + self.timeout;
         loop {
             match self.next_message(deadline)? {
                 DeviceBody::Reply { seq: s, result } if s == seq => {
-                    return result.map_err(|error| ClientError::Refused { command: name, error })
+                    return result.map_err(|error| ClientError::Refused {
+                        command: name,
+                        error,
+                    })
                 }
                 DeviceBody::FrameRejected(e) => return Err(ClientError::FrameRejected(e)),
                 // A late reply to an earlier request (after a timeout) or telemetry: go on.
@@ -208,7 +225,14 @@ impl<S: Read + Write> LinkClient<S> {
             let n = match self.io.read(&mut buf) {
                 Ok(0) => return Err(std::io::Error::from(std::io::ErrorKind::UnexpectedEof).into()),
                 Ok(n) => n,
-                Err(e) if matches!(e.kind(), std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut) => continue,
+                Err(e)
+                    if matches!(
+                        e.kind(),
+                        std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+                    ) =>
+                {
+                    continue
+                }
                 Err(e) => return Err(e.into()),
             };
             for &b in &buf[..n] {
@@ -247,7 +271,10 @@ impl<S: Read + Write> LinkClient<S> {
     pub fn status(&mut self) -> Result<StatusReport, ClientError> {
         match self.request(Command::Status)? {
             Response::Status(s) => Ok(s),
-            other => Err(ClientError::Unexpected { command: "status", reply: Box::new(other) }),
+            other => Err(ClientError::Unexpected {
+                command: "status",
+                reply: Box::new(other),
+            }),
         }
     }
 }
@@ -274,15 +301,27 @@ pub fn stream_knots<S: Read + Write>(
             free = controller_free(&s);
             continue;
         }
-        let frame = heapless::Vec::from_slice(&knots[sent..end]).map_err(|_| ClientError::Trajectory("frame".into()))?;
-        match client.request(Command::StreamKnots { first_index: sent as u32, knots: frame }) {
+        let frame = heapless::Vec::from_slice(&knots[sent..end])
+            .map_err(|_| ClientError::Trajectory("frame".into()))?;
+        match client.request(Command::StreamKnots {
+            first_index: sent as u32,
+            knots: frame,
+        }) {
             Ok(Response::StreamAccepted { free: f, .. }) => {
                 free = usize::from(f);
                 sent = end;
                 progress(sent, knots.len());
             }
-            Err(ClientError::Refused { error: LinkError::StreamFull(f), .. }) => free = usize::from(f),
-            Ok(other) => return Err(ClientError::Unexpected { command: "stream", reply: Box::new(other) }),
+            Err(ClientError::Refused {
+                error: LinkError::StreamFull(f),
+                ..
+            }) => free = usize::from(f),
+            Ok(other) => {
+                return Err(ClientError::Unexpected {
+                    command: "stream",
+                    reply: Box::new(other),
+                })
+            }
             Err(e) => return Err(e),
         }
     }
@@ -301,10 +340,13 @@ pub fn upload_calibration<S: Read + Write>(
     image: &[u8],
     progress: Progress<'_>,
 ) -> Result<u32, ClientError> {
-    client.request(Command::CalibrationBegin { len: image.len() as u32 })?;
+    client.request(Command::CalibrationBegin {
+        len: image.len() as u32,
+    })?;
     for (i, chunk) in image.chunks(CALIBRATION_CHUNK_LEN).enumerate() {
         let offset = (i * CALIBRATION_CHUNK_LEN) as u32;
-        let data = heapless::Vec::from_slice(chunk).map_err(|_| ClientError::Trajectory("chunk".into()))?;
+        let data = heapless::Vec::from_slice(chunk)
+            .map_err(|_| ClientError::Trajectory("chunk".into()))?;
         client.request(Command::CalibrationChunk { offset, data })?;
         progress(offset as usize + chunk.len(), image.len());
     }
@@ -312,7 +354,10 @@ pub fn upload_calibration<S: Read + Write>(
     match client.request(Command::CalibrationCommit)? {
         Response::CalibrationId(Some(id)) if id == file => Ok(id),
         Response::CalibrationId(controller) => Err(ClientError::CalibrationId { file, controller }),
-        other => Err(ClientError::Unexpected { command: "calibration commit", reply: Box::new(other) }),
+        other => Err(ClientError::Unexpected {
+            command: "calibration commit",
+            reply: Box::new(other),
+        }),
     }
 }
 
@@ -320,24 +365,42 @@ pub fn upload_calibration<S: Read + Write>(
 /// ±`amp_mm[1]` along y at twice that) around `centre_mm`, as knots every `knot_ms` for
 /// `seconds`, with a sin² envelope over the first and last 0.5 s so that it starts and ends
 /// at rest at the centre.
-pub fn figure_knots(centre_mm: [f64; 2], amp_mm: [f64; 2], freq_hz: f64, seconds: f64, knot_ms: u32) -> Vec<Knot> {
+pub fn figure_knots(
+    centre_mm: [f64; 2],
+    amp_mm: [f64; 2],
+    freq_hz: f64,
+    seconds: f64,
+    knot_ms: u32,
+) -> Vec<Knot> {
     let ramp = 0.5f64.min(seconds / 2.0);
     let w = 2.0 * std::f64::consts::PI * freq_hz;
     // Position and velocity of the enveloped figure (exact derivative).
     let at = |t: f64| {
         let (env, denv) = if t < ramp {
             let a = std::f64::consts::FRAC_PI_2 * t / ramp;
-            (a.sin().powi(2), 2.0 * a.sin() * a.cos() * std::f64::consts::FRAC_PI_2 / ramp)
+            (
+                a.sin().powi(2),
+                2.0 * a.sin() * a.cos() * std::f64::consts::FRAC_PI_2 / ramp,
+            )
         } else if t > seconds - ramp {
             let a = std::f64::consts::FRAC_PI_2 * (seconds - t) / ramp;
-            (a.sin().powi(2), -2.0 * a.sin() * a.cos() * std::f64::consts::FRAC_PI_2 / ramp)
+            (
+                a.sin().powi(2),
+                -2.0 * a.sin() * a.cos() * std::f64::consts::FRAC_PI_2 / ramp,
+            )
         } else {
             (1.0, 0.0)
         };
         let (sx, cx) = (w * t).sin_cos();
         let (sy, cy) = (2.0 * w * t).sin_cos();
-        let p = [centre_mm[0] + env * amp_mm[0] * sx, centre_mm[1] + env * amp_mm[1] * sy];
-        let v = [denv * amp_mm[0] * sx + env * amp_mm[0] * w * cx, denv * amp_mm[1] * sy + env * amp_mm[1] * 2.0 * w * cy];
+        let p = [
+            centre_mm[0] + env * amp_mm[0] * sx,
+            centre_mm[1] + env * amp_mm[1] * sy,
+        ];
+        let v = [
+            denv * amp_mm[0] * sx + env * amp_mm[0] * w * cx,
+            denv * amp_mm[1] * sy + env * amp_mm[1] * 2.0 * w * cy,
+        ];
         (p, v)
     };
     let knot_ms = knot_ms.max(1);
@@ -368,10 +431,17 @@ pub fn parse_knots_csv(text: &str) -> Result<Vec<Knot>, ClientError> {
             .collect::<Result<_, _>>()
             .map_err(|e| ClientError::Trajectory(format!("line {}: {e}", i + 1)))?;
         let [t, x, y, vx, vy] = f[..] else {
-            return Err(ClientError::Trajectory(format!("line {}: expected 5 numbers, got {}", i + 1, f.len())));
+            return Err(ClientError::Trajectory(format!(
+                "line {}: expected 5 numbers, got {}",
+                i + 1,
+                f.len()
+            )));
         };
         if !(t > 0.0 && t < 4000.0 && [x, y, vx, vy].iter().all(|v| v.is_finite())) {
-            return Err(ClientError::Trajectory(format!("line {}: time must be in (0, 4000) s and every number finite", i + 1)));
+            return Err(ClientError::Trajectory(format!(
+                "line {}: time must be in (0, 4000) s and every number finite",
+                i + 1
+            )));
         }
         knots.push(Knot {
             t_us: (t * 1e6).round() as u32,
@@ -430,17 +500,26 @@ mod tests {
             }
             for a in 0..2 {
                 let v = (w[2].position_mm[a] - w[0].position_mm[a]) / 0.02;
-                assert!((v - w[1].velocity_mm_s[a]).abs() < 0.02 * w[1].velocity_mm_s[a].abs().max(10.0), "{v} {:?}", w[1]);
+                assert!(
+                    (v - w[1].velocity_mm_s[a]).abs()
+                        < 0.02 * w[1].velocity_mm_s[a].abs().max(10.0),
+                    "{v} {:?}",
+                    w[1]
+                );
             }
         }
     }
 
     #[test]
     fn a_knot_file_is_read_and_bad_lines_are_named() {
-        let k = parse_knots_csv("t_s,x_mm,y_mm,vx_mm_s,vy_mm_s\n0.01,212,0,1,0\n0.02,212.01,0,0,0\n").unwrap();
+        let k =
+            parse_knots_csv("t_s,x_mm,y_mm,vx_mm_s,vy_mm_s\n0.01,212,0,1,0\n0.02,212.01,0,0,0\n")
+                .unwrap();
         assert_eq!(k.len(), 2);
         assert_eq!(k[1].t_us, 20_000);
-        let e = parse_knots_csv("h\n0.01,212,0,1\n").unwrap_err().to_string();
+        let e = parse_knots_csv("h\n0.01,212,0,1\n")
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("line 2") && e.contains("5 numbers"), "{e}");
         assert!(parse_knots_csv("h\n0.01,NaN,0,1,0\n").is_err());
         assert!(parse_knots_csv("h\n").is_err());

@@ -14,7 +14,11 @@ use super::{NumericError, Residuals};
 use nalgebra::DMatrix;
 
 /// `∂r/∂p` at `p` for the parameters `cols` (one column each, in that order).
-pub fn jacobian<R: Residuals + ?Sized>(problem: &R, p: &[f64], cols: &[usize]) -> Result<DMatrix<f64>, NumericError> {
+pub fn jacobian<R: Residuals + ?Sized>(
+    problem: &R,
+    p: &[f64],
+    cols: &[usize],
+) -> Result<DMatrix<f64>, NumericError> {
     let n_params = problem.n_params();
     if let Some(&param) = cols.iter().find(|&&k| k >= n_params) {
         return Err(NumericError::NoSuchParameter { param, n_params });
@@ -38,7 +42,9 @@ pub fn jacobian<R: Residuals + ?Sized>(problem: &R, p: &[f64], cols: &[usize]) -
         Some(j) => Ok(j),
         // No column asked for: an m × 0 matrix (m from the residuals at p).
         None => {
-            let r = problem.residuals(p).ok_or(NumericError::StartOutsideDomain)?;
+            let r = problem
+                .residuals(p)
+                .ok_or(NumericError::StartOutsideDomain)?;
             Ok(DMatrix::zeros(r.len(), 0))
         }
     }
@@ -56,7 +62,11 @@ mod tests {
             2
         }
         fn residuals(&self, p: &[f64]) -> Option<DVector<f64>> {
-            Some(DVector::from_vec(vec![p[0] * p[0], p[0] * p[1], p[1].sin()]))
+            Some(DVector::from_vec(vec![
+                p[0] * p[0],
+                p[0] * p[1],
+                p[1].sin(),
+            ]))
         }
         fn fd_step(&self, _k: usize) -> f64 {
             1e-6
@@ -70,13 +80,23 @@ mod tests {
         let want = [[3.0, 0.0], [-0.7, 1.5], [0.0, (-0.7f64).cos()]];
         for (r, row) in want.iter().enumerate() {
             for (c, w) in row.iter().enumerate() {
-                assert!((j[(r, c)] - w).abs() < 1e-9, "({r}, {c}): {} vs {w}", j[(r, c)]);
+                assert!(
+                    (j[(r, c)] - w).abs() < 1e-9,
+                    "({r}, {c}): {} vs {w}",
+                    j[(r, c)]
+                );
             }
         }
         // Column selection and order follow `cols`; none asked for is an m × 0 matrix.
         let j1 = jacobian(&Quadratic, &p, &[1]).unwrap();
         assert_eq!(j1.column(0), j.column(1));
         assert_eq!(jacobian(&Quadratic, &p, &[]).unwrap().shape(), (3, 0));
-        assert_eq!(jacobian(&Quadratic, &p, &[2]).unwrap_err(), NumericError::NoSuchParameter { param: 2, n_params: 2 });
+        assert_eq!(
+            jacobian(&Quadratic, &p, &[2]).unwrap_err(),
+            NumericError::NoSuchParameter {
+                param: 2,
+                n_params: 2
+            }
+        );
     }
 }

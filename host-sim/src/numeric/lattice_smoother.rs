@@ -113,13 +113,23 @@ impl LatticeSmoother {
             // The penalty's null space (constant and linear along the axis) has eigenvalue 0
             // exactly; rounding gives ±1e-15, which a λ of 1e12 would turn into damping.
             let top = e.eigenvalues.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-            let clean = e.eigenvalues.iter().map(|&v| if v > 1e-10 * top { v } else { 0.0 }).collect::<Vec<f64>>();
+            let clean = e
+                .eigenvalues
+                .iter()
+                .map(|&v| if v > 1e-10 * top { v } else { 0.0 })
+                .collect::<Vec<f64>>();
             (e.eigenvectors, clean)
         };
         let (ux, mu) = eig(nx);
         let (uy, nu) = eig(ny);
         let penalty = (0..nx * ny).map(|k| mu[k % nx] + nu[k / nx]).collect();
-        LatticeSmoother { nx, ny, ux, uy, penalty }
+        LatticeSmoother {
+            nx,
+            ny,
+            ux,
+            uy,
+            penalty,
+        }
     }
 
     /// Nodes of the lattice.
@@ -148,7 +158,11 @@ impl LatticeSmoother {
 
     /// `Σ g(λ)^power·a·b` over the basis: `aᵀ H^power b` for two fields' coefficients.
     pub fn quadratic(&self, a: &Coefficients, b: &Coefficients, lambda: f64, power: i32) -> f64 {
-        a.0.iter().zip(&b.0).zip(self.gains(lambda)).map(|((x, y), g)| g.powi(power) * x * y).sum()
+        a.0.iter()
+            .zip(&b.0)
+            .zip(self.gains(lambda))
+            .map(|((x, y), g)| g.powi(power) * x * y)
+            .sum()
     }
 
     /// −2 log of the restricted likelihood of `fields` at λ, σ² profiled out, up to a
@@ -175,7 +189,10 @@ impl LatticeSmoother {
 
     /// `‖(I − H(λ))·y‖²` of a field from its coefficients.
     pub fn residual_sq(&self, c: &Coefficients, lambda: f64) -> f64 {
-        c.0.iter().zip(self.gains(lambda)).map(|(y, g)| (y * (1.0 - g)).powi(2)).sum()
+        c.0.iter()
+            .zip(self.gains(lambda))
+            .map(|(y, g)| (y * (1.0 - g)).powi(2))
+            .sum()
     }
 
     /// The λ in [`LAMBDA_RANGE`] minimising `score(λ)`: a logarithmic scan, 16 points per
@@ -194,8 +211,20 @@ impl LatticeSmoother {
         let rss: f64 = fields.iter().map(|c| self.residual_sq(c, lambda)).sum();
         let n = self.len();
         let denom = (1.0 - dof / n as f64).powi(2);
-        let gcv = if denom > 0.0 { rss / (fields.len() * n) as f64 / denom } else { f64::INFINITY };
-        Smoothed { lambda, dof, noise_dof, rss, gcv, n, components: fields.len() }
+        let gcv = if denom > 0.0 {
+            rss / (fields.len() * n) as f64 / denom
+        } else {
+            f64::INFINITY
+        };
+        Smoothed {
+            lambda,
+            dof,
+            noise_dof,
+            rss,
+            gcv,
+            n,
+            components: fields.len(),
+        }
     }
 
     /// The λ minimising the GCV score of `fields` together (see the module doc).
@@ -206,7 +235,12 @@ impl LatticeSmoother {
 
     /// The smoothed field of `coeffs` with `lambda` (x fastest).
     pub fn apply(&self, coeffs: &Coefficients, lambda: f64) -> Vec<f64> {
-        let scaled: Vec<f64> = coeffs.0.iter().zip(self.gains(lambda)).map(|(c, g)| c * g).collect();
+        let scaled: Vec<f64> = coeffs
+            .0
+            .iter()
+            .zip(self.gains(lambda))
+            .map(|(c, g)| c * g)
+            .collect();
         let c = DMatrix::from_column_slice(self.nx, self.ny, &scaled);
         let f = &self.ux * c * self.uy.transpose();
         f.as_slice().to_vec()
@@ -256,14 +290,20 @@ mod tests {
     #[test]
     fn matches_the_direct_solution() {
         let (nx, ny) = (5, 4);
-        let y: Vec<f64> = (0..nx * ny).map(|k| ((k * 7919) % 13) as f64 - 6.0).collect();
+        let y: Vec<f64> = (0..nx * ny)
+            .map(|k| ((k * 7919) % 13) as f64 - 6.0)
+            .collect();
         let s = LatticeSmoother::new(nx, ny);
         let lambda = 0.7;
         let fast = s.apply(&s.coefficients(&y), lambda);
         let (gx, gy) = (second_difference_gram(nx), second_difference_gram(ny));
         let p = DMatrix::identity(ny, ny).kronecker(&gx) + gy.kronecker(&DMatrix::identity(nx, nx));
         let a = DMatrix::identity(nx * ny, nx * ny) + p * lambda;
-        let direct = a.clone().lu().solve(&nalgebra::DVector::from_column_slice(&y)).unwrap();
+        let direct = a
+            .clone()
+            .lu()
+            .solve(&nalgebra::DVector::from_column_slice(&y))
+            .unwrap();
         for (f, d) in fast.iter().zip(direct.iter()) {
             assert!((f - d).abs() < 1e-10, "{f} vs {d}");
         }
@@ -278,13 +318,20 @@ mod tests {
     fn keeps_bilinear_fields_and_removes_noise() {
         let (nx, ny) = (21, 31);
         let s = LatticeSmoother::new(nx, ny);
-        let bilinear: Vec<f64> = (0..nx * ny).map(|k| 3.0 + 0.5 * (k % nx) as f64 - 0.2 * (k / nx) as f64 + 0.01 * ((k % nx) * (k / nx)) as f64).collect();
+        let bilinear: Vec<f64> = (0..nx * ny)
+            .map(|k| {
+                3.0 + 0.5 * (k % nx) as f64 - 0.2 * (k / nx) as f64
+                    + 0.01 * ((k % nx) * (k / nx)) as f64
+            })
+            .collect();
         let f = s.apply(&s.coefficients(&bilinear), 1e9);
         assert!(f.iter().zip(&bilinear).all(|(a, b)| (a - b).abs() < 1e-9));
 
         let mut rng = ChaCha8Rng::seed_from_u64(3);
         let noise = Normal::new(0.0, 1.0).unwrap();
-        let truth: Vec<f64> = (0..nx * ny).map(|k| 5.0 * ((k % nx) as f64 / 6.0).sin() * ((k / nx) as f64 / 9.0).cos()).collect();
+        let truth: Vec<f64> = (0..nx * ny)
+            .map(|k| 5.0 * ((k % nx) as f64 / 6.0).sin() * ((k / nx) as f64 / 9.0).cos())
+            .collect();
         let y: Vec<f64> = truth.iter().map(|t| t + noise.sample(&mut rng)).collect();
         let c = s.coefficients(&y);
         let chosen = s.choose_by_gcv(std::slice::from_ref(&c));
@@ -292,7 +339,13 @@ mod tests {
         let rms = |a: &[f64]| (a.iter().map(|v| v * v).sum::<f64>() / a.len() as f64).sqrt();
         let err: Vec<f64> = f.iter().zip(&truth).map(|(a, b)| a - b).collect();
         let sigma = chosen.noise_sigma().unwrap();
-        assert!(rms(&err) < 0.35, "error left {} of σ = 1 (λ {}, dof {})", rms(&err), chosen.lambda, chosen.dof);
+        assert!(
+            rms(&err) < 0.35,
+            "error left {} of σ = 1 (λ {}, dof {})",
+            rms(&err),
+            chosen.lambda,
+            chosen.dof
+        );
         assert!((0.85..1.15).contains(&sigma), "σ̂ = {sigma}");
         // Without noise the smoother hardly smooths.
         let c = s.coefficients(&truth);

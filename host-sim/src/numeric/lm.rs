@@ -164,7 +164,9 @@ pub fn levenberg_marquardt<R: Residuals + ?Sized>(
     opts: &LmOptions,
 ) -> Result<LmFit, NumericError> {
     let mut p = p0.to_vec();
-    let mut r = problem.residuals(&p).ok_or(NumericError::StartOutsideDomain)?;
+    let mut r = problem
+        .residuals(&p)
+        .ok_or(NumericError::StartOutsideDomain)?;
     let mut cost = r.norm_squared();
     if !cost.is_finite() {
         return Err(NumericError::StartOutsideDomain);
@@ -173,7 +175,11 @@ pub fn levenberg_marquardt<R: Residuals + ?Sized>(
     let (mut iterations, mut rejected) = (0usize, 0usize);
     let mut lambda = opts.initial_lambda;
     let h: Vec<f64> = free.iter().map(|&k| problem.fd_step(k)).collect();
-    let mut stop = if free.is_empty() { Stop::NoFreeParameters } else { Stop::MaxIterations };
+    let mut stop = if free.is_empty() {
+        Stop::NoFreeParameters
+    } else {
+        Stop::MaxIterations
+    };
     while !free.is_empty() && iterations < opts.max_iterations {
         iterations += 1;
         let j = jacobian(problem, &p, free)?;
@@ -191,7 +197,10 @@ pub fn levenberg_marquardt<R: Residuals + ?Sized>(
                 continue;
             };
             let delta = chol.solve(&(-&g));
-            let small = delta.iter().zip(&h).all(|(d, h)| d.abs() <= opts.step_rel_tol * h);
+            let small = delta
+                .iter()
+                .zip(&h)
+                .all(|(d, h)| d.abs() <= opts.step_rel_tol * h);
             let mut trial = p.clone();
             for (d, &k) in free.iter().enumerate() {
                 trial[k] += delta[d];

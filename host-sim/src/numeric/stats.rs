@@ -23,7 +23,10 @@ impl MaxRms {
             sum += q;
             max_sq = max_sq.max(q);
         }
-        MaxRms { max: max_sq.sqrt(), rms: (sum / n.max(1) as f64).sqrt() }
+        MaxRms {
+            max: max_sq.sqrt(),
+            rms: (sum / n.max(1) as f64).sqrt(),
+        }
     }
 }
 
@@ -68,11 +71,23 @@ mod tests {
 
     #[test]
     fn max_and_rms() {
-        assert_eq!(max_rms(&[3.0, 4.0]), MaxRms { max: 4.0, rms: 12.5f64.sqrt() });
+        assert_eq!(
+            max_rms(&[3.0, 4.0]),
+            MaxRms {
+                max: 4.0,
+                rms: 12.5f64.sqrt()
+            }
+        );
         assert_eq!(max_rms(&[]), MaxRms { max: 0.0, rms: 0.0 });
         assert_eq!(max_rms(&[1.0, f64::INFINITY]).max, f64::INFINITY);
         // Two points: (3, 4) and (0, 0): radial 5 and 0.
-        assert_eq!(max_rms_radial(&[3.0, 4.0, 0.0, 0.0]), MaxRms { max: 5.0, rms: 12.5f64.sqrt() });
+        assert_eq!(
+            max_rms_radial(&[3.0, 4.0, 0.0, 0.0]),
+            MaxRms {
+                max: 5.0,
+                rms: 12.5f64.sqrt()
+            }
+        );
         assert_eq!(median(&mut [5.0, 1.0, 3.0]), Some(3.0));
         assert_eq!(median(&mut [4.0, 1.0, 3.0, 2.0]), Some(3.0));
         assert_eq!(median(&mut []), None);

@@ -39,7 +39,11 @@ impl ScaledSvd {
         let k = j.ncols();
         let column_norms: Vec<f64> = j.column_iter().map(|c| c.norm()).collect();
         if k == 0 {
-            return ScaledSvd { singular_values: Vec::new(), v_rows: Vec::new(), column_norms };
+            return ScaledSvd {
+                singular_values: Vec::new(),
+                v_rows: Vec::new(),
+                column_norms,
+            };
         }
         // Fewer rows than columns: pad with zero rows (JᵀJ is unchanged) so the SVD gives every
         // right singular vector, the null directions included.
@@ -52,28 +56,44 @@ impl ScaledSvd {
         }
         let svd = s.svd(false, true);
         let v_t = svd.v_t.expect("V was requested");
-        let mut pairs: Vec<(f64, Vec<f64>)> =
-            (0..svd.singular_values.len()).map(|i| (svd.singular_values[i], v_t.row(i).iter().copied().collect())).collect();
+        let mut pairs: Vec<(f64, Vec<f64>)> = (0..svd.singular_values.len())
+            .map(|i| (svd.singular_values[i], v_t.row(i).iter().copied().collect()))
+            .collect();
         pairs.sort_by(|a, b| b.0.total_cmp(&a.0));
         // A zero column is exactly a null direction: name it as such rather than leave the
         // choice among equal (zero) singular values to the SVD.
         if let Some(c) = column_norms.iter().position(|&n| n == 0.0) {
             let last = pairs.len() - 1;
-            pairs[last] = (0.0, (0..k).map(|i| if i == c { 1.0 } else { 0.0 }).collect());
+            pairs[last] = (
+                0.0,
+                (0..k).map(|i| if i == c { 1.0 } else { 0.0 }).collect(),
+            );
         }
         let (singular_values, v_rows) = pairs.into_iter().unzip();
-        ScaledSvd { singular_values, v_rows, column_norms }
+        ScaledSvd {
+            singular_values,
+            v_rows,
+            column_norms,
+        }
     }
 
     /// Singular values relative to the largest (1 for the first), descending.
     pub fn relative(&self) -> Vec<f64> {
-        let top = self.singular_values.first().copied().unwrap_or(0.0).max(f64::MIN_POSITIVE);
+        let top = self
+            .singular_values
+            .first()
+            .copied()
+            .unwrap_or(0.0)
+            .max(f64::MIN_POSITIVE);
         self.singular_values.iter().map(|s| s / top).collect()
     }
 
     /// The smallest singular value of the column-normalised matrix (∞ without columns).
     pub fn min(&self) -> f64 {
-        self.singular_values.last().copied().unwrap_or(f64::INFINITY)
+        self.singular_values
+            .last()
+            .copied()
+            .unwrap_or(f64::INFINITY)
     }
 
     /// The smallest relative singular value (1 without columns).
@@ -136,7 +156,10 @@ mod tests {
         }
         let inv = (j.transpose() * &j).try_inverse().unwrap();
         let pinv = s.normal_pseudo_inverse(RANK_TOL);
-        assert!((&inv - &pinv).abs().max() < 1e-9 * pinv.abs().max(), "pinv differs from the inverse");
+        assert!(
+            (&inv - &pinv).abs().max() < 1e-9 * pinv.abs().max(),
+            "pinv differs from the inverse"
+        );
         assert_eq!(s.rank(RANK_TOL), 2);
     }
 
@@ -147,12 +170,21 @@ mod tests {
         let s = ScaledSvd::new(&j);
         assert_eq!(s.rank(RANK_TOL), 2);
         let v = s.smallest_direction();
-        assert!((v[0].abs() - v[2].abs()).abs() < 1e-9 && v[1].abs() < 1e-9, "{v:?}");
+        assert!(
+            (v[0].abs() - v[2].abs()).abs() < 1e-9 && v[1].abs() < 1e-9,
+            "{v:?}"
+        );
         // No variance along the null direction: the pseudo-inverse stays finite.
-        assert!(s.normal_pseudo_inverse(RANK_TOL).iter().all(|x| x.is_finite()));
+        assert!(s
+            .normal_pseudo_inverse(RANK_TOL)
+            .iter()
+            .all(|x| x.is_finite()));
         let z = DMatrix::from_row_slice(2, 2, &[1.0, 0.0, 2.0, 0.0]);
         let s = ScaledSvd::new(&z);
-        assert_eq!((s.rank(RANK_TOL), s.smallest_direction()), (1, &[0.0, 1.0][..]));
+        assert_eq!(
+            (s.rank(RANK_TOL), s.smallest_direction()),
+            (1, &[0.0, 1.0][..])
+        );
         assert_eq!(ScaledSvd::new(&DMatrix::zeros(4, 0)).min(), f64::INFINITY);
     }
 }

@@ -194,7 +194,8 @@ impl SixBarConfig {
         match &self.geometry {
             None => {
                 let mut f = FiveBar::paper_nominal();
-                (f.a_mm, f.b_mm, f.c_mm, f.d_mm) = (self.link_mm, self.link_mm, self.link_mm, self.link_mm);
+                (f.a_mm, f.b_mm, f.c_mm, f.d_mm) =
+                    (self.link_mm, self.link_mm, self.link_mm, self.link_mm);
                 f
             }
             Some(g) => FiveBar {
@@ -205,17 +206,30 @@ impl SixBarConfig {
                 base_a0_mm: g.a0_mm,
                 base_b0_mm: [g.b0_mm[0] - g.a0_mm[0], g.b0_mm[1] - g.a0_mm[1]],
                 encoder_offset_rad: [0.0; 2],
-                mode: WorkingMode { elbow_1: g.elbow_1.into(), elbow_2: g.elbow_2.into(), assembly: g.assembly.into() },
+                mode: WorkingMode {
+                    elbow_1: g.elbow_1.into(),
+                    elbow_2: g.elbow_2.into(),
+                    assembly: g.assembly.into(),
+                },
             },
         }
     }
 
     /// The two parallelogram offsets of each arm: `[[g1, h1], [g2, h2]]`.
     pub fn parallelogram_offsets_mm(&self) -> [[[f64; 2]; 2]; 2] {
-        let (g1, h1) = (self.parallelogram_1_offset_mm, self.parallelogram_2_offset_mm);
+        let (g1, h1) = (
+            self.parallelogram_1_offset_mm,
+            self.parallelogram_2_offset_mm,
+        );
         match &self.geometry {
             None => [[g1, h1], [[g1[0], -g1[1]], [h1[0], -h1[1]]]],
-            Some(g) => [[g1, h1], [g.arm_2_parallelogram_1_offset_mm, g.arm_2_parallelogram_2_offset_mm]],
+            Some(g) => [
+                [g1, h1],
+                [
+                    g.arm_2_parallelogram_1_offset_mm,
+                    g.arm_2_parallelogram_2_offset_mm,
+                ],
+            ],
         }
     }
 }
@@ -289,7 +303,12 @@ impl PlantConfig {
             let pose = nominal.inverse_pose(t, 0.0).ok()?;
             let link = [0, 1].map(|i| pose.theta_rad[i] + nominal.encoder_offset_rad[i]);
             let (ea, eb) = (pose.elbow_a_mm, pose.elbow_b_mm);
-            let raw = [link[0], (t[1] - ea[1]).atan2(t[0] - ea[0]), link[1], (t[1] - eb[1]).atan2(t[0] - eb[0])];
+            let raw = [
+                link[0],
+                (t[1] - ea[1]).atan2(t[0] - ea[0]),
+                link[1],
+                (t[1] - eb[1]).atan2(t[0] - eb[0]),
+            ];
             let f = *first.get_or_insert(raw);
             for k in 0..4 {
                 let a = f[k] + kinematics_core::wrap_angle_rad(raw[k] - f[k]);
@@ -312,7 +331,10 @@ impl PlantConfig {
             c_mm: nominal.c_mm,
             d_mm: nominal.d_mm,
             a0_mm: nominal.base_a0_mm,
-            b0_mm: [nominal.base_a0_mm[0] + nominal.base_b0_mm[0], nominal.base_a0_mm[1] + nominal.base_b0_mm[1]],
+            b0_mm: [
+                nominal.base_a0_mm[0] + nominal.base_b0_mm[0],
+                nominal.base_a0_mm[1] + nominal.base_b0_mm[1],
+            ],
             elbow_1: m.elbow_1.into(),
             elbow_2: m.elbow_2.into(),
             assembly: m.assembly.into(),
@@ -374,9 +396,14 @@ impl PlantConfig {
                 if !p.exists() {
                     return Err(PlantError::UnknownPlant(path.to_string()));
                 }
-                let text = std::fs::read_to_string(p)
-                    .map_err(|e| PlantError::Read { path: path.to_string(), message: e.to_string() })?;
-                PlantConfig::from_toml(&text).map_err(|e| PlantError::InFile { path: path.to_string(), message: e.to_string() })
+                let text = std::fs::read_to_string(p).map_err(|e| PlantError::Read {
+                    path: path.to_string(),
+                    message: e.to_string(),
+                })?;
+                PlantConfig::from_toml(&text).map_err(|e| PlantError::InFile {
+                    path: path.to_string(),
+                    message: e.to_string(),
+                })
             }
         }
     }
@@ -399,10 +426,17 @@ impl PlantConfig {
         fn walk(v: &serde_json::Value, path: &str) -> Result<(), PlantError> {
             let invalid = |m: String| Err(PlantError::Invalid(m));
             match v {
-                serde_json::Value::Number(n) if !n.as_f64().is_some_and(f64::is_finite) => invalid(format!("'{path}' is not finite")),
+                serde_json::Value::Number(n) if !n.as_f64().is_some_and(f64::is_finite) => {
+                    invalid(format!("'{path}' is not finite"))
+                }
                 serde_json::Value::Null => invalid(format!("'{path}' is not a finite number")),
-                serde_json::Value::Object(m) => m.iter().try_for_each(|(k, v)| walk(v, &format!("{path}.{k}"))),
-                serde_json::Value::Array(a) => a.iter().enumerate().try_for_each(|(i, v)| walk(v, &format!("{path}[{i}]"))),
+                serde_json::Value::Object(m) => m
+                    .iter()
+                    .try_for_each(|(k, v)| walk(v, &format!("{path}.{k}"))),
+                serde_json::Value::Array(a) => a
+                    .iter()
+                    .enumerate()
+                    .try_for_each(|(i, v)| walk(v, &format!("{path}[{i}]"))),
                 _ => Ok(()),
             }
         }
@@ -410,11 +444,20 @@ impl PlantConfig {
         let positive = [
             ("sixbar.link_mm", s.link_mm),
             ("sixbar.platform_half_width_mm", s.platform_half_width_mm),
-            ("sixbar.youngs_modulus_n_per_mm2", s.youngs_modulus_n_per_mm2),
+            (
+                "sixbar.youngs_modulus_n_per_mm2",
+                s.youngs_modulus_n_per_mm2,
+            ),
             ("sixbar.main_bar_section_mm2", s.main_bar_section_mm2),
-            ("sixbar.follower_bar_section_mm2", s.follower_bar_section_mm2),
+            (
+                "sixbar.follower_bar_section_mm2",
+                s.follower_bar_section_mm2,
+            ),
             ("sixbar.pin_stiffness_n_per_mm", s.pin_stiffness_n_per_mm),
-            ("sixbar.clearance_centring_ratio", s.clearance_centring_ratio),
+            (
+                "sixbar.clearance_centring_ratio",
+                s.clearance_centring_ratio,
+            ),
             ("drive_1.inertia_kg_m2", self.drive_1.inertia_kg_m2),
             ("drive_2.inertia_kg_m2", self.drive_2.inertia_kg_m2),
             ("drive_1.gear_ratio", self.drive_1.gear_ratio),
@@ -424,7 +467,9 @@ impl PlantConfig {
         ];
         for (name, v) in positive {
             if !(v > 0.0) {
-                return Err(PlantError::Invalid(format!("'{name}' must be positive, not {v}")));
+                return Err(PlantError::Invalid(format!(
+                    "'{name}' must be positive, not {v}"
+                )));
             }
         }
         let non_negative = [
@@ -433,20 +478,42 @@ impl PlantConfig {
             ("instrument.noise_sigma_um", self.instrument.noise_sigma_um),
             ("drive_1.backlash_urad", self.drive_1.backlash_urad),
             ("drive_2.backlash_urad", self.drive_2.backlash_urad),
-            ("drive_1.encoder_counts_per_motor_rev", self.drive_1.encoder_counts_per_motor_rev),
-            ("drive_2.encoder_counts_per_motor_rev", self.drive_2.encoder_counts_per_motor_rev),
-            ("drive_1.viscous_friction_nm_s_per_rad", self.drive_1.viscous_friction_nm_s_per_rad),
-            ("drive_2.viscous_friction_nm_s_per_rad", self.drive_2.viscous_friction_nm_s_per_rad),
-            ("drive_1.coulomb_friction_nm", self.drive_1.coulomb_friction_nm),
-            ("drive_2.coulomb_friction_nm", self.drive_2.coulomb_friction_nm),
+            (
+                "drive_1.encoder_counts_per_motor_rev",
+                self.drive_1.encoder_counts_per_motor_rev,
+            ),
+            (
+                "drive_2.encoder_counts_per_motor_rev",
+                self.drive_2.encoder_counts_per_motor_rev,
+            ),
+            (
+                "drive_1.viscous_friction_nm_s_per_rad",
+                self.drive_1.viscous_friction_nm_s_per_rad,
+            ),
+            (
+                "drive_2.viscous_friction_nm_s_per_rad",
+                self.drive_2.viscous_friction_nm_s_per_rad,
+            ),
+            (
+                "drive_1.coulomb_friction_nm",
+                self.drive_1.coulomb_friction_nm,
+            ),
+            (
+                "drive_2.coulomb_friction_nm",
+                self.drive_2.coulomb_friction_nm,
+            ),
         ];
         for (name, v) in non_negative.into_iter().chain(self.linkage.non_negative()) {
             if !(v >= 0.0) {
-                return Err(PlantError::Invalid(format!("'{name}' must not be negative, not {v}")));
+                return Err(PlantError::Invalid(format!(
+                    "'{name}' must not be negative, not {v}"
+                )));
             }
         }
         if s.pin_clearance_mm > 1.0 || s.bar_end_clearance_mm > 1.0 {
-            return Err(PlantError::Invalid("clearances above 1 mm are not a machine".into()));
+            return Err(PlantError::Invalid(
+                "clearances above 1 mm are not a machine".into(),
+            ));
         }
         Ok(())
     }
@@ -487,7 +554,10 @@ impl PlantConfig {
         }
         p.drive_1.encoder_offset_deg = o.sample(&mut rng);
         p.drive_2.encoder_offset_deg = o.sample(&mut rng);
-        p.description = format!("{} + random errors (seed {seed}, {sigma_mm} mm, {sigma_offset_deg} deg)", self.description);
+        p.description = format!(
+            "{} + random errors (seed {seed}, {sigma_mm} mm, {sigma_offset_deg} deg)",
+            self.description
+        );
         p
     }
 
@@ -498,19 +568,26 @@ impl PlantConfig {
         let mut p = PlantConfig::ideal();
         p.sixbar.model = self.sixbar.model;
         p.description = format!("{} with only {effect}", self.description);
-        let pairs = [(&mut p.drive_1, &self.drive_1), (&mut p.drive_2, &self.drive_2)];
+        let pairs = [
+            (&mut p.drive_1, &self.drive_1),
+            (&mut p.drive_2, &self.drive_2),
+        ];
         match effect {
             PhysicalEffect::LinkGeometry => p.sixbar.errors = self.sixbar.errors.clone(),
             PhysicalEffect::Clearance => {
                 p.sixbar.pin_clearance_mm = self.sixbar.pin_clearance_mm;
                 p.sixbar.bar_end_clearance_mm = self.sixbar.bar_end_clearance_mm;
             }
-            PhysicalEffect::EncoderOffset => pairs.into_iter().for_each(|(d, s)| d.encoder_offset_deg = s.encoder_offset_deg),
+            PhysicalEffect::EncoderOffset => pairs
+                .into_iter()
+                .for_each(|(d, s)| d.encoder_offset_deg = s.encoder_offset_deg),
             PhysicalEffect::EncoderQuantization => pairs.into_iter().for_each(|(d, s)| {
                 d.encoder_counts_per_motor_rev = s.encoder_counts_per_motor_rev;
                 d.gear_ratio = s.gear_ratio;
             }),
-            PhysicalEffect::Backlash => pairs.into_iter().for_each(|(d, s)| d.backlash_urad = s.backlash_urad),
+            PhysicalEffect::Backlash => pairs
+                .into_iter()
+                .for_each(|(d, s)| d.backlash_urad = s.backlash_urad),
             PhysicalEffect::CyclicError => pairs.into_iter().for_each(|(d, s)| {
                 d.cyclic_error_urad = s.cyclic_error_urad;
                 d.cyclic_error_cycles_per_motor_rev = s.cyclic_error_cycles_per_motor_rev;
@@ -522,7 +599,9 @@ impl PlantConfig {
                 p.instrument.frame_rotation_deg = self.instrument.frame_rotation_deg;
             }
             PhysicalEffect::Scale => p.instrument.scale_error_ppm = self.instrument.scale_error_ppm,
-            PhysicalEffect::InstrumentNoise => p.instrument.noise_sigma_um = self.instrument.noise_sigma_um,
+            PhysicalEffect::InstrumentNoise => {
+                p.instrument.noise_sigma_um = self.instrument.noise_sigma_um
+            }
             PhysicalEffect::LinkLengths
             | PhysicalEffect::BaseOffset
             | PhysicalEffect::LinkStretch
@@ -552,7 +631,11 @@ mod tests {
         let bad = PAPER_TOML.replace("backlash_urad", "backlash_urd");
         let err = PlantConfig::from_toml(&bad).unwrap_err().to_string();
         assert!(err.contains("backlash_urd"), "{err}");
-        let neg = PAPER_TOML.replacen("pin_stiffness_n_per_mm = 20000.0", "pin_stiffness_n_per_mm = -1.0", 1);
+        let neg = PAPER_TOML.replacen(
+            "pin_stiffness_n_per_mm = 20000.0",
+            "pin_stiffness_n_per_mm = -1.0",
+            1,
+        );
         assert!(PlantConfig::from_toml(&neg).is_err());
         assert!(PlantConfig::by_name("no-such-plant").is_err());
     }
@@ -563,10 +646,15 @@ mod tests {
         let b = PlantConfig::ideal().with_random_errors(7, 0.05, 0.1);
         assert_eq!(a, b);
         assert_ne!(a, PlantConfig::ideal().with_random_errors(8, 0.05, 0.1));
-        let only = PlantConfig::paper().with_only(PhysicalEffect::Backlash).unwrap();
+        let only = PlantConfig::paper()
+            .with_only(PhysicalEffect::Backlash)
+            .unwrap();
         assert_eq!(only.drive_1.backlash_urad, 20.0);
         assert_eq!(only.sixbar.errors, SixBarErrors::default());
         assert_eq!(only.drive_1.encoder_offset_deg, 0.0);
-        assert_eq!(PlantConfig::paper().with_only(PhysicalEffect::GearRatio), Err(PlantError::NoSetting(PhysicalEffect::GearRatio)));
+        assert_eq!(
+            PlantConfig::paper().with_only(PhysicalEffect::GearRatio),
+            Err(PlantError::NoSetting(PhysicalEffect::GearRatio))
+        );
     }
 }

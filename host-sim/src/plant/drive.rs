@@ -87,7 +87,8 @@ impl Drive {
     /// The link's geometric angle now.
     pub fn link_rad(&self) -> f64 {
         let cyclic = if self.cyclic_amplitude_rad != 0.0 {
-            self.cyclic_amplitude_rad * (self.cyclic_rad_per_rad * self.motor_rad + self.cyclic_phase_rad).sin()
+            self.cyclic_amplitude_rad
+                * (self.cyclic_rad_per_rad * self.motor_rad + self.cyclic_phase_rad).sin()
         } else {
             0.0
         };
@@ -152,7 +153,8 @@ impl Drive {
             // Stuck: static friction balances the torque.
         } else {
             let dir = if w != 0.0 { w.signum() } else { tau.signum() };
-            let acc = (tau - self.viscous_nm_s_per_rad * w - self.coulomb_nm * dir) / self.inertia_kg_m2;
+            let acc =
+                (tau - self.viscous_nm_s_per_rad * w - self.coulomb_nm * dir) / self.inertia_kg_m2;
             let mut w_new = w + acc * dt_s;
             // Coulomb friction stops the motor; it does not reverse it within a step.
             if w != 0.0 && w_new * w < 0.0 && self.coulomb_nm > 0.0 {
@@ -195,7 +197,10 @@ mod tests {
         for _ in 0..100 {
             d.step(-0.5, 5e-5);
         }
-        assert!(d.link_rad() > d.motor_rad, "moving negative, the link lags above the motor");
+        assert!(
+            d.link_rad() > d.motor_rad,
+            "moving negative, the link lags above the motor"
+        );
     }
 
     #[test]
@@ -243,4 +248,3 @@ mod tests {
         assert!((d.link_rad() - TAU / 40.0 - 10e-6).abs() < 1e-12);
     }
 }
-

@@ -38,7 +38,10 @@ impl Instrument {
     pub fn frame_mm(&self, tool_mm: [f64; 2]) -> [f64; 2] {
         let (s, c) = self.rot_sin_cos;
         let p = [tool_mm[0] * self.scale, tool_mm[1] * self.scale];
-        [self.offset_mm[0] + c * p[0] - s * p[1], self.offset_mm[1] + s * p[0] + c * p[1]]
+        [
+            self.offset_mm[0] + c * p[0] - s * p[1],
+            self.offset_mm[1] + s * p[0] + c * p[1],
+        ]
     }
 
     /// One reading, with noise.

@@ -56,14 +56,24 @@ pub struct LinkageConfig {
 impl Default for LinkageConfig {
     /// The paper machine: aluminium bars, 30 g elbow pieces, a 60 g platform with a 40 g tool.
     fn default() -> Self {
-        LinkageConfig { bar_density_kg_per_m3: 2700.0, elbow_piece_mass_kg: 0.03, platform_mass_kg: 0.06, tool_mass_kg: 0.04 }
+        LinkageConfig {
+            bar_density_kg_per_m3: 2700.0,
+            elbow_piece_mass_kg: 0.03,
+            platform_mass_kg: 0.06,
+            tool_mass_kg: 0.04,
+        }
     }
 }
 
 impl LinkageConfig {
     /// No inertia in the linkage at all.
     pub fn massless() -> Self {
-        LinkageConfig { bar_density_kg_per_m3: 0.0, elbow_piece_mass_kg: 0.0, platform_mass_kg: 0.0, tool_mass_kg: 0.0 }
+        LinkageConfig {
+            bar_density_kg_per_m3: 0.0,
+            elbow_piece_mass_kg: 0.0,
+            platform_mass_kg: 0.0,
+            tool_mass_kg: 0.0,
+        }
     }
 
     /// The values that must not be negative, with their keys.
@@ -87,7 +97,10 @@ pub struct Bar {
 impl Bar {
     fn new(density_kg_per_m3: f64, section_mm2: f64, length_mm: f64) -> Self {
         let length_m = length_mm * 1e-3;
-        Bar { mass_kg: density_kg_per_m3 * section_mm2 * 1e-6 * length_m, length_m }
+        Bar {
+            mass_kg: density_kg_per_m3 * section_mm2 * 1e-6 * length_m,
+            length_m,
+        }
     }
 
     /// About an end.
@@ -166,23 +179,41 @@ impl Linkage {
             follower_g: Bar::new(rho, follower, l + e.bar_g_length_mm[i]),
             elbow_piece_kg: cfg.elbow_piece_mass_kg,
         };
-        Linkage { five, arms: [arm(0), arm(1)], platform_kg: cfg.platform_mass_kg + cfg.tool_mass_kg }
+        Linkage {
+            five,
+            arms: [arm(0), arm(1)],
+            platform_kg: cfg.platform_mass_kg + cfg.tool_mass_kg,
+        }
     }
 
     /// Motor torques (N·m) the linkage needs for link angles `angle_rad`, velocities and
     /// accelerations: body by body (module doc).
-    pub fn torque_nm(&self, angle_rad: [f64; 2], velocity_rad_s: [f64; 2], acceleration_rad_s2: [f64; 2]) -> Result<[f64; 2], KinematicsError> {
+    pub fn torque_nm(
+        &self,
+        angle_rad: [f64; 2],
+        velocity_rad_s: [f64; 2],
+        acceleration_rad_s2: [f64; 2],
+    ) -> Result<[f64; 2], KinematicsError> {
         let pose = self.five.forward_pose(angle_rad, 0.0)?;
         let jc = pose.jacobian()?;
         self.torque_at(&pose, &jc, velocity_rad_s, acceleration_rad_s2)
     }
 
     /// [`Linkage::torque_nm`] at a solved pose with its Jacobian `jc` (mm/rad).
-    fn torque_at(&self, pose: &Pose<f64>, jc: &Mat2<f64>, velocity_rad_s: [f64; 2], acceleration_rad_s2: [f64; 2]) -> Result<[f64; 2], KinematicsError> {
+    fn torque_at(
+        &self,
+        pose: &Pose<f64>,
+        jc: &Mat2<f64>,
+        velocity_rad_s: [f64; 2],
+        acceleration_rad_s2: [f64; 2],
+    ) -> Result<[f64; 2], KinematicsError> {
         let m = motion_from_pose(pose, velocity_rad_s, acceleration_rad_s2)?;
         let mm = 1e-3;
         // Tool point (m/s²) and its Jacobian (m/rad), columns per motor.
-        let a_c = [m.tool_acceleration_mm_s2[0] * mm, m.tool_acceleration_mm_s2[1] * mm];
+        let a_c = [
+            m.tool_acceleration_mm_s2[0] * mm,
+            m.tool_acceleration_mm_s2[1] * mm,
+        ];
         let jc_col = |k: usize| [jc[0][k] * mm, jc[1][k] * mm];
         let mut tau = [0.0; 2];
         // Platform and tool: a point mass at C.
@@ -211,7 +242,8 @@ impl Linkage {
                     let (ja, jck) = (ja_col(k), jc_col(k));
                     let j_mid = [(ja[0] + jck[0]) / 2.0, (ja[1] + jck[1]) / 2.0];
                     let j_phi = cross(q, [jck[0] - ja[0], jck[1] - ja[1]]) / q2;
-                    *t += bar.mass_kg * dot(j_mid, a_mid) + bar.centre_inertia_kg_m2() * j_phi * phi_dd;
+                    *t += bar.mass_kg * dot(j_mid, a_mid)
+                        + bar.centre_inertia_kg_m2() * j_phi * phi_dd;
                 }
             }
         }
@@ -220,7 +252,11 @@ impl Linkage {
 
     /// The inertia matrix (kg·m²) and velocity-product torques (N·m) at link angles and
     /// velocities: `τ = M·θ̈ + h`.
-    pub fn mass_matrix_and_bias(&self, angle_rad: [f64; 2], velocity_rad_s: [f64; 2]) -> Result<(Mat2<f64>, [f64; 2]), KinematicsError> {
+    pub fn mass_matrix_and_bias(
+        &self,
+        angle_rad: [f64; 2],
+        velocity_rad_s: [f64; 2],
+    ) -> Result<(Mat2<f64>, [f64; 2]), KinematicsError> {
         let d = self.inertia_and_coriolis(angle_rad)?;
         Ok((d.mass_kg_m2, d.bias_nm(velocity_rad_s)))
     }
@@ -232,19 +268,31 @@ impl Linkage {
         let jc = pose.jacobian()?;
         let t = |w: [f64; 2], al: [f64; 2]| self.torque_at(&pose, &jc, w, al);
         let (c0, c1) = (t([0.0; 2], [1.0, 0.0])?, t([0.0; 2], [0.0, 1.0])?);
-        let (h1, h2, h12) = (t([1.0, 0.0], [0.0; 2])?, t([0.0, 1.0], [0.0; 2])?, t([1.0, 1.0], [0.0; 2])?);
+        let (h1, h2, h12) = (
+            t([1.0, 0.0], [0.0; 2])?,
+            t([0.0, 1.0], [0.0; 2])?,
+            t([1.0, 1.0], [0.0; 2])?,
+        );
         let mut quadratic = [[0.0; 3]; 2];
         for i in 0..2 {
             quadratic[i] = [h1[i], h2[i], 0.5 * (h12[i] - h1[i] - h2[i])];
         }
-        Ok(InertiaAt { mass_kg_m2: [[c0[0], c1[0]], [c0[1], c1[1]]], quadratic })
+        Ok(InertiaAt {
+            mass_kg_m2: [[c0[0], c1[0]], [c0[1], c1[1]]],
+            quadratic,
+        })
     }
 
     /// Kinetic energy (J) at link angles and velocities: `½·θ̇ᵀ·M·θ̇`.
-    pub fn kinetic_energy_j(&self, angle_rad: [f64; 2], velocity_rad_s: [f64; 2]) -> Result<f64, KinematicsError> {
+    pub fn kinetic_energy_j(
+        &self,
+        angle_rad: [f64; 2],
+        velocity_rad_s: [f64; 2],
+    ) -> Result<f64, KinematicsError> {
         let (m, _) = self.mass_matrix_and_bias(angle_rad, [0.0; 2])?;
         let w = velocity_rad_s;
-        Ok(0.5 * (w[0] * (m[0][0] * w[0] + m[0][1] * w[1]) + w[1] * (m[1][0] * w[0] + m[1][1] * w[1])))
+        Ok(0.5
+            * (w[0] * (m[0][0] * w[0] + m[0][1] * w[1]) + w[1] * (m[1][0] * w[0] + m[1][1] * w[1])))
     }
 
     /// The hidden robot's dynamic parameters that reproduce these bodies exactly
@@ -264,7 +312,8 @@ impl Linkage {
                 + arm.follower_f.end_inertia_kg_m2()
                 + (arm.elbow_piece_kg + rods / 2.0) * a[i] * a[i];
             tool += rods / 2.0;
-            distal[i] = arm.distal_q.centre_inertia_kg_m2() + arm.follower_g.centre_inertia_kg_m2() - rods * b[i] * b[i] / 4.0;
+            distal[i] = arm.distal_q.centre_inertia_kg_m2() + arm.follower_g.centre_inertia_kg_m2()
+                - rods * b[i] * b[i] / 4.0;
         }
         FiveBarDynamics {
             motor_inertia_kg_m2: motor,
@@ -296,10 +345,17 @@ mod tests {
     /// velocity and acceleration propagation.
     fn kinetic_energy_from_positions(l: &Linkage, th: [f64; 2], w: [f64; 2]) -> f64 {
         let e = 1e-6;
-        let pose = |s: f64| l.five.forward_pose([th[0] + s * w[0], th[1] + s * w[1]], 0.0).unwrap();
+        let pose = |s: f64| {
+            l.five
+                .forward_pose([th[0] + s * w[0], th[1] + s * w[1]], 0.0)
+                .unwrap()
+        };
         let (a, b) = (pose(-e), pose(e));
         let speed2 = |pa: [f64; 2], pb: [f64; 2]| {
-            let v = [(pb[0] - pa[0]) / (2.0 * e) * 1e-3, (pb[1] - pa[1]) / (2.0 * e) * 1e-3];
+            let v = [
+                (pb[0] - pa[0]) / (2.0 * e) * 1e-3,
+                (pb[1] - pa[1]) / (2.0 * e) * 1e-3,
+            ];
             v[0] * v[0] + v[1] * v[1]
         };
         let rate = |x: f64, y: f64| {
@@ -316,8 +372,16 @@ mod tests {
         let mut t = 0.5 * l.platform_kg * speed2(a.tool_mm, b.tool_mm);
         for i in 0..2 {
             let arm = &l.arms[i];
-            let (ea, eb) = if i == 0 { (a.elbow_a_mm, b.elbow_a_mm) } else { (a.elbow_b_mm, b.elbow_b_mm) };
-            let (ba, bb) = if i == 0 { (a.base_a0_mm, b.base_a0_mm) } else { (a.base_b0_mm, b.base_b0_mm) };
+            let (ea, eb) = if i == 0 {
+                (a.elbow_a_mm, b.elbow_a_mm)
+            } else {
+                (a.elbow_b_mm, b.elbow_b_mm)
+            };
+            let (ba, bb) = if i == 0 {
+                (a.base_a0_mm, b.base_a0_mm)
+            } else {
+                (a.base_b0_mm, b.base_b0_mm)
+            };
             // Lever and follower: centre halfway out along the link angle, turning with it.
             for bar in [arm.lever, arm.follower_f] {
                 let half = bar.length_m * 1e3 / 2.0;
@@ -327,12 +391,14 @@ mod tests {
                     [base[0] + half * d[0] / n, base[1] + half * d[1] / n]
                 };
                 let wr = rate(angle(ba, ea), angle(bb, eb));
-                t += 0.5 * bar.mass_kg * speed2(c(ba, ea), c(bb, eb)) + 0.5 * bar.centre_inertia_kg_m2() * wr * wr;
+                t += 0.5 * bar.mass_kg * speed2(c(ba, ea), c(bb, eb))
+                    + 0.5 * bar.centre_inertia_kg_m2() * wr * wr;
             }
             t += 0.5 * arm.elbow_piece_kg * speed2(ea, eb);
             for bar in [arm.distal_q, arm.follower_g] {
                 let wr = rate(angle(ea, a.tool_mm), angle(eb, b.tool_mm));
-                t += 0.5 * bar.mass_kg * speed2(mid(ea, a.tool_mm), mid(eb, b.tool_mm)) + 0.5 * bar.centre_inertia_kg_m2() * wr * wr;
+                t += 0.5 * bar.mass_kg * speed2(mid(ea, a.tool_mm), mid(eb, b.tool_mm))
+                    + 0.5 * bar.centre_inertia_kg_m2() * wr * wr;
             }
         }
         t
@@ -340,9 +406,15 @@ mod tests {
 
     /// A motion through the workspace at several g: angles, velocities, accelerations.
     fn motion(t: f64) -> ([f64; 2], [f64; 2], [f64; 2]) {
-        let th = [0.79 + 0.25 * (9.0 * t).sin(), -0.78 + 0.2 * (13.0 * t).cos()];
+        let th = [
+            0.79 + 0.25 * (9.0 * t).sin(),
+            -0.78 + 0.2 * (13.0 * t).cos(),
+        ];
         let w = [0.25 * 9.0 * (9.0 * t).cos(), -0.2 * 13.0 * (13.0 * t).sin()];
-        let al = [-0.25 * 81.0 * (9.0 * t).sin(), -0.2 * 169.0 * (13.0 * t).cos()];
+        let al = [
+            -0.25 * 81.0 * (9.0 * t).sin(),
+            -0.2 * 169.0 * (13.0 * t).cos(),
+        ];
         (th, w, al)
     }
 
@@ -356,7 +428,9 @@ mod tests {
                 let (mut lo, mut hi) = (w, w);
                 lo[i] -= h;
                 hi[i] += h;
-                g[i] = (kinetic_energy_from_positions(&l, th, hi) - kinetic_energy_from_positions(&l, th, lo)) / (2.0 * h);
+                g[i] = (kinetic_energy_from_positions(&l, th, hi)
+                    - kinetic_energy_from_positions(&l, th, lo))
+                    / (2.0 * h);
             }
             g
         };
@@ -373,13 +447,17 @@ mod tests {
                 let (mut lo, mut hi) = (th, th);
                 lo[i] -= e;
                 hi[i] += e;
-                let dtdth = (kinetic_energy_from_positions(&l, hi, w) - kinetic_energy_from_positions(&l, lo, w)) / (2.0 * e);
+                let dtdth = (kinetic_energy_from_positions(&l, hi, w)
+                    - kinetic_energy_from_positions(&l, lo, w))
+                    / (2.0 * e);
                 let lagrange = (pb[i] - pa[i]) / (2.0 * h) - dtdth;
                 worst = worst.max((lagrange - tau[i]).abs());
                 scale = scale.max(tau[i].abs());
             }
         }
-        eprintln!("six-bar bodies: Lagrangian vs Newton-Euler, worst {worst:.2e} N·m of {scale:.3} N·m");
+        eprintln!(
+            "six-bar bodies: Lagrangian vs Newton-Euler, worst {worst:.2e} N·m of {scale:.3} N·m"
+        );
         assert!(scale > 0.05, "the motion must load the linkage: {scale}");
         assert!(worst < 1e-4 * scale, "{worst} of {scale}");
     }
@@ -394,17 +472,28 @@ mod tests {
             let (th, w, al) = motion(0.017 * k as f64);
             let tau = l.torque_nm(th, w, al).unwrap();
             let pose = l.five.forward_pose(th, 0.0).unwrap();
-            let lumped = d.torque_nm(&motion_from_pose(&pose, w, al).unwrap()).unwrap();
+            let lumped = d
+                .torque_nm(&motion_from_pose(&pose, w, al).unwrap())
+                .unwrap();
             for i in 0..2 {
-                assert!((tau[i] - lumped[i]).abs() < 1e-9 * (1.0 + tau[i].abs()), "{tau:?} vs {lumped:?}");
+                assert!(
+                    (tau[i] - lumped[i]).abs() < 1e-9 * (1.0 + tau[i].abs()),
+                    "{tau:?} vs {lumped:?}"
+                );
             }
         }
         // The nominal machine's numbers (documented in paper.toml and
         // firmware/src/board/qemu/machine.rs; the paper plant's bar errors move them by ~2 %).
         let d = Plant::new(&PlantConfig::ideal(), 1).linkage.lumped();
-        assert!((d.motor_inertia_kg_m2[0] - 1.89e-3).abs() < 0.01e-3, "{d:?}");
+        assert!(
+            (d.motor_inertia_kg_m2[0] - 1.89e-3).abs() < 0.01e-3,
+            "{d:?}"
+        );
         assert!((d.tool_mass_kg - 0.165).abs() < 0.002, "{d:?}");
-        assert!((d.distal_inertia_kg_m2[0] + 2.43e-4).abs() < 0.05e-4, "{d:?}");
+        assert!(
+            (d.distal_inertia_kg_m2[0] + 2.43e-4).abs() < 0.05e-4,
+            "{d:?}"
+        );
     }
 
     #[test]
@@ -416,7 +505,10 @@ mod tests {
         assert_eq!(l.torque_nm(th, w, al).unwrap(), [0.0; 2]);
         let l = paper_linkage();
         let (m, _) = l.mass_matrix_and_bias(th, w).unwrap();
-        assert!((m[0][1] - m[1][0]).abs() < 1e-15 && m[0][1].abs() > 1e-5, "{m:?}");
+        assert!(
+            (m[0][1] - m[1][0]).abs() < 1e-15 && m[0][1].abs() > 1e-5,
+            "{m:?}"
+        );
         assert!(m[0][0] > 0.0 && m[0][0] * m[1][1] > m[0][1] * m[1][0]);
     }
 }

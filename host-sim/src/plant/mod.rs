@@ -19,7 +19,6 @@ pub use drive::Drive;
 pub use instrument::Instrument;
 pub use sixbar::{SixBar, SixBarSolution};
 
-
 /// Why a plant cannot be built or solved.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub enum PlantError {
@@ -45,7 +44,9 @@ pub enum PlantError {
     #[error("six-bar equilibrium: singular stiffness at link angles ({:.4}°, {:.4}°)", link_deg[0], link_deg[1])]
     SingularStiffness { link_deg: [f64; 2] },
     /// `with_only` of an effect the plant has no setting of its own for.
-    #[error("the plant has no separate setting for {0} (it is part of link_geometry, or not modelled)")]
+    #[error(
+        "the plant has no separate setting for {0} (it is part of link_geometry, or not modelled)"
+    )]
     NoSetting(crate::effect::PhysicalEffect),
     /// The equilibrium solve did not converge.
     #[error(
@@ -76,7 +77,11 @@ impl Plant {
     /// Builds a plant; `seed` seeds the instrument noise.
     pub fn new(config: &PlantConfig, seed: u64) -> Self {
         let sixbar = SixBar::new(&config.sixbar);
-        let linkage = linkage::Linkage::new(&config.linkage, sixbar.equivalent_five_bar(), &config.sixbar);
+        let linkage = linkage::Linkage::new(
+            &config.linkage,
+            sixbar.equivalent_five_bar(),
+            &config.sixbar,
+        );
         Plant {
             config: config.clone(),
             sixbar,
@@ -99,18 +104,36 @@ impl Plant {
     /// Quasi-static positioning: the servo holds each encoder at the count nearest to
     /// `encoder_rad`, having approached it in direction `dir`. Returns the encoder readings and
     /// the linkage's equilibrium.
-    pub fn settle(&mut self, encoder_rad: [f64; 2], dir: [i8; 2]) -> Result<([f64; 2], SixBarSolution), PlantError> {
-        let r = [self.drives[0].settle(encoder_rad[0], dir[0]), self.drives[1].settle(encoder_rad[1], dir[1])];
+    pub fn settle(
+        &mut self,
+        encoder_rad: [f64; 2],
+        dir: [i8; 2],
+    ) -> Result<([f64; 2], SixBarSolution), PlantError> {
+        let r = [
+            self.drives[0].settle(encoder_rad[0], dir[0]),
+            self.drives[1].settle(encoder_rad[1], dir[1]),
+        ];
         let sol = self.sixbar.solve(self.link_rad())?;
         Ok((r, sol))
     }
 
     /// Advances the machine by `dt_s` (in `substeps` steps) under the joint torque commands
     /// `torque_nm`: the drives coupled through the linkage's inertia ([`motion`]).
-    pub fn advance(&mut self, torque_nm: [f64; 2], dt_s: f64, substeps: u32) -> Result<(), PlantError> {
-        motion::CoupledDrives { drives: &mut self.drives, linkage: &self.linkage }
-            .advance(torque_nm, dt_s, substeps)
-            .map_err(|e| PlantError::NotAssemblable { link_deg: deg(self.link_rad()), reason: e.to_string() })
+    pub fn advance(
+        &mut self,
+        torque_nm: [f64; 2],
+        dt_s: f64,
+        substeps: u32,
+    ) -> Result<(), PlantError> {
+        motion::CoupledDrives {
+            drives: &mut self.drives,
+            linkage: &self.linkage,
+        }
+        .advance(torque_nm, dt_s, substeps)
+        .map_err(|e| PlantError::NotAssemblable {
+            link_deg: deg(self.link_rad()),
+            reason: e.to_string(),
+        })
     }
 
     /// The hidden robot's dynamic parameters of this machine's bodies and rotors, friction

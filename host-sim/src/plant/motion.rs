@@ -45,7 +45,10 @@ impl Inertia {
             [true, true] => [0.0; 2],
             [true, false] => [0.0, r[1] / m[1][1]],
             [false, true] => [r[0] / m[0][0], 0.0],
-            [false, false] => [i[0][0] * r[0] + i[0][1] * r[1], i[1][0] * r[0] + i[1][1] * r[1]],
+            [false, false] => [
+                i[0][0] * r[0] + i[0][1] * r[1],
+                i[1][0] * r[0] + i[1][1] * r[1],
+            ],
         }
     }
 }
@@ -78,10 +81,19 @@ impl CoupledDrives<'_> {
     }
 
     /// Advances both drives by `dt_s` in `substeps` steps under the torque commands `torque_nm`.
-    pub fn advance(&mut self, torque_nm: [f64; 2], dt_s: f64, substeps: u32) -> Result<(), KinematicsError> {
-        let tau = [self.drives[0].limit_torque(torque_nm[0]), self.drives[1].limit_torque(torque_nm[1])];
+    pub fn advance(
+        &mut self,
+        torque_nm: [f64; 2],
+        dt_s: f64,
+        substeps: u32,
+    ) -> Result<(), KinematicsError> {
+        let tau = [
+            self.drives[0].limit_torque(torque_nm[0]),
+            self.drives[1].limit_torque(torque_nm[1]),
+        ];
         // The linkage at the middle of the interval.
-        let mid = [0, 1].map(|k| self.drives[k].link_rad() + 0.5 * dt_s * self.drives[k].velocity_rad_s);
+        let mid =
+            [0, 1].map(|k| self.drives[k].link_rad() + 0.5 * dt_s * self.drives[k].velocity_rad_s);
         let linkage = self.linkage.inertia_and_coriolis(mid)?;
         let mut total = linkage.mass_kg_m2;
         for (k, row) in total.iter_mut().enumerate() {
@@ -91,8 +103,15 @@ impl CoupledDrives<'_> {
         if !(det > 0.0 && total[0][0] > 0.0) {
             return Err(KinematicsError::NonFinite);
         }
-        let inverse = [[total[1][1] / det, -total[0][1] / det], [-total[1][0] / det, total[0][0] / det]];
-        let inertia = Inertia { linkage, total, inverse };
+        let inverse = [
+            [total[1][1] / det, -total[0][1] / det],
+            [-total[1][0] / det, total[0][0] / det],
+        ];
+        let inertia = Inertia {
+            linkage,
+            total,
+            inverse,
+        };
         let h = dt_s / f64::from(substeps.max(1));
         for _ in 0..substeps.max(1) {
             self.substep(&inertia, tau, h)?;
@@ -108,7 +127,10 @@ impl CoupledDrives<'_> {
         // rest stays stuck while the torque that holds it (the other axis free) is within its
         // Coulomb friction, else it breaks away in the direction of that torque.
         let mut dir = [direction(w[0]), direction(w[1])];
-        let mut stuck = [w[0] == 0.0 && coulomb[0] > 0.0, w[1] == 0.0 && coulomb[1] > 0.0];
+        let mut stuck = [
+            w[0] == 0.0 && coulomb[0] > 0.0,
+            w[1] == 0.0 && coulomb[1] > 0.0,
+        ];
         for _ in 0..3 {
             let r = self.net_torque(inertia, w, tau, dir);
             let a = inertia.accelerations(r, stuck);
@@ -162,7 +184,9 @@ mod tests {
 
     fn energy(p: &Plant) -> f64 {
         let w = [p.drives[0].velocity_rad_s, p.drives[1].velocity_rad_s];
-        let rotors: f64 = (0..2).map(|k| 0.5 * p.drives[k].rotor_inertia_kg_m2() * w[k] * w[k]).sum();
+        let rotors: f64 = (0..2)
+            .map(|k| 0.5 * p.drives[k].rotor_inertia_kg_m2() * w[k] * w[k])
+            .sum();
         rotors + p.linkage.kinetic_energy_j(p.link_rad(), w).unwrap()
     }
 
@@ -189,7 +213,10 @@ mod tests {
         eprintln!("free swing 0.2 s: energy {e0:.6e} J, worst relative drift {worst:.2e}; velocities {w0:?} -> {w1:?}");
         // The linkage's inertia is evaluated once per sample at its middle: second order.
         assert!(worst < 1e-7, "{worst}");
-        assert!((w1[0] - w0[0]).abs() > 1e-3, "the coupling changed the velocities: {w1:?}");
+        assert!(
+            (w1[0] - w0[0]).abs() > 1e-3,
+            "the coupling changed the velocities: {w1:?}"
+        );
         // With the linkage's bodies left out the velocities would not change at all.
         let mut cfg = PlantConfig::ideal();
         cfg.linkage = crate::plant::linkage::LinkageConfig::massless();
@@ -197,7 +224,10 @@ mod tests {
         for _ in 0..400 {
             q.advance([0.0; 2], 5e-4, 10).unwrap();
         }
-        assert_eq!([q.drives[0].velocity_rad_s, q.drives[1].velocity_rad_s], [1.5, -2.0]);
+        assert_eq!(
+            [q.drives[0].velocity_rad_s, q.drives[1].velocity_rad_s],
+            [1.5, -2.0]
+        );
     }
 
     /// Under torque, the work done is the energy gained; with friction it is less by exactly
@@ -210,7 +240,10 @@ mod tests {
             let (mut work, mut loss) = (0.0, 0.0);
             let n = 200;
             for k in 0..n {
-                let tau = [0.6 * (k as f64 * 0.05).sin(), -0.4 * (k as f64 * 0.07).cos()];
+                let tau = [
+                    0.6 * (k as f64 * 0.05).sin(),
+                    -0.4 * (k as f64 * 0.07).cos(),
+                ];
                 for _ in 0..10 {
                     let w0 = [p.drives[0].velocity_rad_s, p.drives[1].velocity_rad_s];
                     p.advance(tau, 5e-5, 1).unwrap();
@@ -224,9 +257,15 @@ mod tests {
                 }
             }
             let gained = energy(&p) - e0;
-            eprintln!("{}: work {work:.6e} J, friction {loss:.6e} J, energy gained {gained:.6e} J", cfg.description);
+            eprintln!(
+                "{}: work {work:.6e} J, friction {loss:.6e} J, energy gained {gained:.6e} J",
+                cfg.description
+            );
             assert!(gained > 1e-3, "{gained}");
-            assert!((work - loss - gained).abs() < 2e-3 * work.abs(), "work {work} loss {loss} gained {gained}");
+            assert!(
+                (work - loss - gained).abs() < 2e-3 * work.abs(),
+                "work {work} loss {loss} gained {gained}"
+            );
         }
     }
 
@@ -243,6 +282,10 @@ mod tests {
             p.advance([0.1, 0.8], 5e-4, 10).unwrap();
         }
         assert_eq!(p.drives[0].motor_rad, start, "held by friction");
-        assert!(p.drives[1].velocity_rad_s > 1.0, "the other axis moved: {}", p.drives[1].velocity_rad_s);
+        assert!(
+            p.drives[1].velocity_rad_s > 1.0,
+            "the other axis moved: {}",
+            p.drives[1].velocity_rad_s
+        );
     }
 }

@@ -58,8 +58,8 @@
 //! points (4.3 iterations), i.e. 150-175x the closed-form five-bar FK (24-35 ns) and 85-100x
 //! its IK (40-60 ns).
 
-use crate::plant::config::{PlantModel, SixBarConfig};
 use super::{deg, PlantError};
+use crate::plant::config::{PlantModel, SixBarConfig};
 use kinematics_core::FiveBar;
 use nalgebra::{SMatrix, SVector};
 
@@ -172,35 +172,71 @@ impl SixBar {
         let a0 = nominal.base_a0_mm;
         let b0 = add(a0, nominal.base_b0_mm);
         let axis = [add(a0, [0.0, w2]), add(b0, [0.0, -w2])];
-        let motor = [add(axis[0], e.ground_motor_1_mm), add(axis[1], e.ground_motor_2_mm)];
-        let follower = [add(add(axis[0], g[0]), e.ground_follower_1_mm), add(add(axis[1], g[1]), e.ground_follower_2_mm)];
+        let motor = [
+            add(axis[0], e.ground_motor_1_mm),
+            add(axis[1], e.ground_motor_2_mm),
+        ];
+        let follower = [
+            add(add(axis[0], g[0]), e.ground_follower_1_mm),
+            add(add(axis[1], g[1]), e.ground_follower_2_mm),
+        ];
         let k_pin_q = [e.elbow_1_pin_q_mm, e.elbow_2_pin_q_mm];
         let k_pin_f = [add(g[0], e.elbow_1_pin_f_mm), add(g[1], e.elbow_2_pin_f_mm)];
         let k_pin_g = [add(h[0], e.elbow_1_pin_g_mm), add(h[1], e.elbow_2_pin_g_mm)];
-        let t_pin_q = [add([0.0, w2], e.platform_pin_d_mm), add([0.0, -w2], e.platform_pin_e_mm)];
+        let t_pin_q = [
+            add([0.0, w2], e.platform_pin_d_mm),
+            add([0.0, -w2], e.platform_pin_e_mm),
+        ];
         let t_pin_g = [
             add(add([0.0, w2], h[0]), e.platform_pin_dd_mm),
             add(add([0.0, -w2], h[1]), e.platform_pin_ee_mm),
         ];
         let stiff = |section: f64, len: f64| cfg.youngs_modulus_n_per_mm2 * section / len;
-        let bar = |p: End, q: End, len: f64, section: f64| Bar { p, q, length_mm: len, k_n_per_mm: stiff(section, len) };
+        let bar = |p: End, q: End, len: f64, section: f64| Bar {
+            p,
+            q,
+            length_mm: len,
+            k_n_per_mm: stiff(section, len),
+        };
         let (fs, ms) = (cfg.follower_bar_section_mm2, cfg.main_bar_section_mm2);
         // Nominal lengths: lever and first follower, distal bar and second follower, per arm.
         let (lever_mm, distal_mm) = ([nominal.a_mm, nominal.d_mm], [nominal.b_mm, nominal.c_mm]);
         let arm = |i: usize| {
             [
-                bar(End::Ground(follower[i]), End::Body(i, k_pin_f[i]), lever_mm[i] + e.bar_f_length_mm[i], fs),
-                bar(End::Body(i, k_pin_q[i]), End::Body(2, t_pin_q[i]), distal_mm[i] + e.bar_q_length_mm[i], ms),
-                bar(End::Body(i, k_pin_g[i]), End::Body(2, t_pin_g[i]), distal_mm[i] + e.bar_g_length_mm[i], fs),
+                bar(
+                    End::Ground(follower[i]),
+                    End::Body(i, k_pin_f[i]),
+                    lever_mm[i] + e.bar_f_length_mm[i],
+                    fs,
+                ),
+                bar(
+                    End::Body(i, k_pin_q[i]),
+                    End::Body(2, t_pin_q[i]),
+                    distal_mm[i] + e.bar_q_length_mm[i],
+                    ms,
+                ),
+                bar(
+                    End::Body(i, k_pin_g[i]),
+                    End::Body(2, t_pin_g[i]),
+                    distal_mm[i] + e.bar_g_length_mm[i],
+                    fs,
+                ),
             ]
         };
         let (a1, a2) = (arm(0), arm(1));
-        let lever = [lever_mm[0] + e.lever_length_mm[0], lever_mm[1] + e.lever_length_mm[1]];
+        let lever = [
+            lever_mm[0] + e.lever_length_mm[0],
+            lever_mm[1] + e.lever_length_mm[1],
+        ];
         // C = A0 + a·u1 + (K1's Q pin) + b·v1 - D_off: the equivalent five-bar's base A0' is
         // A0 + Q pin - D_off, its B0' likewise; the platform stays unrotated in the guess.
         let a0p = sub(add(motor[0], k_pin_q[0]), t_pin_q[0]);
         let b0p = sub(add(motor[1], k_pin_q[1]), t_pin_q[1]);
-        let mut five = FiveBar::<f64> { base_a0_mm: [0.0; 2], encoder_offset_rad: [0.0; 2], ..nominal };
+        let mut five = FiveBar::<f64> {
+            base_a0_mm: [0.0; 2],
+            encoder_offset_rad: [0.0; 2],
+            ..nominal
+        };
         five.a_mm = lever[0];
         five.b_mm = a1[1].length_mm;
         five.c_mm = a2[1].length_mm;
@@ -226,7 +262,10 @@ impl SixBar {
         let mut t = [[0.0; 2]; 2];
         for i in 0..2 {
             let (s, c) = link_rad[i].sin_cos();
-            t[i] = [self.motor_mm[i][0] + self.lever_mm[i] * c, self.motor_mm[i][1] + self.lever_mm[i] * s];
+            t[i] = [
+                self.motor_mm[i][0] + self.lever_mm[i] * c,
+                self.motor_mm[i][1] + self.lever_mm[i] * s,
+            ];
         }
         t
     }
@@ -241,7 +280,10 @@ impl SixBar {
     pub fn five_bar_tool_mm(&self, link_rad: [f64; 2]) -> Result<[f64; 2], PlantError> {
         match self.five.forward(link_rad, 0.0) {
             Ok(c) => Ok(add(c, self.five_base_mm)),
-            Err(e) => Err(PlantError::NotAssemblable { link_deg: deg(link_rad), reason: e.to_string() }),
+            Err(e) => Err(PlantError::NotAssemblable {
+                link_deg: deg(link_rad),
+                reason: e.to_string(),
+            }),
         }
     }
 
@@ -249,7 +291,9 @@ impl SixBar {
     fn nominal_pose(&self, link_rad: [f64; 2]) -> Result<Vec9, PlantError> {
         let tips = self.lever_tips(link_rad);
         let c = self.five_bar_tool_mm(link_rad)?;
-        Ok(Vec9::from_column_slice(&[tips[0][0], tips[0][1], 0.0, tips[1][0], tips[1][1], 0.0, c[0], c[1], 0.0]))
+        Ok(Vec9::from_column_slice(&[
+            tips[0][0], tips[0][1], 0.0, tips[1][0], tips[1][1], 0.0, c[0], c[1], 0.0,
+        ]))
     }
 
     /// World position of a bar end and, for a body, its derivative by the body's angle.
@@ -259,14 +303,26 @@ impl SixBar {
             End::Body(b, r) => {
                 let (s, c) = x[3 * b + 2].sin_cos();
                 let rr = [c * r[0] - s * r[1], s * r[0] + c * r[1]];
-                ([x[3 * b] + rr[0], x[3 * b + 1] + rr[1]], Some((b, [-rr[1], rr[0]])))
+                (
+                    [x[3 * b] + rr[0], x[3 * b + 1] + rr[1]],
+                    Some((b, [-rr[1], rr[0]])),
+                )
             }
         }
     }
 
     /// Normal equations of the energy at `x`; with `forces`, also the bar tensions and pin forces.
-    fn assemble(&self, x: &Vec9, tips: &[[f64; 2]; 2], forces: Option<(&mut [f64; 6], &mut [f64; 2])>) -> Normal {
-        let mut n = Normal { h: Mat9::zeros(), g: Vec9::zeros(), energy: 0.0 };
+    fn assemble(
+        &self,
+        x: &Vec9,
+        tips: &[[f64; 2]; 2],
+        forces: Option<(&mut [f64; 6], &mut [f64; 2])>,
+    ) -> Normal {
+        let mut n = Normal {
+            h: Mat9::zeros(),
+            g: Vec9::zeros(),
+            energy: 0.0,
+        };
         let mut tension = [0.0; 6];
         let mut pin = [0.0; 2];
         let cb = self.bar_clearance_mm;
@@ -320,7 +376,8 @@ impl SixBar {
                     n.g[3 * i + a] += d1 * u[a];
                     for b in 0..2 {
                         let kron = if a == b { 1.0 } else { 0.0 };
-                        n.h[(3 * i + a, 3 * i + b)] += d2.max(0.0) * u[a] * u[b] + d1 / rho * (kron - u[a] * u[b]);
+                        n.h[(3 * i + a, 3 * i + b)] +=
+                            d2.max(0.0) * u[a] * u[b] + d1 / rho * (kron - u[a] * u[b]);
                     }
                 }
                 f = d1;
@@ -373,7 +430,11 @@ impl SixBar {
     }
 
     /// Levenberg-Marquardt from `guess`; returns the solution and the unknown vector.
-    pub fn solve_from(&self, link_rad: [f64; 2], guess: Vec9) -> Result<(SixBarSolution, Vec9), PlantError> {
+    pub fn solve_from(
+        &self,
+        link_rad: [f64; 2],
+        guess: Vec9,
+    ) -> Result<(SixBarSolution, Vec9), PlantError> {
         const MAX_ITER: u32 = 60;
         const STEP_TOL_MM: f64 = 1e-9;
         // Rotations are compared as displacements at a 30 mm lever.
@@ -389,11 +450,21 @@ impl SixBar {
                 h[(d, d)] += 1e-12;
             }
             let Some(chol) = h.cholesky() else {
-                return Err(PlantError::SingularStiffness { link_deg: deg(link_rad) });
+                return Err(PlantError::SingularStiffness {
+                    link_deg: deg(link_rad),
+                });
             };
             let mut step = chol.solve(&(-n.g));
             // Never move more than 1 mm / 1/30 rad in one step (keeps LM inside the model's range).
-            let big = (0..9).map(|k| if k % 3 == 2 { step[k].abs() * ROT_SCALE_MM } else { step[k].abs() }).fold(0.0, f64::max);
+            let big = (0..9)
+                .map(|k| {
+                    if k % 3 == 2 {
+                        step[k].abs() * ROT_SCALE_MM
+                    } else {
+                        step[k].abs()
+                    }
+                })
+                .fold(0.0, f64::max);
             if big > 1.0 {
                 step /= big;
             }
@@ -423,12 +494,21 @@ impl SixBar {
                     let mut tension = [0.0; 6];
                     let mut pin = [0.0; 2];
                     self.assemble(&x, &tips, Some((&mut tension, &mut pin)));
-                    let sol = SixBarSolution { tool_mm: [x[6], x[7]], platform_rot_rad: x[8], bar_tension_n: tension, pin_force_n: pin, iterations: iter };
+                    let sol = SixBarSolution {
+                        tool_mm: [x[6], x[7]],
+                        platform_rot_rad: x[8],
+                        bar_tension_n: tension,
+                        pin_force_n: pin,
+                        iterations: iter,
+                    };
                     return Ok((sol, x));
                 }
             }
         }
-        Err(PlantError::NotConverged { link_deg: deg(link_rad), iterations: MAX_ITER })
+        Err(PlantError::NotConverged {
+            link_deg: deg(link_rad),
+            iterations: MAX_ITER,
+        })
     }
 
     /// The nominal (rigid, closed-form) unknown vector, for tests that perturb it.
@@ -465,13 +545,16 @@ mod tests {
             // Start far from the answer (0.5 mm, 5 mrad) so the solver, not the guess, decides.
             let mut guess = sb.nominal_unknowns(theta).unwrap();
             for d in 0..9 {
-                guess[d] += if d % 3 == 2 { 5e-3 } else { 0.5 } * if (d + k) % 2 == 0 { 1.0 } else { -1.0 };
+                guess[d] +=
+                    if d % 3 == 2 { 5e-3 } else { 0.5 } * if (d + k) % 2 == 0 { 1.0 } else { -1.0 };
             }
             let (sol, _) = sb.solve_from(theta, guess).unwrap();
-            worst = worst.max(((sol.tool_mm[0] - c[0]).powi(2) + (sol.tool_mm[1] - c[1]).powi(2)).sqrt());
+            worst = worst
+                .max(((sol.tool_mm[0] - c[0]).powi(2) + (sol.tool_mm[1] - c[1]).powi(2)).sqrt());
             assert!(sol.max_abs_tension_n() < 1e-6, "{sol:?}");
             let warm = sb.solve(theta).unwrap();
-            worst = worst.max(((warm.tool_mm[0] - c[0]).powi(2) + (warm.tool_mm[1] - c[1]).powi(2)).sqrt());
+            worst = worst
+                .max(((warm.tool_mm[0] - c[0]).powi(2) + (warm.tool_mm[1] - c[1]).powi(2)).sqrt());
         }
         assert!(worst < 1e-5, "worst deviation {} µm", worst * 1e3);
     }
@@ -487,14 +570,25 @@ mod tests {
             let sol = sb.solve(theta).unwrap();
             assert!(sol.iterations <= 20, "{sol:?}");
             // Cold start lands on the same equilibrium.
-            let (cold, _) = sb.solve_from(theta, sb.nominal_unknowns(theta).unwrap()).unwrap();
-            assert!((cold.tool_mm[0] - sol.tool_mm[0]).abs() < 1e-7 && (cold.tool_mm[1] - sol.tool_mm[1]).abs() < 1e-7);
+            let (cold, _) = sb
+                .solve_from(theta, sb.nominal_unknowns(theta).unwrap())
+                .unwrap();
+            assert!(
+                (cold.tool_mm[0] - sol.tool_mm[0]).abs() < 1e-7
+                    && (cold.tool_mm[1] - sol.tool_mm[1]).abs() < 1e-7
+            );
             tensions.push(sol.bar_tension_n[1]);
         }
         let lo = tensions.iter().cloned().fold(f64::INFINITY, f64::min);
         let hi = tensions.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
-        assert!(hi.abs().max(lo.abs()) > 10.0, "stress too small: {lo}..{hi} N");
-        assert!(hi - lo > 0.2 * hi.abs().max(lo.abs()), "stress does not vary: {lo}..{hi} N");
+        assert!(
+            hi.abs().max(lo.abs()) > 10.0,
+            "stress too small: {lo}..{hi} N"
+        );
+        assert!(
+            hi - lo > 0.2 * hi.abs().max(lo.abs()),
+            "stress does not vary: {lo}..{hi} N"
+        );
     }
 
     #[test]
@@ -544,7 +638,10 @@ mod tests {
             }
         }
         let spread_um = [(hi[0] - lo[0]) * 1e3, (hi[1] - lo[1]) * 1e3];
-        eprintln!("six-bar minus equivalent five-bar: spread x {:.1} um, y {:.1} um", spread_um[0], spread_um[1]);
+        eprintln!(
+            "six-bar minus equivalent five-bar: spread x {:.1} um, y {:.1} um",
+            spread_um[0], spread_um[1]
+        );
         assert!(spread_um[0].max(spread_um[1]) > 2.0, "{spread_um:?}");
     }
 
@@ -575,4 +672,3 @@ mod tests {
         assert!(spread_um > 0.5 && spread_um < 20.0, "{spread_um}");
     }
 }
-

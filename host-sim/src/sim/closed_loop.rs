@@ -151,7 +151,15 @@ pub fn run_loop(
     spec: &MachineSpec,
     log: Option<&mut Vec<LogRow>>,
 ) -> Result<LoopSummary, SimError> {
-    run_loop_with(plant, cal, trajectory, seconds, spec, &FeedForward::Differences, log)
+    run_loop_with(
+        plant,
+        cal,
+        trajectory,
+        seconds,
+        spec,
+        &FeedForward::Differences,
+        log,
+    )
 }
 
 /// [`run_loop`] with the servo feeding forward `feedforward` (a trajectory without derivatives
@@ -166,7 +174,16 @@ pub fn run_loop_with(
     log: Option<&mut Vec<LogRow>>,
 ) -> Result<LoopSummary, SimError> {
     let config = loop_config(plant, spec);
-    run_loop_configured(plant, cal, trajectory, seconds, spec, feedforward, config, log)
+    run_loop_configured(
+        plant,
+        cal,
+        trajectory,
+        seconds,
+        spec,
+        feedforward,
+        config,
+        log,
+    )
 }
 
 /// The servo settings the loop runs with: the defaults at `spec`'s sample period and singularity
@@ -179,7 +196,10 @@ pub fn loop_config(plant: &Plant, spec: &MachineSpec) -> ServoConfig {
         min_transmission: spec.min_transmission as f32,
         ..ServoConfig::default()
     };
-    let coulomb_nm = [plant.config.drive_1.coulomb_friction_nm, plant.config.drive_2.coulomb_friction_nm];
+    let coulomb_nm = [
+        plant.config.drive_1.coulomb_friction_nm,
+        plant.config.drive_2.coulomb_friction_nm,
+    ];
     for (axis, c) in config.axes.iter_mut().zip(coulomb_nm) {
         axis.coulomb_ff_nm = 0.8 * c as f32;
     }
@@ -205,12 +225,22 @@ pub fn run_loop_configured(
     // Start at rest on the first setpoint, as after a homing move.
     let cmd = cal
         .command_rad([start[0] as f32, start[1] as f32], config.min_transmission)
-        .map_err(|e| SimError::Start { start_mm: start, reason: e.to_string() })?;
+        .map_err(|e| SimError::Start {
+            start_mm: start,
+            reason: e.to_string(),
+        })?;
     plant.settle([f64::from(cmd[0]), f64::from(cmd[1])], [1, 1])?;
-    let feedforward = if trajectory.motion_at(0.0).is_some() { *feedforward } else { FeedForward::Differences };
-    let mut servo = Servo::new(config).map_err(|e| SimError::Invalid(format!("servo settings refused: {e}")))?;
+    let feedforward = if trajectory.motion_at(0.0).is_some() {
+        *feedforward
+    } else {
+        FeedForward::Differences
+    };
+    let mut servo = Servo::new(config)
+        .map_err(|e| SimError::Invalid(format!("servo settings refused: {e}")))?;
     if let FeedForward::Dynamics(d) = &feedforward {
-        servo.set_dynamics(Some(d.cast())).map_err(|e| SimError::Invalid(format!("dynamic parameters: {e}")))?;
+        servo
+            .set_dynamics(Some(d.cast()))
+            .map_err(|e| SimError::Invalid(format!("dynamic parameters: {e}")))?;
     }
     let enc0 = plant.encoder_rad();
     servo
@@ -228,20 +258,30 @@ pub fn run_loop_configured(
     let mut done = 0u64;
     let mut sum2_follow = 0.0f64;
     let end_s = trajectory.motion_end_s();
-    let mut settle_follow = Settling { end_s, last_outside_s: None };
-    let mut settle_track = Settling { end_s, last_outside_s: None };
+    let mut settle_follow = Settling {
+        end_s,
+        last_outside_s: None,
+    };
+    let mut settle_track = Settling {
+        end_s,
+        last_outside_s: None,
+    };
     let wall = Instant::now();
     let mut last_wall = wall;
     for k in 0..n {
         let t = k as f64 * dt;
         let sp = trajectory.at(t);
-        let accel = ((sp[0] - 2.0 * history[0][0] + history[1][0]).hypot(sp[1] - 2.0 * history[0][1] + history[1][1])) / (dt * dt);
+        let accel = ((sp[0] - 2.0 * history[0][0] + history[1][0])
+            .hypot(sp[1] - 2.0 * history[0][1] + history[1][1]))
+            / (dt * dt);
         history = [sp, history[0]];
         let enc = plant.encoder_rad();
         let err = (tool[0] - sp[0]).hypot(tool[1] - sp[1]) * 1e3;
         let enc32 = [enc[0] as f32, enc[1] as f32];
         let stepped = match (feedforward, trajectory.motion_at(t)) {
-            (FeedForward::Differences, _) | (_, None) => servo.step(cal, [sp[0] as f32, sp[1] as f32], enc32),
+            (FeedForward::Differences, _) | (_, None) => {
+                servo.step(cal, [sp[0] as f32, sp[1] as f32], enc32)
+            }
             (_, Some(m)) => {
                 let next = trajectory.motion_at(t + dt).map(|n| cast_setpoint(&n));
                 servo.step_motion(cal, &cast_setpoint(&m), next.as_ref(), enc32)
@@ -257,14 +297,23 @@ pub fn run_loop_configured(
         let torque = [f64::from(out.torque_nm[0]), f64::from(out.torque_nm[1])];
         plant.advance(torque, dt, SUBSTEPS)?;
         let sol = plant.solve()?;
-        let follow_um = match cal.model.inverse_pose([sp[0] as f32, sp[1] as f32], 0.0).and_then(|p| p.jacobian()) {
+        let follow_um = match cal
+            .model
+            .inverse_pose([sp[0] as f32, sp[1] as f32], 0.0)
+            .and_then(|p| p.jacobian())
+        {
             Ok(j) => {
                 let e = out.following_error_rad;
-                (j[0][0] * e[0] + j[0][1] * e[1]).hypot(j[1][0] * e[0] + j[1][1] * e[1]) as f64 * 1e3
+                (j[0][0] * e[0] + j[0][1] * e[1]).hypot(j[1][0] * e[0] + j[1][1] * e[1]) as f64
+                    * 1e3
             }
             Err(_) => f64::NAN,
         };
-        let joint = f64::from(out.following_error_rad[0].abs().max(out.following_error_rad[1].abs())) * 1e6;
+        let joint = f64::from(
+            out.following_error_rad[0]
+                .abs()
+                .max(out.following_error_rad[1].abs()),
+        ) * 1e6;
         sum2 += err * err;
         sum2_follow += follow_um * follow_um;
         settle_follow.record(t, follow_um);
@@ -285,7 +334,10 @@ pub fn run_loop_configured(
                 setpoint_mm: sp,
                 tool_mm: tool,
                 encoder_rad: enc,
-                reference_rad: [f64::from(out.reference_rad[0]), f64::from(out.reference_rad[1])],
+                reference_rad: [
+                    f64::from(out.reference_rad[0]),
+                    f64::from(out.reference_rad[1]),
+                ],
                 torque_nm: torque,
                 tracking_err_um: err,
                 max_bar_tension_n: sol.max_abs_tension_n(),
@@ -308,7 +360,11 @@ pub fn run_loop_configured(
         simulated_s,
         samples: done,
         max_tracking_err_um: max_err,
-        rms_tracking_err_um: if done > 0 { (sum2 / done as f64).sqrt() } else { 0.0 },
+        rms_tracking_err_um: if done > 0 {
+            (sum2 / done as f64).sqrt()
+        } else {
+            0.0
+        },
         max_following_err_um: max_follow,
         max_following_err_5g_um: (n_5g > 0).then_some(max_5g),
         max_joint_following_err_5g_urad: (n_5g > 0).then_some(max_5g_joint),
@@ -316,7 +372,11 @@ pub fn run_loop_configured(
         max_joint_following_err_urad: max_joint,
         max_torque_nm: max_torque,
         max_bar_tension_n: max_tension,
-        realtime_factor: if wall_s > 0.0 { simulated_s / wall_s } else { f64::INFINITY },
+        realtime_factor: if wall_s > 0.0 {
+            simulated_s / wall_s
+        } else {
+            f64::INFINITY
+        },
         overruns,
         overruns_note: format!(
             "simulation has no deadline; counts steps whose wall time exceeded {:.0} us",
@@ -324,7 +384,11 @@ pub fn run_loop_configured(
         ),
         fault,
         feedforward: feedforward.name().into(),
-        rms_following_err_um: if done > 0 { (sum2_follow / done as f64).sqrt() } else { 0.0 },
+        rms_following_err_um: if done > 0 {
+            (sum2_follow / done as f64).sqrt()
+        } else {
+            0.0
+        },
         settling_following_2um_s: settle_follow.time_s(last_s, dt),
         settling_tracking_2um_s: settle_track.time_s(last_s, dt),
     })
@@ -347,7 +411,10 @@ mod tests {
     use kinematics_core::FiveBar;
 
     fn nominal() -> Calibration<'static> {
-        Calibration { model: FiveBar::<f32>::paper_nominal(), grid: None }
+        Calibration {
+            model: FiveBar::<f32>::paper_nominal(),
+            grid: None,
+        }
     }
 
     fn run(plant: &mut Plant, name: &str, seconds: Option<f64>) -> LoopSummary {
@@ -390,7 +457,9 @@ mod tests {
     fn a_20_percent_mass_error_follows_a_5g_figure_eight_within_7_um() {
         let spec = MachineSpec::paper();
         let cfg = PlantConfig::paper();
-        let d = crate::calib::dynamics::identify(&cfg, &nominal(), &spec, 1).unwrap().dynamics;
+        let d = crate::calib::dynamics::identify(&cfg, &nominal(), &spec, 1)
+            .unwrap()
+            .dynamics;
         let tr = Trajectory::by_name("figure8-5g", &spec).unwrap();
         let follow = |model: FiveBarDynamics<f64>, observer: bool| {
             let mut plant = Plant::new(&cfg, 1);
@@ -400,19 +469,37 @@ mod tests {
                     a.observer_bandwidth_rad_s = 0.0;
                 }
             }
-            let s = run_loop_configured(&mut plant, &nominal(), &tr, tr.natural_duration_s(), &spec, &FeedForward::Dynamics(model), config, None)
-                .unwrap();
+            let s = run_loop_configured(
+                &mut plant,
+                &nominal(),
+                &tr,
+                tr.natural_duration_s(),
+                &spec,
+                &FeedForward::Dynamics(model),
+                config,
+                None,
+            )
+            .unwrap();
             assert!(s.fault.is_none() && s.samples_at_5g > 50, "{s:?}");
             s.max_following_err_um
         };
-        assert!(ServoConfig::default().axes.iter().all(|a| a.observer_bandwidth_rad_s > 0.0));
+        assert!(ServoConfig::default()
+            .axes
+            .iter()
+            .all(|a| a.observer_bandwidth_rad_s > 0.0));
         let exact = follow(d, true);
         assert!(exact < 2.0, "identified model: {exact} um");
         for k in [1.2, 0.8] {
-            let (with, without) = (follow(d.scaled_masses([k; 5]), true), follow(d.scaled_masses([k; 5]), false));
+            let (with, without) = (
+                follow(d.scaled_masses([k; 5]), true),
+                follow(d.scaled_masses([k; 5]), false),
+            );
             eprintln!("masses x{k}: {with:.2} um with the observer, {without:.2} um without");
             assert!(with < 7.0, "masses x{k}: {with} um");
-            assert!(without > 9.0, "masses x{k}: {without} um without the observer");
+            assert!(
+                without > 9.0,
+                "masses x{k}: {without} um without the observer"
+            );
         }
     }
 
@@ -426,7 +513,9 @@ mod tests {
         // Friction without feed-forward: tens of µm of lag at the joints' reversals.
         assert!(s.max_following_err_um < 60.0, "{s:?}");
         // Uncalibrated: the paper plant's ~1.5 mm class error.
-        assert!(s.max_tracking_err_um > 200.0 && s.max_tracking_err_um < 2000.0, "{s:?}");
+        assert!(
+            s.max_tracking_err_um > 200.0 && s.max_tracking_err_um < 2000.0,
+            "{s:?}"
+        );
     }
 }
-

@@ -44,14 +44,25 @@ pub fn simulate(
     trajectory: &Trajectory,
     opts: &SimulateOptions,
 ) -> Result<SimulateRun, SimError> {
-    let seconds = opts.seconds.unwrap_or_else(|| trajectory.natural_duration_s());
+    let seconds = opts
+        .seconds
+        .unwrap_or_else(|| trajectory.natural_duration_s());
     if !(seconds > 0.0 && seconds <= MAX_SECONDS) {
-        return Err(SimError::Invalid(format!("the simulated time must be in (0, {MAX_SECONDS}] s, not {seconds}")));
+        return Err(SimError::Invalid(format!(
+            "the simulated time must be in (0, {MAX_SECONDS}] s, not {seconds}"
+        )));
     }
     let mut plant = Plant::new(plant, opts.seed);
     let mut log = Vec::new();
-    let summary =
-        run_loop_with(&mut plant, cal, trajectory, seconds, &opts.spec, &opts.feedforward, opts.keep_log.then_some(&mut log))?;
+    let summary = run_loop_with(
+        &mut plant,
+        cal,
+        trajectory,
+        seconds,
+        &opts.spec,
+        &opts.feedforward,
+        opts.keep_log.then_some(&mut log),
+    )?;
     Ok(SimulateRun { summary, log })
 }
 

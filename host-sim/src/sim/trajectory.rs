@@ -76,7 +76,14 @@ impl Move {
             let v = (d * accel).sqrt();
             (v / accel, 0.0, v)
         };
-        Move { t0_s, from_mm, to_mm, t_acc_s: t_acc, t_cruise_s: t_cruise, v_peak_mm_s: v }
+        Move {
+            t0_s,
+            from_mm,
+            to_mm,
+            t_acc_s: t_acc,
+            t_cruise_s: t_cruise,
+            v_peak_mm_s: v,
+        }
     }
 
     fn duration_s(&self) -> f64 {
@@ -87,8 +94,19 @@ impl Move {
     /// jerk is infinite at the phase changes and zero elsewhere).
     fn motion(&self, t: f64) -> MotionSetpoint<f64> {
         let d = (self.to_mm[0] - self.from_mm[0]).hypot(self.to_mm[1] - self.from_mm[1]);
-        let u = if d > 0.0 { [(self.to_mm[0] - self.from_mm[0]) / d, (self.to_mm[1] - self.from_mm[1]) / d] } else { [0.0; 2] };
-        let s = if d > 0.0 { self.distance_mm(t) / d } else { 1.0 };
+        let u = if d > 0.0 {
+            [
+                (self.to_mm[0] - self.from_mm[0]) / d,
+                (self.to_mm[1] - self.from_mm[1]) / d,
+            ]
+        } else {
+            [0.0; 2]
+        };
+        let s = if d > 0.0 {
+            self.distance_mm(t) / d
+        } else {
+            1.0
+        };
         let a = self.v_peak_mm_s / self.t_acc_s.max(1e-12);
         let (ta, tc, total) = (self.t_acc_s, self.t_cruise_s, self.duration_s());
         let (v, acc) = if !(t > 0.0) || t >= total {
@@ -101,7 +119,10 @@ impl Move {
             (a * (total - t), -a)
         };
         MotionSetpoint {
-            position_mm: [self.from_mm[0] + s * (self.to_mm[0] - self.from_mm[0]), self.from_mm[1] + s * (self.to_mm[1] - self.from_mm[1])],
+            position_mm: [
+                self.from_mm[0] + s * (self.to_mm[0] - self.from_mm[0]),
+                self.from_mm[1] + s * (self.to_mm[1] - self.from_mm[1]),
+            ],
             velocity_mm_s: [v * u[0], v * u[1]],
             acceleration_mm_s2: [acc * u[0], acc * u[1]],
             jerk_mm_s3: [0.0; 2],
@@ -156,13 +177,30 @@ impl Piece {
 /// A setpoint source.
 #[derive(Clone, Debug)]
 pub enum Trajectory {
-    Circle { centre_mm: [f64; 2], radius_mm: f64, period_s: f64 },
-    Figure8 { centre_mm: [f64; 2], half_x_mm: f64, half_y_mm: f64, period_s: f64 },
+    Circle {
+        centre_mm: [f64; 2],
+        radius_mm: f64,
+        period_s: f64,
+    },
+    Figure8 {
+        centre_mm: [f64; 2],
+        half_x_mm: f64,
+        half_y_mm: f64,
+        period_s: f64,
+    },
     /// Trapezoidal moves (`p2p-trapezoid`).
     PointToPoint { moves: Vec<Move>, dwell_s: f64 },
     /// Jerk-limited pieces, each starting at its time (s), at rest in between.
-    Planned { name: String, pieces: Vec<(f64, Piece)>, duration_s: f64 },
-    Samples { name: String, t_s: Vec<f64>, xy_mm: Vec<[f64; 2]> },
+    Planned {
+        name: String,
+        pieces: Vec<(f64, Piece)>,
+        duration_s: f64,
+    },
+    Samples {
+        name: String,
+        t_s: Vec<f64>,
+        xy_mm: Vec<[f64; 2]>,
+    },
 }
 
 /// The ramped phase of the periodic built-ins: starts at rest, reaches `ω` after a few τ.
@@ -177,18 +215,33 @@ fn p2p_points(spec: &MachineSpec) -> [[f64; 2]; 6] {
     let (x, y, d) = (ws.x_mm, ws.y_mm, P2P_INSET_MM);
     let (lo, hi) = ([x[0] + d, y[0] + d], [x[1] - d, y[1] - d]);
     // The inset rectangle's corners; on a polygon workspace, pulled inside it.
-    let corners = [lo, [hi[0], lo[1]], hi, [lo[0], hi[1]]].map(|p| if ws.is_rectangle { p } else { ws.pulled_inside(p, d) });
-    [centre_mm, corners[0], corners[1], corners[2], corners[3], centre_mm]
+    let corners = [lo, [hi[0], lo[1]], hi, [lo[0], hi[1]]].map(|p| {
+        if ws.is_rectangle {
+            p
+        } else {
+            ws.pulled_inside(p, d)
+        }
+    });
+    [
+        centre_mm, corners[0], corners[1], corners[2], corners[3], centre_mm,
+    ]
 }
 
 /// The machine's rated motion: its acceleration, 1.5 m/s, [`JERK_MM_S3`].
 pub fn rated_limits(spec: &MachineSpec) -> TaskLimits<f64> {
-    TaskLimits { speed_mm_s: P2P_SPEED_MM_S, accel_mm_s2: spec.max_acceleration_g * STANDARD_GRAVITY_MM_S2, jerk_mm_s3: JERK_MM_S3 }
+    TaskLimits {
+        speed_mm_s: P2P_SPEED_MM_S,
+        accel_mm_s2: spec.max_acceleration_g * STANDARD_GRAVITY_MM_S2,
+        jerk_mm_s3: JERK_MM_S3,
+    }
 }
 
 /// The 5 g contours' limits: the rated ones with [`CONTOUR_JERK_MM_S3`].
 fn contour_limits(spec: &MachineSpec) -> TaskLimits<f64> {
-    TaskLimits { jerk_mm_s3: CONTOUR_JERK_MM_S3, ..rated_limits(spec) }
+    TaskLimits {
+        jerk_mm_s3: CONTOUR_JERK_MM_S3,
+        ..rated_limits(spec)
+    }
 }
 
 impl Trajectory {
@@ -196,37 +249,76 @@ impl Trajectory {
     pub fn by_name(name: &str, spec: &MachineSpec) -> Result<Self, SimError> {
         let centre_mm = spec.workspace.centre_mm();
         match name {
-            "circle" => Ok(Trajectory::Circle { centre_mm, radius_mm: 40.0, period_s: 4.0 }),
-            "figure8" => Ok(Trajectory::Figure8 { centre_mm, half_x_mm: 45.0, half_y_mm: 60.0, period_s: 2.0 }),
+            "circle" => Ok(Trajectory::Circle {
+                centre_mm,
+                radius_mm: 40.0,
+                period_s: 4.0,
+            }),
+            "figure8" => Ok(Trajectory::Figure8 {
+                centre_mm,
+                half_x_mm: 45.0,
+                half_y_mm: 60.0,
+                period_s: 2.0,
+            }),
             "p2p-trapezoid" => {
                 let dwell = 0.1;
                 let mut t = dwell;
                 let mut moves = Vec::new();
                 for w in p2p_points(spec).windows(2) {
-                    let m = Move::new(t, w[0], w[1], spec.max_acceleration_g * STANDARD_GRAVITY_MM_S2, P2P_SPEED_MM_S);
+                    let m = Move::new(
+                        t,
+                        w[0],
+                        w[1],
+                        spec.max_acceleration_g * STANDARD_GRAVITY_MM_S2,
+                        P2P_SPEED_MM_S,
+                    );
                     t += m.duration_s() + dwell;
                     moves.push(m);
                 }
-                Ok(Trajectory::PointToPoint { moves, dwell_s: dwell })
+                Ok(Trajectory::PointToPoint {
+                    moves,
+                    dwell_s: dwell,
+                })
             }
             "p2p" => Trajectory::tour("p2p", &p2p_points(spec), &rated_limits(spec), 0.1),
             "move-10mm" => {
                 let to = [centre_mm[0] + 10.0, centre_mm[1]];
-                let mut t = Trajectory::tour("move-10mm", &[centre_mm, to], &rated_limits(spec), 0.05)?;
+                let mut t =
+                    Trajectory::tour("move-10mm", &[centre_mm, to], &rated_limits(spec), 0.05)?;
                 if let Trajectory::Planned { duration_s, .. } = &mut t {
                     *duration_s += SETTLE_S - 0.05;
                 }
                 Ok(t)
             }
             "circle-5g" => {
-                let c = Circle { centre_mm, radius_mm: 40.0, start_rad: 0.0, turns: CONTOUR_TURNS };
-                let m = PathMotion::plan(c, &contour_limits(spec), CONTOUR_SAMPLES).map_err(|e| SimError::Invalid(format!("circle-5g: {e}")))?;
-                Ok(Trajectory::Planned { name: "circle-5g".into(), pieces: vec![(0.0, Piece::Circle(m))], duration_s: m.duration_s() + 0.05 })
+                let c = Circle {
+                    centre_mm,
+                    radius_mm: 40.0,
+                    start_rad: 0.0,
+                    turns: CONTOUR_TURNS,
+                };
+                let m = PathMotion::plan(c, &contour_limits(spec), CONTOUR_SAMPLES)
+                    .map_err(|e| SimError::Invalid(format!("circle-5g: {e}")))?;
+                Ok(Trajectory::Planned {
+                    name: "circle-5g".into(),
+                    pieces: vec![(0.0, Piece::Circle(m))],
+                    duration_s: m.duration_s() + 0.05,
+                })
             }
             "figure8-5g" => {
-                let f = Figure8 { centre_mm, half_x_mm: 45.0, half_y_mm: 60.0, loops: CONTOUR_TURNS };
-                let m = PathMotion::plan(f, &contour_limits(spec), CONTOUR_SAMPLES).map_err(|e| SimError::Invalid(format!("figure8-5g: {e}")))?;
-                Ok(Trajectory::Planned { name: "figure8-5g".into(), pieces: vec![(0.0, Piece::Figure8(m))], duration_s: m.duration_s() + 0.05 })
+                let f = Figure8 {
+                    centre_mm,
+                    half_x_mm: 45.0,
+                    half_y_mm: 60.0,
+                    loops: CONTOUR_TURNS,
+                };
+                let m = PathMotion::plan(f, &contour_limits(spec), CONTOUR_SAMPLES)
+                    .map_err(|e| SimError::Invalid(format!("figure8-5g: {e}")))?;
+                Ok(Trajectory::Planned {
+                    name: "figure8-5g".into(),
+                    pieces: vec![(0.0, Piece::Figure8(m))],
+                    duration_s: m.duration_s() + 0.05,
+                })
             }
             path => {
                 if !Path::new(path).exists() {
@@ -239,13 +331,23 @@ impl Trajectory {
 
     /// Jerk-limited rest-to-rest moves through `points` (the first is the start), `dwell_s`
     /// before the first move and after each.
-    pub fn tour(name: &str, points: &[[f64; 2]], limits: &TaskLimits<f64>, dwell_s: f64) -> Result<Self, SimError> {
+    pub fn tour(
+        name: &str,
+        points: &[[f64; 2]],
+        limits: &TaskLimits<f64>,
+        dwell_s: f64,
+    ) -> Result<Self, SimError> {
         if points.len() < 2 {
-            return Err(SimError::Invalid(format!("{name}: a tour needs a start and at least one point")));
+            return Err(SimError::Invalid(format!(
+                "{name}: a tour needs a start and at least one point"
+            )));
         }
         let mut pieces = Vec::new();
         for w in points.windows(2) {
-            pieces.push(Piece::Line(PathMotion::line(w[0], w[1], limits).map_err(|e| SimError::Invalid(format!("{name}: {e}")))?));
+            pieces.push(Piece::Line(
+                PathMotion::line(w[0], w[1], limits)
+                    .map_err(|e| SimError::Invalid(format!("{name}: {e}")))?,
+            ));
         }
         Ok(Trajectory::sequence(name, pieces, dwell_s))
     }
@@ -259,17 +361,30 @@ impl Trajectory {
             timed.push((t, p));
             t += p.duration_s() + dwell_s;
         }
-        Trajectory::Planned { name: name.into(), pieces: timed, duration_s: t }
+        Trajectory::Planned {
+            name: name.into(),
+            pieces: timed,
+            duration_s: t,
+        }
     }
 
     fn from_csv(path: &str) -> Result<Self, SimError> {
         let err = |m: String| SimError::TrajectoryFile(m);
-        let text = std::fs::read_to_string(path).map_err(|e| err(format!("cannot read trajectory {path}: {e}")))?;
-        let mut r = csv::ReaderBuilder::new().trim(csv::Trim::All).comment(Some(b'#')).from_reader(text.as_bytes());
-        let h = r.headers().map_err(|e| err(format!("trajectory {path}: no header: {e}")))?.clone();
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| err(format!("cannot read trajectory {path}: {e}")))?;
+        let mut r = csv::ReaderBuilder::new()
+            .trim(csv::Trim::All)
+            .comment(Some(b'#'))
+            .from_reader(text.as_bytes());
+        let h = r
+            .headers()
+            .map_err(|e| err(format!("trajectory {path}: no header: {e}")))?
+            .clone();
         if h.iter().collect::<Vec<_>>() != ["t_s", "x_mm", "y_mm"] {
             let found = h.iter().collect::<Vec<_>>().join(",");
-            return Err(err(format!("trajectory {path}: header must be 't_s,x_mm,y_mm', not '{found}'")));
+            return Err(err(format!(
+                "trajectory {path}: header must be 't_s,x_mm,y_mm', not '{found}'"
+            )));
         }
         let (mut ts, mut xy) = (Vec::new(), Vec::new());
         for rec in r.records() {
@@ -277,9 +392,15 @@ impl Trajectory {
             let line = rec.position().map(|p| p.line()).unwrap_or(0);
             let num = |k: usize| -> Result<f64, SimError> {
                 let s = rec.get(k).unwrap_or("");
-                let v: f64 = s.parse().map_err(|_| err(format!("trajectory {path} line {line}: '{s}' is not a number")))?;
+                let v: f64 = s.parse().map_err(|_| {
+                    err(format!(
+                        "trajectory {path} line {line}: '{s}' is not a number"
+                    ))
+                })?;
                 if !v.is_finite() {
-                    return Err(err(format!("trajectory {path} line {line}: '{s}' is not finite")));
+                    return Err(err(format!(
+                        "trajectory {path} line {line}: '{s}' is not finite"
+                    )));
                 }
                 Ok(v)
             };
@@ -293,9 +414,15 @@ impl Trajectory {
             xy.push([num(1)?, num(2)?]);
         }
         if ts.len() < 2 {
-            return Err(err(format!("trajectory {path}: needs at least two samples")));
+            return Err(err(format!(
+                "trajectory {path}: needs at least two samples"
+            )));
         }
-        Ok(Trajectory::Samples { name: path.to_string(), t_s: ts, xy_mm: xy })
+        Ok(Trajectory::Samples {
+            name: path.to_string(),
+            t_s: ts,
+            xy_mm: xy,
+        })
     }
 
     pub fn name(&self) -> String {
@@ -323,18 +450,47 @@ impl Trajectory {
         // The ramped phase and its derivatives (`ramped_phase`).
         let phase = |omega: f64| {
             let e = (-t / RAMP_S).exp();
-            ScalarState { position: ramped_phase(omega, t), velocity: omega * (1.0 - e), acceleration: omega * e / RAMP_S, jerk: -omega * e / (RAMP_S * RAMP_S) }
+            ScalarState {
+                position: ramped_phase(omega, t),
+                velocity: omega * (1.0 - e),
+                acceleration: omega * e / RAMP_S,
+                jerk: -omega * e / (RAMP_S * RAMP_S),
+            }
         };
         match self {
-            Trajectory::Circle { centre_mm, radius_mm, period_s } => {
-                let c = Circle { centre_mm: *centre_mm, radius_mm: *radius_mm, start_rad: 0.0, turns: 1.0 };
+            Trajectory::Circle {
+                centre_mm,
+                radius_mm,
+                period_s,
+            } => {
+                let c = Circle {
+                    centre_mm: *centre_mm,
+                    radius_mm: *radius_mm,
+                    start_rad: 0.0,
+                    turns: 1.0,
+                };
                 let p = phase(TAU / period_s);
                 let r = *radius_mm;
-                let s = ScalarState { position: r * p.position, velocity: r * p.velocity, acceleration: r * p.acceleration, jerk: r * p.jerk };
+                let s = ScalarState {
+                    position: r * p.position,
+                    velocity: r * p.velocity,
+                    acceleration: r * p.acceleration,
+                    jerk: r * p.jerk,
+                };
                 Some(c.motion(&s))
             }
-            Trajectory::Figure8 { centre_mm, half_x_mm, half_y_mm, period_s } => {
-                let f = Figure8 { centre_mm: *centre_mm, half_x_mm: *half_x_mm, half_y_mm: *half_y_mm, loops: 1.0 };
+            Trajectory::Figure8 {
+                centre_mm,
+                half_x_mm,
+                half_y_mm,
+                period_s,
+            } => {
+                let f = Figure8 {
+                    centre_mm: *centre_mm,
+                    half_x_mm: *half_x_mm,
+                    half_y_mm: *half_y_mm,
+                    loops: 1.0,
+                };
                 Some(f.motion(&phase(TAU / period_s)))
             }
             Trajectory::PointToPoint { moves, .. } => {
@@ -368,7 +524,10 @@ impl Trajectory {
         match self {
             Trajectory::Circle { period_s, .. } => period_s + 2.0 * RAMP_S,
             Trajectory::Figure8 { period_s, .. } => 2.0 * period_s,
-            Trajectory::PointToPoint { moves, dwell_s } => moves.last().map(|m| m.t0_s + m.duration_s() + dwell_s).unwrap_or(0.0),
+            Trajectory::PointToPoint { moves, dwell_s } => moves
+                .last()
+                .map(|m| m.t0_s + m.duration_s() + dwell_s)
+                .unwrap_or(0.0),
             Trajectory::Planned { duration_s, .. } => *duration_s,
             Trajectory::Samples { t_s, .. } => *t_s.last().unwrap_or(&0.0),
         }
@@ -378,13 +537,28 @@ impl Trajectory {
     pub fn at(&self, t_s: f64) -> [f64; 2] {
         let t = t_s.max(0.0);
         match self {
-            Trajectory::Circle { centre_mm, radius_mm, period_s } => {
+            Trajectory::Circle {
+                centre_mm,
+                radius_mm,
+                period_s,
+            } => {
                 let p = ramped_phase(TAU / period_s, t);
-                [centre_mm[0] + radius_mm * p.cos(), centre_mm[1] + radius_mm * p.sin()]
+                [
+                    centre_mm[0] + radius_mm * p.cos(),
+                    centre_mm[1] + radius_mm * p.sin(),
+                ]
             }
-            Trajectory::Figure8 { centre_mm, half_x_mm, half_y_mm, period_s } => {
+            Trajectory::Figure8 {
+                centre_mm,
+                half_x_mm,
+                half_y_mm,
+                period_s,
+            } => {
                 let p = ramped_phase(TAU / period_s, t);
-                [centre_mm[0] + half_x_mm * p.sin(), centre_mm[1] + half_y_mm * (2.0 * p).sin()]
+                [
+                    centre_mm[0] + half_x_mm * p.sin(),
+                    centre_mm[1] + half_y_mm * (2.0 * p).sin(),
+                ]
             }
             Trajectory::PointToPoint { .. } | Trajectory::Planned { .. } => {
                 self.motion_at(t).map(|m| m.position_mm).unwrap_or([0.0; 2])
@@ -415,7 +589,11 @@ mod tests {
         let n = (tr.natural_duration_s() / dt) as usize;
         let mut peak: f64 = 0.0;
         for k in 2..n {
-            let (p0, p1, p2) = (tr.at(k as f64 * dt), tr.at((k - 1) as f64 * dt), tr.at((k - 2) as f64 * dt));
+            let (p0, p1, p2) = (
+                tr.at(k as f64 * dt),
+                tr.at((k - 1) as f64 * dt),
+                tr.at((k - 2) as f64 * dt),
+            );
             let a = ((p0[0] - 2.0 * p1[0] + p2[0]).hypot(p0[1] - 2.0 * p1[1] + p2[1])) / (dt * dt);
             peak = peak.max(a);
         }
@@ -443,7 +621,15 @@ mod tests {
     #[test]
     fn the_5g_builtins_have_exact_derivatives() {
         let spec = MachineSpec::paper();
-        for name in ["p2p", "p2p-trapezoid", "circle-5g", "figure8-5g", "move-10mm", "circle", "figure8"] {
+        for name in [
+            "p2p",
+            "p2p-trapezoid",
+            "circle-5g",
+            "figure8-5g",
+            "move-10mm",
+            "circle",
+            "figure8",
+        ] {
             let tr = Trajectory::by_name(name, &spec).unwrap();
             assert_eq!(tr.name(), name);
             let a = peak_accel(&tr);
@@ -457,20 +643,36 @@ mod tests {
             let n = (tr.natural_duration_s() / 1e-3) as usize;
             for k in 1..n {
                 let t = k as f64 * 1e-3 + 0.37e-3;
-                let (lo, mid, hi) = (tr.motion_at(t - h).unwrap(), tr.motion_at(t).unwrap(), tr.motion_at(t + h).unwrap());
+                let (lo, mid, hi) = (
+                    tr.motion_at(t - h).unwrap(),
+                    tr.motion_at(t).unwrap(),
+                    tr.motion_at(t + h).unwrap(),
+                );
                 for i in 0..2 {
                     let fv = (hi.position_mm[i] - lo.position_mm[i]) / (2.0 * h);
-                    assert!((fv - mid.velocity_mm_s[i]).abs() < 1e-3, "{name} v at {t}: {fv} {}", mid.velocity_mm_s[i]);
+                    assert!(
+                        (fv - mid.velocity_mm_s[i]).abs() < 1e-3,
+                        "{name} v at {t}: {fv} {}",
+                        mid.velocity_mm_s[i]
+                    );
                     if name != "p2p-trapezoid" {
                         let fa = (hi.velocity_mm_s[i] - lo.velocity_mm_s[i]) / (2.0 * h);
-                        assert!((fa - mid.acceleration_mm_s2[i]).abs() < 1.0, "{name} a at {t}: {fa} {}", mid.acceleration_mm_s2[i]);
+                        assert!(
+                            (fa - mid.acceleration_mm_s2[i]).abs() < 1.0,
+                            "{name} a at {t}: {fa} {}",
+                            mid.acceleration_mm_s2[i]
+                        );
                     }
                 }
             }
         }
         let m = Trajectory::by_name("move-10mm", &spec).unwrap();
         let end = m.motion_end_s().unwrap();
-        assert!(m.natural_duration_s() >= end + 0.29, "{} {end}", m.natural_duration_s());
+        assert!(
+            m.natural_duration_s() >= end + 0.29,
+            "{} {end}",
+            m.natural_duration_s()
+        );
         assert!((m.at(end)[0] - 222.132).abs() < 1e-9);
     }
 
@@ -480,7 +682,10 @@ mod tests {
         let p = dir.path().join("t.csv");
         std::fs::write(&p, "t_s,x_mm,y_mm\n0,212,0\n0,213,0\n").unwrap();
         let spec = MachineSpec::paper();
-        assert!(Trajectory::by_name(p.to_str().unwrap(), &spec).unwrap_err().to_string().contains("increase"));
+        assert!(Trajectory::by_name(p.to_str().unwrap(), &spec)
+            .unwrap_err()
+            .to_string()
+            .contains("increase"));
         std::fs::write(&p, "t,x,y\n0,212,0\n1,213,0\n").unwrap();
         assert!(Trajectory::by_name(p.to_str().unwrap(), &spec).is_err());
         std::fs::write(&p, "t_s,x_mm,y_mm\n0,212,0\n1,214,0\n").unwrap();

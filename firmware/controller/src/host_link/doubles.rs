@@ -44,7 +44,10 @@ impl JointPlant {
     /// One sample under `torque_nm`.
     pub fn advance(&mut self) {
         let h = Self::DT_S / 10.0;
-        for (k, inertia) in [2.2e-3f32 + 5.4e-3, 1.8e-3 + 5.4e-3].into_iter().enumerate() {
+        for (k, inertia) in [2.2e-3f32 + 5.4e-3, 1.8e-3 + 5.4e-3]
+            .into_iter()
+            .enumerate()
+        {
             let tau = if self.enabled { self.torque_nm[k] } else { 0.0 };
             for _ in 0..10 {
                 let w = self.velocity_rad_s[k];
@@ -57,7 +60,8 @@ impl JointPlant {
 
     /// The encoder reading (whole counts).
     pub fn encoder_rad(&self) -> [f32; 2] {
-        self.angle_rad.map(|a| libm::roundf(a / Self::COUNT_RAD) * Self::COUNT_RAD)
+        self.angle_rad
+            .map(|a| libm::roundf(a / Self::COUNT_RAD) * Self::COUNT_RAD)
     }
 }
 
@@ -105,7 +109,12 @@ pub struct StoreDouble {
 impl StoreDouble {
     /// A store whose image in force has `active_id`.
     pub fn new(active_id: Option<u32>) -> Self {
-        StoreDouble { inactive: heapless::Vec::new(), expected_len: None, active_id, switches: 0 }
+        StoreDouble {
+            inactive: heapless::Vec::new(),
+            expected_len: None,
+            active_id,
+            switches: 0,
+        }
     }
 }
 
@@ -126,11 +135,16 @@ impl CalibrationStore for StoreDouble {
         if offset as usize + data.len() > len as usize {
             return Err(CalibrationRefusal::Incomplete);
         }
-        self.inactive.extend_from_slice(data).map_err(|_| CalibrationRefusal::Length)?;
+        self.inactive
+            .extend_from_slice(data)
+            .map_err(|_| CalibrationRefusal::Length)?;
         Ok(self.inactive.len() as u32)
     }
     fn commit(&mut self) -> Result<u32, CalibrationRefusal> {
-        let len = self.expected_len.take().ok_or(CalibrationRefusal::NotBegun)?;
+        let len = self
+            .expected_len
+            .take()
+            .ok_or(CalibrationRefusal::NotBegun)?;
         if self.inactive.len() != len as usize {
             return Err(CalibrationRefusal::Incomplete);
         }
@@ -171,10 +185,22 @@ pub struct Rig<'a> {
 impl<'a> Rig<'a> {
     /// Boots the servo loop with the machine at `joints_rad` and the stream holding where it
     /// engaged; `active_id` is the id of the image `calibration` came from.
-    pub fn boot(settings: &'a Settings, calibration: Calibration<'a>, joints_rad: [f32; 2], active_id: Option<u32>) -> Self {
-        let workspace = calibration.grid.as_ref().and_then(|g| Workspace::of_image(g, settings.stop.workspace_margin_mm));
+    pub fn boot(
+        settings: &'a Settings,
+        calibration: Calibration<'a>,
+        joints_rad: [f32; 2],
+        active_id: Option<u32>,
+    ) -> Self {
+        let workspace = calibration
+            .grid
+            .as_ref()
+            .and_then(|g| Workspace::of_image(g, settings.stop.workspace_margin_mm));
         let servo = ServoLoop::boot(settings, calibration, CalibrationState::Valid, joints_rad);
-        let limits = StreamLimits { task: settings.stream_limits(), stop: settings.stop.limits, workspace };
+        let limits = StreamLimits {
+            task: settings.stream_limits(),
+            stop: settings.stop.limits,
+            workspace,
+        };
         let stream = MotionStream::new(limits, servo.setpoint_mm());
         let status = Status::at_boot(CalibrationState::Valid, &servo, joints_rad);
         Rig {
@@ -184,8 +210,17 @@ impl<'a> Rig<'a> {
             request: None,
             posted: 0,
             status,
-            plant: JointPlant { angle_rad: joints_rad, velocity_rad_s: [0.0; 2], torque_nm: [0.0; 2], enabled: true },
-            homing: HomingDouble { state: HomingState::Homed, refuse: false, absolute: false },
+            plant: JointPlant {
+                angle_rad: joints_rad,
+                velocity_rad_s: [0.0; 2],
+                torque_nm: [0.0; 2],
+                enabled: true,
+            },
+            homing: HomingDouble {
+                state: HomingState::Homed,
+                refuse: false,
+                absolute: false,
+            },
             store: StoreDouble::new(active_id),
             link_motion: true,
         }
@@ -211,7 +246,8 @@ impl<'a> Rig<'a> {
         self.plant.torque_nm = sample.torque_nm;
         self.plant.advance();
         let stop_mm = self.servo.stop_profile().map_or(0.0, |p| p.distance_mm());
-        self.status.record(&sample, self.servo.mode(), self.servo.deadline(), stop_mm);
+        self.status
+            .record(&sample, self.servo.mode(), self.servo.deadline(), stop_mm);
     }
 }
 

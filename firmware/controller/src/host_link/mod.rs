@@ -29,9 +29,9 @@
 //!
 //! [`ServoLoop::request`]: crate::servo_loop::ServoLoop::request
 use link_protocol::{
-    decode, encode, Board, CalibrationRefusal, Command, DeviceBody, DeviceMessage, FaultCode, FrameError, HomingState,
-    Identity, LinkError, ModeCode, Received, Request, Response, StatusReport, TelemetrySample,
-    MIN_TELEMETRY_DECIMATION, PROTOCOL_VERSION,
+    decode, encode, Board, CalibrationRefusal, Command, DeviceBody, DeviceMessage, FaultCode,
+    FrameError, HomingState, Identity, LinkError, ModeCode, Received, Request, Response,
+    StatusReport, TelemetrySample, MIN_TELEMETRY_DECIMATION, PROTOCOL_VERSION,
 };
 
 use crate::calibration::ImageError;
@@ -152,7 +152,11 @@ pub fn mode_code(mode: Mode) -> ModeCode {
 /// procedure reached home (whatever faults come later: the encoder zero stays set) or with
 /// absolute encoders; failed when the procedure stopped on a fault (its own, or any fault latched
 /// while it ran); not homed before it started.
-pub fn homing_state(mode: Mode, phase: Option<HomingPhase>, absolute_encoders: bool) -> HomingState {
+pub fn homing_state(
+    mode: Mode,
+    phase: Option<HomingPhase>,
+    absolute_encoders: bool,
+) -> HomingState {
     match (mode, phase) {
         (Mode::Unhomed, _) => HomingState::NotHomed,
         (Mode::Homing, _) => HomingState::InProgress,
@@ -179,12 +183,21 @@ pub fn calibration_refusal(e: SlotError) -> CalibrationRefusal {
 impl LinkHandler {
     /// A handler with telemetry off.
     pub const fn new() -> Self {
-        LinkHandler { decimation: 0, last_telemetry_tick: 0, posted_at_tick: None }
+        LinkHandler {
+            decimation: 0,
+            last_telemetry_tick: 0,
+            posted_at_tick: None,
+        }
     }
 
     /// Decodes the frame the reader delivered, handles it, and encodes the one answer into
     /// `out` (at least [`link_protocol::MAX_FRAME_LEN`] bytes); returns its length.
-    pub fn on_received(&mut self, received: Received<'_>, device: &mut impl Device, out: &mut [u8]) -> usize {
+    pub fn on_received(
+        &mut self,
+        received: Received<'_>,
+        device: &mut impl Device,
+        out: &mut [u8],
+    ) -> usize {
         let body = match received {
             Received::TooLong => DeviceBody::FrameRejected(FrameError::TooLong),
             Received::Frame(frame) => match decode::<Request>(frame) {
@@ -202,7 +215,10 @@ impl LinkHandler {
         } else {
             self.execute(&request.command, device)
         };
-        DeviceBody::Reply { seq: request.seq, result }
+        DeviceBody::Reply {
+            seq: request.seq,
+            result,
+        }
     }
 
     /// Pauses the motion source and posts `request` to the servo task.
@@ -213,7 +229,11 @@ impl LinkHandler {
         Response::Done
     }
 
-    fn execute(&mut self, command: &Command, device: &mut impl Device) -> Result<Response, LinkError> {
+    fn execute(
+        &mut self,
+        command: &Command,
+        device: &mut impl Device,
+    ) -> Result<Response, LinkError> {
         let status = device.status();
         let mode = status.mode;
         match command {
@@ -229,7 +249,9 @@ impl LinkHandler {
                 Mode::Unhomed => Err(LinkError::NotHomed),
                 Mode::Homing => Err(LinkError::Busy),
                 Mode::Stopping(_) => Err(LinkError::Busy),
-                Mode::Holding(f) | Mode::SafeState(f) if !commanded(f) => Err(LinkError::Faulted(fault_code(f))),
+                Mode::Holding(f) | Mode::SafeState(f) if !commanded(f) => {
+                    Err(LinkError::Faulted(fault_code(f)))
+                }
                 Mode::Holding(_) | Mode::SafeState(_) => self.reset(status.ticks, device),
             },
             Command::ResetFault => match mode {
@@ -237,10 +259,14 @@ impl LinkHandler {
                 Mode::Unhomed => Err(LinkError::NotHomed),
                 Mode::Homing => Err(LinkError::Busy),
                 Mode::Stopping(_) => Err(LinkError::Busy),
-                Mode::Holding(f) | Mode::SafeState(f) if permanent(f) => Err(LinkError::Faulted(fault_code(f))),
+                Mode::Holding(f) | Mode::SafeState(f) if permanent(f) => {
+                    Err(LinkError::Faulted(fault_code(f)))
+                }
                 // Never homed (homing failed, or a fault before it): the servo loop clears the
                 // fault back to Unhomed, drives off, and Home may run again without a reboot.
-                Mode::SafeState(_) if !homed(device) => Ok(self.post(ServoRequest::Reset, status.ticks, device)),
+                Mode::SafeState(_) if !homed(device) => {
+                    Ok(self.post(ServoRequest::Reset, status.ticks, device))
+                }
                 Mode::Holding(_) | Mode::SafeState(_) => self.reset(status.ticks, device),
             },
             Command::Stop => Ok(self.post(ServoRequest::Stop, status.ticks, device)),
@@ -250,7 +276,11 @@ impl LinkHandler {
                 if device.with_stream(|s| s.is_playing()) || matches!(mode, Mode::Stopping(_)) {
                     return Err(LinkError::Busy);
                 }
-                device.homing().start().map(|()| Response::Done).map_err(|HomingRefused| LinkError::Homing)
+                device
+                    .homing()
+                    .start()
+                    .map(|()| Response::Done)
+                    .map_err(|HomingRefused| LinkError::Homing)
             }
             Command::MoveTo { target_mm } => {
                 link_is_source(device)?;
@@ -265,8 +295,13 @@ impl LinkHandler {
                 link_is_source(device)?;
                 running(mode)?;
                 device.with_stream(|s| match s.push(*first_index, knots) {
-                    Ok(()) => Ok(Response::StreamAccepted { next_index: s.next_index(), free: s.free() as u16 }),
-                    Err(PushRefusal::Knot(index, reason)) => Err(LinkError::Segment { index, reason }),
+                    Ok(()) => Ok(Response::StreamAccepted {
+                        next_index: s.next_index(),
+                        free: s.free() as u16,
+                    }),
+                    Err(PushRefusal::Knot(index, reason)) => {
+                        Err(LinkError::Segment { index, reason })
+                    }
                     Err(PushRefusal::Index(expected)) => Err(LinkError::StreamIndex(expected)),
                     Err(PushRefusal::Full(free)) => Err(LinkError::StreamFull(free)),
                     Err(PushRefusal::Busy) => Err(LinkError::Busy),
@@ -282,15 +317,27 @@ impl LinkHandler {
             }
             Command::CalibrationBegin { len } => {
                 idle(&status, device)?;
-                device.calibration().begin(*len).map(|()| Response::Done).map_err(LinkError::Calibration)
+                device
+                    .calibration()
+                    .begin(*len)
+                    .map(|()| Response::Done)
+                    .map_err(LinkError::Calibration)
             }
             Command::CalibrationChunk { offset, data } => {
                 idle(&status, device)?;
-                device.calibration().write(*offset, data).map(Response::CalibrationReceived).map_err(LinkError::Calibration)
+                device
+                    .calibration()
+                    .write(*offset, data)
+                    .map(Response::CalibrationReceived)
+                    .map_err(LinkError::Calibration)
             }
             Command::CalibrationCommit => {
                 idle(&status, device)?;
-                device.calibration().commit().map(|id| Response::CalibrationId(Some(id))).map_err(LinkError::Calibration)
+                device
+                    .calibration()
+                    .commit()
+                    .map(|id| Response::CalibrationId(Some(id)))
+                    .map_err(LinkError::Calibration)
             }
             Command::CalibrationId => Ok(Response::CalibrationId(device.calibration().active_id())),
         }
@@ -342,11 +389,15 @@ impl LinkHandler {
                 }
             });
         }
-        if self.decimation == 0 || s.ticks.wrapping_sub(self.last_telemetry_tick) < u32::from(self.decimation) {
+        if self.decimation == 0
+            || s.ticks.wrapping_sub(self.last_telemetry_tick) < u32::from(self.decimation)
+        {
             return None;
         }
         self.last_telemetry_tick = s.ticks;
-        Some(DeviceMessage::new(DeviceBody::Telemetry(telemetry_sample(&s))))
+        Some(DeviceMessage::new(DeviceBody::Telemetry(telemetry_sample(
+            &s,
+        ))))
     }
 
     /// The telemetry decimation in force (0: off).

@@ -13,9 +13,22 @@ use crate::settings::Settings;
 const HOME_MM: [f32; 2] = [212.132, 0.0];
 
 fn image(offset_rad: f32) -> Vec<u8> {
-    let g = GridGeometry { nx: 3, ny: 3, x0_mm: 160.0, y0_mm: -80.0, step_x_mm: 50.0, step_y_mm: 80.0 };
+    let g = GridGeometry {
+        nx: 3,
+        ny: 3,
+        x0_mm: 160.0,
+        y0_mm: -80.0,
+        step_x_mm: 50.0,
+        step_y_mm: 80.0,
+    };
     let mut img = vec![0u8; g.image_len()];
-    encode_grid(&mut img, &g, &FiveBar::paper_nominal(), &[[offset_rad, -2e-4]; 9]).unwrap();
+    encode_grid(
+        &mut img,
+        &g,
+        &FiveBar::paper_nominal(),
+        &[[offset_rad, -2e-4]; 9],
+    )
+    .unwrap();
     img
 }
 
@@ -36,7 +49,12 @@ fn rig<'a>(settings: &'a Settings, img: &'a [u8]) -> Rig<'a> {
 }
 
 /// Sends `command` as a frame through the reader and the handler; returns the reply.
-fn send(h: &mut LinkHandler, rig: &mut Rig<'_>, seq: u16, command: Command) -> Result<Response, LinkError> {
+fn send(
+    h: &mut LinkHandler,
+    rig: &mut Rig<'_>,
+    seq: u16,
+    command: Command,
+) -> Result<Response, LinkError> {
     let mut frame = [0u8; MAX_FRAME_LEN];
     let n = encode(&Request::new(seq, command), &mut frame).unwrap();
     let replies = feed(h, rig, &frame[..n]);
@@ -92,19 +110,35 @@ fn figure_knots(seconds: f32) -> Vec<Knot> {
                     1.0
                 };
                 let w = 2.0 * core::f32::consts::PI * 0.5;
-                [HOME_MM[0] + env * 30.0 * libm::sinf(w * t), HOME_MM[1] + env * 40.0 * libm::sinf(2.0 * w * t)]
+                [
+                    HOME_MM[0] + env * 30.0 * libm::sinf(w * t),
+                    HOME_MM[1] + env * 40.0 * libm::sinf(2.0 * w * t),
+                ]
             };
             let h = 1e-4;
             let (a, b) = (pos(t - h), pos((t + h).min(seconds)));
             let dt = (t + h).min(seconds) - (t - h);
-            let v = if i == n { [0.0; 2] } else { [(b[0] - a[0]) / dt, (b[1] - a[1]) / dt] };
-            Knot { t_us: i * 10_000, position_mm: if i == n { pos(seconds) } else { pos(t) }, velocity_mm_s: v }
+            let v = if i == n {
+                [0.0; 2]
+            } else {
+                [(b[0] - a[0]) / dt, (b[1] - a[1]) / dt]
+            };
+            Knot {
+                t_us: i * 10_000,
+                position_mm: if i == n { pos(seconds) } else { pos(t) },
+                velocity_mm_s: v,
+            }
         })
         .collect()
 }
 
 /// Streams `knots` keeping the buffer ahead, runs until done; returns the statuses.
-fn stream(h: &mut LinkHandler, rig: &mut Rig<'_>, knots: &[Knot], extra_samples: usize) -> Vec<Status> {
+fn stream(
+    h: &mut LinkHandler,
+    rig: &mut Rig<'_>,
+    knots: &[Knot],
+    extra_samples: usize,
+) -> Vec<Status> {
     let mut sent = 0usize;
     let mut statuses = Vec::new();
     let mut seq = 100;
@@ -113,7 +147,15 @@ fn stream(h: &mut LinkHandler, rig: &mut Rig<'_>, knots: &[Knot], extra_samples:
             let end = (sent + 8).min(knots.len());
             let frame = heapless::Vec::from_slice(&knots[sent..end]).unwrap();
             seq += 1;
-            let r = send(h, rig, seq, Command::StreamKnots { first_index: sent as u32, knots: frame });
+            let r = send(
+                h,
+                rig,
+                seq,
+                Command::StreamKnots {
+                    first_index: sent as u32,
+                    knots: frame,
+                },
+            );
             assert!(matches!(r, Ok(Response::StreamAccepted { .. })), "{r:?}");
             sent = end;
         }
@@ -129,13 +171,33 @@ fn identify_and_status_answer() {
     let (settings, img) = (settings(), image(3e-4));
     let mut r = rig(&settings, &img);
     let mut h = LinkHandler::new();
-    let Ok(Response::Identity(id)) = send(&mut h, &mut r, 1, Command::Identify) else { panic!() };
-    assert_eq!((id.protocol_version, id.board, id.calibration_id), (PROTOCOL_VERSION, Board::Qemu, image_id(&img)));
+    let Ok(Response::Identity(id)) = send(&mut h, &mut r, 1, Command::Identify) else {
+        panic!()
+    };
+    assert_eq!(
+        (id.protocol_version, id.board, id.calibration_id),
+        (PROTOCOL_VERSION, Board::Qemu, image_id(&img))
+    );
     assert!(id.calibration_id.is_some());
-    let Ok(Response::Status(s)) = send(&mut h, &mut r, 2, Command::Status) else { panic!() };
-    assert_eq!((s.mode, s.fault, s.drives_enabled, s.moving), (ModeCode::Running, None, true, false));
-    let other = Request { version: PROTOCOL_VERSION + 1, seq: 9, command: Command::Enable };
-    assert_eq!(h.handle(&other, &mut r), DeviceBody::Reply { seq: 9, result: Err(LinkError::Version(PROTOCOL_VERSION + 1)) });
+    let Ok(Response::Status(s)) = send(&mut h, &mut r, 2, Command::Status) else {
+        panic!()
+    };
+    assert_eq!(
+        (s.mode, s.fault, s.drives_enabled, s.moving),
+        (ModeCode::Running, None, true, false)
+    );
+    let other = Request {
+        version: PROTOCOL_VERSION + 1,
+        seq: 9,
+        command: Command::Enable,
+    };
+    assert_eq!(
+        h.handle(&other, &mut r),
+        DeviceBody::Reply {
+            seq: 9,
+            result: Err(LinkError::Version(PROTOCOL_VERSION + 1))
+        }
+    );
 }
 
 #[test]
@@ -155,7 +217,9 @@ fn a_streamed_figure_is_tracked_and_ends_at_rest_where_it_should() {
         let p = statuses[start + (k.t_us / 500) as usize - 1].setpoint_mm;
         libm::hypotf(p[0] - k.position_mm[0], p[1] - k.position_mm[1])
     };
-    let start = (0..100).min_by(|&a, &b| at(a, &knots[49]).total_cmp(&at(b, &knots[49]))).unwrap();
+    let start = (0..100)
+        .min_by(|&a, &b| at(a, &knots[49]).total_cmp(&at(b, &knots[49])))
+        .unwrap();
     let mut worst = 0.0f32;
     for k in &knots {
         worst = worst.max(at(start, k));
@@ -163,10 +227,16 @@ fn a_streamed_figure_is_tracked_and_ends_at_rest_where_it_should() {
     assert!(worst < 1e-3, "setpoint off a knot by {worst} mm");
     // Tracked: the following error stays as small as on the built-in tour.
     let following = r.status.max_following_error_rad;
-    assert!(following > 0.0 && following < 2e-4, "following error {following} rad");
+    assert!(
+        following > 0.0 && following < 2e-4,
+        "following error {following} rad"
+    );
     let end = statuses.last().unwrap().setpoint_mm;
     let last = knots.last().unwrap().position_mm;
-    assert!(libm::hypotf(end[0] - last[0], end[1] - last[1]) < 1e-3, "{end:?} vs {last:?}");
+    assert!(
+        libm::hypotf(end[0] - last[0], end[1] - last[1]) < 1e-3,
+        "{end:?} vs {last:?}"
+    );
     assert!(!r.stream.is_moving());
 }
 
@@ -179,31 +249,63 @@ fn an_underrun_is_a_controlled_stop_reported_and_a_reset_resumes() {
     // Two frames (160 ms) of a moving figure, then nothing.
     for i in 0..2 {
         let frame = heapless::Vec::from_slice(&knots[i * 8..i * 8 + 8]).unwrap();
-        send(&mut h, &mut r, i as u16, Command::StreamKnots { first_index: i as u32 * 8, knots: frame }).unwrap();
+        send(
+            &mut h,
+            &mut r,
+            i as u16,
+            Command::StreamKnots {
+                first_index: i as u32 * 8,
+                knots: frame,
+            },
+        )
+        .unwrap();
     }
     let statuses = run(&mut h, &mut r, 1000);
-    assert!(statuses.iter().any(|s| s.mode == Mode::Stopping(Fault::Underrun)));
+    assert!(statuses
+        .iter()
+        .any(|s| s.mode == Mode::Stopping(Fault::Underrun)));
     assert_eq!(r.status.mode, Mode::Holding(Fault::Underrun));
-    let Ok(Response::Status(s)) = send(&mut h, &mut r, 5, Command::Status) else { panic!() };
-    assert_eq!((s.mode, s.fault), (ModeCode::Holding, Some(FaultCode::Underrun)));
+    let Ok(Response::Status(s)) = send(&mut h, &mut r, 5, Command::Status) else {
+        panic!()
+    };
+    assert_eq!(
+        (s.mode, s.fault),
+        (ModeCode::Holding, Some(FaultCode::Underrun))
+    );
     let more = heapless::Vec::from_slice(&knots[16..24]).unwrap();
     assert_eq!(
-        send(&mut h, &mut r, 6, Command::StreamKnots { first_index: 16, knots: more }),
+        send(
+            &mut h,
+            &mut r,
+            6,
+            Command::StreamKnots {
+                first_index: 16,
+                knots: more
+            }
+        ),
         Err(LinkError::Faulted(FaultCode::Underrun))
     );
-    assert_eq!(send(&mut h, &mut r, 7, Command::ResetFault), Ok(Response::Done));
+    assert_eq!(
+        send(&mut h, &mut r, 7, Command::ResetFault),
+        Ok(Response::Done)
+    );
     run(&mut h, &mut r, 10);
     assert_eq!(r.status.mode, Mode::Running);
     let held = r.status.setpoint_mm;
     // A new stream starts from where it held.
-    let Ok(Response::MovePlanned { duration_s }) = send(&mut h, &mut r, 8, Command::MoveTo { target_mm: HOME_MM }) else {
+    let Ok(Response::MovePlanned { duration_s }) =
+        send(&mut h, &mut r, 8, Command::MoveTo { target_mm: HOME_MM })
+    else {
         panic!()
     };
     assert!(duration_s > 0.0);
     let statuses = run(&mut h, &mut r, (duration_s / 5e-4) as usize + 100);
     assert!(statuses.iter().all(|s| s.mode == Mode::Running));
     let first = statuses[0].setpoint_mm;
-    assert!(libm::hypotf(first[0] - held[0], first[1] - held[1]) < 0.01, "no jump: {first:?} {held:?}");
+    assert!(
+        libm::hypotf(first[0] - held[0], first[1] - held[1]) < 0.01,
+        "no jump: {first:?} {held:?}"
+    );
     let end = r.status.setpoint_mm;
     assert!(libm::hypotf(end[0] - HOME_MM[0], end[1] - HOME_MM[1]) < 1e-3);
 }
@@ -218,7 +320,9 @@ fn the_status_says_moving_until_the_servo_reaches_the_end_not_the_source() {
     let mut r = rig(&settings, &img);
     let mut h = LinkHandler::new();
     let target = [HOME_MM[0] + 20.0, HOME_MM[1] - 10.0];
-    let Ok(Response::MovePlanned { duration_s }) = send(&mut h, &mut r, 1, Command::MoveTo { target_mm: target }) else {
+    let Ok(Response::MovePlanned { duration_s }) =
+        send(&mut h, &mut r, 1, Command::MoveTo { target_mm: target })
+    else {
         panic!()
     };
     let mut samples = 0usize;
@@ -227,20 +331,39 @@ fn the_status_says_moving_until_the_servo_reaches_the_end_not_the_source() {
         samples += 1;
         assert!(samples < (duration_s / 5e-4) as usize + 100);
     }
-    let short = libm::hypotf(r.status.setpoint_mm[0] - target[0], r.status.setpoint_mm[1] - target[1]);
-    assert!(short > 0.0, "the servo is behind the source when the source ends");
-    let Ok(Response::Status(s)) = send(&mut h, &mut r, 2, Command::Status) else { panic!() };
-    assert!(s.moving, "{short} mm short of the end and not moving: {s:?}");
+    let short = libm::hypotf(
+        r.status.setpoint_mm[0] - target[0],
+        r.status.setpoint_mm[1] - target[1],
+    );
+    assert!(
+        short > 0.0,
+        "the servo is behind the source when the source ends"
+    );
+    let Ok(Response::Status(s)) = send(&mut h, &mut r, 2, Command::Status) else {
+        panic!()
+    };
+    assert!(
+        s.moving,
+        "{short} mm short of the end and not moving: {s:?}"
+    );
     let mut behind = 0usize;
     loop {
         run(&mut h, &mut r, 1);
         behind += 1;
-        let Ok(Response::Status(s)) = send(&mut h, &mut r, 3, Command::Status) else { panic!() };
+        let Ok(Response::Status(s)) = send(&mut h, &mut r, 3, Command::Status) else {
+            panic!()
+        };
         if !s.moving {
-            assert_eq!(s.setpoint_mm, target, "not moving means at the end, exactly");
+            assert_eq!(
+                s.setpoint_mm, target,
+                "not moving means at the end, exactly"
+            );
             break;
         }
-        assert!(behind < crate::setpoints::QUEUE_SLOTS + 2, "still moving {behind} samples after the source ended");
+        assert!(
+            behind < crate::setpoints::QUEUE_SLOTS + 2,
+            "still moving {behind} samples after the source ended"
+        );
     }
 }
 
@@ -256,29 +379,61 @@ fn with_a_built_in_source_the_link_refuses_moves_and_moving_follows_the_setpoint
     r.link_motion = false;
     let mut h = LinkHandler::new();
     let target = [HOME_MM[0] + 15.0, HOME_MM[1] + 8.0];
-    assert_eq!(send(&mut h, &mut r, 1, Command::MoveTo { target_mm: target }), Err(LinkError::Unsupported));
+    assert_eq!(
+        send(&mut h, &mut r, 1, Command::MoveTo { target_mm: target }),
+        Err(LinkError::Unsupported)
+    );
     let knots = figure_knots(0.2);
     let frame = heapless::Vec::from_slice(&knots[..4]).unwrap();
-    assert_eq!(send(&mut h, &mut r, 2, Command::StreamKnots { first_index: 0, knots: frame }), Err(LinkError::Unsupported));
+    assert_eq!(
+        send(
+            &mut h,
+            &mut r,
+            2,
+            Command::StreamKnots {
+                first_index: 0,
+                knots: frame
+            }
+        ),
+        Err(LinkError::Unsupported)
+    );
     assert!(!r.stream.is_playing(), "nothing reached the link's stream");
     // The built-in source: a stream of its own feeds the servo; the link's stays at the boot point.
     let link_stream = r.stream.clone();
     let duration_s = r.stream.move_to(target).expect("the tour's move plans");
-    let Ok(Response::Status(s)) = send(&mut h, &mut r, 3, Command::Status) else { panic!() };
-    assert!(!s.moving, "not yet moving: the servo has not taken a sample of the tour");
+    let Ok(Response::Status(s)) = send(&mut h, &mut r, 3, Command::Status) else {
+        panic!()
+    };
+    assert!(
+        !s.moving,
+        "not yet moving: the servo has not taken a sample of the tour"
+    );
     // The queue holds up to QUEUE_SLOTS setpoints of the hold before the first of the move.
     run(&mut h, &mut r, crate::setpoints::QUEUE_SLOTS + 20);
-    let Ok(Response::Status(s)) = send(&mut h, &mut r, 4, Command::Status) else { panic!() };
+    let Ok(Response::Status(s)) = send(&mut h, &mut r, 4, Command::Status) else {
+        panic!()
+    };
     assert!(s.moving, "the tour runs: {s:?}");
-    run(&mut h, &mut r, (duration_s / 5e-4) as usize + crate::setpoints::QUEUE_SLOTS + 10);
+    run(
+        &mut h,
+        &mut r,
+        (duration_s / 5e-4) as usize + crate::setpoints::QUEUE_SLOTS + 10,
+    );
     assert_eq!(r.status.setpoint_mm, target, "the tour ended at its target");
     r.stream = link_stream;
-    let Ok(Response::Status(s)) = send(&mut h, &mut r, 5, Command::Status) else { panic!() };
-    assert!(!s.moving, "the tour ended away from the link stream's hold point: not moving ({s:?})");
+    let Ok(Response::Status(s)) = send(&mut h, &mut r, 5, Command::Status) else {
+        panic!()
+    };
+    assert!(
+        !s.moving,
+        "the tour ended away from the link stream's hold point: not moving ({s:?})"
+    );
     // The same status with the link as the source reads "moving" (the hold point is elsewhere):
     // the rule depends on which source drives the servo.
     r.link_motion = true;
-    let Ok(Response::Status(s)) = send(&mut h, &mut r, 6, Command::Status) else { panic!() };
+    let Ok(Response::Status(s)) = send(&mut h, &mut r, 6, Command::Status) else {
+        panic!()
+    };
     assert!(s.moving);
 }
 
@@ -290,13 +445,36 @@ fn a_frame_with_one_bad_knot_is_refused_whole_and_nothing_moves() {
     let mut knots = figure_knots(3.0)[..8].to_vec();
     knots[6].position_mm[0] = 400.0; // far outside the workspace
     let frame = heapless::Vec::from_slice(&knots).unwrap();
-    let refused = send(&mut h, &mut r, 1, Command::StreamKnots { first_index: 0, knots: frame });
-    assert!(matches!(refused, Err(LinkError::Segment { index: 6, .. })), "{refused:?}");
+    let refused = send(
+        &mut h,
+        &mut r,
+        1,
+        Command::StreamKnots {
+            first_index: 0,
+            knots: frame,
+        },
+    );
+    assert!(
+        matches!(refused, Err(LinkError::Segment { index: 6, .. })),
+        "{refused:?}"
+    );
     let before = r.status.setpoint_mm;
     let statuses = run(&mut h, &mut r, 400);
-    assert!(statuses.iter().all(|s| s.setpoint_mm == before && s.mode == Mode::Running));
+    assert!(statuses
+        .iter()
+        .all(|s| s.setpoint_mm == before && s.mode == Mode::Running));
     assert_eq!(r.stream.queued(), 0);
-    assert_eq!(send(&mut h, &mut r, 2, Command::MoveTo { target_mm: [400.0, 0.0] }), Err(LinkError::Target));
+    assert_eq!(
+        send(
+            &mut h,
+            &mut r,
+            2,
+            Command::MoveTo {
+                target_mm: [400.0, 0.0]
+            }
+        ),
+        Err(LinkError::Target)
+    );
 }
 
 #[test]
@@ -304,31 +482,69 @@ fn stop_disable_enable_and_homing() {
     let (settings, img) = (settings(), image(3e-4));
     let mut r = rig(&settings, &img);
     let mut h = LinkHandler::new();
-    send(&mut h, &mut r, 1, Command::MoveTo { target_mm: [250.0, 60.0] }).unwrap();
+    send(
+        &mut h,
+        &mut r,
+        1,
+        Command::MoveTo {
+            target_mm: [250.0, 60.0],
+        },
+    )
+    .unwrap();
     run(&mut h, &mut r, 200);
     assert_eq!(send(&mut h, &mut r, 2, Command::Stop), Ok(Response::Done));
     let statuses = run(&mut h, &mut r, 400);
     assert_eq!(statuses[0].mode, Mode::Stopping(Fault::StopCommanded));
     assert_eq!(r.status.mode, Mode::Holding(Fault::StopCommanded));
-    assert_eq!(send(&mut h, &mut r, 3, Command::MoveTo { target_mm: HOME_MM }), Err(LinkError::Faulted(FaultCode::Commanded)));
+    assert_eq!(
+        send(&mut h, &mut r, 3, Command::MoveTo { target_mm: HOME_MM }),
+        Err(LinkError::Faulted(FaultCode::Commanded))
+    );
     assert_eq!(send(&mut h, &mut r, 4, Command::Enable), Ok(Response::Done));
     run(&mut h, &mut r, 5);
     assert_eq!(r.status.mode, Mode::Running);
     send(&mut h, &mut r, 5, Command::MoveTo { target_mm: HOME_MM }).unwrap();
 
-    assert_eq!(send(&mut h, &mut r, 6, Command::Disable), Ok(Response::Done));
+    assert_eq!(
+        send(&mut h, &mut r, 6, Command::Disable),
+        Ok(Response::Done)
+    );
     run(&mut h, &mut r, 800);
     assert_eq!(r.status.mode, Mode::SafeState(Fault::DisableCommanded));
-    assert_eq!(send(&mut h, &mut r, 7, Command::MoveTo { target_mm: HOME_MM }), Err(LinkError::NotEnabled));
+    assert_eq!(
+        send(&mut h, &mut r, 7, Command::MoveTo { target_mm: HOME_MM }),
+        Err(LinkError::NotEnabled)
+    );
     // Unhomed: the drives do not engage; homing, then they do.
     r.homing.state = HomingState::NotHomed;
-    assert_eq!(send(&mut h, &mut r, 8, Command::Enable), Err(LinkError::NotHomed));
+    assert_eq!(
+        send(&mut h, &mut r, 8, Command::Enable),
+        Err(LinkError::NotHomed)
+    );
     assert_eq!(send(&mut h, &mut r, 9, Command::Home), Ok(Response::Done));
-    assert_eq!(send(&mut h, &mut r, 10, Command::Enable), Ok(Response::Done));
+    assert_eq!(
+        send(&mut h, &mut r, 10, Command::Enable),
+        Ok(Response::Done)
+    );
     run(&mut h, &mut r, 5);
-    assert_eq!((r.status.mode, r.status.drives_enabled), (Mode::Running, true));
-    send(&mut h, &mut r, 11, Command::MoveTo { target_mm: [220.0, 10.0] }).unwrap();
-    assert_eq!(send(&mut h, &mut r, 12, Command::Home), Err(LinkError::Busy), "not while moving");
+    assert_eq!(
+        (r.status.mode, r.status.drives_enabled),
+        (Mode::Running, true)
+    );
+    send(
+        &mut h,
+        &mut r,
+        11,
+        Command::MoveTo {
+            target_mm: [220.0, 10.0],
+        },
+    )
+    .unwrap();
+    assert_eq!(
+        send(&mut h, &mut r, 12, Command::Home),
+        Err(LinkError::Busy),
+        "not while moving"
+    );
 }
 
 #[test]
@@ -338,26 +554,64 @@ fn a_bad_image_is_refused_and_the_old_one_stays() {
     let mut h = LinkHandler::new();
     let old = image_id(&img);
     let upload = |h: &mut LinkHandler, r: &mut Rig<'_>, bytes: &[u8]| {
-        send(h, r, 1, Command::CalibrationBegin { len: bytes.len() as u32 })?;
-        for (i, c) in bytes.chunks(link_protocol::CALIBRATION_CHUNK_LEN).enumerate() {
+        send(
+            h,
+            r,
+            1,
+            Command::CalibrationBegin {
+                len: bytes.len() as u32,
+            },
+        )?;
+        for (i, c) in bytes
+            .chunks(link_protocol::CALIBRATION_CHUNK_LEN)
+            .enumerate()
+        {
             let offset = (i * link_protocol::CALIBRATION_CHUNK_LEN) as u32;
-            send(h, r, 2, Command::CalibrationChunk { offset, data: heapless::Vec::from_slice(c).unwrap() })?;
+            send(
+                h,
+                r,
+                2,
+                Command::CalibrationChunk {
+                    offset,
+                    data: heapless::Vec::from_slice(c).unwrap(),
+                },
+            )?;
         }
         send(h, r, 3, Command::CalibrationCommit)
     };
     let mut bad = image(5e-4);
     bad[100] ^= 0x40;
-    assert_eq!(upload(&mut h, &mut r, &bad), Err(LinkError::Calibration(CalibrationRefusal::Invalid)));
-    assert_eq!(send(&mut h, &mut r, 4, Command::CalibrationId), Ok(Response::CalibrationId(old)));
+    assert_eq!(
+        upload(&mut h, &mut r, &bad),
+        Err(LinkError::Calibration(CalibrationRefusal::Invalid))
+    );
+    assert_eq!(
+        send(&mut h, &mut r, 4, Command::CalibrationId),
+        Ok(Response::CalibrationId(old))
+    );
     let new = image(5e-4);
-    assert_eq!(upload(&mut h, &mut r, &new), Ok(Response::CalibrationId(image_id(&new))));
+    assert_eq!(
+        upload(&mut h, &mut r, &new),
+        Ok(Response::CalibrationId(image_id(&new)))
+    );
     assert_ne!(image_id(&new), old);
-    assert_eq!(send(&mut h, &mut r, 5, Command::CalibrationId), Ok(Response::CalibrationId(image_id(&new))));
+    assert_eq!(
+        send(&mut h, &mut r, 5, Command::CalibrationId),
+        Ok(Response::CalibrationId(image_id(&new)))
+    );
     // Out of order chunk.
     send(&mut h, &mut r, 6, Command::CalibrationBegin { len: 300 }).unwrap();
     let chunk = heapless::Vec::from_slice(&[1u8; 10]).unwrap();
     assert_eq!(
-        send(&mut h, &mut r, 7, Command::CalibrationChunk { offset: 5, data: chunk }),
+        send(
+            &mut h,
+            &mut r,
+            7,
+            Command::CalibrationChunk {
+                offset: 5,
+                data: chunk
+            }
+        ),
         Err(LinkError::Calibration(CalibrationRefusal::Offset))
     );
 }
@@ -367,7 +621,10 @@ fn telemetry_is_decimated_and_bounded() {
     let (settings, img) = (settings(), image(3e-4));
     let mut r = rig(&settings, &img);
     let mut h = LinkHandler::new();
-    assert_eq!(send(&mut h, &mut r, 1, Command::Telemetry { decimation: 1 }), Ok(Response::TelemetryDecimation(MIN_TELEMETRY_DECIMATION)));
+    assert_eq!(
+        send(&mut h, &mut r, 1, Command::Telemetry { decimation: 1 }),
+        Ok(Response::TelemetryDecimation(MIN_TELEMETRY_DECIMATION))
+    );
     let mut n = 0;
     for _ in 0..400 {
         r.step();
@@ -377,7 +634,10 @@ fn telemetry_is_decimated_and_bounded() {
         }
     }
     assert_eq!(n, 400 / MIN_TELEMETRY_DECIMATION as usize);
-    assert_eq!(send(&mut h, &mut r, 2, Command::Telemetry { decimation: 0 }), Ok(Response::TelemetryDecimation(0)));
+    assert_eq!(
+        send(&mut h, &mut r, 2, Command::Telemetry { decimation: 0 }),
+        Ok(Response::TelemetryDecimation(0))
+    );
     r.step();
     assert_eq!(h.poll(&mut r), None);
 }
@@ -436,7 +696,12 @@ fn a_failed_homing_is_reset_to_unhomed_and_homed_again_without_a_reboot() {
     let (incremental, img) = (Settings::default(), image(3e-4));
     assert!(!incremental.homing.absolute_encoders);
     let cal = Calibration::from_grid(CorrectionGrid::parse(&img).unwrap());
-    let mut r = Rig::boot(&incremental, cal, cal.command_rad(HOME_MM, 0.05).unwrap(), image_id(&img));
+    let mut r = Rig::boot(
+        &incremental,
+        cal,
+        cal.command_rad(HOME_MM, 0.05).unwrap(),
+        image_id(&img),
+    );
     r.homing.state = HomingState::NotHomed;
     let mut h = LinkHandler::new();
     run(&mut h, &mut r, 2);
@@ -450,16 +715,37 @@ fn a_failed_homing_is_reset_to_unhomed_and_homed_again_without_a_reboot() {
     r.servo.latch(failed, &mut sample);
     r.homing.state = HomingState::Failed;
     run(&mut h, &mut r, 2);
-    assert_eq!((r.status.mode, r.servo.drives_enabled()), (Mode::SafeState(failed), false));
-    assert_eq!(send(&mut h, &mut r, 1, Command::Enable), Err(LinkError::Faulted(FaultCode::Homing)), "no engaging on an unknown zero");
-    assert_eq!(send(&mut h, &mut r, 2, Command::ResetFault), Ok(Response::Done));
+    assert_eq!(
+        (r.status.mode, r.servo.drives_enabled()),
+        (Mode::SafeState(failed), false)
+    );
+    assert_eq!(
+        send(&mut h, &mut r, 1, Command::Enable),
+        Err(LinkError::Faulted(FaultCode::Homing)),
+        "no engaging on an unknown zero"
+    );
+    assert_eq!(
+        send(&mut h, &mut r, 2, Command::ResetFault),
+        Ok(Response::Done)
+    );
     let statuses = run(&mut h, &mut r, 20);
-    assert!(statuses.iter().all(|s| s.torque_nm == [0.0; 2] && !s.drives_enabled), "the drives stay off");
-    assert_eq!((r.servo.mode(), r.servo.homing_phase()), (Mode::Unhomed, None));
+    assert!(
+        statuses
+            .iter()
+            .all(|s| s.torque_nm == [0.0; 2] && !s.drives_enabled),
+        "the drives stay off"
+    );
+    assert_eq!(
+        (r.servo.mode(), r.servo.homing_phase()),
+        (Mode::Unhomed, None)
+    );
     // Home runs again (the firmware's Homing::start posts this from Unhomed).
     r.post(ServoRequest::Home);
     run(&mut h, &mut r, 1);
-    assert_eq!((r.servo.mode(), r.servo.homing_phase()), (Mode::Homing, Some(HomingPhase::Search(0))));
+    assert_eq!(
+        (r.servo.mode(), r.servo.homing_phase()),
+        (Mode::Homing, Some(HomingPhase::Search(0)))
+    );
 }
 
 /// The link's homing state follows the servo loop's mode and homing phase.
@@ -467,27 +753,64 @@ fn a_failed_homing_is_reset_to_unhomed_and_homed_again_without_a_reboot() {
 fn the_homing_state_follows_the_mode_and_the_phase() {
     use crate::homing::{HomingFault, HomingPhase};
     use HomingState::*;
-    let enc = Fault::Encoder(crate::encoder_check::EncoderFault { axis: 0, kind: crate::encoder_check::EncoderFaultKind::Speed });
+    let enc = Fault::Encoder(crate::encoder_check::EncoderFault {
+        axis: 0,
+        kind: crate::encoder_check::EncoderFaultKind::Speed,
+    });
     let cases = [
         (Mode::Unhomed, None, false, NotHomed),
-        (Mode::Homing, Some(HomingPhase::Search(1)), false, InProgress),
+        (
+            Mode::Homing,
+            Some(HomingPhase::Search(1)),
+            false,
+            InProgress,
+        ),
         (Mode::Homing, Some(HomingPhase::ToHome), false, InProgress),
         (Mode::Running, Some(HomingPhase::Done), false, Homed),
         // A fault after homing: the zero stays set.
         (Mode::SafeState(enc), Some(HomingPhase::Done), false, Homed),
-        (Mode::Holding(Fault::Underrun), Some(HomingPhase::Done), false, Homed),
+        (
+            Mode::Holding(Fault::Underrun),
+            Some(HomingPhase::Done),
+            false,
+            Homed,
+        ),
         // A fault while homing, or homing's own.
-        (Mode::SafeState(enc), Some(HomingPhase::Search(0)), false, Failed),
-        (Mode::SafeState(Fault::Homing(HomingFault::IndexNotFound(0))), Some(HomingPhase::Failed(HomingFault::IndexNotFound(0))), false, Failed),
-        (Mode::SafeState(Fault::Homing(HomingFault::Plan)), None, false, Failed),
+        (
+            Mode::SafeState(enc),
+            Some(HomingPhase::Search(0)),
+            false,
+            Failed,
+        ),
+        (
+            Mode::SafeState(Fault::Homing(HomingFault::IndexNotFound(0))),
+            Some(HomingPhase::Failed(HomingFault::IndexNotFound(0))),
+            false,
+            Failed,
+        ),
+        (
+            Mode::SafeState(Fault::Homing(HomingFault::Plan)),
+            None,
+            false,
+            Failed,
+        ),
         // Never homed, a fault at boot (a watchdog reset): not homed, so no reset engages it.
-        (Mode::SafeState(Fault::DeadlineMissed), None, false, NotHomed),
+        (
+            Mode::SafeState(Fault::DeadlineMissed),
+            None,
+            false,
+            NotHomed,
+        ),
         // Absolute encoders.
         (Mode::Running, None, true, Homed),
         (Mode::SafeState(Fault::DeadlineMissed), None, true, Homed),
     ];
     for (mode, phase, absolute, expected) in cases {
-        assert_eq!(homing_state(mode, phase, absolute), expected, "{mode:?} {phase:?} absolute {absolute}");
+        assert_eq!(
+            homing_state(mode, phase, absolute),
+            expected,
+            "{mode:?} {phase:?} absolute {absolute}"
+        );
     }
 }
 
@@ -500,12 +823,27 @@ fn the_slot_stores_refusals_have_their_link_names() {
     let cases = [
         (SlotError::NoUpload, CalibrationRefusal::NotBegun),
         (SlotError::BadLength { max: 10 }, CalibrationRefusal::Length),
-        (SlotError::OutOfOrder { expected: 3 }, CalibrationRefusal::Offset),
+        (
+            SlotError::OutOfOrder { expected: 3 },
+            CalibrationRefusal::Offset,
+        ),
         (SlotError::TooMuchData, CalibrationRefusal::Incomplete),
-        (SlotError::Incomplete { received: 3 }, CalibrationRefusal::Incomplete),
-        (SlotError::Flash(FlashError::Timeout), CalibrationRefusal::Flash),
-        (SlotError::Image(ImageError::Grid(GridError::BadCrc)), CalibrationRefusal::Invalid),
-        (SlotError::Image(ImageError::OtherMachine(MachineMismatch::WorkingMode)), CalibrationRefusal::OtherMachine),
+        (
+            SlotError::Incomplete { received: 3 },
+            CalibrationRefusal::Incomplete,
+        ),
+        (
+            SlotError::Flash(FlashError::Timeout),
+            CalibrationRefusal::Flash,
+        ),
+        (
+            SlotError::Image(ImageError::Grid(GridError::BadCrc)),
+            CalibrationRefusal::Invalid,
+        ),
+        (
+            SlotError::Image(ImageError::OtherMachine(MachineMismatch::WorkingMode)),
+            CalibrationRefusal::OtherMachine,
+        ),
     ];
     for (e, expected) in cases {
         assert_eq!(calibration_refusal(e), expected, "{e:?}");

@@ -272,7 +272,11 @@ impl Injection {
                 rest = k;
             }
             if step / sample_period_s > best.top_speed_mm_s {
-                best = Injection { top_speed_sample: k, top_speed_mm_s: step / sample_period_s, move_start_sample: rest + 1 };
+                best = Injection {
+                    top_speed_sample: k,
+                    top_speed_mm_s: step / sample_period_s,
+                    move_start_sample: rest + 1,
+                };
             }
             last = p;
         }
@@ -350,7 +354,10 @@ impl Scenario {
     /// `production`'s otherwise.
     pub fn trajectory(self, production: (Profile, f32)) -> (Profile, f32) {
         match self {
-            Scenario::Track5g => (Profile::JerkLimited, 5.0 * kinematics_core::servo::STANDARD_GRAVITY_MM_S2),
+            Scenario::Track5g => (
+                Profile::JerkLimited,
+                5.0 * kinematics_core::servo::STANDARD_GRAVITY_MM_S2,
+            ),
             _ => production,
         }
     }
@@ -366,7 +373,9 @@ impl Scenario {
             | Scenario::GlitchSmall
             | Scenario::GlitchLarge
             | Scenario::StalledTask => Some(i.top_speed_sample),
-            Scenario::EncoderFrozenAtRest => Some(i.move_start_sample.saturating_sub(FROZEN_AT_REST_LEAD)),
+            Scenario::EncoderFrozenAtRest => {
+                Some(i.move_start_sample.saturating_sub(FROZEN_AT_REST_LEAD))
+            }
             _ => None,
         }
     }
@@ -393,9 +402,13 @@ impl Scenario {
 
     /// What happens to joint 1's encoder reading in sample `index`.
     pub fn encoder_at(self, i: &Injection, index: u32) -> EncoderInjection {
-        let Some(at) = self.inject_at(i) else { return EncoderInjection::None };
+        let Some(at) = self.inject_at(i) else {
+            return EncoderInjection::None;
+        };
         match self {
-            Scenario::EncoderFrozenAtRest | Scenario::EncoderFrozenMoving if index >= at => EncoderInjection::Freeze,
+            Scenario::EncoderFrozenAtRest | Scenario::EncoderFrozenMoving if index >= at => {
+                EncoderInjection::Freeze
+            }
             Scenario::GlitchSmall if index == at => EncoderInjection::Offset(SMALL_GLITCH_RAD),
             Scenario::GlitchLarge if index == at => EncoderInjection::Offset(LARGE_GLITCH_RAD),
             _ => EncoderInjection::None,
@@ -421,10 +434,19 @@ impl Scenario {
     /// powers up, which axes have an index mark (`None`: absolute encoders, no homing).
     pub fn homing_sim(self) -> Option<HomingSim> {
         match self {
-            Scenario::Homing => Some(HomingSim { power_on_mm: HOMING_POWER_ON_MM, index: [true, true] }),
-            Scenario::HomingNoIndex => Some(HomingSim { power_on_mm: HOMING_POWER_ON_MM, index: [false, true] }),
+            Scenario::Homing => Some(HomingSim {
+                power_on_mm: HOMING_POWER_ON_MM,
+                index: [true, true],
+            }),
+            Scenario::HomingNoIndex => Some(HomingSim {
+                power_on_mm: HOMING_POWER_ON_MM,
+                index: [false, true],
+            }),
             // The host link's test homes through the link (`host-sim link home`).
-            Scenario::Link => Some(HomingSim { power_on_mm: HOMING_POWER_ON_MM, index: [true, true] }),
+            Scenario::Link => Some(HomingSim {
+                power_on_mm: HOMING_POWER_ON_MM,
+                index: [true, true],
+            }),
             _ => None,
         }
     }
@@ -434,7 +456,9 @@ impl Scenario {
         match self {
             Scenario::Run | Scenario::LongRun | Scenario::Link => None,
             Scenario::Homing => Some(HOMING_MAX_TICKS),
-            Scenario::CalibrationUpload | Scenario::CalibrationUploadCorrupt => Some(MAX_TICKS + 1_000),
+            Scenario::CalibrationUpload | Scenario::CalibrationUploadCorrupt => {
+                Some(MAX_TICKS + 1_000)
+            }
             _ => Some(MAX_TICKS),
         }
     }
@@ -491,11 +515,23 @@ fn check_watchdog(o: &WatchdogObservation) -> Result<(), &'static str> {
     let Some(last_feed_at_us) = o.last_feed_at_us else {
         return Err("the watchdog was never fed");
     };
-    require(o.drive_enable_at_fire, "drives already off when the watchdog fired: the test proves nothing")?;
-    require(!o.drive_enable, "drive enable still on after the watchdog fired")?;
-    require(o.drive_torque_nm == [0.0; 2], "torque commanded after the watchdog fired")?;
+    require(
+        o.drive_enable_at_fire,
+        "drives already off when the watchdog fired: the test proves nothing",
+    )?;
+    require(
+        !o.drive_enable,
+        "drive enable still on after the watchdog fired",
+    )?;
+    require(
+        o.drive_torque_nm == [0.0; 2],
+        "torque commanded after the watchdog fired",
+    )?;
     // `!(a <= b)` refuses NaN as well.
-    require(o.fired_at_us - stalled_at_us <= TIMEOUT_US, "torque not removed within the watchdog timeout of the stall")?;
+    require(
+        o.fired_at_us - stalled_at_us <= TIMEOUT_US,
+        "torque not removed within the watchdog timeout of the stall",
+    )?;
     require(
         (o.fired_at_us - last_feed_at_us - TIMEOUT_US).abs() <= WATCHDOG_TIMING_TOLERANCE_US,
         "the watchdog did not fire its stated timeout after the last feed",
@@ -519,7 +555,10 @@ pub fn tool_error_mm(cal: &Calibration<'_>, theta_rad: [f32; 2], p_mm: [f32; 2])
         Some(g) => g.correction_rad(p_mm).ok()?,
         None => [0.0; 2],
     };
-    let tool = cal.model.forward([theta_rad[0] - d[0], theta_rad[1] - d[1]], 0.0).ok()?;
+    let tool = cal
+        .model
+        .forward([theta_rad[0] - d[0], theta_rad[1] - d[1]], 0.0)
+        .ok()?;
     Some(libm::hypotf(tool[0] - p_mm[0], tool[1] - p_mm[1]))
 }
 
@@ -527,10 +566,17 @@ pub fn tool_error_mm(cal: &Calibration<'_>, theta_rad: [f32; 2], p_mm: [f32; 2])
 /// taken as zero outside the grid; `None` where the forward kinematics refuse. Returns it with
 /// whether it lies in the calibrated rectangle.
 pub fn tool_mm(cal: &Calibration<'_>, theta_rad: [f32; 2]) -> (Option<[f32; 2]>, bool) {
-    let Ok(p) = cal.model.forward(theta_rad, 0.0) else { return (None, false) };
-    let Some(grid) = &cal.grid else { return (Some(p), false) };
+    let Ok(p) = cal.model.forward(theta_rad, 0.0) else {
+        return (None, false);
+    };
+    let Some(grid) = &cal.grid else {
+        return (Some(p), false);
+    };
     let d = grid.correction_rad(p).unwrap_or([0.0; 2]);
-    match cal.model.forward([theta_rad[0] - d[0], theta_rad[1] - d[1]], 0.0) {
+    match cal
+        .model
+        .forward([theta_rad[0] - d[0], theta_rad[1] - d[1]], 0.0)
+    {
         Ok(tool) => (Some(tool), grid.correction_rad(tool).is_ok()),
         Err(_) => (None, false),
     }
@@ -688,7 +734,17 @@ impl<'a> Checker<'a> {
         };
         self.fault_at = Some(0);
         let settle_s = self.settings.stop.settle_timeout_s;
-        self.stop = Some(StopCheck::new(StopCategory::Zero, 0, &plant, tool, speed_mm_s, None, &self.coast, dt, settle_s));
+        self.stop = Some(StopCheck::new(
+            StopCategory::Zero,
+            0,
+            &plant,
+            tool,
+            speed_mm_s,
+            None,
+            &self.coast,
+            dt,
+            settle_s,
+        ));
     }
 
     /// Checks the end of one sample; `Some` ends the run with the verdict.
@@ -704,14 +760,23 @@ impl<'a> Checker<'a> {
         let verdict = match self.scenario {
             Scenario::Run => None,
             // The host checks the motion; the harness ends the run if a deadline is missed.
-            Scenario::Link => (s.overruns > 0).then_some(Err("servo deadline missed while the host link ran")),
-            Scenario::Panic | Scenario::HardFault => Some(Err("the self-test did not stop the firmware")),
+            Scenario::Link => {
+                (s.overruns > 0).then_some(Err("servo deadline missed while the host link ran"))
+            }
+            Scenario::Panic | Scenario::HardFault => {
+                Some(Err("the self-test did not stop the firmware"))
+            }
             Scenario::LongRun => self.long_run(o),
             Scenario::Track => self.track(o),
             Scenario::Track5g => match self.track_motion(o) {
                 Err(why) => Some(Err(why)),
                 Ok(()) => self.track(o).map(|v| {
-                    v.and_then(|()| require(self.motion.samples_at_5g >= MIN_SAMPLES_AT_5G, "too few samples at 5 g"))
+                    v.and_then(|()| {
+                        require(
+                            self.motion.samples_at_5g >= MIN_SAMPLES_AT_5G,
+                            "too few samples at 5 g",
+                        )
+                    })
                 }),
             },
             Scenario::NanSetpoint => self.fault_scenario(
@@ -732,13 +797,19 @@ impl<'a> Checker<'a> {
             ),
             Scenario::Underrun => self.fault_scenario(
                 o,
-                Expected { window: at_top_speed(0), fault: |f| f == Fault::Underrun, max_travel_mm: None },
+                Expected {
+                    window: at_top_speed(0),
+                    fault: |f| f == Fault::Underrun,
+                    max_travel_mm: None,
+                },
             ),
             Scenario::OutOfReach => {
                 if s.fault.is_some() && self.fault_at.is_none() {
                     // The last accepted setpoint must still be inside the calibrated rectangle.
                     let inside = match &self.image {
-                        Ok(Calibration { grid: Some(g), .. }) => g.correction_rad(self.setpoints_mm[0]).is_ok(),
+                        Ok(Calibration { grid: Some(g), .. }) => {
+                            g.correction_rad(self.setpoints_mm[0]).is_ok()
+                        }
                         _ => false,
                     };
                     if !inside {
@@ -747,7 +818,11 @@ impl<'a> Checker<'a> {
                 }
                 self.fault_scenario(
                     o,
-                    Expected { window: None, fault: |f| f == Fault::StopOutsideWorkspace, max_travel_mm: None },
+                    Expected {
+                        window: None,
+                        fault: |f| f == Fault::StopOutsideWorkspace,
+                        max_travel_mm: None,
+                    },
                 )
             }
             Scenario::Overrun => {
@@ -755,7 +830,11 @@ impl<'a> Checker<'a> {
                 let window = at.map(|a| (a + streak, a + streak));
                 let verdict = self.fault_scenario(
                     o,
-                    Expected { window, fault: |f| f == Fault::DeadlineMissed, max_travel_mm: None },
+                    Expected {
+                        window,
+                        fault: |f| f == Fault::DeadlineMissed,
+                        max_travel_mm: None,
+                    },
                 );
                 verdict.map(|v| v.and_then(|()| require(s.overruns >= 3, "overruns not counted")))
             }
@@ -765,7 +844,15 @@ impl<'a> Checker<'a> {
                     o,
                     Expected {
                         window: Some((start, start + FROZEN_AT_REST_WITHIN)),
-                        fault: |f| matches!(f, Fault::Encoder(EncoderFault { axis: 0, kind: EncoderFaultKind::Stuck })),
+                        fault: |f| {
+                            matches!(
+                                f,
+                                Fault::Encoder(EncoderFault {
+                                    axis: 0,
+                                    kind: EncoderFaultKind::Stuck
+                                })
+                            )
+                        },
                         max_travel_mm: Some(FROZEN_AT_REST_MAX_TRAVEL_MM),
                     },
                 )
@@ -782,7 +869,12 @@ impl<'a> Checker<'a> {
                 o,
                 Expected {
                     window: at_top_speed(0),
-                    fault: |f| f == Fault::Encoder(EncoderFault { axis: 0, kind: EncoderFaultKind::Acceleration }),
+                    fault: |f| {
+                        f == Fault::Encoder(EncoderFault {
+                            axis: 0,
+                            kind: EncoderFaultKind::Acceleration,
+                        })
+                    },
                     max_travel_mm: None,
                 },
             ),
@@ -790,14 +882,19 @@ impl<'a> Checker<'a> {
                 o,
                 Expected {
                     window: at_top_speed(0),
-                    fault: |f| f == Fault::Encoder(EncoderFault { axis: 0, kind: EncoderFaultKind::Speed }),
+                    fault: |f| {
+                        f == Fault::Encoder(EncoderFault {
+                            axis: 0,
+                            kind: EncoderFaultKind::Speed,
+                        })
+                    },
                     max_travel_mm: None,
                 },
             ),
             Scenario::Homing => self.homing_then_track(o),
-            Scenario::CalibrationUpload | Scenario::CalibrationUploadCorrupt => {
-                self.track(o).map(|v| v.and_then(|()| self.upload_outcome(s)))
-            }
+            Scenario::CalibrationUpload | Scenario::CalibrationUploadCorrupt => self
+                .track(o)
+                .map(|v| v.and_then(|()| self.upload_outcome(s))),
             Scenario::HomingNoIndex => self.homing_no_index(o),
             Scenario::BadImage(expected) => self.bad_image(o, expected),
             Scenario::StalledTask => self.before_stall(o),
@@ -813,7 +910,9 @@ impl<'a> Checker<'a> {
     fn fault_scenario(&mut self, o: &Observation<'_>, e: Expected) -> Verdict {
         let s = o.status;
         let sample = s.ticks.wrapping_sub(1);
-        let Ok(cal) = self.image else { return Some(Err("calibration image not valid")) };
+        let Ok(cal) = self.image else {
+            return Some(Err("calibration image not valid"));
+        };
         let (tool, inside) = tool_mm(&cal, o.plant.joint_rad);
         let Some(fault) = s.fault else {
             if matches!(e.window, Some((_, last)) if sample >= last) {
@@ -824,7 +923,9 @@ impl<'a> Checker<'a> {
                 return Some(Err("drives not enabled before the fault"));
             }
             if !inside {
-                return Some(Err("the tool left the calibrated rectangle before the fault"));
+                return Some(Err(
+                    "the tool left the calibrated rectangle before the fault",
+                ));
             }
             self.setpoints_mm = [s.setpoint_mm, self.setpoints_mm[0], self.setpoints_mm[1]];
             return None;
@@ -842,8 +943,14 @@ impl<'a> Checker<'a> {
             let planned = (category != StopCategory::Zero).then(|| {
                 let [p1, p2, p3] = self.setpoints_mm;
                 let v = [(p1[0] - p2[0]) / dt, (p1[1] - p2[1]) / dt];
-                let a = [(p1[0] - 2.0 * p2[0] + p3[0]) / (dt * dt), (p1[1] - 2.0 * p2[1] + p3[1]) / (dt * dt)];
-                StopProfile::plan(&MotionState::from_differences(p1, v, a, dt), &self.settings.stop.limits)
+                let a = [
+                    (p1[0] - 2.0 * p2[0] + p3[0]) / (dt * dt),
+                    (p1[1] - 2.0 * p2[1] + p3[1]) / (dt * dt),
+                ];
+                StopProfile::plan(
+                    &MotionState::from_differences(p1, v, a, dt),
+                    &self.settings.stop.limits,
+                )
             });
             let speed_mm_s = match (tool, tool_mm(&cal, self.last_joint_rad).0) {
                 (Some(p), Some(q)) => libm::hypotf(p[0] - q[0], p[1] - q[1]) / dt,
@@ -886,9 +993,13 @@ impl<'a> Checker<'a> {
         if !o.drive_enable {
             return Some(Err("drives not enabled before the stall"));
         }
-        let Ok(cal) = self.image else { return Some(Err("calibration image not valid")) };
+        let Ok(cal) = self.image else {
+            return Some(Err("calibration image not valid"));
+        };
         if !tool_mm(&cal, o.plant.joint_rad).1 {
-            return Some(Err("the tool left the calibrated rectangle before the stall"));
+            return Some(Err(
+                "the tool left the calibrated rectangle before the stall",
+            ));
         }
         if matches!(self.scenario.inject_at(&self.injection), Some(at) if s.ticks > at) {
             return Some(Err("the servo task completed a sample after the stall"));
@@ -901,7 +1012,9 @@ impl<'a> Checker<'a> {
     /// watchdog's interrupt stays within category 0's bounds.
     fn watchdog_restart(&mut self, o: &Observation<'_>) -> Verdict {
         let sample = o.status.ticks.wrapping_sub(1);
-        let Ok(cal) = self.image else { return Some(Err("calibration image not valid")) };
+        let Ok(cal) = self.image else {
+            return Some(Err("calibration image not valid"));
+        };
         let (tool, inside) = tool_mm(&cal, o.plant.joint_rad);
         let Some(stop) = self.stop.as_mut() else {
             return Some(Err("the machine's state at the watchdog's interrupt did not reach the boot after the reset"));
@@ -911,7 +1024,10 @@ impl<'a> Checker<'a> {
             Err(why) => return Some(Err(why)),
         };
         match self.never_enabled(o, |s| {
-            require(s.fault == Some(Fault::Watchdog(WatchdogFault::Reset)), "watchdog reset not reported as the fault")
+            require(
+                s.fault == Some(Fault::Watchdog(WatchdogFault::Reset)),
+                "watchdog reset not reported as the fault",
+            )
         }) {
             Some(Ok(())) if !coast_done => None,
             verdict => verdict,
@@ -924,16 +1040,29 @@ impl<'a> Checker<'a> {
                 s.calibration == CalibrationState::Refused(ImageError::Grid(expected)),
                 "bad image not refused, or refused for another reason",
             )?;
-            require(s.fault == Some(Fault::Calibration(ImageError::Grid(expected))), "calibration fault not reported")
+            require(
+                s.fault == Some(Fault::Calibration(ImageError::Grid(expected))),
+                "calibration fault not reported",
+            )
         })
     }
 
     /// A boot that must never enable the drives: the enable line never high and no torque in
     /// any sample; after [`BAD_IMAGE_TICKS`], `reason` checks why.
-    fn never_enabled(&mut self, o: &Observation<'_>, reason: impl FnOnce(&Status) -> Result<(), &'static str>) -> Verdict {
+    fn never_enabled(
+        &mut self,
+        o: &Observation<'_>,
+        reason: impl FnOnce(&Status) -> Result<(), &'static str>,
+    ) -> Verdict {
         let now = (|| {
-            require(!o.drive_enable_ever, "drives enabled at a boot that must keep them off")?;
-            require(o.drive_torque_nm == [0.0; 2], "torque commanded at a boot that must keep the drives off")
+            require(
+                !o.drive_enable_ever,
+                "drives enabled at a boot that must keep them off",
+            )?;
+            require(
+                o.drive_torque_nm == [0.0; 2],
+                "torque commanded at a boot that must keep the drives off",
+            )
         })();
         if now.is_err() {
             return Some(now);
@@ -953,9 +1082,11 @@ impl<'a> Checker<'a> {
             (Mode::Homing, None) => {
                 let limit = self.settings.homing.torque_limit_nm + DUTY_STEP_NM;
                 let within = o.drive_torque_nm.iter().all(|t| t.abs() <= limit);
-                return Some(Err("torque above the homing limit")).filter(|_| !within).or_else(|| {
-                    (!o.drive_enable).then_some(Err("drives not enabled while homing"))
-                });
+                return Some(Err("torque above the homing limit"))
+                    .filter(|_| !within)
+                    .or_else(|| {
+                        (!o.drive_enable).then_some(Err("drives not enabled while homing"))
+                    });
             }
             (Mode::Running, None) => {
                 self.homed_at = Some(s.ticks);
@@ -966,7 +1097,9 @@ impl<'a> Checker<'a> {
         }
         let off = [0, 1].map(|k| (s.encoder_rad[k] - o.plant.joint_rad[k]).abs());
         if !(off[0] <= MAX_HOMED_ENCODER_ERROR_RAD && off[1] <= MAX_HOMED_ENCODER_ERROR_RAD) {
-            return Some(Err("after homing the readings are not the joints' true angles"));
+            return Some(Err(
+                "after homing the readings are not the joints' true angles",
+            ));
         }
         self.track(o)
     }
@@ -979,11 +1112,22 @@ impl<'a> Checker<'a> {
                 s.last_upload == Some(Err(SlotError::Image(ImageError::Grid(GridError::BadCrc)))),
                 "the corrupted upload was not refused for its CRC",
             )?;
-            return require(sequence == Some(0) && self.grid_checks_at_switch.is_none(), "the old image did not stay in force");
+            return require(
+                sequence == Some(0) && self.grid_checks_at_switch.is_none(),
+                "the old image did not stay in force",
+            );
         }
-        require(matches!(s.last_upload, Some(Ok(id)) if id.sequence == 1), "the upload was not committed")?;
-        require(sequence == Some(1), "the servo did not switch to the new image")?;
-        let after = self.grid_checks_at_switch.map_or(0, |at| self.grid.checks - at);
+        require(
+            matches!(s.last_upload, Some(Ok(id)) if id.sequence == 1),
+            "the upload was not committed",
+        )?;
+        require(
+            sequence == Some(1),
+            "the servo did not switch to the new image",
+        )?;
+        let after = self
+            .grid_checks_at_switch
+            .map_or(0, |at| self.grid.checks - at);
         require(after >= 10, "too few grid checks against the new image")
     }
 
@@ -995,14 +1139,20 @@ impl<'a> Checker<'a> {
     fn homing_no_index(&mut self, o: &Observation<'_>) -> Verdict {
         let s = o.status;
         match (s.mode, s.fault) {
-            (Mode::Homing, None) => (!o.drive_enable).then_some(Err("drives not enabled while homing")),
-            (Mode::SafeState(Fault::Homing(HomingFault::IndexNotFound(0))), Some(Fault::Homing(HomingFault::IndexNotFound(0)))) => {
+            (Mode::Homing, None) => {
+                (!o.drive_enable).then_some(Err("drives not enabled while homing"))
+            }
+            (
+                Mode::SafeState(Fault::Homing(HomingFault::IndexNotFound(0))),
+                Some(Fault::Homing(HomingFault::IndexNotFound(0))),
+            ) => {
                 if let Err(why) = safe_state(o) {
                     return Some(Err(why));
                 }
                 let at = *self.fault_at.get_or_insert(s.ticks);
                 let still = o.plant.joint_rad_s.iter().all(|w| w.abs() < 0.01);
-                (s.ticks >= at + 200).then(|| require(still, "the machine is not at rest after the failed search"))
+                (s.ticks >= at + 200)
+                    .then(|| require(still, "the machine is not at rest after the failed search"))
             }
             _ => Some(Err("not homing, or another fault than the missing index")),
         }
@@ -1016,7 +1166,8 @@ impl<'a> Checker<'a> {
         if !o.drive_enable {
             return Some(Err("drives disabled during the run"));
         }
-        (s.ticks >= LONG_RUN_TICKS).then(|| require(s.setpoint_underruns == 0, "setpoint queue ran empty"))
+        (s.ticks >= LONG_RUN_TICKS)
+            .then(|| require(s.setpoint_underruns == 0, "setpoint queue ran empty"))
     }
 
     fn track(&mut self, o: &Observation<'_>) -> Verdict {
@@ -1041,14 +1192,25 @@ impl<'a> Checker<'a> {
         };
         self.settled_tool_error_mm = tool_error_mm(&cal, s.encoder_rad, s.setpoint_mm);
         let tool_error = self.settled_tool_error_mm;
-        let blocks = cal.grid.is_some_and(|g| g.workspace().is_some() && g.dynamics().is_some());
+        let blocks = cal
+            .grid
+            .is_some_and(|g| g.workspace().is_some() && g.dynamics().is_some());
         Some((|| {
-            require(s.calibration == CalibrationState::Valid, "calibration image not valid")?;
+            require(
+                s.calibration == CalibrationState::Valid,
+                "calibration image not valid",
+            )?;
             require(blocks, "the image lacks its workspace or dynamics block")?;
             require(s.overruns == 0, "deadline overrun")?;
-            require(s.worst_step_us < crate::deadline::DEADLINE_US, "step longer than the deadline")?;
+            require(
+                s.worst_step_us < crate::deadline::DEADLINE_US,
+                "step longer than the deadline",
+            )?;
             require(s.setpoint_underruns == 0, "setpoint queue ran empty")?;
-            require(s.max_following_error_rad <= MAX_FOLLOWING_ERROR_RAD, "following error above bound")?;
+            require(
+                s.max_following_error_rad <= MAX_FOLLOWING_ERROR_RAD,
+                "following error above bound",
+            )?;
             require(self.grid.checks >= 10, "too few grid checks")?;
             require(
                 self.grid.largest_correction_rad >= MIN_GRID_CORRECTION_RAD,
@@ -1070,36 +1232,57 @@ impl<'a> Checker<'a> {
         let p = s.setpoint_mm;
         if m.seen >= 2 {
             let dt = crate::SAMPLE_PERIOD_S;
-            let a = libm::hypotf(p[0] - 2.0 * p1[0] + p2[0], p[1] - 2.0 * p1[1] + p2[1]) / (dt * dt);
+            let a =
+                libm::hypotf(p[0] - 2.0 * p1[0] + p2[0], p[1] - 2.0 * p1[1] + p2[1]) / (dt * dt);
             if a >= 0.95 * 5.0 * kinematics_core::servo::STANDARD_GRAVITY_MM_S2 {
                 m.samples_at_5g += 1;
             }
         }
         m.last_setpoints_mm = [p, p1];
         m.seen = m.seen.saturating_add(1);
-        let Ok(cal) = &self.image else { return Err("calibration image not valid") };
+        let Ok(cal) = &self.image else {
+            return Err("calibration image not valid");
+        };
         let j = cal
             .model
             .inverse_pose(p, self.settings.servo.min_transmission)
             .and_then(|pose| pose.jacobian())
             .map_err(|_| "IK refuses an accepted setpoint")?;
-        let e = [s.reference_rad[0] - s.encoder_rad[0], s.reference_rad[1] - s.encoder_rad[1]];
-        let um = 1e3 * libm::hypotf(j[0][0] * e[0] + j[0][1] * e[1], j[1][0] * e[0] + j[1][1] * e[1]);
+        let e = [
+            s.reference_rad[0] - s.encoder_rad[0],
+            s.reference_rad[1] - s.encoder_rad[1],
+        ];
+        let um = 1e3
+            * libm::hypotf(
+                j[0][0] * e[0] + j[0][1] * e[1],
+                j[1][0] * e[0] + j[1][1] * e[1],
+            );
         // `!(a <= b)` so that NaN counts as the largest.
         if !(um <= m.max_following_error_um) {
             m.max_following_error_um = um;
         }
-        require(m.max_following_error_um <= MAX_FOLLOWING_ERROR_5G_UM, "following error at the tool above the 5 g bound")
+        require(
+            m.max_following_error_um <= MAX_FOLLOWING_ERROR_5G_UM,
+            "following error at the tool above the 5 g bound",
+        )
     }
 
     /// Commanded encoder angles minus the model's IK of the accepted setpoint must be the
     /// grid's correction at that setpoint.
     fn check_grid_applied(&mut self, s: &Status) -> Result<(), &'static str> {
-        let Ok(Calibration { model, grid: Some(grid) }) = &self.image else {
+        let Ok(Calibration {
+            model,
+            grid: Some(grid),
+        }) = &self.image
+        else {
             return Err("calibration image not valid");
         };
-        let ik = model.inverse(s.setpoint_mm, self.settings.servo.min_transmission).map_err(|_| "IK refuses an accepted setpoint")?;
-        let d = grid.correction_rad(s.setpoint_mm).map_err(|_| "an accepted setpoint is outside the grid")?;
+        let ik = model
+            .inverse(s.setpoint_mm, self.settings.servo.min_transmission)
+            .map_err(|_| "IK refuses an accepted setpoint")?;
+        let d = grid
+            .correction_rad(s.setpoint_mm)
+            .map_err(|_| "an accepted setpoint is outside the grid")?;
         self.grid.checks += 1;
         for k in 0..2 {
             let residual = wrap_angle_rad(s.reference_rad[k] - ik[k] - d[k]).abs();
@@ -1119,20 +1302,39 @@ impl<'a> Checker<'a> {
 /// The hardware shows the safe state: drive enable off, zero torque.
 fn safe_state(o: &Observation<'_>) -> Result<(), &'static str> {
     require(!o.drive_enable, "drive enable still on after the fault")?;
-    require(o.drive_torque_nm == [0.0; 2], "torque commanded after the fault")
+    require(
+        o.drive_torque_nm == [0.0; 2],
+        "torque commanded after the fault",
+    )
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use kinematics_core::grid::{append_dynamics, append_workspace, encode, GridGeometry, WorkspaceLimits, DYNAMICS_LEN, WORKSPACE_LEN};
+    use kinematics_core::grid::{
+        append_dynamics, append_workspace, encode, GridGeometry, WorkspaceLimits, DYNAMICS_LEN,
+        WORKSPACE_LEN,
+    };
     use kinematics_core::{ConvexWorkspace, FiveBar, FiveBarDynamics, KinematicsError};
 
     /// The QEMU image's geometry with a constant correction, without extension blocks.
     fn plain_image(correction_rad: [f32; 2]) -> Vec<u8> {
-        let g = GridGeometry { nx: 21, ny: 31, x0_mm: 162.132, y0_mm: -75.0, step_x_mm: 5.0, step_y_mm: 5.0 };
+        let g = GridGeometry {
+            nx: 21,
+            ny: 31,
+            x0_mm: 162.132,
+            y0_mm: -75.0,
+            step_x_mm: 5.0,
+            step_y_mm: 5.0,
+        };
         let mut img = vec![0u8; g.image_len()];
-        encode(&mut img, &g, &FiveBar::paper_nominal(), &vec![correction_rad; g.len()]).unwrap();
+        encode(
+            &mut img,
+            &g,
+            &FiveBar::paper_nominal(),
+            &vec![correction_rad; g.len()],
+        )
+        .unwrap();
         img
     }
 
@@ -1142,7 +1344,16 @@ mod tests {
         let n = img.len();
         img.resize(n + WORKSPACE_LEN + DYNAMICS_LEN, 0);
         let region = ConvexWorkspace::rectangle([162.132, 262.132], [-75.0, 75.0]).unwrap();
-        let end = append_workspace(&mut img, n, n, &WorkspaceLimits { region, stop_margin_mm: 0.1 }).unwrap();
+        let end = append_workspace(
+            &mut img,
+            n,
+            n,
+            &WorkspaceLimits {
+                region,
+                stop_margin_mm: 0.1,
+            },
+        )
+        .unwrap();
         let d = FiveBarDynamics {
             motor_inertia_kg_m2: [3e-3; 2],
             tool_mass_kg: 0.1,
@@ -1167,7 +1378,11 @@ mod tests {
         coupled_inertia_kg_m2: 0.0,
     };
     /// Faults at sample 1000; the move reaching it starts at 900.
-    const INJECTION: Injection = Injection { top_speed_sample: 1000, top_speed_mm_s: 1000.0, move_start_sample: 900 };
+    const INJECTION: Injection = Injection {
+        top_speed_sample: 1000,
+        top_speed_mm_s: 1000.0,
+        move_start_sample: 900,
+    };
 
     fn cal(img: &[u8]) -> Calibration<'_> {
         Calibration::from_grid(CorrectionGrid::parse(img).unwrap())
@@ -1202,7 +1417,10 @@ mod tests {
 
     /// The plant at the status' reference (a machine that follows exactly).
     fn plant_of(status: &Status) -> PlantState {
-        PlantState { joint_rad: status.reference_rad, joint_rad_s: [0.0; 2] }
+        PlantState {
+            joint_rad: status.reference_rad,
+            joint_rad_s: [0.0; 2],
+        }
     }
 
     fn on(status: &Status) -> Observation<'_> {
@@ -1216,11 +1434,24 @@ mod tests {
     }
 
     fn off(status: &Status) -> Observation<'_> {
-        Observation { status, drive_enable: false, drive_enable_ever: true, drive_torque_nm: [0.0; 2], plant: plant_of(status) }
+        Observation {
+            status,
+            drive_enable: false,
+            drive_enable_ever: true,
+            drive_torque_nm: [0.0; 2],
+            plant: plant_of(status),
+        }
     }
 
     fn checker(scenario: Scenario, img: &[u8]) -> Checker<'_> {
-        Checker::new(scenario, CorrectionGrid::parse(img), &Settings::default(), 3_000, INJECTION, COAST)
+        Checker::new(
+            scenario,
+            CorrectionGrid::parse(img),
+            &Settings::default(),
+            3_000,
+            INJECTION,
+            COAST,
+        )
     }
 
     /// `homing`: torque above the homing limit while homing fails; after homing, readings that
@@ -1228,16 +1459,31 @@ mod tests {
     #[test]
     fn homing_fails_on_torque_above_its_limit_or_a_wrong_zero() {
         let img = image(D_RAD);
-        let homing = |ticks, torque_nm| Status { mode: Mode::Homing, torque_nm, ..running(ticks, D_RAD) };
+        let homing = |ticks, torque_nm| Status {
+            mode: Mode::Homing,
+            torque_nm,
+            ..running(ticks, D_RAD)
+        };
         let mut c = checker(Scenario::Homing, &img);
         assert_eq!(c.observe(&on(&homing(1, [1.9, -1.9]))), None);
-        assert_eq!(c.observe(&on(&homing(2, [2.5, 0.0]))), Some(Err("torque above the homing limit")));
-        assert_eq!(c.observe(&off(&homing(3, [0.0, 0.0]))), Some(Err("drives not enabled while homing")));
+        assert_eq!(
+            c.observe(&on(&homing(2, [2.5, 0.0]))),
+            Some(Err("torque above the homing limit"))
+        );
+        assert_eq!(
+            c.observe(&off(&homing(3, [0.0, 0.0]))),
+            Some(Err("drives not enabled while homing"))
+        );
         let s = running(100, D_RAD);
         let mut wrong = on(&s);
         wrong.plant.joint_rad[0] += 1e-3;
         let mut c = checker(Scenario::Homing, &img);
-        assert_eq!(c.observe(&wrong), Some(Err("after homing the readings are not the joints' true angles")));
+        assert_eq!(
+            c.observe(&wrong),
+            Some(Err(
+                "after homing the readings are not the joints' true angles"
+            ))
+        );
         let mut c = checker(Scenario::Homing, &img);
         assert_eq!(c.observe(&on(&s)), None);
         assert_eq!(c.homed_at(), Some(100));
@@ -1249,12 +1495,30 @@ mod tests {
     fn the_upload_outcome_is_checked() {
         use crate::calibration_slots::CalibrationId;
         let img = image(D_RAD);
-        let id = |sequence| CalibrationId { slot: sequence as u8, sequence, crc32: 7, len: 100 };
+        let id = |sequence| CalibrationId {
+            slot: sequence as u8,
+            sequence,
+            crc32: 7,
+            len: 100,
+        };
         let c = checker(Scenario::CalibrationUpload, &img);
-        let not_switched = Status { calibration_id: Some(id(0)), last_upload: Some(Ok(id(1))), ..running(1, D_RAD) };
-        assert_eq!(c.upload_outcome(&not_switched), Err("the servo did not switch to the new image"));
-        let switched = Status { calibration_id: Some(id(1)), ..not_switched };
-        assert_eq!(c.upload_outcome(&switched), Err("too few grid checks against the new image"));
+        let not_switched = Status {
+            calibration_id: Some(id(0)),
+            last_upload: Some(Ok(id(1))),
+            ..running(1, D_RAD)
+        };
+        assert_eq!(
+            c.upload_outcome(&not_switched),
+            Err("the servo did not switch to the new image")
+        );
+        let switched = Status {
+            calibration_id: Some(id(1)),
+            ..not_switched
+        };
+        assert_eq!(
+            c.upload_outcome(&switched),
+            Err("too few grid checks against the new image")
+        );
         let c = checker(Scenario::CalibrationUploadCorrupt, &img);
         let refused = Status {
             calibration_id: Some(id(0)),
@@ -1280,13 +1544,25 @@ mod tests {
             ("firmware jump", Scenario::Jump),
             ("firmware underrun", Scenario::Underrun),
             ("firmware overrun", Scenario::Overrun),
-            ("firmware encoder-frozen-at-rest", Scenario::EncoderFrozenAtRest),
-            ("firmware encoder-frozen-moving", Scenario::EncoderFrozenMoving),
+            (
+                "firmware encoder-frozen-at-rest",
+                Scenario::EncoderFrozenAtRest,
+            ),
+            (
+                "firmware encoder-frozen-moving",
+                Scenario::EncoderFrozenMoving,
+            ),
             ("firmware glitch-small", Scenario::GlitchSmall),
             ("firmware glitch-large", Scenario::GlitchLarge),
             ("firmware stalled-task", Scenario::StalledTask),
-            ("firmware bad-image-crc", Scenario::BadImage(GridError::BadCrc)),
-            ("firmware bad-image-magic", Scenario::BadImage(GridError::BadMagic)),
+            (
+                "firmware bad-image-crc",
+                Scenario::BadImage(GridError::BadCrc),
+            ),
+            (
+                "firmware bad-image-magic",
+                Scenario::BadImage(GridError::BadMagic),
+            ),
             ("firmware panic", Scenario::Panic),
             ("firmware hard-fault", Scenario::HardFault),
         ] {
@@ -1310,24 +1586,50 @@ mod tests {
             assert_eq!(s.encoder_at(i, at), EncoderInjection::None);
             assert_eq!(s.tour_mm(&[[1.0, 2.0]]), &[[1.0, 2.0]]);
         }
-        let overruns: Vec<u32> = (0..5_000).filter(|&k| Scenario::Overrun.overrun_at(i, k)).collect();
+        let overruns: Vec<u32> = (0..5_000)
+            .filter(|&k| Scenario::Overrun.overrun_at(i, k))
+            .collect();
         assert_eq!(overruns, [at, at + 1, at + 2]);
         assert_eq!(Scenario::OutOfReach.tour_mm(&[]), &OUT_OF_REACH_TOUR_MM);
-        assert_eq!(Scenario::GlitchSmall.encoder_at(i, at), EncoderInjection::Offset(SMALL_GLITCH_RAD));
-        assert_eq!(Scenario::GlitchSmall.encoder_at(i, at + 1), EncoderInjection::None);
-        assert_eq!(Scenario::GlitchLarge.encoder_at(i, at), EncoderInjection::Offset(LARGE_GLITCH_RAD));
-        assert_eq!(Scenario::EncoderFrozenMoving.encoder_at(i, at - 1), EncoderInjection::None);
-        assert_eq!(Scenario::EncoderFrozenMoving.encoder_at(i, at + 300), EncoderInjection::Freeze);
+        assert_eq!(
+            Scenario::GlitchSmall.encoder_at(i, at),
+            EncoderInjection::Offset(SMALL_GLITCH_RAD)
+        );
+        assert_eq!(
+            Scenario::GlitchSmall.encoder_at(i, at + 1),
+            EncoderInjection::None
+        );
+        assert_eq!(
+            Scenario::GlitchLarge.encoder_at(i, at),
+            EncoderInjection::Offset(LARGE_GLITCH_RAD)
+        );
+        assert_eq!(
+            Scenario::EncoderFrozenMoving.encoder_at(i, at - 1),
+            EncoderInjection::None
+        );
+        assert_eq!(
+            Scenario::EncoderFrozenMoving.encoder_at(i, at + 300),
+            EncoderInjection::Freeze
+        );
         let rest = INJECTION.move_start_sample - FROZEN_AT_REST_LEAD;
-        assert_eq!(Scenario::EncoderFrozenAtRest.encoder_at(i, rest - 1), EncoderInjection::None);
-        assert_eq!(Scenario::EncoderFrozenAtRest.encoder_at(i, rest), EncoderInjection::Freeze);
+        assert_eq!(
+            Scenario::EncoderFrozenAtRest.encoder_at(i, rest - 1),
+            EncoderInjection::None
+        );
+        assert_eq!(
+            Scenario::EncoderFrozenAtRest.encoder_at(i, rest),
+            EncoderInjection::Freeze
+        );
     }
 
     /// On the built-in tour the top speed is 1.38 m/s, mid-way along the long diagonal, and
     /// the move reaching it starts after a rest.
     #[test]
     fn injection_finds_the_tours_top_speed_and_the_rest_before_it() {
-        let settings = Settings { builtin_tour_mm: &crate::trajectory::WORKSPACE_TOUR_MM, ..Settings::default() };
+        let settings = Settings {
+            builtin_tour_mm: &crate::trajectory::WORKSPACE_TOUR_MM,
+            ..Settings::default()
+        };
         let t = Trajectory::builtin(P_MM, &settings);
         let i = Injection::find(&t, DT_S);
         // 15/8·D/T with D = 160.4 mm and T = 0.218 s (436 samples: the 2 g limit binds).
@@ -1336,11 +1638,21 @@ mod tests {
         let points: Vec<[f32; 2]> = (0..t.total_samples()).map(|_| t2.next_mm()).collect();
         let at = i.top_speed_sample as usize;
         // Mid-way between (255, -68) and (170, 68).
-        assert!((points[at][0] - 212.5).abs() < 1.0 && points[at][1].abs() < 1.5, "{:?}", points[at]);
+        assert!(
+            (points[at][0] - 212.5).abs() < 1.0 && points[at][1].abs() < 1.5,
+            "{:?}",
+            points[at]
+        );
         let start = i.move_start_sample as usize;
-        assert_eq!(points[start - 1], [255.0, -68.0], "rests at the move's start point");
+        assert_eq!(
+            points[start - 1],
+            [255.0, -68.0],
+            "rests at the move's start point"
+        );
         assert_ne!(points[start], points[start - 1]);
-        assert!(points[start - 1 - FROZEN_AT_REST_LEAD as usize..start].iter().all(|p| *p == [255.0, -68.0]));
+        assert!(points[start - 1 - FROZEN_AT_REST_LEAD as usize..start]
+            .iter()
+            .all(|p| *p == [255.0, -68.0]));
     }
 
     /// The bug of issue 18: the production path must never be stopped by a time limit.
@@ -1348,13 +1660,23 @@ mod tests {
     fn the_production_path_has_no_time_limit() {
         let img = image(D_RAD);
         let mut c = checker(Scenario::Run, &img);
-        for ticks in [1, MAX_TICKS - 1, MAX_TICKS, LONG_RUN_TICKS, 10 * LONG_RUN_TICKS, u32::MAX] {
+        for ticks in [
+            1,
+            MAX_TICKS - 1,
+            MAX_TICKS,
+            LONG_RUN_TICKS,
+            10 * LONG_RUN_TICKS,
+            u32::MAX,
+        ] {
             let s = running(ticks, D_RAD);
             assert_eq!(c.observe(&on(&s)), None, "ticks {ticks}");
         }
         // A test scenario is limited.
         let mut c = checker(Scenario::NanSetpoint, &img);
-        assert_eq!(c.observe(&on(&running(MAX_TICKS, D_RAD))), Some(Err("scenario did not finish in time")));
+        assert_eq!(
+            c.observe(&on(&running(MAX_TICKS, D_RAD))),
+            Some(Err("scenario did not finish in time"))
+        );
     }
 
     #[test]
@@ -1364,11 +1686,26 @@ mod tests {
         for ticks in [1, 5_000, MAX_TICKS, LONG_RUN_TICKS - 1] {
             assert_eq!(c.observe(&on(&running(ticks, D_RAD))), None);
         }
-        assert_eq!(c.observe(&on(&running(LONG_RUN_TICKS, D_RAD))), Some(Ok(())));
+        assert_eq!(
+            c.observe(&on(&running(LONG_RUN_TICKS, D_RAD))),
+            Some(Ok(()))
+        );
         let s = running(9_000, D_RAD);
-        assert!(matches!(checker(Scenario::LongRun, &img).observe(&off(&s)), Some(Err(_))), "enable line low");
-        let s = Status { fault: Some(Fault::DeadlineMissed), ..running(9_000, D_RAD) };
-        assert!(matches!(checker(Scenario::LongRun, &img).observe(&on(&s)), Some(Err(_))));
+        assert!(
+            matches!(
+                checker(Scenario::LongRun, &img).observe(&off(&s)),
+                Some(Err(_))
+            ),
+            "enable line low"
+        );
+        let s = Status {
+            fault: Some(Fault::DeadlineMissed),
+            ..running(9_000, D_RAD)
+        };
+        assert!(matches!(
+            checker(Scenario::LongRun, &img).observe(&on(&s)),
+            Some(Err(_))
+        ));
     }
 
     // -----------------------------------------------------------------------------------------
@@ -1414,12 +1751,18 @@ mod tests {
         190.0 + 1000.0 * DT_S * k.saturating_sub(fault_at - 20) as f32
     }
 
-    fn synthetic<'i>(img: &'i [u8], fault: Fault, fault_at: u32, tweak: Tweak) -> impl Fn(u32) -> Frame + 'i {
+    fn synthetic<'i>(
+        img: &'i [u8],
+        fault: Fault,
+        fault_at: u32,
+        tweak: Tweak,
+    ) -> impl Fn(u32) -> Frame + 'i {
         let c = cal(img);
         let dt = DT_S;
         let settings = Settings::default();
         let v = [1000.0f32, 0.0];
-        let state = MotionState::from_differences([x_before(fault_at - 1, fault_at), 0.0], v, [0.0; 2], dt);
+        let state =
+            MotionState::from_differences([x_before(fault_at - 1, fault_at), 0.0], v, [0.0; 2], dt);
         let profile = StopProfile::plan(&state, &settings.stop.limits);
         let category = fault.stop_category();
         let theta = move |x: f32| c.command_rad([x, 0.0], 0.05).unwrap();
@@ -1433,7 +1776,9 @@ mod tests {
                 let extra = match tweak {
                     Tweak::Overshoot(mm) => mm * (t / profile.duration_s()).min(1.0),
                     // From the start of the hold check on.
-                    Tweak::Drift => 5e-3 * ((t - profile.duration_s() - stop_check::HOLD_AFTER_S) / dt).max(0.0),
+                    Tweak::Drift => {
+                        5e-3 * ((t - profile.duration_s() - stop_check::HOLD_AFTER_S) / dt).max(0.0)
+                    }
                     _ => 0.0,
                 };
                 profile.origin_mm()[0] + profile.distance_at(t) + extra
@@ -1449,8 +1794,12 @@ mod tests {
                 let finished = profile.finished(t);
                 let mode = match category {
                     StopCategory::Zero => Mode::SafeState(fault),
-                    StopCategory::One if finished && tweak != Tweak::NeverOff => Mode::SafeState(fault),
-                    StopCategory::Two if finished && tweak != Tweak::NotHolding => Mode::Holding(fault),
+                    StopCategory::One if finished && tweak != Tweak::NeverOff => {
+                        Mode::SafeState(fault)
+                    }
+                    StopCategory::Two if finished && tweak != Tweak::NotHolding => {
+                        Mode::Holding(fault)
+                    }
                     _ => Mode::Stopping(fault),
                 };
                 let enable = match category {
@@ -1467,11 +1816,17 @@ mod tests {
                 status.fault_tick = fault_at;
                 status.overruns = 3;
             }
-            let mut plant = PlantState { joint_rad: theta(x_at(k.saturating_sub(1))), joint_rad_s: [0.0; 2] };
+            let mut plant = PlantState {
+                joint_rad: theta(x_at(k.saturating_sub(1))),
+                joint_rad_s: [0.0; 2],
+            };
             if category == StopCategory::Zero && k >= fault_at {
                 // Coasts: the joints' speed at the fault, decelerating to rest in 10 ms (travel
                 // w·5 ms, inside the dynamic-braking bound J·w/(c + b) = w·7.7 ms for joint 2).
-                let (a, b) = (theta(x_before(fault_at - 2, fault_at)), theta(x_before(fault_at - 1, fault_at)));
+                let (a, b) = (
+                    theta(x_before(fault_at - 2, fault_at)),
+                    theta(x_before(fault_at - 1, fault_at)),
+                );
                 let w = [(b[0] - a[0]) / dt, (b[1] - a[1]) / dt];
                 let t = (k - fault_at) as f32 * dt;
                 let (travel, speed) = match tweak {
@@ -1482,16 +1837,33 @@ mod tests {
                         (t - t * t / 0.02, 1.0 - t / 0.01)
                     }
                 };
-                plant = PlantState { joint_rad: [0, 1].map(|i| b[i] + w[i] * travel), joint_rad_s: [0, 1].map(|i| w[i] * speed) };
+                plant = PlantState {
+                    joint_rad: [0, 1].map(|i| b[i] + w[i] * travel),
+                    joint_rad_s: [0, 1].map(|i| w[i] * speed),
+                };
             }
-            let torque_nm = if enable || tweak == Tweak::TorqueLeftOn { [0.3, -0.2] } else { [0.0; 2] };
+            let torque_nm = if enable || tweak == Tweak::TorqueLeftOn {
+                [0.3, -0.2]
+            } else {
+                [0.0; 2]
+            };
             status.torque_nm = torque_nm;
-            Frame { status, enable, torque_nm, plant }
+            Frame {
+                status,
+                enable,
+                torque_nm,
+                plant,
+            }
         }
     }
 
     /// Runs `scenario`'s checker over the synthetic machine; returns the verdict and the report.
-    fn run_fault(scenario: Scenario, fault: Fault, fault_at: u32, tweak: Tweak) -> (Verdict, Option<StopReport>) {
+    fn run_fault(
+        scenario: Scenario,
+        fault: Fault,
+        fault_at: u32,
+        tweak: Tweak,
+    ) -> (Verdict, Option<StopReport>) {
         run_fault_coasting(COAST, scenario, fault, fault_at, tweak)
     }
 
@@ -1505,10 +1877,23 @@ mod tests {
     ) -> (Verdict, Option<StopReport>) {
         let img = image(D_RAD);
         let frames = synthetic(&img, fault, fault_at, tweak);
-        let mut c = Checker::new(scenario, CorrectionGrid::parse(&img), &Settings::default(), 3_000, INJECTION, coast);
+        let mut c = Checker::new(
+            scenario,
+            CorrectionGrid::parse(&img),
+            &Settings::default(),
+            3_000,
+            INJECTION,
+            coast,
+        );
         for k in 0..MAX_TICKS {
             let f = frames(k);
-            let o = Observation { status: &f.status, drive_enable: f.enable, drive_enable_ever: true, drive_torque_nm: f.torque_nm, plant: f.plant };
+            let o = Observation {
+                status: &f.status,
+                drive_enable: f.enable,
+                drive_enable_ever: true,
+                drive_torque_nm: f.torque_nm,
+                plant: f.plant,
+            };
             if let Some(v) = c.observe(&o) {
                 return (Some(v), c.stop_report());
             }
@@ -1523,20 +1908,41 @@ mod tests {
         assert_eq!(v, Some(Ok(())));
         let r = report.unwrap();
         // 1 m/s: 10.2 + 2.5 mm.
-        assert!((r.planned_mm - 12.70).abs() < 0.05 && (r.travelled_mm - r.planned_mm).abs() < 0.05, "{r:?}");
+        assert!(
+            (r.planned_mm - 12.70).abs() < 0.05 && (r.travelled_mm - r.planned_mm).abs() < 0.05,
+            "{r:?}"
+        );
         assert!((r.speed_mm_s - 1000.0).abs() < 5.0, "{r:?}");
         for (tweak, why) in [
             (Tweak::Overshoot(0.2), "the stop went further than planned"),
-            (Tweak::EnableLow, "drive enable low during a category-2 stop"),
+            (
+                Tweak::EnableLow,
+                "drive enable low during a category-2 stop",
+            ),
             (Tweak::Drift, "the tool does not hold the stop's end point"),
             (Tweak::NotHolding, "the loop is not holding after the stop"),
         ] {
-            assert_eq!(run_fault(Scenario::Jump, jump, 1000, tweak).0, Some(Err(why)));
+            assert_eq!(
+                run_fault(Scenario::Jump, jump, 1000, tweak).0,
+                Some(Err(why))
+            );
         }
-        assert_eq!(run_fault(Scenario::Jump, jump, 1001, Tweak::None).0, Some(Err("no fault in the sample the fault was injected in")));
-        assert_eq!(run_fault(Scenario::Jump, jump, 999, Tweak::None).0, Some(Err("fault not in the sample the fault was injected in")));
-        assert_eq!(run_fault(Scenario::Jump, Fault::Underrun, 1000, Tweak::None).0, Some(Err("wrong fault")));
-        assert_eq!(run_fault(Scenario::Underrun, Fault::Underrun, 1000, Tweak::None).0, Some(Ok(())));
+        assert_eq!(
+            run_fault(Scenario::Jump, jump, 1001, Tweak::None).0,
+            Some(Err("no fault in the sample the fault was injected in"))
+        );
+        assert_eq!(
+            run_fault(Scenario::Jump, jump, 999, Tweak::None).0,
+            Some(Err("fault not in the sample the fault was injected in"))
+        );
+        assert_eq!(
+            run_fault(Scenario::Jump, Fault::Underrun, 1000, Tweak::None).0,
+            Some(Err("wrong fault"))
+        );
+        assert_eq!(
+            run_fault(Scenario::Underrun, Fault::Underrun, 1000, Tweak::None).0,
+            Some(Ok(()))
+        );
     }
 
     #[test]
@@ -1545,7 +1951,10 @@ mod tests {
         let (v, report) = run_fault(Scenario::NanSetpoint, nan, 1000, Tweak::None);
         assert_eq!(v, Some(Ok(())));
         assert!(report.unwrap().torque_off_after > 20);
-        assert_eq!(run_fault(Scenario::NanSetpoint, nan, 1000, Tweak::NeverOff).0, Some(Err("torque not removed after the stop")));
+        assert_eq!(
+            run_fault(Scenario::NanSetpoint, nan, 1000, Tweak::NeverOff).0,
+            Some(Err("torque not removed after the stop"))
+        );
         assert_eq!(
             run_fault(Scenario::NanSetpoint, nan, 1000, Tweak::Overshoot(0.2)).0,
             Some(Err("the stop went further than planned"))
@@ -1558,47 +1967,110 @@ mod tests {
         let (v, report) = run_fault(Scenario::Overrun, Fault::DeadlineMissed, at, Tweak::None);
         assert_eq!(v, Some(Ok(())));
         let r = report.unwrap();
-        assert!(r.joint_travel_rad.iter().zip(r.coast_bound_rad).all(|(t, b)| *t <= b && b > 0.0), "{r:?}");
+        assert!(
+            r.joint_travel_rad
+                .iter()
+                .zip(r.coast_bound_rad)
+                .all(|(t, b)| *t <= b && b > 0.0),
+            "{r:?}"
+        );
         for (tweak, why) in [
             (Tweak::EnableLeftOn, "drive enable still on after the fault"),
             (Tweak::TorqueLeftOn, "torque commanded after the fault"),
-            (Tweak::Pushed, "a joint coasted further than the dynamic-braking bound"),
-            (Tweak::NeverAtRest, "the joints are not at rest at the end of the coast"),
+            (
+                Tweak::Pushed,
+                "a joint coasted further than the dynamic-braking bound",
+            ),
+            (
+                Tweak::NeverAtRest,
+                "the joints are not at rest at the end of the coast",
+            ),
         ] {
-            assert_eq!(run_fault(Scenario::Overrun, Fault::DeadlineMissed, at, tweak).0, Some(Err(why)), "{why}");
+            assert_eq!(
+                run_fault(Scenario::Overrun, Fault::DeadlineMissed, at, tweak).0,
+                Some(Err(why)),
+                "{why}"
+            );
         }
         // Checked against a free-wheeling drive's bound (no dynamic braking), a coast that goes
         // on at speed leaves the calibrated rectangle first: the workspace bound holds on its own.
-        let free = CoastModel { dynamic_brake_nm_s_per_rad: 0.0, ..COAST };
-        let (v, report) = run_fault_coasting(free, Scenario::Overrun, Fault::DeadlineMissed, at, Tweak::Pushed);
+        let free = CoastModel {
+            dynamic_brake_nm_s_per_rad: 0.0,
+            ..COAST
+        };
+        let (v, report) = run_fault_coasting(
+            free,
+            Scenario::Overrun,
+            Fault::DeadlineMissed,
+            at,
+            Tweak::Pushed,
+        );
         assert_eq!(v, Some(Err("the tool left the calibrated rectangle")));
         assert!(report.unwrap().left_workspace);
         // An encoder fault at rest must also keep the tool inside and barely moving.
-        let stuck = Fault::Encoder(EncoderFault { axis: 0, kind: EncoderFaultKind::Stuck });
-        assert_eq!(run_fault(Scenario::EncoderFrozenAtRest, stuck, 910, Tweak::None).0, Some(Err("the tool travelled further than the scenario allows")));
-        let glitch = Fault::Encoder(EncoderFault { axis: 0, kind: EncoderFaultKind::Acceleration });
-        assert_eq!(run_fault(Scenario::GlitchSmall, glitch, 1000, Tweak::None).0, Some(Ok(())));
-        assert_eq!(run_fault(Scenario::GlitchLarge, glitch, 1000, Tweak::None).0, Some(Err("wrong fault")));
-        assert_eq!(run_fault(Scenario::EncoderFrozenMoving, glitch, 1005, Tweak::None).0, Some(Ok(())));
+        let stuck = Fault::Encoder(EncoderFault {
+            axis: 0,
+            kind: EncoderFaultKind::Stuck,
+        });
+        assert_eq!(
+            run_fault(Scenario::EncoderFrozenAtRest, stuck, 910, Tweak::None).0,
+            Some(Err("the tool travelled further than the scenario allows"))
+        );
+        let glitch = Fault::Encoder(EncoderFault {
+            axis: 0,
+            kind: EncoderFaultKind::Acceleration,
+        });
+        assert_eq!(
+            run_fault(Scenario::GlitchSmall, glitch, 1000, Tweak::None).0,
+            Some(Ok(()))
+        );
+        assert_eq!(
+            run_fault(Scenario::GlitchLarge, glitch, 1000, Tweak::None).0,
+            Some(Err("wrong fault"))
+        );
+        assert_eq!(
+            run_fault(Scenario::EncoderFrozenMoving, glitch, 1005, Tweak::None).0,
+            Some(Ok(()))
+        );
     }
 
     #[test]
     fn drives_off_before_the_fault_fail() {
         let img = image(D_RAD);
         let s = running(5, D_RAD);
-        assert_eq!(checker(Scenario::NanSetpoint, &img).observe(&off(&s)), Some(Err("drives not enabled before the fault")));
+        assert_eq!(
+            checker(Scenario::NanSetpoint, &img).observe(&off(&s)),
+            Some(Err("drives not enabled before the fault"))
+        );
     }
 
     #[test]
     fn out_of_reach_fails_if_an_out_of_grid_setpoint_was_accepted() {
         let img = image(D_RAD);
         let mut c = checker(Scenario::OutOfReach, &img);
-        assert_eq!(c.observe(&on(&Status { setpoint_mm: [263.0, 0.0], ..running(2_999, D_RAD) })), None);
-        let s = Status { fault: Some(Fault::StopOutsideWorkspace), ..running(3_000, D_RAD) };
-        assert_eq!(c.observe(&on(&s)), Some(Err("an out-of-grid setpoint was accepted")));
+        assert_eq!(
+            c.observe(&on(&Status {
+                setpoint_mm: [263.0, 0.0],
+                ..running(2_999, D_RAD)
+            })),
+            None
+        );
+        let s = Status {
+            fault: Some(Fault::StopOutsideWorkspace),
+            ..running(3_000, D_RAD)
+        };
+        assert_eq!(
+            c.observe(&on(&s)),
+            Some(Err("an out-of-grid setpoint was accepted"))
+        );
         let mut c = checker(Scenario::OutOfReach, &img);
         assert_eq!(c.observe(&on(&running(2_999, D_RAD))), None);
-        let s = Status { fault: Some(Fault::Setpoint(SetpointRefusal::Kinematics(KinematicsError::Unreachable))), ..running(3_000, D_RAD) };
+        let s = Status {
+            fault: Some(Fault::Setpoint(SetpointRefusal::Kinematics(
+                KinematicsError::Unreachable,
+            ))),
+            ..running(3_000, D_RAD)
+        };
         assert_eq!(c.observe(&on(&s)), Some(Err("wrong fault")));
     }
 
@@ -1611,17 +2083,33 @@ mod tests {
             ..running(ticks, D_RAD)
         };
         fn never(s: &Status) -> Observation<'_> {
-            Observation { drive_enable_ever: false, ..off(s) }
+            Observation {
+                drive_enable_ever: false,
+                ..off(s)
+            }
         }
         let settings = Settings::default();
-        let mut c = Checker::new(Scenario::BadImage(GridError::BadCrc), Err(GridError::BadCrc), &settings, 0, INJECTION, COAST);
+        let mut c = Checker::new(
+            Scenario::BadImage(GridError::BadCrc),
+            Err(GridError::BadCrc),
+            &settings,
+            0,
+            INJECTION,
+            COAST,
+        );
         for ticks in 1..BAD_IMAGE_TICKS {
             assert_eq!(c.observe(&never(&refused(ticks))), None);
         }
         assert_eq!(c.observe(&never(&refused(BAD_IMAGE_TICKS))), Some(Ok(())));
         // Enabled once, even if off now.
-        assert_eq!(c.observe(&off(&refused(5))), Some(Err("drives enabled at a boot that must keep them off")));
-        let wrong = Status { calibration: CalibrationState::Refused(ImageError::Grid(GridError::BadMagic)), ..refused(BAD_IMAGE_TICKS) };
+        assert_eq!(
+            c.observe(&off(&refused(5))),
+            Some(Err("drives enabled at a boot that must keep them off"))
+        );
+        let wrong = Status {
+            calibration: CalibrationState::Refused(ImageError::Grid(GridError::BadMagic)),
+            ..refused(BAD_IMAGE_TICKS)
+        };
         assert!(matches!(c.observe(&never(&wrong)), Some(Err(_))));
     }
 
@@ -1643,7 +2131,10 @@ mod tests {
         let img = plain_image(D_RAD);
         let mut c = checker(Scenario::Track, &img);
         let verdict = (1..MAX_TICKS).find_map(|ticks| c.observe(&on(&running(ticks, D_RAD))));
-        assert_eq!(verdict, Some(Err("the image lacks its workspace or dynamics block")));
+        assert_eq!(
+            verdict,
+            Some(Err("the image lacks its workspace or dynamics block"))
+        );
     }
 
     #[test]
@@ -1652,12 +2143,16 @@ mod tests {
         // Grid validated but not applied: the reference is the bare IK.
         assert_eq!(
             run_track([0.0; 2], D_RAD),
-            Some(Err("commanded angle minus model IK is not the grid correction: grid not applied"))
+            Some(Err(
+                "commanded angle minus model IK is not the grid correction: grid not applied"
+            ))
         );
         // An image whose corrections are too small to tell.
         assert_eq!(
             run_track([1e-5, 0.0], [1e-5, 0.0]),
-            Some(Err("grid corrections too small to tell an applied grid from a missing one"))
+            Some(Err(
+                "grid corrections too small to tell an applied grid from a missing one"
+            ))
         );
         let img = image(D_RAD);
         let mut c = checker(Scenario::Track, &img);
@@ -1665,7 +2160,10 @@ mod tests {
             c.observe(&on(&running(ticks, D_RAD)));
         }
         let g = c.grid_check();
-        assert!(g.checks >= 10 && g.worst_residual_rad <= MAX_GRID_RESIDUAL_RAD, "{g:?}");
+        assert!(
+            g.checks >= 10 && g.worst_residual_rad <= MAX_GRID_RESIDUAL_RAD,
+            "{g:?}"
+        );
         assert_eq!(g.largest_correction_rad, 3e-4);
     }
 
@@ -1673,16 +2171,55 @@ mod tests {
     fn track_fails_on_a_fault_a_low_enable_line_or_a_bound() {
         let img = image(D_RAD);
         let s = running(10, D_RAD);
-        assert_eq!(checker(Scenario::Track, &img).observe(&off(&s)), Some(Err("drives not enabled")));
-        let s = Status { fault: Some(Fault::Drive), ..running(10, D_RAD) };
-        assert_eq!(checker(Scenario::Track, &img).observe(&on(&s)), Some(Err("unexpected fault")));
+        assert_eq!(
+            checker(Scenario::Track, &img).observe(&off(&s)),
+            Some(Err("drives not enabled"))
+        );
+        let s = Status {
+            fault: Some(Fault::Drive),
+            ..running(10, D_RAD)
+        };
+        assert_eq!(
+            checker(Scenario::Track, &img).observe(&on(&s)),
+            Some(Err("unexpected fault"))
+        );
         let end = MIN_TRACK_TICKS.max(3_000 + SETTLE_TICKS);
         for (bad, why) in [
-            (Status { overruns: 1, ..running(end, D_RAD) }, "deadline overrun"),
-            (Status { worst_step_us: 501.0, ..running(end, D_RAD) }, "step longer than the deadline"),
-            (Status { setpoint_underruns: 1, ..running(end, D_RAD) }, "setpoint queue ran empty"),
-            (Status { max_following_error_rad: 3e-4, ..running(end, D_RAD) }, "following error above bound"),
-            (Status { encoder_rad: [0.81, -0.75], ..running(end, D_RAD) }, "settled tool error above bound"),
+            (
+                Status {
+                    overruns: 1,
+                    ..running(end, D_RAD)
+                },
+                "deadline overrun",
+            ),
+            (
+                Status {
+                    worst_step_us: 501.0,
+                    ..running(end, D_RAD)
+                },
+                "step longer than the deadline",
+            ),
+            (
+                Status {
+                    setpoint_underruns: 1,
+                    ..running(end, D_RAD)
+                },
+                "setpoint queue ran empty",
+            ),
+            (
+                Status {
+                    max_following_error_rad: 3e-4,
+                    ..running(end, D_RAD)
+                },
+                "following error above bound",
+            ),
+            (
+                Status {
+                    encoder_rad: [0.81, -0.75],
+                    ..running(end, D_RAD)
+                },
+                "settled tool error above bound",
+            ),
         ] {
             let mut c = checker(Scenario::Track, &img);
             for ticks in 1..end {
@@ -1695,7 +2232,9 @@ mod tests {
     #[test]
     fn stalled_task_stalls_at_top_speed_and_the_machine_must_run_until_then() {
         let (i, at) = (&INJECTION, INJECTION.top_speed_sample);
-        let stalls: Vec<u32> = (0..5_000).filter(|&k| Scenario::StalledTask.stall_at(i, k)).collect();
+        let stalls: Vec<u32> = (0..5_000)
+            .filter(|&k| Scenario::StalledTask.stall_at(i, k))
+            .collect();
         assert_eq!(stalls, [at]);
         for s in [Scenario::Run, Scenario::Overrun, Scenario::WatchdogRestart] {
             assert!(!s.stall_at(i, at));
@@ -1706,18 +2245,34 @@ mod tests {
         for ticks in 1..=at {
             assert_eq!(c.observe(&on(&running(ticks, D_RAD))), None, "tick {ticks}");
         }
-        assert_eq!(c.observe(&on(&running(at + 1, D_RAD))), Some(Err("the servo task completed a sample after the stall")));
+        assert_eq!(
+            c.observe(&on(&running(at + 1, D_RAD))),
+            Some(Err("the servo task completed a sample after the stall"))
+        );
         // Before the stall the machine must run.
         let s = running(5, D_RAD);
-        assert_eq!(checker(Scenario::StalledTask, &img).observe(&off(&s)), Some(Err("drives not enabled before the stall")));
-        let s = Status { fault: Some(Fault::Drive), ..running(5, D_RAD) };
-        assert_eq!(checker(Scenario::StalledTask, &img).observe(&on(&s)), Some(Err("fault before the stall")));
+        assert_eq!(
+            checker(Scenario::StalledTask, &img).observe(&off(&s)),
+            Some(Err("drives not enabled before the stall"))
+        );
+        let s = Status {
+            fault: Some(Fault::Drive),
+            ..running(5, D_RAD)
+        };
+        assert_eq!(
+            checker(Scenario::StalledTask, &img).observe(&on(&s)),
+            Some(Err("fault before the stall"))
+        );
         let s = running(5, D_RAD);
         let mut outside = on(&s);
-        outside.plant.joint_rad = FiveBar::<f32>::paper_nominal().inverse([200.0, 100.0], 0.05).unwrap();
+        outside.plant.joint_rad = FiveBar::<f32>::paper_nominal()
+            .inverse([200.0, 100.0], 0.05)
+            .unwrap();
         assert_eq!(
             checker(Scenario::StalledTask, &img).observe(&outside),
-            Some(Err("the tool left the calibrated rectangle before the stall"))
+            Some(Err(
+                "the tool left the calibrated rectangle before the stall"
+            ))
         );
     }
 
@@ -1738,37 +2293,87 @@ mod tests {
         };
         assert_eq!(fired(good), WatchdogVerdict::AsExpected);
         for (bad, why) in [
-            (WatchdogObservation { stalled_at_us: None, ..good }, "watchdog fired before the servo task was stalled"),
-            (WatchdogObservation { last_feed_at_us: None, ..good }, "the watchdog was never fed"),
             (
-                WatchdogObservation { drive_enable_at_fire: false, ..good },
+                WatchdogObservation {
+                    stalled_at_us: None,
+                    ..good
+                },
+                "watchdog fired before the servo task was stalled",
+            ),
+            (
+                WatchdogObservation {
+                    last_feed_at_us: None,
+                    ..good
+                },
+                "the watchdog was never fed",
+            ),
+            (
+                WatchdogObservation {
+                    drive_enable_at_fire: false,
+                    ..good
+                },
                 "drives already off when the watchdog fired: the test proves nothing",
             ),
-            (WatchdogObservation { drive_enable: true, ..good }, "drive enable still on after the watchdog fired"),
-            (WatchdogObservation { drive_torque_nm: [0.0, 0.1], ..good }, "torque commanded after the watchdog fired"),
+            (
+                WatchdogObservation {
+                    drive_enable: true,
+                    ..good
+                },
+                "drive enable still on after the watchdog fired",
+            ),
+            (
+                WatchdogObservation {
+                    drive_torque_nm: [0.0, 0.1],
+                    ..good
+                },
+                "torque commanded after the watchdog fired",
+            ),
             // Fed long before the stall: the watchdog's timeout is right but torque came off late.
             (
-                WatchdogObservation { stalled_at_us: Some(900.0), last_feed_at_us: Some(0.0), fired_at_us: 4_000.0, ..good },
+                WatchdogObservation {
+                    stalled_at_us: Some(900.0),
+                    last_feed_at_us: Some(0.0),
+                    fired_at_us: 4_000.0,
+                    ..good
+                },
                 "torque not removed within the watchdog timeout of the stall",
             ),
             (
-                WatchdogObservation { fired_at_us: 1_000.0 + TIMEOUT_US + 200.0, stalled_at_us: Some(1_300.0), ..good },
+                WatchdogObservation {
+                    fired_at_us: 1_000.0 + TIMEOUT_US + 200.0,
+                    stalled_at_us: Some(1_300.0),
+                    ..good
+                },
                 "the watchdog did not fire its stated timeout after the last feed",
             ),
             (
-                WatchdogObservation { fired_at_us: 1_000.0 + 0.5 * TIMEOUT_US, ..good },
+                WatchdogObservation {
+                    fired_at_us: 1_000.0 + 0.5 * TIMEOUT_US,
+                    ..good
+                },
                 "the watchdog did not fire its stated timeout after the last feed",
             ),
             (
-                WatchdogObservation { fired_at_us: f32::NAN, ..good },
+                WatchdogObservation {
+                    fired_at_us: f32::NAN,
+                    ..good
+                },
                 "torque not removed within the watchdog timeout of the stall",
             ),
         ] {
             assert_eq!(fired(bad), WatchdogVerdict::Fail(why), "{bad:?}");
         }
         // The production path: torque off, wait for the reset. Any other test: a failure.
-        assert_eq!(Scenario::Run.watchdog_fired(&good), WatchdogVerdict::Production);
-        for s in [Scenario::Track, Scenario::LongRun, Scenario::Overrun, Scenario::WatchdogRestart] {
+        assert_eq!(
+            Scenario::Run.watchdog_fired(&good),
+            WatchdogVerdict::Production
+        );
+        for s in [
+            Scenario::Track,
+            Scenario::LongRun,
+            Scenario::Overrun,
+            Scenario::WatchdogRestart,
+        ] {
             assert_eq!(
                 s.watchdog_fired(&good),
                 WatchdogVerdict::Fail("watchdog fired: the servo task did not complete on time")
@@ -1778,9 +2383,18 @@ mod tests {
 
     #[test]
     fn the_boot_after_the_stall_must_keep_the_drives_off_and_the_machine_coast_as_category_zero() {
-        assert_eq!(Scenario::StalledTask.after_reset(ResetCause::Watchdog), Scenario::WatchdogRestart);
-        assert_eq!(Scenario::StalledTask.after_reset(ResetCause::PowerOnOrBrownOut), Scenario::StalledTask);
-        assert_eq!(Scenario::Track.after_reset(ResetCause::Watchdog), Scenario::Track);
+        assert_eq!(
+            Scenario::StalledTask.after_reset(ResetCause::Watchdog),
+            Scenario::WatchdogRestart
+        );
+        assert_eq!(
+            Scenario::StalledTask.after_reset(ResetCause::PowerOnOrBrownOut),
+            Scenario::StalledTask
+        );
+        assert_eq!(
+            Scenario::Track.after_reset(ResetCause::Watchdog),
+            Scenario::Track
+        );
         let restarted = |ticks, fault| Status {
             fault: Some(fault),
             torque_nm: [0.0; 2],
@@ -1788,7 +2402,10 @@ mod tests {
             ..running(ticks, D_RAD)
         };
         fn never(s: &Status) -> Observation<'_> {
-            Observation { drive_enable_ever: false, ..off(s) }
+            Observation {
+                drive_enable_ever: false,
+                ..off(s)
+            }
         }
         let img = image(D_RAD);
         let reset = Fault::Watchdog(WatchdogFault::Reset);
@@ -1801,16 +2418,29 @@ mod tests {
         };
         let mut c = restart();
         for ticks in 1..=BAD_IMAGE_TICKS {
-            assert_eq!(c.observe(&never(&restarted(ticks, reset))), None, "tick {ticks}");
+            assert_eq!(
+                c.observe(&never(&restarted(ticks, reset))),
+                None,
+                "tick {ticks}"
+            );
         }
         // Passes once both the boot's 0.5 s and the coast's 1000 samples are over.
-        assert_eq!(c.observe(&never(&restarted(BAD_IMAGE_TICKS + 1, reset))), Some(Ok(())));
+        assert_eq!(
+            c.observe(&never(&restarted(BAD_IMAGE_TICKS + 1, reset))),
+            Some(Ok(()))
+        );
         assert_eq!(c.fault_sample(), Some(0));
         assert_eq!(
-            restart().observe(&never(&restarted(BAD_IMAGE_TICKS + 1, Fault::DeadlineMissed))),
+            restart().observe(&never(&restarted(
+                BAD_IMAGE_TICKS + 1,
+                Fault::DeadlineMissed
+            ))),
             Some(Err("watchdog reset not reported as the fault"))
         );
-        assert_eq!(restart().observe(&off(&restarted(3, reset))), Some(Err("drives enabled at a boot that must keep them off")));
+        assert_eq!(
+            restart().observe(&off(&restarted(3, reset))),
+            Some(Err("drives enabled at a boot that must keep them off"))
+        );
         // The machine's state did not survive the reset: nothing to check the coast against.
         assert_eq!(
             checker(Scenario::WatchdogRestart, &img).observe(&never(&restarted(3, reset))),
@@ -1820,18 +2450,37 @@ mod tests {
         let s = restarted(3, reset);
         let mut moved = never(&s);
         moved.plant.joint_rad[0] += 0.01;
-        assert_eq!(restart().observe(&moved), Some(Err("a joint coasted further than the dynamic-braking bound")));
+        assert_eq!(
+            restart().observe(&moved),
+            Some(Err(
+                "a joint coasted further than the dynamic-braking bound"
+            ))
+        );
         // Kept at speed, the bound is the dynamic-braking one from that speed: 1 rad/s on joint 1
         // is 9.4 mrad; 5 mrad passes, 12 mrad fails.
-        let fast = PlantState { joint_rad_s: [1.0, 0.0], ..kept };
-        for (travel, verdict) in [(5e-3, None), (12e-3, Some(Err("a joint coasted further than the dynamic-braking bound")))] {
+        let fast = PlantState {
+            joint_rad_s: [1.0, 0.0],
+            ..kept
+        };
+        for (travel, verdict) in [
+            (5e-3, None),
+            (
+                12e-3,
+                Some(Err(
+                    "a joint coasted further than the dynamic-braking bound",
+                )),
+            ),
+        ] {
             let mut c = checker(Scenario::WatchdogRestart, &img);
             c.coast_after_reset(fast);
             let mut o = never(&s);
             o.plant.joint_rad[0] += travel;
             assert_eq!(c.observe(&o), verdict, "{travel}");
             let r = c.stop_report().unwrap();
-            assert!((r.coast_bound_rad[0] - 2.2e-3 / 0.235).abs() < 1e-6, "{r:?}");
+            assert!(
+                (r.coast_bound_rad[0] - 2.2e-3 / 0.235).abs() < 1e-6,
+                "{r:?}"
+            );
         }
     }
 
@@ -1840,14 +2489,21 @@ mod tests {
     /// encoders lag the reference by `lag_rad` on axis 1.
     fn oscillating(ticks: u32, lag_rad: f32) -> Status {
         let t = ticks.saturating_sub(1) as f32 * crate::SAMPLE_PERIOD_S;
-        let x = if ticks < 3_000 { P_MM[0] + 5.0 * libm::sinf(101.0 * t) } else { P_MM[0] };
+        let x = if ticks < 3_000 {
+            P_MM[0] + 5.0 * libm::sinf(101.0 * t)
+        } else {
+            P_MM[0]
+        };
         let p = [x, P_MM[1]];
         let ik = FiveBar::<f32>::paper_nominal().inverse(p, 0.05).unwrap();
         let reference = [ik[0] + D_RAD[0], ik[1] + D_RAD[1]];
         Status {
             setpoint_mm: p,
             reference_rad: reference,
-            encoder_rad: [reference[0] - if ticks < 3_000 { lag_rad } else { 0.0 }, reference[1]],
+            encoder_rad: [
+                reference[0] - if ticks < 3_000 { lag_rad } else { 0.0 },
+                reference[1],
+            ],
             ..running(ticks, D_RAD)
         }
     }
@@ -1856,7 +2512,11 @@ mod tests {
         let img = image(D_RAD);
         let mut c = checker(Scenario::Track5g, &img);
         for ticks in 1..MAX_TICKS {
-            let s = if oscillate { oscillating(ticks, lag_rad) } else { running(ticks, D_RAD) };
+            let s = if oscillate {
+                oscillating(ticks, lag_rad)
+            } else {
+                running(ticks, D_RAD)
+            };
             if let Some(v) = c.observe(&on(&s)) {
                 return (Some(v), c.motion_check());
             }
@@ -1868,10 +2528,17 @@ mod tests {
     fn track_5g_needs_5g_moves_and_a_small_following_error_at_the_tool() {
         let (v, m) = run_track_5g(0.0, true);
         assert_eq!(v, Some(Ok(())), "{m:?}");
-        assert!(m.samples_at_5g >= MIN_SAMPLES_AT_5G && m.max_following_error_um < 1e-3, "{m:?}");
+        assert!(
+            m.samples_at_5g >= MIN_SAMPLES_AT_5G && m.max_following_error_um < 1e-3,
+            "{m:?}"
+        );
         // 1e-4 rad on motor 1 is about 15 µm at the tool: above the bound.
         let (v, m) = run_track_5g(1.0e-4, true);
-        assert_eq!(v, Some(Err("following error at the tool above the 5 g bound")), "{m:?}");
+        assert_eq!(
+            v,
+            Some(Err("following error at the tool above the 5 g bound")),
+            "{m:?}"
+        );
         assert!(m.max_following_error_um > MAX_FOLLOWING_ERROR_5G_UM);
         // 2e-5 rad: a few µm, within.
         let (v, m) = run_track_5g(2.0e-5, true);
@@ -1881,15 +2548,24 @@ mod tests {
         let (v, _) = run_track_5g(0.0, false);
         assert_eq!(v, Some(Err("too few samples at 5 g")));
         let g5 = 5.0 * kinematics_core::servo::STANDARD_GRAVITY_MM_S2;
-        assert_eq!(Scenario::Track5g.trajectory((Profile::Quintic, 1.0)), (Profile::JerkLimited, g5));
-        assert_eq!(Scenario::Track.trajectory((Profile::Quintic, 1.0)), (Profile::Quintic, 1.0));
+        assert_eq!(
+            Scenario::Track5g.trajectory((Profile::Quintic, 1.0)),
+            (Profile::JerkLimited, g5)
+        );
+        assert_eq!(
+            Scenario::Track.trajectory((Profile::Quintic, 1.0)),
+            (Profile::Quintic, 1.0)
+        );
     }
 
     #[test]
     fn self_tests_that_return_fail() {
         let img = image(D_RAD);
         for s in [Scenario::Panic, Scenario::HardFault] {
-            assert!(matches!(checker(s, &img).observe(&on(&running(1, D_RAD))), Some(Err(_))));
+            assert!(matches!(
+                checker(s, &img).observe(&on(&running(1, D_RAD))),
+                Some(Err(_))
+            ));
         }
     }
 

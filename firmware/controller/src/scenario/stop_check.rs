@@ -69,7 +69,8 @@ impl CoastModel {
     /// The furthest joint `axis` can coast from `speed_rad_s` with the drives off (rad):
     /// `J·|ω|/(c + b)`, the speed decaying with the time constant `J/(c + b)`.
     pub fn bound_rad(&self, axis: usize, speed_rad_s: f32) -> f32 {
-        self.inertia_kg_m2[axis] * speed_rad_s.abs() / (self.dynamic_brake_nm_s_per_rad + self.viscous_nm_s_per_rad)
+        self.inertia_kg_m2[axis] * speed_rad_s.abs()
+            / (self.dynamic_brake_nm_s_per_rad + self.viscous_nm_s_per_rad)
     }
 
     /// Both joints' coast bounds from their speeds: [`CoastModel::bound_rad`] per joint, or with
@@ -77,7 +78,8 @@ impl CoastModel {
     pub fn bounds_rad(&self, speed_rad_s: [f32; 2]) -> [f32; 2] {
         if self.coupled_inertia_kg_m2 > 0.0 {
             let speed = libm::hypotf(speed_rad_s[0], speed_rad_s[1]);
-            let b = self.coupled_inertia_kg_m2 * speed / (self.dynamic_brake_nm_s_per_rad + self.viscous_nm_s_per_rad);
+            let b = self.coupled_inertia_kg_m2 * speed
+                / (self.dynamic_brake_nm_s_per_rad + self.viscous_nm_s_per_rad);
             [b; 2]
         } else {
             [0, 1].map(|k| self.bound_rad(k, speed_rad_s[k]))
@@ -169,7 +171,9 @@ impl StopCheck {
             // coast against the QEMU plant's friction alone in about 0.3 s.
             StopCategory::Zero => 1_000,
             _ => {
-                let end_s = self.planned.map_or(0.0, |p| p.duration_s()) + HOLD_AFTER_S + self.settle_timeout_s;
+                let end_s = self.planned.map_or(0.0, |p| p.duration_s())
+                    + HOLD_AFTER_S
+                    + self.settle_timeout_s;
                 (end_s / self.sample_period_s) as u32 + 100
             }
         }
@@ -189,10 +193,13 @@ impl StopCheck {
         let done = since >= self.conclude_after();
         let r = &mut self.report;
         for k in 0..2 {
-            r.joint_travel_rad[k] = r.joint_travel_rad[k].max((o.plant.joint_rad[k] - self.from_joint_rad[k]).abs());
+            r.joint_travel_rad[k] =
+                r.joint_travel_rad[k].max((o.plant.joint_rad[k] - self.from_joint_rad[k]).abs());
         }
         r.travelled_mm = match (tool_mm, self.from_tool_mm) {
-            (Some(p), Some(q)) if !r.travelled_mm.is_nan() => r.travelled_mm.max(libm::hypotf(p[0] - q[0], p[1] - q[1])),
+            (Some(p), Some(q)) if !r.travelled_mm.is_nan() => {
+                r.travelled_mm.max(libm::hypotf(p[0] - q[0], p[1] - q[1]))
+            }
             _ => f32::NAN,
         };
         r.left_workspace |= !inside;
@@ -215,14 +222,23 @@ impl StopCheck {
                 }
             }
             StopCategory::One => {
-                require(!(r.travelled_mm > planned_mm), "the stop went further than planned")?;
+                require(
+                    !(r.travelled_mm > planned_mm),
+                    "the stop went further than planned",
+                )?;
                 let off_by = self.planned.map_or(0.0, |p| p.duration_s()) + self.settle_timeout_s;
                 if r.torque_off_after == 0 && o.drive_enable {
-                    require((since as f32) * self.sample_period_s <= off_by + self.sample_period_s, "torque not removed after the stop")?;
+                    require(
+                        (since as f32) * self.sample_period_s <= off_by + self.sample_period_s,
+                        "torque not removed after the stop",
+                    )?;
                 } else {
                     if r.torque_off_after == 0 {
                         r.torque_off_after = since;
-                        require(matches!(o.status.mode, Mode::SafeState(_)), "drive enable low but the loop is not in the safe state")?;
+                        require(
+                            matches!(o.status.mode, Mode::SafeState(_)),
+                            "drive enable low but the loop is not in the safe state",
+                        )?;
                     }
                     safe_state(o)?;
                 }
@@ -232,14 +248,25 @@ impl StopCheck {
             }
             StopCategory::Two => {
                 require(o.drive_enable, "drive enable low during a category-2 stop")?;
-                require(!(r.travelled_mm > planned_mm), "the stop went further than planned")?;
+                require(
+                    !(r.travelled_mm > planned_mm),
+                    "the stop went further than planned",
+                )?;
                 let hold_from = self.planned.map_or(0.0, |p| p.duration_s()) + HOLD_AFTER_S;
                 if (since as f32) * self.sample_period_s >= hold_from {
                     let p = tool_mm.ok_or("the tool is nowhere while holding")?;
                     let end = self.planned.map_or(p, |s| s.end_mm());
-                    r.hold_error_mm = r.hold_error_mm.max(libm::hypotf(p[0] - end[0], p[1] - end[1]));
-                    require(r.hold_error_mm <= MAX_HOLD_ERROR_MM, "the tool does not hold the stop's end point")?;
-                    require(matches!(o.status.mode, Mode::Holding(_)), "the loop is not holding after the stop")?;
+                    r.hold_error_mm = r
+                        .hold_error_mm
+                        .max(libm::hypotf(p[0] - end[0], p[1] - end[1]));
+                    require(
+                        r.hold_error_mm <= MAX_HOLD_ERROR_MM,
+                        "the tool does not hold the stop's end point",
+                    )?;
+                    require(
+                        matches!(o.status.mode, Mode::Holding(_)),
+                        "the loop is not holding after the stop",
+                    )?;
                 }
             }
         }

@@ -215,9 +215,18 @@ impl SixBar {
         let e = &cfg.errors;
         let l = cfg.link_mm;
         let w2 = cfg.platform_half_width_mm;
-        let g = [cfg.parallelogram_1_offset_mm, mirror(cfg.parallelogram_1_offset_mm)];
-        let h = [cfg.parallelogram_2_offset_mm, mirror(cfg.parallelogram_2_offset_mm)];
-        let motor = [add([0.0, w2], e.ground_motor_1_mm), add([0.0, -w2], e.ground_motor_2_mm)];
+        let g = [
+            cfg.parallelogram_1_offset_mm,
+            mirror(cfg.parallelogram_1_offset_mm),
+        ];
+        let h = [
+            cfg.parallelogram_2_offset_mm,
+            mirror(cfg.parallelogram_2_offset_mm),
+        ];
+        let motor = [
+            add([0.0, w2], e.ground_motor_1_mm),
+            add([0.0, -w2], e.ground_motor_2_mm),
+        ];
         let follower = [
             add(add([0.0, w2], g[0]), e.ground_follower_1_mm),
             add(add([0.0, -w2], g[1]), e.ground_follower_2_mm),
@@ -225,7 +234,10 @@ impl SixBar {
         let k_pin_q = [e.elbow_1_pin_q_mm, e.elbow_2_pin_q_mm];
         let k_pin_f = [add(g[0], e.elbow_1_pin_f_mm), add(g[1], e.elbow_2_pin_f_mm)];
         let k_pin_g = [add(h[0], e.elbow_1_pin_g_mm), add(h[1], e.elbow_2_pin_g_mm)];
-        let t_pin_q = [add([0.0, w2], e.platform_pin_d_mm), add([0.0, -w2], e.platform_pin_e_mm)];
+        let t_pin_q = [
+            add([0.0, w2], e.platform_pin_d_mm),
+            add([0.0, -w2], e.platform_pin_e_mm),
+        ];
         let t_pin_g = [
             add(add([0.0, w2], h[0]), e.platform_pin_dd_mm),
             add(add([0.0, -w2], h[1]), e.platform_pin_ee_mm),
@@ -239,9 +251,24 @@ impl SixBar {
         let (fs, ms) = (cfg.follower_bar_section_mm2, cfg.main_bar_section_mm2);
         let arm = |i: usize| {
             [
-                bar(End::Ground(follower[i]), End::Body(i, k_pin_f[i]), l + e.bar_f_length_mm[i], fs),
-                bar(End::Body(i, k_pin_q[i]), End::Body(2, t_pin_q[i]), l + e.bar_q_length_mm[i], ms),
-                bar(End::Body(i, k_pin_g[i]), End::Body(2, t_pin_g[i]), l + e.bar_g_length_mm[i], fs),
+                bar(
+                    End::Ground(follower[i]),
+                    End::Body(i, k_pin_f[i]),
+                    l + e.bar_f_length_mm[i],
+                    fs,
+                ),
+                bar(
+                    End::Body(i, k_pin_q[i]),
+                    End::Body(2, t_pin_q[i]),
+                    l + e.bar_q_length_mm[i],
+                    ms,
+                ),
+                bar(
+                    End::Body(i, k_pin_g[i]),
+                    End::Body(2, t_pin_g[i]),
+                    l + e.bar_g_length_mm[i],
+                    fs,
+                ),
             ]
         };
         let (a1, a2) = (arm(0), arm(1));
@@ -272,7 +299,10 @@ impl SixBar {
         let mut t = [[0.0; 2]; 2];
         for i in 0..2 {
             let (s, c) = Real::sin_cos(link_rad[i]);
-            t[i] = [self.motor_mm[i][0] + self.lever_mm[i] * c, self.motor_mm[i][1] + self.lever_mm[i] * s];
+            t[i] = [
+                self.motor_mm[i][0] + self.lever_mm[i] * c,
+                self.motor_mm[i][1] + self.lever_mm[i] * s,
+            ];
         }
         t
     }
@@ -280,16 +310,30 @@ impl SixBar {
     /// The rigid pose the closed-form equivalent five-bar gives (K1, K2, T).
     fn nominal_pose(&self, link_rad: [f32; 2]) -> Result<Vec9, SolveError> {
         let tips = self.lever_tips(link_rad);
-        let c = self.five.forward(link_rad, 0.0).map_err(|_| SolveError::NotAssemblable)?;
+        let c = self
+            .five
+            .forward(link_rad, 0.0)
+            .map_err(|_| SolveError::NotAssemblable)?;
         let c = add(c, self.five_base_mm);
-        Ok([tips[0][0], tips[0][1], 0.0, tips[1][0], tips[1][1], 0.0, c[0], c[1], 0.0])
+        Ok([
+            tips[0][0], tips[0][1], 0.0, tips[1][0], tips[1][1], 0.0, c[0], c[1], 0.0,
+        ])
     }
 
     /// Normal equations of the energy at `x`.
     fn assemble(&self, x: &Vec9, tips: &[[f32; 2]; 2]) -> Normal {
-        let mut n = Normal { h: [[0.0; 9]; 9], g: [0.0; 9], energy: 0.0, noise: 0.0 };
+        let mut n = Normal {
+            h: [[0.0; 9]; 9],
+            g: [0.0; 9],
+            energy: 0.0,
+            noise: 0.0,
+        };
         // `Real::` explicitly: on the host, std's inherent `f32` methods would shadow the core's.
-        let rot = [Real::sin_cos(x[2]), Real::sin_cos(x[5]), Real::sin_cos(x[8])];
+        let rot = [
+            Real::sin_cos(x[2]),
+            Real::sin_cos(x[5]),
+            Real::sin_cos(x[8]),
+        ];
         // World position of a bar end and, on a body, its derivative by the body's angle.
         let end = |e: End| -> ([f32; 2], Option<(usize, [f32; 2])>) {
             match e {
@@ -297,7 +341,10 @@ impl SixBar {
                 End::Body(b, r) => {
                     let (s, c) = rot[b];
                     let rr = [c * r[0] - s * r[1], s * r[0] + c * r[1]];
-                    ([x[3 * b] + rr[0], x[3 * b + 1] + rr[1]], Some((b, [-rr[1], rr[0]])))
+                    (
+                        [x[3 * b] + rr[0], x[3 * b + 1] + rr[1]],
+                        Some((b, [-rr[1], rr[0]])),
+                    )
                 }
             }
         };
@@ -351,7 +398,8 @@ impl SixBar {
                     n.g[3 * i + a] += d1 * u[a];
                     for b in 0..2 {
                         let kron = if a == b { 1.0 } else { 0.0 };
-                        n.h[3 * i + a][3 * i + b] += Real::max(d2, 0.0) * u[a] * u[b] + d1 / rho * (kron - u[a] * u[b]);
+                        n.h[3 * i + a][3 * i + b] +=
+                            Real::max(d2, 0.0) * u[a] * u[b] + d1 / rho * (kron - u[a] * u[b]);
                     }
                 }
             }
@@ -390,7 +438,11 @@ impl SixBar {
     }
 
     /// Levenberg-Marquardt from `guess`: the solution and the unknown vector.
-    pub fn solve_from(&self, link_rad: [f32; 2], guess: Vec9) -> Result<(Solution, Vec9), SolveError> {
+    pub fn solve_from(
+        &self,
+        link_rad: [f32; 2],
+        guess: Vec9,
+    ) -> Result<(Solution, Vec9), SolveError> {
         const MAX_ITER: u32 = 60;
         const STEP_TOL_MM: f32 = 2e-5;
         const ROT_SCALE_MM: f32 = 30.0;
@@ -410,7 +462,11 @@ impl SixBar {
             cholesky_solve(&mut h, &mut step)?;
             let mut big = 0.0f32;
             for (k, v) in step.iter().enumerate() {
-                let size = if k % 3 == 2 { Real::abs(*v) * ROT_SCALE_MM } else { Real::abs(*v) };
+                let size = if k % 3 == 2 {
+                    Real::abs(*v) * ROT_SCALE_MM
+                } else {
+                    Real::abs(*v)
+                };
                 big = Real::max(big, size);
             }
             if big > 1.0 {
@@ -423,7 +479,13 @@ impl SixBar {
                 trial[k] += step[k];
             }
             let nt = self.assemble(&trial, &tips);
-            let done = Ok((Solution { tool_mm: [x[6], x[7]], iterations: iter }, x));
+            let done = Ok((
+                Solution {
+                    tool_mm: [x[6], x[7]],
+                    iterations: iter,
+                },
+                x,
+            ));
             // A rise within the energy's round-off is no rise: near the minimum the f32 energy
             // cannot tell steps apart, and refusing them would stall the solve.
             if nt.energy <= n.energy + n.noise + nt.noise {
@@ -431,7 +493,13 @@ impl SixBar {
                 n = nt;
                 mu = if mu < 1e-6 { 0.0 } else { mu / 10.0 };
                 if big < STEP_TOL_MM {
-                    return Ok((Solution { tool_mm: [x[6], x[7]], iterations: iter }, x));
+                    return Ok((
+                        Solution {
+                            tool_mm: [x[6], x[7]],
+                            iterations: iter,
+                        },
+                        x,
+                    ));
                 }
             } else {
                 mu = if mu == 0.0 { 1e-4 } else { mu * 10.0 };

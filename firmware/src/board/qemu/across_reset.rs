@@ -38,7 +38,9 @@ static mut CURRENT: MaybeUninit<u32> = MaybeUninit::uninit();
 
 fn slot(i: usize) -> *mut Slot {
     // In bounds: i is 0 or 1.
-    core::ptr::addr_of_mut!(SLOTS).cast::<Slot>().wrapping_add(i & 1)
+    core::ptr::addr_of_mut!(SLOTS)
+        .cast::<Slot>()
+        .wrapping_add(i & 1)
 }
 
 fn current() -> *mut u32 {
@@ -52,7 +54,11 @@ pub fn keep(state: PlantState) {
     // a reset. Any bit pattern is a valid u32.
     unsafe {
         let next = (current().read_volatile() ^ 1) as usize & 1;
-        slot(next).write_volatile(Slot { magic: KEPT, joint_rad: state.joint_rad, joint_rad_s: state.joint_rad_s });
+        slot(next).write_volatile(Slot {
+            magic: KEPT,
+            joint_rad: state.joint_rad,
+            joint_rad_s: state.joint_rad_s,
+        });
         current().write_volatile(next as u32);
     }
 }
@@ -69,6 +75,9 @@ pub fn take() -> Option<PlantState> {
         }
         let s = slot(i as usize).read_volatile();
         slot(i as usize).write_volatile(Slot { magic: 0, ..s });
-        (s.magic == KEPT).then_some(PlantState { joint_rad: s.joint_rad, joint_rad_s: s.joint_rad_s })
+        (s.magic == KEPT).then_some(PlantState {
+            joint_rad: s.joint_rad,
+            joint_rad_s: s.joint_rad_s,
+        })
     }
 }

@@ -14,7 +14,10 @@ use embedded_hal::pwm::{ErrorType, SetDutyCycle};
 
 use super::PWM_MAX_DUTY;
 
-static PWM_DUTY: [AtomicU16; 2] = [AtomicU16::new(PWM_MAX_DUTY / 2), AtomicU16::new(PWM_MAX_DUTY / 2)];
+static PWM_DUTY: [AtomicU16; 2] = [
+    AtomicU16::new(PWM_MAX_DUTY / 2),
+    AtomicU16::new(PWM_MAX_DUTY / 2),
+];
 static DRIVE_ENABLE: AtomicBool = AtomicBool::new(false);
 /// Sticky: the enable line went high at least once since power-on (a probe on the line).
 static DRIVE_ENABLE_EVER: AtomicBool = AtomicBool::new(false);
@@ -93,19 +96,26 @@ pub fn set_counter_zero(axis: usize, plant_counts: i32) {
 /// mode does).
 pub fn index_pulse(axis: usize, plant_counts: i32) {
     if !INDEX_LATCHED[axis].swap(true, Ordering::SeqCst) {
-        INDEX_COUNTS[axis].store(plant_counts.wrapping_sub(COUNTER_ZERO[axis].load(Ordering::Relaxed)), Ordering::SeqCst);
+        INDEX_COUNTS[axis].store(
+            plant_counts.wrapping_sub(COUNTER_ZERO[axis].load(Ordering::Relaxed)),
+            Ordering::SeqCst,
+        );
         INDEX_NEW[axis].store(true, Ordering::SeqCst);
     }
 }
 
 /// The captured counter value at `axis`'s index, once per capture.
 pub fn take_index(axis: usize) -> Option<i32> {
-    INDEX_NEW[axis].swap(false, Ordering::SeqCst).then(|| INDEX_COUNTS[axis].load(Ordering::SeqCst))
+    INDEX_NEW[axis]
+        .swap(false, Ordering::SeqCst)
+        .then(|| INDEX_COUNTS[axis].load(Ordering::SeqCst))
 }
 
 /// The captured counter value at `axis`'s index, if there was one.
 pub fn index_counts(axis: usize) -> Option<i32> {
-    INDEX_LATCHED[axis].load(Ordering::SeqCst).then(|| INDEX_COUNTS[axis].load(Ordering::SeqCst))
+    INDEX_LATCHED[axis]
+        .load(Ordering::SeqCst)
+        .then(|| INDEX_COUNTS[axis].load(Ordering::SeqCst))
 }
 
 /// Encoder fault injection (the test harness), for the plant's next update of the counter:

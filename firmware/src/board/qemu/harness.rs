@@ -30,21 +30,26 @@ use core::cell::Cell;
 use core::fmt::Write;
 use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 
+use controller::calibration_slots::{CalibrationId, ReadOnly, SlotStore};
 use controller::deadline::DEADLINE_US;
 use controller::scenario::stop_check::{CoastModel, PlantState};
-use controller::scenario::{Checker, EncoderInjection, Injection, Observation, Scenario, WatchdogObservation, WatchdogVerdict};
-use controller::settings::Settings;
+use controller::scenario::{
+    Checker, EncoderInjection, Injection, Observation, Scenario, WatchdogObservation,
+    WatchdogVerdict,
+};
 use controller::setpoints::SetpointSource;
+use controller::settings::Settings;
 use controller::status::Status;
 use controller::trajectory::Trajectory;
 use controller::watchdog::TIMEOUT_US;
 use critical_section::Mutex;
 use kinematics_core::trajectory::MotionSetpoint;
-use controller::calibration_slots::{CalibrationId, ReadOnly, SlotStore};
 use kinematics_core::{CorrectionGrid, GridError};
 
 use super::plant::Plant;
-use super::{across_reset, clock, hardware, semihosting, CmsdkTimer, COUNTS_PER_REV, TIMER_CLOCK_HZ};
+use super::{
+    across_reset, clock, hardware, semihosting, CmsdkTimer, COUNTS_PER_REV, TIMER_CLOCK_HZ,
+};
 
 /// What the watchdog's NMI needs (it cannot reach the `Harness`, which the servo task owns).
 /// The scenario of this boot, set once at boot before the watchdog starts.
@@ -68,10 +73,22 @@ pub fn upload_due(ticks: u32) -> Option<bool> {
 }
 
 /// The image in force by the harness's own reading of the slots (not the firmware's).
-fn image_in_force(settings: &Settings) -> (Option<CalibrationId>, Result<CorrectionGrid<'static>, GridError>) {
-    let store = SlotStore::open(ReadOnly(crate::calibration::region()), settings.machine, settings.home_mm);
+fn image_in_force(
+    settings: &Settings,
+) -> (
+    Option<CalibrationId>,
+    Result<CorrectionGrid<'static>, GridError>,
+) {
+    let store = SlotStore::open(
+        ReadOnly(crate::calibration::region()),
+        settings.machine,
+        settings.home_mm,
+    );
     match store.active_id() {
-        Some(id) => (Some(id), CorrectionGrid::parse(crate::calibration::slot_bytes(id))),
+        Some(id) => (
+            Some(id),
+            CorrectionGrid::parse(crate::calibration::slot_bytes(id)),
+        ),
         None => (None, CorrectionGrid::parse(crate::calibration::region())),
     }
 }
@@ -107,7 +124,8 @@ impl Harness {
     /// reset (the boot after `stalled-task`'s watchdog reset is `WatchdogRestart`).
     pub fn scenario() -> Scenario {
         let mut line = [0u8; 64];
-        Scenario::from_command_line(semihosting::command_line(&mut line)).after_reset(hardware::peek_reset_cause())
+        Scenario::from_command_line(semihosting::command_line(&mut line))
+            .after_reset(hardware::peek_reset_cause())
     }
 
     /// Reads the scenario, starts the harness's clock and runs the self-tests of the failure
@@ -125,13 +143,24 @@ impl Harness {
             Scenario::HardFault => cortex_m::asm::udf(),
             _ => {}
         }
-        Harness { scenario, settings, checker: None, injection: Injection::default(), sample: 0, resumed: None, checked_id: None }
+        Harness {
+            scenario,
+            settings,
+            checker: None,
+            injection: Injection::default(),
+            sample: 0,
+            resumed: None,
+            checked_id: None,
+        }
     }
 
     /// The machine was in `state` when the controller reset (the plant resumed there): the
     /// boot after `stalled-task`'s watchdog reset checks its coast from there.
     pub fn resumed(&mut self, state: PlantState) {
-        defmt::info!("harness: the machine moves on from before the reset: {}", state);
+        defmt::info!(
+            "harness: the machine moves on from before the reset: {}",
+            state
+        );
         self.resumed = Some(state);
     }
 
@@ -142,15 +171,31 @@ impl Harness {
         self.checked_id = id;
         self.injection = Injection::find(&trajectory, self.settings.servo.sample_period_s);
         if self.scenario.inject_at(&self.injection).is_some() {
-            defmt::info!("harness: {} injected at sample {}", self.scenario, self.injection);
+            defmt::info!(
+                "harness: {} injected at sample {}",
+                self.scenario,
+                self.injection
+            );
         }
         let total = trajectory.total_samples();
-        let mut checker = Checker::new(self.scenario, image, self.settings, total, self.injection, coast);
+        let mut checker = Checker::new(
+            self.scenario,
+            image,
+            self.settings,
+            total,
+            self.injection,
+            coast,
+        );
         if let (Scenario::WatchdogRestart, Some(state)) = (self.scenario, self.resumed) {
             checker.coast_after_reset(state);
         }
         self.checker = Some(checker);
-        Injected { scenario: self.scenario, injection: self.injection, trajectory, queued: 0 }
+        Injected {
+            scenario: self.scenario,
+            injection: self.injection,
+            trajectory,
+            queued: 0,
+        }
     }
 
     /// Start of a sample, before the plant moves and updates the encoder counters: the deadline
@@ -167,7 +212,9 @@ impl Harness {
         match self.scenario.encoder_at(&self.injection, self.sample) {
             EncoderInjection::None => hardware::inject_encoder(0, false, 0),
             EncoderInjection::Freeze => hardware::inject_encoder(0, true, 0),
-            EncoderInjection::Offset(rad) => hardware::inject_encoder(0, false, libm::roundf(rad * counts_per_rad) as i32),
+            EncoderInjection::Offset(rad) => {
+                hardware::inject_encoder(0, false, libm::roundf(rad * counts_per_rad) as i32)
+            }
         }
         self.sample = self.sample.wrapping_add(1);
     }
@@ -191,7 +238,9 @@ impl Harness {
         if status.calibration_id != self.checked_id && self.scenario.upload().is_some() {
             let (id, image) = image_in_force(self.settings);
             if id != status.calibration_id {
-                semihosting::console("FAIL harness: the firmware's image in force is not the slots' committed one");
+                semihosting::console(
+                    "FAIL harness: the firmware's image in force is not the slots' committed one",
+                );
                 semihosting::exit(false)
             }
             self.checked_id = id;
@@ -202,17 +251,30 @@ impl Harness {
             Some(Ok(())) => {
                 defmt::info!("PASS {}: {}", self.scenario, status);
                 if let (Some(at), Some(report)) = (checker.fault_sample(), checker.stop_report()) {
-                    defmt::info!("stop: fault at sample {} ({}): {}", at, status.fault, report);
+                    defmt::info!(
+                        "stop: fault at sample {} ({}): {}",
+                        at,
+                        status.fault,
+                        report
+                    );
                 }
                 if let Some(at) = checker.homed_at() {
                     defmt::info!("homing: homed and engaged at sample {}", at);
                 }
                 if let Some(upload) = status.last_upload {
-                    defmt::info!("upload: {}, image in force {}", upload, status.calibration_id);
+                    defmt::info!(
+                        "upload: {}, image in force {}",
+                        upload,
+                        status.calibration_id
+                    );
                 }
                 if matches!(
                     self.scenario,
-                    Scenario::Track | Scenario::Track5g | Scenario::Homing | Scenario::CalibrationUpload | Scenario::CalibrationUploadCorrupt
+                    Scenario::Track
+                        | Scenario::Track5g
+                        | Scenario::Homing
+                        | Scenario::CalibrationUpload
+                        | Scenario::CalibrationUploadCorrupt
                 ) {
                     defmt::info!(
                         "track: grid {}, settled tool error {} mm",
@@ -258,7 +320,9 @@ pub struct Injected {
 impl SetpointSource for Injected {
     fn next_setpoint(&mut self) -> Option<MotionSetpoint<f32>> {
         let mut s = self.trajectory.next_setpoint();
-        s.position_mm = self.scenario.tamper(&self.injection, self.queued, s.position_mm)?;
+        s.position_mm = self
+            .scenario
+            .tamper(&self.injection, self.queued, s.position_mm)?;
         self.queued = self.queued.wrapping_add(1);
         Some(s)
     }
@@ -274,7 +338,10 @@ const STALLED_PLANT_STEP_S: f32 = 50.0e-6;
 /// `plant` in steps of [`STALLED_PLANT_STEP_S`] on the harness's clock and keeps its state for
 /// the boot after the watchdog's reset.
 fn stall(speed_mm_s: f32, plant: &mut Plant) -> ! {
-    defmt::info!("harness: stalling the servo task (interrupts disabled) at {} mm/s", speed_mm_s);
+    defmt::info!(
+        "harness: stalling the servo task (interrupts disabled) at {} mm/s",
+        speed_mm_s
+    );
     STALL_SPEED.store(speed_mm_s.to_bits(), Ordering::SeqCst);
     cortex_m::interrupt::disable();
     let stalled_at = clock::now_ticks();
@@ -326,7 +393,9 @@ pub fn watchdog_fired(drive_enable_at_fire: bool) -> ! {
             );
         }
         WatchdogVerdict::Production => {
-            semihosting::console("watchdog: the servo task stalled: drives off, waiting for the watchdog's reset");
+            semihosting::console(
+                "watchdog: the servo task stalled: drives off, waiting for the watchdog's reset",
+            );
             loop {
                 cortex_m::asm::nop();
             }

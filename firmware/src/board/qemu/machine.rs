@@ -26,14 +26,18 @@ pub const LINKAGE: kinematics_core::FiveBarDynamics<f32> = kinematics_core::Five
 };
 
 /// The dynamics the calibration image carries.
-pub const IMAGE_DYNAMICS: kinematics_core::FiveBarDynamics<f32> = kinematics_core::FiveBarDynamics {
-    motor_inertia_kg_m2: [
-        (ROTOR_INERTIA_KG_M2[0] + LINKAGE.motor_inertia_kg_m2[0]) * 1.2,
-        (ROTOR_INERTIA_KG_M2[1] + LINKAGE.motor_inertia_kg_m2[1]) * 0.8,
-    ],
-    tool_mass_kg: LINKAGE.tool_mass_kg * 1.2,
-    distal_inertia_kg_m2: [LINKAGE.distal_inertia_kg_m2[0] * 0.8, LINKAGE.distal_inertia_kg_m2[1] * 1.2],
-    viscous_nm_s_per_rad: [0.008, 0.008],
-    coulomb_nm: [0.025, 0.025],
-    coulomb_speed_rad_s: 0.01,
-};
+pub const IMAGE_DYNAMICS: kinematics_core::FiveBarDynamics<f32> =
+    kinematics_core::FiveBarDynamics {
+        motor_inertia_kg_m2: [
+            (ROTOR_INERTIA_KG_M2[0] + LINKAGE.motor_inertia_kg_m2[0]) * 1.2,
+            (ROTOR_INERTIA_KG_M2[1] + LINKAGE.motor_inertia_kg_m2[1]) * 0.8,
+        ],
+        tool_mass_kg: LINKAGE.tool_mass_kg * 1.2,
+        distal_inertia_kg_m2: [
+            LINKAGE.distal_inertia_kg_m2[0] * 0.8,
+            LINKAGE.distal_inertia_kg_m2[1] * 1.2,
+        ],
+        viscous_nm_s_per_rad: [0.008, 0.008],
+        coulomb_nm: [0.025, 0.025],
+        coulomb_speed_rad_s: 0.01,
+    };

@@ -203,14 +203,19 @@ impl Board for QemuBoard {
     fn settings() -> Settings {
         let scenario = Harness::scenario();
         let production = Settings::default();
-        let (trajectory_profile, trajectory_accel_mm_s2) =
-            scenario.trajectory((production.trajectory_profile, production.trajectory_accel_mm_s2));
+        let (trajectory_profile, trajectory_accel_mm_s2) = scenario.trajectory((
+            production.trajectory_profile,
+            production.trajectory_accel_mm_s2,
+        ));
         // The simulated encoders are absolute (the counters show the joint angle) except in the
         // homing scenarios and `link`, where they are incremental with an index mark; the homing
         // scenarios home at boot, `link` when the host sends Home.
         let homes = scenario.homing_sim().is_some();
-        let homing =
-            HomingSettings { absolute_encoders: !homes, at_boot: homes && !scenario.link_motion(), ..production.homing };
+        let homing = HomingSettings {
+            absolute_encoders: !homes,
+            at_boot: homes && !scenario.link_motion(),
+            ..production.homing
+        };
         Settings {
             link_motion: scenario.link_motion(),
             builtin_tour_mm: scenario.tour_mm(&WORKSPACE_TOUR_MM),
@@ -231,8 +236,14 @@ impl Board for QemuBoard {
             encoders: [SimEncoder { axis: 0 }, SimEncoder { axis: 1 }],
             encoder_scales,
             drives: [
-                TorqueDrive { pwm: SimPwm { axis: 0 }, full_scale_nm },
-                TorqueDrive { pwm: SimPwm { axis: 1 }, full_scale_nm },
+                TorqueDrive {
+                    pwm: SimPwm { axis: 0 },
+                    full_scale_nm,
+                },
+                TorqueDrive {
+                    pwm: SimPwm { axis: 1 },
+                    full_scale_nm,
+                },
             ],
             plant: Plant::power_on(full_scale_nm),
             period_s: 1.0 / SAMPLE_RATE_HZ as f32,
@@ -328,7 +339,6 @@ impl Board for QemuBoard {
         self.harness.end_sample(status, self.plant.state());
     }
 }
-
 
 /// For the benchmark: nothing to set up (QEMU counts instructions at any clock).
 pub fn bench_init() {}

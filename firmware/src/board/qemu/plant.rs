@@ -74,7 +74,10 @@ pub struct MotorConstants {
 impl MotorConstants {
     /// The dynamic braking at the joint (N·m·s/rad): `N²·k_t·k_e/R`.
     pub const fn dynamic_brake_nm_s_per_rad(&self) -> f32 {
-        self.gear_ratio * self.gear_ratio * self.torque_constant_nm_per_a * self.back_emf_v_s_per_rad
+        self.gear_ratio
+            * self.gear_ratio
+            * self.torque_constant_nm_per_a
+            * self.back_emf_v_s_per_rad
             / self.winding_resistance_ohm
     }
 }
@@ -87,8 +90,12 @@ impl MotorConstants {
 /// built-in tour's top speed (1.38 m/s) a category-0 coast of the coupled joints is bounded by
 /// 0.60 rad per joint (`stop_check`'s coupled bound); measured, joint 1 coasts 0.27 rad and
 /// the tool 40 mm; free-wheeling drives coasted the tool 77-79 mm, out of the workspace.
-pub const MOTOR: MotorConstants =
-    MotorConstants { torque_constant_nm_per_a: 0.9, back_emf_v_s_per_rad: 0.9, winding_resistance_ohm: 3.6, gear_ratio: 1.0 };
+pub const MOTOR: MotorConstants = MotorConstants {
+    torque_constant_nm_per_a: 0.9,
+    back_emf_v_s_per_rad: 0.9,
+    winding_resistance_ohm: 3.6,
+    gear_ratio: 1.0,
+};
 
 impl Default for PlantParams {
     fn default() -> Self {
@@ -181,7 +188,10 @@ impl Plant {
 
     /// The true joint state (the harness checks it, not the encoders).
     pub fn state(&self) -> PlantState {
-        PlantState { joint_rad: self.angle_rad, joint_rad_s: self.velocity_rad_s }
+        PlantState {
+            joint_rad: self.angle_rad,
+            joint_rad_s: self.velocity_rad_s,
+        }
     }
 
     /// What bounds a coast with the drives off: the coupled inertia, viscous friction and the
@@ -218,7 +228,11 @@ impl Plant {
             ([0.0; 2], self.params.dynamic_brake_nm_s_per_rad)
         };
         let before = self.angle_rad;
-        if !self.jammed && self.integrate(torque_nm, brake_nm_s_per_rad, period_s).is_none() {
+        if !self.jammed
+            && self
+                .integrate(torque_nm, brake_nm_s_per_rad, period_s)
+                .is_none()
+        {
             self.jammed = true;
             self.velocity_rad_s = [0.0; 2];
         }
@@ -232,7 +246,12 @@ impl Plant {
         self.publish_encoders();
     }
 
-    fn integrate(&mut self, torque_nm: [f32; 2], brake_nm_s_per_rad: f32, period_s: f32) -> Option<()> {
+    fn integrate(
+        &mut self,
+        torque_nm: [f32; 2],
+        brake_nm_s_per_rad: f32,
+        period_s: f32,
+    ) -> Option<()> {
         let p = self.params;
         let (mut angle, mut velocity) = (self.angle_rad, self.velocity_rad_s);
         let half = 0.5 * period_s;
@@ -244,7 +263,8 @@ impl Plant {
             let mut r = [0.0f32; 2];
             for k in 0..2 {
                 let w = velocity[k];
-                let friction = p.viscous_nm_s_per_rad * w + p.coulomb_nm * w / (w.abs() + p.coulomb_smoothing_rad_s);
+                let friction = p.viscous_nm_s_per_rad * w
+                    + p.coulomb_nm * w / (w.abs() + p.coulomb_smoothing_rad_s);
                 r[k] = torque_nm[k] - bias[k] - friction - brake_nm_s_per_rad * w;
             }
             let acc = solve_spd(&m, r).ok()?;
@@ -285,9 +305,16 @@ fn coupled_inertia_kg_m2(p: &PlantParams, geometry: &FiveBar<f32>) -> f32 {
     let n = COAST_LATTICE - 1;
     for i in 0..=n {
         for j in 0..=n {
-            let tool = [x0 + (x1 - x0) * i as f32 / n as f32, y0 + (y1 - y0) * j as f32 / n as f32];
-            let Ok(pose) = geometry.inverse_pose(tool, 0.0) else { continue };
-            let Some((m, _)) = mass_matrix_and_bias(p, &pose, [0.0; 2]) else { continue };
+            let tool = [
+                x0 + (x1 - x0) * i as f32 / n as f32,
+                y0 + (y1 - y0) * j as f32 / n as f32,
+            ];
+            let Ok(pose) = geometry.inverse_pose(tool, 0.0) else {
+                continue;
+            };
+            let Some((m, _)) = mass_matrix_and_bias(p, &pose, [0.0; 2]) else {
+                continue;
+            };
             let mean = 0.5 * (m[0][0] + m[1][1]);
             let spread = libm::hypotf(0.5 * (m[0][0] - m[1][1]), m[0][1]);
             low = low.min(mean - spread);

@@ -10,7 +10,6 @@ use cortex_m_semihosting::{nr, syscall, syscall1};
 
 use super::hardware;
 
-
 /// The semihosting command line (`"<program> <scenario>"`), in `buf`.
 pub fn command_line(buf: &mut [u8]) -> &str {
     let mut block = [buf.as_mut_ptr() as usize, buf.len()];
@@ -34,7 +33,11 @@ pub fn console(line: &str) {
 
 /// Ends the QEMU run: exit code 0 on `pass`, 1 otherwise.
 pub fn exit(pass: bool) -> ! {
-    let status = if pass { cortex_m_semihosting::debug::EXIT_SUCCESS } else { cortex_m_semihosting::debug::EXIT_FAILURE };
+    let status = if pass {
+        cortex_m_semihosting::debug::EXIT_SUCCESS
+    } else {
+        cortex_m_semihosting::debug::EXIT_FAILURE
+    };
     loop {
         cortex_m_semihosting::debug::exit(status);
     }
@@ -216,4 +219,3 @@ mod logger {
         }
     }
 }
-

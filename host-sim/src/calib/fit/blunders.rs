@@ -190,13 +190,20 @@ fn test_residuals_um(data: &[Measurement], kept: &[usize], fit: &FullFit) -> Vec
 /// the start model's errors (a swapped x/y row, 200 mm off, would otherwise pull the first fit
 /// until a pose is unreachable). Every row whose error cannot be computed is kept (the fit
 /// names it), and so is every row when more than half would go (the start is too poor to judge).
-fn prescreen(data: &[Measurement], start: &FiveBar<f64>, t: f64, instrument_sigma_um: f64) -> Vec<usize> {
+fn prescreen(
+    data: &[Measurement],
+    start: &FiveBar<f64>,
+    t: f64,
+    instrument_sigma_um: f64,
+) -> Vec<usize> {
     let e: Vec<Option<f64>> = data
         .iter()
         .map(|m| params::residuals_mm(start, std::slice::from_ref(m)).map(|r| r.norm() * 1e3))
         .collect();
     let (sigma_um, _) = scale_um(&e, instrument_sigma_um);
-    let kept: Vec<usize> = (0..data.len()).filter(|&i| e[i].is_none_or(|v| v <= t * sigma_um)).collect();
+    let kept: Vec<usize> = (0..data.len())
+        .filter(|&i| e[i].is_none_or(|v| v <= t * sigma_um))
+        .collect();
     if 2 * kept.len() < data.len() {
         (0..data.len()).collect()
     } else {
@@ -205,12 +212,21 @@ fn prescreen(data: &[Measurement], start: &FiveBar<f64>, t: f64, instrument_sigm
 }
 
 /// [`fit_full`] with the blunder test of the module doc.
-pub fn fit_full_robust(data: &[Measurement], start: &FiveBar<f64>, fixed_by_user: &[usize], o: &RejectOptions) -> Result<RobustFit, CalibError> {
+pub fn fit_full_robust(
+    data: &[Measurement],
+    start: &FiveBar<f64>,
+    fixed_by_user: &[usize],
+    o: &RejectOptions,
+) -> Result<RobustFit, CalibError> {
     check_options(o)?;
     let n = data.len();
     let all: Vec<usize> = (0..n).collect();
     if o.reject_sigma == 0.0 {
-        return Ok(RobustFit { fit: fit_full(data, start, fixed_by_user)?, kept: all, report: None });
+        return Ok(RobustFit {
+            fit: fit_full(data, start, fixed_by_user)?,
+            kept: all,
+            report: None,
+        });
     }
     let allowed = (MAX_REJECT_FRACTION * n as f64).floor() as usize;
     let t = threshold_sigma(o.reject_sigma, n);
@@ -224,11 +240,18 @@ pub fn fit_full_robust(data: &[Measurement], start: &FiveBar<f64>, fixed_by_user
         let (sigma_um, source) = scale_um(&kept_e, o.instrument_sigma_um);
         // A rejected row comes back when the fit without it explains it (it was dragged out by
         // the blunders of an earlier round); the set is re-decided every round.
-        let beyond: Vec<usize> = (0..n).filter(|&i| e[i].is_some_and(|v| v > t * sigma_um)).collect();
-        let settled = beyond.len() + kept.len() == n && beyond.iter().all(|i| kept.binary_search(i).is_err());
+        let beyond: Vec<usize> = (0..n)
+            .filter(|&i| e[i].is_some_and(|v| v > t * sigma_um))
+            .collect();
+        let settled =
+            beyond.len() + kept.len() == n && beyond.iter().all(|i| kept.binary_search(i).is_err());
         if settled || fits > MAX_ROUNDS {
             if beyond.len() > allowed {
-                let rows: Vec<String> = beyond.iter().take(20).map(|i| (i + 1).to_string()).collect();
+                let rows: Vec<String> = beyond
+                    .iter()
+                    .take(20)
+                    .map(|i| (i + 1).to_string())
+                    .collect();
                 return Err(invalid!(
                     "blunder test: {} of {n} rows lie beyond {t:.1} σ (σ = {sigma_um:.2} µm), more than the {:.0} % ({allowed} rows) a fit may reject: \
                      the data or the model are wrong, not a few rows (rows {}{}); check the file, or give --reject-sigma 0 to fit every row",
@@ -255,7 +278,11 @@ pub fn fit_full_robust(data: &[Measurement], start: &FiveBar<f64>, fixed_by_user
                     })
                     .collect(),
             };
-            return Ok(RobustFit { fit, kept, report: Some(report) });
+            return Ok(RobustFit {
+                fit,
+                kept,
+                report: Some(report),
+            });
         }
         let mut out = vec![false; n];
         beyond.iter().for_each(|&i| out[i] = true);

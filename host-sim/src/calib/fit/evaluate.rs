@@ -12,8 +12,8 @@
 //!
 //! Cost: one FK per point. A model that cannot reach a recorded pose gets an infinite error.
 
-use crate::io::measurement_csv::Measurement;
 use crate::calib::CalibError;
+use crate::io::measurement_csv::Measurement;
 use kinematics_core::FiveBar;
 
 /// Which position the model's prediction is compared with.
@@ -44,7 +44,11 @@ pub fn check_criterion(data: &[Measurement], criterion: Criterion) -> Result<(),
 
 /// Error vector (µm) `reference − predicted` of every point; `None` where the model cannot
 /// reach the pose. `reference` is the measured or the target position per `criterion`.
-pub fn error_vectors_um(model: &FiveBar<f64>, data: &[Measurement], criterion: Criterion) -> Vec<Option<[f64; 2]>> {
+pub fn error_vectors_um(
+    model: &FiveBar<f64>,
+    data: &[Measurement],
+    criterion: Criterion,
+) -> Vec<Option<[f64; 2]>> {
     data.iter()
         .map(|m| {
             let reference = match criterion {

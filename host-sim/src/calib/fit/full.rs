@@ -15,9 +15,9 @@
 
 use super::identifiability::{self, Identifiability};
 use super::params::{self, PositionResiduals, NAMES, N_PARAMS};
+use crate::calib::{invalid, CalibError};
 use crate::io::measurement_csv::Measurement;
 use crate::numeric::{levenberg_marquardt, LmFit, LmOptions, NumericError};
-use crate::calib::{invalid, CalibError};
 use kinematics_core::FiveBar;
 use nalgebra::DVector;
 
@@ -39,7 +39,10 @@ pub struct FullFit {
 fn unreachable(e: NumericError) -> String {
     match e {
         NumericError::JacobianOutsideDomain { param } => {
-            format!("a measured pose is unreachable by the model near {}", NAMES.get(param).unwrap_or(&"?"))
+            format!(
+                "a measured pose is unreachable by the model near {}",
+                NAMES.get(param).unwrap_or(&"?")
+            )
         }
         _ => "the start model cannot reach every measured pose".into(),
     }
@@ -50,21 +53,29 @@ fn unreachable(e: NumericError) -> String {
 pub fn check_fixed(fixed_by_user: &[usize]) -> Result<(), CalibError> {
     for (i, &k) in fixed_by_user.iter().enumerate() {
         if k >= N_PARAMS {
-            return Err(invalid!("parameter index {k} to hold does not exist (there are {N_PARAMS})"));
+            return Err(invalid!(
+                "parameter index {k} to hold does not exist (there are {N_PARAMS})"
+            ));
         }
         if fixed_by_user[..i].contains(&k) {
             return Err(invalid!("{} is held twice", NAMES[k]));
         }
     }
     if fixed_by_user.len() == N_PARAMS {
-        return Err(invalid!("every parameter is held at nominal: nothing is left to fit"));
+        return Err(invalid!(
+            "every parameter is held at nominal: nothing is left to fit"
+        ));
     }
     Ok(())
 }
 
 /// Fits `data` starting from `start`; parameters in `fixed_by_user` stay at their start value,
 /// and so do those the identifiability check fixes.
-pub fn fit_full(data: &[Measurement], start: &FiveBar<f64>, fixed_by_user: &[usize]) -> Result<FullFit, CalibError> {
+pub fn fit_full(
+    data: &[Measurement],
+    start: &FiveBar<f64>,
+    fixed_by_user: &[usize],
+) -> Result<FullFit, CalibError> {
     check_fixed(fixed_by_user)?;
     let requested = N_PARAMS - fixed_by_user.len();
     if 2 * data.len() <= requested {
@@ -75,7 +86,8 @@ pub fn fit_full(data: &[Measurement], start: &FiveBar<f64>, fixed_by_user: &[usi
             requested / 2 + 1
         ));
     }
-    let j0 = params::jacobian(start, data).map_err(|e| invalid!("at the start model: {}", unreachable(e)))?;
+    let j0 = params::jacobian(start, data)
+        .map_err(|e| invalid!("at the start model: {}", unreachable(e)))?;
     let ident = identifiability::check(&j0, fixed_by_user);
     let free = ident.free.clone();
     let k = free.len();
@@ -89,19 +101,36 @@ pub fn fit_full(data: &[Measurement], start: &FiveBar<f64>, fixed_by_user: &[usi
         ));
     }
     let problem = PositionResiduals { data, like: *start };
-    let lm = levenberg_marquardt(&problem, &params::to_vector(start), &free, &LmOptions::default())
-        .map_err(|e| invalid!("{}", unreachable(e)))?;
+    let lm = levenberg_marquardt(
+        &problem,
+        &params::to_vector(start),
+        &free,
+        &LmOptions::default(),
+    )
+    .map_err(|e| invalid!("{}", unreachable(e)))?;
     if lm.rank() < k {
-        return Err(invalid!("JᵀJ is singular at the solution: the data do not identify the parameters"));
+        return Err(invalid!(
+            "JᵀJ is singular at the solution: the data do not identify the parameters"
+        ));
     }
-    let p: [f64; N_PARAMS] = lm.p.as_slice().try_into().expect("the problem has N_PARAMS parameters");
+    let p: [f64; N_PARAMS] =
+        lm.p.as_slice()
+            .try_into()
+            .expect("the problem has N_PARAMS parameters");
     let model = params::from_vector(&p, start);
     let sigma2 = lm.residual_variance();
     let mut std_dev = [None; N_PARAMS];
     for &i in &free {
         std_dev[i] = lm.std_dev(i, sigma2);
     }
-    Ok(FullFit { model, std_dev, identifiability: ident, sigma_mm: sigma2.sqrt(), iterations: lm.iterations, lm })
+    Ok(FullFit {
+        model,
+        std_dev,
+        identifiability: ident,
+        sigma_mm: sigma2.sqrt(),
+        iterations: lm.iterations,
+        lm,
+    })
 }
 
 /// Up to this many points, [`leave_one_out_um`] refits without each point (exact); above, it uses
@@ -132,7 +161,10 @@ pub fn leave_one_out_um(
     progress: &mut dyn FnMut(usize, usize),
 ) -> (LooMethod, Vec<Option<f64>>) {
     if data.len() <= EXACT_LOO_MAX_POINTS {
-        (LooMethod::ExactRefits, leave_one_out_exact_um(data, start, fixed_by_user, progress))
+        (
+            LooMethod::ExactRefits,
+            leave_one_out_exact_um(data, start, fixed_by_user, progress),
+        )
     } else {
         (LooMethod::Linearised, leave_one_out_linearised_um(fit))
     }
@@ -151,7 +183,12 @@ pub fn leave_one_out_exact_um(
     (0..n)
         .map(|i| {
             progress(i, n);
-            let rest: Vec<Measurement> = data.iter().enumerate().filter(|(k, _)| *k != i).map(|(_, m)| m.clone()).collect();
+            let rest: Vec<Measurement> = data
+                .iter()
+                .enumerate()
+                .filter(|(k, _)| *k != i)
+                .map(|(_, m)| m.clone())
+                .collect();
             let fit = fit_full(&rest, start, fixed_by_user).ok()?;
             let r: DVector<f64> = params::residuals_mm(&fit.model, std::slice::from_ref(&data[i]))?;
             Some(r.norm() * 1e3)
@@ -184,7 +221,9 @@ pub fn leave_one_out_linearised_um(fit: &FullFit) -> Vec<Option<f64>> {
 
 /// Per point, `I − Hᵢᵢ` (the 2×2 block of the fit's hat matrix `H = J·(JᵀJ)⁺·Jᵀ`, symmetric)
 /// and its residual `rᵢ` (mm).
-fn leave_one_out_blocks(fit: &FullFit) -> impl Iterator<Item = (nalgebra::Matrix2<f64>, nalgebra::Vector2<f64>)> + '_ {
+fn leave_one_out_blocks(
+    fit: &FullFit,
+) -> impl Iterator<Item = (nalgebra::Matrix2<f64>, nalgebra::Vector2<f64>)> + '_ {
     let (j, p, r) = (&fit.lm.jacobian, &fit.lm.normal_pinv, &fit.lm.residuals);
     (0..r.len() / 2).map(move |i| {
         let ji = j.rows(2 * i, 2);
@@ -210,10 +249,11 @@ pub fn studentized_deleted_residuals_um(fit: &FullFit) -> Vec<Option<f64>> {
             if eig.eigenvalues.iter().any(|&l| !(l > 1e-9)) {
                 return None;
             }
-            let inv_sqrt = eig.eigenvectors * nalgebra::Matrix2::from_diagonal(&eig.eigenvalues.map(|l| 1.0 / l.sqrt())) * eig.eigenvectors.transpose();
+            let inv_sqrt = eig.eigenvectors
+                * nalgebra::Matrix2::from_diagonal(&eig.eigenvalues.map(|l| 1.0 / l.sqrt()))
+                * eig.eigenvectors.transpose();
             let v = (inv_sqrt * r).norm() * 1e3;
             v.is_finite().then_some(v)
         })
         .collect()
 }
-

@@ -48,9 +48,18 @@ fn smallest(j: &DMatrix<f64>, cols: &[usize]) -> (Vec<f64>, Vec<f64>) {
 
 /// Describes a null vector: `"+0.71·d_mm −0.71·base_b0_x_mm"` (scaled units).
 fn describe(cols: &[usize], v: &[f64]) -> String {
-    let mut terms: Vec<(usize, f64)> = cols.iter().copied().zip(v.iter().copied()).filter(|(_, c)| c.abs() > 0.05).collect();
+    let mut terms: Vec<(usize, f64)> = cols
+        .iter()
+        .copied()
+        .zip(v.iter().copied())
+        .filter(|(_, c)| c.abs() > 0.05)
+        .collect();
     terms.sort_by(|a, b| b.1.abs().total_cmp(&a.1.abs()));
-    terms.iter().map(|(k, c)| format!("{c:+.2}·{}", NAMES[*k])).collect::<Vec<_>>().join(" ")
+    terms
+        .iter()
+        .map(|(k, c)| format!("{c:+.2}·{}", NAMES[*k]))
+        .collect::<Vec<_>>()
+        .join(" ")
 }
 
 /// Checks `j` (2N x 8, see `params::jacobian`) with the parameters `fixed_by_user` held fixed.
@@ -58,18 +67,38 @@ pub fn check(j: &DMatrix<f64>, fixed_by_user: &[usize]) -> Identifiability {
     let all: Vec<usize> = (0..N_PARAMS).collect();
     let (rel_all, _) = smallest(j, &all);
     let rank_all = rel_all.iter().filter(|&&s| s > RANK_TOL).count();
-    let mut free: Vec<usize> = all.iter().copied().filter(|k| !fixed_by_user.contains(k)).collect();
+    let mut free: Vec<usize> = all
+        .iter()
+        .copied()
+        .filter(|k| !fixed_by_user.contains(k))
+        .collect();
     let mut fixed = Vec::new();
     loop {
         let (rel, v) = smallest(j, &free);
         let min = rel.last().copied().unwrap_or(1.0);
         if min > RANK_TOL || free.is_empty() {
             let condition_number = if free.is_empty() { 1.0 } else { 1.0 / min };
-            return Identifiability { free, fixed, condition_number, rank_all, singular_values_rel: rel_all };
+            return Identifiability {
+                free,
+                fixed,
+                condition_number,
+                rank_all,
+                singular_values_rel: rel_all,
+            };
         }
         let combination = describe(&free, &v);
-        let involved: Vec<usize> = free.iter().copied().zip(v.iter()).filter(|(_, c)| c.abs() > 0.05).map(|(k, _)| k).collect();
-        let victim = FIX_ORDER.iter().copied().find(|k| involved.contains(k)).unwrap_or(free[free.len() - 1]);
+        let involved: Vec<usize> = free
+            .iter()
+            .copied()
+            .zip(v.iter())
+            .filter(|(_, c)| c.abs() > 0.05)
+            .map(|(k, _)| k)
+            .collect();
+        let victim = FIX_ORDER
+            .iter()
+            .copied()
+            .find(|k| involved.contains(k))
+            .unwrap_or(free[free.len() - 1]);
         free.retain(|&k| k != victim);
         fixed.push((victim, combination));
     }

@@ -27,7 +27,9 @@ pub struct DyadSums {
 impl DyadSums {
     /// The sums over `points`.
     pub fn of(points: &[DyadPoint]) -> Self {
-        points.iter().fold(DyadSums::default(), |acc, p| acc.with(p, 1.0))
+        points
+            .iter()
+            .fold(DyadSums::default(), |acc, p| acc.with(p, 1.0))
     }
 
     /// The sums with `p` added (`sign` = 1) or removed (−1).
@@ -51,11 +53,16 @@ impl DyadSums {
     /// `[n Σf2; Σf2 Σf2²] [P1; P2] = [ΣF; ΣF·f2]`.
     pub fn solve(&self) -> Result<(f64, f64), CalibError> {
         if self.n < 1.5 {
-            return Err(invalid!("least squares needs at least 2 points per dyad, got {}", self.n.round()));
+            return Err(invalid!(
+                "least squares needs at least 2 points per dyad, got {}",
+                self.n.round()
+            ));
         }
         let det = self.n * self.s_f2f2 - self.s_f2 * self.s_f2;
         if !(det.abs() > 1e-12 * self.n * self.s_f2f2) {
-            return Err(invalid!("the design points are degenerate for this dyad (all f2 equal)"));
+            return Err(invalid!(
+                "the design points are degenerate for this dyad (all f2 equal)"
+            ));
         }
         let p1 = (self.s_big_f * self.s_f2f2 - self.s_f2 * self.s_big_f_f2) / det;
         let p2 = (self.n * self.s_big_f_f2 - self.s_f2 * self.s_big_f) / det;
@@ -66,7 +73,10 @@ impl DyadSums {
 /// `(proximal_mm, distal_mm)` minimising Σ (P1 + P2·f2 − F)² over `points` (n ≥ 2).
 pub fn least_squares_dyad(points: &[DyadPoint]) -> Result<(f64, f64), CalibError> {
     if points.len() < 2 {
-        return Err(invalid!("least squares needs at least 2 points per dyad, got {}", points.len()));
+        return Err(invalid!(
+            "least squares needs at least 2 points per dyad, got {}",
+            points.len()
+        ));
     }
     DyadSums::of(points).solve()
 }
@@ -79,8 +89,16 @@ mod tests {
     #[test]
     fn two_points_equal_the_precision_point_solution() {
         let pts = [
-            DyadPoint { theta_rad: 0.7, x_mm: 212.0, y_mm: 1.0 },
-            DyadPoint { theta_rad: 1.0, x_mm: 162.0, y_mm: -0.5 },
+            DyadPoint {
+                theta_rad: 0.7,
+                x_mm: 212.0,
+                y_mm: 1.0,
+            },
+            DyadPoint {
+                theta_rad: 1.0,
+                x_mm: 162.0,
+                y_mm: -0.5,
+            },
         ];
         let (a, b) = least_squares_dyad(&pts).unwrap();
         let (pa, pb) = precision_point_dyad(pts).unwrap();
@@ -94,15 +112,27 @@ mod tests {
                 // A dyad of 150 / 151 mm, its distal link at any angle, with a little noise.
                 let (t, phi) = (0.4 + 0.1 * k as f64, -0.9 + 0.23 * k as f64);
                 let noise = 0.01 * ((k * k) % 5) as f64;
-                DyadPoint { theta_rad: t, x_mm: 150.0 * t.cos() + 151.0 * phi.cos() + noise, y_mm: 150.0 * t.sin() + 151.0 * phi.sin() }
+                DyadPoint {
+                    theta_rad: t,
+                    x_mm: 150.0 * t.cos() + 151.0 * phi.cos() + noise,
+                    y_mm: 150.0 * t.sin() + 151.0 * phi.sin(),
+                }
             })
             .collect();
         let all = DyadSums::of(&pts);
         for i in 0..pts.len() {
-            let rest: Vec<DyadPoint> = pts.iter().enumerate().filter(|(k, _)| *k != i).map(|(_, p)| *p).collect();
+            let rest: Vec<DyadPoint> = pts
+                .iter()
+                .enumerate()
+                .filter(|(k, _)| *k != i)
+                .map(|(_, p)| *p)
+                .collect();
             let (a, b) = least_squares_dyad(&rest).unwrap();
             let (da, db) = all.without(&pts[i]).solve().unwrap();
-            assert!((a - da).abs() < 1e-7 && (b - db).abs() < 1e-7, "point {i}: {a} {b} vs {da} {db}");
+            assert!(
+                (a - da).abs() < 1e-7 && (b - db).abs() < 1e-7,
+                "point {i}: {a} {b} vs {da} {db}"
+            );
         }
     }
 }

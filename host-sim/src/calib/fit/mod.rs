@@ -25,8 +25,8 @@ use super::{invalid, CalibError};
 use crate::io::measurement_csv::Measurement;
 use crate::machine_spec::MachineSpec;
 use crate::numeric::{max_rms, round6, MaxRms};
-use evaluate::Criterion;
 use blunders::{fit_full_robust, BlunderReport, RejectOptions, RobustFit};
+use evaluate::Criterion;
 use full::{leave_one_out_um, FullFit, LooMethod};
 use identifiability::WARN_CONDITION;
 use kinematics_core::FiveBar;
@@ -86,7 +86,10 @@ pub struct MaxRmsUm {
 
 impl From<MaxRms> for MaxRmsUm {
     fn from(m: MaxRms) -> Self {
-        MaxRmsUm { max_um: round6(m.max), rms_um: round6(m.rms) }
+        MaxRmsUm {
+            max_um: round6(m.max),
+            rms_um: round6(m.rms),
+        }
     }
 }
 
@@ -217,7 +220,11 @@ pub struct SearchCounts {
 }
 
 /// The dyad observations of a subset: arm 1 about A0, arm 2 about B0, geometric angles.
-fn dyad_points(data: &[Measurement], subset: &[usize], base: &FiveBar<f64>) -> (Vec<DyadPoint>, Vec<DyadPoint>) {
+fn dyad_points(
+    data: &[Measurement],
+    subset: &[usize],
+    base: &FiveBar<f64>,
+) -> (Vec<DyadPoint>, Vec<DyadPoint>) {
     let mut arm1 = Vec::with_capacity(subset.len());
     let mut arm2 = Vec::with_capacity(subset.len());
     for &i in subset {
@@ -225,7 +232,11 @@ fn dyad_points(data: &[Measurement], subset: &[usize], base: &FiveBar<f64>) -> (
         let th = m.theta_rad();
         let [x, y] = m.measured_mm;
         let a0 = base.base_a0_mm;
-        arm1.push(DyadPoint { theta_rad: th[0] + base.encoder_offset_rad[0], x_mm: x - a0[0], y_mm: y - a0[1] });
+        arm1.push(DyadPoint {
+            theta_rad: th[0] + base.encoder_offset_rad[0],
+            x_mm: x - a0[0],
+            y_mm: y - a0[1],
+        });
         arm2.push(DyadPoint {
             theta_rad: th[1] + base.encoder_offset_rad[1],
             x_mm: x - a0[0] - base.base_b0_mm[0],
@@ -237,20 +248,38 @@ fn dyad_points(data: &[Measurement], subset: &[usize], base: &FiveBar<f64>) -> (
 
 /// The paper's synthesis on the points `subset` (0-based): links a, b (arm 1) and d, c (arm 2);
 /// base offset, encoder offsets and working mode are kept from `base`.
-pub fn synthesize(data: &[Measurement], subset: &[usize], method: Method, base: &FiveBar<f64>) -> Result<FiveBar<f64>, CalibError> {
+pub fn synthesize(
+    data: &[Measurement],
+    subset: &[usize],
+    method: Method,
+    base: &FiveBar<f64>,
+) -> Result<FiveBar<f64>, CalibError> {
     if let Some(&i) = subset.iter().find(|&&i| i >= data.len()) {
-        return Err(invalid!("point {} does not exist (the data have {} points)", i + 1, data.len()));
+        return Err(invalid!(
+            "point {} does not exist (the data have {} points)",
+            i + 1,
+            data.len()
+        ));
     }
     let (arm1, arm2) = dyad_points(data, subset, base);
     let arm = |name: &str, r: Result<(f64, f64), CalibError>| r.map_err(|e| e.context(name));
     let ((a, b), (d, c)) = match method {
         Method::Poly => {
             if subset.len() != 2 {
-                return Err(invalid!("poly uses exactly 2 precision points, got {}", subset.len()));
+                return Err(invalid!(
+                    "poly uses exactly 2 precision points, got {}",
+                    subset.len()
+                ));
             }
             (
-                arm("arm 1 (a, b)", poly::precision_point_dyad([arm1[0], arm1[1]]))?,
-                arm("arm 2 (d, c)", poly::precision_point_dyad([arm2[0], arm2[1]]))?,
+                arm(
+                    "arm 1 (a, b)",
+                    poly::precision_point_dyad([arm1[0], arm1[1]]),
+                )?,
+                arm(
+                    "arm 2 (d, c)",
+                    poly::precision_point_dyad([arm2[0], arm2[1]]),
+                )?,
             )
         }
         Method::Ls => (
@@ -259,8 +288,15 @@ pub fn synthesize(data: &[Measurement], subset: &[usize], method: Method, base: 
         ),
         Method::Full => return Err(invalid!("synthesize: full is not a dyad synthesis")),
     };
-    let m = FiveBar { a_mm: a, b_mm: b, c_mm: c, d_mm: d, ..*base };
-    m.validate().map_err(|e| invalid!("fitted model invalid: {e}"))?;
+    let m = FiveBar {
+        a_mm: a,
+        b_mm: b,
+        c_mm: c,
+        d_mm: d,
+        ..*base
+    };
+    m.validate()
+        .map_err(|e| invalid!("fitted model invalid: {e}"))?;
     Ok(m)
 }
 
@@ -285,7 +321,11 @@ pub fn check_duplicates(data: &[Measurement]) -> Result<(), CalibError> {
         }
     }
     match first {
-        Some((later, earlier)) => Err(invalid!("line {}: duplicate point, same motor angles as line {}", data[later].line, data[earlier].line)),
+        Some((later, earlier)) => Err(invalid!(
+            "line {}: duplicate point, same motor angles as line {}",
+            data[later].line,
+            data[earlier].line
+        )),
         None => Ok(()),
     }
 }
@@ -301,11 +341,20 @@ fn model_errors(model: &FiveBar<f64>, data: &[Measurement]) -> Errors {
         .iter()
         .all(|m| m.target_mm.is_some())
         .then(|| max_rms(&evaluate::errors_um(model, data, Criterion::Paper)).into());
-    Errors { vs_measured: max_rms(&evaluate::errors_um(model, data, Criterion::Measured)).into(), vs_target }
+    Errors {
+        vs_measured: max_rms(&evaluate::errors_um(model, data, Criterion::Measured)).into(),
+        vs_target,
+    }
 }
 
 /// The summary of a fitted model (the method-specific parts empty).
-fn summary(method: Method, criterion: Criterion, model: &FiveBar<f64>, data: &[Measurement], subset: Option<&[usize]>) -> FitSummary {
+fn summary(
+    method: Method,
+    criterion: Criterion,
+    model: &FiveBar<f64>,
+    data: &[Measurement],
+    subset: Option<&[usize]>,
+) -> FitSummary {
     let errors = evaluate::errors_um(model, data, criterion);
     let MaxRms { max, rms } = max_rms(&errors);
     FitSummary {
@@ -337,17 +386,28 @@ fn leave_one_out(method: LooMethod, per_point_um: &[Option<f64>]) -> LeaveOneOut
         max_um: figures.map(|f| round6(f.max)),
         rms_um: figures.map(|f| round6(f.rms)),
         failed: per_point_um.len() - ok.len(),
-        per_point_um: per_point_um.iter().map(|e| e.map(|v| (v * 10.0).round() / 10.0)).collect(),
+        per_point_um: per_point_um
+            .iter()
+            .map(|e| e.map(|v| (v * 10.0).round() / 10.0))
+            .collect(),
     }
 }
 
 /// `(done, total)` of a long step as [`Progress`], about once a second.
-fn throttled<'a>(progress: &'a mut dyn FnMut(Progress), stage: Stage) -> impl FnMut(usize, usize) + 'a {
+fn throttled<'a>(
+    progress: &'a mut dyn FnMut(Progress),
+    stage: Stage,
+) -> impl FnMut(usize, usize) + 'a {
     let mut last = std::time::Instant::now();
     move |done, total| {
         if last.elapsed() > std::time::Duration::from_secs(1) {
             last = std::time::Instant::now();
-            progress(Progress { stage, tried: done as u64, total: total as u128, best_max_um: f64::NAN });
+            progress(Progress {
+                stage,
+                tried: done as u64,
+                total: total as u128,
+                best_max_um: f64::NAN,
+            });
         }
     }
 }
@@ -358,12 +418,21 @@ fn throttled<'a>(progress: &'a mut dyn FnMut(Progress), stage: Stage) -> impl Fn
 pub fn ls_leave_one_out_um(data: &[Measurement], nominal: &FiveBar<f64>) -> Vec<Option<f64>> {
     let all: Vec<usize> = (0..data.len()).collect();
     let (arm1, arm2) = dyad_points(data, &all, nominal);
-    let (s1, s2) = (least_squares::DyadSums::of(&arm1), least_squares::DyadSums::of(&arm2));
+    let (s1, s2) = (
+        least_squares::DyadSums::of(&arm1),
+        least_squares::DyadSums::of(&arm2),
+    );
     (0..data.len())
         .map(|i| {
             let (a, b) = s1.without(&arm1[i]).solve().ok()?;
             let (d, c) = s2.without(&arm2[i]).solve().ok()?;
-            let m = FiveBar { a_mm: a, b_mm: b, c_mm: c, d_mm: d, ..*nominal };
+            let m = FiveBar {
+                a_mm: a,
+                b_mm: b,
+                c_mm: c,
+                d_mm: d,
+                ..*nominal
+            };
             m.validate().ok()?;
             let e = evaluate::errors_um(&m, &data[i..=i], Criterion::Measured)[0];
             e.is_finite().then_some(e)
@@ -373,7 +442,11 @@ pub fn ls_leave_one_out_um(data: &[Measurement], nominal: &FiveBar<f64>) -> Vec<
 
 /// Fits the hidden robot to `data` (see [`FitOptions`]); `progress` hears from a subset search
 /// and from leave-one-out refits.
-pub fn fit(data: &[Measurement], opts: &FitOptions, progress: &mut dyn FnMut(Progress)) -> Result<FitOutcome, CalibError> {
+pub fn fit(
+    data: &[Measurement],
+    opts: &FitOptions,
+    progress: &mut dyn FnMut(Progress),
+) -> Result<FitOutcome, CalibError> {
     check_data(data, opts.criterion)?;
     let nominal = opts.spec.nominal;
     plausibility::check_units(&nominal, data)?;
@@ -388,14 +461,31 @@ pub fn fit(data: &[Measurement], opts: &FitOptions, progress: &mut dyn FnMut(Pro
                     if n < 2 {
                         return Err(invalid!("the data have {n} point; a fit needs at least 2"));
                     }
-                    let Best { model, subset, tried, valid, elapsed_s, max_err_um, .. } = subset_search::search(
+                    let Best {
+                        model,
+                        subset,
+                        tried,
+                        valid,
+                        elapsed_s,
+                        max_err_um,
+                        ..
+                    } = subset_search::search(
                         n,
                         sizes,
                         |s| synthesize(data, s, opts.method, &nominal),
                         |m| evaluate::errors_um(m, data, opts.criterion),
                         progress,
                     )?;
-                    (model, Some(subset), Some(SearchCounts { tried, valid, elapsed_s, best_max_um: max_err_um }))
+                    (
+                        model,
+                        Some(subset),
+                        Some(SearchCounts {
+                            tried,
+                            valid,
+                            elapsed_s,
+                            best_max_um: max_err_um,
+                        }),
+                    )
                 }
                 Points::All | Points::Chosen(_) => {
                     let subset: Vec<usize> = match &opts.points {
@@ -403,28 +493,59 @@ pub fn fit(data: &[Measurement], opts: &FitOptions, progress: &mut dyn FnMut(Pro
                         _ => (0..n).collect(),
                     };
                     if subset.len() < 2 {
-                        return Err(invalid!("a dyad fit needs at least 2 points, got {}", subset.len()));
+                        return Err(invalid!(
+                            "a dyad fit needs at least 2 points, got {}",
+                            subset.len()
+                        ));
                     }
                     let m = synthesize(data, &subset, opts.method, &nominal)?;
-                    (m, matches!(opts.points, Points::Chosen(_)).then_some(subset), None)
+                    (
+                        m,
+                        matches!(opts.points, Points::Chosen(_)).then_some(subset),
+                        None,
+                    )
                 }
             };
-            plausibility::check_model(&model, &nominal, &[None; params::N_PARAMS], data, &plausibility::FitEvidence::default())?;
+            plausibility::check_model(
+                &model,
+                &nominal,
+                &[None; params::N_PARAMS],
+                data,
+                &plausibility::FitEvidence::default(),
+            )?;
             let mut s = summary(opts.method, opts.criterion, &model, data, subset.as_deref());
             if opts.method == Method::Ls && subset.is_none() && n >= 3 {
                 // Leave-one-out of the all-points least-squares fit.
                 // Leave-one-out of the all-points least-squares fit: the normal equations' sums
                 // less each point's terms (exact, O(N); `least_squares::DyadSums`).
-                s.leave_one_out = Some(leave_one_out(LooMethod::ExactSums, &ls_leave_one_out_um(data, &nominal)));
+                s.leave_one_out = Some(leave_one_out(
+                    LooMethod::ExactSums,
+                    &ls_leave_one_out_um(data, &nominal),
+                ));
             }
-            Ok(FitOutcome { model, summary: s, std_dev: BTreeMap::new(), full: None, search })
+            Ok(FitOutcome {
+                model,
+                summary: s,
+                std_dev: BTreeMap::new(),
+                full: None,
+                search,
+            })
         }
         Method::Full => {
             if opts.points != Points::All {
-                return Err(invalid!("choosing points applies to poly and ls; full fits every point"));
+                return Err(invalid!(
+                    "choosing points applies to poly and ls; full fits every point"
+                ));
             }
-            let reject = RejectOptions { reject_sigma: opts.reject_sigma, instrument_sigma_um: opts.spec.instrument_sigma_um };
-            let RobustFit { fit: f, kept, report } = fit_full_robust(data, &nominal, &opts.fixed, &reject)?;
+            let reject = RejectOptions {
+                reject_sigma: opts.reject_sigma,
+                instrument_sigma_um: opts.spec.instrument_sigma_um,
+            };
+            let RobustFit {
+                fit: f,
+                kept,
+                report,
+            } = fit_full_robust(data, &nominal, &opts.fixed, &reject)?;
             // The rows fitted: every row unless the blunder test rejected some.
             let kept_data: Vec<Measurement>;
             let data = if kept.len() == n {
@@ -440,8 +561,17 @@ pub fn fit(data: &[Measurement], opts: &FitOptions, progress: &mut dyn FnMut(Pro
             };
             plausibility::check_model(&f.model, &nominal, &f.std_dev, data, &evidence)?;
             let mut s = summary(opts.method, opts.criterion, &f.model, data, None);
-            s.std_dev = Some(params::std_dev_map(&f.std_dev).into_iter().map(|(k, v)| (k, round6(v))).collect());
-            let held = |k: usize, why: String| Held { param: params::NAMES[k], held_at: "nominal", confounded: why };
+            s.std_dev = Some(
+                params::std_dev_map(&f.std_dev)
+                    .into_iter()
+                    .map(|(k, v)| (k, round6(v)))
+                    .collect(),
+            );
+            let held = |k: usize, why: String| Held {
+                param: params::NAMES[k],
+                held_at: "nominal",
+                confounded: why,
+            };
             s.fixed = Some(
                 f.identifiability
                     .fixed
@@ -464,7 +594,13 @@ pub fn fit(data: &[Measurement], opts: &FitOptions, progress: &mut dyn FnMut(Pro
                 let (method, loo) = leave_one_out_um(data, &f, &nominal, &opts.fixed, &mut report);
                 s.leave_one_out = Some(leave_one_out(method, &loo));
             }
-            Ok(FitOutcome { model: f.model, summary: s, std_dev: params::std_dev_map(&f.std_dev), full: Some(f), search: None })
+            Ok(FitOutcome {
+                model: f.model,
+                summary: s,
+                std_dev: params::std_dev_map(&f.std_dev),
+                full: Some(f),
+                search: None,
+            })
         }
     }
 }

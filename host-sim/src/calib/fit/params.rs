@@ -41,7 +41,11 @@ pub fn std_dev_entry(k: usize, v: f64) -> (String, f64) {
 
 /// Every known standard deviation, named by [`std_dev_entry`].
 pub fn std_dev_map(std_dev: &[Option<f64>; N_PARAMS]) -> BTreeMap<String, f64> {
-    std_dev.iter().enumerate().filter_map(|(k, sd)| sd.map(|v| std_dev_entry(k, v))).collect()
+    std_dev
+        .iter()
+        .enumerate()
+        .filter_map(|(k, sd)| sd.map(|v| std_dev_entry(k, v)))
+        .collect()
 }
 
 /// Finite-difference step per parameter.

@@ -36,7 +36,11 @@ pub struct Limits {
 }
 
 /// The limits the fits apply (see the module doc).
-pub const LIMITS: Limits = Limits { link_rel: 0.05, base_mm: 10.0, offset_deg: 3.0 };
+pub const LIMITS: Limits = Limits {
+    link_rel: 0.05,
+    base_mm: 10.0,
+    offset_deg: 3.0,
+};
 
 /// A standard deviation above this fraction of a parameter's limit means the data do not
 /// determine it.
@@ -53,7 +57,11 @@ fn limit(k: usize, nominal: &[f64; N_PARAMS], l: &Limits) -> f64 {
 
 fn show(k: usize, v: f64) -> String {
     if k == 6 || k == 7 {
-        format!("{} = {:.3}°", NAMES[k].replace("_rad", "_deg"), v.to_degrees())
+        format!(
+            "{} = {:.3}°",
+            NAMES[k].replace("_rad", "_deg"),
+            v.to_degrees()
+        )
     } else {
         format!("{} = {v:.3} mm", NAMES[k])
     }
@@ -61,7 +69,12 @@ fn show(k: usize, v: f64) -> String {
 
 /// Median of the nominal model's errors (mm) on up to 1,000 rows of `data` with the angles and
 /// lengths scaled; unreachable poses count as infinite.
-fn median_error_mm(nominal: &FiveBar<f64>, data: &[Measurement], angle_scale: f64, length_scale: f64) -> f64 {
+fn median_error_mm(
+    nominal: &FiveBar<f64>,
+    data: &[Measurement],
+    angle_scale: f64,
+    length_scale: f64,
+) -> f64 {
     let stride = data.len().div_ceil(1000).max(1);
     let mut e: Vec<f64> = data
         .iter()
@@ -69,7 +82,8 @@ fn median_error_mm(nominal: &FiveBar<f64>, data: &[Measurement], angle_scale: f6
         .map(|m| {
             let th = m.theta_rad().map(|t| t * angle_scale);
             match nominal.forward(th, 0.0) {
-                Ok(p) => (p[0] - m.measured_mm[0] * length_scale).hypot(p[1] - m.measured_mm[1] * length_scale),
+                Ok(p) => (p[0] - m.measured_mm[0] * length_scale)
+                    .hypot(p[1] - m.measured_mm[1] * length_scale),
                 Err(_) => f64::INFINITY,
             }
         })
@@ -126,7 +140,10 @@ impl FitEvidence {
             parts.push(format!("condition number {c:.3e}"));
         }
         match (self.residual_sigma_um, self.instrument_sigma_um) {
-            (Some(r), Some(i)) if i > 0.0 => parts.push(format!("residual σ {r:.1} µm against the instrument's {i:.1} µm ({:.0}x)", r / i)),
+            (Some(r), Some(i)) if i > 0.0 => parts.push(format!(
+                "residual σ {r:.1} µm against the instrument's {i:.1} µm ({:.0}x)",
+                r / i
+            )),
             (Some(r), _) => parts.push(format!("residual σ {r:.1} µm")),
             _ => {}
         }
@@ -151,11 +168,20 @@ pub fn check_model(
         let lim = limit(k, &p0, &LIMITS);
         let dev = p[k] - p0[k];
         if !(dev.abs() <= lim) {
-            absurd.push(format!("{} ({} from nominal, limit {})", show(k, p[k]), show_dev(k, dev), show_dev(k, lim)));
+            absurd.push(format!(
+                "{} ({} from nominal, limit {})",
+                show(k, p[k]),
+                show_dev(k, dev),
+                show_dev(k, lim)
+            ));
         }
         if let Some(sd) = std_dev[k] {
             if !(sd <= STD_DEV_FRACTION * lim) {
-                loose.push(format!("{} ± {}", NAMES[k].replace("_rad", "_deg"), show_dev(k, sd)));
+                loose.push(format!(
+                    "{} ± {}",
+                    NAMES[k].replace("_rad", "_deg"),
+                    show_dev(k, sd)
+                ));
             }
         }
     }
@@ -163,12 +189,19 @@ pub fn check_model(
         return Ok(());
     }
     let evidence = evidence.describe();
-    let evidence = if evidence.is_empty() { String::new() } else { format!(" [{evidence}]") };
+    let evidence = if evidence.is_empty() {
+        String::new()
+    } else {
+        format!(" [{evidence}]")
+    };
     if !absurd.is_empty() {
         let cause = unit_mixup(nominal, data).unwrap_or_else(|| {
             "the data do not determine the model (poses too few or too alike, e.g. on one line) or are far noisier than a calibration instrument".into()
         });
-        return Err(invalid!("the fitted model is implausible: {}. Likely cause: {cause}{evidence}", absurd.join(", ")));
+        return Err(invalid!(
+            "the fitted model is implausible: {}. Likely cause: {cause}{evidence}",
+            absurd.join(", ")
+        ));
     }
     Err(invalid!(
         "the data do not determine the model: standard deviations {} (poses too few or too alike, or noisy data; measure poses spread over the workspace){evidence}",
@@ -194,7 +227,15 @@ mod tests {
             .enumerate()
             .map(|(i, &t)| {
                 let th = model.inverse(t, 0.05).unwrap();
-                Measurement { theta_deg: th.map(f64::to_degrees), measured_mm: t, target_mm: None, dir: None, run: None, t_s: None, line: i + 2 }
+                Measurement {
+                    theta_deg: th.map(f64::to_degrees),
+                    measured_mm: t,
+                    target_mm: None,
+                    dir: None,
+                    run: None,
+                    t_s: None,
+                    line: i + 2,
+                }
             })
             .collect()
     }
@@ -202,20 +243,72 @@ mod tests {
     #[test]
     fn names_radians_and_metres() {
         let nominal = FiveBar::<f64>::paper_nominal();
-        let good = rows(&nominal, &[[212.0, 0.0], [180.0, 40.0], [240.0, -50.0], [200.0, 60.0], [230.0, 20.0]]);
+        let good = rows(
+            &nominal,
+            &[
+                [212.0, 0.0],
+                [180.0, 40.0],
+                [240.0, -50.0],
+                [200.0, 60.0],
+                [230.0, 20.0],
+            ],
+        );
         assert!(unit_mixup(&nominal, &good).is_none());
-        let rad: Vec<Measurement> = good.iter().map(|m| Measurement { theta_deg: m.theta_deg.map(f64::to_radians), ..m.clone() }).collect();
-        assert!(unit_mixup(&nominal, &rad).unwrap().contains("radians in the _deg columns"));
-        let metres: Vec<Measurement> = good.iter().map(|m| Measurement { measured_mm: m.measured_mm.map(|v| v / 1000.0), ..m.clone() }).collect();
+        let rad: Vec<Measurement> = good
+            .iter()
+            .map(|m| Measurement {
+                theta_deg: m.theta_deg.map(f64::to_radians),
+                ..m.clone()
+            })
+            .collect();
+        assert!(unit_mixup(&nominal, &rad)
+            .unwrap()
+            .contains("radians in the _deg columns"));
+        let metres: Vec<Measurement> = good
+            .iter()
+            .map(|m| Measurement {
+                measured_mm: m.measured_mm.map(|v| v / 1000.0),
+                ..m.clone()
+            })
+            .collect();
         let why = unit_mixup(&nominal, &metres);
-        assert!(why.as_deref().is_some_and(|w| w.contains("metres in the _mm columns")), "{why:?}");
+        assert!(
+            why.as_deref()
+                .is_some_and(|w| w.contains("metres in the _mm columns")),
+            "{why:?}"
+        );
         let mut off = nominal;
         off.b_mm = 66.0;
-        let e = check_model(&off, &nominal, &[None; N_PARAMS], &good, &FitEvidence::default()).unwrap_err().to_string();
-        assert!(e.contains("b_mm = 66.000 mm") && e.contains("limit 7.500 mm"), "{e}");
+        let e = check_model(
+            &off,
+            &nominal,
+            &[None; N_PARAMS],
+            &good,
+            &FitEvidence::default(),
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.contains("b_mm = 66.000 mm") && e.contains("limit 7.500 mm"),
+            "{e}"
+        );
         let mut sd = [None; N_PARAMS];
         sd[0] = Some(4.0);
-        let e = check_model(&nominal, &nominal, &sd, &good, &FitEvidence { condition_number: Some(3e5), ..Default::default() }).unwrap_err().to_string();
-        assert!(e.contains("a_mm ± 4.000 mm") && e.contains("condition number 3.000e5"), "{e}");
+        let e = check_model(
+            &nominal,
+            &nominal,
+            &sd,
+            &good,
+            &FitEvidence {
+                condition_number: Some(3e5),
+                ..Default::default()
+            },
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.contains("a_mm ± 4.000 mm") && e.contains("condition number 3.000e5"),
+            "{e}"
+        );
     }
 }

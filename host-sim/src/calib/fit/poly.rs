@@ -37,7 +37,9 @@ impl DyadPoint {
 pub fn links_from_p(p1_mm2: f64, p2_mm: f64) -> Result<(f64, f64), CalibError> {
     let distal2 = p1_mm2 + p2_mm * p2_mm;
     if !(p2_mm > 0.0) || !(distal2 > 0.0) || !distal2.is_finite() {
-        return Err(invalid!("the points give no real dyad (proximal {p2_mm:.6} mm, distal² {distal2:.6} mm²)"));
+        return Err(invalid!(
+            "the points give no real dyad (proximal {p2_mm:.6} mm, distal² {distal2:.6} mm²)"
+        ));
     }
     Ok((p2_mm, distal2.sqrt()))
 }
@@ -48,7 +50,10 @@ pub fn precision_point_dyad(points: [DyadPoint; 2]) -> Result<(f64, f64), CalibE
     let df2 = p.f2_mm() - q.f2_mm();
     // Two points the dyad sees alike (same f2) leave P1, P2 undetermined.
     if !(df2.abs() > 1e-9 * (p.f2_mm().abs() + q.f2_mm().abs())) {
-        return Err(invalid!("the two precision points are degenerate for this dyad (equal f2 = {:.6} mm)", p.f2_mm()));
+        return Err(invalid!(
+            "the two precision points are degenerate for this dyad (equal f2 = {:.6} mm)",
+            p.f2_mm()
+        ));
     }
     let p2 = (p.big_f_mm2() - q.big_f_mm2()) / df2;
     let p1 = p.big_f_mm2() - p2 * p.f2_mm();
@@ -64,7 +69,11 @@ mod tests {
         let (a, b) = (149.87, 150.02);
         let pt = |th: f64, phi: f64| {
             let (ax, ay) = (a * th.cos(), a * th.sin());
-            DyadPoint { theta_rad: th, x_mm: ax + b * phi.cos(), y_mm: ay + b * phi.sin() }
+            DyadPoint {
+                theta_rad: th,
+                x_mm: ax + b * phi.cos(),
+                y_mm: ay + b * phi.sin(),
+            }
         };
         let (pa, pb) = precision_point_dyad([pt(0.7, -0.6), pt(1.1, 0.1)]).unwrap();
         assert!((pa - a).abs() < 1e-9 && (pb - b).abs() < 1e-9, "{pa} {pb}");

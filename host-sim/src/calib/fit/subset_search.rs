@@ -93,7 +93,9 @@ pub fn search<M: Clone>(
     let (mut tried, mut valid) = (0u64, 0u64);
     for &k in sizes {
         if k == 0 || k > n_points {
-            return Err(invalid!("subset size {k} is impossible with {n_points} points"));
+            return Err(invalid!(
+                "subset size {k} is impossible with {n_points} points"
+            ));
         }
         let mut c: Vec<usize> = (0..k).collect();
         loop {
@@ -105,7 +107,9 @@ pub fn search<M: Clone>(
                     valid += 1;
                     let better = match &best {
                         None => true,
-                        Some(b) => max < b.max_err_um || (max == b.max_err_um && rms < b.rms_err_um),
+                        Some(b) => {
+                            max < b.max_err_um || (max == b.max_err_um && rms < b.rms_err_um)
+                        }
                     };
                     if better {
                         best = Some(Best {
@@ -122,14 +126,20 @@ pub fn search<M: Clone>(
             }
             if last_report.elapsed() > Duration::from_secs(1) {
                 last_report = Instant::now();
-                progress(Progress { stage: Stage::SubsetSearch, tried, total, best_max_um: best.as_ref().map_or(f64::NAN, |b| b.max_err_um) });
+                progress(Progress {
+                    stage: Stage::SubsetSearch,
+                    tried,
+                    total,
+                    best_max_um: best.as_ref().map_or(f64::NAN, |b| b.max_err_um),
+                });
             }
             if !next_combination(&mut c, n_points) {
                 break;
             }
         }
     }
-    let mut best = best.ok_or_else(|| invalid!("no subset of the given size gives a valid model"))?;
+    let mut best =
+        best.ok_or_else(|| invalid!("no subset of the given size gives a valid model"))?;
     best.tried = tried;
     best.valid = valid;
     best.elapsed_s = started.elapsed().as_secs_f64();

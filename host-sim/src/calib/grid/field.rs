@@ -163,7 +163,10 @@ struct Candidate {
 
 /// Splits an interleaved vector into its x and y fields.
 fn components(v: &[f64]) -> [Vec<f64>; 2] {
-    [v.iter().step_by(2).copied().collect(), v.iter().skip(1).step_by(2).copied().collect()]
+    [
+        v.iter().step_by(2).copied().collect(),
+        v.iter().skip(1).step_by(2).copied().collect(),
+    ]
 }
 
 /// An orthonormal basis (columns) of the span of `s`, from the column-scaled SVD.
@@ -178,19 +181,34 @@ fn orthonormal_basis(s: &DMatrix<f64>) -> DMatrix<f64> {
     let svd = scaled.svd(true, false);
     let u = svd.u.expect("U was requested");
     let top = svd.singular_values.iter().fold(0.0f64, |m, v| m.max(*v));
-    let keep: Vec<usize> = (0..svd.singular_values.len()).filter(|&k| svd.singular_values[k] > RANK_TOL * top).collect();
+    let keep: Vec<usize> = (0..svd.singular_values.len())
+        .filter(|&k| svd.singular_values[k] > RANK_TOL * top)
+        .collect();
     u.select_columns(&keep)
 }
 
 impl Candidate {
-    fn new(smoother: &LatticeSmoother, y: &[f64], basis: Basis, s: Option<DMatrix<f64>>) -> Candidate {
-        let q = s.map(|s| orthonormal_basis(&s)).unwrap_or_else(|| DMatrix::zeros(y.len(), 0));
+    fn new(
+        smoother: &LatticeSmoother,
+        y: &[f64],
+        basis: Basis,
+        s: Option<DMatrix<f64>>,
+    ) -> Candidate {
+        let q = s
+            .map(|s| orthonormal_basis(&s))
+            .unwrap_or_else(|| DMatrix::zeros(y.len(), 0));
         let weights = vec![1.0; q.ncols()];
         Candidate::weighted(smoother, y, basis, &q, weights)
     }
 
     /// The candidate of the directions `q` (orthonormal columns) with the weights `eₖ`.
-    fn weighted(smoother: &LatticeSmoother, y: &[f64], basis: Basis, q: &DMatrix<f64>, weights: Vec<f64>) -> Candidate {
+    fn weighted(
+        smoother: &LatticeSmoother,
+        y: &[f64],
+        basis: Basis,
+        q: &DMatrix<f64>,
+        weights: Vec<f64>,
+    ) -> Candidate {
         let yv = DVector::from_column_slice(y);
         let qy = q.transpose() * &yv;
         let py = q * DVector::from_iterator(qy.len(), qy.iter().zip(&weights).map(|(v, e)| v * e));
@@ -222,17 +240,28 @@ impl Candidate {
             sum_e += e;
             sum_e2 += e * e;
             for c in qc {
-                let (h, h2) = (smoother.quadratic(c, c, lambda, 1), smoother.quadratic(c, c, lambda, 2));
+                let (h, h2) = (
+                    smoother.quadratic(c, c, lambda, 1),
+                    smoother.quadratic(c, c, lambda, 2),
+                );
                 qhq += e * h;
                 cross += e * (1.0 - e) * h;
                 qh2q += (1.0 - (1.0 - e) * (1.0 - e)) * h2;
             }
         }
-        let rss = self.rest.iter().map(|c| smoother.residual_sq(c, lambda)).sum::<f64>();
+        let rss = self
+            .rest
+            .iter()
+            .map(|c| smoother.residual_sq(c, lambda))
+            .sum::<f64>();
         let dof = sum_e + tr_h - qhq;
         let m = 2.0 * n as f64;
         let denom = (1.0 - dof / m).powi(2);
-        let gcv = if denom > 1e-12 { rss / m / denom } else { f64::INFINITY };
+        let gcv = if denom > 1e-12 {
+            rss / m / denom
+        } else {
+            f64::INFINITY
+        };
         FieldEstimate {
             fitted_um: Vec::new(),
             basis: self.basis,
@@ -250,8 +279,13 @@ impl Candidate {
     /// The estimate at λ with its fitted field.
     fn fit(&self, smoother: &LatticeSmoother, lambda: f64) -> FieldEstimate {
         let mut e = self.evaluate(smoother, lambda);
-        let [hx, hy] = [smoother.apply(&self.rest[0], lambda), smoother.apply(&self.rest[1], lambda)];
-        e.fitted_um = (0..smoother.len()).map(|k| [self.py[2 * k] + hx[k], self.py[2 * k + 1] + hy[k]]).collect();
+        let [hx, hy] = [
+            smoother.apply(&self.rest[0], lambda),
+            smoother.apply(&self.rest[1], lambda),
+        ];
+        e.fitted_um = (0..smoother.len())
+            .map(|k| [self.py[2 * k] + hx[k], self.py[2 * k + 1] + hy[k]])
+            .collect();
         e
     }
 }
@@ -284,14 +318,30 @@ impl SixBarPrior {
         let svd = rest.svd(true, false);
         let u = svd.u.expect("U was requested");
         // Relative to the responses' own scale: a direction the shapes take whole is dropped.
-        let top = responses.column_iter().map(|c| c.norm()).fold(0.0f64, f64::max);
-        let keep: Vec<usize> = (0..svd.singular_values.len()).filter(|&k| svd.singular_values[k] > RANK_TOL * top).collect();
+        let top = responses
+            .column_iter()
+            .map(|c| c.norm())
+            .fold(0.0f64, f64::max);
+        let keep: Vec<usize> = (0..svd.singular_values.len())
+            .filter(|&k| svd.singular_values[k] > RANK_TOL * top)
+            .collect();
         let u = u.select_columns(&keep);
-        let s2: Vec<f64> = keep.iter().map(|&k| svd.singular_values[k].powi(2)).collect();
+        let s2: Vec<f64> = keep
+            .iter()
+            .map(|&k| svd.singular_values[k].powi(2))
+            .collect();
         let outside = &yv - &py;
         let uy: Vec<f64> = u.column_iter().map(|c| c.dot(&outside)).collect();
         let rss_outside = (outside.norm_squared() - uy.iter().map(|v| v * v).sum::<f64>()).max(0.0);
-        SixBarPrior { rank: q.ncols(), m: y.len(), q, u, s2, uy, rss_outside }
+        SixBarPrior {
+            rank: q.ncols(),
+            m: y.len(),
+            q,
+            u,
+            s2,
+            uy,
+            rss_outside,
+        }
     }
 
     /// The shrink factors `dᵢ = sᵢ²/(sᵢ² + λ)`.
@@ -326,21 +376,34 @@ impl SixBarPrior {
         let mut w = DMatrix::zeros(self.m, self.rank + self.u.ncols());
         w.columns_mut(0, self.rank).copy_from(&self.q);
         w.columns_mut(self.rank, self.u.ncols()).copy_from(&self.u);
-        let weights = std::iter::repeat_n(1.0, self.rank).chain(self.gains(lambda)).collect();
+        let weights = std::iter::repeat_n(1.0, self.rank)
+            .chain(self.gains(lambda))
+            .collect();
         Candidate::weighted(smoother, y, Basis::SixBar, &w, weights)
     }
 }
 
 /// The estimate of [`Basis::SixBar`] (module doc); `smoothing` is `Gcv` or `Exactly`.
-fn six_bar_estimate(smoother: &LatticeSmoother, y: &[f64], shapes: &DMatrix<f64>, responses: &DMatrix<f64>, smoothing: Smoothing) -> FieldEstimate {
+fn six_bar_estimate(
+    smoother: &LatticeSmoother,
+    y: &[f64],
+    shapes: &DMatrix<f64>,
+    responses: &DMatrix<f64>,
+    smoothing: Smoothing,
+) -> FieldEstimate {
     let prior = SixBarPrior::new(y, shapes, responses);
     let (lambda, prior_lambda) = match smoothing {
         Smoothing::Exactly(_, l, p) => (Some(l), p),
         _ => (None, prior.lambda_by_reml()),
     };
     let c = prior.candidate(smoother, y, prior_lambda);
-    let lambda = lambda.unwrap_or_else(|| smoother.minimise(|l| smoother.restricted_deviance(&[&c.rest[0], &c.rest[1]], l)));
-    FieldEstimate { prior_lambda, ..c.fit(smoother, lambda) }
+    let lambda = lambda.unwrap_or_else(|| {
+        smoother.minimise(|l| smoother.restricted_deviance(&[&c.rest[0], &c.rest[1]], l))
+    });
+    FieldEstimate {
+        prior_lambda,
+        ..c.fit(smoother, lambda)
+    }
 }
 
 /// The shapes of a basis: the model's columns `shapes` (2n × p, rows x, y per node), each
@@ -384,7 +447,9 @@ pub fn estimate(
     smoothing: Smoothing,
 ) -> FieldEstimate {
     let y: Vec<f64> = y_um.iter().flat_map(|v| *v).collect();
-    if let (Smoothing::Gcv | Smoothing::Exactly(Basis::SixBar, ..), Some(s), Some(r)) = (smoothing, shapes, responses) {
+    if let (Smoothing::Gcv | Smoothing::Exactly(Basis::SixBar, ..), Some(s), Some(r)) =
+        (smoothing, shapes, responses)
+    {
         return six_bar_estimate(smoother, &y, s, r, smoothing);
     }
     let exactly;
@@ -398,7 +463,12 @@ pub fn estimate(
     };
     let mut best: Option<(Candidate, FieldEstimate)> = None;
     for &b in bases {
-        let c = Candidate::new(smoother, &y, b, shapes.and_then(|s| basis_matrix(s, coords, b)));
+        let c = Candidate::new(
+            smoother,
+            &y,
+            b,
+            shapes.and_then(|s| basis_matrix(s, coords, b)),
+        );
         let lambda = match smoothing {
             Smoothing::None => 0.0,
             Smoothing::Fixed(l) | Smoothing::Exactly(_, l, _) => l,
@@ -412,7 +482,10 @@ pub fn estimate(
     let (c, e) = best.expect("at least one basis");
     if smoothing == Smoothing::None {
         // H(0) = I: the node values themselves.
-        return FieldEstimate { fitted_um: y_um.to_vec(), ..e };
+        return FieldEstimate {
+            fitted_um: y_um.to_vec(),
+            ..e
+        };
     }
     c.fit(smoother, e.lambda)
 }
@@ -431,7 +504,10 @@ mod tests {
         for k in 0..n {
             let mut unit = vec![0.0; n];
             unit[k] = 1.0;
-            h1.set_column(k, &DVector::from_vec(sm.apply(&sm.coefficients(&unit), lambda)));
+            h1.set_column(
+                k,
+                &DVector::from_vec(sm.apply(&sm.coefficients(&unit), lambda)),
+            );
         }
         let mut h = DMatrix::zeros(2 * n, 2 * n);
         for a in 0..n {
@@ -446,13 +522,25 @@ mod tests {
     /// `e`'s traces, fitted field and residual equal those of the explicit hat matrix `a`.
     fn assert_matches_hat_matrix(e: &FieldEstimate, a: &DMatrix<f64>, y: &[[f64; 2]]) {
         let n = y.len();
-        assert!((e.dof - a.trace()).abs() < 1e-9, "{} vs {}", e.dof, a.trace());
+        assert!(
+            (e.dof - a.trace()).abs() < 1e-9,
+            "{} vs {}",
+            e.dof,
+            a.trace()
+        );
         let noise = (a.transpose() * a).trace();
-        assert!((e.noise_dof - noise).abs() < 1e-9, "{} vs {noise}", e.noise_dof);
+        assert!(
+            (e.noise_dof - noise).abs() < 1e-9,
+            "{} vs {noise}",
+            e.noise_dof
+        );
         let yv = DVector::from_iterator(2 * n, y.iter().flat_map(|v| *v));
         let fitted = a * &yv;
         for k in 0..n {
-            assert!((e.fitted_um[k][0] - fitted[2 * k]).abs() < 1e-9 && (e.fitted_um[k][1] - fitted[2 * k + 1]).abs() < 1e-9);
+            assert!(
+                (e.fitted_um[k][0] - fitted[2 * k]).abs() < 1e-9
+                    && (e.fitted_um[k][1] - fitted[2 * k + 1]).abs() < 1e-9
+            );
         }
         assert!((e.rss - (&yv - fitted).norm_squared()).abs() < 1e-9);
     }
@@ -470,9 +558,18 @@ mod tests {
             s[(2 * k, 0)] = ((k % nx) as f64).powi(3);
             s[(2 * k + 1, 1)] = 1.0;
         }
-        let y: Vec<[f64; 2]> = (0..n).map(|k| [((k * 37) % 11) as f64, ((k * 53) % 7) as f64]).collect();
+        let y: Vec<[f64; 2]> = (0..n)
+            .map(|k| [((k * 37) % 11) as f64, ((k * 53) % 7) as f64])
+            .collect();
         let lambda = 0.3;
-        let e = estimate(&sm, &y, Some(&s), None, &vec![[0.0; 2]; n], Smoothing::Fixed(lambda));
+        let e = estimate(
+            &sm,
+            &y,
+            Some(&s),
+            None,
+            &vec![[0.0; 2]; n],
+            Smoothing::Fixed(lambda),
+        );
         assert_eq!((e.basis, e.columns), (Basis::Model, 2));
         let h = explicit_smoother(&sm, lambda);
         let q = orthonormal_basis(&s);
@@ -500,10 +597,22 @@ mod tests {
             r[(2 * k, 2)] = (u * v).sqrt();
             r[(2 * k + 1, 2)] = 0.3 * u - v * v;
         }
-        let y: Vec<[f64; 2]> = (0..n).map(|k| [((k * 37) % 11) as f64, ((k * 53) % 7) as f64]).collect();
+        let y: Vec<[f64; 2]> = (0..n)
+            .map(|k| [((k * 37) % 11) as f64, ((k * 53) % 7) as f64])
+            .collect();
         let (lambda, prior_lambda) = (0.3, 2.0);
-        let e = estimate(&sm, &y, Some(&s), Some(&r), &vec![[0.0; 2]; n], Smoothing::Exactly(Basis::SixBar, lambda, prior_lambda));
-        assert_eq!((e.basis, e.lambda, e.prior_lambda), (Basis::SixBar, lambda, prior_lambda));
+        let e = estimate(
+            &sm,
+            &y,
+            Some(&s),
+            Some(&r),
+            &vec![[0.0; 2]; n],
+            Smoothing::Exactly(Basis::SixBar, lambda, prior_lambda),
+        );
+        assert_eq!(
+            (e.basis, e.lambda, e.prior_lambda),
+            (Basis::SixBar, lambda, prior_lambda)
+        );
         let h = explicit_smoother(&sm, lambda);
         let q = orthonormal_basis(&s);
         let i = DMatrix::identity(2 * n, 2 * n);
@@ -537,7 +646,10 @@ mod tests {
         let mut r = DMatrix::zeros(2 * n, 12);
         let mut s = DMatrix::zeros(2 * n, 2);
         for k in 0..n {
-            let (u, v) = ((k % nx) as f64 / (nx - 1) as f64, (k / nx) as f64 / (ny - 1) as f64);
+            let (u, v) = (
+                (k % nx) as f64 / (nx - 1) as f64,
+                (k / nx) as f64 / (ny - 1) as f64,
+            );
             s[(2 * k, 0)] = 1.0;
             s[(2 * k + 1, 1)] = 1.0;
             for c in 0..12 {
@@ -550,18 +662,39 @@ mod tests {
         let (sigma, tau) = (2.0, 30.0);
         let gamma = DVector::from_iterator(12, (0..12).map(|_| tau * unit.sample(&mut rng)));
         let truth = &r * &gamma + &s * DVector::from_vec(vec![40.0, -25.0]);
-        let y: Vec<[f64; 2]> = (0..n).map(|k| [truth[2 * k] + sigma * unit.sample(&mut rng), truth[2 * k + 1] + sigma * unit.sample(&mut rng)]).collect();
+        let y: Vec<[f64; 2]> = (0..n)
+            .map(|k| {
+                [
+                    truth[2 * k] + sigma * unit.sample(&mut rng),
+                    truth[2 * k + 1] + sigma * unit.sample(&mut rng),
+                ]
+            })
+            .collect();
         let coords = vec![[0.0; 2]; n];
         let with = estimate(&sm, &y, Some(&s), Some(&r), &coords, Smoothing::Gcv);
         let without = estimate(&sm, &y, Some(&s), None, &coords, Smoothing::Gcv);
         let err = |e: &FieldEstimate| {
-            let sq: f64 = (0..n).map(|k| (e.fitted_um[k][0] - truth[2 * k]).powi(2) + (e.fitted_um[k][1] - truth[2 * k + 1]).powi(2)).sum();
+            let sq: f64 = (0..n)
+                .map(|k| {
+                    (e.fitted_um[k][0] - truth[2 * k]).powi(2)
+                        + (e.fitted_um[k][1] - truth[2 * k + 1]).powi(2)
+                })
+                .sum();
             (sq / n as f64).sqrt()
         };
         let expected = sigma * sigma / (tau * tau);
         assert_eq!(with.basis, Basis::SixBar);
-        assert!((expected / 30.0..expected * 30.0).contains(&with.prior_lambda), "λ {} vs σ²/τ² {expected}", with.prior_lambda);
-        assert!(err(&with) < 0.7 * err(&without), "with the prior {} µm RMS, generic {} µm", err(&with), err(&without));
+        assert!(
+            (expected / 30.0..expected * 30.0).contains(&with.prior_lambda),
+            "λ {} vs σ²/τ² {expected}",
+            with.prior_lambda
+        );
+        assert!(
+            err(&with) < 0.7 * err(&without),
+            "with the prior {} µm RMS, generic {} µm",
+            err(&with),
+            err(&without)
+        );
         assert!(err(&with) < sigma, "{}", err(&with));
     }
 
@@ -573,30 +706,83 @@ mod tests {
         let n = nx * ny;
         let sm = LatticeSmoother::new(nx, ny);
         let mut s = DMatrix::zeros(2 * n, 2);
-        let coords: Vec<[f64; 2]> = (0..n).map(|k| [(k % nx) as f64 / 2.5 - 1.0, (k / nx) as f64 / 2.0 - 1.0]).collect();
+        let coords: Vec<[f64; 2]> = (0..n)
+            .map(|k| [(k % nx) as f64 / 2.5 - 1.0, (k / nx) as f64 / 2.0 - 1.0])
+            .collect();
         for k in 0..n {
             s[(2 * k, 0)] = ((k % nx) as f64).powi(3);
             s[(2 * k + 1, 1)] = ((k / nx) as f64).exp();
         }
         let mut rng = ChaCha8Rng::seed_from_u64(11);
         let noise = Normal::new(0.0, 1.0).unwrap();
-        let signal: Vec<[f64; 2]> = (0..n).map(|k| [0.3 * s[(2 * k, 0)] + (k as f64).sin(), 0.2 * s[(2 * k + 1, 1)]]).collect();
-        let noisy_part: Vec<[f64; 2]> = (0..n).map(|_| [noise.sample(&mut rng), noise.sample(&mut rng)]).collect();
-        let y: Vec<[f64; 2]> = signal.iter().zip(&noisy_part).map(|(a, b)| [a[0] + b[0], a[1] + b[1]]).collect();
+        let signal: Vec<[f64; 2]> = (0..n)
+            .map(|k| {
+                [
+                    0.3 * s[(2 * k, 0)] + (k as f64).sin(),
+                    0.2 * s[(2 * k + 1, 1)],
+                ]
+            })
+            .collect();
+        let noisy_part: Vec<[f64; 2]> = (0..n)
+            .map(|_| [noise.sample(&mut rng), noise.sample(&mut rng)])
+            .collect();
+        let y: Vec<[f64; 2]> = signal
+            .iter()
+            .zip(&noisy_part)
+            .map(|(a, b)| [a[0] + b[0], a[1] + b[1]])
+            .collect();
         let chosen = estimate(&sm, &y, Some(&s), None, &coords, Smoothing::Gcv);
-        let again = estimate(&sm, &y, Some(&s), None, &coords, Smoothing::Exactly(chosen.basis, chosen.lambda, 0.0));
+        let again = estimate(
+            &sm,
+            &y,
+            Some(&s),
+            None,
+            &coords,
+            Smoothing::Exactly(chosen.basis, chosen.lambda, 0.0),
+        );
         assert_eq!((again.basis, again.lambda), (chosen.basis, chosen.lambda));
-        let exactly = |v: &[[f64; 2]]| estimate(&sm, v, Some(&s), None, &coords, Smoothing::Exactly(chosen.basis, chosen.lambda, 0.0)).fitted_um;
+        let exactly = |v: &[[f64; 2]]| {
+            estimate(
+                &sm,
+                v,
+                Some(&s),
+                None,
+                &coords,
+                Smoothing::Exactly(chosen.basis, chosen.lambda, 0.0),
+            )
+            .fitted_um
+        };
         let (whole, a, b) = (exactly(&y), exactly(&signal), exactly(&noisy_part));
         for k in 0..n {
             for c in 0..2 {
                 assert!((again.fitted_um[k][c] - chosen.fitted_um[k][c]).abs() < 1e-9);
-                assert!((whole[k][c] - a[k][c] - b[k][c]).abs() < 1e-9, "node {k}: {} vs {} + {}", whole[k][c], a[k][c], b[k][c]);
+                assert!(
+                    (whole[k][c] - a[k][c] - b[k][c]).abs() < 1e-9,
+                    "node {k}: {} vs {} + {}",
+                    whole[k][c],
+                    a[k][c],
+                    b[k][c]
+                );
             }
         }
         // A basis other than the one GCV chose is taken as given.
-        let other = if chosen.basis == Basis::Model { Basis::ModelXy } else { Basis::Model };
-        assert_eq!(estimate(&sm, &y, Some(&s), None, &coords, Smoothing::Exactly(other, 1.0, 0.0)).basis, other);
+        let other = if chosen.basis == Basis::Model {
+            Basis::ModelXy
+        } else {
+            Basis::Model
+        };
+        assert_eq!(
+            estimate(
+                &sm,
+                &y,
+                Some(&s),
+                None,
+                &coords,
+                Smoothing::Exactly(other, 1.0, 0.0)
+            )
+            .basis,
+            other
+        );
     }
 
     /// A field made of a shape (steep in one corner) plus noise: GCV takes the shape into the
@@ -610,22 +796,40 @@ mod tests {
         let mut s = DMatrix::zeros(2 * n, 1);
         let mut truth = vec![[0.0; 2]; n];
         for k in 0..n {
-            let (u, v) = ((k % nx) as f64 / (nx - 1) as f64, (k / nx) as f64 / (ny - 1) as f64);
+            let (u, v) = (
+                (k % nx) as f64 / (nx - 1) as f64,
+                (k / nx) as f64 / (ny - 1) as f64,
+            );
             let steep = 1.0 / (1.08 - u * v);
             s[(2 * k, 0)] = steep;
             s[(2 * k + 1, 0)] = -0.5 * steep;
-            truth[k] = [3.0 * steep + 2.0 * (3.0 * u).sin(), -1.5 * steep + (2.0 * v).cos()];
+            truth[k] = [
+                3.0 * steep + 2.0 * (3.0 * u).sin(),
+                -1.5 * steep + (2.0 * v).cos(),
+            ];
         }
         let mut rng = ChaCha8Rng::seed_from_u64(5);
         let noise = Normal::new(0.0, 2.0).unwrap();
-        let y: Vec<[f64; 2]> = truth.iter().map(|t| [t[0] + noise.sample(&mut rng), t[1] + noise.sample(&mut rng)]).collect();
+        let y: Vec<[f64; 2]> = truth
+            .iter()
+            .map(|t| [t[0] + noise.sample(&mut rng), t[1] + noise.sample(&mut rng)])
+            .collect();
         let err = |e: &FieldEstimate| {
-            e.fitted_um.iter().zip(&truth).map(|(f, t)| (f[0] - t[0]).hypot(f[1] - t[1])).fold(0.0, f64::max)
+            e.fitted_um
+                .iter()
+                .zip(&truth)
+                .map(|(f, t)| (f[0] - t[0]).hypot(f[1] - t[1]))
+                .fold(0.0, f64::max)
         };
         let with = estimate(&sm, &y, Some(&s), None, &vec![[0.0; 2]; n], Smoothing::Gcv);
         let without = estimate(&sm, &y, None, None, &vec![[0.0; 2]; n], Smoothing::Gcv);
         assert_eq!(with.basis, Basis::Model);
-        assert!(err(&with) < 0.5 * err(&without), "with the shape {} µm, without {} µm", err(&with), err(&without));
+        assert!(
+            err(&with) < 0.5 * err(&without),
+            "with the shape {} µm, without {} µm",
+            err(&with),
+            err(&without)
+        );
         assert!(err(&with) < 2.0, "{}", err(&with));
         let sigma = with.noise_sigma_um().unwrap();
         assert!((1.8..2.2).contains(&sigma), "σ̂ {sigma}");

@@ -70,19 +70,18 @@
 //! ([`detect_lattice`], for callers that need exactly once, refuses repeats). The readable node
 //! table ([`format_csv`], `grid.csv`) is this module's file format.
 
-
 pub mod field;
 
 use super::{invalid, CalibError};
-pub use field::{Basis, Smoothing};
 use crate::io::measurement_csv::Measurement;
 use crate::machine_spec::{GridLattice, MachineSpec};
 use crate::numeric::lattice_smoother::LatticeSmoother;
-use nalgebra::DMatrix;
 use crate::numeric::{max_rms, round3, MaxRms};
+pub use field::{Basis, Smoothing};
 use kinematics_core::grid::{encode, GridGeometry, MAX_NODES_PER_AXIS};
 use kinematics_core::jacobian::mat2_mul_vec;
 use kinematics_core::{wrap_angle_rad, FiveBar};
+use nalgebra::DMatrix;
 use serde::Serialize;
 
 /// Largest distance (in steps) a target may be from its node.
@@ -94,19 +93,28 @@ pub const MIN_REPEAT_DOF: usize = 10;
 /// Spacings between neighbouring distinct values (equal within the tolerance).
 fn gaps(mut v: Vec<f64>, tol: f64) -> Vec<f64> {
     v.sort_by(f64::total_cmp);
-    v.windows(2).map(|w| w[1] - w[0]).filter(|&g| g > tol).collect()
+    v.windows(2)
+        .map(|w| w[1] - w[0])
+        .filter(|&g| g > tol)
+        .collect()
 }
 
 /// The lattice of the targets and each row's node `(i, j)`.
-fn lattice_of(data: &[Measurement], step_mm: f64) -> Result<(GridLattice, Vec<(usize, usize)>), CalibError> {
+fn lattice_of(
+    data: &[Measurement],
+    step_mm: f64,
+) -> Result<(GridLattice, Vec<(usize, usize)>), CalibError> {
     if !(step_mm > 0.0 && step_mm.is_finite()) {
         return Err(invalid!("the grid step must be positive, got {step_mm}"));
     }
     let mut targets = Vec::with_capacity(data.len());
     for m in data {
-        targets.push(
-            m.target_mm.ok_or_else(|| invalid!("line {}: no x_target_mm,y_target_mm: the grid nodes are the targets", m.line))?,
-        );
+        targets.push(m.target_mm.ok_or_else(|| {
+            invalid!(
+                "line {}: no x_target_mm,y_target_mm: the grid nodes are the targets",
+                m.line
+            )
+        })?);
     }
     let tol = LATTICE_TOL_STEPS * step_mm;
     // The spacing most neighbouring target columns (rows) have must be the step; single
@@ -129,31 +137,61 @@ fn lattice_of(data: &[Measurement], step_mm: f64) -> Result<(GridLattice, Vec<(u
         let (fi, fj) = ((t[0] - x0) / step_mm, (t[1] - y0) / step_mm);
         let (i, j) = (fi.round(), fj.round());
         if (fi - i).abs() > LATTICE_TOL_STEPS || (fj - j).abs() > LATTICE_TOL_STEPS {
-            return Err(invalid!("line {}: target ({}, {}) is not on the {step_mm} mm lattice from ({x0}, {y0})", m.line, t[0], t[1]));
+            return Err(invalid!(
+                "line {}: target ({}, {}) is not on the {step_mm} mm lattice from ({x0}, {y0})",
+                m.line,
+                t[0],
+                t[1]
+            ));
         }
         if i >= max as f64 || j >= max as f64 {
-            return Err(invalid!("the targets span more than {max} nodes along an axis (line {}: ({}, {}))", m.line, t[0], t[1]));
+            return Err(invalid!(
+                "the targets span more than {max} nodes along an axis (line {}: ({}, {}))",
+                m.line,
+                t[0],
+                t[1]
+            ));
         }
         ij.push((i as usize, j as usize));
     }
     let nx = ij.iter().map(|p| p.0).max().unwrap_or(0) + 1;
     let ny = ij.iter().map(|p| p.1).max().unwrap_or(0) + 1;
     if nx < 2 || ny < 2 {
-        return Err(invalid!("the targets span {nx} x {ny} nodes; a grid needs 2..={max} nodes along each axis"));
+        return Err(invalid!(
+            "the targets span {nx} x {ny} nodes; a grid needs 2..={max} nodes along each axis"
+        ));
     }
-    Ok((GridLattice { x0_mm: x0, y0_mm: y0, step_mm, nx, ny }, ij))
+    Ok((
+        GridLattice {
+            x0_mm: x0,
+            y0_mm: y0,
+            step_mm,
+            nx,
+            ny,
+        },
+        ij,
+    ))
 }
 
 /// The error for the first node without a reading.
 fn missing(lattice: &GridLattice, k: usize) -> CalibError {
     let (i, j) = (k % lattice.nx, k / lattice.nx);
     let p = lattice.node_mm(i, j);
-    invalid!("node ({i}, {j}) at ({}, {}) is missing from the data ({} x {} lattice)", p[0], p[1], lattice.nx, lattice.ny)
+    invalid!(
+        "node ({i}, {j}) at ({}, {}) is missing from the data ({} x {} lattice)",
+        p[0],
+        p[1],
+        lattice.nx,
+        lattice.ny
+    )
 }
 
 /// Finds the lattice and the row of every node (`rows[j·nx + i]`, x fastest), refusing a node
 /// measured more than once (see [`group_readings`] for repeats).
-pub fn detect_lattice(data: &[Measurement], step_mm: f64) -> Result<(GridLattice, Vec<usize>), CalibError> {
+pub fn detect_lattice(
+    data: &[Measurement],
+    step_mm: f64,
+) -> Result<(GridLattice, Vec<usize>), CalibError> {
     let (lattice, ij) = lattice_of(data, step_mm)?;
     let nx = lattice.nx;
     let mut rows: Vec<Option<usize>> = vec![None; nx * lattice.ny];
@@ -169,13 +207,20 @@ pub fn detect_lattice(data: &[Measurement], step_mm: f64) -> Result<(GridLattice
             ));
         }
     }
-    let rows = rows.iter().enumerate().map(|(k, r)| r.ok_or_else(|| missing(&lattice, k))).collect::<Result<Vec<_>, CalibError>>()?;
+    let rows = rows
+        .iter()
+        .enumerate()
+        .map(|(k, r)| r.ok_or_else(|| missing(&lattice, k)))
+        .collect::<Result<Vec<_>, CalibError>>()?;
     Ok((lattice, rows))
 }
 
 /// Finds the lattice and the rows of every node's readings (`rows[j·nx + i]`, file order),
 /// each node read at least once.
-pub fn group_readings(data: &[Measurement], step_mm: f64) -> Result<(GridLattice, Vec<Vec<usize>>), CalibError> {
+pub fn group_readings(
+    data: &[Measurement],
+    step_mm: f64,
+) -> Result<(GridLattice, Vec<Vec<usize>>), CalibError> {
     let (lattice, ij) = lattice_of(data, step_mm)?;
     let mut rows: Vec<Vec<usize>> = vec![Vec::new(); lattice.nx * lattice.ny];
     for (r, &(i, j)) in ij.iter().enumerate() {
@@ -220,21 +265,41 @@ struct NodeMeans {
     readings: usize,
 }
 
-fn node_means(model: &FiveBar<f64>, data: &[Measurement], rows: &[usize], i: usize, j: usize) -> Result<NodeMeans, CalibError> {
+fn node_means(
+    model: &FiveBar<f64>,
+    data: &[Measurement],
+    rows: &[usize],
+    i: usize,
+    j: usize,
+) -> Result<NodeMeans, CalibError> {
     let first = &data[rows[0]];
-    let target = first.target_mm.ok_or_else(|| invalid!("line {}: node ({i}, {j}) has no target", first.line))?;
-    let pose = model
-        .inverse_pose(target, 0.0)
-        .map_err(|e| invalid!("line {}: node ({i}, {j}) at ({}, {}): model IK: {e}", first.line, target[0], target[1]))?;
-    let jinv = pose.inverse_jacobian().map_err(|e| invalid!("line {}: node ({i}, {j}): {e}", first.line))?;
-    let jac = pose.jacobian().map_err(|e| invalid!("line {}: node ({i}, {j}): {e}", first.line))?;
+    let target = first
+        .target_mm
+        .ok_or_else(|| invalid!("line {}: node ({i}, {j}) has no target", first.line))?;
+    let pose = model.inverse_pose(target, 0.0).map_err(|e| {
+        invalid!(
+            "line {}: node ({i}, {j}) at ({}, {}): model IK: {e}",
+            first.line,
+            target[0],
+            target[1]
+        )
+    })?;
+    let jinv = pose
+        .inverse_jacobian()
+        .map_err(|e| invalid!("line {}: node ({i}, {j}): {e}", first.line))?;
+    let jac = pose
+        .jacobian()
+        .map_err(|e| invalid!("line {}: node ({i}, {j}): {e}", first.line))?;
     let n = rows.len() as f64;
     let (mut error, mut error_ik) = ([0.0; 2], [0.0; 2]);
     let mut v = Vec::with_capacity(rows.len());
     for &r in rows {
         let m = &data[r];
         let th = m.theta_rad();
-        let d = [wrap_angle_rad(th[0] - pose.theta_rad[0]), wrap_angle_rad(th[1] - pose.theta_rad[1])];
+        let d = [
+            wrap_angle_rad(th[0] - pose.theta_rad[0]),
+            wrap_angle_rad(th[1] - pose.theta_rad[1]),
+        ];
         let e = [m.measured_mm[0] - target[0], m.measured_mm[1] - target[1]];
         // The reading's error had it been commanded at θ_ik: e − J·Δθ (first order in Δθ).
         let jd = mat2_mul_vec(&jac, d);
@@ -245,8 +310,19 @@ fn node_means(model: &FiveBar<f64>, data: &[Measurement], rows: &[usize], i: usi
         }
         v.push(vr);
     }
-    let scatter = v.iter().map(|p| (p[0] - error_ik[0]).powi(2) + (p[1] - error_ik[1]).powi(2)).sum();
-    Ok(NodeMeans { target, theta_ik: pose.theta_rad, jinv, error, error_ik, scatter, readings: rows.len() })
+    let scatter = v
+        .iter()
+        .map(|p| (p[0] - error_ik[0]).powi(2) + (p[1] - error_ik[1]).powi(2))
+        .sum();
+    Ok(NodeMeans {
+        target,
+        theta_ik: pose.theta_rad,
+        jinv,
+        error,
+        error_ik,
+        scatter,
+        readings: rows.len(),
+    })
 }
 
 /// The node's correction for the error `corrected` (mm) at the IK command: `−J⁻¹·corrected`.
@@ -265,7 +341,12 @@ fn node(means: &NodeMeans, i: usize, j: usize, corrected: [f64; 2]) -> Node {
 
 /// The corrections of every node from one reading each (`rows` from [`detect_lattice`]), in
 /// image order, unsmoothed (the formula of the module doc).
-pub fn build_nodes(model: &FiveBar<f64>, data: &[Measurement], lattice: &GridLattice, rows: &[usize]) -> Result<Vec<Node>, CalibError> {
+pub fn build_nodes(
+    model: &FiveBar<f64>,
+    data: &[Measurement],
+    lattice: &GridLattice,
+    rows: &[usize],
+) -> Result<Vec<Node>, CalibError> {
     rows.iter()
         .enumerate()
         .map(|(k, &r)| {
@@ -277,7 +358,11 @@ pub fn build_nodes(model: &FiveBar<f64>, data: &[Measurement], lattice: &GridLat
 }
 
 /// The flash image of the nodes for `model`.
-pub fn encode_image(model: &FiveBar<f64>, lattice: &GridLattice, nodes: &[Node]) -> Result<Vec<u8>, CalibError> {
+pub fn encode_image(
+    model: &FiveBar<f64>,
+    lattice: &GridLattice,
+    nodes: &[Node],
+) -> Result<Vec<u8>, CalibError> {
     let geometry = GridGeometry {
         nx: lattice.nx as u16,
         ny: lattice.ny as u16,
@@ -286,9 +371,13 @@ pub fn encode_image(model: &FiveBar<f64>, lattice: &GridLattice, nodes: &[Node])
         step_x_mm: lattice.step_mm as f32,
         step_y_mm: lattice.step_mm as f32,
     };
-    let values: Vec<[f32; 2]> = nodes.iter().map(|n| [n.dtheta_rad[0] as f32, n.dtheta_rad[1] as f32]).collect();
+    let values: Vec<[f32; 2]> = nodes
+        .iter()
+        .map(|n| [n.dtheta_rad[0] as f32, n.dtheta_rad[1] as f32])
+        .collect();
     let mut image = vec![0u8; geometry.image_len()];
-    encode(&mut image, &geometry, &model.cast::<f32>(), &values).map_err(|e| invalid!("encoding the grid image: {e}"))?;
+    encode(&mut image, &geometry, &model.cast::<f32>(), &values)
+        .map_err(|e| invalid!("encoding the grid image: {e}"))?;
     Ok(image)
 }
 
@@ -312,7 +401,12 @@ impl GridOptions {
     /// The grid of `spec`'s machine: its lattice step and instrument, the smoothing chosen from
     /// the data, the six-bar prior on.
     pub fn for_machine(spec: &MachineSpec) -> Self {
-        GridOptions { step_mm: spec.grid.step_mm, smoothing: Smoothing::Gcv, instrument_sigma_um: Some(spec.instrument_sigma_um), six_bar_prior: true }
+        GridOptions {
+            step_mm: spec.grid.step_mm,
+            smoothing: Smoothing::Gcv,
+            instrument_sigma_um: Some(spec.instrument_sigma_um),
+            six_bar_prior: true,
+        }
     }
 }
 
@@ -433,16 +527,41 @@ pub struct GridStats {
 impl BuiltGrid {
     /// The node errors and the largest correction.
     pub fn stats(&self) -> GridStats {
-        let err_um: Vec<f64> = self.nodes.iter().map(|n| n.error_mm[0].hypot(n.error_mm[1]) * 1e3).collect();
-        let max_dtheta = self.nodes.iter().flat_map(|n| n.dtheta_rad).map(f64::abs).fold(0.0, f64::max);
-        GridStats { node_err: max_rms(&err_um), max_abs_dtheta_urad: max_dtheta * 1e6 }
+        let err_um: Vec<f64> = self
+            .nodes
+            .iter()
+            .map(|n| n.error_mm[0].hypot(n.error_mm[1]) * 1e3)
+            .collect();
+        let max_dtheta = self
+            .nodes
+            .iter()
+            .flat_map(|n| n.dtheta_rad)
+            .map(f64::abs)
+            .fold(0.0, f64::max);
+        GridStats {
+            node_err: max_rms(&err_um),
+            max_abs_dtheta_urad: max_dtheta * 1e6,
+        }
     }
 }
 
 /// Lattice detection, node means, smoothing (chosen from the data, the six-bar prior on) and
 /// image in one call.
-pub fn build(model: &FiveBar<f64>, data: &[Measurement], step_mm: f64) -> Result<BuiltGrid, CalibError> {
-    build_with(model, data, &GridOptions { step_mm, smoothing: Smoothing::Gcv, instrument_sigma_um: None, six_bar_prior: true })
+pub fn build(
+    model: &FiveBar<f64>,
+    data: &[Measurement],
+    step_mm: f64,
+) -> Result<BuiltGrid, CalibError> {
+    build_with(
+        model,
+        data,
+        &GridOptions {
+            step_mm,
+            smoothing: Smoothing::Gcv,
+            instrument_sigma_um: None,
+            six_bar_prior: true,
+        },
+    )
 }
 
 /// The model's parameter shapes `∂FK/∂p` at the nodes' IK (2n × 10, rows x, y per node; µm per
@@ -460,14 +579,20 @@ fn parameter_shapes(model: &FiveBar<f64>, means: &[NodeMeans]) -> Option<DMatrix
             line: 0,
         })
         .collect();
-    super::fit::params::jacobian(model, &poses).ok().map(|j| j * 1e3)
+    super::fit::params::jacobian(model, &poses)
+        .ok()
+        .map(|j| j * 1e3)
 }
 
 /// The six-bar's tool displacement per µm of each part error at the nodes' IK (2n × 24, rows x,
 /// y per node; `diagnose::loop_closure`, the design from the model's proportions about the
 /// lattice's centre); `None` where the loop closure has no response (a flat parallelogram, a
 /// node the model cannot reach), and the grid then falls back to the generic bases.
-fn six_bar_responses(model: &FiveBar<f64>, means: &[NodeMeans], lattice: &GridLattice) -> Option<DMatrix<f64>> {
+fn six_bar_responses(
+    model: &FiveBar<f64>,
+    means: &[NodeMeans],
+    lattice: &GridLattice,
+) -> Option<DMatrix<f64>> {
     use crate::diagnose::loop_closure::{response, SixBarDesign, N_RAW};
     let centre = [
         lattice.x0_mm + 0.5 * (lattice.nx - 1) as f64 * lattice.step_mm,
@@ -487,25 +612,43 @@ fn six_bar_responses(model: &FiveBar<f64>, means: &[NodeMeans], lattice: &GridLa
 
 /// The nodes' coordinates scaled to [−1, 1] over the lattice.
 fn scaled_coords(lattice: &GridLattice) -> Vec<[f64; 2]> {
-    let s = |i: usize, n: usize| if n > 1 { 2.0 * i as f64 / (n - 1) as f64 - 1.0 } else { 0.0 };
-    (0..lattice.nx * lattice.ny).map(|k| [s(k % lattice.nx, lattice.nx), s(k / lattice.nx, lattice.ny)]).collect()
+    let s = |i: usize, n: usize| {
+        if n > 1 {
+            2.0 * i as f64 / (n - 1) as f64 - 1.0
+        } else {
+            0.0
+        }
+    };
+    (0..lattice.nx * lattice.ny)
+        .map(|k| [s(k % lattice.nx, lattice.nx), s(k / lattice.nx, lattice.ny)])
+        .collect()
 }
 
 /// [`build`] with the smoothing chosen.
-pub fn build_with(model: &FiveBar<f64>, data: &[Measurement], opts: &GridOptions) -> Result<BuiltGrid, CalibError> {
+pub fn build_with(
+    model: &FiveBar<f64>,
+    data: &[Measurement],
+    opts: &GridOptions,
+) -> Result<BuiltGrid, CalibError> {
     if let Some(s) = opts.instrument_sigma_um {
         if !(s >= 0.0 && s.is_finite()) {
-            return Err(invalid!("the instrument's σ must be a non-negative number, got {s}"));
+            return Err(invalid!(
+                "the instrument's σ must be a non-negative number, got {s}"
+            ));
         }
     }
     if let Smoothing::Fixed(l) | Smoothing::Exactly(_, l, _) = opts.smoothing {
         if !(l >= 0.0 && l.is_finite()) {
-            return Err(invalid!("the smoothing λ must be a non-negative number, got {l}"));
+            return Err(invalid!(
+                "the smoothing λ must be a non-negative number, got {l}"
+            ));
         }
     }
     if let Smoothing::Exactly(Basis::SixBar, _, l) = opts.smoothing {
         if !(l > 0.0 && l.is_finite()) {
-            return Err(invalid!("the six-bar prior's λ must be a positive number, got {l}"));
+            return Err(invalid!(
+                "the six-bar prior's λ must be a positive number, got {l}"
+            ));
         }
     }
     let (lattice, rows) = group_readings(data, opts.step_mm)?;
@@ -520,9 +663,13 @@ pub fn build_with(model: &FiveBar<f64>, data: &[Measurement], opts: &GridOptions
     // Mean of 1/readings: a node mean's noise variance is σ² times this, on average.
     let inv_count = counts.iter().map(|&c| 1.0 / c as f64).sum::<f64>() / nf;
     let repeats_dof = 2 * counts.iter().map(|c| c - 1).sum::<usize>();
-    let repeats_sigma_um = (repeats_dof > 0).then(|| (means.iter().map(|m| m.scatter).sum::<f64>() / repeats_dof as f64).sqrt() * 1e3);
+    let repeats_sigma_um = (repeats_dof > 0)
+        .then(|| (means.iter().map(|m| m.scatter).sum::<f64>() / repeats_dof as f64).sqrt() * 1e3);
 
-    let y: Vec<[f64; 2]> = means.iter().map(|m| [m.error_ik[0] * 1e3, m.error_ik[1] * 1e3]).collect();
+    let y: Vec<[f64; 2]> = means
+        .iter()
+        .map(|m| [m.error_ik[0] * 1e3, m.error_ik[1] * 1e3])
+        .collect();
     let shapes = match opts.smoothing {
         Smoothing::None => None,
         _ => parameter_shapes(model, &means),
@@ -536,7 +683,14 @@ pub fn build_with(model: &FiveBar<f64>, data: &[Measurement], opts: &GridOptions
         _ if !opts.six_bar_prior => None,
         _ => six_bar_responses(model, &means, &lattice),
     };
-    let est = field::estimate(&smoother, &y, shapes.as_ref(), responses.as_ref(), &scaled_coords(&lattice), opts.smoothing);
+    let est = field::estimate(
+        &smoother,
+        &y,
+        shapes.as_ref(),
+        responses.as_ref(),
+        &scaled_coords(&lattice),
+        opts.smoothing,
+    );
     // σ of one reading: the estimate's is a node mean's, scaled by the readings.
     let smoother_sigma_um = est.noise_sigma_um().map(|s| s / inv_count.sqrt());
     let (noise_sigma_um, noise_source) = match (repeats_sigma_um, smoother_sigma_um) {
@@ -549,7 +703,12 @@ pub fn build_with(model: &FiveBar<f64>, data: &[Measurement], opts: &GridOptions
         },
     };
     let mean_sq = y.iter().map(|v| v[0] * v[0] + v[1] * v[1]).sum::<f64>() / nf;
-    let corr_sq = est.fitted_um.iter().map(|v| v[0] * v[0] + v[1] * v[1]).sum::<f64>() / nf;
+    let corr_sq = est
+        .fitted_um
+        .iter()
+        .map(|v| v[0] * v[0] + v[1] * v[1])
+        .sum::<f64>()
+        / nf;
     let (error_before, expected) = match noise_sigma_um {
         None => (None, None),
         Some(s) => {
@@ -557,7 +716,10 @@ pub fn build_with(model: &FiveBar<f64>, data: &[Measurement], opts: &GridOptions
             let var = s * s * inv_count;
             let kept = var * est.noise_dof / nf;
             let risk = est.rss / nf - 2.0 * var + 2.0 * var * est.dof / nf;
-            (Some((mean_sq - 2.0 * var).max(0.0).sqrt()), Some(risk.max(kept).sqrt()))
+            (
+                Some((mean_sq - 2.0 * var).max(0.0).sqrt()),
+                Some(risk.max(kept).sqrt()),
+            )
         }
     };
     let applied = match (opts.smoothing, error_before, expected) {
@@ -571,7 +733,18 @@ pub fn build_with(model: &FiveBar<f64>, data: &[Measurement], opts: &GridOptions
         .iter()
         .zip(&est.fitted_um)
         .enumerate()
-        .map(|(k, (m, f))| node(m, k % lattice.nx, k / lattice.nx, if applied { [f[0] * 1e-3, f[1] * 1e-3] } else { [0.0; 2] }))
+        .map(|(k, (m, f))| {
+            node(
+                m,
+                k % lattice.nx,
+                k / lattice.nx,
+                if applied {
+                    [f[0] * 1e-3, f[1] * 1e-3]
+                } else {
+                    [0.0; 2]
+                },
+            )
+        })
         .collect();
     let image = encode_image(model, &lattice, &nodes)?;
     let r3 = |v: Option<f64>| v.map(round3);
@@ -604,7 +777,12 @@ pub fn build_with(model: &FiveBar<f64>, data: &[Measurement], opts: &GridOptions
         expected_residual_rms_um: r3(if applied { expected } else { error_before }),
         applied,
     };
-    Ok(BuiltGrid { lattice, nodes, image, noise })
+    Ok(BuiltGrid {
+        lattice,
+        nodes,
+        image,
+        noise,
+    })
 }
 
 /// The readable node table (`dx_um,dy_um`: the nodes' mean errors; `dtheta*_urad`: the

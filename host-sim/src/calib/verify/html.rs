@@ -13,14 +13,19 @@
 use super::{matching_line, StageReport, VerifyReport};
 use crate::calib::accuracy::LineStats;
 use crate::calib::CalibError;
-use crate::io::verify_plot::{deviation_chart_png, error_map_png, DeviationPanel, DeviationPoint, ErrorMap};
+use crate::io::verify_plot::{
+    deviation_chart_png, error_map_png, DeviationPanel, DeviationPoint, ErrorMap,
+};
 use crate::machine_spec::MachineSpec;
 use base64::Engine as _;
 use std::fmt::Write as _;
 
 /// `<`, `>`, `&`, `"` escaped.
 pub fn escape(s: &str) -> String {
-    s.replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;").replace('"', "&quot;")
+    s.replace('&', "&amp;")
+        .replace('<', "&lt;")
+        .replace('>', "&gt;")
+        .replace('"', "&quot;")
 }
 
 /// A figure in µm with the digits that matter (3 significant, at most 2 decimals).
@@ -37,12 +42,21 @@ pub fn um(v: f64) -> String {
 }
 
 fn img(png: &[u8], alt: &str) -> String {
-    format!("<img alt=\"{}\" src=\"data:image/png;base64,{}\">", escape(alt), base64::engine::general_purpose::STANDARD.encode(png))
+    format!(
+        "<img alt=\"{}\" src=\"data:image/png;base64,{}\">",
+        escape(alt),
+        base64::engine::general_purpose::STANDARD.encode(png)
+    )
 }
 
 /// "x line at y = 0 mm".
 pub fn line_name(l: &LineStats) -> String {
-    format!("{} line at {} = {} mm", l.axis, if l.axis == "x" { "y" } else { "x" }, l.at_mm)
+    format!(
+        "{} line at {} = {} mm",
+        l.axis,
+        if l.axis == "x" { "y" } else { "x" },
+        l.at_mm
+    )
 }
 
 /// The headline figures of a line: (name, value).
@@ -54,7 +68,10 @@ fn line_figures(l: &LineStats) -> Vec<(&'static str, f64)> {
         ("ISO 230-2 repeatability R↑", i.r_up_um),
         ("ISO 230-2 repeatability R↓", i.r_down_um),
         ("ISO 230-2 systematic positioning error E", i.e_um),
-        ("ISO 230-2 mean bidirectional positional deviation M", i.m_um),
+        (
+            "ISO 230-2 mean bidirectional positional deviation M",
+            i.m_um,
+        ),
         ("ISO 230-2 reversal value B", i.b_um),
         ("ISO 230-2 mean reversal value B̄", i.b_mean_um),
         ("VDI 3441 positioning uncertainty P", v.p_um),
@@ -72,21 +89,44 @@ fn summary_row(out: &mut String, name: &str, before: Option<f64>, after: f64) {
         None => String::new(),
     };
     let b = before.map(um).unwrap_or_default();
-    let _ = writeln!(out, "<tr><td>{}</td><td>{b}</td><td>{}</td><td>{factor}</td></tr>", escape(name), um(after));
+    let _ = writeln!(
+        out,
+        "<tr><td>{}</td><td>{b}</td><td>{}</td><td>{factor}</td></tr>",
+        escape(name),
+        um(after)
+    );
 }
 
 fn summary_table(out: &mut String, before: Option<&StageReport>, after: &StageReport) {
     out.push_str("<h2>Summary</h2>\n<table>\n<tr><th>figure (µm)</th><th>before calibration</th><th>after calibration</th><th>improvement</th></tr>\n");
     let (bp, ap) = (before.map(|b| &b.position), &after.position);
-    summary_row(out, &format!("2-D position error, max ({} verification targets)", ap.n_points), bp.map(|p| p.max_um), ap.max_um);
-    summary_row(out, "2-D position error, RMS", bp.map(|p| p.rms_um), ap.rms_um);
+    summary_row(
+        out,
+        &format!(
+            "2-D position error, max ({} verification targets)",
+            ap.n_points
+        ),
+        bp.map(|p| p.max_um),
+        ap.max_um,
+    );
+    summary_row(
+        out,
+        "2-D position error, RMS",
+        bp.map(|p| p.rms_um),
+        ap.rms_um,
+    );
     for l in &after.lines {
         let b = before.and_then(|b| matching_line(&b.lines, l));
         let bf = b.map(line_figures);
         for (k, (name, v)) in line_figures(l).into_iter().enumerate() {
             // The summary keeps A, R, E, B and P, Ps; the rest are in the line's section.
             if [0, 1, 4, 6, 8, 9].contains(&k) {
-                summary_row(out, &format!("{}: {name}", line_name(l)), bf.as_ref().map(|f| f[k].1), v);
+                summary_row(
+                    out,
+                    &format!("{}: {name}", line_name(l)),
+                    bf.as_ref().map(|f| f[k].1),
+                    v,
+                );
             }
         }
     }
@@ -96,8 +136,19 @@ fn summary_table(out: &mut String, before: Option<&StageReport>, after: &StageRe
 fn position_lines(s: &StageReport) -> Vec<String> {
     let p = &s.position;
     vec![
-        format!("2-D position error: max {} µm, RMS {} µm over {} targets", um(p.max_um), um(p.rms_um), p.n_points),
-        format!("mean error ({}, {}) µm; max |Δx| {} µm, |Δy| {} µm", um(p.mean_um[0]), um(p.mean_um[1]), um(p.max_abs_um[0]), um(p.max_abs_um[1])),
+        format!(
+            "2-D position error: max {} µm, RMS {} µm over {} targets",
+            um(p.max_um),
+            um(p.rms_um),
+            p.n_points
+        ),
+        format!(
+            "mean error ({}, {}) µm; max |Δx| {} µm, |Δy| {} µm",
+            um(p.mean_um[0]),
+            um(p.mean_um[1]),
+            um(p.max_abs_um[0]),
+            um(p.max_abs_um[1])
+        ),
     ]
 }
 
@@ -109,16 +160,29 @@ fn stage_title(stage: &str) -> &'static str {
     }
 }
 
-fn line_section(out: &mut String, l_after: &LineStats, stages: &[&StageReport]) -> Result<(), CalibError> {
+fn line_section(
+    out: &mut String,
+    l_after: &LineStats,
+    stages: &[&StageReport],
+) -> Result<(), CalibError> {
     let name = line_name(l_after);
     let _ = writeln!(out, "<h2>{}</h2>", escape(&name));
-    let lines: Vec<(&StageReport, &LineStats)> = stages.iter().filter_map(|s| matching_line(&s.lines, l_after).map(|l| (*s, l))).collect();
+    let lines: Vec<(&StageReport, &LineStats)> = stages
+        .iter()
+        .filter_map(|s| matching_line(&s.lines, l_after).map(|l| (*s, l)))
+        .collect();
     let points: Vec<Vec<DeviationPoint>> = lines
         .iter()
         .map(|(_, l)| {
             l.targets
                 .iter()
-                .map(|t| DeviationPoint { position_mm: t.position_mm, mean_up_um: t.mean_up_um, s_up_um: t.s_up_um, mean_down_um: t.mean_down_um, s_down_um: t.s_down_um })
+                .map(|t| DeviationPoint {
+                    position_mm: t.position_mm,
+                    mean_up_um: t.mean_up_um,
+                    s_up_um: t.s_up_um,
+                    mean_down_um: t.mean_down_um,
+                    s_down_um: t.s_down_um,
+                })
                 .collect()
         })
         .collect();
@@ -128,13 +192,31 @@ fn line_section(out: &mut String, l_after: &LineStats, stages: &[&StageReport]) 
         .map(|((s, l), p)| DeviationPanel {
             title: format!("{}: ISO 230-2 deviations", stage_title(s.stage)),
             figures: vec![
-                format!("A {} µm, R {} µm (R↑ {}, R↓ {}), E {} µm, B {} µm", um(l.iso_230_2.a_um), um(l.iso_230_2.r_um), um(l.iso_230_2.r_up_um), um(l.iso_230_2.r_down_um), um(l.iso_230_2.e_um), um(l.iso_230_2.b_um)),
-                format!("VDI 3441: P {} µm, Ps {} µm, U {} µm, Pa {} µm", um(l.vdi_3441.p_um), um(l.vdi_3441.ps_um), um(l.vdi_3441.u_um), um(l.vdi_3441.pa_um)),
+                format!(
+                    "A {} µm, R {} µm (R↑ {}, R↓ {}), E {} µm, B {} µm",
+                    um(l.iso_230_2.a_um),
+                    um(l.iso_230_2.r_um),
+                    um(l.iso_230_2.r_up_um),
+                    um(l.iso_230_2.r_down_um),
+                    um(l.iso_230_2.e_um),
+                    um(l.iso_230_2.b_um)
+                ),
+                format!(
+                    "VDI 3441: P {} µm, Ps {} µm, U {} µm, Pa {} µm",
+                    um(l.vdi_3441.p_um),
+                    um(l.vdi_3441.ps_um),
+                    um(l.vdi_3441.u_um),
+                    um(l.vdi_3441.pa_um)
+                ),
             ],
             points: p,
         })
         .collect();
-    let png = deviation_chart_png(&format!("{name}: positional deviation (measured − target) against position"), &format!("{} (mm)", l_after.axis), &panels)?;
+    let png = deviation_chart_png(
+        &format!("{name}: positional deviation (measured − target) against position"),
+        &format!("{} (mm)", l_after.axis),
+        &panels,
+    )?;
     out.push_str(&img(&png, &format!("ISO 230-2 chart of the {name}")));
     out.push('\n');
     // The figures of each state side by side.
@@ -150,10 +232,19 @@ fn line_section(out: &mut String, l_after: &LineStats, stages: &[&StageReport]) 
         for f in &figs {
             let _ = write!(out, "<td>{}</td>", um(f[k].1));
         }
-        let pm = l_after.per_m.get(per_m_key[k]).map(|v| um(*v)).unwrap_or_default();
+        let pm = l_after
+            .per_m
+            .get(per_m_key[k])
+            .map(|v| um(*v))
+            .unwrap_or_default();
         let _ = writeln!(out, "<td>{pm}</td></tr>");
     }
-    let _ = writeln!(out, "<tr><td>line length (mm)</td><td colspan=\"{}\">{}</td></tr>\n</table>", lines.len() + 1, l_after.length_mm);
+    let _ = writeln!(
+        out,
+        "<tr><td>line length (mm)</td><td colspan=\"{}\">{}</td></tr>\n</table>",
+        lines.len() + 1,
+        l_after.length_mm
+    );
     // Per target, per state.
     for (s, l) in &lines {
         let _ = writeln!(
@@ -198,13 +289,24 @@ positioning uncertainty P = max(x̄i + (|Bi| + Psi)/2) − min(x̄i − (|Bi| + 
 <li>2-D position error: the length of measured − target at every verification target; its maximum and RMS.</li>\n</ul>\n";
 
 /// The page. `inputs`: (what, file) of every measurement file read.
-pub fn render(report: &VerifyReport, spec: &MachineSpec, inputs: &[(String, String)]) -> Result<String, CalibError> {
-    let after = report.stage("after").ok_or_else(|| crate::calib::invalid!("the report has no after stage"))?;
+pub fn render(
+    report: &VerifyReport,
+    spec: &MachineSpec,
+    inputs: &[(String, String)],
+) -> Result<String, CalibError> {
+    let after = report
+        .stage("after")
+        .ok_or_else(|| crate::calib::invalid!("the report has no after stage"))?;
     let before = report.stage("before");
     let title = format!("Positioning accuracy of machine '{}'", report.machine);
     let mut out = String::new();
     let _ = writeln!(out, "<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n<title>{}</title>\n<style>{STYLE}</style>\n</head>\n<body>", escape(&title));
-    let _ = writeln!(out, "<h1>{}</h1>\n<p>{}. Positions in mm (machine frame), deviations in µm.</p>", escape(&title), escape(report.standards));
+    let _ = writeln!(
+        out,
+        "<h1>{}</h1>\n<p>{}. Positions in mm (machine frame), deviations in µm.</p>",
+        escape(&title),
+        escape(report.standards)
+    );
     summary_table(&mut out, before, after);
     if !report.notes.is_empty() {
         out.push_str("<h2>Notes</h2>\n<ul>\n");
@@ -216,11 +318,23 @@ pub fn render(report: &VerifyReport, spec: &MachineSpec, inputs: &[(String, Stri
     out.push_str("<h2>Error vectors at the verification targets</h2>\n<p>Arrows from each target (dot) along measured − target, magnified (the scale arrow gives the length of a round number of µm); x and y at the same scale; the grey outline is the workspace. Each map has its own magnification.</p>\n<div class=\"maps\">\n");
     let outline = spec.workspace.region.vertices_mm();
     for (k, s) in report.stages.iter().enumerate() {
-        let (targets, errors): (Vec<[f64; 2]>, Vec<[f64; 2]>) = s.vectors.iter().map(|v| (v.target_mm, v.error_um)).unzip();
+        let (targets, errors): (Vec<[f64; 2]>, Vec<[f64; 2]>) =
+            s.vectors.iter().map(|v| (v.target_mm, v.error_um)).unzip();
         let summary = position_lines(s);
         let t = format!("{}: measured − target", stage_title(s.stage));
-        let colour = if report.stages.len() == 2 && k == 0 { 1 } else { 0 };
-        let (png, _) = error_map_png(&ErrorMap { title: &t, summary: &summary, targets_mm: &targets, error_um: &errors, outline_mm: outline, colour })?;
+        let colour = if report.stages.len() == 2 && k == 0 {
+            1
+        } else {
+            0
+        };
+        let (png, _) = error_map_png(&ErrorMap {
+            title: &t,
+            summary: &summary,
+            targets_mm: &targets,
+            error_um: &errors,
+            outline_mm: outline,
+            colour,
+        })?;
         out.push_str(&img(&png, &t));
         out.push('\n');
     }
@@ -232,8 +346,17 @@ pub fn render(report: &VerifyReport, spec: &MachineSpec, inputs: &[(String, Stri
     out.push_str(DEFINITIONS);
     out.push_str("<h2>Inputs</h2>\n<ul>\n");
     for (what, file) in inputs {
-        let _ = writeln!(out, "<li>{}: <code>{}</code></li>", escape(what), escape(file));
+        let _ = writeln!(
+            out,
+            "<li>{}: <code>{}</code></li>",
+            escape(what),
+            escape(file)
+        );
     }
-    let _ = writeln!(out, "</ul>\n<p>Made by <code>host-sim verify</code> {}.</p>\n</body>\n</html>", env!("CARGO_PKG_VERSION"));
+    let _ = writeln!(
+        out,
+        "</ul>\n<p>Made by <code>host-sim verify</code> {}.</p>\n</body>\n</html>",
+        env!("CARGO_PKG_VERSION")
+    );
     Ok(out)
 }

@@ -141,30 +141,50 @@ fn check_rows(rows: &[Measurement], need_run: bool) -> Result<(), CalibError> {
     }
     for m in rows {
         let Some(t) = m.target_mm else {
-            return Err(invalid!("line {}: every row needs its target (x_target_mm,y_target_mm)", m.line));
+            return Err(invalid!(
+                "line {}: every row needs its target (x_target_mm,y_target_mm)",
+                m.line
+            ));
         };
         if need_run && m.run.is_none() {
-            return Err(invalid!("line {}: every row of the repeat runs needs its run", m.line));
+            return Err(invalid!(
+                "line {}: every row of the repeat runs needs its run",
+                m.line
+            ));
         }
         if !m.measured_mm.iter().chain(t.iter()).all(|v| v.is_finite()) {
-            return Err(invalid!("line {}: a position is not a finite number", m.line));
+            return Err(invalid!(
+                "line {}: a position is not a finite number",
+                m.line
+            ));
         }
     }
     Ok(())
 }
 
 /// The 2-D position error of verification rows (checked).
-pub fn position_error(rows: &[Measurement]) -> Result<(PositionError, Vec<ErrorVector>), CalibError> {
+pub fn position_error(
+    rows: &[Measurement],
+) -> Result<(PositionError, Vec<ErrorVector>), CalibError> {
     check_rows(rows, false)?;
     let vectors: Vec<ErrorVector> = rows
         .iter()
         .map(|m| {
             let t = m.target_mm.unwrap_or(m.measured_mm);
-            ErrorVector { target_mm: t, error_um: [(m.measured_mm[0] - t[0]) * 1e3, (m.measured_mm[1] - t[1]) * 1e3] }
+            ErrorVector {
+                target_mm: t,
+                error_um: [
+                    (m.measured_mm[0] - t[0]) * 1e3,
+                    (m.measured_mm[1] - t[1]) * 1e3,
+                ],
+            }
         })
         .collect();
     let n = vectors.len();
-    let length: Vec<f64> = vectors.iter().map(|v| v.error_um[0].hypot(v.error_um[1])).collect();
+    let length: Vec<f64> = vectors
+        .iter()
+        .map(|v| v.error_um[0].hypot(v.error_um[1]))
+        .collect();
     let radial = max_rms(&length);
     let axis = |k: usize| max_rms(&vectors.iter().map(|v| v.error_um[k]).collect::<Vec<f64>>());
     let (ax, ay) = (axis(0), axis(1));
@@ -200,40 +220,103 @@ pub fn axis_lines(rows: &[Measurement]) -> Result<Vec<LineStats>, CalibError> {
 }
 
 /// One stage's figures; errors name the stage and the list.
-fn stage(name: &'static str, data: &StageData, spec: &MachineSpec, notes: &mut Vec<String>) -> Result<StageReport, CalibError> {
-    let (position, vectors) = position_error(&data.verify).map_err(|e| e.context(format!("{name}, verification measurements")))?;
+fn stage(
+    name: &'static str,
+    data: &StageData,
+    spec: &MachineSpec,
+    notes: &mut Vec<String>,
+) -> Result<StageReport, CalibError> {
+    let (position, vectors) = position_error(&data.verify)
+        .map_err(|e| e.context(format!("{name}, verification measurements")))?;
     let lines = axis_lines(&data.repeat).map_err(|e| e.context(format!("{name}, repeat runs")))?;
-    let fewest = lines.iter().flat_map(|l| l.targets.iter()).map(|t| t.n_up.min(t.n_down)).min().unwrap_or(0);
+    let fewest = lines
+        .iter()
+        .flat_map(|l| l.targets.iter())
+        .map(|t| t.n_up.min(t.n_down))
+        .min()
+        .unwrap_or(0);
     if fewest < ISO_RUNS {
         notes.push(format!(
             "{name}: some targets have only {fewest} approaches from a direction; ISO 230-2 asks for {ISO_RUNS} (the figures are computed, with a wider uncertainty)"
         ));
     }
-    let outside = data.verify.iter().chain(&data.repeat).filter(|m| m.target_mm.is_some_and(|t| !spec.workspace.contains(t, 1e-3))).count();
+    let outside = data
+        .verify
+        .iter()
+        .chain(&data.repeat)
+        .filter(|m| {
+            m.target_mm
+                .is_some_and(|t| !spec.workspace.contains(t, 1e-3))
+        })
+        .count();
     if outside > 0 {
-        notes.push(format!("{name}: {outside} targets lie outside machine '{}''s workspace", spec.name));
+        notes.push(format!(
+            "{name}: {outside} targets lie outside machine '{}''s workspace",
+            spec.name
+        ));
     }
-    Ok(StageReport { stage: name, position, lines, vectors })
+    Ok(StageReport {
+        stage: name,
+        position,
+        lines,
+        vectors,
+    })
 }
 
 /// The same line in another stage (axis and shared coordinate to 1 µm).
 pub fn matching_line<'a>(lines: &'a [LineStats], l: &LineStats) -> Option<&'a LineStats> {
-    lines.iter().find(|o| o.axis == l.axis && (o.at_mm - l.at_mm).abs() < 1e-3)
+    lines
+        .iter()
+        .find(|o| o.axis == l.axis && (o.at_mm - l.at_mm).abs() < 1e-3)
 }
 
 fn improvement(before: &StageReport, after: &StageReport) -> Improvement {
-    let ratio = |figure: String, b: f64, a: f64| Ratio { figure, before_um: b, after_um: a, factor: if a > 0.0 { b / a } else { f64::INFINITY } };
+    let ratio = |figure: String, b: f64, a: f64| Ratio {
+        figure,
+        before_um: b,
+        after_um: a,
+        factor: if a > 0.0 { b / a } else { f64::INFINITY },
+    };
     let mut ratios = vec![
-        ratio("position error max".into(), before.position.max_um, after.position.max_um),
-        ratio("position error RMS".into(), before.position.rms_um, after.position.rms_um),
+        ratio(
+            "position error max".into(),
+            before.position.max_um,
+            after.position.max_um,
+        ),
+        ratio(
+            "position error RMS".into(),
+            before.position.rms_um,
+            after.position.rms_um,
+        ),
     ];
     for l in &after.lines {
         if let Some(b) = matching_line(&before.lines, l) {
-            let at = format!("{} line at {} = {} mm", l.axis, if l.axis == "x" { "y" } else { "x" }, l.at_mm);
-            ratios.push(ratio(format!("{at}: ISO 230-2 A"), b.iso_230_2.a_um, l.iso_230_2.a_um));
-            ratios.push(ratio(format!("{at}: ISO 230-2 R"), b.iso_230_2.r_um, l.iso_230_2.r_um));
-            ratios.push(ratio(format!("{at}: ISO 230-2 E"), b.iso_230_2.e_um, l.iso_230_2.e_um));
-            ratios.push(ratio(format!("{at}: VDI 3441 P"), b.vdi_3441.p_um, l.vdi_3441.p_um));
+            let at = format!(
+                "{} line at {} = {} mm",
+                l.axis,
+                if l.axis == "x" { "y" } else { "x" },
+                l.at_mm
+            );
+            ratios.push(ratio(
+                format!("{at}: ISO 230-2 A"),
+                b.iso_230_2.a_um,
+                l.iso_230_2.a_um,
+            ));
+            ratios.push(ratio(
+                format!("{at}: ISO 230-2 R"),
+                b.iso_230_2.r_um,
+                l.iso_230_2.r_um,
+            ));
+            ratios.push(ratio(
+                format!("{at}: ISO 230-2 E"),
+                b.iso_230_2.e_um,
+                l.iso_230_2.e_um,
+            ));
+            ratios.push(ratio(
+                format!("{at}: VDI 3441 P"),
+                b.vdi_3441.p_um,
+                l.vdi_3441.p_um,
+            ));
         }
     }
     Improvement { ratios }

@@ -91,19 +91,30 @@ fn repeat_rows(lines: &[Line], runs: usize, k: f64) -> Vec<Measurement> {
 
 /// Verification: 4 targets, errors (3, 4), (0, 0), (−6, 8), (0, −5) µm: lengths 5, 0, 10, 5.
 fn verify_rows(k: f64) -> Vec<Measurement> {
-    [([0.0, 0.0], [3.0, 4.0]), ([10.0, 0.0], [0.0, 0.0]), ([0.0, 10.0], [-6.0, 8.0]), ([10.0, 10.0], [0.0, -5.0])]
-        .iter()
-        .enumerate()
-        .map(|(i, (t, e))| row(0, *t, [k * e[0], k * e[1]], i + 2))
-        .collect()
+    [
+        ([0.0, 0.0], [3.0, 4.0]),
+        ([10.0, 0.0], [0.0, 0.0]),
+        ([0.0, 10.0], [-6.0, 8.0]),
+        ([10.0, 10.0], [0.0, -5.0]),
+    ]
+    .iter()
+    .enumerate()
+    .map(|(i, (t, e))| row(0, *t, [k * e[0], k * e[1]], i + 2))
+    .collect()
 }
 
 fn stage_data(k: f64) -> StageData {
-    StageData { verify: verify_rows(k), repeat: repeat_rows(&[x_line(), y_line()], 3, k) }
+    StageData {
+        verify: verify_rows(k),
+        repeat: repeat_rows(&[x_line(), y_line()], 3, k),
+    }
 }
 
 fn close(a: f64, b: f64, what: &str) {
-    assert!((a - b).abs() < 1e-6 * b.abs().max(1.0), "{what}: {a} vs {b}");
+    assert!(
+        (a - b).abs() < 1e-6 * b.abs().max(1.0),
+        "{what}: {a} vs {b}"
+    );
 }
 
 #[test]
@@ -126,11 +137,19 @@ fn position_error_matches_hand_computation() {
 
 #[test]
 fn iso_230_2_and_vdi_3441_match_hand_computation() {
-    let r = verify(&VerifyOptions { spec: MachineSpec::paper(), before: None, after: stage_data(1.0) }).unwrap();
+    let r = verify(&VerifyOptions {
+        spec: MachineSpec::paper(),
+        before: None,
+        after: stage_data(1.0),
+    })
+    .unwrap();
     let a = r.stage("after").unwrap();
     assert_eq!(a.lines.len(), 2);
     let (x, y) = (&a.lines[0], &a.lines[1]);
-    assert_eq!((x.axis, x.at_mm, x.length_mm, y.axis, y.at_mm, y.length_mm), ("x", 0.0, 100.0, "y", 30.0, 40.0));
+    assert_eq!(
+        (x.axis, x.at_mm, x.length_mm, y.axis, y.at_mm, y.length_mm),
+        ("x", 0.0, 100.0, "y", 30.0, 40.0)
+    );
     // Per target and direction: the tables' x̄ and s.
     let t = &x.targets[1];
     assert_eq!((t.position_mm, t.n_up, t.n_down), (50.0, 3, 3));
@@ -146,15 +165,27 @@ fn iso_230_2_and_vdi_3441_match_hand_computation() {
     // E = max(2, 0, 4, 2, 0, −2) − min(…) = 4 − (−2) = 6; M = max x̄i − min x̄i = 3 − (−1) = 4;
     // A: x̄ + 2s = 4, 2 | 8, 4 | 0, 0 → 8; x̄ − 2s = 0, −2 | 0, 0 | 0, −4 → −4; A = 12.
     let i = &x.iso_230_2;
-    for (v, want, what) in
-        [(i.b_um, 2.0, "B"), (i.b_mean_um, 2.0, "B̄"), (i.r_up_um, 8.0, "R↑"), (i.r_down_um, 4.0, "R↓"), (i.r_um, 8.0, "R"), (i.e_um, 6.0, "E"), (i.m_um, 4.0, "M"), (i.a_um, 12.0, "A")]
-    {
+    for (v, want, what) in [
+        (i.b_um, 2.0, "B"),
+        (i.b_mean_um, 2.0, "B̄"),
+        (i.r_up_um, 8.0, "R↑"),
+        (i.r_down_um, 4.0, "R↓"),
+        (i.r_um, 8.0, "R"),
+        (i.e_um, 6.0, "E"),
+        (i.m_um, 4.0, "M"),
+        (i.a_um, 12.0, "A"),
+    ] {
         close(v, want, &format!("x line {what}"));
     }
     // x line, VDI 3441: U = max|Bi| = 2; Psi = 6·(s↑ + s↓)/2 = 6, 9, 3 → Ps = 9; Pa = 4;
     // P: x̄i ± (Ui + Psi)/2 = 1 ± 4, 3 ± 5.5, −1 ± 2.5 → 8.5 − (−3.5) = 12.
     let d = &x.vdi_3441;
-    for (v, want, what) in [(d.u_um, 2.0, "U"), (d.ps_um, 9.0, "Ps"), (d.pa_um, 4.0, "Pa"), (d.p_um, 12.0, "P")] {
+    for (v, want, what) in [
+        (d.u_um, 2.0, "U"),
+        (d.ps_um, 9.0, "Ps"),
+        (d.pa_um, 4.0, "Pa"),
+        (d.p_um, 12.0, "P"),
+    ] {
         close(v, want, &format!("x line {what}"));
     }
     // Per metre of the 100 mm line: ×10; the paper's "±" form is half.
@@ -165,19 +196,37 @@ fn iso_230_2_and_vdi_3441_match_hand_computation() {
     // Ri = 0, max(2, 0, 0), max(2 + 2 + 2, 4, 4) → R = 6; E = 3 − (−1) = 4; M = 2 − 0 = 2;
     // A: x̄ + 2s = 0, 0 | 1, −1 | 5, 3 → 5; x̄ − 2s = 0, 0 | 1, −1 | 1, −1 → −1; A = 6.
     let i = &y.iso_230_2;
-    for (v, want, what) in
-        [(i.b_um, 2.0, "B"), (i.b_mean_um, 4.0 / 3.0, "B̄"), (i.r_up_um, 4.0, "R↑"), (i.r_down_um, 4.0, "R↓"), (i.r_um, 6.0, "R"), (i.e_um, 4.0, "E"), (i.m_um, 2.0, "M"), (i.a_um, 6.0, "A")]
-    {
+    for (v, want, what) in [
+        (i.b_um, 2.0, "B"),
+        (i.b_mean_um, 4.0 / 3.0, "B̄"),
+        (i.r_up_um, 4.0, "R↑"),
+        (i.r_down_um, 4.0, "R↓"),
+        (i.r_um, 6.0, "R"),
+        (i.e_um, 4.0, "E"),
+        (i.m_um, 2.0, "M"),
+        (i.a_um, 6.0, "A"),
+    ] {
         close(v, want, &format!("y line {what}"));
     }
     // y line, VDI 3441: U = 2; Psi = 0, 0, 6 → Ps = 6; Pa = 2;
     // P: 0 ± 0, 0 ± 1, 2 ± 4 → 6 − (−2) = 8.
     let d = &y.vdi_3441;
-    for (v, want, what) in [(d.u_um, 2.0, "U"), (d.ps_um, 6.0, "Ps"), (d.pa_um, 2.0, "Pa"), (d.p_um, 8.0, "P")] {
+    for (v, want, what) in [
+        (d.u_um, 2.0, "U"),
+        (d.ps_um, 6.0, "Ps"),
+        (d.pa_um, 2.0, "Pa"),
+        (d.p_um, 8.0, "P"),
+    ] {
         close(v, want, &format!("y line {what}"));
     }
     // 3 runs: fewer than ISO 230-2's 5, said in a note; no before stage, no improvement.
-    assert!(r.notes.iter().any(|n| n.contains("only 3 approaches") && n.contains("ISO 230-2 asks for 5")), "{:?}", r.notes);
+    assert!(
+        r.notes
+            .iter()
+            .any(|n| n.contains("only 3 approaches") && n.contains("ISO 230-2 asks for 5")),
+        "{:?}",
+        r.notes
+    );
     assert!(r.improvement.is_none());
 }
 
@@ -185,10 +234,19 @@ fn iso_230_2_and_vdi_3441_match_hand_computation() {
 /// figure by exactly 10.
 #[test]
 fn before_and_after_give_the_improvement() {
-    let r = verify(&VerifyOptions { spec: MachineSpec::paper(), before: Some(stage_data(10.0)), after: stage_data(1.0) }).unwrap();
+    let r = verify(&VerifyOptions {
+        spec: MachineSpec::paper(),
+        before: Some(stage_data(10.0)),
+        after: stage_data(1.0),
+    })
+    .unwrap();
     let stages: Vec<&str> = r.stages.iter().map(|s| s.stage).collect();
     assert_eq!(stages, ["before", "after"]);
-    close(r.stage("before").unwrap().lines[0].iso_230_2.a_um, 120.0, "A before");
+    close(
+        r.stage("before").unwrap().lines[0].iso_230_2.a_um,
+        120.0,
+        "A before",
+    );
     let imp = r.improvement.as_ref().unwrap();
     // 2 position figures + 4 per line.
     assert_eq!(imp.ratios.len(), 2 + 2 * 4, "{imp:?}");
@@ -199,7 +257,13 @@ fn before_and_after_give_the_improvement() {
 }
 
 fn refused(after: StageData, want: &str) {
-    let e = verify(&VerifyOptions { spec: MachineSpec::paper(), before: None, after }).unwrap_err().to_string();
+    let e = verify(&VerifyOptions {
+        spec: MachineSpec::paper(),
+        before: None,
+        after,
+    })
+    .unwrap_err()
+    .to_string();
     assert!(e.contains(want), "'{e}' lacks '{want}'");
 }
 
@@ -208,25 +272,69 @@ fn bad_input_is_refused_with_the_reason() {
     // One run: no estimator s.
     refused(StageData { verify: verify_rows(1.0), repeat: repeat_rows(&[x_line(), y_line()], 1, 1.0) }, "after, repeat runs: no axis line has at least 2 targets with 2 approaches from each direction (e.g. x line at y = 0 mm: target 0 mm has 1 approaches in + and 1 in − direction; each needs at least 2");
     // Ascending passes only: a direction is missing.
-    let only_up: Vec<Measurement> = repeat_rows(&[x_line(), y_line()], 3, 1.0).chunks(3).step_by(2).flatten().cloned().collect();
-    refused(StageData { verify: verify_rows(1.0), repeat: only_up }, "in − direction; each needs at least 2");
+    let only_up: Vec<Measurement> = repeat_rows(&[x_line(), y_line()], 3, 1.0)
+        .chunks(3)
+        .step_by(2)
+        .flatten()
+        .cloned()
+        .collect();
+    refused(
+        StageData {
+            verify: verify_rows(1.0),
+            repeat: only_up,
+        },
+        "in − direction; each needs at least 2",
+    );
     // No y line.
-    refused(StageData { verify: verify_rows(1.0), repeat: repeat_rows(&[x_line()], 3, 1.0) }, "after, repeat runs: no y-axis line");
+    refused(
+        StageData {
+            verify: verify_rows(1.0),
+            repeat: repeat_rows(&[x_line()], 3, 1.0),
+        },
+        "after, repeat runs: no y-axis line",
+    );
     // NaN, a row without its target, a repeat row without its run, no rows.
     let mut nan = verify_rows(1.0);
     nan[1].measured_mm[1] = f64::NAN;
-    refused(StageData { verify: nan, repeat: repeat_rows(&[x_line(), y_line()], 3, 1.0) }, "after, verification measurements: line 3: a position is not a finite number");
+    refused(
+        StageData {
+            verify: nan,
+            repeat: repeat_rows(&[x_line(), y_line()], 3, 1.0),
+        },
+        "after, verification measurements: line 3: a position is not a finite number",
+    );
     let mut untargeted = verify_rows(1.0);
     untargeted[0].target_mm = None;
-    refused(StageData { verify: untargeted, repeat: repeat_rows(&[x_line(), y_line()], 3, 1.0) }, "line 2: every row needs its target");
+    refused(
+        StageData {
+            verify: untargeted,
+            repeat: repeat_rows(&[x_line(), y_line()], 3, 1.0),
+        },
+        "line 2: every row needs its target",
+    );
     let mut runless = repeat_rows(&[x_line(), y_line()], 3, 1.0);
     runless[4].run = None;
-    refused(StageData { verify: verify_rows(1.0), repeat: runless }, "line 6: every row of the repeat runs needs its run");
-    refused(StageData { verify: Vec::new(), repeat: repeat_rows(&[x_line(), y_line()], 3, 1.0) }, "after, verification measurements: no measurements");
+    refused(
+        StageData {
+            verify: verify_rows(1.0),
+            repeat: runless,
+        },
+        "line 6: every row of the repeat runs needs its run",
+    );
+    refused(
+        StageData {
+            verify: Vec::new(),
+            repeat: repeat_rows(&[x_line(), y_line()], 3, 1.0),
+        },
+        "after, verification measurements: no measurements",
+    );
     // The before stage is checked as strictly and named.
     let e = verify(&VerifyOptions {
         spec: MachineSpec::paper(),
-        before: Some(StageData { verify: verify_rows(1.0), repeat: Vec::new() }),
+        before: Some(StageData {
+            verify: verify_rows(1.0),
+            repeat: Vec::new(),
+        }),
         after: stage_data(1.0),
     })
     .unwrap_err()
@@ -240,10 +348,23 @@ fn bad_input_is_refused_with_the_reason() {
 fn the_page_embeds_its_plots_and_escapes_text() {
     let mut spec = MachineSpec::paper();
     spec.name = "<b>&\"x\"".into();
-    let r = verify(&VerifyOptions { spec: spec.clone(), before: Some(stage_data(10.0)), after: stage_data(1.0) }).unwrap();
-    let page = html::render(&r, &spec, &[("after, verification".into(), "a<b>.csv".into())]).unwrap();
+    let r = verify(&VerifyOptions {
+        spec: spec.clone(),
+        before: Some(stage_data(10.0)),
+        after: stage_data(1.0),
+    })
+    .unwrap();
+    let page = html::render(
+        &r,
+        &spec,
+        &[("after, verification".into(), "a<b>.csv".into())],
+    )
+    .unwrap();
     assert_eq!(page.matches("src=\"data:image/png;base64,").count(), 2 + 2);
-    assert!(page.contains("machine '&lt;b&gt;&amp;&quot;x&quot;'") && !page.contains("<b>&"), "not escaped");
+    assert!(
+        page.contains("machine '&lt;b&gt;&amp;&quot;x&quot;'") && !page.contains("<b>&"),
+        "not escaped"
+    );
     assert!(page.contains("<code>a&lt;b&gt;.csv</code>"));
     assert!(!page.contains("http") && !page.contains("<script"));
     // The summary row of the x line's A: 120 before, 12 after, 10x.
