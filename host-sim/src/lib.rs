@@ -16,6 +16,7 @@
 //! | [`diagnose`] | where model and measurements disagree, and which effect is missing |
 //! | [`numeric`] | the one Levenberg–Marquardt, finite differences, column-scaled SVD, max/RMS |
 //! | [`link`] | the controller's host link: client, streamed motion, calibration upload, telemetry |
+//! | [`cosim`] | the production firmware under QEMU driving the plant in lockstep (co-simulation) |
 //! | [`io`] | file formats (measurement CSV, model file, targets, plots) and atomic output |
 //!
 //! Conventions: library functions take an options struct (with the [`machine_spec::MachineSpec`]
@@ -34,6 +35,7 @@
 )]
 
 pub mod calib;
+pub mod cosim;
 pub mod diagnose;
 pub mod effect;
 pub mod io;
