@@ -1,21 +1,30 @@
 //! The co-simulation exchange: what the QEMU firmware in co-simulation mode and host-sim's plant
-//! (`host_sim::cosim`) send each other, once per 500 µs servo sample, in lockstep.
+//! (`host_sim::cosim`) send each other, in lockstep with the 500 µs servo samples.
 //!
-//! The firmware's board writes one **up** frame at the start of every servo sample (the PWM duty
-//! registers and the drive-enable line as the last sample left them, the bytes its host-link
-//! port transmitted since) and then blocks reading one **down** frame (the encoder counters
-//! after the plant has moved one sample under those torques, index captures, the bytes the host
-//! link received). Both go through ARM semihosting (`SYS_WRITE`, `SYS_READ`) on two named pipes
-//! in QEMU's working directory, [`TO_HOST_PIPE`] and [`FROM_HOST_PIPE`]; QEMU's virtual time
-//! stands still while the core waits in the call (`-icount`), so the exchange costs the
-//! firmware no simulated time and the run is deterministic (docs/design/co-simulation.md).
+//! Every servo sample the firmware's board writes one **sample** frame (the PWM duty registers
+//! and the drive-enable line as the last sample left them) and then blocks reading one **down**
+//! frame (the encoder counters after the plant has moved one period under those torques, index
+//! captures, how many host-link bytes arrived). Both go through ARM semihosting (`SYS_WRITE`,
+//! `SYS_READ`) on named pipes in QEMU's working directory; QEMU's virtual time stands still
+//! while the core waits in the call (`-icount`), so the exchange costs the firmware no
+//! simulated time beyond its own few instructions, and the run is deterministic
+//! (docs/design/co-simulation.md).
+//!
+//! The host link's bytes do not pass through the servo task (which would pay for copying them):
+//! * firmware to host: the link's port writes a **link** frame into [`TO_HOST_PIPE`] when the
+//!   link task transmits, between two sample frames, so the host knows the period they were sent
+//!   in;
+//! * host to firmware: the host writes the bytes into [`LINK_RX_PIPE`] and announces their
+//!   number in the sample's down frame ([`DownSample::rx_len`]); the link task reads them from
+//!   there, as from a UART's receive buffer, and the firmware reports how many it has read
+//!   ([`UpSample::rx_consumed`]).
 //!
 //! Byte layout, little-endian throughout:
-//! * up frames: an 8-byte header (`tag`, body length `u16`, [`VERSION`] `u16`), then the body:
-//!   [`Hello`] once per boot, [`UpSample`] every sample;
-//! * down frames: always [`DOWN_LEN`] bytes (one read of a known length on the firmware's
-//!   side), `tag` first: [`Config`] in answer to a hello, [`DownSample`] to a sample,
-//!   [`DOWN_STOP`] to end the run.
+//! * up frames ([`TO_HOST_PIPE`]): an 8-byte header (`tag`, body length `u16`, [`VERSION`]
+//!   `u16`), then the body: [`Hello`] once per boot, [`UpSample`] every sample, link bytes;
+//! * down frames ([`FROM_HOST_PIPE`]): always [`DOWN_LEN`] bytes (one read of a known length),
+//!   tag first: [`Config`] in answer to a hello, [`DownSample`] to a sample, [`DOWN_STOP`] to end
+//!   the run.
 //!
 //! Every sample carries its index (from 0 at each boot) both ways: the host refuses a sample
 //! that is not the next one, the firmware a reply that is not for its sample, so a lost,
@@ -25,33 +34,40 @@
 
 /// Pipe the firmware writes (relative to QEMU's working directory).
 pub const TO_HOST_PIPE: &str = "cosim-to-host";
-/// Pipe the firmware reads.
+/// Pipe the firmware's servo task reads.
 pub const FROM_HOST_PIPE: &str = "cosim-from-host";
+/// Pipe the firmware's host-link port reads (the link's received bytes).
+pub const LINK_RX_PIPE: &str = "cosim-link-rx";
 /// The word on the semihosting command line that selects co-simulation (`firmware cosim`).
 pub const COMMAND_WORD: &str = "cosim";
 /// Exchange format version, in every up frame's header and in [`Config`].
-pub const VERSION: u16 = 1;
+pub const VERSION: u16 = 2;
 
-/// Host-link bytes one frame carries at most, each way (4 Mbit/s at 2 kHz: the link is never
-/// the bottleneck unless the host asks for a real UART's rate, [`DownSample::tx_budget`]).
-pub const MAX_LINK_BYTES: usize = 256;
+/// Host-link bytes the host sends per sample at most (16 Mbit/s at 2 kHz: the link is not the
+/// bottleneck unless the host asks for a real UART's rate).
+pub const MAX_LINK_RX_PER_SAMPLE: usize = 1024;
+/// Host-link bytes the host may have sent that the firmware has not read yet (well inside a
+/// pipe's buffer, so the host's write never waits).
+pub const MAX_LINK_RX_OUTSTANDING: usize = 4096;
+/// Longest link frame's body (the firmware's port writes at most this much in one frame).
+pub const MAX_LINK_TX: usize = 256;
 /// Header of an up frame: tag, body length, version.
 pub const UP_HEADER_LEN: usize = 8;
 /// Body of [`Hello`].
 pub const HELLO_LEN: usize = 16;
-/// Body of [`UpSample`] without its link bytes.
-pub const UP_SAMPLE_FIXED_LEN: usize = 24;
+/// Body of [`UpSample`].
+pub const UP_SAMPLE_LEN: usize = 28;
 /// Longest up frame.
-pub const MAX_UP_LEN: usize = UP_HEADER_LEN + UP_SAMPLE_FIXED_LEN + MAX_LINK_BYTES;
-/// Fixed part of a down frame (tag and fields).
-pub const DOWN_FIXED_LEN: usize = 32;
+pub const MAX_UP_LEN: usize = UP_HEADER_LEN + MAX_LINK_TX;
 /// Every down frame's length.
-pub const DOWN_LEN: usize = DOWN_FIXED_LEN + MAX_LINK_BYTES;
+pub const DOWN_LEN: usize = 32;
 
 /// Up: the firmware booted (once per boot, before its first sample).
 pub const TAG_HELLO: [u8; 4] = *b"HELO";
 /// Up: one servo sample.
 pub const TAG_SAMPLE: [u8; 4] = *b"SMPL";
+/// Up: bytes the host link transmitted.
+pub const TAG_LINK: [u8; 4] = *b"LINK";
 /// Down: the board's configuration, in answer to [`TAG_HELLO`].
 pub const TAG_CONFIG: [u8; 4] = *b"CONF";
 /// Down: the plant after one sample, in answer to [`TAG_SAMPLE`].
@@ -104,6 +120,12 @@ fn tag_at(b: &[u8]) -> [u8; 4] {
     [b[0], b[1], b[2], b[3]]
 }
 
+fn header(out: &mut [u8], tag: [u8; 4], body_len: usize) {
+    out[..4].copy_from_slice(&tag);
+    put_u16(out, 4, body_len as u16);
+    put_u16(out, 6, VERSION);
+}
+
 /// What the firmware tells the host at boot: what its drives and homing expect of the machine.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Hello {
@@ -118,7 +140,7 @@ pub struct Hello {
 
 /// One sample, firmware to host.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct UpSample<'a> {
+pub struct UpSample {
     /// Samples since boot (0 for the first).
     pub sample: u32,
     /// The board's clock (25 MHz ticks since boot, wrapping) at the exchange: the host checks
@@ -133,8 +155,8 @@ pub struct UpSample<'a> {
     pub worst_step_us: f32,
     /// The servo's deadline overruns so far (`Status::overruns`).
     pub overruns: u32,
-    /// Bytes the host-link port transmitted since the last sample.
-    pub tx: &'a [u8],
+    /// Link bytes the firmware has read from [`LINK_RX_PIPE`] since boot (wrapping).
+    pub rx_consumed: u32,
 }
 
 /// An up frame, decoded.
@@ -143,7 +165,9 @@ pub enum Up<'a> {
     /// The firmware booted.
     Hello(Hello),
     /// A sample.
-    Sample(UpSample<'a>),
+    Sample(UpSample),
+    /// Bytes the host link transmitted.
+    Link(&'a [u8]),
 }
 
 impl Hello {
@@ -162,17 +186,12 @@ impl Hello {
     }
 }
 
-impl UpSample<'_> {
+impl UpSample {
     /// Writes the frame into `out`; returns its length.
     pub fn encode(&self, out: &mut [u8]) -> Result<usize, WireError> {
-        if self.tx.len() > MAX_LINK_BYTES {
-            return Err(WireError::Length(self.tx.len()));
-        }
-        let body = UP_SAMPLE_FIXED_LEN + self.tx.len();
-        let out = out
-            .get_mut(..UP_HEADER_LEN + body)
-            .ok_or(WireError::Short)?;
-        header(out, TAG_SAMPLE, body);
+        let n = UP_HEADER_LEN + UP_SAMPLE_LEN;
+        let out = out.get_mut(..n).ok_or(WireError::Short)?;
+        header(out, TAG_SAMPLE, UP_SAMPLE_LEN);
         let b = UP_HEADER_LEN;
         put_u32(out, b, self.sample);
         put_u32(out, b + 4, self.clock_ticks);
@@ -180,18 +199,25 @@ impl UpSample<'_> {
         put_u16(out, b + 10, self.duty[1]);
         out[b + 12] = u8::from(self.drive_enable);
         out[b + 13] = 0;
-        put_u16(out, b + 14, self.tx.len() as u16);
+        put_u16(out, b + 14, 0);
         put_u32(out, b + 16, self.worst_step_us.to_bits());
         put_u32(out, b + 20, self.overruns);
-        out[b + UP_SAMPLE_FIXED_LEN..].copy_from_slice(self.tx);
-        Ok(UP_HEADER_LEN + body)
+        put_u32(out, b + 24, self.rx_consumed);
+        Ok(n)
     }
 }
 
-fn header(out: &mut [u8], tag: [u8; 4], body_len: usize) {
-    out[..4].copy_from_slice(&tag);
-    put_u16(out, 4, body_len as u16);
-    put_u16(out, 6, VERSION);
+/// Writes a link frame carrying `bytes` (at most [`MAX_LINK_TX`]) into `out`; returns its
+/// length.
+pub fn encode_link(bytes: &[u8], out: &mut [u8]) -> Result<usize, WireError> {
+    if bytes.is_empty() || bytes.len() > MAX_LINK_TX {
+        return Err(WireError::Length(bytes.len()));
+    }
+    let n = UP_HEADER_LEN + bytes.len();
+    let out = out.get_mut(..n).ok_or(WireError::Short)?;
+    header(out, TAG_LINK, bytes.len());
+    out[UP_HEADER_LEN..].copy_from_slice(bytes);
+    Ok(n)
 }
 
 /// The length of the body an up frame's 8-byte `header` announces (the reader then reads that
@@ -203,15 +229,16 @@ pub fn up_body_len(header: &[u8]) -> Result<usize, WireError> {
         return Err(WireError::Version(version));
     }
     let len = usize::from(u16_at(header, 4));
-    match tag_at(header) {
-        TAG_HELLO if len == HELLO_LEN => Ok(len),
-        TAG_SAMPLE
-            if (UP_SAMPLE_FIXED_LEN..=UP_SAMPLE_FIXED_LEN + MAX_LINK_BYTES).contains(&len) =>
-        {
-            Ok(len)
-        }
-        TAG_HELLO | TAG_SAMPLE => Err(WireError::Length(len)),
-        other => Err(WireError::Tag(other)),
+    let fits = match tag_at(header) {
+        TAG_HELLO => len == HELLO_LEN,
+        TAG_SAMPLE => len == UP_SAMPLE_LEN,
+        TAG_LINK => (1..=MAX_LINK_TX).contains(&len),
+        other => return Err(WireError::Tag(other)),
+    };
+    if fits {
+        Ok(len)
+    } else {
+        Err(WireError::Length(len))
     }
 }
 
@@ -221,26 +248,23 @@ pub fn decode_up(frame: &[u8]) -> Result<Up<'_>, WireError> {
     let body = frame
         .get(UP_HEADER_LEN..UP_HEADER_LEN + len)
         .ok_or(WireError::Short)?;
-    if tag_at(frame) == TAG_HELLO {
-        return Ok(Up::Hello(Hello {
+    Ok(match tag_at(frame) {
+        TAG_HELLO => Up::Hello(Hello {
             pwm_max_duty: u16_at(body, 0),
             drive_full_scale_nm: f32_at(body, 4),
             index_rad: [f32_at(body, 8), f32_at(body, 12)],
-        }));
-    }
-    let tx_len = usize::from(u16_at(body, 14));
-    if tx_len != len - UP_SAMPLE_FIXED_LEN {
-        return Err(WireError::Length(tx_len));
-    }
-    Ok(Up::Sample(UpSample {
-        sample: u32_at(body, 0),
-        clock_ticks: u32_at(body, 4),
-        duty: [u16_at(body, 8), u16_at(body, 10)],
-        drive_enable: body[12] != 0,
-        worst_step_us: f32_at(body, 16),
-        overruns: u32_at(body, 20),
-        tx: &body[UP_SAMPLE_FIXED_LEN..],
-    }))
+        }),
+        TAG_SAMPLE => Up::Sample(UpSample {
+            sample: u32_at(body, 0),
+            clock_ticks: u32_at(body, 4),
+            duty: [u16_at(body, 8), u16_at(body, 10)],
+            drive_enable: body[12] != 0,
+            worst_step_us: f32_at(body, 16),
+            overruns: u32_at(body, 20),
+            rx_consumed: u32_at(body, 24),
+        }),
+        _ => Up::Link(body),
+    })
 }
 
 /// Counting direction of an encoder, as the firmware's `EncoderSign`.
@@ -253,8 +277,8 @@ pub enum Sign {
 }
 
 /// The board's configuration from the host, in answer to [`Hello`]: the encoders fitted to the
-/// simulated machine (the settings a machine builder enters for the motors fitted), whether to
-/// home at boot, and how many link bytes the firmware may send in its first sample.
+/// simulated machine (the settings a machine builder enters for the motors fitted) and whether
+/// to home at boot.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Config {
     /// Counts per motor revolution after quadrature decoding, per axis.
@@ -265,33 +289,29 @@ pub struct Config {
     pub sign: [Sign; 2],
     /// Home at boot (`HomingSettings::at_boot`); otherwise the host link's Home starts it.
     pub home_at_boot: bool,
-    /// Link bytes the firmware may send in its next frame.
-    pub tx_budget: u16,
 }
 
 /// One sample, host to firmware: the encoder counters after the plant moved one period.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct DownSample<'a> {
+pub struct DownSample {
     /// The sample this answers (the up frame's `sample`).
     pub sample: u32,
     /// The encoder counters (counts since power-on, as an incremental encoder's timer shows).
     pub counts: [i32; 2],
     /// Per axis, the counter's value at the index mark if the plant crossed it in this period.
     pub index_counts: [Option<i32>; 2],
-    /// Bytes the host link received (the firmware's link port reads them).
-    pub rx: &'a [u8],
-    /// Link bytes the firmware may send in its next frame (a real UART's rate, or
-    /// [`MAX_LINK_BYTES`]).
-    pub tx_budget: u16,
+    /// Host-link bytes the host wrote into [`LINK_RX_PIPE`] with this sample (at most
+    /// [`MAX_LINK_RX_PER_SAMPLE`]).
+    pub rx_len: u16,
 }
 
 /// A down frame, decoded.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub enum Down<'a> {
+pub enum Down {
     /// The configuration (answer to a hello).
     Config(Config),
     /// A sample's answer.
-    Sample(DownSample<'a>),
+    Sample(DownSample),
     /// End the run.
     Stop,
 }
@@ -303,7 +323,7 @@ fn sign_byte(s: Sign) -> u8 {
     }
 }
 
-impl Down<'_> {
+impl Down {
     /// Writes the frame into `out` (its first [`DOWN_LEN`] bytes, unused ones zero).
     pub fn encode(&self, out: &mut [u8]) -> Result<(), WireError> {
         let out = out.get_mut(..DOWN_LEN).ok_or(WireError::Short)?;
@@ -320,11 +340,10 @@ impl Down<'_> {
                 put_u32(out, 20, c.gear_ratio[1].to_bits());
                 out[24] = sign_byte(c.sign[0]);
                 out[25] = sign_byte(c.sign[1]);
-                put_u16(out, 26, c.tx_budget);
             }
             Down::Sample(s) => {
-                if s.rx.len() > MAX_LINK_BYTES {
-                    return Err(WireError::Length(s.rx.len()));
+                if usize::from(s.rx_len) > MAX_LINK_RX_PER_SAMPLE {
+                    return Err(WireError::Length(usize::from(s.rx_len)));
                 }
                 out[..4].copy_from_slice(&TAG_PLANT);
                 put_u32(out, 4, s.sample);
@@ -338,9 +357,7 @@ impl Down<'_> {
                     }
                 }
                 out[24] = flags;
-                put_u16(out, 26, s.rx.len() as u16);
-                put_u16(out, 28, s.tx_budget);
-                out[DOWN_FIXED_LEN..DOWN_FIXED_LEN + s.rx.len()].copy_from_slice(s.rx);
+                put_u16(out, 26, s.rx_len);
             }
         }
         Ok(())
@@ -348,7 +365,7 @@ impl Down<'_> {
 }
 
 /// Decodes a down frame (its first [`DOWN_LEN`] bytes).
-pub fn decode_down(frame: &[u8]) -> Result<Down<'_>, WireError> {
+pub fn decode_down(frame: &[u8]) -> Result<Down, WireError> {
     let b = frame.get(..DOWN_LEN).ok_or(WireError::Short)?;
     match tag_at(b) {
         DOWN_STOP => Ok(Down::Stop),
@@ -363,13 +380,12 @@ pub fn decode_down(frame: &[u8]) -> Result<Down<'_>, WireError> {
                 counts_per_rev: [u32_at(b, 8), u32_at(b, 12)],
                 gear_ratio: [f32_at(b, 16), f32_at(b, 20)],
                 sign: [sign(b[24]), sign(b[25])],
-                tx_budget: u16_at(b, 26),
             }))
         }
         TAG_PLANT => {
-            let rx_len = usize::from(u16_at(b, 26));
-            if rx_len > MAX_LINK_BYTES {
-                return Err(WireError::Length(rx_len));
+            let rx_len = u16_at(b, 26);
+            if usize::from(rx_len) > MAX_LINK_RX_PER_SAMPLE {
+                return Err(WireError::Length(usize::from(rx_len)));
             }
             let flags = b[24];
             let index = |k: usize| (flags & (1 << k) != 0).then(|| u32_at(b, 16 + 4 * k) as i32);
@@ -377,8 +393,7 @@ pub fn decode_down(frame: &[u8]) -> Result<Down<'_>, WireError> {
                 sample: u32_at(b, 4),
                 counts: [u32_at(b, 8) as i32, u32_at(b, 12) as i32],
                 index_counts: [index(0), index(1)],
-                rx: &b[DOWN_FIXED_LEN..DOWN_FIXED_LEN + rx_len],
-                tx_budget: u16_at(b, 28),
+                rx_len,
             }))
         }
         other => Err(WireError::Tag(other)),
@@ -401,7 +416,6 @@ mod tests {
         assert_eq!(up_body_len(&buf[..UP_HEADER_LEN]), Ok(n - UP_HEADER_LEN));
         assert_eq!(decode_up(&buf[..n]), Ok(Up::Hello(hello)));
 
-        let tx = [0u8, 1, 2, 3, 0xff];
         let s = UpSample {
             sample: 7,
             clock_ticks: u32::MAX,
@@ -409,24 +423,24 @@ mod tests {
             drive_enable: true,
             worst_step_us: 123.5,
             overruns: 2,
-            tx: &tx,
+            rx_consumed: 99,
         };
         let n = s.encode(&mut buf).unwrap();
-        assert_eq!(n, UP_HEADER_LEN + UP_SAMPLE_FIXED_LEN + tx.len());
+        assert_eq!(n, UP_HEADER_LEN + UP_SAMPLE_LEN);
         assert_eq!(up_body_len(&buf), Ok(n - UP_HEADER_LEN));
         assert_eq!(decode_up(&buf[..n]), Ok(Up::Sample(s)));
-        // The longest sample fits MAX_UP_LEN; one more byte is refused.
-        let full = [9u8; MAX_LINK_BYTES + 1];
-        let long = UpSample {
-            tx: &full[..MAX_LINK_BYTES],
-            ..s
-        };
-        assert_eq!(long.encode(&mut buf), Ok(MAX_UP_LEN));
-        let longer = UpSample { tx: &full, ..s };
+
+        let bytes = [0u8, 1, 2, 0xff];
+        let n = encode_link(&bytes, &mut buf).unwrap();
+        assert_eq!(decode_up(&buf[..n]), Ok(Up::Link(&bytes[..])));
+        // The longest link frame fits MAX_UP_LEN; an empty or longer one is refused.
+        let full = [9u8; MAX_LINK_TX + 1];
+        assert_eq!(encode_link(&full[..MAX_LINK_TX], &mut buf), Ok(MAX_UP_LEN));
         assert_eq!(
-            longer.encode(&mut buf),
-            Err(WireError::Length(MAX_LINK_BYTES + 1))
+            encode_link(&full, &mut buf),
+            Err(WireError::Length(MAX_LINK_TX + 1))
         );
+        assert_eq!(encode_link(&[], &mut buf), Err(WireError::Length(0)));
     }
 
     #[test]
@@ -439,7 +453,7 @@ mod tests {
             drive_enable: false,
             worst_step_us: 0.0,
             overruns: 0,
-            tx: &[],
+            rx_consumed: 0,
         }
         .encode(&mut buf)
         .unwrap();
@@ -450,13 +464,12 @@ mod tests {
         bad[..4].copy_from_slice(b"XXXX");
         assert_eq!(up_body_len(&bad), Err(WireError::Tag(*b"XXXX")));
         let mut bad = buf;
-        bad[4] = 0xff;
-        bad[5] = 0xff;
-        assert_eq!(up_body_len(&bad), Err(WireError::Length(0xffff)));
-        // The body's own length field must agree with the header's.
+        bad[4] = 27;
+        assert_eq!(up_body_len(&bad), Err(WireError::Length(27)));
         let mut bad = buf;
-        bad[UP_HEADER_LEN + 14] = 3;
-        assert_eq!(decode_up(&bad[..n]), Err(WireError::Length(3)));
+        bad[..4].copy_from_slice(&TAG_LINK);
+        bad[4..6].copy_from_slice(&(MAX_LINK_TX as u16 + 1).to_le_bytes());
+        assert_eq!(up_body_len(&bad), Err(WireError::Length(MAX_LINK_TX + 1)));
         assert_eq!(decode_up(&buf[..n - 1]), Err(WireError::Short));
     }
 
@@ -468,18 +481,15 @@ mod tests {
             gear_ratio: [10.0, 1.0],
             sign: [Sign::Normal, Sign::Reversed],
             home_at_boot: true,
-            tx_budget: 6,
         };
         Down::Config(config).encode(&mut buf).unwrap();
         assert_eq!(decode_down(&buf), Ok(Down::Config(config)));
 
-        let rx = [1u8, 0, 2];
         let s = DownSample {
             sample: 99,
             counts: [-5, i32::MAX],
             index_counts: [None, Some(-1_000_000)],
-            rx: &rx,
-            tx_budget: 256,
+            rx_len: 3,
         };
         Down::Sample(s).encode(&mut buf).unwrap();
         assert_eq!(decode_down(&buf), Ok(Down::Sample(s)));
@@ -487,10 +497,19 @@ mod tests {
         assert_eq!(decode_down(&buf), Ok(Down::Stop));
 
         assert_eq!(decode_down(&buf[..DOWN_LEN - 1]), Err(WireError::Short));
+        let too_many = DownSample {
+            rx_len: MAX_LINK_RX_PER_SAMPLE as u16 + 1,
+            ..s
+        };
+        let n = MAX_LINK_RX_PER_SAMPLE + 1;
+        assert_eq!(
+            Down::Sample(too_many).encode(&mut buf),
+            Err(WireError::Length(n))
+        );
         let mut bad = [0u8; DOWN_LEN];
         Down::Sample(s).encode(&mut bad).unwrap();
-        bad[26..28].copy_from_slice(&257u16.to_le_bytes());
-        assert_eq!(decode_down(&bad), Err(WireError::Length(257)));
+        bad[26..28].copy_from_slice(&(n as u16).to_le_bytes());
+        assert_eq!(decode_down(&bad), Err(WireError::Length(n)));
         bad[..4].copy_from_slice(b"PLNX");
         assert_eq!(decode_down(&bad), Err(WireError::Tag(*b"PLNX")));
     }

@@ -24,7 +24,10 @@ use std::f64::consts::TAU;
 use std::io::Write;
 use std::time::Duration;
 
-use cosim_wire::{decode_up, Config, Down, DownSample, Hello, Sign, Up, DOWN_LEN, MAX_LINK_BYTES};
+use cosim_wire::{
+    decode_up, Config, Down, DownSample, Hello, Sign, Up, DOWN_LEN, MAX_LINK_RX_OUTSTANDING,
+    MAX_LINK_RX_PER_SAMPLE,
+};
 
 use super::qemu::Qemu;
 use super::CoSimError;
@@ -126,6 +129,8 @@ pub struct Counters {
     pub link_bytes_out: u64,
     /// Bytes of the exchange (both directions).
     pub exchange_bytes: u64,
+    /// QEMU's CPU time when it was stopped (s).
+    pub qemu_cpu_s_at_stop: Option<f64>,
 }
 
 /// The host's side of the exchange: QEMU, the plant and the simulated hardware between them.
@@ -151,6 +156,9 @@ pub struct Engine {
     /// The next sample's index.
     sample: u32,
     last_clock: Option<u32>,
+    /// Link bytes written into the firmware's receive pipe since its boot (wrapping, as the
+    /// firmware's count of those it read).
+    rx_sent: u32,
     config: EngineConfig,
     up: Vec<u8>,
     down: Vec<u8>,
@@ -162,6 +170,7 @@ pub struct Engine {
 pub struct EngineConfig {
     pub period_s: f64,
     pub home_at_boot: bool,
+    /// At most [`MAX_LINK_RX_PER_SAMPLE`].
     pub link_bytes_per_sample: usize,
     pub dynamic_brake_nm_s_per_rad: f64,
     pub frame_timeout: Duration,
@@ -195,6 +204,7 @@ impl Engine {
             count_zero: [0; 2],
             sample: 0,
             last_clock: None,
+            rx_sent: 0,
             config,
             up: Vec::with_capacity(cosim_wire::MAX_UP_LEN),
             down: vec![0; DOWN_LEN],
@@ -203,9 +213,9 @@ impl Engine {
         e.read_up()?;
         match decode_up(&e.up) {
             Ok(Up::Hello(h)) => e.boot(h)?,
-            Ok(Up::Sample(_)) => {
+            Ok(_) => {
                 return Err(CoSimError::Protocol(
-                    "the firmware's first frame is a sample, not its hello".into(),
+                    "the firmware's first frame is not its hello".into(),
                 ))
             }
             Err(err) => return Err(CoSimError::Protocol(format!("first frame: {err}"))),
@@ -268,6 +278,9 @@ impl Engine {
         self.count_zero = [self.count(0), self.count(1)];
         self.sample = 0;
         self.last_clock = None;
+        // Bytes the firmware did not read before it rebooted are lost, as a UART's would be.
+        self.qemu.drain_link_rx()?;
+        self.rx_sent = 0;
         self.counters.boots += 1;
         let e = &self.encoders;
         Down::Config(Config {
@@ -275,32 +288,26 @@ impl Engine {
             gear_ratio: e.gear_ratio.map(|g| g as f32),
             sign: [Sign::Normal; 2],
             home_at_boot: self.config.home_at_boot,
-            tx_budget: MAX_LINK_BYTES as u16,
         })
         .encode(&mut self.down)
         .map_err(|e| CoSimError::Protocol(format!("configuration: {e}")))?;
         self.write_down()
     }
 
-    /// One sample: waits for the firmware's frame (answering a reboot's hello on the way),
-    /// moves the plant one period under its drive registers and answers with the encoders and
-    /// the link's bytes.
+    /// One sample: waits for the firmware's sample frame (taking the link's bytes and answering
+    /// a reboot's hello on the way), moves the plant one period under its drive registers and
+    /// answers with the encoders and the link's received bytes.
     pub fn step(&mut self) -> Result<(), CoSimError> {
-        let sample = loop {
+        let s = loop {
             self.read_up()?;
             match decode_up(&self.up) {
-                Ok(Up::Hello(h)) => self.boot(h)?,
-                Ok(Up::Sample(s)) => {
-                    break (
-                        s.sample,
-                        s.clock_ticks,
-                        s.duty,
-                        s.drive_enable,
-                        s.worst_step_us,
-                        s.overruns,
-                        s.tx.len(),
-                    )
+                Ok(Up::Sample(s)) => break s,
+                Ok(Up::Link(bytes)) => {
+                    self.link_digest.add(bytes);
+                    self.from_firmware.extend(bytes);
+                    self.counters.link_bytes_out += bytes.len() as u64;
                 }
+                Ok(Up::Hello(h)) => self.boot(h)?,
                 Err(e) => {
                     return Err(CoSimError::Protocol(format!(
                         "frame from the firmware: {e}"
@@ -308,29 +315,24 @@ impl Engine {
                 }
             }
         };
-        let (index, clock, duty, enable, worst_step_us, overruns, tx_len) = sample;
-        if index != self.sample {
+        if s.sample != self.sample {
             return Err(CoSimError::Protocol(format!(
-                "the firmware sent sample {index}, the host expected {}: a sample was lost or \
+                "the firmware sent sample {}, the host expected {}: a sample was lost or \
                  repeated",
-                self.sample
+                s.sample, self.sample
             )));
         }
-        self.check_clock(clock);
-        self.counters.worst_step_us = worst_step_us;
-        self.counters.overruns = overruns;
-        let tx_at = self.up.len() - tx_len;
-        self.link_digest.add(&self.up[tx_at..]);
-        self.from_firmware.extend(&self.up[tx_at..]);
-        self.counters.link_bytes_out += tx_len as u64;
+        self.check_clock(s.clock_ticks);
+        self.counters.worst_step_us = s.worst_step_us;
+        self.counters.overruns = s.overruns;
 
         // The drives, one period.
         let h = &self.hello;
         let half = f64::from(h.pwm_max_duty) / 2.0;
         let full = f64::from(h.drive_full_scale_nm);
-        self.drive_enable = enable;
-        self.torque_nm = if enable {
-            duty.map(|d| (f64::from(d) / half - 1.0) * full)
+        self.drive_enable = s.drive_enable;
+        self.torque_nm = if s.drive_enable {
+            s.duty.map(|d| (f64::from(d) / half - 1.0) * full)
         } else {
             [0.0; 2]
         };
@@ -347,20 +349,30 @@ impl Engine {
             crossed.then(|| (at_mark - self.count_zero[k]) as i32)
         });
 
-        // The link's bytes to the firmware.
+        // The link's bytes to the firmware: into its pipe first, announced in the answer.
+        let unread = self.rx_sent.wrapping_sub(s.rx_consumed) as usize;
         let n = self
             .to_firmware
             .len()
             .min(self.config.link_bytes_per_sample)
-            .min(MAX_LINK_BYTES);
-        let rx: Vec<u8> = self.to_firmware.drain(..n).collect();
-        self.counters.link_bytes_in += n as u64;
+            .min(MAX_LINK_RX_PER_SAMPLE)
+            .min(MAX_LINK_RX_OUTSTANDING.saturating_sub(unread));
+        if n > 0 {
+            let rx: Vec<u8> = self.to_firmware.drain(..n).collect();
+            self.exchange_digest.add(&rx);
+            self.counters.exchange_bytes += n as u64;
+            if let Some(log) = &mut self.log {
+                log.write_all(&rx)?;
+            }
+            self.qemu.write_link_rx(&rx)?;
+            self.rx_sent = self.rx_sent.wrapping_add(n as u32);
+            self.counters.link_bytes_in += n as u64;
+        }
         Down::Sample(DownSample {
-            sample: index,
+            sample: s.sample,
             counts,
             index_counts,
-            rx: &rx,
-            tx_budget: self.config.link_bytes_per_sample.min(MAX_LINK_BYTES) as u16,
+            rx_len: n as u16,
         })
         .encode(&mut self.down)
         .map_err(|e| CoSimError::Protocol(format!("sample: {e}")))?;
@@ -402,6 +414,7 @@ impl Engine {
     /// Ends the run: answers the firmware's next frame with a stop and waits for QEMU to exit.
     pub fn stop(&mut self) -> Result<(), CoSimError> {
         self.read_up()?;
+        self.counters.qemu_cpu_s_at_stop = self.qemu.cpu_s();
         Down::Stop
             .encode(&mut self.down)
             .map_err(|e| CoSimError::Protocol(format!("stop: {e}")))?;

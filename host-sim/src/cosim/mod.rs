@@ -100,8 +100,9 @@ pub struct CoSimOptions {
     pub power_on_mm: Option<[f64; 2]>,
     /// Home at boot; otherwise the link's Home command starts homing (the production default).
     pub home_at_boot: bool,
-    /// Host-link bytes per sample each way (at most `cosim_wire::MAX_LINK_BYTES`, the default;
-    /// 6 is a 115 200 Bd UART's rate).
+    /// Host-link bytes the controller receives per sample at most (at most
+    /// `cosim_wire::MAX_LINK_RX_PER_SAMPLE`, the default; 6 is a 115 200 Bd UART's rate). What
+    /// the controller transmits reaches the host in the period it was sent.
     pub link_bytes_per_sample: usize,
     /// The drives' dynamic braking with the enable line low (N·m·s/rad at the joint). Default
     /// 0.225, the QEMU board's motors (firmware/README.md, "Category 0 needs dynamic braking").
@@ -127,7 +128,7 @@ impl CoSimOptions {
             image,
             power_on_mm: None,
             home_at_boot: false,
-            link_bytes_per_sample: cosim_wire::MAX_LINK_BYTES,
+            link_bytes_per_sample: cosim_wire::MAX_LINK_RX_PER_SAMPLE,
             dynamic_brake_nm_s_per_rad: 0.225,
             frame_timeout: Duration::from_secs(30),
             link_read_limit_s: 2.0,
@@ -137,11 +138,11 @@ impl CoSimOptions {
 
     fn validate(&self) -> Result<(), CoSimError> {
         let bad = |what: &str| Err(CoSimError::Invalid(format!("co-simulation: {what}")));
-        if !(1..=cosim_wire::MAX_LINK_BYTES).contains(&self.link_bytes_per_sample) {
+        if !(1..=cosim_wire::MAX_LINK_RX_PER_SAMPLE).contains(&self.link_bytes_per_sample) {
             return bad(&format!(
                 "link_bytes_per_sample {} is not within 1..={}",
                 self.link_bytes_per_sample,
-                cosim_wire::MAX_LINK_BYTES
+                cosim_wire::MAX_LINK_RX_PER_SAMPLE
             ));
         }
         if !(self.dynamic_brake_nm_s_per_rad.is_finite() && self.dynamic_brake_nm_s_per_rad >= 0.0)
@@ -347,7 +348,7 @@ impl CoSim {
             link_digest: format!("{:016x}", e.link_digest.0),
             link_bytes_to_controller: c.link_bytes_in,
             link_bytes_from_controller: c.link_bytes_out,
-            qemu_cpu_s: e.qemu.cpu_s(),
+            qemu_cpu_s: e.qemu.cpu_s().or(c.qemu_cpu_s_at_stop),
             host_cpu_s: qemu::cpu_s_of("/proc/self/stat"),
             encoder_counts_per_rev: e.encoders().counts_per_rev,
             encoder_gear_ratio: e.encoders().gear_ratio,

@@ -2,9 +2,10 @@
 //! calibration image, the image given loaded into the calibration region, the two pipes of the
 //! exchange, and a process that never outlives its [`Qemu`].
 //!
-//! The pipes: the host creates both (`mkfifo`) in a fresh working directory and opens each
-//! read-write, which never blocks and keeps each pipe open on the host's side whatever QEMU
-//! does; the firmware opens them at boot by name (semihosting `SYS_OPEN`, relative to QEMU's
+//! The pipes (frames to the host, frames from the host, the link's received bytes): the host
+//! creates them (`mkfifo`) in a fresh working directory and opens each read-write, which never
+//! blocks and keeps each pipe open on the host's side whatever QEMU does; the firmware opens
+//! them at boot by name (semihosting `SYS_OPEN`, relative to QEMU's
 //! working directory). A QEMU that dies is noticed while waiting for its next frame
 //! ([`Qemu::read_up`] polls in slices and checks the process); a host that dies closes its
 //! ends, the firmware's next read reaches the end of the pipe and the firmware ends QEMU.
@@ -16,7 +17,9 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitStatus, Stdio};
 use std::time::{Duration, Instant};
 
-use cosim_wire::{up_body_len, FROM_HOST_PIPE, MAX_UP_LEN, TO_HOST_PIPE, UP_HEADER_LEN};
+use cosim_wire::{
+    up_body_len, FROM_HOST_PIPE, LINK_RX_PIPE, MAX_UP_LEN, TO_HOST_PIPE, UP_HEADER_LEN,
+};
 
 use super::CoSimError;
 
@@ -138,6 +141,9 @@ pub struct Qemu {
     dir: tempfile::TempDir,
     to_host: File,
     from_host: File,
+    /// The link's received bytes (non-blocking: the host never writes more than the pipe
+    /// holds, and drains what a rebooted firmware left unread).
+    link_rx: File,
     /// Bytes read from the firmware not yet handed out as a frame.
     pending: Vec<u8>,
 }
@@ -163,7 +169,7 @@ impl Qemu {
             .tempdir()?;
         let program = dir.path().join("program.elf");
         std::fs::write(&program, program_without_image(&raw)?)?;
-        for name in [TO_HOST_PIPE, FROM_HOST_PIPE] {
+        for name in [TO_HOST_PIPE, FROM_HOST_PIPE, LINK_RX_PIPE] {
             nix::unistd::mkfifo(&dir.path().join(name), nix::sys::stat::Mode::S_IRWXU)
                 .map_err(|e| CoSimError::Io(std::io::Error::from(e)))?;
         }
@@ -177,6 +183,12 @@ impl Qemu {
         };
         let to_host = open(TO_HOST_PIPE)?;
         let from_host = open(FROM_HOST_PIPE)?;
+        let link_rx = open(LINK_RX_PIPE)?;
+        nix::fcntl::fcntl(
+            link_rx.as_raw_fd(),
+            nix::fcntl::FcntlArg::F_SETFL(nix::fcntl::OFlag::O_NONBLOCK),
+        )
+        .map_err(|e| CoSimError::Io(e.into()))?;
         let mut cmd = Command::new(qemu);
         cmd.current_dir(dir.path())
             .args(["-machine", "mps2-an386", "-cpu", "cortex-m4", "-nographic"])
@@ -212,6 +224,7 @@ impl Qemu {
             dir,
             to_host,
             from_host,
+            link_rx,
             pending: Vec::with_capacity(2 * MAX_UP_LEN),
         })
     }
@@ -287,6 +300,7 @@ impl Qemu {
     pub fn close_pipes(&mut self) -> Result<(), CoSimError> {
         self.to_host = File::open("/dev/null")?;
         self.from_host = OpenOptions::new().write(true).open("/dev/null")?;
+        self.link_rx = OpenOptions::new().write(true).open("/dev/null")?;
         Ok(())
     }
 
@@ -299,6 +313,28 @@ impl Qemu {
     pub fn write_down(&mut self, frame: &[u8]) -> Result<(), CoSimError> {
         self.from_host.write_all(frame)?;
         Ok(())
+    }
+
+    /// Writes the link's received bytes (the caller keeps what is unread within the pipe's
+    /// buffer).
+    pub fn write_link_rx(&mut self, bytes: &[u8]) -> Result<(), CoSimError> {
+        self.link_rx.write_all(bytes)?;
+        Ok(())
+    }
+
+    /// Empties the link's receive pipe (bytes a firmware that rebooted did not read); returns
+    /// how many there were.
+    pub fn drain_link_rx(&mut self) -> Result<usize, CoSimError> {
+        let mut n = 0;
+        let mut buf = [0u8; 4096];
+        loop {
+            match self.link_rx.read(&mut buf) {
+                Ok(0) => return Ok(n),
+                Ok(k) => n += k,
+                Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => return Ok(n),
+                Err(e) => return Err(e.into()),
+            }
+        }
     }
 
     /// Waits up to `timeout` for QEMU to exit by itself (after a stop frame), killing it then.

@@ -203,7 +203,7 @@ impl Board for QemuBoard {
 
     fn link(&mut self) -> cosim::Port {
         match self.cosim {
-            Some(_) => cosim::Port::Exchange { dropped: 0 },
+            Some(_) => cosim::Port::Exchange(cosim::ExchangePort::new()),
             None => cosim::Port::Uart(uart::CmsdkUart::open()),
         }
     }
