@@ -2,7 +2,6 @@
 //! JSON and plots out (`host_sim::diagnose`, `DIAGNOSIS.md`).
 
 use anyhow::{bail, Context, Result};
-use host_sim::diagnose::loop_closure::SixBarDesign;
 use host_sim::diagnose::model_out::extended_model;
 use host_sim::diagnose::plots::write_plots;
 use host_sim::diagnose::{diagnose_with_history, report, DiagnoseOptions};
@@ -10,6 +9,7 @@ use host_sim::io::atomic::Outputs;
 use host_sim::io::measurement_csv::read_measurements;
 use host_sim::io::model_file::{model_file_text, read_model};
 use host_sim::io::{json_text, KeyOrder};
+use host_sim::loop_closure::SixBarDesign;
 use std::path::PathBuf;
 
 /// Command-line arguments of `host-sim diagnose`.
