@@ -51,6 +51,8 @@ pub mod jacobian;
 pub mod jerk_profile;
 pub mod joint_limits;
 pub mod joint_motion;
+mod le_bytes;
+pub mod machine;
 pub mod model;
 pub mod paper;
 pub mod path;
@@ -66,9 +68,10 @@ pub mod workspace;
 pub use backlash::{Backlash, InvalidBacklash};
 pub use dynamics::{DynamicsError, FiveBarDynamics};
 pub use error::{KinematicsError, Singularity};
-pub use grid::{CorrectionGrid, GridError, GridGeometry, WorkspaceLimits};
+pub use grid::{CorrectionGrid, GridError, GridGeometry};
 pub use jacobian::Mat2;
 pub use joint_motion::JointMotion;
+pub use machine::{judge_image, ImageRefusal, MachineRecord};
 pub use model::{Branch, FiveBar, ModelError, WorkingMode};
 pub use pid::{AxisController, AxisGains, AxisReference, InvalidGain};
 pub use pose::Pose;
@@ -79,7 +82,7 @@ pub use servo::{
 };
 pub use trajectory::{MotionSetpoint, PathMotion, TaskLimits, Tour, TrajectoryError};
 pub use valid_model::{IkMargin, ValidFiveBar};
-pub use workspace::{ConvexWorkspace, WorkspaceError, MAX_WORKSPACE_VERTICES};
+pub use workspace::{ConvexWorkspace, WorkspaceError, WorkspaceLimits, MAX_WORKSPACE_VERTICES};
 
 /// The default singularity margin: the smallest `|sin|` of a transmission angle accepted
 /// (0.05 is about 2.9° from a singular configuration).
