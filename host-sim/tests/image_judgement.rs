@@ -308,3 +308,25 @@ fn another_machines_image_is_refused_naming_both_machines() {
 fn checker_free(d: &Path) -> PathBuf {
     paper_image(d, "plain.bin", |_, _| [1e-5, 0.0])
 }
+
+// The QEMU board's bundled images (the firmware's build script and its upload scenario use
+// this generator): plausible calibrations of the paper machine, as the firmware will judge them.
+#[allow(dead_code)]
+mod machine {
+    include!("../../firmware/src/board/qemu/machine.rs");
+}
+mod synthetic {
+    include!("../../firmware/src/board/qemu/synthetic_image.rs");
+}
+
+#[test]
+fn the_qemu_boards_bundled_images_are_accepted() {
+    let paper = kinematics_core::MachineRecord::paper();
+    for sign in [1.0, -1.0] {
+        let img = synthetic::synthetic_image(sign);
+        let v = host_sim::calib::image::judge_bytes(&img, &paper).unwrap();
+        assert!(!v.carried && v.same.worst_mm < 1e-3, "{v:?}");
+        let [lo, hi] = v.margins.inertia_ratio.unwrap();
+        assert!(lo > 0.5 && hi < 1.5, "{lo} {hi}");
+    }
+}
