@@ -9,11 +9,11 @@ use host_sim::calib::image::{
     append_backlash_block, append_dynamics_block, commissioning_image, finish_image, seal_image,
     CheckedImage, WorkspaceBlock,
 };
-use host_sim::io::atomic::Outputs;
 use host_sim::io::dynamics_file::read_dynamics;
 use host_sim::io::measurement_csv::read_measurements;
 use host_sim::io::model_file::read_model_file;
 use host_sim::io::plot::{vector_plot_png, VectorField};
+use host_sim::io::policy::CommandFiles;
 use host_sim::io::KeyOrder;
 use kinematics_core::machine::Verdict;
 use serde::Serialize;
@@ -158,13 +158,16 @@ struct CommissioningSummary {
 }
 
 /// `host-sim grid --nominal`.
-fn run_nominal(args: &Args, spec: &host_sim::machine_spec::MachineSpec) -> Result<()> {
+fn run_nominal(
+    args: &Args,
+    spec: &host_sim::machine_spec::MachineSpec,
+    mut outputs: host_sim::io::atomic::Outputs,
+) -> Result<()> {
     let CheckedImage {
         bytes: image,
         verdict,
     } = commissioning_image(spec)
         .with_context(|| format!("the commissioning image of machine '{}'", spec.name))?;
-    let mut outputs = Outputs::protecting(&[]);
     outputs.bytes(&args.out, &image)?;
     outputs.commit()?;
     eprintln!(
@@ -189,9 +192,28 @@ fn run_nominal(args: &Args, spec: &host_sim::machine_spec::MachineSpec) -> Resul
 
 /// `host-sim grid`.
 pub fn run(args: &Args) -> Result<()> {
+    let csv = args
+        .csv
+        .clone()
+        .unwrap_or_else(|| args.out.with_extension("csv"));
+    let csv_flag = if args.csv.is_some() {
+        "--csv"
+    } else {
+        "--csv (by default --out with .csv)"
+    };
+    // Every output staged, then renamed together: a bad --out leaves no node table or plot.
+    let mut outputs = CommandFiles::new()
+        .input("--machine", &args.machine.machine)
+        .input("--model", &args.model)
+        .repeats("--data", &args.data)
+        .input("--dynamics", &args.dynamics)
+        .output("--out", &args.out)
+        .output(csv_flag, &csv)
+        .output("--plot", &args.plot)
+        .check()?;
     let spec = args.machine.spec()?;
     if args.nominal {
-        return run_nominal(args, &spec);
+        return run_nominal(args, &spec, outputs);
     }
     let model_path = args
         .model
@@ -212,13 +234,7 @@ pub fn run(args: &Args) -> Result<()> {
         .backlash()
         .map_err(|e| anyhow::anyhow!("{}: {e}", model_path.display()))?;
     let mut data = Vec::new();
-    for (k, path) in args.data.iter().enumerate() {
-        if args.data[..k].contains(path) {
-            bail!(
-                "--data names {} twice: its readings would count as repeats",
-                path.display()
-            );
-        }
+    for path in &args.data {
         let rows = read_measurements(path)?;
         data.extend(match &backlash {
             Some(b) => b
@@ -271,18 +287,6 @@ pub fn run(args: &Args) -> Result<()> {
             spec.name
         );
     }
-    let csv = args
-        .csv
-        .clone()
-        .unwrap_or_else(|| args.out.with_extension("csv"));
-    if csv == args.out {
-        bail!("the node table would overwrite the image: give --csv");
-    }
-    // Every output staged, then renamed together: a bad --out leaves no node table or plot.
-    let mut inputs: Vec<&std::path::Path> = args.data.iter().map(PathBuf::as_path).collect();
-    inputs.push(model_path);
-    inputs.extend(args.dynamics.as_deref());
-    let mut outputs = Outputs::protecting(&inputs);
     outputs.bytes(&args.out, &image)?;
     outputs.bytes(&csv, format_csv(&built.nodes).as_bytes())?;
     if let Some(plot) = &args.plot {

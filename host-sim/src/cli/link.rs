@@ -13,8 +13,9 @@ use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
 use host_sim::calib::image::{read_image, read_image_for};
-use host_sim::io::atomic::write_atomic;
+use host_sim::io::atomic::Outputs;
 use host_sim::io::machine_file::read_machine;
+use host_sim::io::policy::CommandFiles;
 use host_sim::io::read_bytes;
 use host_sim::io::KeyOrder;
 use host_sim::link::link_protocol::{Command, ModeCode, Response, StatusReport, TelemetrySample};
@@ -202,10 +203,6 @@ fn upload_image(grid: &Path, machine: Option<&Path>) -> Result<Vec<u8>> {
 
 /// `host-sim link`.
 pub fn run(args: &Args) -> Result<()> {
-    // An image the controller would refuse is refused before the link is opened.
-    if let Action::Upload { grid, machine } = &args.action {
-        upload_image(grid, machine.as_deref())?;
-    }
     if !(args.timeout_s > 0.0 && args.timeout_s.is_finite()) {
         bail!(
             "--timeout-s must be a positive number, not {}",
@@ -213,12 +210,28 @@ pub fn run(args: &Args) -> Result<()> {
         );
     }
     let timeout = Duration::from_secs_f64(args.timeout_s);
+    // The files an action reads and writes, checked before the link is opened.
+    let files = match &args.action {
+        Action::Upload { grid, machine } => CommandFiles::new()
+            .input("--grid", grid)
+            .input("--machine", machine),
+        Action::Telemetry { csv, .. } => CommandFiles::new().output("--csv", csv),
+        Action::Stream(a) => CommandFiles::new()
+            .input("--file", &a.file)
+            .output("--telemetry-csv", &a.telemetry_csv),
+        _ => CommandFiles::new(),
+    };
+    let mut outputs = files.check()?;
+    // An image the controller would refuse is refused before the link is opened.
+    if let Action::Upload { grid, machine } = &args.action {
+        upload_image(grid, machine.as_deref())?;
+    }
     match (&args.tcp, &args.serial) {
         (Some(_), _) if args.baud.is_some() => bail!("--baud applies to --serial only"),
         (Some(addr), None) => {
             let mut client = LinkClient::connect_tcp(addr, timeout)
                 .with_context(|| format!("connecting to {addr}"))?;
-            act(&mut client, &args.action, timeout)
+            act(&mut client, &args.action, timeout, &mut outputs)
         }
         (None, Some(path)) => {
             let baud = args.baud.unwrap_or(DEFAULT_BAUD);
@@ -228,7 +241,7 @@ pub fn run(args: &Args) -> Result<()> {
             let mut client = LinkClient::open_serial(path, baud, timeout).with_context(|| {
                 format!("opening the serial port {} at {baud} Bd", path.display())
             })?;
-            act(&mut client, &args.action, timeout)
+            act(&mut client, &args.action, timeout, &mut outputs)
         }
         // clap's `transport` group enforces exactly one of them.
         _ => bail!("give either --tcp HOST:PORT or --serial PATH"),
@@ -240,6 +253,7 @@ fn act<S: Read + Write>(
     client: &mut LinkClient<S>,
     action: &Action,
     timeout: Duration,
+    outputs: &mut Outputs,
 ) -> Result<()> {
     let done = |what| super::print_json(&Done { done: what }, KeyOrder::Sorted);
     match action {
@@ -306,7 +320,7 @@ fn act<S: Read + Write>(
             )?;
             super::print_json(&s, KeyOrder::Sorted)
         }
-        Action::Stream(a) => stream(client, a, timeout),
+        Action::Stream(a) => stream(client, a, timeout, outputs),
         Action::Upload { grid, machine } => {
             let image = upload_image(grid, machine.as_deref())?;
             let id = upload_calibration(client, &image, &mut |done, total| {
@@ -344,7 +358,8 @@ fn act<S: Read + Write>(
             client.listen(Duration::from_secs_f64(*seconds))?;
             request(client, Command::Telemetry { decimation: 0 })?;
             let samples = client.take_telemetry();
-            write_atomic(csv, telemetry_csv(&samples).as_bytes())?;
+            outputs.bytes(csv, telemetry_csv(&samples).as_bytes())?;
+            std::mem::take(outputs).commit()?;
             #[derive(Serialize)]
             struct Recorded {
                 samples: usize,
@@ -408,6 +423,7 @@ fn stream<S: Read + Write>(
     client: &mut LinkClient<S>,
     a: &StreamArgs,
     timeout: Duration,
+    outputs: &mut Outputs,
 ) -> Result<()> {
     let knots = match (&a.file, a.seconds) {
         (Some(f), _) => parse_knots_csv(
@@ -460,8 +476,9 @@ fn stream<S: Read + Write>(
         .map(|t| f64::from(t.following_error_rad))
         .fold(0.0, f64::max);
     if let Some(csv) = &a.telemetry_csv {
-        write_atomic(csv, telemetry_csv(&samples).as_bytes())?;
+        outputs.bytes(csv, telemetry_csv(&samples).as_bytes())?;
     }
+    std::mem::take(outputs).commit()?;
     let report = StreamReport {
         knots_sent: send,
         knots_total: total,
