@@ -841,7 +841,7 @@ fn the_backlash_block_round_trips_with_the_documented_layout() {
     assert_eq!(f32::from_le_bytes([b[16], b[17], b[18], b[19]]), 35e-6);
     let crc = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC).checksum(&b[..20]);
     assert_eq!(u32::from_le_bytes([b[20], b[21], b[22], b[23]]), crc);
-    // Images without the block parse as before: no backlash.
+    // Images without the block read no backlash.
     for order in [&b""[..], b"W", b"D", b"WD", b"DW"] {
         assert_eq!(
             CorrectionGrid::parse(&image_with_chain(order))

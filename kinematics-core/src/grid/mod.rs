@@ -6,9 +6,8 @@
 //! `J⁻¹` at run time. The host tool that builds the image maps each node's measured error
 //! through `J⁻¹` once, in f64, with the fitted model; the 2 kHz loop then does two bilinear
 //! interpolations and nothing else: no Jacobian, no division, no singularity case. Interpolating
-//! `J⁻¹·δ` instead of `δ` differs only by the variation of `J⁻¹` across one 5 mm cell times the
-//! error: a second-order term that shrinks with the error left after the model fit (measured
-//! in `host-sim`: about 0.8 µm in the corners for a 0.7 mm error field, far less after a fit).
+//! `J⁻¹·δ` instead of `δ` differs only by the variation of `J⁻¹` across one cell times the
+//! error: a second-order term that shrinks with the error left after the model fit.
 //! Bilinear interpolation of the error field itself has the same order of error, so storing
 //! task-space errors would not be more accurate, only slower.
 //!
@@ -64,13 +63,13 @@
 //!
 //! | offset (in the block) | size | field |
 //! |---:|---:|---|
-//! | 12 | 2 | vertex count `n` (3..=[`MAX_WORKSPACE_VERTICES`]) |
+//! | 12 | 2 | vertex count `n` (3..=[`crate::MAX_WORKSPACE_VERTICES`]) |
 //! | 14 | 2 | reserved, 0 |
 //! | 16 | 4 | f32 `stop_margin_mm`: the soft limit, how far inside the polygon a stop must end (≥ 0) |
 //! | 20 | 16×8 | f32 pairs `(x_mm, y_mm)`: the `n` vertices, counter-clockwise, strictly convex; unused slots 0 |
 //! | 148 | 4 | block CRC |
 //!
-//! Checks: the polygon is strictly convex and counter-clockwise ([`ConvexWorkspace::new`]) and
+//! Checks: the polygon is strictly convex and counter-clockwise ([`crate::ConvexWorkspace::new`]) and
 //! lies within the node rectangle (to [`EDGE_TOLERANCE_CELLS`]): a stop may never end where
 //! the grid cannot correct. Refusal: [`GridError::BadWorkspace`].
 //!

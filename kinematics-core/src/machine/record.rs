@@ -31,6 +31,28 @@
 //! nominal model and workspace polygon: the machine's geometry. Two machine files with the same
 //! geometry are the same machine whatever their names, stop margins, home positions and limits
 //! (settings, not geometry). Cost: one CRC over 176 bytes.
+//!
+//! ```
+//! use kinematics_core::machine::record::ENCODED_LEN;
+//! use kinematics_core::machine::{MachineName, MachineRecord};
+//!
+//! let paper = MachineRecord::paper();
+//! let mut bytes = [0u8; ENCODED_LEN];
+//! paper.encode(&mut bytes).unwrap();
+//! assert_eq!(MachineRecord::parse(&bytes), Ok(paper));
+//! // Another name and tighter limits: the same machine.
+//! let mut cell = paper;
+//! cell.name = MachineName::new("cell-3").unwrap();
+//! cell.limits.same_machine_tolerance_mm = 1.0;
+//! assert_eq!(cell.digest(), paper.digest());
+//! // A link 2 mm longer: another machine.
+//! let mut longer = paper;
+//! longer.nominal.b_mm = 152.0;
+//! assert_ne!(longer.digest(), paper.digest());
+//! // A corrupt record is refused, never read.
+//! bytes[16] ^= 0x80; // a flag bit version 1 does not define
+//! assert!(MachineRecord::parse(&bytes).is_err());
+//! ```
 
 use crate::backlash::MAX_BACKLASH_RAD;
 use crate::dynamics::{FiveBarDynamics, PARAMETERS};
