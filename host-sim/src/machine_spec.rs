@@ -1,12 +1,14 @@
 //! The machine the tools work on, described once: nominal hidden robot, workspace, correction
-//! grid lattice, instrument, servo rate and limits.
+//! grid lattice, instrument, servo rate and limits, and what the controller judges calibration
+//! images against ([`ControllerSpec`]).
 //!
-//! Why: these numbers used to be typed where they were needed (the workspace's x origin
-//! `162.132` in ten files, the sample period and the singularity margin twice); a second
-//! machine would have meant finding them all. Every library function that needs one of them
-//! takes a [`MachineSpec`] (in its options struct), so describing another machine is filling
-//! this struct (issue 12: a machine file loads it) and nothing else. [`MachineSpec::paper`] is
-//! the paper's machine, from `kinematics_core::paper` (the numbers the firmware's build shares).
+//! Why one struct: every library function that needs one of these numbers takes a
+//! [`MachineSpec`] (in its options struct), so describing another machine is filling this
+//! struct (the machine file loads it, `crate::io::machine_file`) and nothing else, and no
+//! number is typed twice. [`MachineSpec::paper`] is the paper's machine, from
+//! `kinematics_core::paper` (the numbers the firmware's build shares). [`MachineSpec::record`]
+//! is the same machine as the controller holds it (`kinematics_core::machine::MachineRecord`):
+//! every calibration image carries it.
 //!
 //! What is *not* here: the simulated plant's physics (`plant::PlantConfig`, the plant TOML:
 //! the "real machine" a calibration is tested against, whose errors the tools must not know) and
