@@ -11,8 +11,9 @@
 //!   run with the firmware's failure line.
 //! * QEMU never outlives the co-simulation: killed when dropped (also on a panic), and it ends
 //!   by itself when the host's pipes close.
-//! * Bad input: a missing firmware file, an ELF without co-simulation, a region without an
-//!   image (the drives never enable and homing is refused).
+//! * Bad input: a firmware file that is not there (named, or by `HOST_SIM_FIRMWARE`), no QEMU,
+//!   an ELF without co-simulation, a region without an image (the drives never enable and
+//!   homing is refused), a power-on pose outside the workspace, an image larger than the region.
 //!
 //! Needs qemu-system-arm and the thumbv7em-none-eabihf target (`bash tests/run-all.sh`
 //! installs both). The firmware is built into `target/system-tests` as the other QEMU tests do.
@@ -370,6 +371,23 @@ fn bad_firmware_or_image_is_a_clear_error_and_never_moves_the_machine() {
         e.contains("/nonexistent/firmware.elf") && e.contains("cargo build"),
         "{e}"
     );
+
+    // Nor through the environment (the other tests name their firmware, which comes first).
+    let mut opts = options(&elf);
+    opts.firmware = None;
+    std::env::set_var("HOST_SIM_FIRMWARE", "/nonexistent/env-firmware.elf");
+    let e = CoSim::start(&opts).err().expect("refused").to_string();
+    std::env::remove_var("HOST_SIM_FIRMWARE");
+    assert!(
+        e.contains("HOST_SIM_FIRMWARE") && e.contains("env-firmware.elf"),
+        "{e}"
+    );
+
+    // No QEMU.
+    let mut opts = options(&elf);
+    opts.qemu = "/nonexistent/qemu-system-arm".into();
+    let e = CoSim::start(&opts).err().expect("refused").to_string();
+    assert!(e.contains("apt-get install qemu-system-arm"), "{e}");
 
     // An ELF that never opens the exchange (the same-core test's golden binary): QEMU ends and
     // the error carries its console.

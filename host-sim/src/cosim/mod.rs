@@ -287,7 +287,8 @@ impl CoSim {
     /// simulation advances meanwhile: a silent controller is reported after
     /// [`CoSimOptions::link_read_limit_s`] of simulated time per read, then at `timeout`).
     /// Each client numbers its requests from its own deterministic start (clients made in the
-    /// same order get the same numbers in every run).
+    /// same order get the same numbers in every run). The client shares the co-simulation:
+    /// QEMU ends when the `CoSim` and every client made from it are gone.
     pub fn link(&mut self, timeout: Duration) -> Result<LinkClient<CoSimLink>, ClientError> {
         self.clients = self.clients.wrapping_add(1);
         let first = self.clients.wrapping_mul(0x4000).wrapping_add(1);
