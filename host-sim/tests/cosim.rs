@@ -106,8 +106,9 @@ struct Run {
 
 /// Boot, home, move, stream, each checked against the plant's truth. `pause`: the host stops
 /// for this long (wall time) between the steps, with the firmware waiting in its exchange.
-fn journey(elf: &Path, pause: Duration) -> Run {
-    let opts = options(elf);
+fn journey(elf: &Path, pause: Duration, exchange_log: &Path) -> Run {
+    let mut opts = options(elf);
+    opts.exchange_log = Some(exchange_log.to_path_buf());
     let image_id = calibration_image_id(&opts.image);
     let mut sim = CoSim::start(&opts).unwrap();
     let mut link = sim.link(TIMEOUT).unwrap();
@@ -220,10 +221,12 @@ fn journey(elf: &Path, pause: Duration) -> Run {
 #[test]
 fn the_firmware_homes_moves_and_streams_on_the_plant_deterministically() {
     let elf = firmware();
-    let a = journey(&elf, Duration::ZERO);
+    let dir = tempfile::tempdir().unwrap();
+    let (log_a, log_b) = (dir.path().join("a.bin"), dir.path().join("b.bin"));
+    let a = journey(&elf, Duration::ZERO, &log_a);
     // The second run pauses 50 ms between steps: far beyond the watchdog's 3 ms, which would
     // fire if virtual time ran on while the firmware waits for the host.
-    let b = journey(&elf, Duration::from_millis(50));
+    let b = journey(&elf, Duration::from_millis(50), &log_b);
     let s = &a.stats;
     eprintln!(
         "co-simulation: {}{} samples ({:.2} s simulated) in {:.2} s wall ({:.2} simulated s per \
@@ -244,6 +247,12 @@ fn the_firmware_homes_moves_and_streams_on_the_plant_deterministically() {
     );
     // Deterministic, whatever the host's pace: the same bytes both ways, the same telemetry,
     // the same plant.
+    let (bytes_a, bytes_b) = (
+        std::fs::read(&log_a).unwrap(),
+        std::fs::read(&log_b).unwrap(),
+    );
+    assert_eq!(bytes_a.len() as u64, a.stats.exchange_bytes);
+    assert!(bytes_a == bytes_b, "the exchange logs differ");
     assert_eq!(a.stats.exchange_digest, b.stats.exchange_digest);
     assert_eq!(a.stats.exchange_bytes, b.stats.exchange_bytes);
     assert_eq!(a.stats.link_digest, b.stats.link_digest);
