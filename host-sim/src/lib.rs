@@ -38,6 +38,7 @@ pub mod diagnose;
 pub mod effect;
 pub mod io;
 pub mod link;
+pub mod machine_identity;
 pub mod machine_ranges;
 pub mod machine_spec;
 pub mod numeric;

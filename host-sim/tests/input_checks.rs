@@ -455,3 +455,383 @@ fn an_export_is_read_within_stated_limits() {
         &out,
     );
 }
+
+fn ok(args: &[&str]) -> (String, String) {
+    let (success, stdout, stderr) = run(args);
+    assert!(success, "{args:?} failed: {stderr}");
+    (stdout, stderr)
+}
+
+fn second() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("machines/second.toml")
+}
+
+fn second_plant() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("plants/second.toml")
+}
+
+/// A model, grid nodes and a grid image of `machine` (with its `plant`), made by the binary.
+fn calibrated(dir: &Path, machine: &Path, plant: &str, tag: &str) -> [PathBuf; 4] {
+    let f = |n: &str| dir.join(format!("{tag}_{n}"));
+    let m = ["--machine", s(machine)];
+    let plan = f("plan");
+    ok(&[&["plan", "--out", s(&plan)][..], &m].concat());
+    let measure = |list: &str, extra: &[&str], out: &Path| {
+        let l = plan.join(list);
+        ok(&[
+            &[
+                "measure",
+                "--plant",
+                plant,
+                "--noise-um",
+                "1",
+                "--targets",
+                s(&l),
+                "--out",
+                s(out),
+            ][..],
+            &m,
+            extra,
+        ]
+        .concat());
+    };
+    let (fit, model, nodes, grid) = (f("fit.csv"), f("model.json"), f("nodes.csv"), f("grid.bin"));
+    measure("identify.csv", &[], &fit);
+    ok(&[
+        &[
+            "fit",
+            "--data",
+            s(&fit),
+            "--method",
+            "full",
+            "--no-loo",
+            "--out",
+            s(&model),
+        ][..],
+        &m,
+    ]
+    .concat());
+    measure("grid.csv", &["--model", s(&model)], &nodes);
+    ok(&[
+        &[
+            "grid",
+            "--model",
+            s(&model),
+            "--data",
+            s(&nodes),
+            "--out",
+            s(&grid),
+        ][..],
+        &m,
+    ]
+    .concat());
+    [fit, model, nodes, grid]
+}
+
+#[test]
+fn every_file_knows_its_machine_and_another_machines_files_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let paper = Path::new(env!("CARGO_MANIFEST_DIR")).join("machines/paper.toml");
+    let [p_fit, p_model, _, p_grid] = calibrated(d, &paper, "paper", "p");
+    let [s_fit, s_model, s_nodes, _] = calibrated(d, &second(), s(&second_plant()), "s");
+    // What the tools write names the machine.
+    let text = std::fs::read_to_string(&p_fit).unwrap();
+    assert!(
+        text.starts_with("# machine=paper digest="),
+        "{}",
+        &text[..60]
+    );
+    let model: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&s_model).unwrap()).unwrap();
+    assert_eq!(model["machine"]["name"], "second");
+    assert_eq!(model["machine"]["digest"].as_str().unwrap().len(), 8);
+    let out = d.join("out.csv");
+    let targets = d.join("s_plan/verify.csv");
+    // command on the second machine with the paper's grid; the second's model on the paper.
+    refused(
+        &[
+            "command",
+            "--machine",
+            s(&second()),
+            "--grid",
+            s(&p_grid),
+            "--targets",
+            s(&targets),
+            "--out",
+            s(&out),
+        ],
+        &["--grid", "machine 'second'"],
+        &out,
+    );
+    let p_targets = d.join("p_plan/verify.csv");
+    refused(
+        &[
+            "command",
+            "--model",
+            s(&s_model),
+            "--targets",
+            s(&p_targets),
+            "--out",
+            s(&out),
+        ],
+        &[
+            "--model",
+            "is of machine 'second'",
+            "the default machine (no --machine given) is machine 'paper'",
+        ],
+        &out,
+    );
+    // measure on the second machine and plant through the paper's grid.
+    refused(
+        &[
+            "measure",
+            "--machine",
+            s(&second()),
+            "--plant",
+            s(&second_plant()),
+            "--targets",
+            s(&targets),
+            "--grid",
+            s(&p_grid),
+            "--out",
+            s(&out),
+        ],
+        &["--grid", "machine 'second'"],
+        &out,
+    );
+    // grid on the second machine with the paper's model and the second's data.
+    let image = d.join("g.bin");
+    refused(
+        &[
+            "grid",
+            "--machine",
+            s(&second()),
+            "--model",
+            s(&p_model),
+            "--data",
+            s(&s_nodes),
+            "--out",
+            s(&image),
+        ],
+        &[
+            "--model",
+            "is of machine 'paper'",
+            &format!("--machine {} is machine 'second'", s(&second())),
+        ],
+        &image,
+    );
+    // fit, verify and accuracy on the second machine with the paper's measurements.
+    let m = d.join("m.json");
+    refused(
+        &[
+            "fit",
+            "--machine",
+            s(&second()),
+            "--data",
+            s(&p_fit),
+            "--method",
+            "full",
+            "--out",
+            s(&m),
+        ],
+        &["--data", "is of machine 'paper'"],
+        &m,
+    );
+    let html = d.join("r.html");
+    refused(
+        &[
+            "verify",
+            "--machine",
+            s(&second()),
+            "--after-verify",
+            s(&p_fit),
+            "--after-repeat",
+            s(&p_fit),
+            "--out",
+            s(&html),
+        ],
+        &["--after-verify", "is of machine 'paper'"],
+        &html,
+    );
+    // The right machine's files are taken; a file from before machines were named gets a note.
+    ok(&[
+        "fit",
+        "--machine",
+        s(&second()),
+        "--data",
+        s(&s_fit),
+        "--method",
+        "full",
+        "--no-loo",
+        "--out",
+        s(&m),
+    ]);
+    let table1 = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/table1.csv");
+    let (_, stderr) = ok(&[
+        "fit",
+        "--data",
+        s(&table1),
+        "--method",
+        "ls",
+        "--out",
+        s(&m),
+    ]);
+    assert!(
+        stderr.contains(
+            "names no machine (written before files carried one): taken as machine 'paper'"
+        ),
+        "{stderr}"
+    );
+    // A model without its machine (an older file) of another geometry is still refused.
+    let mut old: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&s_model).unwrap()).unwrap();
+    old.as_object_mut().unwrap().remove("machine");
+    let old_model = d.join("old.json");
+    std::fs::write(&old_model, old.to_string()).unwrap();
+    refused(
+        &[
+            "command",
+            "--model",
+            s(&old_model),
+            "--targets",
+            s(&p_targets),
+            "--out",
+            s(&out),
+        ],
+        &[
+            "names no machine",
+            "a_mm = 120.",
+            "it is a model of another machine",
+        ],
+        &out,
+    );
+}
+
+#[test]
+fn errors_say_what_the_file_is_and_what_to_do_next() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let paper = Path::new(env!("CARGO_MANIFEST_DIR")).join("machines/paper.toml");
+    let [fit, model, _, grid] = calibrated(d, &paper, "paper", "p");
+    let m = d.join("m.json");
+    // A plan's list given to fit: it is a plan, measure it first.
+    let plan = d.join("p_plan/identify.csv");
+    refused(
+        &[
+            "fit",
+            "--data",
+            s(&plan),
+            "--method",
+            "full",
+            "--out",
+            s(&m),
+        ],
+        &["this is a plan's target list", "measure it first"],
+        &m,
+    );
+    // A CSV given as --model: not a model file.
+    let out = d.join("angles.csv");
+    let targets = d.join("p_plan/verify.csv");
+    refused(
+        &[
+            "command",
+            "--model",
+            s(&fit),
+            "--targets",
+            s(&targets),
+            "--out",
+            s(&out),
+        ],
+        &[
+            "is not a valid model file: it is not JSON",
+            "a CSV table?",
+            "the model.json that `host-sim fit` writes",
+        ],
+        &out,
+    );
+    // One target outside the grid image's workspace: which one, the polygon to the µm, what to do.
+    let t = d.join("t.csv");
+    std::fs::write(&t, "x_mm,y_mm\n200,0\n300,0\n210,5\n").unwrap();
+    let (success, _, stderr) = run(&[
+        "command",
+        "--model",
+        s(&model),
+        "--grid",
+        s(&grid),
+        "--targets",
+        s(&t),
+        "--out",
+        s(&out),
+    ]);
+    assert!(!success);
+    assert!(
+        stderr.contains("line 3: target (300, 0) is outside the workspace")
+            && stderr.contains("(162.132, -75.000)")
+            && stderr.contains("move or remove that target"),
+        "{stderr}"
+    );
+    assert!(!stderr.contains("162.1320037841797"), "{stderr}");
+    assert!(!out.exists());
+    // diagnose --out-model refuses what fit refuses: the same data in metres.
+    let text = std::fs::read_to_string(&fit).unwrap();
+    let mut metres = String::new();
+    for (k, line) in text.lines().enumerate() {
+        if k < 2 {
+            metres.push_str(line);
+        } else {
+            let f: Vec<f64> = line.split(',').map(|v| v.parse().unwrap()).collect();
+            let row: Vec<String> = f
+                .iter()
+                .enumerate()
+                .map(|(i, v)| {
+                    if i == 2 || i == 3 {
+                        format!("{}", v / 1000.0)
+                    } else {
+                        format!("{v}")
+                    }
+                })
+                .collect();
+            metres.push_str(&row.join(","));
+        }
+        metres.push('\n');
+    }
+    let mdata = d.join("metres.csv");
+    std::fs::write(&mdata, metres).unwrap();
+    let (report, extended) = (d.join("d.json"), d.join("dm.json"));
+    let (success, _, stderr) = run(&[
+        "diagnose",
+        "--data",
+        s(&mdata),
+        "--out",
+        s(&report),
+        "--out-model",
+        s(&extended),
+    ]);
+    assert!(!success && stderr.contains("metres"), "{stderr}");
+    assert!(!report.exists() && !extended.exists());
+    // accuracy: a table for a person on stderr, the JSON on stdout.
+    let rep = d.join("rep.csv");
+    let list = d.join("p_plan/repeat.csv");
+    ok(&[
+        "measure",
+        "--plant",
+        "paper",
+        "--noise-um",
+        "1",
+        "--targets",
+        s(&list),
+        "--out",
+        s(&rep),
+    ]);
+    let (stdout, stderr) = ok(&["accuracy", "--data", s(&rep)]);
+    assert!(
+        stderr.contains("accuracy: 2 axis line(s) of machine 'paper'"),
+        "{stderr}"
+    );
+    assert!(
+        stderr.contains("| ") && stderr.lines().count() <= 8,
+        "{stderr}"
+    );
+    serde_json::from_str::<serde_json::Value>(&stdout).unwrap();
+}

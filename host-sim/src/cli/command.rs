@@ -53,7 +53,9 @@ pub fn run(args: &Args) -> Result<()> {
     let image = args.grid.as_deref().map(read_bytes).transpose()?;
     let grid = match (&image, &args.grid) {
         (Some(bytes), Some(path)) => {
-            Some(CorrectionGrid::parse(bytes).map_err(|e| anyhow!("{}: {e}", path.display()))?)
+            let g = CorrectionGrid::parse(bytes).map_err(|e| anyhow!("{}: {e}", path.display()))?;
+            args.machine.check_grid(&spec, path, &g)?;
+            Some(g)
         }
         _ => None,
     };
@@ -62,6 +64,7 @@ pub fn run(args: &Args) -> Result<()> {
     let (model, backlash) = match (&args.model, &grid) {
         (Some(path), _) => {
             let file = read_model_file(path)?;
+            args.machine.check_model(&spec, "--model", path, &file)?;
             let model = file
                 .model()
                 .map_err(|e| anyhow!("{}: {e}", path.display()))?;

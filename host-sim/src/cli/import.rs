@@ -6,7 +6,7 @@
 use anyhow::{bail, Context, Result};
 use host_sim::calib::import::{import, ImportOptions, Missing, Unlisted};
 use host_sim::io::commanded_csv::read_commanded;
-use host_sim::io::measurement_csv::format_measurements;
+use host_sim::io::measurement_csv::format_measurements_of;
 use host_sim::io::policy::CommandFiles;
 use host_sim::io::targets_csv::read_target_list;
 use host_sim::io::tracker_export::{read_export, ColumnMap, ExportFormat, LengthUnit};
@@ -136,7 +136,10 @@ pub fn run(args: &Args) -> Result<()> {
     })?;
     let report = &imported.report;
     let text = json_text(report, KeyOrder::Sorted)?;
-    out.bytes(&args.out, format_measurements(&imported.rows).as_bytes())?;
+    out.bytes(
+        &args.out,
+        format_measurements_of(&imported.rows, &spec.identity()).as_bytes(),
+    )?;
     if let Some(p) = &args.report {
         out.bytes(p, text.as_bytes())?;
     }

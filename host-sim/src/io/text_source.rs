@@ -267,9 +267,10 @@ mod tests {
             TextLines::from_reader(Box::new(std::io::Cursor::new(long)), u64::MAX, "t").unwrap();
         let e = t.next().unwrap().unwrap_err().to_string();
         assert!(e.contains("line 1: longer than"), "{e}");
-        let e = std::str::from_utf8(b"ok\nX [\xB5m]\n").unwrap_err();
+        let latin1 = [b"ok\nX [".as_slice(), &[0xB5], b"m]\n"].concat();
+        let e = std::str::from_utf8(&latin1).unwrap_err();
         assert_eq!(
-            not_utf8(b"ok\nX [\xB5m]\n", &e),
+            not_utf8(&latin1, &e),
             "line 2: not UTF-8 text (byte 0xB5); the file looks like Latin-1 or Windows-1252: save it as UTF-8"
         );
     }
