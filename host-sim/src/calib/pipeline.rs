@@ -62,7 +62,6 @@ use super::plan::list_rows;
 use super::plan::{plan, with_approach, Plan, PlanOptions};
 use super::protocol::{random_visits, Range, Visit};
 use super::{invalid, CalibError};
-use crate::diagnose::loop_closure::SixBarDesign;
 use crate::io::atomic::Outputs;
 use crate::io::measurement_csv::{
     format_measurements, format_measurements_of, parse_measurements, Measurement,
@@ -71,6 +70,7 @@ use crate::io::model_file::{model_file_text, ModelFile};
 use crate::io::plot::{vector_plot_png, VectorField};
 use crate::io::targets_csv::format_target_list;
 use crate::io::IoError;
+use crate::loop_closure::SixBarDesign;
 use crate::machine_identity::MachineIdentity;
 use crate::machine_spec::MachineSpec;
 use crate::numeric::{max_rms, round3, MaxRms};

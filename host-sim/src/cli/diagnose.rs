@@ -4,7 +4,6 @@
 use anyhow::{bail, Context, Result};
 use host_sim::calib::fit::params::N_PARAMS;
 use host_sim::calib::fit::plausibility;
-use host_sim::diagnose::loop_closure::SixBarDesign;
 use host_sim::diagnose::model_out::extended_model;
 use host_sim::diagnose::plots::write_plots;
 use host_sim::diagnose::{diagnose_with_history, report, DiagnoseOptions};
@@ -12,6 +11,7 @@ use host_sim::io::measurement_csv::read_measurement_file;
 use host_sim::io::model_file::{model_file_text, read_model_file};
 use host_sim::io::policy::CommandFiles;
 use host_sim::io::{json_text, KeyOrder};
+use host_sim::loop_closure::SixBarDesign;
 use std::path::PathBuf;
 
 /// Command-line arguments of `host-sim diagnose`.
