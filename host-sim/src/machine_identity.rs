@@ -9,14 +9,15 @@
 //! digests are equal; the name is for messages (two files of machines named alike but built
 //! differently are told apart by the digest).
 //!
-//! The digest is CRC-32C over the geometry's canonical encoding (see [`MachineSpec::identity`]):
-//! the nominal five-bar (links, A0, B0, encoder offsets, working mode) and the workspace
-//! polygon with its stop margin, as `f32` little-endian, which is what the firmware holds.
-//! Files written before they carried an identity are read with a note; their models are
+//! The digest is the machine record's (`kinematics_core::machine::MachineRecord::digest`,
+//! see [`MachineSpec::identity`]): CRC-32C over the geometry's canonical encoding (working
+//! mode, encoder convention, nominal five-bar, workspace polygon), the one the calibration
+//! image's `HRMC` block carries and the firmware holds. Files written before they carried an identity are read with a note; their models are
 //! still checked against the machine's geometry ([`check_model_geometry`]).
 
 use crate::machine_spec::MachineSpec;
-use kinematics_core::{Branch, FiveBar};
+use kinematics_core::machine::MachineRecord;
+use kinematics_core::FiveBar;
 use serde::{Deserialize, Serialize};
 
 /// A machine's identity: its name and the digest of its geometry.
@@ -34,40 +35,29 @@ impl std::fmt::Display for MachineIdentity {
     }
 }
 
-const CRC32C: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISCSI);
-
 impl MachineSpec {
-    /// This machine's identity (module doc). The canonical encoding, all `f32` little-endian:
-    /// a, b, c, d (mm), A0 x, y (mm), B0 − A0 x, y (mm), encoder offsets (rad), then one byte
-    /// per branch of the working mode (elbow 1, elbow 2, assembly; 1 positive, 0 negative),
-    /// the number of workspace vertices (one byte), each vertex x, y (mm), the stop margin (mm).
+    /// This machine's identity: its name and its machine record's digest
+    /// (`kinematics_core::machine::MachineRecord::digest`, the CRC-32C of the geometry's
+    /// canonical encoding: working mode, encoder convention, nominal model, workspace polygon),
+    /// the same digest the calibration image's `HRMC` block carries.
     pub fn identity(&self) -> MachineIdentity {
-        let m = &self.nominal;
-        let mut bytes = Vec::new();
-        let mut put = |v: f64| bytes.extend_from_slice(&(v as f32).to_le_bytes());
-        for v in [m.a_mm, m.b_mm, m.c_mm, m.d_mm] {
-            put(v);
-        }
-        for v in [m.base_a0_mm, m.base_b0_mm, m.encoder_offset_rad] {
-            put(v[0]);
-            put(v[1]);
-        }
-        let branch = |b: Branch| u8::from(b == Branch::Positive);
-        bytes.extend([
-            branch(m.mode.elbow_1),
-            branch(m.mode.elbow_2),
-            branch(m.mode.assembly),
-        ]);
-        let v = self.workspace.region.vertices_mm();
-        bytes.push(v.len() as u8);
-        for p in v {
-            bytes.extend_from_slice(&(p[0] as f32).to_le_bytes());
-            bytes.extend_from_slice(&(p[1] as f32).to_le_bytes());
-        }
-        bytes.extend_from_slice(&(self.workspace.stop_margin_mm as f32).to_le_bytes());
+        let digest = match self.record() {
+            Ok(r) => r.digest(),
+            // A description never validated (built in code, a name the controller cannot
+            // store): the digest covers only the geometry, so a record with this geometry
+            // under another name has the same one.
+            Err(_) => {
+                let mut r = MachineRecord::paper();
+                r.nominal = self.nominal.cast::<f32>();
+                if let Ok(w) = self.workspace.limits() {
+                    r.workspace = w;
+                }
+                r.digest()
+            }
+        };
         MachineIdentity {
             name: self.name.clone(),
-            digest: format!("{:08x}", CRC32C.checksum(&bytes)),
+            digest: format!("{digest:08x}"),
         }
     }
 }
@@ -185,6 +175,14 @@ mod tests {
         moved.nominal.a_mm += 0.5;
         assert_ne!(moved.identity().digest, paper.digest);
         assert_eq!(moved.identity().name, "paper");
+        // The image's record and the files carry one digest.
+        assert_eq!(
+            paper.digest,
+            format!("{:08x}", MachineSpec::paper().record().unwrap().digest())
+        );
+        let mut unnamed = MachineSpec::paper();
+        unnamed.name = "a name longer than sixteen characters".into();
+        assert_eq!(unnamed.identity().digest, paper.digest);
         assert_eq!(parse_csv_line(&csv_line(&paper)), Some(paper.clone()));
         let spaced = MachineIdentity {
             name: "cell 3 left".into(),

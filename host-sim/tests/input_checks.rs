@@ -561,7 +561,11 @@ fn every_file_knows_its_machine_and_another_machines_files_are_refused() {
             "--out",
             s(&out),
         ],
-        &["--grid", "machine 'second'"],
+        &[
+            "p_grid.bin",
+            "built for machine 'paper'",
+            "this is machine 'second'",
+        ],
         &out,
     );
     let p_targets = d.join("p_plan/verify.csv");
@@ -597,7 +601,11 @@ fn every_file_knows_its_machine_and_another_machines_files_are_refused() {
             "--out",
             s(&out),
         ],
-        &["--grid", "machine 'second'"],
+        &[
+            "p_grid.bin",
+            "built for machine 'paper'",
+            "this is machine 'second'",
+        ],
         &out,
     );
     // grid on the second machine with the paper's model and the second's data.

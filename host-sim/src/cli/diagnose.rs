@@ -6,7 +6,7 @@ use host_sim::calib::fit::params::N_PARAMS;
 use host_sim::calib::fit::plausibility;
 use host_sim::diagnose::model_out::extended_model;
 use host_sim::diagnose::plots::write_plots;
-use host_sim::diagnose::{diagnose_with_history, report, DiagnoseOptions};
+use host_sim::diagnose::{diagnose_with_plot_data, report, DiagnoseOptions};
 use host_sim::io::measurement_csv::read_measurement_file;
 use host_sim::io::model_file::{model_file_text, read_model_file};
 use host_sim::io::policy::CommandFiles;
@@ -83,7 +83,7 @@ pub fn run(args: &Args) -> Result<()> {
             bail!("--noise-um {s}: must be a positive number of micrometres");
         }
     }
-    let (report, history) = diagnose_with_history(
+    let (report, plot_data) = diagnose_with_plot_data(
         &data,
         &DiagnoseOptions {
             base,
@@ -127,7 +127,7 @@ pub fn run(args: &Args) -> Result<()> {
         )?;
     }
     if let Some(dir) = &args.plots {
-        write_plots(&mut outputs, dir, &data, &report, &history)?;
+        write_plots(&mut outputs, dir, &data, &report, &plot_data)?;
     }
     outputs.commit()?;
     if let Some(path) = &args.out_model {

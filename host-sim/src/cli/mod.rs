@@ -18,8 +18,9 @@ mod plan;
 mod simulate;
 mod verify;
 
-use anyhow::{anyhow, bail, Context, Result};
+use anyhow::{anyhow, bail, Result};
 use clap::{Parser, Subcommand};
+use host_sim::calib::image::read_image;
 use host_sim::io::machine_file::{self, read_machine};
 use host_sim::io::model_file::{read_model_file, ModelFile};
 use host_sim::io::{json_text, KeyOrder};
@@ -147,34 +148,6 @@ impl MachineArg {
             .map_err(|e| anyhow!("{}: {e}", path.display()))?;
         check_model_geometry(&model, &spec.nominal, &what, &spec.name).map_err(|e| anyhow!(e))
     }
-
-    /// Checks a grid image (`--grid path`) against `spec`'s machine: its model's geometry and
-    /// the workspace it carries.
-    fn check_grid(&self, spec: &MachineSpec, path: &Path, grid: &CorrectionGrid<'_>) -> Result<()> {
-        let what = format!("--grid {}", path.display());
-        check_model_geometry(
-            &grid.model().cast::<f64>(),
-            &spec.nominal,
-            &what,
-            &spec.name,
-        )
-        .map_err(|e| anyhow!(e))?;
-        if let Some(w) = grid.workspace() {
-            let mine = spec.workspace.limits().map_err(|e| anyhow!(e))?;
-            let (a, b) = (w.region.vertices_mm(), mine.region.vertices_mm());
-            let same = a.len() == b.len()
-                && a.iter()
-                    .zip(b)
-                    .all(|(p, q)| (p[0] - q[0]).abs() <= 1e-3 && (p[1] - q[1]).abs() <= 1e-3);
-            if !same {
-                bail!(
-                    "{what} carries the workspace of another machine ({} vertices from ({:.3}, {:.3}) mm) than {} ({}, {} vertices from ({:.3}, {:.3}) mm): use this machine's grid (or give --machine for the grid's machine)",
-                    a.len(), a[0][0], a[0][1], self.describe(), spec.name, b.len(), b[0][0], b[0][1]
-                );
-            }
-        }
-        Ok(())
-    }
 }
 
 /// A file and the machine it names, for [`MachineArg::check_files`].
@@ -212,7 +185,8 @@ fn print_json(value: &impl serde::Serialize, order: KeyOrder) -> Result<()> {
 
 /// Reads `--model` and `--grid`, each checked to be of `spec`'s machine: the model to command
 /// with (the grid's own when a grid is given, which `--model` must then equal; the machine's
-/// nominal without either) and the grid image bytes.
+/// nominal without either) and the grid image bytes, judged for the machine
+/// (`calib::image::read_image`: another machine's image or an implausible one is refused).
 fn load_calibration(
     model: Option<&Path>,
     grid: Option<&Path>,
@@ -230,9 +204,7 @@ fn load_calibration(
     };
     let bytes = match grid {
         None => None,
-        Some(p) => {
-            Some(std::fs::read(p).with_context(|| format!("cannot read grid {}", p.display()))?)
-        }
+        Some(p) => Some(read_image(p, spec)?.bytes),
     };
     let model = match (&bytes, from_model) {
         (Some(b), m) => {
@@ -242,7 +214,6 @@ fn load_calibration(
                     grid.map(|p| p.display().to_string()).unwrap_or_default()
                 )
             })?;
-            machine.check_grid(spec, grid.unwrap_or(Path::new("")), &g)?;
             if let Some(m) = m {
                 if m != *g.model() {
                     bail!("the model in --model differs from the model stored in --grid");

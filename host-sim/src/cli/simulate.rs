@@ -214,6 +214,19 @@ pub fn run(args: &Args) -> Result<()> {
         ),
         _ => None,
     };
+    let r = &run.summary;
+    eprintln!(
+        "simulate: {} on the {} plant for {:.2} s ({} samples, {:.1}x real time): tracking error max {:.2} µm, RMS {:.2} µm; following error max {:.2} µm; {}",
+        r.trajectory,
+        r.plant,
+        r.simulated_s,
+        r.samples,
+        r.realtime_factor,
+        r.max_tracking_err_um,
+        r.rms_tracking_err_um,
+        r.max_following_err_um,
+        r.fault.as_deref().map_or("no fault".to_string(), |f| format!("FAULT: {f}"))
+    );
     super::print_json(
         &Output {
             summary: &run.summary,
