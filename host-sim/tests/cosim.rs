@@ -290,6 +290,8 @@ fn handshake(elf: &Path) -> Qemu {
         counts_per_rev: [1 << 22; 2],
         gear_ratio: [1.0; 2],
         sign: [Sign::Normal; 2],
+        index_rad: [1.4, -1.4],
+        max_travel_rad: [1.35, 1.35],
         home_at_boot: false,
     })
     .encode(&mut down)

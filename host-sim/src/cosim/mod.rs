@@ -269,6 +269,7 @@ impl CoSim {
         let config = EngineConfig {
             period_s: spec.sample_period_s,
             home_at_boot: opts.home_at_boot,
+            marks: exchange::HomingMarks::of(spec)?,
             link_bytes_per_sample: opts.link_bytes_per_sample,
             dynamic_brake_nm_s_per_rad: opts.dynamic_brake_nm_s_per_rad,
             frame_timeout: opts.frame_timeout,
