@@ -344,6 +344,10 @@ mod app {
             }
             l.board.end_sample(s);
         });
+        // A run-time upload the board asks for (the QEMU upload scenarios; never on hardware).
+        if let Some((image, corrupt)) = l.board.bundled_upload_due(sample.index) {
+            let _ = upload::spawn(image, corrupt);
+        }
         if sample.index % l.servo_loop.settings().telemetry_period_ticks.max(1) == 0 {
             let _ = telemetry::spawn();
         }
@@ -403,10 +407,6 @@ mod app {
     #[task(priority = 1, shared = [status])]
     async fn telemetry(mut cx: telemetry::Context) {
         let s = cx.shared.status.lock(|s| *s);
-        // The QEMU upload scenarios' run-time upload (never on hardware).
-        if let Some((image, corrupt)) = firmware::calibration::bundled_upload_due(s.ticks) {
-            let _ = upload::spawn(image, corrupt);
-        }
         defmt::info!(
             "t {} ms: {} fault {} overruns {} worst {} us, setpoint {} mm, encoders {} rad, torque {} Nm, max following error {} rad",
             s.ticks / (SAMPLE_RATE_HZ / 1000), s.mode, s.fault, s.overruns, s.worst_step_us, s.setpoint_mm, s.encoder_rad, s.torque_nm,

@@ -197,4 +197,13 @@ pub trait Board: Sized {
     fn end_sample(&mut self, status: &Status) {
         let _ = status;
     }
+
+    /// An image the board wants uploaded now through the calibration slots, as the host link's
+    /// upload would (and whether to corrupt it on the way): the QEMU upload scenarios' bundled
+    /// second image, once. Hardware: never (uploads come over the link).
+    #[inline(always)]
+    fn bundled_upload_due(&mut self, ticks: u32) -> Option<(&'static [u8], bool)> {
+        let _ = ticks;
+        None
+    }
 }
