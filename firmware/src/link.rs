@@ -54,6 +54,8 @@ pub struct LinkState<P: LinkPort> {
     pub absolute_encoders: bool,
     /// The settings make the link's stream the motion source (`Settings::link_motion`).
     pub link_motion: bool,
+    /// The board the firmware was built for, as `Identify` reports it.
+    pub board: Board,
 }
 
 impl<P: LinkPort> LinkState<P> {
@@ -62,7 +64,8 @@ impl<P: LinkPort> LinkState<P> {
         while let Some(byte) = self.port.read_byte() {
             if let Some(received) = self.reader.push(byte) {
                 let mut out = [0u8; MAX_FRAME_LEN];
-                let mut dev = AppDevice::new(device, self.absolute_encoders, self.link_motion);
+                let mut dev =
+                    AppDevice::new(device, self.board, self.absolute_encoders, self.link_motion);
                 let n = self.handler.on_received(received, &mut dev, &mut out);
                 self.port.write(&out[..n]);
             }
@@ -71,7 +74,7 @@ impl<P: LinkPort> LinkState<P> {
 
     /// Resumes a paused source when the servo runs again, and sends a telemetry sample if due.
     pub fn poll(&mut self, device: &mut impl DeviceResources) {
-        let mut dev = AppDevice::new(device, self.absolute_encoders, self.link_motion);
+        let mut dev = AppDevice::new(device, self.board, self.absolute_encoders, self.link_motion);
         if let Some(message) = self.handler.poll(&mut dev) {
             self.send(&message);
         }
@@ -153,6 +156,7 @@ where
 /// read last (what [`Homing::state`] reports from).
 pub struct AppDevice<'a, D> {
     res: &'a mut D,
+    board: Board,
     status: Status,
     absolute_encoders: bool,
     link_motion: bool,
@@ -160,10 +164,11 @@ pub struct AppDevice<'a, D> {
 
 impl<'a, D: DeviceResources> AppDevice<'a, D> {
     /// Reads the status once.
-    pub fn new(res: &'a mut D, absolute_encoders: bool, link_motion: bool) -> Self {
+    pub fn new(res: &'a mut D, board: Board, absolute_encoders: bool, link_motion: bool) -> Self {
         let status = res.status();
         AppDevice {
             res,
+            board,
             status,
             absolute_encoders,
             link_motion,
@@ -175,7 +180,7 @@ impl<D: DeviceResources> Device for AppDevice<'_, D> {
     type Homing = Self;
     type Calibration = Self;
     fn board(&self) -> Board {
-        crate::board::BOARD_ID
+        self.board
     }
     fn status(&mut self) -> Status {
         self.status = self.res.status();

@@ -66,7 +66,6 @@ mod app {
     use controller::settings::Settings;
     use controller::status::Status;
     use controller::stop::Workspace;
-    use controller::trajectory::Trajectory;
     use controller::watchdog;
     use controller::SAMPLE_RATE_HZ;
     use firmware::board::{Board, Selected, ServoTimer};
@@ -153,7 +152,7 @@ mod app {
         let encoder_rad = board.encoders_rad();
         let mut servo_loop = ServoLoop::boot(settings, cal, cal_state, encoder_rad);
         // A watchdog reset keeps the drives off.
-        if let Some(fault) = watchdog::fault_after_reset(reset_cause) {
+        if let Some(fault) = Fault::after_reset(reset_cause) {
             servo_loop.latch_at_boot(fault);
         }
         // Incremental encoders: homing first (at boot if the settings say so; otherwise the
@@ -170,7 +169,7 @@ mod app {
         } else {
             servo_loop.setpoint_mm()
         };
-        let mut source = board.setpoints(Trajectory::builtin(start_mm, settings));
+        let mut source = board.setpoints(settings.builtin_trajectory(start_mm));
         // The link's port, configured before the watchdog starts: bringing a UART up may wait
         // for its acknowledgement (G474: a bounded wait of a few ms at most).
         let port = board.link();
@@ -225,6 +224,7 @@ mod app {
             handler: LinkHandler::new(),
             absolute_encoders: settings.homing.absolute_encoders,
             link_motion: settings.link_motion,
+            board: firmware::board::BOARD_ID,
         };
         if settings.link_motion {
             defmt::info!("setpoints from the host link");

@@ -42,7 +42,7 @@ use crate::calibration::ImageError;
 use crate::encoder_check::EncoderFault;
 use crate::homing::HomingFault;
 use crate::settings::SettingsError;
-use crate::watchdog::WatchdogFault;
+use crate::watchdog::{ResetCause, WatchdogFault};
 
 /// How the machine is brought to rest (IEC 60204-1 stop categories).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -131,6 +131,20 @@ impl Fault {
         }
     }
 
+    /// The fault a boot after `cause` starts with, if any: a watchdog reset keeps the drives
+    /// off ([`crate::watchdog`]).
+    pub fn after_reset(cause: ResetCause) -> Option<Fault> {
+        match cause {
+            ResetCause::Watchdog => Some(Fault::Watchdog(WatchdogFault::Reset)),
+            ResetCause::PowerOnOrBrownOut
+            | ResetCause::Pin
+            | ResetCause::Software
+            | ResetCause::LowPower
+            | ResetCause::OptionByteLoad
+            | ResetCause::Unknown => None,
+        }
+    }
+
     /// Faults only a reboot clears: settings or calibration refused at boot, and a watchdog
     /// that did not start (without it a stalled controller would keep the drives on). The
     /// servo loop refuses to reset them and the host link answers them as faulted.
@@ -207,6 +221,24 @@ mod tests {
             (Fault::Watchdog(WatchdogFault::NotStarted), Zero),
         ] {
             assert_eq!(fault.stop_category(), want, "{fault}");
+        }
+    }
+
+    #[test]
+    fn only_a_watchdog_reset_keeps_the_drives_off_at_the_next_boot() {
+        assert_eq!(
+            Fault::after_reset(ResetCause::Watchdog),
+            Some(Fault::Watchdog(WatchdogFault::Reset))
+        );
+        for cause in [
+            ResetCause::PowerOnOrBrownOut,
+            ResetCause::Pin,
+            ResetCause::Software,
+            ResetCause::LowPower,
+            ResetCause::OptionByteLoad,
+            ResetCause::Unknown,
+        ] {
+            assert_eq!(Fault::after_reset(cause), None, "{cause:?}");
         }
     }
 }

@@ -664,7 +664,7 @@ impl<'a> ServoLoop<'a> {
             );
         };
         let accepted = match &self.valid {
-            Some(valid) => servo.accept_motion_valid(valid, &setpoint, ahead.as_ref()),
+            Some(valid) => servo.accept_motion(valid, &setpoint, ahead.as_ref()),
             None => servo.accept_motion(&self.calibration, &setpoint, ahead.as_ref()),
         };
         let accepted = match accepted {
@@ -723,7 +723,7 @@ impl<'a> ServoLoop<'a> {
         let t_s = stop.samples as f32 * dt_s;
         let setpoint_mm = stop.profile.at(t_s);
         let stepped = match &self.valid {
-            Some(valid) => servo.step_valid(valid, setpoint_mm, encoder_rad),
+            Some(valid) => servo.step(valid, setpoint_mm, encoder_rad),
             None => servo.step(&self.calibration, setpoint_mm, encoder_rad),
         };
         match stepped {

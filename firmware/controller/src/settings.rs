@@ -13,6 +13,8 @@ use crate::encoder::{EncoderConfig, EncoderConfigError, EncoderScale};
 use crate::encoder_check::EncoderLimits;
 use crate::homing::HomingSettings;
 use crate::stop::StopSettings;
+use crate::trajectory::{Profile, Trajectory};
+use kinematics_core::TaskLimits;
 
 /// The default home position (mm): the middle of the paper's workspace.
 pub const HOME_MM: [f32; 2] = [212.132, 0.0];
@@ -116,6 +118,35 @@ impl core::fmt::Display for SettingsError {
 }
 
 impl Settings {
+    /// The built-in tour from `start_mm` at the servo rate, in its profile.
+    pub fn builtin_trajectory(&self, start_mm: [f32; 2]) -> Trajectory {
+        let settings = self;
+        match settings.trajectory_profile {
+            Profile::Quintic => Trajectory::new(
+                start_mm,
+                settings.builtin_tour_mm,
+                settings.trajectory_accel_mm_s2,
+                settings.trajectory_speed_mm_s,
+                settings.trajectory_dwell_s,
+                crate::SAMPLE_PERIOD_S,
+            ),
+            Profile::JerkLimited => {
+                let limits = TaskLimits {
+                    speed_mm_s: settings.trajectory_speed_mm_s,
+                    accel_mm_s2: settings.trajectory_accel_mm_s2,
+                    jerk_mm_s3: settings.trajectory_jerk_mm_s3,
+                };
+                Trajectory::jerk_limited(
+                    start_mm,
+                    settings.builtin_tour_mm,
+                    &limits,
+                    settings.trajectory_dwell_s,
+                    crate::SAMPLE_PERIOD_S,
+                )
+            }
+        }
+    }
+
     /// The limits the host link's motion (planned moves, streamed knots) must keep: the same
     /// speed, acceleration and jerk as the built-in trajectory's.
     pub fn stream_limits(&self) -> kinematics_core::trajectory::TaskLimits<f32> {
@@ -343,5 +374,28 @@ mod tests {
                 error: EncoderConfigError::ZeroCountsPerRev
             })
         );
+    }
+
+    #[test]
+    fn builtin_uses_the_settings_tour() {
+        let settings = Settings {
+            builtin_tour_mm: &crate::trajectory::WORKSPACE_TOUR_MM,
+            ..Settings::default()
+        };
+        assert_eq!(
+            settings.builtin_trajectory([212.132, 0.0]).total_samples(),
+            Trajectory::new(
+                [212.132, 0.0],
+                &crate::trajectory::WORKSPACE_TOUR_MM,
+                2.0 * 9_806.65,
+                1500.0,
+                0.1,
+                crate::SAMPLE_PERIOD_S
+            )
+            .total_samples()
+        );
+        assert!(Settings::default()
+            .builtin_trajectory([212.132, 0.0])
+            .finished());
     }
 }

@@ -402,7 +402,7 @@ fn injection_finds_the_tours_top_speed_and_the_rest_before_it() {
         builtin_tour_mm: &crate::trajectory::WORKSPACE_TOUR_MM,
         ..Settings::default()
     };
-    let t = Trajectory::builtin(P_MM, &settings);
+    let t = settings.builtin_trajectory(P_MM);
     let i = Injection::find(&t, DT_S);
     // 15/8·D/T with D = 160.4 mm and T = 0.218 s (436 samples: the 2 g limit binds).
     assert!((i.top_speed_mm_s - 1379.4).abs() < 0.5, "{i:?}");
