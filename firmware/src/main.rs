@@ -61,14 +61,12 @@ mod app {
     use controller::fault::{Fault, StopCategory};
     use controller::host_link::LinkHandler;
     use controller::motion_stream::{MotionStream, StreamLimits};
-    use controller::servo_loop::{Mode, ServoLoop, ServoRequest, SwitchRefused};
+    use controller::servo_loop::{Mode, Sample, ServoLoop, ServoRequest};
     use controller::setpoints::{self, QUEUE_SLOTS};
     use controller::settings::Settings;
     use controller::status::Status;
-    use controller::stop::Workspace;
-    use controller::watchdog;
     use controller::SAMPLE_RATE_HZ;
-    use firmware::board::{Board, Selected, ServoTimer};
+    use firmware::board::{Board, IndexOf, Selected, ServoTimer};
     use firmware::calibration::RegionFlash;
     use firmware::link::{LinkState, Locks};
     use kinematics_core::Calibration;
@@ -135,10 +133,6 @@ mod app {
             settings.home_mm,
             settings.allow_uncorrected,
         );
-        let workspace = cal
-            .grid
-            .as_ref()
-            .and_then(|g| Workspace::of_image(g, settings.stop.workspace_margin_mm));
         match cal_state {
             CalibrationState::Valid => {}
             CalibrationState::Refused(e) => {
@@ -202,7 +196,7 @@ mod app {
         let limits = StreamLimits {
             task: settings.stream_limits(),
             stop: settings.stop.limits,
-            workspace,
+            workspace: servo_loop.calibration().workspace(),
         };
         let mut stream = MotionStream::new(limits, start_mm);
         if servo_loop.mode() != Mode::Running {
@@ -276,52 +270,22 @@ mod app {
         let l = cx.local;
         l.board.timer().acknowledge_tick();
         l.board.begin_sample();
-        // Encoders -> sample logic (setpoint intake, mode machine, servo step).
+        // Encoders -> the host's request, a committed calibration, the sample logic.
         let encoder_rad = l.board.encoders_rad();
-        // A host request (stop, disable, reset, home) takes effect in this sample; the drives go
-        // on when a reset re-engages or homing starts. A refused reset leaves the mode as it
-        // was, which the host reads in the status.
-        if let Some(request) = cx.shared.servo_request.lock(Option::take) {
-            if let Ok(true) = l.servo_loop.request(request, l.setpoints_out, encoder_rad) {
-                l.board.enable_drives();
-            }
+        let request = cx.shared.servo_request.lock(Option::take);
+        let offered = cx.shared.new_calibration.lock(Option::take);
+        let index = &mut IndexOf(&mut *l.board);
+        let tick = l
+            .servo_loop
+            .tick(request, offered, l.setpoints_out, encoder_rad, index);
+        let mut sample = tick.sample;
+        if tick.enable_drives {
+            l.board.enable_drives();
         }
-        // A newly committed calibration: switched to at rest (parsed by the upload task, so
-        // this costs a lock and a re-engage), kept pending while the machine moves.
-        let mut switched = None;
-        if let Some((cal, id)) = cx.shared.new_calibration.lock(|n| n.take()) {
-            match l.servo_loop.switch_calibration(cal, encoder_rad) {
-                Ok(()) => switched = Some(id),
-                Err(SwitchRefused::NotAtRest) => {
-                    cx.shared.new_calibration.lock(|n| *n = Some((cal, id)))
-                }
-                // The new calibration cannot engage here: the old one stays in force.
-                Err(SwitchRefused::Engage(_)) => {}
-            }
-        }
-        let mut sample = if l.servo_loop.mode() == Mode::Homing {
-            // Homing (joint space, the setpoint stream waits): the index captures, and the
-            // reference once both indexes are found.
-            let index_rad = l.board.index_rad();
-            let mut sample = l.servo_loop.step_homing(encoder_rad, index_rad);
-            if sample.set_reference {
-                let ok = l
-                    .board
-                    .reference_at_index(l.servo_loop.settings().homing.index_rad);
-                l.servo_loop.referenced(ok, &mut sample);
-            }
-            sample
-        } else {
-            l.servo_loop.step(l.setpoints_out, encoder_rad)
-        };
-        if sample.refill {
-            let _ = intake::spawn();
-        }
-        // Drives.
+        // Drives, then the deadline.
         if l.board.set_torques_nm(sample.torque_nm).is_err() {
             l.servo_loop.latch(Fault::Drive, &mut sample);
         }
-        // Deadline.
         let timer = l.board.timer();
         let (step_us, overrun) = (timer.step_time_us(), timer.next_tick_pending());
         l.servo_loop.record_deadline(step_us, overrun, &mut sample);
@@ -330,33 +294,37 @@ mod app {
         if sample.torque_off {
             l.board.disable_drives();
         }
-        if let Some(fault) = sample.fault {
-            let _ = on_fault::spawn(fault);
-        }
-        // Publish.
-        let (mode, deadline) = (l.servo_loop.mode(), *l.servo_loop.deadline());
-        let stop_mm = l.servo_loop.stop_profile().map_or(0.0, |p| p.distance_mm());
         cx.shared.status.lock(|s| {
-            s.record(&sample, mode, &deadline, stop_mm);
-            s.homing = l.servo_loop.homing_phase();
-            if switched.is_some() {
-                s.calibration_id = switched;
-            }
+            s.publish(&sample, l.servo_loop, tick.switch);
             l.board.end_sample(s);
         });
-        // A run-time upload the board asks for (the QEMU upload scenarios; never on hardware).
-        if let Some((image, corrupt)) = l.board.bundled_upload_due(sample.index) {
-            let _ = upload::spawn(image, corrupt);
-        }
-        if sample.index % l.servo_loop.settings().telemetry_period_ticks.max(1) == 0 {
-            let _ = telemetry::spawn();
-        }
-        if sample.index % LINK_POLL_TICKS == 0 {
-            rtic::pend(firmware::board::device::Interrupt::LINK_RX);
-        }
+        spawn_tasks(&sample, l.servo_loop.settings(), l.board);
         // Watchdog, last: only a step that completed on time feeds it.
         if sample.feed_watchdog {
             l.board.feed_watchdog();
+        }
+    }
+
+    /// What the servo task starts after a sample: the intake when the queue runs low, the fault
+    /// report, and every few samples telemetry, the link task's poll (so that a paused motion
+    /// source resumes and telemetry goes out even when the host sends nothing), and a run-time
+    /// upload the board asks for (the QEMU upload scenarios; never on hardware).
+    fn spawn_tasks(sample: &Sample, settings: &Settings, board: &mut Selected) {
+        if sample.refill {
+            let _ = intake::spawn();
+        }
+        if let Some(fault) = sample.fault {
+            let _ = on_fault::spawn(fault);
+        }
+        let index = sample.index;
+        if index % settings.telemetry_period_ticks.max(1) == 0 {
+            let _ = telemetry::spawn();
+        }
+        if index % LINK_POLL_TICKS == 0 {
+            rtic::pend(firmware::board::device::Interrupt::LINK_RX);
+        }
+        if let Some((image, corrupt)) = board.bundled_upload_due(index) {
+            let _ = upload::spawn(image, corrupt);
         }
     }
 

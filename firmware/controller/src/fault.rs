@@ -34,7 +34,7 @@
 //! a machine after a category-0 fault.
 //!
 //! Only a reset clears a latched fault: a reboot, or the host link's `ResetFault` / `Enable`
-//! ([`ServoLoop::reset`](crate::servo_loop::ServoLoop::reset): re-engages where the machine is). The mode machine is in [`crate::servo_loop`], the stop
+//! ([`ServoLoop::request`](crate::servo_loop::ServoLoop::request): re-engages where the machine is; what a reset clears in each mode is the table of [`crate::servo_loop::requests`]). The mode machine is in [`crate::servo_loop`], the stop
 //! profile in [`crate::stop`], the encoder checks in [`crate::encoder_check`].
 use kinematics_core::{EngageError, ServoFault, SetpointRefusal};
 

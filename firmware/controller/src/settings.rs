@@ -88,6 +88,38 @@ pub struct Settings {
     /// The home position (mm): where homing ends, and what every calibration image's grid must
     /// contain. Default (212.132, 0), the middle of the paper's workspace.
     pub home_mm: [f32; 2],
+    /// Switching to a newly committed calibration at rest: how far it may move the tool and
+    /// how fast (`servo_loop::switch`). See [`SwitchSettings`].
+    pub switch: SwitchSettings,
+}
+
+/// How a calibration switch at rest moves the tool: from where the new calibration puts it to
+/// where the old one held it, in a straight jerk-limited move (the stop's jerk), at most
+/// `max_move_mm` long.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct SwitchSettings {
+    /// The largest move a switch may make (mm); a calibration that disagrees more with the one
+    /// in force at the machine's pose is refused (the old one stays). Default 5 mm: a
+    /// calibration of this machine and the nominal model disagree by up to about 1.4 mm on the
+    /// paper's machine (README: the nominal model's 1.34 mm error), two calibrations of it by
+    /// micrometres.
+    pub max_move_mm: f32,
+    /// The move's peak speed (mm/s). Default 20 mm/s.
+    pub speed_mm_s: f32,
+    /// The move's peak acceleration (mm/s²). Default 500 mm/s² (0.05 g: a few hundredths of a
+    /// newton-metre at the motors).
+    pub accel_mm_s2: f32,
+}
+
+impl Default for SwitchSettings {
+    fn default() -> Self {
+        SwitchSettings {
+            max_move_mm: 5.0,
+            speed_mm_s: 20.0,
+            accel_mm_s2: 500.0,
+        }
+    }
 }
 
 /// Settings [`Settings::validate`] refuses.
@@ -203,6 +235,9 @@ impl Settings {
             ),
             (self.overrun_streak_limit >= 1, "overrun_streak_limit"),
             (self.telemetry_period_ticks >= 1, "telemetry_period_ticks"),
+            (positive(self.switch.max_move_mm), "switch.max_move_mm"),
+            (positive(self.switch.speed_mm_s), "switch.speed_mm_s"),
+            (positive(self.switch.accel_mm_s2), "switch.accel_mm_s2"),
             (self.home_mm.iter().all(|v| v.is_finite()), "home_mm"),
             (self.machine.nominal.validate().is_ok(), "machine.nominal"),
             (
@@ -248,6 +283,7 @@ impl Default for Settings {
             machine: MachineIdentity::default(),
             home_mm: HOME_MM,
             homing: HomingSettings::default(),
+            switch: SwitchSettings::default(),
         }
     }
 }

@@ -19,6 +19,7 @@
 use controller::deadline::step_time_us;
 use controller::drive::DriveError;
 use controller::encoder::EncoderScale;
+use controller::servo_loop::IndexCapture;
 use controller::setpoints::SetpointSource;
 use controller::settings::Settings;
 use controller::status::Status;
@@ -205,5 +206,18 @@ pub trait Board: Sized {
     fn bundled_upload_due(&mut self, ticks: u32) -> Option<(&'static [u8], bool)> {
         let _ = ticks;
         None
+    }
+}
+
+/// A board's index capture, as the servo loop's homing step reads it
+/// (`controller::servo_loop::IndexCapture`).
+pub struct IndexOf<'b, B>(pub &'b mut B);
+
+impl<B: Board> IndexCapture for IndexOf<'_, B> {
+    fn index_rad(&mut self) -> [Option<f32>; 2] {
+        self.0.index_rad()
+    }
+    fn reference_at_index(&mut self, index_rad: [f32; 2]) -> bool {
+        self.0.reference_at_index(index_rad)
     }
 }

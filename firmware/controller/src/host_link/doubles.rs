@@ -20,7 +20,6 @@ use crate::servo_loop::{ServoLoop, ServoRequest};
 use crate::setpoints::{self, QUEUE_SLOTS};
 use crate::settings::Settings;
 use crate::status::Status;
-use crate::stop::Workspace;
 
 /// Two direct-drive joints with viscous and Coulomb friction (rotor plus reflected link
 /// inertia of the five-bar at the home pose), integrated in 10 sub-steps per sample; the
@@ -191,15 +190,11 @@ impl<'a> Rig<'a> {
         joints_rad: [f32; 2],
         active_id: Option<u32>,
     ) -> Self {
-        let workspace = calibration
-            .grid
-            .as_ref()
-            .and_then(|g| Workspace::of_image(g, settings.stop.workspace_margin_mm));
         let servo = ServoLoop::boot(settings, calibration, CalibrationState::Valid, joints_rad);
         let limits = StreamLimits {
             task: settings.stream_limits(),
             stop: settings.stop.limits,
-            workspace,
+            workspace: servo.calibration().workspace(),
         };
         let stream = MotionStream::new(limits, servo.setpoint_mm());
         let status = Status::at_boot(CalibrationState::Valid, &servo, joints_rad);

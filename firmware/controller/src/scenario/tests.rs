@@ -110,6 +110,8 @@ fn running(ticks: u32, d: [f32; 2]) -> Status {
         max_following_error_rad: 1e-4,
         setpoint_underruns: 0,
         calibration_id: None,
+        calibration_pending: None,
+        last_switch: None,
         last_upload: None,
         homing: None,
     }
