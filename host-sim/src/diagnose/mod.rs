@@ -2,14 +2,14 @@
 //! disagree, name the missing effect, add it to the model and show the gap shrink.
 //!
 //! Pipeline, top to bottom in [`diagnose_with_history`]: residuals of the current model
-//! ([`effects`]) → stepwise selection over the effect library with a BIC score ([`selection`],
+//! ([`forward_model`]) → stepwise selection over the effect library with a BIC score ([`selection`],
 //! fits by [`fit`]: the crate's one LM) → confounding of the chosen effects with the other
 //! candidates ([`confounding`]) → structure of what is left ([`structure`]) → report and table
 //! ([`report`]) and plots ([`plots`]). [`diagnose`] is the whole analysis on in-memory
-//! measurements, so the tests and studies call it directly. [`synth`] generates test data.
+//! measurements, so the tests and studies call it directly. [`crate::synth`] generates test data.
 //!
 //! Where a change goes: a new effect is a [`crate::effect::PhysicalEffect`] variant, an entry of
-//! [`effects::LIBRARY`] and its term in `Problem::predict`; a new structure test in
+//! [`library::LIBRARY`] and its term in `Problem::predict`; a new structure test in
 //! `structure.rs`; a new report field in `report.rs` (the contract keys stay).
 //!
 //! Noise σ: `--noise-um` if given, else estimated from repeated poses (same angles and
@@ -19,24 +19,24 @@
 //! Cost: a few dozen LM fits of ≤ 18 parameters; about a second for 650 points (dev profile).
 
 pub mod confounding;
-pub mod effects;
 pub mod fit;
-pub mod loop_closure;
+pub mod forward_model;
+pub mod library;
 pub mod model_out;
 pub mod plots;
 pub mod report;
 pub mod selection;
 pub mod sixbar_modes;
 pub mod structure;
-pub mod synth;
 
 use crate::io::measurement_csv::Measurement;
 use crate::io::IoError;
+use crate::loop_closure::SixBarDesign;
 use crate::numeric::stats::max_rms_radial;
-use effects::{Effect, Problem, LIBRARY, N_PARAMS, PARAM_NAMES};
 use fit::Fit;
+use forward_model::Problem;
 use kinematics_core::FiveBar;
-use loop_closure::SixBarDesign;
+use library::{Effect, LIBRARY, N_PARAMS, PARAM_NAMES};
 use report::{Param, Report, Step};
 use selection::Fitter;
 use std::collections::{BTreeMap, HashMap};
@@ -502,7 +502,7 @@ fn suspected_drift(
 }
 
 /// The nuisances the residual's significant structure calls for (the current ones kept).
-fn nuisance_for(problem: &Problem, found: &[structure::Finding]) -> effects::Nuisance {
+fn nuisance_for(problem: &Problem, found: &[structure::Finding]) -> library::Nuisance {
     let mut next = problem.nuisance;
     for f in found.iter().filter(|f| f.significant) {
         match (f.kind.as_str(), f.cycles_per_rev) {
@@ -523,7 +523,7 @@ fn nuisance_for(problem: &Problem, found: &[structure::Finding]) -> effects::Nui
     next
 }
 
-fn describe_nuisance(n: &effects::Nuisance) -> String {
+fn describe_nuisance(n: &library::Nuisance) -> String {
     let mut parts = Vec::new();
     for (j, c) in n.cyclic_cycles.iter().enumerate() {
         if let Some(c) = c {
@@ -551,20 +551,20 @@ fn nuisance_report(problem: &Problem, fit: &Fit, s2: f64, mut log: Vec<String>) 
     for (j, c) in problem.nuisance.cyclic_cycles.iter().enumerate() {
         if let Some(c) = c {
             let (a, b) = (
-                fit.p[effects::idx::CYCLIC + 2 * j],
-                fit.p[effects::idx::CYCLIC + 2 * j + 1],
+                fit.p[library::idx::CYCLIC + 2 * j],
+                fit.p[library::idx::CYCLIC + 2 * j + 1],
             );
             log.push(format!(
                 "motor {}: {c} cycles/rev, amplitude {:.1} µrad (cos {a:.1} ± {:.1}, sin {b:.1} ± {:.1})",
                 j + 1,
                 a.hypot(b),
-                sd(effects::idx::CYCLIC + 2 * j),
-                sd(effects::idx::CYCLIC + 2 * j + 1)
+                sd(library::idx::CYCLIC + 2 * j),
+                sd(library::idx::CYCLIC + 2 * j + 1)
             ));
         }
     }
     if problem.nuisance.drift {
-        let k = effects::idx::DRIFT;
+        let k = library::idx::DRIFT;
         log.push(format!(
             "drift since the first reading: x {:.2} ± {:.2}, y {:.2} ± {:.2} µm per 1000 s",
             fit.p[k],

@@ -62,8 +62,9 @@
 //! (≤ 9 LM fits), plus K fits for each effect that passes the BIC; results are cached by effect
 //! set.
 
-use super::effects::{idx, Effect, Problem, LIBRARY, N_PARAMS};
 use super::fit::{cross_validated_rss, fit, Fit};
+use super::forward_model::Problem;
+use super::library::{idx, Effect, LIBRARY, N_PARAMS};
 use crate::effect::PhysicalEffect;
 use nalgebra::{DMatrix, DVector};
 use std::collections::BTreeMap;
@@ -223,7 +224,7 @@ pub fn plausible(problem: &Problem, e: &Effect, f: &Fit, s2: f64) -> Result<(), 
         } else {
             Err(format!(
                 "{} = {:.1} is beyond a plausible {what} ({limit:.0})",
-                super::effects::PARAM_NAMES[k],
+                super::library::PARAM_NAMES[k],
                 x[k]
             ))
         }
@@ -237,7 +238,7 @@ pub fn plausible(problem: &Problem, e: &Effect, f: &Fit, s2: f64) -> Result<(), 
             if v < -3.0 * s - 1e-9 {
                 Err(format!(
                     "{} = {v:.1} ± {s:.1}: negative lost motion (the link ahead of its motor) is not backlash",
-                    super::effects::PARAM_NAMES[idx::BACKLASH + k]
+                    super::library::PARAM_NAMES[idx::BACKLASH + k]
                 ))
             } else {
                 within(idx::BACKLASH + k, 1e4, "0.01 rad of lost motion")
