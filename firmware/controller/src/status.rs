@@ -54,6 +54,9 @@ pub struct Status {
     pub last_upload: Option<Result<CalibrationId, SlotError>>,
     /// A committed calibration the servo has not switched to yet (it does at the next rest).
     pub calibration_pending: Option<CalibrationId>,
+    /// The move after a calibration switch is under way: the setpoint is on its way back to
+    /// where the motion source holds it (a source resumed now would hold the wrong point).
+    pub blending: bool,
     /// What became of the last committed calibration the servo was offered (`None`: none since
     /// boot).
     pub last_switch: Option<SwitchOutcome>,
@@ -89,6 +92,7 @@ impl Status {
             calibration_id: None,
             last_upload: None,
             calibration_pending: None,
+            blending: false,
             last_switch: None,
             homing: servo_loop.homing_phase(),
         }
@@ -142,6 +146,7 @@ impl Status {
         self.record(sample, servo_loop.mode(), servo_loop.deadline(), stop_mm);
         self.homing = servo_loop.homing_phase();
         self.calibration_pending = servo_loop.pending_calibration();
+        self.blending = servo_loop.blending();
         if let Some(outcome) = switch {
             if let SwitchOutcome::Switched(id) = outcome {
                 self.calibration_id = Some(id);

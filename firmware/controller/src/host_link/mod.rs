@@ -382,7 +382,8 @@ impl LinkHandler {
                 self.posted_at_tick = None;
             }
         }
-        if s.mode == Mode::Running && self.posted_at_tick.is_none() {
+        // Not during a calibration switch's blend: the source must hold where the blend ends.
+        if s.mode == Mode::Running && self.posted_at_tick.is_none() && !s.blending {
             device.with_stream(|m| {
                 if m.is_paused() {
                     m.hold(s.setpoint_mm);
@@ -473,7 +474,7 @@ fn link_is_source(device: &impl Device) -> Result<(), LinkError> {
 /// the setpoint queue; "not moving" before then let a host read a setpoint short of the end).
 /// With a built-in source the link cannot see its plan: the last sample's setpoint changed.
 fn motion_under_way(s: &Status, device: &mut impl Device) -> bool {
-    if matches!(s.mode, Mode::Stopping(_)) {
+    if matches!(s.mode, Mode::Stopping(_)) || s.blending {
         return true;
     }
     if !device.link_drives_motion() {

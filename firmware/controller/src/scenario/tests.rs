@@ -111,6 +111,7 @@ fn running(ticks: u32, d: [f32; 2]) -> Status {
         setpoint_underruns: 0,
         calibration_id: None,
         calibration_pending: None,
+        blending: false,
         last_switch: None,
         last_upload: None,
         homing: None,

@@ -34,6 +34,14 @@ pub struct Blend {
     t_s: f32,
 }
 
+impl Blend {
+    /// A blend along `motion` from its start (tests put the loop in any state).
+    #[cfg(test)]
+    pub(super) fn for_test(motion: PathMotion<f32, Line<f32>>) -> Self {
+        Blend { motion, t_s: 0.0 }
+    }
+}
+
 /// Why a committed calibration was not switched to (now).
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]

@@ -1232,3 +1232,5 @@ fn a_new_calibration_is_switched_to_at_rest_without_a_jump() {
     println!("switched at sample {at}, largest torque change per sample in the next 50: {worst_step:.3} N·m");
     assert!(worst_step < 1.0, "{worst_step}");
 }
+
+mod reset_and_switch;
