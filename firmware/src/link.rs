@@ -232,7 +232,7 @@ impl<D: DeviceResources> Homing for AppDevice<'_, D> {
 impl<D: DeviceResources> CalibrationStore for AppDevice<'_, D> {
     fn begin(&mut self, len: u32) -> Result<(), CalibrationRefusal> {
         self.res
-            .with_slots(|s| s.begin(len as usize))
+            .with_slots(|s| s.begin(len as usize, self.status.calibration_id))
             .map_err(calibration_refusal)
     }
     fn write(&mut self, offset: u32, data: &[u8]) -> Result<u32, CalibrationRefusal> {

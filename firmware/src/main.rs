@@ -116,23 +116,15 @@ mod app {
 
         // The image in force: the committed slot with the highest sequence, or an image flashed
         // by probe at the region's start (controller::calibration_slots).
-        let slots = SlotStore::open(
-            firmware::calibration::flash(),
-            settings.machine,
-            settings.home_mm,
-        );
+        let image_check = settings.image_check();
+        let slots = SlotStore::open(firmware::calibration::flash(), image_check);
         let calibration_id = slots.active_id();
         defmt::info!("boot: calibration in force {}", calibration_id);
         let image = calibration_id.map_or(
             firmware::calibration::region(),
             firmware::calibration::slot_bytes,
         );
-        let (cal_state, cal) = calibration::load(
-            image,
-            &settings.machine,
-            settings.home_mm,
-            settings.allow_uncorrected,
-        );
+        let (cal_state, cal) = calibration::load(image, &image_check, settings.allow_uncorrected);
         match cal_state {
             CalibrationState::Valid => {}
             CalibrationState::Refused(e) => {
@@ -390,8 +382,9 @@ mod app {
     #[task(priority = 1, shared = [slots, new_calibration, status])]
     async fn upload(mut cx: upload::Context, image: &'static [u8], corrupt: bool) {
         const CHUNK: usize = 200;
+        let in_use = cx.shared.status.lock(|s| s.calibration_id);
         let result = cx.shared.slots.lock(|slots| {
-            slots.begin(image.len())?;
+            slots.begin(image.len(), in_use)?;
             let mut buf = [0u8; CHUNK];
             for (k, chunk) in image.chunks(CHUNK).enumerate() {
                 let part = &mut buf[..chunk.len()];

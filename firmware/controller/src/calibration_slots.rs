@@ -54,7 +54,7 @@
 //! `commit` one CRC and a parse. None of it runs in the servo task: the app calls it from a
 //! low-priority task, and on the G474 the calibration region is in bank 2 while the program
 //! runs from bank 1.
-use crate::calibration::{validate_image, ImageError, MachineIdentity};
+use crate::calibration::{validate_image, ImageCheck, ImageError};
 
 /// The record's own CRC (CRC-32/ISO-HDLC, zlib's, as the grid format uses).
 const CRC32: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
@@ -142,7 +142,7 @@ pub struct CalibrationId {
 /// Why an upload step was refused. After any error but [`SlotError::NoUpload`] and
 /// [`SlotError::OutOfOrder`] the upload is abandoned (start again with `begin`); the image in
 /// force is untouched in every case.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum SlotError {
     /// `write` or `commit` without a `begin`.
@@ -169,6 +169,8 @@ pub enum SlotError {
     Flash(FlashError),
     /// The uploaded image is not a valid image for this machine.
     Image(ImageError),
+    /// A committed image waits for the servo to switch to it: no upload until it has.
+    SwitchPending,
 }
 
 impl core::fmt::Display for SlotError {
@@ -187,6 +189,9 @@ impl core::fmt::Display for SlotError {
             }
             SlotError::Flash(e) => write!(f, "flash error: {e:?}"),
             SlotError::Image(e) => write!(f, "image refused: {e}"),
+            SlotError::SwitchPending => f.write_str(
+                "a committed image waits for the servo to switch to it at rest (no upload until it has)",
+            ),
         }
     }
 }
@@ -214,20 +219,18 @@ struct Upload {
 /// The two slots over a board's flash: which image is in force, and the upload into the other.
 pub struct SlotStore<F: SlotFlash> {
     flash: F,
-    machine: MachineIdentity,
-    home_mm: [f32; 2],
+    check: ImageCheck,
     active: Option<CalibrationId>,
     upload: Option<Upload>,
 }
 
 impl<F: SlotFlash> SlotStore<F> {
-    /// Scans both slots and picks the image in force (module doc). `machine` and `home_mm` are
-    /// what an image must have been built for.
-    pub fn open(flash: F, machine: MachineIdentity, home_mm: [f32; 2]) -> Self {
+    /// Scans both slots and picks the image in force (module doc). `check` judges each image
+    /// (this machine's, plausible: `Settings::image_check`).
+    pub fn open(flash: F, check: ImageCheck) -> Self {
         let mut store = SlotStore {
             flash,
-            machine,
-            home_mm,
+            check,
             active: None,
             upload: None,
         };
@@ -282,10 +285,16 @@ impl<F: SlotFlash> SlotStore<F> {
         self.upload.map(|u| (u.received, u.len))
     }
 
-    /// Starts an upload of `len` bytes: erases the slot not in force. An upload already under
-    /// way is abandoned.
-    pub fn begin(&mut self, len: usize) -> Result<(), SlotError> {
+    /// Starts an upload of `len` bytes into the slot the servo does not use (`in_use`: the id
+    /// of the image the servo runs with, `None` without one) and erases it. Refused with
+    /// [`SlotError::SwitchPending`] while the newest committed image is not the one in use (a
+    /// switch is pending: the other slot is the one the servo still reads, and the committed
+    /// one must not be erased either). An upload already under way is abandoned.
+    pub fn begin(&mut self, len: usize, in_use: Option<CalibrationId>) -> Result<(), SlotError> {
         self.upload = None;
+        if self.active.is_some() && self.active != in_use {
+            return Err(SlotError::SwitchPending);
+        }
         let max = self.capacity();
         if !(kinematics_core::grid::HEADER_LEN + 4..=max).contains(&len) {
             return Err(SlotError::BadLength { max: max as u32 });
@@ -363,8 +372,7 @@ impl<F: SlotFlash> SlotStore<F> {
                 .program(base + up.len as usize - up.tail_len, &unit[..w])?;
         }
         let image = &self.flash.region()[base..base + up.len as usize];
-        let (_, parsed_len) =
-            validate_image(image, &self.machine, self.home_mm).map_err(SlotError::Image)?;
+        let (_, parsed_len) = validate_image(image, &self.check).map_err(SlotError::Image)?;
         // The image must be exactly what was announced (no trailing bytes a CRC does not cover).
         if parsed_len != up.len as usize {
             return Err(SlotError::BadLength {
@@ -392,6 +400,26 @@ impl<F: SlotFlash> SlotStore<F> {
         Ok(id)
     }
 
+    /// A committed image the servo refused to switch to (`SwitchOutcome::Refused`): its slot is
+    /// erased, so that the image in use (`in_use`) stays in force, at the next boot too, and the
+    /// next upload may go there. Nothing happens unless the newest committed image is `refused`
+    /// and not the one in use.
+    pub fn withdraw(
+        &mut self,
+        refused: CalibrationId,
+        in_use: Option<CalibrationId>,
+    ) -> Result<(), SlotError> {
+        if self.active != Some(refused) || in_use == Some(refused) {
+            return Ok(());
+        }
+        let slot_len = self.slot_len();
+        self.upload = None;
+        self.flash
+            .erase(refused.slot as usize * slot_len, slot_len)?;
+        self.active = in_use;
+        Ok(())
+    }
+
     /// Abandons the upload under way (the half-written slot stays without record).
     pub fn abort(&mut self) {
         self.upload = None;
@@ -416,7 +444,7 @@ impl<F: SlotFlash> SlotStore<F> {
         if image_crc(image) != crc32 {
             return None;
         }
-        let (_, parsed_len) = validate_image(image, &self.machine, self.home_mm).ok()?;
+        let (_, parsed_len) = validate_image(image, &self.check).ok()?;
         (parsed_len == len as usize).then_some(CalibrationId {
             slot,
             sequence,
@@ -428,7 +456,7 @@ impl<F: SlotFlash> SlotStore<F> {
     /// An image at the start of slot A without any record (flashed by probe), sequence 0.
     fn probe_flashed(&self) -> Option<CalibrationId> {
         let a = self.flash.region().get(..self.capacity())?;
-        let (_, len) = validate_image(a, &self.machine, self.home_mm).ok()?;
+        let (_, len) = validate_image(a, &self.check).ok()?;
         Some(CalibrationId {
             slot: 0,
             sequence: 0,
@@ -548,6 +576,20 @@ mod tests {
 
     const HOME_MM: [f32; 2] = [212.132, 0.0];
 
+    /// The paper's machine with its default tolerances and the default servo's limits.
+    fn image_check() -> ImageCheck {
+        ImageCheck {
+            machine: crate::calibration::MachineIdentity::default(),
+            home_mm: HOME_MM,
+            limits: Some(crate::plausibility::ImageLimits::of(
+                &FiveBar::paper_nominal(),
+                2.0,
+                &kinematics_core::ServoConfig::default(),
+                100.0,
+            )),
+        }
+    }
+
     fn image(value: f32) -> Vec<u8> {
         let g = GridGeometry {
             nx: 3,
@@ -588,7 +630,7 @@ mod tests {
     type Small<'a> = SimFlash<'a, 8, 256>;
 
     fn open(bytes: &mut [u8]) -> SlotStore<Small<'_>> {
-        SlotStore::open(SimFlash::new(bytes), MachineIdentity::default(), HOME_MM)
+        SlotStore::open(SimFlash::new(bytes), image_check())
     }
 
     fn upload<F: SlotFlash>(
@@ -596,7 +638,7 @@ mod tests {
         img: &[u8],
         chunk: usize,
     ) -> Result<CalibrationId, SlotError> {
-        store.begin(img.len())?;
+        store.begin(img.len(), store.active_id())?;
         for (k, c) in img.chunks(chunk).enumerate() {
             store.write(k * chunk, c)?;
         }
@@ -685,23 +727,34 @@ mod tests {
         assert_eq!(
             upload(&mut store, &other, 32),
             Err(SlotError::Image(ImageError::OtherMachine(
-                crate::calibration::MachineMismatch::LinkLength
+                crate::calibration::MachineMismatch {
+                    parameter: link_protocol::ImageParameter::LinkAMm,
+                    image: 160.0,
+                    machine: 150.0,
+                    tolerance: 2.0,
+                }
             )))
         );
         // Lengths, order, protocol.
-        assert_eq!(store.begin(10), Err(SlotError::BadLength { max: 2016 }));
-        assert_eq!(store.begin(5000), Err(SlotError::BadLength { max: 2016 }));
+        assert_eq!(
+            store.begin(10, store.active_id()),
+            Err(SlotError::BadLength { max: 2016 })
+        );
+        assert_eq!(
+            store.begin(5000, store.active_id()),
+            Err(SlotError::BadLength { max: 2016 })
+        );
         assert_eq!(store.write(0, &[1]), Err(SlotError::NoUpload));
         assert_eq!(store.commit(), Err(SlotError::NoUpload));
         let good = image(2e-4);
-        store.begin(good.len()).unwrap();
+        store.begin(good.len(), store.active_id()).unwrap();
         store.write(0, &good[..10]).unwrap();
         assert_eq!(
             store.write(0, &good[..10]),
             Err(SlotError::OutOfOrder { expected: 10 })
         );
         assert_eq!(store.commit(), Err(SlotError::Incomplete { received: 10 }));
-        store.begin(good.len()).unwrap();
+        store.begin(good.len(), store.active_id()).unwrap();
         assert_eq!(store.write(0, &[0u8; 200]), Err(SlotError::TooMuchData));
         // Announced longer than the image: trailing bytes are refused, not ignored.
         let mut padded = good.clone();
@@ -833,7 +886,7 @@ mod tests {
         region[..old.len()].copy_from_slice(&old);
         let snapshot = region.clone();
         fn open64(r: &mut [u8]) -> SlotStore<SimFlash<'_, 8, 2048>> {
-            SlotStore::open(SimFlash::new(r), MachineIdentity::default(), HOME_MM)
+            SlotStore::open(SimFlash::new(r), image_check())
         }
         let (ops, units) = {
             let mut r = snapshot.clone();

@@ -58,7 +58,7 @@ pub enum StopCategory {
 }
 
 /// Why the machine stopped. Latched: only a reset clears it.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum Fault {
     /// The servo refused a setpoint of the stream: non-finite (category 1), unreachable, near a

@@ -8,10 +8,11 @@
 //! refuses (`Fault::Settings`), and no value of them can make the firmware panic.
 use kinematics_core::{ConfigError, ServoConfig};
 
-use crate::calibration::MachineIdentity;
+use crate::calibration::{ImageCheck, MachineIdentity};
 use crate::encoder::{EncoderConfig, EncoderConfigError, EncoderScale};
 use crate::encoder_check::EncoderLimits;
 use crate::homing::HomingSettings;
+use crate::plausibility::ImageLimits;
 use crate::stop::StopSettings;
 use crate::trajectory::{Profile, Trajectory};
 use kinematics_core::TaskLimits;
@@ -176,6 +177,22 @@ impl Settings {
                     crate::SAMPLE_PERIOD_S,
                 )
             }
+        }
+    }
+
+    /// What a calibration image must be to be used with these settings: this machine's, with
+    /// the home position in its grid, and plausible (`plausibility`: limits from the machine's
+    /// tolerances, the servo and the encoder check's top speed).
+    pub fn image_check(&self) -> ImageCheck {
+        ImageCheck {
+            machine: self.machine,
+            home_mm: self.home_mm,
+            limits: Some(ImageLimits::of(
+                &self.machine.nominal,
+                self.machine.max_length_deviation_mm,
+                &self.servo,
+                self.encoder_limits.max_speed_rad_s,
+            )),
         }
     }
 

@@ -176,7 +176,18 @@ pub fn calibration_refusal(e: SlotError) -> CalibrationRefusal {
         SlotError::TooMuchData | SlotError::Incomplete { .. } => CalibrationRefusal::Incomplete,
         SlotError::Flash(_) => CalibrationRefusal::Flash,
         SlotError::Image(ImageError::Grid(_)) => CalibrationRefusal::Invalid,
-        SlotError::Image(ImageError::OtherMachine(_)) => CalibrationRefusal::OtherMachine,
+        SlotError::Image(ImageError::OtherMachine(m)) => CalibrationRefusal::OtherMachine {
+            parameter: m.parameter,
+            image: m.image,
+            machine: m.machine,
+            tolerance: m.tolerance,
+        },
+        SlotError::Image(ImageError::Implausible(i)) => CalibrationRefusal::Implausible {
+            parameter: i.parameter,
+            value: i.value,
+            limit: i.limit,
+        },
+        SlotError::SwitchPending => CalibrationRefusal::SwitchPending,
     }
 }
 

@@ -819,7 +819,9 @@ fn the_homing_state_follows_the_mode_and_the_phase() {
 fn the_slot_stores_refusals_have_their_link_names() {
     use crate::calibration::{ImageError, MachineMismatch};
     use crate::calibration_slots::{FlashError, SlotError};
+    use crate::plausibility::Implausible;
     use kinematics_core::GridError;
+    use link_protocol::ImageParameter;
     let cases = [
         (SlotError::NoUpload, CalibrationRefusal::NotBegun),
         (SlotError::BadLength { max: 10 }, CalibrationRefusal::Length),
@@ -841,9 +843,32 @@ fn the_slot_stores_refusals_have_their_link_names() {
             CalibrationRefusal::Invalid,
         ),
         (
-            SlotError::Image(ImageError::OtherMachine(MachineMismatch::WorkingMode)),
-            CalibrationRefusal::OtherMachine,
+            SlotError::Image(ImageError::OtherMachine(MachineMismatch {
+                parameter: ImageParameter::LinkBMm,
+                image: 161.0,
+                machine: 150.0,
+                tolerance: 2.0,
+            })),
+            CalibrationRefusal::OtherMachine {
+                parameter: ImageParameter::LinkBMm,
+                image: 161.0,
+                machine: 150.0,
+                tolerance: 2.0,
+            },
         ),
+        (
+            SlotError::Image(ImageError::Implausible(Implausible {
+                parameter: ImageParameter::NodeCorrectionRad,
+                value: 0.5,
+                limit: 0.0267,
+            })),
+            CalibrationRefusal::Implausible {
+                parameter: ImageParameter::NodeCorrectionRad,
+                value: 0.5,
+                limit: 0.0267,
+            },
+        ),
+        (SlotError::SwitchPending, CalibrationRefusal::SwitchPending),
     ];
     for (e, expected) in cases {
         assert_eq!(calibration_refusal(e), expected, "{e:?}");

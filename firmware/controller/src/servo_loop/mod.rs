@@ -93,7 +93,7 @@ pub use switch::{Blend, SwitchOutcome, SwitchRefused};
 use stops::Stop;
 
 /// Where the servo is.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum Mode {
     /// Drives enabled, following the setpoint stream.

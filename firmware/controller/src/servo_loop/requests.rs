@@ -43,7 +43,7 @@ pub enum ServoRequest {
 }
 
 /// Why [`ServoRequest::Reset`] was refused; the mode is unchanged.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum ResetRefusal {
     /// A controlled stop is under way: reset once it has ended.

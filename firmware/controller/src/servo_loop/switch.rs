@@ -119,13 +119,13 @@ impl<'a> ServoLoop<'a> {
         calibration: Calibration<'a>,
         encoder_rad: [f32; 2],
     ) -> Result<(), SwitchRefused> {
+        let at_rest = self.mode == Mode::Running && self.motion.is_at_rest() && !self.blending();
+        if !(at_rest || matches!(self.mode, Mode::Unhomed | Mode::SafeState(_))) {
+            return Err(SwitchRefused::NotAtRest);
+        }
         let next = ActiveCalibration::new(calibration, self.settings);
-        match self.mode {
-            Mode::Unhomed | Mode::SafeState(_) => {}
-            Mode::Running if self.motion.is_at_rest() && self.blend.is_none() => {
-                self.switch_at_rest(&next, encoder_rad)?
-            }
-            _ => return Err(SwitchRefused::NotAtRest),
+        if at_rest {
+            self.switch_at_rest(&next, encoder_rad)?;
         }
         self.active = next;
         Ok(())

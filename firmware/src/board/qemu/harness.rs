@@ -32,6 +32,7 @@ use core::cell::Cell;
 use core::fmt::Write;
 use core::sync::atomic::{AtomicU32, Ordering};
 
+use controller::calibration::ImageCheck;
 use controller::calibration_slots::{CalibrationId, ReadOnly, SlotStore};
 use controller::deadline::DEADLINE_US;
 use controller::scenario::stop_check::{CoastModel, PlantState};
@@ -70,11 +71,13 @@ fn image_in_force(
     Option<CalibrationId>,
     Result<CorrectionGrid<'static>, GridError>,
 ) {
-    let store = SlotStore::open(
-        ReadOnly(crate::calibration::region()),
-        settings.machine,
-        settings.home_mm,
-    );
+    // Which image is in force, not whether it is plausible (the firmware's judgement, tested
+    // on the host): this runs inside a servo sample.
+    let check = ImageCheck {
+        limits: None,
+        ..settings.image_check()
+    };
+    let store = SlotStore::open(ReadOnly(crate::calibration::region()), check);
     match store.active_id() {
         Some(id) => (
             Some(id),
