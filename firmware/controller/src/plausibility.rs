@@ -151,6 +151,8 @@ impl ImageLimits {
         for j in 0..g.ny {
             for i in 0..g.nx {
                 let d = node(i, j);
+                #[allow(clippy::needless_range_loop)]
+                // k indexes the node, its neighbours and the axis
                 for k in 0..2 {
                     keep(&mut largest, d[k].abs());
                     if i + 1 < g.nx {
