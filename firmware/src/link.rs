@@ -23,7 +23,7 @@ use controller::host_link::{
     HomingRefused, LinkHandler,
 };
 use controller::motion_stream::MotionStream;
-use controller::servo_loop::{Mode, ServoRequest};
+use controller::servo_loop::{Mode, ServoRequest, SwitchOutcome};
 use controller::status::Status;
 use kinematics_core::Calibration;
 use link_protocol::{
@@ -72,8 +72,26 @@ impl<P: LinkPort> LinkState<P> {
         }
     }
 
-    /// Resumes a paused source when the servo runs again, and sends a telemetry sample if due.
+    /// Resumes a paused source when the servo runs again, sends a telemetry sample if due, and
+    /// withdraws a committed image the servo refused to switch to (its slot erased: the image in
+    /// use stays in force, at the next boot too, and the next upload may go there).
     pub fn poll(&mut self, device: &mut impl DeviceResources) {
+        let status = device.status();
+        if let Some(SwitchOutcome::Refused(refused, why)) = status.last_switch {
+            let in_use = status.calibration_id;
+            let withdrawn = device.with_slots(|s| {
+                let was = s.active_id() == Some(refused);
+                s.withdraw(refused, in_use).map(|()| was)
+            });
+            if let Ok(true) = withdrawn {
+                defmt::warn!(
+                    "calibration {} refused at the switch ({}): withdrawn, {} stays in force",
+                    refused,
+                    why,
+                    in_use
+                );
+            }
+        }
         let mut dev = AppDevice::new(device, self.board, self.absolute_encoders, self.link_motion);
         if let Some(message) = self.handler.poll(&mut dev) {
             self.send(&message);

@@ -358,6 +358,10 @@ pub struct StatusReport {
     /// A move, stream or stop is under way: the machine's setpoint still changes (false only
     /// once the servo loop's setpoint has reached where the motion ends).
     pub moving: bool,
+    /// Telemetry decimation in force (0: off; [`Command::Telemetry`]).
+    pub telemetry_decimation: u16,
+    /// A committed calibration waits for the servo to switch to it (at the next rest): its id.
+    pub calibration_pending: Option<u32>,
 }
 
 /// One telemetry sample.

@@ -147,6 +147,8 @@ fn the_largest_messages_fit() {
         setpoint_underruns: u32::MAX,
         stream_knots_queued: u16::MAX,
         moving: true,
+        telemetry_decimation: u16::MAX,
+        calibration_pending: Some(u32::MAX),
     };
     roundtrip(&DeviceMessage::new(DeviceBody::Reply {
         seq: u16::MAX,

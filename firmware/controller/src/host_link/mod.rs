@@ -379,6 +379,8 @@ impl LinkHandler {
             setpoint_underruns: s.setpoint_underruns,
             stream_knots_queued: queued,
             moving,
+            telemetry_decimation: self.decimation,
+            calibration_pending: s.calibration_pending.map(|id| id.crc32),
         }
     }
 
