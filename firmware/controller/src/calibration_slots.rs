@@ -30,6 +30,10 @@
 //! record CRC, marker), its image's bytes match the record's length and CRC, and the image
 //! passes [`validate_image`](crate::calibration::validate_image) (format, grid CRC, this
 //! machine). Of the slots that count, the one with the highest sequence number is in force.
+//! The record's image CRC is not redundant with the grid's own: a probe that reflashes a slot's
+//! start with another image of the same length leaves the old record behind, and that image
+//! parses with the record's length; only the record's CRC-32C tells it is not the committed one
+//! (test `a_record_left_behind_by_another_image_does_not_count`).
 //! If neither has a record, an image at the start of slot A is in force with sequence 0: that
 //! is what flashing the region with a probe (`probe-rs download ... calibration.bin`, the
 //! bring-up path) or the QEMU board's bundled image leaves. (So after an upload, reflash the
@@ -643,6 +647,32 @@ mod tests {
             store.write(k * chunk, c)?;
         }
         store.commit()
+    }
+
+    /// The record's image CRC is not redundant with the grid's own CRC: a record stays behind
+    /// when a probe reflashes the slot's start with another image of the same length (a
+    /// `probe-rs download` writes only the pages it covers; the record is in the slot's last
+    /// page). The other image parses and has the record's length; only the record's CRC-32C
+    /// tells it is not the image the record committed. It must not count: the id reported
+    /// (what the host compares with its file) is always that of the bytes in force.
+    #[test]
+    fn a_record_left_behind_by_another_image_does_not_count() {
+        let (committed, reflashed) = (image(1e-4), image(3e-4));
+        assert_eq!(committed.len(), reflashed.len());
+        let mut region = vec![0xFFu8; 4096];
+        let id = upload(&mut open(&mut region), &committed, 64).unwrap();
+        assert_eq!((id.slot, id.sequence), (0, 1));
+        // The probe writes the other image over slot A's start; the record stays.
+        region[..reflashed.len()].copy_from_slice(&reflashed);
+        let store = open(&mut region);
+        let (bytes, id) = store.active().unwrap();
+        assert_eq!(bytes, &reflashed[..]);
+        assert_eq!(
+            id.crc32,
+            crc(&reflashed),
+            "the id reported is the bytes' in force, not the stale record's"
+        );
+        assert_eq!(id.sequence, 0, "the reflashed image, without a record");
     }
 
     #[test]
