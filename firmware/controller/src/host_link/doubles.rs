@@ -287,7 +287,7 @@ pub struct FuzzRng(pub u64);
 
 impl FuzzRng {
     /// The next 64 random bits.
-    pub fn next(&mut self) -> u64 {
+    pub fn next_u64(&mut self) -> u64 {
         self.0 ^= self.0 >> 12;
         self.0 ^= self.0 << 25;
         self.0 ^= self.0 >> 27;
@@ -296,7 +296,7 @@ impl FuzzRng {
 
     /// Below `n` (`n` > 0).
     pub fn below(&mut self, n: usize) -> usize {
-        (self.next() % n as u64) as usize
+        (self.next_u64() % n as u64) as usize
     }
 
     /// An absurd number: NaN, ±infinity, ±f32::MAX, subnormals, -0, huge or tiny powers of ten,
@@ -316,8 +316,8 @@ impl FuzzRng {
         ];
         match self.below(3) {
             0 => SPECIAL[self.below(SPECIAL.len())],
-            1 => f32::from_bits(self.next() as u32),
-            _ => (self.next() % 2_000_000) as f32 * 0.001 - 1000.0,
+            1 => f32::from_bits(self.next_u64() as u32),
+            _ => (self.next_u64() % 2_000_000) as f32 * 0.001 - 1000.0,
         }
     }
 }
@@ -332,7 +332,7 @@ pub fn absurd_command(rng: &mut FuzzRng) -> link_protocol::Command {
         t_us: match rng.below(3) {
             0 => 0,
             1 => u32::MAX,
-            _ => rng.next() as u32,
+            _ => rng.next_u64() as u32,
         },
         position_mm: [rng.absurd_f32(), rng.absurd_f32()],
         velocity_mm_s: [rng.absurd_f32(), rng.absurd_f32()],
@@ -350,13 +350,13 @@ pub fn absurd_command(rng: &mut FuzzRng) -> link_protocol::Command {
                 first_index: match rng.below(3) {
                     0 => 0,
                     1 => u32::MAX,
-                    _ => rng.next() as u32,
+                    _ => rng.next_u64() as u32,
                 },
                 knots,
             }
         }
         3 => Command::Telemetry {
-            decimation: [0, 1, u16::MAX, rng.next() as u16][rng.below(4)],
+            decimation: [0, 1, u16::MAX, rng.next_u64() as u16][rng.below(4)],
         },
         4 => Command::CalibrationBegin {
             len: [
@@ -364,13 +364,13 @@ pub fn absurd_command(rng: &mut FuzzRng) -> link_protocol::Command {
                 1,
                 u32::MAX,
                 MAX_CALIBRATION_IMAGE_LEN + 1,
-                rng.next() as u32,
+                rng.next_u64() as u32,
             ][rng.below(5)],
         },
         5 => Command::CalibrationChunk {
-            offset: [0, u32::MAX, rng.next() as u32][rng.below(3)],
+            offset: [0, u32::MAX, rng.next_u64() as u32][rng.below(3)],
             data: heapless::Vec::from_iter(
-                (0..rng.below(CALIBRATION_CHUNK_LEN + 1)).map(|_| rng.next() as u8),
+                (0..rng.below(CALIBRATION_CHUNK_LEN + 1)).map(|_| rng.next_u64() as u8),
             ),
         },
         6 => Command::CalibrationCommit,
