@@ -21,7 +21,7 @@
 //! | Stop | never | controlled stop, then hold (category 2) |
 //! | ResetFault | stopping, permanent fault (settings, calibration, watchdog not started) | clears the fault, re-engages, drives on; never homed (homing failed, a fault before homing): back to `Unhomed`, drives off, Home again |
 //! | Telemetry | never | sets the decimation (at least [`MIN_TELEMETRY_DECIMATION`]) |
-//! | CalibrationBegin/Chunk/Commit | moving; what the [`CalibrationStore`] refuses | writes the inactive slot, switches |
+//! | CalibrationBegin/Chunk/Commit | moving (a calibration switch's move included); a committed image still waiting for the switch (`SwitchPending`); what the [`CalibrationStore`] refuses (another machine's or an implausible image, with the parameter and its values) | writes the slot the servo does not use, commits; the servo switches at rest |
 //!
 //! After a stop, disable or reset the motion source is paused (it must not feed setpoints
 //! planned before the stop, nor from a point the servo no longer holds); [`LinkHandler::poll`]
