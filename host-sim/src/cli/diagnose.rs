@@ -4,7 +4,7 @@
 use anyhow::{bail, Context, Result};
 use host_sim::diagnose::model_out::extended_model;
 use host_sim::diagnose::plots::write_plots;
-use host_sim::diagnose::{diagnose_with_history, report, DiagnoseOptions};
+use host_sim::diagnose::{diagnose_with_plot_data, report, DiagnoseOptions};
 use host_sim::io::measurement_csv::read_measurements;
 use host_sim::io::model_file::{model_file_text, read_model};
 use host_sim::io::policy::CommandFiles;
@@ -66,7 +66,7 @@ pub fn run(args: &Args) -> Result<()> {
             bail!("--noise-um {s}: must be a positive number of micrometres");
         }
     }
-    let (report, history) = diagnose_with_history(
+    let (report, plot_data) = diagnose_with_plot_data(
         &data,
         &DiagnoseOptions {
             base,
@@ -95,7 +95,7 @@ pub fn run(args: &Args) -> Result<()> {
         )?;
     }
     if let Some(dir) = &args.plots {
-        write_plots(&mut outputs, dir, &data, &report, &history)?;
+        write_plots(&mut outputs, dir, &data, &report, &plot_data)?;
     }
     outputs.commit()?;
     if let Some(path) = &args.out_model {

@@ -1,17 +1,28 @@
 //! The diagnosis' plots (`host-sim diagnose --plots DIR`): the residual field before and after
 //! each step (one scale per step), and the final residual against configuration, direction and
-//! time. Staged with the command's other outputs (`crate::io::atomic::Outputs`). Cost: a few tenths of a second per plot.
+//! time. Staged with the command's other outputs (`crate::io::atomic::Outputs`). Cost: a few
+//! tenths of a second per plot.
 
+use super::forward_model::Problem;
 use super::report::Report;
-use super::{structure, History};
+use super::structure;
 use crate::io::atomic::Outputs;
 use crate::io::measurement_csv::Measurement;
 use crate::io::plot::{vector_plot_png, xy_plot_png, Mark, Series, VectorField};
 use crate::io::IoError;
 use std::path::Path;
 
-/// Residual plots: the field before/after each step (one scale per step), and the final
-/// residual against configuration and time.
+/// What the plots draw: the residual field of the start and after each step of the gap-shrink
+/// table, at the measured points.
+pub struct ResidualPlotData {
+    /// Where each point was measured (mm).
+    pub base_mm: Vec<[f64; 2]>,
+    /// (label, residual µm per point): "start", then one per step.
+    pub fields: Vec<(String, Vec<[f64; 2]>)>,
+    /// The diagnosed problem (its points' angles, directions and times).
+    pub problem: Problem,
+}
+
 /// A plot's file name, axis label and x value of point i.
 type Abscissa<'a> = (&'a str, &'a str, Box<dyn Fn(usize) -> f64 + 'a>);
 
@@ -43,7 +54,7 @@ pub fn write_plots(
     dir: &Path,
     data: &[Measurement],
     report: &Report,
-    h: &History,
+    h: &ResidualPlotData,
 ) -> Result<(), IoError> {
     vector_plot(
         out,
