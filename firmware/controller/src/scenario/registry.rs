@@ -65,7 +65,7 @@ const HOMING_SIM: HomingSim = HomingSim {
 };
 
 /// Every scenario (module doc of [`super`]).
-pub static SCENARIOS: [Spec; 24] = [
+pub static SCENARIOS: [Spec; 25] = [
     // The bundled image alone (no loader) is the same valid image: the ELF runs standalone.
     Spec {
         name: "track",
@@ -335,6 +335,16 @@ pub static SCENARIOS: [Spec; 24] = [
         homing: Some(HOMING_SIM),
         time_limit_ticks: None,
         check: Check::Link,
+        ..TEST
+    },
+    // Co-simulation (`firmware/src/board/qemu/cosim.rs`, `host_sim::cosim`): host-sim's plant
+    // in lockstep instead of the in-firmware one; the production path otherwise (the host
+    // checks the machine), not run by `qemu/test.sh` (host-sim/tests/cosim.rs runs it).
+    Spec {
+        name: "cosim",
+        time_limit_ticks: None,
+        check: Check::Nothing,
+        watchdog: OnWatchdog::Production,
         ..TEST
     },
     // The production path on the QEMU board: nothing injected or checked, no time limit.
