@@ -413,6 +413,17 @@ fn calibration_and_reset_safety(addr: &str, work: &Path, in_force: u32) {
         std::fs::write(&p, bytes).unwrap();
         p.to_str().unwrap().to_owned()
     };
+    // The controller's own judgement: uploaded through the library (`host-sim link upload`
+    // judges an image on the host first and would not send these).
+    let raw_upload = |bytes: &[u8]| -> String {
+        let mut client =
+            host_sim::link::LinkClient::connect_tcp(addr, std::time::Duration::from_secs(10))
+                .unwrap();
+        match host_sim::link::upload_calibration(&mut client, bytes, &mut |_, _| {}) {
+            Ok(id) => panic!("accepted: {id:#010x}"),
+            Err(e) => format!("{e:?}"),
+        }
+    };
     let before = ok(addr, &["status"]);
     // A ±0.05 rad checkerboard (a switch to it drove 7.6 N·m).
     let checker: [[f32; 2]; 9] = core::array::from_fn(|k| {
@@ -422,27 +433,21 @@ fn calibration_and_reset_safety(addr: &str, work: &Path, in_force: u32) {
             [-0.05, 0.05]
         }
     });
-    let bad = put("checker.bin", &small_image(&nominal, checker, None));
-    let refusal = refused(addr, &["upload", "--grid", &bad]);
+    let refusal = raw_upload(&small_image(&nominal, checker, None));
     assert!(
         refusal.contains("Implausible") && refusal.contains("NodeCorrectionRad"),
         "{refusal}"
     );
     // Masses 1000× the machine's.
     let heavy = machine::IMAGE_DYNAMICS.scaled_masses([1000.0; 5]);
-    let bad = put(
-        "heavy.bin",
-        &small_image(&nominal, [[0.0; 2]; 9], Some(heavy)),
-    );
-    let refusal = refused(addr, &["upload", "--grid", &bad]);
+    let refusal = raw_upload(&small_image(&nominal, [[0.0; 2]; 9], Some(heavy)));
     assert!(refusal.contains("InertiaHighKgM2"), "{refusal}");
     // Another machine: link b 11 mm longer; the refusal names it with both values.
     let other = kinematics_core::FiveBar {
         b_mm: nominal.b_mm + 11.0,
         ..nominal
     };
-    let bad = put("other.bin", &small_image(&other, [[0.0; 2]; 9], None));
-    let refusal = refused(addr, &["upload", "--grid", &bad]);
+    let refusal = raw_upload(&small_image(&other, [[0.0; 2]; 9], None));
     assert!(
         refusal.contains("OtherMachine") && refusal.contains("LinkBMm") && refusal.contains("161"),
         "{refusal}"
