@@ -9,6 +9,7 @@
 //! | module | what |
 //! |---|---|
 //! | [`machine_spec`] | the machine's constants, once: nominal model, workspace, grid lattice, servo rate |
+//! | [`gantry_spec`] | the gantry that carries the micro on a redundant machine (`[gantry]`) |
 //! | [`effect`] | the names of the physical effects, shared by the plant and the diagnosis |
 //! | [`plant`] | the simulated six-bar with its imperfections (the "real machine") |
 //! | [`sim`] | trajectories and the closed 2 kHz loop |
@@ -36,6 +37,7 @@
 pub mod calib;
 pub mod diagnose;
 pub mod effect;
+pub mod gantry_spec;
 pub mod io;
 pub mod link;
 pub mod machine_spec;

@@ -12,6 +12,7 @@
 //! the "real machine" a calibration is tested against, whose errors the tools must not know) and
 //! each tool's own settings (options structs).
 
+pub use crate::gantry_spec::GantrySpec;
 use kinematics_core::grid::{GridGeometry, WorkspaceLimits};
 use kinematics_core::{paper, Branch, ConvexWorkspace, FiveBar, DEFAULT_MIN_TRANSMISSION};
 use serde::{Deserialize, Serialize};
@@ -272,6 +273,9 @@ pub struct MachineSpec {
     /// The acceleration the machine is built for (g): the point-to-point test motion's, and the
     /// threshold of the closed loop's "at full acceleration" statistics.
     pub max_acceleration_g: f64,
+    /// The gantry that carries the micro on a redundant machine (`[gantry]`, optional in the
+    /// machine file; `host-sim cut`).
+    pub gantry: GantrySpec,
 }
 
 impl MachineSpec {
@@ -300,6 +304,7 @@ impl MachineSpec {
             approach: Approach::Positive,
             approach_mm: 5.0,
             max_acceleration_g: 5.0,
+            gantry: GantrySpec::paper(),
         }
     }
 
@@ -395,6 +400,7 @@ impl MachineSpec {
             }
         }
         ws.limits()?;
+        self.gantry.validate()?;
         Ok(())
     }
 }

@@ -11,7 +11,7 @@
 //! reachable with the singularity margin).
 
 use super::{read_text, IoError};
-use crate::machine_spec::{Approach, BranchKey, GridLattice, MachineSpec, Workspace};
+use crate::machine_spec::{Approach, BranchKey, GantrySpec, GridLattice, MachineSpec, Workspace};
 use kinematics_core::{FiveBar, WorkingMode};
 use serde::Deserialize;
 use std::path::Path;
@@ -39,6 +39,53 @@ struct MachineFile {
     instrument: Instrument,
     approach: ApproachKeys,
     servo: Servo,
+    /// Optional: the paper's gantry when absent (`GantrySpec::paper`).
+    #[serde(default)]
+    gantry: GantryKeys,
+}
+
+/// `[gantry]`: every key optional, the paper gantry's value when absent.
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct GantryKeys {
+    travel_x_mm: Option<[f64; 2]>,
+    travel_y_mm: Option<[f64; 2]>,
+    home_mm: Option<[f64; 2]>,
+    speed_mm_s: Option<f64>,
+    accel_g: Option<f64>,
+    jerk_mm_s3: Option<f64>,
+    bandwidth_hz: Option<f64>,
+    moving_mass_kg: Option<[f64; 2]>,
+    friction_n: Option<[f64; 2]>,
+    feedforward_mass_error_pct: Option<f64>,
+    scale_resolution_um: Option<f64>,
+    micro_margin_mm: Option<f64>,
+    micro_joint_speed_rad_s: Option<f64>,
+}
+
+impl GantryKeys {
+    fn into_spec(self) -> GantrySpec {
+        let d = GantrySpec::paper();
+        GantrySpec {
+            travel_x_mm: self.travel_x_mm.unwrap_or(d.travel_x_mm),
+            travel_y_mm: self.travel_y_mm.unwrap_or(d.travel_y_mm),
+            home_mm: self.home_mm.unwrap_or(d.home_mm),
+            speed_mm_s: self.speed_mm_s.unwrap_or(d.speed_mm_s),
+            accel_g: self.accel_g.unwrap_or(d.accel_g),
+            jerk_mm_s3: self.jerk_mm_s3.unwrap_or(d.jerk_mm_s3),
+            bandwidth_hz: self.bandwidth_hz.unwrap_or(d.bandwidth_hz),
+            moving_mass_kg: self.moving_mass_kg.unwrap_or(d.moving_mass_kg),
+            friction_n: self.friction_n.unwrap_or(d.friction_n),
+            feedforward_mass_error_pct: self
+                .feedforward_mass_error_pct
+                .unwrap_or(d.feedforward_mass_error_pct),
+            scale_resolution_um: self.scale_resolution_um.unwrap_or(d.scale_resolution_um),
+            micro_margin_mm: self.micro_margin_mm.unwrap_or(d.micro_margin_mm),
+            micro_joint_speed_rad_s: self
+                .micro_joint_speed_rad_s
+                .unwrap_or(d.micro_joint_speed_rad_s),
+        }
+    }
 }
 
 #[derive(Debug, Deserialize)]
@@ -216,6 +263,7 @@ impl MachineFile {
             },
             approach_mm: self.approach.distance_mm,
             max_acceleration_g: self.servo.max_acceleration_g,
+            gantry: self.gantry.into_spec(),
         };
         spec.validate()?;
         Ok(spec)
@@ -293,6 +341,8 @@ mod tests {
             "distance_mm = 0.0",
             "approach.distance_mm",
         );
+        refused("accel_g = 1.0", "accel_g = -1.0", "gantry.accel_g");
+        refused("accel_g = 1.0", "acel_g = 1.0", "acel_g");
         // The grid must cover the workspace, every node be reachable.
         refused(
             "[grid]\nx_mm = [162.132, 262.132]",
@@ -325,7 +375,7 @@ mod tests {
         let doc = include_str!("../../MACHINE.md");
         let mut all = keys(PAPER_TOML);
         all.extend(keys(include_str!("../../machines/second.toml")));
-        assert!(all.len() >= 27, "{all:?}");
+        assert!(all.len() >= 40, "{all:?}");
         for key in &all {
             // A row of the key table: "| `key` | unit | ..." (x_mm and y_mm share a row).
             let row = doc
@@ -333,19 +383,41 @@ mod tests {
                 .find(|l| l.starts_with('|') && l.contains(&format!("`{key}`")));
             let row = row.unwrap_or_else(|| panic!("MACHINE.md does not document '{key}'"));
             let unit = row.split('|').nth(2).unwrap().trim();
-            let want = ["_mm", "_um", "_deg", "_s", "_g"]
-                .iter()
-                .find(|u| key.ends_with(*u));
-            let said = match want {
-                Some(&"_mm") => unit == "mm",
-                Some(&"_um") => unit == "µm",
-                Some(&"_deg") => unit == "°",
-                Some(&"_s") => unit == "s",
-                Some(_) => unit.starts_with('g'),
+            // Compound units first (`_mm_s` before `_s`).
+            let units = [
+                ("_mm_s3", "mm/s³"),
+                ("_mm_s", "mm/s"),
+                ("_rad_s", "rad/s"),
+                ("_mm", "mm"),
+                ("_um", "µm"),
+                ("_deg", "°"),
+                ("_s", "s"),
+                ("_hz", "Hz"),
+                ("_kg", "kg"),
+                ("_n", "N"),
+                ("_pct", "%"),
+            ];
+            let said = match units.iter().find(|(u, _)| key.ends_with(u)) {
+                Some((_, want)) => unit == *want,
+                None if key.ends_with("_g") => unit.starts_with('g'),
                 None => unit == "—",
             };
             assert!(said, "MACHINE.md gives '{key}' the unit '{unit}'");
         }
+    }
+
+    /// `[gantry]` is optional, and so is each of its keys: the paper gantry's value stands in.
+    #[test]
+    fn the_gantry_section_is_optional_key_by_key() {
+        let start = PAPER_TOML.find("[gantry]").unwrap();
+        let without = &PAPER_TOML[..start];
+        assert_eq!(parse_machine(without).unwrap().gantry, GantrySpec::paper());
+        let one = format!("{without}[gantry]\naccel_g = 2.0\n");
+        let g = parse_machine(&one).unwrap().gantry;
+        assert_eq!(
+            (g.accel_g, g.speed_mm_s),
+            (2.0, GantrySpec::paper().speed_mm_s)
+        );
     }
 
     #[test]
