@@ -13,6 +13,7 @@
 //! | [`effect`] | the names of the physical effects, shared by the plant and the diagnosis |
 //! | [`plant`] | the simulated six-bar with its imperfections (the "real machine") |
 //! | [`sim`] | trajectories and the closed 2 kHz loop |
+//! | [`cut`] | the redundant machine cuts a part program: G-code, split planner, bound, execution |
 //! | [`calib`] | protocols, the one measurement path, fits, grid, command, accuracy, the demo pipeline |
 //! | [`diagnose`] | where model and measurements disagree, and which effect is missing |
 //! | [`numeric`] | the one Levenberg–Marquardt, finite differences, column-scaled SVD, max/RMS |
@@ -35,6 +36,7 @@
 )]
 
 pub mod calib;
+pub mod cut;
 pub mod diagnose;
 pub mod effect;
 pub mod gantry_spec;
