@@ -5,6 +5,7 @@
 //! | file | job |
 //! |---|---|
 //! | [`gcode`] | RS274 part programs in: moves, dwells, beam switches; errors name line and word |
+//! | [`parts`] | example part programs, the 1000-contour nest, random programs (tests, bench) |
 //! | [`path`] | the path's geometry: lines and arcs, tangents, curvature, distance to them |
 //! | [`profile`] | the jerk-limited time law along a span of segments (rest to rest) |
 //! | [`limits`] | a machine's limits along the path: segment caps, junction caps |
@@ -26,6 +27,7 @@ pub mod gantry;
 pub mod gcode;
 pub mod limits;
 pub mod micro;
+pub mod parts;
 pub mod path;
 pub mod plots;
 pub mod profile;

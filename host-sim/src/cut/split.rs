@@ -204,8 +204,15 @@ fn windows(d: &[f64], dt: f64, lim: &AxisLimits) -> (usize, usize) {
     let (vlo, vhi) = v
         .iter()
         .fold((0.0f64, 0.0f64), |(lo, hi), x| (lo.min(*x), hi.max(*x)));
+    // Rest on both sides, as far as the windows reach (the gantry moves before and after).
+    let padded = |n: usize| {
+        let mut v = vec![0.0; n];
+        v.extend_from_slice(d);
+        v.extend(std::iter::repeat_n(0.0, n));
+        v
+    };
     let n2_for = |n1: usize| {
-        let h = boxcar(d, n1);
+        let h = boxcar(&padded(n1), n1);
         let (alo, ahi) = h.windows(2).fold((0.0f64, 0.0f64), |(lo, hi), w| {
             let a = (w[1] - w[0]) / (dt * dt);
             (lo.min(a), hi.max(a))
@@ -218,7 +225,7 @@ fn windows(d: &[f64], dt: f64, lim: &AxisLimits) -> (usize, usize) {
     let mut n1 = odd(vmax / (lim.accel_mm_s2 * dt));
     let mut n2 = n2_for(n1).0;
     for _ in 0..12 {
-        let p = peaks(&filter_axis(d, n1, n2), dt);
+        let p = peaks(&filter_axis(&padded(n1 + n2), n1, n2), dt);
         if p[1] <= lim.accel_mm_s2 && p[2] <= lim.jerk_mm_s3 {
             return (n1, n2);
         }
