@@ -7,8 +7,8 @@
 
 use anyhow::{bail, Context, Result};
 use host_sim::cut::{plots, report, run, CutOptions};
-use host_sim::io::atomic::Outputs;
 use host_sim::io::dynamics_file::read_dynamics;
+use host_sim::io::policy::CommandFiles;
 use host_sim::io::{json_text, KeyOrder};
 use host_sim::plant::{PlantConfig, PlantModel};
 use kinematics_core::Calibration;
@@ -46,6 +46,9 @@ pub struct Args {
     pub csv_every: usize,
 }
 
+/// The files `--out DIR` receives.
+const OUTPUT_FILES: [&str; 4] = ["part.png", "motion.png", "executed.csv", "report.json"];
+
 fn read_program(path: &Path) -> Result<String> {
     let bytes = std::fs::read(path)
         .with_context(|| format!("cannot read the program {}", path.display()))?;
@@ -61,6 +64,16 @@ pub fn run_cut(args: &Args) -> Result<()> {
     if args.csv_every == 0 || args.csv_every > 1_000_000 {
         bail!("--csv-every must be 1 to 1000000, not {}", args.csv_every);
     }
+    // Every file declared before anything is read heavily; written together at the end.
+    let mut out = CommandFiles::new()
+        .input("--program", &args.program)
+        .input("--machine", &args.machine.machine)
+        .input("--plant", super::plant_file(&args.plant))
+        .input("--model", &args.model)
+        .input("--grid", &args.grid)
+        .input("--dynamics", &args.dynamics)
+        .output_dir("--out", &args.out, &OUTPUT_FILES)
+        .check()?;
     let spec = args.machine.spec()?;
     let mut plant = PlantConfig::by_name(&args.plant)?;
     match args.plant_model.as_deref() {
@@ -71,7 +84,7 @@ pub fn run_cut(args: &Args) -> Result<()> {
     }
     let text = read_program(&args.program)?;
     let (model, bytes) =
-        super::load_calibration(args.model.as_deref(), args.grid.as_deref(), &spec.nominal)?;
+        super::load_calibration(args.model.as_deref(), args.grid.as_deref(), &spec)?;
     let calibration = Calibration {
         model,
         grid: super::parse_grid(&bytes)?,
@@ -91,19 +104,6 @@ pub fn run_cut(args: &Args) -> Result<()> {
     let cut = run(&text, &opts).with_context(|| format!("{}", args.program.display()))?;
     let r = &cut.report;
     if let Some(dir) = &args.out {
-        let mut inputs: Vec<&Path> = vec![&args.program];
-        for p in [
-            &args.machine.machine,
-            &args.model,
-            &args.grid,
-            &args.dynamics,
-        ]
-        .into_iter()
-        .flatten()
-        {
-            inputs.push(p);
-        }
-        let mut out = Outputs::protecting(&inputs);
         let micro = &cut.limits.split.micro;
         let g = &spec.gantry;
         out.bytes(
@@ -131,8 +131,8 @@ pub fn run_cut(args: &Args) -> Result<()> {
             &dir.join("report.json"),
             json_text(r, KeyOrder::Declared)?.as_bytes(),
         )?;
-        out.commit()?;
     }
+    out.commit()?;
     eprintln!("cut {} on {} ({}):", r.program, r.machine, r.micro_stage);
     eprintln!(
         "  plan {:?}{}: {} moves in {} spans, {} pierces, {:.0} mm cut, {:.0} mm rapid",
