@@ -1,6 +1,7 @@
-//! The gantry in simulation: each axis a rigid moving mass with Coulomb friction, driven by
+//! The gantry in simulation: each axis a rigid moving mass with Coulomb friction (a smooth
+//! sign over ±2 mm/s), driven by
 //! its drive's position loop (PID at the configured bandwidth) with feed-forward of the
-//! reference's acceleration (with the configured mass error) and of 80 % of the friction, read
+//! reference's acceleration (with the configured mass error) and of 90 % of the friction, read
 //! by a linear scale of the configured resolution. What it leaves is the following error the
 //! micro compensates (`execute`).
 //!
@@ -16,10 +17,11 @@ use crate::gantry_spec::GantrySpec;
 
 /// Integration steps per sample.
 pub const SUBSTEPS: u32 = 10;
-/// Speed below which the Coulomb friction turns over (mm/s): a smooth sign.
-const FRICTION_SPEED_MM_S: f64 = 0.5;
+/// The speed over which the Coulomb friction turns over at a reversal (mm/s): a smooth sign,
+/// the drives' feed-forward the same.
+const FRICTION_SPEED_MM_S: f64 = 2.0;
 /// Share of the friction the drives feed forward.
-const FRICTION_FF_SHARE: f64 = 0.8;
+const FRICTION_FF_SHARE: f64 = 0.9;
 
 /// The reference of one axis at one sample.
 #[derive(Clone, Copy, Debug, PartialEq, Default)]

@@ -52,15 +52,15 @@ use timeline::Layout;
 pub const GANTRY_HEADROOM: f64 = 0.9;
 /// Share of the gantry's jerk limit a plan uses (its drives' response adds about 12 % at the
 /// jerk's corners, as measured over the jerk window).
-pub const GANTRY_JERK_HEADROOM: f64 = 0.8;
+pub const GANTRY_JERK_HEADROOM: f64 = 0.75;
 /// Share of the gantry's speed a plan uses.
 pub const SPEED_HEADROOM: f64 = 0.98;
 /// Share of the micro's acceleration and speed a plan uses (the compensation and the servo's
 /// response come on top).
-pub const MICRO_HEADROOM: f64 = 0.9;
+pub const MICRO_HEADROOM: f64 = 0.85;
 /// The tool's tangential jerk in the split (mm/s³): 5 g in 1 ms. The micro has no jerk limit;
 /// this keeps its setpoints smooth for the feed-forward.
-pub const TOOL_JERK_MM_S3: f64 = 1.0e8;
+pub const TOOL_JERK_MM_S3: f64 = 3.0e7;
 /// Share of one sample's acceleration a junction's velocity jump may be.
 pub const KINK_SHARE: f64 = 0.05;
 

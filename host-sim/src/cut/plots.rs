@@ -265,11 +265,11 @@ fn time_panel(
     chart
         .draw_series(LineSeries::new(
             vec![(0.0, limit), (t_end, limit)],
-            RED.stroke_width(2),
+            BLACK.stroke_width(2),
         ))
         .map_err(err)?
         .label("limit")
-        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RED.stroke_width(2)));
+        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLACK.stroke_width(2)));
     legend(&mut chart, SeriesLabelPosition::UpperRight)
 }
 
