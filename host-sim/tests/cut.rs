@@ -138,10 +138,11 @@ fn check_plan(name: &str, p: &Planned, l: &MachineLimits) {
     assert!(p.bound.bound_s <= p.gantry_only_s + 1e-9, "{name}");
     let g = &plan.gantry_mm;
     let lim = &l.split.gantry;
-    for k in 2..g.len() {
-        for i in 0..2 {
-            let v = (g[k][i] - g[k - 1][i]) / dt;
-            let a = (g[k][i] - 2.0 * g[k - 1][i] + g[k - 2][i]) / (dt * dt);
+    for (k, w) in g.windows(3).enumerate() {
+        let (p0, p1, p2) = (w[0], w[1], w[2]);
+        for ((x0, x1), x2) in p0.iter().zip(p1).zip(p2) {
+            let v = (x2 - x1) / dt;
+            let a = (x2 - 2.0 * x1 + x0) / (dt * dt);
             assert!(
                 v.abs() <= lim.speed_mm_s * 1.0001,
                 "{name}: gantry speed {v} at {k}"

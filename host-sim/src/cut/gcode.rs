@@ -438,12 +438,7 @@ fn block(
         let mode = st.motion.ok_or_else(|| {
             at(
                 line,
-                &x.or(y)
-                    .or(i)
-                    .or(j)
-                    .or(r)
-                    .map_or("", |w| &w.text)
-                    .to_string(),
+                x.or(y).or(i).or(j).or(r).map_or("", |w| &w.text),
                 "a coordinate before any motion code (G0, G1, G2, G3)",
             )
         })?;

@@ -210,7 +210,7 @@ pub fn run(text: &str, opts: &CutOptions<'_>) -> Result<CutRun, CutError> {
         Some(d) => d,
         None => crate::plant::Plant::new(&opts.plant, 1).true_dynamics(),
     };
-    let mut stage = HostLoop::new(&opts.plant, opts.calibration.clone(), &opts.spec, &dynamics)?;
+    let mut stage = HostLoop::new(&opts.plant, opts.calibration, &opts.spec, &dynamics)?;
     let wall = Instant::now();
     let executed = execute::execute(
         &planned.layout,

@@ -143,10 +143,9 @@ pub fn contour_errors_um(planned: &Planned, executed: &[Executed]) -> Vec<Option
             let q = e.tool_mm();
             let i = e.move_index as usize;
             let mut d = f64::INFINITY;
-            for j in i.saturating_sub(1)..=(i + 1).min(moves.len().saturating_sub(1)) {
-                if moves[j].laser_on {
-                    d = d.min(moves[j].segment.distance_mm(q));
-                }
+            let near = i.saturating_sub(1)..=(i + 1).min(moves.len().saturating_sub(1));
+            for m in moves[near].iter().filter(|m| m.laser_on) {
+                d = d.min(m.segment.distance_mm(q));
             }
             if !d.is_finite() {
                 let p = plan.tool_mm[k];
@@ -180,11 +179,11 @@ pub fn report(r: &ReportInputs<'_>) -> CutReport {
     let gp = |k: usize| ex[k.min(n - 1)].gantry_mm;
     let mut gv = vec![[0.0; 2]; n];
     let (mut ps, mut pa, mut pj) = ([0.0f64; 2], [0.0f64; 2], [0.0f64; 2]);
-    for k in 1..n.saturating_sub(1) {
+    for (k, v) in gv.iter_mut().enumerate().take(n.saturating_sub(1)).skip(1) {
         let (a, b, c) = (gp(k - 1), gp(k), gp(k + 1));
         for i in 0..2 {
-            gv[k][i] = (c[i] - a[i]) / (2.0 * dt);
-            ps[i] = ps[i].max(gv[k][i].abs());
+            v[i] = (c[i] - a[i]) / (2.0 * dt);
+            ps[i] = ps[i].max(v[i].abs());
             pa[i] = pa[i].max(((c[i] - 2.0 * b[i] + a[i]) / (dt * dt)).abs());
         }
     }
@@ -251,8 +250,8 @@ pub fn report(r: &ReportInputs<'_>) -> CutReport {
             micro.centre_mm[1] + e.micro_mm[1],
         ];
         clearance = clearance.min(depth_mm(verts, p) - micro.margin_mm);
-        for i in 0..2 {
-            excursion[i] = excursion[i].max(e.micro_mm[i].abs());
+        for (i, x) in excursion.iter_mut().enumerate() {
+            *x = x.max(e.micro_mm[i].abs());
             joint = joint.max(f64::from(e.joint_speed_rad_s[i].abs()));
             let t = f64::from(e.torque_nm[i].abs());
             torque = torque.max(t);
