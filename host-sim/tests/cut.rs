@@ -68,7 +68,11 @@ fn a_program_is_cut_with_its_files_and_figures() {
         assert!(bytes.len() > 100, "{name}");
     }
     let csv = std::fs::read_to_string(out.join("executed.csv")).unwrap();
-    assert!(csv.starts_with("# machine=paper program=small.nc sample_period_s=0.0005"));
+    let digest = format!("{:08x}", MachineSpec::paper().record().unwrap().digest());
+    assert!(csv.starts_with(&format!(
+        "# machine=paper digest={digest} program=small.nc sample_period_s=0.0005"
+    )));
+    assert_eq!(v["machine"]["digest"], digest.as_str());
     let rows = csv.lines().count() - 2;
     assert_eq!(rows as u64, v["samples"].as_u64().unwrap());
     // The file report is the printed one.

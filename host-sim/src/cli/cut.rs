@@ -133,7 +133,10 @@ pub fn run_cut(args: &Args) -> Result<()> {
         )?;
     }
     out.commit()?;
-    eprintln!("cut {} on {} ({}):", r.program, r.machine, r.micro_stage);
+    eprintln!(
+        "cut {} on {} ({}):",
+        r.program, r.machine.name, r.micro_stage
+    );
     eprintln!(
         "  plan {:?}{}: {} moves in {} spans, {} pierces, {:.0} mm cut, {:.0} mm rapid",
         r.plan,

@@ -29,12 +29,12 @@
 //! [`HostLoop`] applies it to the lumped tool mass (`Jᵀ·F` at the joints), a disturbance the
 //! micro's servo and observer have to reject.
 
-use super::gantry::{AxisReference, Gantry};
 use super::split::Plan;
 use super::timeline::{Cursor, Layout, ToolSample};
 use super::CutError;
 use crate::gantry_spec::GantrySpec;
 use crate::machine_spec::MachineSpec;
+use crate::plant::gantry::{AxisReference, Gantry};
 use crate::plant::{Plant, PlantConfig};
 use crate::sim::closed_loop::{loop_config, SUBSTEPS};
 use kinematics_core::trajectory::MotionSetpoint;

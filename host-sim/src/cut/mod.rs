@@ -13,17 +13,18 @@
 //! | [`micro`] | the micro's limits from its model (workspace less margin, joints, torques) |
 //! | [`split`] | the split planner: tool timed, gantry filtered, micro checked; the fallback |
 //! | [`bound`] | the lower bound no plan can beat |
-//! | [`gantry`] | the gantry's axes in simulation (drives, following error) |
 //! | [`execute`] | both stages executed on one time base, with dual-stage compensation |
 //! | [`report`] | the figures from the executed motion, CSV |
 //! | [`plots`] | the part and the stages' motion as PNG |
+//!
+//! The gantry's axes in simulation (drives, following error) are the plant's:
+//! [`crate::plant::gantry`].
 //!
 //! Layers: `gcode` → `path`/`profile`/`limits` → `timeline` → `split`/`bound` → `execute` →
 //! `report`/`plots`; this file wires them ([`run`]).
 
 pub mod bound;
 pub mod execute;
-pub mod gantry;
 pub mod gcode;
 pub mod limits;
 pub mod micro;

@@ -51,11 +51,33 @@ pub struct MicroFigures {
     pub min_clearance_mm: f64,
 }
 
+/// Which machine a file is of.
+#[derive(Clone, Debug, Serialize)]
+pub struct MachineId {
+    pub name: String,
+    /// 8 hex digits; empty when the machine has no record (a name the controller cannot store).
+    pub digest: String,
+}
+
+impl MachineId {
+    /// The name and digest of `spec`.
+    pub fn of(spec: &MachineSpec) -> MachineId {
+        MachineId {
+            name: spec.name.clone(),
+            digest: spec
+                .record()
+                .map(|r| format!("{:08x}", r.digest()))
+                .unwrap_or_default(),
+        }
+    }
+}
+
 /// What a cut reports (`host-sim cut` prints it as JSON).
 #[derive(Clone, Debug, Serialize)]
 pub struct CutReport {
     pub program: String,
-    pub machine: String,
+    /// The machine: its name and digest (the record's CRC-32C of its geometry).
+    pub machine: MachineId,
     /// `split` or `gantry-only`.
     pub plan: PlanMode,
     /// Why the plan is the gantry alone, if it is.
@@ -304,7 +326,7 @@ pub fn report(r: &ReportInputs<'_>) -> CutReport {
     let completion_s = plan.completion_s();
     CutReport {
         program: r.name.to_string(),
-        machine: r.spec.name.clone(),
+        machine: MachineId::of(r.spec),
         plan: plan.mode,
         fallback: plan.fallback.clone(),
         completion_s,
@@ -374,8 +396,9 @@ pub fn executed_csv(
     let mut s = String::with_capacity(executed.len() / every.max(1) * 150 + 512);
     let _ = writeln!(
         s,
-        "# machine={} program={} sample_period_s={} decimation={} plan={}",
+        "# machine={} digest={} program={} sample_period_s={} decimation={} plan={}",
         spec.name,
+        MachineId::of(spec).digest,
         program,
         plan.dt_s,
         every.max(1),
