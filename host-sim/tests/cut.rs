@@ -81,6 +81,38 @@ fn a_program_is_cut_with_its_files_and_figures() {
     assert_eq!(file["completion_s"], v["completion_s"]);
 }
 
+/// Another machine's file: the micro's ideal plant is built around that machine's five-bar, the
+/// part is cut inside its workspace and the files name it.
+#[test]
+fn a_program_is_cut_on_another_machine() {
+    let dir = tempfile::tempdir().unwrap();
+    let prog = dir.path().join("small.nc");
+    std::fs::write(&prog, SMALL).unwrap();
+    let out = dir.path().join("out");
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let machine = root.join("machines/second.toml");
+    let (ok, stdout, stderr) = run(&[
+        "cut",
+        "--program",
+        s(&prog),
+        "--machine",
+        s(&machine),
+        "--plant-model",
+        "fivebar",
+        "--out",
+        s(&out),
+    ]);
+    assert!(ok, "{stderr}");
+    let v: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+    assert_eq!(v["machine"]["name"], "second", "{stdout}");
+    let spec = host_sim::io::machine_file::read_machine(&machine).unwrap();
+    let digest = format!("{:08x}", spec.record().unwrap().digest());
+    assert_eq!(v["machine"]["digest"], digest.as_str());
+    assert_eq!(v["micro_inside_workspace"], true, "{stdout}");
+    assert_eq!(v["within_limits"], true, "{stdout}");
+    assert!(v["contour_max_um"].as_f64().unwrap() <= 10.0, "{stdout}");
+}
+
 #[test]
 fn bad_programs_are_refused_naming_the_line_and_nothing_is_written() {
     let dir = tempfile::tempdir().unwrap();

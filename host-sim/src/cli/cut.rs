@@ -25,8 +25,8 @@ pub struct Args {
     /// Where the plots, the executed trajectories and the report go (created).
     #[arg(long, value_name = "DIR")]
     pub out: Option<PathBuf>,
-    /// The micro's plant: `ideal` (the calibrated machine's stand-in), `paper` or a plant TOML
-    /// (with `--model`/`--grid` of its calibration).
+    /// The micro's plant: `ideal` (the calibrated machine's stand-in, built around the machine
+    /// file's five-bar), `paper` or a plant TOML (with `--model`/`--grid` of its calibration).
     #[arg(long, default_value = "ideal")]
     pub plant: String,
     /// Overrides the plant's linkage model: `sixbar` or `fivebar` (fast).
@@ -76,6 +76,15 @@ pub fn run_cut(args: &Args) -> Result<()> {
         .check()?;
     let spec = args.machine.spec()?;
     let mut plant = PlantConfig::by_name(&args.plant)?;
+    // `ideal` on another machine than the paper's: the ideal plant built around its five-bar.
+    if args.plant == "ideal" && host_sim::calib::machine::check_plant_fits(&plant, &spec).is_err() {
+        plant = PlantConfig::ideal_for(&spec.nominal, &spec.grid_nodes_mm()).ok_or_else(|| {
+            anyhow::anyhow!(
+                "no ideal plant can be built around machine '{}' (its nominal model does not reach its grid)",
+                spec.name
+            )
+        })?;
+    }
     match args.plant_model.as_deref() {
         None => {}
         Some("sixbar") => plant.sixbar.model = PlantModel::Sixbar,
