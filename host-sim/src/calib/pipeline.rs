@@ -63,12 +63,15 @@ use super::plan::{plan, with_approach, Plan, PlanOptions};
 use super::protocol::{random_visits, Range, Visit};
 use super::{invalid, CalibError};
 use crate::io::atomic::Outputs;
-use crate::io::measurement_csv::{format_measurements, parse_measurements, Measurement};
+use crate::io::measurement_csv::{
+    format_measurements, format_measurements_of, parse_measurements, Measurement,
+};
 use crate::io::model_file::{model_file_text, ModelFile};
 use crate::io::plot::{vector_plot_png, VectorField};
 use crate::io::targets_csv::format_target_list;
 use crate::io::IoError;
 use crate::loop_closure::SixBarDesign;
+use crate::machine_identity::MachineIdentity;
 use crate::machine_spec::MachineSpec;
 use crate::numeric::{max_rms, round3, MaxRms};
 use kinematics_core::{Calibration, CorrectionGrid, FiveBar};
@@ -134,6 +137,8 @@ pub struct Stage {
 /// Everything a calibration run produced (in memory; [`write_outputs`] writes it).
 pub struct Calibrated {
     pub machine: String,
+    /// The machine's identity, which every file written carries (`crate::machine_identity`).
+    pub identity: MachineIdentity,
     /// The lists measured (the plan's identification, grid and verification lists, and its
     /// repeat runs, which the demo does not measure).
     pub plan: Plan,
@@ -470,6 +475,7 @@ pub fn calibrate(
     step(events, "calibration done".into());
     let goal_um = goal_um(spec);
     Ok(Calibrated {
+        identity: spec.identity(),
         machine: description,
         plan,
         fit_data,
@@ -715,20 +721,20 @@ pub fn write_outputs(
     }
     text(
         "fit_measurements.csv",
-        format_measurements(&rows(&cal.fit_data)).as_bytes(),
+        format_measurements_of(&rows(&cal.fit_data), &cal.identity).as_bytes(),
     )?;
     text(
         "grid_measurements.csv",
-        format_measurements(&rows(&cal.grid_data)).as_bytes(),
+        format_measurements_of(&rows(&cal.grid_data), &cal.identity).as_bytes(),
     )?;
     text(
         "grid_measurements_round2.csv",
-        format_measurements(&rows(&cal.grid2_data)).as_bytes(),
+        format_measurements_of(&rows(&cal.grid2_data), &cal.identity).as_bytes(),
     )?;
     for s in &cal.stages {
         text(
             &format!("verify_{}.csv", s.key.replace('+', "_")),
-            format_measurements(&rows(&s.landed)).as_bytes(),
+            format_measurements_of(&rows(&s.landed), &cal.identity).as_bytes(),
         )?;
     }
     // The grid to flash: round 2. (Round 1 is in the round-2 data: nodes commanded through it.)
@@ -741,11 +747,13 @@ pub fn write_outputs(
         serde_json::json!({ "method": "full", "source": "host-sim demo", "n_points": cal.fit_data.len() }),
     );
     full_file.backlash_urad = cal.backlash.map(|b| b.lost_motion_urad);
+    full_file.machine = Some(cal.identity.clone());
     files.push((
         "model.json".into(),
         model_file_text(&full_file)?.into_bytes(),
     ));
     let mut ls_file = ModelFile::from_model(&cal.ls_model);
+    ls_file.machine = Some(cal.identity.clone());
     ls_file.fit = Some(
         serde_json::json!({ "method": "ls", "source": "host-sim demo", "n_points": cal.fit_data.len() }),
     );

@@ -2,11 +2,13 @@
 //! JSON and plots out (`host_sim::diagnose`, `DIAGNOSIS.md`).
 
 use anyhow::{bail, Context, Result};
+use host_sim::calib::fit::params::N_PARAMS;
+use host_sim::calib::fit::plausibility;
 use host_sim::diagnose::model_out::extended_model;
 use host_sim::diagnose::plots::write_plots;
 use host_sim::diagnose::{diagnose_with_plot_data, report, DiagnoseOptions};
-use host_sim::io::measurement_csv::read_measurements;
-use host_sim::io::model_file::{model_file_text, read_model};
+use host_sim::io::measurement_csv::read_measurement_file;
+use host_sim::io::model_file::{model_file_text, read_model_file};
 use host_sim::io::policy::CommandFiles;
 use host_sim::io::{json_text, KeyOrder};
 use host_sim::loop_closure::SixBarDesign;
@@ -49,12 +51,28 @@ pub fn run(args: &Args) -> Result<()> {
         .input("--model", &args.model)
         .output("--out", &args.out)
         .output("--out-model", &args.out_model)
-        .output_dir::<&str>("--plots", &args.plots, &[])
+        // The plot every diagnosis writes, checked now; the others when staged.
+        .output_dir("--plots", &args.plots, &["residual_start.png"])
         .check()?;
-    let data = read_measurements(&args.data)?;
     let spec = args.machine.spec()?;
+    let read = read_measurement_file(&args.data)?;
+    args.machine.check_files(
+        &spec,
+        &[super::file_machine("--data", &args.data, read.machine)],
+    )?;
+    let data = read.rows;
+    // The model written must pass what a fit's must (`calib::fit::plausibility`): data in
+    // metres or radians are refused before the diagnosis, not folded into a model.
+    if args.out_model.is_some() {
+        plausibility::check_units(&spec.nominal, &data)
+            .with_context(|| format!("--data {}", args.data.display()))?;
+    }
     let base = match &args.model {
-        Some(p) => read_model(p)?,
+        Some(p) => {
+            let file = read_model_file(p)?;
+            args.machine.check_model(&spec, "--model", p, &file)?;
+            file.model()?
+        }
         None => spec.nominal,
     };
     // The six-bar's own effects are derived from the machine's nominal design, not the current
@@ -80,7 +98,17 @@ pub fn run(args: &Args) -> Result<()> {
     // report behind either.
     let extended = match &args.out_model {
         Some(_) => {
-            Some(extended_model(&base, &report).context("adding the named effects to the model")?)
+            let e =
+                extended_model(&base, &report).context("adding the named effects to the model")?;
+            plausibility::check_model(
+                &e.model,
+                &spec.nominal,
+                &[None; N_PARAMS],
+                &data,
+                &plausibility::FitEvidence::default(),
+            )
+            .context("the extended model (--out-model)")?;
+            Some(e)
         }
         None => None,
     };
@@ -91,7 +119,12 @@ pub fn run(args: &Args) -> Result<()> {
     if let (Some(path), Some(e)) = (&args.out_model, &extended) {
         outputs.bytes(
             path,
-            model_file_text(&e.file(&args.data.display().to_string()))?.as_bytes(),
+            model_file_text(&{
+                let mut f = e.file(&args.data.display().to_string());
+                f.machine = Some(spec.identity());
+                f
+            })?
+            .as_bytes(),
         )?;
     }
     if let Some(dir) = &args.plots {

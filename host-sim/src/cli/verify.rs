@@ -6,9 +6,10 @@
 use super::MachineArg;
 use anyhow::{anyhow, bail, Context, Result};
 use host_sim::calib::verify::{html, verify, StageData, VerifyOptions};
-use host_sim::io::measurement_csv::read_measurements;
+use host_sim::io::measurement_csv::{read_measurement_file, Measurement};
 use host_sim::io::policy::CommandFiles;
 use host_sim::io::{json_text, KeyOrder};
+use host_sim::machine_spec::MachineSpec;
 use std::path::{Path, PathBuf};
 
 /// The accuracy report: ISO 230-2 / VDI 3441 per axis line and the 2-D position error, before
@@ -39,8 +40,16 @@ pub struct Args {
     pub machine: MachineArg,
 }
 
-fn read(path: &Path) -> Result<Vec<host_sim::io::measurement_csv::Measurement>> {
-    Ok(read_measurements(path)?)
+/// Reads `--flag path`, checked to be of the machine.
+fn read(
+    machine: &MachineArg,
+    spec: &MachineSpec,
+    flag: &str,
+    path: &Path,
+) -> Result<Vec<Measurement>> {
+    let read = read_measurement_file(path)?;
+    machine.check_files(spec, &[super::file_machine(flag, path, read.machine)])?;
+    Ok(read.rows)
 }
 
 /// `host-sim verify`.
@@ -55,14 +64,15 @@ pub fn run(args: &Args) -> Result<()> {
         .output("--json", &args.json)
         .check()?;
     let spec = args.machine.spec()?;
+    let m = &args.machine;
     let after = StageData {
-        verify: read(&args.after_verify)?,
-        repeat: read(&args.after_repeat)?,
+        verify: read(m, &spec, "--after-verify", &args.after_verify)?,
+        repeat: read(m, &spec, "--after-repeat", &args.after_repeat)?,
     };
     let before = match (&args.before_verify, &args.before_repeat) {
         (Some(v), Some(r)) => Some(StageData {
-            verify: read(v)?,
-            repeat: read(r)?,
+            verify: read(m, &spec, "--before-verify", v)?,
+            repeat: read(m, &spec, "--before-repeat", r)?,
         }),
         (None, None) => None,
         _ => bail!("--before-verify and --before-repeat come together"),
