@@ -7,6 +7,7 @@
 
 mod accuracy;
 mod command;
+mod cut;
 mod demo;
 mod diagnose;
 mod fit;
@@ -66,6 +67,10 @@ enum Tool {
     Diagnose(diagnose::Args),
     /// The whole calibration on a built-in simulated machine: measure, fit, grid, verify.
     Demo(demo::Args),
+    /// Cut a part program (G-code) with the gantry and the micro together: the split plan, the
+    /// gantry-alone time, a lower bound, executed in simulation (table on stderr, JSON on stdout,
+    /// plots and executed trajectories with --out DIR).
+    Cut(cut::Args),
     /// Talk to a controller over its host link (QEMU: --tcp; the real board: --serial): identify, home, move, stream, upload...
     Link(link::Args),
 }
@@ -85,6 +90,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Tool::Diagnose(a) => diagnose::run(&a),
         Tool::Demo(a) => demo::run(&a),
         Tool::Link(a) => link::run(&a),
+        Tool::Cut(a) => cut::run_cut(&a),
     }
 }
 
