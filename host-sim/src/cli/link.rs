@@ -201,6 +201,17 @@ fn upload_image(grid: &Path, machine: Option<&Path>) -> Result<Vec<u8>> {
     })
 }
 
+/// `identify`'s JSON: the controller's answer, its machine as every file the tools write names
+/// one (`{name, digest}`, the digest as 8 hex digits: `machine_identity::MachineIdentity`).
+fn identity_json(id: &host_sim::link::link_protocol::Identity) -> Result<serde_json::Value> {
+    let mut v = serde_json::to_value(id)?;
+    v["machine"] = serde_json::to_value(host_sim::machine_identity::MachineIdentity {
+        name: id.machine.name().to_owned(),
+        digest: format!("{:08x}", id.machine.digest),
+    })?;
+    Ok(v)
+}
+
 /// `host-sim link`.
 pub fn run(args: &Args) -> Result<()> {
     check_ranges(args)?;
@@ -356,7 +367,18 @@ fn act<S: Read + Write>(
     let done = |what| super::print_json(&Done { done: what }, KeyOrder::Sorted);
     match action {
         Action::Identify => match request(client, Command::Identify)? {
-            Response::Identity(id) => super::print_json(&id, KeyOrder::Sorted),
+            Response::Identity(id) => {
+                eprintln!(
+                    "controller: {:?} firmware {:?}, protocol {}, {}, calibration {}",
+                    id.board,
+                    id.firmware_version,
+                    id.protocol_version,
+                    id.machine,
+                    id.calibration_id
+                        .map_or_else(|| "none in force".to_owned(), |c| format!("{c:#010x}"))
+                );
+                super::print_json(&identity_json(&id)?, KeyOrder::Sorted)
+            }
             other => bail!("unexpected reply: {other:?}"),
         },
         Action::Status => super::print_json(&client.status()?, KeyOrder::Sorted),
