@@ -14,6 +14,7 @@
 //! | [`sim`] | trajectories and the closed 2 kHz loop |
 //! | [`calib`] | protocols, the one measurement path, fits, grid, command, accuracy, the demo pipeline |
 //! | [`diagnose`] | where model and measurements disagree, and which effect is missing |
+//! | [`dynamics`] | the moving machine from telemetry: excitation, identification through the controller, diagnosis of the dynamics model |
 //! | [`numeric`] | the one Levenberg–Marquardt, finite differences, column-scaled SVD, max/RMS |
 //! | [`link`] | the controller's host link: client, streamed motion, calibration upload, telemetry |
 //! | [`io`] | file formats (measurement CSV, model file, targets, plots) and atomic output |
@@ -35,6 +36,7 @@
 
 pub mod calib;
 pub mod diagnose;
+pub mod dynamics;
 pub mod effect;
 pub mod io;
 pub mod link;

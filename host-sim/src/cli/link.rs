@@ -12,12 +12,13 @@ use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
+use host_sim::dynamics::telemetry::{from_link, meta_for};
 use host_sim::io::atomic::write_atomic;
+use host_sim::io::telemetry_csv::telemetry_text;
 use host_sim::io::KeyOrder;
 use host_sim::link::link_protocol::{Command, ModeCode, Response, StatusReport, TelemetrySample};
-use host_sim::link::{
-    figure_knots, parse_knots_csv, stream_knots, telemetry_csv, upload_calibration, LinkClient,
-};
+use host_sim::link::{figure_knots, parse_knots_csv, stream_knots, upload_calibration, LinkClient};
+use host_sim::machine_spec::MachineSpec;
 use serde::Serialize;
 
 /// The STM32G474 firmware's link baud rate (`g474_plan::plan::LINK_BAUD`).
@@ -41,6 +42,9 @@ pub struct Args {
     /// Seconds to wait for each reply (and for the connection).
     #[arg(long, default_value_t = 5.0)]
     pub timeout_s: f64,
+    /// The machine the controller runs: named in the telemetry CSV's metadata line.
+    #[command(flatten)]
+    pub machine: super::MachineArg,
     #[command(subcommand)]
     pub action: Action,
 }
@@ -183,12 +187,13 @@ pub fn run(args: &Args) -> Result<()> {
         );
     }
     let timeout = Duration::from_secs_f64(args.timeout_s);
+    let spec = args.machine.spec()?;
     match (&args.tcp, &args.serial) {
         (Some(_), _) if args.baud.is_some() => bail!("--baud applies to --serial only"),
         (Some(addr), None) => {
             let mut client = LinkClient::connect_tcp(addr, timeout)
                 .with_context(|| format!("connecting to {addr}"))?;
-            act(&mut client, &args.action, timeout)
+            act(&mut client, &args.action, timeout, &spec)
         }
         (None, Some(path)) => {
             let baud = args.baud.unwrap_or(DEFAULT_BAUD);
@@ -198,7 +203,7 @@ pub fn run(args: &Args) -> Result<()> {
             let mut client = LinkClient::open_serial(path, baud, timeout).with_context(|| {
                 format!("opening the serial port {} at {baud} Bd", path.display())
             })?;
-            act(&mut client, &args.action, timeout)
+            act(&mut client, &args.action, timeout, &spec)
         }
         // clap's `transport` group enforces exactly one of them.
         _ => bail!("give either --tcp HOST:PORT or --serial PATH"),
@@ -210,6 +215,7 @@ fn act<S: Read + Write>(
     client: &mut LinkClient<S>,
     action: &Action,
     timeout: Duration,
+    spec: &MachineSpec,
 ) -> Result<()> {
     let done = |what| super::print_json(&Done { done: what }, KeyOrder::Sorted);
     match action {
@@ -276,7 +282,7 @@ fn act<S: Read + Write>(
             )?;
             super::print_json(&s, KeyOrder::Sorted)
         }
-        Action::Stream(a) => stream(client, a, timeout),
+        Action::Stream(a) => stream(client, a, timeout, spec),
         Action::Upload { grid } => {
             let image =
                 std::fs::read(grid).with_context(|| format!("cannot read {}", grid.display()))?;
@@ -315,7 +321,8 @@ fn act<S: Read + Write>(
             client.listen(Duration::from_secs_f64(*seconds))?;
             request(client, Command::Telemetry { decimation: 0 })?;
             let samples = client.take_telemetry();
-            write_atomic(csv, telemetry_csv(&samples).as_bytes())?;
+            let log = from_link(&samples, Some(meta_for(spec, u32::from(*decimation))));
+            write_atomic(csv, telemetry_text(&log).as_bytes())?;
             #[derive(Serialize)]
             struct Recorded {
                 samples: usize,
@@ -379,6 +386,7 @@ fn stream<S: Read + Write>(
     client: &mut LinkClient<S>,
     a: &StreamArgs,
     timeout: Duration,
+    spec: &MachineSpec,
 ) -> Result<()> {
     let knots = match (&a.file, a.seconds) {
         (Some(f), _) => parse_knots_csv(
@@ -431,7 +439,8 @@ fn stream<S: Read + Write>(
         .map(|t| f64::from(t.following_error_rad))
         .fold(0.0, f64::max);
     if let Some(csv) = &a.telemetry_csv {
-        write_atomic(csv, telemetry_csv(&samples).as_bytes())?;
+        let log = from_link(&samples, Some(meta_for(spec, u32::from(a.decimation))));
+        write_atomic(csv, telemetry_text(&log).as_bytes())?;
     }
     let report = StreamReport {
         knots_sent: send,

@@ -11,6 +11,7 @@ mod demo;
 mod diagnose;
 mod fit;
 mod grid;
+mod identify;
 mod import;
 mod link;
 mod measure;
@@ -64,6 +65,9 @@ enum Tool {
     Diagnose(diagnose::Args),
     /// The whole calibration on a built-in simulated machine: measure, fit, grid, verify.
     Demo(demo::Args),
+    /// The hidden robot's dynamic parameters from the controller's telemetry of the excitation
+    /// motion (a controller over its link, a recorded log, or a simulated plant): dynamics.json.
+    Identify(identify::Args),
     /// Talk to a controller over its host link (QEMU: --tcp; the real board: --serial): identify, home, move, stream, upload...
     Link(link::Args),
 }
@@ -83,6 +87,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Tool::Diagnose(a) => diagnose::run(&a),
         Tool::Demo(a) => demo::run(&a),
         Tool::Link(a) => link::run(&a),
+        Tool::Identify(a) => identify::run(&a),
     }
 }
 

@@ -1,0 +1,278 @@
+//! Telemetry logs: built from what the controller sent over its link or from the host loop's
+//! samples (the same record either way, `io::telemetry_csv`), and the checks a log must pass
+//! before anything is fitted to it: of this machine, without gaps.
+//!
+//! **The machine.** The metadata line names the machine and its digest. The digest here is a
+//! CRC-32C over the machine file's nominal geometry (links, bases, encoder zeros, working
+//! mode, each as its f64 little-endian bytes): a stand-in until the machine record's own
+//! digest is available to host-sim, which it will replace ([`machine_digest`]). A log whose
+//! name or digest differs from the machine's is refused. Independently of the metadata, the
+//! samples themselves are checked against the machine: the commanded encoder angles must be
+//! the model's inverse kinematics of the setpoints (`samples`), which a log of another design
+//! is not.
+//!
+//! **Gaps.** Every fit here treats each sample on its own, but a log with samples missing is a
+//! link that dropped frames: refused, naming the missing ticks (a slower telemetry,
+//! `--decimation 40`, fits the link's bandwidth).
+
+use super::DynError;
+use crate::io::telemetry_csv::{meta_name, TelemetryLog, TelemetryMeta, TelemetryRow};
+use crate::machine_spec::MachineSpec;
+use crate::sim::closed_loop::LogRow;
+use link_protocol::{calibration_image_id, TelemetrySample};
+
+/// The machine's digest (see the module doc): CRC-32C of the nominal geometry's canonical
+/// encoding.
+pub fn machine_digest(spec: &MachineSpec) -> u32 {
+    let m = &spec.nominal;
+    let mut bytes = Vec::with_capacity(96);
+    for v in [
+        m.a_mm,
+        m.b_mm,
+        m.c_mm,
+        m.d_mm,
+        m.base_a0_mm[0],
+        m.base_a0_mm[1],
+        m.base_b0_mm[0],
+        m.base_b0_mm[1],
+        m.encoder_offset_rad[0],
+        m.encoder_offset_rad[1],
+    ] {
+        bytes.extend_from_slice(&v.to_le_bytes());
+    }
+    let branch = |b: kinematics_core::Branch| u8::from(b == kinematics_core::Branch::Positive);
+    bytes.extend_from_slice(&[
+        branch(m.mode.elbow_1),
+        branch(m.mode.elbow_2),
+        branch(m.mode.assembly),
+    ]);
+    calibration_image_id(&bytes)
+}
+
+/// The metadata line of a log of `spec` at `decimation`.
+pub fn meta_for(spec: &MachineSpec, decimation: u32) -> TelemetryMeta {
+    TelemetryMeta {
+        machine: spec.name.clone(),
+        digest: machine_digest(spec),
+        sample_period_s: spec.sample_period_s,
+        decimation,
+    }
+}
+
+/// A log of the samples the controller sent.
+pub fn from_link(samples: &[TelemetrySample], meta: Option<TelemetryMeta>) -> TelemetryLog {
+    let f = |v: [f32; 2]| v.map(f64::from);
+    TelemetryLog {
+        meta,
+        rows: samples
+            .iter()
+            .map(|t| TelemetryRow {
+                tick: u64::from(t.tick),
+                setpoint_mm: f(t.setpoint_mm),
+                reference_rad: f(t.reference_rad),
+                encoder_rad: f(t.encoder_rad),
+                torque_nm: f(t.torque_nm),
+                following_error_rad: f64::from(t.following_error_rad),
+                mode: format!("{:?}", t.mode),
+                fault: t.fault.map(|f| format!("{f:?}")),
+            })
+            .collect(),
+    }
+}
+
+/// A log of the host loop's samples as a controller would send them: every `decimation`-th
+/// sample from the first, in the controller's f32, the loop running (`Running`, no fault).
+pub fn from_loop(rows: &[LogRow], meta: TelemetryMeta) -> TelemetryLog {
+    let f = |v: [f64; 2]| v.map(|x| f64::from(x as f32));
+    let step = meta.decimation.max(1) as usize;
+    TelemetryLog {
+        rows: rows
+            .iter()
+            .enumerate()
+            .step_by(step)
+            .map(|(k, r)| TelemetryRow {
+                tick: k as u64,
+                setpoint_mm: f(r.setpoint_mm),
+                reference_rad: f(r.reference_rad),
+                encoder_rad: f(r.encoder_rad),
+                torque_nm: f(r.torque_nm),
+                following_error_rad: f64::from(
+                    (r.reference_rad[0] - r.encoder_rad[0])
+                        .abs()
+                        .max((r.reference_rad[1] - r.encoder_rad[1]).abs())
+                        as f32,
+                ),
+                mode: "Running".into(),
+                fault: None,
+            })
+            .collect(),
+        meta: Some(meta),
+    }
+}
+
+/// What [`check`] found about a log that passed.
+#[derive(Clone, Debug, PartialEq)]
+pub struct LogFacts {
+    /// Servo samples per telemetry sample.
+    pub decimation: u64,
+    /// The servo's sample period (s).
+    pub sample_period_s: f64,
+    /// Whether the log named its machine (`false`: a log without the metadata line, checked by
+    /// its samples only).
+    pub machine_named: bool,
+}
+
+/// Checks that `log` is one of `spec`'s machine, at its sample period, without gaps, and long
+/// enough to fit anything to (`min_rows`); the refusal says what is missing.
+pub fn check(
+    log: &TelemetryLog,
+    spec: &MachineSpec,
+    min_rows: usize,
+) -> Result<LogFacts, DynError> {
+    let refuse = |m: String| Err(DynError::Telemetry(m));
+    if log.rows.len() < min_rows.max(2) {
+        return refuse(format!(
+            "the log has {} samples; at least {} are needed (record the whole excitation: \
+             host-sim identify streams it and records its telemetry)",
+            log.rows.len(),
+            min_rows.max(2)
+        ));
+    }
+    let step = match &log.meta {
+        Some(m) => {
+            if meta_name(&m.machine) != meta_name(&spec.name) || m.digest != machine_digest(spec) {
+                return refuse(format!(
+                    "the log is of machine '{}' (digest {:08x}), not of '{}' (digest {:08x}): \
+                     give the machine file it was recorded on (--machine)",
+                    m.machine,
+                    m.digest,
+                    spec.name,
+                    machine_digest(spec)
+                ));
+            }
+            if (m.sample_period_s - spec.sample_period_s).abs() > 1e-9 * spec.sample_period_s {
+                return refuse(format!(
+                    "the log's sample period is {} s, the machine's {} s",
+                    m.sample_period_s, spec.sample_period_s
+                ));
+            }
+            u64::from(m.decimation)
+        }
+        // Without metadata: the smallest step between samples.
+        None => log
+            .rows
+            .windows(2)
+            .map(|w| w[1].tick - w[0].tick)
+            .min()
+            .unwrap_or(1),
+    };
+    let mut gaps = Vec::new();
+    let mut missing = 0u64;
+    for w in log.rows.windows(2) {
+        let d = w[1].tick - w[0].tick;
+        if d != step {
+            if d % step != 0 {
+                return refuse(format!(
+                    "ticks {} and {} are {d} samples apart, not a multiple of the decimation {step}: \
+                     not one telemetry stream",
+                    w[0].tick, w[1].tick
+                ));
+            }
+            missing += d / step - 1;
+            gaps.push((w[0].tick + step, w[1].tick - step));
+        }
+    }
+    if !gaps.is_empty() {
+        let shown: Vec<String> = gaps
+            .iter()
+            .take(5)
+            .map(|(a, b)| {
+                if a == b {
+                    format!("{a}")
+                } else {
+                    format!("{a}..={b}")
+                }
+            })
+            .collect();
+        return refuse(format!(
+            "the log has {} gaps, {missing} samples missing (ticks {}{}): the link dropped \
+             telemetry; record again with a larger decimation (e.g. --decimation 40)",
+            gaps.len(),
+            shown.join(", "),
+            if gaps.len() > 5 { ", ..." } else { "" }
+        ));
+    }
+    Ok(LogFacts {
+        decimation: step,
+        sample_period_s: spec.sample_period_s,
+        machine_named: log.meta.is_some(),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::io::telemetry_csv::{parse_telemetry, telemetry_text};
+
+    fn log(ticks: &[u64]) -> TelemetryLog {
+        let spec = MachineSpec::paper();
+        TelemetryLog {
+            meta: Some(meta_for(&spec, 20)),
+            rows: ticks
+                .iter()
+                .map(|&tick| TelemetryRow {
+                    tick,
+                    setpoint_mm: [212.0, 0.0],
+                    reference_rad: [0.8, -0.8],
+                    encoder_rad: [0.8, -0.8],
+                    torque_nm: [0.0; 2],
+                    following_error_rad: 0.0,
+                    mode: "Running".into(),
+                    fault: None,
+                })
+                .collect(),
+        }
+    }
+
+    #[test]
+    fn a_log_of_this_machine_without_gaps_passes() {
+        let spec = MachineSpec::paper();
+        let l = log(&[100, 120, 140, 160]);
+        let back = parse_telemetry(&telemetry_text(&l)).unwrap();
+        let facts = check(&back, &spec, 3).unwrap();
+        assert_eq!((facts.decimation, facts.machine_named), (20, true));
+        // Too short.
+        let e = check(&back, &spec, 10).unwrap_err().to_string();
+        assert!(e.contains("4 samples") && e.contains("at least 10"), "{e}");
+    }
+
+    #[test]
+    fn gaps_and_other_machines_are_refused_saying_what() {
+        let spec = MachineSpec::paper();
+        let e = check(&log(&[100, 120, 180, 200, 260]), &spec, 2)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("2 gaps") && e.contains("4 samples missing") && e.contains("140..=160"),
+            "{e}"
+        );
+        let e = check(&log(&[100, 120, 130]), &spec, 2)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("not a multiple"), "{e}");
+        let mut other = log(&[100, 120, 140]);
+        other.meta.as_mut().unwrap().machine = "second".into();
+        let e = check(&other, &spec, 2).unwrap_err().to_string();
+        assert!(
+            e.contains("machine 'second'") && e.contains("--machine"),
+            "{e}"
+        );
+        let mut moved = spec.clone();
+        moved.nominal.a_mm += 0.5;
+        let e = check(&log(&[100, 120, 140]), &moved, 2)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("digest"), "{e}");
+        assert_ne!(machine_digest(&spec), machine_digest(&moved));
+    }
+}
