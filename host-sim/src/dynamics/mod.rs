@@ -1,5 +1,6 @@
 //! The moving machine, from what the controller reports: the excitation motion, the telemetry
-//! it returns and the dynamic parameters identified from it.
+//! it returns, the dynamic parameters identified from it, and the diagnosis of what the
+//! controller's dynamics model is missing.
 //!
 //! | module | job |
 //! |---|---|
@@ -8,6 +9,13 @@
 //! | [`samples`] | a log matched with the knots that made it: the joint motion and the torque of each sample |
 //! | [`identify`] | the hidden robot's dynamic parameters fitted to the samples (linear least squares, `kinematics_core::dynamics::regressor`) |
 //! | [`session`] | the excitation streamed to a controller over its link, its telemetry recorded |
+//! | [`effects`] | the library of dynamic effects a model can miss, each a set of torque columns |
+//! | [`model_plant`] | the controller's dynamics model as a plant, with the effects, for the closed-loop prediction |
+//! | [`predict`] | the closed loop (the core's servo) around that plant, on the log's reference: the following error it predicts |
+//! | [`diagnose`] | where prediction and telemetry disagree: the effects named, added, the residual shrinking |
+//! | [`torque_fit`] | the diagnosis' least squares on the torques: candidates, BIC, the cogging scan |
+//! | [`block`] | how the named effects go into the image's dynamics block |
+//! | [`report`] | the diagnosis report (the same contract as the static diagnosis') and its table |
 //! | [`tuning`] | the servo's gains designed for the identified inertia |
 //!
 //! The layers import downwards: `sim`, `link` and `io` below; `calib::dynamics` (the
@@ -19,11 +27,18 @@
 //! interpolates them, `sim::knots`), so its velocity and acceleration are known at every
 //! sample; the machine follows it within micro-radians.
 
+pub mod block;
+pub mod diagnose;
+pub mod effects;
 pub mod excitation;
 pub mod identify;
+pub mod model_plant;
+pub mod predict;
+pub mod report;
 pub mod samples;
 pub mod session;
 pub mod telemetry;
+pub mod torque_fit;
 pub mod tuning;
 
 /// Why the moving machine could not be identified or diagnosed; every message says what is
@@ -50,3 +65,6 @@ pub enum DynError {
     #[error(transparent)]
     Fit(#[from] crate::calib::CalibError),
 }
+
+#[cfg(test)]
+mod tests;

@@ -191,7 +191,12 @@ pub fn check(
         let shown: Vec<String> = gaps
             .iter()
             .take(5)
-            .map(|(a, b)| format!("{a} to {b} ({} ms)", (b - a) as f64 * spec.sample_period_s * 1e3))
+            .map(|(a, b)| {
+                format!(
+                    "{a} to {b} ({} ms)",
+                    (b - a) as f64 * spec.sample_period_s * 1e3
+                )
+            })
             .collect();
         return refuse(format!(
             "the log has {} gaps longer than {GAP_FACTOR} decimation intervals (between ticks \
