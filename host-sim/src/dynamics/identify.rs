@@ -220,8 +220,8 @@ mod tests {
     }
 
     /// From 100 Hz telemetry of the excitation on the paper six-bar plant (stress, clearances,
-    /// backlash, friction, quantisation): the bodies' lumped inertias within 5 %, the tool mass
-    /// within 2 %, the friction within 15 %.
+    /// backlash, friction, quantisation): the bodies' lumped inertias and the tool mass within
+    /// 5 % (about three of the fit's standard deviations), the friction within 15 %.
     #[test]
     fn the_paper_plants_dynamics_come_out_of_its_telemetry() {
         let plant = PlantConfig::paper();
