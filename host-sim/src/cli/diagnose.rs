@@ -1,5 +1,6 @@
 //! `host-sim diagnose`: measurements and a model in, the gap-shrink table on stdout, the report
-//! JSON and plots out (`host_sim::diagnose`, `DIAGNOSIS.md`).
+//! JSON and plots out (`host_sim::diagnose`, `DIAGNOSIS.md`). With `--telemetry` the moving
+//! machine's diagnosis instead (`diagnose_moving`, `host_sim::dynamics::diagnose`).
 
 use anyhow::{bail, Context, Result};
 use host_sim::diagnose::loop_closure::SixBarDesign;
@@ -16,8 +17,14 @@ use std::path::PathBuf;
 #[derive(clap::Args, Debug)]
 pub struct Args {
     /// Measurement CSV (see measurement_csv).
-    #[arg(long)]
-    pub data: PathBuf,
+    #[arg(
+        long,
+        required_unless_present = "telemetry",
+        conflicts_with = "telemetry"
+    )]
+    pub data: Option<PathBuf>,
+    #[command(flatten)]
+    pub moving: super::diagnose_moving::MovingArgs,
     /// The current model (model.json); default: the machine's nominal five-bar.
     #[arg(long)]
     pub model: Option<PathBuf>,
@@ -41,7 +48,10 @@ pub struct Args {
 
 /// `host-sim diagnose`.
 pub fn run(args: &Args) -> Result<()> {
-    let data = read_measurements(&args.data)?;
+    let Some(data_path) = &args.data else {
+        return super::diagnose_moving::run(args);
+    };
+    let data = read_measurements(data_path)?;
     let spec = args.machine.spec()?;
     let base = match &args.model {
         Some(p) => read_model(p)?,
@@ -64,7 +74,7 @@ pub fn run(args: &Args) -> Result<()> {
             sixbar,
         },
     )
-    .with_context(|| format!("diagnosing {}", args.data.display()))?;
+    .with_context(|| format!("diagnosing {}", data_path.display()))?;
     print!("{}", report::table(&report));
     // Everything computed before anything is written: a model that cannot be made leaves no
     // report behind either.
@@ -76,7 +86,7 @@ pub fn run(args: &Args) -> Result<()> {
     };
     // The report and the extended model staged, then renamed together (io::atomic); neither
     // may overwrite the measurements or the model read.
-    let mut inputs = vec![args.data.as_path()];
+    let mut inputs = vec![data_path.as_path()];
     inputs.extend(args.model.as_deref());
     let mut outputs = Outputs::protecting(&inputs);
     outputs.bytes(
@@ -86,7 +96,7 @@ pub fn run(args: &Args) -> Result<()> {
     if let (Some(path), Some(e)) = (&args.out_model, &extended) {
         outputs.bytes(
             path,
-            model_file_text(&e.file(&args.data.display().to_string()))?.as_bytes(),
+            model_file_text(&e.file(&data_path.display().to_string()))?.as_bytes(),
         )?;
     }
     outputs.commit()?;

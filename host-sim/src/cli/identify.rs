@@ -86,6 +86,10 @@ pub struct Args {
     /// The excitation's peak acceleration (g); the controller's stream limit (default 2 g).
     #[arg(long, default_value_t = 2.0)]
     pub accel_g: f64,
+    /// The length of each of the excitation's two sections (s; default 8): shorter is quicker
+    /// and identifies less precisely.
+    #[arg(long, default_value_t = 8.0)]
+    pub section_s: f64,
     /// Telemetry decimation: servo samples per telemetry sample (20 = 100 Hz, the fastest).
     #[arg(long, default_value_t = 20)]
     pub decimation: u16,
@@ -145,6 +149,7 @@ pub fn run(args: &Args) -> Result<()> {
     };
     let excitation = ExcitationOptions {
         accel_mm_s2: args.accel_g * STANDARD_GRAVITY_MM_S2,
+        section_s: args.section_s,
         ..ExcitationOptions::default()
     };
     // Every input is protected from the outputs.

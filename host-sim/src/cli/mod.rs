@@ -9,6 +9,7 @@ mod accuracy;
 mod command;
 mod demo;
 mod diagnose;
+mod diagnose_moving;
 mod fit;
 mod grid;
 mod identify;

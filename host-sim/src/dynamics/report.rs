@@ -33,6 +33,8 @@ pub struct DynamicReport {
     pub score: String,
     /// What the residual (µm) is.
     pub residual: String,
+    /// The noise the residual's RMS is given beyond (µm RMS).
+    pub noise_um: f64,
     /// The torque residual's standard deviation with the final model (N·m), and the samples
     /// it counts as independent (its lag-1 correlation discounted).
     pub noise_nm: f64,

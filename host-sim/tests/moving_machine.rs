@@ -1,0 +1,413 @@
+//! The moving machine through the command line: the dynamics identified through the controller
+//! (the real firmware under QEMU, scenario `link`: the excitation streamed over its link, its
+//! telemetry recorded and fitted), the same from the recorded files, the moving machine's
+//! diagnosis of that telemetry against the image's dynamics block, and the refusals of logs
+//! that cannot be used.
+//!
+//! The QEMU firmware's plant is the hidden robot's dynamics with rotors, friction and masses
+//! that are not the image's (`firmware/src/board/qemu/machine.rs`: every inertia and the tool
+//! mass 20 % off, friction under-estimated): the identification must find the plant's, the
+//! diagnosis must name what the image gets wrong.
+//!
+//! Needs the thumbv7em-none-eabihf target and qemu-system-arm (`bash tests/run-all.sh`
+//! installs both); the firmware is built into `target/system-tests`, as `link_qemu` does.
+use std::net::TcpListener;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Output};
+
+use serde_json::Value;
+
+#[allow(dead_code)]
+mod machine {
+    include!("../../firmware/src/board/qemu/machine.rs");
+}
+mod synthetic {
+    include!("../../firmware/src/board/qemu/synthetic_image.rs");
+}
+
+fn workspace_root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .parent()
+        .expect("host-sim is in the workspace")
+        .to_path_buf()
+}
+
+include!("../../tests/support/firmware_build.rs");
+
+/// QEMU with the firmware; stopped when dropped.
+struct Qemu(Child);
+
+impl Drop for Qemu {
+    fn drop(&mut self) {
+        // SIGTERM to run-one.sh's `timeout`, which passes it on to QEMU.
+        let _ = Command::new("kill").arg(self.0.id().to_string()).status();
+        let _ = self.0.wait();
+    }
+}
+
+fn host_sim(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_host-sim"))
+        .args(args)
+        .output()
+        .expect("host-sim runs")
+}
+
+/// Runs host-sim, requires success, returns its JSON (stdout) or its table when not JSON.
+fn ok(args: &[&str]) -> String {
+    let out = host_sim(args);
+    let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
+    assert!(
+        out.status.success(),
+        "host-sim {args:?} failed: {}\n{stdout}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    stdout
+}
+
+fn json(text: &str) -> Value {
+    serde_json::from_str(text).unwrap_or_else(|e| panic!("not JSON ({e}): {text}"))
+}
+
+/// Runs host-sim, requires failure, returns its stderr.
+fn refused(args: &[&str]) -> String {
+    let out = host_sim(args);
+    assert!(
+        !out.status.success(),
+        "host-sim {args:?} should have been refused: {}",
+        String::from_utf8_lossy(&out.stdout)
+    );
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+fn params(d: &Value) -> [f64; 9] {
+    let f = |k: &str, i: usize| d[k][i].as_f64().unwrap();
+    [
+        f("motor_inertia_kg_m2", 0),
+        f("motor_inertia_kg_m2", 1),
+        d["tool_mass_kg"].as_f64().unwrap(),
+        f("distal_inertia_kg_m2", 0),
+        f("distal_inertia_kg_m2", 1),
+        f("viscous_nm_s_per_rad", 0),
+        f("viscous_nm_s_per_rad", 1),
+        f("coulomb_nm", 0),
+        f("coulomb_nm", 1),
+    ]
+}
+
+fn read_json(p: &Path) -> Value {
+    json(&std::fs::read_to_string(p).unwrap())
+}
+
+/// The hidden robot's parameters of `d` with the distal inertias in the other motor's (what
+/// the identification fits on the paper's rhombus).
+fn base(d: &kinematics_core::FiveBarDynamics<f32>, rotor: [f32; 2]) -> [f64; 3] {
+    [
+        f64::from(rotor[0] + d.motor_inertia_kg_m2[0] + d.distal_inertia_kg_m2[1]),
+        f64::from(rotor[1] + d.motor_inertia_kg_m2[1] + d.distal_inertia_kg_m2[0]),
+        f64::from(d.tool_mass_kg),
+    ]
+}
+
+#[test]
+fn the_dynamics_are_identified_and_diagnosed_through_the_qemu_firmware() {
+    let elf = build_firmware_bin(&workspace_root(), "firmware");
+    let port = TcpListener::bind("127.0.0.1:0")
+        .and_then(|l| l.local_addr())
+        .expect("a free port")
+        .port();
+    let addr = format!("127.0.0.1:{port}");
+    let work = tempfile::tempdir().unwrap();
+    let qemu = Command::new("bash")
+        .arg(workspace_root().join("firmware/qemu/run-one.sh"))
+        .arg(&elf)
+        .arg("link")
+        .arg(work.path().join("qemu"))
+        .env("QEMU_SERIAL", format!("tcp:{addr},server=on,wait=off"))
+        .env("QEMU_TIMEOUT_S", "120")
+        .stdout(std::process::Stdio::null())
+        .spawn()
+        .expect("bash and qemu-system-arm (bash tests/run-all.sh installs them)");
+    let _qemu = Qemu(qemu);
+    let link = ["link", "--tcp", addr.as_str(), "--timeout-s", "10"];
+    ok(&[&link[..], &["home"]].concat());
+    let dir = work.path();
+    let p = |name: &str| dir.join(name).to_str().unwrap().to_owned();
+    let image = synthetic::synthetic_image(1.0);
+    std::fs::write(p("grid.bin"), &image).unwrap();
+    std::fs::write(p("other.bin"), synthetic::synthetic_image(-1.0)).unwrap();
+    let tcp = ["--tcp", addr.as_str(), "--timeout-s", "10"];
+    // An image that is not the one in force: its model is not what reads the encoders.
+    let e = refused(
+        &[
+            &["identify"],
+            &tcp[..],
+            &["--grid", &p("other.bin"), "--out", &p("x.json")],
+        ]
+        .concat(),
+    );
+    assert!(e.contains("the controller runs calibration"), "{e}");
+    assert!(!dir.join("x.json").exists());
+
+    // Through the controller: the excitation streamed, its telemetry fitted.
+    let start = std::time::Instant::now();
+    let out = json(&ok(&[
+        &["identify"],
+        &tcp[..],
+        &[
+            "--grid",
+            &p("grid.bin"),
+            "--section-s",
+            "4",
+            "--out",
+            &p("dynamics.json"),
+            "--telemetry-csv",
+            &p("telemetry.csv"),
+            "--knots-out",
+            &p("knots.csv"),
+        ],
+    ]
+    .concat()));
+    let wall_s = start.elapsed().as_secs_f64();
+    let got = params(&read_json(&dir.join("dynamics.json")));
+    let truth = base(&machine::LINKAGE, machine::ROTOR_INERTIA_KG_M2);
+    let image_block = base(&machine::IMAGE_DYNAMICS, [0.0; 2]);
+    println!(
+        "MOVING_QEMU identify: {} telemetry samples in {wall_s:.1} s; I1 {:.4e} I2 {:.4e} m {:.4} \
+         (plant {:.4e} {:.4e} {:.4}; image {:.4e} {:.4e} {:.4}), viscous {:.4} {:.4} coulomb {:.4} {:.4} \
+         (plant 0.01, 0.03)",
+        out["telemetry_samples"],
+        got[0],
+        got[1],
+        got[2],
+        truth[0],
+        truth[1],
+        truth[2],
+        image_block[0],
+        image_block[1],
+        image_block[2],
+        got[5],
+        got[6],
+        got[7],
+        got[8]
+    );
+    for k in 0..3 {
+        assert!(
+            (got[k] - truth[k]).abs() < 0.08 * truth[k],
+            "parameter {k}: {} vs the plant's {}",
+            got[k],
+            truth[k]
+        );
+        assert!((got[k] - truth[k]).abs() < 0.5 * (image_block[k] - truth[k]).abs());
+    }
+    for (k, want) in [(5, 0.01), (6, 0.01), (7, 0.03), (8, 0.03)] {
+        assert!(
+            (got[k] - want).abs() < 0.3 * want,
+            "friction {k}: {}",
+            got[k]
+        );
+    }
+    let telemetry = std::fs::read_to_string(dir.join("telemetry.csv")).unwrap();
+    assert!(
+        telemetry.starts_with("# machine=paper digest="),
+        "{telemetry:.200}"
+    );
+
+    // The same from the files.
+    ok(&[
+        "identify",
+        "--telemetry",
+        &p("telemetry.csv"),
+        "--knots",
+        &p("knots.csv"),
+        "--grid",
+        &p("grid.bin"),
+        "--out",
+        &p("again.json"),
+    ]);
+    assert_eq!(params(&read_json(&dir.join("again.json"))), got);
+
+    // What the image gets wrong, named from the same telemetry.
+    let table = ok(&[
+        "diagnose",
+        "--telemetry",
+        &p("telemetry.csv"),
+        "--knots",
+        &p("knots.csv"),
+        "--grid",
+        &p("grid.bin"),
+        "--out",
+        &p("report.json"),
+        "--out-dynamics",
+        &p("updated.json"),
+    ]);
+    println!("MOVING_QEMU diagnose:\n{table}");
+    let r = read_json(&dir.join("report.json"));
+    let named: Vec<&str> = r["steps"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|s| s["effect"].as_str().unwrap())
+        .collect();
+    assert!(
+        named.contains(&"motor_inertia") && named.contains(&"tool_mass"),
+        "{named:?}"
+    );
+    let (initial, last) = (
+        r["initial_rms_um"].as_f64().unwrap(),
+        r["final_rms_um"].as_f64().unwrap(),
+    );
+    assert!(last <= 0.5 * initial, "{initial} -> {last} um");
+    assert!(r["confounded"].is_array() && r["unexplained"].is_boolean());
+    let updated = params(&read_json(&dir.join("updated.json")));
+    for k in 0..3 {
+        assert!(
+            (updated[k] - truth[k]).abs() < 0.08 * truth[k],
+            "updated {k}: {} vs the plant's {}",
+            updated[k],
+            truth[k]
+        );
+    }
+}
+
+/// The files' path without a controller, and the refusals.
+#[test]
+fn the_moving_machine_from_files_and_the_logs_refused() {
+    let work = tempfile::tempdir().unwrap();
+    let dir = work.path();
+    let p = |name: &str| dir.join(name).to_str().unwrap().to_owned();
+    ok(&[
+        "identify",
+        "--plant",
+        "paper",
+        "--section-s",
+        "4",
+        "--out",
+        &p("d0.json"),
+        "--telemetry-csv",
+        &p("t.csv"),
+        "--knots-out",
+        &p("k.csv"),
+    ]);
+    let d0 = params(&read_json(&dir.join("d0.json")));
+    ok(&[
+        "identify",
+        "--telemetry",
+        &p("t.csv"),
+        "--knots",
+        &p("k.csv"),
+        "--out",
+        &p("d1.json"),
+    ]);
+    let d1 = params(&read_json(&dir.join("d1.json")));
+    for k in 0..9 {
+        assert!(
+            (d1[k] - d0[k]).abs() <= 1e-6 * (1e-6 + d0[k].abs()),
+            "{d0:?} {d1:?}"
+        );
+    }
+    // Another machine's log.
+    let second = workspace_root().join("host-sim/machines/second.toml");
+    let e = refused(&[
+        "identify",
+        "--telemetry",
+        &p("t.csv"),
+        "--machine",
+        second.to_str().unwrap(),
+        "--out",
+        &p("x.json"),
+    ]);
+    assert!(
+        e.contains("machine 'paper'") && e.contains("--machine"),
+        "{e}"
+    );
+    // A diagnosis needs the dynamics the controller fed forward.
+    let e = refused(&[
+        "diagnose",
+        "--telemetry",
+        &p("t.csv"),
+        "--out",
+        &p("x.json"),
+    ]);
+    assert!(e.contains("--dynamics"), "{e}");
+    // A log cut short.
+    let text = std::fs::read_to_string(dir.join("t.csv")).unwrap();
+    let short: String = text.lines().take(300).map(|l| format!("{l}\n")).collect();
+    std::fs::write(dir.join("short.csv"), short).unwrap();
+    let e = refused(&[
+        "diagnose",
+        "--telemetry",
+        &p("short.csv"),
+        "--knots",
+        &p("k.csv"),
+        "--dynamics",
+        &p("d0.json"),
+        "--out",
+        &p("x.json"),
+    ]);
+    assert!(e.contains("record the whole motion"), "{e}");
+    // Not a number: refused naming the line and column.
+    let nan: Vec<String> = text
+        .lines()
+        .enumerate()
+        .map(|(i, l)| {
+            if i == 9 {
+                let mut f: Vec<&str> = l.split(',').collect();
+                f[7] = "NaN";
+                f.join(",")
+            } else {
+                l.to_owned()
+            }
+        })
+        .collect();
+    std::fs::write(dir.join("nan.csv"), nan.join("\n")).unwrap();
+    let e = refused(&[
+        "identify",
+        "--telemetry",
+        &p("nan.csv"),
+        "--out",
+        &p("x.json"),
+    ]);
+    assert!(e.contains("line 10") && e.contains("torque_1_nm"), "{e}");
+    assert!(
+        !dir.join("x.json").exists(),
+        "nothing written by a refused run"
+    );
+    // The diagnosis of the log of its own model: nothing named; the contract's keys.
+    ok(&[
+        "diagnose",
+        "--telemetry",
+        &p("t.csv"),
+        "--knots",
+        &p("k.csv"),
+        "--dynamics",
+        &p("d0.json"),
+        "--out",
+        &p("r.json"),
+    ]);
+    let r = read_json(&dir.join("r.json"));
+    for key in ["steps", "confounded", "unexplained", "final_rms_um"] {
+        assert!(!r[key].is_null(), "{key}: {r}");
+    }
+    // The host loop writes the same format.
+    ok(&[
+        "simulate",
+        "--plant",
+        "paper",
+        "--plant-model",
+        "fivebar",
+        "--trajectory",
+        "excitation",
+        "--seconds",
+        "1",
+        "--telemetry-csv",
+        &p("s.csv"),
+    ]);
+    let s = std::fs::read_to_string(dir.join("s.csv")).unwrap();
+    let mut lines = s.lines();
+    assert!(lines.next().unwrap().starts_with("# machine=paper digest="));
+    assert!(lines
+        .next()
+        .unwrap()
+        .starts_with("tick,setpoint_x_mm,setpoint_y_mm,"));
+    assert_eq!(s.lines().count(), 2 + 100, "1 s at 100 Hz");
+}
