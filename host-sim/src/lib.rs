@@ -11,12 +11,15 @@
 //! | [`machine_spec`] | the machine's constants, once: nominal model, workspace, grid lattice, servo rate |
 //! | [`effect`] | the names of the physical effects, shared by the plant and the diagnosis |
 //! | [`plant`] | the simulated six-bar with its imperfections (the "real machine") |
+//! | [`loop_closure`] | the six-bar's loop closure linearised about a nominal five-bar (diagnosis and grid prior) |
 //! | [`sim`] | trajectories and the closed 2 kHz loop |
 //! | [`calib`] | protocols, the one measurement path, fits, grid, command, accuracy, the demo pipeline |
 //! | [`diagnose`] | where model and measurements disagree, and which effect is missing |
 //! | [`dynamics`] | the moving machine from telemetry: excitation, identification through the controller, diagnosis of the dynamics model |
+//! | [`synth`] | measurements of machines with hidden effects, shared by the diagnosis' tests and studies |
 //! | [`numeric`] | the one Levenberg–Marquardt, finite differences, column-scaled SVD, max/RMS |
 //! | [`link`] | the controller's host link: client, streamed motion, calibration upload, telemetry |
+//! | [`cosim`] | the production firmware under QEMU driving the plant in lockstep (co-simulation) |
 //! | [`io`] | file formats (measurement CSV, model file, targets, plots) and atomic output |
 //!
 //! Conventions: library functions take an options struct (with the [`machine_spec::MachineSpec`]
@@ -35,12 +38,17 @@
 )]
 
 pub mod calib;
+pub mod cosim;
 pub mod diagnose;
 pub mod dynamics;
 pub mod effect;
 pub mod io;
 pub mod link;
+pub mod loop_closure;
+pub mod machine_identity;
+pub mod machine_ranges;
 pub mod machine_spec;
 pub mod numeric;
 pub mod plant;
 pub mod sim;
+pub mod synth;

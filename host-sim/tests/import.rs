@@ -296,7 +296,7 @@ fn tab_separated_in_metres_with_another_vendors_names() {
             "--out",
             s(&out3),
         ],
-        "the export looks like metres read as mm: give --units m",
+        "the export looks like m: give --units m",
         &out3,
     );
     // A header that says m and --units mm contradict.
@@ -410,7 +410,7 @@ fn bad_exports_are_refused_and_nothing_is_written() {
         "--out",
         s(&commanded),
     ];
-    refused(&args, "it is one of the command's inputs", &commanded);
+    refused(&args, "is the file of the input --commanded", &commanded);
     // The same exports with the right options import.
     ok(&[
         "import",

@@ -11,7 +11,7 @@
 //! | 0. the lists (identification poses chosen for identifiability, grid nodes, verification targets, repeat runs) | [`super::plan::plan`] | `plan --seed S` | — |
 //! | 1. measure the identification poses, nominal model | [`super::measure::measure_list`] | `measure --targets identify.csv` | 10·S + 1 |
 //! | 2. fit: the paper's `ls` (links only, for comparison) and `full` (LM: links, A0, B0, encoder offsets) | [`super::fit::fit`] | `fit --method ls`, `fit --method full` | — |
-//! | 3. measure the grid nodes commanded with the `full` model; build the grid (+ the workspace block) | `measure_list`, [`super::grid::build`], [`super::image::finish_image`] | `measure --targets grid.csv --model`, `grid` | 10·S + 5 |
+//! | 3. measure the grid nodes commanded with the `full` model; build the grid (+ the workspace block; the machine record last, judged as the controller judges it) | `measure_list`, [`super::grid::build`], [`super::image::finish_image`], [`super::image::seal_image`] | `measure --targets grid.csv --model`, `grid` | 10·S + 5 |
 //! | 4. measure the nodes again through that grid; rebuild it from both rounds' readings (round 2, the image to flash) | the same | `measure --grid`, `grid --data grid1.csv --data grid2.csv` | 10·S + 7 |
 //! | 5. verify every stage on the verification targets: nominal, `ls`, `full`, `full` + grid, `full` + refined grid | `measure_list`, [`super::measure::accuracy`] | `measure --targets verify.csv [--model M] [--grid G]` | 10·S + 2, 3, 4, 6, 8 |
 //!
@@ -55,20 +55,23 @@ use super::fit::full::FullFit;
 use super::fit::params::{self, NAMES};
 use super::fit::{fit, FitOptions, Method, ModelFigures, Points};
 use super::grid::{self, BuiltGrid};
-use super::image::finish_image;
+use super::image::{finish_image, seal_image};
 use super::machine::Machine;
 use super::measure::{measure_list_compensated, rows, Landed};
 use super::plan::list_rows;
 use super::plan::{plan, with_approach, Plan, PlanOptions};
 use super::protocol::{random_visits, Range, Visit};
 use super::{invalid, CalibError};
-use crate::diagnose::loop_closure::SixBarDesign;
-use crate::io::atomic::write_atomic;
-use crate::io::measurement_csv::{format_measurements, parse_measurements, Measurement};
-use crate::io::model_file::{write_model_file, ModelFile};
-use crate::io::plot::{vector_plot, VectorField};
+use crate::io::atomic::Outputs;
+use crate::io::measurement_csv::{
+    format_measurements, format_measurements_of, parse_measurements, Measurement,
+};
+use crate::io::model_file::{model_file_text, ModelFile};
+use crate::io::plot::{vector_plot_png, VectorField};
 use crate::io::targets_csv::format_target_list;
 use crate::io::IoError;
+use crate::loop_closure::SixBarDesign;
+use crate::machine_identity::MachineIdentity;
 use crate::machine_spec::MachineSpec;
 use crate::numeric::{max_rms, round3, MaxRms};
 use kinematics_core::{Calibration, CorrectionGrid, FiveBar};
@@ -134,6 +137,8 @@ pub struct Stage {
 /// Everything a calibration run produced (in memory; [`write_outputs`] writes it).
 pub struct Calibrated {
     pub machine: String,
+    /// The machine's identity, which every file written carries (`crate::machine_identity`).
+    pub identity: MachineIdentity,
     /// The lists measured (the plan's identification, grid and verification lists, and its
     /// repeat runs, which the demo does not measure).
     pub plan: Plan,
@@ -458,9 +463,19 @@ pub fn calibrate(
     if let Some(b) = &backlash {
         grid2.image = super::image::append_backlash_block(&grid2.image, b)?;
     }
+    // Both images end with the machine record, judged as the controller will judge them (what
+    // `host-sim grid` writes).
+    let mut grid = grid;
+    grid.image = seal_image(&grid.image, spec)
+        .map_err(|e| e.context("the grid, round 1"))?
+        .bytes;
+    grid2.image = seal_image(&grid2.image, spec)
+        .map_err(|e| e.context("the refined grid"))?
+        .bytes;
     step(events, "calibration done".into());
     let goal_um = goal_um(spec);
     Ok(Calibrated {
+        identity: spec.identity(),
         machine: description,
         plan,
         fit_data,
@@ -684,14 +699,18 @@ fn stage<'a>(cal: &'a Calibrated, key: &str) -> Result<&'a Stage, IoError> {
         .ok_or_else(|| IoError::Invalid(format!("internal: no stage '{key}'")))
 }
 
-/// Writes every output into `dir` (each file atomically) and returns the paths, in [`FILES`]
-/// order but for `summary.json`, which the caller writes last from [`summary`].
-pub fn write_outputs(cal: &Calibrated, dir: &Path) -> Result<Vec<PathBuf>, IoError> {
+/// Stages every output into `dir` in `out` (renamed into place with the command's other files
+/// by `out.commit()`) and returns the paths, in [`FILES`] order but for `summary.json`, which
+/// the caller stages last from [`summary`].
+pub fn write_outputs(
+    cal: &Calibrated,
+    dir: &Path,
+    out: &mut Outputs,
+) -> Result<Vec<PathBuf>, IoError> {
     let p = |name: &str| dir.join(name);
-    let mut written = Vec::new();
+    let mut files: Vec<(String, Vec<u8>)> = Vec::new();
     let mut text = |name: &str, bytes: &[u8]| -> Result<(), IoError> {
-        write_atomic(&p(name), bytes)?;
-        written.push(p(name));
+        files.push((name.to_string(), bytes.to_vec()));
         Ok(())
     };
     for (name, list) in cal.plan.lists() {
@@ -702,20 +721,20 @@ pub fn write_outputs(cal: &Calibrated, dir: &Path) -> Result<Vec<PathBuf>, IoErr
     }
     text(
         "fit_measurements.csv",
-        format_measurements(&rows(&cal.fit_data)).as_bytes(),
+        format_measurements_of(&rows(&cal.fit_data), &cal.identity).as_bytes(),
     )?;
     text(
         "grid_measurements.csv",
-        format_measurements(&rows(&cal.grid_data)).as_bytes(),
+        format_measurements_of(&rows(&cal.grid_data), &cal.identity).as_bytes(),
     )?;
     text(
         "grid_measurements_round2.csv",
-        format_measurements(&rows(&cal.grid2_data)).as_bytes(),
+        format_measurements_of(&rows(&cal.grid2_data), &cal.identity).as_bytes(),
     )?;
     for s in &cal.stages {
         text(
             &format!("verify_{}.csv", s.key.replace('+', "_")),
-            format_measurements(&rows(&s.landed)).as_bytes(),
+            format_measurements_of(&rows(&s.landed), &cal.identity).as_bytes(),
         )?;
     }
     // The grid to flash: round 2. (Round 1 is in the round-2 data: nodes commanded through it.)
@@ -728,14 +747,20 @@ pub fn write_outputs(cal: &Calibrated, dir: &Path) -> Result<Vec<PathBuf>, IoErr
         serde_json::json!({ "method": "full", "source": "host-sim demo", "n_points": cal.fit_data.len() }),
     );
     full_file.backlash_urad = cal.backlash.map(|b| b.lost_motion_urad);
-    write_model_file(&p("model.json"), &full_file)?;
-    written.push(p("model.json"));
+    full_file.machine = Some(cal.identity.clone());
+    files.push((
+        "model.json".into(),
+        model_file_text(&full_file)?.into_bytes(),
+    ));
     let mut ls_file = ModelFile::from_model(&cal.ls_model);
+    ls_file.machine = Some(cal.identity.clone());
     ls_file.fit = Some(
         serde_json::json!({ "method": "ls", "source": "host-sim demo", "n_points": cal.fit_data.len() }),
     );
-    write_model_file(&p("model_ls.json"), &ls_file)?;
-    written.push(p("model_ls.json"));
+    files.push((
+        "model_ls.json".into(),
+        model_file_text(&ls_file)?.into_bytes(),
+    ));
 
     // Plots: the same fresh targets for every stage; fields in one plot share one scale.
     let (nominal, ls, full) = (
@@ -756,88 +781,101 @@ pub fn write_outputs(cal: &Calibrated, dir: &Path) -> Result<Vec<PathBuf>, IoErr
         true_error_vectors_um(&gridded.landed),
         true_error_vectors_um(&gridded2.landed),
     );
-    vector_plot(
-        &p("errors_fit.png"),
-        "step 2, fit: true − target at fresh targets",
-        &[
-            VectorField {
-                label: "nominal model",
-                base_mm: &base,
-                error_um: &e_nom,
-            },
-            VectorField {
-                label: "paper's ls fit",
-                base_mm: &base,
-                error_um: &e_ls,
-            },
-            VectorField {
-                label: "full fit",
-                base_mm: &base,
-                error_um: &e_full,
-            },
-        ],
-    )?;
-    written.push(p("errors_fit.png"));
-    vector_plot(
-        &p("errors_grid.png"),
-        "step 3, grid: true − target at fresh targets",
-        &[
-            VectorField {
-                label: "full fit",
-                base_mm: &base,
-                error_um: &e_full,
-            },
-            VectorField {
-                label: "full fit + grid (1 round)",
-                base_mm: &base,
-                error_um: &e_grid,
-            },
-            VectorField {
-                label: "full fit + grid (2 rounds)",
-                base_mm: &base,
-                error_um: &e_grid2,
-            },
-        ],
-    )?;
-    written.push(p("errors_grid.png"));
-    vector_plot(
-        &p("errors_final.png"),
-        "after calibration: true − target at fresh targets",
-        &[
-            VectorField {
-                label: "full fit + grid (1 round)",
-                base_mm: &base,
-                error_um: &e_grid,
-            },
-            VectorField {
-                label: "full fit + grid (2 rounds)",
-                base_mm: &base,
-                error_um: &e_grid2,
-            },
-        ],
-    )?;
-    written.push(p("errors_final.png"));
+    files.push((
+        "errors_fit.png".into(),
+        vector_plot_png(
+            "step 2, fit: true − target at fresh targets",
+            &[
+                VectorField {
+                    label: "nominal model",
+                    base_mm: &base,
+                    error_um: &e_nom,
+                },
+                VectorField {
+                    label: "paper's ls fit",
+                    base_mm: &base,
+                    error_um: &e_ls,
+                },
+                VectorField {
+                    label: "full fit",
+                    base_mm: &base,
+                    error_um: &e_full,
+                },
+            ],
+            &[],
+        )?,
+    ));
+    files.push((
+        "errors_grid.png".into(),
+        vector_plot_png(
+            "step 3, grid: true − target at fresh targets",
+            &[
+                VectorField {
+                    label: "full fit",
+                    base_mm: &base,
+                    error_um: &e_full,
+                },
+                VectorField {
+                    label: "full fit + grid (1 round)",
+                    base_mm: &base,
+                    error_um: &e_grid,
+                },
+                VectorField {
+                    label: "full fit + grid (2 rounds)",
+                    base_mm: &base,
+                    error_um: &e_grid2,
+                },
+            ],
+            &[],
+        )?,
+    ));
+    files.push((
+        "errors_final.png".into(),
+        vector_plot_png(
+            "after calibration: true − target at fresh targets",
+            &[
+                VectorField {
+                    label: "full fit + grid (1 round)",
+                    base_mm: &base,
+                    error_um: &e_grid,
+                },
+                VectorField {
+                    label: "full fit + grid (2 rounds)",
+                    base_mm: &base,
+                    error_um: &e_grid2,
+                },
+            ],
+            &[],
+        )?,
+    ));
     let node_base: Vec<[f64; 2]> = cal.grid.nodes.iter().map(|n| n.target_mm).collect();
     let (node_err1, node_err2) = (
         measured_error_vectors_um(&cal.grid_data),
         measured_error_vectors_um(&cal.grid2_data),
     );
-    vector_plot(
-        &p("grid_nodes.png"),
-        "grid nodes: measured − target",
-        &[
-            VectorField {
-                label: "round 1 (full fit)",
-                base_mm: &node_base,
-                error_um: &node_err1,
-            },
-            VectorField {
-                label: "round 2 (through the round-1 grid)",
-                base_mm: &node_base,
-                error_um: &node_err2,
-            },
-        ],
-    )?;
-    written.push(p("grid_nodes.png"));
+    files.push((
+        "grid_nodes.png".into(),
+        vector_plot_png(
+            "grid nodes: measured − target",
+            &[
+                VectorField {
+                    label: "round 1 (full fit)",
+                    base_mm: &node_base,
+                    error_um: &node_err1,
+                },
+                VectorField {
+                    label: "round 2 (through the round-1 grid)",
+                    base_mm: &node_base,
+                    error_um: &node_err2,
+                },
+            ],
+            &[],
+        )?,
+    ));
+    let mut written = Vec::with_capacity(files.len());
+    for (name, bytes) in &files {
+        out.bytes(&p(name), bytes)?;
+        written.push(p(name));
+    }
     Ok(written)
 }

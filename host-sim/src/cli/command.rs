@@ -6,9 +6,9 @@ use host_sim::calib::command::{
     check_grid_model, check_in_workspace, command_all, command_all_compensated, format_commands,
     format_commands_with_dirs,
 };
-use host_sim::io::atomic::write_atomic;
+use host_sim::calib::image::read_image;
 use host_sim::io::model_file::read_model_file;
-use host_sim::io::read_bytes;
+use host_sim::io::policy::CommandFiles;
 use host_sim::io::targets_csv::read_targets;
 use kinematics_core::{Calibration, CorrectionGrid};
 use std::path::PathBuf;
@@ -42,11 +42,22 @@ pub struct Args {
 
 /// `host-sim command`.
 pub fn run(args: &Args) -> Result<()> {
+    let mut outputs = CommandFiles::new()
+        .input("--machine", &args.machine.machine)
+        .input("--model", &args.model)
+        .input("--grid", &args.grid)
+        .input("--targets", &args.targets)
+        .output("--out", &args.out)
+        .check()?;
     let spec = args.machine.spec()?;
-    let image = args.grid.as_deref().map(read_bytes).transpose()?;
+    let image = match &args.grid {
+        Some(path) => Some(read_image(path, &spec)?.bytes),
+        None => None,
+    };
     let grid = match (&image, &args.grid) {
         (Some(bytes), Some(path)) => {
-            Some(CorrectionGrid::parse(bytes).map_err(|e| anyhow!("{}: {e}", path.display()))?)
+            let g = CorrectionGrid::parse(bytes).map_err(|e| anyhow!("{}: {e}", path.display()))?;
+            Some(g)
         }
         _ => None,
     };
@@ -55,6 +66,7 @@ pub fn run(args: &Args) -> Result<()> {
     let (model, backlash) = match (&args.model, &grid) {
         (Some(path), _) => {
             let file = read_model_file(path)?;
+            args.machine.check_model(&spec, "--model", path, &file)?;
             let model = file
                 .model()
                 .map_err(|e| anyhow!("{}: {e}", path.display()))?;
@@ -99,7 +111,8 @@ pub fn run(args: &Args) -> Result<()> {
             format_commands_with_dirs(&targets, &angles, &dirs)
         }
     };
-    write_atomic(&args.out, text.as_bytes())?;
+    outputs.bytes(&args.out, text.as_bytes())?;
+    outputs.commit()?;
     eprintln!(
         "command: {} targets -> {}",
         targets.len(),

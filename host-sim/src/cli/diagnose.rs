@@ -3,14 +3,16 @@
 //! machine's diagnosis instead (`diagnose_moving`, `host_sim::dynamics::diagnose`).
 
 use anyhow::{bail, Context, Result};
-use host_sim::diagnose::loop_closure::SixBarDesign;
+use host_sim::calib::fit::params::N_PARAMS;
+use host_sim::calib::fit::plausibility;
 use host_sim::diagnose::model_out::extended_model;
 use host_sim::diagnose::plots::write_plots;
-use host_sim::diagnose::{diagnose_with_history, report, DiagnoseOptions};
-use host_sim::io::atomic::Outputs;
-use host_sim::io::measurement_csv::read_measurements;
-use host_sim::io::model_file::{model_file_text, read_model};
+use host_sim::diagnose::{diagnose_with_plot_data, report, DiagnoseOptions};
+use host_sim::io::measurement_csv::read_measurement_file;
+use host_sim::io::model_file::{model_file_text, read_model_file};
+use host_sim::io::policy::CommandFiles;
 use host_sim::io::{json_text, KeyOrder};
+use host_sim::loop_closure::SixBarDesign;
 use std::path::PathBuf;
 
 /// Command-line arguments of `host-sim diagnose`.
@@ -51,10 +53,36 @@ pub fn run(args: &Args) -> Result<()> {
     let Some(data_path) = &args.data else {
         return super::diagnose_moving::run(args);
     };
-    let data = read_measurements(data_path)?;
+    // The report, the extended model and the plots staged, then renamed together; none may
+    // be an input or another's file.
+    let mut outputs = CommandFiles::new()
+        .input("--machine", &args.machine.machine)
+        .input("--data", &args.data)
+        .input("--model", &args.model)
+        .output("--out", &args.out)
+        .output("--out-model", &args.out_model)
+        // The plot every diagnosis writes, checked now; the others when staged.
+        .output_dir("--plots", &args.plots, &["residual_start.png"])
+        .check()?;
     let spec = args.machine.spec()?;
+    let read = read_measurement_file(data_path)?;
+    args.machine.check_files(
+        &spec,
+        &[super::file_machine("--data", data_path, read.machine)],
+    )?;
+    let data = read.rows;
+    // The model written must pass what a fit's must (`calib::fit::plausibility`): data in
+    // metres or radians are refused before the diagnosis, not folded into a model.
+    if args.out_model.is_some() {
+        plausibility::check_units(&spec.nominal, &data)
+            .with_context(|| format!("--data {}", data_path.display()))?;
+    }
     let base = match &args.model {
-        Some(p) => read_model(p)?,
+        Some(p) => {
+            let file = read_model_file(p)?;
+            args.machine.check_model(&spec, "--model", p, &file)?;
+            file.model()?
+        }
         None => spec.nominal,
     };
     // The six-bar's own effects are derived from the machine's nominal design, not the current
@@ -66,7 +94,7 @@ pub fn run(args: &Args) -> Result<()> {
             bail!("--noise-um {s}: must be a positive number of micrometres");
         }
     }
-    let (report, history) = diagnose_with_history(
+    let (report, plot_data) = diagnose_with_plot_data(
         &data,
         &DiagnoseOptions {
             base,
@@ -80,15 +108,20 @@ pub fn run(args: &Args) -> Result<()> {
     // report behind either.
     let extended = match &args.out_model {
         Some(_) => {
-            Some(extended_model(&base, &report).context("adding the named effects to the model")?)
+            let e =
+                extended_model(&base, &report).context("adding the named effects to the model")?;
+            plausibility::check_model(
+                &e.model,
+                &spec.nominal,
+                &[None; N_PARAMS],
+                &data,
+                &plausibility::FitEvidence::default(),
+            )
+            .context("the extended model (--out-model)")?;
+            Some(e)
         }
         None => None,
     };
-    // The report and the extended model staged, then renamed together (io::atomic); neither
-    // may overwrite the measurements or the model read.
-    let mut inputs = vec![data_path.as_path()];
-    inputs.extend(args.model.as_deref());
-    let mut outputs = Outputs::protecting(&inputs);
     outputs.bytes(
         &args.out,
         json_text(&report, KeyOrder::Declared)?.as_bytes(),
@@ -96,15 +129,20 @@ pub fn run(args: &Args) -> Result<()> {
     if let (Some(path), Some(e)) = (&args.out_model, &extended) {
         outputs.bytes(
             path,
-            model_file_text(&e.file(&data_path.display().to_string()))?.as_bytes(),
+            model_file_text(&{
+                let mut f = e.file(&data_path.display().to_string());
+                f.machine = Some(spec.identity());
+                f
+            })?
+            .as_bytes(),
         )?;
+    }
+    if let Some(dir) = &args.plots {
+        write_plots(&mut outputs, dir, &data, &report, &plot_data)?;
     }
     outputs.commit()?;
     if let Some(path) = &args.out_model {
         eprintln!("diagnose: extended model -> {}", path.display());
-    }
-    if let Some(dir) = &args.plots {
-        write_plots(dir, &data, &report, &history)?;
     }
     Ok(())
 }

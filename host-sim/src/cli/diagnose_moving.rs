@@ -14,8 +14,8 @@ use host_sim::dynamics::excitation::{excitation, ExcitationOptions};
 use host_sim::dynamics::predict::Controller;
 use host_sim::dynamics::report::table;
 use host_sim::dynamics::samples::SampleOptions;
-use host_sim::io::atomic::Outputs;
-use host_sim::io::dynamics_file::{read_dynamics, write_dynamics_file, DynamicsFile};
+use host_sim::io::dynamics_file::{read_dynamics_file, write_dynamics_file, DynamicsFile};
+use host_sim::io::policy::CommandFiles;
 use host_sim::io::telemetry_csv::read_telemetry;
 use host_sim::io::{json_text, KeyOrder};
 use host_sim::link::parse_knots_csv;
@@ -23,7 +23,7 @@ use host_sim::machine_spec::STANDARD_GRAVITY_MM_S2;
 use host_sim::sim::knots::KnotPath;
 use kinematics_core::dynamics::PARAMETER_NAMES;
 use kinematics_core::{FiveBarDynamics, ServoConfig};
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 /// The flags of the moving machine's diagnosis (`diagnose --telemetry`).
 #[derive(clap::Args, Debug)]
@@ -65,18 +65,49 @@ pub fn run(args: &super::diagnose::Args) -> Result<()> {
     if !(m.accel_g > 0.0 && m.accel_g <= 20.0) {
         bail!("--accel-g must be in (0, 20], not {}", m.accel_g);
     }
+    // Every file declared before anything runs: no output onto an input or another output.
+    let mut outputs = CommandFiles::new()
+        .input("--machine", &args.machine.machine)
+        .input("--telemetry", log_path)
+        .input("--knots", &m.knots)
+        .input("--grid", &m.grid)
+        .input("--dynamics", &m.dynamics)
+        .input("--model", &args.model)
+        .output("--out", &args.out)
+        .output("--out-dynamics", &m.out_dynamics)
+        .check()?;
     let spec = args.machine.spec()?;
-    let (model, bytes) =
-        super::load_calibration(args.model.as_deref(), m.grid.as_deref(), &spec.nominal)?;
+    let (model, bytes) = super::load_calibration(
+        args.model.as_deref(),
+        m.grid.as_deref(),
+        &spec,
+        &args.machine,
+    )?;
     let grid = super::parse_grid(&bytes)?;
     let fed_forward: FiveBarDynamics<f64> = match (&m.dynamics, grid.as_ref().and_then(|g| g.dynamics())) {
-        (Some(p), _) => read_dynamics(p)?,
+        (Some(p), _) => {
+            let file = read_dynamics_file(p)?;
+            args.machine.check_files(
+                &spec,
+                &[super::file_machine("--dynamics", p, file.machine.clone())],
+            )?;
+            file.dynamics()
+                .map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))?
+        }
         (None, Some(d)) => d.cast(),
         (None, None) => bail!(
             "give the dynamics the controller fed forward: --dynamics FILE, or --grid with the image it ran (its dynamics block)"
         ),
     };
     let log = read_telemetry(log_path)?;
+    args.machine.check_files(
+        &spec,
+        &[super::file_machine(
+            "--telemetry",
+            log_path,
+            log.meta.as_ref().map(|m| m.machine.clone()),
+        )],
+    )?;
     let start = log
         .rows
         .first()
@@ -125,15 +156,7 @@ pub fn run(args: &super::diagnose::Args) -> Result<()> {
     let report = diagnose_telemetry(&log, &path, &opts)
         .with_context(|| format!("diagnosing {}", log_path.display()))?;
     print!("{}", table(&report));
-    // Everything computed before anything is written; no input is overwritten.
-    let mut inputs: Vec<&Path> = vec![log_path.as_path()];
-    for p in [&m.knots, &m.grid, &m.dynamics, &args.model]
-        .into_iter()
-        .flatten()
-    {
-        inputs.push(p.as_path());
-    }
-    let mut outputs = Outputs::protecting(&inputs);
+    // Everything computed before anything is written.
     outputs.bytes(
         &args.out,
         json_text(&report, KeyOrder::Declared)?.as_bytes(),
@@ -147,6 +170,7 @@ pub fn run(args: &super::diagnose::Args) -> Result<()> {
             fed_forward.coulomb_speed_rad_s,
         );
         let mut file = DynamicsFile::from_dynamics(&d);
+        file.machine = Some(spec.identity());
         file.identification = Some(serde_json::json!({
             "method": "the dynamics fed forward with the effects the moving machine's diagnosis named (host-sim diagnose --telemetry)",
             "telemetry": log_path.display().to_string(),

@@ -21,9 +21,9 @@ use host_sim::dynamics::identify::{
 use host_sim::dynamics::samples::SampleOptions;
 use host_sim::dynamics::session::{LinkRunOptions, PlantRunOptions};
 use host_sim::dynamics::tuning::{axis_inertia_kg_m2, servo_config_for};
-use host_sim::io::atomic::Outputs;
 use host_sim::io::dynamics_file::write_dynamics_file;
 use host_sim::io::knots_csv::knots_text;
+use host_sim::io::policy::CommandFiles;
 use host_sim::io::telemetry_csv::{read_telemetry, telemetry_text};
 use host_sim::io::{json_text, KeyOrder};
 use host_sim::link::link_protocol::{calibration_image_id, Command, Response};
@@ -36,7 +36,7 @@ use kinematics_core::dynamics::PARAMETER_NAMES;
 use kinematics_core::{Calibration, ServoConfig};
 use serde::Serialize;
 use std::io::{Read, Write};
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::time::Duration;
 
 /// Identify the dynamics from the controller's telemetry of the excitation motion.
@@ -119,6 +119,18 @@ struct AxisGainsOut {
 
 /// `host-sim identify`.
 pub fn run(args: &Args) -> Result<()> {
+    // Every file declared before anything runs: no output onto an input or another output.
+    let mut outputs = CommandFiles::new()
+        .input("--machine", &args.machine.machine)
+        .input("--telemetry", &args.telemetry)
+        .input("--knots", &args.knots)
+        .input("--plant", args.plant.as_deref().and_then(super::plant_file))
+        .input("--grid", &args.grid)
+        .input("--model", &args.model)
+        .output("--out", &args.out)
+        .output("--telemetry-csv", &args.telemetry_csv)
+        .output("--knots-out", &args.knots_out)
+        .check()?;
     let spec = args.machine.spec()?;
     if !(args.accel_g > 0.0 && args.accel_g <= 20.0) {
         bail!("--accel-g must be in (0, 20], not {}", args.accel_g);
@@ -135,8 +147,12 @@ pub fn run(args: &Args) -> Result<()> {
     if args.telemetry.is_some() && (args.telemetry_csv.is_some() || args.knots_out.is_some()) {
         bail!("--telemetry-csv and --knots-out record a run: not with --telemetry");
     }
-    let (model, bytes) =
-        super::load_calibration(args.model.as_deref(), args.grid.as_deref(), &spec.nominal)?;
+    let (model, bytes) = super::load_calibration(
+        args.model.as_deref(),
+        args.grid.as_deref(),
+        &spec,
+        &args.machine,
+    )?;
     let cal = Calibration {
         model,
         grid: super::parse_grid(&bytes)?,
@@ -152,14 +168,16 @@ pub fn run(args: &Args) -> Result<()> {
         section_s: args.section_s,
         ..ExcitationOptions::default()
     };
-    // Every input is protected from the outputs.
-    let mut inputs: Vec<&Path> = Vec::new();
-    inputs.extend(args.telemetry.as_deref());
-    inputs.extend(args.knots.as_deref());
-    inputs.extend(args.grid.as_deref());
-    inputs.extend(args.model.as_deref());
     let (source, result, run) = if let Some(log_path) = &args.telemetry {
         let log = read_telemetry(log_path)?;
+        args.machine.check_files(
+            &spec,
+            &[super::file_machine(
+                "--telemetry",
+                log_path,
+                log.meta.as_ref().map(|m| m.machine.clone()),
+            )],
+        )?;
         let start = log
             .rows
             .first()
@@ -234,7 +252,6 @@ pub fn run(args: &Args) -> Result<()> {
     let d = result.identified.dynamics;
     let inertia = axis_inertia_kg_m2(&d, &samples.model, &spec)?;
     let tuned = servo_config_for(&d, &samples.model, &spec, servo)?;
-    let mut outputs = Outputs::protecting(&inputs);
     outputs.with(&args.out, |tmp| write_dynamics_file(tmp, &file))?;
     if let Some(run) = &run {
         if let Some(p) = &args.telemetry_csv {

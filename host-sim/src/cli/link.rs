@@ -8,17 +8,21 @@
 //! virtual COM port, e.g. `/dev/ttyACM0`, 115 200 Bd 8N1; see firmware/README.md). The
 //! commands are the same over both: the client takes any `Read + Write`.
 use std::io::{Read, Write};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
+use host_sim::calib::image::{read_image, read_image_for};
 use host_sim::dynamics::telemetry::{from_link, meta_for};
-use host_sim::io::atomic::write_atomic;
+use host_sim::io::atomic::Outputs;
+use host_sim::io::machine_file::read_machine;
+use host_sim::io::policy::CommandFiles;
+use host_sim::io::read_bytes;
 use host_sim::io::telemetry_csv::telemetry_text;
 use host_sim::io::KeyOrder;
 use host_sim::link::link_protocol::{Command, ModeCode, Response, StatusReport, TelemetrySample};
 use host_sim::link::{figure_knots, parse_knots_csv, stream_knots, upload_calibration, LinkClient};
-use host_sim::machine_spec::MachineSpec;
+use kinematics_core::{CorrectionGrid, MachineRecord};
 use serde::Serialize;
 
 /// The STM32G474 firmware's link baud rate (`g474_plan::plan::LINK_BAUD`).
@@ -42,9 +46,6 @@ pub struct Args {
     /// Seconds to wait for each reply (and for the connection).
     #[arg(long, default_value_t = 5.0)]
     pub timeout_s: f64,
-    /// The machine the controller runs: named in the telemetry CSV's metadata line.
-    #[command(flatten)]
-    pub machine: super::MachineArg,
     #[command(subcommand)]
     pub action: Action,
 }
@@ -82,9 +83,15 @@ pub enum Action {
     /// Upload a calibration image (grid.bin) and read back its id: the controller must report
     /// the file's own (CRC-32C of its bytes), or the command fails.
     Upload {
-        /// The image.
+        /// The image. It is judged first, as the controller will judge it: another machine's
+        /// image, or one no calibration of the machine needs, is refused before a byte is sent.
         #[arg(long)]
         grid: PathBuf,
+        /// The machine file of the controller's machine: the image must be that machine's
+        /// (its digest). Without it the image is judged against its own machine record, or,
+        /// if it carries none, against the firmware's built-in machine (the paper's).
+        #[arg(long, value_name = "FILE")]
+        machine: Option<PathBuf>,
     },
     /// Record telemetry for a while.
     Telemetry {
@@ -94,9 +101,13 @@ pub enum Action {
         /// How long (s, wall clock).
         #[arg(long, default_value_t = 1.0)]
         seconds: f64,
-        /// CSV output.
+        /// CSV output (the telemetry CSV: its first line names the machine).
         #[arg(long)]
         csv: PathBuf,
+        /// The machine file of the controller's machine, named in the CSV (default: the
+        /// paper's).
+        #[arg(long, value_name = "FILE")]
+        machine: Option<PathBuf>,
     },
     /// Send random bytes (bursts of 300, each ending with a frame delimiter) and count the
     /// frames they make and the answers: the controller must answer every one and not move.
@@ -139,6 +150,25 @@ pub struct StreamArgs {
     /// Telemetry decimation (servo samples per telemetry sample).
     #[arg(long, default_value_t = 20)]
     pub decimation: u16,
+    /// The machine file of the controller's machine, named in the telemetry CSV (default: the
+    /// paper's).
+    #[arg(long, value_name = "FILE")]
+    pub machine: Option<PathBuf>,
+}
+
+/// The telemetry CSV of `samples` (`io::telemetry_csv`), naming `machine`'s machine (the
+/// paper's without it).
+fn telemetry_file(
+    samples: &[TelemetrySample],
+    machine: Option<&Path>,
+    decimation: u16,
+) -> Result<String> {
+    let spec = match machine {
+        Some(p) => read_machine(p)?,
+        None => host_sim::io::machine_file::paper(),
+    };
+    let log = from_link(samples, Some(meta_for(&spec, u32::from(decimation))));
+    Ok(telemetry_text(&log))
 }
 
 #[derive(Serialize)]
@@ -178,6 +208,22 @@ fn wait_idle<S: Read + Write>(client: &mut LinkClient<S>, limit: Duration) -> Re
     }
 }
 
+/// The image `link upload` sends, judged as the controller will judge it (module doc of
+/// `host_sim::calib::image`): for `machine`'s machine when given, else for the machine its own
+/// record names, else for the firmware's built-in machine (the paper's).
+fn upload_image(grid: &Path, machine: Option<&Path>) -> Result<Vec<u8>> {
+    Ok(match machine {
+        Some(path) => read_image(grid, &read_machine(path)?)?.bytes,
+        None => {
+            let bytes = read_bytes(grid)?;
+            let own = CorrectionGrid::parse(&bytes)
+                .map_err(|e| anyhow::anyhow!("{}: {e}", grid.display()))?
+                .machine();
+            read_image_for(grid, &own.unwrap_or_else(MachineRecord::paper))?.bytes
+        }
+    })
+}
+
 /// `host-sim link`.
 pub fn run(args: &Args) -> Result<()> {
     if !(args.timeout_s > 0.0 && args.timeout_s.is_finite()) {
@@ -187,13 +233,31 @@ pub fn run(args: &Args) -> Result<()> {
         );
     }
     let timeout = Duration::from_secs_f64(args.timeout_s);
-    let spec = args.machine.spec()?;
+    // The files an action reads and writes, checked before the link is opened.
+    let files = match &args.action {
+        Action::Upload { grid, machine } => CommandFiles::new()
+            .input("--grid", grid)
+            .input("--machine", machine),
+        Action::Telemetry { csv, machine, .. } => CommandFiles::new()
+            .input("--machine", machine)
+            .output("--csv", csv),
+        Action::Stream(a) => CommandFiles::new()
+            .input("--file", &a.file)
+            .input("--machine", &a.machine)
+            .output("--telemetry-csv", &a.telemetry_csv),
+        _ => CommandFiles::new(),
+    };
+    let mut outputs = files.check()?;
+    // An image the controller would refuse is refused before the link is opened.
+    if let Action::Upload { grid, machine } = &args.action {
+        upload_image(grid, machine.as_deref())?;
+    }
     match (&args.tcp, &args.serial) {
         (Some(_), _) if args.baud.is_some() => bail!("--baud applies to --serial only"),
         (Some(addr), None) => {
             let mut client = LinkClient::connect_tcp(addr, timeout)
                 .with_context(|| format!("connecting to {addr}"))?;
-            act(&mut client, &args.action, timeout, &spec)
+            act(&mut client, &args.action, timeout, &mut outputs)
         }
         (None, Some(path)) => {
             let baud = args.baud.unwrap_or(DEFAULT_BAUD);
@@ -203,7 +267,7 @@ pub fn run(args: &Args) -> Result<()> {
             let mut client = LinkClient::open_serial(path, baud, timeout).with_context(|| {
                 format!("opening the serial port {} at {baud} Bd", path.display())
             })?;
-            act(&mut client, &args.action, timeout, &spec)
+            act(&mut client, &args.action, timeout, &mut outputs)
         }
         // clap's `transport` group enforces exactly one of them.
         _ => bail!("give either --tcp HOST:PORT or --serial PATH"),
@@ -215,7 +279,7 @@ fn act<S: Read + Write>(
     client: &mut LinkClient<S>,
     action: &Action,
     timeout: Duration,
-    spec: &MachineSpec,
+    outputs: &mut Outputs,
 ) -> Result<()> {
     let done = |what| super::print_json(&Done { done: what }, KeyOrder::Sorted);
     match action {
@@ -282,10 +346,9 @@ fn act<S: Read + Write>(
             )?;
             super::print_json(&s, KeyOrder::Sorted)
         }
-        Action::Stream(a) => stream(client, a, timeout, spec),
-        Action::Upload { grid } => {
-            let image =
-                std::fs::read(grid).with_context(|| format!("cannot read {}", grid.display()))?;
+        Action::Stream(a) => stream(client, a, timeout, outputs),
+        Action::Upload { grid, machine } => {
+            let image = upload_image(grid, machine.as_deref())?;
             let id = upload_calibration(client, &image, &mut |done, total| {
                 eprint!("\rupload {done}/{total} bytes");
             });
@@ -308,6 +371,7 @@ fn act<S: Read + Write>(
             decimation,
             seconds,
             csv,
+            machine,
         } => {
             if !(*seconds > 0.0 && seconds.is_finite()) {
                 bail!("--seconds must be a positive number, not {seconds}");
@@ -321,8 +385,9 @@ fn act<S: Read + Write>(
             client.listen(Duration::from_secs_f64(*seconds))?;
             request(client, Command::Telemetry { decimation: 0 })?;
             let samples = client.take_telemetry();
-            let log = from_link(&samples, Some(meta_for(spec, u32::from(*decimation))));
-            write_atomic(csv, telemetry_text(&log).as_bytes())?;
+            let text = telemetry_file(&samples, machine.as_deref(), *decimation)?;
+            outputs.bytes(csv, text.as_bytes())?;
+            std::mem::take(outputs).commit()?;
             #[derive(Serialize)]
             struct Recorded {
                 samples: usize,
@@ -386,7 +451,7 @@ fn stream<S: Read + Write>(
     client: &mut LinkClient<S>,
     a: &StreamArgs,
     timeout: Duration,
-    spec: &MachineSpec,
+    outputs: &mut Outputs,
 ) -> Result<()> {
     let knots = match (&a.file, a.seconds) {
         (Some(f), _) => parse_knots_csv(
@@ -439,9 +504,10 @@ fn stream<S: Read + Write>(
         .map(|t| f64::from(t.following_error_rad))
         .fold(0.0, f64::max);
     if let Some(csv) = &a.telemetry_csv {
-        let log = from_link(&samples, Some(meta_for(spec, u32::from(a.decimation))));
-        write_atomic(csv, telemetry_text(&log).as_bytes())?;
+        let text = telemetry_file(&samples, a.machine.as_deref(), a.decimation)?;
+        outputs.bytes(csv, text.as_bytes())?;
     }
+    std::mem::take(outputs).commit()?;
     let report = StreamReport {
         knots_sent: send,
         knots_total: total,

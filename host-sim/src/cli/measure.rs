@@ -9,8 +9,9 @@ use host_sim::calib::machine::{check_plant_fits, PlantMachine};
 use host_sim::calib::measure::{accuracy, measure_list_compensated, rows, Accuracy, Approach};
 use host_sim::calib::plan::visits_from_rows;
 use host_sim::calib::protocol::{visits, Protocol};
-use host_sim::io::measurement_csv::write_measurements;
+use host_sim::io::measurement_csv::format_measurements_of;
 use host_sim::io::model_file::read_model_file;
+use host_sim::io::policy::CommandFiles;
 use host_sim::io::targets_csv::read_target_list;
 use host_sim::io::KeyOrder;
 use host_sim::plant::PlantConfig;
@@ -89,6 +90,14 @@ struct Summary {
 }
 
 pub fn run(args: &Args) -> Result<()> {
+    let mut outputs = CommandFiles::new()
+        .input("--machine", &args.machine.machine)
+        .input("--plant", super::plant_file(&args.plant))
+        .input("--targets", &args.targets)
+        .input("--model", &args.model)
+        .input("--grid", &args.grid)
+        .output("--out", &args.out)
+        .check()?;
     let spec = args.machine.spec()?;
     let plant = PlantConfig::by_name(&args.plant)?;
     check_plant_fits(&plant, &spec)?;
@@ -105,8 +114,12 @@ pub fn run(args: &Args) -> Result<()> {
         _ => bail!("give --protocol (table1, grid, random:N, repeat) or --targets FILE"),
     };
     let approach: Approach = args.approach.map_or(Approach::FromVisit, Approach::from);
-    let (model, bytes) =
-        super::load_calibration(args.model.as_deref(), args.grid.as_deref(), &spec.nominal)?;
+    let (model, bytes) = super::load_calibration(
+        args.model.as_deref(),
+        args.grid.as_deref(),
+        &spec,
+        &args.machine,
+    )?;
     let cal = Calibration {
         model,
         grid: super::parse_grid(&bytes)?,
@@ -130,11 +143,23 @@ pub fn run(args: &Args) -> Result<()> {
         args.seed,
         &spec,
     )?;
-    write_measurements(&args.out, &rows(&landed))?;
+    outputs.bytes(
+        &args.out,
+        format_measurements_of(&rows(&landed), &spec.identity()).as_bytes(),
+    )?;
+    outputs.commit()?;
+    let a = accuracy(&landed);
+    let p = super::um_decimals(args.noise_um.unwrap_or(spec.instrument_sigma_um));
     eprintln!(
-        "measure: {} measurements written to {}",
+        "measure: {} measurements of machine '{}' written to {}",
         landed.len(),
+        spec.name,
         args.out.display()
+    );
+    eprintln!(
+        "measure: against the targets (µm)   max {:>9.p$}   RMS {:>9.p$}   (where the tool landed)\n\
+         measure:                             max {:>9.p$}   RMS {:>9.p$}   (what the instrument read)",
+        a.max_um, a.rms_um, a.measured_max_um, a.measured_rms_um
     );
     let approach = match (args.approach, args.targets.is_some()) {
         (Some(a), _) => Approach::from(a).name().to_string(),

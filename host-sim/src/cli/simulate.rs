@@ -17,9 +17,9 @@ use anyhow::{bail, Result};
 use host_sim::calib::dynamics::identify;
 use host_sim::dynamics::excitation::{excitation, ExcitationOptions};
 use host_sim::dynamics::telemetry::{from_loop, meta_for};
-use host_sim::io::atomic::Outputs;
-use host_sim::io::dynamics_file::read_dynamics;
+use host_sim::io::dynamics_file::read_dynamics_file;
 use host_sim::io::plot::{xy_plot_png, Mark, Series};
+use host_sim::io::policy::CommandFiles;
 use host_sim::io::telemetry_csv::telemetry_text;
 use host_sim::io::KeyOrder;
 use host_sim::machine_spec::STANDARD_GRAVITY_MM_S2;
@@ -100,6 +100,17 @@ struct Output<'a> {
 }
 
 pub fn run(args: &Args) -> Result<()> {
+    // Both outputs staged, then renamed together; neither onto an input.
+    let mut outputs = CommandFiles::new()
+        .input("--machine", &args.machine.machine)
+        .input("--plant", super::plant_file(&args.plant))
+        .input("--model", &args.model)
+        .input("--grid", &args.grid)
+        .input("--dynamics", &args.dynamics)
+        .output("--log", &args.log)
+        .output("--plot", &args.plot)
+        .output("--telemetry-csv", &args.telemetry_csv)
+        .check()?;
     let spec = args.machine.spec()?;
     let mut cfg = PlantConfig::by_name(&args.plant)?;
     host_sim::calib::machine::check_plant_fits(&cfg, &spec)?;
@@ -138,8 +149,12 @@ pub fn run(args: &Args) -> Result<()> {
             args.mass_error_pct
         );
     }
-    let (model, bytes) =
-        super::load_calibration(args.model.as_deref(), args.grid.as_deref(), &spec.nominal)?;
+    let (model, bytes) = super::load_calibration(
+        args.model.as_deref(),
+        args.grid.as_deref(),
+        &spec,
+        &args.machine,
+    )?;
     let cal = Calibration {
         model,
         grid: super::parse_grid(&bytes)?,
@@ -149,7 +164,17 @@ pub fn run(args: &Args) -> Result<()> {
         "constant" => (FeedForward::Constant, None),
         "dynamics" => {
             let (d, source) = match (&args.dynamics, cal.grid.as_ref().and_then(|g| g.dynamics())) {
-                (Some(p), _) => (read_dynamics(p)?, format!("--dynamics {}", p.display())),
+                (Some(p), _) => {
+                    let file = read_dynamics_file(p)?;
+                    args.machine.check_files(
+                        &spec,
+                        &[super::file_machine("--dynamics", p, file.machine.clone())],
+                    )?;
+                    let d = file
+                        .dynamics()
+                        .map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))?;
+                    (d, format!("--dynamics {}", p.display()))
+                }
                 (None, Some(d)) => (
                     d.cast::<f64>(),
                     "the --grid image's dynamics block".to_string(),
@@ -186,8 +211,6 @@ pub fn run(args: &Args) -> Result<()> {
         feedforward,
     };
     let run = simulate(&cfg, &cal, &trajectory, &opts)?;
-    // Both outputs staged, then renamed together.
-    let mut outputs = Outputs::new();
     if let Some(p) = &args.log {
         outputs.bytes(p, format_log(&run.log).as_bytes())?;
     }
@@ -232,6 +255,19 @@ pub fn run(args: &Args) -> Result<()> {
         ),
         _ => None,
     };
+    let r = &run.summary;
+    eprintln!(
+        "simulate: {} on the {} plant for {:.2} s ({} samples, {:.1}x real time): tracking error max {:.2} µm, RMS {:.2} µm; following error max {:.2} µm; {}",
+        r.trajectory,
+        r.plant,
+        r.simulated_s,
+        r.samples,
+        r.realtime_factor,
+        r.max_tracking_err_um,
+        r.rms_tracking_err_um,
+        r.max_following_err_um,
+        r.fault.as_deref().map_or("no fault".to_string(), |f| format!("FAULT: {f}"))
+    );
     super::print_json(
         &Output {
             summary: &run.summary,

@@ -107,6 +107,7 @@ pub fn dynamics_file(
     source: &str,
 ) -> DynamicsFile {
     let mut f = DynamicsFile::from_dynamics(&id.identified.dynamics);
+    f.machine = Some(spec.identity());
     f.std_dev = id.identified.std_dev.iter().cloned().collect();
     f.identification = Some(serde_json::json!({
         "method": "least squares on the controller's telemetry of the excitation (host-sim identify)",

@@ -2,11 +2,9 @@
 //! samples (the same record either way, `io::telemetry_csv`), and the checks a log must pass
 //! before anything is fitted to it: of this machine, without gaps.
 //!
-//! **The machine.** The metadata line names the machine and its digest. The digest here is a
-//! CRC-32C over the machine file's nominal geometry (links, bases, encoder zeros, working
-//! mode, each as its f64 little-endian bytes): a stand-in until the machine record's own
-//! digest is available to host-sim, which it will replace ([`machine_digest`]). A log whose
-//! name or digest differs from the machine's is refused. Independently of the metadata, the
+//! **The machine.** The metadata line names the machine and its digest
+//! (`MachineSpec::identity`, the machine record's digest, as every file the tools write
+//! carries it). A log whose digest differs from the machine's is refused. Independently of the metadata, the
 //! samples themselves are checked against the machine: the commanded encoder angles must be
 //! the model's inverse kinematics of the setpoints (`samples`), which a log of another design
 //! is not.
@@ -18,47 +16,18 @@
 //! where (a slower telemetry, `--decimation 40`, fits a slow link's bandwidth).
 
 use super::DynError;
-use crate::io::telemetry_csv::{meta_name, TelemetryLog, TelemetryMeta, TelemetryRow};
+use crate::io::telemetry_csv::{TelemetryLog, TelemetryMeta, TelemetryRow};
 use crate::machine_spec::MachineSpec;
 use crate::sim::closed_loop::LogRow;
-use link_protocol::{calibration_image_id, TelemetrySample};
+use link_protocol::TelemetrySample;
 
 /// Samples further apart than this many decimation intervals are a gap.
 pub const GAP_FACTOR: u64 = 3;
 
-/// The machine's digest (see the module doc): CRC-32C of the nominal geometry's canonical
-/// encoding.
-pub fn machine_digest(spec: &MachineSpec) -> u32 {
-    let m = &spec.nominal;
-    let mut bytes = Vec::with_capacity(96);
-    for v in [
-        m.a_mm,
-        m.b_mm,
-        m.c_mm,
-        m.d_mm,
-        m.base_a0_mm[0],
-        m.base_a0_mm[1],
-        m.base_b0_mm[0],
-        m.base_b0_mm[1],
-        m.encoder_offset_rad[0],
-        m.encoder_offset_rad[1],
-    ] {
-        bytes.extend_from_slice(&v.to_le_bytes());
-    }
-    let branch = |b: kinematics_core::Branch| u8::from(b == kinematics_core::Branch::Positive);
-    bytes.extend_from_slice(&[
-        branch(m.mode.elbow_1),
-        branch(m.mode.elbow_2),
-        branch(m.mode.assembly),
-    ]);
-    calibration_image_id(&bytes)
-}
-
 /// The metadata line of a log of `spec` at `decimation`.
 pub fn meta_for(spec: &MachineSpec, decimation: u32) -> TelemetryMeta {
     TelemetryMeta {
-        machine: spec.name.clone(),
-        digest: machine_digest(spec),
+        machine: spec.identity(),
         sample_period_s: spec.sample_period_s,
         decimation,
     }
@@ -145,14 +114,12 @@ pub fn check(
     }
     let step = match &log.meta {
         Some(m) => {
-            if meta_name(&m.machine) != meta_name(&spec.name) || m.digest != machine_digest(spec) {
+            let own = spec.identity();
+            if m.machine.digest != own.digest {
                 return refuse(format!(
-                    "the log is of machine '{}' (digest {:08x}), not of '{}' (digest {:08x}): \
-                     give the machine file it was recorded on (--machine)",
-                    m.machine,
-                    m.digest,
-                    spec.name,
-                    machine_digest(spec)
+                    "the log is of {}, not of {own}: give the machine file it was recorded on \
+                     (--machine)",
+                    m.machine
                 ));
             }
             if (m.sample_period_s - spec.sample_period_s).abs() > 1e-9 * spec.sample_period_s {
@@ -268,7 +235,10 @@ mod tests {
             .to_string();
         assert!(e.contains("closer than the decimation"), "{e}");
         let mut other = log(&[100, 120, 140]);
-        other.meta.as_mut().unwrap().machine = "second".into();
+        other.meta.as_mut().unwrap().machine =
+            crate::io::machine_file::parse_machine(include_str!("../../machines/second.toml"))
+                .unwrap()
+                .identity();
         let e = check(&other, &spec, 2).unwrap_err().to_string();
         assert!(
             e.contains("machine 'second'") && e.contains("--machine"),
@@ -280,6 +250,5 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("digest"), "{e}");
-        assert_ne!(machine_digest(&spec), machine_digest(&moved));
     }
 }

@@ -311,7 +311,10 @@ fn logs_too_short_with_gaps_or_of_another_machine_are_refused() {
     assert!(e.contains("gaps") && e.contains("decimation"), "{e}");
     // Another machine by its name, and by its angles.
     let mut named = run.log.clone();
-    named.meta.as_mut().unwrap().machine = "second".into();
+    named.meta.as_mut().unwrap().machine =
+        crate::io::machine_file::parse_machine(include_str!("../../machines/second.toml"))
+            .unwrap()
+            .identity();
     let e = refused(&named);
     assert!(e.contains("machine 'second'"), "{e}");
     let mut other = run.log.clone();

@@ -14,6 +14,8 @@
 //! * [`machine_file`]: the machine file (TOML), what `--machine` reads;
 //! * [`plot`]: the PNG plots (paths, error-vector fields);
 //! * [`csv_dialect`]: what every CSV read shares (delimiter detection, number ranges);
+//! * [`policy`]: the output policy every command declares its files to: no output onto an
+//!   input or onto another output, decided before anything is read heavily or written;
 //! * [`atomic`]: every output goes through it: a failed run never leaves a half-written file.
 //! * [`verify_plot`]: the accuracy report's plots (error map, ISO 230-2 chart), as PNG bytes.
 //!
@@ -34,8 +36,10 @@ pub mod machine_file;
 pub mod measurement_csv;
 pub mod model_file;
 pub mod plot;
+pub mod policy;
 pub mod targets_csv;
 pub mod telemetry_csv;
+pub mod text_source;
 pub mod tracker_export;
 pub mod verify_plot;
 
@@ -66,6 +70,10 @@ pub enum IoError {
     /// The output directory could not be created.
     #[error("cannot create directory {}: {message}", dir.display())]
     CreateDir { dir: PathBuf, message: String },
+    /// An output is an input or another output, or a file is given twice (`policy`); the
+    /// message names both flags.
+    #[error("{0}")]
+    Clash(String),
     /// The output path names a directory, not a file.
     #[error("output path has no file name")]
     NoFileName { path: PathBuf },
@@ -95,9 +103,16 @@ impl IoError {
     }
 }
 
-/// Reads a whole text file.
+/// Reads a whole text file of a format the tools define: UTF-8 (a byte-order mark dropped);
+/// other encodings are refused naming the line and what the file looks like
+/// (`text_source::not_utf8`).
 pub fn read_text(path: &Path) -> Result<String, IoError> {
-    std::fs::read_to_string(path).map_err(|e| IoError::read(path, e))
+    let bytes = std::fs::read(path).map_err(|e| IoError::read(path, e))?;
+    let body = bytes.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(&bytes);
+    match std::str::from_utf8(body) {
+        Ok(s) => Ok(s.to_string()),
+        Err(e) => Err(IoError::content(path, text_source::not_utf8(body, &e))),
+    }
 }
 
 /// Reads a whole binary file (a grid image).

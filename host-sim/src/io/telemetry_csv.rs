@@ -8,12 +8,13 @@
 //! tick,setpoint_x_mm,setpoint_y_mm,reference_1_rad,reference_2_rad,encoder_1_rad,encoder_2_rad,torque_1_nm,torque_2_nm,following_error_rad,mode,fault
 //! 1200,212.13203,0,0.7853982,-0.7853982,0.7853975,-0.78539836,0.0123,-0.0456,7.2e-7,Running,
 //! ```
-//! * The first line is a comment with the log's metadata: the machine's name and digest (what
-//!   makes two files "the same machine"), the servo's sample period and the telemetry
-//!   decimation (servo samples per telemetry sample). Keys are `key=value` separated by
-//!   spaces; unknown keys are ignored (a later writer may add some). Readers skip every other
-//!   line starting with `#`. A file without the metadata line (written before it existed) is
-//!   read, with [`TelemetryLog::meta`] `None`.
+//! * The first line is a comment with the log's metadata: the machine's identity (its name and
+//!   digest, as every file the tools write carries it: `crate::machine_identity`, the line a
+//!   measurement CSV starts with), the servo's sample period and the telemetry decimation (the
+//!   fewest servo samples between two telemetry samples). After the digest, keys are
+//!   `key=value` separated by spaces; unknown keys are ignored (a later writer may add some).
+//!   Readers skip every other line starting with `#`. A file without the metadata line
+//!   (written before it existed) is read, with [`TelemetryLog::meta`] `None`.
 //! * Then the column header, exactly these twelve columns in this order (the link's telemetry
 //!   sample, `link_protocol::TelemetrySample`), one row per sample: the servo's sample index,
 //!   the setpoint (mm), the commanded and read encoder angles (rad), the torques written (N·m),
@@ -24,6 +25,7 @@
 
 use super::atomic::write_atomic;
 use super::{read_text, IoError};
+use crate::machine_identity::{csv_line, parse_csv_line, MachineIdentity};
 use std::fmt::Write as _;
 use std::path::Path;
 
@@ -54,10 +56,8 @@ macro_rules! bail {
 /// The metadata line.
 #[derive(Clone, Debug, PartialEq)]
 pub struct TelemetryMeta {
-    /// The machine's name (whitespace written as `_`).
-    pub machine: String,
-    /// The machine's digest (CRC-32C of its geometry's canonical encoding).
-    pub digest: u32,
+    /// The machine's name and digest.
+    pub machine: MachineIdentity,
     /// The servo's sample period (s).
     pub sample_period_s: f64,
     /// Servo samples per telemetry sample.
@@ -92,28 +92,14 @@ pub struct TelemetryLog {
     pub rows: Vec<TelemetryRow>,
 }
 
-/// A name as the metadata line carries it (no whitespace, no `=`).
-pub fn meta_name(name: &str) -> String {
-    name.chars()
-        .map(|c| {
-            if c.is_whitespace() || c == '=' {
-                '_'
-            } else {
-                c
-            }
-        })
-        .collect()
-}
-
 /// The file's text.
 pub fn telemetry_text(log: &TelemetryLog) -> String {
     let mut s = String::new();
     if let Some(m) = &log.meta {
         let _ = writeln!(
             s,
-            "# machine={} digest={:08x} sample_period_s={} decimation={}",
-            meta_name(&m.machine),
-            m.digest,
+            "{} sample_period_s={} decimation={}",
+            csv_line(&m.machine),
             m.sample_period_s,
             m.decimation
         );
@@ -143,27 +129,24 @@ pub fn telemetry_text(log: &TelemetryLog) -> String {
     s
 }
 
-/// Parses the metadata line's `key=value` pairs.
+/// Parses the metadata line: the machine's identity, then `key=value` pairs.
 fn parse_meta(line: &str, line_no: usize) -> Result<TelemetryMeta, IoError> {
-    let (mut machine, mut digest, mut period, mut decimation) = (None, None, None, None);
-    for pair in line.trim_start_matches('#').split_whitespace() {
+    let machine = parse_csv_line(line).ok_or_else(|| {
+        IoError::Parse(format!(
+            "line {line_no}: the metadata line must start '# machine=NAME digest=HEX8' (8 hex digits)"
+        ))
+    })?;
+    let rest = line
+        .split_once(" digest=")
+        .map_or("", |(_, t)| t)
+        .split_once(char::is_whitespace)
+        .map_or("", |(_, t)| t);
+    let (mut period, mut decimation) = (None, None);
+    for pair in rest.split_whitespace() {
         let Some((k, v)) = pair.split_once('=') else {
             bail!("line {line_no}: metadata '{pair}' is not key=value");
         };
         match k {
-            "machine" => machine = Some(v.to_string()),
-            "digest" => {
-                digest = Some(
-                    u32::from_str_radix(v, 16)
-                        .ok()
-                        .filter(|_| v.len() == 8)
-                        .ok_or_else(|| {
-                            IoError::Parse(format!(
-                                "line {line_no}: digest '{v}' is not 8 hex digits"
-                            ))
-                        })?,
-                )
-            }
             "sample_period_s" => {
                 period = Some(
                     v.parse::<f64>()
@@ -189,8 +172,7 @@ fn parse_meta(line: &str, line_no: usize) -> Result<TelemetryMeta, IoError> {
     let missing =
         |k: &str| IoError::Parse(format!("line {line_no}: the metadata line has no {k}="));
     Ok(TelemetryMeta {
-        machine: machine.ok_or_else(|| missing("machine"))?,
-        digest: digest.ok_or_else(|| missing("digest"))?,
+        machine,
         sample_period_s: period.ok_or_else(|| missing("sample_period_s"))?,
         decimation: decimation.ok_or_else(|| missing("decimation"))?,
     })
@@ -329,8 +311,10 @@ mod tests {
         };
         TelemetryLog {
             meta: Some(TelemetryMeta {
-                machine: "paper".into(),
-                digest: 0x0123_abcd,
+                machine: MachineIdentity {
+                    name: "paper".into(),
+                    digest: "0123abcd".into(),
+                },
                 sample_period_s: 0.0005,
                 decimation: 20,
             }),
@@ -376,7 +360,7 @@ mod tests {
         let m = e(&text.replace("\n120,", "\n90,"));
         assert!(m.contains("line 4") && m.contains("increase"), "{m}");
         let m = e(&text.replace("digest=0123abcd", "digest=xyz"));
-        assert!(m.contains("digest"), "{m}");
+        assert!(m.contains("8 hex digits"), "{m}");
         let m = e(&text.replace("sample_period_s=0.0005", "sample_period_s=-1"));
         assert!(m.contains("sample_period_s"), "{m}");
         let m = e(&text.replace(" decimation=20", ""));

@@ -8,7 +8,8 @@
 //!   `JᵀJ`);
 //! * [`lattice_smoother`]: the 2-D Whittaker smoother of lattice values with its smoothing
 //!   chosen by generalised cross-validation (the noise-aware correction grid);
-//! * [`stats`]: max/RMS of error magnitudes and the rounding of reported figures.
+//! * [`stats`]: max/RMS of error magnitudes and the rounding of reported figures;
+//! * [`subspace`]: orthonormal bases, projections and principal angles of column spaces.
 //!
 //! Where a change goes: a new solver behaviour (acceptance, stopping, damping) in `lm.rs` and its
 //! module doc, with a test in `tests/lm.rs`; nothing here knows about five-bars or effects.
@@ -17,6 +18,7 @@ pub mod finite_difference;
 pub mod lattice_smoother;
 pub mod lm;
 pub mod stats;
+pub mod subspace;
 pub mod svd;
 
 pub use lm::{levenberg_marquardt, LmFit, LmOptions, Residuals, Stop};
