@@ -305,8 +305,66 @@ fn the_moving_machine_from_files_and_the_logs_refused() {
             "{d0:?} {d1:?}"
         );
     }
-    // Another machine's log.
+    // The dynamics file names its machine (the record's digest, as the log's first line does)
+    // and is refused on another machine, naming both.
+    let file = read_json(&dir.join("d0.json"));
+    assert_eq!(file["machine"]["name"], "paper", "{file}");
+    let digest = file["machine"]["digest"].as_str().unwrap();
+    assert_eq!(digest.len(), 8, "{file}");
+    let log = std::fs::read_to_string(dir.join("t.csv")).unwrap();
+    assert!(
+        log.starts_with(&format!("# machine=paper digest={digest} ")),
+        "{log:.120}"
+    );
     let second = workspace_root().join("host-sim/machines/second.toml");
+    let second_plant = workspace_root().join("host-sim/plants/second.toml");
+    let e = refused(&[
+        "simulate",
+        "--plant",
+        second_plant.to_str().unwrap(),
+        "--machine",
+        second.to_str().unwrap(),
+        "--dynamics",
+        &p("d0.json"),
+        "--seconds",
+        "0.1",
+    ]);
+    assert!(
+        e.contains("--dynamics") && e.contains("machine 'paper'") && e.contains("'second'"),
+        "{e}"
+    );
+    // Flags out of range, named, before anything runs or is written.
+    for (flag, value) in [
+        ("--decimation", "5"),
+        ("--section-s", "0"),
+        ("--accel-g", "0"),
+    ] {
+        let e = refused(&[
+            "identify",
+            "--plant",
+            "paper",
+            flag,
+            value,
+            "--out",
+            &p("x.json"),
+        ]);
+        assert!(e.contains(flag), "{flag}: {e}");
+    }
+    // No controller at the address: said so, with where to read how to start one.
+    let port = TcpListener::bind("127.0.0.1:0")
+        .and_then(|l| l.local_addr())
+        .unwrap()
+        .port();
+    let e = refused(&[
+        "identify",
+        "--tcp",
+        &format!("127.0.0.1:{port}"),
+        "--out",
+        &p("x.json"),
+    ]);
+    assert!(e.contains("is a controller listening there"), "{e}");
+    assert!(!dir.join("x.json").exists());
+    // Another machine's log.
     let e = refused(&[
         "identify",
         "--telemetry",
@@ -410,4 +468,147 @@ fn the_moving_machine_from_files_and_the_logs_refused() {
         .unwrap()
         .starts_with("tick,setpoint_x_mm,setpoint_y_mm,"));
     assert_eq!(s.lines().count(), 2 + 100, "1 s at 100 Hz");
+}
+
+/// The dynamics identified through the co-simulated controller: the production firmware under
+/// QEMU driving the paper six-bar plant in lockstep (`host_sim::cosim`), homed through its
+/// link, the excitation streamed over the link (two sections of `SECTION_S`), the telemetry
+/// fitted. What comes out is the plant's: its inertias and tool mass (the distal inertias
+/// lumped into the other motor's, as the fit carries them on this rhombus) within
+/// `TOLERANCE`, its friction within 30 %.
+///
+/// The tolerance: the fit's own standard deviations on sections this short are 2 % of the
+/// inertias and the tool mass (asserted below 3 %: the excitation still separates them); the
+/// estimates are 1.3, 3.0 and 1.7 % off the plant's (the `MOVING_COSIM` line), so 5 % holds
+/// them with room while a fit that lost a parameter's share (a 20 % error is what the QEMU
+/// board's image carries) fails. The co-simulated run is deterministic (the same figures in
+/// every run), so a failure is a change of the firmware, the plant or the fit, not luck.
+/// About 10 s of wall time (13 s simulated) after the firmware's build.
+#[test]
+fn the_dynamics_are_identified_through_the_cosimulated_controller() {
+    use host_sim::cosim::{commissioning_image, CoSim, CoSimOptions};
+    use host_sim::dynamics::excitation::ExcitationOptions;
+    use host_sim::dynamics::identify::identify_through_link;
+    use host_sim::dynamics::samples::SampleOptions;
+    use host_sim::dynamics::session::LinkRunOptions;
+    use host_sim::link::link_protocol::{Command, HomingState};
+    use host_sim::machine_spec::MachineSpec;
+    use host_sim::plant::{Plant, PlantConfig};
+    use kinematics_core::ServoConfig;
+    use std::time::{Duration, Instant};
+
+    const SECTION_S: f64 = 4.0;
+    const TOLERANCE: f64 = 0.05;
+    let spec = MachineSpec::paper();
+    let plant = PlantConfig::paper();
+    let mut opts = CoSimOptions::new(
+        spec.clone(),
+        plant.clone(),
+        commissioning_image(&spec).unwrap(),
+    );
+    opts.firmware = Some(build_firmware_bin(&workspace_root(), "firmware"));
+    opts.frame_timeout = Duration::from_secs(120);
+    let start = Instant::now();
+    let mut sim = CoSim::start(&opts).unwrap();
+    let mut link = sim.link(Duration::from_secs(120)).unwrap();
+    link.request(Command::Home).unwrap();
+    while link.status().unwrap().homing != HomingState::Homed {
+        assert!(sim.simulated_s() < 30.0, "not homed after 30 s");
+        sim.run_for_s(0.05).unwrap();
+    }
+    let homed_s = sim.simulated_s();
+    let homed_wall_s = start.elapsed().as_secs_f64();
+    let run = LinkRunOptions {
+        spec: spec.clone(),
+        excitation: ExcitationOptions {
+            section_s: SECTION_S,
+            ..ExcitationOptions::default()
+        },
+        decimation: 20,
+        slack: Duration::from_secs(120),
+        // The co-simulated link's reads advance the simulation: no wall-clock wait.
+        poll: Duration::ZERO,
+    };
+    let samples = SampleOptions {
+        model: spec.nominal,
+        min_transmission: spec.min_transmission,
+        torque_limit_nm: ServoConfig::default()
+            .axes
+            .map(|a| f64::from(a.torque_limit_nm)),
+    };
+    let id = identify_through_link(&mut link, &run, &samples, &mut |_, _| {}).unwrap();
+    let stats = sim.stats();
+    let fit = &id.result.identified;
+    let got = fit.dynamics.to_array();
+    // One standard deviation of each parameter, in `to_array`'s order.
+    let sd: Vec<f64> = kinematics_core::dynamics::PARAMETER_NAMES
+        .iter()
+        .map(|name| {
+            let (_, s) = fit.std_dev.iter().find(|(n, _)| n == name).unwrap();
+            *s
+        })
+        .collect();
+    let mut truth = Plant::new(&plant, 1).true_dynamics();
+    truth.motor_inertia_kg_m2[0] += truth.distal_inertia_kg_m2[1];
+    truth.motor_inertia_kg_m2[1] += truth.distal_inertia_kg_m2[0];
+    let want = [
+        truth.motor_inertia_kg_m2[0],
+        truth.motor_inertia_kg_m2[1],
+        truth.tool_mass_kg,
+    ];
+    println!(
+        "MOVING_COSIM identify: {} telemetry samples; homed at {homed_s:.1} s simulated \
+         ({homed_wall_s:.1} s wall), {:.1} s simulated in {:.1} s wall ({:.2} simulated s per \
+         wall s; CPU: QEMU {:?} s, host {:?} s); I1 {:.4e} ± {:.1e} I2 {:.4e} ± {:.1e} m {:.4} \
+         ± {:.1e} (plant {:.4e} {:.4e} {:.4}), viscous {:.4} {:.4} coulomb {:.4} {:.4} (plant \
+         {:.4} {:.4}, {:.4} {:.4}); worst servo step {:.1} us",
+        id.result.telemetry_samples,
+        stats.simulated_s,
+        start.elapsed().as_secs_f64(),
+        stats.speed,
+        stats.qemu_cpu_s,
+        stats.host_cpu_s,
+        got[0],
+        sd[0],
+        got[1],
+        sd[1],
+        got[2],
+        sd[2],
+        want[0],
+        want[1],
+        want[2],
+        got[5],
+        got[6],
+        got[7],
+        got[8],
+        truth.viscous_nm_s_per_rad[0],
+        truth.viscous_nm_s_per_rad[1],
+        truth.coulomb_nm[0],
+        truth.coulomb_nm[1],
+        stats.worst_step_us
+    );
+    assert!(id.result.machine_named, "the log names its machine");
+    for k in 0..3 {
+        assert!(
+            (got[k] - want[k]).abs() < TOLERANCE * want[k],
+            "parameter {k}: {} vs the plant's {}",
+            got[k],
+            want[k]
+        );
+        assert!(sd[k] < 0.03 * want[k], "parameter {k}: ± {}", sd[k]);
+    }
+    let friction = [
+        (5, truth.viscous_nm_s_per_rad[0]),
+        (6, truth.viscous_nm_s_per_rad[1]),
+        (7, truth.coulomb_nm[0]),
+        (8, truth.coulomb_nm[1]),
+    ];
+    for (k, want) in friction {
+        assert!(
+            (got[k] - want).abs() < 0.3 * want,
+            "friction {k}: {} vs the plant's {want}",
+            got[k]
+        );
+    }
+    assert_eq!(stats.overruns, 0, "{stats:?}");
 }

@@ -19,7 +19,7 @@ use host_sim::dynamics::identify::{
     Identification, TelemetryIdentification,
 };
 use host_sim::dynamics::samples::SampleOptions;
-use host_sim::dynamics::session::{LinkRunOptions, PlantRunOptions};
+use host_sim::dynamics::session::{LinkRunOptions, PlantRunOptions, LINK_POLL};
 use host_sim::dynamics::tuning::{axis_inertia_kg_m2, servo_config_for};
 use host_sim::io::dynamics_file::write_dynamics_file;
 use host_sim::io::knots_csv::knots_text;
@@ -141,6 +141,13 @@ pub fn run(args: &Args) -> Result<()> {
             args.timeout_s
         );
     }
+    if !(20..=2000).contains(&args.decimation) {
+        bail!(
+            "--decimation {}: give 20 (100 Hz, the link's fastest) to 2000 servo samples per \
+             telemetry sample",
+            args.decimation
+        );
+    }
     if args.baud.is_some() && args.serial.is_none() {
         bail!("--baud applies to --serial only");
     }
@@ -168,6 +175,15 @@ pub fn run(args: &Args) -> Result<()> {
         section_s: args.section_s,
         ..ExcitationOptions::default()
     };
+    // The excitation designed once up front: bad --accel-g/--section-s are refused before a
+    // controller is touched.
+    let designed =
+        host_sim::dynamics::excitation::excitation(&spec, &excitation).with_context(|| {
+            format!(
+                "the excitation of machine '{}' (--accel-g {}, --section-s {})",
+                spec.name, args.accel_g, args.section_s
+            )
+        })?;
     let (source, result, run) = if let Some(log_path) = &args.telemetry {
         let log = read_telemetry(log_path)?;
         args.machine.check_files(
@@ -191,10 +207,7 @@ pub fn run(args: &Args) -> Result<()> {
                     parse_knots_csv(&text).with_context(|| format!("in {}", k.display()))?;
                 KnotPath::new(start, &knots)?
             }
-            None => {
-                let ex = host_sim::dynamics::excitation::excitation(&spec, &excitation)?;
-                KnotPath::new(start, &ex.knots)?
-            }
+            None => KnotPath::new(start, &designed.knots)?,
         };
         let result = identify_from_telemetry(&log, &path, &spec, &samples)
             .with_context(|| format!("identifying from {}", log_path.display()))?;
@@ -219,11 +232,16 @@ pub fn run(args: &Args) -> Result<()> {
             excitation,
             decimation: args.decimation,
             slack: 10 * timeout,
+            poll: LINK_POLL,
         };
         let (source, id) = match (&args.tcp, &args.serial) {
             (Some(addr), _) => {
-                let mut client = LinkClient::connect_tcp(addr, timeout)
-                    .with_context(|| format!("connecting to {addr}"))?;
+                let mut client = LinkClient::connect_tcp(addr, timeout).with_context(|| {
+                    format!(
+                        "connecting to {addr}: is a controller listening there? (QEMU: \
+                         docs/guides/identify-dynamics.md says how to start it)"
+                    )
+                })?;
                 (
                     format!("controller at {addr}"),
                     through(&mut client, &bytes, &opts, &samples)?,
@@ -315,8 +333,15 @@ fn through<S: Read + Write>(
 fn summary(source: &str, r: &TelemetryIdentification, inertia: &[f64; 2], spec: &MachineSpec) {
     let id = &r.identified;
     eprintln!(
-        "identify: {} ({}), {} telemetry samples (decimation {}), {} used, residual {:.4} N·m RMS",
-        spec.name, source, r.telemetry_samples, r.decimation, id.samples_used, id.residual_rms_nm
+        "identify: machine '{}' (digest {}), {}: {} telemetry samples (decimation {}), {} used, \
+         residual {:.4} N·m RMS",
+        spec.name,
+        spec.identity().digest,
+        source,
+        r.telemetry_samples,
+        r.decimation,
+        id.samples_used,
+        id.residual_rms_nm
     );
     for (k, name) in PARAMETER_NAMES.iter().enumerate() {
         eprintln!(

@@ -106,7 +106,15 @@ pub struct LinkRunOptions {
     /// How long the controller may take beyond the motion's own length before the run is given
     /// up (wall time; the controller's replies are bounded by the client's own timeout).
     pub slack: Duration,
+    /// The host's wait between two status polls while the controller's knot buffer is full
+    /// ([`LINK_POLL`] on a real link or QEMU's UART; zero on a co-simulated link, whose reads
+    /// advance the simulation: a wall-clock wait there only stalls it).
+    pub poll: Duration,
 }
+
+/// The wait between status polls on a link that runs by itself (a board, QEMU's UART): the
+/// controller's buffer empties at a knot per 50 ms, so a few polls per knot are plenty.
+pub const LINK_POLL: Duration = Duration::from_millis(20);
 
 /// How far from the excitation's start the machine may rest for the stream to begin there (mm).
 const AT_START_MM: f64 = 1e-3;
@@ -171,7 +179,7 @@ pub fn run_on_link<S: Read + Write>(
         decimation: opts.decimation,
     })?;
     client.take_telemetry();
-    let streamed = stream_knots(client, &ex.knots, Duration::from_millis(20), progress);
+    let streamed = stream_knots(client, &ex.knots, opts.poll, progress);
     // Whatever happened, the telemetry is switched off again before reporting.
     let ended = streamed.map_err(DynError::from).and_then(|()| {
         wait_until_still(
