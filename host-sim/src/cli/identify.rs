@@ -90,6 +90,10 @@ pub struct Args {
     /// and identifies less precisely.
     #[arg(long, default_value_t = 8.0)]
     pub section_s: f64,
+    /// The excitation's knot spacing (ms; 5 to 200). Longer knots ask less of the link: a
+    /// controller whose clock outruns its link (QEMU) is fed in time at 100.
+    #[arg(long, default_value_t = 50.0)]
+    pub knot_ms: f64,
     /// Telemetry decimation: servo samples per telemetry sample (20 = 100 Hz, the fastest).
     #[arg(long, default_value_t = 20)]
     pub decimation: u16,
@@ -173,6 +177,7 @@ pub fn run(args: &Args) -> Result<()> {
     let excitation = ExcitationOptions {
         accel_mm_s2: args.accel_g * STANDARD_GRAVITY_MM_S2,
         section_s: args.section_s,
+        knot_s: args.knot_ms * 1e-3,
         ..ExcitationOptions::default()
     };
     // The excitation designed once up front: bad --accel-g/--section-s are refused before a
@@ -180,8 +185,8 @@ pub fn run(args: &Args) -> Result<()> {
     let designed =
         host_sim::dynamics::excitation::excitation(&spec, &excitation).with_context(|| {
             format!(
-                "the excitation of machine '{}' (--accel-g {}, --section-s {})",
-                spec.name, args.accel_g, args.section_s
+                "the excitation of machine '{}' (--accel-g {}, --section-s {}, --knot-ms {})",
+                spec.name, args.accel_g, args.section_s, args.knot_ms
             )
         })?;
     let (source, result, run) = if let Some(log_path) = &args.telemetry {

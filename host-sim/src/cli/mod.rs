@@ -7,6 +7,7 @@
 
 mod accuracy;
 mod command;
+mod cut;
 mod demo;
 mod diagnose;
 mod diagnose_moving;
@@ -71,6 +72,10 @@ enum Tool {
     /// The hidden robot's dynamic parameters from the controller's telemetry of the excitation
     /// motion (a controller over its link, a recorded log, or a simulated plant): dynamics.json.
     Identify(identify::Args),
+    /// Cut a part program (G-code) with the gantry and the micro together: the split plan, the
+    /// gantry-alone time, a lower bound, executed in simulation (table on stderr, JSON on stdout,
+    /// plots and executed trajectories with --out DIR).
+    Cut(cut::Args),
     /// Talk to a controller over its host link (QEMU: --tcp; the real board: --serial): identify, home, move, stream, upload...
     Link(link::Args),
 }
@@ -91,6 +96,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Tool::Demo(a) => demo::run(&a),
         Tool::Link(a) => link::run(&a),
         Tool::Identify(a) => identify::run(&a),
+        Tool::Cut(a) => cut::run_cut(&a),
     }
 }
 
