@@ -373,6 +373,7 @@ fn the_moving_machine_from_files_and_the_logs_refused() {
         ("--decimation", "5"),
         ("--section-s", "0"),
         ("--accel-g", "0"),
+        ("--knot-ms", "1000"),
     ] {
         let e = refused(&[
             "identify",

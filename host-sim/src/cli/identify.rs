@@ -90,8 +90,8 @@ pub struct Args {
     /// and identifies less precisely.
     #[arg(long, default_value_t = 8.0)]
     pub section_s: f64,
-    /// The excitation's knot spacing (ms; 5 to 200). Longer knots ask less of the link: a
-    /// controller whose clock outruns its link (QEMU) is fed in time at 100.
+    /// The excitation's knot spacing (ms; 5 to 200, the excitation's limits still met).
+    /// Longer knots ask less of the link: under QEMU, whose clock outruns its UART, give 80.
     #[arg(long, default_value_t = 50.0)]
     pub knot_ms: f64,
     /// Telemetry decimation: servo samples per telemetry sample (20 = 100 Hz, the fastest).
