@@ -15,7 +15,7 @@ use super::excitation::{excitation, Excitation, ExcitationOptions};
 use super::telemetry::{from_link, from_loop, meta_for};
 use super::DynError;
 use crate::io::telemetry_csv::TelemetryLog;
-use crate::link::link_protocol::{Command, HomingState, ModeCode, StatusReport};
+use crate::link::link_protocol::{self, Command, HomingState, Knot, ModeCode, StatusReport};
 use crate::link::{stream_knots, LinkClient, Progress};
 use crate::machine_spec::MachineSpec;
 use crate::plant::{Plant, PlantConfig};
@@ -119,6 +119,30 @@ pub const LINK_POLL: Duration = Duration::from_millis(20);
 /// How far from the excitation's start the machine may rest for the stream to begin there (mm).
 const AT_START_MM: f64 = 1e-3;
 
+/// The stream begins with the machine held where it rests for `LEAD_KNOTS` segments of the
+/// longest the link allows (`link_protocol::MAX_SEGMENT_US`, 1 s): the host fills the
+/// controller's knot buffer ahead of the motion meanwhile. A link slower than the controller's
+/// clock (QEMU's UART) otherwise starves the stream's first seconds (an underrun).
+const LEAD_KNOTS: u32 = 2;
+
+/// `knots` after the lead at `rest_mm` (their times shifted by the lead).
+fn with_lead(rest_mm: [f32; 2], knots: &[Knot]) -> Vec<Knot> {
+    let segment_us = link_protocol::MAX_SEGMENT_US;
+    let lead_us = LEAD_KNOTS * segment_us;
+    (1..=LEAD_KNOTS)
+        .map(|i| Knot {
+            t_us: i * segment_us,
+            position_mm: rest_mm,
+            velocity_mm_s: [0.0; 2],
+        })
+        .chain(knots.iter().map(|k| Knot {
+            t_us: k.t_us + lead_us,
+            position_mm: k.position_mm,
+            velocity_mm_s: k.velocity_mm_s,
+        }))
+        .collect()
+}
+
 fn ready(s: &StatusReport) -> Result<(), DynError> {
     if s.mode != ModeCode::Running || s.fault.is_some() || s.homing != HomingState::Homed {
         return Err(DynError::Invalid(format!(
@@ -174,17 +198,18 @@ pub fn run_on_link<S: Read + Write>(
         ready(&rest)?;
     }
     let start = rest.setpoint_mm.map(f64::from);
-    let path = KnotPath::new(start, &ex.knots)?;
+    let knots = with_lead(rest.setpoint_mm, &ex.knots);
+    let path = KnotPath::new(start, &knots)?;
     client.request(Command::Telemetry {
         decimation: opts.decimation,
     })?;
     client.take_telemetry();
-    let streamed = stream_knots(client, &ex.knots, opts.poll, progress);
+    let streamed = stream_knots(client, &knots, opts.poll, progress);
     // Whatever happened, the telemetry is switched off again before reporting.
     let ended = streamed.map_err(DynError::from).and_then(|()| {
         wait_until_still(
             client,
-            opts.slack + Duration::from_secs_f64(2.0 * ex.duration_s()),
+            opts.slack + Duration::from_secs_f64(2.0 * path.end_s()),
         )
     });
     let off = client.request(Command::Telemetry { decimation: 0 });
