@@ -2,7 +2,9 @@
 //! (the real firmware under QEMU, scenario `link`: the excitation streamed over its link, its
 //! telemetry recorded and fitted), the same from the recorded files, the moving machine's
 //! diagnosis of that telemetry against the image's dynamics block, and the refusals of logs
-//! that cannot be used.
+//! that cannot be used; and the identification through the co-simulated controller (the same
+//! firmware under QEMU driving host-sim's six-bar plant in lockstep: deterministic, the tight
+//! check of what comes out).
 //!
 //! The QEMU firmware's plant is the hidden robot's dynamics with rotors, friction and masses
 //! that are not the image's (`firmware/src/board/qemu/machine.rs`: every inertia and the tool

@@ -7,9 +7,10 @@
 //! On the link: the controller must be running (homed, no fault); the machine moves to the
 //! excitation's start with a planned move (`MoveTo`) unless it is there, the telemetry is
 //! subscribed at `decimation`, the knots are streamed with flow control
-//! (`link::stream_knots`), and the run waits until the controller's motion has ended, reading
-//! the link meanwhile (a co-simulated controller advances while it is read). A fault during the
-//! run is an error naming it; the machine is then stopped by the controller itself.
+//! (`link::stream_knots`) after a lead at rest (two rest knots 1 s apart: the host fills the
+//! controller's buffer meanwhile), and the run waits until the controller's motion has ended,
+//! reading the link meanwhile (a co-simulated controller advances while it is read). A fault
+//! during the run is an error naming it; the machine is then stopped by the controller itself.
 
 use super::excitation::{excitation, Excitation, ExcitationOptions};
 use super::telemetry::{from_link, from_loop, meta_for};
