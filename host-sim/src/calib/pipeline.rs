@@ -41,7 +41,7 @@
 //! by direction (each motor's command moved by dir·β/2, [`measure_list_compensated`]; the grids
 //! built from link angles): on the paper plant its 20 µrad, which left 5.13 µm max / 2.81 µm RMS
 //! uncorrected, are taken out (figures in the README). The separate commands do this step with
-//! `diagnose --out-model` (DIAGNOSIS.md, "Closing the loop").
+//! `diagnose --out-model` (docs/design/diagnosis.md, "Closing the loop").
 //!
 //! Output: [`calibrate`] keeps everything in memory ([`Calibrated`]); [`write_outputs`] writes the
 //! plan's lists, the measurement CSVs, `model.json` (`full`), `model_ls.json`, `grid.bin` +

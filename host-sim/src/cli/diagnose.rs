@@ -1,5 +1,5 @@
 //! `host-sim diagnose`: measurements and a model in, the gap-shrink table on stdout, the report
-//! JSON and plots out (`host_sim::diagnose`, `DIAGNOSIS.md`).
+//! JSON and plots out (`host_sim::diagnose`, `docs/design/diagnosis.md`).
 
 use anyhow::{bail, Context, Result};
 use host_sim::calib::fit::params::N_PARAMS;
