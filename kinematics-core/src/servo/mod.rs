@@ -84,11 +84,11 @@
 //! grid), `servo_step_checking` (a [`Calibration`]: the IK's model check, margin floor and
 //! finiteness test on every call), `servo_step_backlash` (with the backlash block),
 //! `servo_step_motion` (the motion step with the identified dynamics and both disturbance
-//! observers) and their `_uncorrected` variants (today's figures: firmware/README.md,
-//! "Benchmarks"); what the step is made of, by instructions: the hidden-robot IK about 45 %, the grid
-//! lookup and correction about a fifth, the two PIDs about 15 %, the jump checks, unwrapping,
-//! following-error check and history the rest. The motion step adds the next setpoint's IK with
-//! the joint rates, the inverse dynamics and the interval's means.
+//! observers) and their `_uncorrected` variants (today's figures:
+//! docs/validation/benchmarks.md); what the step is made of, by instructions: the hidden-robot IK
+//! about 45 %, the grid lookup and correction about a fifth, the two PIDs about 15 %, the jump
+//! checks, unwrapping, following-error check and history the rest. The motion step adds the next
+//! setpoint's IK with the joint rates, the inverse dynamics and the interval's means.
 //!
 //! What keeps it there: no division in the step (VDIV is 14 cycles): `1 / sample_period_s` and
 //! the squared limits are computed once in [`Servo::new`], and the history keeps the previous
