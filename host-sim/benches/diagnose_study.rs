@@ -93,7 +93,7 @@ fn main() {
 /// * SWEEP_MAX_HIDDEN: 1, 2 or 3, skip the cases with more hidden effects (3: all);
 /// * SWEEP_VERBOSE: tables and selection logs of the misses.
 ///
-/// The graders' conditions of issue 13 (120 random poses, random approach directions, 1 µm
+/// The acceptance conditions (120 random poses, random approach directions, 1 µm
 /// instrument, 5 seeds): `SWEEP_POSES=120 SWEEP_NOISE_UM=1 SWEEP_N=5 SWEEP_SCALES=1`.
 fn sweep() {
     let n: u64 = std::env::var("SWEEP_N")

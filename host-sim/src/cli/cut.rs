@@ -92,8 +92,12 @@ pub fn run_cut(args: &Args) -> Result<()> {
         Some(other) => bail!("unknown --plant-model '{other}' (known: sixbar, fivebar)"),
     }
     let text = read_program(&args.program)?;
-    let (model, bytes) =
-        super::load_calibration(args.model.as_deref(), args.grid.as_deref(), &spec)?;
+    let (model, bytes) = super::load_calibration(
+        args.model.as_deref(),
+        args.grid.as_deref(),
+        &spec,
+        &args.machine,
+    )?;
     let calibration = Calibration {
         model,
         grid: super::parse_grid(&bytes)?,
