@@ -19,7 +19,7 @@
 //!   plant's (`src/board/qemu/machine.rs`, shared with the plant), which the servo feeds
 //!   forward. The QEMU
 //!   firmware links it into the calibration region (feature `board-qemu`); the real board
-//!   gets its image flashed separately (see README).
+//!   gets its image flashed separately (see docs/design/firmware-architecture.md).
 //! * `calibration-2.bin`: the same with the field negated, bundled into the QEMU firmware's
 //!   program (not the region) for the run-time upload scenarios. Both come from
 //!   `src/board/qemu/synthetic_image.rs`, which host-sim's in-the-loop test (`link_qemu`)

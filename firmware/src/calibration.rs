@@ -93,8 +93,8 @@ pub fn committed(id: CalibrationId) -> Option<(Calibration<'static>, Calibration
 /// erase in bank 2 (PER, BKER, PNB, STRT), double-word programming (PG, two word writes),
 /// BSY polled, errors from SR; locked again after every operation. The region is in bank 2
 /// and the program in bank 1, so the program's fetches never stall; the servo's reads of the
-/// image in force (also bank 2) do stall during an erase or a write (see firmware/README.md,
-/// "Calibration slots": not yet solved on the G474).
+/// image in force (also bank 2) do stall during an erase or a write (see
+/// docs/design/firmware-architecture.md, "Calibration slots": not yet solved on the G474).
 pub struct RegionFlash {
     _private: (),
 }

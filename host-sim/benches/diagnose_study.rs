@@ -1,13 +1,13 @@
 //! Studies of `host-sim diagnose` on the synthetic generator (`synth`): figures for
-//! DIAGNOSIS.md, not pass/fail tests (the tests are `tests/diagnose.rs` and
+//! docs/design/diagnosis.md, not pass/fail tests (the tests are `tests/diagnose.rs` and
 //! `tests/diagnose_plant.rs`).
 //!
 //! ```text
 //! cargo bench -p host-sim --bench diagnose_study                    # sweep, then table1_power
 //! cargo bench -p host-sim --bench diagnose_study -- sweep           # robustness sweep only
 //! cargo bench -p host-sim --bench diagnose_study -- table1_power    # what 9 points can tell
-//! cargo bench -p host-sim --bench diagnose_study -- plant           # the plant outputs of DIAGNOSIS.md
-//! cargo bench -p host-sim --bench diagnose_study -- example FILE    # DIAGNOSIS.md's example CSV
+//! cargo bench -p host-sim --bench diagnose_study -- plant           # the plant outputs of diagnosis.md
+//! cargo bench -p host-sim --bench diagnose_study -- example FILE    # diagnosis.md's example CSV
 //! ```
 //!
 //! `cargo test -p host-sim --bench diagnose_study -- sweep` runs the same in the dev profile
@@ -67,7 +67,7 @@ fn main() {
     }
 }
 
-/// The false-positive sweep (DIAGNOSIS.md, "No false positives"): every library
+/// The false-positive sweep (docs/validation/sweeps.md): every library
 /// effect the generator has, every pair, every fourth triple, and no effect, each over seeds
 /// and magnitudes, without and with an out-of-library effect (a gear-tooth cyclic error, a slow
 /// instrument drift). Prints per case class the number of diagnoses, the false-positive rate
@@ -79,7 +79,7 @@ fn main() {
 /// order a drift in time is a smooth function of position). `parallelogram_mismatch` has no synthetic form (its truth is
 /// the six-bar plant's part errors: tests/diagnose_plant.rs).
 ///
-/// Env (defaults in parentheses; all defaults together are the run of DIAGNOSIS.md):
+/// Env (defaults in parentheses; all defaults together are the run of docs/design/diagnosis.md):
 /// * SWEEP_N: seeds per case and magnitude (2);
 /// * SWEEP_SCALES: magnitude factors (`0.5,1.5`);
 /// * SWEEP_ONLY: one case, e.g. `encoder_offset,frame` (all cases);
@@ -325,7 +325,7 @@ fn sweep() {
     );
 }
 
-/// Writes the synthetic example measurement file of DIAGNOSIS.md (hidden link lengths, backlash
+/// Writes the synthetic example measurement file of diagnosis.md (hidden link lengths, backlash
 /// and a 50-tooth cyclic error on motor 1, σ = 2 µm) to `path`.
 fn write_example(path: &str) {
     let truth = Truth {
@@ -348,7 +348,7 @@ fn write_example(path: &str) {
     println!("{truth:?}");
 }
 
-/// What 9 points at 20 µm can tell (for DIAGNOSIS.md): each effect hidden at the Table I poses,
+/// What 9 points at 20 µm can tell (for diagnosis.md): each effect hidden at the Table I poses,
 /// without dir/time columns (the paper has none), at 1× and 5× the magnitudes of the tests.
 fn table1_power() {
     let n = 20u64;
@@ -420,7 +420,7 @@ fn measured(
     .unwrap()
 }
 
-/// The plant outputs of DIAGNOSIS.md: the six-bar plant measured by `host-sim measure` at 1 µm
+/// The plant outputs of diagnosis.md: the six-bar plant measured by `host-sim measure` at 1 µm
 /// noise (the noise, `paper` and link-error cases are the plants and seeds of
 /// `tests/diagnose_plant.rs`), one line per case, the full
 /// report for the six-bar's link errors and, for comparison, the same plant solved as its

@@ -1,6 +1,6 @@
 //! The x-y gantry that carries the micro-mechanism on a redundant laser-cutting machine: its
 //! travel, per-axis limits and the dynamics of its axes (the machine file's optional
-//! `[gantry]` section, `host-sim/MACHINE.md`), and how the split planner shares the work with
+//! `[gantry]` section, `docs/reference/machine-file.md`), and how the split planner shares the work with
 //! the micro (`micro_*` keys).
 //!
 //! Defaults ([`GantrySpec::paper`]): the paper's heavy cantilever gantry (Kiper et al.,
@@ -11,7 +11,7 @@
 //! that class, chosen so that the simulated following error is what such a machine shows (tens
 //! of µm at 1 g): what the micro has to compensate.
 
-/// The gantry and the split's settings (see the module doc; keys in `host-sim/MACHINE.md`).
+/// The gantry and the split's settings (see the module doc; keys in `docs/reference/machine-file.md`).
 #[derive(Clone, Debug, PartialEq)]
 pub struct GantrySpec {
     /// Travel of the x axis `[low, high]` (mm): where the micro's workspace centre can be.

@@ -244,7 +244,7 @@ pub fn try_generate(truth: &Truth, poses: Poses, seed: u64) -> Result<Vec<Measur
         // against (the historical stream; `random:N` now makes its stream depend on N as well). On the new
         // stream one case of tests/diagnose.rs (gear_ratio + base_offset, seed 80) also names
         // link_lengths: motor 2's gear ratio is nearly a link-length change on those poses, and
-        // the report does not flag it as confounded (noted in DIAGNOSIS.md's limits).
+        // the report does not flag it as confounded (noted in docs/design/diagnosis.md's limits).
         Poses::Random(n) => random_visits(
             n,
             &mut ChaCha8Rng::seed_from_u64(seed ^ HISTORICAL_RANDOM_STREAM),

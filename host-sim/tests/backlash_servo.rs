@@ -5,7 +5,8 @@
 //! arrives from either direction: the static positioning error at rest at each target with and
 //! without the block. Without it the link rests β/2 short in the direction of arrival.
 //!
-//! The figures (README "Known limits", DIAGNOSIS.md "Closing the loop"):
+//! The figures (docs/design/servo-and-dynamics.md "Backlash", docs/design/diagnosis.md "Closing the
+//! loop"):
 //! `cargo test -p host-sim --release --test backlash_servo -- --nocapture`.
 
 use host_sim::effect::PhysicalEffect;

@@ -292,7 +292,7 @@ fn sweep_truth(effects: &[&str], magnitude: f64) -> Truth {
     sweep_case_truth(effects, 0, NOISE_UM).scaled(magnitude)
 }
 
-/// A former false positive of the sweep (DIAGNOSIS.md, "No false positives"): base offset and
+/// A former false positive of the sweep (docs/validation/sweeps.md): base offset and
 /// gear ratio at half the magnitude, random poses. The selection used to keep an extra
 /// `link_lengths` (it stood in for the encoder offset the gear ratio about a fixed angle
 /// leaves, at the same held-out error: the replacement demanded a strict cross-validated drop

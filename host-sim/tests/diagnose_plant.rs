@@ -532,12 +532,12 @@ fn measure_command_csv_backlash_named_and_cyclic_error_unexplained() {
     );
 }
 
-/// The gap-shrink workflow of DIAGNOSIS.md ("Closing the loop"), through the binary: measure the
-/// `paper` six-bar plant from random approach directions, fit, diagnose against the fit and
-/// write the extended model, then measure the grid nodes commanded with it (backlash corrected
-/// by direction) and build the grid from link angles. The diagnosis names the plant's backlash
-/// (20 µrad per drive, PLANT.md) and the six-bar's mismatch, each step shrinks the residual to
-/// the noise, and the extended model carries the backlash the commands then correct.
+/// The gap-shrink workflow of docs/design/diagnosis.md ("Closing the loop"), through the binary:
+/// measure the `paper` six-bar plant from random approach directions, fit, diagnose against the fit
+/// and write the extended model, then measure the grid nodes commanded with it (backlash corrected
+/// by direction) and build the grid from link angles. The diagnosis names the plant's backlash (20
+/// µrad per drive, docs/reference/plant-file.md) and the six-bar's mismatch, each step shrinks the
+/// residual to the noise, and the extended model carries the backlash the commands then correct.
 #[test]
 fn gap_shrink_workflow_writes_the_extended_model_and_the_commands_use_it() {
     let dir = tempfile::tempdir().unwrap();

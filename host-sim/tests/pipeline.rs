@@ -137,7 +137,7 @@ fn paper_plant_reaches_the_noise_floor_with_unidirectional_approach() {
         .expect("random approach measures the backlash")
         .lost_motion_urad;
     eprintln!("paper plant, random approach, backlash {b:.1?} µrad corrected: fit + 2 grid rounds {:.2}/{:.2} µm", r2.max_um, r2.rms_um);
-    // The plant's drives have 20 µrad of lost motion each (PLANT.md).
+    // The plant's drives have 20 µrad of lost motion each (docs/reference/plant-file.md).
     let plant = host_sim::plant::config::PlantConfig::by_name("paper").unwrap();
     for (j, d) in [&plant.drive_1, &plant.drive_2].into_iter().enumerate() {
         assert!(

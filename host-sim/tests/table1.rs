@@ -1,4 +1,4 @@
-//! Reproduction of the paper's Table I fits (see CALIBRATION.md for the story).
+//! Reproduction of the paper's Table I fits (see docs/design/hidden-robot.md for the story).
 
 use host_sim::calib::fit::evaluate::{errors_um, max_rms, Criterion};
 use host_sim::calib::fit::{subset_search, synthesize, Method};
@@ -90,7 +90,8 @@ fn unround(data: &[Measurement], frac: &[(usize, [f64; 4])]) -> Vec<Measurement>
 }
 
 /// Data that round to Table I exactly reproduce the printed links and errors: the differences
-/// are Table I's rounding (found by a search over the rounding box, see CALIBRATION.md).
+/// are Table I's rounding (found by a search over the rounding box, see
+/// docs/design/hidden-robot.md).
 #[test]
 fn table1_rounding_explains_the_printed_numbers() {
     let data = table1();

@@ -4,10 +4,11 @@
 //! octagonal workspace, a 4 mm grid; its plant `plants/second.toml`), against the demo:
 //!
 //! * the separate commands reproduce the demo's figures bit for bit (one path: the demo calls
-//!   the same library functions with the same lists and seeds; README's workflow);
+//!   the same library functions with the same lists and seeds; the step-by-step guide's workflow);
 //! * the second machine runs the whole workflow and the demo, reaching its noise floor;
-//! * README's command blocks run as written and reach the figures stated for them (the
-//!   verifications' comments; `verify`'s report figures in README and CALIBRATION.md);
+//! * docs/guides/calibrate-step-by-step.md's command blocks run as written and reach the figures
+//!   stated for them (the verifications' comments; `verify`'s report figures in the guide and
+//!   docs/reference/calibration-tools.md);
 //! * bad input of the new parts fails cleanly: a target outside the workspace, a plant of
 //!   another machine, a simulation that faults, a demo that misses its goal.
 
@@ -94,8 +95,9 @@ fn seed(step: u64) -> String {
     host_sim::calib::pipeline::noise_seed(SEED, step).to_string()
 }
 
-/// The command-by-command workflow of README, in `dir`; returns the verification figures of
-/// every stage (`[max, rms]` µm, rounded as the demo's summary rounds them) and the final image.
+/// The command-by-command workflow of the step-by-step guide, in `dir`; returns the verification
+/// figures of every stage (`[max, rms]` µm, rounded as the demo's summary rounds them) and the
+/// final image.
 fn workflow(setup: &Setup, dir: &Path) -> (Figures, Vec<u8>) {
     let p = |name: &str| dir.join(name).display().to_string();
     let plan = json(&ok(&setup.args(&[
@@ -729,16 +731,17 @@ fn machine_files_are_checked() {
     }
 }
 
-/// README's "Calibrating a machine, command by command", run line by line as written (`$h` is
-/// the binary, `$m` the measure prefix the block defines): every command succeeds and every
+/// docs/guides/calibrate-step-by-step.md's "Command by command", run line by line as written (`$h`
+/// is the binary, `$m` the measure prefix the block defines): every command succeeds and every
 /// figure in a comment (`max / rms` µm) is what that command printed, to the digits shown.
 #[test]
 fn the_readme_workflow_reaches_the_figures_it_states() {
-    let readme = std::fs::read_to_string(root().join("../README.md")).unwrap();
+    let readme =
+        std::fs::read_to_string(root().join("../docs/guides/calibrate-step-by-step.md")).unwrap();
     let section = readme
-        .split("## Calibrating a machine, command by command")
+        .split("## Command by command")
         .nth(1)
-        .expect("the README section");
+        .expect("the guide's section");
     let block = section
         .split("```sh\n")
         .nth(1)
@@ -767,7 +770,7 @@ fn the_readme_workflow_reaches_the_figures_it_states() {
             .unwrap();
         assert!(
             out.status.success(),
-            "README: `{line}` failed: {}",
+            "guide: `{line}` failed: {}",
             String::from_utf8_lossy(&out.stderr)
         );
         let figures: Vec<&str> = comment.split(" / ").map(str::trim).collect();
@@ -780,7 +783,7 @@ fn the_readme_workflow_reaches_the_figures_it_states() {
                 assert_eq!(
                     shown,
                     stated.parse::<f64>().unwrap(),
-                    "README: `{line}`: {key} is {got}"
+                    "guide: `{line}`: {key} is {got}"
                 );
             }
             checked += 1;
@@ -790,17 +793,18 @@ fn the_readme_workflow_reaches_the_figures_it_states() {
     assert!(dir.path().join("angles.csv").is_file());
 }
 
-/// README's "The customer's accuracy report (`verify`)", run as written (`$H` is the binary,
-/// `$M` the plant options the block defines, `\` continues a line): every command succeeds,
-/// and the figures the README's sentence and CALIBRATION.md's table state for it are what
+/// docs/guides/calibrate-step-by-step.md's "The customer's accuracy report (`verify`)", run as
+/// written (`$H` is the binary, `$M` the plant options the block defines, `\` continues a line):
+/// every command succeeds, and the figures the guide's sentence and calibration-tools.md's table state for it are what
 /// `verify` printed, to the digits shown (≥ 100: units, ≥ 10: one decimal, else two).
 #[test]
 fn the_readme_verify_block_reaches_the_figures_the_docs_state() {
-    let readme = std::fs::read_to_string(root().join("../README.md")).unwrap();
+    let readme =
+        std::fs::read_to_string(root().join("../docs/guides/calibrate-step-by-step.md")).unwrap();
     let section = readme
-        .split("### The customer's accuracy report (`verify`)")
+        .split("## The customer's accuracy report (`verify`)")
         .nth(1)
-        .expect("the README section");
+        .expect("the guide's section");
     let block = section
         .split("```sh\n")
         .nth(1)
@@ -833,7 +837,7 @@ fn the_readme_verify_block_reaches_the_figures_the_docs_state() {
             .unwrap();
         assert!(
             out.status.success(),
-            "README: `{line}` failed: {}",
+            "guide: `{line}` failed: {}",
             String::from_utf8_lossy(&out.stderr)
         );
         if args[0] == "verify" {
@@ -892,7 +896,7 @@ fn the_readme_verify_block_reaches_the_figures_the_docs_state() {
     let one_line = |t: &str| t.split_whitespace().collect::<Vec<_>>().join(" ");
     assert!(
         one_line(section).contains(&sentence),
-        "README's verify figures are stale; verify printed: {sentence}"
+        "the guide's verify figures are stale; verify printed: {sentence}"
     );
     let arbe = |l: &serde_json::Value| {
         ["a_um", "r_um", "e_um", "b_um"]
@@ -900,7 +904,8 @@ fn the_readme_verify_block_reaches_the_figures_the_docs_state() {
             .join(" / ")
     };
     let p_ps = |l: &serde_json::Value| format!("{} / {}", vdi(l, "p_um"), vdi(l, "ps_um"));
-    let calibration = std::fs::read_to_string(root().join("CALIBRATION.md")).unwrap();
+    let calibration =
+        std::fs::read_to_string(root().join("../docs/reference/calibration-tools.md")).unwrap();
     for row in [
         format!(
             "| 2-D position error max / RMS (400 targets) | {} | {} |",
@@ -930,7 +935,7 @@ fn the_readme_verify_block_reaches_the_figures_the_docs_state() {
     ] {
         assert!(
             calibration.contains(&row),
-            "CALIBRATION.md's verify table is stale; verify printed: {row}"
+            "calibration-tools.md's verify table is stale; verify printed: {row}"
         );
     }
 }

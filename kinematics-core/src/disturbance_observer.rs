@@ -35,12 +35,12 @@
 //! The second difference of the encoder sees its quantisation `q` as up to `4·q/dt²` of
 //! acceleration; the low pass takes it down by about `α` (and more, as the differenced noise
 //! is high-pass). The paper plant's encoders (2^20 counts per motor turn, gear 10: 0.6 µrad):
-//! see the torque RMS at rest in README ("Why a 20 % mass error ...").
+//! see the torque RMS at rest in docs/design/servo-and-dynamics.md.
 //!
 //! # Cost
 //! Per axis per sample: 5 multiplications, 6 additions, a limit (two comparisons), three
 //! floats of state; no division (`J_n/dt` and `α` are computed once, [`ObserverCoefficients`]).
-//! `cargo qemu-bench` `servo_step_motion` includes it (README's cycle table).
+//! `cargo qemu-bench` `servo_step_motion` includes it (docs/validation/benchmarks.md).
 //!
 //! No panic, no NaN out: the estimate goes through [`saturate`] to the axis' torque limit (a
 //! NaN becomes zero), and the settings are checked by `AxisGains::validate`.

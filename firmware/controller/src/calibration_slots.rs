@@ -55,7 +55,7 @@
 //!
 //! Hardware caveat (STM32G474): a double word torn by a power cut can hold a double ECC error,
 //! whose read raises an NMI (RM0440, FLASH ECC). The board's flash driver must treat ECCD on a
-//! read of the inactive slot as "no record"; see firmware/README.md.
+//! read of the inactive slot as "no record"; see docs/design/firmware-architecture.md.
 //!
 //! Cost: `open` computes two CRCs over the images and judges the images that count (a few ms
 //! at boot); `write` copies the bytes; `commit` one CRC, a parse and the judgement

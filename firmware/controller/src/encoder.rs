@@ -12,8 +12,8 @@
 //!
 //! **A wrong sign is positive feedback**: the servo pushes the joint the way that increases its
 //! error until the following-error limit trips. The first-power-up direction test of the
-//! bring-up guide (firmware/README.md) catches it at a low torque limit before anything else
-//! runs; [`EncoderSign`] is what it corrects.
+//! bring-up guide (docs/guides/g474-bring-up.md) catches it at a low torque limit before anything
+//! else runs; [`EncoderSign`] is what it corrects.
 //!
 //! Encoder plausibility (a reading that jumps further than the machine can move in one
 //! sample, a counter that stopped) is [`crate::encoder_check`]; it reads the angles converted

@@ -29,7 +29,7 @@
 //! and only a deliberate re-engage (a reset) brings it back. A fault of the feedback or of the
 //! controller itself means the servo can no longer brake the machine (it would brake towards
 //! a position it does not know, or too late): torque off at once (category 0). What stops the
-//! machine then is the drives' dynamic braking, a hardware requirement (firmware/README.md,
+//! machine then is the drives' dynamic braking, a hardware requirement (docs/reference/faults.md,
 //! "Category 0 needs dynamic braking in the drives"): the firmware cannot brake, hold or steer
 //! a machine after a category-0 fault.
 //!

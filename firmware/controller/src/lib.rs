@@ -46,7 +46,7 @@
 //!
 //! The link reaches [`homing`] and [`calibration_slots`] through the handler's `Homing` and
 //! `CalibrationStore` traits (the firmware still implements them with stand-ins: see
-//! firmware/README.md, "Host link").
+//! docs/reference/link-protocol.md).
 //!
 //! No heap, no panic on runtime data: every failure is a [`fault::Fault`].
 #![cfg_attr(not(test), no_std)]

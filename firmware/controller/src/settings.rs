@@ -32,7 +32,8 @@ pub struct Settings {
     pub servo: ServoConfig,
     /// Run without correction grid when the image is bad or missing. Default `false`: the
     /// machine exists for micrometre work and the uncorrected model is off by tens of
-    /// micrometres, so a bad image keeps the drives disabled (see README, "Calibration").
+    /// micrometres, so a bad image keeps the drives disabled
+    /// (docs/design/firmware-architecture.md).
     pub allow_uncorrected: bool,
     /// Consecutive deadline overruns that latch `Fault::DeadlineMissed`. Default 3
     /// (1.5 ms without a fresh torque command).
@@ -51,9 +52,9 @@ pub struct Settings {
     /// ratio from motor to joint ([`EncoderConfig`]; the zero comes from homing, not from
     /// here). Default: [`EncoderConfig::DIRECT_DRIVE_2_22`] on both axes, the QEMU board's
     /// simulated encoders; set them for the motors fitted before the first power-up (see the
-    /// bring-up guide in firmware/README.md). [`Settings::validate`] refuses a configuration
-    /// `EncoderScale::new` refuses (`SettingsError::Encoder`), and the board reads such an axis
-    /// as NaN, so the drives stay off either way. The encoder check takes each axis's
+    /// bring-up guide, docs/guides/g474-bring-up.md). [`Settings::validate`] refuses a
+    /// configuration `EncoderScale::new` refuses (`SettingsError::Encoder`), and the board reads
+    /// such an axis as NaN, so the drives stay off either way. The encoder check takes each axis's
     /// resolution from here.
     pub encoders: [EncoderConfig; 2],
     /// Peak tool acceleration of the built-in trajectory (mm/s²). Default 2 g.
@@ -107,8 +108,8 @@ pub struct SwitchSettings {
     /// The largest move a switch may make (mm); a calibration that disagrees more with the one
     /// in force at the machine's pose is refused (the old one stays). Default 5 mm: a
     /// calibration of this machine and the nominal model disagree by up to about 1.4 mm on the
-    /// paper's machine (README: the nominal model's 1.34 mm error), two calibrations of it by
-    /// micrometres.
+    /// paper's machine (docs/getting-started.md: the nominal model's 1.34 mm error), two
+    /// calibrations of it by micrometres.
     pub max_move_mm: f32,
     /// The move's peak speed (mm/s). Default 20 mm/s.
     pub speed_mm_s: f32,

@@ -496,7 +496,7 @@ mod tests {
         );
         assert_eq!(p.peak_decel_mm_s2(), a);
         // The tour's top speed, 1.38 m/s: 22.9 mm; the servo's limit, 3 m/s: 99 mm (the figures
-        // in the module doc and README).
+        // in the module doc and docs/reference/faults.md).
         assert!((stopping_distance_bound_mm(1379.4, 0.0, &limits()) - 22.85).abs() < 0.01);
         assert!((stopping_distance_bound_mm(3000.0, 0.0, &limits()) - 99.3).abs() < 0.1);
     }

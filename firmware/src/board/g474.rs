@@ -7,7 +7,7 @@
 //! unit for the `atan2`/`sin`/`cos` the kinematics need (not used yet), 512 KiB dual-bank
 //! flash (the calibration region sits in bank 2 and can be rewritten without stalling code
 //! in bank 1), and good probe-rs support. The M7 parts are faster but the loop fits in a few
-//! percent of a G474 period (see README, "Benchmarks").
+//! percent of a G474 period (see docs/validation/benchmarks.md).
 //!
 //! **Every register this board sets is in the `g474-plan` crate** (`firmware/g474-plan/`): the
 //! boot, the drive enable, the safe state and the watchdog are lists of (register, value, why)
@@ -30,8 +30,8 @@
 //!   ([`Lpuart1Link`]);
 //! * clock: HSI16 → PLL (M 4, N 85, R 2) = 170 MHz, range-1 boost, 4 wait states, prefetch
 //!   and caches; a PLL that does not lock stops the boot in the safe state;
-//! * logging: defmt over RTT, non-blocking (feature `disable-blocking-mode`, see README); no
-//!   semihosting on the board and no test harness.
+//! * logging: defmt over RTT, non-blocking (feature `disable-blocking-mode`, see the bring-up
+//!   guide); no semihosting on the board and no test harness.
 //!
 //! **Untested on hardware**: it compiles, and its register plan is host-tested against RM0440
 //! and DS12288. Encoder angles are relative to the power-on position until homing (a later

@@ -2,9 +2,9 @@
 //! verify, in one process, on a machine whose truth is known, stating the accuracy after every
 //! step.
 //!
-//! Why: this is what the README shows first. It runs exactly what a machine builder runs with
-//! the separate commands, through the same library functions, so the commands reproduce it
-//! (the README's command-by-command workflow, checked by `tests/workflow.rs`):
+//! Why: this is what docs/getting-started.md shows first. It runs exactly what a machine builder
+//! runs with the separate commands, through the same library functions, so the commands reproduce
+//! it (the step-by-step guide's command-by-command workflow, checked by `tests/workflow.rs`):
 //!
 //! | step | library function | command | noise seed |
 //! |---|---|---|---|
@@ -40,8 +40,9 @@
 //! seed 10·S + 9; [`super::backlash::estimate`]; kept where > 3σ) and corrected from there on
 //! by direction (each motor's command moved by dir·β/2, [`measure_list_compensated`]; the grids
 //! built from link angles): on the paper plant its 20 µrad, which left 5.13 µm max / 2.81 µm RMS
-//! uncorrected, are taken out (figures in the README). The separate commands do this step with
-//! `diagnose --out-model` (DIAGNOSIS.md, "Closing the loop").
+//! uncorrected, are taken out (figures in docs/reference/calibration-tools.md). The separate
+//! commands do this step with `diagnose --out-model` (docs/design/diagnosis.md, "Closing the
+//! loop").
 //!
 //! Output: [`calibrate`] keeps everything in memory ([`Calibrated`]); [`write_outputs`] writes the
 //! plan's lists, the measurement CSVs, `model.json` (`full`), `model_ls.json`, `grid.bin` +

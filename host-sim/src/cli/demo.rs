@@ -1,5 +1,5 @@
 //! `host-sim demo`: the whole calibration story on a built-in simulated machine, no files to
-//! bring (`host_sim::calib::pipeline`, `CALIBRATION.md`).
+//! bring (`host_sim::calib::pipeline`, `docs/reference/calibration-tools.md`).
 //!
 //! Output: progress and the human table on stderr, one JSON summary on stdout (scripts parse it)
 //! and the same in `summary.json`, written last in `--out` after every other file

@@ -1,6 +1,6 @@
 //! `host-sim diagnose`: measurements and a model in, the gap-shrink table on stdout, the report
-//! JSON and plots out (`host_sim::diagnose`, `DIAGNOSIS.md`). With `--telemetry` the moving
-//! machine's diagnosis instead (`diagnose_moving`, `host_sim::dynamics::diagnose`).
+//! JSON and plots out (`host_sim::diagnose`, `docs/design/diagnosis.md`). With `--telemetry` the
+//! moving machine's diagnosis instead (`diagnose_moving`, `host_sim::dynamics::diagnose`).
 
 use anyhow::{bail, Context, Result};
 use host_sim::calib::fit::params::N_PARAMS;

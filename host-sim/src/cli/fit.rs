@@ -1,5 +1,5 @@
 //! `host-sim fit`: flags → `host_sim::calib::fit::FitOptions`, the fit, the model file and the
-//! JSON summary (see `CALIBRATION.md`).
+//! JSON summary (see `docs/reference/calibration-tools.md`).
 
 use anyhow::{bail, Context, Result};
 use host_sim::calib::fit::blunders::{
@@ -67,7 +67,8 @@ pub struct Args {
     pub no_loo: bool,
     /// `full`: the blunder test's threshold k (σ units, default 4): rows whose leave-one-out
     /// residual exceeds max(k, √(2 ln(100 N))) σ are rejected, named, and the rest refitted;
-    /// more than 10 % rejected refuses the fit. 0 fits every row. See CALIBRATION.md "Blunders".
+    /// more than 10 % rejected refuses the fit. 0 fits every row. See
+    /// docs/reference/calibration-tools.md "Blunders".
     #[arg(long)]
     pub reject_sigma: Option<f64>,
     /// Output model.json.

@@ -5,7 +5,7 @@
 //!
 //! Transport: `--tcp HOST:PORT` (QEMU's UART on a socket: `firmware/qemu/run-one.sh` with
 //! `QEMU_SERIAL`) or `--serial PATH [--baud N]` (the real board: the NUCLEO-G474RE's ST-LINK
-//! virtual COM port, e.g. `/dev/ttyACM0`, 115 200 Bd 8N1; see firmware/README.md). The
+//! virtual COM port, e.g. `/dev/ttyACM0`, 115 200 Bd 8N1; see docs/guides/g474-bring-up.md). The
 //! commands are the same over both: the client takes any `Read + Write`.
 use std::io::{Read, Write};
 use std::path::{Path, PathBuf};

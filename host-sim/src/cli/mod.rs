@@ -103,7 +103,7 @@ pub fn run(cli: Cli) -> Result<()> {
 /// `--machine FILE`, the flag every subcommand has.
 #[derive(clap::Args, Debug, Clone)]
 pub struct MachineArg {
-    /// The machine file (TOML; see host-sim/MACHINE.md). Default: the paper's machine
+    /// The machine file (TOML; see docs/reference/machine-file.md). Default: the paper's machine
     /// (host-sim/machines/paper.toml, built in).
     #[arg(long, value_name = "FILE")]
     pub machine: Option<PathBuf>,

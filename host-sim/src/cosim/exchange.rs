@@ -6,7 +6,7 @@
 //! (`firmware/src/board/qemu/{plant,hardware}.rs`):
 //! * **Drives**: torque `(2·duty/max − 1)·full_scale` per axis while the enable line is high
 //!   (the amplifiers' torque limit is the plant's, `torque_limit_nm`); with it low, no torque
-//!   and dynamic braking `−c·ω` (the drives' requirement, firmware/README.md), updated every
+//!   and dynamic braking `−c·ω` (the drives' requirement, docs/reference/faults.md), updated every
 //!   substep.
 //! * **Encoders**: incremental counters at the plant's resolution (counts per motor revolution
 //!   × gear ratio; a plant without quantisation gets the firmware's default, 2^22 counts per

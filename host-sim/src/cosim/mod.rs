@@ -113,7 +113,8 @@ pub struct CoSimOptions {
     /// the controller transmits reaches the host in the period it was sent.
     pub link_bytes_per_sample: usize,
     /// The drives' dynamic braking with the enable line low (N·m·s/rad at the joint). Default
-    /// 0.225, the QEMU board's motors (firmware/README.md, "Category 0 needs dynamic braking").
+    /// 0.225, the QEMU board's motors (docs/reference/faults.md, "Category 0 needs dynamic
+    /// braking").
     pub dynamic_brake_nm_s_per_rad: f64,
     /// Longest wall-clock wait for one frame from the firmware (QEMU's boot included).
     pub frame_timeout: Duration,

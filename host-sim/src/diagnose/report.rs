@@ -134,7 +134,7 @@ impl Report {
     /// Whether the report declares the named `effect` ambiguous with one of `alternatives`
     /// (`ambiguous`), or, beside another named effect, with two of them (`ambiguous_pairs`): the diagnosis then does not claim `effect` over it. The false-positive
     /// sweep counts a named effect that is not hidden as no false positive only in that case
-    /// (DIAGNOSIS.md, "No false positives").
+    /// (docs/validation/sweeps.md).
     pub fn declares_alternative(&self, effect: &str, alternatives: &[&str]) -> bool {
         self.ambiguous
             .iter()

@@ -1,6 +1,6 @@
 //! The machine file: one TOML file per machine, what `--machine FILE` reads
 //! (`host-sim/machines/paper.toml` is the documented example and the default; every key is
-//! described in `host-sim/MACHINE.md`).
+//! described in `docs/reference/machine-file.md`).
 //!
 //! A contract like the other formats: versioned (`format_version = 1`; another version is
 //! refused with the one this tool reads), every key with its unit in its name, unknown keys
@@ -44,7 +44,7 @@ struct MachineFile {
     /// Optional: the paper's gantry when absent (`GantrySpec::paper`).
     #[serde(default)]
     gantry: GantryKeys,
-    /// Optional: home and the limits an image is judged against (defaults in MACHINE.md).
+    /// Optional: home and the limits an image is judged against (defaults in docs/reference/machine-file.md).
     #[serde(default)]
     controller: ControllerKeys,
     /// Optional: the design's dynamics (default: the paper machine's).
@@ -430,7 +430,7 @@ mod tests {
 
     #[test]
     fn every_key_is_documented_with_its_unit_in_machine_md() {
-        let doc = include_str!("../../MACHINE.md");
+        let doc = include_str!("../../../docs/reference/machine-file.md");
         let mut all = keys(PAPER_TOML);
         all.extend(keys(include_str!("../../machines/second.toml")));
         assert!(all.len() >= 52, "{all:?}");
@@ -439,7 +439,7 @@ mod tests {
             let row = doc
                 .lines()
                 .find(|l| l.starts_with('|') && l.contains(&format!("`{key}`")));
-            let row = row.unwrap_or_else(|| panic!("MACHINE.md does not document '{key}'"));
+            let row = row.unwrap_or_else(|| panic!("machine-file.md does not document '{key}'"));
             let unit = row.split('|').nth(2).unwrap().trim();
             // Longest suffixes first: `_rad_s` is not `_s`, `_kg_m2` not `_m2`, `_mm_s` not `_s`.
             let units = [
@@ -465,7 +465,7 @@ mod tests {
                 None if key.ends_with("_g") => unit.starts_with('g'),
                 None => unit == "—",
             };
-            assert!(said, "MACHINE.md gives '{key}' the unit '{unit}'");
+            assert!(said, "machine-file.md gives '{key}' the unit '{unit}'");
         }
     }
 

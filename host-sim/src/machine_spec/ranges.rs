@@ -6,7 +6,7 @@
 //! `plan` write approach starts at 7.8e299 mm; `stop_margin_mm = 80` left the firmware no
 //! workspace, so it faulted at rest; `sigma_um = 1e300` failed inside `demo`). Each limit
 //! below says what it protects; the refusal names the key, its value and the limit. The
-//! limits are stated in `host-sim/MACHINE.md`.
+//! limits are stated in `docs/reference/machine-file.md`.
 
 use super::MachineSpec;
 

@@ -6,7 +6,7 @@
 //!
 //! Where a change goes: a new physical effect of the machine is a parameter in `config.rs`
 //! (with its TOML key, its unit in the name, 0 = off, and its entry in `PlantConfig::with_only`)
-//! and its physics in the file of the part it belongs to; `PLANT.md` describes them.
+//! and its physics in the file of the part it belongs to; `docs/reference/plant-file.md` describes them.
 
 pub mod config;
 pub mod drive;

@@ -452,7 +452,8 @@ mod tests {
     /// The feed-forward robustness figure: every mass and inertia of the fed-forward model 20 % high,
     /// then 20 % low, on the paper six-bar plant, a figure-eight at 5 g: within 7 µm with the
     /// disturbance observer (the default settings), over 9 µm without it (the PID alone lags
-    /// δ·a/ω² ≈ 10 µm, README); the identified model's own figure stays within 2 µm.
+    /// δ·a/ω² ≈ 10 µm, docs/design/servo-and-dynamics.md); the identified model's own figure stays
+    /// within 2 µm.
     #[test]
     fn a_20_percent_mass_error_follows_a_5g_figure_eight_within_7_um() {
         let spec = MachineSpec::paper();

@@ -84,11 +84,11 @@
 //! grid), `servo_step_checking` (a [`Calibration`]: the IK's model check, margin floor and
 //! finiteness test on every call), `servo_step_backlash` (with the backlash block),
 //! `servo_step_motion` (the motion step with the identified dynamics and both disturbance
-//! observers) and their `_uncorrected` variants (today's figures: firmware/README.md,
-//! "Benchmarks"); what the step is made of, by instructions: the hidden-robot IK about 45 %, the grid
-//! lookup and correction about a fifth, the two PIDs about 15 %, the jump checks, unwrapping,
-//! following-error check and history the rest. The motion step adds the next setpoint's IK with
-//! the joint rates, the inverse dynamics and the interval's means.
+//! observers) and their `_uncorrected` variants (today's figures:
+//! docs/validation/benchmarks.md); what the step is made of, by instructions: the hidden-robot IK
+//! about 45 %, the grid lookup and correction about a fifth, the two PIDs about 15 %, the jump
+//! checks, unwrapping, following-error check and history the rest. The motion step adds the next
+//! setpoint's IK with the joint rates, the inverse dynamics and the interval's means.
 //!
 //! What keeps it there: no division in the step (VDIV is 14 cycles): `1 / sample_period_s` and
 //! the squared limits are computed once in [`Servo::new`], and the history keeps the previous
@@ -145,11 +145,12 @@ impl Default for ServoConfig {
     /// position bandwidth ω = 1000 rad/s (160 Hz): kp = J·ω², kd = 2ζ·J·ω (ζ = 0.7),
     /// ki = kp·ω/4. At 2 kHz the loop goes unstable near ω = 1400 rad/s; ±20 % of inertia
     /// moves ω within 900..1120 rad/s. The stiffness alone holds the following error at 5 g
-    /// to about 10 µm when the feed-forward's masses are 20 % off (δ·a/ω², README); the
-    /// disturbance observer ([`crate::disturbance_observer`], 2000 rad/s: `g·dt = 1`, α = 0.5,
-    /// nominal inertia the identified diagonal) takes that to 5-6.4 µm on the paper plant.
-    /// Faster observers gain little (3000 rad/s: 6.1 µm; what remains is the first samples of
-    /// each jerk ramp, which an estimate a sample late cannot see) and pass more quantisation.
+    /// to about 10 µm when the feed-forward's masses are 20 % off (δ·a/ω²,
+    /// docs/design/servo-and-dynamics.md); the disturbance observer
+    /// ([`crate::disturbance_observer`], 2000 rad/s: `g·dt = 1`, α = 0.5, nominal inertia the
+    /// identified diagonal) takes that to 5-6.4 µm on the paper plant. Faster observers gain little
+    /// (3000 rad/s: 6.1 µm; what remains is the first samples of each jerk ramp, which an estimate
+    /// a sample late cannot see) and pass more quantisation.
     fn default() -> Self {
         const INERTIA_KG_M2: f32 = 7.4e-3;
         const OMEGA_RAD_S: f32 = 1000.0;

@@ -600,8 +600,8 @@ impl<'a> Checker<'a> {
     /// `homing-no-index`: homing until joint 1's search (the first) ends without an index, then
     /// `Homing(IndexNotFound(0))`, the safe state, the machine at rest; never running. (Joint
     /// 2's missing index is not the scenario: its search runs with joint 1 parked at its own
-    /// index, and its whole travel can reach the parallel singularity, firmware/README.md,
-    /// "Homing", known limitation.)
+    /// index, and its whole travel can reach the parallel singularity,
+    /// docs/design/firmware-architecture.md, "Homing", known limitation.)
     fn homing_no_index(&mut self, o: &Observation<'_>) -> Verdict {
         let s = o.status;
         match (s.mode, s.fault) {

@@ -10,7 +10,7 @@
 //! an error, never the production path), the board's hooks ([`Scenario::tamper`],
 //! [`Scenario::encoder_at`], ...), the checks ([`Checker::observe`]), `qemu/test.sh` (it asks the
 //! firmware for the list: the command line `list`, [`LIST_COMMAND`]) and the scenario table of
-//! firmware/README.md (a host test compares its rows with the registry's runs) all read it.
+//! docs/dev/testing.md (a host test compares its rows with the registry's runs) all read it.
 //! Adding a scenario is one entry (and its check, if none of the existing kinds fits).
 //!
 //! `run` is the production path on the QEMU board: nothing injected, nothing checked, no time
@@ -159,7 +159,7 @@ pub struct Spec {
 /// One run of a scenario by `qemu/test.sh`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Run {
-    /// The test's name in the output (and in firmware/README.md's table).
+    /// The test's name in the output (and in docs/dev/testing.md's table).
     pub test: &'static str,
     /// What the calibration region holds.
     pub image: Image,

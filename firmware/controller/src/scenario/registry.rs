@@ -1,6 +1,6 @@
 //! The scenarios of `cargo qemu-test`, one entry each: the one list the parser, the board's
 //! hooks, the checks, `qemu/test.sh` (through the `list` command line) and the table of
-//! firmware/README.md follow (see the module doc of [`super`]). The order is `qemu/test.sh`'s.
+//! docs/dev/testing.md follow (see the module doc of [`super`]). The order is `qemu/test.sh`'s.
 use kinematics_core::{GridError, SetpointRefusal};
 
 use super::{

@@ -12,9 +12,10 @@
 //!   the kinetic energy `½ωᵀMω` is what the braking and friction take away (the
 //!   velocity-product torques do no work), `dE/dt ≤ -(c + b)·|ω|²`, so with `λ_min ≤ M ≤ λ_max`
 //!   each joint's travel is at most `∫|ω| ≤ |ω₀|·λ_max·√(λ_max/λ_min)/(c + b)`, `|ω₀|` the
-//!   norm of both joints' speeds. Dynamic braking is a hardware requirement of the drives (firmware/README.md,
-//!   "Faults and stop categories"): once the torque is off the firmware can do nothing more,
-//!   and free-wheeling drives coast out of the workspace from the tour's top speed.
+//!   norm of both joints' speeds. Dynamic braking is a hardware requirement of the drives
+//!   (docs/reference/faults.md, "Category 0 needs dynamic braking"): once the torque is off the
+//!   firmware can do nothing more, and free-wheeling drives coast out of the workspace from the
+//!   tour's top speed.
 //! * **1** (controlled stop, then torque off): drive enable on until the loop reports
 //!   standstill, which must come within the stop's duration plus the settle timeout; then
 //!   enable low and zero torque for good. The tool travels no further than the planned stop

@@ -320,11 +320,11 @@ fn the_registry_is_consistent_and_lists_every_run() {
     assert_eq!(line, "SCENARIO no-image bad-image-magic 0 pass none");
 }
 
-/// firmware/README.md's scenario table lists exactly the registry's runs, in its order (each
+/// docs/dev/testing.md's scenario table lists exactly the registry's runs, in its order (each
 /// row's first cell names one run or several joined by ` / `).
 #[test]
 fn the_readme_table_lists_every_run_in_order() {
-    let readme = concat!(env!("CARGO_MANIFEST_DIR"), "/../README.md");
+    let readme = concat!(env!("CARGO_MANIFEST_DIR"), "/../../docs/dev/testing.md");
     let text = std::fs::read_to_string(readme).unwrap();
     let table: Vec<String> = text
         .lines()
@@ -342,7 +342,7 @@ fn the_readme_table_lists_every_run_in_order() {
         .iter()
         .flat_map(|s| s.runs.iter().map(|r| r.test.to_owned()))
         .collect();
-    assert_eq!(table, runs, "firmware/README.md's scenario table");
+    assert_eq!(table, runs, "docs/dev/testing.md's scenario table");
 }
 
 #[test]

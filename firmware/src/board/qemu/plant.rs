@@ -49,8 +49,8 @@ pub struct PlantParams {
 
 /// A drive's motor, for its dynamic braking.
 ///
-/// **Dynamic braking is a hardware requirement of the drives** (firmware/README.md, "Faults and
-/// stop categories"): on disable, safe torque off or a break, the amplifier shorts the motor's
+/// **Dynamic braking is a hardware requirement of the drives** (docs/reference/faults.md, "Category
+/// 0 needs dynamic braking"): on disable, safe torque off or a break, the amplifier shorts the motor's
 /// windings. The back-EMF `k_e·N·ω` then drives a current `k_e·N·ω/R` through the winding
 /// resistance, whose torque `k_t·N·k_e·N·ω/R` at the joint brakes the joint, in proportion to
 /// its speed, with no energy from the supply and with the controller dead:

@@ -5,10 +5,10 @@
 //!   This is the model's real prediction error; on points outside a fit subset it is a hold-out
 //!   error. It is what a model is for: commanding `IK(target)` lands at `target + (this error)`.
 //! * [`Criterion::Paper`]: `|FK(θi) − desired_i|`, the paper's "calculated vs desired" (we
-//!   reproduce its 93 µm with it, see `CALIBRATION.md`). Table I's angles are the nominal model's
-//!   IK of the desired points, so this measures how far the fitted model *moves away from the
-//!   nominal one* at those angles, not how well it predicts the machine: the nominal model scores
-//!   1.8 µm on it while mispredicting Table I by 1.5 mm.
+//!   reproduce its 93 µm with it, see `docs/design/hidden-robot.md`). Table I's angles are the
+//!   nominal model's IK of the desired points, so this measures how far the fitted model *moves
+//!   away from the nominal one* at those angles, not how well it predicts the machine: the
+//!   nominal model scores 1.8 µm on it while mispredicting Table I by 1.5 mm.
 //!
 //! Cost: one FK per point. A model that cannot reach a recorded pose gets an infinite error.
 

@@ -1,5 +1,6 @@
 //! The hidden-robot fits: the paper's `poly` and `ls` (with its subset search) and the full
-//! nonlinear fit `full`. See `CALIBRATION.md` for the commands and the Table I story.
+//! nonlinear fit `full`. See `docs/reference/calibration-tools.md` for the commands and
+//! `docs/design/hidden-robot.md` for the Table I story.
 //!
 //! One algorithm per file: [`poly`] (Eqs. 1–3), [`least_squares`] (Eqs. 4–6), [`subset_search`],
 //! [`evaluate`] (the error criteria), [`params`] (the parameter vector, residual and std-dev

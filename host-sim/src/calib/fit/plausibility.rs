@@ -10,7 +10,7 @@
 //! * **Identification**: a parameter whose standard deviation exceeds half its limit (links
 //!   3.75 mm at 150 mm, bases 5 mm, offsets 1.5°) is not determined by the data (Table I's
 //!   fits, 9 points and a 0.27–0.42 mm residual, reach 2.5 mm and 0.84°: poor, but kept as the
-//!   documented study of `CALIBRATION.md`);
+//!   documented study of `docs/design/hidden-robot.md`);
 //!   the condition number and the residual against the instrument's σ are named with it.
 //! * **Units** ([`unit_mixup`]): before any fit, the nominal model's median error on the data
 //!   as given is compared with the data read as radians-in-degrees or metres-in-millimetres;

@@ -9,7 +9,7 @@
 //! P1 is already a difference of squares).
 //!
 //! Cost: a 2x2 solve. Error: exact at the two points; the model's error elsewhere is whatever
-//! the data disagree with a rigid five-bar (see `CALIBRATION.md`).
+//! the data disagree with a rigid five-bar (see `docs/design/hidden-robot.md`).
 
 use crate::calib::{invalid, CalibError};
 

@@ -277,7 +277,7 @@ table{border-collapse:collapse;margin:0.8em 0}td,th{border:1px solid #bbb;paddin
 td:first-child,th:first-child{text-align:left}th{background:#eee}img{max-width:100%;border:1px solid #ddd;margin:0.5em 0}\
 .maps{display:flex;flex-wrap:wrap;gap:1em}.maps img{max-width:760px}.note{background:#fff6d6;padding:0.4em 0.8em}";
 
-/// The definitions section (what each figure means; `CALIBRATION.md` has the whole text).
+/// The definitions section (what each figure means; `docs/reference/calibration-tools.md` has the whole text).
 const DEFINITIONS: &str = "<h2>Definitions</h2>\n<p>Deviation x = measured − target position along the line's axis, \
 per target i and approach direction (↑ positive, ↓ negative; the direction is the last move along the axis within the run). \
 x̄i↑, x̄i↓: mean deviations; si↑, si↓: estimators of the standard deviation (n − 1); x̄i = (x̄i↑ + x̄i↓)/2.</p>\n<ul>\n\
