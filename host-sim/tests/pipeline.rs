@@ -128,7 +128,7 @@ fn paper_plant_reaches_the_noise_floor_with_unidirectional_approach() {
     );
 
     // Random approach directions (issue 13): the backlash is measured on the grid data and
-    // corrected by direction; uncorrected it left 5.13 µm max / 2.81 µm RMS here.
+    // corrected by direction; uncorrected it left 5.14 µm max / 2.81 µm RMS here.
     let mut machine = PlantMachine::by_name("paper", Some(1.0), 1).unwrap();
     let random = run(&mut machine, 1, Approach::FromVisit).unwrap();
     let r2 = random.stages.last().unwrap().accuracy;

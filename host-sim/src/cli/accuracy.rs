@@ -17,6 +17,10 @@ pub struct Args {
     /// Optional PNG: mean error vector at every target.
     #[arg(long)]
     pub plot: Option<PathBuf>,
+    /// The calibrated model.json whose registered instrument frame maps the readings into the
+    /// machine frame (default: the readings as they are).
+    #[arg(long, value_name = "MODEL")]
+    pub instrument_frame: Option<PathBuf>,
     #[command(flatten)]
     pub machine: super::MachineArg,
 }
@@ -24,7 +28,8 @@ pub struct Args {
 /// `host-sim accuracy`.
 pub fn run(args: &Args) -> Result<()> {
     let spec = args.machine.spec()?;
-    let data = read_measurements(&args.data)?;
+    let data = super::frame_of(args.instrument_frame.as_deref())?
+        .register(&read_measurements(&args.data)?);
     // Figures outside the workspace are no accuracy of this machine: say so (the figures stand).
     let outside = data
         .iter()

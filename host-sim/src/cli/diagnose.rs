@@ -2,13 +2,14 @@
 //! JSON and plots out (`host_sim::diagnose`, `DIAGNOSIS.md`).
 
 use anyhow::{bail, Context, Result};
+use host_sim::calib::frame::{machine_frame_gauge, InstrumentFrame};
 use host_sim::diagnose::loop_closure::SixBarDesign;
 use host_sim::diagnose::model_out::extended_model;
 use host_sim::diagnose::plots::write_plots;
 use host_sim::diagnose::{diagnose_with_history, report, DiagnoseOptions};
 use host_sim::io::atomic::Outputs;
 use host_sim::io::measurement_csv::read_measurements;
-use host_sim::io::model_file::{model_file_text, read_model};
+use host_sim::io::model_file::{model_file_text, read_model, read_model_file};
 use host_sim::io::{json_text, KeyOrder};
 use std::path::PathBuf;
 
@@ -41,12 +42,20 @@ pub struct Args {
 
 /// `host-sim diagnose`.
 pub fn run(args: &Args) -> Result<()> {
-    let data = read_measurements(&args.data)?;
     let spec = args.machine.spec()?;
     let base = match &args.model {
         Some(p) => read_model(p)?,
         None => spec.nominal,
     };
+    // The readings into the machine frame by the model's registered instrument frame (none in
+    // an older model file): the diagnosis looks at what the model does not explain, not at
+    // where the tracker stood.
+    let frame = super::frame_of(args.model.as_deref())?;
+    let registered_model = match &args.model {
+        Some(p) => read_model_file(p)?.instrument_frame.is_some(),
+        None => false,
+    };
+    let data = frame.register(&read_measurements(&args.data)?);
     // The six-bar's own effects are derived from the machine's nominal design, not the current
     // model (which may carry an instrument offset as its A0).
     let sixbar = SixBarDesign::for_model(&spec.nominal, spec.workspace.centre_mm())
@@ -74,6 +83,28 @@ pub fn run(args: &Args) -> Result<()> {
         }
         None => None,
     };
+    // The extended model back in the machine frame's convention (a frame effect the diagnosis
+    // folded into A0 and the offsets goes into the instrument's frame; an exact change of
+    // frame), with the frame it now implies.
+    let registered_file = |e: &host_sim::diagnose::model_out::ExtendedModel| {
+        let mut file = e.file(&args.data.display().to_string());
+        if registered_model {
+            let fitted = file.model()?;
+            let (machine, g) = machine_frame_gauge(&fitted, &spec.nominal);
+            let moved = host_sim::io::model_file::ModelFile::from_model(&machine);
+            file.base_a0_mm = moved.base_a0_mm;
+            file.base_b0_mm = moved.base_b0_mm;
+            file.encoder_offset_deg = moved.encoder_offset_deg;
+            file.instrument_frame = Some(
+                InstrumentFrame {
+                    to_instrument: frame.to_instrument.after(&g),
+                    std_dev: None,
+                }
+                .record(),
+            );
+        }
+        Ok::<_, host_sim::io::IoError>(file)
+    };
     // The report and the extended model staged, then renamed together (io::atomic); neither
     // may overwrite the measurements or the model read.
     let mut inputs = vec![args.data.as_path()];
@@ -84,10 +115,7 @@ pub fn run(args: &Args) -> Result<()> {
         json_text(&report, KeyOrder::Declared)?.as_bytes(),
     )?;
     if let (Some(path), Some(e)) = (&args.out_model, &extended) {
-        outputs.bytes(
-            path,
-            model_file_text(&e.file(&args.data.display().to_string()))?.as_bytes(),
-        )?;
+        outputs.bytes(path, model_file_text(&registered_file(e)?)?.as_bytes())?;
     }
     outputs.commit()?;
     if let Some(path) = &args.out_model {

@@ -18,7 +18,8 @@ use std::path::PathBuf;
 /// Build the correction-grid image from measurements at the grid nodes.
 #[derive(clap::Args, Debug)]
 pub struct Args {
-    /// The fitted model (model.json) the nodes were commanded with. If it carries
+    /// The fitted model (model.json) the nodes were commanded with; the readings are mapped
+    /// into the machine frame by its registered instrument frame. If it carries
     /// `backlash_urad`, the grid is built from link angles (the data need dir1,dir2) and the
     /// image carries the backlash block (the firmware's servo compensates it).
     #[arg(long)]
@@ -112,6 +113,11 @@ pub fn run(args: &Args) -> Result<()> {
     let backlash = file
         .backlash()
         .map_err(|e| anyhow::anyhow!("{}: {e}", args.model.display()))?;
+    // The readings into the machine frame, where the model is (the instrument frame the fit
+    // registered; none in an older model file).
+    let frame = file
+        .frame()
+        .map_err(|e| anyhow::anyhow!("{}: {e}", args.model.display()))?;
     let mut data = Vec::new();
     for (k, path) in args.data.iter().enumerate() {
         if args.data[..k].contains(path) {
@@ -120,7 +126,7 @@ pub fn run(args: &Args) -> Result<()> {
                 path.display()
             );
         }
-        let rows = read_measurements(path)?;
+        let rows = frame.register(&read_measurements(path)?);
         data.extend(match &backlash {
             Some(b) => b
                 .link_angles(&rows)

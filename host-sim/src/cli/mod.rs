@@ -151,6 +151,18 @@ fn load_calibration(
     Ok((model, bytes))
 }
 
+/// The registered instrument frame of a model file (`calib::frame`): the readings of its
+/// set-up are mapped into the machine frame by it. No file, or a file without one (an older
+/// fit): the instrument's own frame.
+fn frame_of(model: Option<&Path>) -> Result<host_sim::calib::frame::InstrumentFrame> {
+    match model {
+        Some(p) => host_sim::io::model_file::read_model_file(p)?
+            .frame()
+            .map_err(|e| anyhow!("{}: {e}", p.display())),
+        None => Ok(host_sim::calib::frame::InstrumentFrame::IDENTITY),
+    }
+}
+
 /// A parsed grid image (for `Calibration`), its errors naming the flag.
 fn parse_grid(bytes: &Option<Vec<u8>>) -> Result<Option<CorrectionGrid<'_>>> {
     bytes

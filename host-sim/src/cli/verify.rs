@@ -35,12 +35,20 @@ pub struct Args {
     /// Also write the JSON figures to this file.
     #[arg(long, value_name = "FILE")]
     pub json: Option<PathBuf>,
+    /// The calibrated model.json whose registered instrument frame maps every input's readings
+    /// into the machine frame (one instrument set-up for all of them). Without it the readings
+    /// are judged as they are (an instrument aligned to the machine).
+    #[arg(long, value_name = "MODEL")]
+    pub instrument_frame: Option<PathBuf>,
     #[command(flatten)]
     pub machine: MachineArg,
 }
 
-fn read(path: &Path) -> Result<Vec<host_sim::io::measurement_csv::Measurement>> {
-    Ok(read_measurements(path)?)
+fn read(
+    path: &Path,
+    frame: &host_sim::calib::frame::InstrumentFrame,
+) -> Result<Vec<host_sim::io::measurement_csv::Measurement>> {
+    Ok(frame.register(&read_measurements(path)?))
 }
 
 /// `host-sim verify`.
@@ -63,14 +71,15 @@ pub fn run(args: &Args) -> Result<()> {
     if args.json.as_ref() == Some(&args.out) {
         bail!("--out and --json name the same file");
     }
+    let frame = super::frame_of(args.instrument_frame.as_deref())?;
     let after = StageData {
-        verify: read(&args.after_verify)?,
-        repeat: read(&args.after_repeat)?,
+        verify: read(&args.after_verify, &frame)?,
+        repeat: read(&args.after_repeat, &frame)?,
     };
     let before = match (&args.before_verify, &args.before_repeat) {
         (Some(v), Some(r)) => Some(StageData {
-            verify: read(v)?,
-            repeat: read(r)?,
+            verify: read(v, &frame)?,
+            repeat: read(r, &frame)?,
         }),
         (None, None) => None,
         _ => bail!("--before-verify and --before-repeat come together"),

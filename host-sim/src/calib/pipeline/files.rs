@@ -1,0 +1,210 @@
+//! The demo's files: the plan's lists, every measurement CSV (instrument readings as
+//! measured), the models with their registered frames, the grid image and table, and the
+//! error-vector plots (in the machine frame), each written atomically.
+
+use super::{Calibrated, Stage};
+use crate::calib::fit::params;
+use crate::calib::grid;
+use crate::calib::measure::{measured_error_vectors_um, registered, rows, true_error_vectors_um};
+use crate::calib::plan::list_rows;
+use crate::io::atomic::write_atomic;
+use crate::io::measurement_csv::format_measurements;
+use crate::io::model_file::{write_model_file, ModelFile};
+use crate::io::plot::{vector_plot, VectorField};
+use crate::io::targets_csv::format_target_list;
+use crate::io::IoError;
+use std::path::{Path, PathBuf};
+
+/// The names of the files [`write_outputs`] writes, relative to the output directory.
+pub const FILES: [&str; 21] = [
+    "plan_identify.csv",
+    "plan_grid.csv",
+    "plan_verify.csv",
+    "plan_repeat.csv",
+    "fit_measurements.csv",
+    "grid_measurements.csv",
+    "grid_measurements_round2.csv",
+    "verify_nominal.csv",
+    "verify_ls.csv",
+    "verify_full.csv",
+    "verify_full_grid.csv",
+    "verify_full_grid2.csv",
+    "model.json",
+    "model_ls.json",
+    "grid.bin",
+    "grid.csv",
+    "errors_fit.png",
+    "errors_grid.png",
+    "errors_final.png",
+    "grid_nodes.png",
+    "summary.json",
+];
+
+fn stage<'a>(cal: &'a Calibrated, key: &str) -> Result<&'a Stage, IoError> {
+    cal.stages
+        .iter()
+        .find(|s| s.key == key)
+        .ok_or_else(|| IoError::Invalid(format!("internal: no stage '{key}'")))
+}
+
+/// Writes every output into `dir` (each file atomically) and returns the paths, in [`FILES`]
+/// order but for `summary.json`, which the caller writes last from [`summary`].
+pub fn write_outputs(cal: &Calibrated, dir: &Path) -> Result<Vec<PathBuf>, IoError> {
+    let p = |name: &str| dir.join(name);
+    let mut written = Vec::new();
+    let mut text = |name: &str, bytes: &[u8]| -> Result<(), IoError> {
+        write_atomic(&p(name), bytes)?;
+        written.push(p(name));
+        Ok(())
+    };
+    for (name, list) in cal.plan.lists() {
+        text(
+            &format!("plan_{name}.csv"),
+            format_target_list(&list_rows(list)).as_bytes(),
+        )?;
+    }
+    text(
+        "fit_measurements.csv",
+        format_measurements(&rows(&cal.fit_data)).as_bytes(),
+    )?;
+    text(
+        "grid_measurements.csv",
+        format_measurements(&rows(&cal.grid_data)).as_bytes(),
+    )?;
+    text(
+        "grid_measurements_round2.csv",
+        format_measurements(&rows(&cal.grid2_data)).as_bytes(),
+    )?;
+    for s in &cal.stages {
+        text(
+            &format!("verify_{}.csv", s.key.replace('+', "_")),
+            format_measurements(&rows(&s.landed)).as_bytes(),
+        )?;
+    }
+    // The grid to flash: round 2. (Round 1 is in the round-2 data: nodes commanded through it.)
+    text("grid.bin", &cal.grid2.image)?;
+    text("grid.csv", grid::format_csv(&cal.grid2.nodes).as_bytes())?;
+
+    let mut full_file = ModelFile::from_model(&cal.full.model);
+    full_file.std_dev = params::std_dev_map(&cal.full.std_dev);
+    full_file.fit = Some(
+        serde_json::json!({ "method": "full", "source": "host-sim demo", "n_points": cal.fit_data.len() }),
+    );
+    full_file.backlash_urad = cal.backlash.map(|b| b.lost_motion_urad);
+    full_file.instrument_frame = Some(cal.frame.record());
+    write_model_file(&p("model.json"), &full_file)?;
+    written.push(p("model.json"));
+    if let Ok((ls_model, ls_frame)) = &cal.ls {
+        let mut ls_file = ModelFile::from_model(ls_model);
+        ls_file.fit = Some(
+            serde_json::json!({ "method": "ls", "source": "host-sim demo", "n_points": cal.fit_data.len() }),
+        );
+        ls_file.instrument_frame = Some(ls_frame.record());
+        write_model_file(&p("model_ls.json"), &ls_file)?;
+        written.push(p("model_ls.json"));
+    }
+
+    // Plots: the same fresh targets for every stage, in the machine frame; fields in one plot
+    // share one scale.
+    let (nominal, full) = (stage(cal, "nominal")?, stage(cal, "full")?);
+    let ls = stage(cal, "ls").ok();
+    let (gridded, gridded2) = (stage(cal, "full+grid")?, stage(cal, "full+grid2")?);
+    let base: Vec<[f64; 2]> = gridded
+        .landed_in_machine_frame()
+        .iter()
+        .map(|l| l.row.target_mm.unwrap_or(l.true_mm))
+        .collect();
+    let errors = |s: &Stage| true_error_vectors_um(&s.landed_in_machine_frame());
+    let (e_nom, e_full, e_grid, e_grid2) = (
+        errors(nominal),
+        errors(full),
+        errors(gridded),
+        errors(gridded2),
+    );
+    let e_ls = ls.map(errors);
+    let mut fit_fields = vec![VectorField {
+        label: "nominal model",
+        base_mm: &base,
+        error_um: &e_nom,
+    }];
+    if let Some(e) = &e_ls {
+        fit_fields.push(VectorField {
+            label: "paper's ls fit",
+            base_mm: &base,
+            error_um: e,
+        });
+    }
+    fit_fields.push(VectorField {
+        label: "full fit",
+        base_mm: &base,
+        error_um: &e_full,
+    });
+    vector_plot(
+        &p("errors_fit.png"),
+        "step 2, fit: true − target at fresh targets",
+        &fit_fields,
+    )?;
+    written.push(p("errors_fit.png"));
+    vector_plot(
+        &p("errors_grid.png"),
+        "step 3, grid: true − target at fresh targets",
+        &[
+            VectorField {
+                label: "full fit",
+                base_mm: &base,
+                error_um: &e_full,
+            },
+            VectorField {
+                label: "full fit + grid (1 round)",
+                base_mm: &base,
+                error_um: &e_grid,
+            },
+            VectorField {
+                label: "full fit + grid (2 rounds)",
+                base_mm: &base,
+                error_um: &e_grid2,
+            },
+        ],
+    )?;
+    written.push(p("errors_grid.png"));
+    vector_plot(
+        &p("errors_final.png"),
+        "after calibration: true − target at fresh targets",
+        &[
+            VectorField {
+                label: "full fit + grid (1 round)",
+                base_mm: &base,
+                error_um: &e_grid,
+            },
+            VectorField {
+                label: "full fit + grid (2 rounds)",
+                base_mm: &base,
+                error_um: &e_grid2,
+            },
+        ],
+    )?;
+    written.push(p("errors_final.png"));
+    let node_base: Vec<[f64; 2]> = cal.grid.nodes.iter().map(|n| n.target_mm).collect();
+    let (node_err1, node_err2) = (
+        measured_error_vectors_um(&registered(&cal.grid_data, &cal.frame)),
+        measured_error_vectors_um(&registered(&cal.grid2_data, &cal.frame)),
+    );
+    vector_plot(
+        &p("grid_nodes.png"),
+        "grid nodes: measured − target",
+        &[
+            VectorField {
+                label: "round 1 (full fit)",
+                base_mm: &node_base,
+                error_um: &node_err1,
+            },
+            VectorField {
+                label: "round 2 (through the round-1 grid)",
+                base_mm: &node_base,
+                error_um: &node_err2,
+            },
+        ],
+    )?;
+    written.push(p("grid_nodes.png"));
+    Ok(written)
+}
