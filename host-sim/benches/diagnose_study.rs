@@ -1,4 +1,4 @@
-//! Studies of `host-sim diagnose` on the synthetic generator (`diagnose::synth`): figures for
+//! Studies of `host-sim diagnose` on the synthetic generator (`synth`): figures for
 //! DIAGNOSIS.md, not pass/fail tests (the tests are `tests/diagnose.rs` and
 //! `tests/diagnose_plant.rs`).
 //!
@@ -16,12 +16,12 @@
 use host_sim::calib::measure::{measure, MeasureOptions};
 use host_sim::calib::protocol::Protocol;
 use host_sim::diagnose::report::table;
-use host_sim::diagnose::synth::{generate, Cyclic, Poses, Truth};
-use host_sim::diagnose::{diagnose, effects::LIBRARY, DiagnoseOptions};
+use host_sim::diagnose::{diagnose, library::LIBRARY, DiagnoseOptions};
 use host_sim::effect::PhysicalEffect;
 use host_sim::io::measurement_csv::format_measurements;
 use host_sim::machine_spec::MachineSpec;
 use host_sim::plant::{PlantConfig, PlantModel};
+use host_sim::synth::{generate, Cyclic, Poses, Truth};
 use kinematics_core::Calibration;
 use kinematics_core::FiveBar;
 use rand::SeedableRng;

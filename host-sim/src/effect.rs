@@ -1,5 +1,5 @@
 //! The physical effects, named once: the plant's settings ([`crate::plant::PlantConfig::with_only`])
-//! and the diagnosis' library ([`crate::diagnose::effects::LIBRARY`]) speak this vocabulary, and
+//! and the diagnosis' library ([`crate::diagnose::library::LIBRARY`]) speak this vocabulary, and
 //! its names are the strings of `diagnose`'s JSON report (a contract: `steps[].effect`,
 //! `confounded`, ...).
 //!
@@ -21,7 +21,7 @@
 //! | [`InstrumentNoise`](PhysicalEffect::InstrumentNoise) | `instrument_noise` | `instrument.noise_sigma_um` | the noise σ |
 //!
 //! Where a change goes: a new effect is a variant here (name, row above), its setting in
-//! `plant/config.rs` if the plant has it, its entry in `diagnose/effects.rs` if the diagnosis
+//! `plant/config.rs` if the plant has it, its entry in `diagnose/library.rs` if the diagnosis
 //! can name it.
 
 use serde::Serialize;

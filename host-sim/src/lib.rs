@@ -11,9 +11,11 @@
 //! | [`machine_spec`] | the machine's constants, once: nominal model, workspace, grid lattice, servo rate |
 //! | [`effect`] | the names of the physical effects, shared by the plant and the diagnosis |
 //! | [`plant`] | the simulated six-bar with its imperfections (the "real machine") |
+//! | [`loop_closure`] | the six-bar's loop closure linearised about a nominal five-bar (diagnosis and grid prior) |
 //! | [`sim`] | trajectories and the closed 2 kHz loop |
 //! | [`calib`] | protocols, the one measurement path, fits, grid, command, accuracy, the demo pipeline |
 //! | [`diagnose`] | where model and measurements disagree, and which effect is missing |
+//! | [`synth`] | measurements of machines with hidden effects, shared by the diagnosis' tests and studies |
 //! | [`numeric`] | the one Levenberg–Marquardt, finite differences, column-scaled SVD, max/RMS |
 //! | [`link`] | the controller's host link: client, streamed motion, calibration upload, telemetry |
 //! | [`io`] | file formats (measurement CSV, model file, targets, plots) and atomic output |
@@ -38,7 +40,10 @@ pub mod diagnose;
 pub mod effect;
 pub mod io;
 pub mod link;
+pub mod loop_closure;
+pub mod machine_ranges;
 pub mod machine_spec;
 pub mod numeric;
 pub mod plant;
 pub mod sim;
+pub mod synth;

@@ -351,6 +351,9 @@ impl MachineSpec {
                 self.min_transmission
             ));
         }
+        // Every number against its physical meaning (approach against the workspace, a stop
+        // margin that leaves a workspace, an instrument's σ, ...).
+        crate::machine_ranges::check(self)?;
         let g = &self.grid;
         let max = usize::from(kinematics_core::grid::MAX_NODES_PER_AXIS);
         if !(2..=max).contains(&g.nx) || !(2..=max).contains(&g.ny) {

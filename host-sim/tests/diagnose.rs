@@ -1,6 +1,6 @@
 //! Tests of `host-sim diagnose` on data whose truth is hidden from the workflow.
 //!
-//! The data come from `host_sim::diagnose::synth`, which measures the six-bar plant through
+//! The data come from `host_sim::synth`, which measures the six-bar plant through
 //! THE measurement path (`calib::measure`, as `host-sim measure`) for every effect the plant has
 //! (link lengths, base offset, encoder offsets, backlash, instrument frame and scale, gear-tooth
 //! cyclic error) and adds independent formulas for the rest (the distal bars' stretch from the
@@ -17,11 +17,11 @@
 //! Cost: each diagnosis is 0.2–1 s in the dev profile.
 
 use host_sim::diagnose::report::{table, Report};
-use host_sim::diagnose::synth::{generate, Cyclic, Poses, Truth};
-use host_sim::diagnose::{effects::LIBRARY, DiagnoseOptions};
+use host_sim::diagnose::{library::LIBRARY, DiagnoseOptions};
 use host_sim::effect::PhysicalEffect;
 use host_sim::io::measurement_csv::{format_measurements, Measurement};
 use host_sim::machine_spec::MachineSpec;
+use host_sim::synth::{generate, Cyclic, Poses, Truth};
 use kinematics_core::FiveBar;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -634,9 +634,10 @@ fn a_weak_drift_on_120_points_at_1_um_names_nothing_on_its_account() {
 /// possibly as its exact twin, a common link change reported confounded).
 #[test]
 fn stretch_and_scale_on_120_points_at_1_um_name_no_base_offset() {
-    use host_sim::diagnose::effects::{Problem, N_PARAMS};
-    use host_sim::diagnose::loop_closure::SixBarDesign;
+    use host_sim::diagnose::forward_model::Problem;
+    use host_sim::diagnose::library::N_PARAMS;
     use host_sim::diagnose::selection::Fitter;
+    use host_sim::loop_closure::SixBarDesign;
     let sigma = 1.0;
     let hidden = ["link_stretch", "scale"];
     let truth = sweep_case_truth(&hidden, 2, sigma);

@@ -410,7 +410,7 @@ fn bad_exports_are_refused_and_nothing_is_written() {
         "--out",
         s(&commanded),
     ];
-    refused(&args, "it is one of the command's inputs", &commanded);
+    refused(&args, "is the file of the input --commanded", &commanded);
     // The same exports with the right options import.
     ok(&[
         "import",

@@ -303,7 +303,7 @@ fn every_output_is_written_only_once_all_are_ready() {
             "--out-model",
             s(&m),
         ],
-        "one of the command's inputs",
+        "is the file of the input --data",
         &[&report],
     );
     assert_eq!(

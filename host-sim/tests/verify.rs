@@ -374,7 +374,7 @@ fn bad_input_is_refused_and_nothing_is_written() {
             "--out",
             s(&rep),
         ],
-        "is one of the inputs",
+        "is the file of the input --after-repeat",
     );
     assert_eq!(
         std::fs::read_to_string(&out).unwrap(),

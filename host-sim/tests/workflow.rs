@@ -371,7 +371,7 @@ fn the_separate_commands_reproduce_the_demo_on_the_paper_machine() {
             "--out",
             s(&d.join("nodes1.bin")),
         ],
-        "one of the command's inputs",
+        "is the file of the input --data",
     );
     assert_eq!(std::fs::read(&g1).unwrap(), before);
     assert!(!d.join("nodes1.bin").exists());

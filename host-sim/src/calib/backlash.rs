@@ -2,7 +2,7 @@
 //!
 //! Backlash is lost motion β_j between motor j's encoder and its link: a motor that last moved
 //! in +θ (dir = +1) drags the link behind it, so the link sits β/2 short of the encoder angle,
-//! `link = encoder − dir·β/2` (the diagnosis' convention, `diagnose/effects.rs`). No grid can
+//! `link = encoder − dir·β/2` (the diagnosis' convention, `diagnose/forward_model.rs`). No grid can
 //! correct it (a grid node is one correction per place, the error flips with the direction);
 //! but the servo knows the direction each motor approaches from, so the command can:
 //! `encoder command = link angle wanted + dir·β/2`.
@@ -23,10 +23,11 @@
 //! `calib::image::append_backlash_block`). Cost: two additions per command.
 
 use super::{invalid, CalibError};
-use crate::diagnose::effects::{effect, idx, Problem, N_PARAMS};
 use crate::diagnose::fit::fit;
-use crate::diagnose::loop_closure::SixBarDesign;
+use crate::diagnose::forward_model::Problem;
+use crate::diagnose::library::{effect, idx, N_PARAMS};
 use crate::io::measurement_csv::Measurement;
+use crate::loop_closure::SixBarDesign;
 use kinematics_core::FiveBar;
 
 /// Largest lost motion accepted (µrad): 0.01 rad; more is not a backlash but a broken drive.

@@ -147,14 +147,17 @@ pub struct Plan {
     pub report: PlanReport,
 }
 
+/// The lists' names (the file stems `plan` writes), in session order.
+pub const LIST_NAMES: [&str; 4] = ["identify", "grid", "verify", "repeat"];
+
 impl Plan {
-    /// The lists by name (the file stems `plan` writes), in session order.
+    /// The lists by name ([`LIST_NAMES`]), in session order.
     pub fn lists(&self) -> [(&'static str, &[Visit]); 4] {
         [
-            ("identify", &self.identify),
-            ("grid", &self.grid),
-            ("verify", &self.verify),
-            ("repeat", &self.repeat),
+            (LIST_NAMES[0], &self.identify),
+            (LIST_NAMES[1], &self.grid),
+            (LIST_NAMES[2], &self.verify),
+            (LIST_NAMES[3], &self.repeat),
         ]
     }
 }

@@ -4,7 +4,8 @@
 use anyhow::{anyhow, Result};
 use host_sim::calib::accuracy::{mean_error_per_target, report};
 use host_sim::io::measurement_csv::read_measurements;
-use host_sim::io::plot::{vector_plot, VectorField};
+use host_sim::io::plot::{vector_plot_png, VectorField};
+use host_sim::io::policy::CommandFiles;
 use host_sim::io::KeyOrder;
 use std::path::PathBuf;
 
@@ -27,6 +28,12 @@ pub struct Args {
 
 /// `host-sim accuracy`.
 pub fn run(args: &Args) -> Result<()> {
+    let mut outputs = CommandFiles::new()
+        .input("--machine", &args.machine.machine)
+        .input("--data", &args.data)
+        .input("--instrument-frame", &args.instrument_frame)
+        .output("--plot", &args.plot)
+        .check()?;
     let spec = args.machine.spec()?;
     let data = super::frame_of(args.instrument_frame.as_deref())?
         .register(&read_measurements(&args.data)?);
@@ -49,15 +56,17 @@ pub fn run(args: &Args) -> Result<()> {
     if let Some(plot) = &args.plot {
         let (base, err): (Vec<[f64; 2]>, Vec<[f64; 2]>) =
             mean_error_per_target(&data).into_iter().unzip();
-        vector_plot(
-            plot,
+        let png = vector_plot_png(
             "mean error at each target",
             &[VectorField {
                 label: "measured − target",
                 base_mm: &base,
                 error_um: &err,
             }],
+            &[],
         )?;
+        outputs.bytes(plot, &png)?;
     }
+    outputs.commit()?;
     super::print_json(&r, KeyOrder::Sorted)
 }

@@ -6,8 +6,8 @@ use host_sim::calib::command::{
     check_grid_model, check_in_workspace, command_all, command_all_compensated, format_commands,
     format_commands_with_dirs,
 };
-use host_sim::io::atomic::write_atomic;
 use host_sim::io::model_file::read_model_file;
+use host_sim::io::policy::CommandFiles;
 use host_sim::io::read_bytes;
 use host_sim::io::targets_csv::read_targets;
 use kinematics_core::{Calibration, CorrectionGrid};
@@ -42,6 +42,13 @@ pub struct Args {
 
 /// `host-sim command`.
 pub fn run(args: &Args) -> Result<()> {
+    let mut outputs = CommandFiles::new()
+        .input("--machine", &args.machine.machine)
+        .input("--model", &args.model)
+        .input("--grid", &args.grid)
+        .input("--targets", &args.targets)
+        .output("--out", &args.out)
+        .check()?;
     let spec = args.machine.spec()?;
     let image = args.grid.as_deref().map(read_bytes).transpose()?;
     let grid = match (&image, &args.grid) {
@@ -99,7 +106,8 @@ pub fn run(args: &Args) -> Result<()> {
             format_commands_with_dirs(&targets, &angles, &dirs)
         }
     };
-    write_atomic(&args.out, text.as_bytes())?;
+    outputs.bytes(&args.out, text.as_bytes())?;
+    outputs.commit()?;
     eprintln!(
         "command: {} targets -> {}",
         targets.len(),

@@ -11,7 +11,7 @@ use host_sim::calib::machine::{check_plant_fits, Machine, PlantMachine, StandInM
 use host_sim::calib::pipeline::{
     calibrate, summary, write_outputs, Approach, Calibrated, Event, PipelineOptions,
 };
-use host_sim::io::atomic::write_atomic;
+use host_sim::io::policy::CommandFiles;
 use host_sim::io::{json_text, KeyOrder};
 use std::path::PathBuf;
 use std::time::Instant;
@@ -97,6 +97,12 @@ fn format_table(cal: &Calibrated) -> String {
 
 /// `host-sim demo`.
 pub fn run(args: &Args) -> Result<()> {
+    // Every file of the directory staged, then renamed together once all are ready.
+    let mut outputs = CommandFiles::new()
+        .input("--machine", &args.machine.machine)
+        .input("--plant", super::plant_file(&args.plant))
+        .output_dir("--out", &args.out, &host_sim::calib::pipeline::FILES)
+        .check()?;
     let mut spec = args.machine.spec()?;
     let noise_um = args.noise_um.unwrap_or(spec.instrument_sigma_um);
     super::check_noise_um(Some(noise_um))?;
@@ -146,11 +152,12 @@ pub fn run(args: &Args) -> Result<()> {
             args.out.display()
         ),
     );
-    let mut files = write_outputs(&cal, &args.out)?;
+    let mut files = write_outputs(&cal, &args.out, &mut outputs)?;
     files.push(args.out.join("summary.json"));
     let summary = summary(&cal, args.seed, &args.out, &files);
     let text = json_text(&summary, KeyOrder::Sorted)?;
-    write_atomic(&args.out.join("summary.json"), text.as_bytes())?;
+    outputs.bytes(&args.out.join("summary.json"), text.as_bytes())?;
+    outputs.commit()?;
     progress(&start, "files written");
     eprintln!("\n{}", format_table(&cal));
     eprintln!(

@@ -3,14 +3,14 @@
 
 use anyhow::{bail, Context, Result};
 use host_sim::calib::frame::{machine_frame_gauge, InstrumentFrame};
-use host_sim::diagnose::loop_closure::SixBarDesign;
 use host_sim::diagnose::model_out::extended_model;
 use host_sim::diagnose::plots::write_plots;
-use host_sim::diagnose::{diagnose_with_history, report, DiagnoseOptions};
-use host_sim::io::atomic::Outputs;
+use host_sim::diagnose::{diagnose_with_plot_data, report, DiagnoseOptions};
 use host_sim::io::measurement_csv::read_measurements;
 use host_sim::io::model_file::{model_file_text, read_model, read_model_file};
+use host_sim::io::policy::CommandFiles;
 use host_sim::io::{json_text, KeyOrder};
+use host_sim::loop_closure::SixBarDesign;
 use std::path::PathBuf;
 
 /// Command-line arguments of `host-sim diagnose`.
@@ -42,6 +42,16 @@ pub struct Args {
 
 /// `host-sim diagnose`.
 pub fn run(args: &Args) -> Result<()> {
+    // The report, the extended model and the plots staged, then renamed together; none may
+    // be an input or another's file.
+    let mut outputs = CommandFiles::new()
+        .input("--machine", &args.machine.machine)
+        .input("--data", &args.data)
+        .input("--model", &args.model)
+        .output("--out", &args.out)
+        .output("--out-model", &args.out_model)
+        .output_dir::<&str>("--plots", &args.plots, &[])
+        .check()?;
     let spec = args.machine.spec()?;
     let base = match &args.model {
         Some(p) => read_model(p)?,
@@ -65,7 +75,7 @@ pub fn run(args: &Args) -> Result<()> {
             bail!("--noise-um {s}: must be a positive number of micrometres");
         }
     }
-    let (report, history) = diagnose_with_history(
+    let (report, plot_data) = diagnose_with_plot_data(
         &data,
         &DiagnoseOptions {
             base,
@@ -105,11 +115,6 @@ pub fn run(args: &Args) -> Result<()> {
         }
         Ok::<_, host_sim::io::IoError>(file)
     };
-    // The report and the extended model staged, then renamed together (io::atomic); neither
-    // may overwrite the measurements or the model read.
-    let mut inputs = vec![args.data.as_path()];
-    inputs.extend(args.model.as_deref());
-    let mut outputs = Outputs::protecting(&inputs);
     outputs.bytes(
         &args.out,
         json_text(&report, KeyOrder::Declared)?.as_bytes(),
@@ -117,12 +122,12 @@ pub fn run(args: &Args) -> Result<()> {
     if let (Some(path), Some(e)) = (&args.out_model, &extended) {
         outputs.bytes(path, model_file_text(&registered_file(e)?)?.as_bytes())?;
     }
+    if let Some(dir) = &args.plots {
+        write_plots(&mut outputs, dir, &data, &report, &plot_data)?;
+    }
     outputs.commit()?;
     if let Some(path) = &args.out_model {
         eprintln!("diagnose: extended model -> {}", path.display());
-    }
-    if let Some(dir) = &args.plots {
-        write_plots(dir, &data, &report, &history)?;
     }
     Ok(())
 }

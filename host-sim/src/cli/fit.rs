@@ -9,10 +9,10 @@ use host_sim::calib::fit::evaluate::{self, Criterion};
 use host_sim::calib::fit::subset_search::{Progress, Stage};
 use host_sim::calib::fit::{check_data, fit, params, FitOptions, FrameMode, Method, Points};
 use host_sim::calib::CalibError;
-use host_sim::io::atomic::Outputs;
 use host_sim::io::measurement_csv::{read_measurements, Measurement};
 use host_sim::io::model_file::{model_file_text, ModelFile};
 use host_sim::io::plot::{vector_plot_png, VectorField};
+use host_sim::io::policy::CommandFiles;
 use host_sim::io::KeyOrder;
 use host_sim::machine_spec::MachineSpec;
 use kinematics_core::FiveBar;
@@ -238,6 +238,12 @@ fn print_blunders(b: &BlunderReport) {
 
 /// `host-sim fit`.
 pub fn run(args: &Args) -> Result<()> {
+    let mut outputs = CommandFiles::new()
+        .input("--machine", &args.machine.machine)
+        .input("--data", &args.data)
+        .output("--out", &args.out)
+        .output("--plot", &args.plot)
+        .check()?;
     let spec = args.machine.spec()?;
     let data = read_measurements(&args.data)?;
     let criterion = match args.criterion {
@@ -285,7 +291,6 @@ pub fn run(args: &Args) -> Result<()> {
         }
     }
     // Every output staged, then renamed together: a bad --plot path leaves no model.json.
-    let mut outputs = Outputs::new();
     let mut file = ModelFile::from_model(&outcome.model);
     file.std_dev = outcome.std_dev.clone();
     file.fit = Some(serde_json::to_value(&outcome.summary)?);

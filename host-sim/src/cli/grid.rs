@@ -6,11 +6,11 @@ use host_sim::calib::grid::{build_with, format_csv, GridOptions, NoiseReport, Sm
 use host_sim::calib::image::{
     append_backlash_block, append_dynamics_block, finish_image, WorkspaceBlock,
 };
-use host_sim::io::atomic::Outputs;
 use host_sim::io::dynamics_file::read_dynamics;
 use host_sim::io::measurement_csv::read_measurements;
 use host_sim::io::model_file::read_model_file;
 use host_sim::io::plot::{vector_plot_png, VectorField};
+use host_sim::io::policy::CommandFiles;
 use host_sim::io::KeyOrder;
 use serde::Serialize;
 use std::path::PathBuf;
@@ -98,6 +98,25 @@ struct Summary {
 
 /// `host-sim grid`.
 pub fn run(args: &Args) -> Result<()> {
+    let csv = args
+        .csv
+        .clone()
+        .unwrap_or_else(|| args.out.with_extension("csv"));
+    let csv_flag = if args.csv.is_some() {
+        "--csv"
+    } else {
+        "--csv (by default --out with .csv)"
+    };
+    // Every output staged, then renamed together: a bad --out leaves no node table or plot.
+    let mut outputs = CommandFiles::new()
+        .input("--machine", &args.machine.machine)
+        .input("--model", &args.model)
+        .repeats("--data", &args.data)
+        .input("--dynamics", &args.dynamics)
+        .output("--out", &args.out)
+        .output(csv_flag, &csv)
+        .output("--plot", &args.plot)
+        .check()?;
     let spec = args.machine.spec()?;
     let step_mm = args.step_mm.unwrap_or(spec.grid.step_mm);
     if !(step_mm > 0.0 && step_mm.is_finite()) {
@@ -119,13 +138,7 @@ pub fn run(args: &Args) -> Result<()> {
         .frame()
         .map_err(|e| anyhow::anyhow!("{}: {e}", args.model.display()))?;
     let mut data = Vec::new();
-    for (k, path) in args.data.iter().enumerate() {
-        if args.data[..k].contains(path) {
-            bail!(
-                "--data names {} twice: its readings would count as repeats",
-                path.display()
-            );
-        }
+    for path in &args.data {
         let rows = frame.register(&read_measurements(path)?);
         data.extend(match &backlash {
             Some(b) => b
@@ -171,18 +184,6 @@ pub fn run(args: &Args) -> Result<()> {
             spec.name
         );
     }
-    let csv = args
-        .csv
-        .clone()
-        .unwrap_or_else(|| args.out.with_extension("csv"));
-    if csv == args.out {
-        bail!("the node table would overwrite the image: give --csv");
-    }
-    // Every output staged, then renamed together: a bad --out leaves no node table or plot.
-    let mut inputs: Vec<&std::path::Path> = args.data.iter().map(PathBuf::as_path).collect();
-    inputs.push(&args.model);
-    inputs.extend(args.dynamics.as_deref());
-    let mut outputs = Outputs::protecting(&inputs);
     outputs.bytes(&args.out, &image)?;
     outputs.bytes(&csv, format_csv(&built.nodes).as_bytes())?;
     if let Some(plot) = &args.plot {

@@ -5,9 +5,9 @@
 
 use anyhow::{bail, Context, Result};
 use host_sim::calib::import::{import, ImportOptions, Missing, Unlisted};
-use host_sim::io::atomic::Outputs;
 use host_sim::io::commanded_csv::read_commanded;
 use host_sim::io::measurement_csv::format_measurements;
+use host_sim::io::policy::CommandFiles;
 use host_sim::io::targets_csv::read_target_list;
 use host_sim::io::tracker_export::{parse_export_with, ColumnMap, ExportFormat, LengthUnit};
 use host_sim::io::{json_text, read_text, IoError, KeyOrder};
@@ -74,6 +74,14 @@ pub struct Args {
 
 /// `host-sim import`.
 pub fn run(args: &Args) -> Result<()> {
+    // The measurement CSV and the report together, or neither; never over an input.
+    let mut out = CommandFiles::new()
+        .input("--export", &args.export)
+        .input("--commanded", &args.commanded)
+        .input("--plan", &args.plan)
+        .output("--out", &args.out)
+        .output("--report", &args.report)
+        .check()?;
     let map = ColumnMap::parse(&args.map).context("--map")?;
     if let Some(t) = args.z_tolerance_mm {
         if !(t > 0.0 && t.is_finite()) {
@@ -119,10 +127,6 @@ pub fn run(args: &Args) -> Result<()> {
     })?;
     let report = &imported.report;
     let text = json_text(report, KeyOrder::Sorted)?;
-    // The measurement CSV and the report together, or neither; never over an input.
-    let mut inputs = vec![args.export.as_path(), args.commanded.as_path()];
-    inputs.extend(args.plan.as_deref());
-    let mut out = Outputs::protecting(&inputs);
     out.bytes(&args.out, format_measurements(&imported.rows).as_bytes())?;
     if let Some(p) = &args.report {
         out.bytes(p, text.as_bytes())?;

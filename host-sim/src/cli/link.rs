@@ -12,7 +12,8 @@ use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
-use host_sim::io::atomic::write_atomic;
+use host_sim::io::atomic::Outputs;
+use host_sim::io::policy::CommandFiles;
 use host_sim::io::KeyOrder;
 use host_sim::link::link_protocol::{Command, ModeCode, Response, StatusReport, TelemetrySample};
 use host_sim::link::{
@@ -183,12 +184,22 @@ pub fn run(args: &Args) -> Result<()> {
         );
     }
     let timeout = Duration::from_secs_f64(args.timeout_s);
+    // The files an action reads and writes, checked before the link is opened.
+    let files = match &args.action {
+        Action::Upload { grid } => CommandFiles::new().input("--grid", grid),
+        Action::Telemetry { csv, .. } => CommandFiles::new().output("--csv", csv),
+        Action::Stream(a) => CommandFiles::new()
+            .input("--file", &a.file)
+            .output("--telemetry-csv", &a.telemetry_csv),
+        _ => CommandFiles::new(),
+    };
+    let mut outputs = files.check()?;
     match (&args.tcp, &args.serial) {
         (Some(_), _) if args.baud.is_some() => bail!("--baud applies to --serial only"),
         (Some(addr), None) => {
             let mut client = LinkClient::connect_tcp(addr, timeout)
                 .with_context(|| format!("connecting to {addr}"))?;
-            act(&mut client, &args.action, timeout)
+            act(&mut client, &args.action, timeout, &mut outputs)
         }
         (None, Some(path)) => {
             let baud = args.baud.unwrap_or(DEFAULT_BAUD);
@@ -198,7 +209,7 @@ pub fn run(args: &Args) -> Result<()> {
             let mut client = LinkClient::open_serial(path, baud, timeout).with_context(|| {
                 format!("opening the serial port {} at {baud} Bd", path.display())
             })?;
-            act(&mut client, &args.action, timeout)
+            act(&mut client, &args.action, timeout, &mut outputs)
         }
         // clap's `transport` group enforces exactly one of them.
         _ => bail!("give either --tcp HOST:PORT or --serial PATH"),
@@ -210,6 +221,7 @@ fn act<S: Read + Write>(
     client: &mut LinkClient<S>,
     action: &Action,
     timeout: Duration,
+    outputs: &mut Outputs,
 ) -> Result<()> {
     let done = |what| super::print_json(&Done { done: what }, KeyOrder::Sorted);
     match action {
@@ -276,7 +288,7 @@ fn act<S: Read + Write>(
             )?;
             super::print_json(&s, KeyOrder::Sorted)
         }
-        Action::Stream(a) => stream(client, a, timeout),
+        Action::Stream(a) => stream(client, a, timeout, outputs),
         Action::Upload { grid } => {
             let image =
                 std::fs::read(grid).with_context(|| format!("cannot read {}", grid.display()))?;
@@ -315,7 +327,8 @@ fn act<S: Read + Write>(
             client.listen(Duration::from_secs_f64(*seconds))?;
             request(client, Command::Telemetry { decimation: 0 })?;
             let samples = client.take_telemetry();
-            write_atomic(csv, telemetry_csv(&samples).as_bytes())?;
+            outputs.bytes(csv, telemetry_csv(&samples).as_bytes())?;
+            std::mem::take(outputs).commit()?;
             #[derive(Serialize)]
             struct Recorded {
                 samples: usize,
@@ -379,6 +392,7 @@ fn stream<S: Read + Write>(
     client: &mut LinkClient<S>,
     a: &StreamArgs,
     timeout: Duration,
+    outputs: &mut Outputs,
 ) -> Result<()> {
     let knots = match (&a.file, a.seconds) {
         (Some(f), _) => parse_knots_csv(
@@ -431,8 +445,9 @@ fn stream<S: Read + Write>(
         .map(|t| f64::from(t.following_error_rad))
         .fold(0.0, f64::max);
     if let Some(csv) = &a.telemetry_csv {
-        write_atomic(csv, telemetry_csv(&samples).as_bytes())?;
+        outputs.bytes(csv, telemetry_csv(&samples).as_bytes())?;
     }
+    std::mem::take(outputs).commit()?;
     let report = StreamReport {
         knots_sent: send,
         knots_total: total,

@@ -11,8 +11,9 @@ use host_sim::calib::measure::{
 };
 use host_sim::calib::plan::visits_from_rows;
 use host_sim::calib::protocol::{visits, Protocol};
-use host_sim::io::measurement_csv::write_measurements;
+use host_sim::io::measurement_csv::format_measurements;
 use host_sim::io::model_file::read_model_file;
+use host_sim::io::policy::CommandFiles;
 use host_sim::io::targets_csv::read_target_list;
 use host_sim::io::KeyOrder;
 use host_sim::plant::PlantConfig;
@@ -96,6 +97,15 @@ struct Summary {
 }
 
 pub fn run(args: &Args) -> Result<()> {
+    let mut outputs = CommandFiles::new()
+        .input("--machine", &args.machine.machine)
+        .input("--plant", super::plant_file(&args.plant))
+        .input("--targets", &args.targets)
+        .input("--model", &args.model)
+        .input("--grid", &args.grid)
+        .input("--instrument-frame", &args.instrument_frame)
+        .output("--out", &args.out)
+        .check()?;
     let spec = args.machine.spec()?;
     let plant = PlantConfig::by_name(&args.plant)?;
     check_plant_fits(&plant, &spec)?;
@@ -138,7 +148,8 @@ pub fn run(args: &Args) -> Result<()> {
         args.seed,
         &spec,
     )?;
-    write_measurements(&args.out, &rows(&landed))?;
+    outputs.bytes(&args.out, format_measurements(&rows(&landed)).as_bytes())?;
+    outputs.commit()?;
     eprintln!(
         "measure: {} measurements written to {}",
         landed.len(),

@@ -106,6 +106,15 @@ impl MachineArg {
     }
 }
 
+/// The plant file `--plant NAME` reads, if it names one (`ideal` and `paper` are built in):
+/// an input of the command (`host_sim::io::policy`).
+fn plant_file(name: &str) -> Option<PathBuf> {
+    match name {
+        "ideal" | "paper" | "stand-in" => None,
+        path => Some(PathBuf::from(path)),
+    }
+}
+
 /// Prints a JSON document on stdout (one document, pretty, final newline).
 fn print_json(value: &impl serde::Serialize, order: KeyOrder) -> Result<()> {
     use std::io::Write as _;

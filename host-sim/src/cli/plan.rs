@@ -7,7 +7,7 @@
 use super::MachineArg;
 use anyhow::{Context, Result};
 use host_sim::calib::plan::{list_rows, plan, PlanOptions, Selection};
-use host_sim::io::atomic::write_atomic;
+use host_sim::io::policy::CommandFiles;
 use host_sim::io::targets_csv::format_target_list;
 use host_sim::io::{json_text, KeyOrder};
 use std::path::PathBuf;
@@ -48,6 +48,15 @@ pub struct Args {
 
 /// `host-sim plan`.
 pub fn run(args: &Args) -> Result<()> {
+    let names: Vec<String> = host_sim::calib::plan::LIST_NAMES
+        .iter()
+        .map(|n| format!("{n}.csv"))
+        .chain(["plan.json".to_string()])
+        .collect();
+    let mut outputs = CommandFiles::new()
+        .input("--machine", &args.machine.machine)
+        .output_dir("--out", &args.out, &names)
+        .check()?;
     let spec = args.machine.spec()?;
     let mut opts = PlanOptions::new(spec, args.seed);
     opts.identification_poses = args.identification_poses;
@@ -60,7 +69,7 @@ pub fn run(args: &Args) -> Result<()> {
     };
     opts.verify_targets = args.verify_targets;
     let p = plan(&opts).context("planning")?;
-    // Every file is ready before the first is written.
+    // Every file staged, then renamed together: a file that cannot be written leaves none.
     let mut files: Vec<(PathBuf, String)> = p
         .lists()
         .iter()
@@ -74,8 +83,9 @@ pub fn run(args: &Args) -> Result<()> {
     let report = json_text(&p.report, KeyOrder::Sorted)?;
     files.push((args.out.join("plan.json"), report.clone()));
     for (path, text) in &files {
-        write_atomic(path, text.as_bytes())?;
+        outputs.bytes(path, text.as_bytes())?;
     }
+    outputs.commit()?;
     let id = &p.report.identification;
     eprintln!(
         "plan: {} identification poses ({:?} of {}): condition number {:.1} (random poses of the same count {:.1}), observability O1 {:.3} ({:.3})",

@@ -11,9 +11,9 @@
 
 use anyhow::{bail, Result};
 use host_sim::calib::dynamics::identify;
-use host_sim::io::atomic::Outputs;
 use host_sim::io::dynamics_file::read_dynamics;
 use host_sim::io::plot::{xy_plot_png, Mark, Series};
+use host_sim::io::policy::CommandFiles;
 use host_sim::io::KeyOrder;
 use host_sim::plant::{PlantConfig, PlantModel};
 use host_sim::sim::closed_loop::{FeedForward, LoopSummary};
@@ -80,6 +80,16 @@ struct Output<'a> {
 }
 
 pub fn run(args: &Args) -> Result<()> {
+    // Both outputs staged, then renamed together; neither onto an input.
+    let mut outputs = CommandFiles::new()
+        .input("--machine", &args.machine.machine)
+        .input("--plant", super::plant_file(&args.plant))
+        .input("--model", &args.model)
+        .input("--grid", &args.grid)
+        .input("--dynamics", &args.dynamics)
+        .output("--log", &args.log)
+        .output("--plot", &args.plot)
+        .check()?;
     let spec = args.machine.spec()?;
     let mut cfg = PlantConfig::by_name(&args.plant)?;
     host_sim::calib::machine::check_plant_fits(&cfg, &spec)?;
@@ -150,8 +160,6 @@ pub fn run(args: &Args) -> Result<()> {
         feedforward,
     };
     let run = simulate(&cfg, &cal, &trajectory, &opts)?;
-    // Both outputs staged, then renamed together.
-    let mut outputs = Outputs::new();
     if let Some(p) = &args.log {
         outputs.bytes(p, format_log(&run.log).as_bytes())?;
     }

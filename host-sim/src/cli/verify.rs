@@ -6,8 +6,8 @@
 use super::MachineArg;
 use anyhow::{anyhow, bail, Context, Result};
 use host_sim::calib::verify::{html, verify, StageData, VerifyOptions};
-use host_sim::io::atomic::write_atomic;
 use host_sim::io::measurement_csv::read_measurements;
+use host_sim::io::policy::CommandFiles;
 use host_sim::io::{json_text, KeyOrder};
 use std::path::{Path, PathBuf};
 
@@ -53,24 +53,17 @@ fn read(
 
 /// `host-sim verify`.
 pub fn run(args: &Args) -> Result<()> {
+    let mut outputs = CommandFiles::new()
+        .input("--machine", &args.machine.machine)
+        .input("--after-verify", &args.after_verify)
+        .input("--after-repeat", &args.after_repeat)
+        .input("--before-verify", &args.before_verify)
+        .input("--before-repeat", &args.before_repeat)
+        .input("--instrument-frame", &args.instrument_frame)
+        .output("--out", &args.out)
+        .output("--json", &args.json)
+        .check()?;
     let spec = args.machine.spec()?;
-    let mut outs = vec![&args.out];
-    outs.extend(&args.json);
-    let inputs: Vec<&PathBuf> = [
-        Some(&args.after_verify),
-        Some(&args.after_repeat),
-        args.before_verify.as_ref(),
-        args.before_repeat.as_ref(),
-    ]
-    .into_iter()
-    .flatten()
-    .collect();
-    if let Some(clash) = outs.iter().find(|o| inputs.contains(o)) {
-        bail!("the output {} is one of the inputs", clash.display());
-    }
-    if args.json.as_ref() == Some(&args.out) {
-        bail!("--out and --json name the same file");
-    }
     let frame = super::frame_of(args.instrument_frame.as_deref())?;
     let after = StageData {
         verify: read(&args.after_verify, &frame)?,
@@ -118,11 +111,12 @@ pub fn run(args: &Args) -> Result<()> {
     }
     let page = html::render(&report, &spec, &listed).context("rendering the report")?;
     let json = json_text(&report, KeyOrder::Sorted)?;
-    // Everything is ready: write.
-    write_atomic(&args.out, page.as_bytes())?;
+    // Both staged, then renamed together: a --json that cannot be written leaves no page.
+    outputs.bytes(&args.out, page.as_bytes())?;
     if let Some(j) = &args.json {
-        write_atomic(j, json.as_bytes())?;
+        outputs.bytes(j, json.as_bytes())?;
     }
+    outputs.commit()?;
     for s in &report.stages {
         let p = &s.position;
         eprintln!(

@@ -14,9 +14,10 @@
 //! Cost: one Jacobian over all library parameters (≤ 37 residual evaluations) and a few thin
 //! SVDs of n×≤18 matrices.
 
-use super::effects::PARAM_NAMES;
-use super::effects::{Effect, Problem};
 use super::fit::{jacobian, Fit};
+use super::forward_model::Problem;
+use super::library::{Effect, PARAM_NAMES};
+use crate::numeric::subspace::{max_cos, orthonormal_basis, project_out};
 use nalgebra::{DMatrix, DVector};
 use serde::Serialize;
 
@@ -78,35 +79,12 @@ pub fn separating_measurement(a: &str, b: &str) -> String {
     }
 }
 
-fn orthonormal_basis(m: &DMatrix<f64>) -> DMatrix<f64> {
-    if m.ncols() == 0 {
-        return m.clone();
-    }
-    let svd = m.clone().svd(true, false);
-    let Some(u) = svd.u else {
-        return DMatrix::zeros(m.nrows(), 0);
-    };
-    let smax = svd.singular_values.max();
-    let keep: Vec<usize> = (0..svd.singular_values.len())
-        .filter(|&i| svd.singular_values[i] > 1e-9 * smax.max(1e-300))
-        .collect();
-    DMatrix::from_fn(m.nrows(), keep.len(), |r, c| u[(r, keep[c])])
-}
-
 fn columns(j: &DMatrix<f64>, all: &[usize], params: &[usize]) -> DMatrix<f64> {
     let idx: Vec<usize> = params
         .iter()
         .filter_map(|p| all.iter().position(|q| q == p))
         .collect();
     DMatrix::from_fn(j.nrows(), idx.len(), |r, c| j[(r, idx[c])])
-}
-
-/// Projects the columns of `m` onto the orthogonal complement of the orthonormal basis `q`.
-fn project_out(m: &DMatrix<f64>, q: &DMatrix<f64>) -> DMatrix<f64> {
-    if q.ncols() == 0 {
-        return m.clone();
-    }
-    m - q * (q.transpose() * m)
 }
 
 /// Zeroes the columns that the projection reduced to rounding (< 1e-4 of their norm before):
@@ -118,15 +96,6 @@ fn drop_vanished(mut projected: DMatrix<f64>, before: &DMatrix<f64>) -> DMatrix<
         }
     }
     projected
-}
-
-/// Cosine of the smallest principal angle between the column spaces of `a` and `b`.
-pub fn max_cos(a: &DMatrix<f64>, b: &DMatrix<f64>) -> f64 {
-    let (qa, qb) = (orthonormal_basis(a), orthonormal_basis(b));
-    if qa.ncols() == 0 || qb.ncols() == 0 {
-        return 0.0;
-    }
-    (qa.transpose() * qb).singular_values().max().min(1.0)
 }
 
 /// For each effect E of the final model and each other available candidate C: can C (with the

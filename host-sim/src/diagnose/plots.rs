@@ -1,27 +1,63 @@
 //! The diagnosis' plots (`host-sim diagnose --plots DIR`): the residual field before and after
 //! each step (one scale per step), and the final residual against configuration, direction and
-//! time. Written atomically (`crate::io::plot`). Cost: a few tenths of a second per plot.
+//! time. Staged with the command's other outputs (`crate::io::atomic::Outputs`). Cost: a few
+//! tenths of a second per plot.
 
+use super::forward_model::Problem;
 use super::report::Report;
-use super::{structure, History};
+use super::structure;
+use crate::io::atomic::Outputs;
 use crate::io::measurement_csv::Measurement;
-use crate::io::plot::{vector_plot, xy_plot, Mark, Series, VectorField};
+use crate::io::plot::{vector_plot_png, xy_plot_png, Mark, Series, VectorField};
 use crate::io::IoError;
 use std::path::Path;
 
-/// Residual plots: the field before/after each step (one scale per step), and the final
-/// residual against configuration and time.
+/// What the plots draw: the residual field of the start and after each step of the gap-shrink
+/// table, at the measured points.
+pub struct ResidualPlotData {
+    /// Where each point was measured (mm).
+    pub base_mm: Vec<[f64; 2]>,
+    /// (label, residual µm per point): "start", then one per step.
+    pub fields: Vec<(String, Vec<[f64; 2]>)>,
+    /// The diagnosed problem (its points' angles, directions and times).
+    pub problem: Problem,
+}
+
 /// A plot's file name, axis label and x value of point i.
 type Abscissa<'a> = (&'a str, &'a str, Box<dyn Fn(usize) -> f64 + 'a>);
 
-/// Writes every plot into `dir`.
+/// A vector plot staged in the command's outputs.
+fn vector_plot(
+    out: &mut Outputs,
+    path: &Path,
+    title: &str,
+    fields: &[VectorField<'_>],
+) -> Result<(), IoError> {
+    out.bytes(path, &vector_plot_png(title, fields, &[])?)
+}
+
+/// An x-y plot staged in the command's outputs.
+fn xy_plot(
+    out: &mut Outputs,
+    path: &Path,
+    title: &str,
+    x_label: &str,
+    y_label: &str,
+    series: &[Series<'_>],
+) -> Result<(), IoError> {
+    out.bytes(path, &xy_plot_png(title, x_label, y_label, series)?)
+}
+
+/// Stages every plot into `dir` in `out` (written with the command's other outputs, or none).
 pub fn write_plots(
+    out: &mut Outputs,
     dir: &Path,
     data: &[Measurement],
     report: &Report,
-    h: &History,
+    h: &ResidualPlotData,
 ) -> Result<(), IoError> {
     vector_plot(
+        out,
         &dir.join("residual_start.png"),
         "residual of the starting model",
         &[VectorField {
@@ -33,6 +69,7 @@ pub fn write_plots(
     for k in 1..h.fields.len() {
         let name = &report.steps[k - 1].effect;
         vector_plot(
+            out,
             &dir.join(format!("residual_step{k}_{name}.png")),
             &format!("step {k}: {name}"),
             &[
@@ -81,6 +118,7 @@ pub fn write_plots(
         let a = radial(first, f.as_ref());
         let b = radial(last, f.as_ref());
         xy_plot(
+            out,
             &dir.join(format!("residual_vs_{file}.png")),
             &format!("radial residual vs {label}"),
             label,
@@ -109,6 +147,7 @@ pub fn write_plots(
             .map(|(i, d)| [pts[i].theta_rad[j].to_degrees(), d[j]])
             .collect();
         xy_plot(
+            out,
             &dir.join(format!("final_joint_residual_motor{}.png", j + 1)),
             &format!(
                 "final residual in joint space, motor {} vs its angle",
@@ -138,6 +177,7 @@ pub fn write_plots(
             .map(|(i, e)| [pts[i].theta_rad[0].to_degrees(), e[0].hypot(e[1])])
             .collect();
         xy_plot(
+            out,
             &dir.join("final_residual_by_direction.png"),
             "final radial residual by approach direction of motor 1",
             "θ1 (deg)",
@@ -170,6 +210,7 @@ pub fn write_plots(
                 .map(|(e, t)| [*t, e[0].hypot(e[1])])
                 .collect();
             xy_plot(
+                out,
                 &dir.join("final_residual_vs_time.png"),
                 "final radial residual vs time",
                 "t (s)",

@@ -214,11 +214,11 @@ pub fn table(r: &Report) -> String {
         ));
     }
     for a in &r.ambiguous {
-        let why = if a.delta_bic < super::selection::AMBIGUOUS_MARGIN {
+        let why = if a.delta_bic < super::ambiguity::AMBIGUOUS_MARGIN {
             format!(
                 "swapping them changes the BIC by {:+.1}, less than the {} an effect needs",
                 a.delta_bic,
-                super::selection::AMBIGUOUS_MARGIN
+                super::ambiguity::AMBIGUOUS_MARGIN
             )
         } else {
             format!(
@@ -240,7 +240,7 @@ pub fn table(r: &Report) -> String {
             a.effects.join(" + "),
             a.alternatives.join(" + "),
             a.delta_bic,
-            super::selection::AMBIGUOUS_MARGIN,
+            super::ambiguity::AMBIGUOUS_MARGIN,
             a.delta_cv_rss_um2.map(|d| format!("; cross-validated RSS {d:+.1} µm²")).unwrap_or_default()
         ));
     }

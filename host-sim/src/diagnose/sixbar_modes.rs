@@ -1,5 +1,5 @@
 //! The six-bar's own effects as a few basis functions over the measured poses: the
-//! linearised loop closure's responses ([`super::loop_closure`]) reduced by SVD to what the
+//! linearised loop closure's responses ([`crate::loop_closure`]) reduced by SVD to what the
 //! five-bar's constant parameters cannot do.
 //!
 //! * **`parallelogram_mismatch`**: the tool displacement the loops cause per µm of each raw
@@ -26,12 +26,13 @@
 //!
 //! For "add it to the model" each mode is also kept as the raw-error combination it stands for
 //! (and, for the mismatch, the five-bar parameter change its projection subtracted), so a fitted
-//! amplitude becomes effective six-bar errors that [`super::loop_closure::response`] evaluates
+//! amplitude becomes effective six-bar errors that [`crate::loop_closure::response`] evaluates
 //! at any configuration.
 //!
 //! Cost: one loop-closure response per point (a few µs) and three thin SVDs of 2n × 24.
 
-use super::loop_closure::{response, Response, SixBarDesign, N_RAW};
+use crate::loop_closure::{response, Response, SixBarDesign, N_RAW};
+use crate::numeric::subspace::orthonormal_basis;
 use kinematics_core::FiveBar;
 use nalgebra::DMatrix;
 
@@ -72,20 +73,6 @@ pub fn responses(
         .collect()
 }
 
-/// An orthonormal basis of the column space of `a` (SVD, relative tolerance 1e-9).
-fn column_basis(a: &DMatrix<f64>) -> DMatrix<f64> {
-    if a.ncols() == 0 {
-        return DMatrix::zeros(a.nrows(), 0);
-    }
-    let svd = a.clone().svd(true, false);
-    let u = svd.u.expect("u requested");
-    let smax = svd.singular_values.max();
-    let keep: Vec<usize> = (0..svd.singular_values.len())
-        .filter(|&i| svd.singular_values[i] > 1e-9 * smax)
-        .collect();
-    DMatrix::from_fn(a.nrows(), keep.len(), |r, c| u[(r, keep[c])])
-}
-
 /// Computes the modes. `five_bar` is the 2n × k matrix of the tool displacement per unit of
 /// each five-bar parameter listed in `five_bar_params` (x, y interleaved per point); responses
 /// must all be present. `Err` says why the modes do not exist on these poses.
@@ -112,7 +99,7 @@ pub fn modes(
             mism[(2 * i + 1, raw)] = r.tool[raw][1] - s0[1] - s1[1];
         }
     }
-    let q = column_basis(five_bar);
+    let q = orthonormal_basis(five_bar);
     let projected = &mism - &q * (q.transpose() * &mism);
     let svd = projected.clone().svd(true, true);
     let (u, vt) = (svd.u.expect("u requested"), svd.v_t.expect("v requested"));

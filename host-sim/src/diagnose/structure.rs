@@ -15,7 +15,7 @@
 //!
 //! Cost: the periodogram is 2 × 359 small (3×3) least-squares solves over n points: O(700 n).
 
-use super::effects::Problem;
+use super::forward_model::Problem;
 use crate::io::measurement_csv::Measurement;
 use nalgebra::{DMatrix, DVector};
 use serde::Serialize;
@@ -335,11 +335,7 @@ mod tests {
                 });
             }
         }
-        let p = Problem::new(
-            nominal,
-            &crate::diagnose::loop_closure::SixBarDesign::paper(),
-            &data,
-        );
+        let p = Problem::new(nominal, &crate::loop_closure::SixBarDesign::paper(), &data);
         (nominal, data, p)
     }
 
@@ -348,7 +344,7 @@ mod tests {
     fn residual(
         nominal: &FiveBar<f64>,
         p: &Problem,
-        dth_urad: impl Fn(usize, &crate::diagnose::effects::Point) -> [f64; 2],
+        dth_urad: impl Fn(usize, &crate::diagnose::forward_model::Point) -> [f64; 2],
     ) -> Vec<f64> {
         let mut r = Vec::new();
         for (k, q) in p.points.iter().enumerate() {

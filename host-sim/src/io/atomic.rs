@@ -8,6 +8,10 @@
 //!   node), and a symbolic link would be replaced rather than followed.
 //! * **Each file atomically:** the bytes go to a temporary file in the destination's
 //!   directory, which is renamed over the destination only once complete.
+//! * **Never onto an input, never two outputs in one file:** the set made by
+//!   [`CommandFiles::check`](super::policy::CommandFiles::check) knows the command's inputs
+//!   and checks every staged file against them and the files staged before, by identity
+//!   (`super::policy`).
 //! * **A command's files together:** [`Outputs`] stages every file of a command (each
 //!   destination checked, each temporary written and synced) and renames them only in
 //!   [`Outputs::commit`], once all are ready; dropping an uncommitted set removes its
@@ -16,6 +20,7 @@
 //! What remains: a rename that fails after the destinations were checked (a disk removed
 //! between two renames) leaves the earlier files renamed; the error says which.
 
+use super::policy::{identify, input_clash, output_clash, Declared, DeclaredDir, FileId};
 use super::IoError;
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -87,42 +92,74 @@ fn prepare(path: &Path) -> Result<(&Path, String), IoError> {
     Ok((dir, file_name.to_string_lossy().into_owned()))
 }
 
-/// A staged file: its destination and its complete temporary.
+/// A staged file: its destination (as declared) and its complete temporary.
+#[derive(Debug)]
 struct Staged {
-    path: PathBuf,
+    declared: Declared,
     tmp: PathBuf,
 }
 
-/// The files of one command, renamed into place together (see the module doc).
-#[derive(Default)]
+/// The files of one command, renamed into place together (see the module doc). Made by
+/// [`CommandFiles::check`](super::policy::CommandFiles::check), which knows the command's
+/// inputs and outputs by flag; [`Outputs::new`] is a set with no inputs (a library writing
+/// its own files).
+#[derive(Debug, Default)]
 pub struct Outputs {
     staged: Vec<Staged>,
-    /// The command's input files (canonical paths): never an output.
-    inputs: Vec<PathBuf>,
+    /// The command's input files: never an output.
+    inputs: Vec<Declared>,
+    /// The outputs the command declared (their flags name a staged file in messages).
+    declared: Vec<Declared>,
+    /// The directories the command declared.
+    dirs: Vec<DeclaredDir>,
 }
 
 impl Outputs {
-    /// An empty set.
+    /// An empty set that knows no inputs.
     pub fn new() -> Self {
         Outputs::default()
     }
 
-    /// A set that refuses to write over any of `inputs` (the files the command read): an
-    /// output named like an input (`grid --out grid1.bin` writes its node table to
-    /// `grid1.csv`, which may be the measurements just read) is an error, not a lost file.
-    pub fn protecting(inputs: &[&Path]) -> Self {
+    /// A set for a command whose files `super::policy` checked.
+    pub(crate) fn checked(
+        inputs: Vec<Declared>,
+        declared: Vec<Declared>,
+        dirs: Vec<DeclaredDir>,
+    ) -> Self {
         Outputs {
             staged: Vec::new(),
-            inputs: inputs
-                .iter()
-                .filter_map(|p| std::fs::canonicalize(p).ok())
-                .collect(),
+            inputs,
+            declared,
+            dirs,
         }
     }
 
     /// The destinations staged so far.
     pub fn paths(&self) -> Vec<PathBuf> {
-        self.staged.iter().map(|s| s.path.clone()).collect()
+        self.staged
+            .iter()
+            .map(|s| s.declared.path.clone())
+            .collect()
+    }
+
+    /// `path` as the flag that declared it (or the directory it is in) names it.
+    fn describe(&self, path: &Path, id: &FileId) -> Declared {
+        let flag = match self.declared.iter().find(|d| d.id == *id) {
+            Some(d) => d.flag.clone(),
+            None => match self.dirs.iter().find(|d| d.holds(path)) {
+                Some(d) => format!(
+                    "{} (its {})",
+                    d.flag,
+                    path.file_name().unwrap_or_default().to_string_lossy()
+                ),
+                None => "the output".into(),
+            },
+        };
+        Declared {
+            flag,
+            path: path.to_path_buf(),
+            id: id.clone(),
+        }
     }
 
     /// Stages `bytes` for `path`.
@@ -148,17 +185,13 @@ impl Outputs {
         path: &Path,
         write: impl FnOnce(&Path) -> Result<(), IoError>,
     ) -> Result<(), IoError> {
-        if self.staged.iter().any(|s| s.path == path) {
-            return Err(IoError::Write {
-                path: path.to_path_buf(),
-                message: "the same file is given for two outputs".into(),
-            });
+        let id = identify(path);
+        let me = self.describe(path, &id);
+        if let Some(i) = self.inputs.iter().find(|i| i.id == id) {
+            return Err(IoError::Clash(input_clash(&me, i)));
         }
-        if std::fs::canonicalize(path).is_ok_and(|c| self.inputs.contains(&c)) {
-            return Err(IoError::Write {
-                path: path.to_path_buf(),
-                message: "it is one of the command's inputs; name the output another way".into(),
-            });
+        if let Some(s) = self.staged.iter().find(|s| s.declared.id == id) {
+            return Err(IoError::Clash(output_clash(&me, &s.declared)));
         }
         let (dir, file_name) = prepare(path)?;
         let n = COUNTER.fetch_add(1, Ordering::Relaxed);
@@ -170,10 +203,7 @@ impl Outputs {
                 message: e.to_string(),
             });
         }
-        self.staged.push(Staged {
-            path: path.to_path_buf(),
-            tmp,
-        });
+        self.staged.push(Staged { declared: me, tmp });
         Ok(())
     }
 
@@ -181,12 +211,12 @@ impl Outputs {
     /// destinations in staging order.
     pub fn commit(mut self) -> Result<Vec<PathBuf>, IoError> {
         for s in &self.staged {
-            check_destination(&s.path)?;
+            check_destination(&s.declared.path)?;
         }
         let staged = std::mem::take(&mut self.staged);
         let mut done = Vec::with_capacity(staged.len());
         for (k, s) in staged.iter().enumerate() {
-            if let Err(e) = std::fs::rename(&s.tmp, &s.path) {
+            if let Err(e) = std::fs::rename(&s.tmp, &s.declared.path) {
                 for rest in &staged[k..] {
                     let _ = std::fs::remove_file(&rest.tmp);
                 }
@@ -202,11 +232,11 @@ impl Outputs {
                     )
                 };
                 return Err(IoError::Write {
-                    path: s.path.clone(),
+                    path: s.declared.path.clone(),
                     message: format!("{e}{written}"),
                 });
             }
-            done.push(s.path.clone());
+            done.push(s.declared.path.clone());
         }
         Ok(done)
     }
@@ -284,14 +314,17 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let input = dir.path().join("grid1.csv");
         std::fs::write(&input, b"measurements").unwrap();
-        let mut out = Outputs::protecting(&[&input]);
+        let mut out = crate::io::policy::CommandFiles::new()
+            .input("--data", &input)
+            .check()
+            .unwrap();
         out.bytes(&dir.path().join("grid1.bin"), b"image").unwrap();
         // The same file by another spelling.
         let e = out
             .bytes(&dir.path().join("./grid1.csv"), b"table")
             .unwrap_err()
             .to_string();
-        assert!(e.contains("one of the command's inputs"), "{e}");
+        assert!(e.contains("the input --data"), "{e}");
         drop(out);
         assert_eq!(std::fs::read(&input).unwrap(), b"measurements");
         assert_eq!(names(dir.path()), vec!["grid1.csv".to_string()]);
@@ -354,7 +387,7 @@ mod tests {
             .bytes(&good, b"b")
             .unwrap_err()
             .to_string()
-            .contains("two outputs"));
+            .contains("same file"));
         assert_eq!(o.commit().unwrap(), vec![good.clone()]);
         assert_eq!(std::fs::read(&good).unwrap(), b"a");
     }

@@ -11,6 +11,8 @@
 //! * [`machine_file`]: the machine file (TOML), what `--machine` reads;
 //! * [`plot`]: the PNG plots (paths, error-vector fields);
 //! * [`csv_dialect`]: what every CSV read shares (delimiter detection, number ranges);
+//! * [`policy`]: the output policy every command declares its files to: no output onto an
+//!   input or onto another output, decided before anything is read heavily or written;
 //! * [`atomic`]: every output goes through it: a failed run never leaves a half-written file.
 //! * [`verify_plot`]: the accuracy report's plots (error map, ISO 230-2 chart), as PNG bytes.
 //!
@@ -30,6 +32,7 @@ pub mod machine_file;
 pub mod measurement_csv;
 pub mod model_file;
 pub mod plot;
+pub mod policy;
 pub mod targets_csv;
 pub mod tracker_export;
 pub mod verify_plot;
@@ -61,6 +64,10 @@ pub enum IoError {
     /// The output directory could not be created.
     #[error("cannot create directory {}: {message}", dir.display())]
     CreateDir { dir: PathBuf, message: String },
+    /// An output is an input or another output, or a file is given twice (`policy`); the
+    /// message names both flags.
+    #[error("{0}")]
+    Clash(String),
     /// The output path names a directory, not a file.
     #[error("output path has no file name")]
     NoFileName { path: PathBuf },

@@ -10,7 +10,8 @@
 //!   chosen by generalised cross-validation (the noise-aware correction grid);
 //! * [`rigid`]: planar rigid motions and the best-fitting one between two point sets (the
 //!   registration of an instrument's frame);
-//! * [`stats`]: max/RMS of error magnitudes and the rounding of reported figures.
+//! * [`stats`]: max/RMS of error magnitudes and the rounding of reported figures;
+//! * [`subspace`]: orthonormal bases, projections and principal angles of column spaces.
 //!
 //! Where a change goes: a new solver behaviour (acceptance, stopping, damping) in `lm.rs` and its
 //! module doc, with a test in `tests/lm.rs`; nothing here knows about five-bars or effects.
@@ -20,6 +21,7 @@ pub mod lattice_smoother;
 pub mod lm;
 pub mod rigid;
 pub mod stats;
+pub mod subspace;
 pub mod svd;
 
 pub use lm::{levenberg_marquardt, LmFit, LmOptions, Residuals, Stop};

@@ -34,58 +34,8 @@ use kinematics_core::dynamics::FiveBarDynamics;
 use kinematics_core::jacobian::Mat2;
 use kinematics_core::joint_motion::motion_from_pose;
 use kinematics_core::{FiveBar, KinematicsError, Pose};
-use serde::{Deserialize, Serialize};
 
-/// Masses of the six-bar's bodies (plant TOML section `[linkage]`; every value is optional in
-/// the file, the defaults are the paper machine's). The bars' masses come from the density and
-/// the `[sixbar]` sections and lengths; 0 everywhere switches the linkage's inertia off (the
-/// drives' own inertia remains).
-#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
-#[serde(deny_unknown_fields, default)]
-pub struct LinkageConfig {
-    /// Density of the bars (aluminium: 2700 kg/m³).
-    pub bar_density_kg_per_m3: f64,
-    /// Each elbow piece K1, K2 (translates with its elbow).
-    pub elbow_piece_mass_kg: f64,
-    /// The platform T without the tool.
-    pub platform_mass_kg: f64,
-    /// The tool on the platform.
-    pub tool_mass_kg: f64,
-}
-
-impl Default for LinkageConfig {
-    /// The paper machine: aluminium bars, 30 g elbow pieces, a 60 g platform with a 40 g tool.
-    fn default() -> Self {
-        LinkageConfig {
-            bar_density_kg_per_m3: 2700.0,
-            elbow_piece_mass_kg: 0.03,
-            platform_mass_kg: 0.06,
-            tool_mass_kg: 0.04,
-        }
-    }
-}
-
-impl LinkageConfig {
-    /// No inertia in the linkage at all.
-    pub fn massless() -> Self {
-        LinkageConfig {
-            bar_density_kg_per_m3: 0.0,
-            elbow_piece_mass_kg: 0.0,
-            platform_mass_kg: 0.0,
-            tool_mass_kg: 0.0,
-        }
-    }
-
-    /// The values that must not be negative, with their keys.
-    pub fn non_negative(&self) -> [(&'static str, f64); 4] {
-        [
-            ("linkage.bar_density_kg_per_m3", self.bar_density_kg_per_m3),
-            ("linkage.elbow_piece_mass_kg", self.elbow_piece_mass_kg),
-            ("linkage.platform_mass_kg", self.platform_mass_kg),
-            ("linkage.tool_mass_kg", self.tool_mass_kg),
-        ]
-    }
-}
+pub use super::config::LinkageConfig;
 
 /// A uniform bar: mass (kg) and length (m).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -168,7 +118,7 @@ impl Linkage {
     pub fn new(
         cfg: &LinkageConfig,
         five: FiveBar<f64>,
-        sixbar: &crate::plant::config::SixBarConfig,
+        sixbar: &super::config::SixBarConfig,
     ) -> Self {
         let (rho, e, l) = (cfg.bar_density_kg_per_m3, &sixbar.errors, sixbar.link_mm);
         let (main, follower) = (sixbar.main_bar_section_mm2, sixbar.follower_bar_section_mm2);

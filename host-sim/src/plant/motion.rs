@@ -219,7 +219,7 @@ mod tests {
         );
         // With the linkage's bodies left out the velocities would not change at all.
         let mut cfg = PlantConfig::ideal();
-        cfg.linkage = crate::plant::linkage::LinkageConfig::massless();
+        cfg.linkage = crate::plant::config::LinkageConfig::massless();
         let mut q = swinging(&cfg, [1.5, -2.0]);
         for _ in 0..400 {
             q.advance([0.0; 2], 5e-4, 10).unwrap();

@@ -38,7 +38,7 @@
 //! # The six-bar prior ([`Basis::SixBar`], the default when the responses are given)
 //! The bases above describe the six-bar's own error (what no five-bar has) by generic shapes,
 //! which either miss it (bias up to 5 µm max at the lattice corners on simulated machines) or
-//! take in noise with many columns. The six-bar's loop closure (`diagnose::loop_closure`,
+//! take in noise with many columns. The six-bar's loop closure (`loop_closure`,
 //! linearised about the nominal machine) gives the field's physical form instead: the tool
 //! displacement per µm of each of the 24 part errors (bar lengths, pin positions, bearings)
 //! at every node, `R` (2n × 24, µm/µm). The field is then `f = S·β + R·γ + g`: the model's

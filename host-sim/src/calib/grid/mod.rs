@@ -585,7 +585,7 @@ fn parameter_shapes(model: &FiveBar<f64>, means: &[NodeMeans]) -> Option<DMatrix
 }
 
 /// The six-bar's tool displacement per µm of each part error at the nodes' IK (2n × 24, rows x,
-/// y per node; `diagnose::loop_closure`, the design from the model's proportions about the
+/// y per node; `loop_closure`, the design from the model's proportions about the
 /// lattice's centre); `None` where the loop closure has no response (a flat parallelogram, a
 /// node the model cannot reach), and the grid then falls back to the generic bases.
 fn six_bar_responses(
@@ -593,7 +593,7 @@ fn six_bar_responses(
     means: &[NodeMeans],
     lattice: &GridLattice,
 ) -> Option<DMatrix<f64>> {
-    use crate::diagnose::loop_closure::{response, SixBarDesign, N_RAW};
+    use crate::loop_closure::{response, SixBarDesign, N_RAW};
     let centre = [
         lattice.x0_mm + 0.5 * (lattice.nx - 1) as f64 * lattice.step_mm,
         lattice.y0_mm + 0.5 * (lattice.ny - 1) as f64 * lattice.step_mm,

@@ -1,16 +1,17 @@
 //! The demo's files: the plan's lists, every measurement CSV (instrument readings as
 //! measured), the models with their registered frames, the grid image and table, and the
-//! error-vector plots (in the machine frame), each written atomically.
+//! error-vector plots (in the machine frame), staged into the command's outputs and renamed
+//! together.
 
 use super::{Calibrated, Stage};
 use crate::calib::fit::params;
 use crate::calib::grid;
 use crate::calib::measure::{measured_error_vectors_um, registered, rows, true_error_vectors_um};
 use crate::calib::plan::list_rows;
-use crate::io::atomic::write_atomic;
+use crate::io::atomic::Outputs;
 use crate::io::measurement_csv::format_measurements;
-use crate::io::model_file::{write_model_file, ModelFile};
-use crate::io::plot::{vector_plot, VectorField};
+use crate::io::model_file::{model_file_text, ModelFile};
+use crate::io::plot::{vector_plot_png, VectorField};
 use crate::io::targets_csv::format_target_list;
 use crate::io::IoError;
 use std::path::{Path, PathBuf};
@@ -47,14 +48,18 @@ fn stage<'a>(cal: &'a Calibrated, key: &str) -> Result<&'a Stage, IoError> {
         .ok_or_else(|| IoError::Invalid(format!("internal: no stage '{key}'")))
 }
 
-/// Writes every output into `dir` (each file atomically) and returns the paths, in [`FILES`]
-/// order but for `summary.json`, which the caller writes last from [`summary`].
-pub fn write_outputs(cal: &Calibrated, dir: &Path) -> Result<Vec<PathBuf>, IoError> {
+/// Stages every output into `dir` in `out` (renamed into place with the command's other files
+/// by `out.commit()`) and returns the paths, in [`FILES`] order but for `summary.json`, which
+/// the caller stages last from [`super::summary`].
+pub fn write_outputs(
+    cal: &Calibrated,
+    dir: &Path,
+    out: &mut Outputs,
+) -> Result<Vec<PathBuf>, IoError> {
     let p = |name: &str| dir.join(name);
-    let mut written = Vec::new();
+    let mut files: Vec<(String, Vec<u8>)> = Vec::new();
     let mut text = |name: &str, bytes: &[u8]| -> Result<(), IoError> {
-        write_atomic(&p(name), bytes)?;
-        written.push(p(name));
+        files.push((name.to_string(), bytes.to_vec()));
         Ok(())
     };
     for (name, list) in cal.plan.lists() {
@@ -92,16 +97,20 @@ pub fn write_outputs(cal: &Calibrated, dir: &Path) -> Result<Vec<PathBuf>, IoErr
     );
     full_file.backlash_urad = cal.backlash.map(|b| b.lost_motion_urad);
     full_file.instrument_frame = Some(cal.frame.record());
-    write_model_file(&p("model.json"), &full_file)?;
-    written.push(p("model.json"));
+    files.push((
+        "model.json".into(),
+        model_file_text(&full_file)?.into_bytes(),
+    ));
     if let Ok((ls_model, ls_frame)) = &cal.ls {
         let mut ls_file = ModelFile::from_model(ls_model);
         ls_file.fit = Some(
             serde_json::json!({ "method": "ls", "source": "host-sim demo", "n_points": cal.fit_data.len() }),
         );
         ls_file.instrument_frame = Some(ls_frame.record());
-        write_model_file(&p("model_ls.json"), &ls_file)?;
-        written.push(p("model_ls.json"));
+        files.push((
+            "model_ls.json".into(),
+            model_file_text(&ls_file)?.into_bytes(),
+        ));
     }
 
     // Plots: the same fresh targets for every stage, in the machine frame; fields in one plot
@@ -139,72 +148,85 @@ pub fn write_outputs(cal: &Calibrated, dir: &Path) -> Result<Vec<PathBuf>, IoErr
         base_mm: &base,
         error_um: &e_full,
     });
-    vector_plot(
-        &p("errors_fit.png"),
-        "step 2, fit: true − target at fresh targets",
-        &fit_fields,
-    )?;
-    written.push(p("errors_fit.png"));
-    vector_plot(
-        &p("errors_grid.png"),
-        "step 3, grid: true − target at fresh targets",
-        &[
-            VectorField {
-                label: "full fit",
-                base_mm: &base,
-                error_um: &e_full,
-            },
-            VectorField {
-                label: "full fit + grid (1 round)",
-                base_mm: &base,
-                error_um: &e_grid,
-            },
-            VectorField {
-                label: "full fit + grid (2 rounds)",
-                base_mm: &base,
-                error_um: &e_grid2,
-            },
-        ],
-    )?;
-    written.push(p("errors_grid.png"));
-    vector_plot(
-        &p("errors_final.png"),
-        "after calibration: true − target at fresh targets",
-        &[
-            VectorField {
-                label: "full fit + grid (1 round)",
-                base_mm: &base,
-                error_um: &e_grid,
-            },
-            VectorField {
-                label: "full fit + grid (2 rounds)",
-                base_mm: &base,
-                error_um: &e_grid2,
-            },
-        ],
-    )?;
-    written.push(p("errors_final.png"));
+    files.push((
+        "errors_fit.png".into(),
+        vector_plot_png(
+            "step 2, fit: true − target at fresh targets",
+            &fit_fields,
+            &[],
+        )?,
+    ));
+    files.push((
+        "errors_grid.png".into(),
+        vector_plot_png(
+            "step 3, grid: true − target at fresh targets",
+            &[
+                VectorField {
+                    label: "full fit",
+                    base_mm: &base,
+                    error_um: &e_full,
+                },
+                VectorField {
+                    label: "full fit + grid (1 round)",
+                    base_mm: &base,
+                    error_um: &e_grid,
+                },
+                VectorField {
+                    label: "full fit + grid (2 rounds)",
+                    base_mm: &base,
+                    error_um: &e_grid2,
+                },
+            ],
+            &[],
+        )?,
+    ));
+    files.push((
+        "errors_final.png".into(),
+        vector_plot_png(
+            "after calibration: true − target at fresh targets",
+            &[
+                VectorField {
+                    label: "full fit + grid (1 round)",
+                    base_mm: &base,
+                    error_um: &e_grid,
+                },
+                VectorField {
+                    label: "full fit + grid (2 rounds)",
+                    base_mm: &base,
+                    error_um: &e_grid2,
+                },
+            ],
+            &[],
+        )?,
+    ));
     let node_base: Vec<[f64; 2]> = cal.grid.nodes.iter().map(|n| n.target_mm).collect();
     let (node_err1, node_err2) = (
         measured_error_vectors_um(&registered(&cal.grid_data, &cal.frame)),
         measured_error_vectors_um(&registered(&cal.grid2_data, &cal.frame)),
     );
-    vector_plot(
-        &p("grid_nodes.png"),
-        "grid nodes: measured − target",
-        &[
-            VectorField {
-                label: "round 1 (full fit)",
-                base_mm: &node_base,
-                error_um: &node_err1,
-            },
-            VectorField {
-                label: "round 2 (through the round-1 grid)",
-                base_mm: &node_base,
-                error_um: &node_err2,
-            },
-        ],
-    )?;
-    written.push(p("grid_nodes.png"));
+    files.push((
+        "grid_nodes.png".into(),
+        vector_plot_png(
+            "grid nodes: measured − target",
+            &[
+                VectorField {
+                    label: "round 1 (full fit)",
+                    base_mm: &node_base,
+                    error_um: &node_err1,
+                },
+                VectorField {
+                    label: "round 2 (through the round-1 grid)",
+                    base_mm: &node_base,
+                    error_um: &node_err2,
+                },
+            ],
+            &[],
+        )?,
+    ));
+    let mut written = Vec::with_capacity(files.len());
+    for (name, bytes) in &files {
+        out.bytes(&p(name), bytes)?;
+        written.push(p(name));
+    }
     Ok(written)
 }

@@ -2,7 +2,9 @@
 //! code with.
 //!
 //! Why here and not in the test file: the CLI tests, the unit tests and the studies
-//! (`benches/diagnose_study.rs`) all need the same generator. Poses are on the paper machine
+//! (`benches/diagnose_study.rs`) all need the same generator. Why not in `diagnose`: it measures
+//! through `calib`, which is above the diagnosis (`calib::backlash` uses its fit), and the
+//! diagnosis must not import what uses it. Poses are on the paper machine
 //! ([`MachineSpec::paper`]).
 //!
 //! Where the truth comes from (issue 18: never from the library's own effect formulas):

@@ -1,7 +1,9 @@
 //! The six-bar's loop closure, linearised about the nominal machine: how a small error of any
 //! bar or pin moves the tool point, turns the platform and stretches the distal bars, at one
 //! configuration (θ1, θ2). The diagnosis' six-bar effects (`parallelogram_mismatch`,
-//! `link_stretch`, `effects.rs`) are reduced from these responses ([`super::sixbar_modes`]).
+//! `link_stretch`) are reduced from these responses ([`crate::diagnose::sixbar_modes`]); the
+//! correction grid's six-bar prior (`calib::grid`) is built from them too. Here, below both, so
+//! that each can use it without importing the other.
 //!
 //! # The structure (any five-bar geometry)
 //! The hidden five-bar (a, b, c, d, A0, B0, from the nominal model) is made a drafting-machine

@@ -1,10 +1,5 @@
-//! The effect library: small parametric extensions of the five-bar forward model, each with a
-//! physical meaning, and the one forward function that applies any subset of them.
-//!
-//! Why one flat parameter vector: every effect owns a fixed slice of [`N_PARAMS`] numbers;
-//! inactive effects keep theirs at zero, so "the model with effects E" is just "the forward
-//! function with only E's entries free". Internal units are chosen so every parameter is O(1..100)
-//! (µm, µrad, ppm): the LM and its finite differences then need no scaling.
+//! The extended forward model over the data ([`Problem`]): the points prepared once, and the one
+//! forward function that applies any subset of the library's effects ([`super::library`]).
 //!
 //! Prediction of the instrument reading for a measured pose (encoder angles θ, approach
 //! directions dir, time t):
@@ -19,7 +14,7 @@
 //! reading = (1 + s)·R(φ)·C + (tx, ty)  [+ nuisance: (vx, vy)·(t − t0)]
 //! ```
 //!
-//! The six-bar's own effects come from its linearised loop closure (`loop_closure.rs`,
+//! The six-bar's own effects come from its linearised loop closure (`crate::loop_closure`,
 //! reduced to a few modes over the data by `sixbar_modes.rs`): the overconstrained loops hold the
 //! elbow pieces and the platform at a fixed orientation relative to the base, so a
 //! parallelogram's misfit, the self-stress it causes and the bars' elastic elongation depend on
@@ -33,171 +28,26 @@
 //!   (platform and elbow rotations, bearing deflections) that no constant five-bar parameter
 //!   reproduces (unit RMS over the data: pm_i are RMS displacements, µm).
 //!
-//! Nuisances (not in the library, never named): when the residual shows a periodic error in a
-//! motor angle (> 10 cycles/rev: a gear tooth) or a drift in time, the selection fits it in every
-//! model so that no library effect is chosen on its account (`selection.rs`); it stays
-//! `unexplained` in the report.
-//!
 //! Sign of backlash: a motor that last moved in +θ (dir = +1) drags the link behind it through
 //! the lost motion, so the link sits β/2 short of the encoder angle; β > 0 is lost motion.
 //!
+//! The LM (`crate::numeric::lm`) fits it through [`Residuals`]: finite differences with a step of
+//! 1e-2 in internal units (10 nm, 10 nrad, 0.01 ppm — far below every effect, far above rounding
+//! at 200 mm).
+//!
 //! Cost: one closed-form FK per point per evaluation (a few hundred ns); no allocation per point.
 
-use super::loop_closure::{SixBarDesign, N_RAW};
+use super::library::{idx, Effect, Nuisance, FIVE_BAR_SPAN, N_PARAMS};
 use super::sixbar_modes::{self, SixBarModes, N_MISMATCH, N_STRETCH};
 use crate::effect::PhysicalEffect;
 use crate::io::measurement_csv::Measurement;
+use crate::loop_closure::{SixBarDesign, N_RAW};
+use crate::numeric::{finite_difference, Residuals};
 use kinematics_core::{wrap_angle_rad, FiveBar};
-use nalgebra::DMatrix;
+use nalgebra::{DMatrix, DVector};
 
 /// Smallest transmission |sin| of a usable point (about 0.06° from a singular configuration).
 pub const MIN_TRANSMISSION: f64 = 1e-3;
-
-/// Number of entries of the full parameter vector (library effects, then nuisances).
-pub const N_PARAMS: usize = 32;
-
-/// Parameter names with units (index = position in the full vector).
-#[rustfmt::skip]
-pub const PARAM_NAMES: [&str; N_PARAMS] = [
-    "da_um", "db_um", "dc_um", "dd_um",            // 0..4 link_lengths
-    "dtheta1_urad", "dtheta2_urad",                // 4..6 encoder_offset
-    "b0x_um", "b0y_um",                            // 6..8 base_offset
-    "beta1_urad", "beta2_urad",                    // 8..10 backlash
-    "ks1_um", "ks2_um", "ks3_um", "ks4_um", "ks5_um", // 10..15 link_stretch: self-stress modes (RMS stretch)
-    "kc_compliance_pct",                           // 15 link_stretch: c's compliance beyond the design's, %
-    "tx_um", "ty_um", "rot_urad",                  // 16..19 frame
-    "scale_ppm",                                   // 19 scale
-    "gear1_ppm", "gear2_ppm",                      // 20..22 gear_ratio
-    "pm1_um", "pm2_um", "pm3_um", "pm4_um",        // 22..26 parallelogram_mismatch (RMS over the data)
-    "cyclic1_cos_urad", "cyclic1_sin_urad",        // 26..28 nuisance: periodic error, motor 1
-    "cyclic2_cos_urad", "cyclic2_sin_urad",        // 28..30 nuisance: periodic error, motor 2
-    "drift_x_um_per_ks", "drift_y_um_per_ks",      // 30..32 nuisance: instrument drift
-];
-
-/// Index ranges of the parameters.
-pub mod idx {
-    pub const LINKS: usize = 0;
-    pub const OFFSETS: usize = 4;
-    pub const BASE: usize = 6;
-    pub const BACKLASH: usize = 8;
-    pub const STRETCH: usize = 10;
-    /// c's relative compliance (the last link_stretch parameter).
-    pub const STRETCH_RATIO: usize = 15;
-    pub const FRAME: usize = 16;
-    pub const SCALE: usize = 19;
-    pub const GEAR: usize = 20;
-    pub const MISMATCH: usize = 22;
-    pub const CYCLIC: usize = 26;
-    pub const DRIFT: usize = 30;
-}
-
-/// One candidate effect: a [`PhysicalEffect`] with its parameters in the extended forward model.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Effect {
-    /// Which effect (its name is the report's: the tests and other tools rely on it).
-    pub kind: PhysicalEffect,
-    /// Indices into the full parameter vector.
-    pub params: &'static [usize],
-    /// Physical meaning, for the report.
-    pub meaning: &'static str,
-    /// The effect needs the dir1/dir2 columns.
-    pub needs_dir: bool,
-}
-
-/// The library, in a fixed order (ties in the selection go to the earlier one).
-pub const LIBRARY: [Effect; 9] = [
-    Effect {
-        kind: PhysicalEffect::LinkLengths,
-        params: &[0, 1, 2, 3],
-        meaning: "a, b, c, d differ from the model (manufacturing, assembly)",
-        needs_dir: false,
-    },
-    Effect {
-        kind: PhysicalEffect::EncoderOffset,
-        params: &[4, 5],
-        meaning: "motor zero offsets (encoder index not at the model's zero)",
-        needs_dir: false,
-    },
-    Effect { kind: PhysicalEffect::BaseOffset, params: &[6, 7], meaning: "B0 is not where the model has it", needs_dir: false },
-    Effect {
-        kind: PhysicalEffect::Backlash,
-        params: &[8, 9],
-        meaning: "lost motion per motor: the link lags the encoder by beta/2 against the approach direction",
-        needs_dir: true,
-    },
-    Effect {
-        kind: PhysicalEffect::LinkStretch,
-        params: &[10, 11, 12, 13, 14, 15],
-        meaning: "the distal bars' elastic elongation under the overconstrained loops' self-stress, a function of the \
-                  absolute link angles (theta1, theta2): the self-stress modes of the six-bar's linearised loop closure \
-                  (ks: RMS stretch over the data, um), both bars by the one self-stress, c's compliance relative to b's \
-                  free around the design's (kc_compliance_pct)",
-        needs_dir: false,
-    },
-    Effect {
-        kind: PhysicalEffect::Frame,
-        params: &[16, 17, 18],
-        meaning: "instrument frame offset (x, y) and rotation about A0",
-        needs_dir: false,
-    },
-    Effect { kind: PhysicalEffect::Scale, params: &[19], meaning: "instrument scale error (about A0)", needs_dir: false },
-    Effect {
-        kind: PhysicalEffect::GearRatio,
-        params: &[20, 21],
-        meaning: "transmission ratio error per motor: link angle = encoder angle scaled by (1+g) about the data's mean angle \
-                  (the constant part stays encoder_offset)",
-        needs_dir: false,
-    },
-    Effect {
-        kind: PhysicalEffect::ParallelogramMismatch,
-        params: &[22, 23, 24, 25],
-        meaning: "the six-bar's parallelograms disagree (follower and pin errors): the platform and elbow pieces turn and \
-                  the bearings yield with the configuration; four dominant tool-displacement modes of the linearised loop \
-                  closure that no constant five-bar parameter reproduces (pm: RMS displacement over the data, um)",
-        needs_dir: false,
-    },
-];
-
-impl Effect {
-    /// The effect's name ([`PhysicalEffect::name`]).
-    pub const fn name(&self) -> &'static str {
-        self.kind.name()
-    }
-}
-
-/// Looks an effect up by its exact name.
-pub fn effect(name: &str) -> Option<&'static Effect> {
-    LIBRARY.iter().find(|e| e.name() == name)
-}
-
-/// Structures outside the library fitted alongside it (see the module doc).
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct Nuisance {
-    /// Periodic error of each motor: cycles per revolution of the motor angle.
-    pub cyclic_cycles: [Option<f64>; 2],
-    /// A linear drift of the readings in time.
-    pub drift: bool,
-}
-
-impl Nuisance {
-    /// The parameters the nuisances add to every fit.
-    pub fn params(&self) -> Vec<usize> {
-        let mut p = Vec::new();
-        for j in 0..2 {
-            if self.cyclic_cycles[j].is_some() {
-                p.extend([idx::CYCLIC + 2 * j, idx::CYCLIC + 2 * j + 1]);
-            }
-        }
-        if self.drift {
-            p.extend([idx::DRIFT, idx::DRIFT + 1]);
-        }
-        p
-    }
-
-    pub fn is_empty(&self) -> bool {
-        self.params().is_empty()
-    }
-}
 
 /// Everything per point the forward model needs besides the parameters.
 #[derive(Clone, Debug)]
@@ -239,10 +89,6 @@ pub struct Problem {
     pub nuisance: Nuisance,
 }
 
-/// The five-bar's constant parameters (the span the mismatch modes are made orthogonal to):
-/// link lengths, encoder offsets, base offset, frame, scale.
-pub const FIVE_BAR_SPAN: [usize; 12] = [0, 1, 2, 3, 4, 5, 6, 7, 16, 17, 18, 19];
-
 impl Problem {
     /// Prepares the points. Points the base model cannot reach are dropped (listed by line).
     pub fn new(base: FiveBar<f64>, design: &SixBarDesign, data: &[Measurement]) -> Problem {
@@ -262,7 +108,7 @@ impl Problem {
                 dropped_lines.push(m.line);
                 continue;
             }
-            let Ok(r) = super::loop_closure::response(&base, design, th) else {
+            let Ok(r) = crate::loop_closure::response(&base, design, th) else {
                 dropped_lines.push(m.line);
                 continue;
             };
@@ -327,9 +173,8 @@ impl Problem {
 
     /// The tool displacement (µm, x,y per point) per unit of each five-bar-span parameter.
     fn five_bar_span(&self) -> Result<DMatrix<f64>, String> {
-        let j = super::fit::jacobian(self, &[0.0; N_PARAMS], &FIVE_BAR_SPAN).ok_or_else(|| {
-            "a point left the model's workspace while differentiating".to_string()
-        })?;
+        let j = finite_difference::jacobian(self, &[0.0; N_PARAMS], &FIVE_BAR_SPAN)
+            .map_err(|_| "a point left the model's workspace while differentiating".to_string())?;
         // The residual is measured − predicted: the prediction's derivative is −J.
         Ok(-j)
     }
@@ -454,6 +299,24 @@ impl Problem {
     }
 }
 
+/// Finite-difference step of every parameter in internal units (module doc).
+const FD_STEP: f64 = 1e-2;
+
+impl Residuals for Problem {
+    fn n_params(&self) -> usize {
+        N_PARAMS
+    }
+
+    fn residuals(&self, p: &[f64]) -> Option<DVector<f64>> {
+        let x: &[f64; N_PARAMS] = p.try_into().ok()?;
+        self.residuals_um(x).map(DVector::from_vec)
+    }
+
+    fn fd_step(&self, _k: usize) -> f64 {
+        FD_STEP
+    }
+}
+
 /// The six-bar part of a fitted model as effective errors (see [`Problem::effective_sixbar`]).
 #[derive(Clone, Debug, PartialEq)]
 pub struct EffectiveSixBar {
@@ -469,8 +332,13 @@ pub struct EffectiveSixBar {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::diagnose::fit::jacobian;
-    use crate::diagnose::loop_closure::response;
+    use crate::diagnose::library::effect;
+    use crate::loop_closure::response;
+    use crate::numeric::subspace::max_cos;
+
+    fn jacobian(p: &Problem, x: &[f64], cols: &[usize]) -> Option<DMatrix<f64>> {
+        finite_difference::jacobian(p, x, cols).ok()
+    }
 
     fn meas(theta_deg: [f64; 2], dir: [i8; 2], m: &FiveBar<f64>) -> Measurement {
         let c = m
@@ -562,7 +430,7 @@ mod tests {
         let x = [0.0; N_PARAMS];
         let rigid = jacobian(&p, &x, &FIVE_BAR_SPAN).unwrap();
         let mismatch = jacobian(&p, &x, effect("parallelogram_mismatch").unwrap().params).unwrap();
-        let cos = crate::diagnose::confounding::max_cos(&rigid, &mismatch);
+        let cos = max_cos(&rigid, &mismatch);
         assert!(
             cos < 1e-6,
             "mismatch modes overlap the five-bar's parameters: cos {cos}"
