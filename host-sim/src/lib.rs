@@ -18,6 +18,7 @@
 //! | [`synth`] | measurements of machines with hidden effects, shared by the diagnosis' tests and studies |
 //! | [`numeric`] | the one Levenberg–Marquardt, finite differences, column-scaled SVD, max/RMS |
 //! | [`link`] | the controller's host link: client, streamed motion, calibration upload, telemetry |
+//! | [`session`] | a measurement session through the controller: a plan's list visited, settled, read |
 //! | [`io`] | file formats (measurement CSV, model file, targets, plots) and atomic output |
 //!
 //! Conventions: library functions take an options struct (with the [`machine_spec::MachineSpec`]
@@ -45,5 +46,6 @@ pub mod machine_ranges;
 pub mod machine_spec;
 pub mod numeric;
 pub mod plant;
+pub mod session;
 pub mod sim;
 pub mod synth;

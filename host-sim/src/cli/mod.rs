@@ -15,6 +15,7 @@ mod import;
 mod link;
 mod measure;
 mod plan;
+mod session;
 mod simulate;
 mod verify;
 
@@ -66,6 +67,9 @@ enum Tool {
     Demo(demo::Args),
     /// Talk to a controller over its host link (QEMU: --tcp; the real board: --serial): identify, home, move, stream, upload...
     Link(link::Args),
+    /// A measurement session through the controller: a plan's list visited with its approach,
+    /// each point settled and read (typed in, or the tracker's export joined later by import).
+    Session(session::Args),
 }
 
 /// Runs a parsed command line.
@@ -83,6 +87,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Tool::Diagnose(a) => diagnose::run(&a),
         Tool::Demo(a) => demo::run(&a),
         Tool::Link(a) => link::run(&a),
+        Tool::Session(a) => session::run(&a),
     }
 }
 
