@@ -18,6 +18,7 @@
 //! | [`synth`] | measurements of machines with hidden effects, shared by the diagnosis' tests and studies |
 //! | [`numeric`] | the one Levenberg–Marquardt, finite differences, column-scaled SVD, max/RMS |
 //! | [`link`] | the controller's host link: client, streamed motion, calibration upload, telemetry |
+//! | [`cosim`] | the production firmware under QEMU driving the plant in lockstep (co-simulation) |
 //! | [`session`] | a measurement session through the controller: a plan's list visited, settled, read |
 //! | [`io`] | file formats (measurement CSV, model file, targets, plots) and atomic output |
 //!
@@ -37,6 +38,7 @@
 )]
 
 pub mod calib;
+pub mod cosim;
 pub mod diagnose;
 pub mod effect;
 pub mod io;

@@ -1,19 +1,28 @@
 //! The machine the tools work on, described once: nominal hidden robot, workspace, correction
-//! grid lattice, instrument, servo rate and limits.
+//! grid lattice, instrument, servo rate and limits, and what the controller judges calibration
+//! images against ([`ControllerSpec`]).
 //!
-//! Why: these numbers used to be typed where they were needed (the workspace's x origin
-//! `162.132` in ten files, the sample period and the singularity margin twice); a second
-//! machine would have meant finding them all. Every library function that needs one of them
-//! takes a [`MachineSpec`] (in its options struct), so describing another machine is filling
-//! this struct (issue 12: a machine file loads it) and nothing else. [`MachineSpec::paper`] is
-//! the paper's machine, from `kinematics_core::paper` (the numbers the firmware's build shares).
+//! Why one struct: every library function that needs one of these numbers takes a
+//! [`MachineSpec`] (in its options struct), so describing another machine is filling this
+//! struct (the machine file loads it, `crate::io::machine_file`) and nothing else, and no
+//! number is typed twice. [`MachineSpec::paper`] is the paper's machine, from
+//! `kinematics_core::paper` (the numbers the firmware's build shares). [`MachineSpec::record`]
+//! is the same machine as the controller holds it (`kinematics_core::machine::MachineRecord`):
+//! every calibration image carries it.
 //!
 //! What is *not* here: the simulated plant's physics (`plant::PlantConfig`, the plant TOML:
 //! the "real machine" a calibration is tested against, whose errors the tools must not know) and
 //! each tool's own settings (options structs).
 
 use kinematics_core::grid::{GridGeometry, WorkspaceLimits};
-use kinematics_core::{paper, Branch, ConvexWorkspace, FiveBar, DEFAULT_MIN_TRANSMISSION};
+use kinematics_core::machine::record::{
+    DEFAULT_DYNAMICS_FACTOR, DEFAULT_MAX_BACKLASH_RAD, DEFAULT_MAX_CORRECTION_SLOPE,
+    DEFAULT_MAX_NODE_CORRECTION_MM, DEFAULT_SAME_MACHINE_TOLERANCE_MM,
+};
+use kinematics_core::machine::{MachineName, MachineRecord, PlausibilityLimits, RecordError};
+use kinematics_core::{
+    paper, Branch, ConvexWorkspace, FiveBar, FiveBarDynamics, DEFAULT_MIN_TRANSMISSION,
+};
 use serde::{Deserialize, Serialize};
 
 /// Standard gravity (mm/s²), for accelerations stated in g.
@@ -249,6 +258,45 @@ impl GridLattice {
     }
 }
 
+/// What the controller knows of the machine beyond its geometry (the machine file's
+/// `[controller]` and `[nominal_dynamics]`, both optional): where homing ends, and what a
+/// calibration image is judged against (`kinematics_core::machine::PlausibilityLimits`, whose
+/// doc derives each default).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ControllerSpec {
+    /// Where homing ends (mm), inside the workspace. Default: the workspace's centre.
+    pub home_mm: [f64; 2],
+    /// Largest tool-position difference of an image's model from the nominal over the
+    /// workspace, in the best-fitting rigid frame (mm).
+    pub same_machine_tolerance_mm: f64,
+    /// Largest tool displacement of a grid node's correction (mm).
+    pub max_node_correction_mm: f64,
+    /// Largest change of that displacement between neighbouring nodes, per mm between them.
+    pub max_correction_slope: f64,
+    /// Largest lost motion per drive (µrad).
+    pub max_backlash_urad: f64,
+    /// How far (a factor either way) an image's dynamics may be from `nominal_dynamics`.
+    pub dynamics_factor: f64,
+    /// The design's dynamics.
+    pub nominal_dynamics: FiveBarDynamics<f64>,
+}
+
+impl ControllerSpec {
+    /// The defaults for a machine whose workspace centre is `home_mm` and whose design's
+    /// dynamics are `nominal_dynamics`.
+    pub fn defaults(home_mm: [f64; 2], nominal_dynamics: FiveBarDynamics<f64>) -> Self {
+        ControllerSpec {
+            home_mm,
+            same_machine_tolerance_mm: f64::from(DEFAULT_SAME_MACHINE_TOLERANCE_MM),
+            max_node_correction_mm: f64::from(DEFAULT_MAX_NODE_CORRECTION_MM),
+            max_correction_slope: f64::from(DEFAULT_MAX_CORRECTION_SLOPE),
+            max_backlash_urad: (f64::from(DEFAULT_MAX_BACKLASH_RAD) * 1e6).round(),
+            dynamics_factor: f64::from(DEFAULT_DYNAMICS_FACTOR),
+            nominal_dynamics,
+        }
+    }
+}
+
 /// One machine's description (see the module doc).
 #[derive(Clone, Debug, PartialEq)]
 pub struct MachineSpec {
@@ -272,6 +320,8 @@ pub struct MachineSpec {
     /// The acceleration the machine is built for (g): the point-to-point test motion's, and the
     /// threshold of the closed loop's "at full acceleration" statistics.
     pub max_acceleration_g: f64,
+    /// Home position and the limits a calibration image is judged against.
+    pub controller: ControllerSpec,
 }
 
 impl MachineSpec {
@@ -300,7 +350,61 @@ impl MachineSpec {
             approach: Approach::Positive,
             approach_mm: 5.0,
             max_acceleration_g: 5.0,
+            controller: ControllerSpec::defaults(paper::HOME_MM, paper::nominal_dynamics()),
         }
+    }
+
+    /// The machine record the controller holds and every image carries (`HRMC`): this
+    /// description in f32. Refused, naming the machine file's key: a name that is not 1..=16
+    /// printable ASCII characters, a limit out of its range, a home outside the workspace.
+    pub fn record(&self) -> Result<MachineRecord, String> {
+        let c = &self.controller;
+        let name = MachineName::new(&self.name).map_err(|_| {
+            format!(
+                "'name' = {:?}: the controller stores 1..=16 printable ASCII characters",
+                self.name
+            )
+        })?;
+        let d = c.nominal_dynamics.cast::<f32>();
+        let record = MachineRecord {
+            name,
+            nominal: self.nominal.cast::<f32>(),
+            encoder_sign: [1, 1],
+            workspace: self.workspace.limits()?,
+            home_mm: c.home_mm.map(|v| v as f32),
+            limits: PlausibilityLimits {
+                same_machine_tolerance_mm: c.same_machine_tolerance_mm as f32,
+                max_node_correction_mm: c.max_node_correction_mm as f32,
+                max_correction_slope: c.max_correction_slope as f32,
+                max_backlash_rad: (c.max_backlash_urad * 1e-6) as f32,
+                dynamics_factor: c.dynamics_factor as f32,
+                nominal_dynamics: d,
+            },
+        };
+        record.validate().map_err(|e| match e {
+            RecordError::Home => format!(
+                "'controller.home_mm' = {:?} lies outside the workspace",
+                c.home_mm
+            ),
+            RecordError::Limit(name) => {
+                let (lo, hi) = kinematics_core::machine::record::LIMIT_RANGES
+                    .iter()
+                    .find(|r| r.0 == name)
+                    .map_or((0.0, 0.0), |r| (f64::from(r.1), f64::from(r.2)));
+                match name {
+                    "max_backlash_rad" => format!(
+                        "'controller.max_backlash_urad' = {} must be in ({}, {}] µrad",
+                        c.max_backlash_urad,
+                        lo * 1e6,
+                        (hi * 1e6).round()
+                    ),
+                    _ => format!("'controller.{name}' must be in ({lo}, {hi}]"),
+                }
+            }
+            RecordError::Dynamics => "'nominal_dynamics': the motor inertias, the friction and the Coulomb speed must be positive, the tool mass non-negative, every value finite (in f32)".into(),
+            other => format!("machine '{}': {other}", self.name),
+        })?;
+        Ok(record)
     }
 
     /// The grid nodes, x fastest (the order of the `grid` protocol and of the flash image).
@@ -398,6 +502,7 @@ impl MachineSpec {
             }
         }
         ws.limits()?;
+        self.record()?;
         Ok(())
     }
 }

@@ -254,7 +254,8 @@ fn fit_bad_input() {
     );
 }
 
-/// A machine with errors, measured at a 5 mm grid commanded with the nominal model.
+/// A machine with errors, measured at a 5 mm grid commanded with the nominal model (a partial
+/// grid around the home position, which every image must hold).
 fn grid_data(dir: &Path) -> (PathBuf, PathBuf) {
     let mut truth = FiveBar::<f64>::paper_nominal();
     truth.a_mm = 149.9;
@@ -263,7 +264,7 @@ fn grid_data(dir: &Path) -> (PathBuf, PathBuf) {
     let mut rows = Vec::new();
     for j in 0..7 {
         for i in 0..6 {
-            let t = [180.0 + 5.0 * i as f64, -15.0 + 5.0 * j as f64];
+            let t = [195.0 + 5.0 * i as f64, -15.0 + 5.0 * j as f64];
             let th = model.inverse(t, 0.05).unwrap();
             rows.push(Measurement {
                 theta_deg: [th[0].to_degrees(), th[1].to_degrees()],
@@ -331,7 +332,7 @@ fn grid_then_command_match_the_firmware_path() {
     let targets = write(
         d,
         "t.csv",
-        "x_mm,y_mm\n181.3,-12.7\n200,15\n# comment\n192.5,0.25\n",
+        "x_mm,y_mm\n196.3,-12.7\n215,15\n# comment\n207.5,0.25\n",
     );
     let angles = d.join("a.csv");
     let (ok, _, stderr) = run(&[
@@ -351,7 +352,7 @@ fn grid_then_command_match_the_firmware_path() {
     let text = std::fs::read_to_string(&angles).unwrap();
     let mut lines = text.lines();
     assert_eq!(lines.next(), Some("x_mm,y_mm,theta1_deg,theta2_deg"));
-    for (line, t) in lines.zip([[181.3f32, -12.7], [200.0, 15.0], [192.5, 0.25]]) {
+    for (line, t) in lines.zip([[196.3f32, -12.7], [215.0, 15.0], [207.5, 0.25]]) {
         let th = cal.command_rad(t, 0.05).unwrap();
         let f: Vec<f64> = line.split(',').map(|v| v.parse().unwrap()).collect();
         // Degrees with 9 decimals round-trip the f32 radians exactly.
@@ -401,7 +402,7 @@ fn grid_then_command_match_the_firmware_path() {
     );
 
     // Bad input: target outside the grid, unreachable target, grid for another model, NaN.
-    let outside = write(d, "o.csv", "x_mm,y_mm\n181,-12\n240,0\n");
+    let outside = write(d, "o.csv", "x_mm,y_mm\n196,-12\n240,0\n");
     fails(
         &[
             "command",
@@ -417,7 +418,7 @@ fn grid_then_command_match_the_firmware_path() {
         "line 3: target (240, 0): ",
         &d.join("o1.csv"),
     );
-    let far = write(d, "far.csv", "x_mm,y_mm\n181,-12\n400,0\n");
+    let far = write(d, "far.csv", "x_mm,y_mm\n196,-12\n400,0\n");
     fails(
         &[
             "command",
@@ -450,7 +451,7 @@ fn grid_then_command_match_the_firmware_path() {
         "grid was built for another model: b_mm",
         &d.join("o3.csv"),
     );
-    let nan = write(d, "nan.csv", "x_mm,y_mm\n181,nan\n");
+    let nan = write(d, "nan.csv", "x_mm,y_mm\n196,nan\n");
     fails(
         &[
             "command",
@@ -485,7 +486,7 @@ fn grid_then_command_match_the_firmware_path() {
             "--out",
             s(&g2),
         ],
-        "node (1, 1) at (185, -10) is missing",
+        "node (1, 1) at (200, -10) is missing",
         &g2,
     );
     assert!(!d.join("g2.csv").exists());

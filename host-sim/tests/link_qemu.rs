@@ -282,12 +282,21 @@ fn the_host_tool_drives_the_firmware_under_qemu() {
         "the new correction took effect: {moved:?}"
     );
 
-    // A damaged image (one bit flipped in its grid): refused, the image in force stays.
+    // A damaged image (one bit flipped in its grid): the host tool refuses it before it
+    // connects; sent anyway (the library's upload, as another client could), the controller
+    // refuses it and the image in force stays.
     let mut damaged = image.clone();
     damaged[image.len() / 2] ^= 0x10;
     let bad = work.path().join("damaged-grid.bin");
     std::fs::write(&bad, &damaged).unwrap();
     let refusal = refused(&addr, &["upload", "--grid", bad.to_str().unwrap()]);
+    assert!(refusal.contains("grid image CRC mismatch"), "{refusal}");
+    let mut client =
+        host_sim::link::LinkClient::connect_tcp(&addr, std::time::Duration::from_secs(10)).unwrap();
+    let refusal = host_sim::link::upload_calibration(&mut client, &damaged, &mut |_, _| {})
+        .unwrap_err()
+        .to_string();
+    drop(client);
     assert!(refusal.contains("Calibration(Invalid)"), "{refusal}");
     assert_eq!(
         ok(&addr, &["identify"])["calibration_id"].as_u64(),

@@ -225,7 +225,7 @@ fn every_output_is_written_only_once_all_are_ready() {
     ]);
     assert!(ok, "{err}");
     let nodes: Vec<[f64; 2]> = (0..3)
-        .flat_map(|i| (0..3).map(move |j| [202.0 + 5.0 * i as f64, -5.0 + 5.0 * j as f64]))
+        .flat_map(|i| (0..3).map(move |j| [207.0 + 5.0 * i as f64, -5.0 + 5.0 * j as f64]))
         .collect();
     let data = d.join("nodes.csv");
     write_measurements(&data, &readings(&nodes, 0.0, 1)).unwrap();

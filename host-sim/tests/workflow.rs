@@ -319,8 +319,13 @@ fn the_separate_commands_reproduce_the_demo_on_the_paper_machine() {
         (&"written".into(), &true.into()),
         "{v}"
     );
+    // The dynamics block goes after the workspace block and before the machine record, which
+    // every image ends with.
     let with = std::fs::read(&gd).unwrap();
-    assert_eq!(&with[..image.len()], &image[..]);
+    let record = kinematics_core::grid::MACHINE_LEN;
+    let before_record = image.len() - record;
+    assert_eq!(&with[..before_record], &image[..before_record]);
+    assert_eq!(&with[with.len() - record..], &image[before_record..]);
     assert_eq!(
         with.len(),
         image.len() + kinematics_core::grid::DYNAMICS_LEN
@@ -341,6 +346,32 @@ fn the_separate_commands_reproduce_the_demo_on_the_paper_machine() {
         sim["dynamics_source"], "the --grid image's dynamics block",
         "{sim}"
     );
+    // Dynamics 1000 times the machine's: a valid file, an image the controller would refuse;
+    // nothing is written.
+    std::fs::write(
+        &dynamics,
+        DYNAMICS_JSON
+            .replace("[0.0037, 0.0037]", "[3.7, 3.7]")
+            .replace("0.165", "165.0"),
+    )
+    .unwrap();
+    let absurd = d.join("absurd.bin");
+    fails(
+        &[
+            "grid",
+            "--model",
+            s(&m),
+            "--data",
+            s(&g1),
+            s(&g2),
+            "--out",
+            s(&absurd),
+            "--dynamics",
+            s(&dynamics),
+        ],
+        "times the nominal kinetic energy",
+    );
+    assert!(!absurd.exists() && !absurd.with_extension("csv").exists());
     std::fs::write(&dynamics, DYNAMICS_JSON.replace("0.165", "-0.165")).unwrap();
     let bad = d.join("bad.bin");
     fails(

@@ -23,9 +23,10 @@
 //! 2.5e-7 on the same inputs. Zero, infinite and NaN inputs give IEEE's results (the
 //! nearest f32 to them, tested).
 //!
-//! Cost on the Cortex-M4F (`cargo qemu-bench`): `atan2_f32` 67 instructions, 88 estimated
-//! cycles (one VDIV), against 75.5 and 115.5 for libm's `atan2f` (8 taken branches). Inlined
-//! into the IK, where its loads and constants are shared, it costs less.
+//! Cost: one division (VDIV on the Cortex-M4F), the octant's table lookup and eight
+//! multiply-adds; no call, no branch. `BENCH atan2_f32` in `cargo qemu-bench` counts it on the
+//! MCU (docs/validation/benchmarks.md); inlined into the IK, where its loads and constants are
+//! shared, it costs less.
 
 const TAN_PI_8: f32 = 0.414_213_57;
 const P1: f32 = -0.333_332_87;

@@ -1,5 +1,5 @@
 //! Backlash compensation in the servo: the continuous inverse of the play operator, applied to
-//! the joint reference (issue 13, "close the loop").
+//! the joint reference.
 //!
 //! # The model and its convention
 //! Motor j reaches its link through a lost motion (gap) of β_j. The encoder sits on the motor;

@@ -1,6 +1,10 @@
 //! Disturbance observer of one axis: estimates the torque the feed-forward gets wrong from the
-//! measured motion, so the servo adds it before the PID has to lag to find it (issue 14: the
-//! following error at 5 g with every mass and inertia of the fed-forward model 20 % off).
+//! measured motion, so the servo adds it before the PID has to lag to find it (the following
+//! error at 5 g with every mass and inertia of the fed-forward model 20 % off).
+//!
+//! The estimate is *added* to the torque: a disturbance `Δ` the feed-forward lacks is answered
+//! by `+Δ̂`, and `tests/disturbance_observer.rs` checks the sign on a simple plant (a constant
+//! torque disturbance estimated with its sign and cancelled).
 //!
 //! # Why
 //! With a model error δ the feed-forward leaves `δ·J·θ̈` of torque to the feedback, which the
@@ -142,7 +146,7 @@ impl DisturbanceObserver {
     /// Whether its history is the previous sample's: the encoder reading it last ran on is the
     /// previous sample's. Otherwise samples without the observer came between (the servo's plain
     /// step, an engage) and it must [`restart`](Self::restart). Why a reading and not a flag the
-    /// plain step clears: the plain step then pays nothing (issue 16's 700 instructions). A gap
+    /// plain step clears: the plain step then pays nothing for the observer. A gap
     /// of plain samples that leaves the reading exactly where it was is a machine at rest, where
     /// the estimate has decayed and the history is what the observer would have seen.
     #[inline(always)]

@@ -31,8 +31,9 @@
 //! and inside `Ä` and `φ̈`. With `Jᵀx = (k1·(x × q2), k2·(q1 × x)) / (q1 × q2)`, `k = p × q`, no
 //! matrix is formed. Every term is a regressor column times a parameter
 //! ([`regressor`]); [`FiveBarDynamics::torque_nm`] is that product (without its structural
-//! zeros), so identification (`host-sim identify`) and feed-forward use one computation. `tests` checks it against a Lagrangian
-//! computed by finite differences of the FK.
+//! zeros), so identification (`host_sim::calib::dynamics`) and feed-forward use one
+//! computation. `tests` checks it against a Lagrangian computed by finite differences of the
+//! FK.
 //!
 //! Cost: five divisions and about 80 flops from a [`JointMotion`]; `BENCH inverse_dynamics_f32`
 //! in `cargo qemu-bench`.

@@ -18,11 +18,12 @@
 //! the setpoint's own acceleration and jerk, `p + v·dt + a·dt²/2 + j·dt³/6`, exact within a jerk
 //! phase of a straight move ([`predict`]).
 //!
-//! Measured on the five-bar with exact dynamics (5 g tour, 160 Hz loop): 0.25 µm worst
-//! following error with the next setpoint; 1.6 µm with the prediction (the jerk switches inside
-//! an interval are what it cannot see; on a 5 g contour planned with a jerk of 3e7 mm/s³ 8.5 µm);
-//! 9.5 µm with the derivatives at `t_k` and its configuration; without any dynamics feed-forward
-//! over 300 µm (at 80 Hz).
+//! What each choice leaves: with the next setpoint the interval's mean is exact; the
+//! prediction misses only the jerk switches inside the interval; derivatives taken at `t_k`
+//! alone lag the interval by half a sample, and no dynamics feed-forward at all leaves the
+//! whole inertial torque to the PID. `tests/servo.rs` (module `motion`) bounds the following
+//! error of 5 g moves with it; `cargo bench -p host-sim --bench following` prints it on the
+//! plants.
 //!
 //! Without identified dynamics the per-axis constant feed-forward of [`AxisGains`] is applied
 //! to the same mean joint motion.

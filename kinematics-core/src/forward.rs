@@ -12,6 +12,25 @@
 //! (check: `|C - A|² = (m² + h²)/(4 s·s) = b²`). `σ = +1` puts C to the left of A→B. The paper's
 //! Eq. 9 is the same construction in angles (`θ3 = φ + π + acos(...)`); this form needs no
 //! inverse trigonometry and gives the parallel-singularity margin `h / 2bc` for free.
+//!
+//! Cost: two `sin_cos` (one per motor), one square root and one division, the assembly and
+//! margin checks; `BENCH fk_f32` in `cargo qemu-bench` counts it on the MCU
+//! (docs/validation/benchmarks.md). Error: see [`crate::inverse`] (`tests/round_trip.rs`).
+//!
+//! ```
+//! use kinematics_core::FiveBar;
+//!
+//! let m = FiveBar::<f64>::paper_nominal();
+//! // Both arms at ±45°: the square pose, the tool on the x axis at 150·√2 mm.
+//! let c = m.forward([45f64.to_radians(), -45f64.to_radians()], 0.05).unwrap();
+//! assert!((c[0] - 150.0 * 2f64.sqrt()).abs() < 1e-9 && c[1].abs() < 1e-9);
+//! // FK undoes IK.
+//! let theta = m.inverse([200.0, 30.0], 0.05).unwrap();
+//! let back = m.forward(theta, 0.05).unwrap();
+//! assert!((back[0] - 200.0).abs() < 1e-9 && (back[1] - 30.0).abs() < 1e-9);
+//! // Distal links that cannot meet: refused.
+//! assert!(m.forward([0.0, 3.0], 0.05).is_err());
+//! ```
 
 use crate::model::FiveBar;
 use crate::pose::Pose;

@@ -26,13 +26,26 @@
 //!   `m·b·c·4ρ1²ρ2²` (the scale of the two distal vectors).
 //! * Finite: the angles, the elbow vectors and the cross product.
 //!
-//! Cost (`cargo qemu-bench`, Cortex-M4F): `ik_f32` (`FiveBar::inverse`) 325 instructions, 461
-//! estimated cycles, of which 12 instructions check the model's links and raise the margin to
-//! its floor on every call; `ik_f32_valid` ([`crate::ValidFiveBar::inverse`], the model and
-//! the margin checked once, the servo's IK) 310 / 450 (two `atan2_f32`, two VSQRT, two VDIV
-//! inside the `atan2`s). Error: f32 round trips
-//! FK(IK(p)) stay within 0.1 µm (55 nm measured) and f64 within 1 nm over the paper's
-//! workspace, and the f32 IK alone within 0.05 µm of f64 at the tool (`tests/round_trip.rs`).
+//! Cost: two `atan2_f32`, two square roots (VSQRT on the MCU) and no other division; on every
+//! call a dozen instructions check the model's links and raise the margin to its floor, which
+//! [`crate::ValidFiveBar::inverse`] (the servo's IK) does once instead. `BENCH ik_f32` and
+//! `BENCH ik_f32_valid` in `cargo qemu-bench` count both on the MCU
+//! (docs/validation/benchmarks.md). Error: f32 round trips FK(IK(p)) stay within 0.1 µm and
+//! f64 within 1 nm over the paper's workspace, the f32 IK alone within 0.1 µm of f64 at the
+//! tool: `cargo test -p kinematics-core --release --test round_trip -- --nocapture` asserts
+//! the bounds and prints the worst cases.
+//!
+//! ```
+//! use kinematics_core::FiveBar;
+//!
+//! let m = FiveBar::<f64>::paper_nominal();
+//! // The workspace's centre, where the nominal five-bar is a square: ±45°.
+//! let theta = m.inverse([150.0 * 2f64.sqrt(), 0.0], 0.05).unwrap();
+//! assert!((theta[0] - 45f64.to_radians()).abs() < 1e-12);
+//! assert!((theta[1] + 45f64.to_radians()).abs() < 1e-12);
+//! // Out of reach (the arms are 300 mm long together): a typed refusal, never NaN angles.
+//! assert!(m.inverse([400.0, 0.0], 0.05).is_err());
+//! ```
 
 use crate::model::{Branch, FiveBar};
 use crate::pose::{cross, Pose};

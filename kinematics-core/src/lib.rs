@@ -13,14 +13,17 @@
 //!   floor once ([`IkMargin`]), so the servo's IK per sample repeats neither check;
 //! * [`grid`], [`bilinear`]: the correction grid image read from flash (validated header, CRC),
 //!   interpolated with the paper's Eq. 7, and the chain of extension blocks after it (the
-//!   machine's workspace limits, the identified dynamics);
+//!   machine's workspace limits, the identified dynamics, the backlash, the machine record);
+//! * [`machine`]: the machine record (nominal model, encoder convention, workspace, home,
+//!   plausibility limits; its digest names the machine) and the judgements of an image against
+//!   it: built for this machine, and a plausible calibration of it;
 //! * [`workspace`]: the machine's convex workspace and the check that a point lies inside it
 //!   with a margin (host tools and firmware share it);
 //! * [`pid`], [`disturbance_observer`], [`servo`]: position control per axis (with an observer of
 //!   the torque the feed-forward lacks) and the servo step
 //!   (setpoint → IK → correction → torque), with validated settings; a refused setpoint leaves
 //!   the servo engaged (the firmware brakes the machine with it), a feedback fault latches;
-//! * [`jerk_profile`], [`path`], [`trajectory`]: jerk-limited tool motions (time-optimal
+//! * [`jerk_profile`], [`path`], [`setpoint`], [`trajectory`]: jerk-limited tool motions (time-optimal
 //!   rest-to-rest profile, lines, circles, figure-eights, tours through waypoints) with exact
 //!   velocity, acceleration and jerk at every sample;
 //! * [`joint_motion`], [`dynamics`], [`feed_forward`], [`joint_limits`]: the joint motion for a
@@ -51,6 +54,8 @@ pub mod jacobian;
 pub mod jerk_profile;
 pub mod joint_limits;
 pub mod joint_motion;
+mod le_bytes;
+pub mod machine;
 pub mod model;
 pub mod paper;
 pub mod path;
@@ -58,6 +63,7 @@ pub mod pid;
 pub mod pose;
 pub mod real;
 pub mod servo;
+pub mod setpoint;
 pub mod sin_cos;
 pub mod trajectory;
 pub mod valid_model;
@@ -66,9 +72,10 @@ pub mod workspace;
 pub use backlash::{Backlash, InvalidBacklash};
 pub use dynamics::{DynamicsError, FiveBarDynamics};
 pub use error::{KinematicsError, Singularity};
-pub use grid::{CorrectionGrid, GridError, GridGeometry, WorkspaceLimits};
+pub use grid::{CorrectionGrid, GridError, GridGeometry};
 pub use jacobian::Mat2;
 pub use joint_motion::JointMotion;
+pub use machine::{judge_image, ImageRefusal, MachineRecord};
 pub use model::{Branch, FiveBar, ModelError, WorkingMode};
 pub use pid::{AxisController, AxisGains, AxisReference, InvalidGain};
 pub use pose::Pose;
@@ -79,7 +86,7 @@ pub use servo::{
 };
 pub use trajectory::{MotionSetpoint, PathMotion, TaskLimits, Tour, TrajectoryError};
 pub use valid_model::{IkMargin, ValidFiveBar};
-pub use workspace::{ConvexWorkspace, WorkspaceError, MAX_WORKSPACE_VERTICES};
+pub use workspace::{ConvexWorkspace, WorkspaceError, WorkspaceLimits, MAX_WORKSPACE_VERTICES};
 
 /// The default singularity margin: the smallest `|sin|` of a transmission angle accepted
 /// (0.05 is about 2.9° from a singular configuration).

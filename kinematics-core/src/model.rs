@@ -74,6 +74,29 @@ impl WorkingMode {
         elbow_2: Branch::Negative,
         assembly: Branch::Positive,
     };
+
+    /// The mode as three flag bits (bit 0 elbow 1, bit 1 elbow 2, bit 2 assembly; set for
+    /// `Positive`): how the calibration image and the machine record store it.
+    pub(crate) fn to_flags(self) -> u32 {
+        let bit = |b: Branch, n: u32| if b == Branch::Positive { 1 << n } else { 0 };
+        bit(self.elbow_1, 0) | bit(self.elbow_2, 1) | bit(self.assembly, 2)
+    }
+
+    /// The mode from the low three bits of `flags` ([`Self::to_flags`]; other bits ignored).
+    pub(crate) fn from_flags(flags: u32) -> Self {
+        let branch = |bit: u32| {
+            if flags & (1 << bit) != 0 {
+                Branch::Positive
+            } else {
+                Branch::Negative
+            }
+        };
+        WorkingMode {
+            elbow_1: branch(0),
+            elbow_2: branch(1),
+            assembly: branch(2),
+        }
+    }
 }
 
 /// The five-bar's parameters: everything the calibration can identify.

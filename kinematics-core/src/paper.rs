@@ -7,14 +7,16 @@
 //!   212.132 = 150·√2, is where the nominal five-bar is a square), y ∈ [−75, 75] mm;
 //! * the correction grid's lattice: 5 mm nodes over that rectangle, 21 × 31 ([`grid_geometry`]);
 //! * the servo's sample period, 0.5 ms (2 kHz);
-//! * the soft limit: controlled stops end at least [`STOP_MARGIN_MM`] inside the workspace.
+//! * the soft limit: controlled stops end at least [`STOP_MARGIN_MM`] inside the workspace;
+//! * the home position [`HOME_MM`] and the design's dynamics [`nominal_dynamics`].
 //!
 //! Why here: the firmware's build script bakes a grid for this lattice and the host's machine
-//! description (`host_sim::machine_spec::MachineSpec::paper`) starts from the same numbers; a
-//! second copy is how `162.132` came to be typed in ten files. Another machine is another
-//! description (the host's machine file), not an edit here. Cost: constants only.
+//! description (`host_sim::machine_spec::MachineSpec::paper`) and the controller's default
+//! machine record (`crate::machine::MachineRecord::paper`) start from the same numbers: one
+//! copy of each. Another machine is another description (the host's machine file), not an
+//! edit here. Cost: constants only.
 
-use crate::{FiveBar, GridGeometry, Real};
+use crate::{FiveBar, FiveBarDynamics, GridGeometry, Real};
 
 /// Workspace x range (mm): Table I's left and right columns.
 pub const WORKSPACE_X_MM: [f64; 2] = [162.132, 262.132];
@@ -30,9 +32,30 @@ pub const SAMPLE_PERIOD_S: f64 = 5e-4;
 /// own default (`StopSettings::workspace_margin_mm`) is the same 0.1 mm.
 pub const STOP_MARGIN_MM: f64 = 0.1;
 
+/// The home position (mm): the workspace's centre, where the nominal five-bar is a square.
+pub const HOME_MM: [f64; 2] = [212.132, 0.0];
+
 /// The nominal hidden robot.
 pub fn nominal<T: Real>() -> FiveBar<T> {
     FiveBar::paper_nominal()
+}
+
+/// The design's dynamics: the drives' 2e-3 kg·m² at each joint with the linkage lumped into
+/// the hidden robot (1.89e-3 kg·m² per lever side, 0.165 kg at the tool, −2.43e-4 kg·m² per
+/// distal body: aluminium bars of 120 and 40 mm², 30 g elbow pieces, 100 g platform with its
+/// tool; host-sim's `paper` plant computes the same numbers from its bodies), 0.02 N·m·s/rad
+/// viscous and 0.05 N·m Coulomb friction per drive. What an identification of this machine
+/// should find, and what the plausibility of an image's dynamics is judged against.
+pub fn nominal_dynamics<T: Real>() -> FiveBarDynamics<T> {
+    let f = T::from_f64;
+    FiveBarDynamics {
+        motor_inertia_kg_m2: [f(3.89e-3); 2],
+        tool_mass_kg: f(0.165),
+        distal_inertia_kg_m2: [f(-2.43e-4); 2],
+        viscous_nm_s_per_rad: [f(0.02); 2],
+        coulomb_nm: [f(0.05); 2],
+        coulomb_speed_rad_s: f(0.01),
+    }
 }
 
 /// The correction grid's lattice (f32, as stored in the flash image).

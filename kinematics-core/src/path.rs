@@ -17,7 +17,7 @@
 
 use crate::jerk_profile::ScalarState;
 use crate::real::Real;
-use crate::trajectory::MotionSetpoint;
+use crate::setpoint::MotionSetpoint;
 
 /// A point of a path and the curve's derivatives with respect to its parameter there.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -9,9 +9,10 @@
 //! correct what the model of the drive gets wrong, and the following error at high
 //! acceleration stays small. The Coulomb term uses a smoothed sign of the *reference* velocity
 //! (`ω_c` sets how fast it turns over), so it switches where the motion reverses instead of
-//! waiting for the integrator to unwind, and never chatters on encoder noise. Anti-windup is conditional integration: while the output is
-//! saturated the integrator only moves in the direction that brings it out of saturation, and it
-//! is clamped to `integral_limit_nm` of torque in any case. Derivative acts on the velocity
+//! waiting for the integrator to unwind, and never chatters on encoder noise. Anti-windup is
+//! conditional integration: while the output is saturated the integrator only moves in the
+//! direction that brings it out of saturation, and it is clamped to `integral_limit_nm` of
+//! torque in any case. Derivative acts on the velocity
 //! error (reference velocity minus measured), not on the error of a stepped reference, so a
 //! new setpoint never kicks the output. Cost: about 25 floating-point operations.
 //!
@@ -460,7 +461,8 @@ mod tests {
         assert!(close(t, 0.3 * 4.0 / 4.01), "{t}");
     }
 
-    /// The panic of issue 11: `f32::clamp(-limit, limit)` with a negative or NaN limit.
+    /// `f32::clamp(-limit, limit)` panics with a negative or NaN limit; the controller never
+    /// does.
     #[test]
     fn absurd_limits_and_gains_never_panic_and_give_a_finite_limited_torque() {
         for limit in [-1.0, f32::NAN, f32::INFINITY, f32::NEG_INFINITY, -0.0, 0.0] {

@@ -7,7 +7,7 @@
 //! ([`crate::atan2`], [`crate::sin_cos`]: libm's f32 `atan2f` is slower and its `sincosf`
 //! computes in f64, software on the MCU); and `sqrt` on a Cortex-M with an FPU, where the
 //! `VSQRT.F32` instruction is both exact (IEEE-754 correctly rounded, like libm's) and much
-//! cheaper than libm's software `sqrtf` (about 56 instructions a call on the Cortex-M4F).
+//! cheaper than libm's software `sqrtf` (a loop of tens of instructions on the Cortex-M4F).
 
 use core::ops::{Add, Div, Mul, Neg, Sub};
 
@@ -184,8 +184,8 @@ impl Real for f32 {
 /// registers) is, and implies an FPU with VSQRT on every ARM target that has it. For the same
 /// reason the operand cannot use the `sreg` register class (it requires the unstable `vfp2`
 /// feature): it goes through a core register and `s0`, declared clobbered. That costs two
-/// `VMOV`s on each side (1 cycle each) around the 14-cycle `VSQRT`, against ~40 instructions of
-/// libm's software `sqrtf`. `tests/run-all.sh` checks that the benchmark's IK executes VSQRT.
+/// `VMOV`s on each side (1 cycle each) around the 14-cycle `VSQRT`, against libm's software
+/// `sqrtf`, tens of instructions. `tests/run-all.sh` checks that the benchmark's IK executes VSQRT.
 #[inline(always)]
 fn sqrt_f32(v: f32) -> f32 {
     #[cfg(all(target_arch = "arm", target_abi = "eabihf"))]
@@ -230,7 +230,7 @@ pub(crate) fn effective_margin<T: Real>(min_transmission: T, floor: T) -> T {
 /// returned as it is after one comparison. Up to 4π away (a difference of two wrapped angles,
 /// the feed-forward's case) one or two turns are taken off with 2π split in two parts
 /// (Cody–Waite: the high part's multiples are exact, so the result is off by at most an ulp
-/// of itself). Beyond that [`wrap_far_rad`] reduces exactly. A non-finite angle stays
+/// of itself). Beyond that `wrap_far_rad` reduces exactly. A non-finite angle stays
 /// non-finite (NaN).
 #[inline]
 pub fn wrap_angle_rad<T: Real>(angle_rad: T) -> T {

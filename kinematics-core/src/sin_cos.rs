@@ -1,11 +1,10 @@
 //! `sin` and `cos` of one f32 angle together, in single precision throughout.
 //!
 //! Why not libm: musl's `sincosf` (what the `libm` crate ports) reduces the argument and
-//! evaluates its kernels in f64, which a Cortex-M4F (single-precision FPU) runs in software:
-//! 2,197 instructions per call (3,255 estimated cycles), so 4,556 per FK. Written here in
-//! plain f32 arithmetic (no fused multiply-add, no target-dependent branch), the same source
-//! rounds the same way on the MCU and on the host, which `tests/tests/same_core_on_mcu.rs`
-//! checks bit for bit.
+//! evaluates its kernels in f64, which a Cortex-M4F (single-precision FPU) runs in software,
+//! thousands of instructions per call. Written here in plain f32 arithmetic (no fused
+//! multiply-add, no target-dependent branch), the same source rounds the same way on the MCU
+//! and on the host, which `tests/tests/same_core_on_mcu.rs` checks bit for bit.
 //!
 //! Algorithm (Cody-Waite reduction, two polynomials):
 //! * `k = round(x · 2/π)` by the `1.5·2²³` trick (exact round-to-nearest-even for the claimed
@@ -24,8 +23,9 @@
 //! libm's `sincosf` (correctly reduced for any finite input, NaN otherwise): the
 //! kinematics never get there, but no input gives a wrong answer.
 //!
-//! Cost on the Cortex-M4F (`cargo qemu-bench`): `sin_cos_f32` 43 instructions, 51
-//! estimated cycles, no division; the FK (two of them) went from 4,556 to 215 instructions.
+//! Cost: the reduction (three multiply-adds), two polynomials of degree 2 and the quadrant's
+//! swap; no division, no call. `BENCH sin_cos_f32` in `cargo qemu-bench` counts it on the MCU
+//! (docs/validation/benchmarks.md); the FK calls it twice.
 
 /// The claimed range: `|x| ≤ MAX_ARG_RAD` (keeps `|k| < 4096`, see the module doc).
 pub const MAX_ARG_RAD: f32 = 4096.0;

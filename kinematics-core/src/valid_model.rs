@@ -1,9 +1,9 @@
 //! A five-bar checked once, and an IK margin raised to its floor once: what the servo's IK
-//! needs per sample without repeating the checks (issue 16).
+//! needs per sample without repeating the checks.
 //!
 //! [`FiveBar::inverse`] refuses, on every call, a model whose links are not all positive
 //! ([`KinematicsError::InvalidModel`]) and raises the caller's margin to
-//! [`Real::IK_MIN_TRANSMISSION`]: about 12 instructions of the IK on the Cortex-M4F, for facts
+//! [`Real::IK_MIN_TRANSMISSION`]: a dozen instructions of the IK on the Cortex-M4F, for facts
 //! that do not change between the 2 kHz samples. Here both move to construction time:
 //!
 //! * [`ValidFiveBar::new`] runs [`FiveBar::validate`] (every parameter finite, every link

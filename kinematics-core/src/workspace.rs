@@ -117,6 +117,29 @@ impl<T: Real> ConvexWorkspace<T> {
         ])
     }
 
+    /// The rectangle `[x0, x1] × [y0, y1]` built without checks, for constants known to be
+    /// one (`x0 < x1`, `y0 < y1`, finite): the same value [`Self::rectangle`] returns for
+    /// them (a test checks), and no error path where there can be no error.
+    pub(crate) fn rectangle_unchecked(x_mm: [T; 2], y_mm: [T; 2]) -> Self {
+        let o = T::ONE;
+        let z = T::ZERO;
+        let mut w = ConvexWorkspace {
+            vertices_mm: [[z; 2]; MAX_WORKSPACE_VERTICES],
+            normals: [[z; 2]; MAX_WORKSPACE_VERTICES],
+            offsets_mm: [z; MAX_WORKSPACE_VERTICES],
+            len: 4,
+        };
+        w.vertices_mm[..4].copy_from_slice(&[
+            [x_mm[0], y_mm[0]],
+            [x_mm[1], y_mm[0]],
+            [x_mm[1], y_mm[1]],
+            [x_mm[0], y_mm[1]],
+        ]);
+        w.normals[..4].copy_from_slice(&[[-z, o], [-o, z], [z, -o], [o, z]]);
+        w.offsets_mm[..4].copy_from_slice(&[y_mm[0], -x_mm[1], -y_mm[1], x_mm[0]]);
+        w
+    }
+
     /// The vertices, counter-clockwise.
     pub fn vertices_mm(&self) -> &[[T; 2]] {
         &self.vertices_mm[..self.len]
@@ -168,6 +191,17 @@ impl<T: Real> ConvexWorkspace<T> {
     }
 }
 
+/// Where the machine may be commanded and where a controlled stop must end: the polygon and the
+/// soft limit (what the calibration image's workspace block and the machine record hold).
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct WorkspaceLimits {
+    /// Where the machine may be commanded (mm, machine frame).
+    pub region: ConvexWorkspace<f32>,
+    /// How far inside `region` a controlled stop must end (mm, ≥ 0).
+    pub stop_margin_mm: f32,
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -200,6 +234,17 @@ mod tests {
         assert_eq!(w.bounds_mm(), ([162.132, 262.132], [-75.0, 75.0]));
         assert!((w.clearance_mm([212.132, 70.0]) - 5.0).abs() < 1e-4);
         assert!(w.clearance_mm([100.0, 0.0]) < -60.0);
+    }
+
+    #[test]
+    fn the_unchecked_rectangle_is_the_checked_one() {
+        let (x, y) = ([162.132f32, 262.132], [-75.0f32, 75.0]);
+        let a = ConvexWorkspace::rectangle(x, y).unwrap();
+        let b = ConvexWorkspace::rectangle_unchecked(x, y);
+        assert_eq!(a, b);
+        for p in [[162.132, 0.0], [262.2, 0.0], [200.0, 75.1], [200.0, -75.0]] {
+            assert_eq!(a.clearance_mm(p), b.clearance_mm(p));
+        }
     }
 
     #[test]

@@ -1,7 +1,7 @@
 //! IK and FK never answer for a model that cannot be a machine, nor at an exact singularity,
-//! whatever the margin: what `FiveBar::inverse_pose` documents (issue 11, "invalid states").
-//! Before: with margin 0 the IK returned angles at an exact parallel singularity whose FK
-//! failed, and a = -150 mm gave angles whose FK was (0, 0), not the target.
+//! whatever the margin: what `FiveBar::inverse_pose` documents. The cases: with margin 0, a
+//! target at an exact parallel singularity (its angles would have no FK), and a = -150 mm (the
+//! law of cosines squares the sign away: angles whose FK is another point).
 
 use kinematics_core::{FiveBar, KinematicsError, ModelError, Singularity};
 

@@ -4,6 +4,7 @@
 use std::error::Error;
 
 use kinematics_core::jerk_profile::ProfileError;
+use kinematics_core::machine::{ImageRefusal, Implausible, MachineMismatch, RecordError};
 use kinematics_core::{
     ConfigError, DynamicsError, EngageError, GridError, InvalidGain, KinematicsError, ModelError,
     ServoFault, SetpointRefusal, Singularity, StepError, TrajectoryError,
@@ -34,6 +35,25 @@ fn every_error_type_is_an_error_with_a_distinct_message() {
         boxed(GridError::BadEncodeInput),
         boxed(GridError::BadDynamics),
         boxed(GridError::BadBacklash),
+        boxed(GridError::BadWorkspace),
+        boxed(GridError::BadMachineRecord),
+        boxed(RecordError::Length),
+        boxed(RecordError::Name),
+        boxed(RecordError::Reserved),
+        boxed(RecordError::EncoderSign),
+        boxed(RecordError::Model(ModelError::NonFinite)),
+        boxed(RecordError::Workspace),
+        boxed(RecordError::Home),
+        boxed(RecordError::Limit("dynamics_factor")),
+        boxed(RecordError::Dynamics),
+        boxed(MachineMismatch::Unreachable {
+            at_mm: [200.0, 0.0],
+            parameter: None,
+        }),
+        boxed(Implausible::HomeOutsideGrid {
+            home_mm: [212.0, 0.0],
+        }),
+        boxed(ImageRefusal::Record(RecordError::Home)),
         boxed(DynamicsError::NonFinite),
         boxed(DynamicsError::OutOfRange),
         boxed(ProfileError::NonFinite),

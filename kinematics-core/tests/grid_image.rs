@@ -797,7 +797,7 @@ fn append_dynamics_refuses_what_the_parser_would() {
 }
 
 // ---------------------------------------------------------------------------------------------
-// The backlash block (grid.rs, "HRBL"; issue 13).
+// The backlash block (grid, "HRBL").
 
 use kinematics_core::grid::{append_backlash, BACKLASH_LEN, BACKLASH_MAGIC};
 use kinematics_core::Backlash;
@@ -841,7 +841,7 @@ fn the_backlash_block_round_trips_with_the_documented_layout() {
     assert_eq!(f32::from_le_bytes([b[16], b[17], b[18], b[19]]), 35e-6);
     let crc = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC).checksum(&b[..20]);
     assert_eq!(u32::from_le_bytes([b[20], b[21], b[22], b[23]]), crc);
-    // Images without the block parse as before: no backlash.
+    // Images without the block read no backlash.
     for order in [&b""[..], b"W", b"D", b"WD", b"DW"] {
         assert_eq!(
             CorrectionGrid::parse(&image_with_chain(order))
@@ -952,6 +952,97 @@ fn a_gap_that_is_not_a_backlash_is_refused_even_with_a_valid_crc() {
     let mut short = image();
     assert_eq!(
         append_backlash(&mut short, n, n, &backlash()),
+        Err(GridError::BadEncodeInput)
+    );
+}
+
+// ---------------------------------------------------------------------------------------------
+// The machine record block (grid, "HRMC").
+
+use kinematics_core::grid::{append_machine, MACHINE_LEN, MACHINE_MAGIC};
+use kinematics_core::machine::record::ENCODED_LEN;
+use kinematics_core::MachineRecord;
+
+/// The image with every other block, then the machine record (where the writers put it).
+fn image_with_machine() -> Vec<u8> {
+    let mut img = image_with_backlash();
+    let (n, end) = (geometry().image_len(), img.len());
+    img.resize(end + MACHINE_LEN, 0x55);
+    assert_eq!(
+        append_machine(&mut img, n, end, &MachineRecord::paper()),
+        Ok(img.len())
+    );
+    img
+}
+
+#[test]
+fn the_machine_record_block_round_trips_and_older_parsers_stop_before_it() {
+    let img = image_with_machine();
+    let g = CorrectionGrid::parse(&img).unwrap();
+    assert_eq!(g.machine(), Some(MachineRecord::paper()));
+    assert_eq!(g.backlash(), Some(&backlash()));
+    assert_eq!(g.len_bytes(), img.len());
+    let b = &img[img.len() - MACHINE_LEN..];
+    assert_eq!(b[0..4], MACHINE_MAGIC);
+    assert_eq!(u16::from_le_bytes([b[4], b[5]]), 1);
+    assert_eq!(u16::from_le_bytes([b[6], b[7]]) as usize, MACHINE_LEN);
+    assert_eq!((MACHINE_LEN, ENCODED_LEN), (280, 264));
+    let mut payload = [0u8; ENCODED_LEN];
+    MachineRecord::paper().encode(&mut payload).unwrap();
+    assert_eq!(b[12..12 + ENCODED_LEN], payload);
+    // A parser that does not know the block reads everything before it, bit for bit.
+    let before = image_with_backlash();
+    assert_eq!(&img[..before.len()], &before[..]);
+    let mut older = img.clone();
+    older[before.len()..before.len() + 4].copy_from_slice(b"HRXX");
+    let g = CorrectionGrid::parse(&older).unwrap();
+    assert_eq!((g.machine(), g.len_bytes()), (None, before.len()));
+    assert_eq!(g.backlash(), Some(&backlash()));
+}
+
+#[test]
+fn a_corrupt_repeated_or_foreign_machine_record_refuses_the_image() {
+    let img = image_with_machine();
+    let start = img.len() - MACHINE_LEN;
+    for byte in (start + 4..img.len()).step_by(7) {
+        let mut v = img.clone();
+        v[byte] ^= 0x10;
+        assert_eq!(
+            CorrectionGrid::parse(&v).unwrap_err(),
+            GridError::BadMachineRecord,
+            "byte {byte}"
+        );
+    }
+    let mut twice = img.clone();
+    twice.extend_from_slice(&img[start..]);
+    assert_eq!(
+        CorrectionGrid::parse(&twice).unwrap_err(),
+        GridError::BadMachineRecord
+    );
+    // A record that fails its own checks, its block CRC made consistent: refused, not ignored.
+    let mut v = img.clone();
+    let home_x = start + 12 + 196;
+    v[home_x..home_x + 4].copy_from_slice(&1000.0f32.to_le_bytes());
+    let crc = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC).checksum(&v[start..img.len() - 4]);
+    let n = v.len();
+    v[n - 4..].copy_from_slice(&crc.to_le_bytes());
+    assert_eq!(
+        CorrectionGrid::parse(&v).unwrap_err(),
+        GridError::BadMachineRecord
+    );
+    // The writer refuses a record that does not validate, and a buffer without room.
+    let mut bad = MachineRecord::paper();
+    bad.limits.dynamics_factor = 0.5;
+    let (n, end) = (geometry().image_len(), img.len());
+    let mut room = img.clone();
+    room.resize(end + MACHINE_LEN, 0);
+    assert_eq!(
+        append_machine(&mut room, n, end, &bad),
+        Err(GridError::BadMachineRecord)
+    );
+    let mut short = image();
+    assert_eq!(
+        append_machine(&mut short, n, n, &MachineRecord::paper()),
         Err(GridError::BadEncodeInput)
     );
 }

@@ -463,6 +463,8 @@ fn grid_images_tampered_field_by_field_with_the_crc_fixed() {
         o[usize::from(got.is_ok())] += 1;
         outcomes[kind].set(o);
         if let Ok(grid) = got {
+            // Whatever a consistent image holds, judging it refuses or accepts, never panics.
+            let _ = kinematics_core::judge_image(&grid, &kinematics_core::MachineRecord::paper());
             let f = f32::from_bits(raw);
             let geo = grid.geometry();
             let m = grid.model();

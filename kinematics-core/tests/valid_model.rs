@@ -1,4 +1,4 @@
-//! The model checked once (issue 16): `ValidFiveBar` cannot be built from an invalid model,
+//! The model checked once: `ValidFiveBar` cannot be built from an invalid model,
 //! its IK gives exactly `FiveBar::inverse`'s answers (angles bit for bit, the same errors),
 //! and the servo's checked-once path (`Servo::step_valid`, `step_motion_valid`) steps exactly
 //! like the per-call one, while a plain `Calibration` with an invalid model is still refused

@@ -6,9 +6,9 @@ use host_sim::calib::command::{
     check_grid_model, check_in_workspace, command_all, command_all_compensated, format_commands,
     format_commands_with_dirs,
 };
+use host_sim::calib::image::read_image;
 use host_sim::io::model_file::read_model_file;
 use host_sim::io::policy::CommandFiles;
-use host_sim::io::read_bytes;
 use host_sim::io::targets_csv::read_targets;
 use kinematics_core::{Calibration, CorrectionGrid};
 use std::path::PathBuf;
@@ -50,7 +50,10 @@ pub fn run(args: &Args) -> Result<()> {
         .output("--out", &args.out)
         .check()?;
     let spec = args.machine.spec()?;
-    let image = args.grid.as_deref().map(read_bytes).transpose()?;
+    let image = match &args.grid {
+        Some(path) => Some(read_image(path, &spec)?.bytes),
+        None => None,
+    };
     let grid = match (&image, &args.grid) {
         (Some(bytes), Some(path)) => {
             Some(CorrectionGrid::parse(bytes).map_err(|e| anyhow!("{}: {e}", path.display()))?)

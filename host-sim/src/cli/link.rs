@@ -8,17 +8,21 @@
 //! virtual COM port, e.g. `/dev/ttyACM0`, 115 200 Bd 8N1; see firmware/README.md). The
 //! commands are the same over both: the client takes any `Read + Write`.
 use std::io::{Read, Write};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
+use host_sim::calib::image::{read_image, read_image_for};
 use host_sim::io::atomic::Outputs;
+use host_sim::io::machine_file::read_machine;
 use host_sim::io::policy::CommandFiles;
+use host_sim::io::read_bytes;
 use host_sim::io::KeyOrder;
 use host_sim::link::link_protocol::{Command, ModeCode, Response, StatusReport, TelemetrySample};
 use host_sim::link::{
     figure_knots, parse_knots_csv, stream_knots, telemetry_csv, upload_calibration, LinkClient,
 };
+use kinematics_core::{CorrectionGrid, MachineRecord};
 use serde::Serialize;
 
 /// The STM32G474 firmware's link baud rate (`g474_plan::plan::LINK_BAUD`).
@@ -79,9 +83,15 @@ pub enum Action {
     /// Upload a calibration image (grid.bin) and read back its id: the controller must report
     /// the file's own (CRC-32C of its bytes), or the command fails.
     Upload {
-        /// The image.
+        /// The image. It is judged first, as the controller will judge it: another machine's
+        /// image, or one no calibration of the machine needs, is refused before a byte is sent.
         #[arg(long)]
         grid: PathBuf,
+        /// The machine file of the controller's machine: the image must be that machine's
+        /// (its digest). Without it the image is judged against its own machine record, or,
+        /// if it carries none, against the firmware's built-in machine (the paper's).
+        #[arg(long, value_name = "FILE")]
+        machine: Option<PathBuf>,
     },
     /// Record telemetry for a while.
     Telemetry {
@@ -175,6 +185,22 @@ fn wait_idle<S: Read + Write>(client: &mut LinkClient<S>, limit: Duration) -> Re
     }
 }
 
+/// The image `link upload` sends, judged as the controller will judge it (module doc of
+/// `host_sim::calib::image`): for `machine`'s machine when given, else for the machine its own
+/// record names, else for the firmware's built-in machine (the paper's).
+fn upload_image(grid: &Path, machine: Option<&Path>) -> Result<Vec<u8>> {
+    Ok(match machine {
+        Some(path) => read_image(grid, &read_machine(path)?)?.bytes,
+        None => {
+            let bytes = read_bytes(grid)?;
+            let own = CorrectionGrid::parse(&bytes)
+                .map_err(|e| anyhow::anyhow!("{}: {e}", grid.display()))?
+                .machine();
+            read_image_for(grid, &own.unwrap_or_else(MachineRecord::paper))?.bytes
+        }
+    })
+}
+
 /// `host-sim link`.
 pub fn run(args: &Args) -> Result<()> {
     if !(args.timeout_s > 0.0 && args.timeout_s.is_finite()) {
@@ -186,7 +212,9 @@ pub fn run(args: &Args) -> Result<()> {
     let timeout = Duration::from_secs_f64(args.timeout_s);
     // The files an action reads and writes, checked before the link is opened.
     let files = match &args.action {
-        Action::Upload { grid } => CommandFiles::new().input("--grid", grid),
+        Action::Upload { grid, machine } => CommandFiles::new()
+            .input("--grid", grid)
+            .input("--machine", machine),
         Action::Telemetry { csv, .. } => CommandFiles::new().output("--csv", csv),
         Action::Stream(a) => CommandFiles::new()
             .input("--file", &a.file)
@@ -194,6 +222,10 @@ pub fn run(args: &Args) -> Result<()> {
         _ => CommandFiles::new(),
     };
     let mut outputs = files.check()?;
+    // An image the controller would refuse is refused before the link is opened.
+    if let Action::Upload { grid, machine } = &args.action {
+        upload_image(grid, machine.as_deref())?;
+    }
     match (&args.tcp, &args.serial) {
         (Some(_), _) if args.baud.is_some() => bail!("--baud applies to --serial only"),
         (Some(addr), None) => {
@@ -289,9 +321,8 @@ fn act<S: Read + Write>(
             super::print_json(&s, KeyOrder::Sorted)
         }
         Action::Stream(a) => stream(client, a, timeout, outputs),
-        Action::Upload { grid } => {
-            let image =
-                std::fs::read(grid).with_context(|| format!("cannot read {}", grid.display()))?;
+        Action::Upload { grid, machine } => {
+            let image = upload_image(grid, machine.as_deref())?;
             let id = upload_calibration(client, &image, &mut |done, total| {
                 eprint!("\rupload {done}/{total} bytes");
             });

@@ -123,7 +123,7 @@ pub fn run(args: &Args) -> Result<()> {
     };
     let approach: Approach = args.approach.map_or(Approach::FromVisit, Approach::from);
     let (model, bytes) =
-        super::load_calibration(args.model.as_deref(), args.grid.as_deref(), &spec.nominal)?;
+        super::load_calibration(args.model.as_deref(), args.grid.as_deref(), &spec)?;
     let cal = Calibration {
         model,
         grid: super::parse_grid(&bytes)?,

@@ -19,8 +19,9 @@ mod session;
 mod simulate;
 mod verify;
 
-use anyhow::{anyhow, bail, Context, Result};
+use anyhow::{anyhow, bail, Result};
 use clap::{Parser, Subcommand};
+use host_sim::calib::image::read_image;
 use host_sim::io::machine_file::{self, read_machine};
 use host_sim::io::model_file::read_model;
 use host_sim::io::{json_text, KeyOrder};
@@ -128,21 +129,22 @@ fn print_json(value: &impl serde::Serialize, order: KeyOrder) -> Result<()> {
 }
 
 /// Reads `--model` and `--grid`: the model to command with (the grid's own when a grid is given,
-/// which `--model` must then equal; `nominal` without either) and the grid image bytes.
+/// which `--model` must then equal; the machine's nominal without either) and the grid image
+/// bytes, judged for `spec`'s machine (`calib::image::read_image`: another machine's image or an
+/// implausible one is refused).
 fn load_calibration(
     model: Option<&Path>,
     grid: Option<&Path>,
-    nominal: &FiveBar<f64>,
+    spec: &MachineSpec,
 ) -> Result<(FiveBar<f32>, Option<Vec<u8>>)> {
+    let nominal = &spec.nominal;
     let from_model = match model {
         Some(p) => Some(read_model(p)?.cast::<f32>()),
         None => None,
     };
     let bytes = match grid {
         None => None,
-        Some(p) => {
-            Some(std::fs::read(p).with_context(|| format!("cannot read grid {}", p.display()))?)
-        }
+        Some(p) => Some(read_image(p, spec)?.bytes),
     };
     let model = match (&bytes, from_model) {
         (Some(b), m) => {

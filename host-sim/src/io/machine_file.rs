@@ -11,8 +11,10 @@
 //! reachable with the singularity margin).
 
 use super::{read_text, IoError};
-use crate::machine_spec::{Approach, BranchKey, GridLattice, MachineSpec, Workspace};
-use kinematics_core::{FiveBar, WorkingMode};
+use crate::machine_spec::{
+    Approach, BranchKey, ControllerSpec, GridLattice, MachineSpec, Workspace,
+};
+use kinematics_core::{FiveBar, FiveBarDynamics, WorkingMode};
 use serde::Deserialize;
 use std::path::Path;
 
@@ -39,6 +41,33 @@ struct MachineFile {
     instrument: Instrument,
     approach: ApproachKeys,
     servo: Servo,
+    /// Optional: home and the limits an image is judged against (defaults in MACHINE.md).
+    #[serde(default)]
+    controller: ControllerKeys,
+    /// Optional: the design's dynamics (default: the paper machine's).
+    nominal_dynamics: Option<NominalDynamics>,
+}
+
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ControllerKeys {
+    home_mm: Option<[f64; 2]>,
+    same_machine_tolerance_mm: Option<f64>,
+    max_node_correction_mm: Option<f64>,
+    max_correction_slope: Option<f64>,
+    max_backlash_urad: Option<f64>,
+    dynamics_factor: Option<f64>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct NominalDynamics {
+    motor_inertia_kg_m2: [f64; 2],
+    tool_mass_kg: f64,
+    distal_inertia_kg_m2: [f64; 2],
+    viscous_nm_s_per_rad: [f64; 2],
+    coulomb_nm: [f64; 2],
+    coulomb_speed_rad_s: f64,
 }
 
 #[derive(Debug, Deserialize)]
@@ -202,6 +231,34 @@ impl MachineFile {
             nx: nodes("x_mm", g.x_mm, g.step_mm)?,
             ny: nodes("y_mm", g.y_mm, g.step_mm)?,
         };
+        let nominal_dynamics = match &self.nominal_dynamics {
+            None => kinematics_core::paper::nominal_dynamics(),
+            Some(d) => FiveBarDynamics {
+                motor_inertia_kg_m2: d.motor_inertia_kg_m2,
+                tool_mass_kg: d.tool_mass_kg,
+                distal_inertia_kg_m2: d.distal_inertia_kg_m2,
+                viscous_nm_s_per_rad: d.viscous_nm_s_per_rad,
+                coulomb_nm: d.coulomb_nm,
+                coulomb_speed_rad_s: d.coulomb_speed_rad_s,
+            },
+        };
+        let k = &self.controller;
+        let defaults = ControllerSpec::defaults(workspace.centre_mm(), nominal_dynamics);
+        let controller = ControllerSpec {
+            home_mm: k.home_mm.unwrap_or(defaults.home_mm),
+            same_machine_tolerance_mm: k
+                .same_machine_tolerance_mm
+                .unwrap_or(defaults.same_machine_tolerance_mm),
+            max_node_correction_mm: k
+                .max_node_correction_mm
+                .unwrap_or(defaults.max_node_correction_mm),
+            max_correction_slope: k
+                .max_correction_slope
+                .unwrap_or(defaults.max_correction_slope),
+            max_backlash_urad: k.max_backlash_urad.unwrap_or(defaults.max_backlash_urad),
+            dynamics_factor: k.dynamics_factor.unwrap_or(defaults.dynamics_factor),
+            nominal_dynamics,
+        };
         let spec = MachineSpec {
             name: self.name,
             nominal,
@@ -216,6 +273,7 @@ impl MachineFile {
             },
             approach_mm: self.approach.distance_mm,
             max_acceleration_g: self.servo.max_acceleration_g,
+            controller,
         };
         spec.validate()?;
         Ok(spec)
@@ -325,7 +383,7 @@ mod tests {
         let doc = include_str!("../../MACHINE.md");
         let mut all = keys(PAPER_TOML);
         all.extend(keys(include_str!("../../machines/second.toml")));
-        assert!(all.len() >= 27, "{all:?}");
+        assert!(all.len() >= 39, "{all:?}");
         for key in &all {
             // A row of the key table: "| `key` | unit | ..." (x_mm and y_mm share a row).
             let row = doc
@@ -333,19 +391,95 @@ mod tests {
                 .find(|l| l.starts_with('|') && l.contains(&format!("`{key}`")));
             let row = row.unwrap_or_else(|| panic!("MACHINE.md does not document '{key}'"));
             let unit = row.split('|').nth(2).unwrap().trim();
-            let want = ["_mm", "_um", "_deg", "_s", "_g"]
-                .iter()
-                .find(|u| key.ends_with(*u));
+            // Longest suffixes first: `_rad_s` is not `_s`, `_kg_m2` not `_m2`.
+            let units = [
+                ("_nm_s_per_rad", "N·m·s/rad"),
+                ("_rad_s", "rad/s"),
+                ("_kg_m2", "kg·m²"),
+                ("_kg", "kg"),
+                ("_nm", "N·m"),
+                ("_urad", "µrad"),
+                ("_mm", "mm"),
+                ("_um", "µm"),
+                ("_deg", "°"),
+                ("_s", "s"),
+            ];
+            let want = units.iter().find(|(u, _)| key.ends_with(*u));
             let said = match want {
-                Some(&"_mm") => unit == "mm",
-                Some(&"_um") => unit == "µm",
-                Some(&"_deg") => unit == "°",
-                Some(&"_s") => unit == "s",
-                Some(_) => unit.starts_with('g'),
+                Some((_, u)) => unit == *u,
+                None if key.ends_with("_g") => unit.starts_with('g'),
                 None => unit == "—",
             };
             assert!(said, "MACHINE.md gives '{key}' the unit '{unit}'");
         }
+    }
+
+    #[test]
+    fn the_controller_keys_default_and_are_range_checked() {
+        // The paper file has neither section: the defaults, the paper's dynamics, home at the
+        // centre; its record is the firmware's built-in one.
+        let paper = parse_machine(PAPER_TOML).unwrap();
+        assert_eq!(
+            paper.record().unwrap(),
+            kinematics_core::MachineRecord::paper()
+        );
+        let with = |keys: &str| {
+            parse_machine(&format!("{PAPER_TOML}\n[controller]\n{keys}\n"))
+                .map_err(|e| e.to_string())
+        };
+        let s = with("home_mm = [200.0, 10.0]\ndynamics_factor = 2.5").unwrap();
+        assert_eq!(
+            (s.controller.home_mm, s.controller.dynamics_factor),
+            ([200.0, 10.0], 2.5)
+        );
+        assert_eq!(
+            s.record().unwrap().digest(),
+            paper.record().unwrap().digest()
+        );
+        for (keys, want) in [
+            ("home_mm = [100.0, 0.0]", "'controller.home_mm'"),
+            (
+                "same_machine_tolerance_mm = 0.0",
+                "'controller.same_machine_tolerance_mm'",
+            ),
+            ("same_machine_tolerance_mm = 20.5", "(0, 20]"),
+            (
+                "max_node_correction_mm = -1.0",
+                "'controller.max_node_correction_mm'",
+            ),
+            (
+                "max_correction_slope = 0.6",
+                "'controller.max_correction_slope'",
+            ),
+            (
+                "max_backlash_urad = 20000.0",
+                "'controller.max_backlash_urad'",
+            ),
+            ("dynamics_factor = 1.0", "'controller.dynamics_factor'"),
+            ("dynamics_factor = nan", "'controller.dynamics_factor'"),
+            ("max_sleep_s = 1.0", "max_sleep_s"),
+        ] {
+            let e = with(keys).unwrap_err();
+            assert!(e.contains(want), "{keys}: '{e}' lacks '{want}'");
+        }
+        // Limits at their ceilings are accepted.
+        with("same_machine_tolerance_mm = 20.0\nmax_correction_slope = 0.5\nmax_backlash_urad = 10000.0\ndynamics_factor = 20.0").unwrap();
+        let dynamics = "[nominal_dynamics]\nmotor_inertia_kg_m2 = [0.004, 0.004]\ntool_mass_kg = 0.2\ndistal_inertia_kg_m2 = [0.0, 0.0]\nviscous_nm_s_per_rad = [0.02, 0.02]\ncoulomb_nm = [0.05, 0.05]\ncoulomb_speed_rad_s = 0.01";
+        let s = parse_machine(&format!("{PAPER_TOML}\n{dynamics}\n")).unwrap();
+        assert_eq!(s.controller.nominal_dynamics.tool_mass_kg, 0.2);
+        let e = parse_machine(&format!(
+            "{PAPER_TOML}\n{}\n",
+            dynamics.replace("coulomb_nm = [0.05, 0.05]", "coulomb_nm = [0.0, 0.05]")
+        ))
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("'nominal_dynamics'"), "{e}");
+        let e = parse_machine(
+            &PAPER_TOML.replace("name = \"paper\"", "name = \"a name far too long for it\""),
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("'name'") && e.contains("16"), "{e}");
     }
 
     #[test]

@@ -79,6 +79,17 @@ impl Drive {
         }
     }
 
+    /// The encoder's resolution at the joint (rad per count; 0: not quantised).
+    pub fn encoder_step_rad(&self) -> f64 {
+        self.encoder_step_rad
+    }
+
+    /// The encoder's angle before quantisation (`motor - offset`): where an index mark on the
+    /// encoder disc is crossed.
+    pub fn encoder_continuous_rad(&self) -> f64 {
+        self.motor_rad - self.encoder_offset_rad
+    }
+
     /// What the encoder reads now.
     pub fn encoder_rad(&self) -> f64 {
         self.quantize_rad(self.motor_rad - self.encoder_offset_rad)

@@ -17,6 +17,8 @@
 //! * [`uart`]: the host link's port (CMSDK UART0 on QEMU's first `-serial`).
 //! * [`semihosting`]: command line, console, exit code, defmt to a host file, and the
 //!   HardFault / unexpected interrupt / panic handlers (print `FAIL ...`, exit 1).
+//! * [`cosim`]: co-simulation (`firmware cosim`): host-sim's plant instead of [`plant`], the
+//!   host link inside the per-sample exchange, no harness.
 use controller::drive::{self, DriveError, TorqueDrive};
 use controller::encoder::{EncoderScale, QuadratureEncoder};
 use controller::homing::HomingSettings;
@@ -29,6 +31,7 @@ use controller::SAMPLE_RATE_HZ;
 use super::{Board, ServoTimer};
 
 pub mod across_reset;
+pub mod cosim;
 pub mod hardware;
 pub mod harness;
 /// The simulated machine's true dynamic parameters and the calibration image's (shared with
@@ -64,6 +67,8 @@ pub const TIMER_CLOCK_HZ: u32 = 25_000_000;
 /// Encoder resolution of the simulated motors (the simulated hardware; the firmware reads them
 /// through `Settings::encoders`, whose default is the same).
 pub const COUNTS_PER_REV: u32 = 1 << 22;
+/// `nop`s per idle loop iteration ([`QemuBoard::idle_wait`]).
+const IDLE_UNROLL: u32 = 64;
 /// PWM full-scale duty (the G474's 20 kHz centre-aligned TIM1 period at 170 MHz; even, so that
 /// 50 % and thus zero torque is exact).
 pub const PWM_MAX_DUTY: u16 = 4250;
@@ -187,22 +192,30 @@ pub struct QemuBoard {
     plant: Plant,
     period_s: f32,
     harness: Harness,
+    /// Co-simulation: the exchange with host-sim's plant replaces `plant` and `harness`.
+    cosim: Option<cosim::Exchange>,
 }
 
 impl Board for QemuBoard {
     type Setpoints = Injected;
     type Timer = CmsdkTimer;
-    type Link = uart::CmsdkUart;
+    type Link = cosim::Port;
 
-    fn link(&mut self) -> uart::CmsdkUart {
-        uart::CmsdkUart::open()
+    fn link(&mut self) -> cosim::Port {
+        match self.cosim {
+            Some(_) => cosim::Port::Exchange(cosim::ExchangePort::new()),
+            None => cosim::Port::Uart(uart::CmsdkUart::open()),
+        }
     }
 
     /// The production settings with the built-in tour on (the simulated machine may move by
     /// itself), the tour, its profile and its acceleration adapted to the harness's scenario.
     fn settings() -> Settings {
-        let scenario = Harness::scenario();
         let production = Settings::default();
+        if cosim::requested() {
+            return cosim::settings(production);
+        }
+        let scenario = Harness::scenario();
         let (trajectory_profile, trajectory_accel_mm_s2) = scenario.trajectory((
             production.trajectory_profile,
             production.trajectory_accel_mm_s2,
@@ -248,6 +261,7 @@ impl Board for QemuBoard {
             plant: Plant::power_on(full_scale_nm),
             period_s: 1.0 / SAMPLE_RATE_HZ as f32,
             harness,
+            cosim: cosim::take(),
         };
         board.disable_drives();
         // The machine does not stop with its controller: after a reset in the middle of a
@@ -320,22 +334,33 @@ impl Board for QemuBoard {
     }
 
     /// A busy loop, not WFI: under `-icount ...,sleep=off` a WFI idle makes QEMU's periodic
-    /// timer run at half rate.
+    /// timer run at half rate. Unrolled: under `-icount` every instruction is 8 ns of virtual
+    /// time whichever it is, and QEMU takes an interrupt at the exact instruction its deadline
+    /// falls on, so the run is the same; but QEMU executes a block of 64 `nop`s several times
+    /// faster than 64 one-`nop` loop iterations (idle is most of a sample's instructions).
     #[inline]
     fn idle_wait() {
-        cortex_m::asm::nop();
+        for _ in 0..IDLE_UNROLL {
+            cortex_m::asm::nop();
+        }
     }
 
     /// The harness's fault injection first (it decides what the encoder counters show), then
     /// the plant moves under the torques of the last sample and updates the counters.
     #[inline]
     fn begin_sample(&mut self) {
+        if let Some(exchange) = &mut self.cosim {
+            return exchange.sample();
+        }
         self.harness.begin_sample(&self.timer, &mut self.plant);
         self.plant.advance(self.period_s);
     }
 
     #[inline]
     fn end_sample(&mut self, status: &Status) {
+        if let Some(exchange) = &mut self.cosim {
+            return exchange.note_status(status);
+        }
         self.harness.end_sample(status, self.plant.state());
     }
 }

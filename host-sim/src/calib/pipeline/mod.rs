@@ -11,7 +11,7 @@
 //! | 0. the lists (identification poses chosen for identifiability, grid nodes, verification targets, repeat runs) | [`super::plan::plan`] | `plan --seed S` | — |
 //! | 1. measure the identification poses, nominal model | [`super::measure::measure_list`] | `measure --targets identify.csv` | 10·S + 1 |
 //! | 2. fit: the paper's `ls` (links only, for comparison) and `full` (LM: links, A0, B0, encoder offsets) | [`super::fit::fit`] | `fit --method ls`, `fit --method full` | — |
-//! | 3. measure the grid nodes commanded with the `full` model; build the grid (+ the workspace block) | `measure_list`, [`super::grid::build`], [`super::image::finish_image`] | `measure --targets grid.csv --model`, `grid` | 10·S + 5 |
+//! | 3. measure the grid nodes commanded with the `full` model; build the grid (+ the workspace block; the machine record last, judged as the controller judges it) | `measure_list`, [`super::grid::build`], [`super::image::finish_image`], [`super::image::seal_image`] | `measure --targets grid.csv --model`, `grid` | 10·S + 5 |
 //! | 4. measure the nodes again through that grid; rebuild it from both rounds' readings (round 2, the image to flash) | the same | `measure --grid`, `grid --data grid1.csv --data grid2.csv` | 10·S + 7 |
 //! | 5. verify every stage on the verification targets: nominal, `ls`, `full`, `full` + grid, `full` + refined grid | `measure_list`, [`super::measure::accuracy`] | `measure --targets verify.csv [--model M] [--grid G]` | 10·S + 2, 3, 4, 6, 8 |
 //!
@@ -59,7 +59,7 @@ use super::fit::params::NAMES;
 use super::fit::{fit, FitOptions, Method, Points};
 use super::frame::InstrumentFrame;
 use super::grid::{self, BuiltGrid};
-use super::image::finish_image;
+use super::image::{finish_image, seal_image};
 use super::machine::Machine;
 use super::measure::{measure_list_compensated, registered, rows, Landed};
 use super::plan::{plan, with_approach, Plan, PlanOptions};
@@ -529,6 +529,15 @@ pub fn calibrate(
     if let Some(b) = &backlash {
         grid2.image = super::image::append_backlash_block(&grid2.image, b)?;
     }
+    // Both images end with the machine record, judged as the controller will judge them (what
+    // `host-sim grid` writes).
+    let mut grid = grid;
+    grid.image = seal_image(&grid.image, spec)
+        .map_err(|e| e.context("the grid, round 1"))?
+        .bytes;
+    grid2.image = seal_image(&grid2.image, spec)
+        .map_err(|e| e.context("the refined grid"))?
+        .bytes;
     step(events, "calibration done".into());
     let goal_um = goal_um(spec);
     Ok(Calibrated {
