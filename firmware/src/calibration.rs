@@ -280,17 +280,3 @@ mod g474 {
         }
     }
 }
-
-/// The QEMU upload scenarios: at `ticks` past their upload time, once, the bundled second
-/// image and whether to corrupt it on the way. Hardware: never.
-pub fn bundled_upload_due(ticks: u32) -> Option<(&'static [u8], bool)> {
-    #[cfg(feature = "board-qemu")]
-    {
-        crate::board::qemu::harness::upload_due(ticks).map(|corrupt| (BUNDLED_UPLOAD, corrupt))
-    }
-    #[cfg(not(feature = "board-qemu"))]
-    {
-        let _ = ticks;
-        None
-    }
-}

@@ -23,7 +23,7 @@ use controller::host_link::{
     HomingRefused, LinkHandler,
 };
 use controller::motion_stream::MotionStream;
-use controller::servo_loop::{Mode, ServoRequest};
+use controller::servo_loop::{Mode, ServoRequest, SwitchOutcome};
 use controller::status::Status;
 use kinematics_core::Calibration;
 use link_protocol::{
@@ -54,6 +54,8 @@ pub struct LinkState<P: LinkPort> {
     pub absolute_encoders: bool,
     /// The settings make the link's stream the motion source (`Settings::link_motion`).
     pub link_motion: bool,
+    /// The board the firmware was built for, as `Identify` reports it.
+    pub board: Board,
 }
 
 impl<P: LinkPort> LinkState<P> {
@@ -62,16 +64,35 @@ impl<P: LinkPort> LinkState<P> {
         while let Some(byte) = self.port.read_byte() {
             if let Some(received) = self.reader.push(byte) {
                 let mut out = [0u8; MAX_FRAME_LEN];
-                let mut dev = AppDevice::new(device, self.absolute_encoders, self.link_motion);
+                let mut dev =
+                    AppDevice::new(device, self.board, self.absolute_encoders, self.link_motion);
                 let n = self.handler.on_received(received, &mut dev, &mut out);
                 self.port.write(&out[..n]);
             }
         }
     }
 
-    /// Resumes a paused source when the servo runs again, and sends a telemetry sample if due.
+    /// Resumes a paused source when the servo runs again, sends a telemetry sample if due, and
+    /// withdraws a committed image the servo refused to switch to (its slot erased: the image in
+    /// use stays in force, at the next boot too, and the next upload may go there).
     pub fn poll(&mut self, device: &mut impl DeviceResources) {
-        let mut dev = AppDevice::new(device, self.absolute_encoders, self.link_motion);
+        let status = device.status();
+        if let Some(SwitchOutcome::Refused(refused, why)) = status.last_switch {
+            let in_use = status.calibration_id;
+            let withdrawn = device.with_slots(|s| {
+                let was = s.active_id() == Some(refused);
+                s.withdraw(refused, in_use).map(|()| was)
+            });
+            if let Ok(true) = withdrawn {
+                defmt::warn!(
+                    "calibration {} refused at the switch ({}): withdrawn, {} stays in force",
+                    refused,
+                    why,
+                    in_use
+                );
+            }
+        }
+        let mut dev = AppDevice::new(device, self.board, self.absolute_encoders, self.link_motion);
         if let Some(message) = self.handler.poll(&mut dev) {
             self.send(&message);
         }
@@ -153,6 +174,7 @@ where
 /// read last (what [`Homing::state`] reports from).
 pub struct AppDevice<'a, D> {
     res: &'a mut D,
+    board: Board,
     status: Status,
     absolute_encoders: bool,
     link_motion: bool,
@@ -160,10 +182,11 @@ pub struct AppDevice<'a, D> {
 
 impl<'a, D: DeviceResources> AppDevice<'a, D> {
     /// Reads the status once.
-    pub fn new(res: &'a mut D, absolute_encoders: bool, link_motion: bool) -> Self {
+    pub fn new(res: &'a mut D, board: Board, absolute_encoders: bool, link_motion: bool) -> Self {
         let status = res.status();
         AppDevice {
             res,
+            board,
             status,
             absolute_encoders,
             link_motion,
@@ -175,7 +198,7 @@ impl<D: DeviceResources> Device for AppDevice<'_, D> {
     type Homing = Self;
     type Calibration = Self;
     fn board(&self) -> Board {
-        crate::board::BOARD_ID
+        self.board
     }
     fn status(&mut self) -> Status {
         self.status = self.res.status();
@@ -227,7 +250,7 @@ impl<D: DeviceResources> Homing for AppDevice<'_, D> {
 impl<D: DeviceResources> CalibrationStore for AppDevice<'_, D> {
     fn begin(&mut self, len: u32) -> Result<(), CalibrationRefusal> {
         self.res
-            .with_slots(|s| s.begin(len as usize))
+            .with_slots(|s| s.begin(len as usize, self.status.calibration_id))
             .map_err(calibration_refusal)
     }
     fn write(&mut self, offset: u32, data: &[u8]) -> Result<u32, CalibrationRefusal> {

@@ -61,15 +61,12 @@ mod app {
     use controller::fault::{Fault, StopCategory};
     use controller::host_link::LinkHandler;
     use controller::motion_stream::{MotionStream, StreamLimits};
-    use controller::servo_loop::{Mode, ServoLoop, ServoRequest, SwitchRefused};
+    use controller::servo_loop::{Mode, Sample, ServoLoop, ServoRequest};
     use controller::setpoints::{self, QUEUE_SLOTS};
     use controller::settings::Settings;
     use controller::status::Status;
-    use controller::stop::Workspace;
-    use controller::trajectory::Trajectory;
-    use controller::watchdog;
     use controller::SAMPLE_RATE_HZ;
-    use firmware::board::{Board, Selected, ServoTimer};
+    use firmware::board::{Board, IndexOf, Selected, ServoTimer};
     use firmware::calibration::RegionFlash;
     use firmware::link::{LinkState, Locks};
     use kinematics_core::Calibration;
@@ -119,27 +116,15 @@ mod app {
 
         // The image in force: the committed slot with the highest sequence, or an image flashed
         // by probe at the region's start (controller::calibration_slots).
-        let slots = SlotStore::open(
-            firmware::calibration::flash(),
-            settings.machine,
-            settings.home_mm,
-        );
+        let image_check = settings.image_check();
+        let slots = SlotStore::open(firmware::calibration::flash(), image_check);
         let calibration_id = slots.active_id();
         defmt::info!("boot: calibration in force {}", calibration_id);
         let image = calibration_id.map_or(
             firmware::calibration::region(),
             firmware::calibration::slot_bytes,
         );
-        let (cal_state, cal) = calibration::load(
-            image,
-            &settings.machine,
-            settings.home_mm,
-            settings.allow_uncorrected,
-        );
-        let workspace = cal
-            .grid
-            .as_ref()
-            .and_then(|g| Workspace::of_image(g, settings.stop.workspace_margin_mm));
+        let (cal_state, cal) = calibration::load(image, &image_check, settings.allow_uncorrected);
         match cal_state {
             CalibrationState::Valid => {}
             CalibrationState::Refused(e) => {
@@ -153,7 +138,7 @@ mod app {
         let encoder_rad = board.encoders_rad();
         let mut servo_loop = ServoLoop::boot(settings, cal, cal_state, encoder_rad);
         // A watchdog reset keeps the drives off.
-        if let Some(fault) = watchdog::fault_after_reset(reset_cause) {
+        if let Some(fault) = Fault::after_reset(reset_cause) {
             servo_loop.latch_at_boot(fault);
         }
         // Incremental encoders: homing first (at boot if the settings say so; otherwise the
@@ -170,7 +155,7 @@ mod app {
         } else {
             servo_loop.setpoint_mm()
         };
-        let mut source = board.setpoints(Trajectory::builtin(start_mm, settings));
+        let mut source = board.setpoints(settings.builtin_trajectory(start_mm));
         // The link's port, configured before the watchdog starts: bringing a UART up may wait
         // for its acknowledgement (G474: a bounded wait of a few ms at most).
         let port = board.link();
@@ -203,7 +188,7 @@ mod app {
         let limits = StreamLimits {
             task: settings.stream_limits(),
             stop: settings.stop.limits,
-            workspace,
+            workspace: servo_loop.calibration().workspace(),
         };
         let mut stream = MotionStream::new(limits, start_mm);
         if servo_loop.mode() != Mode::Running {
@@ -225,6 +210,7 @@ mod app {
             handler: LinkHandler::new(),
             absolute_encoders: settings.homing.absolute_encoders,
             link_motion: settings.link_motion,
+            board: firmware::board::BOARD_ID,
         };
         if settings.link_motion {
             defmt::info!("setpoints from the host link");
@@ -276,52 +262,22 @@ mod app {
         let l = cx.local;
         l.board.timer().acknowledge_tick();
         l.board.begin_sample();
-        // Encoders -> sample logic (setpoint intake, mode machine, servo step).
+        // Encoders -> the host's request, a committed calibration, the sample logic.
         let encoder_rad = l.board.encoders_rad();
-        // A host request (stop, disable, reset, home) takes effect in this sample; the drives go
-        // on when a reset re-engages or homing starts. A refused reset leaves the mode as it
-        // was, which the host reads in the status.
-        if let Some(request) = cx.shared.servo_request.lock(Option::take) {
-            if let Ok(true) = l.servo_loop.request(request, l.setpoints_out, encoder_rad) {
-                l.board.enable_drives();
-            }
+        let request = cx.shared.servo_request.lock(Option::take);
+        let offered = cx.shared.new_calibration.lock(Option::take);
+        let index = &mut IndexOf(&mut *l.board);
+        let tick = l
+            .servo_loop
+            .tick(request, offered, l.setpoints_out, encoder_rad, index);
+        let mut sample = tick.sample;
+        if tick.enable_drives {
+            l.board.enable_drives();
         }
-        // A newly committed calibration: switched to at rest (parsed by the upload task, so
-        // this costs a lock and a re-engage), kept pending while the machine moves.
-        let mut switched = None;
-        if let Some((cal, id)) = cx.shared.new_calibration.lock(|n| n.take()) {
-            match l.servo_loop.switch_calibration(cal, encoder_rad) {
-                Ok(()) => switched = Some(id),
-                Err(SwitchRefused::NotAtRest) => {
-                    cx.shared.new_calibration.lock(|n| *n = Some((cal, id)))
-                }
-                // The new calibration cannot engage here: the old one stays in force.
-                Err(SwitchRefused::Engage(_)) => {}
-            }
-        }
-        let mut sample = if l.servo_loop.mode() == Mode::Homing {
-            // Homing (joint space, the setpoint stream waits): the index captures, and the
-            // reference once both indexes are found.
-            let index_rad = l.board.index_rad();
-            let mut sample = l.servo_loop.step_homing(encoder_rad, index_rad);
-            if sample.set_reference {
-                let ok = l
-                    .board
-                    .reference_at_index(l.servo_loop.settings().homing.index_rad);
-                l.servo_loop.referenced(ok, &mut sample);
-            }
-            sample
-        } else {
-            l.servo_loop.step(l.setpoints_out, encoder_rad)
-        };
-        if sample.refill {
-            let _ = intake::spawn();
-        }
-        // Drives.
+        // Drives, then the deadline.
         if l.board.set_torques_nm(sample.torque_nm).is_err() {
             l.servo_loop.latch(Fault::Drive, &mut sample);
         }
-        // Deadline.
         let timer = l.board.timer();
         let (step_us, overrun) = (timer.step_time_us(), timer.next_tick_pending());
         l.servo_loop.record_deadline(step_us, overrun, &mut sample);
@@ -330,29 +286,37 @@ mod app {
         if sample.torque_off {
             l.board.disable_drives();
         }
-        if let Some(fault) = sample.fault {
-            let _ = on_fault::spawn(fault);
-        }
-        // Publish.
-        let (mode, deadline) = (l.servo_loop.mode(), *l.servo_loop.deadline());
-        let stop_mm = l.servo_loop.stop_profile().map_or(0.0, |p| p.distance_mm());
         cx.shared.status.lock(|s| {
-            s.record(&sample, mode, &deadline, stop_mm);
-            s.homing = l.servo_loop.homing_phase();
-            if switched.is_some() {
-                s.calibration_id = switched;
-            }
+            s.publish(&sample, l.servo_loop, tick.switch);
             l.board.end_sample(s);
         });
-        if sample.index % l.servo_loop.settings().telemetry_period_ticks.max(1) == 0 {
-            let _ = telemetry::spawn();
-        }
-        if sample.index % LINK_POLL_TICKS == 0 {
-            rtic::pend(firmware::board::device::Interrupt::LINK_RX);
-        }
+        spawn_tasks(&sample, l.servo_loop.settings(), l.board);
         // Watchdog, last: only a step that completed on time feeds it.
         if sample.feed_watchdog {
             l.board.feed_watchdog();
+        }
+    }
+
+    /// What the servo task starts after a sample: the intake when the queue runs low, the fault
+    /// report, and every few samples telemetry, the link task's poll (so that a paused motion
+    /// source resumes and telemetry goes out even when the host sends nothing), and a run-time
+    /// upload the board asks for (the QEMU upload scenarios; never on hardware).
+    fn spawn_tasks(sample: &Sample, settings: &Settings, board: &mut Selected) {
+        if sample.refill {
+            let _ = intake::spawn();
+        }
+        if let Some(fault) = sample.fault {
+            let _ = on_fault::spawn(fault);
+        }
+        let index = sample.index;
+        if index % settings.telemetry_period_ticks.max(1) == 0 {
+            let _ = telemetry::spawn();
+        }
+        if index % LINK_POLL_TICKS == 0 {
+            rtic::pend(firmware::board::device::Interrupt::LINK_RX);
+        }
+        if let Some((image, corrupt)) = board.bundled_upload_due(index) {
+            let _ = upload::spawn(image, corrupt);
         }
     }
 
@@ -403,10 +367,6 @@ mod app {
     #[task(priority = 1, shared = [status])]
     async fn telemetry(mut cx: telemetry::Context) {
         let s = cx.shared.status.lock(|s| *s);
-        // The QEMU upload scenarios' run-time upload (never on hardware).
-        if let Some((image, corrupt)) = firmware::calibration::bundled_upload_due(s.ticks) {
-            let _ = upload::spawn(image, corrupt);
-        }
         defmt::info!(
             "t {} ms: {} fault {} overruns {} worst {} us, setpoint {} mm, encoders {} rad, torque {} Nm, max following error {} rad",
             s.ticks / (SAMPLE_RATE_HZ / 1000), s.mode, s.fault, s.overruns, s.worst_step_us, s.setpoint_mm, s.encoder_rad, s.torque_nm,
@@ -422,8 +382,9 @@ mod app {
     #[task(priority = 1, shared = [slots, new_calibration, status])]
     async fn upload(mut cx: upload::Context, image: &'static [u8], corrupt: bool) {
         const CHUNK: usize = 200;
+        let in_use = cx.shared.status.lock(|s| s.calibration_id);
         let result = cx.shared.slots.lock(|slots| {
-            slots.begin(image.len())?;
+            slots.begin(image.len(), in_use)?;
             let mut buf = [0u8; CHUNK];
             for (k, chunk) in image.chunks(CHUNK).enumerate() {
                 let part = &mut buf[..chunk.len()];

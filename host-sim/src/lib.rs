@@ -44,6 +44,7 @@ pub mod effect;
 pub mod io;
 pub mod link;
 pub mod loop_closure;
+pub mod machine_identity;
 pub mod machine_ranges;
 pub mod machine_spec;
 pub mod numeric;

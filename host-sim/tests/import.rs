@@ -296,7 +296,7 @@ fn tab_separated_in_metres_with_another_vendors_names() {
             "--out",
             s(&out3),
         ],
-        "the export looks like metres read as mm: give --units m",
+        "the export looks like m: give --units m",
         &out3,
     );
     // A header that says m and --units mm contradict.

@@ -117,7 +117,7 @@ fn the_host_tool_drives_the_firmware_under_qemu() {
     // the host computes from the same bytes.
     let id = ok(&addr, &["identify"]);
     assert_eq!(id["board"], "Qemu");
-    assert_eq!(id["protocol_version"], 1);
+    assert_eq!(id["protocol_version"], 2);
     let bundled_id = calibration_image_id(&synthetic::synthetic_image(1.0));
     assert_eq!(
         id["calibration_id"].as_u64(),
@@ -424,4 +424,191 @@ fn the_host_tool_drives_the_firmware_under_qemu() {
         "LINK_QEMU garbage: {} bytes, {} frames, {} answers, no motion, 0 overruns",
         g["bytes"], g["frames"], g["answers"]
     );
+
+    calibration_and_reset_safety(&addr, work.path(), image_id);
+}
+
+/// A small image of the QEMU machine over its home (3 × 3 nodes, 50 × 80 mm cells): `nodes`
+/// corrections, `model`, optional dynamics. Valid CRCs throughout: only the content is bad.
+fn small_image(
+    model: &kinematics_core::FiveBar<f32>,
+    nodes: [[f32; 2]; 9],
+    dynamics: Option<kinematics_core::FiveBarDynamics<f32>>,
+) -> Vec<u8> {
+    use kinematics_core::grid::{append_dynamics, encode, GridGeometry, DYNAMICS_LEN};
+    let g = GridGeometry {
+        nx: 3,
+        ny: 3,
+        x0_mm: 162.132,
+        y0_mm: -75.0,
+        step_x_mm: 50.0,
+        step_y_mm: 75.0,
+    };
+    let mut img = vec![0u8; g.image_len() + DYNAMICS_LEN];
+    let n = encode(&mut img, &g, model, &nodes).unwrap();
+    let end = match dynamics {
+        Some(d) => append_dynamics(&mut img, n, n, &d).unwrap(),
+        None => n,
+    };
+    img.truncate(end);
+    img
+}
+
+/// Issue-grade attacks on the calibration door, through the real firmware: CRC-valid images
+/// with absurd content refused at commit with the parameter and its values (the image in force
+/// stays, nothing moves); another machine's image named; an upload begun while a committed
+/// image waits for the switch refused (the slot in use is never erased: the machine keeps
+/// holding, no fault); resets after a switch under way re-engage every time; a client's stale
+/// bytes never turn a move that ran into a refusal; Ctrl-C turns the telemetry off.
+fn calibration_and_reset_safety(addr: &str, work: &Path, in_force: u32) {
+    let nominal = kinematics_core::FiveBar::<f32>::paper_nominal();
+    let put = |name: &str, bytes: &[u8]| {
+        let p = work.join(name);
+        std::fs::write(&p, bytes).unwrap();
+        p.to_str().unwrap().to_owned()
+    };
+    // The controller's own judgement: uploaded through the library (`host-sim link upload`
+    // judges an image on the host first and would not send these).
+    let raw_upload = |bytes: &[u8]| -> String {
+        let mut client =
+            host_sim::link::LinkClient::connect_tcp(addr, std::time::Duration::from_secs(10))
+                .unwrap();
+        match host_sim::link::upload_calibration(&mut client, bytes, &mut |_, _| {}) {
+            Ok(id) => panic!("accepted: {id:#010x}"),
+            Err(e) => format!("{e:?}"),
+        }
+    };
+    let before = ok(addr, &["status"]);
+    // A ±0.05 rad checkerboard (a switch to it drove 7.6 N·m).
+    let checker: [[f32; 2]; 9] = core::array::from_fn(|k| {
+        if k % 2 == 0 {
+            [0.05, -0.05]
+        } else {
+            [-0.05, 0.05]
+        }
+    });
+    let refusal = raw_upload(&small_image(&nominal, checker, None));
+    assert!(
+        refusal.contains("Implausible") && refusal.contains("NodeCorrectionRad"),
+        "{refusal}"
+    );
+    // Masses 1000× the machine's.
+    let heavy = machine::IMAGE_DYNAMICS.scaled_masses([1000.0; 5]);
+    let refusal = raw_upload(&small_image(&nominal, [[0.0; 2]; 9], Some(heavy)));
+    assert!(refusal.contains("InertiaHighKgM2"), "{refusal}");
+    // Another machine: link b 11 mm longer; the refusal names it with both values.
+    let other = kinematics_core::FiveBar {
+        b_mm: nominal.b_mm + 11.0,
+        ..nominal
+    };
+    let refusal = raw_upload(&small_image(&other, [[0.0; 2]; 9], None));
+    assert!(
+        refusal.contains("OtherMachine") && refusal.contains("LinkBMm") && refusal.contains("161"),
+        "{refusal}"
+    );
+    assert_eq!(
+        ok(addr, &["identify"])["calibration_id"].as_u64(),
+        Some(u64::from(in_force)),
+        "the image in force stays"
+    );
+    let after = ok(addr, &["status"]);
+    assert_eq!(after["setpoint_mm"], before["setpoint_mm"], "nothing moved");
+    assert_eq!(
+        (after["mode"].as_str(), after["fault"].as_str()),
+        (Some("Running"), None)
+    );
+
+    // A stale half frame from another client, then a move: it runs and is reported so.
+    for _ in 0..2 {
+        let mut raw = std::net::TcpStream::connect(addr).unwrap();
+        std::io::Write::write_all(&mut raw, &[0x07, 0x41, 0x13, 0x99]).unwrap();
+        drop(raw);
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
+    let moved = ok(addr, &["move", "--x-mm", "222", "--y-mm", "5"]);
+    let p = xy(&moved["setpoint_mm"]);
+    assert!((p[0] - 222.0).hypot(p[1] - 5.0) < 0.01, "{moved}");
+
+    // Holding after a stop, a good image committed: the switch waits for the rest. A second
+    // upload now is refused (it would erase the slot the servo still reads); the machine keeps
+    // holding, no fault.
+    ok(addr, &["stop"]);
+    std::thread::sleep(std::time::Duration::from_millis(200));
+    let good = synthetic::synthetic_image(1.0);
+    let good_id = calibration_image_id(&good);
+    let good_path = put("good.bin", &good);
+    let up = ok(addr, &["upload", "--grid", &good_path]);
+    assert_eq!(up["calibration_id"].as_u64(), Some(u64::from(good_id)));
+    let s = ok(addr, &["status"]);
+    assert_eq!(
+        (s["mode"].as_str(), s["calibration_pending"].as_u64()),
+        (Some("Holding"), Some(u64::from(good_id))),
+        "{s}"
+    );
+    let refusal = refused(addr, &["upload", "--grid", &good_path]);
+    assert!(refusal.contains("SwitchPending"), "{refusal}");
+    std::thread::sleep(std::time::Duration::from_millis(100));
+    let s = ok(addr, &["status"]);
+    assert_eq!(
+        (s["mode"].as_str(), s["fault"].as_str()),
+        (Some("Holding"), Some("Commanded")),
+        "the slot in use was not touched: {s}"
+    );
+    // Reset: re-engaged, the switch made at that rest, and again after five more stops.
+    for k in 0..6 {
+        ok(addr, &["reset"]);
+        std::thread::sleep(std::time::Duration::from_millis(300));
+        let s = ok(addr, &["status"]);
+        assert_eq!(
+            (s["mode"].as_str(), s["fault"].as_str()),
+            (Some("Running"), None),
+            "reset {k}: {s}"
+        );
+        let p = xy(&s["setpoint_mm"]);
+        assert!((p[0] - 222.0).hypot(p[1] - 5.0) < 0.01, "reset {k}: {s}");
+        ok(addr, &["stop"]);
+        std::thread::sleep(std::time::Duration::from_millis(150));
+    }
+    ok(addr, &["reset"]);
+    assert_eq!(
+        ok(addr, &["identify"])["calibration_id"].as_u64(),
+        Some(u64::from(good_id)),
+        "switched at the rest after the reset"
+    );
+
+    // Ctrl-C in the middle of a recording: telemetry is off afterwards.
+    let csv = work.join("interrupted.csv");
+    let child = Command::new(env!("CARGO_BIN_EXE_host-sim"))
+        .args([
+            "link",
+            "--tcp",
+            addr,
+            "--timeout-s",
+            "10",
+            "telemetry",
+            "--seconds",
+            "60",
+        ])
+        .arg("--csv")
+        .arg(&csv)
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    // (QEMU's socket serves one client at a time: the status is read after the recorder left;
+    // without the clean-up the controller would still send telemetry at decimation 20.)
+    std::thread::sleep(std::time::Duration::from_millis(1500));
+    Command::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status()
+        .unwrap();
+    let out = child.wait_with_output().unwrap();
+    assert!(
+        !out.status.success() && String::from_utf8_lossy(&out.stderr).contains("interrupted"),
+        "interrupted, not done: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let off = ok(addr, &["status"]);
+    assert_eq!(off["telemetry_decimation"].as_u64(), Some(0), "{off}");
+    println!("LINK_QEMU safety: implausible and other-machine images refused with their numbers, begin refused while a switch is pending, six resets re-engaged, stale bytes harmless, Ctrl-C left telemetry off");
 }

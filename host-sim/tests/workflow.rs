@@ -518,7 +518,7 @@ fn the_second_machine_runs_the_whole_workflow_and_the_demo() {
             "--out",
             s(&o),
         ]),
-        "line 3: target (172, -69): outside the workspace of machine 'second'",
+        "line 3: target (172, -69) is outside the workspace of machine 'second'",
     );
     fails(
         &setup.args(&[
@@ -530,7 +530,7 @@ fn the_second_machine_runs_the_whole_workflow_and_the_demo() {
             "--out",
             s(&o),
         ]),
-        "line 3: target (172, -69): outside the workspace",
+        "line 3: target (172, -69) is outside the workspace",
     );
     assert!(!o.exists());
 

@@ -81,8 +81,8 @@ pub use pid::{AxisController, AxisGains, AxisReference, InvalidGain};
 pub use pose::Pose;
 pub use real::{wrap_angle_rad, Real};
 pub use servo::{
-    AcceptedSetpoint, Calibration, ConfigError, EngageError, Servo, ServoConfig, ServoFault,
-    ServoOutput, SetpointRefusal, StepError, ValidCalibration,
+    AcceptedSetpoint, Calibration, ConfigError, EngageError, Servo, ServoCalibration, ServoConfig,
+    ServoFault, ServoOutput, SetpointRefusal, StepError, ValidCalibration,
 };
 pub use trajectory::{MotionSetpoint, PathMotion, TaskLimits, Tour, TrajectoryError};
 pub use valid_model::{IkMargin, ValidFiveBar};

@@ -1,6 +1,6 @@
 //! The model checked once: `ValidFiveBar` cannot be built from an invalid model,
 //! its IK gives exactly `FiveBar::inverse`'s answers (angles bit for bit, the same errors),
-//! and the servo's checked-once path (`Servo::step_valid`, `step_motion_valid`) steps exactly
+//! and the servo's checked-once path (`Servo::step` with a `ValidCalibration`, `step_motion_valid`) steps exactly
 //! like the per-call one, while a plain `Calibration` with an invalid model is still refused
 //! on every sample.
 
@@ -185,12 +185,12 @@ fn the_servo_steps_the_same_through_a_valid_calibration() {
             let (a, b) = if motion_step {
                 (
                     servo.step_motion(&cal, &s, Some(&next), angle),
-                    twin.step_motion_valid(&valid, &s, Some(&next), angle),
+                    twin.step_motion(&valid, &s, Some(&next), angle),
                 )
             } else {
                 (
                     servo.step(&cal, s.position_mm, angle),
-                    twin.step_valid(&valid, s.position_mm, angle),
+                    twin.step(&valid, s.position_mm, angle),
                 )
             };
             let (a, b) = (a.unwrap(), b.unwrap());
@@ -215,7 +215,7 @@ fn the_servo_steps_the_same_through_a_valid_calibration() {
             [f32::MAX, f32::MAX],
         ] {
             let a = servo.step(&cal, bad, angle);
-            let b = twin.step_valid(&valid, bad, angle);
+            let b = twin.step(&valid, bad, angle);
             assert!(matches!(a, Err(StepError::Refused(_))), "{bad:?}: {a:?}");
             assert_eq!(a, b, "{bad:?}");
         }

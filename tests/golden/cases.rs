@@ -162,7 +162,7 @@ pub fn run(emit: &mut impl FnMut(u32)) {
         let (s, c) = Real::sin_cos(phase);
         let setpoint = [centre[0] + 10.0 * c, centre[1] + 10.0 * s];
         let stepped = servo.step(&cal, setpoint, angle);
-        if !same_step(&stepped, &servo_valid.step_valid(&valid, setpoint, angle)) {
+        if !same_step(&stepped, &servo_valid.step(&valid, setpoint, angle)) {
             emit(VALID_PATH_DIFFERS);
         }
         match stepped {
@@ -226,7 +226,7 @@ pub fn run(emit: &mut impl FnMut(u32)) {
         // Every other sample with the next setpoint, the others predicting it.
         let next = contour.at((n + 1) as f32 * 5e-4);
         let stepped = servo.step_motion(&cal, &s, (n % 2 == 0).then_some(&next), angle);
-        if !same_step(&stepped, &servo_valid.step_motion_valid(&valid, &s, (n % 2 == 0).then_some(&next), angle)) {
+        if !same_step(&stepped, &servo_valid.step_motion(&valid, &s, (n % 2 == 0).then_some(&next), angle)) {
             emit(VALID_PATH_DIFFERS);
         }
         match stepped {
@@ -289,13 +289,13 @@ pub fn run(emit: &mut impl FnMut(u32)) {
                 let at = |n: usize| MotionSetpoint { position_mm: line(n), velocity_mm_s: [0.0; 2], acceleration_mm_s2: [0.0; 2], jerk_mm_s3: [0.0; 2] };
                 let (s, next) = (at(n), at(n + 1));
                 let stepped = servo.step_motion(&cal, &s, Some(&next), angle);
-                if !same_step(&stepped, &servo_valid.step_motion_valid(&valid, &s, Some(&next), angle)) {
+                if !same_step(&stepped, &servo_valid.step_motion(&valid, &s, Some(&next), angle)) {
                     emit(VALID_PATH_DIFFERS);
                 }
                 stepped
             } else {
                 let stepped = servo.step(&cal, line(n), angle);
-                if !same_step(&stepped, &servo_valid.step_valid(&valid, line(n), angle)) {
+                if !same_step(&stepped, &servo_valid.step(&valid, line(n), angle)) {
                     emit(VALID_PATH_DIFFERS);
                 }
                 stepped

@@ -2,7 +2,9 @@
 //! decoder and the command handler, with the servo loop, the motion stream and the plant
 //! running one sample per frame ([`Rig`]). Checks every frame: answered (a reply, never
 //! silence), with an error, no request posted to the servo, no motion queued, the setpoint
-//! where it was. Prints the counts.
+//! where it was. Then valid frames with absurd payloads (`doubles::absurd_command`) while the
+//! servo moves (a sane move started whenever it is idle), five samples each: every frame
+//! answered with its sequence number, no fault, no torque step beyond 1 N·m. Prints the counts.
 //!
 //! `cargo bench -p controller --features host-doubles --bench link_fuzz` (default 1 000 000
 //! frames; `LINK_FUZZ_FRAMES=N` for another count). The CI-sized run of the same checks is the
@@ -180,11 +182,84 @@ fn main() {
         assert_eq!(rig.status.mode, Mode::Running, "frame {i}");
     }
     let s = started.elapsed().as_secs_f64();
+    absurd_payloads(&settings, cal, joints, image_id(&img), frames / 4);
     println!(
         "LINK_FUZZ frames {frames} (random {random}, mutated {mutated}, truncated {truncated}), {bytes} bytes, \
          {replies} replies ({rejected} frame errors, {refused} refused requests), 0 accepted, 0 requests posted, \
          0 setpoint changes, {:.1} s ({:.0} frames/s)",
         s,
         frames as f64 / s
+    );
+}
+
+/// Valid frames with absurd payloads while the servo moves (module doc); prints its counts.
+fn absurd_payloads(
+    settings: &Settings,
+    cal: Calibration<'_>,
+    joints: [f32; 2],
+    active_id: Option<u32>,
+    frames: u64,
+) {
+    use controller::host_link::doubles::{absurd_command, FuzzRng};
+    let mut rig = Rig::boot(settings, cal, joints, active_id);
+    rig.store.check = Some(settings.image_check());
+    rig.step();
+    let mut handler = LinkHandler::new();
+    let mut rng = FuzzRng(0xD1B5_4A32_D192_ED03);
+    let (mut refused, mut done, mut moves) = (0u64, 0u64, 0u64);
+    let mut last = rig.status.torque_nm;
+    let mut worst = 0.0f32;
+    let request = |rig: &mut Rig<'_>, handler: &mut LinkHandler, seq: u16, command| {
+        let mut frame = [0u8; MAX_FRAME_LEN];
+        let n = encode(&Request::new(seq, command), &mut frame).expect("fits");
+        let mut reader = FrameReader::new();
+        let mut answer = None;
+        for &b in &frame[..n] {
+            if let Some(received) = reader.push(b) {
+                let mut out = [0u8; MAX_FRAME_LEN];
+                let m = handler.on_received(received, rig, &mut out);
+                let reply: DeviceMessage = decode(&mut out[..m - 1]).expect("the reply decodes");
+                answer = Some(reply.body);
+            }
+        }
+        match answer {
+            Some(DeviceBody::Reply { seq: s, result }) if s == seq => result.is_ok(),
+            other => panic!("frame {seq}: not its reply: {other:?}"),
+        }
+    };
+    let started = std::time::Instant::now();
+    for i in 0..frames {
+        let seq = (2 * i) as u16;
+        if rig.status.mode == Mode::Running && !rig.stream.is_moving() && i % 3 == 0 {
+            let target = [185.0 + rng.below(55) as f32, -50.0 + rng.below(100) as f32];
+            assert!(request(
+                &mut rig,
+                &mut handler,
+                seq.wrapping_add(1),
+                Command::MoveTo { target_mm: target }
+            ));
+            moves += 1;
+        }
+        if request(&mut rig, &mut handler, seq, absurd_command(&mut rng)) {
+            done += 1;
+        } else {
+            refused += 1;
+        }
+        for _ in 0..5 {
+            rig.step();
+            let _ = handler.poll(&mut rig);
+            let s = rig.status;
+            assert_eq!(s.fault, None, "frame {i}: a fault no payload deserved");
+            let step = (s.torque_nm[0] - last[0])
+                .abs()
+                .max((s.torque_nm[1] - last[1]).abs());
+            worst = worst.max(step);
+            last = s.torque_nm;
+        }
+    }
+    assert!(worst <= 1.0, "torque step {worst} N·m");
+    println!(
+        "LINK_FUZZ absurd payloads: {frames} valid frames ({done} done, {refused} refused), {moves} moves run meanwhile, 0 faults, largest torque step {worst:.3} N·m per sample, {:.1} s",
+        started.elapsed().as_secs_f64()
     );
 }

@@ -24,7 +24,10 @@
 //!
 //! Defaults: the paper's machine, 2 mm, 2 mm, 0.05 rad (an identified machine differs from its
 //! drawing by tenths of a millimetre and milliradians; a different design by centimetres).
-use kinematics_core::{Calibration, CorrectionGrid, FiveBar, GridError, WorkingMode};
+use kinematics_core::{Branch, Calibration, CorrectionGrid, FiveBar, GridError, WorkingMode};
+use link_protocol::ImageParameter;
+
+use crate::plausibility::{ImageLimits, Implausible};
 
 /// The machine the firmware runs: its nominal geometry and how far an image's model may be
 /// from it and still be this machine's calibration (module doc).
@@ -52,48 +55,42 @@ impl Default for MachineIdentity {
     }
 }
 
-/// Why an image that parses was not built for this machine.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+/// Why an image that parses was not built for this machine: `parameter` of its model is
+/// `image`, this machine's is `machine`, and they may differ by `tolerance` at most.
+#[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum MachineMismatch {
-    /// Another working mode.
-    WorkingMode,
-    /// A link length too far from the nominal.
-    LinkLength,
-    /// A base position too far from the nominal.
-    Base,
-    /// An encoder offset too far from the nominal.
-    EncoderOffset,
-    /// The home position is outside the image's grid.
-    HomeOutsideGrid,
+pub struct MachineMismatch {
+    /// What differs.
+    pub parameter: ImageParameter,
+    /// The image's value.
+    pub image: f32,
+    /// This machine's.
+    pub machine: f32,
+    /// The largest difference accepted (0: must be equal).
+    pub tolerance: f32,
 }
 
 impl core::fmt::Display for MachineMismatch {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
-        f.write_str(match self {
-            MachineMismatch::WorkingMode => "the image's working mode is not this machine's",
-            MachineMismatch::LinkLength => {
-                "a link length of the image's model is too far from this machine's"
-            }
-            MachineMismatch::Base => {
-                "a base position of the image's model is too far from this machine's"
-            }
-            MachineMismatch::EncoderOffset => {
-                "an encoder offset of the image's model is too far from this machine's"
-            }
-            MachineMismatch::HomeOutsideGrid => "the home position lies outside the image's grid",
-        })
+        write!(
+            f,
+            "another machine's image: {:?} is {} in the image, {} on this machine (tolerance {})",
+            self.parameter, self.image, self.machine, self.tolerance
+        )
     }
 }
 
-/// Why an image was refused: it does not parse, or it is another machine's.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+/// Why an image was refused: it does not parse, it is another machine's, or it carries what
+/// no calibration of this machine can need.
+#[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum ImageError {
     /// Format, CRC or numbers (`CorrectionGrid::parse`).
     Grid(GridError),
     /// Parses, but was built for another machine.
     OtherMachine(MachineMismatch),
+    /// This machine's, but implausible ([`crate::plausibility`]).
+    Implausible(Implausible),
 }
 
 impl core::fmt::Display for ImageError {
@@ -101,77 +98,147 @@ impl core::fmt::Display for ImageError {
         match self {
             ImageError::Grid(e) => write!(f, "{e}"),
             ImageError::OtherMachine(e) => write!(f, "{e}"),
+            ImageError::Implausible(e) => write!(f, "{e}"),
         }
     }
 }
 
 impl MachineIdentity {
     /// Whether `grid` was built for this machine (module doc); `home_mm` must lie in its grid.
+    /// A refusal names the first parameter that differs and both values.
     pub fn check(
         &self,
         grid: &CorrectionGrid<'_>,
         home_mm: [f32; 2],
     ) -> Result<(), MachineMismatch> {
         let (m, n) = (grid.model(), &self.nominal);
-        let same_mode = |a: WorkingMode, b: WorkingMode| a == b;
-        if !same_mode(m.mode, n.mode) {
-            return Err(MachineMismatch::WorkingMode);
-        }
-        // `!(d <= max)` also refuses NaN.
-        let within = |a: f32, b: f32, max: f32| (a - b).abs() <= max;
-        let lengths = [
-            (m.a_mm, n.a_mm),
-            (m.b_mm, n.b_mm),
-            (m.c_mm, n.c_mm),
-            (m.d_mm, n.d_mm),
-        ];
-        if !lengths
-            .iter()
-            .all(|&(a, b)| within(a, b, self.max_length_deviation_mm))
-        {
-            return Err(MachineMismatch::LinkLength);
-        }
-        let bases = [m.base_a0_mm, m.base_b0_mm]
-            .into_iter()
-            .zip([n.base_a0_mm, n.base_b0_mm]);
-        if !bases
-            .flat_map(|(a, b)| [(a[0], b[0]), (a[1], b[1])])
-            .all(|(a, b)| within(a, b, self.max_base_deviation_mm))
-        {
-            return Err(MachineMismatch::Base);
-        }
-        let offsets = m.encoder_offset_rad.into_iter().zip(n.encoder_offset_rad);
-        if !offsets
-            .into_iter()
-            .all(|(a, b)| within(a, b, self.max_offset_deviation_rad))
-        {
-            return Err(MachineMismatch::EncoderOffset);
-        }
+        let mode = |w: WorkingMode| {
+            let bit = |b: Branch, k: u32| if b == Branch::Positive { 1 << k } else { 0 };
+            (bit(w.elbow_1, 0) | bit(w.elbow_2, 1) | bit(w.assembly, 2)) as f32
+        };
+        let differs = |parameter, image: f32, machine: f32, tolerance: f32| {
+            // `!(d <= max)` also refuses NaN.
+            let mismatch = MachineMismatch {
+                parameter,
+                image,
+                machine,
+                tolerance,
+            };
+            if (image - machine).abs() <= tolerance {
+                Ok(())
+            } else {
+                Err(mismatch)
+            }
+        };
+        differs(ImageParameter::WorkingMode, mode(m.mode), mode(n.mode), 0.0)?;
+        let (dl, db, doff) = (
+            self.max_length_deviation_mm,
+            self.max_base_deviation_mm,
+            self.max_offset_deviation_rad,
+        );
+        differs(ImageParameter::LinkAMm, m.a_mm, n.a_mm, dl)?;
+        differs(ImageParameter::LinkBMm, m.b_mm, n.b_mm, dl)?;
+        differs(ImageParameter::LinkCMm, m.c_mm, n.c_mm, dl)?;
+        differs(ImageParameter::LinkDMm, m.d_mm, n.d_mm, dl)?;
+        differs(
+            ImageParameter::BaseA0XMm,
+            m.base_a0_mm[0],
+            n.base_a0_mm[0],
+            db,
+        )?;
+        differs(
+            ImageParameter::BaseA0YMm,
+            m.base_a0_mm[1],
+            n.base_a0_mm[1],
+            db,
+        )?;
+        differs(
+            ImageParameter::BaseB0XMm,
+            m.base_b0_mm[0],
+            n.base_b0_mm[0],
+            db,
+        )?;
+        differs(
+            ImageParameter::BaseB0YMm,
+            m.base_b0_mm[1],
+            n.base_b0_mm[1],
+            db,
+        )?;
+        let (mo, no) = (m.encoder_offset_rad, n.encoder_offset_rad);
+        differs(ImageParameter::EncoderOffset1Rad, mo[0], no[0], doff)?;
+        differs(ImageParameter::EncoderOffset2Rad, mo[1], no[1], doff)?;
         if grid.correction_rad(home_mm).is_err() {
-            return Err(MachineMismatch::HomeOutsideGrid);
+            // The coordinate outside, against the grid's nearest edge along it.
+            let g = grid.geometry();
+            let x1 = g.x0_mm + g.step_x_mm * f32::from(g.nx - 1);
+            let y1 = g.y0_mm + g.step_y_mm * f32::from(g.ny - 1);
+            let nearest = |v: f32, lo: f32, hi: f32| if v < lo { lo } else { hi };
+            let inside_x = (g.x0_mm..=x1).contains(&home_mm[0]);
+            return Err(if inside_x {
+                MachineMismatch {
+                    parameter: ImageParameter::HomeYMm,
+                    image: nearest(home_mm[1], g.y0_mm, y1),
+                    machine: home_mm[1],
+                    tolerance: 0.0,
+                }
+            } else {
+                MachineMismatch {
+                    parameter: ImageParameter::HomeXMm,
+                    image: nearest(home_mm[0], g.x0_mm, x1),
+                    machine: home_mm[0],
+                    tolerance: 0.0,
+                }
+            });
         }
         Ok(())
     }
 }
 
-/// Parses `bytes` and checks it is this machine's image: the validation of a boot and of an
+/// What an image must be to be used on this machine: its machine ([`MachineIdentity`]), the
+/// home position its grid must contain, and the plausibility limits
+/// ([`crate::plausibility`]). One call judges an image ([`ImageCheck::judge`]) at boot and at
+/// an upload's commit (`Settings::image_check` builds it from the settings).
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct ImageCheck {
+    /// The machine.
+    pub machine: MachineIdentity,
+    /// The home position (mm).
+    pub home_mm: [f32; 2],
+    /// What a calibration of it can need (`None`: not judged; only the QEMU harness's own
+    /// reading of the slots, which asks which image is in force, not whether it is plausible,
+    /// and runs inside a servo sample, where the plausibility check's milliseconds do not fit).
+    pub limits: Option<ImageLimits>,
+}
+
+impl ImageCheck {
+    /// This machine's and plausible: the "same machine" check, then the plausibility limits.
+    pub fn judge(&self, grid: &CorrectionGrid<'_>) -> Result<(), ImageError> {
+        self.machine
+            .check(grid, self.home_mm)
+            .map_err(ImageError::OtherMachine)?;
+        match &self.limits {
+            Some(limits) => limits.check(grid).map_err(ImageError::Implausible),
+            None => Ok(()),
+        }
+    }
+}
+
+/// Parses `bytes` and judges it ([`ImageCheck::judge`]): the validation of a boot and of an
 /// upload's commit. Returns the grid and the image's length in bytes (with its chain of
 /// extension blocks: workspace, dynamics).
 pub fn validate_image<'a>(
     bytes: &'a [u8],
-    machine: &MachineIdentity,
-    home_mm: [f32; 2],
+    check: &ImageCheck,
 ) -> Result<(CorrectionGrid<'a>, usize), ImageError> {
     let grid = CorrectionGrid::parse(bytes).map_err(ImageError::Grid)?;
-    machine
-        .check(&grid, home_mm)
-        .map_err(ImageError::OtherMachine)?;
+    check.judge(&grid)?;
     let len = grid.len_bytes();
     Ok((grid, len))
 }
 
 /// What the boot check found.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum CalibrationState {
     /// A valid image: model and grid in use.
@@ -183,20 +250,18 @@ pub enum CalibrationState {
 }
 
 /// Validates the image in `region` (the image in force, or the whole flash region: bytes after
-/// the image are ignored), checks it is this `machine`'s with `home_mm` in its grid, and
-/// applies the policy. A refused image yields the paper's nominal model without grid, which
+/// the image are ignored), judges it ([`ImageCheck::judge`]), and applies the policy. A refused image yields the paper's nominal model without grid, which
 /// the servo uses only if the state is [`CalibrationState::Uncorrected`].
 pub fn load<'a>(
     region: &'a [u8],
-    machine: &MachineIdentity,
-    home_mm: [f32; 2],
+    check: &ImageCheck,
     allow_uncorrected: bool,
 ) -> (CalibrationState, Calibration<'a>) {
     let nominal = Calibration {
-        model: machine.nominal,
+        model: check.machine.nominal,
         grid: None,
     };
-    match validate_image(region, machine, home_mm) {
+    match validate_image(region, check) {
         Ok((grid, _)) => (CalibrationState::Valid, Calibration::from_grid(grid)),
         Err(e) if allow_uncorrected => (CalibrationState::Uncorrected(e), nominal),
         Err(e) => (CalibrationState::Refused(e), nominal),
@@ -221,6 +286,20 @@ mod tests {
 
     const HOME_MM: [f32; 2] = [212.132, 0.0];
 
+    /// The paper's machine with its default tolerances and the default servo's limits.
+    fn check() -> ImageCheck {
+        ImageCheck {
+            machine: MachineIdentity::default(),
+            home_mm: HOME_MM,
+            limits: Some(ImageLimits::of(
+                &FiveBar::paper_nominal(),
+                2.0,
+                &kinematics_core::ServoConfig::default(),
+                100.0,
+            )),
+        }
+    }
+
     fn image() -> Vec<u8> {
         let g = GridGeometry {
             nx: 3,
@@ -239,7 +318,7 @@ mod tests {
     fn a_valid_image_gives_its_model_and_grid() {
         let mut region = image();
         region.extend([0xFF; 100]); // erased flash after the image
-        let (state, cal) = load(&region, &MachineIdentity::default(), HOME_MM, false);
+        let (state, cal) = load(&region, &check(), false);
         assert_eq!(state, CalibrationState::Valid);
         let grid = cal.grid.expect("grid in use");
         assert_eq!(grid.correction_rad([200.0, 0.0]), Ok([2e-4, -1e-4]));
@@ -279,32 +358,26 @@ mod tests {
         let end = append_dynamics(&mut img, n, end, &d).unwrap();
         let mut region = img.clone();
         region.extend([0xFF; 64]);
-        let (grid, len) = validate_image(&region, &MachineIdentity::default(), HOME_MM).unwrap();
+        let (grid, len) = validate_image(&region, &check()).unwrap();
         assert_eq!(len, end);
         assert!(grid.workspace().is_some() && grid.dynamics().is_some());
         // Cut to that length, the image still has both blocks.
-        let (grid, _) =
-            validate_image(&region[..len], &MachineIdentity::default(), HOME_MM).unwrap();
+        let (grid, _) = validate_image(&region[..len], &check()).unwrap();
         assert!(grid.workspace().is_some() && grid.dynamics().is_some());
-        assert_eq!(
-            validate_image(&plain, &MachineIdentity::default(), HOME_MM)
-                .unwrap()
-                .1,
-            n
-        );
+        assert_eq!(validate_image(&plain, &check()).unwrap().1, n);
     }
 
     #[test]
     fn a_bad_image_is_refused_unless_uncorrected_running_is_allowed() {
         let mut region = image();
         region[100] ^= 1;
-        let (state, cal) = load(&region, &MachineIdentity::default(), HOME_MM, false);
+        let (state, cal) = load(&region, &check(), false);
         assert_eq!(
             state,
             CalibrationState::Refused(ImageError::Grid(GridError::BadCrc))
         );
         assert!(cal.grid.is_none());
-        let (state, cal) = load(&[0xFF; 4096], &MachineIdentity::default(), HOME_MM, true);
+        let (state, cal) = load(&[0xFF; 4096], &check(), true);
         assert_eq!(
             state,
             CalibrationState::Uncorrected(ImageError::Grid(GridError::BadMagic))
@@ -331,7 +404,7 @@ mod tests {
     /// the tolerances (an identified machine) is accepted.
     #[test]
     fn an_image_built_for_another_machine_is_refused() {
-        let m = MachineIdentity::default();
+        let m = check();
         let n = FiveBar::paper_nominal();
         let identified = FiveBar {
             a_mm: 150.4,
@@ -340,18 +413,21 @@ mod tests {
             encoder_offset_rad: [2e-3, -1e-3],
             ..n
         };
-        assert!(validate_image(&image_of(&identified, 160.0), &m, HOME_MM).is_ok());
+        assert!(validate_image(&image_of(&identified, 160.0), &m).is_ok());
         let mut mirrored = n;
         mirrored.mode.assembly = match n.mode.assembly {
             Branch::Positive => Branch::Negative,
             Branch::Negative => Branch::Positive,
         };
         for (model, x0, why) in [
-            (mirrored, 160.0, MachineMismatch::WorkingMode),
+            (mirrored, 160.0, ImageParameter::WorkingMode, 1.0, 5.0, 0.0),
             (
                 FiveBar { c_mm: 153.0, ..n },
                 160.0,
-                MachineMismatch::LinkLength,
+                ImageParameter::LinkCMm,
+                153.0,
+                150.0,
+                2.0,
             ),
             (
                 FiveBar {
@@ -359,7 +435,10 @@ mod tests {
                     ..n
                 },
                 160.0,
-                MachineMismatch::Base,
+                ImageParameter::BaseA0YMm,
+                2.5,
+                0.0,
+                2.0,
             ),
             (
                 FiveBar {
@@ -367,21 +446,27 @@ mod tests {
                     ..n
                 },
                 160.0,
-                MachineMismatch::EncoderOffset,
+                ImageParameter::EncoderOffset2Rad,
+                0.1,
+                0.0,
+                0.05,
             ),
-            (n, 220.0, MachineMismatch::HomeOutsideGrid),
-        ] {
+            (n, 220.0, ImageParameter::HomeXMm, 220.0, 212.132, 0.0),
+        ]
+        .map(|(model, x0, p, image, machine, tolerance)| {
+            (model, x0, (p, image, machine, tolerance))
+        }) {
             let img = image_of(&model, x0);
-            assert_eq!(
-                validate_image(&img, &m, HOME_MM).err(),
-                Some(ImageError::OtherMachine(why)),
-                "{why:?}"
-            );
-            let (state, cal) = load(&img, &m, HOME_MM, false);
-            assert_eq!(
-                state,
-                CalibrationState::Refused(ImageError::OtherMachine(why))
-            );
+            // The refusal names the parameter and both values.
+            let want = ImageError::OtherMachine(MachineMismatch {
+                parameter: why.0,
+                image: why.1,
+                machine: why.2,
+                tolerance: why.3,
+            });
+            assert_eq!(validate_image(&img, &m).err(), Some(want), "{why:?}");
+            let (state, cal) = load(&img, &m, false);
+            assert_eq!(state, CalibrationState::Refused(want));
             assert!(cal.grid.is_none());
         }
     }

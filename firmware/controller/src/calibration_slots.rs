@@ -30,6 +30,10 @@
 //! record CRC, marker), its image's bytes match the record's length and CRC, and the image
 //! passes [`validate_image`](crate::calibration::validate_image) (format, grid CRC, this
 //! machine). Of the slots that count, the one with the highest sequence number is in force.
+//! The record's image CRC is not redundant with the grid's own: a probe that reflashes a slot's
+//! start with another image of the same length leaves the old record behind, and that image
+//! parses with the record's length; only the record's CRC-32C tells it is not the committed one
+//! (test `a_record_left_behind_by_another_image_does_not_count`).
 //! If neither has a record, an image at the start of slot A is in force with sequence 0: that
 //! is what flashing the region with a probe (`probe-rs download ... calibration.bin`, the
 //! bring-up path) or the QEMU board's bundled image leaves. (So after an upload, reflash the
@@ -54,7 +58,7 @@
 //! `commit` one CRC and a parse. None of it runs in the servo task: the app calls it from a
 //! low-priority task, and on the G474 the calibration region is in bank 2 while the program
 //! runs from bank 1.
-use crate::calibration::{validate_image, ImageError, MachineIdentity};
+use crate::calibration::{validate_image, ImageCheck, ImageError};
 
 /// The record's own CRC (CRC-32/ISO-HDLC, zlib's, as the grid format uses).
 const CRC32: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
@@ -142,7 +146,7 @@ pub struct CalibrationId {
 /// Why an upload step was refused. After any error but [`SlotError::NoUpload`] and
 /// [`SlotError::OutOfOrder`] the upload is abandoned (start again with `begin`); the image in
 /// force is untouched in every case.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum SlotError {
     /// `write` or `commit` without a `begin`.
@@ -169,6 +173,8 @@ pub enum SlotError {
     Flash(FlashError),
     /// The uploaded image is not a valid image for this machine.
     Image(ImageError),
+    /// A committed image waits for the servo to switch to it: no upload until it has.
+    SwitchPending,
 }
 
 impl core::fmt::Display for SlotError {
@@ -187,6 +193,9 @@ impl core::fmt::Display for SlotError {
             }
             SlotError::Flash(e) => write!(f, "flash error: {e:?}"),
             SlotError::Image(e) => write!(f, "image refused: {e}"),
+            SlotError::SwitchPending => f.write_str(
+                "a committed image waits for the servo to switch to it at rest (no upload until it has)",
+            ),
         }
     }
 }
@@ -214,20 +223,18 @@ struct Upload {
 /// The two slots over a board's flash: which image is in force, and the upload into the other.
 pub struct SlotStore<F: SlotFlash> {
     flash: F,
-    machine: MachineIdentity,
-    home_mm: [f32; 2],
+    check: ImageCheck,
     active: Option<CalibrationId>,
     upload: Option<Upload>,
 }
 
 impl<F: SlotFlash> SlotStore<F> {
-    /// Scans both slots and picks the image in force (module doc). `machine` and `home_mm` are
-    /// what an image must have been built for.
-    pub fn open(flash: F, machine: MachineIdentity, home_mm: [f32; 2]) -> Self {
+    /// Scans both slots and picks the image in force (module doc). `check` judges each image
+    /// (this machine's, plausible: `Settings::image_check`).
+    pub fn open(flash: F, check: ImageCheck) -> Self {
         let mut store = SlotStore {
             flash,
-            machine,
-            home_mm,
+            check,
             active: None,
             upload: None,
         };
@@ -282,10 +289,16 @@ impl<F: SlotFlash> SlotStore<F> {
         self.upload.map(|u| (u.received, u.len))
     }
 
-    /// Starts an upload of `len` bytes: erases the slot not in force. An upload already under
-    /// way is abandoned.
-    pub fn begin(&mut self, len: usize) -> Result<(), SlotError> {
+    /// Starts an upload of `len` bytes into the slot the servo does not use (`in_use`: the id
+    /// of the image the servo runs with, `None` without one) and erases it. Refused with
+    /// [`SlotError::SwitchPending`] while the newest committed image is not the one in use (a
+    /// switch is pending: the other slot is the one the servo still reads, and the committed
+    /// one must not be erased either). An upload already under way is abandoned.
+    pub fn begin(&mut self, len: usize, in_use: Option<CalibrationId>) -> Result<(), SlotError> {
         self.upload = None;
+        if self.active.is_some() && self.active != in_use {
+            return Err(SlotError::SwitchPending);
+        }
         let max = self.capacity();
         if !(kinematics_core::grid::HEADER_LEN + 4..=max).contains(&len) {
             return Err(SlotError::BadLength { max: max as u32 });
@@ -363,8 +376,7 @@ impl<F: SlotFlash> SlotStore<F> {
                 .program(base + up.len as usize - up.tail_len, &unit[..w])?;
         }
         let image = &self.flash.region()[base..base + up.len as usize];
-        let (_, parsed_len) =
-            validate_image(image, &self.machine, self.home_mm).map_err(SlotError::Image)?;
+        let (_, parsed_len) = validate_image(image, &self.check).map_err(SlotError::Image)?;
         // The image must be exactly what was announced (no trailing bytes a CRC does not cover).
         if parsed_len != up.len as usize {
             return Err(SlotError::BadLength {
@@ -392,6 +404,26 @@ impl<F: SlotFlash> SlotStore<F> {
         Ok(id)
     }
 
+    /// A committed image the servo refused to switch to (`SwitchOutcome::Refused`): its slot is
+    /// erased, so that the image in use (`in_use`) stays in force, at the next boot too, and the
+    /// next upload may go there. Nothing happens unless the newest committed image is `refused`
+    /// and not the one in use.
+    pub fn withdraw(
+        &mut self,
+        refused: CalibrationId,
+        in_use: Option<CalibrationId>,
+    ) -> Result<(), SlotError> {
+        if self.active != Some(refused) || in_use == Some(refused) {
+            return Ok(());
+        }
+        let slot_len = self.slot_len();
+        self.upload = None;
+        self.flash
+            .erase(refused.slot as usize * slot_len, slot_len)?;
+        self.active = in_use;
+        Ok(())
+    }
+
     /// Abandons the upload under way (the half-written slot stays without record).
     pub fn abort(&mut self) {
         self.upload = None;
@@ -416,7 +448,7 @@ impl<F: SlotFlash> SlotStore<F> {
         if image_crc(image) != crc32 {
             return None;
         }
-        let (_, parsed_len) = validate_image(image, &self.machine, self.home_mm).ok()?;
+        let (_, parsed_len) = validate_image(image, &self.check).ok()?;
         (parsed_len == len as usize).then_some(CalibrationId {
             slot,
             sequence,
@@ -428,7 +460,7 @@ impl<F: SlotFlash> SlotStore<F> {
     /// An image at the start of slot A without any record (flashed by probe), sequence 0.
     fn probe_flashed(&self) -> Option<CalibrationId> {
         let a = self.flash.region().get(..self.capacity())?;
-        let (_, len) = validate_image(a, &self.machine, self.home_mm).ok()?;
+        let (_, len) = validate_image(a, &self.check).ok()?;
         Some(CalibrationId {
             slot: 0,
             sequence: 0,
@@ -540,344 +572,4 @@ pub mod sim {
 }
 
 #[cfg(test)]
-mod tests {
-    use super::sim::SimFlash;
-    use super::*;
-    use kinematics_core::grid::{encode, encode_with_dynamics, GridGeometry};
-    use kinematics_core::{FiveBar, FiveBarDynamics, GridError};
-
-    const HOME_MM: [f32; 2] = [212.132, 0.0];
-
-    fn image(value: f32) -> Vec<u8> {
-        let g = GridGeometry {
-            nx: 3,
-            ny: 3,
-            x0_mm: 160.0,
-            y0_mm: -80.0,
-            step_x_mm: 50.0,
-            step_y_mm: 80.0,
-        };
-        let mut img = vec![0u8; g.image_len()];
-        encode(
-            &mut img,
-            &g,
-            &FiveBar::paper_nominal(),
-            &[[value, -value]; 9],
-        )
-        .unwrap();
-        img
-    }
-
-    fn crc(b: &[u8]) -> u32 {
-        image_crc(b)
-    }
-
-    /// Regression: zlib's CRC-32 over whole grid images is one constant (each image ends with
-    /// its own CRC-32), so it cannot tell images apart; the id's CRC-32C does.
-    #[test]
-    fn different_images_have_different_ids() {
-        let (a, b) = (image(1e-4), image(2e-4));
-        assert_eq!(
-            CRC32.checksum(&a),
-            CRC32.checksum(&b),
-            "the residue the id must not use"
-        );
-        assert_ne!(crc(&a), crc(&b));
-    }
-
-    type Small<'a> = SimFlash<'a, 8, 256>;
-
-    fn open(bytes: &mut [u8]) -> SlotStore<Small<'_>> {
-        SlotStore::open(SimFlash::new(bytes), MachineIdentity::default(), HOME_MM)
-    }
-
-    fn upload<F: SlotFlash>(
-        store: &mut SlotStore<F>,
-        img: &[u8],
-        chunk: usize,
-    ) -> Result<CalibrationId, SlotError> {
-        store.begin(img.len())?;
-        for (k, c) in img.chunks(chunk).enumerate() {
-            store.write(k * chunk, c)?;
-        }
-        store.commit()
-    }
-
-    #[test]
-    fn a_probe_flashed_image_is_in_force_and_an_upload_switches_to_the_other_slot() {
-        let (old, new) = (image(1e-4), image(2e-4));
-        let mut region = vec![0xFFu8; 4096];
-        region[..old.len()].copy_from_slice(&old);
-        let mut store = open(&mut region);
-        assert_eq!(store.slot_len(), 2048);
-        let (bytes, id) = store.active().unwrap();
-        assert_eq!(
-            (bytes, id),
-            (
-                &old[..],
-                CalibrationId {
-                    slot: 0,
-                    sequence: 0,
-                    crc32: crc(&old),
-                    len: old.len() as u32
-                }
-            )
-        );
-        // Odd chunk sizes: the store buffers partial write units.
-        let id = upload(&mut store, &new, 7).unwrap();
-        assert_eq!(
-            id,
-            CalibrationId {
-                slot: 1,
-                sequence: 1,
-                crc32: crc(&new),
-                len: new.len() as u32
-            }
-        );
-        assert_eq!(store.active().unwrap().0, &new[..]);
-        // The next one goes back to slot A, over the probe-flashed image, and wins on sequence.
-        let third = image(3e-4);
-        assert_eq!(upload(&mut store, &third, 64).unwrap().slot, 0);
-        let store = open(&mut region);
-        assert_eq!(
-            store.active().unwrap(),
-            (
-                &third[..],
-                CalibrationId {
-                    slot: 0,
-                    sequence: 2,
-                    crc32: crc(&third),
-                    len: third.len() as u32
-                }
-            )
-        );
-    }
-
-    #[test]
-    fn bad_uploads_are_refused_and_the_old_image_kept() {
-        let old = image(1e-4);
-        let mut region = vec![0xFFu8; 4096];
-        region[..old.len()].copy_from_slice(&old);
-        let mut store = open(&mut region);
-        let before = store.active_id();
-        // Corrupt: one node flipped, the CRC no longer matches.
-        let mut bad = image(2e-4);
-        bad[100] ^= 0x10;
-        assert_eq!(
-            upload(&mut store, &bad, 32),
-            Err(SlotError::Image(ImageError::Grid(GridError::BadCrc)))
-        );
-        // Another machine: 160 mm links (a valid image, CRC and all).
-        let g = GridGeometry {
-            nx: 3,
-            ny: 3,
-            x0_mm: 160.0,
-            y0_mm: -80.0,
-            step_x_mm: 50.0,
-            step_y_mm: 80.0,
-        };
-        let mut other = vec![0u8; g.image_len()];
-        let model = FiveBar {
-            a_mm: 160.0,
-            ..FiveBar::paper_nominal()
-        };
-        encode(&mut other, &g, &model, &[[0.0; 2]; 9]).unwrap();
-        assert_eq!(
-            upload(&mut store, &other, 32),
-            Err(SlotError::Image(ImageError::OtherMachine(
-                crate::calibration::MachineMismatch::LinkLength
-            )))
-        );
-        // Lengths, order, protocol.
-        assert_eq!(store.begin(10), Err(SlotError::BadLength { max: 2016 }));
-        assert_eq!(store.begin(5000), Err(SlotError::BadLength { max: 2016 }));
-        assert_eq!(store.write(0, &[1]), Err(SlotError::NoUpload));
-        assert_eq!(store.commit(), Err(SlotError::NoUpload));
-        let good = image(2e-4);
-        store.begin(good.len()).unwrap();
-        store.write(0, &good[..10]).unwrap();
-        assert_eq!(
-            store.write(0, &good[..10]),
-            Err(SlotError::OutOfOrder { expected: 10 })
-        );
-        assert_eq!(store.commit(), Err(SlotError::Incomplete { received: 10 }));
-        store.begin(good.len()).unwrap();
-        assert_eq!(store.write(0, &[0u8; 200]), Err(SlotError::TooMuchData));
-        // Announced longer than the image: trailing bytes are refused, not ignored.
-        let mut padded = good.clone();
-        padded.extend([0u8; 8]);
-        assert!(matches!(
-            upload(&mut store, &padded, 64),
-            Err(SlotError::BadLength { .. })
-        ));
-        assert_eq!(store.active_id(), before);
-        assert_eq!(open(&mut region).active_id(), before, "and after a reboot");
-    }
-
-    #[test]
-    fn an_empty_region_has_no_image_and_takes_one() {
-        let mut region = vec![0xFFu8; 4096];
-        let mut store = open(&mut region);
-        assert!(store.active().is_none());
-        let img = image(1e-4);
-        let id = upload(&mut store, &img, 13).unwrap();
-        assert_eq!((id.slot, id.sequence), (0, 1));
-        // QEMU's RAM-backed region starts zeroed, not erased: no record there either.
-        let mut zeros = vec![0u8; 4096];
-        assert!(open(&mut zeros).active().is_none());
-    }
-
-    /// The guarantee: the power fails after every single byte operation (erase or program) of
-    /// an upload, then the machine reboots. The image in force is the old one until the commit
-    /// record's last write unit is complete, and the new one from then on; never none, never a
-    /// mix. Three uploads in a row, so both slots are overwritten, with and without dynamics.
-    #[test]
-    fn a_power_cut_at_every_byte_of_an_upload_leaves_the_old_image_or_the_new_one() {
-        let g = GridGeometry {
-            nx: 3,
-            ny: 3,
-            x0_mm: 160.0,
-            y0_mm: -80.0,
-            step_x_mm: 50.0,
-            step_y_mm: 80.0,
-        };
-        let mut with_dynamics = vec![0u8; g.image_len_with_dynamics()];
-        let dynamics = FiveBarDynamics {
-            motor_inertia_kg_m2: [5e-3, 5e-3],
-            tool_mass_kg: 0.2,
-            distal_inertia_kg_m2: [-2e-4, -2e-4],
-            viscous_nm_s_per_rad: [0.01; 2],
-            coulomb_nm: [0.02; 2],
-            coulomb_speed_rad_s: 0.01,
-        };
-        encode_with_dynamics(
-            &mut with_dynamics,
-            &g,
-            &FiveBar::paper_nominal(),
-            &[[5e-5, 1e-5]; 9],
-            &dynamics,
-        )
-        .unwrap();
-        let images = [image(1e-4), image(2e-4), with_dynamics, image(3e-4)];
-        let mut region = vec![0xFFu8; 4096];
-        region[..images[0].len()].copy_from_slice(&images[0]);
-        let mut cuts = 0;
-        for step in 1..images.len() {
-            let (old, new) = (&images[step - 1], &images[step]);
-            let snapshot = region.clone();
-            // The uninterrupted upload: how many byte operations it takes.
-            let total = {
-                let mut r = snapshot.clone();
-                let mut store = open(&mut r);
-                upload(&mut store, new, 24).unwrap();
-                store.flash().ops
-            };
-            assert!(total > 2048, "erase and program counted: {total}");
-            for budget in 0..=total {
-                let mut r = snapshot.clone();
-                let mut store = open(&mut r);
-                store.flash.budget = Some(budget);
-                let done = upload(&mut store, new, 24).is_ok();
-                let after = open(&mut r);
-                let (bytes, id) = after.active().expect("an image in force after every cut");
-                if done {
-                    assert_eq!(
-                        bytes,
-                        &new[..],
-                        "cut after {budget} of {total}: committed, the new image"
-                    );
-                } else {
-                    assert_eq!(
-                        bytes,
-                        &old[..],
-                        "cut after {budget} of {total}: the old image"
-                    );
-                    assert!(budget < total);
-                }
-                assert_eq!(id.crc32, crc(bytes));
-                cuts += 1;
-            }
-            region = snapshot;
-            let mut store = open(&mut region);
-            upload(&mut store, new, 24).unwrap();
-        }
-        println!("{cuts} power cuts, each followed by a reboot");
-    }
-
-    /// The same at write-unit granularity on the boards' real geometry (64 KiB region, 2 KiB
-    /// pages, 8-byte double words, the QEMU firmware's bundled-size image): a cut after every
-    /// programmed unit and after every erased page.
-    #[test]
-    fn a_power_cut_after_every_write_unit_on_the_real_geometry() {
-        let g = GridGeometry {
-            nx: 21,
-            ny: 31,
-            x0_mm: 162.132,
-            y0_mm: -75.0,
-            step_x_mm: 5.0,
-            step_y_mm: 5.0,
-        };
-        let make = |v: f32| {
-            let mut img = vec![0u8; g.image_len()];
-            encode(
-                &mut img,
-                &g,
-                &FiveBar::paper_nominal(),
-                &vec![[v, -v]; g.len()],
-            )
-            .unwrap();
-            img
-        };
-        let (old, new) = (make(1e-4), make(2e-4));
-        let mut region = vec![0xFFu8; 65536];
-        region[..old.len()].copy_from_slice(&old);
-        let snapshot = region.clone();
-        fn open64(r: &mut [u8]) -> SlotStore<SimFlash<'_, 8, 2048>> {
-            SlotStore::open(SimFlash::new(r), MachineIdentity::default(), HOME_MM)
-        }
-        let (ops, units) = {
-            let mut r = snapshot.clone();
-            let mut s = open64(&mut r);
-            upload(&mut s, &new, 256).unwrap();
-            (s.flash().ops, s.flash().units)
-        };
-        let erase_ops = 32768;
-        assert_eq!(ops, erase_ops + units * 8);
-        // Cut points: every erased page, and every byte boundary of every unit programmed.
-        let cuts = (0..=16)
-            .map(|p| p * 2048)
-            .chain((0..=units).map(|u| erase_ops + u * 8));
-        for budget in cuts {
-            let mut r = snapshot.clone();
-            let mut s = open64(&mut r);
-            s.flash.budget = Some(budget);
-            let done = upload(&mut s, &new, 256).is_ok();
-            let after = open64(&mut r);
-            let expected = if done { &new } else { &old };
-            assert_eq!(
-                after.active().unwrap().0,
-                &expected[..],
-                "cut after {budget} of {ops}"
-            );
-            assert_eq!(done, budget == ops);
-        }
-    }
-
-    #[test]
-    fn a_torn_record_never_counts() {
-        // Every prefix of a record, programmed over erased flash, and a record with a flipped
-        // bit in any byte: none decodes.
-        let r = encode_record(7, 148, 0xDEAD_BEEF);
-        assert_eq!(decode_record(&r), Some((7, 148, 0xDEAD_BEEF)));
-        for n in 0..RECORD_LEN {
-            let mut torn = [0xFFu8; RECORD_LEN];
-            torn[..n].copy_from_slice(&r[..n]);
-            assert_eq!(decode_record(&torn), None, "prefix {n}");
-            for bit in 0..8 {
-                let mut flipped = r;
-                flipped[n] ^= 1 << bit;
-                assert_eq!(decode_record(&flipped), None, "byte {n} bit {bit}");
-            }
-        }
-    }
-}
+mod tests;

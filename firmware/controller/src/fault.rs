@@ -34,7 +34,7 @@
 //! a machine after a category-0 fault.
 //!
 //! Only a reset clears a latched fault: a reboot, or the host link's `ResetFault` / `Enable`
-//! ([`ServoLoop::reset`](crate::servo_loop::ServoLoop::reset): re-engages where the machine is). The mode machine is in [`crate::servo_loop`], the stop
+//! ([`ServoLoop::request`](crate::servo_loop::ServoLoop::request): re-engages where the machine is; what a reset clears in each mode is the table of [`crate::servo_loop::requests`]). The mode machine is in [`crate::servo_loop`], the stop
 //! profile in [`crate::stop`], the encoder checks in [`crate::encoder_check`].
 use kinematics_core::{EngageError, ServoFault, SetpointRefusal};
 
@@ -42,7 +42,7 @@ use crate::calibration::ImageError;
 use crate::encoder_check::EncoderFault;
 use crate::homing::HomingFault;
 use crate::settings::SettingsError;
-use crate::watchdog::WatchdogFault;
+use crate::watchdog::{ResetCause, WatchdogFault};
 
 /// How the machine is brought to rest (IEC 60204-1 stop categories).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -58,7 +58,7 @@ pub enum StopCategory {
 }
 
 /// Why the machine stopped. Latched: only a reset clears it.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum Fault {
     /// The servo refused a setpoint of the stream: non-finite (category 1), unreachable, near a
@@ -128,6 +128,20 @@ impl Fault {
             | Fault::Settings(_)
             | Fault::Engage(_)
             | Fault::Watchdog(_) => StopCategory::Zero,
+        }
+    }
+
+    /// The fault a boot after `cause` starts with, if any: a watchdog reset keeps the drives
+    /// off ([`crate::watchdog`]).
+    pub fn after_reset(cause: ResetCause) -> Option<Fault> {
+        match cause {
+            ResetCause::Watchdog => Some(Fault::Watchdog(WatchdogFault::Reset)),
+            ResetCause::PowerOnOrBrownOut
+            | ResetCause::Pin
+            | ResetCause::Software
+            | ResetCause::LowPower
+            | ResetCause::OptionByteLoad
+            | ResetCause::Unknown => None,
         }
     }
 
@@ -207,6 +221,24 @@ mod tests {
             (Fault::Watchdog(WatchdogFault::NotStarted), Zero),
         ] {
             assert_eq!(fault.stop_category(), want, "{fault}");
+        }
+    }
+
+    #[test]
+    fn only_a_watchdog_reset_keeps_the_drives_off_at_the_next_boot() {
+        assert_eq!(
+            Fault::after_reset(ResetCause::Watchdog),
+            Some(Fault::Watchdog(WatchdogFault::Reset))
+        );
+        for cause in [
+            ResetCause::PowerOnOrBrownOut,
+            ResetCause::Pin,
+            ResetCause::Software,
+            ResetCause::LowPower,
+            ResetCause::OptionByteLoad,
+            ResetCause::Unknown,
+        ] {
+            assert_eq!(Fault::after_reset(cause), None, "{cause:?}");
         }
     }
 }

@@ -25,6 +25,8 @@
 //! * [`status`]: what the servo task publishes every sample;
 //! * [`calibration`]: the policy for the calibration image found in flash, and what "built for
 //!   this machine" means;
+//! * [`plausibility`]: whether an image of this machine carries only what a calibration of it
+//!   can need (corrections, their neighbours and slope, dynamics, backlash, workspace);
 //! * [`calibration_slots`]: the two slots of the calibration region, the upload into the
 //!   inactive one and the atomic switch (power-cut safe);
 //! * [`drive`]: torque-mode amplifiers commanded by PWM duty (torque <-> duty);
@@ -63,6 +65,7 @@ pub mod fault;
 pub mod homing;
 pub mod host_link;
 pub mod motion_stream;
+pub mod plausibility;
 #[cfg(any(test, feature = "qemu-harness"))]
 pub mod scenario;
 pub mod servo_loop;

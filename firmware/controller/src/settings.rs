@@ -8,11 +8,14 @@
 //! refuses (`Fault::Settings`), and no value of them can make the firmware panic.
 use kinematics_core::{ConfigError, ServoConfig};
 
-use crate::calibration::MachineIdentity;
+use crate::calibration::{ImageCheck, MachineIdentity};
 use crate::encoder::{EncoderConfig, EncoderConfigError, EncoderScale};
 use crate::encoder_check::EncoderLimits;
 use crate::homing::HomingSettings;
+use crate::plausibility::ImageLimits;
 use crate::stop::StopSettings;
+use crate::trajectory::{Profile, Trajectory};
+use kinematics_core::TaskLimits;
 
 /// The default home position (mm): the middle of the paper's workspace.
 pub const HOME_MM: [f32; 2] = [212.132, 0.0];
@@ -86,6 +89,38 @@ pub struct Settings {
     /// The home position (mm): where homing ends, and what every calibration image's grid must
     /// contain. Default (212.132, 0), the middle of the paper's workspace.
     pub home_mm: [f32; 2],
+    /// Switching to a newly committed calibration at rest: how far it may move the tool and
+    /// how fast (`servo_loop::switch`). See [`SwitchSettings`].
+    pub switch: SwitchSettings,
+}
+
+/// How a calibration switch at rest moves the tool: from where the new calibration puts it to
+/// where the old one held it, in a straight jerk-limited move (the stop's jerk), at most
+/// `max_move_mm` long.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct SwitchSettings {
+    /// The largest move a switch may make (mm); a calibration that disagrees more with the one
+    /// in force at the machine's pose is refused (the old one stays). Default 5 mm: a
+    /// calibration of this machine and the nominal model disagree by up to about 1.4 mm on the
+    /// paper's machine (README: the nominal model's 1.34 mm error), two calibrations of it by
+    /// micrometres.
+    pub max_move_mm: f32,
+    /// The move's peak speed (mm/s). Default 20 mm/s.
+    pub speed_mm_s: f32,
+    /// The move's peak acceleration (mm/s²). Default 500 mm/s² (0.05 g: a few hundredths of a
+    /// newton-metre at the motors).
+    pub accel_mm_s2: f32,
+}
+
+impl Default for SwitchSettings {
+    fn default() -> Self {
+        SwitchSettings {
+            max_move_mm: 5.0,
+            speed_mm_s: 20.0,
+            accel_mm_s2: 500.0,
+        }
+    }
 }
 
 /// Settings [`Settings::validate`] refuses.
@@ -116,6 +151,51 @@ impl core::fmt::Display for SettingsError {
 }
 
 impl Settings {
+    /// The built-in tour from `start_mm` at the servo rate, in its profile.
+    pub fn builtin_trajectory(&self, start_mm: [f32; 2]) -> Trajectory {
+        let settings = self;
+        match settings.trajectory_profile {
+            Profile::Quintic => Trajectory::new(
+                start_mm,
+                settings.builtin_tour_mm,
+                settings.trajectory_accel_mm_s2,
+                settings.trajectory_speed_mm_s,
+                settings.trajectory_dwell_s,
+                crate::SAMPLE_PERIOD_S,
+            ),
+            Profile::JerkLimited => {
+                let limits = TaskLimits {
+                    speed_mm_s: settings.trajectory_speed_mm_s,
+                    accel_mm_s2: settings.trajectory_accel_mm_s2,
+                    jerk_mm_s3: settings.trajectory_jerk_mm_s3,
+                };
+                Trajectory::jerk_limited(
+                    start_mm,
+                    settings.builtin_tour_mm,
+                    &limits,
+                    settings.trajectory_dwell_s,
+                    crate::SAMPLE_PERIOD_S,
+                )
+            }
+        }
+    }
+
+    /// What a calibration image must be to be used with these settings: this machine's, with
+    /// the home position in its grid, and plausible (`plausibility`: limits from the machine's
+    /// tolerances, the servo and the encoder check's top speed).
+    pub fn image_check(&self) -> ImageCheck {
+        ImageCheck {
+            machine: self.machine,
+            home_mm: self.home_mm,
+            limits: Some(ImageLimits::of(
+                &self.machine.nominal,
+                self.machine.max_length_deviation_mm,
+                &self.servo,
+                self.encoder_limits.max_speed_rad_s,
+            )),
+        }
+    }
+
     /// The limits the host link's motion (planned moves, streamed knots) must keep: the same
     /// speed, acceleration and jerk as the built-in trajectory's.
     pub fn stream_limits(&self) -> kinematics_core::trajectory::TaskLimits<f32> {
@@ -172,6 +252,9 @@ impl Settings {
             ),
             (self.overrun_streak_limit >= 1, "overrun_streak_limit"),
             (self.telemetry_period_ticks >= 1, "telemetry_period_ticks"),
+            (positive(self.switch.max_move_mm), "switch.max_move_mm"),
+            (positive(self.switch.speed_mm_s), "switch.speed_mm_s"),
+            (positive(self.switch.accel_mm_s2), "switch.accel_mm_s2"),
             (self.home_mm.iter().all(|v| v.is_finite()), "home_mm"),
             (self.machine.nominal.validate().is_ok(), "machine.nominal"),
             (
@@ -217,6 +300,7 @@ impl Default for Settings {
             machine: MachineIdentity::default(),
             home_mm: HOME_MM,
             homing: HomingSettings::default(),
+            switch: SwitchSettings::default(),
         }
     }
 }
@@ -343,5 +427,28 @@ mod tests {
                 error: EncoderConfigError::ZeroCountsPerRev
             })
         );
+    }
+
+    #[test]
+    fn builtin_uses_the_settings_tour() {
+        let settings = Settings {
+            builtin_tour_mm: &crate::trajectory::WORKSPACE_TOUR_MM,
+            ..Settings::default()
+        };
+        assert_eq!(
+            settings.builtin_trajectory([212.132, 0.0]).total_samples(),
+            Trajectory::new(
+                [212.132, 0.0],
+                &crate::trajectory::WORKSPACE_TOUR_MM,
+                2.0 * 9_806.65,
+                1500.0,
+                0.1,
+                crate::SAMPLE_PERIOD_S
+            )
+            .total_samples()
+        );
+        assert!(Settings::default()
+            .builtin_trajectory([212.132, 0.0])
+            .finished());
     }
 }

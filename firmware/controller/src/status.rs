@@ -6,7 +6,7 @@ use crate::calibration_slots::{CalibrationId, SlotError};
 use crate::deadline::Deadline;
 use crate::fault::Fault;
 use crate::homing::HomingPhase;
-use crate::servo_loop::{Mode, Sample, ServoLoop};
+use crate::servo_loop::{Mode, Sample, ServoLoop, SwitchOutcome};
 
 /// Snapshot the servo task publishes every sample.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -52,6 +52,14 @@ pub struct Status {
     pub calibration_id: Option<CalibrationId>,
     /// The outcome of the last calibration upload (`None`: none since boot).
     pub last_upload: Option<Result<CalibrationId, SlotError>>,
+    /// A committed calibration the servo has not switched to yet (it does at the next rest).
+    pub calibration_pending: Option<CalibrationId>,
+    /// The move after a calibration switch is under way: the setpoint is on its way back to
+    /// where the motion source holds it (a source resumed now would hold the wrong point).
+    pub blending: bool,
+    /// What became of the last committed calibration the servo was offered (`None`: none since
+    /// boot).
+    pub last_switch: Option<SwitchOutcome>,
     /// Where homing is ([`ServoLoop::homing_phase`]; `None`: not started, or absolute encoders).
     pub homing: Option<HomingPhase>,
 }
@@ -83,6 +91,9 @@ impl Status {
             setpoint_underruns: 0,
             calibration_id: None,
             last_upload: None,
+            calibration_pending: None,
+            blending: false,
+            last_switch: None,
             homing: servo_loop.homing_phase(),
         }
     }
@@ -119,6 +130,28 @@ impl Status {
                 self.fault = Some(fault);
                 self.fault_tick = sample.index;
             }
+        }
+    }
+
+    /// Publishes the sample the servo task just ran: [`Status::record`] with the loop's mode,
+    /// deadline and stop, its homing phase and pending calibration, and the calibration switch
+    /// of this sample (`switch`), if any.
+    pub fn publish(
+        &mut self,
+        sample: &Sample,
+        servo_loop: &ServoLoop<'_>,
+        switch: Option<SwitchOutcome>,
+    ) {
+        let stop_mm = servo_loop.stop_profile().map_or(0.0, |p| p.distance_mm());
+        self.record(sample, servo_loop.mode(), servo_loop.deadline(), stop_mm);
+        self.homing = servo_loop.homing_phase();
+        self.calibration_pending = servo_loop.pending_calibration();
+        self.blending = servo_loop.blending();
+        if let Some(outcome) = switch {
+            if let SwitchOutcome::Switched(id) = outcome {
+                self.calibration_id = Some(id);
+            }
+            self.last_switch = Some(outcome);
         }
     }
 }

@@ -18,7 +18,6 @@ use heapless::Vec;
 use kinematics_core::trajectory::{MotionSetpoint, TaskLimits, Tour};
 
 use crate::setpoints::SetpointSource;
-use crate::settings::Settings;
 
 /// The jerk limit of the jerk-limited profile by default (mm/s³): 5 g is reached in 10 ms.
 pub const DEFAULT_JERK_MM_S3: f32 = 5.0e6;
@@ -117,34 +116,6 @@ impl Trajectory {
             sample: 0,
             jerk_limited: Some(tour),
             sample_period_s,
-        }
-    }
-
-    /// The built-in tour of `settings` from `start_mm` at the servo rate, in its profile.
-    pub fn builtin(start_mm: [f32; 2], settings: &Settings) -> Self {
-        match settings.trajectory_profile {
-            Profile::Quintic => Trajectory::new(
-                start_mm,
-                settings.builtin_tour_mm,
-                settings.trajectory_accel_mm_s2,
-                settings.trajectory_speed_mm_s,
-                settings.trajectory_dwell_s,
-                crate::SAMPLE_PERIOD_S,
-            ),
-            Profile::JerkLimited => {
-                let limits = TaskLimits {
-                    speed_mm_s: settings.trajectory_speed_mm_s,
-                    accel_mm_s2: settings.trajectory_accel_mm_s2,
-                    jerk_mm_s3: settings.trajectory_jerk_mm_s3,
-                };
-                Trajectory::jerk_limited(
-                    start_mm,
-                    settings.builtin_tour_mm,
-                    &limits,
-                    settings.trajectory_dwell_s,
-                    crate::SAMPLE_PERIOD_S,
-                )
-            }
         }
     }
 
@@ -355,7 +326,7 @@ mod tests {
             model: FiveBar::paper_nominal(),
             grid: None,
         };
-        let mut servo = Servo::new(Settings::default().servo).unwrap();
+        let mut servo = Servo::new(kinematics_core::ServoConfig::default()).unwrap();
         let mut encoder = cal.command_rad([212.132, 0.0], 0.05).unwrap();
         servo.engage(&cal, encoder).unwrap();
         let mut t = tour();
@@ -430,18 +401,5 @@ mod tests {
         let j = Trajectory::jerk_limited([212.132, 0.0], &WORKSPACE_TOUR_MM, &limits, 0.05, DT_S)
             .total_samples();
         assert!(j < q, "{j} vs {q}");
-    }
-
-    #[test]
-    fn builtin_uses_the_settings_tour() {
-        let settings = Settings {
-            builtin_tour_mm: &WORKSPACE_TOUR_MM,
-            ..Settings::default()
-        };
-        assert_eq!(
-            Trajectory::builtin([212.132, 0.0], &settings).total_samples(),
-            tour().total_samples()
-        );
-        assert!(Trajectory::builtin([212.132, 0.0], &Settings::default()).finished());
     }
 }

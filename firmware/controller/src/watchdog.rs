@@ -21,12 +21,11 @@
 //! What expiry does: the G474 resets (every pin goes to its reset state; the drive-enable line's
 //! external pull-down disables the amplifiers; see the bring-up guide); the QEMU board's
 //! watchdog raises an NMI whose handler removes torque, and resets the machine at its second
-//! expiry. **After a watchdog reset the drives stay disabled** ([`fault_after_reset`]): a
+//! expiry. **After a watchdog reset the drives stay disabled** ([`Fault::after_reset`](crate::fault::Fault::after_reset)): a
 //! controller that stalled once is not trusted to engage again by itself; a power cycle or the
 //! reset button (a deliberate act) clears it.
 
 use crate::deadline::DEADLINE_US;
-use crate::fault::Fault;
 
 /// The watchdog timeout both boards implement (µs): 3 ms.
 pub const TIMEOUT_US: f32 = 3_000.0;
@@ -86,19 +85,6 @@ impl core::fmt::Display for WatchdogFault {
     }
 }
 
-/// The fault a boot after `cause` starts with, if any: a watchdog reset keeps the drives off.
-pub fn fault_after_reset(cause: ResetCause) -> Option<Fault> {
-    match cause {
-        ResetCause::Watchdog => Some(Fault::Watchdog(WatchdogFault::Reset)),
-        ResetCause::PowerOnOrBrownOut
-        | ResetCause::Pin
-        | ResetCause::Software
-        | ResetCause::LowPower
-        | ResetCause::OptionByteLoad
-        | ResetCause::Unknown => None,
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -132,23 +118,5 @@ mod tests {
             TIMEOUT_US / lsi_fast
         );
         assert!(TIMEOUT_US / lsi_slow < 3_500.0, "{}", TIMEOUT_US / lsi_slow);
-    }
-
-    #[test]
-    fn only_a_watchdog_reset_keeps_the_drives_off_at_the_next_boot() {
-        assert_eq!(
-            fault_after_reset(ResetCause::Watchdog),
-            Some(Fault::Watchdog(WatchdogFault::Reset))
-        );
-        for cause in [
-            ResetCause::PowerOnOrBrownOut,
-            ResetCause::Pin,
-            ResetCause::Software,
-            ResetCause::LowPower,
-            ResetCause::OptionByteLoad,
-            ResetCause::Unknown,
-        ] {
-            assert_eq!(fault_after_reset(cause), None, "{cause:?}");
-        }
     }
 }

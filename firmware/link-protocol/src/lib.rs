@@ -34,7 +34,7 @@ mod frame;
 pub use frame::{decode, encode, FrameReader, Received};
 
 /// Protocol version carried first in every message. Bumped when any message changes.
-pub const PROTOCOL_VERSION: u16 = 1;
+pub const PROTOCOL_VERSION: u16 = 2;
 /// Largest encoded frame, COBS overhead and delimiter included (bytes).
 pub const MAX_FRAME_LEN: usize = 256;
 /// Largest postcard payload of a frame, before the CRC and COBS (bytes): what fits in
@@ -358,6 +358,10 @@ pub struct StatusReport {
     /// A move, stream or stop is under way: the machine's setpoint still changes (false only
     /// once the servo loop's setpoint has reached where the motion ends).
     pub moving: bool,
+    /// Telemetry decimation in force (0: off; [`Command::Telemetry`]).
+    pub telemetry_decimation: u16,
+    /// A committed calibration waits for the servo to switch to it (at the next rest): its id.
+    pub calibration_pending: Option<u32>,
 }
 
 /// One telemetry sample.
@@ -402,7 +406,7 @@ pub enum FrameError {
 }
 
 /// Why a well-formed request was refused.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum LinkError {
     /// The request's protocol version is not the controller's (the one found).
@@ -463,7 +467,7 @@ pub enum SegmentRefusal {
 pub const MAX_SEGMENT_US: u32 = 1_000_000;
 
 /// Why a calibration upload was refused. The image in force stays in force.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum CalibrationRefusal {
     /// No upload was begun.
@@ -474,12 +478,92 @@ pub enum CalibrationRefusal {
     Offset,
     /// More bytes than announced, or commit before all arrived.
     Incomplete,
-    /// The image's header, CRC or content is invalid.
+    /// The image's header, CRC or format is invalid.
     Invalid,
-    /// The image was built for another machine (nominal geometry differs).
-    OtherMachine,
+    /// The image was built for another machine: `parameter` of its model is `image`, this
+    /// machine's is `machine`, and they may differ by `tolerance` at most.
+    OtherMachine {
+        /// What differs.
+        parameter: ImageParameter,
+        /// The image's value (the parameter's unit).
+        image: f32,
+        /// This machine's.
+        machine: f32,
+        /// The largest difference accepted.
+        tolerance: f32,
+    },
+    /// The image is this machine's but carries something no calibration of it can need:
+    /// `parameter` is `value`, beyond `limit` (docs/reference/calibration-image.md).
+    Implausible {
+        /// What is out of bounds.
+        parameter: ImageParameter,
+        /// Its value (the parameter's unit).
+        value: f32,
+        /// The bound it exceeds.
+        limit: f32,
+    },
     /// Writing the flash failed.
     Flash,
     /// Not while the drives are on and moving.
     Busy,
+    /// A committed image is waiting for the servo to switch to it (at the next rest): a new
+    /// upload would erase the slot the servo still uses. Bring the machine to rest (or reset a
+    /// held fault) and begin again once [`Identify`](Command::Identify) reports the new id.
+    SwitchPending,
+}
+
+/// What of a calibration image a refusal names ([`CalibrationRefusal::OtherMachine`],
+/// [`CalibrationRefusal::Implausible`]); units in the names.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum ImageParameter {
+    /// The working mode (elbows and assembly branch as flags: bit 0 elbow 1, bit 1 elbow 2,
+    /// bit 2 assembly, set when positive).
+    WorkingMode,
+    /// Link `a` (mm).
+    LinkAMm,
+    /// Link `b` (mm).
+    LinkBMm,
+    /// Link `c` (mm).
+    LinkCMm,
+    /// Link `d` (mm).
+    LinkDMm,
+    /// Base A0, x (mm).
+    BaseA0XMm,
+    /// Base A0, y (mm).
+    BaseA0YMm,
+    /// Base B0 relative to A0, x (mm).
+    BaseB0XMm,
+    /// Base B0 relative to A0, y (mm).
+    BaseB0YMm,
+    /// Encoder offset of joint 1 (rad).
+    EncoderOffset1Rad,
+    /// Encoder offset of joint 2 (rad).
+    EncoderOffset2Rad,
+    /// The home position's x (mm) against the grid's nearest edge.
+    HomeXMm,
+    /// The home position's y (mm) against the grid's nearest edge.
+    HomeYMm,
+    /// The largest node correction (rad).
+    NodeCorrectionRad,
+    /// The largest difference between neighbouring nodes, per millimetre of grid step (rad/mm).
+    NeighbourDifferenceRadPerMm,
+    /// The largest change of the correction's slope from one cell to the next (rad/mm): what a
+    /// move across the grid turns into a step of the reference speed.
+    SlopeChangeRadPerMm,
+    /// The largest diagonal term of the image's mass matrix over the workspace (kg·m²).
+    InertiaHighKgM2,
+    /// The smallest diagonal term (kg·m²).
+    InertiaLowKgM2,
+    /// The mass matrix's determinant over the workspace (kg²·m⁴): not positive definite.
+    MassMatrixDeterminant,
+    /// Viscous friction (N·m·s/rad).
+    ViscousNmSPerRad,
+    /// Coulomb friction (N·m).
+    CoulombNm,
+    /// Backlash of a drive (rad).
+    BacklashRad,
+    /// A workspace vertex the machine's model cannot reach (distance off the reachable set is
+    /// not known: the value is the vertex's x, mm).
+    WorkspaceVertexXMm,
 }

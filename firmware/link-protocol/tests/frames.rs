@@ -147,6 +147,8 @@ fn the_largest_messages_fit() {
         setpoint_underruns: u32::MAX,
         stream_knots_queued: u16::MAX,
         moving: true,
+        telemetry_decimation: u16::MAX,
+        calibration_pending: Some(u32::MAX),
     };
     roundtrip(&DeviceMessage::new(DeviceBody::Reply {
         seq: u16::MAX,
@@ -171,6 +173,25 @@ fn the_largest_messages_fit() {
         seq: 1,
         result: Err(e),
     }));
+    // The refusals that carry numbers.
+    for refusal in [
+        CalibrationRefusal::OtherMachine {
+            parameter: ImageParameter::BaseA0YMm,
+            image: f32::MAX,
+            machine: f32::MIN,
+            tolerance: f32::MAX,
+        },
+        CalibrationRefusal::Implausible {
+            parameter: ImageParameter::SlopeChangeRadPerMm,
+            value: f32::MAX,
+            limit: f32::MIN_POSITIVE,
+        },
+    ] {
+        roundtrip(&DeviceMessage::new(DeviceBody::Reply {
+            seq: u16::MAX,
+            result: Err(LinkError::Calibration(refusal)),
+        }));
+    }
     roundtrip(&DeviceMessage::new(DeviceBody::FrameRejected(
         FrameError::Version(u16::MAX),
     )));
@@ -196,15 +217,16 @@ fn another_version_is_refused_with_its_number() {
 
 #[test]
 fn a_good_crc_on_bytes_that_are_no_message_is_malformed() {
-    // Version 1, then a command tag that does not exist.
+    // This version, then a command tag that does not exist.
     let crc = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
-    let payload = [1u8, 0, 99];
+    let version = PROTOCOL_VERSION as u8;
+    let payload = [version, 0, 99];
     let mut raw = payload.to_vec();
     raw.extend_from_slice(&crc.checksum(&payload).to_le_bytes());
     let mut frame = cobs::encode_vec(&raw);
     assert_eq!(decode::<Request>(&mut frame), Err(FrameError::Malformed));
     // Trailing bytes after a whole message are refused too.
-    let payload = [1u8, 0, 0, 0];
+    let payload = [version, 0, 0, 0];
     let mut raw = payload.to_vec();
     raw.extend_from_slice(&crc.checksum(&payload).to_le_bytes());
     let mut frame = cobs::encode_vec(&raw);

@@ -8,7 +8,7 @@
 //!   checked once (`IkMargin`): the servo's IK;
 //! * `fk_f32`: `FiveBar::<f32>::forward`;
 //! * `grid_lookup`: `CorrectionGrid::correction_rad` on the image in the calibration region;
-//! * `servo_step`: `Servo::step_valid`, the whole sample (jump checks, IK, correction, two
+//! * `servo_step`: `Servo::step` with a `ValidCalibration`, the whole sample (jump checks, IK, correction, two
 //!   PIDs) with a `ValidCalibration`, the firmware's path (and `servo_step_checking`:
 //!   `Servo::step` with a plain `Calibration`, whose model every IK checks);
 //! * `jerk_profile_at`, `trajectory_line_at`, `trajectory_circle_at`: one sample of a 5 g
@@ -19,7 +19,7 @@
 //!   per drive): the reference's backlash compensation (`kinematics_core::backlash`) included;
 //! * `servo_step_motion`: one sample of 5 g moves back and forth across the workspace: the
 //!   trajectory evaluated (exact derivatives) and `Servo::step_motion` with the identified
-//!   dynamics fed forward (`Servo::step_motion_valid`; and `servo_step_motion_uncorrected`,
+//!   dynamics fed forward (`Servo::step_motion` with a `ValidCalibration`; and `servo_step_motion_uncorrected`,
 //!   without grid, and `servo_step_motion_backlash`, with the backlash block);
 //! * `sixbar_solve`: the six-bar's numerical equilibrium solve (host-sim's plant, ported to
 //!   f32 in `bench/sixbar.rs`), warm-started along the servo's 2 kHz path: what controlling
@@ -139,7 +139,7 @@ fn measure(counter: &CycleCounter, mut body: impl FnMut(usize)) -> u32 {
     total.saturating_sub(empty)
 }
 
-/// One `Servo::step_valid` as the firmware's timer interrupt makes it (the model checked
+/// One `Servo::step` with a `ValidCalibration` as the firmware's timer interrupt makes it (the model checked
 /// once, when the calibration was loaded): a call of its own, so that nothing of the servo
 /// (its settings, its history) stays in registers from one call to the next, as it could if
 /// the step were inlined into the measuring loop.
@@ -150,7 +150,7 @@ fn step_once(
     setpoint_mm: [f32; 2],
     encoder_rad: [f32; 2],
 ) -> Result<ServoOutput, StepError> {
-    servo.step_valid(cal, setpoint_mm, encoder_rad)
+    servo.step(cal, setpoint_mm, encoder_rad)
 }
 
 /// One `Servo::step` with a plain `Calibration` (its model checked by every IK), a call of its
@@ -165,7 +165,7 @@ fn step_once_checking(
     servo.step(cal, setpoint_mm, encoder_rad)
 }
 
-/// One `Servo::step_motion_valid`, a call of its own (see [`step_once`]).
+/// One `Servo::step_motion` with a `ValidCalibration`, a call of its own (see [`step_once`]).
 #[inline(never)]
 fn step_motion_once(
     servo: &mut Servo,
@@ -174,7 +174,7 @@ fn step_motion_once(
     next: &MotionSetpoint<f32>,
     encoder_rad: [f32; 2],
 ) -> Result<ServoOutput, StepError> {
-    servo.step_motion_valid(cal, setpoint, Some(next), encoder_rad)
+    servo.step_motion(cal, setpoint, Some(next), encoder_rad)
 }
 
 /// Fails the run if a step of benchmark `name` faulted (the first fault, at its call).

@@ -19,6 +19,7 @@
 use controller::deadline::step_time_us;
 use controller::drive::DriveError;
 use controller::encoder::EncoderScale;
+use controller::servo_loop::IndexCapture;
 use controller::setpoints::SetpointSource;
 use controller::settings::Settings;
 use controller::status::Status;
@@ -196,5 +197,27 @@ pub trait Board: Sized {
     #[inline(always)]
     fn end_sample(&mut self, status: &Status) {
         let _ = status;
+    }
+
+    /// An image the board wants uploaded now through the calibration slots, as the host link's
+    /// upload would (and whether to corrupt it on the way): the QEMU upload scenarios' bundled
+    /// second image, once. Hardware: never (uploads come over the link).
+    #[inline(always)]
+    fn bundled_upload_due(&mut self, ticks: u32) -> Option<(&'static [u8], bool)> {
+        let _ = ticks;
+        None
+    }
+}
+
+/// A board's index capture, as the servo loop's homing step reads it
+/// (`controller::servo_loop::IndexCapture`).
+pub struct IndexOf<'b, B>(pub &'b mut B);
+
+impl<B: Board> IndexCapture for IndexOf<'_, B> {
+    fn index_rad(&mut self) -> [Option<f32>; 2] {
+        self.0.index_rad()
+    }
+    fn reference_at_index(&mut self, index_rad: [f32; 2]) -> bool {
+        self.0.reference_at_index(index_rad)
     }
 }

@@ -145,6 +145,8 @@ pub enum ImportError {
     },
     #[error("no point of the export is a row of the list")]
     Nothing,
+    #[error("--first-id {first_id}: the list's {rows} rows would be numbered past {}, the largest point number; give the number of the list's first point", u64::MAX)]
+    FirstIdTooLarge { first_id: u64, rows: usize },
 }
 
 /// Numbers as a short list for messages (the first 20, then how many more).
@@ -294,7 +296,14 @@ pub fn import(
 ) -> Result<Imported, ImportError> {
     let rows = merge(commanded, plan)?;
     let n = rows.len();
-    let last_id = opts.first_id + n as u64 - 1;
+    // Numbers past u64::MAX would wrap to the list's start.
+    let last_id = opts
+        .first_id
+        .checked_add(n.saturating_sub(1) as u64)
+        .ok_or(ImportError::FirstIdTooLarge {
+            first_id: opts.first_id,
+            rows: n,
+        })?;
     let mut notes = export.notes.clone();
     let mut warnings = Vec::new();
     let mut skipped = Vec::new();

@@ -2,8 +2,8 @@
 //! (`host_sim::calib::accuracy`) as JSON, and optionally the mean error at every target (PNG).
 
 use anyhow::{anyhow, Result};
-use host_sim::calib::accuracy::{mean_error_per_target, report};
-use host_sim::io::measurement_csv::read_measurements;
+use host_sim::calib::accuracy::{mean_error_per_target, report, AccuracyReport};
+use host_sim::io::measurement_csv::read_measurement_file;
 use host_sim::io::plot::{vector_plot_png, VectorField};
 use host_sim::io::policy::CommandFiles;
 use host_sim::io::KeyOrder;
@@ -35,8 +35,12 @@ pub fn run(args: &Args) -> Result<()> {
         .output("--plot", &args.plot)
         .check()?;
     let spec = args.machine.spec()?;
-    let data = super::frame_of(args.instrument_frame.as_deref())?
-        .register(&read_measurements(&args.data)?);
+    let read = read_measurement_file(&args.data)?;
+    args.machine.check_files(
+        &spec,
+        &[super::file_machine("--data", &args.data, read.machine)],
+    )?;
+    let data = super::frame_of(args.instrument_frame.as_deref())?.register(&read.rows);
     // Figures outside the workspace are no accuracy of this machine: say so (the figures stand).
     let outside = data
         .iter()
@@ -68,5 +72,30 @@ pub fn run(args: &Args) -> Result<()> {
         outputs.bytes(plot, &png)?;
     }
     outputs.commit()?;
+    print_summary(&r, spec.instrument_sigma_um, &spec.name);
     super::print_json(&r, KeyOrder::Sorted)
+}
+
+/// The figures per axis line as a table on stderr, to what the instrument resolves.
+fn print_summary(r: &AccuracyReport, sigma_um: f64, machine: &str) {
+    let p = super::um_decimals(sigma_um);
+    eprintln!(
+        "accuracy: {} axis line(s) of machine '{machine}' (µm; instrument σ {sigma_um} µm)",
+        r.lines.len()
+    );
+    eprintln!(
+        "  {:<4} {:>9} {:>10} | {:>7} {:>7} {:>7} {:>7} | {:>7} {:>7} {:>7}",
+        "axis", "at_mm", "length_mm", "A", "R", "B", "E", "P", "Ps", "Pa"
+    );
+    for l in &r.lines {
+        let (i, v) = (&l.iso_230_2, &l.vdi_3441);
+        eprintln!(
+            "  {:<4} {:>9.3} {:>10.3} | {:>7.p$} {:>7.p$} {:>7.p$} {:>7.p$} | {:>7.p$} {:>7.p$} {:>7.p$}",
+            l.axis, l.at_mm, l.length_mm, i.a_um, i.r_um, i.b_um, i.e_um, v.p_um, v.ps_um, v.pa_um
+        );
+    }
+    for s in &r.skipped {
+        eprintln!("accuracy: skipped: {s}");
+    }
+    eprintln!("accuracy: the full report (per target, per metre) is the JSON on stdout");
 }

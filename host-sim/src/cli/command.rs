@@ -56,7 +56,8 @@ pub fn run(args: &Args) -> Result<()> {
     };
     let grid = match (&image, &args.grid) {
         (Some(bytes), Some(path)) => {
-            Some(CorrectionGrid::parse(bytes).map_err(|e| anyhow!("{}: {e}", path.display()))?)
+            let g = CorrectionGrid::parse(bytes).map_err(|e| anyhow!("{}: {e}", path.display()))?;
+            Some(g)
         }
         _ => None,
     };
@@ -65,6 +66,7 @@ pub fn run(args: &Args) -> Result<()> {
     let (model, backlash) = match (&args.model, &grid) {
         (Some(path), _) => {
             let file = read_model_file(path)?;
+            args.machine.check_model(&spec, "--model", path, &file)?;
             let model = file
                 .model()
                 .map_err(|e| anyhow!("{}: {e}", path.display()))?;

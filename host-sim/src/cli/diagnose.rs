@@ -2,12 +2,14 @@
 //! JSON and plots out (`host_sim::diagnose`, `DIAGNOSIS.md`).
 
 use anyhow::{bail, Context, Result};
+use host_sim::calib::fit::params::N_PARAMS;
+use host_sim::calib::fit::plausibility;
 use host_sim::calib::frame::{machine_frame_gauge, InstrumentFrame};
 use host_sim::diagnose::model_out::extended_model;
 use host_sim::diagnose::plots::write_plots;
 use host_sim::diagnose::{diagnose_with_plot_data, report, DiagnoseOptions};
-use host_sim::io::measurement_csv::read_measurements;
-use host_sim::io::model_file::{model_file_text, read_model, read_model_file};
+use host_sim::io::measurement_csv::read_measurement_file;
+use host_sim::io::model_file::{model_file_text, read_model_file};
 use host_sim::io::policy::CommandFiles;
 use host_sim::io::{json_text, KeyOrder};
 use host_sim::loop_closure::SixBarDesign;
@@ -50,11 +52,21 @@ pub fn run(args: &Args) -> Result<()> {
         .input("--model", &args.model)
         .output("--out", &args.out)
         .output("--out-model", &args.out_model)
-        .output_dir::<&str>("--plots", &args.plots, &[])
+        // The plot every diagnosis writes, checked now; the others when staged.
+        .output_dir("--plots", &args.plots, &["residual_start.png"])
         .check()?;
     let spec = args.machine.spec()?;
+    let read = read_measurement_file(&args.data)?;
+    args.machine.check_files(
+        &spec,
+        &[super::file_machine("--data", &args.data, read.machine)],
+    )?;
     let base = match &args.model {
-        Some(p) => read_model(p)?,
+        Some(p) => {
+            let file = read_model_file(p)?;
+            args.machine.check_model(&spec, "--model", p, &file)?;
+            file.model()?
+        }
         None => spec.nominal,
     };
     // The readings into the machine frame by the model's registered instrument frame (none in
@@ -65,7 +77,13 @@ pub fn run(args: &Args) -> Result<()> {
         Some(p) => read_model_file(p)?.instrument_frame.is_some(),
         None => false,
     };
-    let data = frame.register(&read_measurements(&args.data)?);
+    let data = frame.register(&read.rows);
+    // The model written must pass what a fit's must (`calib::fit::plausibility`): data in
+    // metres or radians are refused before the diagnosis, not folded into a model.
+    if args.out_model.is_some() {
+        plausibility::check_units(&spec.nominal, &data)
+            .with_context(|| format!("--data {}", args.data.display()))?;
+    }
     // The six-bar's own effects are derived from the machine's nominal design, not the current
     // model (which may carry an instrument offset as its A0).
     let sixbar = SixBarDesign::for_model(&spec.nominal, spec.workspace.centre_mm())
@@ -89,7 +107,17 @@ pub fn run(args: &Args) -> Result<()> {
     // report behind either.
     let extended = match &args.out_model {
         Some(_) => {
-            Some(extended_model(&base, &report).context("adding the named effects to the model")?)
+            let e =
+                extended_model(&base, &report).context("adding the named effects to the model")?;
+            plausibility::check_model(
+                &e.model,
+                &spec.nominal,
+                &[None; N_PARAMS],
+                &data,
+                &plausibility::FitEvidence::default(),
+            )
+            .context("the extended model (--out-model)")?;
+            Some(e)
         }
         None => None,
     };
@@ -120,7 +148,15 @@ pub fn run(args: &Args) -> Result<()> {
         json_text(&report, KeyOrder::Declared)?.as_bytes(),
     )?;
     if let (Some(path), Some(e)) = (&args.out_model, &extended) {
-        outputs.bytes(path, model_file_text(&registered_file(e)?)?.as_bytes())?;
+        outputs.bytes(
+            path,
+            model_file_text(&{
+                let mut f = registered_file(e)?;
+                f.machine = Some(spec.identity());
+                f
+            })?
+            .as_bytes(),
+        )?;
     }
     if let Some(dir) = &args.plots {
         write_plots(&mut outputs, dir, &data, &report, &plot_data)?;

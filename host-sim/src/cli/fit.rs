@@ -9,7 +9,7 @@ use host_sim::calib::fit::evaluate::{self, Criterion};
 use host_sim::calib::fit::subset_search::{Progress, Stage};
 use host_sim::calib::fit::{check_data, fit, params, FitOptions, FrameMode, Method, Points};
 use host_sim::calib::CalibError;
-use host_sim::io::measurement_csv::{read_measurements, Measurement};
+use host_sim::io::measurement_csv::{read_measurement_file, Measurement};
 use host_sim::io::model_file::{model_file_text, ModelFile};
 use host_sim::io::plot::{vector_plot_png, VectorField};
 use host_sim::io::policy::CommandFiles;
@@ -245,13 +245,20 @@ pub fn run(args: &Args) -> Result<()> {
         .output("--plot", &args.plot)
         .check()?;
     let spec = args.machine.spec()?;
-    let data = read_measurements(&args.data)?;
+    let read = read_measurement_file(&args.data)?;
+    args.machine.check_files(
+        &spec,
+        &[super::file_machine("--data", &args.data, read.machine)],
+    )?;
+    let data = read.rows;
+    let identity = spec.identity();
     let criterion = match args.criterion {
         CriterionArg::Measured => Criterion::Measured,
         CriterionArg::Paper => Criterion::Paper,
     };
     check(&data, criterion)?;
     let nominal = spec.nominal;
+    let sigma_um = spec.instrument_sigma_um;
     let opts = options(args, &data, spec)?;
     // The search reports about once a second.
     let mut progress = |p: Progress| match p.stage {
@@ -292,6 +299,7 @@ pub fn run(args: &Args) -> Result<()> {
     }
     // Every output staged, then renamed together: a bad --plot path leaves no model.json.
     let mut file = ModelFile::from_model(&outcome.model);
+    file.machine = Some(identity);
     file.std_dev = outcome.std_dev.clone();
     file.fit = Some(serde_json::to_value(&outcome.summary)?);
     file.instrument_frame = outcome.frame.map(|f| f.record());
@@ -337,5 +345,43 @@ pub fn run(args: &Args) -> Result<()> {
         outputs.bytes(plot, &png)?;
     }
     outputs.commit()?;
+    print_summary(&outcome.summary, sigma_um, &args.out);
     super::print_json(&outcome.summary, KeyOrder::Sorted)
+}
+
+/// The fit for a person, on stderr: the model and its errors, to what the instrument resolves.
+fn print_summary(s: &host_sim::calib::fit::FitSummary, sigma_um: f64, out: &std::path::Path) {
+    let p = super::um_decimals(sigma_um);
+    let m = &s.model;
+    eprintln!(
+        "fit: {:?} on {} points: error max {:.p$} µm, RMS {:.p$} µm{}",
+        s.method,
+        s.n_points,
+        s.max_err_um,
+        s.rms_err_um,
+        match s
+            .leave_one_out
+            .as_ref()
+            .and_then(|l| l.max_um.zip(l.rms_um))
+        {
+            Some((max, rms)) => format!(
+                "; predicting each point from the others max {max:.p$} µm, RMS {rms:.p$} µm"
+            ),
+            None => String::new(),
+        }
+    );
+    eprintln!(
+        "fit: a {:.4}  b {:.4}  c {:.4}  d {:.4} mm; A0 ({:.4}, {:.4}) mm, B0 − A0 ({:.4}, {:.4}) mm; encoder offsets ({:.5}, {:.5})° -> {}",
+        m.a_mm,
+        m.b_mm,
+        m.c_mm,
+        m.d_mm,
+        m.base_a0_mm[0],
+        m.base_a0_mm[1],
+        m.base_b0_mm[0],
+        m.base_b0_mm[1],
+        m.encoder_offset_deg[0],
+        m.encoder_offset_deg[1],
+        out.display()
+    );
 }

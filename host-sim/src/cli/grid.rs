@@ -9,8 +9,8 @@ use host_sim::calib::image::{
     append_backlash_block, append_dynamics_block, commissioning_image, finish_image, seal_image,
     CheckedImage, WorkspaceBlock,
 };
-use host_sim::io::dynamics_file::read_dynamics;
-use host_sim::io::measurement_csv::read_measurements;
+use host_sim::io::dynamics_file::read_dynamics_file;
+use host_sim::io::measurement_csv::read_measurement_file;
 use host_sim::io::model_file::read_model_file;
 use host_sim::io::plot::{vector_plot_png, VectorField};
 use host_sim::io::policy::CommandFiles;
@@ -226,6 +226,8 @@ pub fn run(args: &Args) -> Result<()> {
     }
     let smoothing = smoothing(&args.smoothing)?;
     let file = read_model_file(model_path)?;
+    args.machine
+        .check_model(&spec, "--model", model_path, &file)?;
     let model = file
         .model()
         .map_err(|e| anyhow::anyhow!("{}: {e}", model_path.display()))?;
@@ -241,7 +243,10 @@ pub fn run(args: &Args) -> Result<()> {
         .map_err(|e| anyhow::anyhow!("{}: {e}", model_path.display()))?;
     let mut data = Vec::new();
     for path in &args.data {
-        let rows = frame.register(&read_measurements(path)?);
+        let read = read_measurement_file(path)?;
+        args.machine
+            .check_files(&spec, &[super::file_machine("--data", path, read.machine)])?;
+        let rows = frame.register(&read.rows);
         data.extend(match &backlash {
             Some(b) => b
                 .link_angles(&rows)
@@ -269,8 +274,17 @@ pub fn run(args: &Args) -> Result<()> {
     eprintln!("grid: {}", built.noise.describe());
     let (image, workspace_block) = finish_image(&built.image, &spec)?;
     let image = match &args.dynamics {
-        Some(p) => append_dynamics_block(&image, &read_dynamics(p)?)
-            .with_context(|| format!("with {}", p.display()))?,
+        Some(p) => {
+            let file = read_dynamics_file(p)?;
+            args.machine.check_files(
+                &spec,
+                &[super::file_machine("--dynamics", p, file.machine.clone())],
+            )?;
+            let d = file
+                .dynamics()
+                .map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))?;
+            append_dynamics_block(&image, &d).with_context(|| format!("with {}", p.display()))?
+        }
         None => image,
     };
     // The model's backlash goes into the image too (last in its chain): the firmware's servo
@@ -316,6 +330,17 @@ pub fn run(args: &Args) -> Result<()> {
     outputs.commit()?;
     let stats = built.stats();
     let l = &built.lattice;
+    let p = super::um_decimals(spec.instrument_sigma_um);
+    eprintln!(
+        "grid: {} x {} nodes every {} mm; measured node errors max {:.p$} µm, RMS {:.p$} µm; largest correction {:.1} µrad",
+        l.nx, l.ny, l.step_mm, stats.node_err.max, stats.node_err.rms, stats.max_abs_dtheta_urad
+    );
+    eprintln!(
+        "grid: image ({} bytes) -> {}, node table -> {}",
+        image.len(),
+        args.out.display(),
+        csv.display()
+    );
     super::print_json(
         &Summary {
             nx: l.nx,

@@ -6,11 +6,11 @@
 use anyhow::{bail, Context, Result};
 use host_sim::calib::import::{import, ImportOptions, Missing, Unlisted};
 use host_sim::io::commanded_csv::read_commanded;
-use host_sim::io::measurement_csv::format_measurements;
+use host_sim::io::measurement_csv::format_measurements_of;
 use host_sim::io::policy::CommandFiles;
 use host_sim::io::targets_csv::read_target_list;
-use host_sim::io::tracker_export::{parse_export_with, ColumnMap, ExportFormat, LengthUnit};
-use host_sim::io::{json_text, read_text, IoError, KeyOrder};
+use host_sim::io::tracker_export::{read_export, ColumnMap, ExportFormat, LengthUnit};
+use host_sim::io::{json_text, KeyOrder};
 use std::path::PathBuf;
 
 /// The export's coordinate unit.
@@ -18,6 +18,8 @@ use std::path::PathBuf;
 pub enum UnitArg {
     Mm,
     M,
+    /// Micrometres.
+    Um,
 }
 
 /// Arguments of `host-sim import`.
@@ -40,8 +42,9 @@ pub struct Args {
     /// its run and dir columns are carried into the output (`command` does not write them).
     #[arg(long, value_name = "FILE")]
     pub plan: Option<PathBuf>,
-    /// The export's unit (default: from the mapped columns' headers, e.g. `X [m]`; mm when they
-    /// say none).
+    /// The export's unit (default: from the mapped columns' headers, e.g. `X [m]`, `X [µm]`;
+    /// when they say none, mm if the points' spread fits --machine's workspace, else refused
+    /// with the evidence).
     #[arg(long, value_enum)]
     pub units: Option<UnitArg>,
     /// The export writes numbers with a decimal comma (`212,132`; its delimiter `;` or tab).
@@ -70,12 +73,15 @@ pub struct Args {
     /// Also write the report (JSON) to this file.
     #[arg(long, value_name = "FILE")]
     pub report: Option<PathBuf>,
+    #[command(flatten)]
+    pub machine: super::MachineArg,
 }
 
 /// `host-sim import`.
 pub fn run(args: &Args) -> Result<()> {
     // The measurement CSV and the report together, or neither; never over an input.
     let mut out = CommandFiles::new()
+        .input("--machine", &args.machine.machine)
         .input("--export", &args.export)
         .input("--commanded", &args.commanded)
         .input("--plan", &args.plan)
@@ -94,13 +100,16 @@ pub fn run(args: &Args) -> Result<()> {
     let unit = args.units.map(|u| match u {
         UnitArg::Mm => LengthUnit::Mm,
         UnitArg::M => LengthUnit::M,
+        UnitArg::Um => LengthUnit::Um,
     });
+    let spec = args.machine.spec()?;
+    let (wx, wy) = (spec.workspace.x_mm, spec.workspace.y_mm);
     let format = ExportFormat {
         unit,
         decimal_comma: args.decimal_comma,
+        workspace_extent_mm: Some((wx[1] - wx[0]).hypot(wy[1] - wy[0])),
     };
-    let export = parse_export_with(&read_text(&args.export)?, &map, format)
-        .map_err(|e| IoError::content(&args.export, e))?;
+    let export = read_export(&args.export, &map, format)?;
     let commanded = read_commanded(&args.commanded)?;
     let plan = args.plan.as_deref().map(read_target_list).transpose()?;
     let opts = ImportOptions {
@@ -127,7 +136,10 @@ pub fn run(args: &Args) -> Result<()> {
     })?;
     let report = &imported.report;
     let text = json_text(report, KeyOrder::Sorted)?;
-    out.bytes(&args.out, format_measurements(&imported.rows).as_bytes())?;
+    out.bytes(
+        &args.out,
+        format_measurements_of(&imported.rows, &spec.identity()).as_bytes(),
+    )?;
     if let Some(p) = &args.report {
         out.bytes(p, text.as_bytes())?;
     }

@@ -203,12 +203,7 @@ fn upload_image(grid: &Path, machine: Option<&Path>) -> Result<Vec<u8>> {
 
 /// `host-sim link`.
 pub fn run(args: &Args) -> Result<()> {
-    if !(args.timeout_s > 0.0 && args.timeout_s.is_finite()) {
-        bail!(
-            "--timeout-s must be a positive number, not {}",
-            args.timeout_s
-        );
-    }
+    check_ranges(args)?;
     let timeout = Duration::from_secs_f64(args.timeout_s);
     // The files an action reads and writes, checked before the link is opened.
     let files = match &args.action {
@@ -231,7 +226,7 @@ pub fn run(args: &Args) -> Result<()> {
         (Some(addr), None) => {
             let mut client = LinkClient::connect_tcp(addr, timeout)
                 .with_context(|| format!("connecting to {addr}"))?;
-            act(&mut client, &args.action, timeout, &mut outputs)
+            act_then_quiet(&mut client, &args.action, timeout, &mut outputs)
         }
         (None, Some(path)) => {
             let baud = args.baud.unwrap_or(DEFAULT_BAUD);
@@ -241,11 +236,114 @@ pub fn run(args: &Args) -> Result<()> {
             let mut client = LinkClient::open_serial(path, baud, timeout).with_context(|| {
                 format!("opening the serial port {} at {baud} Bd", path.display())
             })?;
-            act(&mut client, &args.action, timeout, &mut outputs)
+            act_then_quiet(&mut client, &args.action, timeout, &mut outputs)
         }
         // clap's `transport` group enforces exactly one of them.
         _ => bail!("give either --tcp HOST:PORT or --serial PATH"),
     }
+}
+
+/// Longest wait `--timeout-s` may ask for (s): a day. Longer is a typo, and beyond ~1e19 s a
+/// `Duration` cannot hold it.
+const MAX_TIMEOUT_S: f64 = 86_400.0;
+/// Longest `telemetry --seconds` (s): a day.
+const MAX_RECORD_S: f64 = 86_400.0;
+/// Most bytes `garbage --bytes` sends.
+const MAX_GARBAGE_BYTES: usize = 100_000_000;
+
+/// Every numeric flag in its range, before the link is opened: a value out of range is an
+/// error that names the flag, never a panic.
+fn check_ranges(args: &Args) -> Result<()> {
+    let within = |v: f64, lo: f64, hi: f64| v.is_finite() && v > lo && v <= hi;
+    if !within(args.timeout_s, 0.0, MAX_TIMEOUT_S) {
+        bail!(
+            "--timeout-s must be a number of seconds in (0, {MAX_TIMEOUT_S}], not {}",
+            args.timeout_s
+        );
+    }
+    match &args.action {
+        Action::Move { x_mm, y_mm } if !(x_mm.is_finite() && y_mm.is_finite()) => {
+            bail!("--x-mm and --y-mm must be finite numbers, not {x_mm}, {y_mm}")
+        }
+        Action::Telemetry {
+            seconds,
+            decimation,
+            ..
+        } => {
+            if !within(*seconds, 0.0, MAX_RECORD_S) {
+                bail!(
+                    "--seconds must be a number of seconds in (0, {MAX_RECORD_S}], not {seconds}"
+                );
+            }
+            if *decimation == 0 {
+                bail!("--decimation must be at least 1 (the controller raises it to its minimum)");
+            }
+        }
+        Action::Garbage { bytes, .. } if !(1..=MAX_GARBAGE_BYTES).contains(bytes) => {
+            bail!("--bytes must be between 1 and {MAX_GARBAGE_BYTES}, not {bytes}")
+        }
+        Action::Stream(a) => {
+            if a.cut_after == Some(0) {
+                bail!("--cut-after must be at least 1 knot (0 would send nothing)");
+            }
+            if a.decimation == 0 {
+                bail!("--decimation must be at least 1 (the controller raises it to its minimum)");
+            }
+            if let Some(s) = a.seconds {
+                if !(s > 1.0 && s < 600.0) {
+                    bail!("--seconds must be between 1 and 600, not {s}");
+                }
+            }
+            if !(1..=1000).contains(&a.knot_ms) {
+                bail!("--knot-ms must be between 1 and 1000, not {}", a.knot_ms);
+            }
+            if !a
+                .amp_mm
+                .iter()
+                .all(|v| v.is_finite() && (0.0..=500.0).contains(v))
+            {
+                bail!(
+                    "--amp-mm must be two amplitudes in [0, 500] mm, not {:?}",
+                    a.amp_mm
+                );
+            }
+            if !within(a.freq_hz, 0.0, 100.0) {
+                bail!("--freq-hz must be in (0, 100] Hz, not {}", a.freq_hz);
+            }
+        }
+        _ => {}
+    }
+    Ok(())
+}
+
+/// A wait of `s` seconds (a controller's figure: NaN, negative or absurd ones become the
+/// longest wait, a day, instead of a panic).
+fn wait_s(s: f64) -> Duration {
+    Duration::try_from_secs_f64(s)
+        .unwrap_or(Duration::from_secs_f64(MAX_TIMEOUT_S))
+        .min(Duration::from_secs_f64(MAX_TIMEOUT_S))
+}
+
+/// Runs `action`, then leaves the controller as it was found: whatever the outcome (done, an
+/// error, Ctrl-C), an action that turned telemetry on turns it off again.
+fn act_then_quiet<S: Read + Write>(
+    client: &mut LinkClient<S>,
+    action: &Action,
+    timeout: Duration,
+    outputs: &mut Outputs,
+) -> Result<()> {
+    host_sim::link::interrupt::install();
+    let result = act(client, action, timeout, outputs);
+    if matches!(action, Action::Telemetry { .. } | Action::Stream(_)) && result.is_err() {
+        host_sim::link::interrupt::clear();
+        if let Err(e) = client.request(Command::Telemetry { decimation: 0 }) {
+            eprintln!("could not turn the controller's telemetry off: {e}");
+        }
+    }
+    if host_sim::link::interrupt::requested() {
+        bail!("interrupted (Ctrl-C)");
+    }
+    result
 }
 
 /// Runs `action` over an open link.
@@ -282,6 +380,7 @@ fn act<S: Read + Write>(
                     HomingState::Homed => break,
                     HomingState::Failed => bail!("homing failed: {s:?}"),
                     _ if start.elapsed() > 60 * timeout => bail!("homing did not finish: {s:?}"),
+                    _ if host_sim::link::interrupt::requested() => bail!("interrupted (Ctrl-C)"),
                     _ => std::thread::sleep(Duration::from_millis(50)),
                 }
             }
@@ -314,10 +413,7 @@ fn act<S: Read + Write>(
                 bail!("unexpected reply to move");
             };
             eprintln!("move planned: {duration_s:.3} s");
-            let s = wait_idle(
-                client,
-                timeout + Duration::from_secs_f64(f64::from(duration_s) * 20.0),
-            )?;
+            let s = wait_idle(client, timeout + wait_s(f64::from(duration_s) * 20.0))?;
             super::print_json(&s, KeyOrder::Sorted)
         }
         Action::Stream(a) => stream(client, a, timeout, outputs),
@@ -431,14 +527,9 @@ fn stream<S: Read + Write>(
         )
         .with_context(|| format!("in {}", f.display()))?,
         (None, s) => {
+            // Ranges checked before the link was opened (`check_ranges`).
             let seconds = s.unwrap_or(3.0);
-            if !(seconds > 1.0 && seconds < 600.0) {
-                bail!("--seconds must be between 1 and 600, not {seconds}");
-            }
             let start = client.status()?.setpoint_mm;
-            if !(1..=1000).contains(&a.knot_ms) {
-                bail!("--knot-ms must be between 1 and 1000, not {}", a.knot_ms);
-            }
             figure_knots(
                 [f64::from(start[0]), f64::from(start[1])],
                 [a.amp_mm[0], a.amp_mm[1]],
@@ -449,7 +540,8 @@ fn stream<S: Read + Write>(
         }
     };
     let total = knots.len();
-    let send = a.cut_after.map_or(total, |n| n.min(total));
+    // At least one knot (`check_ranges` refuses `--cut-after 0`; a file has one or more).
+    let send = a.cut_after.map_or(total, |n| n.min(total)).max(1);
     request(
         client,
         Command::Telemetry {
@@ -467,7 +559,7 @@ fn stream<S: Read + Write>(
     eprintln!();
     streamed?;
     let duration_s = f64::from(knots[send - 1].t_us) * 1e-6;
-    let status = wait_idle(client, timeout + Duration::from_secs_f64(duration_s * 20.0))?;
+    let status = wait_idle(client, timeout + wait_s(duration_s * 20.0))?;
     request(client, Command::Telemetry { decimation: 0 })?;
     client.listen(Duration::from_millis(100))?;
     let samples: Vec<TelemetrySample> = client.take_telemetry();

@@ -11,7 +11,7 @@ use host_sim::calib::measure::{
 };
 use host_sim::calib::plan::visits_from_rows;
 use host_sim::calib::protocol::{visits, Protocol};
-use host_sim::io::measurement_csv::format_measurements;
+use host_sim::io::measurement_csv::format_measurements_of;
 use host_sim::io::model_file::read_model_file;
 use host_sim::io::policy::CommandFiles;
 use host_sim::io::targets_csv::read_target_list;
@@ -122,8 +122,12 @@ pub fn run(args: &Args) -> Result<()> {
         _ => bail!("give --protocol (table1, grid, random:N, repeat) or --targets FILE"),
     };
     let approach: Approach = args.approach.map_or(Approach::FromVisit, Approach::from);
-    let (model, bytes) =
-        super::load_calibration(args.model.as_deref(), args.grid.as_deref(), &spec)?;
+    let (model, bytes) = super::load_calibration(
+        args.model.as_deref(),
+        args.grid.as_deref(),
+        &spec,
+        &args.machine,
+    )?;
     let cal = Calibration {
         model,
         grid: super::parse_grid(&bytes)?,
@@ -148,12 +152,23 @@ pub fn run(args: &Args) -> Result<()> {
         args.seed,
         &spec,
     )?;
-    outputs.bytes(&args.out, format_measurements(&rows(&landed)).as_bytes())?;
+    outputs.bytes(
+        &args.out,
+        format_measurements_of(&rows(&landed), &spec.identity()).as_bytes(),
+    )?;
     outputs.commit()?;
+    let a = accuracy(&landed);
+    let p = super::um_decimals(args.noise_um.unwrap_or(spec.instrument_sigma_um));
     eprintln!(
-        "measure: {} measurements written to {}",
+        "measure: {} measurements of machine '{}' written to {}",
         landed.len(),
+        spec.name,
         args.out.display()
+    );
+    eprintln!(
+        "measure: against the targets (µm)   max {:>9.p$}   RMS {:>9.p$}   (where the tool landed)\n\
+         measure:                             max {:>9.p$}   RMS {:>9.p$}   (what the instrument read)",
+        a.max_um, a.rms_um, a.measured_max_um, a.measured_rms_um
     );
     let approach = match (args.approach, args.targets.is_some()) {
         (Some(a), _) => Approach::from(a).name().to_string(),

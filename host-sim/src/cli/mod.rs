@@ -23,8 +23,9 @@ use anyhow::{anyhow, bail, Result};
 use clap::{Parser, Subcommand};
 use host_sim::calib::image::read_image;
 use host_sim::io::machine_file::{self, read_machine};
-use host_sim::io::model_file::read_model;
+use host_sim::io::model_file::{read_model_file, ModelFile};
 use host_sim::io::{json_text, KeyOrder};
+use host_sim::machine_identity::{check_files, check_model_geometry, FileMachine, MachineIdentity};
 use host_sim::machine_spec::MachineSpec;
 use kinematics_core::{CorrectionGrid, FiveBar};
 use std::path::{Path, PathBuf};
@@ -110,6 +111,56 @@ impl MachineArg {
             None => Ok(machine_file::paper()),
         }
     }
+
+    /// The flag as messages name it: `--machine FILE`, or the default.
+    fn describe(&self) -> String {
+        match &self.machine {
+            Some(p) => format!("--machine {}", p.display()),
+            None => "the default machine (no --machine given)".into(),
+        }
+    }
+
+    /// Checks that `files` are of `spec`'s machine (`host_sim::machine_identity`): a file of
+    /// another machine is refused naming both; a file naming none gets a note on stderr.
+    fn check_files(&self, spec: &MachineSpec, files: &[FileMachine]) -> Result<()> {
+        let notes =
+            check_files(&spec.identity(), &self.describe(), files).map_err(|e| anyhow!(e))?;
+        for n in notes {
+            eprintln!("note: {n}");
+        }
+        Ok(())
+    }
+
+    /// Checks a model (read from `--flag path`) against `spec`'s machine: the identity it
+    /// carries, and its geometry.
+    fn check_model(
+        &self,
+        spec: &MachineSpec,
+        flag: &str,
+        path: &Path,
+        file: &ModelFile,
+    ) -> Result<()> {
+        let what = format!("{flag} {}", path.display());
+        self.check_files(
+            spec,
+            &[FileMachine {
+                what: what.clone(),
+                identity: file.machine.clone(),
+            }],
+        )?;
+        let model = file
+            .model()
+            .map_err(|e| anyhow!("{}: {e}", path.display()))?;
+        check_model_geometry(&model, &spec.nominal, &what, &spec.name).map_err(|e| anyhow!(e))
+    }
+}
+
+/// A file and the machine it names, for [`MachineArg::check_files`].
+fn file_machine(flag: &str, path: &Path, identity: Option<MachineIdentity>) -> FileMachine {
+    FileMachine {
+        what: format!("{flag} {}", path.display()),
+        identity,
+    }
 }
 
 /// The plant file `--plant NAME` reads, if it names one (`ideal` and `paper` are built in):
@@ -121,6 +172,15 @@ fn plant_file(name: &str) -> Option<PathBuf> {
     }
 }
 
+/// Decimals of a figure in µm that show what an instrument of σ `sigma_um` resolves (a tenth
+/// of σ; at most 3): the human summaries print no more digits than the data hold.
+fn um_decimals(sigma_um: f64) -> usize {
+    if !(sigma_um > 0.0 && sigma_um.is_finite()) {
+        return 3;
+    }
+    (-(sigma_um / 10.0).log10()).ceil().clamp(0.0, 3.0) as usize
+}
+
 /// Prints a JSON document on stdout (one document, pretty, final newline).
 fn print_json(value: &impl serde::Serialize, order: KeyOrder) -> Result<()> {
     use std::io::Write as _;
@@ -128,18 +188,23 @@ fn print_json(value: &impl serde::Serialize, order: KeyOrder) -> Result<()> {
         .map_err(|e| anyhow!("cannot write to stdout: {e}"))
 }
 
-/// Reads `--model` and `--grid`: the model to command with (the grid's own when a grid is given,
-/// which `--model` must then equal; the machine's nominal without either) and the grid image
-/// bytes, judged for `spec`'s machine (`calib::image::read_image`: another machine's image or an
-/// implausible one is refused).
+/// Reads `--model` and `--grid`, each checked to be of `spec`'s machine: the model to command
+/// with (the grid's own when a grid is given, which `--model` must then equal; the machine's
+/// nominal without either) and the grid image bytes, judged for the machine
+/// (`calib::image::read_image`: another machine's image or an implausible one is refused).
 fn load_calibration(
     model: Option<&Path>,
     grid: Option<&Path>,
     spec: &MachineSpec,
+    machine: &MachineArg,
 ) -> Result<(FiveBar<f32>, Option<Vec<u8>>)> {
     let nominal = &spec.nominal;
     let from_model = match model {
-        Some(p) => Some(read_model(p)?.cast::<f32>()),
+        Some(p) => {
+            let file = read_model_file(p)?;
+            machine.check_model(spec, "--model", p, &file)?;
+            Some(file.model()?.cast::<f32>())
+        }
         None => None,
     };
     let bytes = match grid {

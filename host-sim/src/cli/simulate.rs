@@ -11,7 +11,7 @@
 
 use anyhow::{bail, Result};
 use host_sim::calib::dynamics::identify;
-use host_sim::io::dynamics_file::read_dynamics;
+use host_sim::io::dynamics_file::read_dynamics_file;
 use host_sim::io::plot::{xy_plot_png, Mark, Series};
 use host_sim::io::policy::CommandFiles;
 use host_sim::io::KeyOrder;
@@ -112,8 +112,12 @@ pub fn run(args: &Args) -> Result<()> {
             args.mass_error_pct
         );
     }
-    let (model, bytes) =
-        super::load_calibration(args.model.as_deref(), args.grid.as_deref(), &spec)?;
+    let (model, bytes) = super::load_calibration(
+        args.model.as_deref(),
+        args.grid.as_deref(),
+        &spec,
+        &args.machine,
+    )?;
     let cal = Calibration {
         model,
         grid: super::parse_grid(&bytes)?,
@@ -123,7 +127,17 @@ pub fn run(args: &Args) -> Result<()> {
         "constant" => (FeedForward::Constant, None),
         "dynamics" => {
             let (d, source) = match (&args.dynamics, cal.grid.as_ref().and_then(|g| g.dynamics())) {
-                (Some(p), _) => (read_dynamics(p)?, format!("--dynamics {}", p.display())),
+                (Some(p), _) => {
+                    let file = read_dynamics_file(p)?;
+                    args.machine.check_files(
+                        &spec,
+                        &[super::file_machine("--dynamics", p, file.machine.clone())],
+                    )?;
+                    let d = file
+                        .dynamics()
+                        .map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))?;
+                    (d, format!("--dynamics {}", p.display()))
+                }
                 (None, Some(d)) => (
                     d.cast::<f64>(),
                     "the --grid image's dynamics block".to_string(),
@@ -200,6 +214,19 @@ pub fn run(args: &Args) -> Result<()> {
         ),
         _ => None,
     };
+    let r = &run.summary;
+    eprintln!(
+        "simulate: {} on the {} plant for {:.2} s ({} samples, {:.1}x real time): tracking error max {:.2} µm, RMS {:.2} µm; following error max {:.2} µm; {}",
+        r.trajectory,
+        r.plant,
+        r.simulated_s,
+        r.samples,
+        r.realtime_factor,
+        r.max_tracking_err_um,
+        r.rms_tracking_err_um,
+        r.max_following_err_um,
+        r.fault.as_deref().map_or("no fault".to_string(), |f| format!("FAULT: {f}"))
+    );
     super::print_json(
         &Output {
             summary: &run.summary,

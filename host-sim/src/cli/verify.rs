@@ -6,9 +6,10 @@
 use super::MachineArg;
 use anyhow::{anyhow, bail, Context, Result};
 use host_sim::calib::verify::{html, verify, StageData, VerifyOptions};
-use host_sim::io::measurement_csv::read_measurements;
+use host_sim::io::measurement_csv::{read_measurement_file, Measurement};
 use host_sim::io::policy::CommandFiles;
 use host_sim::io::{json_text, KeyOrder};
+use host_sim::machine_spec::MachineSpec;
 use std::path::{Path, PathBuf};
 
 /// The accuracy report: ISO 230-2 / VDI 3441 per axis line and the 2-D position error, before
@@ -44,11 +45,17 @@ pub struct Args {
     pub machine: MachineArg,
 }
 
+/// Reads `--flag path`, checked to be of the machine, registered into the machine frame.
 fn read(
+    machine: &MachineArg,
+    spec: &MachineSpec,
+    flag: &str,
     path: &Path,
     frame: &host_sim::calib::frame::InstrumentFrame,
-) -> Result<Vec<host_sim::io::measurement_csv::Measurement>> {
-    Ok(frame.register(&read_measurements(path)?))
+) -> Result<Vec<Measurement>> {
+    let read = read_measurement_file(path)?;
+    machine.check_files(spec, &[super::file_machine(flag, path, read.machine)])?;
+    Ok(frame.register(&read.rows))
 }
 
 /// `host-sim verify`.
@@ -65,14 +72,15 @@ pub fn run(args: &Args) -> Result<()> {
         .check()?;
     let spec = args.machine.spec()?;
     let frame = super::frame_of(args.instrument_frame.as_deref())?;
+    let m = &args.machine;
     let after = StageData {
-        verify: read(&args.after_verify, &frame)?,
-        repeat: read(&args.after_repeat, &frame)?,
+        verify: read(m, &spec, "--after-verify", &args.after_verify, &frame)?,
+        repeat: read(m, &spec, "--after-repeat", &args.after_repeat, &frame)?,
     };
     let before = match (&args.before_verify, &args.before_repeat) {
         (Some(v), Some(r)) => Some(StageData {
-            verify: read(v, &frame)?,
-            repeat: read(r, &frame)?,
+            verify: read(m, &spec, "--before-verify", v, &frame)?,
+            repeat: read(m, &spec, "--before-repeat", r, &frame)?,
         }),
         (None, None) => None,
         _ => bail!("--before-verify and --before-repeat come together"),

@@ -4,6 +4,7 @@
 //! ```json
 //! {
 //!   "format": "hidden-robot-dynamics", "version": 1,
+//!   "machine": { "name": "paper", "digest": "1a2b3c4d" }, // optional: the machine they are of
 //!   "motor_inertia_kg_m2": [0.0037, 0.0037], "tool_mass_kg": 0.165,
 //!   "distal_inertia_kg_m2": [0.0, 0.0],
 //!   "viscous_nm_s_per_rad": [0.02, 0.02], "coulomb_nm": [0.05, 0.05],
@@ -17,6 +18,7 @@
 
 use super::atomic::write_atomic;
 use super::{read_text, IoError};
+use crate::machine_identity::MachineIdentity;
 use kinematics_core::FiveBarDynamics;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -31,6 +33,10 @@ pub const FORMAT: &str = "hidden-robot-dynamics";
 pub struct DynamicsFile {
     pub format: String,
     pub version: u32,
+    /// The machine the parameters are of (`crate::machine_identity`); absent in files written
+    /// before files carried it (read with a note).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub machine: Option<MachineIdentity>,
     pub motor_inertia_kg_m2: [f64; 2],
     pub tool_mass_kg: f64,
     pub distal_inertia_kg_m2: [f64; 2],
@@ -51,6 +57,7 @@ impl DynamicsFile {
         DynamicsFile {
             format: FORMAT.into(),
             version: 1,
+            machine: None,
             motor_inertia_kg_m2: d.motor_inertia_kg_m2,
             tool_mass_kg: d.tool_mass_kg,
             distal_inertia_kg_m2: d.distal_inertia_kg_m2,
@@ -92,13 +99,18 @@ impl DynamicsFile {
 
 /// Reads and validates a dynamics file.
 pub fn read_dynamics(path: &Path) -> Result<FiveBarDynamics<f64>, IoError> {
-    let file: DynamicsFile =
-        serde_json::from_str(&read_text(path)?).map_err(|e| IoError::NotA {
-            path: path.to_path_buf(),
-            what: "dynamics file",
-            message: e.to_string(),
-        })?;
-    file.dynamics().map_err(|e| IoError::content(path, e))
+    read_dynamics_file(path)?
+        .dynamics()
+        .map_err(|e| IoError::content(path, e))
+}
+
+/// Reads a dynamics file with its machine, standard deviations and record.
+pub fn read_dynamics_file(path: &Path) -> Result<DynamicsFile, IoError> {
+    serde_json::from_str(&read_text(path)?).map_err(|e| IoError::NotA {
+        path: path.to_path_buf(),
+        what: "dynamics file",
+        message: e.to_string(),
+    })
 }
 
 /// Writes a dynamics file atomically (refused if its parameters are invalid).

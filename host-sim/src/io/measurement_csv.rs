@@ -2,7 +2,9 @@
 //! measure`; a laser tracker's export through `host-sim import`, `calib::import`) and every tool
 //! that reads measurements (`fit`, `grid`, `diagnose`, `accuracy`).
 //!
-//! A header line, comma separated (`;` and tab are read too: the delimiter is detected from the
+//! An optional first line `# machine=NAME digest=HEX8` names the machine the measurements are
+//! of (`crate::machine_identity`; every file the tools write has it, files without it are read
+//! with a note). Then a header line, comma separated (`;` and tab are read too: the delimiter is detected from the
 //! header, see [`super::csv_dialect`]), columns in any order:
 //!
 //! | column | required | meaning |
@@ -25,6 +27,7 @@
 use super::atomic::write_atomic;
 use super::csv_dialect::{self, Quantity};
 use super::{read_text, IoError};
+use crate::machine_identity::{self, MachineIdentity};
 use std::path::Path;
 
 /// A format error: the message names the line and column.
@@ -109,6 +112,13 @@ pub struct ReadOptions {
 pub struct ReadMeasurements {
     pub rows: Vec<Measurement>,
     pub notes: Vec<String>,
+    /// The machine the measurements are of (the `# machine=NAME digest=HEX8` line), if given.
+    pub machine: Option<MachineIdentity>,
+}
+
+/// Reads a measurement file with the machine it names.
+pub fn read_measurement_file(path: &Path) -> Result<ReadMeasurements, IoError> {
+    read_measurements_with(path, &ReadOptions::default())
 }
 
 /// Reads and validates a measurement file.
@@ -153,6 +163,12 @@ pub fn parse_measurements_with(
     text: &str,
     opts: &ReadOptions,
 ) -> Result<ReadMeasurements, IoError> {
+    // The machine line, among the comment lines before the header.
+    let machine = text
+        .lines()
+        .map(str::trim)
+        .take_while(|l| l.is_empty() || l.starts_with('#'))
+        .find_map(machine_identity::parse_csv_line);
     let mut reader = csv_dialect::reader(text);
     let headers = match reader.headers() {
         Ok(h) => h.clone(),
@@ -165,6 +181,16 @@ pub fn parse_measurements_with(
             "{}-separated file",
             csv_dialect::delimiter_name(delimiter)
         ));
+    }
+    // A target list given where measurements are wanted: say what it is and what to do.
+    let has = |c: &str| headers.iter().any(|h| h == c);
+    if has("x_mm") && has("y_mm") && !has("theta1_deg") && !has("theta2_deg") {
+        let what = if has("from_x_mm") || has("dir1") || has("run") {
+            "a plan's target list"
+        } else {
+            "a target list"
+        };
+        bail!("line 1: this is {what} (x_mm,y_mm and no motor angles), not measurements: measure it first (`host-sim measure --targets FILE` on a simulated machine; on a real one `command`, the session, then `import`) and give the measurement CSV that writes");
     }
     let mut index: [Option<usize>; 10] = [None; 10];
     let mut skipped = Vec::new();
@@ -255,7 +281,21 @@ pub fn parse_measurements_with(
     if out.is_empty() {
         bail!("no data rows after the header");
     }
-    Ok(ReadMeasurements { rows: out, notes })
+    Ok(ReadMeasurements {
+        rows: out,
+        notes,
+        machine,
+    })
+}
+
+/// Formats measurements of `machine` as CSV: its identity line first
+/// (`# machine=NAME digest=HEX8`), then [`format_measurements`].
+pub fn format_measurements_of(rows: &[Measurement], machine: &MachineIdentity) -> String {
+    format!(
+        "{}\n{}",
+        machine_identity::csv_line(machine),
+        format_measurements(rows)
+    )
 }
 
 /// Formats measurements as CSV, with the optional columns that every row has.

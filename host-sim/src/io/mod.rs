@@ -34,6 +34,7 @@ pub mod model_file;
 pub mod plot;
 pub mod policy;
 pub mod targets_csv;
+pub mod text_source;
 pub mod tracker_export;
 pub mod verify_plot;
 
@@ -97,9 +98,16 @@ impl IoError {
     }
 }
 
-/// Reads a whole text file.
+/// Reads a whole text file of a format the tools define: UTF-8 (a byte-order mark dropped);
+/// other encodings are refused naming the line and what the file looks like
+/// (`text_source::not_utf8`).
 pub fn read_text(path: &Path) -> Result<String, IoError> {
-    std::fs::read_to_string(path).map_err(|e| IoError::read(path, e))
+    let bytes = std::fs::read(path).map_err(|e| IoError::read(path, e))?;
+    let body = bytes.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(&bytes);
+    match std::str::from_utf8(body) {
+        Ok(s) => Ok(s.to_string()),
+        Err(e) => Err(IoError::content(path, text_source::not_utf8(body, &e))),
+    }
 }
 
 /// Reads a whole binary file (a grid image).

@@ -4,6 +4,7 @@
 //! ```json
 //! {
 //!   "format": "hidden-robot-model", "version": 1,
+//!   "machine": { "name": "paper", "digest": "1a2b3c4d" }, // optional: the machine it is of
 //!   "a_mm": 149.959, "b_mm": 150.013, "c_mm": 150.033, "d_mm": 150.040,
 //!   "base_a0_mm": [0.0, 0.0], "base_b0_mm": [0.0, 0.0], "encoder_offset_deg": [0.0, 0.0],
 //!   "mode": { "elbow_1": "positive", "elbow_2": "negative", "assembly": "positive" },
@@ -26,6 +27,7 @@
 
 use super::atomic::write_atomic;
 use super::{read_text, IoError};
+use crate::machine_identity::MachineIdentity;
 use kinematics_core::{Branch, FiveBar, WorkingMode};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -55,6 +57,10 @@ struct ModeFile {
 pub struct ModelFile {
     pub format: String,
     pub version: u32,
+    /// The machine the model is of (`crate::machine_identity`); absent in files written before
+    /// files carried it (read with a note).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub machine: Option<MachineIdentity>,
     pub a_mm: f64,
     pub b_mm: f64,
     pub c_mm: f64,
@@ -159,6 +165,7 @@ impl ModelFile {
         ModelFile {
             format: FORMAT.into(),
             version: 1,
+            machine: None,
             a_mm: m.a_mm,
             b_mm: m.b_mm,
             c_mm: m.c_mm,
@@ -252,11 +259,32 @@ pub fn read_model(path: &Path) -> Result<FiveBar<f64>, IoError> {
 
 /// Reads a model file with its standard deviations and fit record.
 pub fn read_model_file(path: &Path) -> Result<ModelFile, IoError> {
-    serde_json::from_str(&read_text(path)?).map_err(|e| IoError::NotA {
+    let text = read_text(path)?;
+    serde_json::from_str(&text).map_err(|e| IoError::NotA {
         path: path.to_path_buf(),
         what: "model file",
-        message: e.to_string(),
+        message: match not_json(&text) {
+            Some(first) => format!(
+                "it is not JSON (its first line of data is '{first}'{}); a model file is the model.json that `host-sim fit` writes",
+                if first.contains(',') || first.contains(';') { ": a CSV table?" } else { "" }
+            ),
+            None => e.to_string(),
+        },
     })
+}
+
+/// The first line of `text` (shortened) if the text is not a JSON object at all.
+fn not_json(text: &str) -> Option<String> {
+    let t = text.trim_start();
+    if t.starts_with('{') {
+        return None;
+    }
+    let first = t
+        .lines()
+        .find(|l| !l.trim_start().starts_with('#'))
+        .or(t.lines().next())
+        .unwrap_or("");
+    Some(first.chars().take(60).collect())
 }
 
 /// A model file's text (the model checked first), for a command that stages it with its other

@@ -20,8 +20,10 @@
 //!   the line (1-based in the file, metadata counted) and the column.
 
 use super::csv_dialect::{self, Quantity, MAX_ABS_LENGTH_MM};
+use super::text_source::TextLines;
 use super::IoError;
 use std::fmt;
+use std::path::Path;
 
 /// A format error: the message names the line and column.
 macro_rules! bail {
@@ -30,6 +32,13 @@ macro_rules! bail {
 
 /// How many lines may precede the header (metadata).
 pub const MAX_HEADER_LINE: usize = 100;
+/// The largest export read (bytes): a session of 100,000 points is ~6 MB.
+pub const MAX_EXPORT_BYTES: u64 = 64 * 1024 * 1024;
+/// The most points an export may hold (a session's lists hold hundreds to thousands).
+pub const MAX_POINTS: usize = 200_000;
+/// Without a stated unit, mm is taken when the points spread between these fractions of the
+/// workspace's extent (its bounding diagonal); metres and µm are 1000x outside either bound.
+pub const SCALE_EVIDENCE: [f64; 2] = [0.01, 10.0];
 
 /// Which export column holds what (`id=Point,x=X [mm],y=Y [mm],z=Z [mm]`).
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -100,6 +109,8 @@ impl ColumnMap {
 pub enum LengthUnit {
     Mm,
     M,
+    /// Micrometres (`µm`, `um`).
+    Um,
 }
 
 impl LengthUnit {
@@ -108,10 +119,12 @@ impl LengthUnit {
         match self {
             LengthUnit::Mm => 1.0,
             LengthUnit::M => 1000.0,
+            LengthUnit::Um => 1e-3,
         }
     }
 
-    /// The unit a column header states (`X [m]`, `X (mm)`, `x_m`, `X/mm`), if any.
+    /// The unit a column header states (`X [m]`, `X (mm)`, `x_m`, `X/mm`, `X [µm]`, `X [um]`),
+    /// if any.
     pub fn from_header(name: &str) -> Option<LengthUnit> {
         let n = name.trim().to_lowercase();
         let bracketed = |u: &str| {
@@ -123,6 +136,8 @@ impl LengthUnit {
         };
         if bracketed("mm") {
             Some(LengthUnit::Mm)
+        } else if bracketed("um") || bracketed("µm") || bracketed("\u{3bc}m") {
+            Some(LengthUnit::Um)
         } else if bracketed("m") {
             Some(LengthUnit::M)
         } else {
@@ -136,6 +151,7 @@ impl fmt::Display for LengthUnit {
         f.write_str(match self {
             LengthUnit::Mm => "mm",
             LengthUnit::M => "m",
+            LengthUnit::Um => "um",
         })
     }
 }
@@ -176,6 +192,43 @@ fn field_name(f: &str) -> &str {
         .trim()
 }
 
+/// A header line's fields with delimiter `d`.
+fn split_header(line: &str, d: u8) -> Vec<String> {
+    line.split(d as char)
+        .map(|f| field_name(f).to_string())
+        .collect()
+}
+
+/// The delimiter and fields of `line` if it holds every name of `wanted` as a field.
+fn header_fields(line: &str, wanted: &[&str]) -> Option<(u8, Vec<String>)> {
+    if line.trim().is_empty() || line.trim_start().starts_with('#') {
+        return None;
+    }
+    [b';', b'\t', b','].into_iter().find_map(|d| {
+        let fields = split_header(line, d);
+        wanted
+            .iter()
+            .all(|w| fields.iter().any(|f| f == w))
+            .then_some((d, fields))
+    })
+}
+
+/// A data line's fields: split at `d` outside double quotes, each trimmed and unquoted. Why
+/// not the `csv` crate here: the export is streamed a line at a time (`text_source`), and a
+/// row is one line.
+fn split_row(line: &str, d: u8) -> Vec<String> {
+    let (mut fields, mut cur, mut quoted) = (Vec::new(), String::new(), false);
+    for c in line.chars() {
+        match c {
+            '"' => quoted = !quoted,
+            c if !quoted && c == d as char => fields.push(std::mem::take(&mut cur)),
+            c => cur.push(c),
+        }
+    }
+    fields.push(cur);
+    fields.iter().map(|f| f.trim().to_string()).collect()
+}
+
 /// The header: the first line (not a comment, within [`MAX_HEADER_LINE`]) holding every mapped
 /// name as a field. Returns its index (0-based), delimiter and fields.
 fn find_header(lines: &[&str], map: &ColumnMap) -> Result<(usize, u8, Vec<String>), IoError> {
@@ -185,14 +238,11 @@ fn find_header(lines: &[&str], map: &ColumnMap) -> Result<(usize, u8, Vec<String
         if line.trim().is_empty() || line.trim_start().starts_with('#') {
             continue;
         }
+        if let Some((d, fields)) = header_fields(line, &wanted) {
+            return Ok((i, d, fields));
+        }
         for d in [b';', b'\t', b','] {
-            let fields: Vec<String> = line
-                .split(d as char)
-                .map(|f| field_name(f).to_string())
-                .collect();
-            if wanted.iter().all(|w| fields.iter().any(|f| f == w)) {
-                return Ok((i, d, fields));
-            }
+            let fields = split_header(line, d);
             if fields.len() > widest.as_ref().map_or(1, |w| w.1.len()) {
                 widest = Some((i, fields));
             }
@@ -237,12 +287,15 @@ fn find_header(lines: &[&str], map: &ColumnMap) -> Result<(usize, u8, Vec<String
 }
 
 /// How the export writes its numbers.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct ExportFormat {
     /// The coordinates' unit, or `None` to take it from the headers (mm when they state none).
     pub unit: Option<LengthUnit>,
     /// Numbers are written with a decimal comma (`212,132`; a `;` or tab delimiter).
     pub decimal_comma: bool,
+    /// The machine's workspace extent (mm, its bounding diagonal): with no unit stated, the
+    /// points' spread against it decides mm or refuses ([`SCALE_EVIDENCE`]). `None`: mm.
+    pub workspace_extent_mm: Option<f64>,
 }
 
 /// Parses an export's text through `map`, numbers with a decimal point. `unit`: the
@@ -258,6 +311,7 @@ pub fn parse_export(
         ExportFormat {
             unit,
             decimal_comma: false,
+            workspace_extent_mm: None,
         },
     )
 }
@@ -268,9 +322,46 @@ pub fn parse_export_with(
     map: &ColumnMap,
     format: ExportFormat,
 ) -> Result<Export, IoError> {
-    let unit = format.unit;
-    let lines: Vec<&str> = text.lines().collect();
-    let (h, delimiter, fields) = find_header(&lines, map)?;
+    parse_lines(
+        text.lines()
+            .enumerate()
+            .map(|(i, l)| Ok((i + 1, l.to_string()))),
+        map,
+        format,
+    )
+}
+
+/// Reads an export file through `map` in `format`, streamed a line at a time
+/// (`super::text_source`: UTF-8, UTF-16 or Latin-1, at most [`MAX_EXPORT_BYTES`] and
+/// [`MAX_POINTS`] points): memory is the points read, never the file.
+pub fn read_export(path: &Path, map: &ColumnMap, format: ExportFormat) -> Result<Export, IoError> {
+    let mut lines = TextLines::open(path, MAX_EXPORT_BYTES)?;
+    let mut export = parse_lines(&mut lines, map, format).map_err(|e| IoError::content(path, e))?;
+    if let Some(n) = lines.note() {
+        export.notes.insert(0, n);
+    }
+    Ok(export)
+}
+
+/// The export's lines (numbered from 1) through `map` in `format`.
+fn parse_lines(
+    mut lines: impl Iterator<Item = Result<(usize, String), IoError>>,
+    map: &ColumnMap,
+    format: ExportFormat,
+) -> Result<Export, IoError> {
+    let wanted = map.names();
+    let mut head: Vec<String> = Vec::new();
+    while head.len() < MAX_HEADER_LINE {
+        let Some(line) = lines.next() else { break };
+        let (_, line) = line?;
+        let found = header_fields(&line, &wanted).is_some();
+        head.push(line);
+        if found {
+            break;
+        }
+    }
+    let refs: Vec<&str> = head.iter().map(String::as_str).collect();
+    let (h, delimiter, fields) = find_header(&refs, map)?;
     if format.decimal_comma && delimiter == b',' {
         bail!(
             "line {}: the export is comma-separated, so its numbers cannot have a decimal comma",
@@ -300,24 +391,21 @@ pub fn parse_export_with(
         .filter_map(|n| LengthUnit::from_header(n).map(|u| (*n, u)))
         .collect();
     let mut notes = Vec::new();
-    let unit = match (unit, stated.first()) {
+    let (unit, assumed) = match (format.unit, stated.first()) {
         (Some(u), _) => {
             if let Some((n, s)) = stated.iter().find(|(_, s)| *s != u) {
                 bail!("line {header_line}: column '{n}' says {s} but the unit given is {u}");
             }
-            u
+            (u, false)
         }
         (None, Some(&(_, u))) => {
             if let Some((n, s)) = stated.iter().find(|(_, s)| *s != u) {
                 bail!("line {header_line}: the columns disagree on the unit ('{n}' says {s}, '{}' says {u})", stated[0].0);
             }
             notes.push(format!("unit {u}, from the header"));
-            u
+            (u, false)
         }
-        (None, None) => {
-            notes.push("no unit in the header: mm assumed (give the unit if it is m)".into());
-            LengthUnit::Mm
-        }
+        (None, None) => (LengthUnit::Mm, true),
     };
     if h > 0 {
         notes.push(format!("{h} line(s) before the header skipped (metadata)"));
@@ -337,22 +425,20 @@ pub fn parse_export_with(
     if !ignored_columns.is_empty() {
         notes.push(format!("columns ignored: {}", ignored_columns.join(", ")));
     }
-    // The data: everything after the header line, with the file's line numbers.
-    let body: String = lines[h + 1..].iter().flat_map(|l| [*l, "\n"]).collect();
-    let mut reader = csv::ReaderBuilder::new()
-        .delimiter(delimiter)
-        .has_headers(false)
-        .trim(csv::Trim::All)
-        .flexible(true)
-        .comment(Some(b'#'))
-        .from_reader(body.as_bytes());
+    // The data: the lines after the header (those read while looking for it first). No line
+    // is a comment here: a point id may start with '#'.
+    let rest = head.split_off(h + 1);
+    let data = rest
+        .into_iter()
+        .enumerate()
+        .map(|(k, l)| Ok((header_line + 1 + k, l)))
+        .chain(lines);
     let scale = unit.to_mm();
     let mut points = Vec::new();
-    for record in reader.records() {
-        let record = record
-            .map_err(|e| IoError::Parse(format!("malformed CSV after line {header_line}: {e}")))?;
-        let line = header_line + record.position().map_or(0, |p| p.line() as usize);
-        if record.iter().all(str::is_empty) {
+    for item in data {
+        let (line, text) = item?;
+        let record = split_row(&text, delimiter);
+        if record.iter().all(String::is_empty) {
             continue;
         }
         if record.len() != fields.len() {
@@ -362,7 +448,10 @@ pub fn parse_export_with(
                 fields.len()
             );
         }
-        let id = record[ii].trim_matches('"').trim().to_string();
+        if points.len() == MAX_POINTS {
+            bail!("line {line}: more than {MAX_POINTS} points, the most an export may hold (a session's list is far shorter: is it the right file?)");
+        }
+        let id = record[ii].clone();
         if id.is_empty() {
             bail!("line {line}: the point id ('{}') is empty", map.id);
         }
@@ -402,6 +491,9 @@ pub fn parse_export_with(
     if points.is_empty() {
         bail!("no points after the header (line {header_line})");
     }
+    if assumed {
+        notes.push(assumed_mm(&points, format.workspace_extent_mm)?);
+    }
     Ok(Export {
         points,
         header_line,
@@ -410,6 +502,52 @@ pub fn parse_export_with(
         ignored_columns,
         notes,
     })
+}
+
+/// The points' spread: the diagonal of their bounding rectangle (mm as read).
+fn spread_mm(points: &[ExportPoint]) -> f64 {
+    let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
+    for p in points {
+        for k in 0..2 {
+            lo[k] = lo[k].min(p.xy_mm[k]);
+            hi[k] = hi[k].max(p.xy_mm[k]);
+        }
+    }
+    (hi[0] - lo[0]).hypot(hi[1] - lo[1])
+}
+
+/// No unit stated: mm, if the points' spread fits the machine's workspace (between
+/// [`SCALE_EVIDENCE`]'s bounds of its extent); else refused with the evidence and the unit it
+/// looks like. Returns the note.
+fn assumed_mm(points: &[ExportPoint], extent_mm: Option<f64>) -> Result<String, IoError> {
+    let spread = spread_mm(points);
+    let Some(ws) = extent_mm else {
+        return Ok("no unit in the header: mm assumed (give the unit if it is not)".into());
+    };
+    if points.len() < 2 || spread == 0.0 {
+        return Ok(
+            "no unit in the header and one point position: mm assumed (give the unit if it is not)"
+                .into(),
+        );
+    }
+    let [lo, hi] = SCALE_EVIDENCE;
+    if spread >= lo * ws && spread <= hi * ws {
+        return Ok(format!(
+            "no unit in the header: mm, as the points' spread says ({spread:.1} mm across, the workspace {ws:.1} mm)"
+        ));
+    }
+    let looks = [LengthUnit::M, LengthUnit::Um]
+        .into_iter()
+        .find(|u| {
+            let s = spread * u.to_mm();
+            s >= lo * ws && s <= hi * ws
+        })
+        .map_or("another unit".to_string(), |u| {
+            format!("{u}: give --units {u}")
+        });
+    bail!(
+        "no unit in the header or given, and as mm the points spread {spread:.4} mm across where the machine's workspace is {ws:.1} mm across: the export looks like {looks} (or --units mm if it is mm)"
+    )
 }
 
 #[cfg(test)]
@@ -452,6 +590,9 @@ mod tests {
         assert_eq!(LengthUnit::from_header("x_m"), Some(LengthUnit::M));
         assert_eq!(LengthUnit::from_header("Y (mm)"), Some(LengthUnit::Mm));
         assert_eq!(LengthUnit::from_header("Y/m"), Some(LengthUnit::M));
+        assert_eq!(LengthUnit::from_header("X [um]"), Some(LengthUnit::Um));
+        assert_eq!(LengthUnit::from_header("X [µm]"), Some(LengthUnit::Um));
+        assert_eq!(LengthUnit::from_header("x_um"), Some(LengthUnit::Um));
         assert_eq!(LengthUnit::from_header("X"), None);
         assert_eq!(LengthUnit::from_header("Norm"), None);
     }
@@ -515,6 +656,7 @@ mod tests {
         let format = ExportFormat {
             unit: None,
             decimal_comma: true,
+            workspace_extent_mm: None,
         };
         let e = parse_export_with(text, &m, format).unwrap();
         assert_eq!(e.points[0].xy_mm, [212.132, -0.5]);

@@ -23,6 +23,8 @@ use link_protocol::{
 
 pub use link_protocol;
 
+pub mod interrupt;
+
 /// What can go wrong talking to a controller.
 #[derive(Debug, thiserror::Error)]
 pub enum ClientError {
@@ -61,6 +63,9 @@ pub enum ClientError {
     /// A knot file or trajectory is unusable.
     #[error("trajectory: {0}")]
     Trajectory(String),
+    /// Interrupted (Ctrl-C) while waiting for the controller.
+    #[error("interrupted")]
+    Interrupted,
     /// The controller committed an image whose id is not the file's.
     #[error("the controller reports calibration id {controller:?} after the upload, the file's is {file:#010x}")]
     CalibrationId {
@@ -89,6 +94,15 @@ pub fn command_name(c: &Command) -> &'static str {
         Command::CalibrationCommit => "calibration commit",
         Command::CalibrationId => "calibration id",
     }
+}
+
+/// The first sequence number of a client: from the process id, so that a late reply to another
+/// process's client (its numbers started elsewhere) is unlikely to carry one of ours, while
+/// the same process always sends the same bytes (co-simulation runs are compared byte for
+/// byte).
+fn first_seq() -> u16 {
+    let pid = std::process::id();
+    (pid ^ (pid >> 16)) as u16
 }
 
 /// A connection to a controller.
@@ -151,12 +165,13 @@ impl<S: Read + Write> LinkClient<S> {
     /// A client over `io` (reads must time out, so that a silent controller is noticed);
     /// `timeout` bounds each request.
     pub fn new(mut io: S, timeout: Duration) -> Result<Self, ClientError> {
-        // A zero ends whatever half frame an earlier client left in the controller's reader.
+        // A zero ends whatever half frame an earlier client left in the controller's reader
+        // (the controller answers those bytes with a rejection, which `request` tells apart).
         io.write_all(&[0])?;
         Ok(LinkClient {
             io,
             reader: FrameReader::new(),
-            seq: 0,
+            seq: first_seq(),
             telemetry: Vec::new(),
             pending: Default::default(),
             bad_frames: 0,
@@ -187,16 +202,21 @@ impl<S: Read + Write> LinkClient<S> {
         Ok((frames, answers))
     }
 
-    /// Sends `command` and waits for its reply.
+    /// Sends `command` and waits for its reply: the [`DeviceBody::Reply`] that carries its
+    /// sequence number. Anything else that arrives meanwhile is not the answer: telemetry is
+    /// kept, replies to other sequence numbers (late answers to an earlier client or request)
+    /// are dropped. A [`DeviceBody::FrameRejected`] carries no sequence number: it may be ours
+    /// (the frame was damaged on the way, the command did not run) or the answer to stale bytes
+    /// another client left in the controller's reader. The controller answers frames in order,
+    /// so the client sends a `Status` probe and reads on: if the reply to the command comes
+    /// before the probe's, the rejection was someone else's and the reply is returned; if the
+    /// probe's comes first, the command's frame was the one rejected, and that is the error. So
+    /// a command that ran is never reported refused, nor a refused one done.
     pub fn request(&mut self, command: Command) -> Result<Response, ClientError> {
         let name = command_name(&command);
-        self.seq = self.seq.wrapping_add(1);
-        let seq = self.seq;
-        let mut frame = [0u8; MAX_FRAME_LEN];
-        let n =
-            encode(&Request::new(seq, command), &mut frame).map_err(ClientError::FrameRejected)?;
-        self.io.write_all(&frame[..n])?;
+        let seq = self.send(command)?;
         let deadline = Instant::now() + self.timeout;
+        let (mut probe, mut rejected) = (None, None);
         loop {
             match self.next_message(deadline)? {
                 DeviceBody::Reply { seq: s, result } if s == seq => {
@@ -205,11 +225,30 @@ impl<S: Read + Write> LinkClient<S> {
                         error,
                     })
                 }
-                DeviceBody::FrameRejected(e) => return Err(ClientError::FrameRejected(e)),
-                // A late reply to an earlier request (after a timeout) or telemetry: go on.
+                DeviceBody::Reply { seq: s, .. } if Some(s) == probe => {
+                    // The probe was answered and the command was not: its frame was rejected.
+                    if let Some(e) = rejected {
+                        return Err(ClientError::FrameRejected(e));
+                    }
+                }
+                DeviceBody::FrameRejected(e) => {
+                    rejected = Some(e);
+                    probe = Some(self.send(Command::Status)?);
+                }
+                // A late reply to an earlier request (after a timeout), or telemetry: go on.
                 _ => {}
             }
         }
+    }
+
+    /// Encodes and sends one request with the next sequence number; returns it.
+    fn send(&mut self, command: Command) -> Result<u16, ClientError> {
+        self.seq = self.seq.wrapping_add(1);
+        let mut frame = [0u8; MAX_FRAME_LEN];
+        let n = encode(&Request::new(self.seq, command), &mut frame)
+            .map_err(ClientError::FrameRejected)?;
+        self.io.write_all(&frame[..n])?;
+        Ok(self.seq)
     }
 
     /// Reads until one message (telemetry is kept) or `deadline`.
@@ -218,6 +257,9 @@ impl<S: Read + Write> LinkClient<S> {
         loop {
             if let Some(body) = self.pending.pop_front() {
                 return Ok(body);
+            }
+            if interrupt::requested() {
+                return Err(ClientError::Interrupted);
             }
             if Instant::now() > deadline {
                 return Err(ClientError::Timeout(self.timeout));
@@ -417,19 +459,23 @@ pub fn figure_knots(
         .collect()
 }
 
-/// Knots from CSV text: a header, then `t_s,x_mm,y_mm,vx_mm_s,vy_mm_s` per line (times from
-/// the stream's start, strictly increasing; the controller checks the limits).
+/// Knots from CSV text: `t_s,x_mm,y_mm,vx_mm_s,vy_mm_s` per line (times from the stream's
+/// start, strictly increasing; the controller checks the limits), after an optional header: a
+/// first line that is five numbers is the first knot, not a header to skip.
 pub fn parse_knots_csv(text: &str) -> Result<Vec<Knot>, ClientError> {
     let mut knots = Vec::new();
-    for (i, line) in text.lines().enumerate().skip(1) {
+    for (i, line) in text.lines().enumerate() {
         if line.trim().is_empty() {
             continue;
         }
-        let f: Vec<f64> = line
-            .split(',')
-            .map(|v| v.trim().parse::<f64>())
-            .collect::<Result<_, _>>()
-            .map_err(|e| ClientError::Trajectory(format!("line {}: {e}", i + 1)))?;
+        let parsed: Result<Vec<f64>, _> =
+            line.split(',').map(|v| v.trim().parse::<f64>()).collect();
+        let f = match parsed {
+            Ok(f) => f,
+            // The header: the first line, not numbers.
+            Err(_) if i == 0 => continue,
+            Err(e) => return Err(ClientError::Trajectory(format!("line {}: {e}", i + 1))),
+        };
         let [t, x, y, vx, vy] = f[..] else {
             return Err(ClientError::Trajectory(format!(
                 "line {}: expected 5 numbers, got {}",
@@ -523,5 +569,158 @@ mod tests {
         assert!(e.contains("line 2") && e.contains("5 numbers"), "{e}");
         assert!(parse_knots_csv("h\n0.01,NaN,0,1,0\n").is_err());
         assert!(parse_knots_csv("h\n").is_err());
+    }
+
+    /// A knot file without a header: its first line is the first knot, not skipped.
+    #[test]
+    fn a_knot_file_without_a_header_keeps_its_first_knot() {
+        let k = parse_knots_csv("0.01,212,0,1,0\n0.02,212.01,0,0,0\n").unwrap();
+        assert_eq!(k.len(), 2);
+        assert_eq!((k[0].t_us, k[1].t_us), (10_000, 20_000));
+        let e = parse_knots_csv("0.01,212,0,1,0\nx,1,2,3,4\n")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("line 2"), "{e}");
+    }
+
+    /// A controller in memory: it decodes each request frame the client writes and answers as
+    /// the firmware would, in order; `stale` bytes are waiting in its reader when the client
+    /// connects (another client sent them without a delimiter), and `damage` lists the
+    /// sequence numbers of the frames the wire damages (answered with a rejection, not run).
+    struct Controller {
+        reader: FrameReader,
+        to_host: std::collections::VecDeque<u8>,
+        damage: Vec<u16>,
+        /// The commands that ran.
+        ran: Vec<Command>,
+    }
+
+    impl Controller {
+        fn new(stale: &[u8], damage: &[u16]) -> Self {
+            let mut c = Controller {
+                reader: FrameReader::new(),
+                to_host: Default::default(),
+                damage: damage.to_vec(),
+                ran: vec![],
+            };
+            for &b in stale {
+                c.reader.push(b);
+            }
+            c
+        }
+
+        fn answer(&mut self, body: DeviceBody) {
+            let mut out = [0u8; MAX_FRAME_LEN];
+            let n = encode(&DeviceMessage::new(body), &mut out).unwrap();
+            self.to_host.extend(&out[..n]);
+        }
+    }
+
+    impl Write for Controller {
+        fn write(&mut self, bytes: &[u8]) -> std::io::Result<usize> {
+            for &b in bytes {
+                let body = match self.reader.push(b) {
+                    None => continue,
+                    Some(Received::TooLong) => {
+                        DeviceBody::FrameRejected(link_protocol::FrameError::TooLong)
+                    }
+                    Some(Received::Frame(f)) => match decode::<Request>(f) {
+                        Err(e) => DeviceBody::FrameRejected(e),
+                        Ok(r) if self.damage.contains(&r.seq) => {
+                            DeviceBody::FrameRejected(link_protocol::FrameError::Crc)
+                        }
+                        Ok(r) => {
+                            self.ran.push(r.command.clone());
+                            let result = match r.command {
+                                Command::MoveTo { .. } => {
+                                    Ok(Response::MovePlanned { duration_s: 0.5 })
+                                }
+                                Command::Stop => Err(LinkError::Busy),
+                                _ => Ok(Response::Done),
+                            };
+                            DeviceBody::Reply { seq: r.seq, result }
+                        }
+                    },
+                };
+                self.answer(body);
+            }
+            Ok(bytes.len())
+        }
+        fn flush(&mut self) -> std::io::Result<()> {
+            Ok(())
+        }
+    }
+
+    impl Read for Controller {
+        fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+            if self.to_host.is_empty() {
+                return Err(std::io::ErrorKind::WouldBlock.into());
+            }
+            let n = buf.len().min(self.to_host.len());
+            for (b, v) in buf.iter_mut().zip(self.to_host.drain(..n)) {
+                *b = v;
+            }
+            Ok(n)
+        }
+    }
+
+    /// The reproduction: another client sent 4 bytes without a delimiter and went away; the
+    /// next client's leading zero makes the controller reject them (a `FrameRejected` with no
+    /// sequence number). The move that follows ran and is reported planned, not "rejected:
+    /// Cobs"; a refused command is reported refused; the rejection is told apart from one of
+    /// the client's own frames, which did not run and is reported as such.
+    #[test]
+    fn answers_are_matched_by_sequence_number_and_stale_rejections_dropped() {
+        let mut client = LinkClient::new(
+            Controller::new(&[0x07, 0x41, 0x13, 0x99], &[]),
+            Duration::from_secs(2),
+        )
+        .unwrap();
+        let r = client.request(Command::MoveTo {
+            target_mm: [222.0, 5.0],
+        });
+        assert!(
+            matches!(r, Ok(Response::MovePlanned { .. })),
+            "a move that ran reported as {r:?}"
+        );
+        assert_eq!(
+            client.io.ran.len(),
+            2,
+            "the move and the client's probe ran"
+        );
+        assert!(matches!(
+            client.request(Command::Stop),
+            Err(ClientError::Refused {
+                error: LinkError::Busy,
+                ..
+            })
+        ));
+        assert!(matches!(
+            client.request(Command::Status),
+            Ok(Response::Done)
+        ));
+        // Our own frame damaged on the way: not run, reported rejected.
+        let next = client.seq.wrapping_add(1);
+        client.io.damage.push(next);
+        let before = client.io.ran.len();
+        let r = client.request(Command::MoveTo {
+            target_mm: [200.0, 0.0],
+        });
+        assert!(matches!(r, Err(ClientError::FrameRejected(_))), "{r:?}");
+        assert!(
+            !client.io.ran[before..]
+                .iter()
+                .any(|c| matches!(c, Command::MoveTo { .. })),
+            "the damaged move did not run"
+        );
+        // A late reply to another sequence number is not an answer.
+        client.io.answer(DeviceBody::Reply {
+            seq: client.seq.wrapping_add(7),
+            result: Err(LinkError::Busy),
+        });
+        assert!(matches!(
+            client.request(Command::Enable),
+            Ok(Response::Done)
+        ));
     }
 }

@@ -20,7 +20,6 @@ use crate::servo_loop::{ServoLoop, ServoRequest};
 use crate::setpoints::{self, QUEUE_SLOTS};
 use crate::settings::Settings;
 use crate::status::Status;
-use crate::stop::Workspace;
 
 /// Two direct-drive joints with viscous and Coulomb friction (rotor plus reflected link
 /// inertia of the five-bar at the home pose), integrated in 10 sub-steps per sample; the
@@ -99,6 +98,8 @@ pub const STORE_LEN: usize = 8192;
 /// A calibration store in RAM: the inactive slot, and the id of the image in force.
 #[derive(Clone, Debug)]
 pub struct StoreDouble {
+    /// What a committed image must be (`None`: parsing is enough).
+    pub check: Option<crate::calibration::ImageCheck>,
     inactive: heapless::Vec<u8, STORE_LEN>,
     expected_len: Option<u32>,
     active_id: Option<u32>,
@@ -110,6 +111,7 @@ impl StoreDouble {
     /// A store whose image in force has `active_id`.
     pub fn new(active_id: Option<u32>) -> Self {
         StoreDouble {
+            check: None,
             inactive: heapless::Vec::new(),
             expected_len: None,
             active_id,
@@ -147,6 +149,11 @@ impl CalibrationStore for StoreDouble {
             .ok_or(CalibrationRefusal::NotBegun)?;
         if self.inactive.len() != len as usize {
             return Err(CalibrationRefusal::Incomplete);
+        }
+        if let Some(check) = &self.check {
+            crate::calibration::validate_image(&self.inactive, check).map_err(|e| {
+                super::calibration_refusal(crate::calibration_slots::SlotError::Image(e))
+            })?;
         }
         let id = crate::calibration::image_id(&self.inactive).ok_or(CalibrationRefusal::Invalid)?;
         self.active_id = Some(id);
@@ -191,15 +198,11 @@ impl<'a> Rig<'a> {
         joints_rad: [f32; 2],
         active_id: Option<u32>,
     ) -> Self {
-        let workspace = calibration
-            .grid
-            .as_ref()
-            .and_then(|g| Workspace::of_image(g, settings.stop.workspace_margin_mm));
         let servo = ServoLoop::boot(settings, calibration, CalibrationState::Valid, joints_rad);
         let limits = StreamLimits {
             task: settings.stream_limits(),
             stop: settings.stop.limits,
-            workspace,
+            workspace: servo.calibration().workspace(),
         };
         let stream = MotionStream::new(limits, servo.setpoint_mm());
         let status = Status::at_boot(CalibrationState::Valid, &servo, joints_rad);
@@ -275,5 +278,106 @@ impl Device for Rig<'_> {
     }
     fn link_drives_motion(&self) -> bool {
         self.link_motion
+    }
+}
+
+/// xorshift64*: a fuzz driver needs speed and reproducibility, not statistical quality.
+#[derive(Clone, Copy, Debug)]
+pub struct FuzzRng(pub u64);
+
+impl FuzzRng {
+    /// The next 64 random bits.
+    pub fn next_u64(&mut self) -> u64 {
+        self.0 ^= self.0 >> 12;
+        self.0 ^= self.0 << 25;
+        self.0 ^= self.0 >> 27;
+        self.0.wrapping_mul(0x2545_F491_4F6C_DD1D)
+    }
+
+    /// Below `n` (`n` > 0).
+    pub fn below(&mut self, n: usize) -> usize {
+        (self.next_u64() % n as u64) as usize
+    }
+
+    /// An absurd number: NaN, ±infinity, ±f32::MAX, subnormals, -0, huge or tiny powers of ten,
+    /// or an arbitrary bit pattern.
+    pub fn absurd_f32(&mut self) -> f32 {
+        const SPECIAL: [f32; 10] = [
+            f32::NAN,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            f32::MAX,
+            f32::MIN,
+            f32::MIN_POSITIVE,
+            -0.0,
+            1e30,
+            -1e19,
+            1e-40,
+        ];
+        match self.below(3) {
+            0 => SPECIAL[self.below(SPECIAL.len())],
+            1 => f32::from_bits(self.next_u64() as u32),
+            _ => (self.next_u64() % 2_000_000) as f32 * 0.001 - 1000.0,
+        }
+    }
+}
+
+/// A well-formed command (it decodes, its CRC is right) whose payload is absurd: targets,
+/// knots, decimations, lengths, offsets and chunks anywhere in their types' ranges, NaN and
+/// infinities included; and the commands without payload. What the link must refuse (or do,
+/// for the commands that may be obeyed) without a fault the payload did not deserve.
+pub fn absurd_command(rng: &mut FuzzRng) -> link_protocol::Command {
+    use link_protocol::{Command, Knot, CALIBRATION_CHUNK_LEN, MAX_KNOTS_PER_FRAME};
+    let knot = |rng: &mut FuzzRng| Knot {
+        t_us: match rng.below(3) {
+            0 => 0,
+            1 => u32::MAX,
+            _ => rng.next_u64() as u32,
+        },
+        position_mm: [rng.absurd_f32(), rng.absurd_f32()],
+        velocity_mm_s: [rng.absurd_f32(), rng.absurd_f32()],
+    };
+    match rng.below(12) {
+        0 => Command::MoveTo {
+            target_mm: [rng.absurd_f32(), rng.absurd_f32()],
+        },
+        1 | 2 => {
+            let mut knots = heapless::Vec::new();
+            for _ in 0..1 + rng.below(MAX_KNOTS_PER_FRAME) {
+                let _ = knots.push(knot(rng));
+            }
+            Command::StreamKnots {
+                first_index: match rng.below(3) {
+                    0 => 0,
+                    1 => u32::MAX,
+                    _ => rng.next_u64() as u32,
+                },
+                knots,
+            }
+        }
+        3 => Command::Telemetry {
+            decimation: [0, 1, u16::MAX, rng.next_u64() as u16][rng.below(4)],
+        },
+        4 => Command::CalibrationBegin {
+            len: [
+                0,
+                1,
+                u32::MAX,
+                MAX_CALIBRATION_IMAGE_LEN + 1,
+                rng.next_u64() as u32,
+            ][rng.below(5)],
+        },
+        5 => Command::CalibrationChunk {
+            offset: [0, u32::MAX, rng.next_u64() as u32][rng.below(3)],
+            data: heapless::Vec::from_iter(
+                (0..rng.below(CALIBRATION_CHUNK_LEN + 1)).map(|_| rng.next_u64() as u8),
+            ),
+        },
+        6 => Command::CalibrationCommit,
+        7 => Command::Identify,
+        8 => Command::Status,
+        9 => Command::CalibrationId,
+        10 => Command::Enable,
+        _ => Command::ResetFault,
     }
 }

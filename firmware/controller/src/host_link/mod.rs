@@ -21,7 +21,7 @@
 //! | Stop | never | controlled stop, then hold (category 2) |
 //! | ResetFault | stopping, permanent fault (settings, calibration, watchdog not started) | clears the fault, re-engages, drives on; never homed (homing failed, a fault before homing): back to `Unhomed`, drives off, Home again |
 //! | Telemetry | never | sets the decimation (at least [`MIN_TELEMETRY_DECIMATION`]) |
-//! | CalibrationBegin/Chunk/Commit | moving; what the [`CalibrationStore`] refuses | writes the inactive slot, switches |
+//! | CalibrationBegin/Chunk/Commit | moving (a calibration switch's move included); a committed image still waiting for the switch (`SwitchPending`); what the [`CalibrationStore`] refuses (another machine's or an implausible image, with the parameter and its values) | writes the slot the servo does not use, commits; the servo switches at rest |
 //!
 //! After a stop, disable or reset the motion source is paused (it must not feed setpoints
 //! planned before the stop, nor from a point the servo no longer holds); [`LinkHandler::poll`]
@@ -176,7 +176,18 @@ pub fn calibration_refusal(e: SlotError) -> CalibrationRefusal {
         SlotError::TooMuchData | SlotError::Incomplete { .. } => CalibrationRefusal::Incomplete,
         SlotError::Flash(_) => CalibrationRefusal::Flash,
         SlotError::Image(ImageError::Grid(_)) => CalibrationRefusal::Invalid,
-        SlotError::Image(ImageError::OtherMachine(_)) => CalibrationRefusal::OtherMachine,
+        SlotError::Image(ImageError::OtherMachine(m)) => CalibrationRefusal::OtherMachine {
+            parameter: m.parameter,
+            image: m.image,
+            machine: m.machine,
+            tolerance: m.tolerance,
+        },
+        SlotError::Image(ImageError::Implausible(i)) => CalibrationRefusal::Implausible {
+            parameter: i.parameter,
+            value: i.value,
+            limit: i.limit,
+        },
+        SlotError::SwitchPending => CalibrationRefusal::SwitchPending,
     }
 }
 
@@ -368,6 +379,8 @@ impl LinkHandler {
             setpoint_underruns: s.setpoint_underruns,
             stream_knots_queued: queued,
             moving,
+            telemetry_decimation: self.decimation,
+            calibration_pending: s.calibration_pending.map(|id| id.crc32),
         }
     }
 
@@ -382,7 +395,8 @@ impl LinkHandler {
                 self.posted_at_tick = None;
             }
         }
-        if s.mode == Mode::Running && self.posted_at_tick.is_none() {
+        // Not during a calibration switch's blend: the source must hold where the blend ends.
+        if s.mode == Mode::Running && self.posted_at_tick.is_none() && !s.blending {
             device.with_stream(|m| {
                 if m.is_paused() {
                     m.hold(s.setpoint_mm);
@@ -473,7 +487,7 @@ fn link_is_source(device: &impl Device) -> Result<(), LinkError> {
 /// the setpoint queue; "not moving" before then let a host read a setpoint short of the end).
 /// With a built-in source the link cannot see its plan: the last sample's setpoint changed.
 fn motion_under_way(s: &Status, device: &mut impl Device) -> bool {
-    if matches!(s.mode, Mode::Stopping(_)) {
+    if matches!(s.mode, Mode::Stopping(_)) || s.blending {
         return true;
     }
     if !device.link_drives_motion() {

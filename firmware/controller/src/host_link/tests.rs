@@ -4,7 +4,7 @@ use super::doubles::Rig;
 use super::*;
 use kinematics_core::grid::{encode as encode_grid, GridGeometry};
 use kinematics_core::{Calibration, CorrectionGrid, FiveBar};
-use link_protocol::{FrameReader, Knot, MAX_FRAME_LEN};
+use link_protocol::{CalibrationRefusal, FrameReader, Knot, MAX_FRAME_LEN};
 use proptest::prelude::*;
 
 use crate::calibration::image_id;
@@ -819,7 +819,9 @@ fn the_homing_state_follows_the_mode_and_the_phase() {
 fn the_slot_stores_refusals_have_their_link_names() {
     use crate::calibration::{ImageError, MachineMismatch};
     use crate::calibration_slots::{FlashError, SlotError};
+    use crate::plausibility::Implausible;
     use kinematics_core::GridError;
+    use link_protocol::ImageParameter;
     let cases = [
         (SlotError::NoUpload, CalibrationRefusal::NotBegun),
         (SlotError::BadLength { max: 10 }, CalibrationRefusal::Length),
@@ -841,11 +843,162 @@ fn the_slot_stores_refusals_have_their_link_names() {
             CalibrationRefusal::Invalid,
         ),
         (
-            SlotError::Image(ImageError::OtherMachine(MachineMismatch::WorkingMode)),
-            CalibrationRefusal::OtherMachine,
+            SlotError::Image(ImageError::OtherMachine(MachineMismatch {
+                parameter: ImageParameter::LinkBMm,
+                image: 161.0,
+                machine: 150.0,
+                tolerance: 2.0,
+            })),
+            CalibrationRefusal::OtherMachine {
+                parameter: ImageParameter::LinkBMm,
+                image: 161.0,
+                machine: 150.0,
+                tolerance: 2.0,
+            },
         ),
+        (
+            SlotError::Image(ImageError::Implausible(Implausible {
+                parameter: ImageParameter::NodeCorrectionRad,
+                value: 0.5,
+                limit: 0.0267,
+            })),
+            CalibrationRefusal::Implausible {
+                parameter: ImageParameter::NodeCorrectionRad,
+                value: 0.5,
+                limit: 0.0267,
+            },
+        ),
+        (SlotError::SwitchPending, CalibrationRefusal::SwitchPending),
     ];
     for (e, expected) in cases {
         assert_eq!(calibration_refusal(e), expected, "{e:?}");
     }
+}
+
+/// The largest change of a drive's torque from one sample to the next that a link frame may
+/// cause (N·m): the servo's own 2 g moves and its encoder-count chatter stay well below it.
+const MAX_TORQUE_STEP_NM: f32 = 1.0;
+
+/// Valid frames (they decode, their CRCs are right) carrying absurd payloads, while the servo
+/// moves (a sane move is started whenever the machine is idle): NaN, infinite and enormous
+/// targets and knots, decimations, lengths, offsets and chunks anywhere in their ranges, and
+/// CRC-valid images with a ±0.05 rad checkerboard or masses 1000×. Every frame answered with
+/// its sequence number; no fault (none of these payloads deserves one: the commands that may
+/// stop the machine are not in the mix); no torque step beyond [`MAX_TORQUE_STEP_NM`]; the
+/// image in force never changes. The bench `link_fuzz` runs the same with its counts for a
+/// million frames.
+#[test]
+fn valid_frames_with_absurd_payloads_never_fault_nor_step_the_torque() {
+    use super::doubles::{absurd_command, FuzzRng};
+    let (settings, img) = (settings(), image(3e-4));
+    let mut r = rig(&settings, &img);
+    r.store.check = Some(settings.image_check());
+    let in_force = r.store.active_id();
+    let mut h = LinkHandler::new();
+    let mut rng = FuzzRng(0x5DEE_CE66_D1CE_4E5B);
+    let checker: [[f32; 2]; 9] = core::array::from_fn(|k| {
+        if k % 2 == 0 {
+            [0.05, -0.05]
+        } else {
+            [-0.05, 0.05]
+        }
+    });
+    let bad_images = [
+        {
+            let mut b = image(0.0);
+            let g = CorrectionGrid::parse(&b).unwrap();
+            let geometry = *g.geometry();
+            encode_grid(&mut b, &geometry, &FiveBar::paper_nominal(), &checker).unwrap();
+            b
+        },
+        image(0.5),
+    ];
+    let (mut frames, mut refused, mut moves, mut uploads) = (0u32, 0u32, 0u32, 0u32);
+    let mut last_torque = r.status.torque_nm;
+    let mut worst_step = 0.0f32;
+    let mut seq = 0u16;
+    for k in 0..3000u32 {
+        seq = seq.wrapping_add(1);
+        if r.status.mode == Mode::Running && !r.stream.is_moving() && k % 3 == 0 {
+            let target = [185.0 + rng.below(55) as f32, -50.0 + rng.below(100) as f32];
+            assert!(send(&mut h, &mut r, seq, Command::MoveTo { target_mm: target }).is_ok());
+            moves += 1;
+            seq = seq.wrapping_add(1);
+        }
+        if k % 500 == 250 {
+            // A CRC-valid image with absurd content, begun, sent and committed (the machine
+            // at rest: uploads wait for it): refused.
+            loop {
+                let Ok(Response::Status(s)) = send(&mut h, &mut r, seq, Command::Status) else {
+                    panic!("status refused");
+                };
+                if !s.moving {
+                    break;
+                }
+                for s in run(&mut h, &mut r, 10) {
+                    assert_eq!(s.fault, None, "frame {k}");
+                }
+            }
+            last_torque = r.status.torque_nm;
+            let bad = &bad_images[(k / 500) as usize % bad_images.len()];
+            send(
+                &mut h,
+                &mut r,
+                seq,
+                Command::CalibrationBegin {
+                    len: bad.len() as u32,
+                },
+            )
+            .unwrap();
+            for (i, chunk) in bad.chunks(128).enumerate() {
+                let data = heapless::Vec::from_slice(chunk).unwrap();
+                let offset = (i * 128) as u32;
+                send(
+                    &mut h,
+                    &mut r,
+                    seq,
+                    Command::CalibrationChunk { offset, data },
+                )
+                .unwrap();
+            }
+            let e = send(&mut h, &mut r, seq, Command::CalibrationCommit).unwrap_err();
+            assert!(
+                matches!(
+                    e,
+                    LinkError::Calibration(CalibrationRefusal::Implausible { .. })
+                ),
+                "{e:?}"
+            );
+            uploads += 1;
+        }
+        let command = absurd_command(&mut rng);
+        let is_upload = matches!(
+            command,
+            Command::CalibrationBegin { .. }
+                | Command::CalibrationChunk { .. }
+                | Command::CalibrationCommit
+        );
+        if send(&mut h, &mut r, seq, command).is_err() {
+            refused += 1;
+        }
+        frames += 1;
+        for s in run(&mut h, &mut r, 5) {
+            assert_eq!(s.fault, None, "frame {k}: a fault no payload deserved");
+            assert_eq!(s.mode, Mode::Running, "frame {k}");
+            let step = (s.torque_nm[0] - last_torque[0])
+                .abs()
+                .max((s.torque_nm[1] - last_torque[1]).abs());
+            worst_step = worst_step.max(step);
+            last_torque = s.torque_nm;
+        }
+        assert_eq!(r.store.active_id(), in_force, "frame {k}: {is_upload}");
+    }
+    println!(
+        "absurd payloads: {frames} frames ({refused} refused), {moves} moves run meanwhile, {uploads} implausible images refused, largest torque step {worst_step:.3} N·m"
+    );
+    assert!(worst_step <= MAX_TORQUE_STEP_NM, "{worst_step} N·m");
+    assert!(
+        moves > 50 && refused > 500,
+        "{moves} moves, {refused} refused"
+    );
 }

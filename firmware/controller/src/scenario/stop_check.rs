@@ -26,7 +26,7 @@ use crate::fault::StopCategory;
 use crate::servo_loop::Mode;
 use crate::stop::StopProfile;
 
-use super::{require, safe_state, Observation};
+use super::checker::{require, safe_state, Observation};
 
 /// How far the tool may travel beyond the planned stop (mm): the servo's following error
 /// during a 5 g stop (about 20 µm) with room to spare.

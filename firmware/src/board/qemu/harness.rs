@@ -16,26 +16,29 @@
 //!   moving in real time meanwhile (a machine does not stop with its controller), keeping its
 //!   state across the coming reset ([`super::across_reset`]); [`watchdog_fired`], called by the
 //!   watchdog's NMI after it removed torque, judges the reaction and waits for the watchdog's
-//!   reset. The boot after it is `Scenario::WatchdogRestart` (`Scenario::after_reset`), which
+//!   reset. The boot after it is `watchdog-restart` (`Scenario::after_reset`), which
 //!   checks the machine's coast from where the interrupt left it ([`Harness::resumed`]).
 //! * The checks ([`Harness::end_sample`], after every sample's status is published):
 //!   `controller::scenario::Checker` on the status, on what the simulated hardware shows
 //!   (drive-enable line, torque in the PWM registers) and on the plant's true joint state; a
 //!   verdict prints `PASS` or `FAIL <why>` on the console and ends QEMU with exit code 0 or 1.
-//!   `Scenario::Run` never concludes.
+//!   `run` never concludes.
+//! * The run-time upload of the upload scenarios ([`Harness::upload_due`], the board's
+//!   `Board::bundled_upload_due`): the bundled second image, once, at the scenario's sample.
 //!
 //! The checker validates the calibration region on its own, so the firmware's reading of it is
 //! under test too.
 use core::cell::Cell;
 use core::fmt::Write;
-use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
+use core::sync::atomic::{AtomicU32, Ordering};
 
+use controller::calibration::ImageCheck;
 use controller::calibration_slots::{CalibrationId, ReadOnly, SlotStore};
 use controller::deadline::DEADLINE_US;
 use controller::scenario::stop_check::{CoastModel, PlantState};
 use controller::scenario::{
-    Checker, EncoderInjection, Injection, Observation, Scenario, WatchdogObservation,
-    WatchdogVerdict,
+    registry, Check, Checker, EncoderInjection, Injection, Observation, Scenario, SelfTest,
+    WatchdogObservation, WatchdogVerdict, LIST_COMMAND,
 };
 use controller::setpoints::SetpointSource;
 use controller::settings::Settings;
@@ -53,24 +56,13 @@ use super::{
 
 /// What the watchdog's NMI needs (it cannot reach the `Harness`, which the servo task owns).
 /// The scenario of this boot, set once at boot before the watchdog starts.
-static SCENARIO: Mutex<Cell<Scenario>> = Mutex::new(Cell::new(Scenario::Run));
+static SCENARIO: Mutex<Cell<Option<Scenario>>> = Mutex::new(Cell::new(None));
 /// Clock ticks at the last watchdog feed, at the stall; [`NEVER`] until then.
 static LAST_FEED_AT: AtomicU32 = AtomicU32::new(NEVER);
 static STALLED_AT: AtomicU32 = AtomicU32::new(NEVER);
 /// Tool speed at the stall (f32 bits, mm/s).
 static STALL_SPEED: AtomicU32 = AtomicU32::new(0);
 const NEVER: u32 = u32::MAX;
-
-/// The upload scenarios' upload has been started.
-static UPLOAD_STARTED: AtomicBool = AtomicBool::new(false);
-
-/// The upload scenarios (`Scenario::upload`): `Some(corrupt)` once, at the first call at or
-/// after the upload's sample. Called by the app's telemetry task.
-pub fn upload_due(ticks: u32) -> Option<bool> {
-    let scenario = critical_section::with(|cs| SCENARIO.borrow(cs).get());
-    let (at, corrupt) = scenario.upload()?;
-    (ticks >= at && !UPLOAD_STARTED.swap(true, Ordering::SeqCst)).then_some(corrupt)
-}
 
 /// The image in force by the harness's own reading of the slots (not the firmware's).
 fn image_in_force(
@@ -79,11 +71,13 @@ fn image_in_force(
     Option<CalibrationId>,
     Result<CorrectionGrid<'static>, GridError>,
 ) {
-    let store = SlotStore::open(
-        ReadOnly(crate::calibration::region()),
-        settings.machine,
-        settings.home_mm,
-    );
+    // Which image is in force, not whether it is plausible (the firmware's judgement, tested
+    // on the host): this runs inside a servo sample.
+    let check = ImageCheck {
+        limits: None,
+        ..settings.image_check()
+    };
+    let store = SlotStore::open(ReadOnly(crate::calibration::region()), check);
     match store.active_id() {
         Some(id) => (
             Some(id),
@@ -107,6 +101,8 @@ fn at_us(ticks: u32) -> Option<f32> {
 pub struct Harness {
     scenario: Scenario,
     settings: &'static Settings,
+    /// The upload scenarios' upload has been started.
+    upload_started: bool,
     /// Set up with the trajectory (the checks need its length).
     checker: Option<Checker<'static>>,
     /// Where the faults go, found in the trajectory.
@@ -121,11 +117,24 @@ pub struct Harness {
 
 impl Harness {
     /// The scenario named on the semihosting command line, as it continues after the last
-    /// reset (the boot after `stalled-task`'s watchdog reset is `WatchdogRestart`).
+    /// reset (the boot after `stalled-task`'s watchdog reset is `watchdog-restart`). The
+    /// command line `list` prints the registry's runs (`qemu/test.sh` reads them) and ends the
+    /// run; an empty or unknown name ends it with `FAIL`.
     pub fn scenario() -> Scenario {
         let mut line = [0u8; 64];
-        Scenario::from_command_line(semihosting::command_line(&mut line))
-            .after_reset(hardware::peek_reset_cause())
+        let line = semihosting::command_line(&mut line);
+        if line.split_whitespace().nth(1) == Some(LIST_COMMAND) {
+            list()
+        }
+        match Scenario::from_command_line(line) {
+            Ok(s) => s.after_reset(hardware::peek_reset_cause()),
+            Err(_) => {
+                semihosting::console(
+                    "FAIL harness: no scenario of that name (the command line `list` lists them)",
+                );
+                semihosting::exit(false)
+            }
+        }
     }
 
     /// Reads the scenario, starts the harness's clock and runs the self-tests of the failure
@@ -133,19 +142,20 @@ impl Harness {
     pub fn boot(settings: &'static Settings) -> Self {
         let scenario = Self::scenario();
         defmt::info!("harness: scenario {}", scenario);
-        critical_section::with(|cs| SCENARIO.borrow(cs).set(scenario));
+        critical_section::with(|cs| SCENARIO.borrow(cs).set(Some(scenario)));
         clock::start();
-        match scenario {
-            Scenario::Panic => {
+        match scenario.spec().check {
+            Check::SelfTest(SelfTest::Panic) => {
                 let v: Option<u32> = core::hint::black_box(None);
                 let _ = v.expect("self-test: panic path");
             }
-            Scenario::HardFault => cortex_m::asm::udf(),
+            Check::SelfTest(SelfTest::HardFault) => cortex_m::asm::udf(),
             _ => {}
         }
         Harness {
             scenario,
             settings,
+            upload_started: false,
             checker: None,
             injection: Injection::default(),
             sample: 0,
@@ -186,7 +196,7 @@ impl Harness {
             self.injection,
             coast,
         );
-        if let (Scenario::WatchdogRestart, Some(state)) = (self.scenario, self.resumed) {
+        if let (Check::WatchdogRestart, Some(state)) = (self.scenario.spec().check, self.resumed) {
             checker.coast_after_reset(state);
         }
         self.checker = Some(checker);
@@ -196,6 +206,15 @@ impl Harness {
             trajectory,
             queued: 0,
         }
+    }
+
+    /// The upload scenarios (`Scenario::upload`): `Some(corrupt)` once, at the first sample at
+    /// or after the upload's.
+    pub fn upload_due(&mut self, ticks: u32) -> Option<bool> {
+        let (at, corrupt) = self.scenario.upload()?;
+        let due = ticks >= at && !self.upload_started;
+        self.upload_started |= due;
+        due.then_some(corrupt)
     }
 
     /// Start of a sample, before the plant moves and updates the encoder counters: the deadline
@@ -268,21 +287,14 @@ impl Harness {
                         status.calibration_id
                     );
                 }
-                if matches!(
-                    self.scenario,
-                    Scenario::Track
-                        | Scenario::Track5g
-                        | Scenario::Homing
-                        | Scenario::CalibrationUpload
-                        | Scenario::CalibrationUploadCorrupt
-                ) {
+                if self.scenario.tracks() {
                     defmt::info!(
                         "track: grid {}, settled tool error {} mm",
                         checker.grid_check(),
                         checker.settled_tool_error_mm()
                     );
                 }
-                if self.scenario == Scenario::Track5g {
+                if self.scenario.at_5g() {
                     let m = checker.motion_check();
                     defmt::info!(
                         "track-5g: {} samples at 5 g, max following error {} um at the tool (bound {})",
@@ -373,7 +385,10 @@ pub fn watchdog_fired(drive_enable_at_fire: bool) -> ! {
         // Zero torque is a zero at any full scale; 1 N·m keeps any other duty non-zero.
         drive_torque_nm: hardware::commanded_torque_nm(1.0),
     };
-    let scenario = critical_section::with(|cs| SCENARIO.borrow(cs).get());
+    let Some(scenario) = critical_section::with(|cs| SCENARIO.borrow(cs).get()) else {
+        semihosting::console("FAIL watchdog fired before the harness started");
+        semihosting::exit(false)
+    };
     let mut line: heapless::String<200> = heapless::String::new();
     match scenario.watchdog_fired(&o) {
         WatchdogVerdict::Fail(why) => {
@@ -407,4 +422,20 @@ pub fn watchdog_fired(drive_enable_at_fire: bool) -> ! {
     while clock::now_ticks().wrapping_sub(fired_at) < wait_ticks {}
     semihosting::console("FAIL no reset after the watchdog interrupt");
     semihosting::exit(false)
+}
+
+/// The command line `list`: one line per run of every scenario of the registry
+/// (`controller::scenario::Run::list_line`), then the end of the run.
+fn list() -> ! {
+    for spec in &registry::SCENARIOS {
+        for run in spec.runs {
+            let mut line: heapless::String<120> = heapless::String::new();
+            if run.list_line(spec.name, &mut line).is_err() {
+                semihosting::console("FAIL harness: a list line does not fit");
+                semihosting::exit(false)
+            }
+            semihosting::console(&line);
+        }
+    }
+    semihosting::exit(true)
 }

@@ -226,7 +226,7 @@ impl Board for QemuBoard {
         let homes = scenario.homing_sim().is_some();
         let homing = HomingSettings {
             absolute_encoders: !homes,
-            at_boot: homes && !scenario.link_motion(),
+            at_boot: scenario.home_at_boot(),
             ..production.homing
         };
         Settings {
@@ -362,6 +362,12 @@ impl Board for QemuBoard {
             return exchange.note_status(status);
         }
         self.harness.end_sample(status, self.plant.state());
+    }
+
+    fn bundled_upload_due(&mut self, ticks: u32) -> Option<(&'static [u8], bool)> {
+        self.harness
+            .upload_due(ticks)
+            .map(|corrupt| (crate::calibration::BUNDLED_UPLOAD, corrupt))
     }
 }
 

@@ -9,7 +9,7 @@ use crate::calib::grid;
 use crate::calib::measure::{measured_error_vectors_um, registered, rows, true_error_vectors_um};
 use crate::calib::plan::list_rows;
 use crate::io::atomic::Outputs;
-use crate::io::measurement_csv::format_measurements;
+use crate::io::measurement_csv::format_measurements_of;
 use crate::io::model_file::{model_file_text, ModelFile};
 use crate::io::plot::{vector_plot_png, VectorField};
 use crate::io::targets_csv::format_target_list;
@@ -70,20 +70,20 @@ pub fn write_outputs(
     }
     text(
         "fit_measurements.csv",
-        format_measurements(&rows(&cal.fit_data)).as_bytes(),
+        format_measurements_of(&rows(&cal.fit_data), &cal.identity).as_bytes(),
     )?;
     text(
         "grid_measurements.csv",
-        format_measurements(&rows(&cal.grid_data)).as_bytes(),
+        format_measurements_of(&rows(&cal.grid_data), &cal.identity).as_bytes(),
     )?;
     text(
         "grid_measurements_round2.csv",
-        format_measurements(&rows(&cal.grid2_data)).as_bytes(),
+        format_measurements_of(&rows(&cal.grid2_data), &cal.identity).as_bytes(),
     )?;
     for s in &cal.stages {
         text(
             &format!("verify_{}.csv", s.key.replace('+', "_")),
-            format_measurements(&rows(&s.landed)).as_bytes(),
+            format_measurements_of(&rows(&s.landed), &cal.identity).as_bytes(),
         )?;
     }
     // The grid to flash: round 2. (Round 1 is in the round-2 data: nodes commanded through it.)
@@ -97,12 +97,14 @@ pub fn write_outputs(
     );
     full_file.backlash_urad = cal.backlash.map(|b| b.lost_motion_urad);
     full_file.instrument_frame = Some(cal.frame.record());
+    full_file.machine = Some(cal.identity.clone());
     files.push((
         "model.json".into(),
         model_file_text(&full_file)?.into_bytes(),
     ));
     if let Ok((ls_model, ls_frame)) = &cal.ls {
         let mut ls_file = ModelFile::from_model(ls_model);
+        ls_file.machine = Some(cal.identity.clone());
         ls_file.fit = Some(
             serde_json::json!({ "method": "ls", "source": "host-sim demo", "n_points": cal.fit_data.len() }),
         );

@@ -68,6 +68,7 @@ use super::{invalid, CalibError};
 use crate::io::measurement_csv::{format_measurements, parse_measurements, Measurement};
 use crate::io::model_file::ModelFile;
 use crate::loop_closure::SixBarDesign;
+use crate::machine_identity::MachineIdentity;
 use crate::machine_spec::MachineSpec;
 use kinematics_core::{Calibration, CorrectionGrid, FiveBar};
 use rand::SeedableRng;
@@ -148,6 +149,8 @@ impl Stage {
 /// Everything a calibration run produced (in memory; [`write_outputs`] writes it).
 pub struct Calibrated {
     pub machine: String,
+    /// The machine's identity, which every file written carries (`crate::machine_identity`).
+    pub identity: MachineIdentity,
     /// The lists measured (the plan's identification, grid and verification lists, and its
     /// repeat runs, which the demo does not measure).
     pub plan: Plan,
@@ -541,6 +544,7 @@ pub fn calibrate(
     step(events, "calibration done".into());
     let goal_um = goal_um(spec);
     Ok(Calibrated {
+        identity: spec.identity(),
         machine: description,
         plan,
         fit_data,

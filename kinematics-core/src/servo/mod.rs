@@ -9,26 +9,31 @@
 //! The firmware calls it from its timer interrupt and `host-sim` calls the very same functions
 //! against the simulated plant; nothing else computes a motor command.
 //!
-//! # The motion step (issue 14)
-//! [`Servo::accept_motion`] (and [`Servo::step_motion`], both phases) takes a [`MotionSetpoint`]
-//! (position with its exact velocity, acceleration and jerk, from a [`crate::trajectory`]) and
-//! the next one, if queued, instead of a bare position: the same refusals (plus the stated
-//! speed and acceleration within the limits), the feed-forward from the identified inverse
-//! dynamics of the mean motion until the next sample ([`crate::feed_forward`];
-//! [`Servo::set_dynamics`]; without them the gains' constant feed-forward on the same motion)
-//! plus each joint's disturbance observer's estimate of what that feed-forward lacks
-//! ([`crate::disturbance_observer`]; `AxisGains::observer_bandwidth_rad_s`, 0 turns it off)
-//! and the PID on the remainder ([`AxisController::feedback`]). No finite-difference lag. The
-//! next setpoint's joint state is kept for the next sample, so each sample solves one IK.
+//! # The two steps
+//! * [`Servo::step`] ([`Servo::accept`] then [`AcceptedSetpoint::track`]) takes a bare position
+//!   and feeds forward the gains' constant inertia and viscous terms on its backward
+//!   differences: the controlled stop's and the blend's setpoints, a host loop's.
+//! * [`Servo::step_motion`] ([`Servo::accept_motion`] then [`AcceptedSetpoint::track`]) takes a
+//!   [`MotionSetpoint`] (position with its exact velocity, acceleration and jerk, from a
+//!   [`crate::trajectory`]) and the next one, if queued: the same refusals (plus the stated speed
+//!   and acceleration within the limits), the feed-forward from the identified inverse dynamics
+//!   of the mean motion until the next sample ([`crate::feed_forward`]; [`Servo::set_dynamics`];
+//!   without them the gains' constant feed-forward on the same motion) plus each joint's
+//!   disturbance observer's estimate of what that feed-forward lacks
+//!   ([`crate::disturbance_observer`]; `AxisGains::observer_bandwidth_rad_s`, 0 turns it off) and
+//!   the PID on the remainder ([`AxisController::feedback`]). The next setpoint's joint state is
+//!   kept for the next sample, so each sample solves one IK.
 //!
-//! # Backlash (issue 13)
+//! Each takes either kind of calibration ([`ServoCalibration`]): a [`Calibration`], whose model
+//! every IK checks, or a [`ValidCalibration`], whose model was checked once when it was built
+//! (the firmware's: the IK then skips the model check, its margin floor and its test that the
+//! target is finite, which the jump check has proven; the angles are bit-identical).
+//!
+//! # Backlash
 //! With a backlash block in the image ([`Calibration::backlash`]; taken at [`Servo::engage`])
 //! the reference the motors track is the link reference plus the play operator of its
 //! increments ([`crate::backlash`]): within ±β/2, continuous, 0 (mid-gap) at engage and after
-//! a fault. Both steps (plain and motion) form their reference in [`AcceptedSetpoint::track`],
-//! so both compensate. `BENCH servo_step_backlash` 724.5 instructions and
-//! `servo_step_motion_backlash` 1306.4 (20 µrad per drive), against 698.5 and 1274.5 without
-//! the block (one branch: 692.5 and 1186.4 before the compensation existed).
+//! a fault. Both steps form their reference in [`AcceptedSetpoint::track`], so both compensate.
 //!
 //! # Two kinds of error, two phases
 //! A sample is [`Servo::accept`] then [`AcceptedSetpoint::track`] ([`Servo::step`] does both):
@@ -50,49 +55,48 @@
 //! [`AcceptedSetpoint`] holds the servo borrowed, so a setpoint accepted against one history
 //! cannot be tracked after another.
 //!
+//! ```
+//! use kinematics_core::{Calibration, FiveBar, Servo, ServoConfig};
+//!
+//! // The nominal model without a grid; an image gives `Calibration::from_grid(grid)`.
+//! let cal = Calibration { model: FiveBar::paper_nominal(), grid: None };
+//! let mut servo = Servo::new(ServoConfig::default()).unwrap();
+//! // Engage where the machine stands: the encoders read the angles of (212.132, 0) mm.
+//! let encoder_rad = cal.command_rad([212.132, 0.0], 0.05).unwrap();
+//! let at_mm = servo.engage(&cal, encoder_rad).unwrap();
+//! assert!((at_mm[0] - 212.132).abs() < 1e-3 && at_mm[1].abs() < 1e-3);
+//! // One sample: a setpoint 1 µm along +x; the machine has not moved yet, so the PID pushes.
+//! let out = servo.step(&cal, [at_mm[0] + 1e-3, at_mm[1]], encoder_rad).unwrap();
+//! assert!(out.torque_nm.iter().any(|t| *t != 0.0));
+//! assert!(out.following_error_rad.iter().all(|e| e.abs() < 1e-4));
+//! // A setpoint 5 mm away in one sample (10 m/s) is a jump: refused, nothing changed.
+//! assert!(servo.step(&cal, [at_mm[0] + 5.0, at_mm[1]], encoder_rad).is_err());
+//! ```
+//!
 //! # Settings
 //! [`Servo::new`] validates its [`ServoConfig`] ([`ServoConfig::validate`]): settings come over
 //! a link, and no value of them may panic or command a NaN. (The PID itself never panics
 //! either, see [`crate::pid`].)
 //!
 //! # Cost
-//! `cargo qemu-bench` (`BENCH servo_step`, `servo_step_motion`): instructions under QEMU and
-//! Cortex-M4 cycles estimated by `firmware/qemu/plugin/m4cycles.c`, per call. Through a
-//! [`ValidCalibration`] (`Servo::step_valid`, the firmware's path; issue 16): 698.5
-//! instructions, 983 cycles (goal 700); through a plain [`Calibration`], whose model every
-//! IK checks (`BENCH servo_step_checking`): 710.5 / 998 (692.5 / 977 and 711.5 / 1001 before
-//! the backlash branch; the disturbance observers cost this path nothing). The checked-once path leaves out the IK's model
-//! check (7 instructions), its margin floor (5; [`IkMargin`] is built once in [`Servo::new`])
-//! and its test that the target is finite (the jump check has proven it; see
-//! [`Servo::accept_valid`]). The split by part, with a per-instruction count of the same run
-//! attributed through the debug info, is from the build before, through a plain
-//! [`Calibration`]:
+//! `cargo qemu-bench` prints the instructions (QEMU) and estimated Cortex-M4 cycles
+//! (`firmware/qemu/plugin/m4cycles.c`) per call: `servo_step` (a [`ValidCalibration`] with a
+//! grid), `servo_step_checking` (a [`Calibration`]: the IK's model check, margin floor and
+//! finiteness test on every call), `servo_step_backlash` (with the backlash block),
+//! `servo_step_motion` (the motion step with the identified dynamics and both disturbance
+//! observers) and their `_uncorrected` variants (today's figures: firmware/README.md,
+//! "Benchmarks"); what the step is made of, by instructions: the hidden-robot IK about 45 %, the grid
+//! lookup and correction about a fifth, the two PIDs about 15 %, the jump checks, unwrapping,
+//! following-error check and history the rest. The motion step adds the next setpoint's IK with
+//! the joint rates, the inverse dynamics and the interval's means.
 //!
-//! | `servo_step` (710 instructions, 987 cycles) | instructions | cycles |
-//! |---|---|---|
-//! | hidden-robot IK (inlined; `BENCH ik_f32` with its call: 325 / 461) | 305 | 390 |
-//! | grid lookup and adding the correction | 158 | 206 |
-//! | setpoint jump checks (speed and acceleration from backward differences) | 30 | 34 |
-//! | two PIDs: feed-forward of the gains, PID, saturation, anti-windup | 106 | 145 |
-//! | unwrap, following-error check, reference rates, history, output | 58 | 81 |
-//! | the call, its register saves and the results | 27 | 93 |
-//! | the benchmark loop's own work per call (input, output) | 26 | 38 |
-//!
-//! The motion step (`servo_step_motion`, 1274.5 / 1887 through a [`ValidCalibration`] with the
-//! two disturbance observers, 72.5 / 90 of it; 1186 / 1773 without them, 1198 /
-//! 1787 before; the parts from the build before the IK's
-//! singularity-floor checks, 1194 / 1786: the trajectory's evaluation 77 / 113 included) is the next setpoint's IK with the joint rates (359 / 562), the inverse dynamics
-//! (156 / 211), the interval's means (48 / 68), the grid (185 / 243), the finiteness of both
-//! setpoints and the differenced speed and acceleration (62 / 81) and the PIDs (78 / 97); the
-//! rest is the stated speed and acceleration, the joint-state slots, the history and the calls.
-//!
-//! What keeps it there, the way `idsp` does it: no division in the step (VDIV is 14 cycles):
-//! `1 / sample_period_s` and the squared limits are computed once in [`Servo::new`], and the
-//! history keeps the previous sample's backward differences, so a second difference is one
-//! subtraction; finiteness is never tested on the way through: a NaN or infinite setpoint or
-//! encoder reading makes a speed or a following error that no limit admits, and only then is
-//! it told apart ([`SetpointRefusal::NonFinite`] from `Jump`, [`ServoFault::NonFiniteFeedback`]
-//! from `FollowingError`); the PID saturates in two comparisons in the usual case
+//! What keeps it there: no division in the step (VDIV is 14 cycles): `1 / sample_period_s` and
+//! the squared limits are computed once in [`Servo::new`], and the history keeps the previous
+//! sample's backward differences, so a second difference is one subtraction; finiteness is
+//! never tested on the way through: a NaN or infinite setpoint or encoder reading makes a
+//! speed or a following error that no limit admits, and only then is it told apart
+//! ([`SetpointRefusal::NonFinite`] from `Jump`, [`ServoFault::NonFiniteFeedback`] from
+//! `FollowingError`); the PID saturates in two comparisons in the usual case
 //! ([`crate::pid::saturate`]) and skips the Coulomb term's division when it is off;
 //! [`AcceptedSetpoint::track`] and the PID are inlined. No allocation, no panic on any input or
 //! setting (property-tested).
@@ -101,13 +105,15 @@ use crate::backlash::Backlash;
 use crate::disturbance_observer::{DisturbanceObserver, ObserverCoefficients};
 use crate::dynamics::{DynamicsError, FiveBarDynamics};
 use crate::feed_forward::{feed_forward_nm, interval_motion, predict, JointSample};
-use crate::grid::{CorrectionGrid, GridError};
-use crate::model::{FiveBar, ModelError};
+use crate::grid::GridError;
 use crate::pid::{AxisController, AxisGains, AxisReference, InvalidGain};
 use crate::real::Real;
 use crate::trajectory::MotionSetpoint;
-use crate::valid_model::{IkMargin, ValidFiveBar};
+use crate::valid_model::IkMargin;
+
+mod calibration;
 use crate::KinematicsError;
+pub use calibration::{Calibration, ServoCalibration, ValidCalibration};
 
 /// Standard gravity (mm/s²), for limits stated in g.
 pub const STANDARD_GRAVITY_MM_S2: f32 = 9_806.65;
@@ -236,231 +242,6 @@ impl ServoConfig {
             })?;
         }
         Ok(())
-    }
-}
-
-/// The hidden robot and (optionally) its correction grid: what a calibration delivers.
-#[derive(Clone, Copy, Debug)]
-pub struct Calibration<'a> {
-    /// The fitted hidden robot.
-    pub model: FiveBar<f32>,
-    /// Joint corrections over the workspace; `None` runs the model uncorrected.
-    pub grid: Option<CorrectionGrid<'a>>,
-}
-
-impl<'a> Calibration<'a> {
-    /// The model and grid of a validated image.
-    pub fn from_grid(grid: CorrectionGrid<'a>) -> Self {
-        Calibration {
-            model: *grid.model(),
-            grid: Some(grid),
-        }
-    }
-
-    /// Encoder angles that put the tool at `tool_mm`: model IK plus grid correction. This is the
-    /// one function that turns a target into a motor command, on the MCU and in the host tools.
-    /// ([`Servo::accept_motion`] keeps the model's angle from the IK it solved for the setpoint a
-    /// sample earlier, and corrects it with [`Calibration::corrected_rad`].)
-    #[inline(always)]
-    pub fn command_rad(
-        &self,
-        tool_mm: [f32; 2],
-        min_transmission: f32,
-    ) -> Result<[f32; 2], SetpointRefusal> {
-        let theta = self
-            .model
-            .inverse(tool_mm, min_transmission)
-            .map_err(SetpointRefusal::Kinematics)?;
-        self.corrected_rad(tool_mm, theta)
-    }
-
-    /// The drives' lost motion the servo compensates: the image's backlash block, if the grid
-    /// carries one ([`CorrectionGrid::backlash`]).
-    #[inline(always)]
-    pub fn backlash(&self) -> Option<Backlash<f32>> {
-        self.grid.as_ref().and_then(|g| g.backlash().copied())
-    }
-
-    /// The model's encoder angles `theta_rad` for `tool_mm` plus the grid correction there.
-    pub fn corrected_rad(
-        &self,
-        tool_mm: [f32; 2],
-        theta_rad: [f32; 2],
-    ) -> Result<[f32; 2], SetpointRefusal> {
-        corrected_rad(self.grid.as_ref(), tool_mm, theta_rad)
-    }
-}
-
-/// `theta_rad` plus the grid's correction at `tool_mm` (none without a grid).
-#[inline(always)]
-fn corrected_rad(
-    grid: Option<&CorrectionGrid<'_>>,
-    tool_mm: [f32; 2],
-    theta_rad: [f32; 2],
-) -> Result<[f32; 2], SetpointRefusal> {
-    match grid {
-        None => Ok(theta_rad),
-        Some(grid) => {
-            let d = grid
-                .correction_rad(tool_mm)
-                .map_err(SetpointRefusal::Grid)?;
-            Ok([theta_rad[0] + d[0], theta_rad[1] + d[1]])
-        }
-    }
-}
-
-/// A [`Calibration`] whose model passed [`FiveBar::validate`] when it was built: the servo's
-/// IK per sample ([`Servo::step_valid`], [`Servo::accept_valid`],
-/// [`Servo::accept_motion_valid`], [`Servo::step_motion_valid`]) then skips the model check
-/// and the margin floor the [`Calibration`] path repeats on every call (issue 16; the angles
-/// are bit-identical). Its fields are private: an invalid model cannot be put in one.
-#[derive(Clone, Copy, Debug)]
-pub struct ValidCalibration<'a> {
-    model: ValidFiveBar<f32>,
-    grid: Option<CorrectionGrid<'a>>,
-}
-
-impl<'a> ValidCalibration<'a> {
-    /// `cal` if its model is valid ([`FiveBar::validate`]), else the reason.
-    pub fn new(cal: Calibration<'a>) -> Result<Self, ModelError> {
-        Ok(ValidCalibration {
-            model: ValidFiveBar::new(cal.model)?,
-            grid: cal.grid,
-        })
-    }
-
-    /// The model and grid of a validated image (its parser validated the model).
-    pub fn from_grid(grid: CorrectionGrid<'a>) -> Self {
-        ValidCalibration {
-            model: *grid.valid_model(),
-            grid: Some(grid),
-        }
-    }
-
-    /// The checked model.
-    pub fn model(&self) -> &ValidFiveBar<f32> {
-        &self.model
-    }
-
-    /// The correction grid, if any.
-    pub fn grid(&self) -> Option<&CorrectionGrid<'a>> {
-        self.grid.as_ref()
-    }
-
-    /// The lost motion the servo compensates (the grid's backlash block), if any.
-    pub fn backlash(&self) -> Option<Backlash<f32>> {
-        self.grid.as_ref().and_then(|g| g.backlash().copied())
-    }
-
-    /// The same calibration as a plain [`Calibration`] (for [`Servo::engage`] and the
-    /// functions that take one).
-    pub fn calibration(&self) -> Calibration<'a> {
-        Calibration {
-            model: *self.model.model(),
-            grid: self.grid,
-        }
-    }
-
-    /// [`Calibration::command_rad`] with the model and margin checked once.
-    #[inline(always)]
-    pub fn command_rad(
-        &self,
-        tool_mm: [f32; 2],
-        margin: IkMargin<f32>,
-    ) -> Result<[f32; 2], SetpointRefusal> {
-        let theta = self
-            .model
-            .inverse(tool_mm, margin)
-            .map_err(SetpointRefusal::Kinematics)?;
-        corrected_rad(self.grid.as_ref(), tool_mm, theta)
-    }
-}
-
-/// What the servo's sample needs of a calibration, implemented by both kinds: a
-/// [`Calibration`] checks its model on every IK, a [`ValidCalibration`] did when it was built.
-/// One implementation of the step serves both (private: the public methods name the type).
-trait SampleModel {
-    /// IK plus grid correction for a target [`Servo::check_sequence`] passed (so finite: the
-    /// IK need not test it again).
-    fn command_rad_of_finite(
-        &self,
-        tool_mm: [f32; 2],
-        margin: IkMargin<f32>,
-    ) -> Result<[f32; 2], SetpointRefusal>;
-    /// The joint state at `setpoint`, in place.
-    fn solve_joint(
-        &self,
-        slot: &mut JointSample<f32>,
-        setpoint: &MotionSetpoint<f32>,
-        margin: IkMargin<f32>,
-    ) -> Result<(), KinematicsError>;
-    /// The grid correction added to the model's angles.
-    fn corrected_rad(
-        &self,
-        tool_mm: [f32; 2],
-        theta_rad: [f32; 2],
-    ) -> Result<[f32; 2], SetpointRefusal>;
-}
-
-impl SampleModel for Calibration<'_> {
-    #[inline(always)]
-    fn command_rad_of_finite(
-        &self,
-        tool_mm: [f32; 2],
-        margin: IkMargin<f32>,
-    ) -> Result<[f32; 2], SetpointRefusal> {
-        // `FiveBar::inverse` raises the margin to its floor again (the same value) and checks
-        // the model and the target, as it always did on this path.
-        Calibration::command_rad(self, tool_mm, margin.get())
-    }
-    #[inline(always)]
-    fn solve_joint(
-        &self,
-        slot: &mut JointSample<f32>,
-        setpoint: &MotionSetpoint<f32>,
-        margin: IkMargin<f32>,
-    ) -> Result<(), KinematicsError> {
-        slot.solve(&self.model, setpoint, margin.get())
-    }
-    #[inline(always)]
-    fn corrected_rad(
-        &self,
-        tool_mm: [f32; 2],
-        theta_rad: [f32; 2],
-    ) -> Result<[f32; 2], SetpointRefusal> {
-        corrected_rad(self.grid.as_ref(), tool_mm, theta_rad)
-    }
-}
-
-impl SampleModel for ValidCalibration<'_> {
-    #[inline(always)]
-    fn command_rad_of_finite(
-        &self,
-        tool_mm: [f32; 2],
-        margin: IkMargin<f32>,
-    ) -> Result<[f32; 2], SetpointRefusal> {
-        let theta = self
-            .model
-            .inverse_of_finite(tool_mm, margin)
-            .map_err(SetpointRefusal::Kinematics)?;
-        corrected_rad(self.grid.as_ref(), tool_mm, theta)
-    }
-    #[inline(always)]
-    fn solve_joint(
-        &self,
-        slot: &mut JointSample<f32>,
-        setpoint: &MotionSetpoint<f32>,
-        margin: IkMargin<f32>,
-    ) -> Result<(), KinematicsError> {
-        slot.solve_valid(&self.model, setpoint, margin)
-    }
-    #[inline(always)]
-    fn corrected_rad(
-        &self,
-        tool_mm: [f32; 2],
-        theta_rad: [f32; 2],
-    ) -> Result<[f32; 2], SetpointRefusal> {
-        corrected_rad(self.grid.as_ref(), tool_mm, theta_rad)
     }
 }
 
@@ -675,7 +456,7 @@ pub struct AcceptedSetpoint<'s> {
     ahead: Option<usize>,
 }
 
-fn finite2(v: [f32; 2]) -> bool {
+pub(super) fn finite2(v: [f32; 2]) -> bool {
     v[0].is_finite() && v[1].is_finite()
 }
 
@@ -777,23 +558,7 @@ impl Servo {
         self.backlash_rad = [0.0; 2];
         self.axes = [AxisController::default(); 2];
         self.observers = [DisturbanceObserver::default(); 2];
-        if !finite2(encoder_rad) {
-            return Err(EngageError::NonFiniteFeedback);
-        }
-        let m = self.config.min_transmission;
-        // Undo the correction by one fixed-point step: p = FK(θ - δ(FK(θ))). The correction
-        // varies over millimetres, so the second pass is exact to well below a micrometre.
-        let mut tool = cal
-            .model
-            .forward(encoder_rad, 0.0)
-            .map_err(EngageError::Kinematics)?;
-        if let Some(grid) = &cal.grid {
-            let d = grid.correction_rad(tool).map_err(EngageError::Grid)?;
-            tool = cal
-                .model
-                .forward([encoder_rad[0] - d[0], encoder_rad[1] - d[1]], m)
-                .map_err(EngageError::Kinematics)?;
-        }
+        let tool = cal.tool_mm(encoder_rad, self.config.min_transmission)?;
         self.history = Some(History {
             setpoint_mm: tool,
             velocity_mm_s: [0.0; 2],
@@ -818,32 +583,23 @@ impl Servo {
 
     /// Checks `setpoint_mm` against the setpoint history (speed and acceleration limits), the
     /// kinematics (reach, singularity margin) and the grid, and returns it with the encoder
-    /// angles it commands. A refusal changes nothing.
+    /// angles it commands. A refusal changes nothing. With a [`ValidCalibration`] the IK skips
+    /// its per-call model check, margin floor and finiteness test (the jump check proves the
+    /// setpoint finite: the history's setpoint is, and a speed below a finite limit leaves the
+    /// new one finite; a non-finite one is refused there as [`SetpointRefusal::NonFinite`]).
+    #[inline(always)]
     pub fn accept(
         &mut self,
-        cal: &Calibration<'_>,
+        cal: &impl ServoCalibration,
         setpoint_mm: [f32; 2],
     ) -> Result<AcceptedSetpoint<'_>, SetpointRefusal> {
-        self.accept_with(cal, setpoint_mm)
-    }
-
-    /// [`Servo::accept`] with a calibration whose model was checked once: the same result,
-    /// without the IK's per-call model check and margin floor, and without its test that the
-    /// setpoint is finite (the jump check before it proves that: the history's setpoint is
-    /// finite and a speed below a finite limit leaves the new one finite; a non-finite one
-    /// is refused there as [`SetpointRefusal::NonFinite`]).
-    pub fn accept_valid(
-        &mut self,
-        cal: &ValidCalibration<'_>,
-        setpoint_mm: [f32; 2],
-    ) -> Result<AcceptedSetpoint<'_>, SetpointRefusal> {
-        self.accept_with(cal, setpoint_mm)
+        cal.accept(self, setpoint_mm)
     }
 
     #[inline(always)]
     fn accept_with(
         &mut self,
-        cal: &impl SampleModel,
+        cal: &impl ServoCalibration,
         setpoint_mm: [f32; 2],
     ) -> Result<AcceptedSetpoint<'_>, SetpointRefusal> {
         let (v, a) = self.check_sequence(setpoint_mm)?;
@@ -864,7 +620,7 @@ impl Servo {
     /// the speed NaN or infinite, which never passes the limit (at most `f32::MAX`): finiteness
     /// is told apart from a jump only on the way out. So a setpoint that passes is finite (the
     /// history's setpoint is: engage's FK result or a setpoint that passed), which the IK of
-    /// [`Servo::accept_valid`] relies on instead of testing it again.
+    /// [`Servo::accept`] with a [`ValidCalibration`] relies on instead of testing it again.
     #[inline]
     fn check_sequence(
         &self,
@@ -903,29 +659,20 @@ impl Servo {
     /// ([`crate::feed_forward`]); [`AcceptedSetpoint::velocity_mm_s`] and
     /// [`AcceptedSetpoint::accel_mm_s2`] stay the backward differences. A refusal changes
     /// nothing but the servo's scratch joint states.
+    #[inline(always)]
     pub fn accept_motion(
         &mut self,
-        cal: &Calibration<'_>,
+        cal: &impl ServoCalibration,
         setpoint: &MotionSetpoint<f32>,
         next: Option<&MotionSetpoint<f32>>,
     ) -> Result<AcceptedSetpoint<'_>, SetpointRefusal> {
-        self.accept_motion_with(cal, setpoint, next)
-    }
-
-    /// [`Servo::accept_motion`] with a calibration whose model was checked once.
-    pub fn accept_motion_valid(
-        &mut self,
-        cal: &ValidCalibration<'_>,
-        setpoint: &MotionSetpoint<f32>,
-        next: Option<&MotionSetpoint<f32>>,
-    ) -> Result<AcceptedSetpoint<'_>, SetpointRefusal> {
-        self.accept_motion_with(cal, setpoint, next)
+        cal.accept_motion(self, setpoint, next)
     }
 
     #[inline(always)]
     fn accept_motion_with(
         &mut self,
-        cal: &impl SampleModel,
+        cal: &impl ServoCalibration,
         setpoint: &MotionSetpoint<f32>,
         next: Option<&MotionSetpoint<f32>>,
     ) -> Result<AcceptedSetpoint<'_>, SetpointRefusal> {
@@ -989,61 +736,29 @@ impl Servo {
 
     /// One motion sample: [`Servo::accept_motion`] then [`AcceptedSetpoint::track`] (see
     /// [`Servo::step`] for what an `Err` means).
+    #[inline(always)]
     pub fn step_motion(
         &mut self,
-        cal: &Calibration<'_>,
+        cal: &impl ServoCalibration,
         setpoint: &MotionSetpoint<f32>,
         next: Option<&MotionSetpoint<f32>>,
         encoder_rad: [f32; 2],
     ) -> Result<ServoOutput, StepError> {
-        self.accept_motion(cal, setpoint, next)
-            .map_err(StepError::Refused)?
-            .track(encoder_rad)
-            .map_err(StepError::Fault)
-    }
-
-    /// [`Servo::step_motion`] with a calibration whose model was checked once.
-    pub fn step_motion_valid(
-        &mut self,
-        cal: &ValidCalibration<'_>,
-        setpoint: &MotionSetpoint<f32>,
-        next: Option<&MotionSetpoint<f32>>,
-        encoder_rad: [f32; 2],
-    ) -> Result<ServoOutput, StepError> {
-        self.accept_motion_valid(cal, setpoint, next)
-            .map_err(StepError::Refused)?
-            .track(encoder_rad)
-            .map_err(StepError::Fault)
+        cal.step_motion(self, setpoint, next, encoder_rad)
     }
 
     /// One sample: [`Servo::accept`] then [`AcceptedSetpoint::track`]. On
     /// `Err(StepError::Refused(_))` nothing changed (the caller may step again with another
     /// setpoint); on `Err(StepError::Fault(_))` the fault is latched. Either way this sample
     /// produced no torque: take both as zero unless another setpoint is stepped.
+    #[inline(always)]
     pub fn step(
         &mut self,
-        cal: &Calibration<'_>,
+        cal: &impl ServoCalibration,
         setpoint_mm: [f32; 2],
         encoder_rad: [f32; 2],
     ) -> Result<ServoOutput, StepError> {
-        self.accept(cal, setpoint_mm)
-            .map_err(StepError::Refused)?
-            .track(encoder_rad)
-            .map_err(StepError::Fault)
-    }
-
-    /// [`Servo::step`] with a calibration whose model was checked once (the firmware's path):
-    /// the same results, bit for bit, without the IK's per-call model check and margin floor.
-    pub fn step_valid(
-        &mut self,
-        cal: &ValidCalibration<'_>,
-        setpoint_mm: [f32; 2],
-        encoder_rad: [f32; 2],
-    ) -> Result<ServoOutput, StepError> {
-        self.accept_valid(cal, setpoint_mm)
-            .map_err(StepError::Refused)?
-            .track(encoder_rad)
-            .map_err(StepError::Fault)
+        cal.step(self, setpoint_mm, encoder_rad)
     }
 }
 
@@ -1093,7 +808,7 @@ impl AcceptedSetpoint<'_> {
             unwrap_near(self.command_rad[0], h.reference_rad[0]),
             unwrap_near(self.command_rad[1], h.reference_rad[1]),
         ];
-        // Backlash (issue 13): the motor leads the link reference by the play operator of the
+        // Backlash: the motor leads the link reference by the play operator of the
         // link reference's increments (`crate::backlash`: continuous, never a step of the gap).
         if let Some(b) = &servo.backlash {
             let last = servo.backlash_rad;
