@@ -19,6 +19,7 @@
 //! | [`numeric`] | the one Levenberg–Marquardt, finite differences, column-scaled SVD, max/RMS |
 //! | [`link`] | the controller's host link: client, streamed motion, calibration upload, telemetry |
 //! | [`cosim`] | the production firmware under QEMU driving the plant in lockstep (co-simulation) |
+//! | [`commission`] | the machine builder's whole journey through the controller, in one call |
 //! | [`session`] | a measurement session through the controller: a plan's list visited, settled, read |
 //! | [`io`] | file formats (measurement CSV, model file, targets, plots) and atomic output |
 //!
@@ -38,6 +39,7 @@
 )]
 
 pub mod calib;
+pub mod commission;
 pub mod cosim;
 pub mod diagnose;
 pub mod effect;

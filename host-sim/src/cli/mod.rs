@@ -7,6 +7,7 @@
 
 mod accuracy;
 mod command;
+mod commission;
 mod demo;
 mod diagnose;
 mod fit;
@@ -72,6 +73,10 @@ enum Tool {
     /// A measurement session through the controller: a plan's list visited with its approach,
     /// each point settled and read (typed in, or the tracker's export joined later by import).
     Session(session::Args),
+    /// The machine builder's whole journey through the controller (co-simulated with --qemu,
+    /// or one you started: --tcp, --serial): identify, home, plan, measure, fit, grid, upload,
+    /// verify; a table per step on stderr, the report as JSON.
+    Commission(commission::Args),
 }
 
 /// Runs a parsed command line.
@@ -90,6 +95,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Tool::Demo(a) => demo::run(&a),
         Tool::Link(a) => link::run(&a),
         Tool::Session(a) => session::run(&a),
+        Tool::Commission(a) => commission::run(&a),
     }
 }
 

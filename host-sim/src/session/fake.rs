@@ -193,4 +193,8 @@ impl Rig for FakeRig {
             self.machine.plant.instrument.read_mm(self.tool_mm),
         ))
     }
+
+    fn truth_mm(&self) -> Option<[f64; 2]> {
+        Some(self.machine.plant.instrument.frame_mm(self.tool_mm))
+    }
 }

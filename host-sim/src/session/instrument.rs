@@ -13,6 +13,11 @@ pub trait Instrument {
     fn describe(&self) -> String;
     /// The reading at `point`.
     fn read(&mut self, point: &PointRequest) -> Result<Reading, SessionError>;
+    /// Where the tool really was at the last reading, as a noiseless instrument would read it:
+    /// known in simulation only.
+    fn last_truth_mm(&self) -> Option<[f64; 2]> {
+        None
+    }
 }
 
 /// No reading now: the tracker's export is joined later by `import` (the session writes the

@@ -132,7 +132,8 @@ impl<S: Read + Write> Rig for LinkRig<'_, S> {
                     Duration::from_secs_f64(self.wall_timeout_s),
                 )));
             }
-            self.client.listen(Duration::from_millis(5))?;
+            // The next status request is the wait: its round trip (in co-simulation, the
+            // simulation advancing until the answer comes), so a run is the same every time.
             last = self.client.status()?;
         }
     }
@@ -147,7 +148,14 @@ impl<S: Read + Write> Rig for LinkRig<'_, S> {
         self.samples.clear();
         let start = Instant::now();
         loop {
-            self.client.listen(Duration::from_millis(20))?;
+            // A status request advances time (the telemetry arriving meanwhile is kept) and
+            // reports a fault at once.
+            let s = self.client.status()?;
+            if let Some(f) = s.fault {
+                return Err(SessionError::NotReady(format!(
+                    "the controller faulted: {f:?}"
+                )));
+            }
             let new: Vec<ServoSample> = self
                 .client
                 .take_telemetry()
@@ -185,6 +193,10 @@ impl<S: Read + Write> Rig for LinkRig<'_, S> {
 
     fn read(&mut self, point: &PointRequest) -> Result<Reading, SessionError> {
         self.instrument.read(point)
+    }
+
+    fn truth_mm(&self) -> Option<[f64; 2]> {
+        self.instrument.last_truth_mm()
     }
 
     fn finish(&mut self) -> Result<(), SessionError> {

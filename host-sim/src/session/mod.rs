@@ -144,6 +144,11 @@ pub trait Rig {
     fn settle(&mut self, from_s: f64, c: &SettleCriterion) -> Result<Settled, SessionError>;
     /// The instrument's reading at a settled point.
     fn read(&mut self, point: &PointRequest) -> Result<Reading, SessionError>;
+    /// Where the tool really was at the last reading, as a noiseless instrument would read it
+    /// (the instrument's frame): known in simulation only.
+    fn truth_mm(&self) -> Option<[f64; 2]> {
+        None
+    }
     /// The session is over (telemetry off).
     fn finish(&mut self) -> Result<(), SessionError> {
         Ok(())
@@ -195,6 +200,9 @@ pub struct SessionPoint {
     pub dir: [i8; 2],
     /// The instrument's reading (mm, its frame); `None`: missing or deferred.
     pub reading_mm: Option<[f64; 2]>,
+    /// Where the tool really was, as a noiseless instrument would read it (simulation only).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub true_mm: Option<[f64; 2]>,
 }
 
 /// What a session did.
@@ -436,6 +444,7 @@ pub fn run(
                 None
             }
         };
+        let true_mm = reading_mm.and(rig.truth_mm());
         points.push(SessionPoint {
             id: id.clone(),
             listed_mm: v.target_mm,
@@ -443,6 +452,7 @@ pub fn run(
             settled,
             dir,
             reading_mm,
+            true_mm,
         });
         if let Some((k, d)) = worst_misfit(&points, spec) {
             if d > o.plausible_mm {
