@@ -9,10 +9,12 @@
 //! | module | what |
 //! |---|---|
 //! | [`machine_spec`] | the machine's constants, once: nominal model, workspace, grid lattice, servo rate |
+//! | [`gantry_spec`] | the gantry that carries the micro on a redundant machine (`[gantry]`) |
 //! | [`effect`] | the names of the physical effects, shared by the plant and the diagnosis |
 //! | [`plant`] | the simulated six-bar with its imperfections (the "real machine") |
 //! | [`loop_closure`] | the six-bar's loop closure linearised about a nominal five-bar (diagnosis and grid prior) |
 //! | [`sim`] | trajectories and the closed 2 kHz loop |
+//! | [`cut`] | the redundant machine cuts a part program: G-code, split planner, bound, execution |
 //! | [`calib`] | protocols, the one measurement path, fits, grid, command, accuracy, the demo pipeline |
 //! | [`diagnose`] | where model and measurements disagree, and which effect is missing |
 //! | [`synth`] | measurements of machines with hidden effects, shared by the diagnosis' tests and studies |
@@ -41,8 +43,10 @@
 pub mod calib;
 pub mod commission;
 pub mod cosim;
+pub mod cut;
 pub mod diagnose;
 pub mod effect;
+pub mod gantry_spec;
 pub mod io;
 pub mod link;
 pub mod loop_closure;

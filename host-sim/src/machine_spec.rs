@@ -14,6 +14,7 @@
 //! the "real machine" a calibration is tested against, whose errors the tools must not know) and
 //! each tool's own settings (options structs).
 
+pub use crate::gantry_spec::GantrySpec;
 use kinematics_core::grid::{GridGeometry, WorkspaceLimits};
 use kinematics_core::machine::record::{
     DEFAULT_DYNAMICS_FACTOR, DEFAULT_MAX_BACKLASH_RAD, DEFAULT_MAX_CORRECTION_SLOPE,
@@ -322,6 +323,9 @@ pub struct MachineSpec {
     pub max_acceleration_g: f64,
     /// Home position and the limits a calibration image is judged against.
     pub controller: ControllerSpec,
+    /// The gantry that carries the micro on a redundant machine (`[gantry]`, optional in the
+    /// machine file; `host-sim cut`).
+    pub gantry: GantrySpec,
 }
 
 impl MachineSpec {
@@ -351,6 +355,7 @@ impl MachineSpec {
             approach_mm: 5.0,
             max_acceleration_g: 5.0,
             controller: ControllerSpec::defaults(paper::HOME_MM, paper::nominal_dynamics()),
+            gantry: GantrySpec::paper(),
         }
     }
 
@@ -503,6 +508,7 @@ impl MachineSpec {
         }
         ws.limits()?;
         self.record()?;
+        self.gantry.validate()?;
         Ok(())
     }
 }

@@ -11,8 +11,9 @@
 //!   run with the firmware's failure line.
 //! * QEMU never outlives the co-simulation: killed when dropped (also on a panic), and it ends
 //!   by itself when the host's pipes close.
-//! * Bad input: a missing firmware file, an ELF without co-simulation, a region without an
-//!   image (the drives never enable and homing is refused).
+//! * Bad input: a firmware file that is not there (named, or by `HOST_SIM_FIRMWARE`), no QEMU,
+//!   an ELF without co-simulation, a region without an image (the drives never enable and
+//!   homing is refused), a power-on pose outside the workspace, an image larger than the region.
 //!
 //! Needs qemu-system-arm and the thumbv7em-none-eabihf target (`bash tests/run-all.sh`
 //! installs both). The firmware is built into `target/system-tests` as the other QEMU tests do.
@@ -105,8 +106,9 @@ struct Run {
 
 /// Boot, home, move, stream, each checked against the plant's truth. `pause`: the host stops
 /// for this long (wall time) between the steps, with the firmware waiting in its exchange.
-fn journey(elf: &Path, pause: Duration) -> Run {
-    let opts = options(elf);
+fn journey(elf: &Path, pause: Duration, exchange_log: &Path) -> Run {
+    let mut opts = options(elf);
+    opts.exchange_log = Some(exchange_log.to_path_buf());
     let image_id = calibration_image_id(&opts.image);
     let mut sim = CoSim::start(&opts).unwrap();
     let mut link = sim.link(TIMEOUT).unwrap();
@@ -219,10 +221,12 @@ fn journey(elf: &Path, pause: Duration) -> Run {
 #[test]
 fn the_firmware_homes_moves_and_streams_on_the_plant_deterministically() {
     let elf = firmware();
-    let a = journey(&elf, Duration::ZERO);
+    let dir = tempfile::tempdir().unwrap();
+    let (log_a, log_b) = (dir.path().join("a.bin"), dir.path().join("b.bin"));
+    let a = journey(&elf, Duration::ZERO, &log_a);
     // The second run pauses 50 ms between steps: far beyond the watchdog's 3 ms, which would
     // fire if virtual time ran on while the firmware waits for the host.
-    let b = journey(&elf, Duration::from_millis(50));
+    let b = journey(&elf, Duration::from_millis(50), &log_b);
     let s = &a.stats;
     eprintln!(
         "co-simulation: {}{} samples ({:.2} s simulated) in {:.2} s wall ({:.2} simulated s per \
@@ -243,6 +247,12 @@ fn the_firmware_homes_moves_and_streams_on_the_plant_deterministically() {
     );
     // Deterministic, whatever the host's pace: the same bytes both ways, the same telemetry,
     // the same plant.
+    let (bytes_a, bytes_b) = (
+        std::fs::read(&log_a).unwrap(),
+        std::fs::read(&log_b).unwrap(),
+    );
+    assert_eq!(bytes_a.len() as u64, a.stats.exchange_bytes);
+    assert!(bytes_a == bytes_b, "the exchange logs differ");
     assert_eq!(a.stats.exchange_digest, b.stats.exchange_digest);
     assert_eq!(a.stats.exchange_bytes, b.stats.exchange_bytes);
     assert_eq!(a.stats.link_digest, b.stats.link_digest);
@@ -280,6 +290,8 @@ fn handshake(elf: &Path) -> Qemu {
         counts_per_rev: [1 << 22; 2],
         gear_ratio: [1.0; 2],
         sign: [Sign::Normal; 2],
+        index_rad: [1.4, -1.4],
+        max_travel_rad: [1.35, 1.35],
         home_at_boot: false,
     })
     .encode(&mut down)
@@ -370,6 +382,23 @@ fn bad_firmware_or_image_is_a_clear_error_and_never_moves_the_machine() {
         e.contains("/nonexistent/firmware.elf") && e.contains("cargo build"),
         "{e}"
     );
+
+    // Nor through the environment (the other tests name their firmware, which comes first).
+    let mut opts = options(&elf);
+    opts.firmware = None;
+    std::env::set_var("HOST_SIM_FIRMWARE", "/nonexistent/env-firmware.elf");
+    let e = CoSim::start(&opts).err().expect("refused").to_string();
+    std::env::remove_var("HOST_SIM_FIRMWARE");
+    assert!(
+        e.contains("HOST_SIM_FIRMWARE") && e.contains("env-firmware.elf"),
+        "{e}"
+    );
+
+    // No QEMU.
+    let mut opts = options(&elf);
+    opts.qemu = "/nonexistent/qemu-system-arm".into();
+    let e = CoSim::start(&opts).err().expect("refused").to_string();
+    assert!(e.contains("apt-get install qemu-system-arm"), "{e}");
 
     // An ELF that never opens the exchange (the same-core test's golden binary): QEMU ends and
     // the error carries its console.

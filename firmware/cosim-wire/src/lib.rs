@@ -41,7 +41,7 @@ pub const LINK_RX_PIPE: &str = "cosim-link-rx";
 /// The word on the semihosting command line that selects co-simulation (`firmware cosim`).
 pub const COMMAND_WORD: &str = "cosim";
 /// Exchange format version, in every up frame's header and in [`Config`].
-pub const VERSION: u16 = 2;
+pub const VERSION: u16 = 3;
 
 /// Host-link bytes the host sends per sample at most (16 Mbit/s at 2 kHz: the link is not the
 /// bottleneck unless the host asks for a real UART's rate).
@@ -54,13 +54,13 @@ pub const MAX_LINK_TX: usize = 256;
 /// Header of an up frame: tag, body length, version.
 pub const UP_HEADER_LEN: usize = 8;
 /// Body of [`Hello`].
-pub const HELLO_LEN: usize = 16;
+pub const HELLO_LEN: usize = 8;
 /// Body of [`UpSample`].
 pub const UP_SAMPLE_LEN: usize = 28;
 /// Longest up frame.
 pub const MAX_UP_LEN: usize = UP_HEADER_LEN + MAX_LINK_TX;
 /// Every down frame's length.
-pub const DOWN_LEN: usize = 32;
+pub const DOWN_LEN: usize = 48;
 
 /// Up: the firmware booted (once per boot, before its first sample).
 pub const TAG_HELLO: [u8; 4] = *b"HELO";
@@ -126,16 +126,13 @@ fn header(out: &mut [u8], tag: [u8; 4], body_len: usize) {
     put_u16(out, 6, VERSION);
 }
 
-/// What the firmware tells the host at boot: what its drives and homing expect of the machine.
+/// What the firmware tells the host at boot: how its drives' PWM maps to torque.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Hello {
     /// PWM full-scale duty (the duty of +full scale torque; half of it is zero torque).
     pub pwm_max_duty: u16,
     /// The drives' torque at 0 % / 100 % duty (N·m), `Settings::drive_full_scale_nm`.
     pub drive_full_scale_nm: f32,
-    /// Encoder angle of each axis's index mark (rad), `HomingSettings::index_rad`: where the
-    /// machine's marks are.
-    pub index_rad: [f32; 2],
 }
 
 /// One sample, firmware to host.
@@ -180,8 +177,6 @@ impl Hello {
         put_u16(out, b, self.pwm_max_duty);
         put_u16(out, b + 2, 0);
         put_u32(out, b + 4, self.drive_full_scale_nm.to_bits());
-        put_u32(out, b + 8, self.index_rad[0].to_bits());
-        put_u32(out, b + 12, self.index_rad[1].to_bits());
         Ok(n)
     }
 }
@@ -252,7 +247,6 @@ pub fn decode_up(frame: &[u8]) -> Result<Up<'_>, WireError> {
         TAG_HELLO => Up::Hello(Hello {
             pwm_max_duty: u16_at(body, 0),
             drive_full_scale_nm: f32_at(body, 4),
-            index_rad: [f32_at(body, 8), f32_at(body, 12)],
         }),
         TAG_SAMPLE => Up::Sample(UpSample {
             sample: u32_at(body, 0),
@@ -277,8 +271,8 @@ pub enum Sign {
 }
 
 /// The board's configuration from the host, in answer to [`Hello`]: the encoders fitted to the
-/// simulated machine (the settings a machine builder enters for the motors fitted) and whether
-/// to home at boot.
+/// simulated machine and where their index marks are (the settings a machine builder enters
+/// for the motors fitted, the marks measured in a jig), and whether to home at boot.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Config {
     /// Counts per motor revolution after quadrature decoding, per axis.
@@ -287,6 +281,10 @@ pub struct Config {
     pub gear_ratio: [f32; 2],
     /// Counting direction, per axis.
     pub sign: [Sign; 2],
+    /// Encoder angle of each axis's index mark (rad, `HomingSettings::index_rad`).
+    pub index_rad: [f32; 2],
+    /// Longest index search per axis (rad, `HomingSettings::max_travel_rad`).
+    pub max_travel_rad: [f32; 2],
     /// Home at boot (`HomingSettings::at_boot`); otherwise the host link's Home starts it.
     pub home_at_boot: bool,
 }
@@ -340,6 +338,10 @@ impl Down {
                 put_u32(out, 20, c.gear_ratio[1].to_bits());
                 out[24] = sign_byte(c.sign[0]);
                 out[25] = sign_byte(c.sign[1]);
+                put_u32(out, 28, c.index_rad[0].to_bits());
+                put_u32(out, 32, c.index_rad[1].to_bits());
+                put_u32(out, 36, c.max_travel_rad[0].to_bits());
+                put_u32(out, 40, c.max_travel_rad[1].to_bits());
             }
             Down::Sample(s) => {
                 if usize::from(s.rx_len) > MAX_LINK_RX_PER_SAMPLE {
@@ -380,6 +382,8 @@ pub fn decode_down(frame: &[u8]) -> Result<Down, WireError> {
                 counts_per_rev: [u32_at(b, 8), u32_at(b, 12)],
                 gear_ratio: [f32_at(b, 16), f32_at(b, 20)],
                 sign: [sign(b[24]), sign(b[25])],
+                index_rad: [f32_at(b, 28), f32_at(b, 32)],
+                max_travel_rad: [f32_at(b, 36), f32_at(b, 40)],
             }))
         }
         TAG_PLANT => {
@@ -410,7 +414,6 @@ mod tests {
         let hello = Hello {
             pwm_max_duty: 4250,
             drive_full_scale_nm: 10.0,
-            index_rad: [1.4, -1.4],
         };
         let n = hello.encode(&mut buf).unwrap();
         assert_eq!(up_body_len(&buf[..UP_HEADER_LEN]), Ok(n - UP_HEADER_LEN));
@@ -480,6 +483,8 @@ mod tests {
             counts_per_rev: [1 << 20, 1 << 22],
             gear_ratio: [10.0, 1.0],
             sign: [Sign::Normal, Sign::Reversed],
+            index_rad: [1.4, -1.4],
+            max_travel_rad: [1.35, 1.25],
             home_at_boot: true,
         };
         Down::Config(config).encode(&mut buf).unwrap();

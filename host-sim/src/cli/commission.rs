@@ -130,7 +130,7 @@ pub fn run(args: &Args) -> Result<()> {
             "commission: starting the co-simulated controller (firmware under QEMU, plant '{}')",
             args.plant
         );
-        let sim = CoSim::start(&co).context("starting the co-simulation")?;
+        let mut sim = CoSim::start(&co).context("starting the co-simulation")?;
         let done = {
             let mut client = sim.link(Duration::from_secs(120))?;
             let mut instrument = CoSimInstrument::new(&sim, &plant);

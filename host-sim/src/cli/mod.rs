@@ -8,6 +8,7 @@
 mod accuracy;
 mod command;
 mod commission;
+mod cut;
 mod demo;
 mod diagnose;
 mod fit;
@@ -68,6 +69,10 @@ enum Tool {
     Diagnose(diagnose::Args),
     /// The whole calibration on a built-in simulated machine: measure, fit, grid, verify.
     Demo(demo::Args),
+    /// Cut a part program (G-code) with the gantry and the micro together: the split plan, the
+    /// gantry-alone time, a lower bound, executed in simulation (table on stderr, JSON on stdout,
+    /// plots and executed trajectories with --out DIR).
+    Cut(cut::Args),
     /// Talk to a controller over its host link (QEMU: --tcp; the real board: --serial): identify, home, move, stream, upload...
     Link(link::Args),
     /// A measurement session through the controller: a plan's list visited with its approach,
@@ -96,6 +101,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Tool::Link(a) => link::run(&a),
         Tool::Session(a) => session::run(&a),
         Tool::Commission(a) => commission::run(&a),
+        Tool::Cut(a) => cut::run_cut(&a),
     }
 }
 

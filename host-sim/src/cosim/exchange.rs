@@ -12,9 +12,9 @@
 //!   × gear ratio; a plant without quantisation gets the firmware's default, 2^22 counts per
 //!   joint revolution), counting up for a positive joint angle, reading 0 where the machine
 //!   stood when the controller booted.
-//! * **Index marks**: one per axis at the encoder angle the firmware's homing settings name
-//!   (the machine is built to its drawing); crossing it in a period reports the counter's value
-//!   at the mark.
+//! * **Index marks**: one per axis, at the encoder angle the configuration tells the firmware
+//!   ([`HomingMarks`]: beyond the joint's range over the workspace in its search direction);
+//!   crossing it in a period reports the counter's value at the mark.
 //!
 //! Checks: every sample must be the next one (its index from the firmware against the host's
 //! count), and consecutive samples one servo period apart on the firmware's own clock; a boot
@@ -31,6 +31,7 @@ use cosim_wire::{
 
 use super::qemu::Qemu;
 use super::CoSimError;
+use crate::machine_spec::MachineSpec;
 use crate::plant::Plant;
 use crate::sim::closed_loop::SUBSTEPS;
 
@@ -110,6 +111,61 @@ impl EncoderPlan {
     }
 }
 
+/// The machine's index marks as the co-simulation builds it, and the search travel the firmware
+/// is configured with (its search directions are the production default: joint 1 positive,
+/// joint 2 negative).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct HomingMarks {
+    /// Encoder angle of each axis's mark (rad).
+    pub index_rad: [f64; 2],
+    /// Longest search per axis (rad).
+    pub max_travel_rad: [f64; 2],
+}
+
+/// Beyond the joint's range over the workspace: where a mark goes (rad).
+pub const MARK_MARGIN_RAD: f64 = 0.03;
+/// Search travel beyond the range and the margin (rad).
+pub const TRAVEL_MARGIN_RAD: f64 = 0.1;
+
+impl HomingMarks {
+    /// The marks of `spec`'s machine: each joint's range of encoder angles over the rectangle
+    /// of its correction grid (the nominal model on a 61×61 lattice: the rectangle the
+    /// firmware's homing plan check starts from), the mark [`MARK_MARGIN_RAD`] beyond it in the
+    /// search direction (above joint 1's, below joint 2's), the travel the whole range, the
+    /// margin and [`TRAVEL_MARGIN_RAD`], so that a search from anywhere in the rectangle finds
+    /// its mark. On the paper machine: 1.396 and −1.396 rad, beside the firmware's defaults
+    /// (1.40, −1.40).
+    pub fn of(spec: &MachineSpec) -> Result<Self, CoSimError> {
+        let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
+        let g = &spec.grid;
+        let far = g.far_corner_mm();
+        let n = 60;
+        for i in 0..=n {
+            for j in 0..=n {
+                let p = [
+                    g.x0_mm + (far[0] - g.x0_mm) * f64::from(i) / f64::from(n),
+                    g.y0_mm + (far[1] - g.y0_mm) * f64::from(j) / f64::from(n),
+                ];
+                let a = spec.nominal.inverse(p, 0.0).map_err(|e| {
+                    CoSimError::Invalid(format!(
+                        "machine '{}': ({:.3}, {:.3}) mm of its grid: {e}",
+                        spec.name, p[0], p[1]
+                    ))
+                })?;
+                for k in 0..2 {
+                    lo[k] = lo[k].min(a[k]);
+                    hi[k] = hi[k].max(a[k]);
+                }
+            }
+        }
+        let travel = [0, 1].map(|k| hi[k] - lo[k] + MARK_MARGIN_RAD + TRAVEL_MARGIN_RAD);
+        Ok(HomingMarks {
+            index_rad: [hi[0] + MARK_MARGIN_RAD, lo[1] - MARK_MARGIN_RAD],
+            max_travel_rad: travel,
+        })
+    }
+}
+
 /// What the exchange counted.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Counters {
@@ -170,6 +226,8 @@ pub struct Engine {
 pub struct EngineConfig {
     pub period_s: f64,
     pub home_at_boot: bool,
+    /// Where the index marks are and how far the firmware searches for them.
+    pub marks: HomingMarks,
     /// At most [`MAX_LINK_RX_PER_SAMPLE`].
     pub link_bytes_per_sample: usize,
     pub dynamic_brake_nm_s_per_rad: f64,
@@ -199,7 +257,6 @@ impl Engine {
             hello: Hello {
                 pwm_max_duty: 0,
                 drive_full_scale_nm: 0.0,
-                index_rad: [0.0; 2],
             },
             count_zero: [0; 2],
             sample: 0,
@@ -267,8 +324,7 @@ impl Engine {
     fn boot(&mut self, hello: Hello) -> Result<(), CoSimError> {
         if !(hello.pwm_max_duty >= 2
             && hello.drive_full_scale_nm.is_finite()
-            && hello.drive_full_scale_nm > 0.0
-            && hello.index_rad.iter().all(|v| v.is_finite()))
+            && hello.drive_full_scale_nm > 0.0)
         {
             return Err(CoSimError::Protocol(format!(
                 "the firmware's hello is not a drive configuration: {hello:?}"
@@ -287,6 +343,8 @@ impl Engine {
             counts_per_rev: e.counts_per_rev,
             gear_ratio: e.gear_ratio.map(|g| g as f32),
             sign: [Sign::Normal; 2],
+            index_rad: self.config.marks.index_rad.map(|v| v as f32),
+            max_travel_rad: self.config.marks.max_travel_rad.map(|v| v as f32),
             home_at_boot: self.config.home_at_boot,
         })
         .encode(&mut self.down)
@@ -342,7 +400,7 @@ impl Engine {
         // The encoders.
         let counts = [0, 1].map(|k| (self.count(k) - self.count_zero[k]) as i32);
         let index_counts = [0, 1].map(|k| {
-            let mark = f64::from(self.hello.index_rad[k]);
+            let mark = self.config.marks.index_rad[k];
             let after = self.plant.drives[k].encoder_continuous_rad();
             let crossed = before[k] != after && (before[k] - mark) * (after - mark) <= 0.0;
             let at_mark = (mark / self.encoders.step_rad[k]).round() as i64;
@@ -444,6 +502,30 @@ mod tests {
         let mut d = Digest::new();
         d.add(b"a");
         assert_eq!(d.0, 0xaf63_dc4c_8601_ec8c);
+    }
+
+    #[test]
+    fn the_paper_machines_marks_are_the_firmwares_defaults_and_every_machine_gets_its_own() {
+        let paper = HomingMarks::of(&MachineSpec::paper()).unwrap();
+        eprintln!("paper: {paper:?}");
+        assert!((paper.index_rad[0] - 1.40).abs() < 0.005, "{paper:?}");
+        assert!((paper.index_rad[1] + 1.40).abs() < 0.005, "{paper:?}");
+        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+        let second =
+            crate::io::machine_file::read_machine(&root.join("machines/second.toml")).unwrap();
+        let marks = HomingMarks::of(&second).unwrap();
+        eprintln!("second: {marks:?}");
+        // Beyond every pose of the workspace in the search direction, within the travel.
+        let c = second
+            .nominal
+            .inverse(second.workspace.centre_mm(), 0.0)
+            .unwrap();
+        assert!(
+            marks.index_rad[0] > c[0] && marks.index_rad[1] < c[1],
+            "{marks:?}"
+        );
+        assert!(marks.index_rad[0] - c[0] < marks.max_travel_rad[0]);
+        assert!(c[1] - marks.index_rad[1] < marks.max_travel_rad[1]);
     }
 
     #[test]

@@ -27,7 +27,6 @@
 //! QEMU is [`qemu`]; the link transport is [`transport`].
 
 pub mod exchange;
-pub mod image;
 pub mod qemu;
 pub mod transport;
 
@@ -42,8 +41,17 @@ use crate::machine_spec::MachineSpec;
 use crate::plant::{Plant, PlantConfig, PlantError};
 use exchange::{Engine, EngineConfig};
 
-pub use image::commissioning_image;
 pub use transport::CoSimLink;
+
+/// The calibration a machine starts with, for [`CoSimOptions::image`]: `spec`'s commissioning
+/// image (`calib::image::commissioning_image`: the nominal model, zero corrections, the
+/// workspace block and the machine record; `host-sim grid --nominal`). The controller then
+/// commands the nominal model, as a newly built machine's does before its first calibration.
+pub fn commissioning_image(spec: &MachineSpec) -> Result<Vec<u8>, CoSimError> {
+    crate::calib::image::commissioning_image(spec)
+        .map(|checked| checked.bytes)
+        .map_err(|e| CoSimError::Invalid(format!("machine '{}': {e}", spec.name)))
+}
 
 /// Why a co-simulation cannot start or go on.
 #[derive(Debug, thiserror::Error)]
@@ -226,6 +234,8 @@ pub struct CoSim {
     period_s: f64,
     link_read_limit_samples: u64,
     started: Instant,
+    /// Link clients made so far.
+    clients: u16,
 }
 
 /// Locks the engine; a panic elsewhere does not make the state unusable for a report.
@@ -259,6 +269,7 @@ impl CoSim {
         let config = EngineConfig {
             period_s: spec.sample_period_s,
             home_at_boot: opts.home_at_boot,
+            marks: exchange::HomingMarks::of(spec)?,
             link_bytes_per_sample: opts.link_bytes_per_sample,
             dynamic_brake_nm_s_per_rad: opts.dynamic_brake_nm_s_per_rad,
             frame_timeout: opts.frame_timeout,
@@ -269,17 +280,24 @@ impl CoSim {
             period_s: spec.sample_period_s,
             link_read_limit_samples: (opts.link_read_limit_s / spec.sample_period_s).ceil() as u64,
             started: Instant::now(),
+            clients: 0,
         })
     }
 
     /// A link client over the exchange; `timeout` bounds each request in wall time (the
     /// simulation advances meanwhile: a silent controller is reported after
     /// [`CoSimOptions::link_read_limit_s`] of simulated time per read, then at `timeout`).
-    pub fn link(&self, timeout: Duration) -> Result<LinkClient<CoSimLink>, ClientError> {
-        LinkClient::new(
+    /// Each client numbers its requests from its own deterministic start (clients made in the
+    /// same order get the same numbers in every run). The client shares the co-simulation:
+    /// QEMU ends when the `CoSim` and every client made from it are gone.
+    pub fn link(&mut self, timeout: Duration) -> Result<LinkClient<CoSimLink>, ClientError> {
+        self.clients = self.clients.wrapping_add(1);
+        let first = self.clients.wrapping_mul(0x4000).wrapping_add(1);
+        Ok(LinkClient::new(
             CoSimLink::new(self.engine.clone(), self.link_read_limit_samples),
             timeout,
-        )
+        )?
+        .with_sequence(first))
     }
 
     /// Runs `seconds` of simulated time (whole samples, rounded to the nearest).

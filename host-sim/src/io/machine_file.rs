@@ -12,7 +12,7 @@
 
 use super::{read_text, IoError};
 use crate::machine_spec::{
-    Approach, BranchKey, ControllerSpec, GridLattice, MachineSpec, Workspace,
+    Approach, BranchKey, ControllerSpec, GantrySpec, GridLattice, MachineSpec, Workspace,
 };
 use kinematics_core::{FiveBar, FiveBarDynamics, WorkingMode};
 use serde::Deserialize;
@@ -41,6 +41,9 @@ struct MachineFile {
     instrument: Instrument,
     approach: ApproachKeys,
     servo: Servo,
+    /// Optional: the paper's gantry when absent (`GantrySpec::paper`).
+    #[serde(default)]
+    gantry: GantryKeys,
     /// Optional: home and the limits an image is judged against (defaults in MACHINE.md).
     #[serde(default)]
     controller: ControllerKeys,
@@ -68,6 +71,50 @@ struct NominalDynamics {
     viscous_nm_s_per_rad: [f64; 2],
     coulomb_nm: [f64; 2],
     coulomb_speed_rad_s: f64,
+}
+
+/// `[gantry]`: every key optional, the paper gantry's value when absent.
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct GantryKeys {
+    travel_x_mm: Option<[f64; 2]>,
+    travel_y_mm: Option<[f64; 2]>,
+    home_mm: Option<[f64; 2]>,
+    speed_mm_s: Option<f64>,
+    accel_g: Option<f64>,
+    jerk_mm_s3: Option<f64>,
+    bandwidth_hz: Option<f64>,
+    moving_mass_kg: Option<[f64; 2]>,
+    friction_n: Option<[f64; 2]>,
+    feedforward_mass_error_pct: Option<f64>,
+    scale_resolution_um: Option<f64>,
+    micro_margin_mm: Option<f64>,
+    micro_joint_speed_rad_s: Option<f64>,
+}
+
+impl GantryKeys {
+    fn into_spec(self) -> GantrySpec {
+        let d = GantrySpec::paper();
+        GantrySpec {
+            travel_x_mm: self.travel_x_mm.unwrap_or(d.travel_x_mm),
+            travel_y_mm: self.travel_y_mm.unwrap_or(d.travel_y_mm),
+            home_mm: self.home_mm.unwrap_or(d.home_mm),
+            speed_mm_s: self.speed_mm_s.unwrap_or(d.speed_mm_s),
+            accel_g: self.accel_g.unwrap_or(d.accel_g),
+            jerk_mm_s3: self.jerk_mm_s3.unwrap_or(d.jerk_mm_s3),
+            bandwidth_hz: self.bandwidth_hz.unwrap_or(d.bandwidth_hz),
+            moving_mass_kg: self.moving_mass_kg.unwrap_or(d.moving_mass_kg),
+            friction_n: self.friction_n.unwrap_or(d.friction_n),
+            feedforward_mass_error_pct: self
+                .feedforward_mass_error_pct
+                .unwrap_or(d.feedforward_mass_error_pct),
+            scale_resolution_um: self.scale_resolution_um.unwrap_or(d.scale_resolution_um),
+            micro_margin_mm: self.micro_margin_mm.unwrap_or(d.micro_margin_mm),
+            micro_joint_speed_rad_s: self
+                .micro_joint_speed_rad_s
+                .unwrap_or(d.micro_joint_speed_rad_s),
+        }
+    }
 }
 
 #[derive(Debug, Deserialize)]
@@ -274,6 +321,7 @@ impl MachineFile {
             approach_mm: self.approach.distance_mm,
             max_acceleration_g: self.servo.max_acceleration_g,
             controller,
+            gantry: self.gantry.into_spec(),
         };
         spec.validate()?;
         Ok(spec)
@@ -351,6 +399,8 @@ mod tests {
             "distance_mm = 0.0",
             "approach.distance_mm",
         );
+        refused("accel_g = 1.0", "accel_g = -1.0", "gantry.accel_g");
+        refused("accel_g = 1.0", "acel_g = 1.0", "acel_g");
         // The grid must cover the workspace, every node be reachable.
         refused(
             "[grid]\nx_mm = [162.132, 262.132]",
@@ -383,7 +433,7 @@ mod tests {
         let doc = include_str!("../../MACHINE.md");
         let mut all = keys(PAPER_TOML);
         all.extend(keys(include_str!("../../machines/second.toml")));
-        assert!(all.len() >= 39, "{all:?}");
+        assert!(all.len() >= 52, "{all:?}");
         for key in &all {
             // A row of the key table: "| `key` | unit | ..." (x_mm and y_mm share a row).
             let row = doc
@@ -391,9 +441,11 @@ mod tests {
                 .find(|l| l.starts_with('|') && l.contains(&format!("`{key}`")));
             let row = row.unwrap_or_else(|| panic!("MACHINE.md does not document '{key}'"));
             let unit = row.split('|').nth(2).unwrap().trim();
-            // Longest suffixes first: `_rad_s` is not `_s`, `_kg_m2` not `_m2`.
+            // Longest suffixes first: `_rad_s` is not `_s`, `_kg_m2` not `_m2`, `_mm_s` not `_s`.
             let units = [
                 ("_nm_s_per_rad", "N·m·s/rad"),
+                ("_mm_s3", "mm/s³"),
+                ("_mm_s", "mm/s"),
                 ("_rad_s", "rad/s"),
                 ("_kg_m2", "kg·m²"),
                 ("_kg", "kg"),
@@ -403,6 +455,9 @@ mod tests {
                 ("_um", "µm"),
                 ("_deg", "°"),
                 ("_s", "s"),
+                ("_hz", "Hz"),
+                ("_n", "N"),
+                ("_pct", "%"),
             ];
             let want = units.iter().find(|(u, _)| key.ends_with(*u));
             let said = match want {
@@ -412,6 +467,20 @@ mod tests {
             };
             assert!(said, "MACHINE.md gives '{key}' the unit '{unit}'");
         }
+    }
+
+    /// `[gantry]` is optional, and so is each of its keys: the paper gantry's value stands in.
+    #[test]
+    fn the_gantry_section_is_optional_key_by_key() {
+        let start = PAPER_TOML.find("[gantry]").unwrap();
+        let without = &PAPER_TOML[..start];
+        assert_eq!(parse_machine(without).unwrap().gantry, GantrySpec::paper());
+        let one = format!("{without}[gantry]\naccel_g = 2.0\n");
+        let g = parse_machine(&one).unwrap().gantry;
+        assert_eq!(
+            (g.accel_g, g.speed_mm_s),
+            (2.0, GantrySpec::paper().speed_mm_s)
+        );
     }
 
     #[test]

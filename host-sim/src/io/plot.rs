@@ -75,14 +75,14 @@ fn bounds<'a>(points: impl Iterator<Item = &'a [f64; 2]>) -> Option<([f64; 2], [
     ))
 }
 
-fn err(e: impl std::fmt::Display) -> IoError {
+pub(crate) fn err(e: impl std::fmt::Display) -> IoError {
     IoError::Plot(e.to_string())
 }
 
-type Area<'a> = DrawingArea<BitMapBackend<'a>, Shift>;
+pub(crate) type Area<'a> = DrawingArea<BitMapBackend<'a>, Shift>;
 
 /// Renders a `width × height` bitmap drawn by `draw` and encodes it as PNG.
-fn render(
+pub(crate) fn render(
     width: u32,
     height: u32,
     draw: impl FnOnce(&Area<'_>) -> Result<(), IoError>,
@@ -106,7 +106,7 @@ fn render(
 }
 
 /// Draws the legend: how every chart ends.
-fn legend<'a, DB: DrawingBackend + 'a, CT: CoordTranslate>(
+pub(crate) fn legend<'a, DB: DrawingBackend + 'a, CT: CoordTranslate>(
     chart: &mut ChartContext<'a, DB, CT>,
     position: SeriesLabelPosition,
 ) -> Result<(), IoError> {

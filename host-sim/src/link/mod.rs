@@ -179,6 +179,14 @@ impl<S: Read + Write> LinkClient<S> {
         })
     }
 
+    /// The client with its next request numbered `first` (then counting up): where the run must
+    /// be reproducible to the byte (a co-simulation), the numbers must not depend on when or by
+    /// which process the client was made.
+    pub fn with_sequence(mut self, first: u16) -> Self {
+        self.seq = first.wrapping_sub(1);
+        self
+    }
+
     /// Sends raw bytes (the garbage test) and waits for the answers they provoke: the
     /// controller answers every non-empty run of bytes between two zeros with exactly one
     /// message (a rejection, unless the run happens to be a valid frame). Returns (frames sent,

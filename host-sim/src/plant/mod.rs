@@ -1,4 +1,5 @@
-//! The simulated machine: linkage ([`sixbar`] for its equilibrium and tool point, [`linkage`]
+//! The simulated machine: the gantry that carries the micro on a redundant machine
+//! ([`gantry`]: its axes and drives); the micro's linkage ([`sixbar`] for its equilibrium and tool point, [`linkage`]
 //! for its bodies' inertia), drives ([`drive`]), their coupled equations of motion
 //! ([`motion`]), measuring instrument ([`instrument`]) and their description ([`config`], the
 //! plant TOML), put together in [`Plant`].
@@ -9,6 +10,7 @@
 
 pub mod config;
 pub mod drive;
+pub mod gantry;
 pub mod instrument;
 pub mod linkage;
 pub mod motion;

@@ -12,9 +12,10 @@
 //!
 //! What differs from the other QEMU runs, and nothing else:
 //! * the settings ([`settings`]): incremental encoders with the counts, gear ratio and sign of
-//!   the simulated machine's drives (the host sends them at boot, as a machine builder enters
-//!   the encoders fitted), homing by index marks on the host's Home command (or at boot if the
-//!   host asks), setpoints from the host link, no built-in tour;
+//!   the simulated machine's drives and the encoder angles of their index marks (the host sends
+//!   them at boot, as a machine builder enters the encoders fitted and the marks measured in a
+//!   jig), homing by index marks on the host's Home command (or at boot if the host asks),
+//!   setpoints from the host link, no built-in tour;
 //! * the encoder counters and index captures are written from the host's answer instead of the
 //!   in-firmware plant; the test harness neither injects nor checks (the production path);
 //! * the host link's port is the exchange ([`Port::Exchange`]) instead of UART0. Its bytes do
@@ -88,6 +89,8 @@ pub fn settings(production: Settings) -> Settings {
         homing: HomingSettings {
             absolute_encoders: false,
             at_boot: config.home_at_boot,
+            index_rad: config.index_rad,
+            max_travel_rad: config.max_travel_rad,
             ..production.homing
         },
         ..production
@@ -202,7 +205,6 @@ impl Exchange {
         let hello = Hello {
             pwm_max_duty: PWM_MAX_DUTY,
             drive_full_scale_nm: settings.drive_full_scale_nm,
-            index_rad: settings.homing.index_rad,
         };
         let Ok(n) = hello.encode(&mut self.up) else {
             fail("hello does not fit its buffer")
