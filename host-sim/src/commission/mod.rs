@@ -387,7 +387,16 @@ pub fn commission<S: Read + Write>(
         Response::Identity(i) => i,
         other => return Err(at("identify")(&format!("unexpected reply {other:?}"))),
     };
-    let before = identity.calibration_id.map(|id| format!("{id:#010x}"));
+    // Without a calibration in force the controller neither homes nor moves: say why here.
+    let Some(before_id) = identity.calibration_id else {
+        return Err(at("identify")(
+            &"the controller holds no calibration it accepts (none in force): it refused the \
+              image in its calibration region, or the region is empty. Give it this machine's \
+              commissioning image (host-sim grid --nominal --machine FILE --out FILE, flashed as \
+              firmware/README.md says); a controller that refuses that too holds another machine",
+        ));
+    };
+    let before = Some(format!("{before_id:#010x}"));
     let v = identity.firmware_version;
     let controller = format!("{:?} firmware {}.{}.{}", identity.board, v[0], v[1], v[2]);
     j.done(
