@@ -67,7 +67,7 @@ fn main() {
     }
 }
 
-/// The false-positive sweep of issue 13 (DIAGNOSIS.md, "No false positives"): every library
+/// The false-positive sweep (DIAGNOSIS.md, "No false positives"): every library
 /// effect the generator has, every pair, every fourth triple, and no effect, each over seeds
 /// and magnitudes, without and with an out-of-library effect (a gear-tooth cyclic error, a slow
 /// instrument drift). Prints per case class the number of diagnoses, the false-positive rate
@@ -93,7 +93,7 @@ fn main() {
 /// * SWEEP_MAX_HIDDEN: 1, 2 or 3, skip the cases with more hidden effects (3: all);
 /// * SWEEP_VERBOSE: tables and selection logs of the misses.
 ///
-/// The graders' conditions of issue 13 (120 random poses, random approach directions, 1 µm
+/// The acceptance conditions (120 random poses, random approach directions, 1 µm
 /// instrument, 5 seeds): `SWEEP_POSES=120 SWEEP_NOISE_UM=1 SWEEP_N=5 SWEEP_SCALES=1`.
 fn sweep() {
     let n: u64 = std::env::var("SWEEP_N")

@@ -1,12 +1,12 @@
-//! Prints the figures of issue 14 (5 g motion), not a pass/fail test: the following error at
+//! Prints the 5 g motion figures, not a pass/fail test: the following error at
 //! the tool (the tool point against where the servo's own reference puts it, µm) of the closed
 //! 2 kHz loop at 5 g, on the ideal and the `paper` six-bar plant, for
 //! * the jerk-limited point-to-point tour (`p2p`) and the two contours at 5 g peak acceleration
 //!   (`circle-5g`, `figure8-5g`);
 //! * four feed-forwards: the identified inverse dynamics (as shipped), the same with every mass
 //!   and inertia 20 % high, 20 % low and alternately ±20 % (a model error), the gains' constant
-//!   inertia on the exact derivatives, and backward differences of the setpoints (the loop
-//!   before issue 14);
+//!   inertia on the exact derivatives, and backward differences of the setpoints (the simplest
+//!   loop);
 //! * the settling time into a ±2 µm window (following error, and tracking error against the
 //!   setpoint in the instrument frame) after a 10 mm move.
 //!

@@ -1,4 +1,4 @@
-//! Prints the numbers issue 5 asks for (not a pass/fail test):
+//! Prints the plant's figures (not a pass/fail test):
 //! * realtime factor of the closed 2 kHz loop with the five-bar plant and with the compliant
 //!   six-bar plant (goals: ≥ 1000x and ≥ 50x on one core);
 //! * cost per 2 kHz sample of the plant's dynamics (the linkage's inertia and 10 RK4 substeps of

@@ -51,8 +51,9 @@ pub mod io;
 pub mod link;
 pub mod loop_closure;
 pub mod machine_identity;
-pub mod machine_ranges;
 pub mod machine_spec;
+/// The machine file's physical ranges (a part of [`machine_spec`], kept at its old path).
+pub use machine_spec::ranges as machine_ranges;
 pub mod numeric;
 pub mod plant;
 pub mod session;

@@ -7,7 +7,7 @@
 //! diagnosis must not import what uses it. Poses are on the paper machine
 //! ([`MachineSpec::paper`]).
 //!
-//! Where the truth comes from (issue 18: never from the library's own effect formulas):
+//! Where the truth comes from (never from the library's own effect formulas):
 //! * **the plant**, through THE measurement path (`calib::measure`, as `host-sim measure`): link
 //!   lengths (levers and distal bars of the six-bar, each follower changed with its partner so
 //!   the parallelograms stay perfect: no stress), base offset (motor 2's axis and its
@@ -42,7 +42,7 @@ use rand::Rng;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
-/// The seed mask of `random:N`'s stream before issue 12 ([`try_generate`]).
+/// The seed mask of the historical `random:N` stream, independent of N ([`try_generate`]).
 const HISTORICAL_RANDOM_STREAM: u64 = 0x5eed_7a26_0e75;
 
 /// A gear-tooth (or any periodic) error of one motor.
@@ -241,7 +241,7 @@ pub fn try_generate(truth: &Truth, poses: Poses, seed: u64) -> Result<Vec<Measur
     };
     let v = match poses {
         // The diagnosis tests' random poses keep the stream they were written and checked
-        // against (`random:N` before issue 12 made its stream depend on N as well). On the new
+        // against (the historical stream; `random:N` now makes its stream depend on N as well). On the new
         // stream one case of tests/diagnose.rs (gear_ratio + base_offset, seed 80) also names
         // link_lengths: motor 2's gear ratio is nearly a link-length change on those poses, and
         // the report does not flag it as confounded (noted in DIAGNOSIS.md's limits).

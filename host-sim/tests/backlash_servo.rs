@@ -1,4 +1,4 @@
-//! Issue 13, "close the loop": the firmware's servo compensates the drives' backlash when the
+//! "Close the loop": the firmware's servo compensates the drives' backlash when the
 //! image carries the backlash block. The closed loop (`host-sim simulate`'s, the servo step the
 //! firmware runs) on the `paper` plant's backlash (20 µrad per drive, alone: the other effects
 //! are the calibration's business), point-to-point moves between random targets, so each joint

@@ -306,7 +306,7 @@ fn blunder_test_refuses_more_than_the_allowed_fraction() {
     }
 }
 
-/// Issue 12 item 6: the hat-matrix leave-one-out residuals (used above 200 points) agree with
+/// The hat-matrix leave-one-out residuals (used above 200 points) agree with
 /// exact refits on a small set.
 #[test]
 fn linearised_leave_one_out_matches_exact_refits() {

@@ -1,4 +1,4 @@
-//! The noise-aware correction grid (issue 12) on simulated machines whose errors the tools do
+//! The noise-aware correction grid on simulated machines whose errors the tools do
 //! not know: the paper's six-bar plant and six-bar plants with randomly drawn errors, read by a
 //! laser-tracker-class instrument (σ = 10 µm per axis).
 //!

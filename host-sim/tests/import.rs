@@ -1,4 +1,4 @@
-//! Issue 12 item 5: `host-sim import`, a laser tracker's export joined by point id with the
+//! `host-sim import`, a laser tracker's export joined by point id with the
 //! commanded list, through the binary: realistic exports (semicolon with a decimal point, tab,
 //! metres, metadata lines, extra columns, a missing point, a repeated reading), every refusal
 //! with a non-zero exit, its message and no output written, and the whole path end to end:

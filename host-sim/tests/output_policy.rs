@@ -396,7 +396,7 @@ fn no_aliasing_of_any_commands_paths_changes_an_input() {
     eprintln!("output policy: {total} aliasings refused, no input changed");
 }
 
-/// The reproductions one by one, as a user types them.
+/// The reported reproductions one by one, as a user types them.
 #[test]
 fn outputs_onto_inputs_or_each_other_are_refused_naming_both_flags() {
     let dir = workdir(fixture_dir());

@@ -2,7 +2,7 @@
 //! `calib::pipeline::calibrate`, on the shared stand-in machine (`host_sim::calib::machine::StandInMachine`: a
 //! five-bar with the paper's kind of parameter errors plus a smooth distortion no five-bar
 //! describes, 1 µm instrument) and on the six-bar plant. Fresh random targets commanded through
-//! fit + grid must land within 5 µm max and 2 µm RMS (issue 6's accuracy target), on hand-set
+//! fit + grid must land within 5 µm max and 2 µm RMS (the accuracy target), on hand-set
 //! errors and on randomly drawn ones.
 
 use host_sim::calib::machine::{Machine, PlantMachine, StandInMachine};
@@ -127,8 +127,8 @@ fn paper_plant_reaches_the_noise_floor_with_unidirectional_approach() {
         "{g2:?}"
     );
 
-    // Random approach directions (issue 13): the backlash is measured on the grid data and
-    // corrected by direction; uncorrected it left 5.14 µm max / 2.81 µm RMS here.
+    // Random approach directions: the backlash is measured on the grid data and
+    // corrected by direction; uncorrected it left 5.13 µm max / 2.81 µm RMS here.
     let mut machine = PlantMachine::by_name("paper", Some(1.0), 1).unwrap();
     let random = run(&mut machine, 1, Approach::FromVisit).unwrap();
     let r2 = random.stages.last().unwrap().accuracy;
@@ -153,7 +153,7 @@ fn paper_plant_reaches_the_noise_floor_with_unidirectional_approach() {
     assert!(r2.rms_um < 1.2 * g2.rms_um, "{r2:?} vs {g2:?}");
 }
 
-/// Issue 6's accuracy target on six-bar plants with randomly drawn errors: every bar length,
+/// The accuracy target on six-bar plants with randomly drawn errors: every bar length,
 /// pin position and ground pivot of the overconstrained six-bar drawn from N(0, (0.1 mm)²) (the
 /// paper's largest link error was ~100 µm), encoder offsets from N(0, (0.1°)²), on top of the
 /// paper plant's compliance, clearances, backlash, encoder quantisation and instrument frame,

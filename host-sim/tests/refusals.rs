@@ -1,5 +1,5 @@
-//! The host tools refuse rather than guess (issue 11 item 6, issue 12 item 5): every
-//! reproduction listed in issue 11 for the host tools, through the binary, failing on the code
+//! The host tools refuse rather than guess: every
+//! reported reproduction for the host tools, through the binary, failing on the code
 //! before this change and passing after. Each refusal: non-zero exit, a message saying why, and
 //! no output written (or clobbered).
 
@@ -452,7 +452,7 @@ fn leave_one_out_never_reports_zero_for_failed_refits() {
     assert!(err.contains("leave-one-out: no point"), "{err}");
 }
 
-/// The blunder test through the binary (issue 11 item 6): the rows it rejects are named on
+/// The blunder test through the binary: the rows it rejects are named on
 /// stderr and in the JSON; too many refuse the fit and write nothing; its flag is validated.
 #[test]
 fn blunders_are_named_or_refused() {

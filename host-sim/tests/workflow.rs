@@ -1,4 +1,4 @@
-//! Issue 12: the calibration workflow as a machine builder runs it, command by command through
+//! The calibration workflow as a machine builder runs it, command by command through
 //! the binary (plan → measure → fit → grid → command → accuracy), on the paper machine and on a
 //! second, different machine (`machines/second.toml`: unequal links, bases 67 mm apart, an
 //! octagonal workspace, a 4 mm grid; its plant `plants/second.toml`), against the demo:
@@ -655,7 +655,7 @@ fn a_simulation_that_faults_and_a_demo_that_misses_its_goal_exit_non_zero() {
     // A gear cyclic error of 40 µrad at 50 cycles per motor revolution (a period of 2 mm at the
     // tool, under the 5 mm grid's step): neither the fit nor the grid can follow it (about
     // 15 µm max > 5). (Random approach on the paper plant no longer misses: its backlash is
-    // measured and corrected by direction, issue 13.)
+    // measured and corrected by direction.)
     let plant = d.join("cyclic.toml");
     let text = std::fs::read_to_string(root().join("plants/paper.toml")).unwrap();
     let cyclic = text

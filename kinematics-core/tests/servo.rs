@@ -132,7 +132,7 @@ fn engaged() -> (Servo, Calibration<'static>, [f32; 2]) {
     (servo, cal, theta)
 }
 
-/// Issue 11: a refused setpoint used to latch, so the servo could not brake the machine after
+/// A refused setpoint must not latch: otherwise the servo could not brake the machine after
 /// it. Now a refusal leaves the servo engaged and exactly as it was: the next setpoint of the
 /// stream (or of a controlled stop) is tracked in the same sample, with the same torque as if
 /// the refused one had never been offered.
@@ -259,7 +259,7 @@ fn accept_reports_velocity_and_acceleration_and_dropping_it_changes_nothing() {
     assert!(out.torque_nm[0].abs() > 0.0);
 }
 
-/// Issue 11: settings come over a link; a negative or NaN limit used to panic in the PID's
+/// Settings come over a link; a negative or NaN limit used to panic in the PID's
 /// `f32::clamp`. Now `Servo::new` refuses them, naming the field.
 #[test]
 fn servo_new_refuses_invalid_settings() {
@@ -721,7 +721,7 @@ mod motion {
     }
 }
 
-/// Issue 13: with a backlash block in the image the servo's reference leads the link command
+/// With a backlash block in the image the servo's reference leads the link command
 /// by the play operator of its increments: ±β/2 after a move in each direction (the sign of
 /// each joint's motion), 0 (mid-gap) at engage, continuous on a reversal (never a step of β),
 /// and exactly the link command without the block.

@@ -70,7 +70,7 @@ fn code<E: core::fmt::Debug>(e: E) -> u32 {
 }
 
 /// Whether two steps gave the same result, bit for bit (the checked-once path against the
-/// per-call one: issue 16 moved the model's checks out of the sample, not its arithmetic).
+/// per-call one: the model's checks run outside the sample, its arithmetic is the same).
 fn same_step(a: &Result<ServoOutput, StepError>, b: &Result<ServoOutput, StepError>) -> bool {
     match (a, b) {
         (Ok(a), Ok(b)) => {
@@ -180,7 +180,7 @@ pub fn run(emit: &mut impl FnMut(u32)) {
             }
         }
     }
-    // 4. Issue 14: a 5 g circle's time law (planning and sampling: sqrt, cbrt, sin_cos), the
+    // 4. A 5 g circle's time law (planning and sampling: sqrt, cbrt, sin_cos), the
     //    joint motion and inverse dynamics at each sample, and the motion step with them fed
     //    forward around the same plant.
     let limits = TaskLimits { speed_mm_s: 1500.0f32, accel_mm_s2: 49_033.25, jerk_mm_s3: 5.0e6 };
@@ -244,7 +244,7 @@ pub fn run(emit: &mut impl FnMut(u32)) {
             }
         }
     }
-    // 5. Issue 13: the same grid with a backlash block (20 and 35 µrad), the servo (plain and
+    // 5. The same grid with a backlash block (20 and 35 µrad), the servo (plain and
     //    motion step) out and back along a line, so that both joints reverse: the reference
     //    with its play-operator correction and the torques, bit for bit.
     let mut with_backlash = [0u8; 72 + 8 * 42 + 4 + BACKLASH_LEN];

@@ -106,13 +106,13 @@ fn every_result_is_bit_identical_on_the_mcu_and_the_host() {
         "{} words, {errors} errors",
         host.len()
     );
-    // The servo through a model checked once (issue 16) steps exactly like the per-call path.
+    // The servo through a model checked once steps exactly like the per-call path.
     assert!(
         !host.contains(&cases::VALID_PATH_DIFFERS),
         "host: the checked-once path differs from the per-call one"
     );
     // Every section ran to its end (a failed step emits its error and stops the cases): the
-    // last, the servo with a backlash block (issue 13), ends on a torque.
+    // last, the servo with a backlash block, ends on a torque.
     assert!(
         host.last()
             .is_some_and(|&w| w & 0xffff_ff00 != cases::ERROR),

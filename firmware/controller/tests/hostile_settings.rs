@@ -1,4 +1,4 @@
-//! No settings value makes the controller panic or move a machine it should not (issue 11,
+//! No settings value makes the controller panic or move a machine it should not (
 //! "no panic for any settings value"): the settings are meant to come over a host link, so
 //! every float of them (servo gains and limits, drive scale, trajectory, stop, encoder
 //! limits, encoder gear ratios) is drawn from hostile values (NaN, ±∞, negative, zero,

@@ -326,7 +326,7 @@ fn main() -> ! {
     });
     report("grid_lookup", lookup as f32 * per_count / N as f32);
 
-    // Trajectory evaluation and dynamics (issue 14): a 5 g move across the workspace and a
+    // Trajectory evaluation and dynamics: a 5 g move across the workspace and a
     // 40 mm circle at 5 g, sampled at instants spread over their durations.
     let limits = TaskLimits {
         speed_mm_s: 1500.0,
@@ -422,7 +422,7 @@ fn main() -> ! {
             |s, p, e| step_once(s, cal, p, e),
         );
     }
-    // The same step with a backlash block in the image (issue 13; 20 µrad per drive, the
+    // The same step with a backlash block in the image (20 µrad per drive, the
     // `paper` plant's): the servo's reference compensates it (`kinematics_core::backlash`).
     let mut image = [0u8; 8192];
     let (image_len, end) = (grid.geometry().image_len(), grid.len_bytes());

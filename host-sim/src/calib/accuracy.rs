@@ -467,7 +467,7 @@ mod tests {
         assert_eq!(directions(&r, 1), vec![1, 1, 1, 1]);
     }
 
-    /// Issue 12: `measure --protocol repeat` runs the x line and then the y line in the same
+    /// `measure --protocol repeat` runs the x line and then the y line in the same
     /// run, each pass from its own overrun; the first y target follows the x line's last one
     /// (a move along both axes) and is approached upwards, not downwards.
     #[test]

@@ -1,4 +1,4 @@
-//! The direction-dependent correction of backlash (issue 13, "close the loop").
+//! The direction-dependent correction of backlash ("close the loop").
 //!
 //! Backlash is lost motion β_j between motor j's encoder and its link: a motor that last moved
 //! in +θ (dir = +1) drags the link behind it, so the link sits β/2 short of the encoder angle,

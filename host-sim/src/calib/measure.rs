@@ -379,7 +379,7 @@ mod tests {
         assert!(err.to_string().contains("target (212.132, 0.000)"), "{err}");
     }
 
-    /// Issue 12: the repeat protocol's measurements and `accuracy` fit together: both axis
+    /// The repeat protocol's measurements and `accuracy` fit together: both axis
     /// lines are analysed, none skipped, and on a backlash-only plant both show a reversal.
     #[test]
     fn the_repeat_protocol_gives_both_axis_lines() {

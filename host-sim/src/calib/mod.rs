@@ -19,7 +19,7 @@
 //! * [`backlash`]: the direction-dependent correction of backlash (command, grid, estimate);
 //! * [`accuracy`]: VDI/DGQ 3441 and ISO 230-2 figures from repeated runs;
 //! * [`dynamics`]: the hidden robot's dynamic parameters from a closed-loop excitation run
-//!   (what the servo feeds forward; issue 14);
+//!   (what the servo feeds forward);
 //! * [`import`]: a real instrument's export (a laser tracker's points, by id) joined with the
 //!   commanded list into the measurement CSV (`host-sim import`);
 //! * [`pipeline`]: all of it on one machine, as `host-sim demo` runs it.

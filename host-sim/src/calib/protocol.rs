@@ -20,7 +20,7 @@
 //!
 //! Random draws: a seed always gives the same targets (recorded runs stay reproducible).
 //! `random:N` samples the closed bounding rectangle (its edges included) from a stream of the
-//! seed **and N** (issue 12: `random:40` for a fit and a "fresh" `random:400` with the same
+//! seed **and N** (`random:40` for a fit and a "fresh" `random:400` with the same
 //! seed used to share their first 40 targets; now lists of different lengths share none), the
 //! demo's and the plan's lists the half-open one ([`Range`]) from their own streams. A draw
 //! outside a polygon workspace is drawn again (a rectangle never rejects, so its draws are the
@@ -260,7 +260,7 @@ mod tests {
         assert_eq!(r[32].target_mm, [212.132, 75.0]);
     }
 
-    /// Issue 12: a "fresh" random:400 with the seed of a random:40 fit shares none of its
+    /// A "fresh" random:400 with the seed of a random:40 fit shares none of its
     /// targets; the same N and seed give the same targets.
     #[test]
     fn random_lists_of_different_lengths_share_no_target() {

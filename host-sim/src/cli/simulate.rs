@@ -59,7 +59,7 @@ pub struct Args {
     pub machine: super::MachineArg,
     /// What the servo feeds forward: `dynamics` (identified inverse dynamics on the exact
     /// derivatives), `constant` (the gains' constant inertia on them), `differences` (backward
-    /// differences of the setpoints, as before issue 14).
+    /// differences of the setpoints, the simplest loop).
     #[arg(long, default_value = "dynamics")]
     pub feedforward: String,
     /// Identified dynamic parameters (dynamics.json from `host-sim identify`).

@@ -1,4 +1,4 @@
-//! The diagnosis (`host-sim diagnose`, issue 7): find where the model and the measurements
+//! The diagnosis (`host-sim diagnose`): find where the model and the measurements
 //! disagree, name the missing effect, add it to the model and show the gap shrink.
 //!
 //! Pipeline, top to bottom in [`diagnose_with_plot_data`], one stage per file: residuals of the

@@ -14,7 +14,7 @@
 //! What the servo feeds forward ([`FeedForward`]): the identified inverse dynamics on the
 //! trajectory's exact derivatives (`Servo::step_motion`, the default of `host-sim simulate`), the
 //! gains' constant inertia on the same derivatives, or (a trajectory file, which has positions
-//! only, and [`run_loop`]) `Servo::step` on backward differences as before issue 14.
+//! only, and [`run_loop`]) `Servo::step` on backward differences.
 //!
 //! Tracking error: |tool(t_k) - setpoint(t_k)| with the tool point seen in the instrument's frame
 //! without noise (the frame the measurements, and hence the calibration, live in; on `ideal` it
@@ -50,7 +50,7 @@ pub const SETTLE_WINDOW_UM: f64 = 2.0;
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum FeedForward {
     /// `Servo::step` on the positions: velocity and acceleration feed-forward from backward
-    /// differences with the gains' constant inertia (the loop before issue 14).
+    /// differences with the gains' constant inertia (the simplest loop).
     Differences,
     /// `Servo::step_motion` on the exact derivatives with the gains' constant inertia.
     Constant,
@@ -449,7 +449,7 @@ mod tests {
         assert!(s.max_following_err_5g_um.unwrap() < 100.0, "{s:?}");
     }
 
-    /// Issue 14's robustness figure: every mass and inertia of the fed-forward model 20 % high,
+    /// The feed-forward robustness figure: every mass and inertia of the fed-forward model 20 % high,
     /// then 20 % low, on the paper six-bar plant, a figure-eight at 5 g: within 7 µm with the
     /// disturbance observer (the default settings), over 9 µm without it (the PID alone lags
     /// δ·a/ω² ≈ 10 µm, README); the identified model's own figure stays within 2 µm.

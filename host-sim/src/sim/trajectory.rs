@@ -11,8 +11,8 @@
 //!   machine), 1.5 m/s and [`JERK_MM_S3`] (`kinematics_core::trajectory`), 0.1 s dwell at each
 //!   point (on a polygon workspace, the bounding rectangle's inset corners pulled towards the
 //!   centre until they are 10 mm inside);
-//! * `p2p-trapezoid`: the same moves with trapezoidal speed profiles (infinite jerk): what `p2p`
-//!   was before issue 14, kept for comparison;
+//! * `p2p-trapezoid`: the same moves with trapezoidal speed profiles (infinite jerk): kept for
+//!   comparison with jerk-limited moves;
 //! * `circle-5g`: two turns of the 40 mm circle from rest to rest at 5 g peak acceleration
 //!   (`PathMotion::plan`: the ramps and the cruise within 5 g and 1.5 m/s, jerk up to 5e7
 //!   mm/s³ so that the acceleration binds);

@@ -73,7 +73,7 @@
 //! * the image carries both extension blocks of its chain (`kinematics_core::grid`): the
 //!   workspace (`HRWS`) and the dynamics (`HRDY`), so an image that lost one shows.
 //!
-//! # Bounds (`track-5g`, issue 14)
+//! # Bounds (`track-5g`)
 //! The same tour with the time-optimal jerk-limited profile at 5 g (exact derivatives through
 //! the setpoint queue, the image's identified dynamics fed forward; the QEMU plant's masses
 //! and inertias are 20 % off them, its linkage couples the motors), the same checks, and:
@@ -547,7 +547,7 @@ pub const MAX_GRID_RESIDUAL_RAD: f32 = 1.0e-6;
 pub const MIN_GRID_CORRECTION_RAD: f32 = 2.0e-4;
 /// A bad-image scenario passes after this many samples with the drives never enabled: 0.5 s.
 pub const BAD_IMAGE_TICKS: u32 = 1_000;
-/// Largest following error at the tool during `track-5g` (µm): the issue's bound with ±20 %
+/// Largest following error at the tool during `track-5g` (µm): the 5 g bound with ±20 %
 /// error in every mass and inertia.
 pub const MAX_FOLLOWING_ERROR_5G_UM: f32 = 10.0;
 /// `track-5g` must run at least this many samples at 4.75 g or more (50 ms).
@@ -566,7 +566,7 @@ pub const FROZEN_AT_REST_LEAD: u32 = 100;
 pub const FROZEN_AT_REST_WITHIN: u32 = 40;
 /// ... and the tool, coasting from the low speed it had then (about 0.6 rad/s at joint 1),
 /// gets no further than this from where it was at the fault (mm; measured: 0.50 mm with the
-/// drives' dynamic braking, 1.63 mm free-wheeling; the issue measured 43 mm before the stuck
+/// drives' dynamic braking, 1.63 mm free-wheeling; without the check, 43 mm were measured before the stuck
 /// check existed).
 pub const FROZEN_AT_REST_MAX_TRAVEL_MM: f32 = 2.0;
 /// A frozen reading at speed must be found within this many samples (the acceleration check

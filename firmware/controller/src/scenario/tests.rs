@@ -430,7 +430,7 @@ fn injection_finds_the_tours_top_speed_and_the_rest_before_it() {
         .all(|p| *p == [255.0, -68.0]));
 }
 
-/// The bug of issue 18: the production path must never be stopped by a time limit.
+/// The production path must never be stopped by a time limit.
 #[test]
 fn the_production_path_has_no_time_limit() {
     let img = image(D_RAD);

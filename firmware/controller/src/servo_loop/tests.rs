@@ -133,7 +133,7 @@ fn boot_refuses_an_encoder_configuration_the_scale_refuses() {
     assert_eq!(l.mode(), Mode::SafeState(want));
 }
 
-/// Issue 11: a refused setpoint used to remove torque at once whatever the speed. At rest,
+/// A refused setpoint must not remove torque at once whatever the speed. At rest,
 /// a NaN (category 1) stops at once (an empty stop) and removes torque at standstill, in the
 /// same sample; the stop from rest holds the last accepted setpoint.
 #[test]
@@ -506,7 +506,7 @@ fn check_controlled_stop(cal: &Calibration<'_>, run: &Run, at: usize, bound_mm: 
     (planned, furthest)
 }
 
-/// Issue 11: a NaN at 1.4 m/s used to remove torque at once; the machine coasted 20-130 mm.
+/// A NaN at 1.4 m/s must not remove torque at once (the machine would coast 20-130 mm).
 /// Now: category 1, braked along the path within the stated distance, torque off at
 /// standstill, never before.
 #[test]
@@ -580,7 +580,7 @@ fn a_jump_at_top_speed_brakes_then_holds() {
     }
 }
 
-/// Issue 11: an empty queue for one sample at speed read as an infinite deceleration. Now:
+/// An empty queue for one sample at speed read as an infinite deceleration. Now:
 /// category 2 from the last setpoint; at rest it just holds.
 #[test]
 fn an_underrun_while_moving_brakes_then_holds() {
@@ -726,7 +726,7 @@ fn towards_x_320<'a>(settings: &Settings, cal: Calibration<'a>) -> (Run, usize) 
     (run, at)
 }
 
-/// With the machine's workspace in the image (issue 12), the edge is the polygon's, not the
+/// With the machine's workspace in the image, the edge is the polygon's, not the
 /// grid's: the same stream towards x = 320 mm is stopped inside the polygon's right edge
 /// at x = 240 mm (20 mm before the grid's), by the image's stop margin of 0.5 mm.
 #[test]
@@ -836,7 +836,7 @@ fn encoder_faults_remove_torque_at_once_even_during_a_stop() {
     assert!(run.samples[at].torque_off);
 }
 
-/// Issue 11: an encoder frozen at rest went unnoticed until the machine moved, then 8 N·m
+/// An encoder frozen at rest went unnoticed until the machine moved, then 8 N·m
 /// drove the tool 43 mm off. Now the move's torque finds joint 1's reading stuck a few
 /// samples after the move starts, the tool a fraction of a millimetre off; then it coasts
 /// (category 0) from the low speed it had.

@@ -9,8 +9,8 @@
 // the drives' dynamic braking are the plant's own (`plant.rs`).
 //
 // The image: what the servo feeds forward, the whole machine (rotors and linkage), every
-// inertia and the tool mass 20 % off the truth with alternating signs (the robustness case of
-// issue 14), friction under-estimated.
+// inertia and the tool mass 20 % off the truth with alternating signs (the feed-forward
+// robustness case), friction under-estimated.
 
 /// The rotors' inertia at the joints (kg·m²).
 pub const ROTOR_INERTIA_KG_M2: [f32; 2] = [2.2e-3, 1.8e-3];

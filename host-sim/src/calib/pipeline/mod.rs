@@ -92,7 +92,7 @@ pub const FIT_POSES: usize = super::plan::IDENTIFICATION_POSES;
 pub const BACKLASH_POSES: usize = 200;
 /// Fresh random targets per verification (the plan's verification list).
 pub const VERIFY_TARGETS: usize = super::plan::VERIFY_TARGETS;
-/// The accuracy to reach (issue 6): the 1 µm instrument's noise floor.
+/// The accuracy to reach: the 1 µm instrument's noise floor.
 pub const TARGET_MAX_UM: f64 = 5.0;
 pub const TARGET_RMS_UM: f64 = 2.0;
 

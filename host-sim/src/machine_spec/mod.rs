@@ -26,6 +26,8 @@ use kinematics_core::{
 };
 use serde::{Deserialize, Serialize};
 
+pub mod ranges;
+
 /// Standard gravity (mm/s²), for accelerations stated in g.
 pub const STANDARD_GRAVITY_MM_S2: f64 = 9_806.65;
 
@@ -462,7 +464,7 @@ impl MachineSpec {
         }
         // Every number against its physical meaning (approach against the workspace, a stop
         // margin that leaves a workspace, an instrument's σ, ...).
-        crate::machine_ranges::check(self)?;
+        ranges::check(self)?;
         let g = &self.grid;
         let max = usize::from(kinematics_core::grid::MAX_NODES_PER_AXIS);
         if !(2..=max).contains(&g.nx) || !(2..=max).contains(&g.ny) {

@@ -8,7 +8,7 @@
 //! below says what it protects; the refusal names the key, its value and the limit. The
 //! limits are stated in `host-sim/MACHINE.md`.
 
-use crate::machine_spec::MachineSpec;
+use super::MachineSpec;
 
 /// The largest link length, base coordinate or workspace coordinate (mm): a 10 m mechanism is
 /// no micro-mechanism, and a metres value typed as mm (0.15 for 150) is caught by the reach
@@ -153,7 +153,7 @@ mod tests {
         let paper = MachineSpec::paper();
         check(&paper).unwrap();
         let second =
-            crate::io::machine_file::parse_machine(include_str!("../machines/second.toml"))
+            crate::io::machine_file::parse_machine(include_str!("../../machines/second.toml"))
                 .unwrap();
         check(&second).unwrap();
         let refused = |edit: &dyn Fn(&mut MachineSpec), key: &str| {
