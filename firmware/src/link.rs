@@ -27,7 +27,7 @@ use controller::servo_loop::{Mode, ServoRequest, SwitchOutcome};
 use controller::status::Status;
 use kinematics_core::Calibration;
 use link_protocol::{
-    Board, CalibrationRefusal, DeviceMessage, FrameReader, HomingState, MAX_FRAME_LEN,
+    Board, CalibrationRefusal, DeviceMessage, FrameReader, HomingState, MachineId, MAX_FRAME_LEN,
 };
 use rtic::Mutex;
 
@@ -56,6 +56,9 @@ pub struct LinkState<P: LinkPort> {
     pub link_motion: bool,
     /// The board the firmware was built for, as `Identify` reports it.
     pub board: Board,
+    /// The machine in force (the record of the image in force at boot), as `Identify`
+    /// reports it.
+    pub machine: MachineId,
 }
 
 impl<P: LinkPort> LinkState<P> {
@@ -64,8 +67,13 @@ impl<P: LinkPort> LinkState<P> {
         while let Some(byte) = self.port.read_byte() {
             if let Some(received) = self.reader.push(byte) {
                 let mut out = [0u8; MAX_FRAME_LEN];
-                let mut dev =
-                    AppDevice::new(device, self.board, self.absolute_encoders, self.link_motion);
+                let mut dev = AppDevice::new(
+                    device,
+                    self.board,
+                    self.machine,
+                    self.absolute_encoders,
+                    self.link_motion,
+                );
                 let n = self.handler.on_received(received, &mut dev, &mut out);
                 self.port.write(&out[..n]);
             }
@@ -92,7 +100,13 @@ impl<P: LinkPort> LinkState<P> {
                 );
             }
         }
-        let mut dev = AppDevice::new(device, self.board, self.absolute_encoders, self.link_motion);
+        let mut dev = AppDevice::new(
+            device,
+            self.board,
+            self.machine,
+            self.absolute_encoders,
+            self.link_motion,
+        );
         if let Some(message) = self.handler.poll(&mut dev) {
             self.send(&message);
         }
@@ -175,6 +189,7 @@ where
 pub struct AppDevice<'a, D> {
     res: &'a mut D,
     board: Board,
+    machine: MachineId,
     status: Status,
     absolute_encoders: bool,
     link_motion: bool,
@@ -182,11 +197,18 @@ pub struct AppDevice<'a, D> {
 
 impl<'a, D: DeviceResources> AppDevice<'a, D> {
     /// Reads the status once.
-    pub fn new(res: &'a mut D, board: Board, absolute_encoders: bool, link_motion: bool) -> Self {
+    pub fn new(
+        res: &'a mut D,
+        board: Board,
+        machine: MachineId,
+        absolute_encoders: bool,
+        link_motion: bool,
+    ) -> Self {
         let status = res.status();
         AppDevice {
             res,
             board,
+            machine,
             status,
             absolute_encoders,
             link_motion,
@@ -279,5 +301,9 @@ impl<D: DeviceResources> CalibrationStore for AppDevice<'_, D> {
     /// The image the servo uses (it switches at rest after a commit).
     fn active_id(&self) -> Option<u32> {
         self.status.calibration_id.map(|id| id.crc32)
+    }
+    /// The machine in force: the record of the image in force at boot (the slot store's).
+    fn machine(&self) -> MachineId {
+        self.machine
     }
 }

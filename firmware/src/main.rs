@@ -37,9 +37,11 @@
 //!   plays the link's motion instead of the built-in tour.
 //! * **Telemetry** ([`app::telemetry`], priority 1): defmt status at 4 Hz.
 //! * **Fault handling** ([`app::on_fault`], priority 1): reports the latched fault.
-//! * **Calibration**: the correction grid image is read from its own flash region and
-//!   validated at boot; a bad or missing image keeps the drives disabled unless
-//!   `Settings::allow_uncorrected` is set.
+//! * **Calibration and machine**: the correction grid image is read from its own flash region
+//!   and judged at boot against the machine record it carries; that record is the machine the
+//!   run drives (`Settings::machine`, `controller::calibration`). A bad or missing image keeps
+//!   the drives disabled unless `Settings::allow_uncorrected` is set. An upload's commit
+//!   judges the new image against that machine in the link task (priority 1).
 //! * Idle waits for interrupts (the QEMU board spins); it never holds a resource.
 //!
 //! The board (`firmware::board::Selected`, a `Board`) is the only thing that differs between
@@ -107,24 +109,41 @@ mod app {
         settings: Option<Settings> = None,
     ])]
     fn init(cx: init::Context) -> (Shared, Local) {
-        // One copy of the settings for the whole run, borrowed by every task.
-        let settings: &'static Settings = cx.local.settings.insert(Selected::settings());
-        defmt::info!("boot: settings {}", settings.servo);
-        let mut board = Selected::init(settings);
-        let reset_cause = board.reset_cause();
-        defmt::info!("boot: reset cause {}", reset_cause);
-
-        // The image in force: the committed slot with the highest sequence, or an image flashed
-        // by probe at the region's start (controller::calibration_slots).
-        let image_check = settings.image_check();
-        let slots = SlotStore::open(firmware::calibration::flash(), image_check);
+        // The machine: the image in force, the committed slot with the highest sequence or an
+        // image flashed by probe at the region's start (controller::calibration_slots), judged
+        // against its own machine record (the board's built-in machine if it carries none);
+        // its record is the machine this run drives (controller::calibration). Before the
+        // board: the settings it is given are the machine's.
+        let board_settings = Selected::settings();
+        let slots = SlotStore::open(firmware::calibration::flash(), board_settings.image_check());
         let calibration_id = slots.active_id();
-        defmt::info!("boot: calibration in force {}", calibration_id);
         let image = calibration_id.map_or(
             firmware::calibration::region(),
             firmware::calibration::slot_bytes,
         );
-        let (cal_state, cal) = calibration::load(image, &image_check, settings.allow_uncorrected);
+        let loaded = calibration::load(
+            image,
+            &board_settings.image_check(),
+            board_settings.allow_uncorrected,
+        );
+        // One copy of the settings for the whole run, borrowed by every task.
+        let settings: &'static Settings = cx
+            .local
+            .settings
+            .insert(board_settings.for_machine(&loaded.machine));
+        defmt::info!("boot: settings {}", settings.servo);
+        let mut board = Selected::init(settings);
+        let reset_cause = board.reset_cause();
+        defmt::info!("boot: reset cause {}", reset_cause);
+        defmt::info!("boot: calibration in force {}", calibration_id);
+        let machine = &settings.machine;
+        defmt::info!(
+            "boot: machine '{}' (digest {=u32:#x}), home {} mm",
+            machine.name.as_str(),
+            machine.digest(),
+            machine.home_mm
+        );
+        let (cal_state, cal) = (loaded.state, loaded.calibration);
         match cal_state {
             CalibrationState::Valid => {}
             CalibrationState::Refused(e) => {
@@ -151,7 +170,7 @@ mod app {
             }
         }
         let start_mm = if unhomed {
-            settings.home_mm
+            settings.home_mm()
         } else {
             servo_loop.setpoint_mm()
         };
@@ -211,6 +230,7 @@ mod app {
             absolute_encoders: settings.homing.absolute_encoders,
             link_motion: settings.link_motion,
             board: firmware::board::BOARD_ID,
+            machine: controller::host_link::machine_id(machine),
         };
         if settings.link_motion {
             defmt::info!("setpoints from the host link");

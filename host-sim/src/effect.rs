@@ -19,6 +19,12 @@
 //! | [`EncoderQuantization`](PhysicalEffect::EncoderQuantization) | `encoder_quantization` | `drive_*.encoder_counts_per_motor_rev` | — |
 //! | [`CyclicError`](PhysicalEffect::CyclicError) | `cyclic_error` | `drive_*.cyclic_error_*` | — (reported as unexplained, periodic) |
 //! | [`InstrumentNoise`](PhysicalEffect::InstrumentNoise) | `instrument_noise` | `instrument.noise_sigma_um` | the noise σ |
+//! | [`CoulombFriction`](PhysicalEffect::CoulombFriction) | `coulomb_friction` | `drive_*.coulomb_friction_nm` | the moving machine's (`dynamics::effects`): τc1, τc2 |
+//! | [`ViscousFriction`](PhysicalEffect::ViscousFriction) | `viscous_friction` | `drive_*.viscous_friction_nm_s_per_rad` | moving: b1, b2 |
+//! | [`ToolMass`](PhysicalEffect::ToolMass) | `tool_mass` | `linkage.tool_mass_kg` | moving: the mass at the tool point |
+//! | [`MotorInertia`](PhysicalEffect::MotorInertia) | `motor_inertia` | `drive_*.inertia_kg_m2` | moving: I1, I2 |
+//! | [`TorqueConstant`](PhysicalEffect::TorqueConstant) | `torque_constant` | `drive_*.torque_constant_error_pct` | moving: k1, k2 |
+//! | [`Cogging`](PhysicalEffect::Cogging) | `cogging` | `drive_*.cogging_*` | moving: amplitude and phase per motor |
 //!
 //! Where a change goes: a new effect is a variant here (name, row above), its setting in
 //! `plant/config.rs` if the plant has it, its entry in `diagnose/library.rs` if the diagnosis
@@ -59,11 +65,23 @@ pub enum PhysicalEffect {
     CyclicError,
     /// The instrument's Gaussian noise.
     InstrumentNoise,
+    /// Coulomb friction at a motor the dynamics model lacks.
+    CoulombFriction,
+    /// Viscous friction at a motor the dynamics model lacks.
+    ViscousFriction,
+    /// A mass at the tool point the dynamics model lacks (a heavier tool or payload).
+    ToolMass,
+    /// An error of a motor's inertia (rotor and gearbox).
+    MotorInertia,
+    /// A motor delivering another torque per command than the controller assumes.
+    TorqueConstant,
+    /// A torque ripple periodic in a motor's angle.
+    Cogging,
 }
 
 impl PhysicalEffect {
     /// Every effect, in the order of the module doc's table.
-    pub const ALL: [PhysicalEffect; 14] = [
+    pub const ALL: [PhysicalEffect; 20] = [
         PhysicalEffect::LinkLengths,
         PhysicalEffect::EncoderOffset,
         PhysicalEffect::BaseOffset,
@@ -78,6 +96,12 @@ impl PhysicalEffect {
         PhysicalEffect::EncoderQuantization,
         PhysicalEffect::CyclicError,
         PhysicalEffect::InstrumentNoise,
+        PhysicalEffect::CoulombFriction,
+        PhysicalEffect::ViscousFriction,
+        PhysicalEffect::ToolMass,
+        PhysicalEffect::MotorInertia,
+        PhysicalEffect::TorqueConstant,
+        PhysicalEffect::Cogging,
     ];
 
     /// The name (reports, files, the diagnosis' JSON).
@@ -97,6 +121,12 @@ impl PhysicalEffect {
             PhysicalEffect::EncoderQuantization => "encoder_quantization",
             PhysicalEffect::CyclicError => "cyclic_error",
             PhysicalEffect::InstrumentNoise => "instrument_noise",
+            PhysicalEffect::CoulombFriction => "coulomb_friction",
+            PhysicalEffect::ViscousFriction => "viscous_friction",
+            PhysicalEffect::ToolMass => "tool_mass",
+            PhysicalEffect::MotorInertia => "motor_inertia",
+            PhysicalEffect::TorqueConstant => "torque_constant",
+            PhysicalEffect::Cogging => "cogging",
         }
     }
 

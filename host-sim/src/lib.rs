@@ -17,6 +17,7 @@
 //! | [`cut`] | the redundant machine cuts a part program: G-code, split planner, bound, execution |
 //! | [`calib`] | protocols, the one measurement path, fits, grid, command, accuracy, the demo pipeline |
 //! | [`diagnose`] | where model and measurements disagree, and which effect is missing |
+//! | [`dynamics`] | the moving machine from telemetry: excitation, identification through the controller, diagnosis of the dynamics model |
 //! | [`synth`] | measurements of machines with hidden effects, shared by the diagnosis' tests and studies |
 //! | [`numeric`] | the one Levenberg–Marquardt, finite differences, column-scaled SVD, max/RMS |
 //! | [`link`] | the controller's host link: client, streamed motion, calibration upload, telemetry |
@@ -45,6 +46,7 @@ pub mod commission;
 pub mod cosim;
 pub mod cut;
 pub mod diagnose;
+pub mod dynamics;
 pub mod effect;
 pub mod gantry_spec;
 pub mod io;

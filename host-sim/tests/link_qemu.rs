@@ -117,7 +117,24 @@ fn the_host_tool_drives_the_firmware_under_qemu() {
     // the host computes from the same bytes.
     let id = ok(&addr, &["identify"]);
     assert_eq!(id["board"], "Qemu");
-    assert_eq!(id["protocol_version"], 2);
+    assert_eq!(
+        id["protocol_version"],
+        host_sim::link::link_protocol::PROTOCOL_VERSION
+    );
+    // The machine it drives: the bundled image carries no machine record, so the firmware's
+    // built-in one, the paper machine's (host-sim's machines/paper.toml).
+    let paper = kinematics_core::MachineRecord::paper();
+    assert_eq!(
+        (
+            id["machine"]["name"].as_str(),
+            id["machine"]["digest"].as_str()
+        ),
+        (
+            Some("paper"),
+            Some(format!("{:08x}", paper.digest()).as_str())
+        ),
+        "{id}"
+    );
     let bundled_id = calibration_image_id(&synthetic::synthetic_image(1.0));
     assert_eq!(
         id["calibration_id"].as_u64(),
@@ -337,8 +354,10 @@ fn the_host_tool_drives_the_firmware_under_qemu() {
         "following error {max_error_urad} urad"
     );
     let text = std::fs::read_to_string(&csv).unwrap();
+    assert!(text.starts_with("# machine=paper digest="), "{text}");
     let xs: Vec<f64> = text
         .lines()
+        .filter(|l| !l.starts_with('#'))
         .skip(1)
         .map(|l| l.split(',').nth(1).unwrap().parse().unwrap())
         .collect();
@@ -454,9 +473,11 @@ fn small_image(
     img
 }
 
-/// Issue-grade attacks on the calibration door, through the real firmware: CRC-valid images
-/// with absurd content refused at commit with the parameter and its values (the image in force
-/// stays, nothing moves); another machine's image named; an upload begun while a committed
+/// Attacks on the calibration door, through the real firmware: CRC-valid images with absurd
+/// content refused at commit with the parameter and its values (the image in force stays,
+/// nothing moves); another design's model named with the parameter and both values; another
+/// machine's commissioning image (its own machine record) refused naming both machines, by the
+/// controller and in `host-sim link`'s message; an upload begun while a committed
 /// image waits for the switch refused (the slot in use is never erased: the machine keeps
 /// holding, no fault); resets after a switch under way re-engage every time; a client's stale
 /// bytes never turn a move that ran into a refusal; Ctrl-C turns the telemetry off.
@@ -475,7 +496,8 @@ fn calibration_and_reset_safety(addr: &str, work: &Path, in_force: u32) {
                 .unwrap();
         match host_sim::link::upload_calibration(&mut client, bytes, &mut |_, _| {}) {
             Ok(id) => panic!("accepted: {id:#010x}"),
-            Err(e) => format!("{e:?}"),
+            // The code and the sentence (the parameter's name and both values).
+            Err(e) => format!("{e:?} / {e}"),
         }
     };
     let before = ok(addr, &["status"]);
@@ -489,23 +511,57 @@ fn calibration_and_reset_safety(addr: &str, work: &Path, in_force: u32) {
     });
     let refusal = raw_upload(&small_image(&nominal, checker, None));
     assert!(
-        refusal.contains("Implausible") && refusal.contains("NodeCorrectionRad"),
+        refusal.contains("Implausible") && refusal.contains("NodeCorrectionMm"),
         "{refusal}"
     );
     // Masses 1000× the machine's.
     let heavy = machine::IMAGE_DYNAMICS.scaled_masses([1000.0; 5]);
     let refusal = raw_upload(&small_image(&nominal, [[0.0; 2]; 9], Some(heavy)));
-    assert!(refusal.contains("InertiaHighKgM2"), "{refusal}");
-    // Another machine: link b 11 mm longer; the refusal names it with both values.
+    assert!(refusal.contains("InertiaRatio"), "{refusal}");
+    // Another design: link b 11 mm longer; the refusal names it with both values.
     let other = kinematics_core::FiveBar {
         b_mm: nominal.b_mm + 11.0,
         ..nominal
     };
     let refusal = raw_upload(&small_image(&other, [[0.0; 2]; 9], None));
     assert!(
-        refusal.contains("OtherMachine") && refusal.contains("LinkBMm") && refusal.contains("161"),
+        refusal.contains("OtherMachine")
+            && refusal.contains("LinkBMm")
+            && refusal.contains("b_mm is 161.0000 in the image, 150.0000 on this machine"),
         "{refusal}"
     );
+    // The second machine's commissioning image: consistent with its own record, so the host
+    // tool sends it; the controller, the paper machine, refuses it naming both machines, and
+    // `host-sim link` says so.
+    let second = work.join("second-commissioning.bin");
+    let out = Command::new(env!("CARGO_BIN_EXE_host-sim"))
+        .args(["grid", "--nominal", "--machine"])
+        .arg(workspace_root().join("host-sim/machines/second.toml"))
+        .arg("--out")
+        .arg(&second)
+        .output()
+        .expect("host-sim runs");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let second_record = kinematics_core::CorrectionGrid::parse(&std::fs::read(&second).unwrap())
+        .unwrap()
+        .machine()
+        .expect("a commissioning image carries its machine record");
+    let refusal = refused(addr, &["upload", "--grid", second.to_str().unwrap()]);
+    let paper = kinematics_core::MachineRecord::paper();
+    for expected in [
+        "OtherRecord".to_owned(),
+        format!(
+            "the image was built for machine 'second' (digest {:08x}); this controller is machine 'paper' (digest {:08x})",
+            second_record.digest(),
+            paper.digest()
+        ),
+    ] {
+        assert!(refusal.contains(&expected), "{expected}: {refusal}");
+    }
     assert_eq!(
         ok(addr, &["identify"])["calibration_id"].as_u64(),
         Some(u64::from(in_force)),

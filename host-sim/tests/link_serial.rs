@@ -14,8 +14,8 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use host_sim::link::link_protocol::{
-    decode, encode, Board, Command, DeviceBody, DeviceMessage, FrameReader, Identity, Received,
-    Request, Response, MAX_FRAME_LEN, PROTOCOL_VERSION,
+    decode, encode, Board, Command, DeviceBody, DeviceMessage, FrameReader, Identity, MachineId,
+    Received, Request, Response, MAX_FRAME_LEN, PROTOCOL_VERSION,
 };
 use serialport::{SerialPort, TTYPort};
 
@@ -74,6 +74,7 @@ fn fake_controller(
                         firmware_version: [0, 1, 0],
                         board: Board::Stm32G474,
                         calibration_id: Some(0x1234_5678),
+                        machine: MachineId::new("second", 0x0bad_cafe),
                     })),
                     _ => continue,
                 };
@@ -115,6 +116,14 @@ fn identify_over_a_serial_port() {
     let id: serde_json::Value = serde_json::from_str(&stdout).expect("JSON report");
     assert_eq!(id["board"], "Stm32G474", "{stdout}");
     assert_eq!(id["calibration_id"], 0x1234_5678, "{stdout}");
+    assert_eq!(
+        (
+            id["machine"]["name"].as_str(),
+            id["machine"]["digest"].as_str()
+        ),
+        (Some("second"), Some("0badcafe")),
+        "{stdout}"
+    );
     assert_eq!(id["protocol_version"], PROTOCOL_VERSION, "{stdout}");
     assert_eq!(seen, [Command::Identify]);
 }

@@ -28,8 +28,11 @@
 //! # Which image is in force
 //! At boot ([`SlotStore::open`]) a slot counts if its record is complete (magic, version,
 //! record CRC, marker), its image's bytes match the record's length and CRC, and the image
-//! passes [`validate_image`](crate::calibration::validate_image) (format, grid CRC, this
-//! machine). Of the slots that count, the one with the highest sequence number is in force.
+//! passes [`validate_image`](crate::calibration::validate_image) judged against its own machine
+//! record (format, grid CRC, its model a model of its machine, plausible). Of the slots that
+//! count, the one with the highest sequence number is in force, and its record is the machine
+//! the controller drives ([`SlotStore::machine`]); an upload's commit judges the new image
+//! against that machine (`crate::calibration`, "The machine is the image's").
 //! The record's image CRC is not redundant with the grid's own: a probe that reflashes a slot's
 //! start with another image of the same length leaves the old record behind, and that image
 //! parses with the record's length; only the record's CRC-32C tells it is not the committed one
@@ -54,11 +57,13 @@
 //! whose read raises an NMI (RM0440, FLASH ECC). The board's flash driver must treat ECCD on a
 //! read of the inactive slot as "no record"; see firmware/README.md.
 //!
-//! Cost: `open` computes two CRCs over the images (a few ms at boot); `write` copies the bytes;
-//! `commit` one CRC and a parse. None of it runs in the servo task: the app calls it from a
-//! low-priority task, and on the G474 the calibration region is in bank 2 while the program
-//! runs from bank 1.
-use crate::calibration::{validate_image, ImageCheck, ImageError};
+//! Cost: `open` computes two CRCs over the images and judges the images that count (a few ms
+//! at boot); `write` copies the bytes; `commit` one CRC, a parse and the judgement
+//! (`cargo qemu-bench`'s `image_commit_check`, figure in firmware/README.md). None of it runs
+//! in the servo task: the app calls it from a low-priority task, and on the G474 the
+//! calibration region is in bank 2 while the program runs from bank 1.
+use crate::calibration::{validate_image, ImageCheck, ImageError, Judged};
+use kinematics_core::machine::MachineRecord;
 
 /// The record's own CRC (CRC-32/ISO-HDLC, zlib's, as the grid format uses).
 const CRC32: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
@@ -230,7 +235,8 @@ pub struct SlotStore<F: SlotFlash> {
 
 impl<F: SlotFlash> SlotStore<F> {
     /// Scans both slots and picks the image in force (module doc). `check` judges each image
-    /// (this machine's, plausible: `Settings::image_check`).
+    /// (`Settings::image_check`: its machine is the built-in one an image without a record is
+    /// judged against); the machine in force becomes the record of the image in force.
     pub fn open(flash: F, check: ImageCheck) -> Self {
         let mut store = SlotStore {
             flash,
@@ -239,8 +245,8 @@ impl<F: SlotFlash> SlotStore<F> {
             upload: None,
         };
         let committed = [0u8, 1].map(|slot| store.committed(slot));
-        store.active = match committed {
-            [Some(a), Some(b)] => Some(if b.sequence.wrapping_sub(a.sequence) as i32 > 0 {
+        let active = match committed {
+            [Some(a), Some(b)] => Some(if b.0.sequence.wrapping_sub(a.0.sequence) as i32 > 0 {
                 b
             } else {
                 a
@@ -249,7 +255,18 @@ impl<F: SlotFlash> SlotStore<F> {
             [None, Some(b)] => Some(b),
             [None, None] => store.probe_flashed(),
         };
+        if let Some((id, machine)) = active {
+            store.active = Some(id);
+            store.check.machine = machine;
+        }
         store
+    }
+
+    /// The machine in force: the record of the image in force at boot (the built-in one when
+    /// it carries none, or when no image is in force). Uploads are judged against it and never
+    /// change it.
+    pub fn machine(&self) -> &MachineRecord {
+        &self.check.machine
     }
 
     /// Bytes per slot.
@@ -353,7 +370,8 @@ impl<F: SlotFlash> SlotStore<F> {
     }
 
     /// Finishes the upload: programs the last partial write unit (padded with 0xFF), reads the
-    /// slot back, validates the image ([`validate_image`]: format, CRC, this machine), then
+    /// slot back, validates the image ([`validate_image`] at a commit: format, CRC, the machine
+    /// in force's, plausible), then
     /// programs the commit record, marker last. On success the new image is in force (the
     /// caller switches the servo to it, see the app) and its id is returned; on any error the
     /// old image stays in force.
@@ -376,7 +394,9 @@ impl<F: SlotFlash> SlotStore<F> {
                 .program(base + up.len as usize - up.tail_len, &unit[..w])?;
         }
         let image = &self.flash.region()[base..base + up.len as usize];
-        let (_, parsed_len) = validate_image(image, &self.check).map_err(SlotError::Image)?;
+        let parsed_len = validate_image(image, &self.check, Judged::AtCommit)
+            .map_err(SlotError::Image)?
+            .len;
         // The image must be exactly what was announced (no trailing bytes a CRC does not cover).
         if parsed_len != up.len as usize {
             return Err(SlotError::BadLength {
@@ -396,8 +416,8 @@ impl<F: SlotFlash> SlotStore<F> {
             crc32,
             len: up.len,
         };
-        // Read back: the record as the next boot will see it.
-        if self.committed(up.slot) != Some(id) {
+        // Read back: the record as the next boot will see it (the image was judged above).
+        if self.recorded(up.slot) != Some(id) {
             return Err(SlotError::Flash(FlashError::Hardware));
         }
         self.active = Some(id);
@@ -434,8 +454,19 @@ impl<F: SlotFlash> SlotStore<F> {
         &self.flash
     }
 
-    /// `slot`'s record and image, if they count (module doc).
-    fn committed(&self, slot: u8) -> Option<CalibrationId> {
+    /// `slot`'s record and image, if they count (module doc), and the machine the image
+    /// defines.
+    fn committed(&self, slot: u8) -> Option<(CalibrationId, MachineRecord)> {
+        let id = self.recorded(slot)?;
+        let start = slot as usize * self.slot_len();
+        let image = self.flash.region().get(start..start + id.len as usize)?;
+        let valid = validate_image(image, &self.check, Judged::AtBoot).ok()?;
+        (valid.len == id.len as usize).then_some((id, valid.machine))
+    }
+
+    /// `slot`'s complete record whose image bytes have the record's length and CRC (the image
+    /// not judged).
+    fn recorded(&self, slot: u8) -> Option<CalibrationId> {
         let slot_len = self.slot_len();
         let bytes = self
             .flash
@@ -445,11 +476,7 @@ impl<F: SlotFlash> SlotStore<F> {
         let image = bytes
             .get(..len as usize)
             .filter(|_| len as usize <= slot_len - RECORD_LEN)?;
-        if image_crc(image) != crc32 {
-            return None;
-        }
-        let (_, parsed_len) = validate_image(image, &self.check).ok()?;
-        (parsed_len == len as usize).then_some(CalibrationId {
+        (image_crc(image) == crc32).then_some(CalibrationId {
             slot,
             sequence,
             crc32,
@@ -457,16 +484,18 @@ impl<F: SlotFlash> SlotStore<F> {
         })
     }
 
-    /// An image at the start of slot A without any record (flashed by probe), sequence 0.
-    fn probe_flashed(&self) -> Option<CalibrationId> {
+    /// An image at the start of slot A without any record (flashed by probe), sequence 0, and
+    /// the machine it defines.
+    fn probe_flashed(&self) -> Option<(CalibrationId, MachineRecord)> {
         let a = self.flash.region().get(..self.capacity())?;
-        let (_, len) = validate_image(a, &self.check).ok()?;
-        Some(CalibrationId {
+        let valid = validate_image(a, &self.check, Judged::AtBoot).ok()?;
+        let id = CalibrationId {
             slot: 0,
             sequence: 0,
-            crc32: image_crc(&a[..len]),
-            len: len as u32,
-        })
+            crc32: image_crc(&a[..valid.len]),
+            len: valid.len as u32,
+        };
+        Some((id, valid.machine))
     }
 }
 

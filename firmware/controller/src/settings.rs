@@ -1,24 +1,26 @@
 //! Run-time settings of the firmware, in one place.
 //!
-//! On the real board these are compiled in today ([`Settings::default`]); a host link would
-//! replace them before the drives are enabled. Nothing here is read from the calibration image:
-//! the image carries the geometry only. The app keeps one `&'static Settings` (set up in
-//! `init`) that every task borrows. [`Settings::validate`] checks every field (settings are
+//! Two sources: the board's (drive-level: gains, encoder resolution, limits of the servo, the
+//! stop's dynamics; compiled in, [`Settings::default`] and each board's `settings()`) and the
+//! machine's ([`Settings::machine`], the machine record of the calibration image in force,
+//! `crate::calibration`): nominal model and working mode, workspace and stop margin, home
+//! position, the limits a calibration image is judged against. At boot the app takes the
+//! board's settings, judges the image in force and adopts its record
+//! ([`Settings::for_machine`]); the app then keeps one `&'static Settings` (set up in `init`)
+//! that every task borrows. [`Settings::validate`] checks every field (settings are
 //! meant to come over a link): the servo loop refuses to enable the drives with settings it
 //! refuses (`Fault::Settings`), and no value of them can make the firmware panic.
 use kinematics_core::{ConfigError, ServoConfig};
 
-use crate::calibration::{ImageCheck, MachineIdentity};
+use crate::calibration::ImageCheck;
 use crate::encoder::{EncoderConfig, EncoderConfigError, EncoderScale};
 use crate::encoder_check::EncoderLimits;
 use crate::homing::HomingSettings;
-use crate::plausibility::ImageLimits;
+use crate::plausibility::max_slope_change_rad_per_mm;
 use crate::stop::StopSettings;
 use crate::trajectory::{Profile, Trajectory};
+use kinematics_core::machine::MachineRecord;
 use kinematics_core::TaskLimits;
-
-/// The default home position (mm): the middle of the paper's workspace.
-pub const HOME_MM: [f32; 2] = [212.132, 0.0];
 
 /// Every run-time setting, with the defaults documented on each field.
 #[derive(Clone, Copy, Debug)]
@@ -79,16 +81,18 @@ pub struct Settings {
     /// Encoder plausibility: the mechanism's speed and acceleration, the stuck-encoder check.
     /// See [`EncoderLimits`].
     pub encoder_limits: EncoderLimits,
-    /// The machine this firmware runs: nominal geometry and how far a calibration image's model
-    /// may be from it (`calibration::MachineIdentity`). Default: the paper's machine, 2 mm /
-    /// 2 mm / 0.05 rad.
-    pub machine: MachineIdentity,
+    /// The machine the controller drives (`crate::calibration`, "The machine is the image's"):
+    /// name, nominal model and working mode, workspace and stop margin, home position (where
+    /// homing ends), the limits a calibration image is judged against. At boot the app sets it
+    /// to the record of the image in force ([`Settings::for_machine`]); what the board gives is
+    /// the built-in machine, the one an image without a record is judged against. Default:
+    /// the paper's machine, `MachineRecord::paper()` (equal to host-sim's
+    /// `machines/paper.toml`).
+    pub machine: MachineRecord,
     /// Homing: absolute encoders (no homing) or the index procedure, its limits and whether it
-    /// runs at boot. See [`HomingSettings`].
+    /// runs at boot. See [`HomingSettings`]. Where homing ends is the machine's
+    /// (`machine.home_mm`).
     pub homing: HomingSettings,
-    /// The home position (mm): where homing ends, and what every calibration image's grid must
-    /// contain. Default (212.132, 0), the middle of the paper's workspace.
-    pub home_mm: [f32; 2],
     /// Switching to a newly committed calibration at rest: how far it may move the tool and
     /// how fast (`servo_loop::switch`). See [`SwitchSettings`].
     pub switch: SwitchSettings,
@@ -180,20 +184,30 @@ impl Settings {
         }
     }
 
-    /// What a calibration image must be to be used with these settings: this machine's, with
-    /// the home position in its grid, and plausible (`plausibility`: limits from the machine's
-    /// tolerances, the servo and the encoder check's top speed).
+    /// These settings with the machine `record` adopted (module doc): the machine, and the
+    /// stop margin from its workspace. Everything else stays the board's.
+    pub fn for_machine(&self, record: &MachineRecord) -> Settings {
+        let mut stop = self.stop;
+        stop.workspace_margin_mm = record.workspace.stop_margin_mm;
+        Settings {
+            machine: *record,
+            stop,
+            ..*self
+        }
+    }
+
+    /// How calibration images are judged with these settings (`crate::calibration`): against
+    /// [`Settings::machine`], plus the servo's slope-change limit from its top speed.
     pub fn image_check(&self) -> ImageCheck {
         ImageCheck {
             machine: self.machine,
-            home_mm: self.home_mm,
-            limits: Some(ImageLimits::of(
-                &self.machine.nominal,
-                self.machine.max_length_deviation_mm,
-                &self.servo,
-                self.encoder_limits.max_speed_rad_s,
-            )),
+            max_slope_change_rad_per_mm: Some(max_slope_change_rad_per_mm(&self.servo)),
         }
+    }
+
+    /// Where homing ends and the servo engages after it (mm): the machine's home.
+    pub fn home_mm(&self) -> [f32; 2] {
+        self.machine.home_mm
     }
 
     /// The limits the host link's motion (planned moves, streamed knots) must keep: the same
@@ -255,17 +269,10 @@ impl Settings {
             (positive(self.switch.max_move_mm), "switch.max_move_mm"),
             (positive(self.switch.speed_mm_s), "switch.speed_mm_s"),
             (positive(self.switch.accel_mm_s2), "switch.accel_mm_s2"),
-            (self.home_mm.iter().all(|v| v.is_finite()), "home_mm"),
-            (self.machine.nominal.validate().is_ok(), "machine.nominal"),
+            (self.machine.validate().is_ok(), "machine (its record)"),
             (
-                [
-                    self.machine.max_length_deviation_mm,
-                    self.machine.max_base_deviation_mm,
-                    self.machine.max_offset_deviation_rad,
-                ]
-                .iter()
-                .all(|&v| positive(v)),
-                "machine tolerances",
+                self.machine.encoder_sign == [1, 1],
+                "machine.encoder_sign (the counting direction is Settings::encoders' sign)",
             ),
         ] {
             if !ok {
@@ -297,8 +304,7 @@ impl Default for Settings {
             link_motion: false,
             stop: StopSettings::default(),
             encoder_limits: EncoderLimits::default(),
-            machine: MachineIdentity::default(),
-            home_mm: HOME_MM,
+            machine: MachineRecord::paper(),
             homing: HomingSettings::default(),
             switch: SwitchSettings::default(),
         }

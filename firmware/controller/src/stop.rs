@@ -216,6 +216,24 @@ impl Workspace {
         }
     }
 
+    /// The workspace of a calibration image on the machine `machine` (its record's workspace,
+    /// `Settings::machine`): the image's block when it has one (judged inside the machine's);
+    /// without one, the machine's polygon where the grid covers it (a stop must end where the
+    /// grid corrects), else the grid's rectangle ([`Self::of_image`]).
+    pub fn of_machine_image(
+        grid: &CorrectionGrid<'_>,
+        machine: &ConvexWorkspace<f32>,
+        margin_mm: f32,
+    ) -> Option<Self> {
+        if grid.workspace().is_none() && grid.geometry().covers(machine) {
+            return Some(Workspace {
+                region: *machine,
+                margin_mm,
+            });
+        }
+        Self::of_image(grid, margin_mm)
+    }
+
     /// Whether `p_mm` is inside, at least the margin from every edge (on it counts; NaN does
     /// not).
     pub fn contains(&self, p_mm: [f32; 2]) -> bool {
@@ -607,7 +625,8 @@ mod tests {
             &std::vec![[0.0; 2]; g.len()],
         )
         .unwrap();
-        let plain = CorrectionGrid::parse(&img[..n]).unwrap();
+        let plain_img = img[..n].to_vec();
+        let plain = CorrectionGrid::parse(&plain_img).unwrap();
         assert_eq!(
             Workspace::of_image(&plain, 0.1),
             Workspace::of_grid(&g, 0.1)
@@ -637,6 +656,21 @@ mod tests {
         // Inside the grid's rectangle but beyond the cut corner: refused.
         assert!(Workspace::of_grid(&g, 0.1).unwrap().contains([255.0, 70.0]));
         assert!(!w.contains([255.0, 70.0]) && !w.contains([212.0, 74.6]));
+        // On a machine: the block wins; without one, the machine's polygon where the grid
+        // covers it, else the grid's rectangle.
+        let hexagon = limits.region;
+        assert_eq!(
+            Workspace::of_machine_image(&grid, &hexagon, 0.1),
+            Workspace::of_image(&grid, 0.1)
+        );
+        let on_machine = Workspace::of_machine_image(&plain, &hexagon, 0.1).unwrap();
+        assert_eq!(on_machine.region(), &hexagon);
+        assert!(!on_machine.contains([255.0, 70.0]));
+        let wider = ConvexWorkspace::rectangle([150.0, 270.0], [-80.0, 80.0]).unwrap();
+        assert_eq!(
+            Workspace::of_machine_image(&plain, &wider, 0.1),
+            Workspace::of_grid(&g, 0.1)
+        );
     }
 
     #[test]

@@ -30,11 +30,13 @@
 
 use serde::{Deserialize, Serialize};
 
+mod calibration;
 mod frame;
+pub use calibration::{CalibrationRefusal, ImageParameter, MachineId, MACHINE_NAME_LEN};
 pub use frame::{decode, encode, FrameReader, Received};
 
 /// Protocol version carried first in every message. Bumped when any message changes.
-pub const PROTOCOL_VERSION: u16 = 2;
+pub const PROTOCOL_VERSION: u16 = 3;
 /// Largest encoded frame, COBS overhead and delimiter included (bytes).
 pub const MAX_FRAME_LEN: usize = 256;
 /// Largest postcard payload of a frame, before the CRC and COBS (bytes): what fits in
@@ -89,7 +91,7 @@ impl Request {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum Command {
-    /// Firmware version, board, protocol version, calibration id: [`Response::Identity`].
+    /// Firmware version, board, protocol version, calibration id, machine: [`Response::Identity`].
     Identify,
     /// The controller's state: [`Response::Status`].
     Status,
@@ -143,7 +145,7 @@ pub enum Command {
         /// Up to [`CALIBRATION_CHUNK_LEN`] bytes.
         data: heapless::Vec<u8, CALIBRATION_CHUNK_LEN>,
     },
-    /// Validate the uploaded image (header, CRC, built for this machine) and switch to it
+    /// Validate the uploaded image (header, CRC, this machine's, plausible) and switch to it
     /// atomically: [`Response::CalibrationId`] of the new image. A refused image leaves the
     /// old one in force.
     CalibrationCommit,
@@ -257,6 +259,10 @@ pub struct Identity {
     pub board: Board,
     /// The id of the calibration image in force ([`calibration_image_id`]), `None` if none is.
     pub calibration_id: Option<u32>,
+    /// The machine the controller drives: the machine record of the image in force (its
+    /// `HRMC` block), or the firmware's built-in record when the image carries none or no image
+    /// is in force. An upload must be an image of this machine.
+    pub machine: MachineId,
 }
 
 /// The servo loop's mode, as the link reports it.
@@ -465,105 +471,3 @@ pub enum SegmentRefusal {
 /// Longest segment between two knots (µs): 1 s. Longer would let a single knot pin the machine
 /// to a path the host no longer watches.
 pub const MAX_SEGMENT_US: u32 = 1_000_000;
-
-/// Why a calibration upload was refused. The image in force stays in force.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum CalibrationRefusal {
-    /// No upload was begun.
-    NotBegun,
-    /// Longer than [`MAX_CALIBRATION_IMAGE_LEN`] or empty.
-    Length,
-    /// A chunk's offset is not the bytes received so far.
-    Offset,
-    /// More bytes than announced, or commit before all arrived.
-    Incomplete,
-    /// The image's header, CRC or format is invalid.
-    Invalid,
-    /// The image was built for another machine: `parameter` of its model is `image`, this
-    /// machine's is `machine`, and they may differ by `tolerance` at most.
-    OtherMachine {
-        /// What differs.
-        parameter: ImageParameter,
-        /// The image's value (the parameter's unit).
-        image: f32,
-        /// This machine's.
-        machine: f32,
-        /// The largest difference accepted.
-        tolerance: f32,
-    },
-    /// The image is this machine's but carries something no calibration of it can need:
-    /// `parameter` is `value`, beyond `limit` (docs/reference/calibration-image.md).
-    Implausible {
-        /// What is out of bounds.
-        parameter: ImageParameter,
-        /// Its value (the parameter's unit).
-        value: f32,
-        /// The bound it exceeds.
-        limit: f32,
-    },
-    /// Writing the flash failed.
-    Flash,
-    /// Not while the drives are on and moving.
-    Busy,
-    /// A committed image is waiting for the servo to switch to it (at the next rest): a new
-    /// upload would erase the slot the servo still uses. Bring the machine to rest (or reset a
-    /// held fault) and begin again once [`Identify`](Command::Identify) reports the new id.
-    SwitchPending,
-}
-
-/// What of a calibration image a refusal names ([`CalibrationRefusal::OtherMachine`],
-/// [`CalibrationRefusal::Implausible`]); units in the names.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum ImageParameter {
-    /// The working mode (elbows and assembly branch as flags: bit 0 elbow 1, bit 1 elbow 2,
-    /// bit 2 assembly, set when positive).
-    WorkingMode,
-    /// Link `a` (mm).
-    LinkAMm,
-    /// Link `b` (mm).
-    LinkBMm,
-    /// Link `c` (mm).
-    LinkCMm,
-    /// Link `d` (mm).
-    LinkDMm,
-    /// Base A0, x (mm).
-    BaseA0XMm,
-    /// Base A0, y (mm).
-    BaseA0YMm,
-    /// Base B0 relative to A0, x (mm).
-    BaseB0XMm,
-    /// Base B0 relative to A0, y (mm).
-    BaseB0YMm,
-    /// Encoder offset of joint 1 (rad).
-    EncoderOffset1Rad,
-    /// Encoder offset of joint 2 (rad).
-    EncoderOffset2Rad,
-    /// The home position's x (mm) against the grid's nearest edge.
-    HomeXMm,
-    /// The home position's y (mm) against the grid's nearest edge.
-    HomeYMm,
-    /// The largest node correction (rad).
-    NodeCorrectionRad,
-    /// The largest difference between neighbouring nodes, per millimetre of grid step (rad/mm).
-    NeighbourDifferenceRadPerMm,
-    /// The largest change of the correction's slope from one cell to the next (rad/mm): what a
-    /// move across the grid turns into a step of the reference speed.
-    SlopeChangeRadPerMm,
-    /// The largest diagonal term of the image's mass matrix over the workspace (kg·m²).
-    InertiaHighKgM2,
-    /// The smallest diagonal term (kg·m²).
-    InertiaLowKgM2,
-    /// The mass matrix's determinant over the workspace (kg²·m⁴): not positive definite.
-    MassMatrixDeterminant,
-    /// Viscous friction (N·m·s/rad).
-    ViscousNmSPerRad,
-    /// Coulomb friction (N·m).
-    CoulombNm,
-    /// Backlash of a drive (rad).
-    BacklashRad,
-    /// A workspace vertex the machine's model cannot reach (distance off the reachable set is
-    /// not known: the value is the vertex's x, mm).
-    WorkspaceVertexXMm,
-}

@@ -186,6 +186,20 @@ fn the_largest_messages_fit() {
             value: f32::MAX,
             limit: f32::MIN_POSITIVE,
         },
+        CalibrationRefusal::ImplausibleAt {
+            parameter: ImageParameter::ModelPose,
+            at_mm: [f32::MAX, f32::MIN],
+        },
+        CalibrationRefusal::OtherRecord {
+            image: MachineId {
+                name: [0xFF; MACHINE_NAME_LEN],
+                digest: u32::MAX,
+            },
+            controller: MachineId {
+                name: [0x7E; MACHINE_NAME_LEN],
+                digest: u32::MAX,
+            },
+        },
     ] {
         roundtrip(&DeviceMessage::new(DeviceBody::Reply {
             seq: u16::MAX,
@@ -195,6 +209,86 @@ fn the_largest_messages_fit() {
     roundtrip(&DeviceMessage::new(DeviceBody::FrameRejected(
         FrameError::Version(u16::MAX),
     )));
+    let identity = Identity {
+        protocol_version: u16::MAX,
+        firmware_version: [u16::MAX; 3],
+        board: Board::Stm32G474,
+        calibration_id: Some(u32::MAX),
+        machine: MachineId {
+            name: [0xFF; MACHINE_NAME_LEN],
+            digest: u32::MAX,
+        },
+    };
+    roundtrip(&DeviceMessage::new(DeviceBody::Reply {
+        seq: u16::MAX,
+        result: Ok(Response::Identity(identity)),
+    }));
+}
+
+/// Every refusal reads as a sentence naming what differs with its values.
+#[test]
+fn refusals_print_the_parameter_and_both_values() {
+    let other = CalibrationRefusal::OtherMachine {
+        parameter: ImageParameter::LinkBMm,
+        image: 161.0,
+        machine: 150.0,
+        tolerance: 3.0,
+    };
+    let s = other.to_string();
+    assert!(
+        s.contains("b_mm is 161.0000 in the image, 150.0000 on this machine"),
+        "{s}"
+    );
+    let record = CalibrationRefusal::OtherRecord {
+        image: MachineId::new("second", 0x1234_abcd),
+        controller: MachineId::new("paper", 0xdead_beef),
+    };
+    let s = record.to_string();
+    assert!(
+        s.contains("machine 'second' (digest 1234abcd)")
+            && s.contains("machine 'paper' (digest deadbeef)"),
+        "{s}"
+    );
+    let mode = CalibrationRefusal::OtherMachine {
+        parameter: ImageParameter::WorkingMode,
+        image: 3.0,
+        machine: 7.0,
+        tolerance: 0.0,
+    };
+    assert!(
+        mode.to_string()
+            .contains("is (+, +, -), this machine's (+, +, +)"),
+        "{mode}"
+    );
+    let far = CalibrationRefusal::OtherMachine {
+        parameter: ImageParameter::ToolPositionMm,
+        image: 24.7,
+        machine: 0.0,
+        tolerance: 3.0,
+    };
+    assert!(far.to_string().contains("up to 24.700 mm"), "{far}");
+    let big = CalibrationRefusal::Implausible {
+        parameter: ImageParameter::NodeCorrectionMm,
+        value: 7.5,
+        limit: 3.0,
+    };
+    assert!(
+        big.to_string().contains("(mm) is 7.5e0, the limit 3e0"),
+        "{big}"
+    );
+    let at = CalibrationRefusal::ImplausibleAt {
+        parameter: ImageParameter::HomePosition,
+        at_mm: [300.0, 0.0],
+    };
+    assert!(
+        at.to_string()
+            .contains("outside the image's grid at (300.000, 0.000)"),
+        "{at}"
+    );
+    assert_eq!(
+        MachineId::new("a-name-longer-than-16", 1).name(),
+        "a-name-longer-th"
+    );
 }
 
 #[test]

@@ -21,6 +21,11 @@
 //!   trajectory evaluated (exact derivatives) and `Servo::step_motion` with the identified
 //!   dynamics fed forward (`Servo::step_motion` with a `ValidCalibration`; and `servo_step_motion_uncorrected`,
 //!   without grid, and `servo_step_motion_backlash`, with the backlash block);
+//! * `judge_image`: `kinematics_core::machine::judge_image`, a calibration image (the region's:
+//!   651 nodes, workspace and dynamics blocks) judged against the built-in machine record
+//!   (same machine, then plausible), and `image_commit_check`: what an upload's commit judges
+//!   (`controller::calibration::validate_image`: the parse, that judgement, the servo's
+//!   slope-change limit). At boot and in the link task, never in a servo sample;
 //! * `sixbar_solve`: the six-bar's numerical equilibrium solve (host-sim's plant, ported to
 //!   f32 in `bench/sixbar.rs`), warm-started along the servo's 2 kHz path: what controlling
 //!   the real mechanism without the hidden robot would cost per sample (and
@@ -64,8 +69,11 @@ use kinematics_core::{
     Servo, ServoConfig, TaskLimits, ValidCalibration, ValidFiveBar,
 };
 
+use controller::calibration::{validate_image, Judged};
+use controller::settings::Settings;
 use firmware::board::{self, CycleCounter};
 use firmware::calibration;
+use kinematics_core::machine::{judge_image, MachineRecord};
 
 // The port lives next to this file (a crate root resolves `mod` from its own directory).
 #[path = "bench/sixbar.rs"]
@@ -75,6 +83,8 @@ mod sixbar;
 const N: usize = 2_000;
 /// Distinct inputs cycled through.
 const POINTS: usize = 64;
+/// Calls of the image judgements (some 3e5 instructions each).
+const JUDGE_CALLS: usize = 8;
 
 /// Prints one result line.
 fn report(name: &str, per_call: f32) {
@@ -82,6 +92,14 @@ fn report(name: &str, per_call: f32) {
     let _ = write!(line, "BENCH {} {:.1}", name, per_call);
     board::console(&line);
     defmt::println!("{=str}", line.as_str());
+}
+
+/// Announces the calls per figure of the `BENCH` lines that follow (`firmware/qemu/bench.sh`
+/// divides the plugin's windows by it).
+fn calls_per_figure(calls: usize) {
+    let mut line: heapless::String<96> = heapless::String::new();
+    let _ = write!(line, "# calls per figure: {}", calls);
+    board::console(&line);
 }
 
 /// Counts of a loop of `2 · iterations` instructions (`subs` + `bne` per iteration).
@@ -121,17 +139,23 @@ fn window_end() {
 ///
 /// Each loop is also a plugin window (empty loop first, then the body), so that
 /// `firmware/qemu/bench.sh` pairs window `2k` and `2k + 1` with the `k`-th `BENCH` line.
-fn measure(counter: &CycleCounter, mut body: impl FnMut(usize)) -> u32 {
+fn measure(counter: &CycleCounter, body: impl FnMut(usize)) -> u32 {
+    measure_calls(counter, N, body)
+}
+
+/// [`measure`] over `calls` calls (for bodies whose `N` calls would not fit the counter's
+/// range: under QEMU 2^24 ticks, some 6.7e8 instructions).
+fn measure_calls(counter: &CycleCounter, calls: usize, mut body: impl FnMut(usize)) -> u32 {
     window_start();
     let start = counter.now();
-    for i in 0..N {
+    for i in 0..calls {
         black_box(i);
     }
     let empty = counter.since(start);
     window_end();
     window_start();
     let start = counter.now();
-    for i in 0..N {
+    for i in 0..calls {
         body(black_box(i));
     }
     let total = counter.since(start);
@@ -248,9 +272,7 @@ fn main() -> ! {
         per_count
     );
     board::console(&line);
-    let mut line: heapless::String<96> = heapless::String::new();
-    let _ = write!(line, "# calls per figure: {}", N);
-    board::console(&line);
+    calls_per_figure(N);
     if per_count <= 0.0 {
         board::console("FAIL counter does not run");
         board::exit(false);
@@ -325,6 +347,36 @@ fn main() -> ! {
         let _ = black_box(grid.correction_rad(black_box(points[i % POINTS])));
     });
     report("grid_lookup", lookup as f32 * per_count / N as f32);
+
+    // The judgement of a calibration image (at boot, and in the link task at an upload's
+    // commit; never in a servo sample): the machine's (`judge_image`: same machine, then
+    // plausible) and the commit's whole check (parse, that judgement, the servo's slope-change
+    // limit), on the image in the region (651 nodes, workspace and dynamics blocks) against
+    // the built-in machine.
+    calls_per_figure(JUDGE_CALLS);
+    let machine = MachineRecord::paper();
+    if judge_image(&grid, &machine).is_err() {
+        board::console("FAIL the calibration image is refused by judge_image");
+        board::exit(false);
+    }
+    let judge = measure_calls(&counter, JUDGE_CALLS, |_| {
+        let _ = black_box(judge_image(black_box(&grid), &machine));
+    });
+    report("judge_image", judge as f32 * per_count / JUDGE_CALLS as f32);
+    let check = Settings::default().image_check();
+    let image = calibration::region();
+    if validate_image(image, &check, Judged::AtCommit).is_err() {
+        board::console("FAIL the calibration image is refused at a commit");
+        board::exit(false);
+    }
+    let commit = measure_calls(&counter, JUDGE_CALLS, |_| {
+        let _ = black_box(validate_image(black_box(image), &check, Judged::AtCommit).is_ok());
+    });
+    report(
+        "image_commit_check",
+        commit as f32 * per_count / JUDGE_CALLS as f32,
+    );
+    calls_per_figure(N);
 
     // Trajectory evaluation and dynamics: a 5 g move across the workspace and a
     // 40 mm circle at 5 g, sampled at instants spread over their durations.

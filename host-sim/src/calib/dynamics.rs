@@ -251,11 +251,26 @@ pub fn fit(
             rhs.push(tau[k]);
         }
     }
+    fit_rows(&rows, rhs, skipped)
+}
+
+/// The least-squares fit of the parameters to regressor rows (`rows`: two per sample, each
+/// [`PARAMETERS`] long, `kinematics_core::dynamics::regressor`) and the torques `rhs`, as the
+/// module doc says (base set when the full one is not separable, not-excited parameters
+/// refused, negative friction clamped); `skipped` is reported. Shared with the identification
+/// from telemetry (`dynamics::identify`).
+pub fn fit_rows(rows: &[f64], rhs: Vec<f64>, skipped: usize) -> Result<Identified, CalibError> {
     let n = rhs.len();
+    if rows.len() != n * PARAMETERS {
+        return Err(invalid!(
+            "{} regressor entries for {n} torques: not {PARAMETERS} per torque",
+            rows.len()
+        ));
+    }
     if n < 4 * PARAMETERS {
         return Err(invalid!("only {} usable samples (the machine hardly moved, or saturated): cannot identify dynamics", n / 2));
     }
-    let full = DMatrix::from_row_slice(n, PARAMETERS, &rows);
+    let full = DMatrix::from_row_slice(n, PARAMETERS, rows);
     let tau = DVector::from_vec(rhs);
     // The full set if the data separates it, else the base set without the distal inertias.
     let full_svd = ScaledSvd::new(&full);

@@ -1,5 +1,6 @@
 //! `host-sim diagnose`: measurements and a model in, the gap-shrink table on stdout, the report
-//! JSON and plots out (`host_sim::diagnose`, `DIAGNOSIS.md`).
+//! JSON and plots out (`host_sim::diagnose`, `DIAGNOSIS.md`). With `--telemetry` the moving
+//! machine's diagnosis instead (`diagnose_moving`, `host_sim::dynamics::diagnose`).
 
 use anyhow::{bail, Context, Result};
 use host_sim::calib::fit::params::N_PARAMS;
@@ -19,8 +20,14 @@ use std::path::PathBuf;
 #[derive(clap::Args, Debug)]
 pub struct Args {
     /// Measurement CSV (see measurement_csv).
-    #[arg(long)]
-    pub data: PathBuf,
+    #[arg(
+        long,
+        required_unless_present = "telemetry",
+        conflicts_with = "telemetry"
+    )]
+    pub data: Option<PathBuf>,
+    #[command(flatten)]
+    pub moving: super::diagnose_moving::MovingArgs,
     /// The current model (model.json); default: the machine's nominal five-bar.
     #[arg(long)]
     pub model: Option<PathBuf>,
@@ -44,6 +51,9 @@ pub struct Args {
 
 /// `host-sim diagnose`.
 pub fn run(args: &Args) -> Result<()> {
+    let Some(data_path) = &args.data else {
+        return super::diagnose_moving::run(args);
+    };
     // The report, the extended model and the plots staged, then renamed together; none may
     // be an input or another's file.
     let mut outputs = CommandFiles::new()
@@ -56,10 +66,10 @@ pub fn run(args: &Args) -> Result<()> {
         .output_dir("--plots", &args.plots, &["residual_start.png"])
         .check()?;
     let spec = args.machine.spec()?;
-    let read = read_measurement_file(&args.data)?;
+    let read = read_measurement_file(data_path)?;
     args.machine.check_files(
         &spec,
-        &[super::file_machine("--data", &args.data, read.machine)],
+        &[super::file_machine("--data", data_path, read.machine)],
     )?;
     let base = match &args.model {
         Some(p) => {
@@ -82,7 +92,7 @@ pub fn run(args: &Args) -> Result<()> {
     // metres or radians are refused before the diagnosis, not folded into a model.
     if args.out_model.is_some() {
         plausibility::check_units(&spec.nominal, &data)
-            .with_context(|| format!("--data {}", args.data.display()))?;
+            .with_context(|| format!("--data {}", data_path.display()))?;
     }
     // The six-bar's own effects are derived from the machine's nominal design, not the current
     // model (which may carry an instrument offset as its A0).
@@ -101,7 +111,7 @@ pub fn run(args: &Args) -> Result<()> {
             sixbar,
         },
     )
-    .with_context(|| format!("diagnosing {}", args.data.display()))?;
+    .with_context(|| format!("diagnosing {}", data_path.display()))?;
     print!("{}", report::table(&report));
     // Everything computed before anything is written: a model that cannot be made leaves no
     // report behind either.
@@ -125,7 +135,7 @@ pub fn run(args: &Args) -> Result<()> {
     // folded into A0 and the offsets goes into the instrument's frame; an exact change of
     // frame), with the frame it now implies.
     let registered_file = |e: &host_sim::diagnose::model_out::ExtendedModel| {
-        let mut file = e.file(&args.data.display().to_string());
+        let mut file = e.file(&data_path.display().to_string());
         if registered_model {
             let fitted = file.model()?;
             let (machine, g) = machine_frame_gauge(&fitted, &spec.nominal);

@@ -13,15 +13,15 @@ use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
 use host_sim::calib::image::{read_image, read_image_for};
+use host_sim::dynamics::telemetry::{from_link, meta_for};
 use host_sim::io::atomic::Outputs;
 use host_sim::io::machine_file::read_machine;
 use host_sim::io::policy::CommandFiles;
 use host_sim::io::read_bytes;
+use host_sim::io::telemetry_csv::telemetry_text;
 use host_sim::io::KeyOrder;
 use host_sim::link::link_protocol::{Command, ModeCode, Response, StatusReport, TelemetrySample};
-use host_sim::link::{
-    figure_knots, parse_knots_csv, stream_knots, telemetry_csv, upload_calibration, LinkClient,
-};
+use host_sim::link::{figure_knots, parse_knots_csv, stream_knots, upload_calibration, LinkClient};
 use kinematics_core::{CorrectionGrid, MachineRecord};
 use serde::Serialize;
 
@@ -101,9 +101,13 @@ pub enum Action {
         /// How long (s, wall clock).
         #[arg(long, default_value_t = 1.0)]
         seconds: f64,
-        /// CSV output.
+        /// CSV output (the telemetry CSV: its first line names the machine).
         #[arg(long)]
         csv: PathBuf,
+        /// The machine file of the controller's machine, named in the CSV (default: the
+        /// paper's).
+        #[arg(long, value_name = "FILE")]
+        machine: Option<PathBuf>,
     },
     /// Send random bytes (bursts of 300, each ending with a frame delimiter) and count the
     /// frames they make and the answers: the controller must answer every one and not move.
@@ -146,6 +150,25 @@ pub struct StreamArgs {
     /// Telemetry decimation (servo samples per telemetry sample).
     #[arg(long, default_value_t = 20)]
     pub decimation: u16,
+    /// The machine file of the controller's machine, named in the telemetry CSV (default: the
+    /// paper's).
+    #[arg(long, value_name = "FILE")]
+    pub machine: Option<PathBuf>,
+}
+
+/// The telemetry CSV of `samples` (`io::telemetry_csv`), naming `machine`'s machine (the
+/// paper's without it).
+fn telemetry_file(
+    samples: &[TelemetrySample],
+    machine: Option<&Path>,
+    decimation: u16,
+) -> Result<String> {
+    let spec = match machine {
+        Some(p) => read_machine(p)?,
+        None => host_sim::io::machine_file::paper(),
+    };
+    let log = from_link(samples, Some(meta_for(&spec, u32::from(decimation))));
+    Ok(telemetry_text(&log))
 }
 
 #[derive(Serialize)]
@@ -201,6 +224,17 @@ fn upload_image(grid: &Path, machine: Option<&Path>) -> Result<Vec<u8>> {
     })
 }
 
+/// `identify`'s JSON: the controller's answer, its machine as every file the tools write names
+/// one (`{name, digest}`, the digest as 8 hex digits: `machine_identity::MachineIdentity`).
+fn identity_json(id: &host_sim::link::link_protocol::Identity) -> Result<serde_json::Value> {
+    let mut v = serde_json::to_value(id)?;
+    v["machine"] = serde_json::to_value(host_sim::machine_identity::MachineIdentity {
+        name: id.machine.name().to_owned(),
+        digest: format!("{:08x}", id.machine.digest),
+    })?;
+    Ok(v)
+}
+
 /// `host-sim link`.
 pub fn run(args: &Args) -> Result<()> {
     check_ranges(args)?;
@@ -210,9 +244,12 @@ pub fn run(args: &Args) -> Result<()> {
         Action::Upload { grid, machine } => CommandFiles::new()
             .input("--grid", grid)
             .input("--machine", machine),
-        Action::Telemetry { csv, .. } => CommandFiles::new().output("--csv", csv),
+        Action::Telemetry { csv, machine, .. } => CommandFiles::new()
+            .input("--machine", machine)
+            .output("--csv", csv),
         Action::Stream(a) => CommandFiles::new()
             .input("--file", &a.file)
+            .input("--machine", &a.machine)
             .output("--telemetry-csv", &a.telemetry_csv),
         _ => CommandFiles::new(),
     };
@@ -356,7 +393,18 @@ fn act<S: Read + Write>(
     let done = |what| super::print_json(&Done { done: what }, KeyOrder::Sorted);
     match action {
         Action::Identify => match request(client, Command::Identify)? {
-            Response::Identity(id) => super::print_json(&id, KeyOrder::Sorted),
+            Response::Identity(id) => {
+                eprintln!(
+                    "controller: {:?} firmware {:?}, protocol {}, {}, calibration {}",
+                    id.board,
+                    id.firmware_version,
+                    id.protocol_version,
+                    id.machine,
+                    id.calibration_id
+                        .map_or_else(|| "none in force".to_owned(), |c| format!("{c:#010x}"))
+                );
+                super::print_json(&identity_json(&id)?, KeyOrder::Sorted)
+            }
             other => bail!("unexpected reply: {other:?}"),
         },
         Action::Status => super::print_json(&client.status()?, KeyOrder::Sorted),
@@ -441,6 +489,7 @@ fn act<S: Read + Write>(
             decimation,
             seconds,
             csv,
+            machine,
         } => {
             if !(*seconds > 0.0 && seconds.is_finite()) {
                 bail!("--seconds must be a positive number, not {seconds}");
@@ -454,7 +503,8 @@ fn act<S: Read + Write>(
             client.listen(Duration::from_secs_f64(*seconds))?;
             request(client, Command::Telemetry { decimation: 0 })?;
             let samples = client.take_telemetry();
-            outputs.bytes(csv, telemetry_csv(&samples).as_bytes())?;
+            let text = telemetry_file(&samples, machine.as_deref(), *decimation)?;
+            outputs.bytes(csv, text.as_bytes())?;
             std::mem::take(outputs).commit()?;
             #[derive(Serialize)]
             struct Recorded {
@@ -568,7 +618,8 @@ fn stream<S: Read + Write>(
         .map(|t| f64::from(t.following_error_rad))
         .fold(0.0, f64::max);
     if let Some(csv) = &a.telemetry_csv {
-        outputs.bytes(csv, telemetry_csv(&samples).as_bytes())?;
+        let text = telemetry_file(&samples, a.machine.as_deref(), a.decimation)?;
+        outputs.bytes(csv, text.as_bytes())?;
     }
     std::mem::take(outputs).commit()?;
     let report = StreamReport {

@@ -11,8 +11,10 @@ mod commission;
 mod cut;
 mod demo;
 mod diagnose;
+mod diagnose_moving;
 mod fit;
 mod grid;
+mod identify;
 mod import;
 mod link;
 mod measure;
@@ -69,6 +71,9 @@ enum Tool {
     Diagnose(diagnose::Args),
     /// The whole calibration on a built-in simulated machine: measure, fit, grid, verify.
     Demo(demo::Args),
+    /// The hidden robot's dynamic parameters from the controller's telemetry of the excitation
+    /// motion (a controller over its link, a recorded log, or a simulated plant): dynamics.json.
+    Identify(identify::Args),
     /// Cut a part program (G-code) with the gantry and the micro together: the split plan, the
     /// gantry-alone time, a lower bound, executed in simulation (table on stderr, JSON on stdout,
     /// plots and executed trajectories with --out DIR).
@@ -101,6 +106,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Tool::Link(a) => link::run(&a),
         Tool::Session(a) => session::run(&a),
         Tool::Commission(a) => commission::run(&a),
+        Tool::Identify(a) => identify::run(&a),
         Tool::Cut(a) => cut::run_cut(&a),
     }
 }

@@ -8,13 +8,21 @@
 //! else they are identified on the plant first (`host_sim::calib::dynamics`: an excitation run,
 //! a few seconds). `--mass-error-pct P` scales every mass and inertia of them by `1 + P/100`
 //! (a model error, for robustness studies).
+//!
+//! `--telemetry-csv LOG` writes the run's telemetry as a controller sends it (every
+//! `--decimation`-th sample, the controller's f32 values; `io::telemetry_csv`), so that a
+//! simulated run and a controller's are read by the same tools.
 
 use anyhow::{bail, Result};
 use host_sim::calib::dynamics::identify;
+use host_sim::dynamics::excitation::{excitation, ExcitationOptions};
+use host_sim::dynamics::telemetry::{from_loop, meta_for};
 use host_sim::io::dynamics_file::read_dynamics_file;
 use host_sim::io::plot::{xy_plot_png, Mark, Series};
 use host_sim::io::policy::CommandFiles;
+use host_sim::io::telemetry_csv::telemetry_text;
 use host_sim::io::KeyOrder;
+use host_sim::machine_spec::STANDARD_GRAVITY_MM_S2;
 use host_sim::plant::{PlantConfig, PlantModel};
 use host_sim::sim::closed_loop::{FeedForward, LoopSummary};
 use host_sim::sim::simulate::{format_log, simulate, SimulateOptions, MAX_SECONDS};
@@ -36,8 +44,9 @@ pub struct Args {
     /// Simulated seconds (default: the trajectory's natural length).
     #[arg(long)]
     pub seconds: Option<f64>,
-    /// `circle`, `figure8`, `p2p`, `p2p-trapezoid`, `circle-5g`, `figure8-5g`, `move-10mm` or a
-    /// CSV file `t_s,x_mm,y_mm`.
+    /// `circle`, `figure8`, `p2p`, `p2p-trapezoid`, `circle-5g`, `figure8-5g`, `move-10mm`,
+    /// `excitation` (the identification's motion, its knots played as the controller plays
+    /// them; `host-sim identify`) or a CSV file `t_s,x_mm,y_mm`.
     #[arg(long, default_value = "circle")]
     pub trajectory: String,
     /// Hidden-robot model the servo uses (default: nominal five-bar).
@@ -68,6 +77,17 @@ pub struct Args {
     /// Every mass and inertia of the fed-forward dynamics times `1 + P/100` (model error).
     #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
     pub mass_error_pct: f64,
+    /// The run's telemetry, as a controller sends it (the telemetry CSV: what `identify
+    /// --telemetry` and `diagnose --telemetry` read).
+    #[arg(long)]
+    pub telemetry_csv: Option<PathBuf>,
+    /// Servo samples per telemetry sample (at least 20: 100 Hz, the link's fastest).
+    #[arg(long, default_value_t = 20)]
+    pub decimation: u32,
+    /// With `--trajectory excitation`: its peak acceleration (g; the controller's default
+    /// stream limit, 2).
+    #[arg(long, default_value_t = 2.0)]
+    pub accel_g: f64,
 }
 
 /// What `simulate` prints: the loop's figures and where the fed-forward dynamics came from.
@@ -89,6 +109,7 @@ pub fn run(args: &Args) -> Result<()> {
         .input("--dynamics", &args.dynamics)
         .output("--log", &args.log)
         .output("--plot", &args.plot)
+        .output("--telemetry-csv", &args.telemetry_csv)
         .check()?;
     let spec = args.machine.spec()?;
     let mut cfg = PlantConfig::by_name(&args.plant)?;
@@ -99,7 +120,23 @@ pub fn run(args: &Args) -> Result<()> {
         Some("fivebar") => cfg.sixbar.model = PlantModel::Fivebar,
         Some(other) => bail!("unknown --plant-model '{other}' (known: sixbar, fivebar)"),
     }
-    let trajectory = Trajectory::by_name(&args.trajectory, &spec)?;
+    if !(20..=2000).contains(&args.decimation) {
+        bail!("--decimation must be 20 to 2000, not {}", args.decimation);
+    }
+    if !(args.accel_g > 0.0 && args.accel_g <= 20.0) {
+        bail!("--accel-g must be in (0, 20], not {}", args.accel_g);
+    }
+    let trajectory = match args.trajectory.as_str() {
+        "excitation" => excitation(
+            &spec,
+            &ExcitationOptions {
+                accel_mm_s2: args.accel_g * STANDARD_GRAVITY_MM_S2,
+                ..ExcitationOptions::default()
+            },
+        )?
+        .trajectory(),
+        name => Trajectory::by_name(name, &spec)?,
+    };
     let seconds = args
         .seconds
         .unwrap_or_else(|| trajectory.natural_duration_s());
@@ -169,13 +206,17 @@ pub fn run(args: &Args) -> Result<()> {
     let opts = SimulateOptions {
         seconds: Some(seconds),
         seed: args.seed,
-        keep_log: args.log.is_some() || args.plot.is_some(),
-        spec,
+        keep_log: args.log.is_some() || args.plot.is_some() || args.telemetry_csv.is_some(),
+        spec: spec.clone(),
         feedforward,
     };
     let run = simulate(&cfg, &cal, &trajectory, &opts)?;
     if let Some(p) = &args.log {
         outputs.bytes(p, format_log(&run.log).as_bytes())?;
+    }
+    if let Some(p) = &args.telemetry_csv {
+        let log = from_loop(&run.log, meta_for(&spec, args.decimation));
+        outputs.bytes(p, telemetry_text(&log).as_bytes())?;
     }
     if let Some(p) = &args.plot {
         let set: Vec<[f64; 2]> = run.log.iter().map(|r| r.setpoint_mm).collect();

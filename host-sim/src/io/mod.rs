@@ -4,6 +4,9 @@
 //!   interferometer or `host-sim measure`) and every tool that reads measurements;
 //! * [`model_file`]: `model.json`, a fitted hidden robot;
 //! * [`dynamics_file`]: `dynamics.json`, its identified dynamic parameters;
+//! * [`knots_csv`]: a streamed trajectory's knots (what `link stream --file` sends);
+//! * [`telemetry_csv`]: the telemetry CSV, what the controller (and the host loop) reports of
+//!   a motion: `identify` and `diagnose --telemetry` read it;
 //! * [`targets_csv`]: the `x_mm,y_mm` target lists `command` reads, and the plan's lists;
 //! * [`commanded_csv`]: the commanded list (`command`'s angles.csv) an instrument's export is
 //!   joined with;
@@ -28,12 +31,14 @@ pub mod atomic;
 pub mod commanded_csv;
 pub mod csv_dialect;
 pub mod dynamics_file;
+pub mod knots_csv;
 pub mod machine_file;
 pub mod measurement_csv;
 pub mod model_file;
 pub mod plot;
 pub mod policy;
 pub mod targets_csv;
+pub mod telemetry_csv;
 pub mod text_source;
 pub mod tracker_export;
 pub mod verify_plot;

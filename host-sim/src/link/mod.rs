@@ -41,8 +41,9 @@ pub enum ClientError {
     /// The controller could not decode our frame.
     #[error("the controller rejected the frame: {0:?}")]
     FrameRejected(link_protocol::FrameError),
-    /// The controller refused the request.
-    #[error("the controller refused {command}: {error:?}")]
+    /// The controller refused the request (a calibration refusal also as its sentence, which
+    /// names what differs with the values).
+    #[error("the controller refused {command}: {error:?}{}", explained(.error))]
     Refused {
         /// The request's name.
         command: &'static str,
@@ -74,6 +75,15 @@ pub enum ClientError {
         /// What the controller reported.
         controller: Option<u32>,
     },
+}
+
+/// A refusal's sentence where the code alone does not say enough: a calibration refusal names
+/// the parameter and both values, or both machines (`CalibrationRefusal`'s `Display`).
+fn explained(error: &LinkError) -> String {
+    match error {
+        LinkError::Calibration(r) => format!(": {r}"),
+        _ => String::new(),
+    }
 }
 
 /// The name of a command, for messages.
@@ -275,10 +285,14 @@ impl<S: Read + Write> LinkClient<S> {
             let n = match self.io.read(&mut buf) {
                 Ok(0) => return Err(std::io::Error::from(std::io::ErrorKind::UnexpectedEof).into()),
                 Ok(n) => n,
+                // A signal during the read (Ctrl-C's handler) interrupts it: read again, after
+                // the interrupt flag's check above, so that Ctrl-C reads as `Interrupted`.
                 Err(e)
                     if matches!(
                         e.kind(),
-                        std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+                        std::io::ErrorKind::WouldBlock
+                            | std::io::ErrorKind::TimedOut
+                            | std::io::ErrorKind::Interrupted
                     ) =>
                 {
                     continue

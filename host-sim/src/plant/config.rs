@@ -159,6 +159,20 @@ pub struct DriveConfig {
     pub cyclic_error_cycles_per_motor_rev: f64,
     /// ... and phase.
     pub cyclic_error_phase_deg: f64,
+    /// The torque the motor delivers is the command times `1 + pct/100` (after the amplifier's
+    /// limit): a torque constant (or current gain) off its data sheet (0 = exact; optional).
+    #[serde(default)]
+    pub torque_constant_error_pct: f64,
+    /// Cogging: a torque ripple `amplitude·sin(cycles·gear_ratio·motor + phase)` periodic in the
+    /// motor angle, acting against the drive (0 = none; optional) ...
+    #[serde(default)]
+    pub cogging_nm: f64,
+    /// ... its cycles per motor revolution (the motor's slot count and poles) ...
+    #[serde(default)]
+    pub cogging_cycles_per_motor_rev: f64,
+    /// ... and phase.
+    #[serde(default)]
+    pub cogging_phase_deg: f64,
 }
 
 /// The measuring instrument (interferometer / laser tracker).
@@ -247,6 +261,10 @@ fn ideal_drive() -> DriveConfig {
         cyclic_error_urad: 0.0,
         cyclic_error_cycles_per_motor_rev: 0.0,
         cyclic_error_phase_deg: 0.0,
+        torque_constant_error_pct: 0.0,
+        cogging_nm: 0.0,
+        cogging_cycles_per_motor_rev: 0.0,
+        cogging_phase_deg: 0.0,
     }
 }
 
@@ -510,6 +528,27 @@ impl PlantConfig {
                 )));
             }
         }
+        for (k, d) in [(1, &self.drive_1), (2, &self.drive_2)] {
+            if !(d.torque_constant_error_pct > -50.0 && d.torque_constant_error_pct < 100.0) {
+                return Err(PlantError::Invalid(format!(
+                    "'drive_{k}.torque_constant_error_pct' must be in (-50, 100), not {}",
+                    d.torque_constant_error_pct
+                )));
+            }
+            if !(d.cogging_nm >= 0.0 && d.cogging_nm <= d.torque_limit_nm) {
+                return Err(PlantError::Invalid(format!(
+                    "'drive_{k}.cogging_nm' must be in [0, the torque limit], not {}",
+                    d.cogging_nm
+                )));
+            }
+            if !(d.cogging_cycles_per_motor_rev >= 0.0 && d.cogging_cycles_per_motor_rev <= 1000.0)
+            {
+                return Err(PlantError::Invalid(format!(
+                    "'drive_{k}.cogging_cycles_per_motor_rev' must be in [0, 1000], not {}",
+                    d.cogging_cycles_per_motor_rev
+                )));
+            }
+        }
         if s.pin_clearance_mm > 1.0 || s.bar_end_clearance_mm > 1.0 {
             return Err(PlantError::Invalid(
                 "clearances above 1 mm are not a machine".into(),
@@ -602,6 +641,25 @@ impl PlantConfig {
             PhysicalEffect::InstrumentNoise => {
                 p.instrument.noise_sigma_um = self.instrument.noise_sigma_um
             }
+            PhysicalEffect::CoulombFriction => pairs
+                .into_iter()
+                .for_each(|(d, s)| d.coulomb_friction_nm = s.coulomb_friction_nm),
+            PhysicalEffect::ViscousFriction => pairs.into_iter().for_each(|(d, s)| {
+                d.viscous_friction_nm_s_per_rad = s.viscous_friction_nm_s_per_rad
+            }),
+            PhysicalEffect::MotorInertia => pairs
+                .into_iter()
+                .for_each(|(d, s)| d.inertia_kg_m2 = s.inertia_kg_m2),
+            PhysicalEffect::TorqueConstant => pairs
+                .into_iter()
+                .for_each(|(d, s)| d.torque_constant_error_pct = s.torque_constant_error_pct),
+            PhysicalEffect::Cogging => pairs.into_iter().for_each(|(d, s)| {
+                d.cogging_nm = s.cogging_nm;
+                d.cogging_cycles_per_motor_rev = s.cogging_cycles_per_motor_rev;
+                d.cogging_phase_deg = s.cogging_phase_deg;
+                d.gear_ratio = s.gear_ratio;
+            }),
+            PhysicalEffect::ToolMass => p.linkage.tool_mass_kg = self.linkage.tool_mass_kg,
             PhysicalEffect::LinkLengths
             | PhysicalEffect::BaseOffset
             | PhysicalEffect::LinkStretch

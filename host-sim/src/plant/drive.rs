@@ -16,6 +16,10 @@
 //!   motor), so the play needs no contact model.
 //! * Gear cyclic error: `amplitude·sin(cycles·gear_ratio·motor + phase)` on the link, an effect
 //!   no hidden-robot model has (for diagnosis tests).
+//! * Torque: the amplifier's limit on the command, then the motor's torque constant error (the
+//!   torque delivered is `(1 + e)` times the command); cogging, a ripple periodic in the motor
+//!   angle, `amplitude·sin(cycles·gear_ratio·motor + phase)`, acts against it (the moving
+//!   machine's diagnosis, `dynamics`, names both).
 //! * Not modelled: the torque the stressed linkage puts on the levers (it would only load the
 //!   servo's integrator) and gear/shaft compliance; a disabled drive (the closed loop ends at a
 //!   servo fault instead of removing torque, so the drives' dynamic braking, which the QEMU
@@ -43,6 +47,12 @@ pub struct Drive {
     cyclic_amplitude_rad: f64,
     cyclic_rad_per_rad: f64,
     cyclic_phase_rad: f64,
+    /// Delivered torque per commanded (1 + the torque constant's error).
+    torque_gain: f64,
+    /// Cogging amplitude (N·m), cycles per joint radian, phase (rad).
+    cogging_nm: f64,
+    cogging_rad_per_rad: f64,
+    cogging_phase_rad: f64,
     /// Motor angle, geometric, joint side.
     pub motor_rad: f64,
     pub velocity_rad_s: f64,
@@ -64,6 +74,10 @@ impl Drive {
             cyclic_amplitude_rad: cfg.cyclic_error_urad * 1e-6,
             cyclic_rad_per_rad: cfg.cyclic_error_cycles_per_motor_rev * cfg.gear_ratio,
             cyclic_phase_rad: cfg.cyclic_error_phase_deg.to_radians(),
+            torque_gain: 1.0 + cfg.torque_constant_error_pct / 100.0,
+            cogging_nm: cfg.cogging_nm,
+            cogging_rad_per_rad: cfg.cogging_cycles_per_motor_rev * cfg.gear_ratio,
+            cogging_phase_rad: cfg.cogging_phase_deg.to_radians(),
             motor_rad: 0.0,
             velocity_rad_s: 0.0,
             play_rad: 0.0,
@@ -137,9 +151,18 @@ impl Drive {
         (self.viscous_nm_s_per_rad, self.coulomb_nm)
     }
 
-    /// The torque the amplifier delivers for the command `torque_nm`.
+    /// The torque the amplifier delivers for the command `torque_nm`: limited, times the
+    /// torque constant's error.
     pub fn limit_torque(&self, torque_nm: f64) -> f64 {
-        torque_nm.clamp(-self.torque_limit_nm, self.torque_limit_nm)
+        torque_nm.clamp(-self.torque_limit_nm, self.torque_limit_nm) * self.torque_gain
+    }
+
+    /// The cogging torque at motor angle `motor_rad` (N·m, acting against the drive's torque).
+    pub fn cogging_nm(&self, motor_rad: f64) -> f64 {
+        if self.cogging_nm == 0.0 {
+            return 0.0;
+        }
+        self.cogging_nm * (self.cogging_rad_per_rad * motor_rad + self.cogging_phase_rad).sin()
     }
 
     /// Sets the motor's angle and velocity (from an integration of the coupled drives); the link
@@ -158,7 +181,7 @@ impl Drive {
 
     /// One dynamics substep of `dt_s` with joint torque command `torque_nm` (limited here).
     pub fn step(&mut self, torque_nm: f64, dt_s: f64) {
-        let tau = torque_nm.clamp(-self.torque_limit_nm, self.torque_limit_nm);
+        let tau = self.limit_torque(torque_nm) - self.cogging_nm(self.motor_rad);
         let w = self.velocity_rad_s;
         if w == 0.0 && tau.abs() <= self.coulomb_nm {
             // Stuck: static friction balances the torque.

@@ -1,11 +1,12 @@
 //! The plant's equations of motion: both drives coupled through the linkage's inertia.
 //!
 //! ```text
-//! (diag(J_rotor) + M(θ_link))·θ̈ + h(θ_link, θ̇) + b·θ̇ + τc·sgn(θ̇) = limit(τ)
+//! (diag(J_rotor) + M(θ_link))·θ̈ + h(θ_link, θ̇) + b·θ̇ + τc·sgn(θ̇) + cog(θ) = k·limit(τ)
 //! ```
 //! `J_rotor` is each drive's motor and gearbox inertia at the joint, `M` and `h` the six-bar's
-//! bodies (`linkage`), `b` and `τc` the drives' viscous and Coulomb friction, `limit` the
-//! amplifiers' torque limit. The backlash is kinematic (`drive`): the link angle lags the motor
+//! bodies (`linkage`), `b` and `τc` the drives' viscous and Coulomb friction, `cog` their
+//! cogging (periodic in the motor angle, taken at each substep's start), `limit` the
+//! amplifiers' torque limit and `k` the motors' torque constant relative to the nominal. The backlash is kinematic (`drive`): the link angle lags the motor
 //! by the play, and the linkage's inertia acts on the motor as if the gear were stiff (crossing
 //! the 20 µrad play takes well under a millisecond at speed; the link's coasting meanwhile is not
 //! modelled).
@@ -76,7 +77,8 @@ impl CoupledDrives<'_> {
         let h = inertia.linkage.bias_nm(w);
         [0, 1].map(|k| {
             let (b, c) = self.drives[k].friction();
-            tau[k] - h[k] - b * w[k] - c * dir[k]
+            let cogging = self.drives[k].cogging_nm(self.drives[k].motor_rad);
+            tau[k] - h[k] - b * w[k] - c * dir[k] - cogging
         })
     }
 

@@ -29,6 +29,7 @@
 //!
 //! Cost: a few transcendental calls per setpoint.
 
+use super::knots::KnotPath;
 use super::SimError;
 use crate::machine_spec::{MachineSpec, STANDARD_GRAVITY_MM_S2};
 use kinematics_core::jerk_profile::ScalarState;
@@ -200,6 +201,13 @@ pub enum Trajectory {
         name: String,
         t_s: Vec<f64>,
         xy_mm: Vec<[f64; 2]>,
+    },
+    /// Streamed knots as the controller plays them ([`KnotPath`]), then `duration_s` in all
+    /// (at rest after the last knot).
+    Knots {
+        name: String,
+        path: KnotPath,
+        duration_s: f64,
     },
 }
 
@@ -430,7 +438,9 @@ impl Trajectory {
             Trajectory::Circle { .. } => "circle".into(),
             Trajectory::Figure8 { .. } => "figure8".into(),
             Trajectory::PointToPoint { .. } => "p2p-trapezoid".into(),
-            Trajectory::Planned { name, .. } | Trajectory::Samples { name, .. } => name.clone(),
+            Trajectory::Planned { name, .. }
+            | Trajectory::Samples { name, .. }
+            | Trajectory::Knots { name, .. } => name.clone(),
         }
     }
 
@@ -439,6 +449,7 @@ impl Trajectory {
         match self {
             Trajectory::Planned { pieces, .. } => pieces.last().map(|(t0, p)| t0 + p.duration_s()),
             Trajectory::PointToPoint { moves, .. } => moves.last().map(|m| m.t0_s + m.duration_s()),
+            Trajectory::Knots { path, .. } => Some(path.end_s()),
             _ => None,
         }
     }
@@ -516,6 +527,7 @@ impl Trajectory {
                 Some(m)
             }
             Trajectory::Samples { .. } => None,
+            Trajectory::Knots { path, .. } => Some(path.motion_at(t_s)),
         }
     }
 
@@ -530,6 +542,7 @@ impl Trajectory {
                 .unwrap_or(0.0),
             Trajectory::Planned { duration_s, .. } => *duration_s,
             Trajectory::Samples { t_s, .. } => *t_s.last().unwrap_or(&0.0),
+            Trajectory::Knots { duration_s, .. } => *duration_s,
         }
     }
 
@@ -560,7 +573,9 @@ impl Trajectory {
                     centre_mm[1] + half_y_mm * (2.0 * p).sin(),
                 ]
             }
-            Trajectory::PointToPoint { .. } | Trajectory::Planned { .. } => {
+            Trajectory::PointToPoint { .. }
+            | Trajectory::Planned { .. }
+            | Trajectory::Knots { .. } => {
                 self.motion_at(t).map(|m| m.position_mm).unwrap_or([0.0; 2])
             }
             Trajectory::Samples { t_s: ts, xy_mm, .. } => {

@@ -1,22 +1,14 @@
 use super::sim::SimFlash;
 use super::*;
 use kinematics_core::grid::{encode, encode_with_dynamics, GridGeometry};
+use kinematics_core::machine::{
+    ImageRefusal, MachineMismatch, ModelParameter, ParameterDifference,
+};
 use kinematics_core::{FiveBar, FiveBarDynamics, GridError};
 
-const HOME_MM: [f32; 2] = [212.132, 0.0];
-
-/// The paper's machine with its default tolerances and the default servo's limits.
+/// The paper's machine (the built-in one) with the default servo's slope-change limit.
 fn image_check() -> ImageCheck {
-    ImageCheck {
-        machine: crate::calibration::MachineIdentity::default(),
-        home_mm: HOME_MM,
-        limits: Some(crate::plausibility::ImageLimits::of(
-            &FiveBar::paper_nominal(),
-            2.0,
-            &kinematics_core::ServoConfig::default(),
-            100.0,
-        )),
-    }
+    crate::settings::Settings::default().image_check()
 }
 
 fn image(value: f32) -> Vec<u8> {
@@ -179,17 +171,25 @@ fn bad_uploads_are_refused_and_the_old_image_kept() {
         ..FiveBar::paper_nominal()
     };
     encode(&mut other, &g, &model, &[[0.0; 2]; 9]).unwrap();
-    assert_eq!(
-        upload(&mut store, &other, 32),
-        Err(SlotError::Image(ImageError::OtherMachine(
-            crate::calibration::MachineMismatch {
-                parameter: link_protocol::ImageParameter::LinkAMm,
-                image: 160.0,
-                machine: 150.0,
-                tolerance: 2.0,
-            }
-        )))
+    // Refused by the physical judgement, naming the link that explains it with both values.
+    let refusal = upload(&mut store, &other, 32);
+    assert!(
+        matches!(
+            refusal,
+            Err(SlotError::Image(ImageError::Refused(
+                ImageRefusal::OtherMachine(MachineMismatch::Geometry {
+                    parameter: Some(ParameterDifference {
+                        parameter: ModelParameter::A,
+                        image: 160.0,
+                        controller: 150.0
+                    }),
+                    ..
+                })
+            )))
+        ),
+        "{refusal:?}"
     );
+    assert_eq!(store.active_id(), before);
     // Lengths, order, protocol.
     assert_eq!(
         store.begin(10, store.active_id()),

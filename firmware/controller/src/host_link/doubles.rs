@@ -11,7 +11,7 @@
 use heapless::spsc::Queue;
 use kinematics_core::trajectory::MotionSetpoint;
 use kinematics_core::Calibration;
-use link_protocol::{Board, CalibrationRefusal, HomingState, MAX_CALIBRATION_IMAGE_LEN};
+use link_protocol::{Board, CalibrationRefusal, HomingState, MachineId, MAX_CALIBRATION_IMAGE_LEN};
 
 use super::{CalibrationStore, Device, Homing, HomingRefused};
 use crate::calibration::CalibrationState;
@@ -98,7 +98,8 @@ pub const STORE_LEN: usize = 8192;
 /// A calibration store in RAM: the inactive slot, and the id of the image in force.
 #[derive(Clone, Debug)]
 pub struct StoreDouble {
-    /// What a committed image must be (`None`: parsing is enough).
+    /// What a committed image must be (`None`: parsing is enough); its machine is the one
+    /// `Identify` reports (the paper's without a check).
     pub check: Option<crate::calibration::ImageCheck>,
     inactive: heapless::Vec<u8, STORE_LEN>,
     expected_len: Option<u32>,
@@ -151,9 +152,12 @@ impl CalibrationStore for StoreDouble {
             return Err(CalibrationRefusal::Incomplete);
         }
         if let Some(check) = &self.check {
-            crate::calibration::validate_image(&self.inactive, check).map_err(|e| {
-                super::calibration_refusal(crate::calibration_slots::SlotError::Image(e))
-            })?;
+            crate::calibration::validate_image(
+                &self.inactive,
+                check,
+                crate::calibration::Judged::AtCommit,
+            )
+            .map_err(|e| super::image_refusal(&e))?;
         }
         let id = crate::calibration::image_id(&self.inactive).ok_or(CalibrationRefusal::Invalid)?;
         self.active_id = Some(id);
@@ -162,6 +166,14 @@ impl CalibrationStore for StoreDouble {
     }
     fn active_id(&self) -> Option<u32> {
         self.active_id
+    }
+    fn machine(&self) -> MachineId {
+        let record = self
+            .check
+            .map_or_else(kinematics_core::machine::MachineRecord::paper, |c| {
+                c.machine
+            });
+        super::machine_id(&record)
     }
 }
 

@@ -12,7 +12,7 @@
 //!
 //! | request | refused when | effect |
 //! |---|---|---|
-//! | Identify, Status, CalibrationId | never | answer |
+//! | Identify, Status, CalibrationId | never | answer (Identify: firmware, board, protocol, the calibration in force and the machine it defines) |
 //! | Enable | not homed (encoders not absolute), fault latched (not a commanded one), stopping | re-engage where the machine is, drives on |
 //! | Disable | never | controlled stop, drives off (category 1) |
 //! | Home | moving or stopping, homing refuses | starts homing ([`Homing`]) |
@@ -30,11 +30,10 @@
 //! [`ServoLoop::request`]: crate::servo_loop::ServoLoop::request
 use link_protocol::{
     decode, encode, Board, CalibrationRefusal, Command, DeviceBody, DeviceMessage, FaultCode,
-    FrameError, HomingState, Identity, LinkError, ModeCode, Received, Request, Response,
+    FrameError, HomingState, Identity, LinkError, MachineId, ModeCode, Received, Request, Response,
     StatusReport, TelemetrySample, MIN_TELEMETRY_DECIMATION, PROTOCOL_VERSION,
 };
 
-use crate::calibration::ImageError;
 use crate::calibration_slots::SlotError;
 use crate::fault::Fault;
 use crate::homing::HomingPhase;
@@ -44,6 +43,9 @@ use crate::status::Status;
 
 #[cfg(any(test, feature = "host-doubles"))]
 pub mod doubles;
+mod refusal;
+
+pub use refusal::{image_refusal, machine_id};
 
 /// Homing would not start (the procedure says why in its own state and log).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -72,6 +74,8 @@ pub trait CalibrationStore {
     fn commit(&mut self) -> Result<u32, CalibrationRefusal>;
     /// The id (CRC-32) of the image in force.
     fn active_id(&self) -> Option<u32>;
+    /// The machine in force (`crate::calibration`): uploads must be images of it.
+    fn machine(&self) -> MachineId;
 }
 
 /// The rest of the controller, as the link task reaches it (the firmware implements it over
@@ -167,7 +171,8 @@ pub fn homing_state(
     }
 }
 
-/// The link's name of the slot store's refusal (`calibration_slots`).
+/// The link's name of the slot store's refusal (`calibration_slots`; an image's refusal with
+/// its parameter and values: [`image_refusal`]).
 pub fn calibration_refusal(e: SlotError) -> CalibrationRefusal {
     match e {
         SlotError::NoUpload => CalibrationRefusal::NotBegun,
@@ -175,18 +180,7 @@ pub fn calibration_refusal(e: SlotError) -> CalibrationRefusal {
         SlotError::OutOfOrder { .. } => CalibrationRefusal::Offset,
         SlotError::TooMuchData | SlotError::Incomplete { .. } => CalibrationRefusal::Incomplete,
         SlotError::Flash(_) => CalibrationRefusal::Flash,
-        SlotError::Image(ImageError::Grid(_)) => CalibrationRefusal::Invalid,
-        SlotError::Image(ImageError::OtherMachine(m)) => CalibrationRefusal::OtherMachine {
-            parameter: m.parameter,
-            image: m.image,
-            machine: m.machine,
-            tolerance: m.tolerance,
-        },
-        SlotError::Image(ImageError::Implausible(i)) => CalibrationRefusal::Implausible {
-            parameter: i.parameter,
-            value: i.value,
-            limit: i.limit,
-        },
+        SlotError::Image(e) => image_refusal(&e),
         SlotError::SwitchPending => CalibrationRefusal::SwitchPending,
     }
 }
@@ -253,6 +247,7 @@ impl LinkHandler {
                 firmware_version: FIRMWARE_VERSION,
                 board: device.board(),
                 calibration_id: device.calibration().active_id(),
+                machine: device.calibration().machine(),
             })),
             Command::Status => Ok(Response::Status(self.report(&status, device))),
             Command::Enable => match mode {

@@ -178,6 +178,12 @@ fn identify_and_status_answer() {
         (id.protocol_version, id.board, id.calibration_id),
         (PROTOCOL_VERSION, Board::Qemu, image_id(&img))
     );
+    // The machine in force: the built-in one (this store judges nothing).
+    let paper = kinematics_core::machine::MachineRecord::paper();
+    assert_eq!(
+        (id.machine.name(), id.machine.digest),
+        ("paper", paper.digest())
+    );
     assert!(id.calibration_id.is_some());
     let Ok(Response::Status(s)) = send(&mut h, &mut r, 2, Command::Status) else {
         panic!()
@@ -814,14 +820,20 @@ fn the_homing_state_follows_the_mode_and_the_phase() {
     }
 }
 
-/// Every refusal of the slot store has its name on the link.
+/// Every refusal of the slot store has its name on the link; an image's with its parameter and
+/// values.
 #[test]
 fn the_slot_stores_refusals_have_their_link_names() {
-    use crate::calibration::{ImageError, MachineMismatch};
+    use crate::calibration::ImageError;
     use crate::calibration_slots::{FlashError, SlotError};
-    use crate::plausibility::Implausible;
+    use crate::plausibility::SlopeChange;
+    use kinematics_core::machine::{
+        ImageRefusal, Implausible, MachineMismatch, MachineName, ModelParameter,
+        ParameterDifference,
+    };
     use kinematics_core::GridError;
-    use link_protocol::ImageParameter;
+    use link_protocol::{ImageParameter, MachineId};
+    let refused = |r: ImageRefusal| SlotError::Image(ImageError::Refused(r));
     let cases = [
         (SlotError::NoUpload, CalibrationRefusal::NotBegun),
         (SlotError::BadLength { max: 10 }, CalibrationRefusal::Length),
@@ -843,29 +855,118 @@ fn the_slot_stores_refusals_have_their_link_names() {
             CalibrationRefusal::Invalid,
         ),
         (
-            SlotError::Image(ImageError::OtherMachine(MachineMismatch {
-                parameter: ImageParameter::LinkBMm,
-                image: 161.0,
-                machine: 150.0,
-                tolerance: 2.0,
+            refused(ImageRefusal::OtherMachine(MachineMismatch::Geometry {
+                worst_mm: 9.1,
+                at_mm: [212.0, 0.0],
+                tolerance_mm: 3.0,
+                parameter: Some(ParameterDifference {
+                    parameter: ModelParameter::B,
+                    image: 161.0,
+                    controller: 150.0,
+                }),
             })),
             CalibrationRefusal::OtherMachine {
                 parameter: ImageParameter::LinkBMm,
                 image: 161.0,
                 machine: 150.0,
-                tolerance: 2.0,
+                tolerance: 3.0,
             },
         ),
         (
-            SlotError::Image(ImageError::Implausible(Implausible {
-                parameter: ImageParameter::NodeCorrectionRad,
-                value: 0.5,
-                limit: 0.0267,
+            refused(ImageRefusal::OtherMachine(MachineMismatch::Geometry {
+                worst_mm: 24.7,
+                at_mm: [212.0, 0.0],
+                tolerance_mm: 3.0,
+                parameter: None,
+            })),
+            CalibrationRefusal::OtherMachine {
+                parameter: ImageParameter::ToolPositionMm,
+                image: 24.7,
+                machine: 0.0,
+                tolerance: 3.0,
+            },
+        ),
+        (
+            refused(ImageRefusal::OtherMachine(MachineMismatch::OtherRecord {
+                image_name: MachineName::new("second").unwrap(),
+                image_digest: 0x1234_5678,
+                controller_name: MachineName::new("paper").unwrap(),
+                controller_digest: 0x9abc_def0,
+            })),
+            CalibrationRefusal::OtherRecord {
+                image: MachineId::new("second", 0x1234_5678),
+                controller: MachineId::new("paper", 0x9abc_def0),
+            },
+        ),
+        (
+            refused(ImageRefusal::Implausible(Implausible::NodeCorrection {
+                node: [3, 4],
+                correction_mm: 7.5,
+                limit_mm: 3.0,
             })),
             CalibrationRefusal::Implausible {
-                parameter: ImageParameter::NodeCorrectionRad,
-                value: 0.5,
-                limit: 0.0267,
+                parameter: ImageParameter::NodeCorrectionMm,
+                value: 7.5,
+                limit: 3.0,
+            },
+        ),
+        (
+            refused(ImageRefusal::Implausible(Implausible::Inertia {
+                at_mm: [212.0, 0.0],
+                ratio: 1000.0,
+                factor: 4.0,
+            })),
+            CalibrationRefusal::Implausible {
+                parameter: ImageParameter::InertiaRatio,
+                value: 1000.0,
+                limit: 4.0,
+            },
+        ),
+        (
+            refused(ImageRefusal::Implausible(Implausible::Inertia {
+                at_mm: [212.0, 0.0],
+                ratio: 0.1,
+                factor: 4.0,
+            })),
+            CalibrationRefusal::Implausible {
+                parameter: ImageParameter::InertiaRatio,
+                value: 0.1,
+                limit: 0.25,
+            },
+        ),
+        (
+            refused(ImageRefusal::Implausible(Implausible::Friction {
+                parameter: "viscous_2_nm_s_per_rad",
+                image: 0.1,
+                nominal: 0.02,
+                factor: 4.0,
+            })),
+            CalibrationRefusal::Implausible {
+                parameter: ImageParameter::ViscousNmSPerRad,
+                value: 0.1,
+                limit: 0.08,
+            },
+        ),
+        (
+            refused(ImageRefusal::Implausible(Implausible::HomeOutsideGrid {
+                home_mm: [212.132, 0.0],
+            })),
+            CalibrationRefusal::ImplausibleAt {
+                parameter: ImageParameter::HomePosition,
+                at_mm: [212.132, 0.0],
+            },
+        ),
+        (
+            SlotError::Image(ImageError::SlopeChange(SlopeChange {
+                node: [1, 2],
+                axis: 0,
+                value_rad_per_mm: 1e-4,
+                limit_rad_per_mm: 3.3e-5,
+            })),
+            CalibrationRefusal::Implausible {
+                parameter: ImageParameter::SlopeChangeRadPerMm,
+                value: 1e-4,
+                limit: 3.3e-5,
             },
         ),
         (SlotError::SwitchPending, CalibrationRefusal::SwitchPending),

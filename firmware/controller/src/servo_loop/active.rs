@@ -22,8 +22,8 @@ pub struct ActiveCalibration<'a> {
     valid: Option<ValidCalibration<'a>>,
     /// The identified dynamics the image carries (validated when it was parsed).
     dynamics: Option<FiveBarDynamics<f32>>,
-    /// Where a stop may end: the image's workspace polygon (or, without one, the grid's
-    /// rectangle) less the margin (`None`: no grid, running uncorrected; then only the servo's
+    /// Where a stop may end: the image's workspace polygon (or, without one, the machine's
+    /// where the grid covers it, else the grid's rectangle) less the machine's stop margin (`None`: no grid, running uncorrected; then only the servo's
     /// reach and singularity checks bound a stop).
     workspace: Option<Workspace>,
     /// The grid's rectangle less the margin, where the machine may stand at power-on: the
@@ -53,7 +53,9 @@ impl<'a> ActiveCalibration<'a> {
             calibration,
             valid: ValidCalibration::new(calibration).ok(),
             dynamics: grid.and_then(|g| g.dynamics().copied()),
-            workspace: grid.and_then(|g| Workspace::of_image(g, margin_mm)),
+            workspace: grid.and_then(|g| {
+                Workspace::of_machine_image(g, &settings.machine.workspace.region, margin_mm)
+            }),
             homing_rectangle_mm,
             min_transmission: settings.servo.min_transmission,
         }

@@ -115,7 +115,10 @@ impl<'a> ServoLoop<'a> {
         let home = if ok {
             self.active
                 .calibration()
-                .command_rad(self.settings.home_mm, self.settings.servo.min_transmission)
+                .command_rad(
+                    self.settings.home_mm(),
+                    self.settings.servo.min_transmission,
+                )
                 .map_err(|_| HomingFault::Reference)
         } else {
             Err(HomingFault::Reference)

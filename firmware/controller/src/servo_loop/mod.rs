@@ -242,11 +242,14 @@ impl<'a> ServoLoop<'a> {
             // Homing's sweeps checked against the singularities once, here (hundreds of
             // thousands of instructions: not in a servo sample), from every start in the
             // calibrated rectangle (the machine may be anywhere the grid covers at power-on).
-            (Ok(None), Some(rect)) => {
-                homing::check_plan(&settings.homing, &calibration.model, rect, settings.home_mm)
-                    .map(|_| None)
-                    .map_err(Fault::Homing)
-            }
+            (Ok(None), Some(rect)) => homing::check_plan(
+                &settings.homing,
+                &calibration.model,
+                rect,
+                settings.home_mm(),
+            )
+            .map(|_| None)
+            .map_err(Fault::Homing),
             (other, _) => other,
         };
         let (mode, setpoint_mm) = match engaged {

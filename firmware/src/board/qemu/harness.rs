@@ -74,7 +74,7 @@ fn image_in_force(
     // Which image is in force, not whether it is plausible (the firmware's judgement, tested
     // on the host): this runs inside a servo sample.
     let check = ImageCheck {
-        limits: None,
+        max_slope_change_rad_per_mm: None,
         ..settings.image_check()
     };
     let store = SlotStore::open(ReadOnly(crate::calibration::region()), check);

@@ -1,0 +1,190 @@
+//! `host-sim diagnose --telemetry LOG`: the moving machine's diagnosis
+//! (`host_sim::dynamics::diagnose`): the controller's telemetry of the excitation against its
+//! dynamics model: the gap-shrink table on stdout (as the static diagnosis prints it), the
+//! report JSON (`--out`, the same contract), and the dynamics block with the effects named
+//! (`--out-dynamics`, a dynamics.json for `grid --dynamics`).
+//!
+//! What the controller runs: `--grid` (its image: the model the encoders are read with and the
+//! dynamics block it feeds forward), or `--model` and `--dynamics`; `--dynamics` overrides the
+//! image's block. The knots the log is a run of: `--knots`, default the built-in excitation.
+
+use anyhow::{bail, Context, Result};
+use host_sim::dynamics::diagnose::{diagnose_telemetry, DiagnoseOptions};
+use host_sim::dynamics::excitation::{excitation, ExcitationOptions};
+use host_sim::dynamics::predict::Controller;
+use host_sim::dynamics::report::table;
+use host_sim::dynamics::samples::SampleOptions;
+use host_sim::io::dynamics_file::{read_dynamics_file, write_dynamics_file, DynamicsFile};
+use host_sim::io::policy::CommandFiles;
+use host_sim::io::telemetry_csv::read_telemetry;
+use host_sim::io::{json_text, KeyOrder};
+use host_sim::link::parse_knots_csv;
+use host_sim::machine_spec::STANDARD_GRAVITY_MM_S2;
+use host_sim::sim::knots::KnotPath;
+use kinematics_core::dynamics::PARAMETER_NAMES;
+use kinematics_core::{FiveBarDynamics, ServoConfig};
+use std::path::PathBuf;
+
+/// The flags of the moving machine's diagnosis (`diagnose --telemetry`).
+#[derive(clap::Args, Debug)]
+pub struct MovingArgs {
+    /// The controller's telemetry of the excitation (the telemetry CSV): diagnose the moving
+    /// machine instead of measurements.
+    #[arg(long)]
+    pub telemetry: Option<PathBuf>,
+    /// With --telemetry: the knots that were streamed (default: the built-in excitation).
+    #[arg(long, requires = "telemetry")]
+    pub knots: Option<PathBuf>,
+    /// With --telemetry: the image the controller ran (its model and dynamics block).
+    #[arg(long, requires = "telemetry")]
+    pub grid: Option<PathBuf>,
+    /// With --telemetry: the dynamics the controller fed forward (dynamics.json), if not the
+    /// image's block.
+    #[arg(long, requires = "telemetry")]
+    pub dynamics: Option<PathBuf>,
+    /// With --telemetry: the built-in excitation's peak acceleration (g), as it was run.
+    #[arg(long, requires = "telemetry", default_value_t = 2.0)]
+    pub accel_g: f64,
+    /// With --telemetry: the built-in excitation's section length (s), as it was run.
+    #[arg(long, requires = "telemetry", default_value_t = 8.0)]
+    pub section_s: f64,
+    /// With --telemetry: write the dynamics block with the effects named (dynamics.json).
+    #[arg(long, requires = "telemetry")]
+    pub out_dynamics: Option<PathBuf>,
+}
+
+/// `host-sim diagnose --telemetry`.
+pub fn run(args: &super::diagnose::Args) -> Result<()> {
+    let m = &args.moving;
+    let Some(log_path) = &m.telemetry else {
+        bail!("give --data (measurements) or --telemetry (the moving machine)");
+    };
+    if args.plots.is_some() || args.out_model.is_some() || args.noise_um.is_some() {
+        bail!("--plots, --out-model and --noise-um are the static diagnosis' (--data); with --telemetry, --out-dynamics writes the updated dynamics");
+    }
+    if !(m.accel_g > 0.0 && m.accel_g <= 20.0) {
+        bail!("--accel-g must be in (0, 20], not {}", m.accel_g);
+    }
+    // Every file declared before anything runs: no output onto an input or another output.
+    let mut outputs = CommandFiles::new()
+        .input("--machine", &args.machine.machine)
+        .input("--telemetry", log_path)
+        .input("--knots", &m.knots)
+        .input("--grid", &m.grid)
+        .input("--dynamics", &m.dynamics)
+        .input("--model", &args.model)
+        .output("--out", &args.out)
+        .output("--out-dynamics", &m.out_dynamics)
+        .check()?;
+    let spec = args.machine.spec()?;
+    let (model, bytes) = super::load_calibration(
+        args.model.as_deref(),
+        m.grid.as_deref(),
+        &spec,
+        &args.machine,
+    )?;
+    let grid = super::parse_grid(&bytes)?;
+    let fed_forward: FiveBarDynamics<f64> = match (&m.dynamics, grid.as_ref().and_then(|g| g.dynamics())) {
+        (Some(p), _) => {
+            let file = read_dynamics_file(p)?;
+            args.machine.check_files(
+                &spec,
+                &[super::file_machine("--dynamics", p, file.machine.clone())],
+            )?;
+            file.dynamics()
+                .map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))?
+        }
+        (None, Some(d)) => d.cast(),
+        (None, None) => bail!(
+            "give the dynamics the controller fed forward: --dynamics FILE, or --grid with the image it ran (its dynamics block)"
+        ),
+    };
+    let log = read_telemetry(log_path)?;
+    args.machine.check_files(
+        &spec,
+        &[super::file_machine(
+            "--telemetry",
+            log_path,
+            log.meta.as_ref().map(|m| m.machine.clone()),
+        )],
+    )?;
+    let start = log
+        .rows
+        .first()
+        .map(|r| r.setpoint_mm)
+        .context("the telemetry log has no samples")?;
+    let path = match &m.knots {
+        Some(k) => {
+            let text = std::fs::read_to_string(k)
+                .with_context(|| format!("cannot read {}", k.display()))?;
+            KnotPath::new(
+                start,
+                &parse_knots_csv(&text).with_context(|| format!("in {}", k.display()))?,
+            )?
+        }
+        None => {
+            let ex = excitation(
+                &spec,
+                &ExcitationOptions {
+                    accel_mm_s2: m.accel_g * STANDARD_GRAVITY_MM_S2,
+                    section_s: m.section_s,
+                    ..ExcitationOptions::default()
+                },
+            )?;
+            KnotPath::new(start, &ex.knots)?
+        }
+    };
+    let servo = ServoConfig {
+        sample_period_s: spec.sample_period_s as f32,
+        min_transmission: spec.min_transmission as f32,
+        ..ServoConfig::default()
+    };
+    let model = model.cast::<f64>();
+    let opts = DiagnoseOptions {
+        spec: spec.clone(),
+        samples: SampleOptions {
+            model,
+            min_transmission: spec.min_transmission,
+            torque_limit_nm: servo.axes.map(|a| f64::from(a.torque_limit_nm)),
+        },
+        controller: Controller {
+            model,
+            servo,
+            fed_forward,
+        },
+    };
+    let report = diagnose_telemetry(&log, &path, &opts)
+        .with_context(|| format!("diagnosing {}", log_path.display()))?;
+    print!("{}", table(&report));
+    // Everything computed before anything is written.
+    outputs.bytes(
+        &args.out,
+        json_text(&report, KeyOrder::Declared)?.as_bytes(),
+    )?;
+    if let Some(p) = &m.out_dynamics {
+        let Some(out) = &report.model_out else {
+            bail!("the effects named do not make a valid dynamics block: nothing written");
+        };
+        let d = FiveBarDynamics::from_array(
+            PARAMETER_NAMES.map(|n| out[n]),
+            fed_forward.coulomb_speed_rad_s,
+        );
+        let mut file = DynamicsFile::from_dynamics(&d);
+        file.machine = Some(spec.identity());
+        file.identification = Some(serde_json::json!({
+            "method": "the dynamics fed forward with the effects the moving machine's diagnosis named (host-sim diagnose --telemetry)",
+            "telemetry": log_path.display().to_string(),
+            "machine": spec.name,
+            "effects": report.steps.iter().map(|s| s.effect.clone()).collect::<Vec<_>>(),
+            "carried": report.carried,
+        }));
+        outputs.with(p, |tmp| write_dynamics_file(tmp, &file))?;
+    }
+    outputs.commit()?;
+    eprintln!(
+        "diagnose: {} effect(s) named; report -> {}",
+        report.steps.len(),
+        args.out.display()
+    );
+    Ok(())
+}
