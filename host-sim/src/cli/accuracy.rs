@@ -18,6 +18,10 @@ pub struct Args {
     /// Optional PNG: mean error vector at every target.
     #[arg(long)]
     pub plot: Option<PathBuf>,
+    /// The calibrated model.json whose registered instrument frame maps the readings into the
+    /// machine frame (default: the readings as they are).
+    #[arg(long, value_name = "MODEL")]
+    pub instrument_frame: Option<PathBuf>,
     #[command(flatten)]
     pub machine: super::MachineArg,
 }
@@ -27,6 +31,7 @@ pub fn run(args: &Args) -> Result<()> {
     let mut outputs = CommandFiles::new()
         .input("--machine", &args.machine.machine)
         .input("--data", &args.data)
+        .input("--instrument-frame", &args.instrument_frame)
         .output("--plot", &args.plot)
         .check()?;
     let spec = args.machine.spec()?;
@@ -35,7 +40,7 @@ pub fn run(args: &Args) -> Result<()> {
         &spec,
         &[super::file_machine("--data", &args.data, read.machine)],
     )?;
-    let data = read.rows;
+    let data = super::frame_of(args.instrument_frame.as_deref())?.register(&read.rows);
     // Figures outside the workspace are no accuracy of this machine: say so (the figures stand).
     let outside = data
         .iter()

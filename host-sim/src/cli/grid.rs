@@ -22,7 +22,8 @@ use std::path::PathBuf;
 /// Build the correction-grid image from measurements at the grid nodes.
 #[derive(clap::Args, Debug)]
 pub struct Args {
-    /// The fitted model (model.json) the nodes were commanded with. If it carries
+    /// The fitted model (model.json) the nodes were commanded with; the readings are mapped
+    /// into the machine frame by its registered instrument frame. If it carries
     /// `backlash_urad`, the grid is built from link angles (the data need dir1,dir2) and the
     /// image carries the backlash block (the firmware's servo compensates it).
     #[arg(long, required_unless_present = "nominal")]
@@ -235,12 +236,17 @@ pub fn run(args: &Args) -> Result<()> {
     let backlash = file
         .backlash()
         .map_err(|e| anyhow::anyhow!("{}: {e}", model_path.display()))?;
+    // The readings into the machine frame, where the model is (the instrument frame the fit
+    // registered; none in an older model file).
+    let frame = file
+        .frame()
+        .map_err(|e| anyhow::anyhow!("{}: {e}", model_path.display()))?;
     let mut data = Vec::new();
     for path in &args.data {
         let read = read_measurement_file(path)?;
         args.machine
             .check_files(&spec, &[super::file_machine("--data", path, read.machine)])?;
-        let rows = read.rows;
+        let rows = frame.register(&read.rows);
         data.extend(match &backlash {
             Some(b) => b
                 .link_angles(&rows)
