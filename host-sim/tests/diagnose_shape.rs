@@ -10,7 +10,7 @@
 //! The sweep over every law, companion effect, out-of-library effect and magnitude is the
 //! benchmark `cargo bench -p host-sim --bench diagnose_study -- shape`.
 //!
-//! Cost: each diagnosis is a few seconds in the dev profile (400 poses, up to 20 more
+//! Cost: each diagnosis is a few seconds in the dev profile (200 poses, up to 20 more
 //! parameters while the check runs).
 
 use host_sim::diagnose::report::{table, Report};
@@ -23,7 +23,7 @@ use kinematics_core::FiveBar;
 const NOISE_UM: f64 = 2.0;
 
 /// The diagnosis of a plant whose distal bars stretch by the law `name` (drawn with `k`, RMS
-/// `rms_um` over the poses and both bars), on 400 random poses from random approach directions.
+/// `rms_um` over the poses and both bars), on 200 random poses from random approach directions.
 fn diagnosed(name: &str, k: u64, rms_um: f64, seed: u64) -> Report {
     let law = StretchLaw::all(k)
         .into_iter()
@@ -38,7 +38,7 @@ fn diagnosed(name: &str, k: u64, rms_um: f64, seed: u64) -> Report {
         }),
         ..Default::default()
     };
-    let data = generate(&truth, Poses::Random(400), seed);
+    let data = generate(&truth, Poses::Random(200), seed);
     diagnose(
         &data,
         &DiagnoseOptions::paper(FiveBar::paper_nominal(), Some(NOISE_UM)),
