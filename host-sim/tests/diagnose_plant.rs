@@ -1,4 +1,4 @@
-//! `host-sim diagnose` on data from the simulated machine (issue 7): the plant of `src/plant/`
+//! `host-sim diagnose` on data from the simulated machine (docs/design/diagnosis.md): the plant of `src/plant/`
 //! measured by the `host-sim measure` protocols (its library function [`measure`], and once the
 //! binary itself through a CSV file), with one plant effect switched on at a time, two at once,
 //! none (noise only), and a gear-tooth cyclic error that is in no library. The diagnosis sees
@@ -353,7 +353,7 @@ fn two_plant_effects_at_once_are_both_named() {
     only_confounded(&r, &[pair("link_lengths", "scale")], "scale + backlash");
 }
 
-/// Six-bar link and pin errors (issue 13): the hidden robot's own parameters take the five-bar
+/// Six-bar link and pin errors: the hidden robot's own parameters take the five-bar
 /// part, the six-bar's own effects (`parallelogram_mismatch`, `link_stretch`, derived from its
 /// loop closure) the rest, and the residual falls to the instrument noise. Never a direction
 /// effect, nothing left unexplained.
@@ -532,7 +532,7 @@ fn measure_command_csv_backlash_named_and_cyclic_error_unexplained() {
     );
 }
 
-/// The gap-shrink workflow of DIAGNOSIS.md ("Closing the loop"), through the binary: measure the
+/// The gap-shrink workflow of docs/guides/diagnose.md ("Close the loop"), through the binary: measure the
 /// `paper` six-bar plant from random approach directions, fit, diagnose against the fit and
 /// write the extended model, then measure the grid nodes commanded with it (backlash corrected
 /// by direction) and build the grid from link angles. The diagnosis names the plant's backlash
