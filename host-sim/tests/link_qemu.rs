@@ -326,7 +326,9 @@ fn the_host_tool_drives_the_firmware_under_qemu() {
         "{s}"
     );
 
-    // A 3 s figure (±30 mm × ±40 mm) through the workspace, tracked.
+    // A 3 s figure (±30 mm × ±40 mm) through the workspace, tracked. Knots 100 ms apart: QEMU's
+    // clock runs ahead of the wall clock its UART's bytes come by (`-icount`, no sleep), so a
+    // closer spacing lets the stream run dry between two frames now and then.
     let csv = work.path().join("telemetry.csv");
     let r = ok(
         &addr,
@@ -335,12 +337,12 @@ fn the_host_tool_drives_the_firmware_under_qemu() {
             "--seconds",
             "3",
             "--knot-ms",
-            "50",
+            "100",
             "--telemetry-csv",
             csv.to_str().unwrap(),
         ],
     );
-    assert_eq!(r["knots_sent"], 60);
+    assert_eq!(r["knots_sent"], 30);
     assert_eq!(r["final_status"]["mode"], "Running", "{r}");
     assert!(r["final_status"]["fault"].is_null(), "{r}");
     let samples = r["telemetry_samples"].as_u64().unwrap();
@@ -372,7 +374,7 @@ fn the_host_tool_drives_the_firmware_under_qemu() {
         (end[0] - home[0]).hypot(end[1] - home[1]) < 0.01,
         "back at the start: {end:?} vs {home:?}"
     );
-    println!("LINK_QEMU stream: 60 knots, {samples} telemetry samples, max following error {max_error_urad:.2} urad");
+    println!("LINK_QEMU stream: 30 knots, {samples} telemetry samples, max following error {max_error_urad:.2} urad");
 
     // Underrun: the stream stops coming mid-figure -> controlled stop, held, reported.
     let r = ok(
@@ -382,7 +384,7 @@ fn the_host_tool_drives_the_firmware_under_qemu() {
             "--seconds",
             "3",
             "--knot-ms",
-            "50",
+            "100",
             "--cut-after",
             "20",
         ],

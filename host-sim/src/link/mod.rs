@@ -397,6 +397,19 @@ pub fn stream_knots<S: Read + Write>(
                 std::thread::sleep(poll.max(Duration::from_millis(5)));
                 client.status()?;
             }
+            // Later frames: the controller's stream ran dry before this one came (it stops
+            // the machine, an underrun) or another client took the motion over.
+            Err(ClientError::Refused {
+                error: LinkError::Busy,
+                ..
+            }) if sent > 0 => {
+                return Err(ClientError::Trajectory(format!(
+                    "the controller took no more knots after {sent} of {}: its stream ran dry \
+                     before the next frame came (an underrun stops the machine; `status` tells) \
+                     or another client moved it; knots further apart give the link more time",
+                    knots.len()
+                )))
+            }
             Ok(other) => {
                 return Err(ClientError::Unexpected {
                     command: "stream",
