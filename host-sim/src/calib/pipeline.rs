@@ -787,21 +787,9 @@ pub fn write_outputs(
         vector_plot_png(
             "step 2, fit: true − target at fresh targets",
             &[
-                VectorField {
-                    label: "nominal model",
-                    base_mm: &base,
-                    error_um: &e_nom,
-                },
-                VectorField {
-                    label: "paper's ls fit",
-                    base_mm: &base,
-                    error_um: &e_ls,
-                },
-                VectorField {
-                    label: "full fit",
-                    base_mm: &base,
-                    error_um: &e_full,
-                },
+                VectorField::new("nominal model", &base, &e_nom),
+                VectorField::new("paper's ls fit", &base, &e_ls),
+                VectorField::new("full fit", &base, &e_full),
             ],
             &[],
         )?,
@@ -811,21 +799,9 @@ pub fn write_outputs(
         vector_plot_png(
             "step 3, grid: true − target at fresh targets",
             &[
-                VectorField {
-                    label: "full fit",
-                    base_mm: &base,
-                    error_um: &e_full,
-                },
-                VectorField {
-                    label: "full fit + grid (1 round)",
-                    base_mm: &base,
-                    error_um: &e_grid,
-                },
-                VectorField {
-                    label: "full fit + grid (2 rounds)",
-                    base_mm: &base,
-                    error_um: &e_grid2,
-                },
+                VectorField::new("full fit", &base, &e_full),
+                VectorField::new("full fit + grid (1 round)", &base, &e_grid),
+                VectorField::new("full fit + grid (2 rounds)", &base, &e_grid2),
             ],
             &[],
         )?,
@@ -835,16 +811,8 @@ pub fn write_outputs(
         vector_plot_png(
             "after calibration: true − target at fresh targets",
             &[
-                VectorField {
-                    label: "full fit + grid (1 round)",
-                    base_mm: &base,
-                    error_um: &e_grid,
-                },
-                VectorField {
-                    label: "full fit + grid (2 rounds)",
-                    base_mm: &base,
-                    error_um: &e_grid2,
-                },
+                VectorField::new("full fit + grid (1 round)", &base, &e_grid),
+                VectorField::new("full fit + grid (2 rounds)", &base, &e_grid2),
             ],
             &[],
         )?,
@@ -859,16 +827,8 @@ pub fn write_outputs(
         vector_plot_png(
             "grid nodes: measured − target",
             &[
-                VectorField {
-                    label: "round 1 (full fit)",
-                    base_mm: &node_base,
-                    error_um: &node_err1,
-                },
-                VectorField {
-                    label: "round 2 (through the round-1 grid)",
-                    base_mm: &node_base,
-                    error_um: &node_err2,
-                },
+                VectorField::new("round 1 (full fit)", &node_base, &node_err1),
+                VectorField::new("round 2 (through the round-1 grid)", &node_base, &node_err2),
             ],
             &[],
         )?,

@@ -7,6 +7,7 @@
 
 mod accuracy;
 mod command;
+mod common_args;
 mod cut;
 mod demo;
 mod diagnose;

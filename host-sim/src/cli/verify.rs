@@ -3,14 +3,13 @@
 //! self-contained HTML page (`--out`), the figures as JSON on stdout (and in `--json`). Every
 //! output is made in memory first and written (atomically) only once all are ready.
 
+use super::common_args::read_measurements as read;
 use super::MachineArg;
 use anyhow::{anyhow, bail, Context, Result};
 use host_sim::calib::verify::{html, verify, StageData, VerifyOptions};
-use host_sim::io::measurement_csv::{read_measurement_file, Measurement};
 use host_sim::io::policy::CommandFiles;
 use host_sim::io::{json_text, KeyOrder};
-use host_sim::machine_spec::MachineSpec;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 /// The accuracy report: ISO 230-2 / VDI 3441 per axis line and the 2-D position error, before
 /// and after calibration.
@@ -38,18 +37,6 @@ pub struct Args {
     pub json: Option<PathBuf>,
     #[command(flatten)]
     pub machine: MachineArg,
-}
-
-/// Reads `--flag path`, checked to be of the machine.
-fn read(
-    machine: &MachineArg,
-    spec: &MachineSpec,
-    flag: &str,
-    path: &Path,
-) -> Result<Vec<Measurement>> {
-    let read = read_measurement_file(path)?;
-    machine.check_files(spec, &[super::file_machine(flag, path, read.machine)])?;
-    Ok(read.rows)
 }
 
 /// `host-sim verify`.

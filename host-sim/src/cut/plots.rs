@@ -11,6 +11,7 @@ use super::Planned;
 use crate::io::plot::{err, legend, render, Area, COLOURS};
 use crate::io::IoError;
 use crate::machine_spec::MachineSpec;
+use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
 
 /// Most points of a drawn path.
@@ -149,15 +150,28 @@ fn draw_part(
         }
     }
     let blue = COLOURS[0];
-    chart
-        .draw_series(LineSeries::new(
-            gantry.iter().copied(),
-            blue.stroke_width(1),
-        ))
-        .map_err(err)?
-        .label("gantry (executed)")
-        .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], blue.stroke_width(3)));
+    trace(
+        &mut chart,
+        gantry.iter().copied(),
+        blue,
+        "gantry (executed)",
+    )?;
     legend(&mut chart, SeriesLabelPosition::UpperRight)
+}
+
+/// A thin line through `points` in `colour`, named `label` in the legend (drawn thicker there).
+fn trace<'a, DB: DrawingBackend + 'a>(
+    chart: &mut ChartContext<'a, DB, Cartesian2d<RangedCoordf64, RangedCoordf64>>,
+    points: impl IntoIterator<Item = (f64, f64)>,
+    colour: RGBColor,
+    label: &str,
+) -> Result<(), IoError> {
+    chart
+        .draw_series(LineSeries::new(points, colour.stroke_width(1)))
+        .map_err(err)?
+        .label(label)
+        .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(3)));
+    Ok(())
 }
 
 fn draw_micro(
@@ -215,14 +229,12 @@ fn draw_micro(
         .map_err(err)?
         .label(format!("less the {} mm margin", micro.margin_mm))
         .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RGBColor(120, 120, 120)));
-    chart
-        .draw_series(LineSeries::new(
-            excursion.iter().copied(),
-            red.stroke_width(1),
-        ))
-        .map_err(err)?
-        .label("micro tool point")
-        .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], red.stroke_width(3)));
+    trace(
+        &mut chart,
+        excursion.iter().copied(),
+        red,
+        "micro tool point",
+    )?;
     legend(&mut chart, SeriesLabelPosition::UpperRight)
 }
 
@@ -256,11 +268,7 @@ fn time_panel(
         .map_err(err)?;
     for (k, (label, s)) in series.iter().enumerate() {
         let c = COLOURS[k % COLOURS.len()];
-        chart
-            .draw_series(LineSeries::new(s.iter().copied(), c.stroke_width(1)))
-            .map_err(err)?
-            .label(*label)
-            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(3)));
+        trace(&mut chart, s.iter().copied(), c, label)?;
     }
     chart
         .draw_series(LineSeries::new(
