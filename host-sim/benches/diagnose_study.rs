@@ -3,11 +3,12 @@
 //! `tests/diagnose_plant.rs`).
 //!
 //! ```text
-//! cargo bench -p host-sim --bench diagnose_study                    # sweep, then table1_power
+//! cargo bench -p host-sim --bench diagnose_study                    # sweep, shape, then table1_power
 //! cargo bench -p host-sim --bench diagnose_study -- sweep           # robustness sweep only
+//! cargo bench -p host-sim --bench diagnose_study -- shape           # effects of other laws
 //! cargo bench -p host-sim --bench diagnose_study -- table1_power    # what 9 points can tell
-//! cargo bench -p host-sim --bench diagnose_study -- plant           # the plant outputs of diagnosis.md
-//! cargo bench -p host-sim --bench diagnose_study -- example FILE    # diagnosis.md's example CSV
+//! cargo bench -p host-sim --bench diagnose_study -- plant           # the plant outputs of the design doc
+//! cargo bench -p host-sim --bench diagnose_study -- example FILE    # the guide's example CSV
 //! ```
 //!
 //! `cargo test -p host-sim --bench diagnose_study -- sweep` runs the same in the dev profile
@@ -21,10 +22,12 @@ use host_sim::effect::PhysicalEffect;
 use host_sim::io::measurement_csv::format_measurements;
 use host_sim::machine_spec::MachineSpec;
 use host_sim::plant::{PlantConfig, PlantModel};
+use host_sim::synth::judge::{judge, Judgement};
+use host_sim::synth::other_laws::{LawKind, OtherStretch, StretchLaw};
 use host_sim::synth::{generate, Cyclic, Poses, Truth};
 use kinematics_core::Calibration;
 use kinematics_core::FiveBar;
-use rand::SeedableRng;
+use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 const NOISE_UM: f64 = 2.0;
@@ -50,9 +53,11 @@ fn main() {
     match args.first().map(String::as_str) {
         None => {
             sweep();
+            shape_sweep();
             table1_power();
         }
         Some("sweep") => sweep(),
+        Some("shape") => shape_sweep(),
         Some("table1_power") => table1_power(),
         Some("plant") => plant_outputs(),
         Some("example") => write_example(
@@ -61,13 +66,15 @@ fn main() {
                 .unwrap_or("diagnose_example.csv"),
         ),
         Some(other) => {
-            eprintln!("unknown study '{other}' (known: sweep, table1_power, plant, example FILE)");
+            eprintln!(
+                "unknown study '{other}' (known: sweep, shape, table1_power, plant, example FILE)"
+            );
             std::process::exit(2);
         }
     }
 }
 
-/// The false-positive sweep (docs/validation/sweeps.md): every library
+/// The false-positive sweep (docs/design/diagnosis.md, "Figures"): every library
 /// effect the generator has, every pair, every fourth triple, and no effect, each over seeds
 /// and magnitudes, without and with an out-of-library effect (a gear-tooth cyclic error, a slow
 /// instrument drift). Prints per case class the number of diagnoses, the false-positive rate
@@ -79,7 +86,7 @@ fn main() {
 /// order a drift in time is a smooth function of position). `parallelogram_mismatch` has no synthetic form (its truth is
 /// the six-bar plant's part errors: tests/diagnose_plant.rs).
 ///
-/// Env (defaults in parentheses; all defaults together are the run of docs/design/diagnosis.md):
+/// Env (defaults in parentheses; all defaults together are the full sweep):
 /// * SWEEP_N: seeds per case and magnitude (2);
 /// * SWEEP_SCALES: magnitude factors (`0.5,1.5`);
 /// * SWEEP_ONLY: one case, e.g. `encoder_offset,frame` (all cases);
@@ -93,58 +100,12 @@ fn main() {
 /// * SWEEP_MAX_HIDDEN: 1, 2 or 3, skip the cases with more hidden effects (3: all);
 /// * SWEEP_VERBOSE: tables and selection logs of the misses.
 ///
-/// The acceptance conditions (120 random poses, random approach directions, 1 µm
+/// Sparse data (120 random poses, random approach directions, a 1 µm
 /// instrument, 5 seeds): `SWEEP_POSES=120 SWEEP_NOISE_UM=1 SWEEP_N=5 SWEEP_SCALES=1`.
 fn sweep() {
-    let n: u64 = std::env::var("SWEEP_N")
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(2);
-    let scales: Vec<f64> = std::env::var("SWEEP_SCALES")
-        .ok()
-        .map(|v| v.split(',').filter_map(|x| x.parse().ok()).collect())
-        .unwrap_or_else(|| vec![0.5, 1.5]);
-    let fixed_poses: Option<usize> = std::env::var("SWEEP_POSES").ok().map(|v| {
-        v.trim()
-            .parse()
-            .ok()
-            .filter(|&p: &usize| p > 0)
-            .unwrap_or_else(|| panic!("SWEEP_POSES={v}: a positive number of random poses"))
-    });
-    let noise_um: f64 = std::env::var("SWEEP_NOISE_UM").ok().map_or(NOISE_UM, |v| {
-        v.trim()
-            .parse()
-            .ok()
-            .filter(|&s: &f64| s > 0.0 && s.is_finite())
-            .unwrap_or_else(|| panic!("SWEEP_NOISE_UM={v}: a positive σ in µm"))
-    });
-    let ools: Vec<&str> = match std::env::var("SWEEP_OOL") {
-        Ok(v) => {
-            let want: Vec<String> = v
-                .split(',')
-                .map(|x| x.trim().to_string())
-                .filter(|x| !x.is_empty())
-                .collect();
-            for w in &want {
-                assert!(
-                    ["none", "cyclic", "drift"].contains(&w.as_str()),
-                    "SWEEP_OOL: '{w}' is not one of none, cyclic, drift"
-                );
-            }
-            ["none", "cyclic", "drift"]
-                .into_iter()
-                .filter(|o| want.iter().any(|w| w == o))
-                .collect()
-        }
-        Err(_) => vec!["none", "cyclic", "drift"],
-    };
-    let max_hidden: usize = std::env::var("SWEEP_MAX_HIDDEN").ok().map_or(3, |v| {
-        v.trim()
-            .parse()
-            .ok()
-            .filter(|m: &usize| (1..=3).contains(m))
-            .unwrap_or_else(|| panic!("SWEEP_MAX_HIDDEN={v}: 1, 2 or 3"))
-    });
+    let env = SweepEnv::from_env();
+    let (n, noise_um, max_hidden, verbose) = (env.n, env.noise_um, env.max_hidden, env.verbose);
+    let (scales, ools) = (env.scales.clone(), env.ools.clone());
     let effects: Vec<&str> = LIBRARY
         .iter()
         .map(|e| e.name())
@@ -172,7 +133,6 @@ fn sweep() {
         cases.retain(|c| c.join(",") == only);
     }
     cases.retain(|c| c.len() <= max_hidden);
-    let verbose = std::env::var("SWEEP_VERBOSE").is_ok();
     // (class, out-of-library) → (runs, false positives, misses, unexplained flag wrong, declared
     // ambiguous with a hidden effect)
     let mut tally: std::collections::BTreeMap<(usize, &str), [usize; 5]> = Default::default();
@@ -185,27 +145,10 @@ fn sweep() {
                     let id = 1000 * si as u64 + seed;
                     let mut rng = ChaCha8Rng::seed_from_u64(99_000 + id + 7919 * case.len() as u64);
                     let mut truth = truth_with(case, noise_um, &mut rng).scaled(f);
-                    match ool {
-                        "cyclic" => {
-                            truth.cyclic = Some(Cyclic {
-                                motor: (seed % 2) as usize,
-                                cycles: [36.0, 50.0, 72.0][(seed % 3) as usize],
-                                amplitude_urad: 35.0,
-                                phase_rad: 0.4 * seed as f64,
-                            })
-                        }
-                        "drift" => truth.drift_um_per_s = [0.012, -0.008],
-                        _ => {}
-                    }
+                    add_out_of_library(&mut truth, ool, seed);
                     // Grid and random poses in turn over the whole sweep.
                     run += 1;
-                    // A drift only on random poses: on the grid's raster order time is a
-                    // function of position, and a drift is then a geometry no test can tell.
-                    let poses = match fixed_poses {
-                        Some(p) => Poses::Random(p),
-                        None if run % 2 == 1 || ool == "drift" => Poses::Random(400),
-                        None => Poses::Grid5mm,
-                    };
+                    let poses = env.poses(run, ool);
                     let data = generate(&truth, poses, 5000 + id);
                     let r = diagnose(
                         &data,
@@ -213,42 +156,11 @@ fn sweep() {
                     )
                     .unwrap();
                     let named: Vec<&str> = r.steps.iter().map(|s| s.effect.as_str()).collect();
-                    let twin = |e: &str| {
-                        (e == "link_lengths"
-                            && case.contains(&"scale")
-                            && r.confounded
-                                .contains(&vec!["link_lengths".to_string(), "scale".to_string()]))
-                            || (e == "encoder_offset" && case.contains(&"gear_ratio"))
-                    };
-                    // Named, not hidden, not an exact twin, but declared ambiguous with a hidden
-                    // effect or with the encoder offset a hidden gear ratio about a fixed angle
-                    // carries (the twin above: in the library's terms that offset is part of the
-                    // truth): not a false positive (the report names the true one as the
-                    // alternative and the measurement that separates them).
-                    let mut truth_terms: Vec<&str> = case.clone();
-                    if case.contains(&"gear_ratio") {
-                        truth_terms.push("encoder_offset");
-                    }
-                    let declared: Vec<&str> = named
-                        .iter()
-                        .copied()
-                        .filter(|e| {
-                            !case.contains(e) && !twin(e) && r.declares_alternative(e, &truth_terms)
-                        })
-                        .collect();
-                    let false_pos: Vec<&str> = named
-                        .iter()
-                        .copied()
-                        .filter(|e| !case.contains(e) && !twin(e) && !declared.contains(e))
-                        .collect();
-                    let missed: Vec<&str> = case
-                        .iter()
-                        .copied()
-                        .filter(|e| {
-                            !(named.contains(e)
-                                || (*e == "scale" && named.contains(&"link_lengths")))
-                        })
-                        .collect();
+                    let Judgement {
+                        false_positives: false_pos,
+                        declared,
+                        missed,
+                    } = judge(case, &r);
                     let flag_wrong = r.unexplained != (ool != "none");
                     let t = tally.entry((case.len(), ool)).or_default();
                     t[0] += 1;
@@ -258,13 +170,14 @@ fn sweep() {
                     t[4] += usize::from(!declared.is_empty());
                     // One line per diagnosis, so that a partial run is readable.
                     println!(
-                        "run {run}: {case:?} + {ool}, scale {f}, seed {seed}: named {named:?}; false {} missed {} unexplained {} ambiguous pairs {} two-for-two {}{}",
+                        "run {run}: {case:?} + {ool}, scale {f}, seed {seed}: named {named:?}; false {} missed {} unexplained {} ambiguous pairs {} two-for-two {}{}{}",
                         !false_pos.is_empty(),
                         !missed.is_empty(),
                         r.unexplained,
                         r.ambiguous.len(),
                         r.ambiguous_pairs.len(),
-                        if declared.is_empty() { String::new() } else { format!(" declared ambiguous {declared:?}") }
+                        if declared.is_empty() { String::new() } else { format!(" declared ambiguous {declared:?}") },
+                        final_checks(&r)
                     );
                     if !false_pos.is_empty() || (verbose && (!missed.is_empty() || flag_wrong)) {
                         println!(
@@ -282,10 +195,7 @@ fn sweep() {
             }
         }
     }
-    let poses_text = match fixed_poses {
-        Some(p) => format!("{p} random poses (random approach directions)"),
-        None => "400 random poses and the 5 mm grid in turn (drift: random)".to_string(),
-    };
+    let poses_text = env.poses_text();
     println!(
         "\nfalse-positive sweep: {} cases (up to {max_hidden} hidden) x {} ({}) x {} magnitudes {scales:?} x {n} seeds, {poses_text}, σ = {noise_um} µm, {:.0} s",
         cases.len(),
@@ -325,7 +235,299 @@ fn sweep() {
     );
 }
 
-/// Writes the synthetic example measurement file of diagnosis.md (hidden link lengths, backlash
+/// The shape-mismatch sweep: a distal stretch that follows another configuration law than the
+/// library's `link_stretch` (`synth::other_laws`: the levers' opening angle, an external force
+/// on the platform, a temperature gradient, a stiffening compliance of the loops' self-stress),
+/// alone and beside each library effect the generator has, without and with an out-of-library
+/// effect, over magnitudes and seeds. The truth in the library's terms is `link_stretch` plus
+/// the companion: a false positive is any other effect named (the twins and declared
+/// ambiguities of [`judge`] aside); a miss a companion not named. Also counted: the stretch not
+/// named, and the diagnoses that report the stretch's shape misfit (`shape_misfits`).
+///
+/// Env: the sweep's (`SWEEP_N`, `SWEEP_SCALES`, `SWEEP_POSES`, `SWEEP_NOISE_UM`, `SWEEP_OOL`,
+/// `SWEEP_VERBOSE`), and `SHAPE_LAWS`, a comma list among the laws of `synth::other_laws` (`StretchLaw::name`;
+/// all nine).
+fn shape_sweep() {
+    let env = SweepEnv::from_env();
+    let laws: Vec<&str> = match std::env::var("SHAPE_LAWS") {
+        Ok(v) => v
+            .split(',')
+            .map(str::trim)
+            .filter(|x| !x.is_empty())
+            .map(|w| {
+                StretchLaw::all(0)
+                    .iter()
+                    .map(StretchLaw::name)
+                    .find(|n| *n == w)
+                    .unwrap_or_else(|| panic!("SHAPE_LAWS: '{w}' is not a law"))
+            })
+            .collect(),
+        Err(_) => StretchLaw::all(0).iter().map(StretchLaw::name).collect(),
+    };
+    let companions: Vec<&str> = std::iter::once("")
+        .chain(
+            LIBRARY
+                .iter()
+                .map(|e| e.name())
+                .filter(|n| *n != "parallelogram_mismatch"),
+        )
+        .collect();
+    // (covered by the generalised shape, law, companion or none, out-of-library) → [runs, false
+    // positives, misses, stretch not named, misfit reported, declared ambiguous]
+    let mut tally: std::collections::BTreeMap<(LawKind, &str, bool, &str), [usize; 6]> =
+        Default::default();
+    let started = std::time::Instant::now();
+    let mut run = 0u64;
+    for (li, &law_name) in laws.iter().enumerate() {
+        for (ci, &companion) in companions.iter().enumerate() {
+            for &ool in &env.ools {
+                for (si, &f) in env.scales.iter().enumerate() {
+                    for seed in 0..env.n {
+                        let id = 1000 * si as u64 + 100 * ci as u64 + seed;
+                        let mut rng = ChaCha8Rng::seed_from_u64(77_000 + id + 7919 * li as u64);
+                        let hidden: Vec<&str> = if companion.is_empty() {
+                            vec![]
+                        } else {
+                            vec![companion]
+                        };
+                        let mut truth = truth_with(&hidden, env.noise_um, &mut rng);
+                        let law = StretchLaw::all(seed)
+                            .into_iter()
+                            .find(|l| l.name() == law_name)
+                            .expect("a law");
+                        truth.other_stretch = Some(OtherStretch {
+                            law,
+                            rms_um: rng.random_range(8.0..30.0),
+                            c_ratio: rng.random_range(0.8..1.25),
+                        });
+                        let mut truth = truth.scaled(f);
+                        add_out_of_library(&mut truth, ool, seed);
+                        run += 1;
+                        let data = generate(&truth, env.poses(run, ool), 6000 + id);
+                        let r = diagnose(
+                            &data,
+                            &DiagnoseOptions::paper(FiveBar::paper_nominal(), Some(env.noise_um)),
+                        )
+                        .unwrap();
+                        let mut truth_set = hidden.clone();
+                        truth_set.push("link_stretch");
+                        let j = judge(&truth_set, &r);
+                        let stretch_missed = j.missed.iter().any(|m| m == "link_stretch");
+                        let missed: Vec<&String> =
+                            j.missed.iter().filter(|m| *m != "link_stretch").collect();
+                        let misfit = !r.shape_misfits.is_empty();
+                        let t = tally
+                            .entry((law.kind(), law_name, !companion.is_empty(), ool))
+                            .or_default();
+                        t[0] += 1;
+                        t[1] += usize::from(!j.false_positives.is_empty());
+                        t[2] += usize::from(!missed.is_empty());
+                        t[3] += usize::from(stretch_missed);
+                        t[4] += usize::from(misfit);
+                        t[5] += usize::from(!j.declared.is_empty());
+                        let named: Vec<&str> = r.steps.iter().map(|s| s.effect.as_str()).collect();
+                        println!(
+                            "run {run}: {law_name} stretch {:.1} µm + {hidden:?} + {ool}, scale {f}, seed {seed}: named {named:?}; false {:?} missed {:?} misfit {misfit} unexplained {}",
+                            truth.other_stretch.map_or(0.0, |s| s.rms_um),
+                            j.false_positives,
+                            j.missed,
+                            r.unexplained
+                        );
+                        if env.verbose && (!j.false_positives.is_empty() || !j.missed.is_empty()) {
+                            println!("{}", table(&r));
+                            for line in &r.selection_log {
+                                println!("    log: {line}");
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+    println!(
+        "\nshape-mismatch sweep: {} laws x {} companions (none and each library effect) x {} ({}) x {} magnitudes {:?} x {} seeds, {}, σ = {} µm, {:.0} s",
+        laws.len(),
+        companions.len(),
+        env.ools.len(),
+        env.ools.join(", "),
+        env.scales.len(),
+        env.scales,
+        env.n,
+        env.poses_text(),
+        env.noise_um,
+        started.elapsed().as_secs_f64()
+    );
+    println!(
+        "{:<18} {:<10} {:<8} {:>6} {:>16} {:>12} {:>18} {:>16} {:>18}",
+        "law",
+        "companion",
+        "extra",
+        "runs",
+        "false positives",
+        "misses",
+        "stretch not named",
+        "misfit reported",
+        "declared ambiguous"
+    );
+    let mut totals: std::collections::BTreeMap<LawKind, [usize; 6]> = Default::default();
+    for ((kind, law, with, ool), t) in &tally {
+        let pct = |k: usize| 100.0 * t[k] as f64 / t[0] as f64;
+        println!(
+            "{:<18} {:<10} {:<8} {:>6} {:>9} ({:>4.1} %) {:>5} ({:>4.1} %) {:>11} ({:>4.1} %) {:>9} ({:>4.1} %) {:>11} ({:>4.1} %)",
+            law, if *with { "one" } else { "none" }, ool, t[0], t[1], pct(1), t[2], pct(2), t[3], pct(3), t[4], pct(4), t[5], pct(5)
+        );
+        for (sum, v) in totals.entry(*kind).or_default().iter_mut().zip(t) {
+            *sum += v;
+        }
+    }
+    for (kind, total) in &totals {
+        let pct = |k: usize| 100.0 * total[k] as f64 / total[0].max(1) as f64;
+        println!(
+            "{}: {} diagnoses, false-positive rate {:.1} %, miss rate {:.1} %, stretch not named {:.1} %, shape misfit reported {:.1} %, declared ambiguous {:.1} %",
+            match kind {
+                LawKind::SelfStress => "self-stress laws (the generalised shape's)",
+                LawKind::Beyond => "beyond the generalised shape",
+            },
+            total[0], pct(1), pct(2), pct(3), pct(4), pct(5)
+        );
+    }
+}
+
+/// What the selection's final checks did in a report, for the run lines: the effects the final
+/// add test dropped (`selection::prune_weak`, log lines `drop …`) and those not named beside a
+/// stretch's generalised shape (`shape_misfits`).
+fn final_checks(r: &host_sim::diagnose::report::Report) -> String {
+    let dropped: Vec<&str> = r
+        .selection_log
+        .iter()
+        .filter_map(|l| l.strip_prefix("drop "))
+        .filter_map(|l| l.split(':').next())
+        .collect();
+    let mut out = String::new();
+    if !dropped.is_empty() {
+        out.push_str(&format!(" final add test dropped {dropped:?}"));
+    }
+    for m in &r.shape_misfits {
+        out.push_str(&format!(
+            " {} shape misfit{} not named {:?}",
+            m.effect,
+            if m.significant { " kept" } else { "" },
+            m.not_named
+        ));
+    }
+    out
+}
+
+/// Adds the sweep's out-of-library effect `ool` (`none`, `cyclic`, `drift`) for `seed`.
+fn add_out_of_library(truth: &mut Truth, ool: &str, seed: u64) {
+    match ool {
+        "cyclic" => {
+            truth.cyclic = Some(Cyclic {
+                motor: (seed % 2) as usize,
+                cycles: [36.0, 50.0, 72.0][(seed % 3) as usize],
+                amplitude_urad: 35.0,
+                phase_rad: 0.4 * seed as f64,
+            })
+        }
+        "drift" => truth.drift_um_per_s = [0.012, -0.008],
+        _ => {}
+    }
+}
+
+/// The sweeps' conditions from the environment (the env list of [`sweep`]).
+struct SweepEnv {
+    n: u64,
+    scales: Vec<f64>,
+    fixed_poses: Option<usize>,
+    noise_um: f64,
+    ools: Vec<&'static str>,
+    max_hidden: usize,
+    verbose: bool,
+}
+
+impl SweepEnv {
+    fn from_env() -> SweepEnv {
+        let n: u64 = std::env::var("SWEEP_N")
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(2);
+        let scales: Vec<f64> = std::env::var("SWEEP_SCALES")
+            .ok()
+            .map(|v| v.split(',').filter_map(|x| x.parse().ok()).collect())
+            .unwrap_or_else(|| vec![0.5, 1.5]);
+        let fixed_poses: Option<usize> = std::env::var("SWEEP_POSES").ok().map(|v| {
+            v.trim()
+                .parse()
+                .ok()
+                .filter(|&p: &usize| p > 0)
+                .unwrap_or_else(|| panic!("SWEEP_POSES={v}: a positive number of random poses"))
+        });
+        let noise_um: f64 = std::env::var("SWEEP_NOISE_UM").ok().map_or(NOISE_UM, |v| {
+            v.trim()
+                .parse()
+                .ok()
+                .filter(|&s: &f64| s > 0.0 && s.is_finite())
+                .unwrap_or_else(|| panic!("SWEEP_NOISE_UM={v}: a positive σ in µm"))
+        });
+        let ools: Vec<&str> = match std::env::var("SWEEP_OOL") {
+            Ok(v) => {
+                let want: Vec<String> = v
+                    .split(',')
+                    .map(|x| x.trim().to_string())
+                    .filter(|x| !x.is_empty())
+                    .collect();
+                for w in &want {
+                    assert!(
+                        ["none", "cyclic", "drift"].contains(&w.as_str()),
+                        "SWEEP_OOL: '{w}' is not one of none, cyclic, drift"
+                    );
+                }
+                ["none", "cyclic", "drift"]
+                    .into_iter()
+                    .filter(|o| want.iter().any(|w| w == o))
+                    .collect()
+            }
+            Err(_) => vec!["none", "cyclic", "drift"],
+        };
+        let max_hidden: usize = std::env::var("SWEEP_MAX_HIDDEN").ok().map_or(3, |v| {
+            v.trim()
+                .parse()
+                .ok()
+                .filter(|m: &usize| (1..=3).contains(m))
+                .unwrap_or_else(|| panic!("SWEEP_MAX_HIDDEN={v}: 1, 2 or 3"))
+        });
+        SweepEnv {
+            n,
+            scales,
+            fixed_poses,
+            noise_um,
+            ools,
+            max_hidden,
+            verbose: std::env::var("SWEEP_VERBOSE").is_ok(),
+        }
+    }
+
+    /// The pose set of the `run`-th diagnosis (1-based): the fixed random set, else 400 random
+    /// poses and the 5 mm grid in turn (a drift only on random poses: on the grid's raster order
+    /// time is a function of position, and a drift is then a geometry no test can tell).
+    fn poses(&self, run: u64, ool: &str) -> Poses {
+        match self.fixed_poses {
+            Some(p) => Poses::Random(p),
+            None if run % 2 == 1 || ool == "drift" => Poses::Random(400),
+            None => Poses::Grid5mm,
+        }
+    }
+
+    /// The pose sets, for the summary line.
+    fn poses_text(&self) -> String {
+        match self.fixed_poses {
+            Some(p) => format!("{p} random poses (random approach directions)"),
+            None => "400 random poses and the 5 mm grid in turn (drift: random)".to_string(),
+        }
+    }
+}
+
+/// Writes the synthetic example measurement file (hidden link lengths, backlash
 /// and a 50-tooth cyclic error on motor 1, σ = 2 µm) to `path`.
 fn write_example(path: &str) {
     let truth = Truth {
@@ -348,7 +550,7 @@ fn write_example(path: &str) {
     println!("{truth:?}");
 }
 
-/// What 9 points at 20 µm can tell (for diagnosis.md): each effect hidden at the Table I poses,
+/// What 9 points at 20 µm can tell: each effect hidden at the Table I poses,
 /// without dir/time columns (the paper has none), at 1× and 5× the magnitudes of the tests.
 fn table1_power() {
     let n = 20u64;
@@ -420,7 +622,7 @@ fn measured(
     .unwrap()
 }
 
-/// The plant outputs of diagnosis.md: the six-bar plant measured by `host-sim measure` at 1 µm
+/// The plant outputs: the six-bar plant measured by `host-sim measure` at 1 µm
 /// noise (the noise, `paper` and link-error cases are the plants and seeds of
 /// `tests/diagnose_plant.rs`), one line per case, the full
 /// report for the six-bar's link errors and, for comparison, the same plant solved as its

@@ -48,7 +48,7 @@ fn grid_accuracy(
         &mut 0,
     )
     .map_err(|e| e.to_string())?;
-    let a = accuracy(&landed);
+    let a = accuracy(&cal.in_machine_frame(&landed));
     Ok((a.max_um, a.rms_um))
 }
 
@@ -59,7 +59,7 @@ fn bias_only(
     spec: &MachineSpec,
 ) -> Result<(f64, f64), String> {
     let truth: Vec<Measurement> = cal
-        .grid_data
+        .in_machine_frame(&cal.grid_data)
         .iter()
         .map(|l| Measurement {
             measured_mm: l.true_mm,
@@ -81,7 +81,11 @@ fn generic(
     cal: &Calibrated,
     spec: &MachineSpec,
 ) -> Result<(f64, f64), String> {
-    let rows: Vec<Measurement> = cal.grid_data.iter().map(|l| l.row.clone()).collect();
+    let rows: Vec<Measurement> = cal
+        .in_machine_frame(&cal.grid_data)
+        .iter()
+        .map(|l| l.row.clone())
+        .collect();
     grid_accuracy(
         machine,
         cal,

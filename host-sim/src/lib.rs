@@ -22,6 +22,8 @@
 //! | [`numeric`] | the one Levenberg–Marquardt, finite differences, column-scaled SVD, max/RMS |
 //! | [`link`] | the controller's host link: client, streamed motion, calibration upload, telemetry |
 //! | [`cosim`] | the production firmware under QEMU driving the plant in lockstep (co-simulation) |
+//! | [`commission`] | the machine builder's whole journey through the controller, in one call |
+//! | [`session`] | a measurement session through the controller: a plan's list visited, settled, read |
 //! | [`io`] | file formats (measurement CSV, model file, targets, plots) and atomic output |
 //!
 //! Conventions: library functions take an options struct (with the [`machine_spec::MachineSpec`]
@@ -40,6 +42,7 @@
 )]
 
 pub mod calib;
+pub mod commission;
 pub mod cosim;
 pub mod cut;
 pub mod diagnose;
@@ -55,5 +58,6 @@ pub mod machine_spec;
 pub use machine_spec::ranges as machine_ranges;
 pub mod numeric;
 pub mod plant;
+pub mod session;
 pub mod sim;
 pub mod synth;

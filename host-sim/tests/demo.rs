@@ -34,12 +34,15 @@ fn demo_runs_the_whole_story_and_writes_every_file() {
     assert_eq!(keys, ["nominal", "ls", "full", "full+grid", "full+grid2"]);
     let max = |k: usize| stages[k]["max_um"].as_f64().unwrap();
     let rms = |k: usize| stages[k]["rms_um"].as_f64().unwrap();
-    // The default machine is the paper plant (six-bar, ~1.5 mm worst before calibration, its
-    // instrument zeroed at Table I's point 1 as in the paper). The paper's `ls` fit (4 links)
-    // cannot absorb that frame offset and is no better than nominal (as the paper's own
-    // re-measured 700 µm said of its fit); the `full` fit (A0 free) is, the grid improves on
-    // it, and the second grid round only refines at the noise floor.
-    assert!((1000.0..=1600.0).contains(&max(0)), "before: {} µm", max(0));
+    // The default machine is the paper plant (six-bar; its instrument stands 3.2 mm off,
+    // zeroed at Table I's point 1 as in the paper). Every stage is judged in the machine frame
+    // the `full` fit registers: there the nominal model is ~3.5 mm off at worst (the paper's
+    // ~1.5 mm is with its instrument zeroed at a reference pose, which takes the common offset
+    // out). The paper's `ls` fit (4 links) in its own registered frame is better than nominal;
+    // the `full` fit much more, the grid improves on it, and the second grid round only
+    // refines at the noise floor.
+    assert!((3000.0..=4000.0).contains(&max(0)), "before: {} µm", max(0));
+    assert!(max(1) < max(0), "ls: {stages:?}");
     assert!(
         max(2) < max(0) / 20.0 && rms(2) < rms(0) / 20.0,
         "full fit: {stages:?}"
@@ -172,4 +175,119 @@ fn demo_into_an_unwritable_place_fails_clearly() {
         "{stderr}"
     );
     assert!(out.stdout.is_empty(), "no JSON on failure");
+}
+
+/// A tracker set up anywhere (plant TOML `[instrument]` keys): 12.5 mm off and turned 0.35°
+/// (another build of the paper design), metres away at 137°, and on the second machine
+/// metres away at −75°. The demo registers the frame (reported: near where the tracker
+/// stood, the difference being the machine frame's convention), runs every step including the
+/// paper's `ls` row, and reaches the paper plant's accuracy class through the grid.
+#[test]
+fn demo_calibrates_with_the_tracker_anywhere() {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let dir = tempfile::tempdir().unwrap();
+    let place = |plant: &str, offset: [f64; 2], rotation_deg: f64, name: &str| {
+        let text = std::fs::read_to_string(root.join(plant)).unwrap();
+        let text: Vec<String> = text
+            .lines()
+            .map(|l| {
+                if l.starts_with("frame_offset_mm") {
+                    format!("frame_offset_mm = [{:?}, {:?}]", offset[0], offset[1])
+                } else if l.starts_with("frame_rotation_deg") {
+                    format!("frame_rotation_deg = {rotation_deg:?}")
+                } else {
+                    l.to_string()
+                }
+            })
+            .collect();
+        let p = dir.path().join(name);
+        std::fs::write(&p, text.join("\n")).unwrap();
+        p
+    };
+    let second = root.join("machines/second.toml");
+    let cases = [
+        (
+            place("plants/paper.toml", [12.5, -4.0], 0.35, "near.toml"),
+            None,
+            [12.5, -4.0],
+            0.35,
+        ),
+        (
+            place("plants/paper.toml", [2500.0, -1800.0], 137.0, "far.toml"),
+            None,
+            [2500.0, -1800.0],
+            137.0,
+        ),
+        (
+            place(
+                "plants/second.toml",
+                [-1500.0, 3200.0],
+                -75.0,
+                "second_far.toml",
+            ),
+            Some(&second),
+            [-1500.0, 3200.0],
+            -75.0,
+        ),
+    ];
+    for (plant, machine, offset, rotation_deg) in cases {
+        let out_dir = dir.path().join(plant.file_stem().unwrap());
+        let mut args = vec![
+            "demo".to_string(),
+            "--plant".into(),
+            plant.display().to_string(),
+            "--noise-um".into(),
+            "1".into(),
+            "--out".into(),
+            out_dir.display().to_string(),
+        ];
+        if let Some(m) = machine {
+            args.extend(["--machine".into(), m.display().to_string()]);
+        }
+        let out = Command::new(env!("CARGO_BIN_EXE_host-sim"))
+            .args(&args)
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(out.status.success(), "{}: {stderr}", plant.display());
+        let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+        let keys: Vec<&str> = v["stages"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|s| s["step"].as_str().unwrap())
+            .collect();
+        assert_eq!(keys, ["nominal", "ls", "full", "full+grid", "full+grid2"]);
+        let (max, rms) = (
+            v["final"]["max_um"].as_f64().unwrap(),
+            v["final"]["rms_um"].as_f64().unwrap(),
+        );
+        eprintln!(
+            "{}: final {max} / {rms} µm; frame {}",
+            plant.display(),
+            v["instrument_frame"]
+        );
+        assert!(
+            max <= 1.0 && rms <= 0.3,
+            "{}: {max} / {rms}",
+            plant.display()
+        );
+        let f = &v["instrument_frame"];
+        let got = f["offset_mm"].as_array().unwrap();
+        let d = (got[0].as_f64().unwrap() - offset[0]).hypot(got[1].as_f64().unwrap() - offset[1]);
+        // The six-bar's hidden robot sits within a few tenths of a mm and a few hundredths of
+        // a degree of its nominal pose: that is the machine frame's convention.
+        assert!(d < 0.5, "offset {got:?} vs {offset:?}");
+        assert!(
+            (f["rotation_deg"].as_f64().unwrap() - rotation_deg).abs() < 0.05,
+            "{f}"
+        );
+        let model = host_sim::io::model_file::read_model_file(&out_dir.join("model.json")).unwrap();
+        let nominal = match machine {
+            Some(m) => host_sim::io::machine_file::read_machine(m).unwrap().nominal,
+            None => kinematics_core::FiveBar::paper_nominal(),
+        };
+        assert_eq!(model.model().unwrap().base_a0_mm, nominal.base_a0_mm);
+        assert!(model.instrument_frame.is_some());
+    }
 }

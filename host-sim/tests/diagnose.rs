@@ -215,8 +215,8 @@ fn each_effect_alone_is_named_exactly_and_the_gap_closes() {
 }
 
 /// The loops' stress: the distal bars' stretch from the plant's six-bar tensions, alone and
-/// beside link-length errors, encoder offsets or backlash, is named exactly (the
-/// former library named link_lengths and then false effects, base_offset, frame, gear_ratio).
+/// beside link-length errors, encoder offsets or backlash, is named exactly: nothing
+/// false on its account (no base_offset, frame or gear_ratio).
 #[test]
 fn link_stretch_alone_and_beside_other_effects_is_named_exactly() {
     let cases: [&[&str]; 4] = [
@@ -292,7 +292,7 @@ fn sweep_truth(effects: &[&str], magnitude: f64) -> Truth {
     sweep_case_truth(effects, 0, NOISE_UM).scaled(magnitude)
 }
 
-/// A former false positive of the sweep (docs/validation/sweeps.md): base offset and
+/// A former false positive of the sweep (docs/design/diagnosis.md): base offset and
 /// gear ratio at half the magnitude, random poses. The selection used to keep an extra
 /// `link_lengths` (it stood in for the encoder offset the gear ratio about a fixed angle
 /// leaves, at the same held-out error: the replacement demanded a strict cross-validated drop
@@ -588,7 +588,7 @@ fn hidden_drift_is_unexplained_and_described() {
     );
 }
 
-/// The acceptance conditions (120 random poses from random approach directions, a
+/// Sparse data (120 random poses from random approach directions, a
 /// 1 µm instrument) with the sweep's drift (12 / −8 nm/s, one reading a second: 1.4 µm at the
 /// end of the run). The frame's translation (or encoder offsets, or a scale) takes the drift's
 /// mean, and the ramp left about it is below the drift test's |z| > 5 on 120 points: before
@@ -624,7 +624,7 @@ fn a_weak_drift_on_120_points_at_1_um_names_nothing_on_its_account() {
     }
 }
 
-/// A false positive of the sweep under the acceptance conditions (120 random poses, 1 µm): the
+/// A false positive of the sweep on sparse data (120 random poses, 1 µm): the
 /// loops' stretch beside an instrument scale (seed 2 of the sweep at scale 1) was named
 /// stretch, base_offset and scale in all three variants (none, cyclic, drift). The true set had been
 /// fitted once from the stretch-only fit, where the LM stalled at 5568 µm² (from zero or from
@@ -690,7 +690,7 @@ fn stretch_and_scale_on_120_points_at_1_um_name_no_base_offset() {
 }
 
 /// The two false positives among single and paired effects of the sweep at half and 1.5×
-/// magnitude under the acceptance conditions (`SWEEP_POSES=120 SWEEP_NOISE_UM=1 SWEEP_N=5
+/// magnitude on sparse data (`SWEEP_POSES=120 SWEEP_NOISE_UM=1 SWEEP_N=5
 /// SWEEP_SCALES=0.5,1.5 SWEEP_MAX_HIDDEN=2`), both beside the drift:
 /// * base offset + stretch at 0.5× (seed 1): the base offset was added, then a pair move
 ///   replaced it by link lengths and a gear ratio, which tie with the truth on BIC (+0.5) and
@@ -773,7 +773,7 @@ fn a_two_for_two_tie_is_declared_ambiguous() {
     }
 }
 
-/// The sweep's last triple false positive at half magnitude (acceptance conditions, seed 4 with
+/// The sweep's last triple false positive at half magnitude (sparse data, seed 4 with
 /// the cyclic error): base offset + stretch + frame was named base offset + frame + link
 /// lengths. The stretch was fitted (ΔBIC −55 over the frame and base offset) but rejected as
 /// implausible, c's compliance ratio at −73 % against a hard bound of −67 %, though it was

@@ -1,4 +1,4 @@
-//! `host-sim diagnose` on data from the simulated machine: the plant of `src/plant/`
+//! `host-sim diagnose` on data from the simulated machine (docs/design/diagnosis.md): the plant of `src/plant/`
 //! measured by the `host-sim measure` protocols (its library function [`measure`], and once the
 //! binary itself through a CSV file), with one plant effect switched on at a time, two at once,
 //! none (noise only), and a gear-tooth cyclic error that is in no library. The diagnosis sees
@@ -532,12 +532,12 @@ fn measure_command_csv_backlash_named_and_cyclic_error_unexplained() {
     );
 }
 
-/// The gap-shrink workflow of docs/design/diagnosis.md ("Closing the loop"), through the binary:
-/// measure the `paper` six-bar plant from random approach directions, fit, diagnose against the fit
-/// and write the extended model, then measure the grid nodes commanded with it (backlash corrected
-/// by direction) and build the grid from link angles. The diagnosis names the plant's backlash (20
-/// µrad per drive, docs/reference/plant-file.md) and the six-bar's mismatch, each step shrinks the
-/// residual to the noise, and the extended model carries the backlash the commands then correct.
+/// The gap-shrink workflow of docs/guides/diagnose.md ("Close the loop"), through the binary: measure the
+/// `paper` six-bar plant from random approach directions, fit, diagnose against the fit and
+/// write the extended model, then measure the grid nodes commanded with it (backlash corrected
+/// by direction) and build the grid from link angles. The diagnosis names the plant's backlash
+/// (20 µrad per drive, docs/reference/plant-file.md) and the six-bar's mismatch, each step shrinks the residual to
+/// the noise, and the extended model carries the backlash the commands then correct.
 #[test]
 fn gap_shrink_workflow_writes_the_extended_model_and_the_commands_use_it() {
     let dir = tempfile::tempdir().unwrap();

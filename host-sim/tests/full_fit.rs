@@ -383,3 +383,169 @@ fn a_precise_instrument_on_the_six_bar_is_no_flood_of_blunders() {
         assert!(report.rejected.len() <= 1, "σ = {sigma_um} µm: {report:?}");
     }
 }
+
+/// The instrument anywhere: readings of `truth` moved by `frame` (machine → instrument).
+fn through(data: &[Measurement], frame: host_sim::numeric::Rigid2) -> Vec<Measurement> {
+    data.iter()
+        .map(|m| Measurement {
+            measured_mm: frame.apply(m.measured_mm),
+            ..m.clone()
+        })
+        .collect()
+}
+
+fn fit_registered(
+    data: &[Measurement],
+    method: host_sim::calib::fit::Method,
+) -> host_sim::calib::fit::FitOutcome {
+    use host_sim::calib::fit::{evaluate::Criterion, fit, FitOptions, FrameMode, Points};
+    fit(
+        data,
+        &FitOptions {
+            method,
+            criterion: Criterion::Measured,
+            points: Points::All,
+            fixed: vec![],
+            leave_one_out: false,
+            reject_sigma: DEFAULT_REJECT_SIGMA,
+            frame: FrameMode::Register,
+            spec: host_sim::machine_spec::MachineSpec::paper(),
+        },
+        &mut |_| {},
+    )
+    .unwrap()
+}
+
+/// A tracker metres away and at any angle: `full` returns the same machine-frame model as
+/// with the tracker at the machine's origin, and the frame it stood in. The truth satisfies
+/// the convention (A0 nominal, mean encoder offset nominal), so both are recovered to the
+/// noise; the frame's standard deviations cover the errors.
+#[test]
+fn full_registers_a_tracker_anywhere() {
+    use host_sim::calib::fit::Method;
+    use host_sim::numeric::Rigid2;
+    let mut t = truth();
+    t.encoder_offset_rad = [0.0012, -0.0012]; // mean 0: the convention's
+    let data = measure(&t, &random_targets(60, 11), 0.001, 12);
+    let at_home = fit_registered(&data, Method::Full);
+    for frame in [
+        Rigid2 {
+            rotation_rad: 0.35f64.to_radians(),
+            offset_mm: [12.5, -4.0],
+        },
+        Rigid2 {
+            rotation_rad: 137f64.to_radians(),
+            offset_mm: [2500.0, -1800.0],
+        },
+        Rigid2 {
+            rotation_rad: -3.0,
+            offset_mm: [-7000.0, 350.0],
+        },
+    ] {
+        let o = fit_registered(&through(&data, frame), Method::Full);
+        let (p, q, h) = (
+            to_vector(&o.model),
+            to_vector(&t),
+            to_vector(&at_home.model),
+        );
+        for k in 0..NAMES.len() {
+            // 1 nm / 1 nrad: the same fit, whatever the frame.
+            assert!(
+                (p[k] - h[k]).abs() < 1e-6,
+                "{}: {} vs {}",
+                NAMES[k],
+                p[k],
+                h[k]
+            );
+            let sd = o
+                .std_dev
+                .get(&host_sim::calib::fit::params::std_dev_entry(k, 1.0).0);
+            if let Some(sd) = sd {
+                let sd = if k == 6 || k == 7 {
+                    sd.to_radians()
+                } else {
+                    *sd
+                };
+                assert!(
+                    (p[k] - q[k]).abs() < 4.0 * sd,
+                    "{}: {} vs {} ± {sd}",
+                    NAMES[k],
+                    p[k],
+                    q[k]
+                );
+            }
+        }
+        assert_eq!(o.model.base_a0_mm, [0.0, 0.0], "the gauge's A0");
+        let f = o.frame.unwrap();
+        let sd = f.std_dev.unwrap();
+        let dr = (f.to_instrument.rotation_rad - frame.rotation_rad).abs();
+        assert!(
+            dr < 4.0 * sd[0] && dr < 1e-4,
+            "rotation {dr} rad ± {}",
+            sd[0]
+        );
+        for k in 0..2 {
+            let d = (f.to_instrument.offset_mm[k] - frame.offset_mm[k]).abs();
+            assert!(
+                d < 4.0 * sd[1 + k] + 1e-6,
+                "offset {k}: {d} mm ± {}",
+                sd[1 + k]
+            );
+        }
+        assert!(o.summary.max_err_um < 5.0, "{}", o.summary.max_err_um);
+        // The links-only fits register too (with the nominal model's frame) and stay
+        // plausible.
+        let ls = fit_registered(&through(&data, frame), Method::Ls);
+        assert!(
+            (ls.model.b_mm - 150.0).abs() < 1.0,
+            "ls b {}",
+            ls.model.b_mm
+        );
+        assert!(ls.frame.is_some());
+    }
+}
+
+/// What the readings cannot tell apart: a machine whose A0 bearing sits 0.4 mm off its
+/// drawing and whose two encoder zeros are both 0.05° off, read by an instrument at the
+/// machine's origin, gives exactly the readings of the drawing's machine read by an instrument
+/// shifted and turned by that much. The fit returns the same model for both (A0 nominal, the
+/// mean offset nominal: the convention) and puts the difference in the frame; the offsets'
+/// difference and B0 − A0 are identified.
+#[test]
+fn a_common_shift_and_rotation_of_the_machine_is_the_frame() {
+    use host_sim::calib::fit::Method;
+    use host_sim::numeric::Rigid2;
+    let mut t = truth();
+    t.encoder_offset_rad = [0.0012, -0.0012];
+    let psi = 0.05f64.to_radians();
+    let mut moved = t;
+    moved.base_a0_mm = [0.4, -0.3];
+    moved.base_b0_mm = Rigid2 {
+        rotation_rad: psi,
+        offset_mm: [0.0, 0.0],
+    }
+    .rotate(t.base_b0_mm);
+    moved.encoder_offset_rad = t.encoder_offset_rad.map(|o| o + psi);
+    let targets = random_targets(60, 21);
+    let a = fit_registered(&measure(&moved, &targets, 0.0, 22), Method::Full);
+    let b = fit_registered(&measure(&t, &targets, 0.0, 22), Method::Full);
+    let (p, q) = (to_vector(&a.model), to_vector(&b.model));
+    for k in 0..NAMES.len() {
+        assert!(
+            (p[k] - q[k]).abs() < 1e-7,
+            "{}: {} vs {}",
+            NAMES[k],
+            p[k],
+            q[k]
+        );
+    }
+    let (fa, fb) = (
+        a.frame.unwrap().to_instrument,
+        b.frame.unwrap().to_instrument,
+    );
+    assert!(
+        (fa.rotation_rad - fb.rotation_rad - psi).abs() < 1e-9,
+        "{fa:?} {fb:?}"
+    );
+    assert!((fa.offset_mm[0] - 0.4).abs() < 1e-6 && (fa.offset_mm[1] + 0.3).abs() < 1e-6);
+}

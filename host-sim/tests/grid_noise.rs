@@ -15,9 +15,10 @@
 //!
 //! The 1 µm instrument's figures (≤ 5 / 2 µm) are asserted by `tests/pipeline.rs`.
 
+use host_sim::calib::frame::InstrumentFrame;
 use host_sim::calib::grid::{build, build_with, Basis, GridOptions, Smoothing};
 use host_sim::calib::machine::{Machine, PlantMachine, StandInMachine};
-use host_sim::calib::measure::{measure_visits, rows, Landed};
+use host_sim::calib::measure::{measure_visits, registered, rows, Landed};
 use host_sim::calib::pipeline::{accuracy, calibrate, Accuracy, Approach, PipelineOptions};
 use host_sim::calib::protocol::{random_visits, visits, Protocol, Range, Visit};
 use host_sim::io::measurement_csv::Measurement;
@@ -39,16 +40,18 @@ fn fresh_targets(spec: &MachineSpec, seed: u64) -> Vec<Visit> {
     )
 }
 
-/// Where `machine` lands at `targets` commanded through `cal` (truth, not the noisy reading).
+/// Where `machine` lands at `targets` commanded through `cal` (truth, not the noisy reading),
+/// in the machine frame `frame` registers.
 fn verify(
     machine: &mut dyn Machine,
     cal: &Calibration<'_>,
     targets: &[Visit],
     spec: &MachineSpec,
+    frame: &InstrumentFrame,
 ) -> Accuracy {
     let landed: Vec<Landed> =
         measure_visits(machine, cal, targets, Approach::Positive, spec, &mut 0).unwrap();
-    accuracy(&landed)
+    accuracy(&registered(&landed, frame))
 }
 
 fn through(image: &[u8]) -> Calibration<'_> {
@@ -95,7 +98,7 @@ fn with_a_10_um_instrument_fit_plus_grid_beats_the_fit_and_reaches_6_um() {
         // The paper's grid from the same round-1 readings: every node's own noisy error.
         let raw = build_with(
             &cal.full.model,
-            &rows(&cal.grid_data),
+            &rows(&cal.in_machine_frame(&cal.grid_data)),
             &GridOptions {
                 step_mm: 5.0,
                 smoothing: Smoothing::None,
@@ -109,6 +112,7 @@ fn with_a_10_um_instrument_fit_plus_grid_beats_the_fit_and_reaches_6_um() {
             &through(&raw.image),
             &fresh_targets(&spec, seed),
             &spec,
+            &cal.frame,
         );
         eprintln!(
             "{name}: fit {:.1}/{:.2}, unsmoothed grid {:.1}/{:.2}, grid 1 round {:.1}/{:.2}, 2 rounds {:.1}/{:.2} µm\n  round 1: {}\n  round 2: {}",
@@ -144,13 +148,19 @@ fn with_a_10_um_instrument_fit_plus_grid_beats_the_fit_and_reaches_6_um() {
             six_bar_prior: false,
             ..GridOptions::for_machine(&spec)
         };
-        let generic = build_with(&cal.full.model, &rows(&cal.grid_data), &generic_opts).unwrap();
+        let generic = build_with(
+            &cal.full.model,
+            &rows(&cal.in_machine_frame(&cal.grid_data)),
+            &generic_opts,
+        )
+        .unwrap();
         assert_ne!(generic.noise.basis, Basis::SixBar);
         let generic_acc = verify(
             &mut machine,
             &through(&generic.image),
             &cal.plan.verify,
             &spec,
+            &cal.frame,
         );
         eprintln!(
             "  round 1 without the six-bar prior {:.1}/{:.2} µm ({:?})",
@@ -163,7 +173,7 @@ fn with_a_10_um_instrument_fit_plus_grid_beats_the_fit_and_reaches_6_um() {
         // What one round leaves is mostly the instrument's noise the estimate keeps, not its
         // bias: the same estimate (basis and λ) applied to the nodes' noiseless errors.
         let truth: Vec<Measurement> = cal
-            .grid_data
+            .in_machine_frame(&cal.grid_data)
             .iter()
             .map(|l| Measurement {
                 measured_mm: l.true_mm,
@@ -187,6 +197,7 @@ fn with_a_10_um_instrument_fit_plus_grid_beats_the_fit_and_reaches_6_um() {
             &through(&bias_grid.image),
             &cal.plan.verify,
             &spec,
+            &cal.frame,
         );
         eprintln!(
             "  round 1's bias alone {:.1}/{:.2} µm",
@@ -231,21 +242,28 @@ fn repeated_readings_are_averaged_and_help() {
         grid: None,
     };
     let nodes = visits(Protocol::Grid, seed, &spec);
-    let mut all = rows(&cal.grid_data);
+    let mut all = rows(&cal.in_machine_frame(&cal.grid_data));
     for _ in 0..3 {
         all.extend(rows(
-            &measure_visits(
-                &mut machine,
-                &model_cal,
-                &nodes,
-                Approach::Positive,
-                &spec,
-                &mut 0,
-            )
-            .unwrap(),
+            &cal.in_machine_frame(
+                &measure_visits(
+                    &mut machine,
+                    &model_cal,
+                    &nodes,
+                    Approach::Positive,
+                    &spec,
+                    &mut 0,
+                )
+                .unwrap(),
+            ),
         ));
     }
-    let once = build(&cal.full.model, &rows(&cal.grid_data), 5.0).unwrap();
+    let once = build(
+        &cal.full.model,
+        &rows(&cal.in_machine_frame(&cal.grid_data)),
+        5.0,
+    )
+    .unwrap();
     let four = build(&cal.full.model, &all, 5.0).unwrap();
     let n = &four.noise;
     assert_eq!(
@@ -264,8 +282,20 @@ fn repeated_readings_are_averaged_and_help() {
     );
     let targets = fresh_targets(&spec, seed);
     let (a1, a4) = (
-        verify(&mut machine, &through(&once.image), &targets, &spec),
-        verify(&mut machine, &through(&four.image), &targets, &spec),
+        verify(
+            &mut machine,
+            &through(&once.image),
+            &targets,
+            &spec,
+            &cal.frame,
+        ),
+        verify(
+            &mut machine,
+            &through(&four.image),
+            &targets,
+            &spec,
+            &cal.frame,
+        ),
     );
     eprintln!(
         "one reading per node {a1:?}\nfour readings per node {a4:?}\n{}",
@@ -308,8 +338,20 @@ fn pure_noise_gets_no_correction() {
     assert!(g.nodes.iter().all(|n| n.dtheta_rad == [0.0, 0.0]));
     let targets = fresh_targets(&spec, 3);
     let (bare, gridded) = (
-        verify(&mut machine, &cal, &targets, &spec),
-        verify(&mut machine, &through(&g.image), &targets, &spec),
+        verify(
+            &mut machine,
+            &cal,
+            &targets,
+            &spec,
+            &InstrumentFrame::IDENTITY,
+        ),
+        verify(
+            &mut machine,
+            &through(&g.image),
+            &targets,
+            &spec,
+            &InstrumentFrame::IDENTITY,
+        ),
     );
     assert!(
         gridded.max_um <= bare.max_um + 0.01,
@@ -327,6 +369,12 @@ fn pure_noise_gets_no_correction() {
         },
     )
     .unwrap();
-    let r = verify(&mut machine, &through(&raw.image), &targets, &spec);
+    let r = verify(
+        &mut machine,
+        &through(&raw.image),
+        &targets,
+        &spec,
+        &InstrumentFrame::IDENTITY,
+    );
     assert!(r.rms_um > 8.0, "{r:?}");
 }

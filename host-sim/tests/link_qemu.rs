@@ -198,6 +198,60 @@ fn the_host_tool_drives_the_firmware_under_qemu() {
         h["seconds"].as_f64().unwrap()
     );
 
+    // A measurement session through the controller: six verification targets of the paper's
+    // plan, each approached as the list says (both motors arriving forward), settled by the
+    // telemetry's criterion, the angles held written for `import` (the readings come from a
+    // tracker's export afterwards).
+    let plan = work.path().join("plan");
+    let out = Command::new(env!("CARGO_BIN_EXE_host-sim"))
+        .args(["plan", "--seed", "1", "--out", plan.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(out.status.success());
+    let list: Vec<String> = std::fs::read_to_string(plan.join("verify.csv"))
+        .unwrap()
+        .lines()
+        .take(7)
+        .map(String::from)
+        .collect();
+    let few = work.path().join("few.csv");
+    std::fs::write(&few, list.join("\n") + "\n").unwrap();
+    let angles = work.path().join("angles.csv");
+    let out = Command::new(env!("CARGO_BIN_EXE_host-sim"))
+        .args(["session", "--tcp", &addr, "--timeout-s", "10", "--targets"])
+        .args([
+            few.to_str().unwrap(),
+            "--instrument",
+            "export",
+            "--angles-out",
+        ])
+        .arg(&angles)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "session: {stderr}");
+    let r: Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(
+        (r["points"].as_u64(), r["deferred"].as_bool()),
+        (Some(6), Some(true)),
+        "{r}"
+    );
+    assert!(r["settle_s_max"].as_f64().unwrap() < 1.0, "{r}");
+    assert!(
+        r["following_error_urad_max"].as_f64().unwrap() <= 2.0,
+        "{r}"
+    );
+    let rows = host_sim::io::commanded_csv::read_commanded(&angles).unwrap();
+    assert_eq!(rows.len(), 6);
+    assert!(rows.iter().all(|row| row.dir == Some([1, 1])), "{rows:?}");
+    println!(
+        "LINK_QEMU session: 6 points, settled within {:.3} s, following error ≤ {:.2} µrad",
+        r["settle_s_max"], r["following_error_urad_max"]
+    );
+    // Back home, where the upload below checks the correction's change.
+    let (hx, hy) = (format!("--x-mm={}", home[0]), format!("--y-mm={}", home[1]));
+    ok(&addr, &["move", &hx, &hy]);
+
     // Upload the second image: the id read back is the file's, the servo switches to it at rest
     // (identify reports it once it is in force), and the joints move by the correction's change
     // at the same setpoint: at home the bundled field is (+1e-4, 0) rad, the new one (-1e-4, 0).

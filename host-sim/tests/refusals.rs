@@ -565,3 +565,70 @@ fn blunders_are_named_or_refused() {
         &[&out],
     );
 }
+
+/// A fit whose link lengths are beyond what a machine built to this drawing can have is refused
+/// through the binary, whatever the method: well-determined data (40 poses spread over the
+/// workspace, a 2 µm instrument) of a machine whose distal bar b is 8 % longer than the
+/// drawing's (12 mm where the limit is 5 %, 7.5 mm) give the fit b = 162 mm exactly; `fit`
+/// exits non-zero naming the parameter, its deviation and the limit, and writes nothing.
+#[test]
+fn implausible_link_lengths_are_refused_through_the_binary() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let nominal = FiveBar::<f64>::paper_nominal();
+    let mut long = nominal;
+    long.b_mm *= 1.08;
+    let mut rng = ChaCha8Rng::seed_from_u64(8);
+    let noise = Normal::new(0.0, 0.002).unwrap();
+    let rows: Vec<Measurement> = random_targets(40, 8)
+        .into_iter()
+        .enumerate()
+        .map(|(i, t)| {
+            let th = long.inverse(t, 0.05).unwrap();
+            let p = long.forward(th, 0.0).unwrap();
+            Measurement {
+                theta_deg: th.map(f64::to_degrees),
+                measured_mm: [p[0] + noise.sample(&mut rng), p[1] + noise.sample(&mut rng)],
+                target_mm: Some(t),
+                dir: None,
+                run: None,
+                t_s: None,
+                line: i + 2,
+            }
+        })
+        .collect();
+    let p = d.join("long_b.csv");
+    write_measurements(&p, &rows).unwrap();
+    for method in ["full", "ls"] {
+        let out = d.join(format!("{method}.json"));
+        let (ok, stdout, err) =
+            run(&["fit", "--data", s(&p), "--method", method, "--out", s(&out)]);
+        assert!(!ok, "{method}: a 162 mm link b was accepted: {stdout}");
+        assert!(!out.exists(), "{method}: wrote {}", out.display());
+        assert!(!err.contains("panicked"), "{method}: {err}");
+        assert!(
+            err.contains("the fitted model is implausible") && err.contains("b_mm = 16"),
+            "{method}: {err}"
+        );
+        assert!(err.contains("limit 7.500 mm"), "{method}: {err}");
+    }
+    // The same machine within its drawing's tolerance (b 2 % long) is fitted.
+    let mut close = nominal;
+    close.b_mm *= 1.02;
+    let rows: Vec<Measurement> = rows
+        .iter()
+        .map(|m| {
+            let th = close.inverse(m.target_mm.unwrap(), 0.05).unwrap();
+            Measurement {
+                theta_deg: th.map(f64::to_degrees),
+                measured_mm: close.forward(th, 0.0).unwrap(),
+                ..m.clone()
+            }
+        })
+        .collect();
+    let p = d.join("close_b.csv");
+    write_measurements(&p, &rows).unwrap();
+    let out = d.join("close.json");
+    let (ok, _, err) = run(&["fit", "--data", s(&p), "--method", "full", "--out", s(&out)]);
+    assert!(ok && out.exists(), "{err}");
+}

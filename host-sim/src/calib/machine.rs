@@ -353,8 +353,11 @@ impl Machine for PlantMachine {
         })
     }
 
+    /// Also starts the linkage's solver afresh (its warm start): a list measured after others
+    /// reads exactly what `measure --seed` reads on a new plant, to the last bit.
     fn reseed(&mut self, seed: u64) {
         self.plant.instrument.reseed(seed);
+        self.plant.sixbar = crate::plant::sixbar::SixBar::new(&self.plant.config.sixbar);
     }
 }
 

@@ -17,6 +17,7 @@
 //! ([`Visit::dir`]). Each measurement takes 1 s of machine time (`t_s` counts measurements).
 
 use super::backlash::{approach_dir, Backlash};
+use super::frame::InstrumentFrame;
 use super::machine::{Machine, PlantMachine};
 use super::protocol::{visits, Protocol, Visit};
 use super::CalibError;
@@ -35,6 +36,22 @@ pub struct Landed {
     pub row: Measurement,
     /// Where the tool really was (mm, instrument frame, noiseless).
     pub true_mm: [f64; 2],
+}
+
+/// Measured visits with their readings and truth in the machine frame (`frame`: the
+/// registration of the instrument's set-up, `super::frame`): what accuracy is judged on. The
+/// rows a session writes keep the instrument's readings as they were.
+pub fn registered(landed: &[Landed], frame: &InstrumentFrame) -> Vec<Landed> {
+    landed
+        .iter()
+        .map(|l| Landed {
+            row: Measurement {
+                measured_mm: frame.to_machine_mm(l.row.measured_mm),
+                ..l.row.clone()
+            },
+            true_mm: frame.to_machine_mm(l.true_mm),
+        })
+        .collect()
 }
 
 /// The measurement rows of measured visits.

@@ -9,7 +9,10 @@
 //!   stand-in five-bar);
 //! * [`measure`]: THE measurement path: command every visit exactly as the firmware does, settle,
 //!   read the instrument. `host-sim measure`, the demo and the tests all measure through it;
-//! * [`fit`]: the hidden robot from measurements (the paper's `poly` and `ls`, the full LM);
+//! * [`fit`]: the hidden robot from measurements (the paper's `poly` and `ls`, the full LM),
+//!   the instrument's frame registered with it;
+//! * [`frame`]: the instrument's frame (where the tracker stands), the convention that defines
+//!   the machine frame, the readings mapped into it;
 //! * [`grid`]: the correction grid flash image from measurements at the nodes;
 //! * [`image`]: the image finished with the machine's extension blocks (the workspace);
 //! * [`command`]: motor angles for targets, exactly as the firmware computes them;
@@ -25,7 +28,7 @@
 //!
 //! Where a change goes: a new protocol in `protocol.rs` (and `Protocol::parse`); a new fit
 //! method in `fit/` (one file, wired in `fit/mod.rs`); a new accuracy figure in `accuracy.rs`;
-//! a change to the demo's story in `pipeline.rs`. Machine constants come from the
+//! a change to the demo's story in `pipeline/`. Machine constants come from the
 //! [`MachineSpec`](crate::machine_spec::MachineSpec) in each options struct, never from here.
 
 pub mod accuracy;
@@ -33,6 +36,7 @@ pub mod backlash;
 pub mod command;
 pub mod dynamics;
 pub mod fit;
+pub mod frame;
 pub mod grid;
 pub mod image;
 pub mod import;

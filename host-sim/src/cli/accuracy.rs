@@ -17,6 +17,10 @@ pub struct Args {
     /// Optional PNG: mean error vector at every target.
     #[arg(long)]
     pub plot: Option<PathBuf>,
+    /// The calibrated model.json whose registered instrument frame maps the readings into the
+    /// machine frame (default: the readings as they are).
+    #[arg(long, value_name = "MODEL")]
+    pub instrument_frame: Option<PathBuf>,
     #[command(flatten)]
     pub machine: super::MachineArg,
 }
@@ -26,10 +30,12 @@ pub fn run(args: &Args) -> Result<()> {
     let mut outputs = CommandFiles::new()
         .input("--machine", &args.machine.machine)
         .input("--data", &args.data)
+        .input("--instrument-frame", &args.instrument_frame)
         .output("--plot", &args.plot)
         .check()?;
     let spec = args.machine.spec()?;
-    let data = super::common_args::read_measurements(&args.machine, &spec, "--data", &args.data)?;
+    let rows = super::common_args::read_measurements(&args.machine, &spec, "--data", &args.data)?;
+    let data = super::frame_of(args.instrument_frame.as_deref())?.register(&rows);
     // Figures outside the workspace are no accuracy of this machine: say so (the figures stand).
     let outside = data
         .iter()

@@ -1,17 +1,29 @@
-//! What several commands do with the same kind of argument, done once: a measurement file
-//! (`--data` and the like) checked to be of the machine, and the moving machine's telemetry log
-//! (`--telemetry`) with the knots it is a run of (`--knots`), as `identify` and `diagnose
-//! --telemetry` read them.
+//! What several commands do with the same kind of argument, done once: `--plant-model`, a
+//! measurement file (`--data` and the like) checked to be of the machine, and the moving
+//! machine's telemetry log (`--telemetry`) with the knots it is a run of (`--knots`), as
+//! `identify` and `diagnose --telemetry` read them.
 
 use super::MachineArg;
-use anyhow::{Context, Result};
+use anyhow::{bail, Context, Result};
 use host_sim::io::measurement_csv::{read_measurement_file, Measurement};
 use host_sim::io::telemetry_csv::{read_telemetry, TelemetryLog};
 use host_sim::link::link_protocol::Knot;
 use host_sim::link::parse_knots_csv;
 use host_sim::machine_spec::MachineSpec;
+use host_sim::plant::{PlantConfig, PlantModel};
 use host_sim::sim::knots::KnotPath;
 use std::path::Path;
+
+/// `--plant-model NAME` applied to the plant: `sixbar` or `fivebar` (none: the plant's own).
+pub fn override_plant_model(plant: &mut PlantConfig, name: Option<&str>) -> Result<()> {
+    match name {
+        None => {}
+        Some("sixbar") => plant.sixbar.model = PlantModel::Sixbar,
+        Some("fivebar") => plant.sixbar.model = PlantModel::Fivebar,
+        Some(other) => bail!("unknown --plant-model '{other}' (known: sixbar, fivebar)"),
+    }
+    Ok(())
+}
 
 /// The measurements of `--flag path`, checked to be of `spec`'s machine.
 pub fn read_measurements(

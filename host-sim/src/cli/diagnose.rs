@@ -5,6 +5,7 @@
 use anyhow::{bail, Context, Result};
 use host_sim::calib::fit::params::N_PARAMS;
 use host_sim::calib::fit::plausibility;
+use host_sim::calib::frame::{machine_frame_gauge, InstrumentFrame};
 use host_sim::diagnose::model_out::extended_model;
 use host_sim::diagnose::plots::write_plots;
 use host_sim::diagnose::{diagnose_with_plot_data, report, DiagnoseOptions};
@@ -70,13 +71,6 @@ pub fn run(args: &Args) -> Result<()> {
         &spec,
         &[super::file_machine("--data", data_path, read.machine)],
     )?;
-    let data = read.rows;
-    // The model written must pass what a fit's must (`calib::fit::plausibility`): data in
-    // metres or radians are refused before the diagnosis, not folded into a model.
-    if args.out_model.is_some() {
-        plausibility::check_units(&spec.nominal, &data)
-            .with_context(|| format!("--data {}", data_path.display()))?;
-    }
     let base = match &args.model {
         Some(p) => {
             let file = read_model_file(p)?;
@@ -85,6 +79,21 @@ pub fn run(args: &Args) -> Result<()> {
         }
         None => spec.nominal,
     };
+    // The readings into the machine frame by the model's registered instrument frame (none in
+    // an older model file): the diagnosis looks at what the model does not explain, not at
+    // where the tracker stood.
+    let frame = super::frame_of(args.model.as_deref())?;
+    let registered_model = match &args.model {
+        Some(p) => read_model_file(p)?.instrument_frame.is_some(),
+        None => false,
+    };
+    let data = frame.register(&read.rows);
+    // The model written must pass what a fit's must (`calib::fit::plausibility`): data in
+    // metres or radians are refused before the diagnosis, not folded into a model.
+    if args.out_model.is_some() {
+        plausibility::check_units(&spec.nominal, &data)
+            .with_context(|| format!("--data {}", data_path.display()))?;
+    }
     // The six-bar's own effects are derived from the machine's nominal design, not the current
     // model (which may carry an instrument offset as its A0).
     let sixbar = SixBarDesign::for_model(&spec.nominal, spec.workspace.centre_mm())
@@ -122,6 +131,28 @@ pub fn run(args: &Args) -> Result<()> {
         }
         None => None,
     };
+    // The extended model back in the machine frame's convention (a frame effect the diagnosis
+    // folded into A0 and the offsets goes into the instrument's frame; an exact change of
+    // frame), with the frame it now implies.
+    let registered_file = |e: &host_sim::diagnose::model_out::ExtendedModel| {
+        let mut file = e.file(&data_path.display().to_string());
+        if registered_model {
+            let fitted = file.model()?;
+            let (machine, g) = machine_frame_gauge(&fitted, &spec.nominal);
+            let moved = host_sim::io::model_file::ModelFile::from_model(&machine);
+            file.base_a0_mm = moved.base_a0_mm;
+            file.base_b0_mm = moved.base_b0_mm;
+            file.encoder_offset_deg = moved.encoder_offset_deg;
+            file.instrument_frame = Some(
+                InstrumentFrame {
+                    to_instrument: frame.to_instrument.after(&g),
+                    std_dev: None,
+                }
+                .record(),
+            );
+        }
+        Ok::<_, host_sim::io::IoError>(file)
+    };
     outputs.bytes(
         &args.out,
         json_text(&report, KeyOrder::Declared)?.as_bytes(),
@@ -130,7 +161,7 @@ pub fn run(args: &Args) -> Result<()> {
         outputs.bytes(
             path,
             model_file_text(&{
-                let mut f = e.file(&data_path.display().to_string());
+                let mut f = registered_file(e)?;
                 f.machine = Some(spec.identity());
                 f
             })?

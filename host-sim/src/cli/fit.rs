@@ -7,7 +7,7 @@ use host_sim::calib::fit::blunders::{
 };
 use host_sim::calib::fit::evaluate::{self, Criterion};
 use host_sim::calib::fit::subset_search::{Progress, Stage};
-use host_sim::calib::fit::{check_data, fit, params, FitOptions, Method, Points};
+use host_sim::calib::fit::{check_data, fit, params, FitOptions, FrameMode, Method, Points};
 use host_sim::calib::CalibError;
 use host_sim::io::measurement_csv::Measurement;
 use host_sim::io::model_file::{model_file_text, ModelFile};
@@ -36,6 +36,17 @@ pub enum CriterionArg {
     Measured,
     /// `FK(measured angles)` vs the desired (target) position: the paper's measure.
     Paper,
+}
+
+/// Whether the instrument's frame is registered.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum FrameArg {
+    /// Estimate where the instrument stands (a rigid motion, any distance and angle) with the
+    /// model; the model is in the machine frame, model.json keeps the frame for later readings.
+    Register,
+    /// The readings are in the machine frame already (an instrument referenced to the machine,
+    /// as the paper's at Table I's point 1): used as they are.
+    Machine,
 }
 
 /// Fit the hidden robot (five-bar) to measured motor angles and tool positions.
@@ -71,6 +82,10 @@ pub struct Args {
     /// docs/reference/calibration-tools.md "Blunders".
     #[arg(long)]
     pub reject_sigma: Option<f64>,
+    /// The instrument's frame: `register` (where the tracker stands is estimated with the
+    /// model) or `machine` (the readings are in the machine frame already).
+    #[arg(long, value_enum, default_value = "register")]
+    pub frame: FrameArg,
     /// Output model.json.
     #[arg(long)]
     pub out: PathBuf,
@@ -106,6 +121,10 @@ fn options(args: &Args, data: &[Measurement], spec: MachineSpec) -> Result<FitOp
         fixed: Vec::new(),
         leave_one_out: !args.no_loo,
         reject_sigma: 0.0,
+        frame: match args.frame {
+            FrameArg::Register => FrameMode::Register,
+            FrameArg::Machine => FrameMode::Machine,
+        },
         spec,
     };
     match method {
@@ -279,8 +298,22 @@ pub fn run(args: &Args) -> Result<()> {
     file.machine = Some(identity);
     file.std_dev = outcome.std_dev.clone();
     file.fit = Some(serde_json::to_value(&outcome.summary)?);
+    file.instrument_frame = outcome.frame.map(|f| f.record());
+    if let Some(f) = &outcome.frame {
+        let t = f.to_instrument;
+        eprintln!(
+            "fit: instrument frame registered: rotation {:.6}°, offset ({:.4}, {:.4}) mm (the model is in the machine frame: A0 nominal, mean encoder offset nominal)",
+            t.rotation_rad.to_degrees(),
+            t.offset_mm[0],
+            t.offset_mm[1]
+        );
+    }
     outputs.bytes(&args.out, model_file_text(&file)?.as_bytes())?;
     if let Some(plot) = &args.plot {
+        // In the machine frame, where the model is.
+        let data = outcome
+            .frame
+            .map_or_else(|| data.clone(), |f| f.register(&data));
         let base: Vec<[f64; 2]> = data.iter().map(|m| m.measured_mm).collect();
         let vecs = |m: &FiveBar<f64>| -> Vec<[f64; 2]> {
             evaluate::error_vectors_um(m, &data, Criterion::Measured)

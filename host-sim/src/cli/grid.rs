@@ -21,7 +21,8 @@ use std::path::PathBuf;
 /// Build the correction-grid image from measurements at the grid nodes.
 #[derive(clap::Args, Debug)]
 pub struct Args {
-    /// The fitted model (model.json) the nodes were commanded with. If it carries
+    /// The fitted model (model.json) the nodes were commanded with; the readings are mapped
+    /// into the machine frame by its registered instrument frame. If it carries
     /// `backlash_urad`, the grid is built from link angles (the data need dir1,dir2) and the
     /// image carries the backlash block (the firmware's servo compensates it).
     #[arg(long, required_unless_present = "nominal")]
@@ -234,9 +235,19 @@ pub fn run(args: &Args) -> Result<()> {
     let backlash = file
         .backlash()
         .map_err(|e| anyhow::anyhow!("{}: {e}", model_path.display()))?;
+    // The readings into the machine frame, where the model is (the instrument frame the fit
+    // registered; none in an older model file).
+    let frame = file
+        .frame()
+        .map_err(|e| anyhow::anyhow!("{}: {e}", model_path.display()))?;
     let mut data = Vec::new();
     for path in &args.data {
-        let rows = super::common_args::read_measurements(&args.machine, &spec, "--data", path)?;
+        let rows = frame.register(&super::common_args::read_measurements(
+            &args.machine,
+            &spec,
+            "--data",
+            path,
+        )?);
         data.extend(match &backlash {
             Some(b) => b
                 .link_angles(&rows)

@@ -6,7 +6,9 @@
 use super::MachineArg;
 use anyhow::{bail, Result};
 use host_sim::calib::machine::{check_plant_fits, PlantMachine};
-use host_sim::calib::measure::{accuracy, measure_list_compensated, rows, Accuracy, Approach};
+use host_sim::calib::measure::{
+    accuracy, measure_list_compensated, registered, rows, Accuracy, Approach,
+};
 use host_sim::calib::plan::visits_from_rows;
 use host_sim::calib::protocol::{visits, Protocol};
 use host_sim::io::measurement_csv::format_measurements_of;
@@ -70,6 +72,11 @@ pub struct Args {
     /// Overrides the instrument's noise σ (µm).
     #[arg(long)]
     pub noise_um: Option<f64>,
+    /// A model.json whose registered instrument frame the printed accuracy is judged in
+    /// (default: --model's; without either, the instrument's own frame). The CSV keeps the
+    /// instrument's readings as they are.
+    #[arg(long, value_name = "MODEL")]
+    pub instrument_frame: Option<PathBuf>,
     #[command(flatten)]
     pub machine: MachineArg,
 }
@@ -96,6 +103,7 @@ pub fn run(args: &Args) -> Result<()> {
         .input("--targets", &args.targets)
         .input("--model", &args.model)
         .input("--grid", &args.grid)
+        .input("--instrument-frame", &args.instrument_frame)
         .output("--out", &args.out)
         .check()?;
     let spec = args.machine.spec()?;
@@ -133,6 +141,7 @@ pub fn run(args: &Args) -> Result<()> {
             .map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))?,
         None => None,
     };
+    let frame = super::frame_of(args.instrument_frame.as_deref().or(args.model.as_deref()))?;
     let mut machine = PlantMachine::from_config(plant, &args.plant, args.noise_um, args.seed)?;
     let landed = measure_list_compensated(
         &mut machine,
@@ -174,7 +183,7 @@ pub fn run(args: &Args) -> Result<()> {
             approach,
             seed: args.seed,
             out: args.out.display().to_string(),
-            accuracy: accuracy(&landed),
+            accuracy: accuracy(&registered(&landed, &frame)),
         },
         KeyOrder::Sorted,
     )

@@ -7,6 +7,7 @@
 
 mod accuracy;
 mod command;
+mod commission;
 mod common_args;
 mod cut;
 mod demo;
@@ -19,6 +20,7 @@ mod import;
 mod link;
 mod measure;
 mod plan;
+mod session;
 mod simulate;
 mod verify;
 
@@ -79,6 +81,13 @@ enum Tool {
     Cut(cut::Args),
     /// Talk to a controller over its host link (QEMU: --tcp; the real board: --serial): identify, home, move, stream, upload...
     Link(link::Args),
+    /// A measurement session through the controller: a plan's list visited with its approach,
+    /// each point settled and read (typed in, or the tracker's export joined later by import).
+    Session(session::Args),
+    /// The machine builder's whole journey through the controller (co-simulated with --qemu,
+    /// or one you started: --tcp, --serial): identify, home, plan, measure, fit, grid, upload,
+    /// verify; a table per step on stderr, the report as JSON.
+    Commission(commission::Args),
 }
 
 /// Runs a parsed command line.
@@ -96,6 +105,8 @@ pub fn run(cli: Cli) -> Result<()> {
         Tool::Diagnose(a) => diagnose::run(&a),
         Tool::Demo(a) => demo::run(&a),
         Tool::Link(a) => link::run(&a),
+        Tool::Session(a) => session::run(&a),
+        Tool::Commission(a) => commission::run(&a),
         Tool::Identify(a) => identify::run(&a),
         Tool::Cut(a) => cut::run_cut(&a),
     }
@@ -238,6 +249,18 @@ fn load_calibration(
         (None, None) => nominal.cast::<f32>(),
     };
     Ok((model, bytes))
+}
+
+/// The registered instrument frame of a model file (`calib::frame`): the readings of its
+/// set-up are mapped into the machine frame by it. No file, or a file without one (an older
+/// fit): the instrument's own frame.
+fn frame_of(model: Option<&Path>) -> Result<host_sim::calib::frame::InstrumentFrame> {
+    match model {
+        Some(p) => host_sim::io::model_file::read_model_file(p)?
+            .frame()
+            .map_err(|e| anyhow!("{}: {e}", p.display())),
+        None => Ok(host_sim::calib::frame::InstrumentFrame::IDENTITY),
+    }
 }
 
 /// A parsed grid image (for `Calibration`), its errors naming the flag.

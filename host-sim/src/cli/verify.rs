@@ -3,13 +3,14 @@
 //! self-contained HTML page (`--out`), the figures as JSON on stdout (and in `--json`). Every
 //! output is made in memory first and written (atomically) only once all are ready.
 
-use super::common_args::read_measurements as read;
 use super::MachineArg;
 use anyhow::{anyhow, bail, Context, Result};
 use host_sim::calib::verify::{html, verify, StageData, VerifyOptions};
+use host_sim::io::measurement_csv::Measurement;
 use host_sim::io::policy::CommandFiles;
 use host_sim::io::{json_text, KeyOrder};
-use std::path::PathBuf;
+use host_sim::machine_spec::MachineSpec;
+use std::path::{Path, PathBuf};
 
 /// The accuracy report: ISO 230-2 / VDI 3441 per axis line and the 2-D position error, before
 /// and after calibration.
@@ -35,8 +36,25 @@ pub struct Args {
     /// Also write the JSON figures to this file.
     #[arg(long, value_name = "FILE")]
     pub json: Option<PathBuf>,
+    /// The calibrated model.json whose registered instrument frame maps every input's readings
+    /// into the machine frame (one instrument set-up for all of them). Without it the readings
+    /// are judged as they are (an instrument aligned to the machine).
+    #[arg(long, value_name = "MODEL")]
+    pub instrument_frame: Option<PathBuf>,
     #[command(flatten)]
     pub machine: MachineArg,
+}
+
+/// Reads `--flag path`, checked to be of the machine, registered into the machine frame.
+fn read(
+    machine: &MachineArg,
+    spec: &MachineSpec,
+    flag: &str,
+    path: &Path,
+    frame: &host_sim::calib::frame::InstrumentFrame,
+) -> Result<Vec<Measurement>> {
+    let rows = super::common_args::read_measurements(machine, spec, flag, path)?;
+    Ok(frame.register(&rows))
 }
 
 /// `host-sim verify`.
@@ -47,19 +65,21 @@ pub fn run(args: &Args) -> Result<()> {
         .input("--after-repeat", &args.after_repeat)
         .input("--before-verify", &args.before_verify)
         .input("--before-repeat", &args.before_repeat)
+        .input("--instrument-frame", &args.instrument_frame)
         .output("--out", &args.out)
         .output("--json", &args.json)
         .check()?;
     let spec = args.machine.spec()?;
+    let frame = super::frame_of(args.instrument_frame.as_deref())?;
     let m = &args.machine;
     let after = StageData {
-        verify: read(m, &spec, "--after-verify", &args.after_verify)?,
-        repeat: read(m, &spec, "--after-repeat", &args.after_repeat)?,
+        verify: read(m, &spec, "--after-verify", &args.after_verify, &frame)?,
+        repeat: read(m, &spec, "--after-repeat", &args.after_repeat, &frame)?,
     };
     let before = match (&args.before_verify, &args.before_repeat) {
         (Some(v), Some(r)) => Some(StageData {
-            verify: read(m, &spec, "--before-verify", v)?,
-            repeat: read(m, &spec, "--before-repeat", r)?,
+            verify: read(m, &spec, "--before-verify", v, &frame)?,
+            repeat: read(m, &spec, "--before-repeat", r, &frame)?,
         }),
         (None, None) => None,
         _ => bail!("--before-verify and --before-repeat come together"),

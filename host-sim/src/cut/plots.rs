@@ -149,25 +149,22 @@ fn draw_part(
             first[k] = false;
         }
     }
-    let blue = COLOURS[0];
-    trace(
-        &mut chart,
-        gantry.iter().copied(),
-        blue,
-        "gantry (executed)",
-    )?;
+    trace(&mut chart, gantry, COLOURS[0], "gantry (executed)")?;
     legend(&mut chart, SeriesLabelPosition::UpperRight)
 }
 
 /// A thin line through `points` in `colour`, named `label` in the legend (drawn thicker there).
 fn trace<'a, DB: DrawingBackend + 'a>(
     chart: &mut ChartContext<'a, DB, Cartesian2d<RangedCoordf64, RangedCoordf64>>,
-    points: impl IntoIterator<Item = (f64, f64)>,
+    points: &[(f64, f64)],
     colour: RGBColor,
     label: &str,
 ) -> Result<(), IoError> {
     chart
-        .draw_series(LineSeries::new(points, colour.stroke_width(1)))
+        .draw_series(LineSeries::new(
+            points.iter().copied(),
+            colour.stroke_width(1),
+        ))
         .map_err(err)?
         .label(label)
         .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(3)));
@@ -220,7 +217,6 @@ fn draw_micro(
         .collect();
     let mut inner_closed = inner.clone();
     inner_closed.push(inner[0]);
-    let red = COLOURS[1];
     chart
         .draw_series(LineSeries::new(
             inner_closed,
@@ -229,12 +225,7 @@ fn draw_micro(
         .map_err(err)?
         .label(format!("less the {} mm margin", micro.margin_mm))
         .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RGBColor(120, 120, 120)));
-    trace(
-        &mut chart,
-        excursion.iter().copied(),
-        red,
-        "micro tool point",
-    )?;
+    trace(&mut chart, excursion, COLOURS[1], "micro tool point")?;
     legend(&mut chart, SeriesLabelPosition::UpperRight)
 }
 
@@ -268,7 +259,7 @@ fn time_panel(
         .map_err(err)?;
     for (k, (label, s)) in series.iter().enumerate() {
         let c = COLOURS[k % COLOURS.len()];
-        trace(&mut chart, s.iter().copied(), c, label)?;
+        trace(&mut chart, s, c, label)?;
     }
     chart
         .draw_series(LineSeries::new(

@@ -37,7 +37,7 @@
 //!
 //! Cost: one closed-form FK per point per evaluation (a few hundred ns); no allocation per point.
 
-use super::library::{idx, Effect, Nuisance, FIVE_BAR_SPAN, N_PARAMS};
+use super::library::{idx, Effect, Nuisance, FIVE_BAR_SPAN, N_PARAMS, N_SHAPE};
 use super::sixbar_modes::{self, SixBarModes, N_MISMATCH, N_STRETCH};
 use crate::effect::PhysicalEffect;
 use crate::io::measurement_csv::Measurement;
@@ -61,6 +61,9 @@ pub struct Point {
     pub stretch_u: [[f64; N_STRETCH]; 2],
     /// The parallelogram_mismatch basis: tool displacement (µm) per µm of each mode.
     pub mismatch_um: [[f64; 2]; N_MISMATCH],
+    /// The shape-misfit nuisance's basis (`diagnose::shape`): tool displacement (µm) per µm of
+    /// each mode; zero unless the nuisance is set.
+    pub shape_um: [[f64; 2]; N_SHAPE],
     /// θ_j minus its circular mean over the data, wrapped to (−π, π] (the gear_ratio basis), rad.
     pub theta_centred_rad: [f64; 2],
     /// Time since the first measurement (s; 0 without a time column).
@@ -124,6 +127,7 @@ impl Problem {
                 measured_mm: m.measured_mm,
                 stretch_u: [[0.0; N_STRETCH]; 2],
                 mismatch_um: [[0.0; 2]; N_MISMATCH],
+                shape_um: [[0.0; 2]; N_SHAPE],
                 theta_centred_rad: [0.0; 2],
                 t_s: if has_time {
                     m.t_s.unwrap_or(t0) - t0
@@ -209,6 +213,12 @@ impl Problem {
         for (k, d) in p.mismatch_um.iter().enumerate() {
             c[0] += x[idx::MISMATCH + k] * d[0] * um;
             c[1] += x[idx::MISMATCH + k] * d[1] * um;
+        }
+        if self.nuisance.shape.is_some() {
+            for (k, d) in p.shape_um.iter().enumerate() {
+                c[0] += x[idx::SHAPE + k] * d[0] * um;
+                c[1] += x[idx::SHAPE + k] * d[1] * um;
+            }
         }
         let (sn, co) = (x[idx::FRAME + 2] * urad).sin_cos();
         let k = 1.0 + x[idx::SCALE] * 1e-6;

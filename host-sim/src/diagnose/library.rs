@@ -16,7 +16,10 @@
 use crate::effect::PhysicalEffect;
 
 /// Number of entries of the full parameter vector (library effects, then nuisances).
-pub const N_PARAMS: usize = 32;
+pub const N_PARAMS: usize = 32 + N_SHAPE;
+
+/// Modes of a named effect's shape misfit (a nuisance, `diagnose::shape`).
+pub const N_SHAPE: usize = 20;
 
 /// Parameter names with units (index = position in the full vector).
 #[rustfmt::skip]
@@ -34,6 +37,11 @@ pub const PARAM_NAMES: [&str; N_PARAMS] = [
     "cyclic1_cos_urad", "cyclic1_sin_urad",        // 26..28 nuisance: periodic error, motor 1
     "cyclic2_cos_urad", "cyclic2_sin_urad",        // 28..30 nuisance: periodic error, motor 2
     "drift_x_um_per_ks", "drift_y_um_per_ks",      // 30..32 nuisance: instrument drift
+    // 32..52 nuisance: a named effect's shape misfit (modes, RMS displacement over the data)
+    "misfit1_um", "misfit2_um", "misfit3_um", "misfit4_um", "misfit5_um",
+    "misfit6_um", "misfit7_um", "misfit8_um", "misfit9_um", "misfit10_um",
+    "misfit11_um", "misfit12_um", "misfit13_um", "misfit14_um", "misfit15_um",
+    "misfit16_um", "misfit17_um", "misfit18_um", "misfit19_um", "misfit20_um",
 ];
 
 /// Index ranges of the parameters.
@@ -51,6 +59,7 @@ pub mod idx {
     pub const MISMATCH: usize = 22;
     pub const CYCLIC: usize = 26;
     pub const DRIFT: usize = 30;
+    pub const SHAPE: usize = 32;
 }
 
 /// One candidate effect: a [`PhysicalEffect`] with its parameters in the extended forward model.
@@ -139,6 +148,8 @@ pub struct Nuisance {
     pub cyclic_cycles: [Option<f64>; 2],
     /// A linear drift of the readings in time.
     pub drift: bool,
+    /// The shape misfit of a named effect: which effect, and how many modes (`Point::shape_um`).
+    pub shape: Option<(PhysicalEffect, usize)>,
 }
 
 impl Nuisance {
@@ -152,6 +163,9 @@ impl Nuisance {
         }
         if self.drift {
             p.extend([idx::DRIFT, idx::DRIFT + 1]);
+        }
+        if let Some((_, k)) = self.shape {
+            p.extend(idx::SHAPE..idx::SHAPE + k.min(N_SHAPE));
         }
         p
     }

@@ -1,10 +1,12 @@
-//! The diagnosis (`host-sim diagnose`): find where the model and the measurements
+//! The diagnosis (`host-sim diagnose`, docs/design/diagnosis.md): find where the model and the measurements
 //! disagree, name the missing effect, add it to the model and show the gap shrink.
 //!
 //! Pipeline, top to bottom in [`diagnose_with_plot_data`], one stage per file: residuals of the
 //! current model ([`forward_model`]) → stepwise selection over the effect library with a BIC
 //! score ([`selection`], scored by [`scoring`], fits by [`fit`]: the crate's one LM), with
-//! out-of-library structures fitted as nuisances ([`nuisance`]) → the gap-shrink table
+//! out-of-library structures fitted as nuisances ([`nuisance`]) → the shape check: effects named
+//! beside one whose library shape misfits must stand on their own against its generalised shape
+//! ([`shape`]) → the gap-shrink table
 //! ([`gap_shrink`]) → confounding of the chosen effects with the other candidates
 //! ([`confounding`]) and the choices the data leave open ([`ambiguity`]) → the verdict on what
 //! is left ([`verdict`], structure tests in [`structure`]) → report and table ([`report`]) and
@@ -36,6 +38,7 @@ pub mod plots;
 pub mod report;
 pub mod scoring;
 pub mod selection;
+pub mod shape;
 pub mod sixbar_modes;
 pub mod structure;
 pub mod verdict;
@@ -174,6 +177,8 @@ pub fn diagnose_with_plot_data(
         noise_source,
     } = prepare(data, opts)?;
     let (sel, nuisance_log) = nuisance::select_with_nuisances(&mut problem, data, noise_um)?;
+    let (mut sel, shape_misfit, shape_log) = shape::check_shapes(&mut problem, sel, noise_um);
+    sel.log.extend(shape_log);
     notes.extend(sel.skipped.iter().cloned());
     let problem = problem;
     let mut fitter = Fitter::new(&problem);
@@ -233,6 +238,7 @@ pub fn diagnose_with_plot_data(
         final_max_um: last_radial.max,
         chi2_per_dof: v.chi2_per_dof,
         nuisances: nuisance::nuisance_report(&problem, last, s2_final, nuisance_log),
+        shape_misfits: shape_misfit.into_iter().collect(),
         selection_log: sel.log,
         notes,
     };

@@ -163,6 +163,11 @@ pub fn describe_nuisance(n: &Nuisance) -> String {
     if n.drift {
         parts.push("drift of the readings in time".to_string());
     }
+    if let Some((effect, modes)) = n.shape {
+        parts.push(format!(
+            "a shape misfit of {effect}: {modes} modes of its generalised shape beyond the library's"
+        ));
+    }
     parts.join(", ")
 }
 

@@ -3,7 +3,9 @@
 //! Contract keys: `steps` (effects of the final model in the order added, each with `effect`,
 //! `params`, `rms_before_um`, `rms_after_um`, `max_before_um`, `max_after_um`), `confounded`
 //! (list of lists of effect names), `unexplained`, `final_rms_um` (RMS of the radial residual).
-//! Everything else is explanation for people. Cost: negligible.
+//! Everything else is explanation for people (`shape_misfits`: a named effect whose library
+//! shape does not fully explain its part, and what was not named on its account). Cost:
+//! negligible.
 
 use super::confounding::{Overlap, PoseOverlap};
 use super::structure::Finding;
@@ -80,6 +82,35 @@ pub struct AmbiguousPair {
     pub delta_cv_rss_um2: Option<f64>,
 }
 
+/// A named effect whose library shape does not fully explain its part of the residual: a
+/// smooth generalisation of its physical form (`diagnose::shape`) fits what is left, and the
+/// diagnosis reports that misfit instead of naming other effects on its account.
+#[derive(Clone, Debug, Serialize)]
+pub struct ShapeMisfit {
+    /// The named effect (in `steps`).
+    pub effect: String,
+    /// The misfit is significant (BIC and held-out test, every mode charged): it is fitted as a
+    /// nuisance, stays in the residual and makes it `unexplained`. False: only `not_named`.
+    pub significant: bool,
+    /// Radial RMS (µm) of what the generalised shape fits beyond the library's (0 when not
+    /// significant).
+    pub rms_um: f64,
+    /// BIC of the final model with the generalised shape minus without it.
+    pub delta_bic: f64,
+    /// Cross-validated RSS (µm²) with the generalised shape minus without it.
+    pub delta_cv_rss_um2: f64,
+    /// Effects the selection named without the check that do not stand on their own beside
+    /// the named effect's generalised shape (not named).
+    pub not_named: Vec<String>,
+    /// Named effects that do not stand on their own beside the generalised shape, kept because
+    /// the named model explains the data (the misfit not significant beside them): the data do
+    /// not decide between each and a stretch of another law; they are declared open, not
+    /// claimed.
+    pub open: Vec<String>,
+    /// The misfit's structure, for people.
+    pub description: String,
+}
+
 #[derive(Clone, Debug, Serialize)]
 pub struct Report {
     pub points: usize,
@@ -126,25 +157,42 @@ pub struct Report {
     /// fitted alongside every model so that no library effect is named on their account, with
     /// their fitted size; they stay in the residual and make it `unexplained`.
     pub nuisances: Vec<String>,
+    /// Named effects whose library shape does not fully explain their part of the residual
+    /// (see [`ShapeMisfit`]); they stay in the residual and make it `unexplained`.
+    pub shape_misfits: Vec<ShapeMisfit>,
     pub selection_log: Vec<String>,
     pub notes: Vec<String>,
 }
 
 impl Report {
     /// Whether the report declares the named `effect` ambiguous with one of `alternatives`
-    /// (`ambiguous`), or, beside another named effect, with two of them (`ambiguous_pairs`): the diagnosis then does not claim `effect` over it. The false-positive
-    /// sweep counts a named effect that is not hidden as no false positive only in that case
-    /// (docs/validation/sweeps.md).
+    /// (`ambiguous`), or, beside another named effect, with two of them (`ambiguous_pairs`), or
+    /// open beside the shape misfit of one of them (`shape_misfits`' `open`): the diagnosis
+    /// then does not claim `effect` over it. The false-positive sweeps count a named effect
+    /// that is not hidden as no false positive only in that case (`synth::judge`).
     pub fn declares_alternative(&self, effect: &str, alternatives: &[&str]) -> bool {
         self.ambiguous
             .iter()
             .any(|a| a.effect == effect && alternatives.contains(&a.alternative.as_str()))
+            || self.shape_misfits.iter().any(|m| {
+                alternatives.contains(&m.effect.as_str()) && m.open.iter().any(|o| o == effect)
+            })
             || self.ambiguous_pairs.iter().any(|a| {
                 a.effects.iter().any(|e| e == effect)
                     && a.alternatives
                         .iter()
                         .all(|c| alternatives.contains(&c.as_str()))
             })
+    }
+}
+
+impl Report {
+    /// Whether `effect` is named but declared open beside a shape misfit (`ShapeMisfit::open`):
+    /// the data do not decide between it and a named effect's other law.
+    pub fn declares_open(&self, effect: &str) -> bool {
+        self.shape_misfits
+            .iter()
+            .any(|m| m.open.iter().any(|o| o == effect))
     }
 }
 
@@ -278,6 +326,37 @@ pub fn table(r: &Report) -> String {
             s.push_str(&format!(
                 "not detected: {} (not identifiable alongside the final model: confounded with it)\n",
                 nd.effect
+            ));
+        }
+    }
+    for m in &r.shape_misfits {
+        let not_named = if m.not_named.is_empty() {
+            String::new()
+        } else {
+            format!(
+                "; not named on its account: {} (each stands no more on its own beside it)",
+                m.not_named.join(", ")
+            )
+        };
+        let not_named = if m.open.is_empty() {
+            not_named
+        } else {
+            format!(
+                "{not_named}; open: {} (named, but a stretch of another law explains what each does as well; to \
+                 separate: measure configurations where the two act differently, a wider motor-angle range)",
+                m.open.join(", ")
+            )
+        };
+        if m.significant {
+            s.push_str(&format!(
+                "shape misfit: {} — its library shape leaves {:.2} µm RMS that its generalised shape fits (ΔBIC {:.1}, \
+                 cross-validated RSS {:+.1} µm²): {}{not_named}\n",
+                m.effect, m.rms_um, m.delta_bic, m.delta_cv_rss_um2, m.description
+            ));
+        } else {
+            s.push_str(&format!(
+                "shape misfit: {} — {}{not_named}\n",
+                m.effect, m.description
             ));
         }
     }

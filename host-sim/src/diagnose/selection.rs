@@ -346,3 +346,50 @@ fn prune_weak(
         *cur = f;
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::diagnose::library::effect;
+    use crate::loop_closure::SixBarDesign;
+    use crate::synth::{generate, Poses, Truth};
+    use kinematics_core::FiveBar;
+
+    /// The final check drops a member that does not pass the add test given the others (a gear
+    /// ratio the data do not have, beside the link lengths they do), logs the drop, and keeps
+    /// the member that does.
+    #[test]
+    fn the_final_check_drops_a_member_without_support_and_keeps_the_rest() {
+        let truth = Truth {
+            noise_um: 1.0,
+            link_delta_um: [40.0, -25.0, 30.0, -60.0],
+            ..Default::default()
+        };
+        let data = generate(&truth, Poses::Random(80), 3);
+        let problem = Problem::new(FiveBar::paper_nominal(), &SixBarDesign::paper(), &data);
+        let mut fitter = Fitter::new(&problem);
+        let (links, gear) = (
+            effect("link_lengths").expect("in the library"),
+            effect("gear_ratio").expect("in the library"),
+        );
+        let mut set = vec![links, gear];
+        let mut cur = fitter.fit(&set, &[0.0; N_PARAMS]).expect("a fit");
+        let mut log = Vec::new();
+        prune_weak(&mut fitter, &mut set, &mut cur, Some(1.0), &mut log);
+        assert_eq!(
+            set.iter().map(|e| e.name()).collect::<Vec<_>>(),
+            ["link_lengths"],
+            "{log:#?}"
+        );
+        assert!(
+            log.len() == 1 && log[0].starts_with("drop gear_ratio"),
+            "{log:#?}"
+        );
+        // What is left is the link lengths' fit: the gear ratio's parameters are free no more.
+        assert!(
+            gear.params.iter().all(|k| !cur.free.contains(k)),
+            "{:?}",
+            cur.free
+        );
+    }
+}

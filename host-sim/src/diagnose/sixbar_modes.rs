@@ -22,8 +22,7 @@
 //! Why these counts: over the paper machine's workspace the mismatch's singular values fall
 //! 1, 0.87, 0.34, 0.23, 0.14, ...; with four mismatch modes and the stretch's five the six-bar
 //! error of the `paper` plant and of random σ = 50 µm plants (1.5–2.8 µm RMS beyond the
-//! five-bar) is represented to ≤ 0.2 µm RMS (docs/design/diagnosis.md), below a 1 µm
-//! instrument.
+//! five-bar) is represented to ≤ 0.2 µm RMS (docs/design/diagnosis.md), below a 1 µm instrument.
 //!
 //! For "add it to the model" each mode is also kept as the raw-error combination it stands for
 //! (and, for the mismatch, the five-bar parameter change its projection subtracted), so a fitted

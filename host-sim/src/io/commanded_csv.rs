@@ -40,6 +40,26 @@ const COLUMNS: [&str; 7] = [
     "run",
 ];
 
+/// The commanded list as text (every column; the target, directions and run where known,
+/// empty otherwise), angles to 1e-9°.
+pub fn format_commanded(rows: &[CommandedRow]) -> String {
+    let mut out = String::from("theta1_deg,theta2_deg,x_mm,y_mm,dir1,dir2,run\n");
+    for r in rows {
+        let t = r
+            .target_mm
+            .map_or(",".to_string(), |t| format!("{:.6},{:.6}", t[0], t[1]));
+        let d = r
+            .dir
+            .map_or(",".to_string(), |d| format!("{},{}", d[0], d[1]));
+        let run = r.run.map_or(String::new(), |v| v.to_string());
+        out.push_str(&format!(
+            "{:.9},{:.9},{t},{d},{run}\n",
+            r.theta_deg[0], r.theta_deg[1]
+        ));
+    }
+    out
+}
+
 /// Parses a commanded list (module doc).
 pub fn parse_commanded(text: &str) -> Result<Vec<CommandedRow>, IoError> {
     let err = |m: String| IoError::Parse(m);

@@ -11,9 +11,18 @@
 //!   "std_dev": { "a_mm": 0.002, ... },          // optional: one standard deviation per fitted parameter
 //!   "fit": { ... },                             // optional: how it was obtained (free-form)
 //!   "backlash_urad": [20.0, 20.0],              // optional: lost motion, corrected by direction
-//!   "diagnosed": { ... }                        // optional: diagnose's other named effects
+//!   "diagnosed": { ... },                       // optional: diagnose's other named effects
+//!   "instrument_frame": {                       // optional: the registered instrument frame
+//!     "rotation_deg": 0.35, "offset_mm": [2500.0, -12.5],
+//!     "std_dev": { "rotation_deg": 1e-5, ... }, "convention": "..."
+//!   }
 //! }
 //! ```
+//! The model is in the machine frame when `instrument_frame` is there (every fit writes it:
+//! `calib::frame` states the convention); the readings of the same instrument set-up are mapped
+//! into the machine frame by it (`reading = offset_mm + R(rotation_deg)·machine`). Files
+//! without it (older fits) hold a model in the instrument's frame, and readings are used as
+//! they are.
 //! Angles are degrees in files (like the measurement CSV) and radians in code.
 
 use super::atomic::write_atomic;
@@ -79,6 +88,61 @@ pub struct ModelFile {
     /// free-form, for the record: the correction grid built with this model takes them.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub diagnosed: Option<serde_json::Value>,
+    /// The instrument's frame the model was registered in (`calib::frame`); absent in files
+    /// written before registration existed (the model is then in the instrument's frame).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub instrument_frame: Option<FrameRecord>,
+}
+
+/// The registered instrument frame as `model.json` stores it: `reading = offset_mm +
+/// R(rotation_deg)·machine`.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct FrameRecord {
+    pub rotation_deg: f64,
+    pub offset_mm: [f64; 2],
+    /// One standard deviation of `rotation_deg`, `offset_x_mm`, `offset_y_mm`, when estimated.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub std_dev: BTreeMap<String, f64>,
+    /// The convention that defines the machine frame, in words.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub convention: Option<String>,
+}
+
+impl FrameRecord {
+    /// Refuses numbers that are no frame (non-finite, an offset beyond 1e6 mm like every length
+    /// of the measurement CSV, a negative standard deviation).
+    pub fn check(&self) -> Result<(), IoError> {
+        let bad = |what: &str| {
+            Err(IoError::Invalid(format!(
+                "invalid model: instrument_frame {what}"
+            )))
+        };
+        if !self.rotation_deg.is_finite() {
+            return bad(&format!(
+                "rotation_deg {} is not a number",
+                self.rotation_deg
+            ));
+        }
+        if !self
+            .offset_mm
+            .iter()
+            .all(|v| v.is_finite() && v.abs() <= 1e6)
+        {
+            return bad(&format!(
+                "offset_mm {:?} is not a position (finite, within 1e6 mm)",
+                self.offset_mm
+            ));
+        }
+        if let Some((k, v)) = self
+            .std_dev
+            .iter()
+            .find(|(_, v)| !(v.is_finite() && **v >= 0.0))
+        {
+            return bad(&format!("std_dev {k} = {v} is not a standard deviation"));
+        }
+        Ok(())
+    }
 }
 
 fn to_name(b: Branch) -> BranchName {
@@ -121,6 +185,7 @@ impl ModelFile {
             fit: None,
             backlash_urad: None,
             diagnosed: None,
+            instrument_frame: None,
         }
     }
 
@@ -158,7 +223,22 @@ impl ModelFile {
         m.validate()
             .map_err(|e| IoError::Invalid(format!("invalid model: {e}")))?;
         self.backlash()?;
+        if let Some(f) = &self.instrument_frame {
+            f.check()?;
+        }
         Ok(m)
+    }
+
+    /// The instrument frame the readings of this set-up are registered by: the stored one, or
+    /// the identity for a file without one (its model is in the instrument's frame).
+    pub fn frame(&self) -> Result<crate::calib::frame::InstrumentFrame, IoError> {
+        match &self.instrument_frame {
+            Some(r) => {
+                r.check()?;
+                Ok(crate::calib::frame::InstrumentFrame::from_record(r))
+            }
+            None => Ok(crate::calib::frame::InstrumentFrame::IDENTITY),
+        }
     }
 
     /// The backlash correction, validated (finite, 0..=0.01 rad).
@@ -252,5 +332,39 @@ mod tests {
             serde_json::to_string(&ModelFile::from_model(&FiveBar::paper_nominal())).unwrap();
         let typo = text.replace("\"a_mm\"", "\"a_m\"");
         assert!(serde_json::from_str::<ModelFile>(&typo).is_err());
+        let mut f = ModelFile::from_model(&FiveBar::paper_nominal());
+        f.instrument_frame = Some(FrameRecord {
+            rotation_deg: f64::NAN,
+            offset_mm: [0.0, 0.0],
+            std_dev: BTreeMap::new(),
+            convention: None,
+        });
+        assert!(f
+            .model()
+            .unwrap_err()
+            .to_string()
+            .contains("instrument_frame"));
+    }
+
+    #[test]
+    fn the_frame_is_optional_and_round_trips() {
+        let old = serde_json::to_string(&ModelFile::from_model(&FiveBar::paper_nominal())).unwrap();
+        assert!(!old.contains("instrument_frame"));
+        let back: ModelFile = serde_json::from_str(&old).unwrap();
+        assert_eq!(
+            back.frame().unwrap(),
+            crate::calib::frame::InstrumentFrame::IDENTITY
+        );
+        let mut f = ModelFile::from_model(&FiveBar::paper_nominal());
+        f.instrument_frame = Some(FrameRecord {
+            rotation_deg: 90.5,
+            offset_mm: [2500.0, -1200.0],
+            std_dev: BTreeMap::new(),
+            convention: None,
+        });
+        let back: ModelFile = serde_json::from_str(&serde_json::to_string(&f).unwrap()).unwrap();
+        assert_eq!(back, f);
+        let p = back.frame().unwrap().to_instrument_mm([0.0, 0.0]);
+        assert_eq!(p, [2500.0, -1200.0]);
     }
 }

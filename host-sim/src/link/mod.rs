@@ -346,8 +346,13 @@ impl<S: Read + Write> LinkClient<S> {
 /// Progress of a long operation: (done, total).
 pub type Progress<'a> = &'a mut dyn FnMut(usize, usize);
 
+/// How long a stream's first frame waits while the controller answers `Busy` (it finishes a
+/// move or a calibration switch at rest) before the refusal is the answer.
+pub const BUSY_WAIT: Duration = Duration::from_secs(3);
+
 /// Streams `knots` (times from the stream's start), keeping the controller's buffer as full as
-/// it takes; returns when every knot is queued. `poll` is how long to wait before asking again
+/// it takes; returns when every knot is queued. A first frame refused as `Busy` is sent again
+/// for up to [`BUSY_WAIT`]. `poll` is how long to wait before asking again
 /// when the buffer is full.
 pub fn stream_knots<S: Read + Write>(
     client: &mut LinkClient<S>,
@@ -357,6 +362,7 @@ pub fn stream_knots<S: Read + Write>(
 ) -> Result<(), ClientError> {
     let mut sent = 0usize;
     let mut free = link_protocol::MAX_KNOTS_PER_FRAME;
+    let mut busy_since: Option<Instant> = None;
     while sent < knots.len() {
         let end = (sent + MAX_KNOTS_PER_FRAME).min(knots.len());
         if free < end - sent {
@@ -380,6 +386,17 @@ pub fn stream_knots<S: Read + Write>(
                 error: LinkError::StreamFull(f),
                 ..
             }) => free = usize::from(f),
+            // The first frame while the controller still finishes what came before (a move's
+            // last samples, a calibration switch's ramp at rest): wait for it, a bounded time.
+            Err(ClientError::Refused {
+                error: LinkError::Busy,
+                ..
+            }) if sent == 0
+                && busy_since.get_or_insert_with(Instant::now).elapsed() < BUSY_WAIT =>
+            {
+                std::thread::sleep(poll.max(Duration::from_millis(5)));
+                client.status()?;
+            }
             Ok(other) => {
                 return Err(ClientError::Unexpected {
                     command: "stream",

@@ -8,6 +8,8 @@
 //!   `JᵀJ`);
 //! * [`lattice_smoother`]: the 2-D Whittaker smoother of lattice values with its smoothing
 //!   chosen by generalised cross-validation (the noise-aware correction grid);
+//! * [`rigid`]: planar rigid motions and the best-fitting one between two point sets (the
+//!   registration of an instrument's frame);
 //! * [`stats`]: max/RMS of error magnitudes and the rounding of reported figures;
 //! * [`subspace`]: orthonormal bases, projections and principal angles of column spaces.
 //!
@@ -17,11 +19,13 @@
 pub mod finite_difference;
 pub mod lattice_smoother;
 pub mod lm;
+pub mod rigid;
 pub mod stats;
 pub mod subspace;
 pub mod svd;
 
 pub use lm::{levenberg_marquardt, LmFit, LmOptions, Residuals, Stop};
+pub use rigid::{procrustes, Rigid2};
 pub use stats::{max_rms, round3, round6, MaxRms};
 pub use svd::{ScaledSvd, RANK_TOL};
 

@@ -20,8 +20,10 @@ pub mod least_squares;
 pub mod params;
 pub mod plausibility;
 pub mod poly;
+pub mod registration;
 pub mod subset_search;
 
+use super::frame::{FrameSummary, InstrumentFrame};
 use super::{invalid, CalibError};
 use crate::io::measurement_csv::Measurement;
 use crate::machine_spec::MachineSpec;
@@ -32,6 +34,7 @@ use full::{leave_one_out_um, FullFit, LooMethod};
 use identifiability::WARN_CONDITION;
 use kinematics_core::FiveBar;
 use poly::DyadPoint;
+pub use registration::FrameMode;
 use serde::Serialize;
 use std::collections::BTreeMap;
 use subset_search::{Best, Progress, Stage};
@@ -74,6 +77,8 @@ pub struct FitOptions {
     pub leave_one_out: bool,
     /// `full`: the blunder test's `k` (σ units, see [`blunders`]); 0 fits every row.
     pub reject_sigma: f64,
+    /// Whether the instrument's frame is registered with the model ([`registration`]).
+    pub frame: FrameMode,
     /// The machine (its nominal model is the start and the base).
     pub spec: MachineSpec,
 }
@@ -196,16 +201,26 @@ pub struct FitSummary {
     /// the kept rows).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub blunders: Option<BlunderReport>,
+    /// The instrument's frame registered with the model (`calib::frame`); the errors above are
+    /// of the readings mapped into the machine frame by it. Absent with `FrameMode::Machine`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub instrument_frame: Option<FrameSummary>,
 }
 
 /// A fit's result.
 #[derive(Clone, Debug)]
 pub struct FitOutcome {
+    /// The model, in the machine frame when `frame` is given.
     pub model: FiveBar<f64>,
+    /// The registered instrument frame (`None` with `FrameMode::Machine`): what `model.json`
+    /// stores and later readings of the set-up are mapped by.
+    pub frame: Option<InstrumentFrame>,
     pub summary: FitSummary,
     /// Standard deviations as `model.json` stores them (unrounded; empty for `poly`, `ls`).
     pub std_dev: BTreeMap<String, f64>,
-    /// `full`: the fit with its identifiability and solver record.
+    /// `full`: the fit with its identifiability and solver record (`model` and `std_dev` in
+    /// the machine frame as above; `lm` is the solver's record, made on the readings in the
+    /// first registration's frame).
     pub full: Option<FullFit>,
     /// The subset search's counts, if one ran.
     pub search: Option<SearchCounts>,
@@ -375,6 +390,7 @@ fn summary(
         sigma_um: None,
         iterations: None,
         blunders: None,
+        instrument_frame: None,
     }
 }
 
@@ -441,8 +457,74 @@ pub fn ls_leave_one_out_um(data: &[Measurement], nominal: &FiveBar<f64>) -> Vec<
         .collect()
 }
 
+/// The dyad synthesis (`poly`, `ls`) of `data` (readings in the machine frame) by `opts`, with
+/// the subset search when asked: the model, the subset fitted (when not all) and the search's
+/// counts.
+type DyadFit = (FiveBar<f64>, Option<Vec<usize>>, Option<SearchCounts>);
+
+fn dyad_fit(
+    data: &[Measurement],
+    opts: &FitOptions,
+    progress: &mut dyn FnMut(Progress),
+) -> Result<DyadFit, CalibError> {
+    let nominal = opts.spec.nominal;
+    let n = data.len();
+    match &opts.points {
+        Points::Search { sizes } => {
+            if n < 2 {
+                return Err(invalid!("the data have {n} point; a fit needs at least 2"));
+            }
+            let Best {
+                model,
+                subset,
+                tried,
+                valid,
+                elapsed_s,
+                max_err_um,
+                ..
+            } = subset_search::search(
+                n,
+                sizes,
+                |s| synthesize(data, s, opts.method, &nominal),
+                |m| evaluate::errors_um(m, data, opts.criterion),
+                progress,
+            )?;
+            Ok((
+                model,
+                Some(subset),
+                Some(SearchCounts {
+                    tried,
+                    valid,
+                    elapsed_s,
+                    best_max_um: max_err_um,
+                }),
+            ))
+        }
+        Points::All | Points::Chosen(_) => {
+            let subset: Vec<usize> = match &opts.points {
+                Points::Chosen(p) => p.clone(),
+                _ => (0..n).collect(),
+            };
+            if subset.len() < 2 {
+                return Err(invalid!(
+                    "a dyad fit needs at least 2 points, got {}",
+                    subset.len()
+                ));
+            }
+            let m = synthesize(data, &subset, opts.method, &nominal)?;
+            Ok((
+                m,
+                matches!(opts.points, Points::Chosen(_)).then_some(subset),
+                None,
+            ))
+        }
+    }
+}
+
 /// Fits the hidden robot to `data` (see [`FitOptions`]); `progress` hears from a subset search
-/// and from leave-one-out refits.
+/// and from leave-one-out refits. With [`FrameMode::Register`] the instrument's frame is
+/// estimated with the model ([`registration`]) and the model and every error reported are in
+/// the machine frame.
 pub fn fit(
     data: &[Measurement],
     opts: &FitOptions,
@@ -452,61 +534,28 @@ pub fn fit(
     let nominal = opts.spec.nominal;
     plausibility::check_units(&nominal, data)?;
     let n = data.len();
+    // The first frame (nominal model): the readings brought near the machine, where the fits
+    // start from the nominal model.
+    let first = match opts.frame {
+        FrameMode::Register => Some(registration::register_with(&nominal, data)?),
+        FrameMode::Machine => None,
+    };
+    let frame_of = |t: crate::numeric::Rigid2| InstrumentFrame {
+        to_instrument: t,
+        std_dev: None,
+    };
+    let near: Vec<Measurement> = match first {
+        Some(t) => frame_of(t).register(data),
+        None => data.to_vec(),
+    };
     match opts.method {
         Method::Poly | Method::Ls => {
             if !opts.fixed.is_empty() {
                 return Err(invalid!("holding parameters applies to the full fit only (poly and ls fit the four links)"));
             }
-            let (model, subset, search) = match &opts.points {
-                Points::Search { sizes } => {
-                    if n < 2 {
-                        return Err(invalid!("the data have {n} point; a fit needs at least 2"));
-                    }
-                    let Best {
-                        model,
-                        subset,
-                        tried,
-                        valid,
-                        elapsed_s,
-                        max_err_um,
-                        ..
-                    } = subset_search::search(
-                        n,
-                        sizes,
-                        |s| synthesize(data, s, opts.method, &nominal),
-                        |m| evaluate::errors_um(m, data, opts.criterion),
-                        progress,
-                    )?;
-                    (
-                        model,
-                        Some(subset),
-                        Some(SearchCounts {
-                            tried,
-                            valid,
-                            elapsed_s,
-                            best_max_um: max_err_um,
-                        }),
-                    )
-                }
-                Points::All | Points::Chosen(_) => {
-                    let subset: Vec<usize> = match &opts.points {
-                        Points::Chosen(p) => p.clone(),
-                        _ => (0..n).collect(),
-                    };
-                    if subset.len() < 2 {
-                        return Err(invalid!(
-                            "a dyad fit needs at least 2 points, got {}",
-                            subset.len()
-                        ));
-                    }
-                    let m = synthesize(data, &subset, opts.method, &nominal)?;
-                    (
-                        m,
-                        matches!(opts.points, Points::Chosen(_)).then_some(subset),
-                        None,
-                    )
-                }
-            };
+            let (model, subset, search) = dyad_fit(&near, opts, progress)?;
+            let frame = first.map(frame_of);
+            let data = &frame.map_or(near, |f| f.register(data));
             plausibility::check_model(
                 &model,
                 &nominal,
@@ -515,10 +564,11 @@ pub fn fit(
                 &plausibility::FitEvidence::default(),
             )?;
             let mut s = summary(opts.method, opts.criterion, &model, data, subset.as_deref());
+            s.instrument_frame = frame.map(|f| f.summary());
             if opts.method == Method::Ls && subset.is_none() && n >= 3 {
-                // Leave-one-out of the all-points least-squares fit.
                 // Leave-one-out of the all-points least-squares fit: the normal equations' sums
-                // less each point's terms (exact, O(N); `least_squares::DyadSums`).
+                // less each point's terms (exact, O(N); `least_squares::DyadSums`), the frame
+                // held.
                 s.leave_one_out = Some(leave_one_out(
                     LooMethod::ExactSums,
                     &ls_leave_one_out_um(data, &nominal),
@@ -526,6 +576,7 @@ pub fn fit(
             }
             Ok(FitOutcome {
                 model,
+                frame,
                 summary: s,
                 std_dev: BTreeMap::new(),
                 full: None,
@@ -543,16 +594,24 @@ pub fn fit(
                 instrument_sigma_um: opts.spec.instrument_sigma_um,
             };
             let RobustFit {
-                fit: f,
+                fit: mut f,
                 kept,
                 report,
-            } = fit_full_robust(data, &nominal, &opts.fixed, &reject)?;
+            } = fit_full_robust(&near, &nominal, &opts.fixed, &reject)?;
+            // Into the machine frame: an exact change of frame, the residuals unchanged.
+            let frame = first.map(|t| {
+                let (model, std_dev, frame) = registration::registered_full(&f, &nominal, &t);
+                f.model = model;
+                f.std_dev = std_dev;
+                frame
+            });
+            let registered = frame.map_or_else(|| near.clone(), |fr| fr.register(data));
             // The rows fitted: every row unless the blunder test rejected some.
             let kept_data: Vec<Measurement>;
             let data = if kept.len() == n {
-                data
+                &registered[..]
             } else {
-                kept_data = kept.iter().map(|&i| data[i].clone()).collect();
+                kept_data = kept.iter().map(|&i| registered[i].clone()).collect();
                 &kept_data[..]
             };
             let evidence = plausibility::FitEvidence {
@@ -562,6 +621,7 @@ pub fn fit(
             };
             plausibility::check_model(&f.model, &nominal, &f.std_dev, data, &evidence)?;
             let mut s = summary(opts.method, opts.criterion, &f.model, data, None);
+            s.instrument_frame = frame.map(|f| f.summary());
             s.std_dev = Some(
                 params::std_dev_map(&f.std_dev)
                     .into_iter()
@@ -591,12 +651,17 @@ pub fn fit(
             s.iterations = Some(f.iterations);
             s.blunders = report;
             if opts.leave_one_out {
+                // On the readings the fit was made on (the first frame): the predictions'
+                // distances are the same in every frame.
+                let near_kept: Vec<Measurement> = kept.iter().map(|&i| near[i].clone()).collect();
                 let mut report = throttled(progress, Stage::LeaveOneOut);
-                let (method, loo) = leave_one_out_um(data, &f, &nominal, &opts.fixed, &mut report);
+                let (method, loo) =
+                    leave_one_out_um(&near_kept, &f, &nominal, &opts.fixed, &mut report);
                 s.leave_one_out = Some(leave_one_out(method, &loo));
             }
             Ok(FitOutcome {
                 model: f.model,
+                frame,
                 summary: s,
                 std_dev: params::std_dev_map(&f.std_dev),
                 full: Some(f),

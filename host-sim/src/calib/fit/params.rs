@@ -49,7 +49,7 @@ pub fn std_dev_map(std_dev: &[Option<f64>; N_PARAMS]) -> BTreeMap<String, f64> {
 }
 
 /// Finite-difference step per parameter.
-const STEP: [f64; N_PARAMS] = [1e-6, 1e-6, 1e-6, 1e-6, 1e-6, 1e-6, 1e-8, 1e-8, 1e-6, 1e-6];
+pub const STEP: [f64; N_PARAMS] = [1e-6, 1e-6, 1e-6, 1e-6, 1e-6, 1e-6, 1e-8, 1e-8, 1e-6, 1e-6];
 
 pub fn to_vector(m: &FiveBar<f64>) -> [f64; N_PARAMS] {
     [

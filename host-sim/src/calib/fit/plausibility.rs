@@ -13,7 +13,8 @@
 //!   documented study of `docs/design/hidden-robot.md`);
 //!   the condition number and the residual against the instrument's σ are named with it.
 //! * **Units** ([`unit_mixup`]): before any fit, the nominal model's median error on the data
-//!   as given is compared with the data read as radians-in-degrees or metres-in-millimetres;
+//!   as given (after the best rigid motion of the readings onto it: the instrument's frame is
+//!   no mistake) is compared with the data read as radians-in-degrees or metres-in-millimetres;
 //!   when one reading explains the data ten times better (and the given one is off by more
 //!   than 5 mm), the file is refused with that cause.
 //!
@@ -22,6 +23,7 @@
 use super::params::{to_vector, NAMES, N_PARAMS};
 use crate::calib::{invalid, CalibError};
 use crate::io::measurement_csv::Measurement;
+use crate::numeric::{procrustes, Rigid2};
 use kinematics_core::FiveBar;
 
 /// How far a fitted model may be from nominal.
@@ -68,7 +70,8 @@ fn show(k: usize, v: f64) -> String {
 }
 
 /// Median of the nominal model's errors (mm) on up to 1,000 rows of `data` with the angles and
-/// lengths scaled; unreachable poses count as infinite.
+/// lengths scaled, after the best rigid motion of the readings onto the model (the instrument
+/// stands anywhere: its frame is no unit mix-up); unreachable poses count as infinite.
 fn median_error_mm(
     nominal: &FiveBar<f64>,
     data: &[Measurement],
@@ -76,16 +79,25 @@ fn median_error_mm(
     length_scale: f64,
 ) -> f64 {
     let stride = data.len().div_ceil(1000).max(1);
-    let mut e: Vec<f64> = data
+    let pairs: Vec<Option<([f64; 2], [f64; 2])>> = data
         .iter()
         .step_by(stride)
         .map(|m| {
             let th = m.theta_rad().map(|t| t * angle_scale);
-            match nominal.forward(th, 0.0) {
-                Ok(p) => (p[0] - m.measured_mm[0] * length_scale)
-                    .hypot(p[1] - m.measured_mm[1] * length_scale),
-                Err(_) => f64::INFINITY,
+            let p = nominal.forward(th, 0.0).ok()?;
+            Some((p, m.measured_mm.map(|v| v * length_scale)))
+        })
+        .collect();
+    let (p, q): (Vec<[f64; 2]>, Vec<[f64; 2]>) = pairs.iter().flatten().copied().unzip();
+    let t = procrustes(&q, &p, None).unwrap_or(Rigid2::IDENTITY);
+    let mut e: Vec<f64> = pairs
+        .iter()
+        .map(|pq| match pq {
+            Some((p, q)) => {
+                let r = t.apply(*q);
+                (p[0] - r[0]).hypot(p[1] - r[1])
             }
+            None => f64::INFINITY,
         })
         .collect();
     e.sort_by(f64::total_cmp);

@@ -71,6 +71,7 @@
 //! table ([`format_csv`], `grid.csv`) is this module's file format.
 
 pub mod field;
+pub mod unmeasured;
 
 use super::{invalid, CalibError};
 use crate::io::measurement_csv::Measurement;

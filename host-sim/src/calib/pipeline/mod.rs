@@ -28,8 +28,11 @@
 //! and applies no correction the noise would swamp, see [`super::grid`]): with a 10 µm
 //! instrument this is what brings fit + grid under 6 µm; with 1 µm both rounds sit at the floor.
 //! Accuracy = distance from the target to where the tool really is (the machine's noiseless
-//! truth, instrument frame); the noisy readings are reported too. Every target is commanded
-//! exactly as the firmware does (`Calibration::command_rad`, f32).
+//! truth as a perfect instrument would read it, mapped into the machine frame the `full` fit
+//! registered, [`super::frame`]: the nominal stage too; the `ls` stage in its own registered
+//! frame); the noisy readings are reported too. The paper's `ls` fit failing is its own
+//! result: the run goes on without its row. Every target is commanded exactly as the firmware
+//! does (`Calibration::command_rad`, f32).
 //!
 //! Approach: the lists carry the machine's policy ([`PipelineOptions::approach`]). With
 //! [`Approach::Positive`] every motor arrives moving forward (as after an overshoot-and-return
@@ -39,7 +42,7 @@
 //! measurement, the backlash is measured on [`BACKLASH_POSES`] random poses of its own (noise
 //! seed 10·S + 9; [`super::backlash::estimate`]; kept where > 3σ) and corrected from there on
 //! by direction (each motor's command moved by dir·β/2, [`measure_list_compensated`]; the grids
-//! built from link angles): on the paper plant its 20 µrad, which left 5.13 µm max / 2.81 µm RMS
+//! built from link angles): on the paper plant its 20 µrad, which left 5.14 µm max / 2.81 µm RMS
 //! uncorrected, are taken out (figures in docs/reference/calibration-tools.md). The separate
 //! commands do this step with `diagnose --out-model` (docs/design/diagnosis.md, "Closing the
 //! loop").
@@ -51,36 +54,34 @@
 //! ~2.2 k measurements, the plan's selection and two fits: about a second.
 
 use super::backlash::{self, Backlash};
-use super::fit::evaluate::{self, Criterion};
+use super::fit::evaluate::Criterion;
 use super::fit::full::FullFit;
-use super::fit::params::{self, NAMES};
-use super::fit::{fit, FitOptions, Method, ModelFigures, Points};
+use super::fit::params::NAMES;
+use super::fit::{fit, FitOptions, Method, Points};
+use super::frame::InstrumentFrame;
 use super::grid::{self, BuiltGrid};
 use super::image::{finish_image, seal_image};
 use super::machine::Machine;
-use super::measure::{measure_list_compensated, rows, Landed};
-use super::plan::list_rows;
+use super::measure::{measure_list_compensated, registered, rows, Landed};
 use super::plan::{plan, with_approach, Plan, PlanOptions};
 use super::protocol::{random_visits, Range, Visit};
 use super::{invalid, CalibError};
-use crate::io::atomic::Outputs;
-use crate::io::measurement_csv::{
-    format_measurements, format_measurements_of, parse_measurements, Measurement,
-};
-use crate::io::model_file::{model_file_text, ModelFile};
-use crate::io::plot::{vector_plot_png, VectorField};
-use crate::io::targets_csv::format_target_list;
-use crate::io::IoError;
+use crate::io::measurement_csv::{format_measurements, parse_measurements, Measurement};
+use crate::io::model_file::ModelFile;
 use crate::loop_closure::SixBarDesign;
 use crate::machine_identity::MachineIdentity;
 use crate::machine_spec::MachineSpec;
-use crate::numeric::{max_rms, round3, MaxRms};
 use kinematics_core::{Calibration, CorrectionGrid, FiveBar};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
-use serde::Serialize;
-use std::collections::BTreeMap;
-use std::path::{Path, PathBuf};
+
+mod files;
+mod summary;
+
+pub use files::{write_outputs, FILES};
+pub use summary::{
+    summary, FinalSummary, FullFitSummary, GridSummary, LsFitSummary, StageSummary, Summary,
+};
 
 pub use super::measure::{
     accuracy, measured_error_vectors_um, true_error_vectors_um, Accuracy, Approach,
@@ -132,7 +133,18 @@ pub struct Stage {
     /// What the paper reports for the comparable step.
     pub paper: &'static str,
     pub accuracy: Accuracy,
+    /// As measured (instrument frame: what the verification CSV holds).
     pub landed: Vec<Landed>,
+    /// The registration the stage is judged in: its calibration's (the nominal stage: the
+    /// `full` fit's, the frame the calibration defines).
+    pub frame: InstrumentFrame,
+}
+
+impl Stage {
+    /// The visits with readings and truth in the machine frame.
+    pub fn landed_in_machine_frame(&self) -> Vec<Landed> {
+        registered(&self.landed, &self.frame)
+    }
 }
 
 /// Everything a calibration run produced (in memory; [`write_outputs`] writes it).
@@ -144,8 +156,12 @@ pub struct Calibrated {
     /// repeat runs, which the demo does not measure).
     pub plan: Plan,
     pub fit_data: Vec<Landed>,
-    pub ls_model: FiveBar<f64>,
+    /// The paper's `ls` fit and its registration, or why it failed (the run goes on without it).
+    pub ls: Result<(FiveBar<f64>, InstrumentFrame), String>,
     pub full: FullFit,
+    /// The instrument's frame the `full` fit registered (`super::frame`): the grids are built
+    /// and the calibrated stages judged in the machine frame it defines.
+    pub frame: InstrumentFrame,
     /// Grid nodes commanded with the `full` model (round 1) and the grid built from them.
     pub grid_data: Vec<Landed>,
     pub grid: BuiltGrid,
@@ -162,6 +178,13 @@ pub struct Calibrated {
 }
 
 impl Calibrated {
+    /// Measured visits (as measured: instrument frame) with readings and truth in the machine
+    /// frame the `full` fit registered: what the grids were built from and accuracy is judged
+    /// on.
+    pub fn in_machine_frame(&self, landed: &[Landed]) -> Vec<Landed> {
+        registered(landed, &self.frame)
+    }
+
     /// The last stage (fit + refined grid).
     pub fn final_accuracy(&self) -> Option<Accuracy> {
         self.stages.last().map(|s| s.accuracy)
@@ -179,6 +202,14 @@ fn grid_calibration<'g>(g: &'g BuiltGrid, what: &str) -> Result<Calibration<'g>,
     let parsed = CorrectionGrid::parse(&g.image)
         .map_err(|e| invalid!("the {what} image does not parse: {e}"))?;
     Ok(Calibration::from_grid(parsed))
+}
+
+/// A fit's registered frame as `model.json` stores and reads it back (the identity when the
+/// fit registered none).
+fn as_stored(frame: Option<InstrumentFrame>) -> InstrumentFrame {
+    frame.map_or(InstrumentFrame::IDENTITY, |f| {
+        InstrumentFrame::from_record(&f.record())
+    })
 }
 
 /// The instrument noise seed of the demo's measurement `step` (1..=8, the module doc's table):
@@ -205,6 +236,7 @@ fn fit_with(
         fixed: Vec::new(),
         leave_one_out: false,
         reject_sigma: super::fit::blunders::DEFAULT_REJECT_SIGMA,
+        frame: super::fit::FrameMode::Register,
         spec: spec.clone(),
     };
     fit(data, &opts, &mut |_| {})
@@ -278,46 +310,79 @@ pub fn calibrate(
         events,
         format!("verifying the nominal model on {n_verify} fresh targets"),
     );
-    let landed = measure(
+    let nominal_landed = measure(
         machine,
         &nominal_cal,
         &plan.verify,
         2,
         "verifying the nominal model",
     )?;
-    let stage = |key, description: &str, paper, landed: Vec<Landed>| Stage {
-        key,
-        description: description.to_string(),
-        paper,
-        accuracy: accuracy(&landed),
-        landed,
-    };
-    stages.push(stage(
-        "nominal",
-        "before calibration (nominal model)",
-        "~1500",
-        landed,
-    ));
+    let stage =
+        |key, description: &str, paper, landed: Vec<Landed>, frame: InstrumentFrame| Stage {
+            key,
+            description: description.to_string(),
+            paper,
+            accuracy: accuracy(&registered(&landed, &frame)),
+            landed,
+            frame,
+        };
 
-    step(events, "step 2: fitting the hidden robot: the paper's ls (links only) and full (LM: links, A0, B0, offsets)".into());
-    let ls_model = fit_with(Method::Ls, &fit_rows, spec)
-        .map_err(|e| e.context("ls fit"))?
-        .model;
-    let ls_cal = Calibration {
-        model: ls_model.cast(),
-        grid: None,
-    };
-    let landed = measure(machine, &ls_cal, &plan.verify, 3, "verifying the ls model")?;
-    stages.push(stage("ls", "paper's ls fit (4 links)", "~700", landed));
-    let full = fit_with(Method::Full, &fit_rows, spec)
-        .map_err(|e| e.context("full fit"))?
+    step(events, "step 2: fitting the hidden robot: full (LM: links, A0, B0, offsets) and the paper's ls (links only), each registering the instrument's frame".into());
+    let full_fit = fit_with(Method::Full, &fit_rows, spec).map_err(|e| e.context("full fit"))?;
+    // The frame as model.json stores it, so that `grid --model` and `measure --model` read
+    // the same one.
+    let frame = as_stored(full_fit.frame);
+    let mut full = full_fit
         .full
         .ok_or_else(|| invalid!("internal: the full fit reported no full fit"))?;
+    // The model as model.json stores it (offsets in degrees), for the same reason.
+    full.model = ModelFile::from_model(&full.model).model()?;
     for (k, why) in &full.identifiability.fixed {
         events(Event::Held {
             param: NAMES[*k],
             why: why.clone(),
         });
+    }
+    let t = frame.to_instrument;
+    step(
+        events,
+        format!(
+            "instrument frame registered: rotation {:.6}°, offset ({:.4}, {:.4}) mm; the model is in the machine frame",
+            t.rotation_rad.to_degrees(),
+            t.offset_mm[0],
+            t.offset_mm[1]
+        ),
+    );
+    stages.push(stage(
+        "nominal",
+        "before calibration (nominal model)",
+        "~1500",
+        nominal_landed,
+        frame,
+    ));
+    // The paper's ls: links only; a failure is its own result, not the run's.
+    let ls = fit_with(Method::Ls, &fit_rows, spec)
+        .map(|o| (o.model, as_stored(o.frame)))
+        .map_err(|e| e.to_string());
+    match &ls {
+        Ok((ls_model, ls_frame)) => {
+            let ls_cal = Calibration {
+                model: ls_model.cast(),
+                grid: None,
+            };
+            let landed = measure(machine, &ls_cal, &plan.verify, 3, "verifying the ls model")?;
+            stages.push(stage(
+                "ls",
+                "paper's ls fit (4 links)",
+                "~700",
+                landed,
+                *ls_frame,
+            ));
+        }
+        Err(e) => step(
+            events,
+            format!("the paper's ls fit failed ({e}); going on without its row"),
+        ),
     }
     let full_cal = Calibration {
         model: full.model.cast(),
@@ -335,6 +400,7 @@ pub fn calibrate(
         "full fit (LM: links, A0, B0, offsets)",
         "-",
         landed,
+        frame,
     ));
 
     let g = &spec.grid;
@@ -367,7 +433,7 @@ pub fn calibrate(
                 "measuring the backlash poses",
             )?;
             let (b, sd) = backlash::estimate(
-                &read_back(&data, "the backlash poses")?,
+                &frame.register(&read_back(&data, "the backlash poses")?),
                 &full.model,
                 &design,
             )
@@ -390,8 +456,9 @@ pub fn calibrate(
         }
     };
     // The grids are built from link angles when the backlash is corrected (backlash.rs).
+    // And from readings in the machine frame.
     let link_rows = |landed: &[Landed], what: &str| -> Result<Vec<Measurement>, CalibError> {
-        let rows = read_back(landed, what)?;
+        let rows = frame.register(&read_back(landed, what)?);
         match &backlash {
             Some(b) => b.link_angles(&rows),
             None => Ok(rows),
@@ -414,6 +481,7 @@ pub fn calibrate(
         &format!("full fit + {} mm grid (1 round)", g.step_mm),
         "~37 (40x)",
         landed,
+        frame,
     ));
     // Round 2: the grid is first order in the error it corrects (grid/mod.rs's doc), so the nodes
     // are measured again through it and the grid rebuilt from what is left.
@@ -456,6 +524,7 @@ pub fn calibrate(
         &format!("full fit + {} mm grid (2 rounds)", g.step_mm),
         "-",
         landed,
+        frame,
     ));
     // The image to flash carries the estimated backlash (last block, as `host-sim grid` writes
     // it from the model's `backlash_urad`): the firmware's servo compensates it. Added after
@@ -480,8 +549,9 @@ pub fn calibrate(
         machine: description,
         plan,
         fit_data,
-        ls_model,
+        ls,
         full,
+        frame,
         grid_data,
         grid,
         grid2_data,
@@ -491,352 +561,4 @@ pub fn calibrate(
         stages,
         goal_um,
     })
-}
-
-/// One stage in the summary.
-#[derive(Clone, Debug, Serialize)]
-pub struct StageSummary {
-    pub step: &'static str,
-    pub description: String,
-    pub max_um: f64,
-    pub rms_um: f64,
-    pub measured_max_um: f64,
-    pub measured_rms_um: f64,
-    pub n_targets: usize,
-    pub gain_vs_before: f64,
-    pub paper_max: &'static str,
-}
-
-/// The `full` fit in the summary.
-#[derive(Clone, Debug, Serialize)]
-pub struct FullFitSummary {
-    #[serde(flatten)]
-    pub model: ModelFigures,
-    pub std_dev: BTreeMap<String, f64>,
-    pub sigma_um: f64,
-    pub fit_residual_max_um: f64,
-    pub fit_residual_rms_um: f64,
-    pub fixed: Vec<&'static str>,
-    pub iterations: usize,
-}
-
-/// The `ls` fit in the summary.
-#[derive(Clone, Debug, Serialize)]
-pub struct LsFitSummary {
-    #[serde(flatten)]
-    pub model: ModelFigures,
-    pub fit_residual_max_um: f64,
-    pub fit_residual_rms_um: f64,
-}
-
-/// The grid in the summary.
-#[derive(Clone, Debug, Serialize)]
-pub struct GridSummary {
-    pub nx: usize,
-    pub ny: usize,
-    pub x0_mm: f64,
-    pub y0_mm: f64,
-    pub step_mm: f64,
-    pub round1_node_err_max_um: f64,
-    pub round1_node_err_rms_um: f64,
-    pub round2_node_err_max_um: f64,
-    pub round2_node_err_rms_um: f64,
-    pub image_bytes: usize,
-    /// What each grid knew of the noise and did about it (`grid::NoiseReport`).
-    pub round1_noise: grid::NoiseReport,
-    pub round2_noise: grid::NoiseReport,
-}
-
-/// The final accuracy against the target.
-#[derive(Clone, Debug, Serialize)]
-pub struct FinalSummary {
-    pub max_um: Option<f64>,
-    pub rms_um: Option<f64>,
-    pub target_max_um: f64,
-    pub target_rms_um: f64,
-    pub met: bool,
-}
-
-/// The JSON summary (`host-sim demo`'s stdout and `summary.json`).
-#[derive(Clone, Debug, Serialize)]
-pub struct Summary {
-    pub machine: String,
-    pub seed: u64,
-    pub out_dir: String,
-    pub fit_poses: usize,
-    pub approach: Approach,
-    pub stages: Vec<StageSummary>,
-    pub fit_full: FullFitSummary,
-    pub fit_ls: LsFitSummary,
-    pub grid: GridSummary,
-    /// The plan's identification design against random poses of the same count.
-    pub identification: super::plan::IdentificationReport,
-    /// The backlash corrected by direction (µrad; random approach only).
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub backlash_urad: Option<[f64; 2]>,
-    #[serde(rename = "final")]
-    pub final_: FinalSummary,
-    pub files: Vec<String>,
-}
-
-/// Residual of a model on the fit data (µm): max and RMS of |FK(θ) − measured|.
-fn residual_um(m: &FiveBar<f64>, data: &[crate::io::measurement_csv::Measurement]) -> MaxRms {
-    max_rms(&evaluate::errors_um(m, data, Criterion::Measured))
-}
-
-/// The summary of a run written to `out_dir` (`files`: what was written).
-pub fn summary(cal: &Calibrated, seed: u64, out_dir: &Path, files: &[PathBuf]) -> Summary {
-    let before = cal.stages.first().map_or(f64::NAN, |s| s.accuracy.max_um);
-    let fit_rows = rows(&cal.fit_data);
-    let (full_res, ls_res) = (
-        residual_um(&cal.full.model, &fit_rows),
-        residual_um(&cal.ls_model, &fit_rows),
-    );
-    let n1 = cal.grid.stats().node_err;
-    let n2 = max_rms(
-        &measured_error_vectors_um(&cal.grid2_data)
-            .iter()
-            .map(|e| e[0].hypot(e[1]))
-            .collect::<Vec<f64>>(),
-    );
-    let fin = cal.final_accuracy();
-    Summary {
-        machine: cal.machine.clone(),
-        seed,
-        out_dir: out_dir.display().to_string(),
-        fit_poses: cal.fit_data.len(),
-        approach: cal.approach,
-        stages: cal
-            .stages
-            .iter()
-            .map(|s| StageSummary {
-                step: s.key,
-                description: s.description.clone(),
-                max_um: round3(s.accuracy.max_um),
-                rms_um: round3(s.accuracy.rms_um),
-                measured_max_um: round3(s.accuracy.measured_max_um),
-                measured_rms_um: round3(s.accuracy.measured_rms_um),
-                n_targets: s.accuracy.n_targets,
-                gain_vs_before: round3(before / s.accuracy.max_um),
-                paper_max: s.paper,
-            })
-            .collect(),
-        fit_full: FullFitSummary {
-            model: ModelFigures::of(&cal.full.model),
-            std_dev: params::std_dev_map(&cal.full.std_dev),
-            sigma_um: round3(cal.full.sigma_mm * 1e3),
-            fit_residual_max_um: round3(full_res.max),
-            fit_residual_rms_um: round3(full_res.rms),
-            fixed: cal
-                .full
-                .identifiability
-                .fixed
-                .iter()
-                .map(|(k, _)| NAMES[*k])
-                .collect(),
-            iterations: cal.full.iterations,
-        },
-        fit_ls: LsFitSummary {
-            model: ModelFigures::of(&cal.ls_model),
-            fit_residual_max_um: round3(ls_res.max),
-            fit_residual_rms_um: round3(ls_res.rms),
-        },
-        grid: GridSummary {
-            nx: cal.grid.lattice.nx,
-            ny: cal.grid.lattice.ny,
-            x0_mm: cal.grid.lattice.x0_mm,
-            y0_mm: cal.grid.lattice.y0_mm,
-            step_mm: cal.grid.lattice.step_mm,
-            round1_node_err_max_um: round3(n1.max),
-            round1_node_err_rms_um: round3(n1.rms),
-            round2_node_err_max_um: round3(n2.max),
-            round2_node_err_rms_um: round3(n2.rms),
-            image_bytes: cal.grid2.image.len(),
-            round1_noise: cal.grid.noise.clone(),
-            round2_noise: cal.grid2.noise.clone(),
-        },
-        identification: cal.plan.report.identification.clone(),
-        backlash_urad: cal.backlash.map(|b| b.lost_motion_urad.map(round3)),
-        final_: FinalSummary {
-            max_um: fin.map(|a| round3(a.max_um)),
-            rms_um: fin.map(|a| round3(a.rms_um)),
-            target_max_um: cal.goal_um[0],
-            target_rms_um: cal.goal_um[1],
-            met: cal.target_met(),
-        },
-        files: files.iter().map(|p| p.display().to_string()).collect(),
-    }
-}
-
-/// The names of the files [`write_outputs`] writes, relative to the output directory.
-pub const FILES: [&str; 21] = [
-    "plan_identify.csv",
-    "plan_grid.csv",
-    "plan_verify.csv",
-    "plan_repeat.csv",
-    "fit_measurements.csv",
-    "grid_measurements.csv",
-    "grid_measurements_round2.csv",
-    "verify_nominal.csv",
-    "verify_ls.csv",
-    "verify_full.csv",
-    "verify_full_grid.csv",
-    "verify_full_grid2.csv",
-    "model.json",
-    "model_ls.json",
-    "grid.bin",
-    "grid.csv",
-    "errors_fit.png",
-    "errors_grid.png",
-    "errors_final.png",
-    "grid_nodes.png",
-    "summary.json",
-];
-
-fn stage<'a>(cal: &'a Calibrated, key: &str) -> Result<&'a Stage, IoError> {
-    cal.stages
-        .iter()
-        .find(|s| s.key == key)
-        .ok_or_else(|| IoError::Invalid(format!("internal: no stage '{key}'")))
-}
-
-/// Stages every output into `dir` in `out` (renamed into place with the command's other files
-/// by `out.commit()`) and returns the paths, in [`FILES`] order but for `summary.json`, which
-/// the caller stages last from [`summary`].
-pub fn write_outputs(
-    cal: &Calibrated,
-    dir: &Path,
-    out: &mut Outputs,
-) -> Result<Vec<PathBuf>, IoError> {
-    let p = |name: &str| dir.join(name);
-    let mut files: Vec<(String, Vec<u8>)> = Vec::new();
-    let mut text = |name: &str, bytes: &[u8]| -> Result<(), IoError> {
-        files.push((name.to_string(), bytes.to_vec()));
-        Ok(())
-    };
-    for (name, list) in cal.plan.lists() {
-        text(
-            &format!("plan_{name}.csv"),
-            format_target_list(&list_rows(list)).as_bytes(),
-        )?;
-    }
-    text(
-        "fit_measurements.csv",
-        format_measurements_of(&rows(&cal.fit_data), &cal.identity).as_bytes(),
-    )?;
-    text(
-        "grid_measurements.csv",
-        format_measurements_of(&rows(&cal.grid_data), &cal.identity).as_bytes(),
-    )?;
-    text(
-        "grid_measurements_round2.csv",
-        format_measurements_of(&rows(&cal.grid2_data), &cal.identity).as_bytes(),
-    )?;
-    for s in &cal.stages {
-        text(
-            &format!("verify_{}.csv", s.key.replace('+', "_")),
-            format_measurements_of(&rows(&s.landed), &cal.identity).as_bytes(),
-        )?;
-    }
-    // The grid to flash: round 2. (Round 1 is in the round-2 data: nodes commanded through it.)
-    text("grid.bin", &cal.grid2.image)?;
-    text("grid.csv", grid::format_csv(&cal.grid2.nodes).as_bytes())?;
-
-    let mut full_file = ModelFile::from_model(&cal.full.model);
-    full_file.std_dev = params::std_dev_map(&cal.full.std_dev);
-    full_file.fit = Some(
-        serde_json::json!({ "method": "full", "source": "host-sim demo", "n_points": cal.fit_data.len() }),
-    );
-    full_file.backlash_urad = cal.backlash.map(|b| b.lost_motion_urad);
-    full_file.machine = Some(cal.identity.clone());
-    files.push((
-        "model.json".into(),
-        model_file_text(&full_file)?.into_bytes(),
-    ));
-    let mut ls_file = ModelFile::from_model(&cal.ls_model);
-    ls_file.machine = Some(cal.identity.clone());
-    ls_file.fit = Some(
-        serde_json::json!({ "method": "ls", "source": "host-sim demo", "n_points": cal.fit_data.len() }),
-    );
-    files.push((
-        "model_ls.json".into(),
-        model_file_text(&ls_file)?.into_bytes(),
-    ));
-
-    // Plots: the same fresh targets for every stage; fields in one plot share one scale.
-    let (nominal, ls, full) = (
-        stage(cal, "nominal")?,
-        stage(cal, "ls")?,
-        stage(cal, "full")?,
-    );
-    let (gridded, gridded2) = (stage(cal, "full+grid")?, stage(cal, "full+grid2")?);
-    let base: Vec<[f64; 2]> = gridded
-        .landed
-        .iter()
-        .map(|l| l.row.target_mm.unwrap_or(l.true_mm))
-        .collect();
-    let (e_nom, e_ls, e_full, e_grid, e_grid2) = (
-        true_error_vectors_um(&nominal.landed),
-        true_error_vectors_um(&ls.landed),
-        true_error_vectors_um(&full.landed),
-        true_error_vectors_um(&gridded.landed),
-        true_error_vectors_um(&gridded2.landed),
-    );
-    files.push((
-        "errors_fit.png".into(),
-        vector_plot_png(
-            "step 2, fit: true − target at fresh targets",
-            &[
-                VectorField::new("nominal model", &base, &e_nom),
-                VectorField::new("paper's ls fit", &base, &e_ls),
-                VectorField::new("full fit", &base, &e_full),
-            ],
-            &[],
-        )?,
-    ));
-    files.push((
-        "errors_grid.png".into(),
-        vector_plot_png(
-            "step 3, grid: true − target at fresh targets",
-            &[
-                VectorField::new("full fit", &base, &e_full),
-                VectorField::new("full fit + grid (1 round)", &base, &e_grid),
-                VectorField::new("full fit + grid (2 rounds)", &base, &e_grid2),
-            ],
-            &[],
-        )?,
-    ));
-    files.push((
-        "errors_final.png".into(),
-        vector_plot_png(
-            "after calibration: true − target at fresh targets",
-            &[
-                VectorField::new("full fit + grid (1 round)", &base, &e_grid),
-                VectorField::new("full fit + grid (2 rounds)", &base, &e_grid2),
-            ],
-            &[],
-        )?,
-    ));
-    let node_base: Vec<[f64; 2]> = cal.grid.nodes.iter().map(|n| n.target_mm).collect();
-    let (node_err1, node_err2) = (
-        measured_error_vectors_um(&cal.grid_data),
-        measured_error_vectors_um(&cal.grid2_data),
-    );
-    files.push((
-        "grid_nodes.png".into(),
-        vector_plot_png(
-            "grid nodes: measured − target",
-            &[
-                VectorField::new("round 1 (full fit)", &node_base, &node_err1),
-                VectorField::new("round 2 (through the round-1 grid)", &node_base, &node_err2),
-            ],
-            &[],
-        )?,
-    ));
-    let mut written = Vec::with_capacity(files.len());
-    for (name, bytes) in &files {
-        out.bytes(&p(name), bytes)?;
-        written.push(p(name));
-    }
-    Ok(written)
 }
