@@ -3,7 +3,6 @@
 
 use anyhow::{anyhow, Result};
 use host_sim::calib::accuracy::{mean_error_per_target, report, AccuracyReport};
-use host_sim::io::measurement_csv::read_measurement_file;
 use host_sim::io::plot::{vector_plot_png, VectorField};
 use host_sim::io::policy::CommandFiles;
 use host_sim::io::KeyOrder;
@@ -35,12 +34,8 @@ pub fn run(args: &Args) -> Result<()> {
         .output("--plot", &args.plot)
         .check()?;
     let spec = args.machine.spec()?;
-    let read = read_measurement_file(&args.data)?;
-    args.machine.check_files(
-        &spec,
-        &[super::file_machine("--data", &args.data, read.machine)],
-    )?;
-    let data = super::frame_of(args.instrument_frame.as_deref())?.register(&read.rows);
+    let rows = super::common_args::read_measurements(&args.machine, &spec, "--data", &args.data)?;
+    let data = super::frame_of(args.instrument_frame.as_deref())?.register(&rows);
     // Figures outside the workspace are no accuracy of this machine: say so (the figures stand).
     let outside = data
         .iter()
@@ -62,11 +57,7 @@ pub fn run(args: &Args) -> Result<()> {
             mean_error_per_target(&data).into_iter().unzip();
         let png = vector_plot_png(
             "mean error at each target",
-            &[VectorField {
-                label: "measured − target",
-                base_mm: &base,
-                error_um: &err,
-            }],
+            &[VectorField::new("measured − target", &base, &err)],
             &[],
         )?;
         outputs.bytes(plot, &png)?;

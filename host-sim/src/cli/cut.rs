@@ -10,7 +10,7 @@ use host_sim::cut::{plots, report, run, CutOptions};
 use host_sim::io::dynamics_file::read_dynamics;
 use host_sim::io::policy::CommandFiles;
 use host_sim::io::{json_text, KeyOrder};
-use host_sim::plant::{PlantConfig, PlantModel};
+use host_sim::plant::PlantConfig;
 use kinematics_core::Calibration;
 use std::path::{Path, PathBuf};
 
@@ -85,12 +85,7 @@ pub fn run_cut(args: &Args) -> Result<()> {
             )
         })?;
     }
-    match args.plant_model.as_deref() {
-        None => {}
-        Some("sixbar") => plant.sixbar.model = PlantModel::Sixbar,
-        Some("fivebar") => plant.sixbar.model = PlantModel::Fivebar,
-        Some(other) => bail!("unknown --plant-model '{other}' (known: sixbar, fivebar)"),
-    }
+    super::common_args::override_plant_model(&mut plant, args.plant_model.as_deref())?;
     let text = read_program(&args.program)?;
     let (model, bytes) = super::load_calibration(
         args.model.as_deref(),

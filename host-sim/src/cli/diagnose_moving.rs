@@ -16,13 +16,10 @@ use host_sim::dynamics::report::table;
 use host_sim::dynamics::samples::SampleOptions;
 use host_sim::io::dynamics_file::{read_dynamics_file, write_dynamics_file, DynamicsFile};
 use host_sim::io::policy::CommandFiles;
-use host_sim::io::telemetry_csv::read_telemetry;
 use host_sim::io::{json_text, KeyOrder};
-use host_sim::link::parse_knots_csv;
 use host_sim::machine_spec::STANDARD_GRAVITY_MM_S2;
-use host_sim::sim::knots::KnotPath;
 use kinematics_core::dynamics::PARAMETER_NAMES;
-use kinematics_core::{FiveBarDynamics, ServoConfig};
+use kinematics_core::FiveBarDynamics;
 use std::path::PathBuf;
 
 /// The flags of the moving machine's diagnosis (`diagnose --telemetry`).
@@ -99,30 +96,12 @@ pub fn run(args: &super::diagnose::Args) -> Result<()> {
             "give the dynamics the controller fed forward: --dynamics FILE, or --grid with the image it ran (its dynamics block)"
         ),
     };
-    let log = read_telemetry(log_path)?;
-    args.machine.check_files(
+    let (log, path) = super::common_args::telemetry_run(
+        &args.machine,
         &spec,
-        &[super::file_machine(
-            "--telemetry",
-            log_path,
-            log.meta.as_ref().map(|m| m.machine.clone()),
-        )],
-    )?;
-    let start = log
-        .rows
-        .first()
-        .map(|r| r.setpoint_mm)
-        .context("the telemetry log has no samples")?;
-    let path = match &m.knots {
-        Some(k) => {
-            let text = std::fs::read_to_string(k)
-                .with_context(|| format!("cannot read {}", k.display()))?;
-            KnotPath::new(
-                start,
-                &parse_knots_csv(&text).with_context(|| format!("in {}", k.display()))?,
-            )?
-        }
-        None => {
+        log_path,
+        m.knots.as_deref(),
+        || {
             let ex = excitation(
                 &spec,
                 &ExcitationOptions {
@@ -131,14 +110,10 @@ pub fn run(args: &super::diagnose::Args) -> Result<()> {
                     ..ExcitationOptions::default()
                 },
             )?;
-            KnotPath::new(start, &ex.knots)?
-        }
-    };
-    let servo = ServoConfig {
-        sample_period_s: spec.sample_period_s as f32,
-        min_transmission: spec.min_transmission as f32,
-        ..ServoConfig::default()
-    };
+            Ok(ex.knots)
+        },
+    )?;
+    let servo = host_sim::sim::closed_loop::servo_config_at(&spec);
     let model = model.cast::<f64>();
     let opts = DiagnoseOptions {
         spec: spec.clone(),

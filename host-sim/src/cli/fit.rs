@@ -9,7 +9,7 @@ use host_sim::calib::fit::evaluate::{self, Criterion};
 use host_sim::calib::fit::subset_search::{Progress, Stage};
 use host_sim::calib::fit::{check_data, fit, params, FitOptions, FrameMode, Method, Points};
 use host_sim::calib::CalibError;
-use host_sim::io::measurement_csv::{read_measurement_file, Measurement};
+use host_sim::io::measurement_csv::Measurement;
 use host_sim::io::model_file::{model_file_text, ModelFile};
 use host_sim::io::plot::{vector_plot_png, VectorField};
 use host_sim::io::policy::CommandFiles;
@@ -246,12 +246,7 @@ pub fn run(args: &Args) -> Result<()> {
         .output("--plot", &args.plot)
         .check()?;
     let spec = args.machine.spec()?;
-    let read = read_measurement_file(&args.data)?;
-    args.machine.check_files(
-        &spec,
-        &[super::file_machine("--data", &args.data, read.machine)],
-    )?;
-    let data = read.rows;
+    let data = super::common_args::read_measurements(&args.machine, &spec, "--data", &args.data)?;
     let identity = spec.identity();
     let criterion = match args.criterion {
         CriterionArg::Measured => Criterion::Measured,
@@ -330,16 +325,8 @@ pub fn run(args: &Args) -> Result<()> {
         let png = vector_plot_png(
             "measured − predicted",
             &[
-                VectorField {
-                    label: "nominal model",
-                    base_mm: &base,
-                    error_um: &before,
-                },
-                VectorField {
-                    label: "fitted model",
-                    base_mm: &base,
-                    error_um: &after,
-                },
+                VectorField::new("nominal model", &base, &before),
+                VectorField::new("fitted model", &base, &after),
             ],
             &[],
         )?;

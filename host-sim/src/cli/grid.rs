@@ -10,7 +10,6 @@ use host_sim::calib::image::{
     CheckedImage, WorkspaceBlock,
 };
 use host_sim::io::dynamics_file::read_dynamics_file;
-use host_sim::io::measurement_csv::read_measurement_file;
 use host_sim::io::model_file::read_model_file;
 use host_sim::io::plot::{vector_plot_png, VectorField};
 use host_sim::io::policy::CommandFiles;
@@ -243,10 +242,12 @@ pub fn run(args: &Args) -> Result<()> {
         .map_err(|e| anyhow::anyhow!("{}: {e}", model_path.display()))?;
     let mut data = Vec::new();
     for path in &args.data {
-        let read = read_measurement_file(path)?;
-        args.machine
-            .check_files(&spec, &[super::file_machine("--data", path, read.machine)])?;
-        let rows = frame.register(&read.rows);
+        let rows = frame.register(&super::common_args::read_measurements(
+            &args.machine,
+            &spec,
+            "--data",
+            path,
+        )?);
         data.extend(match &backlash {
             Some(b) => b
                 .link_angles(&rows)
@@ -318,11 +319,7 @@ pub fn run(args: &Args) -> Result<()> {
             .collect();
         let png = vector_plot_png(
             "grid nodes: measured − target",
-            &[VectorField {
-                label: "before grid",
-                base_mm: &base,
-                error_um: &err,
-            }],
+            &[VectorField::new("before grid", &base, &err)],
             &[],
         )?;
         outputs.bytes(plot, &png)?;

@@ -24,14 +24,13 @@ use host_sim::dynamics::tuning::{axis_inertia_kg_m2, servo_config_for};
 use host_sim::io::dynamics_file::write_dynamics_file;
 use host_sim::io::knots_csv::knots_text;
 use host_sim::io::policy::CommandFiles;
-use host_sim::io::telemetry_csv::{read_telemetry, telemetry_text};
+use host_sim::io::telemetry_csv::telemetry_text;
 use host_sim::io::{json_text, KeyOrder};
 use host_sim::link::link_protocol::{calibration_image_id, Command, Response};
-use host_sim::link::{parse_knots_csv, LinkClient};
+use host_sim::link::LinkClient;
 use host_sim::machine_spec::{MachineSpec, STANDARD_GRAVITY_MM_S2};
 use host_sim::plant::PlantConfig;
 use host_sim::sim::closed_loop::FeedForward;
-use host_sim::sim::knots::KnotPath;
 use kinematics_core::dynamics::PARAMETER_NAMES;
 use kinematics_core::{Calibration, ServoConfig};
 use serde::Serialize;
@@ -190,30 +189,13 @@ pub fn run(args: &Args) -> Result<()> {
             )
         })?;
     let (source, result, run) = if let Some(log_path) = &args.telemetry {
-        let log = read_telemetry(log_path)?;
-        args.machine.check_files(
+        let (log, path) = super::common_args::telemetry_run(
+            &args.machine,
             &spec,
-            &[super::file_machine(
-                "--telemetry",
-                log_path,
-                log.meta.as_ref().map(|m| m.machine.clone()),
-            )],
+            log_path,
+            args.knots.as_deref(),
+            || Ok(designed.knots.clone()),
         )?;
-        let start = log
-            .rows
-            .first()
-            .map(|r| r.setpoint_mm)
-            .context("the telemetry log has no samples")?;
-        let path = match &args.knots {
-            Some(k) => {
-                let text = std::fs::read_to_string(k)
-                    .with_context(|| format!("cannot read {}", k.display()))?;
-                let knots =
-                    parse_knots_csv(&text).with_context(|| format!("in {}", k.display()))?;
-                KnotPath::new(start, &knots)?
-            }
-            None => KnotPath::new(start, &designed.knots)?,
-        };
         let result = identify_from_telemetry(&log, &path, &spec, &samples)
             .with_context(|| format!("identifying from {}", log_path.display()))?;
         (format!("telemetry {}", log_path.display()), result, None)

@@ -8,6 +8,7 @@
 mod accuracy;
 mod command;
 mod commission;
+mod common_args;
 mod cut;
 mod demo;
 mod diagnose;

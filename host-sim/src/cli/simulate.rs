@@ -23,7 +23,7 @@ use host_sim::io::policy::CommandFiles;
 use host_sim::io::telemetry_csv::telemetry_text;
 use host_sim::io::KeyOrder;
 use host_sim::machine_spec::STANDARD_GRAVITY_MM_S2;
-use host_sim::plant::{PlantConfig, PlantModel};
+use host_sim::plant::PlantConfig;
 use host_sim::sim::closed_loop::{FeedForward, LoopSummary};
 use host_sim::sim::simulate::{format_log, simulate, SimulateOptions, MAX_SECONDS};
 use host_sim::sim::trajectory::Trajectory;
@@ -114,12 +114,7 @@ pub fn run(args: &Args) -> Result<()> {
     let spec = args.machine.spec()?;
     let mut cfg = PlantConfig::by_name(&args.plant)?;
     host_sim::calib::machine::check_plant_fits(&cfg, &spec)?;
-    match args.plant_model.as_deref() {
-        None => {}
-        Some("sixbar") => cfg.sixbar.model = PlantModel::Sixbar,
-        Some("fivebar") => cfg.sixbar.model = PlantModel::Fivebar,
-        Some(other) => bail!("unknown --plant-model '{other}' (known: sixbar, fivebar)"),
-    }
+    super::common_args::override_plant_model(&mut cfg, args.plant_model.as_deref())?;
     if !(20..=2000).contains(&args.decimation) {
         bail!("--decimation must be 20 to 2000, not {}", args.decimation);
     }

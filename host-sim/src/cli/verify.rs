@@ -6,7 +6,7 @@
 use super::MachineArg;
 use anyhow::{anyhow, bail, Context, Result};
 use host_sim::calib::verify::{html, verify, StageData, VerifyOptions};
-use host_sim::io::measurement_csv::{read_measurement_file, Measurement};
+use host_sim::io::measurement_csv::Measurement;
 use host_sim::io::policy::CommandFiles;
 use host_sim::io::{json_text, KeyOrder};
 use host_sim::machine_spec::MachineSpec;
@@ -53,9 +53,8 @@ fn read(
     path: &Path,
     frame: &host_sim::calib::frame::InstrumentFrame,
 ) -> Result<Vec<Measurement>> {
-    let read = read_measurement_file(path)?;
-    machine.check_files(spec, &[super::file_machine(flag, path, read.machine)])?;
-    Ok(frame.register(&read.rows))
+    let rows = super::common_args::read_measurements(machine, spec, flag, path)?;
+    Ok(frame.register(&rows))
 }
 
 /// `host-sim verify`.

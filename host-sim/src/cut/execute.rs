@@ -36,7 +36,7 @@ use crate::gantry_spec::GantrySpec;
 use crate::machine_spec::MachineSpec;
 use crate::plant::gantry::{AxisReference, Gantry};
 use crate::plant::{Plant, PlantConfig};
-use crate::sim::closed_loop::{loop_config, SUBSTEPS};
+use crate::sim::closed_loop::{cast_setpoint, loop_config, SUBSTEPS};
 use kinematics_core::trajectory::MotionSetpoint;
 use kinematics_core::{Calibration, FiveBarDynamics, Servo};
 
@@ -116,15 +116,6 @@ impl<'a> HostLoop<'a> {
     }
 }
 
-fn cast(m: &MotionSetpoint<f64>) -> MotionSetpoint<f32> {
-    MotionSetpoint {
-        position_mm: m.position_mm.map(|v| v as f32),
-        velocity_mm_s: m.velocity_mm_s.map(|v| v as f32),
-        acceleration_mm_s2: m.acceleration_mm_s2.map(|v| v as f32),
-        jerk_mm_s3: m.jerk_mm_s3.map(|v| v as f32),
-    }
-}
-
 impl MicroStage for HostLoop<'_> {
     fn describe(&self) -> String {
         format!("host loop on the {} plant", self.plant.config.description)
@@ -154,12 +145,12 @@ impl MicroStage for HostLoop<'_> {
         base_accel_mm_s2: [f64; 2],
     ) -> Result<MicroState, CutError> {
         let enc = self.plant.encoder_rad();
-        let next32 = next.map(cast);
+        let next32 = next.map(cast_setpoint);
         let out = self
             .servo
             .step_motion(
                 &self.cal,
-                &cast(setpoint),
+                &cast_setpoint(setpoint),
                 next32.as_ref(),
                 [enc[0] as f32, enc[1] as f32],
             )

@@ -11,6 +11,7 @@ use super::Planned;
 use crate::io::plot::{err, legend, render, Area, COLOURS};
 use crate::io::IoError;
 use crate::machine_spec::MachineSpec;
+use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
 
 /// Most points of a drawn path.
@@ -113,21 +114,7 @@ fn draw_part(
     lo: [f64; 2],
     hi: [f64; 2],
 ) -> Result<(), IoError> {
-    let (xr, yr) = equal_ranges(lo, hi, 900.0, 680.0);
-    let mut chart = ChartBuilder::on(area)
-        .caption(title, ("sans-serif", 22))
-        .margin(15)
-        .x_label_area_size(40)
-        .y_label_area_size(60)
-        .build_cartesian_2d(xr[0]..xr[1], yr[0]..yr[1])
-        .map_err(err)?;
-    chart
-        .configure_mesh()
-        .x_desc("x (mm)")
-        .y_desc("y (mm)")
-        .label_style(("sans-serif", 14))
-        .draw()
-        .map_err(err)?;
+    let mut chart = plan_chart(area, title, [lo, hi], 900.0, ["x (mm)", "y (mm)"])?;
     let grey = RGBColor(170, 170, 170);
     let mut first = [true, true];
     for m in moves {
@@ -148,16 +135,54 @@ fn draw_part(
             first[k] = false;
         }
     }
-    let blue = COLOURS[0];
+    trace(&mut chart, gantry, COLOURS[0], "gantry (executed)")?;
+    legend(&mut chart, SeriesLabelPosition::UpperRight)
+}
+
+/// A plan view of `bounds_mm` (`[low, high]` corners) at equal x and y scales in `width_px` ×
+/// 680 px, its mesh drawn with the axes named `desc`.
+fn plan_chart<'a, 'b>(
+    area: &'a Area<'b>,
+    title: &str,
+    bounds_mm: [[f64; 2]; 2],
+    width_px: f64,
+    desc: [&str; 2],
+) -> Result<ChartContext<'a, BitMapBackend<'b>, Cartesian2d<RangedCoordf64, RangedCoordf64>>, IoError>
+{
+    let (xr, yr) = equal_ranges(bounds_mm[0], bounds_mm[1], width_px, 680.0);
+    let mut chart = ChartBuilder::on(area)
+        .caption(title, ("sans-serif", 22))
+        .margin(15)
+        .x_label_area_size(40)
+        .y_label_area_size(60)
+        .build_cartesian_2d(xr[0]..xr[1], yr[0]..yr[1])
+        .map_err(err)?;
+    chart
+        .configure_mesh()
+        .x_desc(desc[0])
+        .y_desc(desc[1])
+        .label_style(("sans-serif", 14))
+        .draw()
+        .map_err(err)?;
+    Ok(chart)
+}
+
+/// A thin line through `points` in `colour`, named `label` in the legend (drawn thicker there).
+fn trace<'a, DB: DrawingBackend + 'a>(
+    chart: &mut ChartContext<'a, DB, Cartesian2d<RangedCoordf64, RangedCoordf64>>,
+    points: &[(f64, f64)],
+    colour: RGBColor,
+    label: &str,
+) -> Result<(), IoError> {
     chart
         .draw_series(LineSeries::new(
-            gantry.iter().copied(),
-            blue.stroke_width(1),
+            points.iter().copied(),
+            colour.stroke_width(1),
         ))
         .map_err(err)?
-        .label("gantry (executed)")
-        .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], blue.stroke_width(3)));
-    legend(&mut chart, SeriesLabelPosition::UpperRight)
+        .label(label)
+        .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(3)));
+    Ok(())
 }
 
 fn draw_micro(
@@ -167,21 +192,13 @@ fn draw_micro(
 ) -> Result<(), IoError> {
     let v = micro.region.vertices_mm();
     let (x, y) = micro.region.bounds_mm();
-    let (xr, yr) = equal_ranges([x[0], y[0]], [x[1], y[1]], 600.0, 680.0);
-    let mut chart = ChartBuilder::on(area)
-        .caption("the micro's excursion (executed)", ("sans-serif", 22))
-        .margin(15)
-        .x_label_area_size(40)
-        .y_label_area_size(60)
-        .build_cartesian_2d(xr[0]..xr[1], yr[0]..yr[1])
-        .map_err(err)?;
-    chart
-        .configure_mesh()
-        .x_desc("micro x (mm)")
-        .y_desc("micro y (mm)")
-        .label_style(("sans-serif", 14))
-        .draw()
-        .map_err(err)?;
+    let mut chart = plan_chart(
+        area,
+        "the micro's excursion (executed)",
+        [[x[0], y[0]], [x[1], y[1]]],
+        600.0,
+        ["micro x (mm)", "micro y (mm)"],
+    )?;
     let mut outline: Vec<(f64, f64)> = v.iter().map(|p| (p[0], p[1])).collect();
     outline.push(outline[0]);
     chart
@@ -206,7 +223,6 @@ fn draw_micro(
         .collect();
     let mut inner_closed = inner.clone();
     inner_closed.push(inner[0]);
-    let red = COLOURS[1];
     chart
         .draw_series(LineSeries::new(
             inner_closed,
@@ -215,14 +231,7 @@ fn draw_micro(
         .map_err(err)?
         .label(format!("less the {} mm margin", micro.margin_mm))
         .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RGBColor(120, 120, 120)));
-    chart
-        .draw_series(LineSeries::new(
-            excursion.iter().copied(),
-            red.stroke_width(1),
-        ))
-        .map_err(err)?
-        .label("micro tool point")
-        .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], red.stroke_width(3)));
+    trace(&mut chart, excursion, COLOURS[1], "micro tool point")?;
     legend(&mut chart, SeriesLabelPosition::UpperRight)
 }
 
@@ -256,11 +265,7 @@ fn time_panel(
         .map_err(err)?;
     for (k, (label, s)) in series.iter().enumerate() {
         let c = COLOURS[k % COLOURS.len()];
-        chart
-            .draw_series(LineSeries::new(s.iter().copied(), c.stroke_width(1)))
-            .map_err(err)?
-            .label(*label)
-            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(3)));
+        trace(&mut chart, s, c, label)?;
     }
     chart
         .draw_series(LineSeries::new(

@@ -60,11 +60,7 @@ pub fn write_plots(
         out,
         &dir.join("residual_start.png"),
         "residual of the starting model",
-        &[VectorField {
-            label: "start",
-            base_mm: &h.base_mm,
-            error_um: &h.fields[0].1,
-        }],
+        &[VectorField::new("start", &h.base_mm, &h.fields[0].1)],
     )?;
     for k in 1..h.fields.len() {
         let name = &report.steps[k - 1].effect;
@@ -73,16 +69,8 @@ pub fn write_plots(
             &dir.join(format!("residual_step{k}_{name}.png")),
             &format!("step {k}: {name}"),
             &[
-                VectorField {
-                    label: "before",
-                    base_mm: &h.base_mm,
-                    error_um: &h.fields[k - 1].1,
-                },
-                VectorField {
-                    label: "after",
-                    base_mm: &h.base_mm,
-                    error_um: &h.fields[k].1,
-                },
+                VectorField::new("before", &h.base_mm, &h.fields[k - 1].1),
+                VectorField::new("after", &h.base_mm, &h.fields[k].1),
             ],
         )?;
     }

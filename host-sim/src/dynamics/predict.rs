@@ -13,6 +13,7 @@
 
 use super::model_plant::{Extras, ModelPlant};
 use super::DynError;
+use crate::sim::closed_loop::cast_setpoint;
 use crate::sim::knots::KnotPath;
 use kinematics_core::trajectory::MotionSetpoint;
 use kinematics_core::{Calibration, FiveBar, FiveBarDynamics, Servo, ServoConfig};
@@ -26,15 +27,6 @@ pub struct Controller {
     pub servo: ServoConfig,
     /// The dynamics it feeds forward.
     pub fed_forward: FiveBarDynamics<f64>,
-}
-
-fn cast(m: &MotionSetpoint<f64>) -> MotionSetpoint<f32> {
-    MotionSetpoint {
-        position_mm: m.position_mm.map(|v| v as f32),
-        velocity_mm_s: m.velocity_mm_s.map(|v| v as f32),
-        acceleration_mm_s2: m.acceleration_mm_s2.map(|v| v as f32),
-        jerk_mm_s3: m.jerk_mm_s3.map(|v| v as f32),
-    }
 }
 
 /// The following error (reference − encoder, rad) the loop has at each stream sample in
@@ -88,8 +80,8 @@ pub fn closed_loop(
     for j in 0..=last {
         let t = j as f64 * dt;
         let now_f64 = setpoint(t);
-        let now = cast(&now_f64);
-        let ahead = cast(&setpoint(t + dt));
+        let now = cast_setpoint(&now_f64);
+        let ahead = cast_setpoint(&setpoint(t + dt));
         let step = servo
             .step_motion(&cal, &now, Some(&ahead), enc(&plant))
             .map_err(|f| sim(format!("the servo faulted at {t:.4} s: {f:?}")))?;

@@ -219,6 +219,17 @@ pub struct VectorField<'a> {
     pub error_um: &'a [[f64; 2]],
 }
 
+impl<'a> VectorField<'a> {
+    /// The field `label`: arrows from `base_mm[i]` along `error_um[i]`.
+    pub fn new(label: &'a str, base_mm: &'a [[f64; 2]], error_um: &'a [[f64; 2]]) -> Self {
+        VectorField {
+            label,
+            base_mm,
+            error_um,
+        }
+    }
+}
+
 /// 1, 2 or 5 × 10ⁿ, the largest not above `v` (> 0).
 pub fn round_length(v: f64) -> f64 {
     let p = 10f64.powf(v.log10().floor());
@@ -403,16 +414,7 @@ mod tests {
         assert_eq!(&bytes[1..4], b"PNG");
         let v = dir.path().join("vec.png");
         let errs: Vec<[f64; 2]> = circle.iter().map(|p| [p[1], -p[0] * 0.01]).collect();
-        vector_plot(
-            &v,
-            "errors",
-            &[VectorField {
-                label: "before",
-                base_mm: &circle,
-                error_um: &errs,
-            }],
-        )
-        .unwrap();
+        vector_plot(&v, "errors", &[VectorField::new("before", &circle, &errs)]).unwrap();
         assert_eq!(&std::fs::read(&v).unwrap()[1..4], b"PNG");
         assert!(xy_plot(&dir.path().join("empty.png"), "x", "x", "y", &[]).is_err());
         assert!(!dir.path().join("empty.png").exists());

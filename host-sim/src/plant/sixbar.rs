@@ -311,6 +311,20 @@ impl SixBar {
         }
     }
 
+    /// The converged state `x` as a solution: its bar tensions and pin force assembled once more.
+    fn solution(&self, x: &Vec9, tips: &[[f64; 2]; 2], iterations: u32) -> SixBarSolution {
+        let mut tension = [0.0; 6];
+        let mut pin = [0.0; 2];
+        self.assemble(x, tips, Some((&mut tension, &mut pin)));
+        SixBarSolution {
+            tool_mm: [x[6], x[7]],
+            platform_rot_rad: x[8],
+            bar_tension_n: tension,
+            pin_force_n: pin,
+            iterations,
+        }
+    }
+
     /// Normal equations of the energy at `x`; with `forces`, also the bar tensions and pin forces.
     fn assemble(
         &self,
@@ -475,33 +489,13 @@ impl SixBar {
                 n = nt;
                 mu = if mu < 1e-6 { 0.0 } else { mu / 10.0 };
                 if big < STEP_TOL_MM {
-                    let mut tension = [0.0; 6];
-                    let mut pin = [0.0; 2];
-                    self.assemble(&x, &tips, Some((&mut tension, &mut pin)));
-                    let sol = SixBarSolution {
-                        tool_mm: [x[6], x[7]],
-                        platform_rot_rad: x[8],
-                        bar_tension_n: tension,
-                        pin_force_n: pin,
-                        iterations: iter,
-                    };
-                    return Ok((sol, x));
+                    return Ok((self.solution(&x, &tips, iter), x));
                 }
             } else {
                 mu = if mu == 0.0 { 1e-4 } else { mu * 10.0 };
                 if big < STEP_TOL_MM && mu > 1e6 {
                     // No descent left at round-off level: we are at the minimum.
-                    let mut tension = [0.0; 6];
-                    let mut pin = [0.0; 2];
-                    self.assemble(&x, &tips, Some((&mut tension, &mut pin)));
-                    let sol = SixBarSolution {
-                        tool_mm: [x[6], x[7]],
-                        platform_rot_rad: x[8],
-                        bar_tension_n: tension,
-                        pin_force_n: pin,
-                        iterations: iter,
-                    };
-                    return Ok((sol, x));
+                    return Ok((self.solution(&x, &tips, iter), x));
                 }
             }
         }

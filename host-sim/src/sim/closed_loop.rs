@@ -186,16 +186,21 @@ pub fn run_loop_with(
     )
 }
 
+/// The servo's default settings at `spec`'s sample period and singularity margin.
+pub fn servo_config_at(spec: &MachineSpec) -> ServoConfig {
+    ServoConfig {
+        sample_period_s: spec.sample_period_s as f32,
+        min_transmission: spec.min_transmission as f32,
+        ..ServoConfig::default()
+    }
+}
+
 /// The servo settings the loop runs with: the defaults at `spec`'s sample period and singularity
 /// margin, with the Coulomb feed-forward set to 80 % of each drive's Coulomb friction, as a
 /// commissioning run would identify it (on the paper plant this takes the slow-circle
 /// following error from 22 to 16 µm).
 pub fn loop_config(plant: &Plant, spec: &MachineSpec) -> ServoConfig {
-    let mut config = ServoConfig {
-        sample_period_s: spec.sample_period_s as f32,
-        min_transmission: spec.min_transmission as f32,
-        ..ServoConfig::default()
-    };
+    let mut config = servo_config_at(spec);
     let coulomb_nm = [
         plant.config.drive_1.coulomb_friction_nm,
         plant.config.drive_2.coulomb_friction_nm,
@@ -395,7 +400,7 @@ pub fn run_loop_configured(
 }
 
 /// The servo's f32 setpoint.
-fn cast_setpoint(m: &MotionSetpoint<f64>) -> MotionSetpoint<f32> {
+pub fn cast_setpoint(m: &MotionSetpoint<f64>) -> MotionSetpoint<f32> {
     MotionSetpoint {
         position_mm: m.position_mm.map(|v| v as f32),
         velocity_mm_s: m.velocity_mm_s.map(|v| v as f32),

@@ -244,6 +244,23 @@ pub fn rated_limits(spec: &MachineSpec) -> TaskLimits<f64> {
     }
 }
 
+/// A contour test `name`: `path` planned at the contour limits, one piece, settled 50 ms.
+fn contour<P: kinematics_core::path::Path<f64>>(
+    name: &str,
+    path: P,
+    spec: &MachineSpec,
+    piece: fn(PathMotion<f64, P>) -> Piece,
+) -> Result<Trajectory, SimError> {
+    let m = PathMotion::plan(path, &contour_limits(spec), CONTOUR_SAMPLES)
+        .map_err(|e| SimError::Invalid(format!("{name}: {e}")))?;
+    let duration_s = m.duration_s() + 0.05;
+    Ok(Trajectory::Planned {
+        name: name.into(),
+        pieces: vec![(0.0, piece(m))],
+        duration_s,
+    })
+}
+
 /// The 5 g contours' limits: the rated ones with [`CONTOUR_JERK_MM_S3`].
 fn contour_limits(spec: &MachineSpec) -> TaskLimits<f64> {
     TaskLimits {
@@ -305,13 +322,7 @@ impl Trajectory {
                     start_rad: 0.0,
                     turns: CONTOUR_TURNS,
                 };
-                let m = PathMotion::plan(c, &contour_limits(spec), CONTOUR_SAMPLES)
-                    .map_err(|e| SimError::Invalid(format!("circle-5g: {e}")))?;
-                Ok(Trajectory::Planned {
-                    name: "circle-5g".into(),
-                    pieces: vec![(0.0, Piece::Circle(m))],
-                    duration_s: m.duration_s() + 0.05,
-                })
+                contour("circle-5g", c, spec, Piece::Circle)
             }
             "figure8-5g" => {
                 let f = Figure8 {
@@ -320,13 +331,7 @@ impl Trajectory {
                     half_y_mm: 60.0,
                     loops: CONTOUR_TURNS,
                 };
-                let m = PathMotion::plan(f, &contour_limits(spec), CONTOUR_SAMPLES)
-                    .map_err(|e| SimError::Invalid(format!("figure8-5g: {e}")))?;
-                Ok(Trajectory::Planned {
-                    name: "figure8-5g".into(),
-                    pieces: vec![(0.0, Piece::Figure8(m))],
-                    duration_s: m.duration_s() + 0.05,
-                })
+                contour("figure8-5g", f, spec, Piece::Figure8)
             }
             path => {
                 if !Path::new(path).exists() {

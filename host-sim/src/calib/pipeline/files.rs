@@ -133,23 +133,11 @@ pub fn write_outputs(
         errors(gridded2),
     );
     let e_ls = ls.map(errors);
-    let mut fit_fields = vec![VectorField {
-        label: "nominal model",
-        base_mm: &base,
-        error_um: &e_nom,
-    }];
+    let mut fit_fields = vec![VectorField::new("nominal model", &base, &e_nom)];
     if let Some(e) = &e_ls {
-        fit_fields.push(VectorField {
-            label: "paper's ls fit",
-            base_mm: &base,
-            error_um: e,
-        });
+        fit_fields.push(VectorField::new("paper's ls fit", &base, e));
     }
-    fit_fields.push(VectorField {
-        label: "full fit",
-        base_mm: &base,
-        error_um: &e_full,
-    });
+    fit_fields.push(VectorField::new("full fit", &base, &e_full));
     files.push((
         "errors_fit.png".into(),
         vector_plot_png(
@@ -163,21 +151,9 @@ pub fn write_outputs(
         vector_plot_png(
             "step 3, grid: true − target at fresh targets",
             &[
-                VectorField {
-                    label: "full fit",
-                    base_mm: &base,
-                    error_um: &e_full,
-                },
-                VectorField {
-                    label: "full fit + grid (1 round)",
-                    base_mm: &base,
-                    error_um: &e_grid,
-                },
-                VectorField {
-                    label: "full fit + grid (2 rounds)",
-                    base_mm: &base,
-                    error_um: &e_grid2,
-                },
+                VectorField::new("full fit", &base, &e_full),
+                VectorField::new("full fit + grid (1 round)", &base, &e_grid),
+                VectorField::new("full fit + grid (2 rounds)", &base, &e_grid2),
             ],
             &[],
         )?,
@@ -187,16 +163,8 @@ pub fn write_outputs(
         vector_plot_png(
             "after calibration: true − target at fresh targets",
             &[
-                VectorField {
-                    label: "full fit + grid (1 round)",
-                    base_mm: &base,
-                    error_um: &e_grid,
-                },
-                VectorField {
-                    label: "full fit + grid (2 rounds)",
-                    base_mm: &base,
-                    error_um: &e_grid2,
-                },
+                VectorField::new("full fit + grid (1 round)", &base, &e_grid),
+                VectorField::new("full fit + grid (2 rounds)", &base, &e_grid2),
             ],
             &[],
         )?,
@@ -211,16 +179,8 @@ pub fn write_outputs(
         vector_plot_png(
             "grid nodes: measured − target",
             &[
-                VectorField {
-                    label: "round 1 (full fit)",
-                    base_mm: &node_base,
-                    error_um: &node_err1,
-                },
-                VectorField {
-                    label: "round 2 (through the round-1 grid)",
-                    base_mm: &node_base,
-                    error_um: &node_err2,
-                },
+                VectorField::new("round 1 (full fit)", &node_base, &node_err1),
+                VectorField::new("round 2 (through the round-1 grid)", &node_base, &node_err2),
             ],
             &[],
         )?,

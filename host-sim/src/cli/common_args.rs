@@ -1,0 +1,74 @@
+//! What several commands do with the same kind of argument, done once: `--plant-model`, a
+//! measurement file (`--data` and the like) checked to be of the machine, and the moving
+//! machine's telemetry log (`--telemetry`) with the knots it is a run of (`--knots`), as
+//! `identify` and `diagnose --telemetry` read them.
+
+use super::MachineArg;
+use anyhow::{bail, Context, Result};
+use host_sim::io::measurement_csv::{read_measurement_file, Measurement};
+use host_sim::io::telemetry_csv::{read_telemetry, TelemetryLog};
+use host_sim::link::link_protocol::Knot;
+use host_sim::link::parse_knots_csv;
+use host_sim::machine_spec::MachineSpec;
+use host_sim::plant::{PlantConfig, PlantModel};
+use host_sim::sim::knots::KnotPath;
+use std::path::Path;
+
+/// `--plant-model NAME` applied to the plant: `sixbar` or `fivebar` (none: the plant's own).
+pub fn override_plant_model(plant: &mut PlantConfig, name: Option<&str>) -> Result<()> {
+    match name {
+        None => {}
+        Some("sixbar") => plant.sixbar.model = PlantModel::Sixbar,
+        Some("fivebar") => plant.sixbar.model = PlantModel::Fivebar,
+        Some(other) => bail!("unknown --plant-model '{other}' (known: sixbar, fivebar)"),
+    }
+    Ok(())
+}
+
+/// The measurements of `--flag path`, checked to be of `spec`'s machine.
+pub fn read_measurements(
+    machine: &MachineArg,
+    spec: &MachineSpec,
+    flag: &str,
+    path: &Path,
+) -> Result<Vec<Measurement>> {
+    let read = read_measurement_file(path)?;
+    machine.check_files(spec, &[super::file_machine(flag, path, read.machine)])?;
+    Ok(read.rows)
+}
+
+/// The telemetry log at `log_path`, checked to be `spec`'s machine's, and the knot path it is a
+/// run of: the knots of `knots` (a knots CSV), else `default_knots` (the built-in excitation),
+/// from the log's first setpoint.
+pub fn telemetry_run(
+    machine: &MachineArg,
+    spec: &MachineSpec,
+    log_path: &Path,
+    knots: Option<&Path>,
+    default_knots: impl FnOnce() -> Result<Vec<Knot>>,
+) -> Result<(TelemetryLog, KnotPath)> {
+    let log = read_telemetry(log_path)?;
+    machine.check_files(
+        spec,
+        &[super::file_machine(
+            "--telemetry",
+            log_path,
+            log.meta.as_ref().map(|m| m.machine.clone()),
+        )],
+    )?;
+    let start = log
+        .rows
+        .first()
+        .map(|r| r.setpoint_mm)
+        .context("the telemetry log has no samples")?;
+    let knots = match knots {
+        Some(k) => {
+            let text = std::fs::read_to_string(k)
+                .with_context(|| format!("cannot read {}", k.display()))?;
+            parse_knots_csv(&text).with_context(|| format!("in {}", k.display()))?
+        }
+        None => default_knots()?,
+    };
+    let path = KnotPath::new(start, &knots)?;
+    Ok((log, path))
+}
