@@ -7,7 +7,7 @@
 #   bash tests/run-all.sh
 #
 # Steps, each must pass:
-#   0. formatting: cargo fmt --all --check
+#   0. formatting: cargo fmt --all --check; the documentation's links resolve
 #   1. host tests of kinematics-core, the firmware's controller crate, host-sim and the
 #      cross-crate tests (cargo test; the same-core test builds the firmware's golden binary and
 #      runs it under QEMU)
@@ -50,6 +50,9 @@ qemu-system-arm --version | head -n 1
 step "formatting (rustfmt.toml)"
 cargo fmt --version >/dev/null 2>&1 || rustup component add rustfmt
 cargo fmt --all --check
+
+step "documentation links (every relative link and anchor in the Markdown files resolves)"
+bash tests/check-doc-links.sh
 
 step "host tests"
 cargo test --locked
