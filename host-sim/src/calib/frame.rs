@@ -37,7 +37,8 @@
 //! Cost: one rotation and shift per reading.
 
 use crate::io::measurement_csv::Measurement;
-use crate::io::model_file::FrameRecord;
+use crate::io::model_file::{FrameRecord, ModelFile};
+use crate::io::IoError;
 use crate::numeric::{round6, Rigid2};
 use kinematics_core::FiveBar;
 use serde::Serialize;
@@ -97,6 +98,18 @@ impl InstrumentFrame {
             offset_mm: self.to_instrument.offset_mm,
             std_dev,
             convention: Some(CONVENTION.to_string()),
+        }
+    }
+
+    /// The instrument frame a model file's readings are registered by: the stored one, or the
+    /// identity for a file without one (its model is in the instrument's frame).
+    pub fn of_model_file(file: &ModelFile) -> Result<InstrumentFrame, IoError> {
+        match &file.instrument_frame {
+            Some(r) => {
+                r.check()?;
+                Ok(InstrumentFrame::from_record(r))
+            }
+            None => Ok(InstrumentFrame::IDENTITY),
         }
     }
 

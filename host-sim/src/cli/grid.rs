@@ -237,8 +237,7 @@ pub fn run(args: &Args) -> Result<()> {
         .map_err(|e| anyhow::anyhow!("{}: {e}", model_path.display()))?;
     // The readings into the machine frame, where the model is (the instrument frame the fit
     // registered; none in an older model file).
-    let frame = file
-        .frame()
+    let frame = host_sim::calib::frame::InstrumentFrame::of_model_file(&file)
         .map_err(|e| anyhow::anyhow!("{}: {e}", model_path.display()))?;
     let mut data = Vec::new();
     for path in &args.data {

@@ -256,9 +256,10 @@ fn load_calibration(
 /// fit): the instrument's own frame.
 fn frame_of(model: Option<&Path>) -> Result<host_sim::calib::frame::InstrumentFrame> {
     match model {
-        Some(p) => host_sim::io::model_file::read_model_file(p)?
-            .frame()
-            .map_err(|e| anyhow!("{}: {e}", p.display())),
+        Some(p) => host_sim::calib::frame::InstrumentFrame::of_model_file(
+            &host_sim::io::model_file::read_model_file(p)?,
+        )
+        .map_err(|e| anyhow!("{}: {e}", p.display())),
         None => Ok(host_sim::calib::frame::InstrumentFrame::IDENTITY),
     }
 }

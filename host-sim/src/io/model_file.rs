@@ -229,18 +229,6 @@ impl ModelFile {
         Ok(m)
     }
 
-    /// The instrument frame the readings of this set-up are registered by: the stored one, or
-    /// the identity for a file without one (its model is in the instrument's frame).
-    pub fn frame(&self) -> Result<crate::calib::frame::InstrumentFrame, IoError> {
-        match &self.instrument_frame {
-            Some(r) => {
-                r.check()?;
-                Ok(crate::calib::frame::InstrumentFrame::from_record(r))
-            }
-            None => Ok(crate::calib::frame::InstrumentFrame::IDENTITY),
-        }
-    }
-
     /// The backlash correction, validated (finite, 0..=0.01 rad).
     pub fn backlash(&self) -> Result<Option<crate::calib::backlash::Backlash>, IoError> {
         self.backlash_urad
@@ -352,7 +340,7 @@ mod tests {
         assert!(!old.contains("instrument_frame"));
         let back: ModelFile = serde_json::from_str(&old).unwrap();
         assert_eq!(
-            back.frame().unwrap(),
+            crate::calib::frame::InstrumentFrame::of_model_file(&back).unwrap(),
             crate::calib::frame::InstrumentFrame::IDENTITY
         );
         let mut f = ModelFile::from_model(&FiveBar::paper_nominal());
@@ -364,7 +352,9 @@ mod tests {
         });
         let back: ModelFile = serde_json::from_str(&serde_json::to_string(&f).unwrap()).unwrap();
         assert_eq!(back, f);
-        let p = back.frame().unwrap().to_instrument_mm([0.0, 0.0]);
+        let p = crate::calib::frame::InstrumentFrame::of_model_file(&back)
+            .unwrap()
+            .to_instrument_mm([0.0, 0.0]);
         assert_eq!(p, [2500.0, -1200.0]);
     }
 }
