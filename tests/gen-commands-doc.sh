@@ -5,8 +5,13 @@
 #   bash tests/gen-commands-doc.sh
 set -euo pipefail
 cd "$(dirname "$0")/.."
-cargo build --release -q -p host-sim
-bin=target/release/host-sim
+# HOST_SIM_BIN: a host-sim binary already built (the help text is the same in every profile).
+if [ -n "${HOST_SIM_BIN:-}" ]; then
+    bin=$HOST_SIM_BIN
+else
+    cargo build --release -q -p host-sim
+    bin=target/release/host-sim
+fi
 out=docs/reference/commands.md
 tmp=$(mktemp "$out.XXXXXX")
 trap 'rm -f "$tmp"' EXIT
