@@ -1105,3 +1105,29 @@ fn command_writes_report_and_plots() {
     assert!(!bad.status.success());
     assert!(String::from_utf8_lossy(&bad.stderr).contains("--noise-um"));
 }
+
+/// The final check at work (`diagnose::selection`, `prune_weak`): on these data (a scale and a
+/// gear ratio at half the sweep's magnitude beside a drift, 120 random poses, 1 µm) a move of
+/// the search carries an encoder offset in beside the effect it is about, which lowers the BIC
+/// by only 4 given the others (an effect needs 10). The final check must drop it, say so in the
+/// selection log, and leave it out of the named effects.
+#[test]
+fn the_final_check_drops_what_a_move_carried_in_without_support() {
+    let sigma = 1.0;
+    let hidden = ["scale", "gear_ratio"];
+    let mut truth = sweep_case_truth(&hidden, 1004, sigma).scaled(0.5);
+    truth.drift_um_per_s = [0.012, -0.008];
+    let data = generate(&truth, Poses::Random(120), 5000 + 1004);
+    let r = diagnose(&data, &FiveBar::paper_nominal(), Some(sigma)).expect("diagnosis runs");
+    let context = format!("{}\nlog: {:#?}", table(&r), r.selection_log);
+    assert!(
+        r.selection_log
+            .iter()
+            .any(|l| l.starts_with("drop encoder_offset")),
+        "the final check dropped nothing: {context}"
+    );
+    assert!(
+        r.steps.iter().all(|s| s.effect != "encoder_offset"),
+        "a member without support is named: {context}"
+    );
+}
