@@ -305,12 +305,15 @@ fn the_dynamics_are_identified_and_diagnosed_through_the_qemu_firmware() {
     assert!(last <= 0.5 * initial, "{initial} -> {last} um");
     assert!(r["confounded"].is_array() && r["unexplained"].is_boolean());
     // The block keeps the image's distal inertias: lumped as the plant's are compared.
-    // The updated block is the image's moved towards the plant: most of the image's error gone
-    // (this run's scatter, above, bounds how much).
+    // The updated block is the image's moved towards the plant: most of the inertias' error
+    // gone; the tool mass closer than the image's (this run's scatter, above, bounds how much:
+    // its tool-mass estimate has landed up to 16 % off between runs; the co-simulated test
+    // below, which is deterministic, holds it within 5 %).
     let updated = lumped(&params(&read_json(&dir.join("updated.json"))));
     for k in 0..3 {
+        let share = if k == 2 { 1.0 } else { 0.6 };
         assert!(
-            (updated[k] - truth[k]).abs() < 0.6 * (image_block[k] - truth[k]).abs(),
+            (updated[k] - truth[k]).abs() < share * (image_block[k] - truth[k]).abs(),
             "updated {k}: {} vs the plant's {} (image {})",
             updated[k],
             truth[k],
