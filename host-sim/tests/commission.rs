@@ -20,15 +20,8 @@
 //! controller); the two run side by side.
 
 use host_sim::link::link_protocol::calibration_image_id;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Command, Output};
-
-fn workspace_root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .parent()
-        .expect("host-sim is in the workspace")
-        .to_path_buf()
-}
 
 include!("../../tests/support/firmware_build.rs");
 

@@ -29,13 +29,6 @@ use host_sim::link::{figure_knots, stream_knots, ClientError, LinkClient};
 use host_sim::machine_spec::MachineSpec;
 use host_sim::plant::PlantConfig;
 
-fn workspace_root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .parent()
-        .expect("host-sim is in the workspace")
-        .to_path_buf()
-}
-
 include!("../../tests/support/firmware_build.rs");
 
 fn firmware() -> PathBuf {

@@ -28,13 +28,6 @@ mod synthetic {
     include!("../../firmware/src/board/qemu/synthetic_image.rs");
 }
 
-fn workspace_root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .parent()
-        .expect("host-sim is in the workspace")
-        .to_path_buf()
-}
-
 fn build_firmware() -> PathBuf {
     build_firmware_bin(&workspace_root(), "firmware")
 }

@@ -14,7 +14,7 @@
 //! Needs the thumbv7em-none-eabihf target and qemu-system-arm (`bash tests/run-all.sh`
 //! installs both); the firmware is built into `target/system-tests`, as `link_qemu` does.
 use std::net::TcpListener;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Child, Command, Output};
 
 use serde_json::Value;
@@ -25,13 +25,6 @@ mod machine {
 }
 mod synthetic {
     include!("../../firmware/src/board/qemu/synthetic_image.rs");
-}
-
-fn workspace_root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .parent()
-        .expect("host-sim is in the workspace")
-        .to_path_buf()
 }
 
 include!("../../tests/support/firmware_build.rs");

@@ -1,5 +1,14 @@
 // Shared by the tests that run a firmware binary under QEMU (`tests/tests/same_core_on_mcu.rs`,
-// `host-sim/tests/link_qemu.rs`), included with `include!`: building it, one way.
+// `host-sim/tests/link_qemu.rs`, `cosim.rs`, `commission.rs`, `moving_machine.rs`), included with
+// `include!`: where the workspace is, and building it, one way.
+
+/// The workspace's root: the including crate (`tests/`, `host-sim/`) sits one level below it.
+fn workspace_root() -> std::path::PathBuf {
+    std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .parent()
+        .expect("the crate is in the workspace")
+        .to_path_buf()
+}
 
 /// Builds the firmware binary `bin` for the Cortex-M4F (release) into `target/system-tests`
 /// under `root` (its own target directory, so that the test does not wait on the lock of the

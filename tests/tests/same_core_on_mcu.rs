@@ -19,13 +19,6 @@ mod cases {
 use std::path::PathBuf;
 use std::process::Command;
 
-fn workspace_root() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .parent()
-        .expect("tests/ has a parent")
-        .to_path_buf()
-}
-
 /// Builds the golden firmware and returns its ELF.
 fn build_golden() -> PathBuf {
     build_firmware_bin(&workspace_root(), "golden")
