@@ -8,7 +8,6 @@
 //! firmware's worst servo step and overruns (its own measurement, from its tick), the late
 //! samples, and the exchange's size. The wall time depends on the machine and its load; the
 //! CPU times much less.
-use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use host_sim::cosim::{commissioning_image, CoSim, CoSimOptions, CoSimStats};
@@ -16,13 +15,6 @@ use host_sim::link::link_protocol::{Command, ModeCode, Response};
 use host_sim::link::{figure_knots, stream_knots};
 use host_sim::machine_spec::MachineSpec;
 use host_sim::plant::PlantConfig;
-
-fn workspace_root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .parent()
-        .expect("host-sim is in the workspace")
-        .to_path_buf()
-}
 
 include!("../../tests/support/firmware_build.rs");
 

@@ -1,5 +1,5 @@
 // Shared by the tests that run a firmware binary under QEMU (`tests/tests/same_core_on_mcu.rs`,
-// `host-sim/tests/link_qemu.rs`, `cosim.rs`, `commission.rs`, `moving_machine.rs`), included with
+// `host-sim/tests/link_qemu.rs`, `cosim.rs`, `commission.rs`, `moving_machine.rs`, the cosim bench), included with
 // `include!`: where the workspace is, and building it, one way.
 
 /// The workspace's root: the including crate (`tests/`, `host-sim/`) sits one level below it.
