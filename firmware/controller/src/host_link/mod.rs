@@ -480,6 +480,9 @@ fn link_is_source(device: &impl Device) -> Result<(), LinkError> {
 /// has not yet reached its hold point (the source runs up to
 /// [`QUEUE_SLOTS`](crate::setpoints::QUEUE_SLOTS) samples, 31.5 ms, ahead of the servo through
 /// the setpoint queue; "not moving" before then let a host read a setpoint short of the end).
+/// In Running, a source still paused by the last stop or re-engage counts as moving too: it
+/// refuses knots as busy until the link resumes it at the servo's setpoint (a sample or two
+/// later, [`LinkHandler::poll`]), so "not moving" always means a stream may start.
 /// With a built-in source the link cannot see its plan: the last sample's setpoint changed.
 fn motion_under_way(s: &Status, device: &mut impl Device) -> bool {
     if matches!(s.mode, Mode::Stopping(_)) || s.blending {
@@ -488,8 +491,9 @@ fn motion_under_way(s: &Status, device: &mut impl Device) -> bool {
     if !device.link_drives_motion() {
         return s.mode == Mode::Running && s.setpoint_moved;
     }
-    let (playing, hold) = device.with_stream(|m| (m.is_playing(), m.hold_point_mm()));
-    playing || (s.mode == Mode::Running && hold.is_some_and(|p| p != s.setpoint_mm))
+    let (playing, paused, hold) =
+        device.with_stream(|m| (m.is_playing(), m.is_paused(), m.hold_point_mm()));
+    playing || (s.mode == Mode::Running && (paused || hold.is_some_and(|p| p != s.setpoint_mm)))
 }
 
 /// The calibration store is written only while nothing moves.

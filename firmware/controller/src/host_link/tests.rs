@@ -553,6 +553,46 @@ fn stop_disable_enable_and_homing() {
     );
 }
 
+/// Between a re-engage and the link resuming its stream, the stream is paused and refuses
+/// knots as busy: the status must say "moving" then, or a host that waits for "not moving"
+/// before it streams is refused.
+#[test]
+fn not_moving_means_a_stream_may_start() {
+    let (settings, img) = (settings(), image(3e-4));
+    let mut r = rig(&settings, &img);
+    let mut h = LinkHandler::new();
+    assert_eq!(send(&mut h, &mut r, 1, Command::Stop), Ok(Response::Done));
+    run(&mut h, &mut r, 400);
+    assert_eq!(r.status.mode, Mode::Holding(Fault::StopCommanded));
+    assert_eq!(send(&mut h, &mut r, 2, Command::Enable), Ok(Response::Done));
+    let mut seen_paused_running = false;
+    for k in 0..10u16 {
+        r.step();
+        let paused_running = r.status.mode == Mode::Running && r.stream.is_paused();
+        seen_paused_running |= paused_running;
+        let Ok(Response::Status(s)) = send(&mut h, &mut r, 10 + k, Command::Status) else {
+            panic!()
+        };
+        if paused_running {
+            assert!(s.moving, "paused in Running, about to resume: {s:?}");
+        }
+        if !s.moving {
+            // The reply's own poll may have resumed the stream: what counts is that a stream
+            // can start now.
+            assert!(!r.stream.is_paused() && !r.stream.is_moving(), "{s:?}");
+        }
+        let _ = h.poll(&mut r);
+    }
+    assert!(
+        seen_paused_running,
+        "the window this test is about never opened"
+    );
+    let Ok(Response::Status(s)) = send(&mut h, &mut r, 30, Command::Status) else {
+        panic!()
+    };
+    assert!(!s.moving, "resumed and at rest: {s:?}");
+}
+
 #[test]
 fn a_bad_image_is_refused_and_the_old_one_stays() {
     let (settings, img) = (settings(), image(3e-4));
