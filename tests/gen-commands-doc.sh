@@ -2,8 +2,11 @@
 # Regenerates docs/reference/commands.md from `host-sim <command> --help` (every command and
 # flag, as the binary states them). Run after changing a flag:
 #
-#   bash tests/gen-commands-doc.sh
+#   bash tests/gen-commands-doc.sh           # rewrites the page
+#   bash tests/gen-commands-doc.sh --check   # fails if the page differs from the binary's help
 set -euo pipefail
+check=0
+[ "${1:-}" = "--check" ] && check=1
 cd "$(dirname "$0")/.."
 # HOST_SIM_BIN: a host-sim binary already built (the help text is the same in every profile).
 if [ -n "${HOST_SIM_BIN:-}" ]; then
@@ -50,6 +53,14 @@ commands=$("$bin" --help | sed -n '/^Commands:/,/^$/p' | awk 'NR > 1 && $1 != "h
         fi
     done
 } > "$tmp"
+if [ $check = 1 ]; then
+    if ! diff -u "$out" "$tmp"; then
+        echo "$out is not what the binary's --help says: run bash tests/gen-commands-doc.sh" >&2
+        exit 1
+    fi
+    echo "$out matches the binary's help" >&2
+    exit 0
+fi
 mv "$tmp" "$out"
 trap - EXIT
 echo "wrote $out" >&2

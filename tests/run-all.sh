@@ -10,7 +10,8 @@
 #   0. formatting: cargo fmt --all --check; the documentation's links resolve
 #   1. host tests of kinematics-core, the firmware's controller crate, host-sim and the
 #      cross-crate tests (cargo test; the same-core test builds the firmware's golden binary and
-#      runs it under QEMU)
+#      runs it under QEMU); the commands reference page is
+#      checked against the binary's --help
 #   2. kinematics-core builds for the MCU (thumbv7em-none-eabihf, no_std)
 #   3. firmware under QEMU: the real app against the in-firmware plant (cargo qemu-test)
 #   4. firmware benchmarks under QEMU, printing BENCH <name> <instructions> <estimated cycles>
@@ -23,7 +24,8 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-step() { printf '\n=== %s\n' "$*"; }
+# Each step's line carries the seconds since the start: where CI time goes.
+step() { printf '\n=== [%4d s] %s\n' "$SECONDS" "$*"; }
 
 step "setup: Rust target thumbv7em-none-eabihf"
 if ! rustup target list --installed | grep -qx thumbv7em-none-eabihf; then
@@ -56,6 +58,9 @@ bash tests/check-doc-links.sh
 
 step "host tests"
 cargo test --locked
+
+step "the commands reference is the binary's help (docs/reference/commands.md)"
+HOST_SIM_BIN=target/debug/host-sim bash tests/gen-commands-doc.sh --check
 
 step "kinematics-core for the MCU"
 cargo build --locked -p kinematics-core --target thumbv7em-none-eabihf --release

@@ -42,15 +42,8 @@ use std::time::Duration;
 #[derive(clap::Args, Debug)]
 #[command(group(clap::ArgGroup::new("source").required(true).args(["tcp", "serial", "telemetry", "plant"])))]
 pub struct Args {
-    /// A controller's link on a TCP socket (QEMU): HOST:PORT.
-    #[arg(long)]
-    pub tcp: Option<String>,
-    /// A controller's link on a serial port (the real board), 8N1.
-    #[arg(long)]
-    pub serial: Option<PathBuf>,
-    /// The serial port's baud rate (default 115200). Only with --serial.
-    #[arg(long)]
-    pub baud: Option<u32>,
+    #[command(flatten)]
+    pub link: super::link_args::LinkArgs,
     /// Seconds to wait for each reply of the controller.
     #[arg(long, default_value_t = 5.0)]
     pub timeout_s: f64,
@@ -151,9 +144,7 @@ pub fn run(args: &Args) -> Result<()> {
             args.decimation
         );
     }
-    if args.baud.is_some() && args.serial.is_none() {
-        bail!("--baud applies to --serial only");
-    }
+    args.link.transport()?;
     if args.telemetry.is_some() && (args.telemetry_csv.is_some() || args.knots_out.is_some()) {
         bail!("--telemetry-csv and --knots-out record a run: not with --telemetry");
     }
@@ -221,35 +212,9 @@ pub fn run(args: &Args) -> Result<()> {
             slack: 10 * timeout,
             poll: LINK_POLL,
         };
-        let (source, id) = match (&args.tcp, &args.serial) {
-            (Some(addr), _) => {
-                let mut client = LinkClient::connect_tcp(addr, timeout).with_context(|| {
-                    format!(
-                        "connecting to {addr}: is a controller listening there? (QEMU: \
-                         docs/guides/identify-dynamics.md says how to start it)"
-                    )
-                })?;
-                (
-                    format!("controller at {addr}"),
-                    through(&mut client, &bytes, &opts, &samples)?,
-                )
-            }
-            (None, Some(path)) => {
-                let baud = args.baud.unwrap_or(115_200);
-                if baud == 0 {
-                    bail!("--baud must be a positive number of bits per second");
-                }
-                let mut client =
-                    LinkClient::open_serial(path, baud, timeout).with_context(|| {
-                        format!("opening the serial port {} at {baud} Bd", path.display())
-                    })?;
-                (
-                    format!("controller on {}", path.display()),
-                    through(&mut client, &bytes, &opts, &samples)?,
-                )
-            }
-            (None, None) => bail!("give --tcp, --serial, --telemetry or --plant"),
-        };
+        let (transport, mut client) = args.link.open(timeout)?;
+        let id = through(&mut client, &bytes, &opts, &samples)?;
+        let source = transport.to_string();
         (source, id.result, Some(id.run))
     };
     // Everything computed before anything is written.

@@ -25,24 +25,12 @@ use host_sim::link::{figure_knots, parse_knots_csv, stream_knots, upload_calibra
 use kinematics_core::{CorrectionGrid, MachineRecord};
 use serde::Serialize;
 
-/// The STM32G474 firmware's link baud rate (`g474_plan::plan::LINK_BAUD`).
-const DEFAULT_BAUD: u32 = 115_200;
-
 /// Talk to a controller over its host link.
 #[derive(clap::Args, Debug)]
 #[command(group(clap::ArgGroup::new("transport").required(true).args(["tcp", "serial"])))]
 pub struct Args {
-    /// The controller's link on a TCP socket (QEMU): HOST:PORT.
-    #[arg(long)]
-    pub tcp: Option<String>,
-    /// The controller's link on a serial port (the real board's ST-LINK virtual COM port, e.g.
-    /// /dev/ttyACM0), 8 data bits, no parity, 1 stop bit, no flow control.
-    #[arg(long)]
-    pub serial: Option<PathBuf>,
-    /// The serial port's baud rate (default 115200, the STM32G474 firmware's). Only with
-    /// --serial.
-    #[arg(long)]
-    pub baud: Option<u32>,
+    #[command(flatten)]
+    pub link: super::link_args::LinkArgs,
     /// Seconds to wait for each reply (and for the connection).
     #[arg(long, default_value_t = 5.0)]
     pub timeout_s: f64,
@@ -258,26 +246,8 @@ pub fn run(args: &Args) -> Result<()> {
     if let Action::Upload { grid, machine } = &args.action {
         upload_image(grid, machine.as_deref())?;
     }
-    match (&args.tcp, &args.serial) {
-        (Some(_), _) if args.baud.is_some() => bail!("--baud applies to --serial only"),
-        (Some(addr), None) => {
-            let mut client = LinkClient::connect_tcp(addr, timeout)
-                .with_context(|| format!("connecting to {addr}"))?;
-            act_then_quiet(&mut client, &args.action, timeout, &mut outputs)
-        }
-        (None, Some(path)) => {
-            let baud = args.baud.unwrap_or(DEFAULT_BAUD);
-            if baud == 0 {
-                bail!("--baud must be a positive number of bits per second");
-            }
-            let mut client = LinkClient::open_serial(path, baud, timeout).with_context(|| {
-                format!("opening the serial port {} at {baud} Bd", path.display())
-            })?;
-            act_then_quiet(&mut client, &args.action, timeout, &mut outputs)
-        }
-        // clap's `transport` group enforces exactly one of them.
-        _ => bail!("give either --tcp HOST:PORT or --serial PATH"),
-    }
+    let (_, mut client) = args.link.open(timeout)?;
+    act_then_quiet(&mut client, &args.action, timeout, &mut outputs)
 }
 
 /// Longest wait `--timeout-s` may ask for (s): a day. Longer is a typo, and beyond ~1e19 s a

@@ -18,6 +18,7 @@ mod grid;
 mod identify;
 mod import;
 mod link;
+mod link_args;
 mod measure;
 mod plan;
 mod session;

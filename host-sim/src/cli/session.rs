@@ -35,15 +35,8 @@ pub enum InstrumentArg {
 #[derive(clap::Args, Debug)]
 #[command(group(clap::ArgGroup::new("transport").required(true).args(["tcp", "serial"])))]
 pub struct Args {
-    /// The controller's link on a TCP socket (QEMU): HOST:PORT.
-    #[arg(long)]
-    pub tcp: Option<String>,
-    /// The controller's link on a serial port (e.g. /dev/ttyACM0).
-    #[arg(long)]
-    pub serial: Option<PathBuf>,
-    /// The serial port's baud rate (default 115200).
-    #[arg(long)]
-    pub baud: Option<u32>,
+    #[command(flatten)]
+    pub link: super::link_args::LinkArgs,
     /// Seconds to wait for each reply.
     #[arg(long, default_value_t = 5.0)]
     pub timeout_s: f64,
@@ -149,22 +142,11 @@ pub fn run(args: &Args) -> Result<()> {
     opts.settle.following_error_rad = args.settle_following_error_urad * 1e-6;
     opts.settle.dwell_s = args.settle_dwell_s;
     let timeout = Duration::from_secs_f64(args.timeout_s);
-    let result = match (&args.tcp, &args.serial) {
-        (Some(_), _) if args.baud.is_some() => bail!("--baud applies to --serial only"),
-        (Some(addr), None) => {
-            let mut client = LinkClient::connect_tcp(addr, timeout)
-                .with_context(|| format!("connecting to {addr}"))?;
-            session(&mut client, args, &opts, &visits)
-        }
-        (None, Some(path)) => {
-            let baud = args.baud.unwrap_or(115_200);
-            let mut client = LinkClient::open_serial(path, baud, timeout)
-                .with_context(|| format!("opening {} at {baud} Bd", path.display()))?;
-            session(&mut client, args, &opts, &visits)
-        }
-        _ => bail!("give either --tcp HOST:PORT or --serial PATH"),
-    }
-    .with_context(|| format!("measuring {} (nothing written)", args.targets.display()))?;
+    let result = args
+        .link
+        .open(timeout)
+        .and_then(|(_, mut client)| session(&mut client, args, &opts, &visits))
+        .with_context(|| format!("measuring {} (nothing written)", args.targets.display()))?;
     write(args, &result, outputs)?;
     let r = &result.report;
     eprintln!(

@@ -171,6 +171,41 @@ impl LinkClient<Box<dyn serialport::SerialPort>> {
     }
 }
 
+/// Any byte stream a client runs on: a TCP socket, a serial port, a test's pipe.
+pub trait Port: Read + Write {}
+impl<T: Read + Write> Port for T {}
+
+/// Where a controller's link is.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Transport {
+    /// QEMU's `-serial tcp:...` socket: HOST:PORT.
+    Tcp(String),
+    /// A serial port (the real board), 8N1 at `baud`.
+    Serial { path: std::path::PathBuf, baud: u32 },
+}
+
+impl std::fmt::Display for Transport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Transport::Tcp(addr) => write!(f, "controller at {addr}"),
+            Transport::Serial { path, .. } => write!(f, "controller on {}", path.display()),
+        }
+    }
+}
+
+impl LinkClient<Box<dyn Port>> {
+    /// Connects over `transport` ([`LinkClient::connect_tcp`], [`LinkClient::open_serial`]):
+    /// one client type for either, so that a command is written once for both.
+    pub fn open(transport: &Transport, timeout: Duration) -> Result<Self, ClientError> {
+        Ok(match transport {
+            Transport::Tcp(addr) => LinkClient::connect_tcp(addr, timeout)?.boxed(),
+            Transport::Serial { path, baud } => {
+                LinkClient::open_serial(path, *baud, timeout)?.boxed()
+            }
+        })
+    }
+}
+
 impl<S: Read + Write> LinkClient<S> {
     /// A client over `io` (reads must time out, so that a silent controller is noticed);
     /// `timeout` bounds each request.
@@ -187,6 +222,22 @@ impl<S: Read + Write> LinkClient<S> {
             bad_frames: 0,
             timeout,
         })
+    }
+
+    /// The same client over its stream boxed (see [`LinkClient::open`]).
+    pub fn boxed(self) -> LinkClient<Box<dyn Port>>
+    where
+        S: 'static,
+    {
+        LinkClient {
+            io: Box::new(self.io),
+            reader: self.reader,
+            seq: self.seq,
+            telemetry: self.telemetry,
+            pending: self.pending,
+            bad_frames: self.bad_frames,
+            timeout: self.timeout,
+        }
     }
 
     /// The client with its next request numbered `first` (then counting up): where the run must
