@@ -308,6 +308,33 @@ fn played_peaks(
 
 /// The excitation for `spec`'s machine (see the module doc).
 pub fn excitation(spec: &MachineSpec, o: &ExcitationOptions) -> Result<Excitation, DynError> {
+    of_sections(spec, o, &SECTIONS)
+}
+
+/// The moving machine's check motion: a figure-eight about the workspace's centre (x at
+/// [`FIGURE_EIGHT_HZ`], y at twice that), faded in and out as the excitation's sections and
+/// built the same way (its size the largest within `o`'s limits, its knots checked as the
+/// controller plays them), one section of `o.section_s`. Another motion than the excitation's:
+/// the following error it shows is not one the identification was fitted to.
+pub fn figure_eight(spec: &MachineSpec, o: &ExcitationOptions) -> Result<Excitation, DynError> {
+    of_sections(spec, o, &[FIGURE_EIGHT])
+}
+
+/// The figure-eight's frequency along x (Hz): at the 2 g stream limit it reaches the
+/// acceleration limit at about a third of the paper workspace's half extents, at 1.5 m/s.
+pub const FIGURE_EIGHT_HZ: f64 = 1.6;
+
+const FIGURE_EIGHT: Section = Section {
+    freq_hz: [&[FIGURE_EIGHT_HZ], &[2.0 * FIGURE_EIGHT_HZ]],
+    weight: [&[1.0], &[1.0]],
+};
+
+/// The motion of `sections` one after the other (see the module doc).
+fn of_sections(
+    spec: &MachineSpec,
+    o: &ExcitationOptions,
+    sections: &[Section],
+) -> Result<Excitation, DynError> {
     for (name, v, lo, hi) in [
         (
             "acceleration (mm/s²)",
@@ -345,7 +372,7 @@ pub fn excitation(spec: &MachineSpec, o: &ExcitationOptions) -> Result<Excitatio
     }
     let half = spec.workspace.half_mm();
     let mut amplitudes = Vec::new();
-    for s in &SECTIONS {
+    for s in sections {
         // The weights' sum is the peak excursion per unit amplitude.
         let reach = [0, 1].map(|k| half[k] / s.weight[k].iter().sum::<f64>());
         let mut scale = 1.0;
@@ -364,7 +391,7 @@ pub fn excitation(spec: &MachineSpec, o: &ExcitationOptions) -> Result<Excitatio
     let n_per = (o.section_s / o.knot_s).round() as usize;
     let h = o.section_s / n_per as f64;
     let mut pos: [Vec<f64>; 2] = [vec![c[0]], vec![c[1]]];
-    for (s, amp) in SECTIONS.iter().zip(&amplitudes) {
+    for (s, amp) in sections.iter().zip(&amplitudes) {
         for i in 1..=n_per {
             let st = section_state(s, *amp, o.section_s, i as f64 * h);
             for k in 0..2 {

@@ -182,8 +182,20 @@ pub fn run_on_link<S: Read + Write>(
     opts: &LinkRunOptions,
     progress: Progress<'_>,
 ) -> Result<ExcitationRun, DynError> {
-    check_decimation(u32::from(opts.decimation))?;
     let ex = excitation(&opts.spec, &opts.excitation)?;
+    run_motion_on_link(client, ex, opts, progress)
+}
+
+/// Streams the motion `ex` (designed for the controller's limits: the excitation, or another
+/// motion built as it is, `excitation::figure_eight`) as [`run_on_link`] streams the excitation,
+/// and records its telemetry; `opts.excitation` is not used.
+pub fn run_motion_on_link<S: Read + Write>(
+    client: &mut LinkClient<S>,
+    ex: Excitation,
+    opts: &LinkRunOptions,
+    progress: Progress<'_>,
+) -> Result<ExcitationRun, DynError> {
+    check_decimation(u32::from(opts.decimation))?;
     let s = client.status()?;
     ready(&s)?;
     let c = ex.start_mm;
