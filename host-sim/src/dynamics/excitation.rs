@@ -320,8 +320,8 @@ pub fn figure_eight(spec: &MachineSpec, o: &ExcitationOptions) -> Result<Excitat
     of_sections(spec, o, &[FIGURE_EIGHT])
 }
 
-/// The figure-eight's frequency along x (Hz): at the 2 g stream limit it reaches the
-/// acceleration limit at about a third of the paper workspace's half extents, at 1.5 m/s.
+/// The figure-eight's frequency along x (Hz): fast enough that the acceleration limit sets its
+/// size (at the 2 g stream limit on the paper machine: 1.8 g peak, 870 mm/s).
 pub const FIGURE_EIGHT_HZ: f64 = 1.6;
 
 const FIGURE_EIGHT: Section = Section {
