@@ -494,4 +494,29 @@ mod tests {
         };
         assert!(excitation(&MachineSpec::paper(), &tight).is_err());
     }
+
+    /// The check motion: within the limits (checked as played), near the acceleration limit
+    /// on both machines (its size set by it: 1.8 g of 2 on the paper machine), back at rest at
+    /// the centre, another motion than the excitation's.
+    #[test]
+    fn the_figure_eight_keeps_the_limits_and_ends_at_rest() {
+        for spec in [
+            MachineSpec::paper(),
+            crate::io::machine_file::parse_machine(include_str!("../../machines/second.toml"))
+                .unwrap(),
+        ] {
+            let o = ExcitationOptions {
+                section_s: 4.0,
+                ..ExcitationOptions::default()
+            };
+            let f = figure_eight(&spec, &o).unwrap();
+            assert!(f.peak_accel_mm_s2 <= o.accel_mm_s2);
+            assert!(f.peak_accel_mm_s2 > 0.8 * o.accel_mm_s2, "{}", spec.name);
+            assert!((f.duration_s() - 4.0).abs() < 1e-9);
+            let end = f.path.motion_at(f.duration_s() + 1.0).position_mm;
+            let c = spec.workspace.centre_mm();
+            assert!((end[0] - c[0]).hypot(end[1] - c[1]) < 1e-3, "{end:?} {c:?}");
+            assert_ne!(f.knots, excitation(&spec, &o).unwrap().knots);
+        }
+    }
 }
