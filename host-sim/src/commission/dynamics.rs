@@ -121,6 +121,45 @@ pub struct MovingReport {
     pub before: Following,
 }
 
+impl DynamicsReport {
+    /// The step's line in the table, with the check motion run before the upload.
+    pub fn line(&self, shape: &MovingShape, before: &Following) -> String {
+        format!(
+            "tool {:.4} ± {:.4} kg, axis inertia {:.3e} / {:.3e} kg·m²; diagnosis named {} \
+             (RMS {:.2} → {:.2} µm); check motion ({:.1} g) before: {:.2} / {:.2} µm max / RMS",
+            self.tool_mass_kg,
+            self.tool_mass_std_dev_kg,
+            self.axis_inertia_kg_m2[0],
+            self.axis_inertia_kg_m2[1],
+            if self.diagnosis.named.is_empty() {
+                "nothing".to_string()
+            } else {
+                self.diagnosis.named.join(", ")
+            },
+            self.diagnosis.rms_before_um,
+            self.diagnosis.rms_after_um,
+            shape.peak_accel_g,
+            before.max_following_um,
+            before.rms_following_um
+        )
+    }
+}
+
+impl MovingReport {
+    /// The moving step's line in the table.
+    pub fn line(&self) -> String {
+        format!(
+            "check motion ({:.1} g) with the dynamics fed forward: {:.2} / {:.2} µm max / RMS \
+             following error at the tool (before the upload {:.2} / {:.2})",
+            self.peak_accel_g,
+            self.max_following_um,
+            self.rms_following_um,
+            self.before.max_following_um,
+            self.before.rms_following_um
+        )
+    }
+}
+
 /// What the dynamics step found and what it gives the image.
 pub struct Identified {
     /// The block for the image.

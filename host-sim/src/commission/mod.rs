@@ -582,29 +582,7 @@ pub fn commission<S: Read + Write>(
     let dy = dynamics::identify(j.client, spec, &model, mo).map_err(|e| at("dynamics")(&e))?;
     let (moving_before, shape, before_run) =
         dynamics::check_run(j.client, spec, &model, mo).map_err(|e| at("dynamics")(&e))?;
-    let r = &dy.report;
-    j.done(
-        "dynamics",
-        t,
-        format!(
-            "tool {:.4} ± {:.4} kg, axis inertia {:.3e} / {:.3e} kg·m²; diagnosis named {} \
-             (RMS {:.2} → {:.2} µm); check motion ({:.1} g) before: {:.2} / {:.2} µm max / RMS",
-            r.tool_mass_kg,
-            r.tool_mass_std_dev_kg,
-            r.axis_inertia_kg_m2[0],
-            r.axis_inertia_kg_m2[1],
-            if r.diagnosis.named.is_empty() {
-                "nothing".to_string()
-            } else {
-                r.diagnosis.named.join(", ")
-            },
-            r.diagnosis.rms_before_um,
-            r.diagnosis.rms_after_um,
-            shape.peak_accel_g,
-            moving_before.max_following_um,
-            moving_before.rms_following_um
-        ),
-    );
+    j.done("dynamics", t, dy.report.line(&shape, &moving_before));
     let extras = images::Extras {
         dynamics: Some(&dy.block),
         backlash: backlash.as_ref(),
@@ -746,19 +724,7 @@ pub fn commission<S: Read + Write>(
         rms_following_um: after.rms_following_um,
         before: moving_before,
     };
-    j.done(
-        "moving",
-        t,
-        format!(
-            "check motion ({:.1} g) with the dynamics fed forward: {:.2} / {:.2} µm max / RMS \
-             following error at the tool (before the upload {:.2} / {:.2})",
-            shape.peak_accel_g,
-            after.max_following_um,
-            after.rms_following_um,
-            moving_before.max_following_um,
-            moving_before.rms_following_um
-        ),
-    );
+    j.done("moving", t, moving.line());
 
     // The files.
     let mut files: Vec<(String, Vec<u8>)> = Vec::new();
