@@ -10,8 +10,10 @@ use anyhow::{bail, Context, Result};
 use host_sim::calib::image::commissioning_image;
 use host_sim::calib::machine::check_plant_fits;
 use host_sim::commission::cosim_instrument::CoSimInstrument;
+use host_sim::commission::dynamics::check_options;
 use host_sim::commission::{commission, CommissionOptions, Commissioned, StepReport, FILES};
 use host_sim::cosim::{CoSim, CoSimOptions};
+use host_sim::dynamics::session::LINK_POLL;
 use host_sim::io::atomic::Outputs;
 use host_sim::io::policy::CommandFiles;
 use host_sim::io::{json_text, KeyOrder};
@@ -58,6 +60,17 @@ pub struct Args {
     /// Grid rounds (1 or 2).
     #[arg(long, default_value_t = 2)]
     pub grid_rounds: usize,
+    /// The dynamics step: the length of each of the excitation's two sections (s; 1.5 to 600).
+    /// Shorter is quicker and identifies less precisely.
+    #[arg(long, default_value_t = 8.0)]
+    pub excitation_section_s: f64,
+    /// The moving steps: the check motion's length (s; 1.5 to 600).
+    #[arg(long, default_value_t = 4.0)]
+    pub check_motion_s: f64,
+    /// The excitation's and the check motion's knot spacing (ms; 5 to 200). Under QEMU on
+    /// TCP, whose clock outruns its UART, give 80.
+    #[arg(long, default_value_t = 50.0)]
+    pub knot_ms: f64,
     /// Seconds to wait for each reply (--tcp, --serial).
     #[arg(long, default_value_t = 10.0)]
     pub timeout_s: f64,
@@ -110,6 +123,20 @@ pub fn run(args: &Args) -> Result<()> {
     o.identification_poses = args.identification_poses;
     o.verify_targets = args.verify_targets;
     o.grid_rounds = args.grid_rounds;
+    o.moving.excitation.section_s = args.excitation_section_s;
+    o.moving.excitation.knot_s = args.knot_ms * 1e-3;
+    o.moving.check_s = args.check_motion_s;
+    // A co-simulated link's reads advance the simulation: no wall-clock wait between polls.
+    o.moving.poll = if args.qemu { Duration::ZERO } else { LINK_POLL };
+    // The motions designed before a controller is touched: options that make none are refused.
+    check_options(&spec, &o.moving).map_err(|e| {
+        anyhow::anyhow!(
+            "dynamics: {e} (--excitation-section-s {}, --check-motion-s {}, --knot-ms {})",
+            args.excitation_section_s,
+            args.check_motion_s,
+            args.knot_ms
+        )
+    })?;
     let timeout = Duration::from_secs_f64(args.timeout_s);
     let done = if args.qemu {
         let mut plant = PlantConfig::by_name(&args.plant)?;
@@ -169,7 +196,7 @@ pub fn run(args: &Args) -> Result<()> {
     let text = write(&done, args, outputs)?;
     let r = &done.report;
     eprintln!(
-        "commission: done in {:.1} s: {} points measured through the controller; calibration {} in force; at {} fresh targets {:.3} / {:.3} µm max / RMS (goal {} / {}: {})",
+        "commission: done in {:.1} s: {} points measured through the controller; calibration {} in force; at {} fresh targets {:.3} / {:.3} µm max / RMS (goal {} / {}: {}); tool mass {:.4} kg identified, the check motion's following error {:.2} µm max (before the dynamics {:.2})",
         started.elapsed().as_secs_f64(),
         r.session_points,
         r.calibration_id,
@@ -178,7 +205,10 @@ pub fn run(args: &Args) -> Result<()> {
         r.final_.rms_um,
         r.final_.target_max_um,
         r.final_.target_rms_um,
-        if r.final_.met { "met" } else { "NOT met" }
+        if r.final_.met { "met" } else { "NOT met" },
+        r.dynamics.tool_mass_kg,
+        r.moving.max_following_um,
+        r.moving.before.max_following_um
     );
     print!("{text}");
     Ok(())

@@ -86,8 +86,8 @@ enum Tool {
     /// each point settled and read (typed in, or the tracker's export joined later by import).
     Session(session::Args),
     /// The machine builder's whole journey through the controller (co-simulated with --qemu,
-    /// or one you started: --tcp, --serial): identify, home, plan, measure, fit, grid, upload,
-    /// verify; a table per step on stderr, the report as JSON.
+    /// or one you started: --tcp, --serial): identify, home, plan, measure, fit, diagnose,
+    /// dynamics, grid, upload, verify, moving; a table per step on stderr, the report as JSON.
     Commission(commission::Args),
 }
 

@@ -1,7 +1,9 @@
 //! The machine builder's journey through the controller, in one call: identify → home → plan →
-//! measure → fit (the instrument's frame registered) → diagnose → grid, two rounds (each
-//! measured through the calibration uploaded before it) → upload → verify at fresh targets →
-//! the report.
+//! measure → fit (the instrument's frame registered) → diagnose → dynamics (the excitation's
+//! telemetry identified and diagnosed, the check motion run without the dynamics) → grid, two
+//! rounds (each measured through the calibration uploaded before it, the identified dynamics
+//! fed forward) → upload (the grid with the dynamics block) → verify at fresh targets → moving
+//! (the check motion again: the following error the uploaded dynamics give) → the report.
 //!
 //! Everything goes over the controller's link (`link::LinkClient`: the co-simulation, QEMU on
 //! TCP, a serial port) with an instrument beside it (`session::instrument`); every measurement
@@ -19,9 +21,11 @@
 //! | measure | the identification poses, commanded with the calibration in force | [`session::run`] |
 //! | fit | `full`, the instrument's frame registered | [`calib::fit`](crate::calib::fit) |
 //! | diagnose | the static diagnosis on the same readings; a named backlash goes into the image, the six-bar's effects to the grid | [`diagnose`](crate::diagnose) |
+//! | dynamics | the fitted model's image uploaded (no dynamics block); the excitation streamed, its telemetry identified and diagnosed; the check motion | [`dynamics`] |
 //! | grid 1, grid 2 | the nodes inside the workspace measured through the fitted model, then through grid 1; the grid from both rounds (nodes outside the workspace estimated: `calib::grid::unmeasured`) | [`calib::grid`](crate::calib::grid) |
-//! | upload | the final image; its id read back | [`link::upload_calibration`] |
+//! | upload | the final image (the last grid, the dynamics block); its id read back | [`link::upload_calibration`] |
 //! | verify | fresh targets through the controller, the final image in force | [`session::run`] |
+//! | moving | the check motion with the final image: its following error at the tool | [`dynamics`] |
 //!
 //! The accuracy (`final`): with a simulated machine, where the tool really landed (the plant's
 //! tool point as a noiseless instrument reads it, mapped into the registered machine frame)
@@ -30,6 +34,7 @@
 //! for the caller to write together once the journey is complete.
 
 pub mod cosim_instrument;
+pub mod dynamics;
 pub mod images;
 pub mod motion;
 
@@ -43,9 +48,11 @@ use crate::calib::protocol::Visit;
 use crate::diagnose::model_out::extended_model;
 use crate::diagnose::{diagnose, DiagnoseOptions};
 use crate::io::commanded_csv::format_commanded;
+use crate::io::knots_csv::knots_text;
 use crate::io::measurement_csv::{format_measurements, Measurement};
 use crate::io::model_file::{model_file_text, ModelFile};
 use crate::io::targets_csv::format_target_list;
+use crate::io::telemetry_csv::telemetry_text;
 use crate::link::link_protocol::{calibration_image_id, Command, HomingState, Response};
 use crate::link::{upload_calibration, ClientError, LinkClient};
 use crate::loop_closure::SixBarDesign;
@@ -90,6 +97,8 @@ pub struct CommissionOptions {
     /// Grid rounds: 1 or 2.
     pub grid_rounds: usize,
     pub session: SessionOptions,
+    /// The dynamics and moving steps.
+    pub moving: dynamics::MovingOptions,
 }
 
 impl CommissionOptions {
@@ -102,6 +111,7 @@ impl CommissionOptions {
             verify_targets: crate::calib::plan::VERIFY_TARGETS,
             grid_rounds: 2,
             session: SessionOptions::for_machine(spec),
+            moving: dynamics::MovingOptions::default(),
         }
     }
 }
@@ -180,12 +190,16 @@ pub struct CommissionReport {
     pub fit: FitReport,
     pub diagnosis: DiagnosisSummary,
     pub grid: Vec<GridRound>,
+    /// The dynamics identified through the controller (the image's block) and diagnosed.
+    pub dynamics: dynamics::DynamicsReport,
     /// The id the controller reports after the final upload: the CRC-32C of `grid.bin`
     /// (hex and number).
     pub calibration_id: String,
     pub calibration_id_u32: u32,
     #[serde(rename = "final")]
     pub final_: FinalReport,
+    /// The check motion's following error with the final image, and before its upload.
+    pub moving: dynamics::MovingReport,
     pub session_points: usize,
     pub wall_s: f64,
 }
@@ -197,7 +211,7 @@ pub struct Commissioned {
 }
 
 /// The names of the files a journey writes.
-pub const FILES: [&str; 12] = [
+pub const FILES: [&str; 17] = [
     "plan_identify.csv",
     "plan_grid.csv",
     "plan_verify.csv",
@@ -209,6 +223,11 @@ pub const FILES: [&str; 12] = [
     "model.json",
     "grid.bin",
     "grid.csv",
+    "dynamics.json",
+    "excitation_telemetry.csv",
+    "excitation_knots.csv",
+    "moving_telemetry_before.csv",
+    "moving_telemetry.csv",
     "commission.json",
 ];
 
@@ -543,8 +562,29 @@ pub fn commission<S: Read + Write>(
             )
         },
     );
+    // The moving machine, through the fitted model's image without dynamics (what the
+    // commissioning image feeds forward: nothing): the dynamics identified and diagnosed, the
+    // check motion as this image runs it. The grid rounds then run with the identified
+    // dynamics fed forward, as the final image will: the static positions the grid learns
+    // depend on how the servo approaches them.
+    let t = Instant::now();
+    let image0 = images::model_image(
+        &model,
+        spec,
+        images::Extras {
+            dynamics: None,
+            backlash: backlash.as_ref(),
+        },
+    )
+    .map_err(|e| at("dynamics")(&e))?;
+    j.upload("dynamics", &image0)?;
+    let mo = &o.moving;
+    let dy = dynamics::identify(j.client, spec, &model, mo).map_err(|e| at("dynamics")(&e))?;
+    let (moving_before, shape, before_run) =
+        dynamics::check_run(j.client, spec, &model, mo).map_err(|e| at("dynamics")(&e))?;
+    j.done("dynamics", t, dy.report.line(&shape, &moving_before));
     let extras = images::Extras {
-        dynamics: None,
+        dynamics: Some(&dy.block),
         backlash: backlash.as_ref(),
     };
 
@@ -647,7 +687,7 @@ pub fn commission<S: Read + Write>(
         "upload",
         t,
         format!(
-            "grid.bin ({} bytes) in force: calibration id {id:#010x}",
+            "grid.bin ({} bytes, the dynamics block included) in force: calibration id {id:#010x}",
             grid_bin.len()
         ),
     );
@@ -668,6 +708,23 @@ pub fn commission<S: Read + Write>(
             final_.measured_rms_um
         ),
     );
+
+    let t = Instant::now();
+    let (after, _, after_run) =
+        dynamics::check_run(j.client, spec, &model, mo).map_err(|e| at("moving")(&e))?;
+    let moving = dynamics::MovingReport {
+        motion: format!(
+            "figure-eight at the stream limits, {:.1} g",
+            shape.peak_accel_g
+        ),
+        peak_accel_g: shape.peak_accel_g,
+        peak_speed_mm_s: shape.peak_speed_mm_s,
+        duration_s: shape.duration_s,
+        max_following_um: after.max_following_um,
+        rms_following_um: after.rms_following_um,
+        before: moving_before,
+    };
+    j.done("moving", t, moving.line());
 
     // The files.
     let mut files: Vec<(String, Vec<u8>)> = Vec::new();
@@ -721,6 +778,20 @@ pub fn commission<S: Read + Write>(
         "grid.csv".into(),
         grid::format_csv(&final_grid.0.built.nodes).into_bytes(),
     ));
+    let dynamics_json = crate::io::json_text(&dy.file, crate::io::KeyOrder::Declared)
+        .map_err(|e| at("files")(&e))?;
+    files.push(("dynamics.json".into(), dynamics_json.into_bytes()));
+    for (name, text) in [
+        ("excitation_telemetry.csv", telemetry_text(&dy.run.log)),
+        ("excitation_knots.csv", knots_text(dy.run.path.knots())),
+        (
+            "moving_telemetry_before.csv",
+            telemetry_text(&before_run.log),
+        ),
+        ("moving_telemetry.csv", telemetry_text(&after_run.log)),
+    ] {
+        files.push((name.into(), text.into_bytes()));
+    }
     let report = CommissionReport {
         machine: spec.name.clone(),
         controller,
@@ -729,9 +800,11 @@ pub fn commission<S: Read + Write>(
         fit: fit_report,
         diagnosis,
         grid: rounds,
+        dynamics: dy.report,
         calibration_id: format!("{id:#010x}"),
         calibration_id_u32: id,
         final_,
+        moving,
         session_points: j.points,
         wall_s: round3(begun.elapsed().as_secs_f64()),
     };

@@ -308,6 +308,33 @@ fn played_peaks(
 
 /// The excitation for `spec`'s machine (see the module doc).
 pub fn excitation(spec: &MachineSpec, o: &ExcitationOptions) -> Result<Excitation, DynError> {
+    of_sections(spec, o, &SECTIONS)
+}
+
+/// The moving machine's check motion: a figure-eight about the workspace's centre (x at
+/// [`FIGURE_EIGHT_HZ`], y at twice that), faded in and out as the excitation's sections and
+/// built the same way (its size the largest within `o`'s limits, its knots checked as the
+/// controller plays them), one section of `o.section_s`. Another motion than the excitation's:
+/// the following error it shows is not one the identification was fitted to.
+pub fn figure_eight(spec: &MachineSpec, o: &ExcitationOptions) -> Result<Excitation, DynError> {
+    of_sections(spec, o, &[FIGURE_EIGHT])
+}
+
+/// The figure-eight's frequency along x (Hz): fast enough that the acceleration limit sets its
+/// size (at the 2 g stream limit on the paper machine: 1.8 g peak, 870 mm/s).
+pub const FIGURE_EIGHT_HZ: f64 = 1.6;
+
+const FIGURE_EIGHT: Section = Section {
+    freq_hz: [&[FIGURE_EIGHT_HZ], &[2.0 * FIGURE_EIGHT_HZ]],
+    weight: [&[1.0], &[1.0]],
+};
+
+/// The motion of `sections` one after the other (see the module doc).
+fn of_sections(
+    spec: &MachineSpec,
+    o: &ExcitationOptions,
+    sections: &[Section],
+) -> Result<Excitation, DynError> {
     for (name, v, lo, hi) in [
         (
             "acceleration (mm/s²)",
@@ -345,7 +372,7 @@ pub fn excitation(spec: &MachineSpec, o: &ExcitationOptions) -> Result<Excitatio
     }
     let half = spec.workspace.half_mm();
     let mut amplitudes = Vec::new();
-    for s in &SECTIONS {
+    for s in sections {
         // The weights' sum is the peak excursion per unit amplitude.
         let reach = [0, 1].map(|k| half[k] / s.weight[k].iter().sum::<f64>());
         let mut scale = 1.0;
@@ -364,7 +391,7 @@ pub fn excitation(spec: &MachineSpec, o: &ExcitationOptions) -> Result<Excitatio
     let n_per = (o.section_s / o.knot_s).round() as usize;
     let h = o.section_s / n_per as f64;
     let mut pos: [Vec<f64>; 2] = [vec![c[0]], vec![c[1]]];
-    for (s, amp) in SECTIONS.iter().zip(&amplitudes) {
+    for (s, amp) in sections.iter().zip(&amplitudes) {
         for i in 1..=n_per {
             let st = section_state(s, *amp, o.section_s, i as f64 * h);
             for k in 0..2 {
@@ -466,5 +493,30 @@ mod tests {
             ..ExcitationOptions::default()
         };
         assert!(excitation(&MachineSpec::paper(), &tight).is_err());
+    }
+
+    /// The check motion: within the limits (checked as played), near the acceleration limit
+    /// on both machines (its size set by it: 1.8 g of 2 on the paper machine), back at rest at
+    /// the centre, another motion than the excitation's.
+    #[test]
+    fn the_figure_eight_keeps_the_limits_and_ends_at_rest() {
+        for spec in [
+            MachineSpec::paper(),
+            crate::io::machine_file::parse_machine(include_str!("../../machines/second.toml"))
+                .unwrap(),
+        ] {
+            let o = ExcitationOptions {
+                section_s: 4.0,
+                ..ExcitationOptions::default()
+            };
+            let f = figure_eight(&spec, &o).unwrap();
+            assert!(f.peak_accel_mm_s2 <= o.accel_mm_s2);
+            assert!(f.peak_accel_mm_s2 > 0.8 * o.accel_mm_s2, "{}", spec.name);
+            assert!((f.duration_s() - 4.0).abs() < 1e-9);
+            let end = f.path.motion_at(f.duration_s() + 1.0).position_mm;
+            let c = spec.workspace.centre_mm();
+            assert!((end[0] - c[0]).hypot(end[1] - c[1]) < 1e-3, "{end:?} {c:?}");
+            assert_ne!(f.knots, excitation(&spec, &o).unwrap().knots);
+        }
     }
 }

@@ -155,10 +155,14 @@ fn ready(s: &StatusReport) -> Result<(), DynError> {
     Ok(())
 }
 
-/// Waits until the controller's motion has ended (reading the link meanwhile); its status.
+/// Waits until the controller's motion has ended (reading the link meanwhile: for `poll`
+/// between status requests on a link that runs by itself; on a co-simulated one, `poll` zero,
+/// the status requests alone run the simulation, so that the run takes the same simulated time
+/// whatever the host's speed); its status.
 fn wait_until_still<S: Read + Write>(
     client: &mut LinkClient<S>,
     limit: Duration,
+    poll: Duration,
 ) -> Result<StatusReport, DynError> {
     let start = Instant::now();
     loop {
@@ -171,7 +175,9 @@ fn wait_until_still<S: Read + Write>(
                 "the controller is still moving after {limit:?}: {s:?}"
             )));
         }
-        client.listen(Duration::from_millis(20))?;
+        if !poll.is_zero() {
+            client.listen(poll)?;
+        }
     }
 }
 
@@ -182,8 +188,20 @@ pub fn run_on_link<S: Read + Write>(
     opts: &LinkRunOptions,
     progress: Progress<'_>,
 ) -> Result<ExcitationRun, DynError> {
-    check_decimation(u32::from(opts.decimation))?;
     let ex = excitation(&opts.spec, &opts.excitation)?;
+    run_motion_on_link(client, ex, opts, progress)
+}
+
+/// Streams the motion `ex` (designed for the controller's limits: the excitation, or another
+/// motion built as it is, `excitation::figure_eight`) as [`run_on_link`] streams the excitation,
+/// and records its telemetry; `opts.excitation` is not used.
+pub fn run_motion_on_link<S: Read + Write>(
+    client: &mut LinkClient<S>,
+    ex: Excitation,
+    opts: &LinkRunOptions,
+    progress: Progress<'_>,
+) -> Result<ExcitationRun, DynError> {
+    check_decimation(u32::from(opts.decimation))?;
     let s = client.status()?;
     ready(&s)?;
     let c = ex.start_mm;
@@ -195,7 +213,7 @@ pub fn run_on_link<S: Read + Write>(
         client.request(Command::MoveTo {
             target_mm: [c[0] as f32, c[1] as f32],
         })?;
-        rest = wait_until_still(client, opts.slack + Duration::from_secs(5))?;
+        rest = wait_until_still(client, opts.slack + Duration::from_secs(5), opts.poll)?;
         ready(&rest)?;
     }
     let start = rest.setpoint_mm.map(f64::from);
@@ -211,12 +229,16 @@ pub fn run_on_link<S: Read + Write>(
         wait_until_still(
             client,
             opts.slack + Duration::from_secs_f64(2.0 * path.end_s()),
+            opts.poll,
         )
     });
     let off = client.request(Command::Telemetry { decimation: 0 });
     let end = ended?;
     off?;
-    client.listen(Duration::from_millis(100))?;
+    // The telemetry still in flight (on a co-simulated link it came with the answers).
+    if !opts.poll.is_zero() {
+        client.listen(Duration::from_millis(100))?;
+    }
     if let Some(f) = end.fault {
         return Err(DynError::Telemetry(format!(
             "the controller stopped the excitation with fault {f:?} (mode {:?}): reset it \
