@@ -17,7 +17,6 @@ use host_sim::dynamics::session::LINK_POLL;
 use host_sim::io::atomic::Outputs;
 use host_sim::io::policy::CommandFiles;
 use host_sim::io::{json_text, KeyOrder};
-use host_sim::link::LinkClient;
 use host_sim::plant::PlantConfig;
 use host_sim::session::instrument::{Instrument, TypedIn};
 use std::path::PathBuf;
@@ -30,15 +29,9 @@ pub struct Args {
     /// Start the co-simulated controller: the firmware under QEMU driving the simulated plant.
     #[arg(long)]
     pub qemu: bool,
-    /// A controller you started, on a TCP socket (QEMU): HOST:PORT (readings typed in).
-    #[arg(long)]
-    pub tcp: Option<String>,
-    /// A controller on a serial port (the real board), readings typed in.
-    #[arg(long)]
-    pub serial: Option<PathBuf>,
-    /// The serial port's baud rate (default 115200).
-    #[arg(long)]
-    pub baud: Option<u32>,
+    /// A controller you started (--tcp, --serial): the instrument's readings are typed in.
+    #[command(flatten)]
+    pub link: super::link_args::LinkArgs,
     /// With --qemu: the simulated machine (`paper` or a plant TOML; default `paper`).
     #[arg(long, default_value = "paper")]
     pub plant: String,
@@ -97,6 +90,7 @@ fn write(done: &Commissioned, args: &Args, mut outputs: Outputs) -> Result<Strin
 
 /// `host-sim commission`.
 pub fn run(args: &Args) -> Result<()> {
+    args.link.transport()?;
     let outputs = CommandFiles::new()
         .input("--machine", &args.machine.machine)
         .input("--plant", super::plant_file(&args.plant))
@@ -178,20 +172,8 @@ pub fn run(args: &Args) -> Result<()> {
         }
         let mut typed = TypedIn::new(std::io::stdin().lock(), std::io::stderr());
         let instrument: &mut dyn Instrument = &mut typed;
-        match (&args.tcp, &args.serial) {
-            (Some(addr), None) => {
-                let mut client = LinkClient::connect_tcp(addr, timeout)
-                    .with_context(|| format!("connecting to {addr}"))?;
-                commission(&mut client, instrument, &o, &mut events)?
-            }
-            (None, Some(path)) => {
-                let baud = args.baud.unwrap_or(115_200);
-                let mut client = LinkClient::open_serial(path, baud, timeout)
-                    .with_context(|| format!("opening {} at {baud} Bd", path.display()))?;
-                commission(&mut client, instrument, &o, &mut events)?
-            }
-            _ => bail!("give one of --qemu, --tcp HOST:PORT, --serial PATH"),
-        }
+        let (_, mut client) = args.link.open(timeout)?;
+        commission(&mut client, instrument, &o, &mut events)?
     };
     let text = write(&done, args, outputs)?;
     let r = &done.report;
