@@ -596,6 +596,9 @@ fn every_subcommand_writes_through_the_policy() {
             continue;
         }
         let text = std::fs::read_to_string(&path).unwrap();
+        // The link flags' only path is a serial device (opened, never read as a file nor
+        // written); the commands that flatten them declare their own files.
+        let device_only = name == "link_args.rs";
         for direct in [
             "write_atomic",
             "Outputs::new",
@@ -613,7 +616,7 @@ fn every_subcommand_writes_through_the_policy() {
         }
         let writes = text.contains("outputs.bytes")
             || text.contains("out.bytes")
-            || text.contains("PathBuf");
+            || (text.contains("PathBuf") && !device_only);
         if writes {
             assert!(
                 text.contains("CommandFiles::new()"),
