@@ -85,7 +85,7 @@ fn main() {
         let zero = spec.nominal.encoder_offset_rad.map(f64::to_degrees);
         for k in 0..per_design {
             let (name, plant) = if k == 0 {
-                (format!("{design}"), base.clone())
+                (design.to_string(), base.clone())
             } else {
                 let seed = 1000 * (1 + usize::from(*design == "second")) as u64 + k as u64;
                 (
