@@ -1,5 +1,6 @@
 //! The journey through the co-simulated controller over other builds of both designs
-//! (`cargo bench -p host-sim --bench commission_builds [-- BUILDS [VERIFY_TARGETS]]`).
+//! (`cargo bench -p host-sim --bench commission_builds [-- BUILDS [VERIFY_TARGETS] [paper|second]]`;
+//! a design's name runs that design only).
 //!
 //! For each design (the paper machine with its plant, the second machine with its plant) the
 //! plant as shipped and BUILDS − 1 other builds (default 4 builds per design;
@@ -51,14 +52,27 @@ fn journey(
         let mut instrument = CoSimInstrument::new(&sim, &plant);
         commission(&mut client, &mut instrument, &o, &mut |_| {})
     };
+    let console = sim.console();
     let _ = sim.shutdown();
-    done.map(|d| d.report).map_err(|e| e.to_string())
+    done.map(|d| d.report).map_err(|e| {
+        // What the firmware said last (its fault's detail).
+        let tail: String = console
+            .lines()
+            .rev()
+            .take(6)
+            .collect::<Vec<_>>()
+            .join(" | ");
+        format!("{e} (the firmware's last lines, newest first: {tail})")
+    })
 }
 
 fn main() {
-    let args: Vec<usize> = std::env::args()
-        .skip(1)
-        .filter_map(|a| a.parse().ok())
+    let words: Vec<String> = std::env::args().skip(1).collect();
+    let args: Vec<usize> = words.iter().filter_map(|a| a.parse().ok()).collect();
+    // A design's name among the arguments runs that design only.
+    let only: Vec<&String> = words
+        .iter()
+        .filter(|w| *w == "paper" || *w == "second")
         .collect();
     let per_design = args.first().copied().unwrap_or(4).max(1);
     let verify_targets = args.get(1).copied().unwrap_or(400);
@@ -82,6 +96,9 @@ fn main() {
     let mut worst: Option<(String, f64, f64)> = None;
     let mut failed = 0;
     for (design, spec, base) in &designs {
+        if !only.is_empty() && !only.iter().any(|w| w == design) {
+            continue;
+        }
         let zero = spec.nominal.encoder_offset_rad.map(f64::to_degrees);
         for k in 0..per_design {
             let (name, plant) = if k == 0 {
