@@ -33,8 +33,11 @@
 //!   (`not_named`), and the misfit is **kept** (a nuisance: reported, `unexplained`, described
 //!   by the law it fits) when it is significant beside what is left; otherwise the final model
 //!   is the one left, refitted without it.
-//! * If not, the named model explains the data and stays: the effects set aside are **declared
-//!   open** (`open`), named but not claimed, as an ambiguous pair is. Why not drop them here
+//! * If not, the named model explains the data and stays: each named effect that does not lower
+//!   the BIC by more than [`ADD_MARGIN`] beside E's misfit modes with every other named effect in
+//!   place (the model that stays; no effect set aside first, so that one stand-in cannot carry
+//!   another's part and stand in its place) is **declared open** (`open`), named but not
+//!   claimed, as an ambiguous pair is. Why not drop them here
 //!   too: the generalised shape, flexible as it is, can stand in for a real frame or base
 //!   offset beside a library-shaped stretch on sparse data, and dropping them would trade a
 //!   false name for a miss; only a misfit the named model leaves is a reason to drop them.
