@@ -134,8 +134,9 @@ fn sweep() {
     }
     cases.retain(|c| c.len() <= max_hidden);
     // (class, out-of-library) → (runs, false positives, misses, unexplained flag wrong, declared
-    // ambiguous with a hidden effect)
-    let mut tally: std::collections::BTreeMap<(usize, &str), [usize; 5]> = Default::default();
+    // ambiguous with a hidden effect, a hidden effect named but declared open beside a shape
+    // misfit)
+    let mut tally: std::collections::BTreeMap<(usize, &str), [usize; 6]> = Default::default();
     let started = std::time::Instant::now();
     let mut run = 0u64;
     for case in &cases {
@@ -162,21 +163,28 @@ fn sweep() {
                         missed,
                     } = judge(case, &r);
                     let flag_wrong = r.unexplained != (ool != "none");
+                    let hidden_open: Vec<&str> = case
+                        .iter()
+                        .copied()
+                        .filter(|h| r.declares_open(h))
+                        .collect();
                     let t = tally.entry((case.len(), ool)).or_default();
                     t[0] += 1;
                     t[1] += usize::from(!false_pos.is_empty());
                     t[2] += usize::from(!missed.is_empty());
                     t[3] += usize::from(flag_wrong);
                     t[4] += usize::from(!declared.is_empty());
+                    t[5] += usize::from(!hidden_open.is_empty());
                     // One line per diagnosis, so that a partial run is readable.
                     println!(
-                        "run {run}: {case:?} + {ool}, scale {f}, seed {seed}: named {named:?}; false {} missed {} unexplained {} ambiguous pairs {} two-for-two {}{}{}",
+                        "run {run}: {case:?} + {ool}, scale {f}, seed {seed}: named {named:?}; false {} missed {} unexplained {} ambiguous pairs {} two-for-two {}{}{}{}",
                         !false_pos.is_empty(),
                         !missed.is_empty(),
                         r.unexplained,
                         r.ambiguous.len(),
                         r.ambiguous_pairs.len(),
                         if declared.is_empty() { String::new() } else { format!(" declared ambiguous {declared:?}") },
+                        if hidden_open.is_empty() { String::new() } else { format!(" hidden declared open {hidden_open:?}") },
                         final_checks(&r)
                     );
                     if !false_pos.is_empty() || (verbose && (!missed.is_empty() || flag_wrong)) {
@@ -205,33 +213,35 @@ fn sweep() {
         started.elapsed().as_secs_f64()
     );
     println!(
-        "{:<8} {:<8} {:>6} {:>16} {:>12} {:>18} {:>18}",
+        "{:<8} {:<8} {:>6} {:>16} {:>12} {:>18} {:>18} {:>18}",
         "hidden",
         "extra",
         "runs",
         "false positives",
         "misses",
         "unexplained wrong",
-        "declared ambiguous"
+        "declared ambiguous",
+        "hidden open"
     );
-    let mut total = [0usize; 5];
+    let mut total = [0usize; 6];
     for ((size, ool), t) in &tally {
         let pct = |k: usize| 100.0 * t[k] as f64 / t[0] as f64;
         println!(
-            "{:<8} {:<8} {:>6} {:>9} ({:>4.1} %) {:>5} ({:>4.1} %) {:>9} ({:>4.1} %) {:>10} ({:>4.1} %)",
-            size, ool, t[0], t[1], pct(1), t[2], pct(2), t[3], pct(3), t[4], pct(4)
+            "{:<8} {:<8} {:>6} {:>9} ({:>4.1} %) {:>5} ({:>4.1} %) {:>9} ({:>4.1} %) {:>10} ({:>4.1} %) {:>10} ({:>4.1} %)",
+            size, ool, t[0], t[1], pct(1), t[2], pct(2), t[3], pct(3), t[4], pct(4), t[5], pct(5)
         );
         for (sum, v) in total.iter_mut().zip(t) {
             *sum += v;
         }
     }
     println!(
-        "all: {} diagnoses, false-positive rate {:.1} %, miss rate {:.1} %, unexplained flag wrong {:.1} %, declared ambiguous (a named effect not hidden, reported ambiguous with a hidden one) {:.1} %",
+        "all: {} diagnoses, false-positive rate {:.1} %, miss rate {:.1} %, unexplained flag wrong {:.1} %, declared ambiguous (a named effect not hidden, reported ambiguous with a hidden one) {:.1} %, a hidden effect named but declared open beside a shape misfit {:.1} %",
         total[0],
         100.0 * total[1] as f64 / total[0] as f64,
         100.0 * total[2] as f64 / total[0] as f64,
         100.0 * total[3] as f64 / total[0] as f64,
-        100.0 * total[4] as f64 / total[0] as f64
+        100.0 * total[4] as f64 / total[0] as f64,
+        100.0 * total[5] as f64 / total[0] as f64
     );
 }
 
@@ -327,11 +337,12 @@ fn shape_sweep() {
                         t[5] += usize::from(!j.declared.is_empty());
                         let named: Vec<&str> = r.steps.iter().map(|s| s.effect.as_str()).collect();
                         println!(
-                            "run {run}: {law_name} stretch {:.1} µm + {hidden:?} + {ool}, scale {f}, seed {seed}: named {named:?}; false {:?} missed {:?} misfit {misfit} unexplained {}",
+                            "run {run}: {law_name} stretch {:.1} µm + {hidden:?} + {ool}, scale {f}, seed {seed}: named {named:?}; false {:?} missed {:?} misfit {misfit} unexplained {}{}",
                             truth.other_stretch.map_or(0.0, |s| s.rms_um),
                             j.false_positives,
                             j.missed,
-                            r.unexplained
+                            r.unexplained,
+                            final_checks(&r)
                         );
                         if env.verbose && (!j.false_positives.is_empty() || !j.missed.is_empty()) {
                             println!("{}", table(&r));
@@ -409,10 +420,12 @@ fn final_checks(r: &host_sim::diagnose::report::Report) -> String {
     }
     for m in &r.shape_misfits {
         out.push_str(&format!(
-            " {} shape misfit{} not named {:?}",
+            " {}{} shape misfit{} not named {:?} open {:?}",
             m.effect,
+            if m.effect_named { "" } else { " (not named)" },
             if m.significant { " kept" } else { "" },
-            m.not_named
+            m.not_named,
+            m.open
         ));
     }
     out

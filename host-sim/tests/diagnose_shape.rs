@@ -89,3 +89,34 @@ fn saturating_and_varying_stretches_claim_no_effect_on_their_misfits_account() {
         check(&r, name);
     }
 }
+
+/// A stretch beyond the generalised shape's law: the distal bars' tension follows the levers'
+/// opening angle (a preloaded spring between the elbows). On these poses link lengths plus
+/// encoder offsets fit it to the noise, better than the library's stretch, and the selection
+/// names them in its place: neither may be claimed. Each is declared open beside a stretch of
+/// another law (`link_stretch`, not named), since the library's stretch alone fits the data as
+/// well as the first of them alone.
+#[test]
+fn a_stretch_beyond_the_generalised_shape_claims_none_of_its_stand_ins() {
+    let r = diagnosed("opening", 0, 20.0, 31);
+    let context = format!("opening:\n{}\nlog: {:#?}", table(&r), r.selection_log);
+    let j = judge(&["link_stretch"], &r);
+    assert!(
+        j.false_positives.is_empty(),
+        "claimed in the stretch's place: {context}"
+    );
+    let named: Vec<&str> = r.steps.iter().map(|s| s.effect.as_str()).collect();
+    assert!(
+        !named.contains(&"link_stretch"),
+        "the case this test is about (the stretch replaced by its stand-ins) did not arise: {context}"
+    );
+    let m = r
+        .shape_misfits
+        .iter()
+        .find(|m| m.effect == "link_stretch" && !m.effect_named)
+        .unwrap_or_else(|| panic!("no stretch of another law reported: {context}"));
+    assert!(!m.open.is_empty(), "{context}");
+    for e in &named {
+        assert!(r.declares_open(e), "{e} claimed: {context}");
+    }
+}

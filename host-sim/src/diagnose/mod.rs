@@ -6,7 +6,8 @@
 //! score ([`selection`], scored by [`scoring`], fits by [`fit`]: the crate's one LM), with
 //! out-of-library structures fitted as nuisances ([`nuisance`]) → the shape check: effects named
 //! beside one whose library shape misfits must stand on their own against its generalised shape
-//! ([`shape`]) → the gap-shrink table
+//! ([`shape`]), and effects named where the library's stretch could have been must stand on their
+//! own against a stretch of another law ([`stand_in`]) → the gap-shrink table
 //! ([`gap_shrink`]) → confounding of the chosen effects with the other candidates
 //! ([`confounding`]) and the choices the data leave open ([`ambiguity`]) → the verdict on what
 //! is left ([`verdict`], structure tests in [`structure`]) → report and table ([`report`]) and
@@ -40,6 +41,7 @@ pub mod scoring;
 pub mod selection;
 pub mod shape;
 pub mod sixbar_modes;
+pub mod stand_in;
 pub mod structure;
 pub mod verdict;
 
@@ -177,8 +179,13 @@ pub fn diagnose_with_plot_data(
         noise_source,
     } = prepare(data, opts)?;
     let (sel, nuisance_log) = nuisance::select_with_nuisances(&mut problem, data, noise_um)?;
-    let (mut sel, shape_misfit, shape_log) = shape::check_shapes(&mut problem, sel, noise_um);
+    let (mut sel, mut shape_misfit, shape_log) = shape::check_shapes(&mut problem, sel, noise_um);
     sel.log.extend(shape_log);
+    if shape_misfit.is_none() {
+        let (stand_in, log) = stand_in::check_stand_ins(&problem, &sel, noise_um);
+        sel.log.extend(log);
+        shape_misfit = stand_in;
+    }
     notes.extend(sel.skipped.iter().cloned());
     let problem = problem;
     let mut fitter = Fitter::new(&problem);

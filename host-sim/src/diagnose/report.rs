@@ -87,8 +87,13 @@ pub struct AmbiguousPair {
 /// diagnosis reports that misfit instead of naming other effects on its account.
 #[derive(Clone, Debug, Serialize)]
 pub struct ShapeMisfit {
-    /// The named effect (in `steps`).
+    /// The effect whose generalised shape is meant: a named one (in `steps`), or `link_stretch`
+    /// not named when the selection named other effects where the library's stretch fitted the
+    /// data as well (`effect_named` false; `diagnose::stand_in`).
     pub effect: String,
+    /// Whether `effect` is named (in `steps`). False: the effects declared `open` are named, and
+    /// a distal stretch by another law than the library's explains what each does as well.
+    pub effect_named: bool,
     /// The misfit is significant (BIC and held-out test, every mode charged): it is fitted as a
     /// nuisance, stays in the residual and makes it `unexplained`. False: only `not_named`.
     pub significant: bool,
@@ -347,7 +352,12 @@ pub fn table(r: &Report) -> String {
                 m.open.join(", ")
             )
         };
-        if m.significant {
+        if !m.effect_named {
+            s.push_str(&format!(
+                "shape misfit: {} (not named) — {}{not_named}\n",
+                m.effect, m.description
+            ));
+        } else if m.significant {
             s.push_str(&format!(
                 "shape misfit: {} — its library shape leaves {:.2} µm RMS that its generalised shape fits (ΔBIC {:.1}, \
                  cross-validated RSS {:+.1} µm²): {}{not_named}\n",

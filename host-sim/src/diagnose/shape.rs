@@ -33,8 +33,11 @@
 //!   (`not_named`), and the misfit is **kept** (a nuisance: reported, `unexplained`, described
 //!   by the law it fits) when it is significant beside what is left; otherwise the final model
 //!   is the one left, refitted without it.
-//! * If not, the named model explains the data and stays: the effects set aside are **declared
-//!   open** (`open`), named but not claimed, as an ambiguous pair is. Why not drop them here
+//! * If not, the named model explains the data and stays: each named effect that does not lower
+//!   the BIC by more than [`ADD_MARGIN`] beside E's misfit modes with every other named effect in
+//!   place (the model that stays; no effect set aside first, so that one stand-in cannot carry
+//!   another's part and stand in its place) is **declared open** (`open`), named but not
+//!   claimed, as an ambiguous pair is. Why not drop them here
 //!   too: the generalised shape, flexible as it is, can stand in for a real frame or base
 //!   offset beside a library-shaped stretch on sparse data, and dropping them would trade a
 //!   false name for a miss; only a misfit the named model leaves is a reason to drop them.
@@ -242,7 +245,7 @@ fn misfit_rms_um(problem: &Problem, x: &[f64]) -> f64 {
 /// The misfit's law as text: b's elongation (µm) as a polynomial of the centred, scaled link
 /// angles u, v, its RMS over the data and its largest terms, and how much of it c follows in the
 /// design's self-stress ratio.
-fn describe(problem: &Problem, modes: &MisfitModes, x: &[f64]) -> String {
+pub(super) fn describe(problem: &Problem, modes: &MisfitModes, x: &[f64]) -> String {
     let terms = terms();
     let t = terms.len();
     let mut coef = vec![0.0; 2 * t];
@@ -367,8 +370,52 @@ fn check_one(
     // frame, to the noise) is left alone: the generalised shape could stand in for those
     // effects too, and only a misfit the named model cannot explain is a reason to doubt them.
     let first = significance(&with, &plain, &set, &sel.fit, &cur, noise_um, k_modes)?;
-    // Does every other named effect stand on its own beside e's generalised shape? The weakest
-    // that does not is dropped, the rest refitted, until every one does.
+    if !first.significant {
+        // The named model explains the data: it stays, but each named effect that does not stand
+        // beside the generalised shape, judged with every other named effect in place (the model
+        // that stays), is declared open (a stretch of another law explains what it does as well),
+        // not claimed.
+        let open = not_standing(&mut fitter, &set, &[e], &cur, noise_um);
+        if open.is_empty() {
+            log.push(format!(
+                "{}'s shape misfit not significant beside the named effects ({}) and every named effect stands \
+                 beside its generalised shape",
+                e.name(),
+                first.text()
+            ));
+            return None;
+        }
+        let open: Vec<String> = open.iter().map(|(c, _)| c.name().to_string()).collect();
+        log.push(format!(
+            "{}'s shape misfit not significant beside the named effects ({}): they stay named; open: {} (beside \
+             {}'s generalised shape and the other named effects they do not lower the BIC by > {ADD_MARGIN})",
+            e.name(),
+            first.text(),
+            open.join(", "),
+            e.name()
+        ));
+        let description = describe(&with, &modes, &cur.p);
+        return Some((
+            None,
+            ShapeMisfit {
+                effect: e.name().to_string(),
+                effect_named: true,
+                significant: false,
+                rms_um: 0.0,
+                delta_bic: first.delta_bic,
+                delta_cv_rss_um2: first.cv_with - first.cv_without,
+                not_named: Vec::new(),
+                open,
+                description: format!(
+                    "not significant beside the named effects; what the effects declared open explain, a stretch of \
+                     another law explains as well ({description})"
+                ),
+            },
+        ));
+    }
+    // The named model leaves a misfit: does every other named effect stand on its own beside
+    // e's generalised shape? The weakest that does not is dropped, the rest refitted, until every
+    // one does.
     loop {
         let mut weakest: Option<(f64, usize, Fit)> = None;
         for (i, c) in set.iter().enumerate() {
@@ -409,45 +456,6 @@ fn check_one(
         .filter(|c| !outcome.effects.contains(c))
         .map(|c| c.name().to_string())
         .collect();
-    if !first.significant {
-        // The named model explains the data: it stays, but the effects that do not stand beside
-        // the generalised shape are declared open (a stretch of another law explains what they
-        // do as well), not claimed.
-        if not_named.is_empty() {
-            log.push(format!(
-                "{}'s shape misfit not significant beside the named effects ({}) and every named effect stands \
-                 beside its generalised shape",
-                e.name(),
-                first.text()
-            ));
-            return None;
-        }
-        log.push(format!(
-            "{}'s shape misfit not significant beside the named effects ({}): they stay named; open: {} (beside \
-             {}'s generalised shape they do not lower the BIC by > {ADD_MARGIN})",
-            e.name(),
-            first.text(),
-            not_named.join(", "),
-            e.name()
-        ));
-        let description = describe(&with, &modes, &outcome.fit.p);
-        return Some((
-            None,
-            ShapeMisfit {
-                effect: e.name().to_string(),
-                significant: false,
-                rms_um: 0.0,
-                delta_bic: first.delta_bic,
-                delta_cv_rss_um2: first.cv_with - first.cv_without,
-                not_named: Vec::new(),
-                open: not_named,
-                description: format!(
-                    "not significant beside the named effects; what the effects declared open explain, a stretch of \
-                     another law explains as well ({description})"
-                ),
-            },
-        ));
-    }
     // Is the misfit itself significant beside what is left, every mode charged?
     let without = Fitter::new(&plain).fit(&outcome.effects, &outcome.fit.p)?;
     let last = significance(
@@ -504,6 +512,7 @@ fn check_one(
     };
     let misfit = ShapeMisfit {
         effect: e.name().to_string(),
+        effect_named: true,
         significant,
         rms_um: if significant { rms_um } else { 0.0 },
         delta_bic: d_misfit,
@@ -520,6 +529,36 @@ fn check_one(
         },
     };
     Some((Some((outcome, report_problem)), misfit))
+}
+
+/// The named effects of `set` (`exempt` aside) that do not stand on their own beside the
+/// problem's shape-misfit modes (`fitter`'s problem): each judged with every other member of
+/// `set` in place (`cur` their fit), it lowers the BIC by less than [`ADD_MARGIN`]. With each
+/// its support (how much it lowers the BIC).
+pub(super) fn not_standing(
+    fitter: &mut Fitter<'_>,
+    set: &[&'static Effect],
+    exempt: &[&'static Effect],
+    cur: &Fit,
+    noise_um: Option<f64>,
+) -> Vec<(&'static Effect, f64)> {
+    let problem = fitter.problem;
+    let mut out = Vec::new();
+    for (i, c) in set.iter().enumerate() {
+        if exempt.contains(c) {
+            continue;
+        }
+        let mut trial = set.to_vec();
+        trial.remove(i);
+        let Some(f) = fitter.fit(&trial, &cur.p) else {
+            continue;
+        };
+        let support = delta_bic(problem, noise_um, cur, &f);
+        if support < ADD_MARGIN {
+            out.push((*c, support));
+        }
+    }
+    out
 }
 
 /// The misfit's significance: the BIC lower by more than [`ADD_MARGIN`] with every mode charged,
