@@ -43,11 +43,11 @@
 //!   frozen at rest is noticed once the reference moves away from it and the torque passes
 //!   `hold_torque`, i.e. when the machine is asked to move (a frozen encoder on a machine
 //!   holding still is indistinguishable from a still machine, and harmless). Measured on the
-//!   QEMU plant's parameters, joint 1 frozen before a 2 g move: found 24 samples (12 ms) after
-//!   the first move of the tour starts, the tool 0.45 mm off, 2.4 mm after coasting (host test
-//!   `servo_loop::tests::an_encoder_frozen_at_rest_is_stuck_...`, free-wheeling drives); 13
-//!   samples and a 0.50 mm coast with the drives' dynamic braking (1.63 mm free-wheeling)
-//!   before the long diagonal (`cargo qemu-test`, `encoder-frozen-at-rest`). Which joint
+//!   QEMU plant's parameters, joint 1 frozen before a 2 g move: found 10 samples (5 ms) after
+//!   the first move of the tour starts, the tool 0.058 mm off, 0.68 mm after coasting (host
+//!   test `servo_loop::tests::an_encoder_frozen_at_rest_is_stuck_...`, free-wheeling drives,
+//!   `-- --nocapture`); a 0.32 mm coast with the drives' dynamic braking before the long
+//!   diagonal (`cargo qemu-test`, `encoder-frozen-at-rest`, its `stop:` line). Which joint
 //!   and which move decide how fast the servo's torque builds up.
 //!
 //! **Resolution.** Every bound above is widened by the encoder's quantisation, from the
