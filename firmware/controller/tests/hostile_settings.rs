@@ -54,6 +54,8 @@ fn floats(s: &mut Settings) -> Vec<&mut f32> {
         &mut encoder_limits.max_accel_rad_s2,
         &mut encoder_limits.hold_torque_nm,
         &mut encoder_limits.max_inertia_kg_m2,
+        &mut encoder_limits.max_coupling_inertia_kg_m2,
+        &mut encoder_limits.max_velocity_product_kg_m2,
         &mut encoder_limits.stuck_motion_rad,
     ];
     for axis in servo.axes.iter_mut() {
