@@ -72,6 +72,29 @@ pub struct SixBarErrors {
     pub platform_pin_ee_mm: [f64; 2],
 }
 
+impl SixBarErrors {
+    /// Every pin position error (`[x, y]` each), in declaration order: one list for whoever
+    /// draws or scales them, so that a pin added to the struct is not forgotten there.
+    pub fn pins_mut(&mut self) -> [&mut [f64; 2]; 14] {
+        [
+            &mut self.ground_motor_1_mm,
+            &mut self.ground_motor_2_mm,
+            &mut self.ground_follower_1_mm,
+            &mut self.ground_follower_2_mm,
+            &mut self.elbow_1_pin_q_mm,
+            &mut self.elbow_1_pin_f_mm,
+            &mut self.elbow_1_pin_g_mm,
+            &mut self.elbow_2_pin_q_mm,
+            &mut self.elbow_2_pin_f_mm,
+            &mut self.elbow_2_pin_g_mm,
+            &mut self.platform_pin_d_mm,
+            &mut self.platform_pin_dd_mm,
+            &mut self.platform_pin_e_mm,
+            &mut self.platform_pin_ee_mm,
+        ]
+    }
+}
+
 /// The nominal five-bar a six-bar is built around, for any machine (`[sixbar.geometry]`;
 /// absent: the paper's, every link `link_mm`, both axes at the origin, the paper's working
 /// mode, arm 2's parallelogram offsets the mirror image of arm 1's). The motors' axes sit
@@ -569,26 +592,16 @@ impl PlantConfig {
             v[0] = n.sample(&mut rng);
             v[1] = n.sample(&mut rng);
         };
+        // The lengths first, then the pins: the order the draws have always been made in.
         for v in [
             &mut e.lever_length_mm,
             &mut e.bar_f_length_mm,
             &mut e.bar_q_length_mm,
             &mut e.bar_g_length_mm,
-            &mut e.ground_motor_1_mm,
-            &mut e.ground_motor_2_mm,
-            &mut e.ground_follower_1_mm,
-            &mut e.ground_follower_2_mm,
-            &mut e.elbow_1_pin_q_mm,
-            &mut e.elbow_1_pin_f_mm,
-            &mut e.elbow_1_pin_g_mm,
-            &mut e.elbow_2_pin_q_mm,
-            &mut e.elbow_2_pin_f_mm,
-            &mut e.elbow_2_pin_g_mm,
-            &mut e.platform_pin_d_mm,
-            &mut e.platform_pin_dd_mm,
-            &mut e.platform_pin_e_mm,
-            &mut e.platform_pin_ee_mm,
         ] {
+            draw2(v);
+        }
+        for v in e.pins_mut() {
             draw2(v);
         }
         p.drive_1.encoder_offset_deg = o.sample(&mut rng);

@@ -30,22 +30,7 @@ pub fn another_build(base: &PlantConfig, zero_offset_deg: [f64; 2], seed: u64) -
         e.bar_q_length_mm[i] = length.sample(&mut rng);
         e.bar_g_length_mm[i] = e.bar_q_length_mm[i] + partner.sample(&mut rng);
     }
-    for v in [
-        &mut e.ground_motor_1_mm,
-        &mut e.ground_motor_2_mm,
-        &mut e.ground_follower_1_mm,
-        &mut e.ground_follower_2_mm,
-        &mut e.elbow_1_pin_q_mm,
-        &mut e.elbow_1_pin_f_mm,
-        &mut e.elbow_1_pin_g_mm,
-        &mut e.elbow_2_pin_q_mm,
-        &mut e.elbow_2_pin_f_mm,
-        &mut e.elbow_2_pin_g_mm,
-        &mut e.platform_pin_d_mm,
-        &mut e.platform_pin_dd_mm,
-        &mut e.platform_pin_e_mm,
-        &mut e.platform_pin_ee_mm,
-    ] {
+    for v in e.pins_mut() {
         *v = [pin.sample(&mut rng), pin.sample(&mut rng)];
     }
     p.drive_1.encoder_offset_deg = zero_offset_deg[0] + zero.sample(&mut rng);
