@@ -42,7 +42,7 @@
 //! is written: [`crate::calibration_slots`].
 //!
 //! Cost: milliseconds (about two thousand servo steps: `cargo qemu-bench`'s `judge_image` and
-//! `image_commit_check`, figures in firmware/README.md), at boot and in the link task at a
+//! `image_commit_check`, figures in docs/validation/benchmarks.md), at boot and in the link task at a
 //! commit; never in the servo task's sample.
 //!
 //! [`Settings::machine`]: crate::settings::Settings::machine

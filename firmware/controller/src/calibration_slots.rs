@@ -59,7 +59,7 @@
 //!
 //! Cost: `open` computes two CRCs over the images and judges the images that count (a few ms
 //! at boot); `write` copies the bytes; `commit` one CRC, a parse and the judgement
-//! (`cargo qemu-bench`'s `image_commit_check`, figure in firmware/README.md). None of it runs
+//! (`cargo qemu-bench`'s `image_commit_check`, figure in docs/validation/benchmarks.md). None of it runs
 //! in the servo task: the app calls it from a low-priority task, and on the G474 the
 //! calibration region is in bank 2 while the program runs from bank 1.
 use crate::calibration::{validate_image, ImageCheck, ImageError, Judged};

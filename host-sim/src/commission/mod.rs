@@ -412,7 +412,7 @@ pub fn commission<S: Read + Write>(
             &"the controller holds no calibration it accepts (none in force): it refused the \
               image in its calibration region, or the region is empty. Give it this machine's \
               commissioning image (host-sim grid --nominal --machine FILE --out FILE, flashed as \
-              firmware/README.md says); a controller that refuses that too holds another machine",
+              docs/guides/g474-bring-up.md says); a controller that refuses that too holds another machine",
         ));
     };
     let before = Some(format!("{before_id:#010x}"));
