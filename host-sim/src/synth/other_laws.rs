@@ -176,14 +176,6 @@ pub fn elongation_um(
     let mut raw = Vec::with_capacity(rows.len());
     let mut tools = Vec::with_capacity(rows.len());
     let mut six = match s.law {
-        StretchLaw::StiffeningSelfStress {
-            seed,
-            part_error_mm,
-        } => Some(SixBar::new(
-            &PlantConfig::ideal()
-                .with_random_errors(seed, part_error_mm, 0.0)
-                .sixbar,
-        )),
         StretchLaw::OtherDesign {
             seed,
             part_error_mm,
@@ -214,7 +206,11 @@ pub fn elongation_um(
                 &p.with_random_errors(seed, part_error_mm, 0.0).sixbar,
             ))
         }
-        StretchLaw::LargeErrors {
+        StretchLaw::StiffeningSelfStress {
+            seed,
+            part_error_mm,
+        }
+        | StretchLaw::LargeErrors {
             seed,
             part_error_mm,
         }
