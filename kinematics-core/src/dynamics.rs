@@ -185,6 +185,21 @@ impl<T: Real> FiveBarDynamics<T> {
         Ok(([[m0[0], m1[0]], [m0[1], m1[1]]], h))
     }
 
+    /// The diagonal of the inertia matrix at a pose (kg·m²): each motor's inertia with the
+    /// other held (two evaluations of the inverse dynamics, friction left out). What the
+    /// servo's gains are designed for (`crate::gain_design`).
+    pub fn inertia_diagonal(&self, pose: &crate::pose::Pose<T>) -> Result<[T; 2], KinematicsError> {
+        use crate::joint_motion::motion_from_pose;
+        let rigid = FiveBarDynamics {
+            viscous_nm_s_per_rad: [T::ZERO; 2],
+            coulomb_nm: [T::ZERO; 2],
+            ..*self
+        };
+        let m0 = rigid.torque_nm(&motion_from_pose(pose, [T::ZERO; 2], [T::ONE, T::ZERO])?)?;
+        let m1 = rigid.torque_nm(&motion_from_pose(pose, [T::ZERO; 2], [T::ZERO, T::ONE])?)?;
+        Ok([m0[0], m1[1]])
+    }
+
     /// The joint accelerations (rad/s²) that `torque_nm` produces at the pose with joint
     /// velocities `velocity_rad_s`, friction of this model left out (a plant adds its own):
     /// `θ̈ = M⁻¹·(τ - h(θ, θ̇))`.

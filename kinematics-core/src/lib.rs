@@ -20,7 +20,8 @@
 //! * [`workspace`]: the machine's convex workspace and the check that a point lies inside it
 //!   with a margin (host tools and firmware share it);
 //! * [`pid`], [`disturbance_observer`], [`servo`]: position control per axis (with an observer of
-//!   the torque the feed-forward lacks) and the servo step
+//!   the torque the feed-forward lacks) and the servo step, with [`gain_design`] the gains for
+//!   the identified dynamics
 //!   (setpoint → IK → correction → torque), with validated settings; a refused setpoint leaves
 //!   the servo engaged (the firmware brakes the machine with it), a feedback fault latches;
 //! * [`jerk_profile`], [`path`], [`setpoint`], [`trajectory`]: jerk-limited tool motions (time-optimal
@@ -48,6 +49,7 @@ pub mod dynamics;
 pub mod error;
 pub mod feed_forward;
 pub mod forward;
+pub mod gain_design;
 pub mod grid;
 pub mod inverse;
 pub mod jacobian;

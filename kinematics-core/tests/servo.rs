@@ -136,6 +136,32 @@ fn engaged() -> (Servo, Calibration<'static>, [f32; 2]) {
 /// it. Now a refusal leaves the servo engaged and exactly as it was: the next setpoint of the
 /// stream (or of a controlled stop) is tracked in the same sample, with the same torque as if
 /// the refused one had never been offered.
+/// New gains take effect only from rest: setting them disengages the servo (no step is taken
+/// until it is engaged again), and gains the settings' checks refuse are refused with the old
+/// ones kept.
+#[test]
+fn new_gains_disengage_and_invalid_ones_are_refused() {
+    let (mut servo, cal, theta) = engaged();
+    let settings = *servo.config();
+    let mut heavier = settings.axes;
+    for a in &mut heavier {
+        a.kp_nm_per_rad *= 1.5;
+    }
+    servo.set_gains(heavier).unwrap();
+    assert!(!servo.is_engaged());
+    assert_eq!(servo.config().axes, heavier);
+    assert!(
+        servo.step(&cal, [210.0, 0.0], theta).is_err(),
+        "not engaged"
+    );
+    let mut bad = heavier;
+    bad[1].kd_nm_s_per_rad = f32::NAN;
+    assert!(servo.set_gains(bad).is_err());
+    assert_eq!(servo.config().axes, heavier, "the old gains kept");
+    servo.engage(&cal, theta).unwrap();
+    assert!(servo.is_engaged());
+}
+
 #[test]
 fn a_refused_setpoint_changes_nothing_and_the_servo_steps_on() {
     let cases: [([f32; 2], SetpointRefusal); 5] = [

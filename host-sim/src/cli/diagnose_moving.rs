@@ -122,11 +122,7 @@ pub fn run(args: &super::diagnose::Args) -> Result<()> {
             min_transmission: spec.min_transmission,
             torque_limit_nm: servo.axes.map(|a| f64::from(a.torque_limit_nm)),
         },
-        controller: Controller {
-            model,
-            servo,
-            fed_forward,
-        },
+        controller: Controller::new(&spec, model, servo, fed_forward)?,
     };
     let report = diagnose_telemetry(&log, &path, &opts)
         .with_context(|| format!("diagnosing {}", log_path.display()))?;

@@ -208,11 +208,7 @@ pub fn identify<S: Read + Write>(
         &DiagnoseOptions {
             spec: spec.clone(),
             samples,
-            controller: Controller {
-                model: *model,
-                servo: servo_config_at(spec),
-                fed_forward: identified,
-            },
+            controller: Controller::new(spec, *model, servo_config_at(spec), identified)?,
         },
     )?;
     let block = match (&report.model_out, report.steps.is_empty()) {

@@ -179,7 +179,7 @@ impl Run<'_> {
         let kp = self
             .opts
             .controller
-            .servo
+            .designed_servo()
             .axes
             .map(|a| f64::from(a.kp_nm_per_rad));
         let model = &self.opts.controller.model;

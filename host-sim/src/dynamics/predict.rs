@@ -13,20 +13,58 @@
 
 use super::model_plant::{Extras, ModelPlant};
 use super::DynError;
+use crate::machine_spec::MachineSpec;
 use crate::sim::closed_loop::cast_setpoint;
 use crate::sim::knots::KnotPath;
+use kinematics_core::gain_design;
 use kinematics_core::trajectory::MotionSetpoint;
-use kinematics_core::{Calibration, FiveBar, FiveBarDynamics, Servo, ServoConfig};
+use kinematics_core::{Calibration, ConvexWorkspace, FiveBar, FiveBarDynamics, Servo, ServoConfig};
 
 /// What the controller runs.
 #[derive(Clone, Copy, Debug)]
 pub struct Controller {
     /// The model it commands with (its encoders read through it).
     pub model: FiveBar<f64>,
-    /// Its servo settings (sample period included).
+    /// Its servo settings (sample period included): the gains the controller designs from
+    /// them for `fed_forward` are what the loop runs (`gain_design`, as the firmware does when
+    /// it engages an image with that dynamics block).
     pub servo: ServoConfig,
     /// The dynamics it feeds forward.
     pub fed_forward: FiveBarDynamics<f64>,
+    /// Where it commands the tool (the machine's workspace): where the axis inertias the gains
+    /// are designed for are averaged.
+    pub workspace: ConvexWorkspace<f32>,
+}
+
+impl Controller {
+    /// The controller of `spec` commanding with `model`, its settings `servo`, feeding forward
+    /// `fed_forward`.
+    pub fn new(
+        spec: &MachineSpec,
+        model: FiveBar<f64>,
+        servo: ServoConfig,
+        fed_forward: FiveBarDynamics<f64>,
+    ) -> Result<Self, DynError> {
+        let record = spec
+            .record()
+            .map_err(|e| DynError::Invalid(format!("machine '{}': {e}", spec.name)))?;
+        Ok(Controller {
+            model,
+            servo,
+            fed_forward,
+            workspace: record.workspace.region,
+        })
+    }
+
+    /// The servo settings the loop runs: `servo` with the gains designed for `fed_forward`.
+    pub fn designed_servo(&self) -> ServoConfig {
+        gain_design::servo_config_for_dynamics(
+            &self.servo,
+            Some(&self.fed_forward.cast()),
+            &self.model.cast(),
+            &self.workspace,
+        )
+    }
 }
 
 /// The following error (reference − encoder, rad) the loop has at each stream sample in
@@ -60,7 +98,8 @@ pub fn closed_loop(
         model: controller.model.cast::<f32>(),
         grid: None,
     };
-    let mut servo = Servo::new(controller.servo).map_err(|e| sim(format!("settings: {e:?}")))?;
+    let mut servo =
+        Servo::new(controller.designed_servo()).map_err(|e| sim(format!("settings: {e:?}")))?;
     servo
         .set_dynamics(Some(controller.fed_forward.cast()))
         .map_err(|e| sim(format!("the fed-forward dynamics: {e}")))?;

@@ -106,11 +106,7 @@ fn diagnose(run: &ExcitationRun) -> Result<DynamicReport, DynError> {
     let opts = DiagnoseOptions {
         spec: b.spec.clone(),
         samples: sample_options(&b.spec),
-        controller: Controller {
-            model: b.spec.nominal,
-            servo: b.servo,
-            fed_forward: b.d0,
-        },
+        controller: Controller::new(&b.spec, b.spec.nominal, b.servo, b.d0).unwrap(),
     };
     diagnose_telemetry(&run.log, &run.path, &opts)
 }

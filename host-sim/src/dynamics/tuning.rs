@@ -1,7 +1,7 @@
-//! The servo's gains for an identified machine: the default design (`ServoConfig::default`:
-//! position bandwidth ω = 1000 rad/s, ζ = 0.7, integral at ω/4, the disturbance observer's
-//! nominal inertia the axis') applied to each axis' identified inertia instead of the paper
-//! machine's 7.4e-3 kg·m².
+//! The servo's gains for an identified machine, as the controller designs them when it
+//! engages an image with this dynamics block: `kinematics_core::gain_design` (the settings'
+//! gains, designed for 7.4e-3 kg·m², scaled to each axis' identified inertia; the same
+//! bandwidth ω = 1000 rad/s and damping ζ = 0.7, the observer's nominal inertia the axis').
 //!
 //! Why: the gains are designed for an inertia. A heavier tool raises it (a 0.3 kg cutting head
 //! instead of 0.04 kg takes the paper machine's diagonal from 7.3e-3 to 13.2e-3 kg·m²), and
@@ -12,59 +12,48 @@
 //! figure-eight within 1.4 µm. The identified dynamics say what the inertia is; these gains
 //! follow from them, so a commissioning sets both.
 //!
-//! The inertia of an axis: the diagonal of the identified inertia matrix
-//! (`FiveBarDynamics::mass_matrix_and_bias`), averaged over a 5 × 5 lattice of the workspace
-//! (constant over the workspace on the paper machine, whose diagonal does not depend on the
-//! configuration; it varies on others).
+//! The inertia of an axis: the diagonal of the identified inertia matrix averaged over the
+//! machine's workspace at the core's points (`gain_design::inertia_points`: its centroid and
+//! four midpoints; constant over the workspace on the paper machine, whose diagonal does not
+//! depend on the configuration; it varies on others), in f32 as the controller computes it.
 
 use super::DynError;
 use crate::machine_spec::MachineSpec;
+use kinematics_core::gain_design;
 use kinematics_core::{FiveBar, FiveBarDynamics, ServoConfig};
 
-/// Position bandwidth of the design (rad/s).
-pub const BANDWIDTH_RAD_S: f64 = 1000.0;
-/// Damping ratio of the design.
-pub const DAMPING: f64 = 0.7;
-
-/// Each axis' inertia (kg·m²): the identified inertia matrix's diagonal averaged over the
-/// workspace (see the module doc).
+/// Each axis' inertia (kg·m²) by the identified dynamics, as the controller computes it (see
+/// the module doc).
 pub fn axis_inertia_kg_m2(
     d: &FiveBarDynamics<f64>,
     model: &FiveBar<f64>,
     spec: &MachineSpec,
 ) -> Result<[f64; 2], DynError> {
-    let ws = &spec.workspace;
-    let (mut sum, mut n) = ([0.0; 2], 0usize);
-    for i in 0..5 {
-        for j in 0..5 {
-            let p = [
-                ws.x_mm[0] + (ws.x_mm[1] - ws.x_mm[0]) * i as f64 / 4.0,
-                ws.y_mm[0] + (ws.y_mm[1] - ws.y_mm[0]) * j as f64 / 4.0,
-            ];
-            let p = ws.pulled_inside(p, ws.stop_margin_mm);
-            let Ok(pose) = model.inverse_pose(p, spec.min_transmission) else {
-                continue;
-            };
-            let Ok((m, _)) = d.mass_matrix_and_bias(&pose, [0.0; 2]) else {
-                continue;
-            };
-            sum[0] += m[0][0];
-            sum[1] += m[1][1];
-            n += 1;
-        }
-    }
-    let j = sum.map(|s| s / n.max(1) as f64);
-    if n == 0 || !(j[0] > 0.0 && j[1] > 0.0 && j.iter().all(|v| v.is_finite())) {
-        return Err(DynError::Invalid(format!(
-            "the identified dynamics give no positive inertia over {}'s workspace: {j:?}",
+    let region = spec
+        .record()
+        .map_err(|e| DynError::Invalid(format!("machine '{}': {e}", spec.name)))?
+        .workspace
+        .region;
+    gain_design::axis_inertia_kg_m2(
+        &d.cast::<f32>(),
+        &model.cast::<f32>(),
+        &region,
+        spec.min_transmission as f32,
+    )
+    .filter(|j| j.iter().all(|v| v.is_finite() && *v > 0.0))
+    .map(|j| j.map(f64::from))
+    .ok_or_else(|| {
+        DynError::Invalid(format!(
+            "the identified dynamics give no positive inertia over {}'s workspace",
             spec.name
-        )));
-    }
-    Ok(j)
+        ))
+    })
 }
 
 /// `base` with each axis' PID gains, constant feed-forward inertia and observer nominal inertia
-/// designed for the identified inertia (see the module doc); the other settings kept.
+/// designed for the identified inertia, as the controller designs them (see the module doc);
+/// the other settings kept. Refused when an axis' inertia is beyond the design's range
+/// (`gain_design::MAX_INERTIA_RATIO`): the controller would run that axis without its observer.
 pub fn servo_config_for(
     d: &FiveBarDynamics<f64>,
     model: &FiveBar<f64>,
@@ -73,14 +62,14 @@ pub fn servo_config_for(
 ) -> Result<ServoConfig, DynError> {
     let j = axis_inertia_kg_m2(d, model, spec)?;
     let mut c = base;
-    let w = BANDWIDTH_RAD_S;
     for (a, j) in c.axes.iter_mut().zip(j) {
-        let kp = j * w * w;
-        a.kp_nm_per_rad = kp as f32;
-        a.ki_nm_per_rad_s = (kp * w / 4.0) as f32;
-        a.kd_nm_s_per_rad = (2.0 * DAMPING * j * w) as f32;
-        a.inertia_ff_kg_m2 = j as f32;
-        a.observer_inertia_kg_m2 = j as f32;
+        *a = gain_design::scaled_for_inertia(a, j as f32).ok_or_else(|| {
+            DynError::Invalid(format!(
+                "an axis inertia of {j:.3e} kg·m² is beyond {}x the {:.3e} the gains are designed for",
+                gain_design::MAX_INERTIA_RATIO,
+                a.inertia_ff_kg_m2
+            ))
+        })?;
     }
     c.validate().map_err(|e| {
         DynError::Invalid(format!(

@@ -524,6 +524,23 @@ impl Servo {
         Ok(())
     }
 
+    /// Replaces both axes' gains (checked as [`ServoConfig::validate`] checks them; refused:
+    /// the servo keeps what it had) and disengages: new gains take effect at the next
+    /// [`Servo::engage`], from rest, never in the middle of a motion. The firmware sets the
+    /// gains its calibration's dynamics call for ([`crate::gain_design`]) right before engaging.
+    pub fn set_gains(&mut self, axes: [AxisGains; 2]) -> Result<(), ConfigError> {
+        let config = ServoConfig {
+            axes,
+            ..self.config
+        };
+        config.validate()?;
+        self.config = config;
+        self.derived = Derived::of(&config);
+        self.history = None;
+        self.ahead = None;
+        Ok(())
+    }
+
     /// The dynamics fed forward, if any.
     pub fn dynamics(&self) -> Option<&FiveBarDynamics<f32>> {
         self.dynamics.as_ref()
