@@ -25,7 +25,10 @@ use kinematics_core::TaskLimits;
 /// Every run-time setting, with the defaults documented on each field.
 #[derive(Clone, Copy, Debug)]
 pub struct Settings {
-    /// Servo gains and limits. Default: `ServoConfig::default()` (2e-3 kg·m² per joint,
+    /// Servo gains and limits: the gains are the design for the inertia in their
+    /// `inertia_ff_kg_m2`, scaled to each axis' inertia by the dynamics of the image in force,
+    /// or run with the observer off without a dynamics block
+    /// (`kinematics_core::gain_design`). Default: `ServoConfig::default()` (7.4e-3 kg·m² per joint,
     /// torque limit 8 N·m, setpoint acceleration limit 5 g·1.05, following error limit
     /// 0.02 rad) with the sample period pinned to the timer's, [`crate::SAMPLE_PERIOD_S`]
     /// (the servo timer runs at [`crate::SAMPLE_RATE_HZ`]; the two must agree).

@@ -26,6 +26,9 @@
 //!   (same machine, then plausible), and `image_commit_check`: what an upload's commit judges
 //!   (`controller::calibration::validate_image`: the parse, that judgement, the servo's
 //!   slope-change limit). At boot and in the link task, never in a servo sample;
+//! * `gain_design`: `kinematics_core::gain_design::servo_config_for_dynamics`, the servo
+//!   gains for that image's dynamics (the axis inertias at five workspace points): once per
+//!   calibration put in force, at boot or in the sample that switches to an upload;
 //! * `sixbar_solve`: the six-bar's numerical equilibrium solve (host-sim's plant, ported to
 //!   f32 in `bench/sixbar.rs`), warm-started along the servo's 2 kHz path: what controlling
 //!   the real mechanism without the hidden robot would cost per sample (and
@@ -73,6 +76,7 @@ use controller::calibration::{validate_image, Judged};
 use controller::settings::Settings;
 use firmware::board::{self, CycleCounter};
 use firmware::calibration;
+use kinematics_core::gain_design::servo_config_for_dynamics;
 use kinematics_core::machine::{judge_image, MachineRecord};
 
 // The port lives next to this file (a crate root resolves `mod` from its own directory).
@@ -376,6 +380,19 @@ fn main() -> ! {
         "image_commit_check",
         commit as f32 * per_count / JUDGE_CALLS as f32,
     );
+    // The servo gains for the image's dynamics (`kinematics_core::gain_design`), computed once
+    // when a calibration becomes the one in force (at boot, or in the servo sample that
+    // switches to a committed upload, at rest).
+    let settings = Settings::default();
+    let gains = measure_calls(&counter, JUDGE_CALLS, |_| {
+        black_box(servo_config_for_dynamics(
+            &settings.servo,
+            black_box(grid.dynamics()),
+            grid.model(),
+            &machine.workspace.region,
+        ));
+    });
+    report("gain_design", gains as f32 * per_count / JUDGE_CALLS as f32);
     calls_per_figure(N);
 
     // Trajectory evaluation and dynamics: a 5 g move across the workspace and a
