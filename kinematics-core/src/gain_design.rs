@@ -108,7 +108,8 @@ pub fn axis_inertia_kg_m2<T: Real>(
 /// positive) or the ratio is not finite or beyond [`MAX_INERTIA_RATIO`] either way.
 pub fn scaled_for_inertia(base: &AxisGains, inertia_kg_m2: f32) -> Option<AxisGains> {
     let r = inertia_kg_m2 / base.inertia_ff_kg_m2;
-    if !(base.inertia_ff_kg_m2 > 0.0 && r <= MAX_INERTIA_RATIO && r >= 1.0 / MAX_INERTIA_RATIO) {
+    if !(base.inertia_ff_kg_m2 > 0.0 && (1.0 / MAX_INERTIA_RATIO..=MAX_INERTIA_RATIO).contains(&r))
+    {
         return None;
     }
     Some(AxisGains {
