@@ -11,6 +11,8 @@
 //! bar forces, tight stopping rule), the port's is what an MCU would run (f32 round-off
 //! tolerances, sparse products). host-sim's `plant::sixbar` documents the model.
 //!
+//! The two solves also share their step rules ([`limit_step`], [`damping_after`]).
+//!
 //! Cost: building the layout is a few dozen additions and one division per bar; the pose is
 //! two `sin_cos` and one closed-form five-bar FK.
 
@@ -309,6 +311,46 @@ impl<T: Real> SixBarLayout<T> {
     }
 }
 
+/// Limits a Levenberg-Marquardt step of the unknowns `(x, y, φ)` per body in place: no
+/// translation beyond 1 mm and no rotation beyond 1/30 rad (rotations are compared as
+/// displacements at a 30 mm lever), which keeps the solve inside the model's range. Returns the
+/// step's size (mm) before the limit: what the solves' stopping rules compare.
+pub fn limit_step<T: Real>(step: &mut [T]) -> T {
+    let lever_mm = T::from_f64(30.0);
+    let mut big = T::ZERO;
+    for (k, v) in step.iter().enumerate() {
+        let size = if k % 3 == 2 {
+            v.abs() * lever_mm
+        } else {
+            v.abs()
+        };
+        big = big.max(size);
+    }
+    if big > T::ONE {
+        for v in step.iter_mut() {
+            *v = *v / big;
+        }
+    }
+    big
+}
+
+/// Marquardt's damping `mu` after a step: relaxed tenfold after an accepted one (to none below
+/// 1e-6: Gauss-Newton again), raised tenfold after a refused one (from 1e-4).
+pub fn damping_after<T: Real>(mu: T, accepted: bool) -> T {
+    let ten = T::from_f64(10.0);
+    if accepted {
+        if mu < T::from_f64(1e-6) {
+            T::ZERO
+        } else {
+            mu / ten
+        }
+    } else if mu == T::ZERO {
+        T::from_f64(1e-4)
+    } else {
+        mu * ten
+    }
+}
+
 /// Energy `½k·dz(s)²` of a spring with a dead zone of half-width `c` (`dz(s) = s - c·tanh(s/c)`,
 /// smooth, `≈ s³/3c²` inside the clearance): returns `(E, dE/ds, d²E/ds²)`; `dE/ds` is the
 /// spring's force.
@@ -327,6 +369,28 @@ pub fn dead_zone_energy<T: Real>(s: T, c: T, k: T) -> (T, T, T) {
 mod tests {
     extern crate std;
     use super::*;
+
+    /// A step is limited by its largest translation or its largest rotation at the 30 mm
+    /// lever, whichever is larger, and keeps its direction; a small one is left alone.
+    #[test]
+    fn a_step_is_limited_to_a_millimetre_or_a_thirtieth_of_a_radian() {
+        let mut step = [0.5, -2.0, 0.1, 0.0, 0.0, 0.0, 0.25, 0.0, -0.01];
+        assert_eq!(limit_step(&mut step), 3.0);
+        assert_eq!(step[2], 0.1 / 3.0);
+        assert_eq!(step[1], -2.0 / 3.0);
+        let mut small = [0.5f32, 0.0, 0.02, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0];
+        assert!((limit_step(&mut small) - 0.6).abs() < 1e-6);
+        assert_eq!(small[0], 0.5);
+        // Damping: raised from none to 1e-4 and tenfold after refusals, relaxed tenfold after
+        // an acceptance, to none below 1e-6.
+        let mut mu = 0.0;
+        for expected in [1e-4, 1e-3, 1e-2] {
+            mu = damping_after(mu, false);
+            assert!((mu - expected).abs() < 1e-15, "{mu}");
+        }
+        assert!((damping_after(mu, true) - 1e-3).abs() < 1e-15);
+        assert_eq!(damping_after(5e-7, true), 0.0);
+    }
 
     /// Without manufacturing errors the six-bar's equivalent five-bar is its nominal one, and
     /// at that five-bar's pose every bar sits at its own length (an error-free six-bar

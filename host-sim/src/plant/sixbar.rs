@@ -63,7 +63,7 @@
 
 use super::{deg, PlantError};
 use crate::plant::config::{PlantModel, SixBarConfig};
-use kinematics_core::sixbar::{dead_zone_energy, BarEnd, SixBarLayout};
+use kinematics_core::sixbar::{damping_after, dead_zone_energy, limit_step, BarEnd, SixBarLayout};
 use kinematics_core::{FiveBar, KinematicsError};
 use nalgebra::{SMatrix, SVector};
 
@@ -328,8 +328,6 @@ impl SixBar {
     ) -> Result<(SixBarSolution, Vec9), PlantError> {
         const MAX_ITER: u32 = 60;
         const STEP_TOL_MM: f64 = 1e-9;
-        // Rotations are compared as displacements at a 30 mm lever.
-        const ROT_SCALE_MM: f64 = 30.0;
         let tips = self.layout.lever_tips(link_rad);
         let mut x = guess;
         let mut n = self.assemble(&x, &tips, None);
@@ -346,34 +344,20 @@ impl SixBar {
                 });
             };
             let mut step = chol.solve(&(-n.g));
-            // Never move more than 1 mm / 1/30 rad in one step (keeps LM inside the model's range).
-            let big = (0..9)
-                .map(|k| {
-                    if k % 3 == 2 {
-                        step[k].abs() * ROT_SCALE_MM
-                    } else {
-                        step[k].abs()
-                    }
-                })
-                .fold(0.0, f64::max);
-            if big > 1.0 {
-                step /= big;
-            }
+            let big = limit_step(step.as_mut_slice());
             let trial = x + step;
             let nt = self.assemble(&trial, &tips, None);
-            if nt.energy <= n.energy * (1.0 + 1e-12) + 1e-18 {
+            let accepted = nt.energy <= n.energy * (1.0 + 1e-12) + 1e-18;
+            mu = damping_after(mu, accepted);
+            if accepted {
                 x = trial;
                 n = nt;
-                mu = if mu < 1e-6 { 0.0 } else { mu / 10.0 };
                 if big < STEP_TOL_MM {
                     return Ok((self.solution(&x, &tips, iter), x));
                 }
-            } else {
-                mu = if mu == 0.0 { 1e-4 } else { mu * 10.0 };
-                if big < STEP_TOL_MM && mu > 1e6 {
-                    // No descent left at round-off level: we are at the minimum.
-                    return Ok((self.solution(&x, &tips, iter), x));
-                }
+            } else if big < STEP_TOL_MM && mu > 1e6 {
+                // No descent left at round-off level: we are at the minimum.
+                return Ok((self.solution(&x, &tips, iter), x));
             }
         }
         Err(PlantError::NotConverged {

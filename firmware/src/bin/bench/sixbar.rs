@@ -32,7 +32,9 @@
 // `!(x > 0)` instead of `x <= 0` is deliberate: it also refuses NaN.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
-use kinematics_core::sixbar::{dead_zone_energy, BarEnd, SixBarDesign, SixBarErrors, SixBarLayout};
+use kinematics_core::sixbar::{
+    damping_after, dead_zone_energy, limit_step, BarEnd, SixBarDesign, SixBarErrors, SixBarLayout,
+};
 use kinematics_core::{FiveBar, Real};
 
 /// The linkage, as host-sim's `SixBarConfig` (without its plant-model switch): the design and
@@ -295,7 +297,6 @@ impl SixBar {
     ) -> Result<(Solution, Vec9), SolveError> {
         const MAX_ITER: u32 = 60;
         const STEP_TOL_MM: f32 = 2e-5;
-        const ROT_SCALE_MM: f32 = 30.0;
         let tips = self.layout.lever_tips(link_rad);
         let mut x = guess;
         let mut n = self.assemble(&x, &tips);
@@ -310,20 +311,7 @@ impl SixBar {
                 step[k] = -n.g[k];
             }
             cholesky_solve(&mut h, &mut step)?;
-            let mut big = 0.0f32;
-            for (k, v) in step.iter().enumerate() {
-                let size = if k % 3 == 2 {
-                    Real::abs(*v) * ROT_SCALE_MM
-                } else {
-                    Real::abs(*v)
-                };
-                big = Real::max(big, size);
-            }
-            if big > 1.0 {
-                for v in step.iter_mut() {
-                    *v /= big;
-                }
-            }
+            let big = limit_step(&mut step);
             let mut trial = x;
             for k in 0..9 {
                 trial[k] += step[k];
@@ -338,10 +326,11 @@ impl SixBar {
             ));
             // A rise within the energy's round-off is no rise: near the minimum the f32 energy
             // cannot tell steps apart, and refusing them would stall the solve.
-            if nt.energy <= n.energy + n.noise + nt.noise {
+            let accepted = nt.energy <= n.energy + n.noise + nt.noise;
+            mu = damping_after(mu, accepted);
+            if accepted {
                 x = trial;
                 n = nt;
-                mu = if mu < 1e-6 { 0.0 } else { mu / 10.0 };
                 if big < STEP_TOL_MM {
                     return Ok((
                         Solution {
@@ -351,12 +340,9 @@ impl SixBar {
                         x,
                     ));
                 }
-            } else {
-                mu = if mu == 0.0 { 1e-4 } else { mu * 10.0 };
-                if big < STEP_TOL_MM && mu > 1e6 {
-                    // No descent left at round-off level: we are at the minimum.
-                    return done;
-                }
+            } else if big < STEP_TOL_MM && mu > 1e6 {
+                // No descent left at round-off level: we are at the minimum.
+                return done;
             }
         }
         Err(SolveError::NoConvergence)
