@@ -21,8 +21,14 @@
 #   6. clippy, warnings denied: the host crates (g474-plan included) with all their targets
 #      (host-sim's benches compiled there), the firmware for both boards (last, so that it reuses the proc macros
 #      the release builds compiled)
+#
+# Every Cortex-M build (steps 2 to 5 and the firmware's clippy) goes to target/system-tests,
+# where the host tests that run the firmware under QEMU (tests/support/firmware_build.rs) have
+# just built it in release: the QEMU firmware is then built once, not once for the tests and
+# again for `cargo qemu-test`, and the other firmware builds reuse its dependencies.
 set -euo pipefail
 cd "$(dirname "$0")/.."
+mcu_target_dir=target/system-tests
 
 # Each step's line carries the seconds since the start: where CI time goes.
 step() { printf '\n=== [%4d s] %s\n' "$SECONDS" "$*"; }
@@ -63,16 +69,16 @@ step "the commands reference is the binary's help (docs/reference/commands.md)"
 HOST_SIM_BIN=target/debug/host-sim bash tests/gen-commands-doc.sh --check
 
 step "kinematics-core for the MCU"
-cargo build --locked -p kinematics-core --target thumbv7em-none-eabihf --release
+CARGO_TARGET_DIR=$mcu_target_dir cargo build --locked -p kinematics-core --target thumbv7em-none-eabihf --release
 
 step "firmware under QEMU (real app, 2 kHz timer task, fault injection)"
-cargo qemu-test
+CARGO_TARGET_DIR=$mcu_target_dir cargo qemu-test
 
 step "firmware benchmarks under QEMU (instructions and estimated Cortex-M4 cycles per call; VSQRT executed)"
-cargo qemu-bench
+CARGO_TARGET_DIR=$mcu_target_dir cargo qemu-bench
 
 step "firmware for the real board (STM32G474) builds"
-cargo fw-build
+CARGO_TARGET_DIR=$mcu_target_dir cargo fw-build
 
 # All targets: this also compiles (checks) host-sim's benches, which `cargo test` does not
 # build, so an API change that breaks them fails here. The firmware only builds for the MCU
@@ -81,8 +87,8 @@ step "clippy: host crates (kinematics-core, controller, g474-plan, host-sim with
 cargo clippy --locked --workspace --exclude firmware --all-targets -- -D warnings
 
 step "clippy: firmware, QEMU board and STM32G474 board"
-cargo clippy --locked --release -p firmware --target thumbv7em-none-eabihf --lib --bins -- -D warnings
-cargo clippy --locked --release -p firmware --target thumbv7em-none-eabihf --lib --bins \
+CARGO_TARGET_DIR=$mcu_target_dir cargo clippy --locked --release -p firmware --target thumbv7em-none-eabihf --lib --bins -- -D warnings
+CARGO_TARGET_DIR=$mcu_target_dir cargo clippy --locked --release -p firmware --target thumbv7em-none-eabihf --lib --bins \
     --no-default-features --features board-g474 -- -D warnings
 
 step "all tests passed"

@@ -365,14 +365,16 @@ impl<T: Real> Terms<T> {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     extern crate std;
     use super::*;
     use crate::model::{FiveBar, WorkingMode};
     use crate::path::Figure8;
     use crate::trajectory::{PathMotion, TaskLimits};
 
-    fn machine() -> FiveBar<f64> {
+    /// A machine with every length, base and encoder offset off the paper's: the dynamics'
+    /// tests and the joint motion's move on it, so no symmetry of the nominal hides an error.
+    pub(crate) fn machine() -> FiveBar<f64> {
         FiveBar {
             a_mm: 149.2,
             b_mm: 151.1,

@@ -204,22 +204,9 @@ pub fn motion_from_pose<T: Real>(
 mod tests {
     extern crate std;
     use super::*;
-    use crate::model::WorkingMode;
+    use crate::dynamics::tests::machine;
     use crate::path::Circle;
     use crate::trajectory::{PathMotion, TaskLimits};
-
-    fn machine() -> FiveBar<f64> {
-        FiveBar {
-            a_mm: 149.2,
-            b_mm: 151.1,
-            c_mm: 148.7,
-            d_mm: 150.6,
-            base_a0_mm: [0.4, -0.3],
-            base_b0_mm: [0.8, -1.1],
-            encoder_offset_rad: [0.01, -0.02],
-            mode: WorkingMode::PAPER,
-        }
-    }
 
     /// Along a circle at 5 g, the joint velocities and accelerations are the derivatives of the
     /// IK's angles (central differences).

@@ -30,7 +30,11 @@
 //! * [`joint_motion`], [`dynamics`], [`feed_forward`], [`joint_limits`]: the joint motion for a
 //!   tool motion, the hidden robot's inverse dynamics (linear in identified parameters), the
 //!   servo's feed-forward over a sample, and the motors' speed and torque limits met by
-//!   slowing a trajectory down.
+//!   slowing a trajectory down;
+//! * [`hermite`]: the cubic that joins two streamed knots (the controller's motion stream and
+//!   the host loop play the same one);
+//! * [`sixbar`]: the real six-bar's layout as built (its pins, bars and equivalent five-bar),
+//!   which host-sim's plant and the firmware's benchmark of its solve both start from.
 //!
 //! Everything is generic over [`Real`] where the host tools need f64 and the MCU f32; the grid and
 //! the servo are f32, exactly as the MCU runs them. `no_std`, no heap, no panic on any input:
@@ -51,6 +55,7 @@ pub mod feed_forward;
 pub mod forward;
 pub mod gain_design;
 pub mod grid;
+pub mod hermite;
 pub mod inverse;
 pub mod jacobian;
 pub mod jerk_profile;
@@ -67,6 +72,7 @@ pub mod real;
 pub mod servo;
 pub mod setpoint;
 pub mod sin_cos;
+pub mod sixbar;
 pub mod trajectory;
 pub mod valid_model;
 pub mod workspace;

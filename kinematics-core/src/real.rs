@@ -55,6 +55,8 @@ pub trait Real:
     fn atan2(self, x: Self) -> Self;
     /// `(sin, cos)` of the angle (libm's `sincos`).
     fn sin_cos(self) -> (Self, Self);
+    /// Hyperbolic tangent (libm's; the six-bar's clearances, not in the 2 kHz step).
+    fn tanh(self) -> Self;
     /// Absolute value.
     fn abs(self) -> Self;
     /// Neither NaN nor infinite.
@@ -116,6 +118,9 @@ impl Real for f64 {
     fn sin_cos(self) -> (Self, Self) {
         libm::sincos(self)
     }
+    fn tanh(self) -> Self {
+        libm::tanh(self)
+    }
     fn abs(self) -> Self {
         libm::fabs(self)
     }
@@ -161,6 +166,9 @@ impl Real for f32 {
     #[inline(always)]
     fn sin_cos(self) -> (Self, Self) {
         crate::sin_cos::sin_cos_f32(self)
+    }
+    fn tanh(self) -> Self {
+        libm::tanhf(self)
     }
     fn abs(self) -> Self {
         libm::fabsf(self)

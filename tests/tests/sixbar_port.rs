@@ -12,49 +12,29 @@
 #[path = "../../firmware/src/bin/bench/sixbar.rs"]
 mod sixbar;
 
-use host_sim::plant::config::{SixBarConfig, SixBarErrors};
+use host_sim::plant::config::SixBarConfig;
 use host_sim::plant::{PlantConfig, SixBar};
+use kinematics_core::sixbar::SixBarDesign;
 use kinematics_core::FiveBar;
-
-fn v(a: [f64; 2]) -> [f32; 2] {
-    [a[0] as f32, a[1] as f32]
-}
 
 /// host-sim's linkage description in the port's types.
 fn params(c: &SixBarConfig) -> sixbar::SixBarParams {
-    let e: &SixBarErrors = &c.errors;
+    let d = c.design();
+    let v = |a: [f64; 2]| [a[0] as f32, a[1] as f32];
     sixbar::SixBarParams {
-        link_mm: c.link_mm as f32,
-        platform_half_width_mm: c.platform_half_width_mm as f32,
-        parallelogram_1_offset_mm: v(c.parallelogram_1_offset_mm),
-        parallelogram_2_offset_mm: v(c.parallelogram_2_offset_mm),
-        youngs_modulus_n_per_mm2: c.youngs_modulus_n_per_mm2 as f32,
-        main_bar_section_mm2: c.main_bar_section_mm2 as f32,
-        follower_bar_section_mm2: c.follower_bar_section_mm2 as f32,
+        design: SixBarDesign {
+            nominal: d.nominal.cast::<f32>(),
+            platform_half_width_mm: d.platform_half_width_mm as f32,
+            parallelogram_offsets_mm: d.parallelogram_offsets_mm.map(|arm| arm.map(v)),
+            youngs_modulus_n_per_mm2: d.youngs_modulus_n_per_mm2 as f32,
+            main_bar_section_mm2: d.main_bar_section_mm2 as f32,
+            follower_bar_section_mm2: d.follower_bar_section_mm2 as f32,
+        },
+        errors: c.errors.map(|x| x as f32),
         pin_stiffness_n_per_mm: c.pin_stiffness_n_per_mm as f32,
         pin_clearance_mm: c.pin_clearance_mm as f32,
         bar_end_clearance_mm: c.bar_end_clearance_mm as f32,
         clearance_centring_ratio: c.clearance_centring_ratio as f32,
-        errors: sixbar::SixBarErrors {
-            lever_length_mm: v(e.lever_length_mm),
-            bar_f_length_mm: v(e.bar_f_length_mm),
-            bar_q_length_mm: v(e.bar_q_length_mm),
-            bar_g_length_mm: v(e.bar_g_length_mm),
-            ground_motor_1_mm: v(e.ground_motor_1_mm),
-            ground_motor_2_mm: v(e.ground_motor_2_mm),
-            ground_follower_1_mm: v(e.ground_follower_1_mm),
-            ground_follower_2_mm: v(e.ground_follower_2_mm),
-            elbow_1_pin_q_mm: v(e.elbow_1_pin_q_mm),
-            elbow_1_pin_f_mm: v(e.elbow_1_pin_f_mm),
-            elbow_1_pin_g_mm: v(e.elbow_1_pin_g_mm),
-            elbow_2_pin_q_mm: v(e.elbow_2_pin_q_mm),
-            elbow_2_pin_f_mm: v(e.elbow_2_pin_f_mm),
-            elbow_2_pin_g_mm: v(e.elbow_2_pin_g_mm),
-            platform_pin_d_mm: v(e.platform_pin_d_mm),
-            platform_pin_dd_mm: v(e.platform_pin_dd_mm),
-            platform_pin_e_mm: v(e.platform_pin_e_mm),
-            platform_pin_ee_mm: v(e.platform_pin_ee_mm),
-        },
     }
 }
 

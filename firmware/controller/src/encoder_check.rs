@@ -369,43 +369,47 @@ mod tests {
         None
     }
 
+    /// The torque (N·m) of a fast move with reversals, the profile two tests drive an axis
+    /// with at sample `k` and speed `w` (rad/s): ±2 N·m bang-bang reversing every 40 ms for
+    /// 1.5 s, then braked to rest and 0.15 N·m held.
+    fn reversing_torque_nm(k: usize, _: f32, w: f32) -> f32 {
+        if k < 3000 {
+            if (k / 80) % 2 == 0 {
+                2.0
+            } else {
+                -2.0
+            }
+        } else if w.abs() > 0.1 {
+            -2.0 * w.signum()
+        } else {
+            0.15
+        }
+    }
+
     #[test]
     fn a_fast_move_with_friction_and_reversals_is_plausible() {
         // ±2 N·m bang-bang reversing every 40 ms against 0.18 N·m of friction (up to about
         // 35 rad/s, 800 rad/s²); then 0.15 N·m (below hold_torque, and below the friction) held
         // at rest, where the reading does not change for 0.5 s.
-        let fault = run(
-            4000,
-            2.2e-3,
-            0.18,
-            |k, _, w| {
-                if k < 3000 {
-                    if (k / 80) % 2 == 0 {
-                        2.0
-                    } else {
-                        -2.0
-                    }
-                } else if w.abs() > 0.1 {
-                    -2.0 * w.signum()
-                } else {
-                    0.15
-                }
-            },
-            |_, r| r,
-        );
+        let fault = run(4000, 2.2e-3, 0.18, reversing_torque_nm, |_, r| r);
         assert_eq!(fault, None);
+    }
+
+    /// An axis under a steady 0.2 N·m whose reading jumps by `delta_rad` in sample 400 only.
+    fn glitch_at_400(delta_rad: f32) -> Option<(usize, EncoderFault)> {
+        run(
+            600,
+            2.2e-3,
+            0.03,
+            |_, _, _| 0.2,
+            |k, r| if k == 400 { r + delta_rad } else { r },
+        )
     }
 
     #[test]
     fn glitches_are_caught_in_their_sample_or_when_the_reading_returns() {
         for delta in [1.6e-3f32, 5e-3, 0.02, -0.05] {
-            let fault = run(
-                600,
-                2.2e-3,
-                0.03,
-                |_, _, _| 0.2,
-                |k, r| if k == 400 { r + delta } else { r },
-            );
+            let fault = glitch_at_400(delta);
             let (at, f) = fault.unwrap_or_else(|| panic!("glitch {delta} not caught"));
             assert_eq!((at, f.axis), (400, 0), "{delta}");
             assert!(
@@ -418,13 +422,7 @@ mod tests {
         }
         // Between half the bound and the bound: caught when the reading comes back (-2δ).
         for delta in [0.8e-3f32, -1.2e-3] {
-            let fault = run(
-                600,
-                2.2e-3,
-                0.03,
-                |_, _, _| 0.2,
-                |k, r| if k == 400 { r + delta } else { r },
-            );
+            let fault = glitch_at_400(delta);
             assert_eq!(
                 fault,
                 Some((
@@ -438,16 +436,7 @@ mod tests {
             );
         }
         // Below half the bound it is noise to this check (the servo takes it as a small kick).
-        assert_eq!(
-            run(
-                600,
-                2.2e-3,
-                0.03,
-                |_, _, _| 0.2,
-                |k, r| if k == 400 { r + 0.7e-3 } else { r }
-            ),
-            None
-        );
+        assert_eq!(glitch_at_400(0.7e-3), None);
     }
 
     #[test]
@@ -593,21 +582,8 @@ mod tests {
     #[test]
     fn a_coarse_encoders_quantisation_is_not_a_fault_but_a_glitch_still_is() {
         let count = core::f32::consts::TAU / 4096.0;
-        let reversing = |k: usize, _: f32, w: f32| {
-            if k < 3000 {
-                if (k / 80) % 2 == 0 {
-                    2.0
-                } else {
-                    -2.0
-                }
-            } else if w.abs() > 0.1 {
-                -2.0 * w.signum()
-            } else {
-                0.15
-            }
-        };
         assert_eq!(
-            run_with(count, 4000, 2.2e-3, 0.18, reversing, |_, r| r),
+            run_with(count, 4000, 2.2e-3, 0.18, reversing_torque_nm, |_, r| r),
             None
         );
         // 0.5 N·m from rest: the expected motion passes stuck_motion (1e-4 rad) long before the

@@ -39,6 +39,7 @@
 //! Cost: a setpoint is one cubic evaluation (~40 flops); a frame's validation is
 //! `8 × 33` stop plans at most. Both run in the intake and link tasks, never in the servo task.
 use heapless::Deque;
+use kinematics_core::hermite::HermiteCubic;
 use kinematics_core::path::Line;
 use kinematics_core::trajectory::{MotionSetpoint, PathMotion, TaskLimits};
 use link_protocol::{Knot, SegmentRefusal, MAX_SEGMENT_US};
@@ -90,34 +91,28 @@ pub enum PushRefusal {
     Busy,
 }
 
-/// A cubic Hermite segment as a polynomial in the time since its start:
-/// `p(τ) = a + bτ + cτ² + dτ³` per axis, for `τ ∈ [0, T]`.
+/// A cubic Hermite segment between two knots, a polynomial in the time since its start
+/// (`kinematics_core::hermite`, the formula the host loop plays the same knots with).
 #[derive(Clone, Copy, Debug, PartialEq)]
 struct Segment {
     t0_us: u32,
     t1_us: u32,
-    a: [f32; 2],
-    b: [f32; 2],
-    c: [f32; 2],
-    d: [f32; 2],
+    cubic: HermiteCubic<f32>,
 }
 
 impl Segment {
     fn between(from: &Knot, to: &Knot) -> Self {
         let h = (to.t_us - from.t_us) as f32 * 1.0e-6;
-        let (mut c, mut d) = ([0.0; 2], [0.0; 2]);
-        for k in 0..2 {
-            let slope = (to.position_mm[k] - from.position_mm[k]) / h;
-            c[k] = (3.0 * slope - 2.0 * from.velocity_mm_s[k] - to.velocity_mm_s[k]) / h;
-            d[k] = (from.velocity_mm_s[k] + to.velocity_mm_s[k] - 2.0 * slope) / (h * h);
-        }
         Segment {
             t0_us: from.t_us,
             t1_us: to.t_us,
-            a: from.position_mm,
-            b: from.velocity_mm_s,
-            c,
-            d,
+            cubic: HermiteCubic::between(
+                h,
+                from.position_mm,
+                from.velocity_mm_s,
+                to.position_mm,
+                to.velocity_mm_s,
+            ),
         }
     }
 
@@ -127,15 +122,7 @@ impl Segment {
 
     /// The setpoint `tau_s` after the segment's start, with its exact derivatives.
     fn at(&self, tau_s: f32) -> MotionSetpoint<f32> {
-        let mut s = MotionSetpoint::at_rest([0.0; 2]);
-        for k in 0..2 {
-            let (a, b, c, d) = (self.a[k], self.b[k], self.c[k], self.d[k]);
-            s.position_mm[k] = a + tau_s * (b + tau_s * (c + tau_s * d));
-            s.velocity_mm_s[k] = b + tau_s * (2.0 * c + tau_s * 3.0 * d);
-            s.acceleration_mm_s2[k] = 2.0 * c + tau_s * 6.0 * d;
-            s.jerk_mm_s3[k] = 6.0 * d;
-        }
-        s
+        self.cubic.at(tau_s)
     }
 
     /// Checks the segment against `limits` (see the module doc).
@@ -190,10 +177,11 @@ impl Segment {
     /// Least and greatest position of axis `k` over the segment (mm).
     fn axis_range(&self, k: usize) -> (f32, f32) {
         let h = self.duration_s();
-        let p = |t: f32| self.a[k] + t * (self.b[k] + t * (self.c[k] + t * self.d[k]));
+        let HermiteCubic { a, b, c, d } = &self.cubic;
+        let p = |t: f32| a[k] + t * (b[k] + t * (c[k] + t * d[k]));
         let (mut lo, mut hi) = (p(0.0).min(p(h)), p(0.0).max(p(h)));
         // v(τ) = b + 2cτ + 3dτ² = 0.
-        let (qa, qb, qc) = (3.0 * self.d[k], 2.0 * self.c[k], self.b[k]);
+        let (qa, qb, qc) = (3.0 * d[k], 2.0 * c[k], b[k]);
         let mut roots = [f32::NAN; 2];
         if qa.abs() > f32::EPSILON * (qb.abs() + qc.abs()) {
             let disc = qb * qb - 4.0 * qa * qc;

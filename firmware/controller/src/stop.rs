@@ -587,14 +587,8 @@ mod tests {
 
     #[test]
     fn workspace_is_the_grid_rectangle_less_the_margin() {
-        let g = GridGeometry {
-            nx: 21,
-            ny: 31,
-            x0_mm: 162.132,
-            y0_mm: -75.0,
-            step_x_mm: 5.0,
-            step_y_mm: 5.0,
-        };
+        // The paper's lattice: x 162.132..262.132 mm, y -75..75 mm, 5 mm nodes.
+        let g = kinematics_core::paper::grid_geometry();
         let w = Workspace::of_grid(&g, 0.1).unwrap();
         assert!(w.contains([162.24, -74.89]) && w.contains([262.02, 74.89]));
         assert!(
@@ -609,14 +603,8 @@ mod tests {
     #[test]
     fn workspace_comes_from_the_image_when_it_has_one() {
         use kinematics_core::grid::{append_workspace, encode, WorkspaceLimits, WORKSPACE_LEN};
-        let g = GridGeometry {
-            nx: 21,
-            ny: 31,
-            x0_mm: 162.132,
-            y0_mm: -75.0,
-            step_x_mm: 5.0,
-            step_y_mm: 5.0,
-        };
+        // The paper's lattice: x 162.132..262.132 mm, y -75..75 mm, 5 mm nodes.
+        let g = kinematics_core::paper::grid_geometry();
         let mut img = std::vec![0u8; g.image_len() + WORKSPACE_LEN];
         let n = encode(
             &mut img,

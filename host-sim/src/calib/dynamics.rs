@@ -367,13 +367,7 @@ fn solve(
 mod tests {
     use super::*;
     use crate::sim::closed_loop::run_loop;
-
-    fn nominal() -> Calibration<'static> {
-        Calibration {
-            model: FiveBar::<f32>::paper_nominal(),
-            grid: None,
-        }
-    }
+    use crate::sim::closed_loop::tests::nominal;
 
     /// On the ideal plant (no friction, exact geometry) the identified parameters are the
     /// bodies' and rotors' lumped values.

@@ -269,14 +269,7 @@ pub fn measure_compensated(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use kinematics_core::FiveBar;
-
-    fn nominal() -> Calibration<'static> {
-        Calibration {
-            model: FiveBar::<f32>::paper_nominal(),
-            grid: None,
-        }
-    }
+    use crate::sim::closed_loop::tests::nominal;
 
     fn run(
         plant: &PlantConfig,

@@ -1,10 +1,13 @@
-//! What several commands do with the same kind of argument, done once: `--plant-model`, a
-//! measurement file (`--data` and the like) checked to be of the machine, and the moving
+//! What several commands do with the same kind of argument, done once: `--plant` and
+//! `--plant-model`, a dynamics file and a measurement file (`--data` and the like) checked to
+//! be of the machine, and the moving
 //! machine's telemetry log (`--telemetry`) with the knots it is a run of (`--knots`), as
 //! `identify` and `diagnose --telemetry` read them.
 
 use super::MachineArg;
-use anyhow::{bail, Context, Result};
+use anyhow::{anyhow, bail, Context, Result};
+use host_sim::calib::machine::check_plant_fits;
+use host_sim::io::dynamics_file::read_dynamics_file;
 use host_sim::io::measurement_csv::{read_measurement_file, Measurement};
 use host_sim::io::telemetry_csv::{read_telemetry, TelemetryLog};
 use host_sim::link::link_protocol::Knot;
@@ -12,6 +15,7 @@ use host_sim::link::parse_knots_csv;
 use host_sim::machine_spec::MachineSpec;
 use host_sim::plant::{PlantConfig, PlantModel};
 use host_sim::sim::knots::KnotPath;
+use kinematics_core::FiveBarDynamics;
 use std::path::Path;
 
 /// `--plant-model NAME` applied to the plant: `sixbar` or `fivebar` (none: the plant's own).
@@ -23,6 +27,31 @@ pub fn override_plant_model(plant: &mut PlantConfig, name: Option<&str>) -> Resu
         Some(other) => bail!("unknown --plant-model '{other}' (known: sixbar, fivebar)"),
     }
     Ok(())
+}
+
+/// The plant `--plant NAME` names (`ideal`, `paper` or a plant TOML), checked to be built around
+/// `spec`'s machine: a simulated run on another machine's plant would report figures of neither.
+pub fn plant_for(name: &str, spec: &MachineSpec) -> Result<PlantConfig> {
+    let plant = PlantConfig::by_name(name)?;
+    check_plant_fits(&plant, spec)?;
+    Ok(plant)
+}
+
+/// The identified dynamics of `--flag path` (a dynamics.json), checked to be of `spec`'s
+/// machine: another machine's inertias fed forward would fight the servo.
+pub fn read_dynamics(
+    machine: &MachineArg,
+    spec: &MachineSpec,
+    flag: &str,
+    path: &Path,
+) -> Result<FiveBarDynamics<f64>> {
+    let file = read_dynamics_file(path)?;
+    machine.check_files(
+        spec,
+        &[super::file_machine(flag, path, file.machine.clone())],
+    )?;
+    file.dynamics()
+        .map_err(|e| anyhow!("{}: {e}", path.display()))
 }
 
 /// The measurements of `--flag path`, checked to be of `spec`'s machine.

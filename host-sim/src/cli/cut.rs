@@ -7,11 +7,9 @@
 
 use anyhow::{bail, Context, Result};
 use host_sim::cut::{plots, report, run, CutOptions};
-use host_sim::io::dynamics_file::read_dynamics;
 use host_sim::io::policy::CommandFiles;
 use host_sim::io::{json_text, KeyOrder};
 use host_sim::plant::PlantConfig;
-use kinematics_core::Calibration;
 use std::path::{Path, PathBuf};
 
 /// Arguments of `host-sim cut`.
@@ -87,17 +85,22 @@ pub fn run_cut(args: &Args) -> Result<()> {
     }
     super::common_args::override_plant_model(&mut plant, args.plant_model.as_deref())?;
     let text = read_program(&args.program)?;
-    let (model, bytes) = super::load_calibration(
+    let loaded = super::load_calibration(
         args.model.as_deref(),
         args.grid.as_deref(),
         &spec,
         &args.machine,
     )?;
-    let calibration = Calibration {
-        model,
-        grid: super::parse_grid(&bytes)?,
+    let calibration = loaded.calibration()?;
+    let dynamics = match &args.dynamics {
+        Some(p) => Some(super::common_args::read_dynamics(
+            &args.machine,
+            &spec,
+            "--dynamics",
+            p,
+        )?),
+        None => None,
     };
-    let dynamics = args.dynamics.as_deref().map(read_dynamics).transpose()?;
     let name = args.program.file_name().map_or_else(
         || args.program.display().to_string(),
         |n| n.to_string_lossy().into_owned(),

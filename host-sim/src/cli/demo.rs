@@ -7,7 +7,7 @@
 //! its stated goal (the noise floor) writes everything and exits non-zero.
 
 use anyhow::{bail, Result};
-use host_sim::calib::machine::{check_plant_fits, Machine, PlantMachine, StandInMachine};
+use host_sim::calib::machine::{Machine, PlantMachine, StandInMachine};
 use host_sim::calib::pipeline::{
     calibrate, summary, write_outputs, Approach, Calibrated, Event, PipelineOptions,
 };
@@ -113,8 +113,7 @@ pub fn run(args: &Args) -> Result<()> {
     let mut machine: Box<dyn Machine> = match args.plant.as_str() {
         "stand-in" => Box::new(StandInMachine::paper_like(&spec, args.seed)?),
         name => {
-            let plant = host_sim::plant::PlantConfig::by_name(name)?;
-            check_plant_fits(&plant, &spec)?;
+            let plant = super::common_args::plant_for(name, &spec)?;
             Box::new(PlantMachine::from_config(
                 plant,
                 name,

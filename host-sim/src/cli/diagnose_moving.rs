@@ -14,12 +14,12 @@ use host_sim::dynamics::excitation::{excitation, ExcitationOptions};
 use host_sim::dynamics::predict::Controller;
 use host_sim::dynamics::report::table;
 use host_sim::dynamics::samples::SampleOptions;
-use host_sim::io::dynamics_file::{read_dynamics_file, write_dynamics_file, DynamicsFile};
+use host_sim::io::dynamics_file::{write_dynamics_file, DynamicsFile};
 use host_sim::io::policy::CommandFiles;
 use host_sim::io::{json_text, KeyOrder};
 use host_sim::machine_spec::STANDARD_GRAVITY_MM_S2;
 use kinematics_core::dynamics::PARAMETER_NAMES;
-use kinematics_core::FiveBarDynamics;
+use kinematics_core::{Calibration, FiveBarDynamics};
 use std::path::PathBuf;
 
 /// The flags of the moving machine's diagnosis (`diagnose --telemetry`).
@@ -74,23 +74,15 @@ pub fn run(args: &super::diagnose::Args) -> Result<()> {
         .output("--out-dynamics", &m.out_dynamics)
         .check()?;
     let spec = args.machine.spec()?;
-    let (model, bytes) = super::load_calibration(
+    let loaded = super::load_calibration(
         args.model.as_deref(),
         m.grid.as_deref(),
         &spec,
         &args.machine,
     )?;
-    let grid = super::parse_grid(&bytes)?;
+    let Calibration { model, grid } = loaded.calibration()?;
     let fed_forward: FiveBarDynamics<f64> = match (&m.dynamics, grid.as_ref().and_then(|g| g.dynamics())) {
-        (Some(p), _) => {
-            let file = read_dynamics_file(p)?;
-            args.machine.check_files(
-                &spec,
-                &[super::file_machine("--dynamics", p, file.machine.clone())],
-            )?;
-            file.dynamics()
-                .map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))?
-        }
+        (Some(p), _) => super::common_args::read_dynamics(&args.machine, &spec, "--dynamics", p)?,
         (None, Some(d)) => d.cast(),
         (None, None) => bail!(
             "give the dynamics the controller fed forward: --dynamics FILE, or --grid with the image it ran (its dynamics block)"

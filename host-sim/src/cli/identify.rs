@@ -29,10 +29,9 @@ use host_sim::io::{json_text, KeyOrder};
 use host_sim::link::link_protocol::{calibration_image_id, Command, Response};
 use host_sim::link::LinkClient;
 use host_sim::machine_spec::{MachineSpec, STANDARD_GRAVITY_MM_S2};
-use host_sim::plant::PlantConfig;
 use host_sim::sim::closed_loop::FeedForward;
 use kinematics_core::dynamics::PARAMETER_NAMES;
-use kinematics_core::{Calibration, ServoConfig};
+use kinematics_core::ServoConfig;
 use serde::Serialize;
 use std::io::{Read, Write};
 use std::path::PathBuf;
@@ -148,19 +147,16 @@ pub fn run(args: &Args) -> Result<()> {
     if args.telemetry.is_some() && (args.telemetry_csv.is_some() || args.knots_out.is_some()) {
         bail!("--telemetry-csv and --knots-out record a run: not with --telemetry");
     }
-    let (model, bytes) = super::load_calibration(
+    let loaded = super::load_calibration(
         args.model.as_deref(),
         args.grid.as_deref(),
         &spec,
         &args.machine,
     )?;
-    let cal = Calibration {
-        model,
-        grid: super::parse_grid(&bytes)?,
-    };
+    let cal = loaded.calibration()?;
     let servo = ServoConfig::default();
     let samples = SampleOptions {
-        model: model.cast::<f64>(),
+        model: cal.model.cast::<f64>(),
         min_transmission: spec.min_transmission,
         torque_limit_nm: servo.axes.map(|a| f64::from(a.torque_limit_nm)),
     };
@@ -191,8 +187,7 @@ pub fn run(args: &Args) -> Result<()> {
             .with_context(|| format!("identifying from {}", log_path.display()))?;
         (format!("telemetry {}", log_path.display()), result, None)
     } else if let Some(name) = &args.plant {
-        let plant = PlantConfig::by_name(name)?;
-        host_sim::calib::machine::check_plant_fits(&plant, &spec)?;
+        let plant = super::common_args::plant_for(name, &spec)?;
         let opts = PlantRunOptions {
             spec: spec.clone(),
             excitation,
@@ -213,7 +208,7 @@ pub fn run(args: &Args) -> Result<()> {
             poll: LINK_POLL,
         };
         let (transport, mut client) = args.link.open(timeout)?;
-        let id = through(&mut client, &bytes, &opts, &samples)?;
+        let id = through(&mut client, &loaded.image, &opts, &samples)?;
         let source = transport.to_string();
         (source, id.result, Some(id.run))
     };

@@ -5,7 +5,7 @@
 
 use super::MachineArg;
 use anyhow::{bail, Result};
-use host_sim::calib::machine::{check_plant_fits, PlantMachine};
+use host_sim::calib::machine::PlantMachine;
 use host_sim::calib::measure::{
     accuracy, measure_list_compensated, registered, rows, Accuracy, Approach,
 };
@@ -16,8 +16,6 @@ use host_sim::io::model_file::read_model_file;
 use host_sim::io::policy::CommandFiles;
 use host_sim::io::targets_csv::read_target_list;
 use host_sim::io::KeyOrder;
-use host_sim::plant::PlantConfig;
-use kinematics_core::Calibration;
 use serde::Serialize;
 use std::path::PathBuf;
 
@@ -107,8 +105,7 @@ pub fn run(args: &Args) -> Result<()> {
         .output("--out", &args.out)
         .check()?;
     let spec = args.machine.spec()?;
-    let plant = PlantConfig::by_name(&args.plant)?;
-    check_plant_fits(&plant, &spec)?;
+    let plant = super::common_args::plant_for(&args.plant, &spec)?;
     let (list, what) = match (&args.protocol, &args.targets) {
         (Some(p), None) => (visits(Protocol::parse(p)?, args.seed, &spec), p.clone()),
         (None, Some(path)) => {
@@ -122,16 +119,13 @@ pub fn run(args: &Args) -> Result<()> {
         _ => bail!("give --protocol (table1, grid, random:N, repeat) or --targets FILE"),
     };
     let approach: Approach = args.approach.map_or(Approach::FromVisit, Approach::from);
-    let (model, bytes) = super::load_calibration(
+    let loaded = super::load_calibration(
         args.model.as_deref(),
         args.grid.as_deref(),
         &spec,
         &args.machine,
     )?;
-    let cal = Calibration {
-        model,
-        grid: super::parse_grid(&bytes)?,
-    };
+    let cal = loaded.calibration()?;
     super::check_noise_um(args.noise_um)?;
     // A model with a backlash correction (diagnose --out-model, the demo with random
     // approach): every command corrected by its motors' approach directions, as the servo would.

@@ -33,7 +33,7 @@ use host_sim::io::model_file::{read_model_file, ModelFile};
 use host_sim::io::{json_text, KeyOrder};
 use host_sim::machine_identity::{check_files, check_model_geometry, FileMachine, MachineIdentity};
 use host_sim::machine_spec::MachineSpec;
-use kinematics_core::{CorrectionGrid, FiveBar};
+use kinematics_core::{Calibration, CorrectionGrid, FiveBar};
 use std::path::{Path, PathBuf};
 
 /// Plant simulation and calibration tools of the hidden-robot micro-mechanism.
@@ -217,7 +217,7 @@ fn load_calibration(
     grid: Option<&Path>,
     spec: &MachineSpec,
     machine: &MachineArg,
-) -> Result<(FiveBar<f32>, Option<Vec<u8>>)> {
+) -> Result<LoadedCalibration> {
     let nominal = &spec.nominal;
     let from_model = match model {
         Some(p) => {
@@ -249,7 +249,28 @@ fn load_calibration(
         (None, Some(m)) => m,
         (None, None) => nominal.cast::<f32>(),
     };
-    Ok((model, bytes))
+    Ok(LoadedCalibration {
+        model,
+        image: bytes,
+    })
+}
+
+/// What [`load_calibration`] read: the model to command with and the grid image's bytes. The
+/// servo's [`Calibration`] borrows the image, so the commands keep this and take
+/// [`LoadedCalibration::calibration`] from it.
+struct LoadedCalibration {
+    model: FiveBar<f32>,
+    image: Option<Vec<u8>>,
+}
+
+impl LoadedCalibration {
+    /// The calibration the servo runs: the model and the image's grid.
+    fn calibration(&self) -> Result<Calibration<'_>> {
+        Ok(Calibration {
+            model: self.model,
+            grid: parse_grid(&self.image)?,
+        })
+    }
 }
 
 /// The registered instrument frame of a model file (`calib::frame`): the readings of its

@@ -17,18 +17,15 @@ use anyhow::{bail, Result};
 use host_sim::calib::dynamics::identify;
 use host_sim::dynamics::excitation::{excitation, ExcitationOptions};
 use host_sim::dynamics::telemetry::{from_loop, meta_for};
-use host_sim::io::dynamics_file::read_dynamics_file;
 use host_sim::io::plot::{xy_plot_png, Mark, Series};
 use host_sim::io::policy::CommandFiles;
 use host_sim::io::telemetry_csv::telemetry_text;
 use host_sim::io::KeyOrder;
 use host_sim::machine_spec::STANDARD_GRAVITY_MM_S2;
-use host_sim::plant::PlantConfig;
 use host_sim::sim::closed_loop::{FeedForward, LoopSummary};
 use host_sim::sim::simulate::{format_log, simulate, SimulateOptions, MAX_SECONDS};
 use host_sim::sim::trajectory::Trajectory;
 use kinematics_core::dynamics::PARAMETER_NAMES;
-use kinematics_core::Calibration;
 use serde::Serialize;
 use std::path::PathBuf;
 
@@ -112,8 +109,7 @@ pub fn run(args: &Args) -> Result<()> {
         .output("--telemetry-csv", &args.telemetry_csv)
         .check()?;
     let spec = args.machine.spec()?;
-    let mut cfg = PlantConfig::by_name(&args.plant)?;
-    host_sim::calib::machine::check_plant_fits(&cfg, &spec)?;
+    let mut cfg = super::common_args::plant_for(&args.plant, &spec)?;
     super::common_args::override_plant_model(&mut cfg, args.plant_model.as_deref())?;
     if !(20..=2000).contains(&args.decimation) {
         bail!("--decimation must be 20 to 2000, not {}", args.decimation);
@@ -144,32 +140,22 @@ pub fn run(args: &Args) -> Result<()> {
             args.mass_error_pct
         );
     }
-    let (model, bytes) = super::load_calibration(
+    let loaded = super::load_calibration(
         args.model.as_deref(),
         args.grid.as_deref(),
         &spec,
         &args.machine,
     )?;
-    let cal = Calibration {
-        model,
-        grid: super::parse_grid(&bytes)?,
-    };
+    let cal = loaded.calibration()?;
     let (feedforward, source) = match args.feedforward.as_str() {
         "differences" => (FeedForward::Differences, None),
         "constant" => (FeedForward::Constant, None),
         "dynamics" => {
             let (d, source) = match (&args.dynamics, cal.grid.as_ref().and_then(|g| g.dynamics())) {
-                (Some(p), _) => {
-                    let file = read_dynamics_file(p)?;
-                    args.machine.check_files(
-                        &spec,
-                        &[super::file_machine("--dynamics", p, file.machine.clone())],
-                    )?;
-                    let d = file
-                        .dynamics()
-                        .map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))?;
-                    (d, format!("--dynamics {}", p.display()))
-                }
+                (Some(p), _) => (
+                    super::common_args::read_dynamics(&args.machine, &spec, "--dynamics", p)?,
+                    format!("--dynamics {}", p.display()),
+                ),
                 (None, Some(d)) => (
                     d.cast::<f64>(),
                     "the --grid image's dynamics block".to_string(),

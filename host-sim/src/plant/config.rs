@@ -15,6 +15,7 @@
 use super::PlantError;
 use crate::effect::PhysicalEffect;
 use crate::machine_spec::BranchKey;
+use kinematics_core::sixbar::SixBarDesign;
 use kinematics_core::{FiveBar, WorkingMode};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -37,63 +38,9 @@ pub enum PlantModel {
     Fivebar,
 }
 
-/// Manufacturing errors of the six-bar (mm): each bar length, each pin position on each body.
-/// Arm 1 / arm 2 pairs are `[arm1, arm2]`; pin errors are `[x, y]` in the body's frame
-/// (machine frame at the nominal pose). See `sixbar` for the names of the pins.
-#[derive(Clone, Debug, Default, Serialize, Deserialize, PartialEq)]
-#[serde(deny_unknown_fields)]
-pub struct SixBarErrors {
-    /// Driven levers P1, P2 (A0→A, B0→B): length errors.
-    pub lever_length_mm: [f64; 2],
-    /// Followers F1, F2 of the first parallelograms: length errors.
-    pub bar_f_length_mm: [f64; 2],
-    /// Distal bars Q1, Q2 (A→D, B→E): length errors.
-    pub bar_q_length_mm: [f64; 2],
-    /// Followers G1, G2 of the second parallelograms: length errors.
-    pub bar_g_length_mm: [f64; 2],
-    /// Motor axes A0, B0 on the ground.
-    pub ground_motor_1_mm: [f64; 2],
-    pub ground_motor_2_mm: [f64; 2],
-    /// Follower ground pivots A0*, B0*.
-    pub ground_follower_1_mm: [f64; 2],
-    pub ground_follower_2_mm: [f64; 2],
-    /// Elbow piece K1: pins of Q1 (nominally at A), of F1 (A*), of G1 (A**).
-    pub elbow_1_pin_q_mm: [f64; 2],
-    pub elbow_1_pin_f_mm: [f64; 2],
-    pub elbow_1_pin_g_mm: [f64; 2],
-    /// Elbow piece K2: pins of Q2 (nominally at B), of F2 (B*), of G2 (B**).
-    pub elbow_2_pin_q_mm: [f64; 2],
-    pub elbow_2_pin_f_mm: [f64; 2],
-    pub elbow_2_pin_g_mm: [f64; 2],
-    /// Platform T: pins D, D** (arm 1) and E, E** (arm 2), relative to the tool point C.
-    pub platform_pin_d_mm: [f64; 2],
-    pub platform_pin_dd_mm: [f64; 2],
-    pub platform_pin_e_mm: [f64; 2],
-    pub platform_pin_ee_mm: [f64; 2],
-}
-
-impl SixBarErrors {
-    /// Every pin position error (`[x, y]` each), in declaration order: one list for whoever
-    /// draws or scales them, so that a pin added to the struct is not forgotten there.
-    pub fn pins_mut(&mut self) -> [&mut [f64; 2]; 14] {
-        [
-            &mut self.ground_motor_1_mm,
-            &mut self.ground_motor_2_mm,
-            &mut self.ground_follower_1_mm,
-            &mut self.ground_follower_2_mm,
-            &mut self.elbow_1_pin_q_mm,
-            &mut self.elbow_1_pin_f_mm,
-            &mut self.elbow_1_pin_g_mm,
-            &mut self.elbow_2_pin_q_mm,
-            &mut self.elbow_2_pin_f_mm,
-            &mut self.elbow_2_pin_g_mm,
-            &mut self.platform_pin_d_mm,
-            &mut self.platform_pin_dd_mm,
-            &mut self.platform_pin_e_mm,
-            &mut self.platform_pin_ee_mm,
-        ]
-    }
-}
+/// Manufacturing errors of the six-bar (mm): each bar length, each pin position on each body
+/// (`[sixbar.errors]`; the core's type, which the firmware's benchmark of the solve shares).
+pub type SixBarErrors = kinematics_core::sixbar::SixBarErrors<f64>;
 
 /// The nominal five-bar a six-bar is built around, for any machine (`[sixbar.geometry]`;
 /// absent: the paper's, every link `link_mm`, both axes at the origin, the paper's working
@@ -249,6 +196,18 @@ impl SixBarConfig {
                     assembly: g.assembly.into(),
                 },
             },
+        }
+    }
+
+    /// What the six-bar is built from besides its errors (`kinematics_core::sixbar`).
+    pub fn design(&self) -> SixBarDesign<f64> {
+        SixBarDesign {
+            nominal: self.nominal_five_bar(),
+            platform_half_width_mm: self.platform_half_width_mm,
+            parallelogram_offsets_mm: self.parallelogram_offsets_mm(),
+            youngs_modulus_n_per_mm2: self.youngs_modulus_n_per_mm2,
+            main_bar_section_mm2: self.main_bar_section_mm2,
+            follower_bar_section_mm2: self.follower_bar_section_mm2,
         }
     }
 

@@ -48,6 +48,9 @@
 //! aluminium bars are stiff; links that bend would make the elastic part larger (lower
 //! `main_bar_section_mm2`, `follower_bar_section_mm2` or `pin_stiffness_n_per_mm` to model that).
 //!
+//! The layout as built (pins, bars, the equivalent five-bar) and the dead-zone springs are
+//! `kinematics_core::sixbar`'s, which the firmware's benchmark port of this solve shares.
+//!
 //! Solver: Levenberg-Marquardt (Gauss-Newton with Marquardt damping only when a step fails) on
 //! the 9 unknowns with the analytic Jacobian, 9x9 Cholesky. Warm start: the nominal closed-form
 //! pose for the new angles plus the previous solution's deviation from its nominal pose; from
@@ -60,26 +63,12 @@
 
 use super::{deg, PlantError};
 use crate::plant::config::{PlantModel, SixBarConfig};
-use kinematics_core::FiveBar;
+use kinematics_core::sixbar::{damping_after, dead_zone_energy, limit_step, BarEnd, SixBarLayout};
+use kinematics_core::{FiveBar, KinematicsError};
 use nalgebra::{SMatrix, SVector};
 
 type Mat9 = SMatrix<f64, 9, 9>;
 type Vec9 = SVector<f64, 9>;
-
-/// Where a bar end is: on the ground (fixed point) or on body 0 (K1), 1 (K2), 2 (T).
-#[derive(Clone, Copy, Debug)]
-enum End {
-    Ground([f64; 2]),
-    Body(usize, [f64; 2]),
-}
-
-#[derive(Clone, Copy, Debug)]
-struct Bar {
-    p: End,
-    q: End,
-    length_mm: f64,
-    k_n_per_mm: f64,
-}
 
 /// The result of one equilibrium solve.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -107,39 +96,27 @@ impl SixBarSolution {
 #[derive(Clone, Debug)]
 pub struct SixBar {
     model: PlantModel,
-    motor_mm: [[f64; 2]; 2],
-    lever_mm: [f64; 2],
-    bars: [Bar; 6],
+    /// Pins, bars and the equivalent five-bar (the warm start of the six-bar and the whole
+    /// `fivebar` plant).
+    layout: SixBarLayout<f64>,
     pin_k_n_per_mm: f64,
     pin_clearance_mm: f64,
     bar_clearance_mm: f64,
     centring_ratio: f64,
-    /// The equivalent five-bar of the errored arms, with A0' at `five_base_mm`: the warm start
-    /// of the six-bar and the whole `fivebar` plant.
-    five: FiveBar<f64>,
-    five_base_mm: [f64; 2],
     /// Previous solution minus its nominal pose.
     deviation: Option<Vec9>,
 }
 
-fn add(u: [f64; 2], v: [f64; 2]) -> [f64; 2] {
-    [u[0] + v[0], u[1] + v[1]]
-}
 fn sub(u: [f64; 2], v: [f64; 2]) -> [f64; 2] {
     [u[0] - v[0], u[1] - v[1]]
 }
 
-/// Energy `½k·dz(s)²` of a spring with a dead zone of half-width `c` (`dz(s) = s - c·tanh(s/c)`,
-/// smooth, `≈ s³/3c²` inside the clearance): returns `(E, dE/ds, d²E/ds², force = dE/ds)`.
-fn dead_zone_energy(s: f64, c: f64, k: f64) -> (f64, f64, f64) {
-    if c <= 0.0 {
-        return (0.5 * k * s * s, k * s, k);
+/// The refusal of link angles that do not assemble the equivalent five-bar.
+fn not_assemblable(link_rad: [f64; 2], e: KinematicsError) -> PlantError {
+    PlantError::NotAssemblable {
+        link_deg: deg(link_rad),
+        reason: e.to_string(),
     }
-    let t = (s / c).tanh();
-    let dz = s - c * t;
-    let d1 = t * t;
-    let d2 = 2.0 * t * (1.0 - t * t) / c;
-    (0.5 * k * dz * dz, k * dz * d1, k * (d1 * d1 + dz * d2))
 }
 
 /// Accumulates the energy, its gradient and a (positive semi-definite) Hessian approximation:
@@ -163,144 +140,44 @@ impl Normal {
 
 impl SixBar {
     pub fn new(cfg: &SixBarConfig) -> Self {
-        let e = &cfg.errors;
-        let nominal = cfg.nominal_five_bar();
-        let w2 = cfg.platform_half_width_mm;
-        let [[g1, h1], [g2, h2]] = cfg.parallelogram_offsets_mm();
-        let (g, h) = ([g1, g2], [h1, h2]);
-        // The motors' axes: w/2 above A0 and below B0 (D and E sit so on the platform).
-        let a0 = nominal.base_a0_mm;
-        let b0 = add(a0, nominal.base_b0_mm);
-        let axis = [add(a0, [0.0, w2]), add(b0, [0.0, -w2])];
-        let motor = [
-            add(axis[0], e.ground_motor_1_mm),
-            add(axis[1], e.ground_motor_2_mm),
-        ];
-        let follower = [
-            add(add(axis[0], g[0]), e.ground_follower_1_mm),
-            add(add(axis[1], g[1]), e.ground_follower_2_mm),
-        ];
-        let k_pin_q = [e.elbow_1_pin_q_mm, e.elbow_2_pin_q_mm];
-        let k_pin_f = [add(g[0], e.elbow_1_pin_f_mm), add(g[1], e.elbow_2_pin_f_mm)];
-        let k_pin_g = [add(h[0], e.elbow_1_pin_g_mm), add(h[1], e.elbow_2_pin_g_mm)];
-        let t_pin_q = [
-            add([0.0, w2], e.platform_pin_d_mm),
-            add([0.0, -w2], e.platform_pin_e_mm),
-        ];
-        let t_pin_g = [
-            add(add([0.0, w2], h[0]), e.platform_pin_dd_mm),
-            add(add([0.0, -w2], h[1]), e.platform_pin_ee_mm),
-        ];
-        let stiff = |section: f64, len: f64| cfg.youngs_modulus_n_per_mm2 * section / len;
-        let bar = |p: End, q: End, len: f64, section: f64| Bar {
-            p,
-            q,
-            length_mm: len,
-            k_n_per_mm: stiff(section, len),
-        };
-        let (fs, ms) = (cfg.follower_bar_section_mm2, cfg.main_bar_section_mm2);
-        // Nominal lengths: lever and first follower, distal bar and second follower, per arm.
-        let (lever_mm, distal_mm) = ([nominal.a_mm, nominal.d_mm], [nominal.b_mm, nominal.c_mm]);
-        let arm = |i: usize| {
-            [
-                bar(
-                    End::Ground(follower[i]),
-                    End::Body(i, k_pin_f[i]),
-                    lever_mm[i] + e.bar_f_length_mm[i],
-                    fs,
-                ),
-                bar(
-                    End::Body(i, k_pin_q[i]),
-                    End::Body(2, t_pin_q[i]),
-                    distal_mm[i] + e.bar_q_length_mm[i],
-                    ms,
-                ),
-                bar(
-                    End::Body(i, k_pin_g[i]),
-                    End::Body(2, t_pin_g[i]),
-                    distal_mm[i] + e.bar_g_length_mm[i],
-                    fs,
-                ),
-            ]
-        };
-        let (a1, a2) = (arm(0), arm(1));
-        let lever = [
-            lever_mm[0] + e.lever_length_mm[0],
-            lever_mm[1] + e.lever_length_mm[1],
-        ];
-        // C = A0 + a·u1 + (K1's Q pin) + b·v1 - D_off: the equivalent five-bar's base A0' is
-        // A0 + Q pin - D_off, its B0' likewise; the platform stays unrotated in the guess.
-        let a0p = sub(add(motor[0], k_pin_q[0]), t_pin_q[0]);
-        let b0p = sub(add(motor[1], k_pin_q[1]), t_pin_q[1]);
-        let mut five = FiveBar::<f64> {
-            base_a0_mm: [0.0; 2],
-            encoder_offset_rad: [0.0; 2],
-            ..nominal
-        };
-        five.a_mm = lever[0];
-        five.b_mm = a1[1].length_mm;
-        five.c_mm = a2[1].length_mm;
-        five.d_mm = lever[1];
-        five.base_b0_mm = sub(b0p, a0p);
         SixBar {
             model: cfg.model,
-            motor_mm: motor,
-            lever_mm: lever,
-            bars: [a1[0], a1[1], a1[2], a2[0], a2[1], a2[2]],
+            layout: SixBarLayout::new(&cfg.design(), &cfg.errors),
             pin_k_n_per_mm: cfg.pin_stiffness_n_per_mm,
             pin_clearance_mm: cfg.pin_clearance_mm,
             bar_clearance_mm: cfg.bar_end_clearance_mm / 2.0,
             centring_ratio: cfg.clearance_centring_ratio,
-            five,
-            five_base_mm: a0p,
             deviation: None,
         }
-    }
-
-    /// Lever tips A, B for geometric link angles.
-    fn lever_tips(&self, link_rad: [f64; 2]) -> [[f64; 2]; 2] {
-        let mut t = [[0.0; 2]; 2];
-        for i in 0..2 {
-            let (s, c) = link_rad[i].sin_cos();
-            t[i] = [
-                self.motor_mm[i][0] + self.lever_mm[i] * c,
-                self.motor_mm[i][1] + self.lever_mm[i] * s,
-            ];
-        }
-        t
     }
 
     /// The equivalent five-bar of the errored arms (link angles as its encoder angles, A0' at
     /// the origin of its frame): what the linkage's dynamics move on.
     pub fn equivalent_five_bar(&self) -> FiveBar<f64> {
-        self.five
+        self.layout.five
     }
 
     /// Tool point of the equivalent five-bar (no stress): the `fivebar` plant.
     pub fn five_bar_tool_mm(&self, link_rad: [f64; 2]) -> Result<[f64; 2], PlantError> {
-        match self.five.forward(link_rad, 0.0) {
-            Ok(c) => Ok(add(c, self.five_base_mm)),
-            Err(e) => Err(PlantError::NotAssemblable {
-                link_deg: deg(link_rad),
-                reason: e.to_string(),
-            }),
-        }
+        self.layout
+            .five_bar_tool_mm(link_rad)
+            .map_err(|e| not_assemblable(link_rad, e))
     }
 
     /// The rigid-body pose the closed-form five-bar gives (unknown vector layout: K1, K2, T).
     fn nominal_pose(&self, link_rad: [f64; 2]) -> Result<Vec9, PlantError> {
-        let tips = self.lever_tips(link_rad);
-        let c = self.five_bar_tool_mm(link_rad)?;
-        Ok(Vec9::from_column_slice(&[
-            tips[0][0], tips[0][1], 0.0, tips[1][0], tips[1][1], 0.0, c[0], c[1], 0.0,
-        ]))
+        let pose = self
+            .layout
+            .nominal_pose(link_rad)
+            .map_err(|e| not_assemblable(link_rad, e))?;
+        Ok(Vec9::from_column_slice(&pose))
     }
 
     /// World position of a bar end and, for a body, its derivative by the body's angle.
-    fn end(x: &Vec9, end: End) -> ([f64; 2], Option<(usize, [f64; 2])>) {
+    fn end(x: &Vec9, end: BarEnd<f64>) -> ([f64; 2], Option<(usize, [f64; 2])>) {
         match end {
-            End::Ground(p) => (p, None),
-            End::Body(b, r) => {
+            BarEnd::Ground(p) => (p, None),
+            BarEnd::Body(b, r) => {
                 let (s, c) = x[3 * b + 2].sin_cos();
                 let rr = [c * r[0] - s * r[1], s * r[0] + c * r[1]];
                 (
@@ -340,7 +217,7 @@ impl SixBar {
         let mut tension = [0.0; 6];
         let mut pin = [0.0; 2];
         let cb = self.bar_clearance_mm;
-        for (k, bar) in self.bars.iter().enumerate() {
+        for (k, bar) in self.layout.bars.iter().enumerate() {
             let (p, dp) = Self::end(x, bar.p);
             let (q, dq) = Self::end(x, bar.q);
             let d = sub(q, p);
@@ -451,9 +328,7 @@ impl SixBar {
     ) -> Result<(SixBarSolution, Vec9), PlantError> {
         const MAX_ITER: u32 = 60;
         const STEP_TOL_MM: f64 = 1e-9;
-        // Rotations are compared as displacements at a 30 mm lever.
-        const ROT_SCALE_MM: f64 = 30.0;
-        let tips = self.lever_tips(link_rad);
+        let tips = self.layout.lever_tips(link_rad);
         let mut x = guess;
         let mut n = self.assemble(&x, &tips, None);
         let mut mu = 0.0f64;
@@ -469,34 +344,20 @@ impl SixBar {
                 });
             };
             let mut step = chol.solve(&(-n.g));
-            // Never move more than 1 mm / 1/30 rad in one step (keeps LM inside the model's range).
-            let big = (0..9)
-                .map(|k| {
-                    if k % 3 == 2 {
-                        step[k].abs() * ROT_SCALE_MM
-                    } else {
-                        step[k].abs()
-                    }
-                })
-                .fold(0.0, f64::max);
-            if big > 1.0 {
-                step /= big;
-            }
+            let big = limit_step(step.as_mut_slice());
             let trial = x + step;
             let nt = self.assemble(&trial, &tips, None);
-            if nt.energy <= n.energy * (1.0 + 1e-12) + 1e-18 {
+            let accepted = nt.energy <= n.energy * (1.0 + 1e-12) + 1e-18;
+            mu = damping_after(mu, accepted);
+            if accepted {
                 x = trial;
                 n = nt;
-                mu = if mu < 1e-6 { 0.0 } else { mu / 10.0 };
                 if big < STEP_TOL_MM {
                     return Ok((self.solution(&x, &tips, iter), x));
                 }
-            } else {
-                mu = if mu == 0.0 { 1e-4 } else { mu * 10.0 };
-                if big < STEP_TOL_MM && mu > 1e6 {
-                    // No descent left at round-off level: we are at the minimum.
-                    return Ok((self.solution(&x, &tips, iter), x));
-                }
+            } else if big < STEP_TOL_MM && mu > 1e6 {
+                // No descent left at round-off level: we are at the minimum.
+                return Ok((self.solution(&x, &tips, iter), x));
             }
         }
         Err(PlantError::NotConverged {

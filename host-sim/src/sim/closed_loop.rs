@@ -410,12 +410,14 @@ pub fn cast_setpoint(m: &MotionSetpoint<f64>) -> MotionSetpoint<f32> {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::plant::{PlantConfig, PlantModel};
     use kinematics_core::FiveBar;
 
-    fn nominal() -> Calibration<'static> {
+    /// The paper's nominal hidden robot without a grid: what the loop and the calibration
+    /// tests command with.
+    pub(crate) fn nominal() -> Calibration<'static> {
         Calibration {
             model: FiveBar::<f32>::paper_nominal(),
             grid: None,

@@ -5,10 +5,10 @@
 //! Why here: the host loop must run the very reference the firmware runs when the same knots
 //! are streamed to it (`controller::motion_stream`), so that a telemetry log of the host loop
 //! and one of the controller are the same kind of record, and so that a log can be matched
-//! with the knots that produced it. The segment polynomial is the controller's
-//! (`p(τ) = a + bτ + cτ² + dτ³` from the two knots' positions and velocities), evaluated in
-//! f64 from the knots' f32 values; the controller evaluates it in f32, within a few nm of
-//! this (`tests/dynamics.rs` plays the knots through the controller's stream and compares).
+//! with the knots that produced it. The segment polynomial is the controller's own
+//! (`kinematics_core::hermite`: `p(τ) = a + bτ + cτ² + dτ³` from the two knots' positions and
+//! velocities), evaluated in f64 from the knots' f32 values; the controller evaluates the same
+//! function in f32.
 //!
 //! The stream starts at rest at `start_mm` at time 0 (the first knot's time is after it);
 //! after the last knot the path holds the last knot's position at rest (a stream whose last
@@ -17,18 +17,17 @@
 //! Cost: a binary search and one cubic per evaluation.
 
 use super::SimError;
+use kinematics_core::hermite::HermiteCubic;
 use kinematics_core::trajectory::MotionSetpoint;
 use link_protocol::Knot;
 
-/// One Hermite segment: `p(τ) = a + bτ + cτ² + dτ³` per axis over `[t0, t1]` (s).
+/// One Hermite segment over `[t0, t1]` (s): the controller's cubic
+/// (`kinematics_core::hermite`), in f64.
 #[derive(Clone, Copy, Debug, PartialEq)]
 struct Segment {
     t0_s: f64,
     t1_s: f64,
-    a: [f64; 2],
-    b: [f64; 2],
-    c: [f64; 2],
-    d: [f64; 2],
+    cubic: HermiteCubic<f64>,
 }
 
 impl Segment {
@@ -41,34 +40,15 @@ impl Segment {
         p1: [f64; 2],
         v1: [f64; 2],
     ) -> Self {
-        let h = t1_s - t0_s;
-        let (mut c, mut d) = ([0.0; 2], [0.0; 2]);
-        for k in 0..2 {
-            let slope = (p1[k] - p0[k]) / h;
-            c[k] = (3.0 * slope - 2.0 * v0[k] - v1[k]) / h;
-            d[k] = (v0[k] + v1[k] - 2.0 * slope) / (h * h);
-        }
         Segment {
             t0_s,
             t1_s,
-            a: p0,
-            b: v0,
-            c,
-            d,
+            cubic: HermiteCubic::between(t1_s - t0_s, p0, v0, p1, v1),
         }
     }
 
     fn at(&self, t_s: f64) -> MotionSetpoint<f64> {
-        let tau = t_s - self.t0_s;
-        let mut s = MotionSetpoint::at_rest([0.0; 2]);
-        for k in 0..2 {
-            let (a, b, c, d) = (self.a[k], self.b[k], self.c[k], self.d[k]);
-            s.position_mm[k] = a + tau * (b + tau * (c + tau * d));
-            s.velocity_mm_s[k] = b + tau * (2.0 * c + tau * 3.0 * d);
-            s.acceleration_mm_s2[k] = 2.0 * c + tau * 6.0 * d;
-            s.jerk_mm_s3[k] = 6.0 * d;
-        }
-        s
+        self.cubic.at(t_s - self.t0_s)
     }
 }
 

@@ -2,15 +2,17 @@
 //! benchmark only: what a numerical solve of the real mechanism would cost on the MCU, the
 //! paper's reason for controlling through the hidden robot. Not part of any firmware.
 //!
-//! The model and the solver are host-sim's (`host-sim/src/plant/sixbar.rs`, which documents
-//! them): 9 unknowns (the planar poses of the elbow pieces K1, K2 and the platform T), the
-//! elastic energy of six two-force bars and two elbow bearings with smooth dead zones for
-//! their clearances, Levenberg-Marquardt with the analytic gradient and Gauss-Newton
-//! Hessian, a 9x9 Cholesky per iteration, warm-started from the closed-form five-bar pose
-//! plus the previous solution's deviation. `tests/tests/sixbar_port.rs` checks that it lands
-//! on host-sim's tool point.
+//! The mechanism is host-sim's plant (`host-sim/src/plant/sixbar.rs`, which documents it):
+//! its layout as built (pins, bars, the equivalent five-bar that gives the warm start) and its
+//! dead-zone springs are `kinematics_core::sixbar`, shared with the plant. The solver is the
+//! plant's too: 9 unknowns (the planar poses of the elbow pieces K1, K2 and the platform T),
+//! the elastic energy of six two-force bars and two elbow bearings,
+//! Levenberg-Marquardt with the analytic gradient and Gauss-Newton Hessian, a 9x9 Cholesky per
+//! iteration, warm-started from the closed-form five-bar pose plus the previous solution's
+//! deviation. `tests/tests/sixbar_port.rs` checks that it lands on host-sim's tool point.
 //!
-//! What differs, and why:
+//! Why the solve itself is a second copy: host-sim's runs in f64 on nalgebra's matrices (std)
+//! and also assembles the bar forces; an MCU implementation differs in what makes it fair:
 //! * f32 instead of f64: the Cortex-M4F has a single-precision FPU and f64 would run in
 //!   software (tens of times slower), so f32 is the fair, favourable case for the numerical
 //!   solve. Its coordinates are then resolved to ~1e-5 mm, so the stopping rule is a step
@@ -30,46 +32,21 @@
 // `!(x > 0)` instead of `x <= 0` is deliberate: it also refuses NaN.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
+use kinematics_core::sixbar::{
+    damping_after, dead_zone_energy, limit_step, BarEnd, SixBarDesign, SixBarErrors, SixBarLayout,
+};
 use kinematics_core::{FiveBar, Real};
 
-/// Manufacturing errors (mm), as host-sim's `SixBarErrors` (same names and meaning).
-#[derive(Clone, Copy, Debug, Default)]
-pub struct SixBarErrors {
-    pub lever_length_mm: [f32; 2],
-    pub bar_f_length_mm: [f32; 2],
-    pub bar_q_length_mm: [f32; 2],
-    pub bar_g_length_mm: [f32; 2],
-    pub ground_motor_1_mm: [f32; 2],
-    pub ground_motor_2_mm: [f32; 2],
-    pub ground_follower_1_mm: [f32; 2],
-    pub ground_follower_2_mm: [f32; 2],
-    pub elbow_1_pin_q_mm: [f32; 2],
-    pub elbow_1_pin_f_mm: [f32; 2],
-    pub elbow_1_pin_g_mm: [f32; 2],
-    pub elbow_2_pin_q_mm: [f32; 2],
-    pub elbow_2_pin_f_mm: [f32; 2],
-    pub elbow_2_pin_g_mm: [f32; 2],
-    pub platform_pin_d_mm: [f32; 2],
-    pub platform_pin_dd_mm: [f32; 2],
-    pub platform_pin_e_mm: [f32; 2],
-    pub platform_pin_ee_mm: [f32; 2],
-}
-
-/// The linkage, as host-sim's `SixBarConfig` (without its plant-model switch).
-#[derive(Clone, Copy, Debug)]
+/// The linkage, as host-sim's `SixBarConfig` (without its plant-model switch): the design and
+/// errors the layout is built from, and the bearings' and clearances' springs.
+#[derive(Clone, Debug)]
 pub struct SixBarParams {
-    pub link_mm: f32,
-    pub platform_half_width_mm: f32,
-    pub parallelogram_1_offset_mm: [f32; 2],
-    pub parallelogram_2_offset_mm: [f32; 2],
-    pub youngs_modulus_n_per_mm2: f32,
-    pub main_bar_section_mm2: f32,
-    pub follower_bar_section_mm2: f32,
+    pub design: SixBarDesign<f32>,
+    pub errors: SixBarErrors<f32>,
     pub pin_stiffness_n_per_mm: f32,
     pub pin_clearance_mm: f32,
     pub bar_end_clearance_mm: f32,
     pub clearance_centring_ratio: f32,
-    pub errors: SixBarErrors,
 }
 
 impl SixBarParams {
@@ -77,18 +54,17 @@ impl SixBarParams {
     /// these numbers are still that plant's).
     pub fn paper() -> Self {
         let r = 30.0 * core::f32::consts::FRAC_1_SQRT_2;
+        let mirror = |v: [f32; 2]| [v[0], -v[1]];
+        let (g, h) = ([-r, r], [r, r]);
         SixBarParams {
-            link_mm: 150.0,
-            platform_half_width_mm: 20.0,
-            parallelogram_1_offset_mm: [-r, r],
-            parallelogram_2_offset_mm: [r, r],
-            youngs_modulus_n_per_mm2: 70_000.0,
-            main_bar_section_mm2: 120.0,
-            follower_bar_section_mm2: 40.0,
-            pin_stiffness_n_per_mm: 20_000.0,
-            pin_clearance_mm: 0.003,
-            bar_end_clearance_mm: 0.002,
-            clearance_centring_ratio: 1e-3,
+            design: SixBarDesign {
+                nominal: FiveBar::paper_nominal(),
+                platform_half_width_mm: 20.0,
+                parallelogram_offsets_mm: [[g, h], [mirror(g), mirror(h)]],
+                youngs_modulus_n_per_mm2: 70_000.0,
+                main_bar_section_mm2: 120.0,
+                follower_bar_section_mm2: 40.0,
+            },
             errors: SixBarErrors {
                 lever_length_mm: [-1.58, 1.52],
                 bar_f_length_mm: [-1.55, 1.58],
@@ -109,23 +85,12 @@ impl SixBarParams {
                 platform_pin_e_mm: [0.01, 0.02],
                 platform_pin_ee_mm: [0.05, -0.04],
             },
+            pin_stiffness_n_per_mm: 20_000.0,
+            pin_clearance_mm: 0.003,
+            bar_end_clearance_mm: 0.002,
+            clearance_centring_ratio: 1e-3,
         }
     }
-}
-
-/// Where a bar end is: on the ground, or on body 0 (K1), 1 (K2), 2 (T) in its frame.
-#[derive(Clone, Copy, Debug)]
-enum End {
-    Ground([f32; 2]),
-    Body(usize, [f32; 2]),
-}
-
-#[derive(Clone, Copy, Debug)]
-struct Bar {
-    p: End,
-    q: End,
-    length_mm: f32,
-    k_n_per_mm: f32,
 }
 
 /// Why a solve failed.
@@ -151,38 +116,16 @@ type Mat9 = [[f32; 9]; 9];
 
 /// The six-bar and its warm-start state.
 pub struct SixBar {
-    motor_mm: [[f32; 2]; 2],
-    lever_mm: [f32; 2],
-    bars: [Bar; 6],
+    layout: SixBarLayout<f32>,
     pin_k_n_per_mm: f32,
     pin_clearance_mm: f32,
     bar_clearance_mm: f32,
     centring_ratio: f32,
-    five: FiveBar<f32>,
-    five_base_mm: [f32; 2],
     deviation: Option<Vec9>,
 }
 
-fn add(u: [f32; 2], v: [f32; 2]) -> [f32; 2] {
-    [u[0] + v[0], u[1] + v[1]]
-}
 fn sub(u: [f32; 2], v: [f32; 2]) -> [f32; 2] {
     [u[0] - v[0], u[1] - v[1]]
-}
-fn mirror(v: [f32; 2]) -> [f32; 2] {
-    [v[0], -v[1]]
-}
-
-/// `(E, dE/ds, d²E/ds²)` of a spring with a dead zone of half-width `c` (host-sim's).
-fn dead_zone_energy(s: f32, c: f32, k: f32) -> (f32, f32, f32) {
-    if c <= 0.0 {
-        return (0.5 * k * s * s, k * s, k);
-    }
-    let t = libm::tanhf(s / c);
-    let dz = s - c * t;
-    let d1 = t * t;
-    let d2 = 2.0 * t * (1.0 - t * t) / c;
-    (0.5 * k * dz * dz, k * dz * d1, k * (d1 * d1 + dz * d2))
 }
 
 /// Energy, gradient and Gauss-Newton Hessian at one point.
@@ -210,114 +153,23 @@ impl Normal {
 }
 
 impl SixBar {
-    /// The geometry of host-sim's `SixBar::new`.
+    /// The six-bar of `cfg`, laid out as host-sim's `SixBar::new` lays it out.
     pub fn new(cfg: &SixBarParams) -> Self {
-        let e = &cfg.errors;
-        let l = cfg.link_mm;
-        let w2 = cfg.platform_half_width_mm;
-        let g = [
-            cfg.parallelogram_1_offset_mm,
-            mirror(cfg.parallelogram_1_offset_mm),
-        ];
-        let h = [
-            cfg.parallelogram_2_offset_mm,
-            mirror(cfg.parallelogram_2_offset_mm),
-        ];
-        let motor = [
-            add([0.0, w2], e.ground_motor_1_mm),
-            add([0.0, -w2], e.ground_motor_2_mm),
-        ];
-        let follower = [
-            add(add([0.0, w2], g[0]), e.ground_follower_1_mm),
-            add(add([0.0, -w2], g[1]), e.ground_follower_2_mm),
-        ];
-        let k_pin_q = [e.elbow_1_pin_q_mm, e.elbow_2_pin_q_mm];
-        let k_pin_f = [add(g[0], e.elbow_1_pin_f_mm), add(g[1], e.elbow_2_pin_f_mm)];
-        let k_pin_g = [add(h[0], e.elbow_1_pin_g_mm), add(h[1], e.elbow_2_pin_g_mm)];
-        let t_pin_q = [
-            add([0.0, w2], e.platform_pin_d_mm),
-            add([0.0, -w2], e.platform_pin_e_mm),
-        ];
-        let t_pin_g = [
-            add(add([0.0, w2], h[0]), e.platform_pin_dd_mm),
-            add(add([0.0, -w2], h[1]), e.platform_pin_ee_mm),
-        ];
-        let bar = |p: End, q: End, len: f32, section: f32| Bar {
-            p,
-            q,
-            length_mm: len,
-            k_n_per_mm: cfg.youngs_modulus_n_per_mm2 * section / len,
-        };
-        let (fs, ms) = (cfg.follower_bar_section_mm2, cfg.main_bar_section_mm2);
-        let arm = |i: usize| {
-            [
-                bar(
-                    End::Ground(follower[i]),
-                    End::Body(i, k_pin_f[i]),
-                    l + e.bar_f_length_mm[i],
-                    fs,
-                ),
-                bar(
-                    End::Body(i, k_pin_q[i]),
-                    End::Body(2, t_pin_q[i]),
-                    l + e.bar_q_length_mm[i],
-                    ms,
-                ),
-                bar(
-                    End::Body(i, k_pin_g[i]),
-                    End::Body(2, t_pin_g[i]),
-                    l + e.bar_g_length_mm[i],
-                    fs,
-                ),
-            ]
-        };
-        let (a1, a2) = (arm(0), arm(1));
-        let lever = [l + e.lever_length_mm[0], l + e.lever_length_mm[1]];
-        let a0p = sub(add(motor[0], k_pin_q[0]), t_pin_q[0]);
-        let b0p = sub(add(motor[1], k_pin_q[1]), t_pin_q[1]);
-        let mut five = FiveBar::<f32>::paper_nominal();
-        five.a_mm = lever[0];
-        five.b_mm = a1[1].length_mm;
-        five.c_mm = a2[1].length_mm;
-        five.d_mm = lever[1];
-        five.base_b0_mm = sub(b0p, a0p);
         SixBar {
-            motor_mm: motor,
-            lever_mm: lever,
-            bars: [a1[0], a1[1], a1[2], a2[0], a2[1], a2[2]],
+            layout: SixBarLayout::new(&cfg.design, &cfg.errors),
             pin_k_n_per_mm: cfg.pin_stiffness_n_per_mm,
             pin_clearance_mm: cfg.pin_clearance_mm,
             bar_clearance_mm: cfg.bar_end_clearance_mm / 2.0,
             centring_ratio: cfg.clearance_centring_ratio,
-            five,
-            five_base_mm: a0p,
             deviation: None,
         }
     }
 
-    fn lever_tips(&self, link_rad: [f32; 2]) -> [[f32; 2]; 2] {
-        let mut t = [[0.0; 2]; 2];
-        for i in 0..2 {
-            let (s, c) = Real::sin_cos(link_rad[i]);
-            t[i] = [
-                self.motor_mm[i][0] + self.lever_mm[i] * c,
-                self.motor_mm[i][1] + self.lever_mm[i] * s,
-            ];
-        }
-        t
-    }
-
     /// The rigid pose the closed-form equivalent five-bar gives (K1, K2, T).
     fn nominal_pose(&self, link_rad: [f32; 2]) -> Result<Vec9, SolveError> {
-        let tips = self.lever_tips(link_rad);
-        let c = self
-            .five
-            .forward(link_rad, 0.0)
-            .map_err(|_| SolveError::NotAssemblable)?;
-        let c = add(c, self.five_base_mm);
-        Ok([
-            tips[0][0], tips[0][1], 0.0, tips[1][0], tips[1][1], 0.0, c[0], c[1], 0.0,
-        ])
+        self.layout
+            .nominal_pose(link_rad)
+            .map_err(|_| SolveError::NotAssemblable)
     }
 
     /// Normal equations of the energy at `x`.
@@ -335,10 +187,10 @@ impl SixBar {
             Real::sin_cos(x[8]),
         ];
         // World position of a bar end and, on a body, its derivative by the body's angle.
-        let end = |e: End| -> ([f32; 2], Option<(usize, [f32; 2])>) {
+        let end = |e: BarEnd<f32>| -> ([f32; 2], Option<(usize, [f32; 2])>) {
             match e {
-                End::Ground(p) => (p, None),
-                End::Body(b, r) => {
+                BarEnd::Ground(p) => (p, None),
+                BarEnd::Body(b, r) => {
                     let (s, c) = rot[b];
                     let rr = [c * r[0] - s * r[1], s * r[0] + c * r[1]];
                     (
@@ -349,7 +201,7 @@ impl SixBar {
             }
         };
         let cb = self.bar_clearance_mm;
-        for bar in &self.bars {
+        for bar in &self.layout.bars {
             let (p, dp) = end(bar.p);
             let (q, dq) = end(bar.q);
             let d = sub(q, p);
@@ -445,8 +297,7 @@ impl SixBar {
     ) -> Result<(Solution, Vec9), SolveError> {
         const MAX_ITER: u32 = 60;
         const STEP_TOL_MM: f32 = 2e-5;
-        const ROT_SCALE_MM: f32 = 30.0;
-        let tips = self.lever_tips(link_rad);
+        let tips = self.layout.lever_tips(link_rad);
         let mut x = guess;
         let mut n = self.assemble(&x, &tips);
         let mut mu = 0.0f32;
@@ -460,20 +311,7 @@ impl SixBar {
                 step[k] = -n.g[k];
             }
             cholesky_solve(&mut h, &mut step)?;
-            let mut big = 0.0f32;
-            for (k, v) in step.iter().enumerate() {
-                let size = if k % 3 == 2 {
-                    Real::abs(*v) * ROT_SCALE_MM
-                } else {
-                    Real::abs(*v)
-                };
-                big = Real::max(big, size);
-            }
-            if big > 1.0 {
-                for v in step.iter_mut() {
-                    *v /= big;
-                }
-            }
+            let big = limit_step(&mut step);
             let mut trial = x;
             for k in 0..9 {
                 trial[k] += step[k];
@@ -488,10 +326,11 @@ impl SixBar {
             ));
             // A rise within the energy's round-off is no rise: near the minimum the f32 energy
             // cannot tell steps apart, and refusing them would stall the solve.
-            if nt.energy <= n.energy + n.noise + nt.noise {
+            let accepted = nt.energy <= n.energy + n.noise + nt.noise;
+            mu = damping_after(mu, accepted);
+            if accepted {
                 x = trial;
                 n = nt;
-                mu = if mu < 1e-6 { 0.0 } else { mu / 10.0 };
                 if big < STEP_TOL_MM {
                     return Ok((
                         Solution {
@@ -501,12 +340,9 @@ impl SixBar {
                         x,
                     ));
                 }
-            } else {
-                mu = if mu == 0.0 { 1e-4 } else { mu * 10.0 };
-                if big < STEP_TOL_MM && mu > 1e6 {
-                    // No descent left at round-off level: we are at the minimum.
-                    return done;
-                }
+            } else if big < STEP_TOL_MM && mu > 1e6 {
+                // No descent left at round-off level: we are at the minimum.
+                return done;
             }
         }
         Err(SolveError::NoConvergence)
