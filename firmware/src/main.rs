@@ -206,6 +206,7 @@ mod app {
 
         let limits = StreamLimits {
             task: settings.stream_limits(),
+            knots: settings.knot_limits(),
             stop: settings.stop.limits,
             workspace: servo_loop.calibration().workspace(),
         };

@@ -289,8 +289,9 @@ fn bad_input_is_a_clear_error_and_writes_nothing() {
 /// machine (host-sim/plants/paper-head-300g.toml; the axis inertia 1.8 times the one the
 /// settings' gains are designed for), whose controller runs the commissioning image (no
 /// dynamics block: the settings' gains with the disturbance observer off, the gains' constant
-/// inertia fed forward): the excitation identified, the check motion run, the identified block
-/// uploaded (the controller designs its gains for it), the check motion again.
+/// inertia fed forward): the excitation identified, the check motion run at the machine's rated
+/// 5 g, the identified block uploaded (the controller designs its gains for it), the check
+/// motion again.
 ///
 /// What must come out: the heavier head's tool mass (its bodies lumped at the tool point,
 /// 0.425 kg against the design's 0.165) within 5 %, and with its block fed forward the heavier
@@ -315,6 +316,8 @@ fn a_heavier_head_is_identified_and_follows_as_the_design_with_its_dynamics() {
             section_s: 4.0,
             ..ExcitationOptions::default()
         },
+        // The machine's rated acceleration (the check motion reaches 4.4 g of it).
+        check_accel_mm_s2: 5.0 * host_sim::machine_spec::STANDARD_GRAVITY_MM_S2,
         ..MovingOptions::default()
     };
     // (tool mass identified, its truth, check motion before and after: (max, rms) µm)

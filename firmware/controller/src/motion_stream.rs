@@ -57,8 +57,11 @@ const SAMPLE_US: u32 = 500;
 /// What the link's motion must stay within.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct StreamLimits {
-    /// Speed, acceleration and jerk norms.
+    /// Speed, acceleration and jerk norms of a planned move (`Settings::stream_limits`).
     pub task: TaskLimits<f32>,
+    /// Speed, acceleration and jerk norms of the streamed knots' segments
+    /// (`Settings::knot_limits`: the machine's rated acceleration).
+    pub knots: TaskLimits<f32>,
     /// The controlled stop (where a stop from any instant must end inside `workspace`).
     pub stop: StopLimits,
     /// Where the tool may go; `None` when running uncorrected (no grid: only the servo's reach
@@ -130,7 +133,7 @@ impl Segment {
         let h = self.duration_s();
         let norm = |v: [f32; 2]| libm::hypotf(v[0], v[1]);
         let (start, end) = (self.at(0.0), self.at(h));
-        let task = &limits.task;
+        let task = &limits.knots;
         if !(norm(start.jerk_mm_s3) <= task.jerk_mm_s3) {
             return Err(SegmentRefusal::Jerk);
         }
@@ -501,8 +504,14 @@ mod tests {
 
     fn limits() -> StreamLimits {
         let s = Settings::default();
+        // As `Settings`: planned moves at 2 g, knots at the rated 5 g.
         StreamLimits {
             task: TaskLimits {
+                speed_mm_s: 1500.0,
+                accel_mm_s2: 19_620.0,
+                jerk_mm_s3: 5.0e6,
+            },
+            knots: TaskLimits {
                 speed_mm_s: 1500.0,
                 accel_mm_s2: 49_050.0,
                 jerk_mm_s3: 5.0e6,
@@ -667,14 +676,14 @@ mod tests {
     fn speed_and_jerk_limits_are_enforced() {
         let mut l = limits();
         let good = sine_knots(8);
-        l.task.speed_mm_s = 100.0; // the sine peaks at 20·π/0.4 = 157 mm/s
+        l.knots.speed_mm_s = 100.0; // the sine peaks at 20·π/0.4 = 157 mm/s
         let mut s = MotionStream::new(l, START_MM);
         assert!(matches!(
             s.push(0, &good),
             Err(PushRefusal::Knot(_, SegmentRefusal::Speed))
         ));
-        l.task.speed_mm_s = 1500.0;
-        l.task.jerk_mm_s3 = 1.0e3;
+        l.knots.speed_mm_s = 1500.0;
+        l.knots.jerk_mm_s3 = 1.0e3;
         let mut s = MotionStream::new(l, START_MM);
         assert!(matches!(
             s.push(0, &good),
@@ -719,6 +728,33 @@ mod tests {
         assert_eq!(s.free(), 0);
         assert_eq!(s.push(64, &knots[64..72]), Err(PushRefusal::Full(0)));
         assert_eq!(s.move_to([220.0, 0.0]), Err(MoveRefusal::Busy));
+    }
+
+    /// Streamed knots keep the knots' acceleration limit (the machine's rated 5 g), not the
+    /// planned moves' (2 g): a sine at about 3.5 g is accepted, and refused for its
+    /// acceleration once the knots' limit is the moves'.
+    #[test]
+    fn knots_keep_their_own_acceleration_limit() {
+        // x = 10·(1 − cos 2ωt) mm: peak acceleration 10·(2ω)² ≈ 34 000 mm/s² for ω = π/0.107 s.
+        let w = core::f32::consts::PI / 0.107;
+        let knots: Vec<Knot> = (1..=20u32)
+            .map(|i| {
+                let t = i as f32 * 0.01;
+                let x = START_MM[0] + 20.0 * libm::sinf(w * t).powi(2);
+                let v = 20.0 * w * libm::sinf(2.0 * w * t);
+                knot(i * 10, [x, START_MM[1]], [v, 0.0])
+            })
+            .collect();
+        let mut l = limits();
+        assert!(l.task.accel_mm_s2 < 25_000.0 && l.knots.accel_mm_s2 > 45_000.0);
+        let mut s = MotionStream::new(l, START_MM);
+        s.push(0, &knots).unwrap();
+        l.knots.accel_mm_s2 = l.task.accel_mm_s2;
+        let mut s = MotionStream::new(l, START_MM);
+        assert!(matches!(
+            s.push(0, &knots),
+            Err(PushRefusal::Knot(_, SegmentRefusal::Acceleration))
+        ));
     }
 
     #[test]

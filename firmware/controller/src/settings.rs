@@ -64,6 +64,12 @@ pub struct Settings {
     pub trajectory_accel_mm_s2: f32,
     /// Peak tool speed of the built-in trajectory (mm/s). Default 1500 mm/s.
     pub trajectory_speed_mm_s: f32,
+    /// Peak tool acceleration the host link's streamed knots may have (mm/s²). Default 5 g,
+    /// the machine's rated acceleration (the servo accepts 5 g·1.05): what the machine is
+    /// built for is run, and its following error checked, over the link. The knots' speed and
+    /// jerk, and everything of a planned move (`MoveTo`), keep the built-in trajectory's
+    /// limits ([`Settings::stream_limits`]). At most `servo.max_accel_mm_s2`.
+    pub stream_accel_mm_s2: f32,
     /// The built-in trajectory's time law. Default
     /// [`Profile::Quintic`](crate::trajectory::Profile::Quintic); the QEMU board's `track-5g`
     /// runs `JerkLimited`.
@@ -214,8 +220,8 @@ impl Settings {
         self.machine.home_mm
     }
 
-    /// The limits the host link's motion (planned moves, streamed knots) must keep: the same
-    /// speed, acceleration and jerk as the built-in trajectory's.
+    /// The limits the host link's planned moves (`MoveTo`) keep: the same speed, acceleration
+    /// and jerk as the built-in trajectory's.
     pub fn stream_limits(&self) -> kinematics_core::trajectory::TaskLimits<f32> {
         kinematics_core::trajectory::TaskLimits {
             speed_mm_s: self.trajectory_speed_mm_s,
@@ -224,10 +230,19 @@ impl Settings {
         }
     }
 
+    /// The limits the host link's streamed knots keep: the planned moves' speed and jerk, and
+    /// [`Settings::stream_accel_mm_s2`].
+    pub fn knot_limits(&self) -> kinematics_core::trajectory::TaskLimits<f32> {
+        kinematics_core::trajectory::TaskLimits {
+            accel_mm_s2: self.stream_accel_mm_s2,
+            ..self.stream_limits()
+        }
+    }
+
     /// Checks every field: the servo's ([`ServoConfig::validate`]), its sample period equal to
     /// the timer's, the stop's, each axis's encoder configuration ([`EncoderScale::new`]) and
     /// the encoder check's; a positive finite drive full scale,
-    /// trajectory acceleration and speed; a finite non-negative dwell; at least one overrun in
+    /// trajectory acceleration and speed; a positive stream acceleration the servo accepts; a finite non-negative dwell; at least one overrun in
     /// a streak and one sample per telemetry period.
     pub fn validate(&self) -> Result<(), SettingsError> {
         self.servo.validate().map_err(SettingsError::Servo)?;
@@ -259,6 +274,11 @@ impl Settings {
             (
                 positive(self.trajectory_speed_mm_s),
                 "trajectory_speed_mm_s",
+            ),
+            (
+                positive(self.stream_accel_mm_s2)
+                    && self.stream_accel_mm_s2 <= self.servo.max_accel_mm_s2,
+                "stream_accel_mm_s2 (at most servo.max_accel_mm_s2)",
             ),
             (
                 positive(self.trajectory_jerk_mm_s3),
@@ -302,6 +322,7 @@ impl Default for Settings {
             encoders: [EncoderConfig::DIRECT_DRIVE_2_22; 2],
             trajectory_accel_mm_s2: 2.0 * kinematics_core::servo::STANDARD_GRAVITY_MM_S2,
             trajectory_speed_mm_s: 1_500.0,
+            stream_accel_mm_s2: 5.0 * kinematics_core::servo::STANDARD_GRAVITY_MM_S2,
             trajectory_profile: crate::trajectory::Profile::Quintic,
             trajectory_jerk_mm_s3: crate::trajectory::DEFAULT_JERK_MM_S3,
             trajectory_dwell_s: 0.1,

@@ -60,10 +60,16 @@ pub struct Args {
     /// The moving steps: the check motion's length (s; 1.5 to 600).
     #[arg(long, default_value_t = 4.0)]
     pub check_motion_s: f64,
-    /// The excitation's and the check motion's knot spacing (ms; 5 to 200). Under QEMU on
-    /// TCP, whose clock outruns its UART, give 80.
+    /// The excitation's and the check motion's knot spacing (ms; 5 to 200; the check motion's
+    /// at most 1/16 of its faster period). Under QEMU on TCP, whose clock outruns its UART,
+    /// give 80.
     #[arg(long, default_value_t = 50.0)]
     pub knot_ms: f64,
+    /// The moving steps: the check motion's peak acceleration (g; 0.05 to 20, at most the
+    /// controller's stream limit, 5 g as shipped). A head heavier than the design's can trip
+    /// the controller's stuck-encoder check at 5 g before its dynamics are identified.
+    #[arg(long, default_value_t = 2.0)]
+    pub check_accel_g: f64,
     /// Seconds to wait for each reply (--tcp, --serial).
     #[arg(long, default_value_t = 10.0)]
     pub timeout_s: f64,
@@ -120,15 +126,18 @@ pub fn run(args: &Args) -> Result<()> {
     o.moving.excitation.section_s = args.excitation_section_s;
     o.moving.excitation.knot_s = args.knot_ms * 1e-3;
     o.moving.check_s = args.check_motion_s;
+    o.moving.check_accel_mm_s2 =
+        args.check_accel_g * host_sim::machine_spec::STANDARD_GRAVITY_MM_S2;
     // A co-simulated link's reads advance the simulation: no wall-clock wait between polls.
     o.moving.poll = if args.qemu { Duration::ZERO } else { LINK_POLL };
     // The motions designed before a controller is touched: options that make none are refused.
     check_options(&spec, &o.moving).map_err(|e| {
         anyhow::anyhow!(
-            "dynamics: {e} (--excitation-section-s {}, --check-motion-s {}, --knot-ms {})",
+            "dynamics: {e} (--excitation-section-s {}, --check-motion-s {}, --knot-ms {}, --check-accel-g {})",
             args.excitation_section_s,
             args.check_motion_s,
-            args.knot_ms
+            args.knot_ms,
+            args.check_accel_g
         )
     })?;
     let timeout = Duration::from_secs_f64(args.timeout_s);

@@ -74,7 +74,7 @@ pub struct Args {
     /// Also write the knots streamed (link, plant): what --knots reads.
     #[arg(long)]
     pub knots_out: Option<PathBuf>,
-    /// The excitation's peak acceleration (g); the controller's stream limit (default 2 g).
+    /// The excitation's peak acceleration (g; the controller accepts knots up to 5 g as shipped).
     #[arg(long, default_value_t = 2.0)]
     pub accel_g: f64,
     /// The length of each of the excitation's two sections (s; default 8): shorter is quicker

@@ -81,8 +81,8 @@ pub struct Args {
     /// Servo samples per telemetry sample (at least 20: 100 Hz, the link's fastest).
     #[arg(long, default_value_t = 20)]
     pub decimation: u32,
-    /// With `--trajectory excitation`: its peak acceleration (g; the controller's default
-    /// stream limit, 2).
+    /// With `--trajectory excitation`: its peak acceleration (g; as `identify`'s, 2 by
+    /// default).
     #[arg(long, default_value_t = 2.0)]
     pub accel_g: f64,
 }

@@ -24,9 +24,9 @@
 //! every segment, the acceleration at its ends (where a cubic's is largest), the speed and the
 //! stop sampled finely. Knot positions are the f32 values streamed.
 //!
-//! The default limits are the controller's default stream limits (2 g, 1.5 m/s, 5·10⁶ mm/s³:
-//! `controller::settings`), so the excitation is accepted by a controller as shipped; a
-//! machine set for more takes `--accel-g`. The parameters are linear in the torques: the 5 g
+//! The default limits (2 g, 1.5 m/s, 5·10⁶ mm/s³) are within the controller's stream limits
+//! as shipped (5 g for knots, 1.5 m/s, 5·10⁶ mm/s³: `controller::settings`), so a controller
+//! as shipped accepts the excitation; `--accel-g` runs it faster. The parameters are linear in the torques: the 5 g
 //! feed-forward is identified at 2 g as well.
 //!
 //! Cost: a few thousand evaluations of the sinusoids per amplitude tried; milliseconds.
@@ -82,12 +82,12 @@ impl Default for ExcitationOptions {
 }
 
 /// One section: frequencies and relative weights per axis.
-struct Section {
-    freq_hz: [&'static [f64]; 2],
-    weight: [&'static [f64]; 2],
+struct Section<'a> {
+    freq_hz: [&'a [f64]; 2],
+    weight: [&'a [f64]; 2],
 }
 
-const SECTIONS: [Section; 2] = [
+const SECTIONS: [Section<'static>; 2] = [
     Section {
         freq_hz: [&[0.19, 0.43], &[0.27, 0.53]],
         weight: [&[1.0, 0.35], &[1.0, 0.35]],
@@ -133,7 +133,7 @@ impl Excitation {
 
 /// Position, velocity, acceleration and jerk of a faded sum of sinusoids at `t` in a section
 /// of length `len_s` (the fade's derivatives included).
-fn section_state(s: &Section, amp_mm: [f64; 2], len_s: f64, t: f64) -> [[f64; 4]; 2] {
+fn section_state(s: &Section<'_>, amp_mm: [f64; 2], len_s: f64, t: f64) -> [[f64; 4]; 2] {
     // Fade: e(t) = sin²(πt/2F) rising over [0, F], falling over [len - F, len], 1 between.
     let fade = |u: f64| -> [f64; 4] {
         let w = PI / (2.0 * FADE_S);
@@ -199,7 +199,7 @@ fn stop_end_mm(p: [f64; 2], v: [f64; 2], a: [f64; 2], o: &ExcitationOptions) -> 
 
 /// Whether a section at `amp_mm` keeps the design limits and stays inside (sampled every ms).
 fn section_fits(
-    s: &Section,
+    s: &Section<'_>,
     amp: [f64; 2],
     c: [f64; 2],
     spec: &MachineSpec,
@@ -312,28 +312,44 @@ pub fn excitation(spec: &MachineSpec, o: &ExcitationOptions) -> Result<Excitatio
 }
 
 /// The moving machine's check motion: a figure-eight about the workspace's centre (x at
-/// [`FIGURE_EIGHT_HZ`], y at twice that), faded in and out as the excitation's sections and
+/// [`figure_eight_hz`], y at twice that), faded in and out as the excitation's sections and
 /// built the same way (its size the largest within `o`'s limits, its knots checked as the
 /// controller plays them), one section of `o.section_s`. Another motion than the excitation's:
 /// the following error it shows is not one the identification was fitted to.
 pub fn figure_eight(spec: &MachineSpec, o: &ExcitationOptions) -> Result<Excitation, DynError> {
-    of_sections(spec, o, &[FIGURE_EIGHT])
+    let hz = figure_eight_hz(o);
+    let (x, y) = ([hz], [2.0 * hz]);
+    let section = Section {
+        freq_hz: [&x, &y],
+        weight: [&[1.0], &[1.0]],
+    };
+    of_sections(spec, o, &[section])
 }
 
-/// The figure-eight's frequency along x (Hz): fast enough that the acceleration limit sets its
-/// size (at the 2 g stream limit on the paper machine: 1.8 g peak, 870 mm/s).
+/// The figure-eight's lowest frequency along x (Hz): at the 2 g stream limit on the paper
+/// machine its size is the acceleration's (1.8 g peak, 870 mm/s).
 pub const FIGURE_EIGHT_HZ: f64 = 1.6;
 
-const FIGURE_EIGHT: Section = Section {
-    freq_hz: [&[FIGURE_EIGHT_HZ], &[2.0 * FIGURE_EIGHT_HZ]],
-    weight: [&[1.0], &[1.0]],
-};
+/// The figure-eight's frequency along x (Hz): [`FIGURE_EIGHT_HZ`], or faster where `o`'s
+/// acceleration could not be reached within its speed (y, at twice the frequency, peaks at
+/// `A·ω` of speed and `A·ω²` of acceleration: both limits meet at `ω = a / v`), so that a
+/// figure-eight at 5 g is one (2.6 Hz at 1.5 m/s), not a large slow one the speed limit keeps
+/// at 2 g.
+pub fn figure_eight_hz(o: &ExcitationOptions) -> f64 {
+    FIGURE_EIGHT_HZ.max(o.accel_mm_s2 / (2.0 * TAU * o.speed_mm_s))
+}
+
+/// The knot spacing (s) at which the check motion's spline follows the figure-eight: at most
+/// `o.knot_s`, and 16 knots per period of its faster (y) component.
+pub fn figure_eight_knot_s(o: &ExcitationOptions) -> f64 {
+    o.knot_s.min(1.0 / (2.0 * figure_eight_hz(o) * 16.0))
+}
 
 /// The motion of `sections` one after the other (see the module doc).
 fn of_sections(
     spec: &MachineSpec,
     o: &ExcitationOptions,
-    sections: &[Section],
+    sections: &[Section<'_>],
 ) -> Result<Excitation, DynError> {
     for (name, v, lo, hi) in [
         (
@@ -496,7 +512,8 @@ mod tests {
     }
 
     /// The check motion: within the limits (checked as played), near the acceleration limit
-    /// on both machines (its size set by it: 1.8 g of 2 on the paper machine), back at rest at
+    /// on both machines, at 2 g and at the rated 5 g (its size set by it: 1.8 g of 2 on the
+    /// paper machine), back at rest at
     /// the centre, another motion than the excitation's.
     #[test]
     fn the_figure_eight_keeps_the_limits_and_ends_at_rest() {
@@ -512,6 +529,30 @@ mod tests {
             let f = figure_eight(&spec, &o).unwrap();
             assert!(f.peak_accel_mm_s2 <= o.accel_mm_s2);
             assert!(f.peak_accel_mm_s2 > 0.8 * o.accel_mm_s2, "{}", spec.name);
+            // At the machine's rated 5 g, with the knots the check motion uses.
+            let rated = ExcitationOptions {
+                accel_mm_s2: 5.0 * STANDARD_GRAVITY_MM_S2,
+                ..o
+            };
+            let rated = ExcitationOptions {
+                knot_s: figure_eight_knot_s(&rated),
+                ..rated
+            };
+            let f5 = figure_eight(&spec, &rated).unwrap();
+            eprintln!(
+                "FIGURE_EIGHT {}: {:.2} Hz, knots {:.1} ms, peak {:.2} g, {:.0} mm/s",
+                spec.name,
+                figure_eight_hz(&rated),
+                rated.knot_s * 1e3,
+                f5.peak_accel_mm_s2 / STANDARD_GRAVITY_MM_S2,
+                f5.peak_speed_mm_s
+            );
+            assert!(f5.peak_accel_mm_s2 <= rated.accel_mm_s2);
+            assert!(
+                f5.peak_accel_mm_s2 > 0.8 * rated.accel_mm_s2,
+                "{}",
+                spec.name
+            );
             assert!((f.duration_s() - 4.0).abs() < 1e-9);
             let end = f.path.motion_at(f.duration_s() + 1.0).position_mm;
             let c = spec.workspace.centre_mm();

@@ -419,6 +419,17 @@ pub fn stream_knots<S: Read + Write>(
         if free < end - sent {
             std::thread::sleep(poll);
             let s = client.status()?;
+            // A controller that faulted or left Running plays no more knots: its buffer would
+            // never free (the stream waits for a reset), so the stream ends here, named.
+            if s.fault.is_some() || s.mode != link_protocol::ModeCode::Running {
+                return Err(ClientError::Trajectory(format!(
+                    "the controller stopped playing the stream after {sent} of {} knots: mode {:?}, \
+                     fault {:?} (`host-sim link status` tells more; `link reset` clears it)",
+                    knots.len(),
+                    s.mode,
+                    s.fault
+                )));
+            }
             free = controller_free(&s);
             continue;
         }

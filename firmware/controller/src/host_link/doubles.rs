@@ -213,6 +213,7 @@ impl<'a> Rig<'a> {
         let servo = ServoLoop::boot(settings, calibration, CalibrationState::Valid, joints_rad);
         let limits = StreamLimits {
             task: settings.stream_limits(),
+            knots: settings.knot_limits(),
             stop: settings.stop.limits,
             workspace: servo.calibration().workspace(),
         };
