@@ -255,8 +255,8 @@ fn sweep() {
 /// named, and the diagnoses that report the stretch's shape misfit (`shape_misfits`).
 ///
 /// Env: the sweep's (`SWEEP_N`, `SWEEP_SCALES`, `SWEEP_POSES`, `SWEEP_NOISE_UM`, `SWEEP_OOL`,
-/// `SWEEP_VERBOSE`), and `SHAPE_LAWS`, a comma list among the laws of `synth::other_laws` (`StretchLaw::name`;
-/// all nine).
+/// `SWEEP_VERBOSE`), `SHAPE_LAWS`, a comma list among the laws of `synth::other_laws` (`StretchLaw::name`;
+/// all nine), and `SHAPE_COMPANIONS`, a comma list of companions (`none` or library effect names; all).
 fn shape_sweep() {
     let env = SweepEnv::from_env();
     let laws: Vec<&str> = match std::env::var("SHAPE_LAWS") {
@@ -282,18 +282,43 @@ fn shape_sweep() {
                 .filter(|n| *n != "parallelogram_mismatch"),
         )
         .collect();
+    // The companions to run (their index in `companions` seeds the truth, so a subset draws the
+    // same truths as the whole sweep).
+    let wanted = |c: &str| match std::env::var("SHAPE_COMPANIONS") {
+        Ok(v) => v
+            .split(',')
+            .map(str::trim)
+            .any(|w| w == c || (w == "none" && c.is_empty())),
+        Err(_) => true,
+    };
     // (covered by the generalised shape, law, companion or none, out-of-library) → [runs, false
     // positives, misses, stretch not named, misfit reported, declared ambiguous]
     let mut tally: std::collections::BTreeMap<(LawKind, &str, bool, &str), [usize; 6]> =
         Default::default();
     let started = std::time::Instant::now();
-    let mut run = 0u64;
-    for (li, &law_name) in laws.iter().enumerate() {
+    for &law_name in &laws {
+        // The law's index among all the laws seeds the truth, so a subset of laws draws the same
+        // truths as the whole sweep.
+        let li = StretchLaw::all(0)
+            .iter()
+            .position(|l| l.name() == law_name)
+            .expect("a law");
         for (ci, &companion) in companions.iter().enumerate() {
-            for &ool in &env.ools {
+            if !wanted(companion) {
+                continue;
+            }
+            for (oi, &ool) in env.ools.iter().enumerate() {
                 for (si, &f) in env.scales.iter().enumerate() {
                     for seed in 0..env.n {
                         let id = 1000 * si as u64 + 100 * ci as u64 + seed;
+                        // The diagnosis' number in the whole sweep (which picks its poses), so
+                        // that a subset runs the same diagnoses as the whole.
+                        let run = (((li * companions.len() + ci) * env.ools.len() + oi)
+                            * env.scales.len()
+                            + si) as u64
+                            * env.n
+                            + seed
+                            + 1;
                         let mut rng = ChaCha8Rng::seed_from_u64(77_000 + id + 7919 * li as u64);
                         let hidden: Vec<&str> = if companion.is_empty() {
                             vec![]
@@ -312,7 +337,6 @@ fn shape_sweep() {
                         });
                         let mut truth = truth.scaled(f);
                         add_out_of_library(&mut truth, ool, seed);
-                        run += 1;
                         let data = generate(&truth, env.poses(run, ool), 6000 + id);
                         let r = diagnose(
                             &data,

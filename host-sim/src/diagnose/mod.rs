@@ -7,7 +7,8 @@
 //! out-of-library structures fitted as nuisances ([`nuisance`]) → the shape check: effects named
 //! beside one whose library shape misfits must stand on their own against its generalised shape
 //! ([`shape`]), and effects named where the library's stretch could have been must stand on their
-//! own against a stretch of another law ([`stand_in`]) → the gap-shrink table
+//! own against a stretch of another law ([`stand_in`]; each effect's standing judged in
+//! [`standing`]) → the gap-shrink table
 //! ([`gap_shrink`]) → confounding of the chosen effects with the other candidates
 //! ([`confounding`]) and the choices the data leave open ([`ambiguity`]) → the verdict on what
 //! is left ([`verdict`], structure tests in [`structure`]) → report and table ([`report`]) and
@@ -42,6 +43,7 @@ pub mod selection;
 pub mod shape;
 pub mod sixbar_modes;
 pub mod stand_in;
+pub mod standing;
 pub mod structure;
 pub mod verdict;
 

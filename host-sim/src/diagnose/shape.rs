@@ -17,7 +17,9 @@
 //! closure's five modes, elongating b by `g` and c by `r·g`, the ratio `r` a combination of the
 //! design's (`(1 + kc/100)·α(θ)`, α the two bars' elongation ratio under the loops'
 //! self-stress at the point, the library modes' own, kc the fitted compliance ratio) and of
-//! equal elongations (`r = 1`: a load or a warming the two bars share alike): 20 columns. Their
+//! one shared ratio (a load or a warming the two bars share, in the ratio of their compliances
+//! or expansions: 1 for the misfit itself; near 1, within a factor 3 either way, the data's, when
+//! an effect's standing is judged, `standing.rs`): 20 columns. Their
 //! part outside E's own span at the fitted model, reduced by SVD to at most [`N_SHAPE`] unit-RMS
 //! modes, is the **shape misfit**, fitted as a nuisance: in every model, never named, what it
 //! explains staying in the residual the report prints.
@@ -69,6 +71,7 @@ use super::library::{idx, Effect, LIBRARY, N_SHAPE};
 use super::report::ShapeMisfit;
 use super::scoring::{delta_bic, sigma2, Fitter, ADD_MARGIN};
 use super::selection::Selection;
+use super::standing::judge_standing;
 use crate::effect::PhysicalEffect;
 use crate::numeric::finite_difference;
 use crate::numeric::subspace::{orthonormal_basis, project_out};
@@ -95,16 +98,27 @@ fn terms() -> Vec<(i32, i32)> {
     t
 }
 
-/// The generalised stretch's columns: tool displacement (µm, x,y per point) per µm of each term
-/// of the load law `g` as b's elongation, c elongating by `(1 + kc/100)·α(θ)·g` (the design's
-/// self-stress ratio at the point, the library modes' own, times the fitted compliance ratio)
-/// in the first half of the columns and by `g` in the second (module doc).
-fn stretch_columns(problem: &Problem, kc_pct: f64) -> Option<DMatrix<f64>> {
+/// The generalised stretch's columns at the shared ratio `ratio`: [`stretch_blocks`]' design
+/// block, then b's block plus `ratio` times c's (module doc).
+pub(super) fn stretch_columns(problem: &Problem, kc_pct: f64, ratio: f64) -> Option<DMatrix<f64>> {
+    let [design, b, c] = stretch_blocks(problem, kc_pct)?;
+    let t = design.ncols();
+    let mut g = DMatrix::zeros(design.nrows(), 2 * t);
+    g.columns_mut(0, t).copy_from(&design);
+    g.columns_mut(t, t).copy_from(&(b + c * ratio));
+    Some(g)
+}
+
+/// The generalised stretch's blocks of columns: tool displacement (µm, x,y per point) per µm of
+/// each term of the load law `g` as b's elongation, c elongating by `(1 + kc/100)·α(θ)·g` (the
+/// design's self-stress ratio at the point, the library modes' own, times the fitted compliance
+/// ratio); then per µm of `g` as b's elongation alone, and as c's alone (module doc).
+pub(super) fn stretch_blocks(problem: &Problem, kc_pct: f64) -> Option<[DMatrix<f64>; 3]> {
     let n = problem.points.len();
     let spread = spread(problem);
     let terms = terms();
     let h_mm = 1e-3;
-    let mut g = DMatrix::zeros(2 * n, 2 * terms.len());
+    let mut g = DMatrix::zeros(2 * n, 3 * terms.len());
     for (i, p) in problem.points.iter().enumerate() {
         let at = |db: f64, dc: f64| {
             let mut m = problem.base;
@@ -127,7 +141,8 @@ fn stretch_columns(problem: &Problem, kc_pct: f64) -> Option<DMatrix<f64>> {
         };
         // µm of tool per µm of b's elongation with c's by each ratio.
         let along = |r: f64| [0, 1].map(|a| ((b1[a] - b0[a]) + r * (c1[a] - c0[a])) / (2.0 * h_mm));
-        let (design, equal) = (along((1.0 + kc_pct * 0.01) * alpha), along(1.0));
+        let design = along((1.0 + kc_pct * 0.01) * alpha);
+        let (b_only, c_only) = (along(0.0), [0, 1].map(|a| (c1[a] - c0[a]) / (2.0 * h_mm)));
         let (u, v) = (
             p.theta_centred_rad[0] / spread[0],
             p.theta_centred_rad[1] / spread[1],
@@ -136,11 +151,13 @@ fn stretch_columns(problem: &Problem, kc_pct: f64) -> Option<DMatrix<f64>> {
             let gk = u.powi(a) * v.powi(b);
             for axis in 0..2 {
                 g[(2 * i + axis, k)] = gk * design[axis];
-                g[(2 * i + axis, terms.len() + k)] = gk * equal[axis];
+                g[(2 * i + axis, terms.len() + k)] = gk * b_only[axis];
+                g[(2 * i + axis, 2 * terms.len() + k)] = gk * c_only[axis];
             }
         }
     }
-    Some(g)
+    let t = terms.len();
+    Some([0, 1, 2].map(|b| g.columns(b * t, t).into_owned()))
 }
 
 /// The RMS of each centred link angle over the points (rad): the law's units.
@@ -162,6 +179,8 @@ fn spread(problem: &Problem) -> [f64; 2] {
 /// elongation per unit of the mode), for [`describe`].
 pub struct MisfitModes {
     pub effect: PhysicalEffect,
+    /// The shared ratio of c's elongation to b's in the second block of the law.
+    pub ratio: f64,
     /// Per mode: the coefficients of the terms (u^i·v^j) it stands for.
     pub law: Vec<Vec<f64>>,
 }
@@ -173,12 +192,13 @@ pub fn set_misfit_modes(
     problem: &mut Problem,
     e: &Effect,
     x: &[f64],
+    ratio: f64,
 ) -> Result<MisfitModes, String> {
     if e.kind != PhysicalEffect::LinkStretch {
         return Err(format!("{} has no generalised shape", e.name()));
     }
     let n = problem.points.len();
-    let g = stretch_columns(problem, x[idx::STRETCH_RATIO])
+    let g = stretch_columns(problem, x[idx::STRETCH_RATIO], ratio)
         .ok_or("a point left the model's workspace while differentiating")?;
     let mut without = problem.clone();
     without.nuisance.shape = None;
@@ -219,6 +239,7 @@ pub fn set_misfit_modes(
     problem.nuisance.shape = Some((e.kind, keep.len()));
     Ok(MisfitModes {
         effect: e.kind,
+        ratio,
         law,
     })
 }
@@ -304,11 +325,12 @@ pub(super) fn describe(problem: &Problem, modes: &MisfitModes, x: &[f64]) -> Str
         "the distal bars stretch by another law of the configuration than the library's self-stress modes: b's \
          elongation beyond them {:.2} µm RMS over the data, largest terms {} (u, v: the link angles about their \
          circular means, in units of their spread); of it, {:.2} µm RMS with c in the design's self-stress ratio, \
-         {:.2} µm RMS with c alike",
+         {:.2} µm RMS with c at {:.2} times b's",
         rms(&b_law),
         largest.join(" "),
         rms(&coef[..t]),
-        rms(&coef[t..])
+        rms(&coef[t..]),
+        modes.ratio
     )
 }
 
@@ -351,8 +373,13 @@ fn check_one(
     noise_um: Option<f64>,
     log: &mut Vec<String>,
 ) -> Option<(Option<(Selection, Problem)>, ShapeMisfit)> {
+    // The misfit the named model leaves is judged, and kept, at equal elongations of the two
+    // bars (a shared ratio fitted beside every named effect can run to the end of its range and
+    // trade hundreds of micrometres with them); each effect's standing at the ratio the data
+    // give without it (`standing.rs`).
     let mut with = problem.clone();
-    let modes = match set_misfit_modes(&mut with, e, &sel.fit.p) {
+    with.nuisance.shape = None;
+    let modes = match set_misfit_modes(&mut with, e, &sel.fit.p, 1.0) {
         Ok(m) => m,
         Err(why) => {
             log.push(format!("{}: no shape-misfit check: {why}", e.name()));
@@ -375,20 +402,26 @@ fn check_one(
         // beside the generalised shape, judged with every other named effect in place (the model
         // that stays), is declared open (a stretch of another law explains what it does as well),
         // not claimed.
-        let open = not_standing(&mut fitter, &set, &[e], &cur, noise_um);
+        let judged = judge_standing(&plain, e, &sel.fit.p, &set, &[e], &cur, noise_um);
+        let supports = supports_text(&judged);
+        let open: Vec<String> = judged
+            .iter()
+            .filter(|(_, _, stands)| !stands)
+            .map(|(c, _, _)| c.name().to_string())
+            .collect();
         if open.is_empty() {
             log.push(format!(
                 "{}'s shape misfit not significant beside the named effects ({}) and every named effect stands \
-                 beside its generalised shape",
+                 beside its generalised shape (lowering the BIC by {supports})",
                 e.name(),
                 first.text()
             ));
             return None;
         }
-        let open: Vec<String> = open.iter().map(|(c, _)| c.name().to_string()).collect();
         log.push(format!(
             "{}'s shape misfit not significant beside the named effects ({}): they stay named; open: {} (beside \
-             {}'s generalised shape and the other named effects they do not lower the BIC by > {ADD_MARGIN})",
+             {}'s generalised shape and the other named effects they do not lower the BIC by > {ADD_MARGIN}: \
+             {supports})",
             e.name(),
             first.text(),
             open.join(", "),
@@ -531,34 +564,14 @@ fn check_one(
     Some((Some((outcome, report_problem)), misfit))
 }
 
-/// The named effects of `set` (`exempt` aside) that do not stand on their own beside the
-/// problem's shape-misfit modes (`fitter`'s problem): each judged with every other member of
-/// `set` in place (`cur` their fit), it lowers the BIC by less than [`ADD_MARGIN`]. With each
-/// its support (how much it lowers the BIC).
-pub(super) fn not_standing(
-    fitter: &mut Fitter<'_>,
-    set: &[&'static Effect],
-    exempt: &[&'static Effect],
-    cur: &Fit,
-    noise_um: Option<f64>,
-) -> Vec<(&'static Effect, f64)> {
-    let problem = fitter.problem;
-    let mut out = Vec::new();
-    for (i, c) in set.iter().enumerate() {
-        if exempt.contains(c) {
-            continue;
-        }
-        let mut trial = set.to_vec();
-        trial.remove(i);
-        let Some(f) = fitter.fit(&trial, &cur.p) else {
-            continue;
-        };
-        let support = delta_bic(problem, noise_um, cur, &f);
-        if support < ADD_MARGIN {
-            out.push((*c, support));
-        }
-    }
-    out
+/// Each judged effect's support (how much it lowers the BIC beside the generalised shape), for
+/// the log.
+pub(super) fn supports_text(judged: &[(&'static Effect, f64, bool)]) -> String {
+    judged
+        .iter()
+        .map(|(c, s, _)| format!("{} {s:.1}", c.name()))
+        .collect::<Vec<_>>()
+        .join(", ")
 }
 
 /// The misfit's significance: the BIC lower by more than [`ADD_MARGIN`] with every mode charged,

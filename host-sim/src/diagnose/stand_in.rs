@@ -37,7 +37,8 @@ use super::library::{idx, Effect, LIBRARY, N_PARAMS};
 use super::report::ShapeMisfit;
 use super::scoring::{delta_bic, Fitter, ADD_MARGIN};
 use super::selection::Selection;
-use super::shape::{describe, not_standing, set_misfit_modes};
+use super::shape::{describe, set_misfit_modes, supports_text};
+use super::standing::judge_standing;
 use crate::effect::PhysicalEffect;
 
 /// The compliance ratio range (%) the generalised shape is built at: the plausibility range of
@@ -99,7 +100,7 @@ fn judge(
     let mut x = beside.p.clone();
     x[idx::STRETCH_RATIO] = x[idx::STRETCH_RATIO].clamp(KC_PCT.0, KC_PCT.1);
     let mut with = problem.clone();
-    let modes = match set_misfit_modes(&mut with, stretch, &x) {
+    let modes = match set_misfit_modes(&mut with, stretch, &x, 1.0) {
         Ok(m) => m,
         Err(why) => {
             log.push(format!(
@@ -112,7 +113,12 @@ fn judge(
     let k_modes = with.nuisance.shape.map_or(0, |(_, k)| k);
     let mut fitter = Fitter::new(&with);
     let full = fitter.fit(&set, &beside.p)?;
-    let open = not_standing(&mut fitter, &set, &exempt, &full, noise_um);
+    let judged = judge_standing(problem, stretch, &x, &set, &exempt, &full, noise_um);
+    let open: Vec<(&'static Effect, f64)> = judged
+        .iter()
+        .filter(|(_, _, stands)| !stands)
+        .map(|&(c, s, _)| (c, s))
+        .collect();
     let first_text = if exempt.contains(&first) {
         format!(
             "{} first, ahead of {} alone by {:.1} of BIC",
@@ -131,8 +137,9 @@ fn judge(
     if open.is_empty() {
         log.push(format!(
             "{} not named; {first_text}; every named effect judged stands beside its generalised shape ({k_modes} \
-             modes)",
-            stretch.name()
+             modes; lowering the BIC by {})",
+            stretch.name(),
+            supports_text(&judged)
         ));
         return None;
     }
