@@ -60,9 +60,9 @@ pub struct Args {
     /// The moving steps: the check motion's length (s; 1.5 to 600).
     #[arg(long, default_value_t = 4.0)]
     pub check_motion_s: f64,
-    /// The excitation's and the check motion's knot spacing (ms; 5 to 200; the check motion's
-    /// at most 1/16 of its faster period). Under QEMU on TCP, whose clock outruns its UART,
-    /// give 80.
+    /// The excitation's and the check motion's knot spacing (ms; 5 to 200; a check motion
+    /// faster than 2 g takes at most 1/16 of its faster period). Under QEMU on TCP, whose
+    /// clock outruns its UART, give 80.
     #[arg(long, default_value_t = 50.0)]
     pub knot_ms: f64,
     /// The moving steps: the check motion's peak acceleration (g; 0.05 to 20, at most the

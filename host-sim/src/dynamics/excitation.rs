@@ -339,10 +339,16 @@ pub fn figure_eight_hz(o: &ExcitationOptions) -> f64 {
     FIGURE_EIGHT_HZ.max(o.accel_mm_s2 / (2.0 * TAU * o.speed_mm_s))
 }
 
-/// The knot spacing (s) at which the check motion's spline follows the figure-eight: at most
-/// `o.knot_s`, and 16 knots per period of its faster (y) component.
+/// The knot spacing (s) at which the check motion's spline follows the figure-eight:
+/// `o.knot_s` at [`FIGURE_EIGHT_HZ`] (a slow link's spacing kept), and at most 1/16 of the
+/// faster (y) component's period when the acceleration asks for a faster figure-eight.
 pub fn figure_eight_knot_s(o: &ExcitationOptions) -> f64 {
-    o.knot_s.min(1.0 / (2.0 * figure_eight_hz(o) * 16.0))
+    let hz = figure_eight_hz(o);
+    if hz > FIGURE_EIGHT_HZ {
+        o.knot_s.min(1.0 / (2.0 * hz * 16.0))
+    } else {
+        o.knot_s
+    }
 }
 
 /// The motion of `sections` one after the other (see the module doc).
