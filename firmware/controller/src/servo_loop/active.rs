@@ -116,10 +116,11 @@ impl<'a> ActiveCalibration<'a> {
         servo: &mut Servo,
         encoder_rad: [f32; 2],
     ) -> Result<[f32; 2], EngageError> {
-        // The settings' gains, scaled within the record's dynamics factor or with the observer
-        // off, pass the checks the settings passed at boot; were they refused, the servo would
-        // keep the gains it has. The dynamics were validated when the image was parsed; `set_dynamics` checks again and keeps
-        // none if not (the gains' constant feed-forward then).
+        // The settings' gains, scaled within `gain_design::MAX_INERTIA_RATIO` or with the
+        // observer off, pass the checks the settings passed at boot; were they refused, the
+        // servo would keep the gains it has. The dynamics were validated when the image was
+        // parsed; `set_dynamics` checks again and keeps none if not (the gains' constant
+        // feed-forward then).
         let _ = servo.set_gains(self.gains);
         let _ = servo.set_dynamics(self.dynamics);
         servo.engage(&self.calibration, encoder_rad)
