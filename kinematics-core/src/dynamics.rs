@@ -165,6 +165,30 @@ impl<T: Real> FiveBarDynamics<T> {
         FiveBarDynamics::from_array(p, U::from_f64(self.coulomb_speed_rad_s.to_f64()))
     }
 
+    /// This model without friction: the rigid bodies alone.
+    #[inline(always)]
+    fn rigid(&self) -> Self {
+        FiveBarDynamics {
+            viscous_nm_s_per_rad: [T::ZERO; 2],
+            coulomb_nm: [T::ZERO; 2],
+            ..*self
+        }
+    }
+
+    /// The inertia matrix's columns at a pose: the torques that accelerate motor 1, then motor
+    /// 2, at 1 rad/s² from rest with the other held (two evaluations of the inverse dynamics).
+    #[inline(always)]
+    fn inertia_columns(
+        &self,
+        pose: &crate::pose::Pose<T>,
+    ) -> Result<([T; 2], [T; 2]), KinematicsError> {
+        use crate::joint_motion::motion_from_pose;
+        let rigid = self.rigid();
+        let m0 = rigid.torque_nm(&motion_from_pose(pose, [T::ZERO; 2], [T::ONE, T::ZERO])?)?;
+        let m1 = rigid.torque_nm(&motion_from_pose(pose, [T::ZERO; 2], [T::ZERO, T::ONE])?)?;
+        Ok((m0, m1))
+    }
+
     /// The inertia matrix `M` (kg·m², symmetric) and the velocity-product torques `h(θ, θ̇)`
     /// (N·m) at a pose, friction left out: `τ = M·θ̈ + h` (three evaluations of the inverse
     /// dynamics; for simulated plants).
@@ -174,14 +198,10 @@ impl<T: Real> FiveBarDynamics<T> {
         velocity_rad_s: [T; 2],
     ) -> Result<(crate::jacobian::Mat2<T>, [T; 2]), KinematicsError> {
         use crate::joint_motion::motion_from_pose;
-        let rigid = FiveBarDynamics {
-            viscous_nm_s_per_rad: [T::ZERO; 2],
-            coulomb_nm: [T::ZERO; 2],
-            ..*self
-        };
-        let h = rigid.torque_nm(&motion_from_pose(pose, velocity_rad_s, [T::ZERO; 2])?)?;
-        let m0 = rigid.torque_nm(&motion_from_pose(pose, [T::ZERO; 2], [T::ONE, T::ZERO])?)?;
-        let m1 = rigid.torque_nm(&motion_from_pose(pose, [T::ZERO; 2], [T::ZERO, T::ONE])?)?;
+        let h = self
+            .rigid()
+            .torque_nm(&motion_from_pose(pose, velocity_rad_s, [T::ZERO; 2])?)?;
+        let (m0, m1) = self.inertia_columns(pose)?;
         Ok(([[m0[0], m1[0]], [m0[1], m1[1]]], h))
     }
 
@@ -189,14 +209,7 @@ impl<T: Real> FiveBarDynamics<T> {
     /// other held (two evaluations of the inverse dynamics, friction left out). What the
     /// servo's gains are designed for (`crate::gain_design`).
     pub fn inertia_diagonal(&self, pose: &crate::pose::Pose<T>) -> Result<[T; 2], KinematicsError> {
-        use crate::joint_motion::motion_from_pose;
-        let rigid = FiveBarDynamics {
-            viscous_nm_s_per_rad: [T::ZERO; 2],
-            coulomb_nm: [T::ZERO; 2],
-            ..*self
-        };
-        let m0 = rigid.torque_nm(&motion_from_pose(pose, [T::ZERO; 2], [T::ONE, T::ZERO])?)?;
-        let m1 = rigid.torque_nm(&motion_from_pose(pose, [T::ZERO; 2], [T::ZERO, T::ONE])?)?;
+        let (m0, m1) = self.inertia_columns(pose)?;
         Ok([m0[0], m1[1]])
     }
 
