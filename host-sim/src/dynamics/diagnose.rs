@@ -118,6 +118,9 @@ struct Run<'a> {
     path: &'a KnotPath,
     ticks: Vec<u64>,
     opts: &'a DiagnoseOptions,
+    /// The position gains the controller runs with the dynamics it feeds forward (N·m/rad per
+    /// motor; `Controller::designed_servo`), designed once for the whole diagnosis.
+    kp_nm_per_rad: [f64; 2],
 }
 
 impl Run<'_> {
@@ -176,12 +179,7 @@ impl Run<'_> {
     /// The torque `fit` leaves as the following error the position gains need to supply it,
     /// at the tool (µm, x and y per sample; zero where the model has no Jacobian).
     fn stiffness_series(&self, resid: &[f64]) -> Vec<[f64; 2]> {
-        let kp = self
-            .opts
-            .controller
-            .designed_servo()
-            .axes
-            .map(|a| f64::from(a.kp_nm_per_rad));
+        let kp = self.kp_nm_per_rad;
         let model = &self.opts.controller.model;
         let mt = self.opts.spec.min_transmission;
         self.problem
@@ -394,6 +392,11 @@ pub fn diagnose_telemetry(
         problem,
         path,
         opts,
+        kp_nm_per_rad: opts
+            .controller
+            .designed_servo()
+            .axes
+            .map(|a| f64::from(a.kp_nm_per_rad)),
     };
     let p = &run.problem;
     // Forward selection.
