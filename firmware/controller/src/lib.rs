@@ -11,9 +11,10 @@
 //!   state), setpoint intake with underrun handling, the workspace check, fault latching, what
 //!   torque and drive enable result;
 //! * [`setpoints`]: the setpoint queue between a source and the servo, and the
-//!   [`setpoints::SetpointSource`] trait (the built-in trajectory is one; a host link's streamed
-//!   motion buffer would be another);
-//! * [`trajectory`]: the built-in setpoint generator (rest-to-rest quintic moves);
+//!   [`setpoints::SetpointSource`] trait (the built-in [`waypoint_moves`] are one, the host
+//!   link's [`motion_stream`] another);
+//! * [`waypoint_moves`]: the built-in setpoint generator (rest-to-rest moves through waypoints,
+//!   quintic or jerk-limited);
 //! * [`fault`]: why the machine stops ([`fault::Fault`], latched) and how: its stop category
 //!   (0: torque off at once; 1: controlled stop, then torque off; 2: controlled stop, then
 //!   hold), with the table of faults and reactions;
@@ -45,8 +46,8 @@
 //!   whole, interpolated at 2 kHz (a [`setpoints::SetpointSource`]).
 //!
 //! The link reaches [`homing`] and [`calibration_slots`] through the handler's `Homing` and
-//! `CalibrationStore` traits (the firmware still implements them with stand-ins: see
-//! docs/reference/link-protocol.md).
+//! `CalibrationStore` traits: the firmware implements them over the servo task's homing and the
+//! flash's two slots (`firmware/src/link.rs`); the host tests, over doubles.
 //!
 //! No heap, no panic on runtime data: every failure is a [`fault::Fault`].
 #![cfg_attr(not(test), no_std)]
@@ -73,8 +74,8 @@ pub mod setpoints;
 pub mod settings;
 pub mod status;
 pub mod stop;
-pub mod trajectory;
 pub mod watchdog;
+pub mod waypoint_moves;
 
 /// Sample period of the servo loop (s): 2 kHz.
 pub const SAMPLE_PERIOD_S: f32 = 5.0e-4;

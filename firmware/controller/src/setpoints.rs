@@ -5,7 +5,7 @@
 //! a [`SetpointSource`]; the servo task takes one per sample (see
 //! [`ServoLoop::step`](crate::servo_loop::ServoLoop::step): an empty queue holds the last
 //! setpoint and counts an underrun) and asks for a refill when fewer than [`REFILL_BELOW`] are
-//! left. The built-in [`Trajectory`](crate::trajectory::Trajectory) is a source; a host link's
+//! left. The built-in [`Trajectory`](crate::waypoint_moves::Trajectory) is a source; a host link's
 //! streamed motion buffer would be another.
 use heapless::spsc::Producer;
 use kinematics_core::trajectory::MotionSetpoint;

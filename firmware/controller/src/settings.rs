@@ -18,7 +18,7 @@ use crate::encoder_check::EncoderLimits;
 use crate::homing::HomingSettings;
 use crate::plausibility::max_slope_change_rad_per_mm;
 use crate::stop::StopSettings;
-use crate::trajectory::{Profile, Trajectory};
+use crate::waypoint_moves::{Profile, Trajectory};
 use kinematics_core::machine::MachineRecord;
 use kinematics_core::TaskLimits;
 
@@ -49,7 +49,7 @@ pub struct Settings {
     /// Waypoints of the built-in tour run after engaging; empty: hold the engaged position
     /// until a host link fills the setpoint queue. Default empty: a real machine must not start
     /// moving by itself at power-on. The QEMU board runs
-    /// [`WORKSPACE_TOUR_MM`](crate::trajectory::WORKSPACE_TOUR_MM).
+    /// [`WORKSPACE_TOUR_MM`](crate::waypoint_moves::WORKSPACE_TOUR_MM).
     pub builtin_tour_mm: &'static [[f32; 2]],
     /// Each axis's encoder as fitted: counts per motor revolution, counting direction, gear
     /// ratio from motor to joint ([`EncoderConfig`]; the zero comes from homing, not from
@@ -71,11 +71,11 @@ pub struct Settings {
     /// limits ([`Settings::stream_limits`]). At most `servo.max_accel_mm_s2`.
     pub stream_accel_mm_s2: f32,
     /// The built-in trajectory's time law. Default
-    /// [`Profile::Quintic`](crate::trajectory::Profile::Quintic); the QEMU board's `track-5g`
+    /// [`Profile::Quintic`](crate::waypoint_moves::Profile::Quintic); the QEMU board's `track-5g`
     /// runs `JerkLimited`.
-    pub trajectory_profile: crate::trajectory::Profile,
+    pub trajectory_profile: crate::waypoint_moves::Profile,
     /// Peak tool jerk of the built-in trajectory's jerk-limited profile (mm/s³). Default
-    /// [`DEFAULT_JERK_MM_S3`](crate::trajectory::DEFAULT_JERK_MM_S3), 5e6 mm/s³ (5 g reached in
+    /// [`DEFAULT_JERK_MM_S3`](crate::waypoint_moves::DEFAULT_JERK_MM_S3), 5e6 mm/s³ (5 g reached in
     /// 10 ms).
     pub trajectory_jerk_mm_s3: f32,
     /// Rest at every waypoint (s). Default 0.1 s.
@@ -323,8 +323,8 @@ impl Default for Settings {
             trajectory_accel_mm_s2: 2.0 * kinematics_core::servo::STANDARD_GRAVITY_MM_S2,
             trajectory_speed_mm_s: 1_500.0,
             stream_accel_mm_s2: 5.0 * kinematics_core::servo::STANDARD_GRAVITY_MM_S2,
-            trajectory_profile: crate::trajectory::Profile::Quintic,
-            trajectory_jerk_mm_s3: crate::trajectory::DEFAULT_JERK_MM_S3,
+            trajectory_profile: crate::waypoint_moves::Profile::Quintic,
+            trajectory_jerk_mm_s3: crate::waypoint_moves::DEFAULT_JERK_MM_S3,
             trajectory_dwell_s: 0.1,
             link_motion: false,
             stop: StopSettings::default(),
@@ -463,14 +463,14 @@ mod tests {
     #[test]
     fn builtin_uses_the_settings_tour() {
         let settings = Settings {
-            builtin_tour_mm: &crate::trajectory::WORKSPACE_TOUR_MM,
+            builtin_tour_mm: &crate::waypoint_moves::WORKSPACE_TOUR_MM,
             ..Settings::default()
         };
         assert_eq!(
             settings.builtin_trajectory([212.132, 0.0]).total_samples(),
             Trajectory::new(
                 [212.132, 0.0],
-                &crate::trajectory::WORKSPACE_TOUR_MM,
+                &crate::waypoint_moves::WORKSPACE_TOUR_MM,
                 2.0 * 9_806.65,
                 1500.0,
                 0.1,

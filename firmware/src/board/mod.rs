@@ -23,8 +23,8 @@ use controller::servo_loop::IndexCapture;
 use controller::setpoints::SetpointSource;
 use controller::settings::Settings;
 use controller::status::Status;
-use controller::trajectory::Trajectory;
 use controller::watchdog::{ResetCause, WatchdogFault};
+use controller::waypoint_moves::Trajectory;
 
 #[cfg(all(feature = "board-qemu", feature = "board-g474"))]
 compile_error!("enable exactly one of the features `board-qemu` and `board-g474`");

@@ -3,7 +3,9 @@
 //! checks: the module doc of [`super`].
 use kinematics_core::{wrap_angle_rad, Calibration, CorrectionGrid, GridError};
 
-use super::stop_check::{CoastModel, PlantState, StopCheck, StopReport};
+pub use super::observation::Observation;
+use super::observation::{require, safe_state, PlantState};
+use super::stop_check::{CoastModel, StopCheck, StopReport};
 use super::{
     Check, Expected, Injection, Scenario, Window, BAD_IMAGE_TICKS, DUTY_STEP_NM, GRID_CHECK_PERIOD,
     LONG_RUN_TICKS, MAX_FOLLOWING_ERROR_5G_UM, MAX_FOLLOWING_ERROR_RAD, MAX_GRID_RESIDUAL_RAD,
@@ -19,21 +21,6 @@ use crate::settings::Settings;
 use crate::status::Status;
 use crate::stop::{MotionState, StopProfile};
 use crate::watchdog::{WatchdogFault, TIMEOUT_US};
-
-/// What the harness sees at the end of a sample.
-#[derive(Clone, Copy, Debug)]
-pub struct Observation<'s> {
-    /// The status the servo task published in this sample.
-    pub status: &'s Status,
-    /// The drive-enable line, as the (simulated) hardware holds it.
-    pub drive_enable: bool,
-    /// Whether the drive-enable line was ever high since power-on (a sticky probe on the line).
-    pub drive_enable_ever: bool,
-    /// The torque the PWM duty registers command (N·m), decoded from the duty.
-    pub drive_torque_nm: [f32; 2],
-    /// The simulated plant's true joint state (not the encoders).
-    pub plant: PlantState,
-}
 
 /// What the QEMU board's watchdog interrupt found (times in µs on the harness's own clock).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -96,14 +83,6 @@ pub fn check_watchdog(o: &WatchdogObservation) -> Result<(), &'static str> {
 
 /// Outcome of a check: `None` while the scenario is still running.
 pub type Verdict = Option<Result<(), &'static str>>;
-
-pub(super) fn require(ok: bool, why: &'static str) -> Result<(), &'static str> {
-    if ok {
-        Ok(())
-    } else {
-        Err(why)
-    }
-}
 
 /// Tool error `|FK(θ - δ(p)) - p|` (mm) of encoder angles `theta_rad` against setpoint `p_mm`.
 pub fn tool_error_mm(cal: &Calibration<'_>, theta_rad: [f32; 2], p_mm: [f32; 2]) -> Option<f32> {
@@ -763,13 +742,4 @@ impl<'a> Checker<'a> {
             "commanded angle minus model IK is not the grid correction: grid not applied",
         )
     }
-}
-
-/// The hardware shows the safe state: drive enable off, zero torque.
-pub(super) fn safe_state(o: &Observation<'_>) -> Result<(), &'static str> {
-    require(!o.drive_enable, "drive enable still on after the fault")?;
-    require(
-        o.drive_torque_nm == [0.0; 2],
-        "torque commanded after the fault",
-    )
 }

@@ -82,18 +82,20 @@
 //! * the following error at the tool, `|J·(reference - encoder)|` with the image model's
 //!   Jacobian at the setpoint, at most [`MAX_FOLLOWING_ERROR_5G_UM`] in every sample.
 use crate::fault::Fault;
-use crate::trajectory::{Profile, Trajectory};
 use crate::watchdog::ResetCause;
+use crate::waypoint_moves::{Profile, Trajectory};
 use kinematics_core::GridError;
 
 pub mod checker;
+pub mod observation;
 pub mod registry;
 pub mod stop_check;
 
 pub use checker::{
-    tool_error_mm, tool_mm, Checker, GridCheck, MotionCheck, Observation, Verdict,
-    WatchdogObservation, WatchdogVerdict,
+    tool_error_mm, tool_mm, Checker, GridCheck, MotionCheck, Verdict, WatchdogObservation,
+    WatchdogVerdict,
 };
+pub use observation::Observation;
 
 /// The semihosting command line `list` asks the harness for the registry instead of a run: one
 /// line per run of every scenario (`qemu/test.sh` reads them, [`Run::list_line`]).

@@ -12,7 +12,7 @@ use super::{
 };
 use crate::encoder_check::{EncoderFault, EncoderFaultKind};
 use crate::fault::Fault;
-use crate::trajectory::Profile;
+use crate::waypoint_moves::Profile;
 
 /// A test scenario's defaults: nothing injected, the production tour and trajectory, absolute
 /// encoders, no upload, [`MAX_TICKS`], a watchdog interrupt fails it.

@@ -27,7 +27,8 @@ use crate::fault::StopCategory;
 use crate::servo_loop::Mode;
 use crate::stop::StopProfile;
 
-use super::checker::{require, safe_state, Observation};
+pub use super::observation::PlantState;
+use super::observation::{require, safe_state, Observation};
 
 /// How far the tool may travel beyond the planned stop (mm): the servo's following error
 /// during a 5 g stop (about 20 µm) with room to spare.
@@ -40,16 +41,6 @@ pub const HOLD_AFTER_S: f32 = 0.05;
 pub const MAX_HOLD_ERROR_MM: f32 = 0.02;
 /// A joint slower than this is at rest (rad/s).
 pub const REST_RAD_S: f32 = 1.0e-3;
-
-/// The simulated plant's true state, as the harness reads it.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub struct PlantState {
-    /// Joint angles (rad), unquantised.
-    pub joint_rad: [f32; 2],
-    /// Joint speeds (rad/s).
-    pub joint_rad_s: [f32; 2],
-}
 
 /// Enough of the plant to bound a coast with the drives off: inertia, viscous friction and the
 /// drives' dynamic braking per joint.

@@ -402,7 +402,7 @@ fn injection_happens_only_where_the_scenario_says() {
 #[test]
 fn injection_finds_the_tours_top_speed_and_the_rest_before_it() {
     let settings = Settings {
-        builtin_tour_mm: &crate::trajectory::WORKSPACE_TOUR_MM,
+        builtin_tour_mm: &crate::waypoint_moves::WORKSPACE_TOUR_MM,
         ..Settings::default()
     };
     let t = settings.builtin_trajectory(P_MM);

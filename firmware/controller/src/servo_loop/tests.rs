@@ -11,7 +11,7 @@ use crate::calibration::ImageError;
 use crate::encoder_check::{EncoderFault, EncoderFaultKind};
 use crate::setpoints::QUEUE_SLOTS;
 use crate::stop::stopping_distance_bound_mm;
-use crate::trajectory::{Trajectory, WORKSPACE_TOUR_MM};
+use crate::waypoint_moves::{Trajectory, WORKSPACE_TOUR_MM};
 
 const HOME_MM: [f32; 2] = [212.132, 0.0];
 

@@ -43,8 +43,8 @@ use controller::scenario::{
 use controller::setpoints::SetpointSource;
 use controller::settings::Settings;
 use controller::status::Status;
-use controller::trajectory::Trajectory;
 use controller::watchdog::TIMEOUT_US;
+use controller::waypoint_moves::Trajectory;
 use critical_section::Mutex;
 use kinematics_core::trajectory::MotionSetpoint;
 use kinematics_core::{CorrectionGrid, GridError};

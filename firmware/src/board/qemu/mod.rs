@@ -24,8 +24,8 @@ use controller::encoder::{EncoderScale, QuadratureEncoder};
 use controller::homing::HomingSettings;
 use controller::settings::Settings;
 use controller::status::Status;
-use controller::trajectory::{Trajectory, WORKSPACE_TOUR_MM};
 use controller::watchdog::{ResetCause, WatchdogFault};
+use controller::waypoint_moves::{Trajectory, WORKSPACE_TOUR_MM};
 use controller::SAMPLE_RATE_HZ;
 
 use super::{Board, ServoTimer};
