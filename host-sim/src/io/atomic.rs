@@ -20,7 +20,7 @@
 //! What remains: a rename that fails after the destinations were checked (a disk removed
 //! between two renames) leaves the earlier files renamed; the error says which.
 
-use super::policy::{identify, input_clash, output_clash, Declared, DeclaredDir, FileId};
+use super::declared::{identify, input_clash, output_clash, Declared, DeclaredDir, FileId};
 use super::IoError;
 use std::io::Write;
 use std::path::{Path, PathBuf};

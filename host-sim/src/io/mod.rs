@@ -30,6 +30,7 @@
 pub mod atomic;
 pub mod commanded_csv;
 pub mod csv_dialect;
+pub mod declared;
 pub mod dynamics_file;
 pub mod knots_csv;
 pub mod machine_file;
