@@ -52,7 +52,15 @@ pub struct Args {
 /// `host-sim diagnose`.
 pub fn run(args: &Args) -> Result<()> {
     let Some(data_path) = &args.data else {
-        return super::diagnose_moving::run(args);
+        if args.plots.is_some() || args.out_model.is_some() || args.noise_um.is_some() {
+            bail!("--plots, --out-model and --noise-um are the static diagnosis' (--data); with --telemetry, --out-dynamics writes the updated dynamics");
+        }
+        let shared = super::diagnose_moving::Shared {
+            model: args.model.as_deref(),
+            out: &args.out,
+            machine: &args.machine,
+        };
+        return super::diagnose_moving::run(&args.moving, shared);
     };
     // The report, the extended model and the plots staged, then renamed together; none may
     // be an input or another's file.

@@ -8,6 +8,7 @@
 //! dynamics block it feeds forward), or `--model` and `--dynamics`; `--dynamics` overrides the
 //! image's block. The knots the log is a run of: `--knots`, default the built-in excitation.
 
+use super::MachineArg;
 use anyhow::{bail, Context, Result};
 use host_sim::dynamics::diagnose::{diagnose_telemetry, DiagnoseOptions};
 use host_sim::dynamics::excitation::{excitation, ExcitationOptions};
@@ -20,7 +21,7 @@ use host_sim::io::{json_text, KeyOrder};
 use host_sim::machine_spec::STANDARD_GRAVITY_MM_S2;
 use kinematics_core::dynamics::PARAMETER_NAMES;
 use kinematics_core::{Calibration, FiveBarDynamics};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 /// The flags of the moving machine's diagnosis (`diagnose --telemetry`).
 #[derive(clap::Args, Debug)]
@@ -50,15 +51,21 @@ pub struct MovingArgs {
     pub out_dynamics: Option<PathBuf>,
 }
 
+/// The flags the moving diagnosis shares with the static one.
+pub struct Shared<'a> {
+    /// `--model`: the current model.
+    pub model: Option<&'a Path>,
+    /// `--out`: the report JSON.
+    pub out: &'a Path,
+    /// `--machine`.
+    pub machine: &'a MachineArg,
+}
+
 /// `host-sim diagnose --telemetry`.
-pub fn run(args: &super::diagnose::Args) -> Result<()> {
-    let m = &args.moving;
+pub fn run(m: &MovingArgs, args: Shared<'_>) -> Result<()> {
     let Some(log_path) = &m.telemetry else {
         bail!("give --data (measurements) or --telemetry (the moving machine)");
     };
-    if args.plots.is_some() || args.out_model.is_some() || args.noise_um.is_some() {
-        bail!("--plots, --out-model and --noise-um are the static diagnosis' (--data); with --telemetry, --out-dynamics writes the updated dynamics");
-    }
     if !(m.accel_g > 0.0 && m.accel_g <= 20.0) {
         bail!("--accel-g must be in (0, 20], not {}", m.accel_g);
     }
@@ -69,27 +76,22 @@ pub fn run(args: &super::diagnose::Args) -> Result<()> {
         .input("--knots", &m.knots)
         .input("--grid", &m.grid)
         .input("--dynamics", &m.dynamics)
-        .input("--model", &args.model)
-        .output("--out", &args.out)
+        .input("--model", args.model)
+        .output("--out", args.out)
         .output("--out-dynamics", &m.out_dynamics)
         .check()?;
     let spec = args.machine.spec()?;
-    let loaded = super::load_calibration(
-        args.model.as_deref(),
-        m.grid.as_deref(),
-        &spec,
-        &args.machine,
-    )?;
+    let loaded = super::load_calibration(args.model, m.grid.as_deref(), &spec, args.machine)?;
     let Calibration { model, grid } = loaded.calibration()?;
     let fed_forward: FiveBarDynamics<f64> = match (&m.dynamics, grid.as_ref().and_then(|g| g.dynamics())) {
-        (Some(p), _) => super::common_args::read_dynamics(&args.machine, &spec, "--dynamics", p)?,
+        (Some(p), _) => super::common_args::read_dynamics(args.machine, &spec, "--dynamics", p)?,
         (None, Some(d)) => d.cast(),
         (None, None) => bail!(
             "give the dynamics the controller fed forward: --dynamics FILE, or --grid with the image it ran (its dynamics block)"
         ),
     };
     let (log, path) = super::common_args::telemetry_run(
-        &args.machine,
+        args.machine,
         &spec,
         log_path,
         m.knots.as_deref(),
@@ -120,10 +122,7 @@ pub fn run(args: &super::diagnose::Args) -> Result<()> {
         .with_context(|| format!("diagnosing {}", log_path.display()))?;
     print!("{}", table(&report));
     // Everything computed before anything is written.
-    outputs.bytes(
-        &args.out,
-        json_text(&report, KeyOrder::Declared)?.as_bytes(),
-    )?;
+    outputs.bytes(args.out, json_text(&report, KeyOrder::Declared)?.as_bytes())?;
     if let Some(p) = &m.out_dynamics {
         let Some(out) = &report.model_out else {
             bail!("the effects named do not make a valid dynamics block: nothing written");
