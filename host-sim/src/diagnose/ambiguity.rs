@@ -118,11 +118,7 @@ pub fn pair_ambiguities(
 ) -> Vec<PairAmbiguity> {
     let problem = fitter.problem;
     let n = n_res(problem);
-    let out: Vec<&'static Effect> = candidates
-        .iter()
-        .copied()
-        .filter(|c| !set.contains(c))
-        .collect();
+    let out = super::library::outside(candidates, set);
     let mut found = Vec::new();
     for i in 0..set.len() {
         for j in i + 1..set.len() {

@@ -115,10 +115,7 @@ pub fn overlaps(
     s2_um2: f64,
 ) -> Vec<Overlap> {
     let x = &fit.p;
-    let all: Vec<usize> = candidates
-        .iter()
-        .flat_map(|e| e.params.iter().copied())
-        .collect();
+    let all = super::library::params_of(candidates);
     let Some(j) = jacobian(problem, x, &all) else {
         return vec![];
     };
@@ -290,10 +287,7 @@ pub fn pose_set_overlaps(
     candidates: &[&'static Effect],
     min_cos: f64,
 ) -> Vec<PoseOverlap> {
-    let all: Vec<usize> = candidates
-        .iter()
-        .flat_map(|e| e.params.iter().copied())
-        .collect();
+    let all = super::library::params_of(candidates);
     let Some(j) = jacobian(problem, x, &all) else {
         return vec![];
     };

@@ -268,10 +268,7 @@ impl Problem {
 
     /// The parameters free in a fit of `effects`: theirs, then the nuisances'.
     pub fn free_params(&self, effects: &[&Effect]) -> Vec<usize> {
-        let mut p: Vec<usize> = effects
-            .iter()
-            .flat_map(|e| e.params.iter().copied())
-            .collect();
+        let mut p = super::library::params_of(effects);
         p.extend(self.nuisance.params());
         p
     }

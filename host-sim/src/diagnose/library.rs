@@ -136,6 +136,23 @@ impl Effect {
     }
 }
 
+/// The parameters of `effects`, in order.
+pub fn params_of(effects: &[&Effect]) -> Vec<usize> {
+    effects
+        .iter()
+        .flat_map(|e| e.params.iter().copied())
+        .collect()
+}
+
+/// The `candidates` not in `set`, in order.
+pub fn outside(candidates: &[&'static Effect], set: &[&'static Effect]) -> Vec<&'static Effect> {
+    candidates
+        .iter()
+        .copied()
+        .filter(|c| !set.contains(c))
+        .collect()
+}
+
 /// Looks an effect up by its exact name.
 pub fn effect(name: &str) -> Option<&'static Effect> {
     LIBRARY.iter().find(|e| e.name() == name)

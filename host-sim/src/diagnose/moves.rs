@@ -141,19 +141,12 @@ pub fn pair_replacement(
 ) -> Option<(Vec<&'static Effect>, Fit, String)> {
     let problem = fitter.problem;
     let n = n_res(problem);
-    let out: Vec<&'static Effect> = candidates
-        .iter()
-        .copied()
-        .filter(|c| !set.contains(c))
-        .collect();
+    let out = super::library::outside(candidates, set);
     if set.is_empty() || set.len() > 5 || out.len() < 2 {
         return None;
     }
     // Columns: every candidate's parameters, then the nuisances'.
-    let mut cols: Vec<usize> = candidates
-        .iter()
-        .flat_map(|e| e.params.iter().copied())
-        .collect();
+    let mut cols = super::library::params_of(candidates);
     cols.extend(problem.nuisance.params());
     let j = super::fit::jacobian(problem, &cur.p, &cols)?;
     // Column-normalised Gram matrix and projections of the residual (scales differ by units).
