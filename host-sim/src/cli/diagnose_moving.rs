@@ -17,7 +17,6 @@ use host_sim::dynamics::samples::SampleOptions;
 use host_sim::io::dynamics_file::{write_dynamics_file, DynamicsFile};
 use host_sim::io::policy::CommandFiles;
 use host_sim::io::{json_text, KeyOrder};
-use host_sim::machine_spec::STANDARD_GRAVITY_MM_S2;
 use kinematics_core::dynamics::PARAMETER_NAMES;
 use kinematics_core::{Calibration, FiveBarDynamics};
 use std::path::PathBuf;
@@ -59,9 +58,7 @@ pub fn run(args: &super::diagnose::Args) -> Result<()> {
     if args.plots.is_some() || args.out_model.is_some() || args.noise_um.is_some() {
         bail!("--plots, --out-model and --noise-um are the static diagnosis' (--data); with --telemetry, --out-dynamics writes the updated dynamics");
     }
-    if !(m.accel_g > 0.0 && m.accel_g <= 20.0) {
-        bail!("--accel-g must be in (0, 20], not {}", m.accel_g);
-    }
+    let accel_mm_s2 = super::common_args::excitation_accel_mm_s2(m.accel_g)?;
     // Every file declared before anything runs: no output onto an input or another output.
     let mut outputs = CommandFiles::new()
         .input("--machine", &args.machine.machine)
@@ -97,7 +94,7 @@ pub fn run(args: &super::diagnose::Args) -> Result<()> {
             let ex = excitation(
                 &spec,
                 &ExcitationOptions {
-                    accel_mm_s2: m.accel_g * STANDARD_GRAVITY_MM_S2,
+                    accel_mm_s2,
                     section_s: m.section_s,
                     ..ExcitationOptions::default()
                 },
