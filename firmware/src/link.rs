@@ -50,6 +50,14 @@ pub struct LinkState<P: LinkPort> {
     pub reader: FrameReader,
     /// The command handler.
     pub handler: LinkHandler,
+    /// What the handler is told of the controller besides its status.
+    pub facts: LinkFacts,
+}
+
+/// What the link reports of the controller besides its status, fixed at boot: every frame's
+/// [`AppDevice`] is built with them.
+#[derive(Clone, Copy, Debug)]
+pub struct LinkFacts {
     /// The settings say the encoders are absolute (the drives may engage unhomed).
     pub absolute_encoders: bool,
     /// The settings make the link's stream the motion source (`Settings::link_motion`).
@@ -67,13 +75,7 @@ impl<P: LinkPort> LinkState<P> {
         while let Some(byte) = self.port.read_byte() {
             if let Some(received) = self.reader.push(byte) {
                 let mut out = [0u8; MAX_FRAME_LEN];
-                let mut dev = AppDevice::new(
-                    device,
-                    self.board,
-                    self.machine,
-                    self.absolute_encoders,
-                    self.link_motion,
-                );
+                let mut dev = AppDevice::new(device, self.facts);
                 let n = self.handler.on_received(received, &mut dev, &mut out);
                 self.port.write(&out[..n]);
             }
@@ -100,13 +102,7 @@ impl<P: LinkPort> LinkState<P> {
                 );
             }
         }
-        let mut dev = AppDevice::new(
-            device,
-            self.board,
-            self.machine,
-            self.absolute_encoders,
-            self.link_motion,
-        );
+        let mut dev = AppDevice::new(device, self.facts);
         if let Some(message) = self.handler.poll(&mut dev) {
             self.send(&message);
         }
@@ -188,31 +184,15 @@ where
 /// read last (what [`Homing::state`] reports from).
 pub struct AppDevice<'a, D> {
     res: &'a mut D,
-    board: Board,
-    machine: MachineId,
+    facts: LinkFacts,
     status: Status,
-    absolute_encoders: bool,
-    link_motion: bool,
 }
 
 impl<'a, D: DeviceResources> AppDevice<'a, D> {
     /// Reads the status once.
-    pub fn new(
-        res: &'a mut D,
-        board: Board,
-        machine: MachineId,
-        absolute_encoders: bool,
-        link_motion: bool,
-    ) -> Self {
+    pub fn new(res: &'a mut D, facts: LinkFacts) -> Self {
         let status = res.status();
-        AppDevice {
-            res,
-            board,
-            machine,
-            status,
-            absolute_encoders,
-            link_motion,
-        }
+        AppDevice { res, facts, status }
     }
 }
 
@@ -220,7 +200,7 @@ impl<D: DeviceResources> Device for AppDevice<'_, D> {
     type Homing = Self;
     type Calibration = Self;
     fn board(&self) -> Board {
-        self.board
+        self.facts.board
     }
     fn status(&mut self) -> Status {
         self.status = self.res.status();
@@ -239,7 +219,7 @@ impl<D: DeviceResources> Device for AppDevice<'_, D> {
         self
     }
     fn link_drives_motion(&self) -> bool {
-        self.link_motion
+        self.facts.link_motion
     }
 }
 
@@ -261,10 +241,14 @@ impl<D: DeviceResources> Homing for AppDevice<'_, D> {
         }
     }
     fn state(&self) -> HomingState {
-        homing_state(self.status.mode, self.status.homing, self.absolute_encoders)
+        homing_state(
+            self.status.mode,
+            self.status.homing,
+            self.facts.absolute_encoders,
+        )
     }
     fn absolute_encoders(&self) -> bool {
-        self.absolute_encoders
+        self.facts.absolute_encoders
     }
 }
 
@@ -304,6 +288,6 @@ impl<D: DeviceResources> CalibrationStore for AppDevice<'_, D> {
     }
     /// The machine in force: the record of the image in force at boot (the slot store's).
     fn machine(&self) -> MachineId {
-        self.machine
+        self.facts.machine
     }
 }

@@ -70,7 +70,7 @@ mod app {
     use controller::SAMPLE_RATE_HZ;
     use firmware::board::{Board, IndexOf, Selected, ServoTimer};
     use firmware::calibration::RegionFlash;
-    use firmware::link::{LinkState, Locks};
+    use firmware::link::{LinkFacts, LinkState, Locks};
     use kinematics_core::Calibration;
     use link_protocol::FrameReader;
 
@@ -228,10 +228,12 @@ mod app {
             port,
             reader: FrameReader::new(),
             handler: LinkHandler::new(),
-            absolute_encoders: settings.homing.absolute_encoders,
-            link_motion: settings.link_motion,
-            board: firmware::board::BOARD_ID,
-            machine: controller::host_link::machine_id(machine),
+            facts: LinkFacts {
+                absolute_encoders: settings.homing.absolute_encoders,
+                link_motion: settings.link_motion,
+                board: firmware::board::BOARD_ID,
+                machine: controller::host_link::machine_id(machine),
+            },
         };
         if settings.link_motion {
             defmt::info!("setpoints from the host link");

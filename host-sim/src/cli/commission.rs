@@ -103,12 +103,7 @@ pub fn run(args: &Args) -> Result<()> {
         .input("--firmware", &args.firmware)
         .output_dir("--out", &args.out, &FILES)
         .check()?;
-    if !(args.timeout_s > 0.0 && args.timeout_s.is_finite()) {
-        bail!(
-            "--timeout-s must be a positive number, not {}",
-            args.timeout_s
-        );
-    }
+    let timeout = super::link_args::reply_timeout(args.timeout_s)?;
     if !(1..=2).contains(&args.grid_rounds) {
         bail!(
             "--grid-rounds must be 1 or 2 (grid rounds), not {}",
@@ -140,7 +135,6 @@ pub fn run(args: &Args) -> Result<()> {
             args.check_accel_g
         )
     })?;
-    let timeout = Duration::from_secs_f64(args.timeout_s);
     let done = if args.qemu {
         let mut plant = PlantConfig::by_name(&args.plant)?;
         check_plant_fits(&plant, &spec)?;

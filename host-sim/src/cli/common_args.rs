@@ -12,11 +12,20 @@ use host_sim::io::measurement_csv::{read_measurement_file, Measurement};
 use host_sim::io::telemetry_csv::{read_telemetry, TelemetryLog};
 use host_sim::link::link_protocol::Knot;
 use host_sim::link::parse_knots_csv;
-use host_sim::machine_spec::MachineSpec;
+use host_sim::machine_spec::{MachineSpec, STANDARD_GRAVITY_MM_S2};
 use host_sim::plant::{PlantConfig, PlantModel};
 use host_sim::sim::knots::KnotPath;
 use kinematics_core::FiveBarDynamics;
 use std::path::Path;
+
+/// `--accel-g G`, the excitation's peak acceleration as `identify`, `simulate` and `diagnose
+/// --telemetry` take it, checked (in (0, 20] g) and in mm/s².
+pub fn excitation_accel_mm_s2(accel_g: f64) -> Result<f64> {
+    if !(accel_g > 0.0 && accel_g <= 20.0) {
+        bail!("--accel-g must be in (0, 20], not {accel_g}");
+    }
+    Ok(accel_g * STANDARD_GRAVITY_MM_S2)
+}
 
 /// `--plant-model NAME` applied to the plant: `sixbar` or `fivebar` (none: the plant's own).
 pub fn override_plant_model(plant: &mut PlantConfig, name: Option<&str>) -> Result<()> {

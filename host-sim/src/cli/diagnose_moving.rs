@@ -18,7 +18,6 @@ use host_sim::dynamics::samples::SampleOptions;
 use host_sim::io::dynamics_file::{write_dynamics_file, DynamicsFile};
 use host_sim::io::policy::CommandFiles;
 use host_sim::io::{json_text, KeyOrder};
-use host_sim::machine_spec::STANDARD_GRAVITY_MM_S2;
 use kinematics_core::dynamics::PARAMETER_NAMES;
 use kinematics_core::{Calibration, FiveBarDynamics};
 use std::path::{Path, PathBuf};
@@ -66,9 +65,7 @@ pub fn run(m: &MovingArgs, args: Shared<'_>) -> Result<()> {
     let Some(log_path) = &m.telemetry else {
         bail!("give --data (measurements) or --telemetry (the moving machine)");
     };
-    if !(m.accel_g > 0.0 && m.accel_g <= 20.0) {
-        bail!("--accel-g must be in (0, 20], not {}", m.accel_g);
-    }
+    let accel_mm_s2 = super::common_args::excitation_accel_mm_s2(m.accel_g)?;
     // Every file declared before anything runs: no output onto an input or another output.
     let mut outputs = CommandFiles::new()
         .input("--machine", &args.machine.machine)
@@ -99,7 +96,7 @@ pub fn run(m: &MovingArgs, args: Shared<'_>) -> Result<()> {
             let ex = excitation(
                 &spec,
                 &ExcitationOptions {
-                    accel_mm_s2: m.accel_g * STANDARD_GRAVITY_MM_S2,
+                    accel_mm_s2,
                     section_s: m.section_s,
                     ..ExcitationOptions::default()
                 },

@@ -28,14 +28,13 @@ use host_sim::io::telemetry_csv::telemetry_text;
 use host_sim::io::{json_text, KeyOrder};
 use host_sim::link::link_protocol::{calibration_image_id, Command, Response};
 use host_sim::link::LinkClient;
-use host_sim::machine_spec::{MachineSpec, STANDARD_GRAVITY_MM_S2};
+use host_sim::machine_spec::MachineSpec;
 use host_sim::sim::closed_loop::FeedForward;
 use kinematics_core::dynamics::PARAMETER_NAMES;
 use kinematics_core::ServoConfig;
 use serde::Serialize;
 use std::io::{Read, Write};
 use std::path::PathBuf;
-use std::time::Duration;
 
 /// Identify the dynamics from the controller's telemetry of the excitation motion.
 #[derive(clap::Args, Debug)]
@@ -127,15 +126,8 @@ pub fn run(args: &Args) -> Result<()> {
         .output("--knots-out", &args.knots_out)
         .check()?;
     let spec = args.machine.spec()?;
-    if !(args.accel_g > 0.0 && args.accel_g <= 20.0) {
-        bail!("--accel-g must be in (0, 20], not {}", args.accel_g);
-    }
-    if !(args.timeout_s > 0.0 && args.timeout_s.is_finite()) {
-        bail!(
-            "--timeout-s must be a positive number, not {}",
-            args.timeout_s
-        );
-    }
+    let accel_mm_s2 = super::common_args::excitation_accel_mm_s2(args.accel_g)?;
+    let timeout = super::link_args::reply_timeout(args.timeout_s)?;
     if !(20..=2000).contains(&args.decimation) {
         bail!(
             "--decimation {}: give 20 (100 Hz, the link's fastest) to 2000 servo samples per \
@@ -161,7 +153,7 @@ pub fn run(args: &Args) -> Result<()> {
         torque_limit_nm: servo.axes.map(|a| f64::from(a.torque_limit_nm)),
     };
     let excitation = ExcitationOptions {
-        accel_mm_s2: args.accel_g * STANDARD_GRAVITY_MM_S2,
+        accel_mm_s2,
         section_s: args.section_s,
         knot_s: args.knot_ms * 1e-3,
         ..ExcitationOptions::default()
@@ -199,7 +191,6 @@ pub fn run(args: &Args) -> Result<()> {
         let Identification { run, result } = identify_on_plant(&plant, &cal, &opts, &samples)?;
         (format!("plant {name} (host loop)"), result, Some(run))
     } else {
-        let timeout = Duration::from_secs_f64(args.timeout_s);
         let opts = LinkRunOptions {
             spec: spec.clone(),
             excitation,

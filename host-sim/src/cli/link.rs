@@ -11,6 +11,7 @@ use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
+use super::link_args::MAX_TIMEOUT_S;
 use anyhow::{bail, Context, Result};
 use host_sim::calib::image::{read_image, read_image_for};
 use host_sim::dynamics::telemetry::{from_link, meta_for};
@@ -225,8 +226,8 @@ fn identity_json(id: &host_sim::link::link_protocol::Identity) -> Result<serde_j
 
 /// `host-sim link`.
 pub fn run(args: &Args) -> Result<()> {
+    let timeout = super::link_args::reply_timeout(args.timeout_s)?;
     check_ranges(args)?;
-    let timeout = Duration::from_secs_f64(args.timeout_s);
     // The files an action reads and writes, checked before the link is opened.
     let files = match &args.action {
         Action::Upload { grid, machine } => CommandFiles::new()
@@ -250,9 +251,6 @@ pub fn run(args: &Args) -> Result<()> {
     act_then_quiet(&mut client, &args.action, timeout, &mut outputs)
 }
 
-/// Longest wait `--timeout-s` may ask for (s): a day. Longer is a typo, and beyond ~1e19 s a
-/// `Duration` cannot hold it.
-const MAX_TIMEOUT_S: f64 = 86_400.0;
 /// Longest `telemetry --seconds` (s): a day.
 const MAX_RECORD_S: f64 = 86_400.0;
 /// Most bytes `garbage --bytes` sends.
@@ -262,12 +260,6 @@ const MAX_GARBAGE_BYTES: usize = 100_000_000;
 /// error that names the flag, never a panic.
 fn check_ranges(args: &Args) -> Result<()> {
     let within = |v: f64, lo: f64, hi: f64| v.is_finite() && v > lo && v <= hi;
-    if !within(args.timeout_s, 0.0, MAX_TIMEOUT_S) {
-        bail!(
-            "--timeout-s must be a number of seconds in (0, {MAX_TIMEOUT_S}], not {}",
-            args.timeout_s
-        );
-    }
     match &args.action {
         Action::Move { x_mm, y_mm } if !(x_mm.is_finite() && y_mm.is_finite()) => {
             bail!("--x-mm and --y-mm must be finite numbers, not {x_mm}, {y_mm}")

@@ -9,6 +9,21 @@ use std::time::Duration;
 /// The serial port's default rate: the STM32G474 firmware's.
 pub const DEFAULT_BAUD: u32 = 115_200;
 
+/// Longest wait `--timeout-s` may ask for (s): a day. Longer is a typo, and beyond ~1e19 s a
+/// `Duration` cannot hold it.
+pub const MAX_TIMEOUT_S: f64 = 86_400.0;
+
+/// `--timeout-s` (how long to wait for each of the controller's replies) as a wait, checked the
+/// same for every command that talks to a controller: seconds in (0, [`MAX_TIMEOUT_S`]];
+/// anything else (NaN, zero, negative, more than a day) is an error naming the flag, never a
+/// panic of `Duration`.
+pub fn reply_timeout(timeout_s: f64) -> Result<Duration> {
+    if !(timeout_s.is_finite() && timeout_s > 0.0 && timeout_s <= MAX_TIMEOUT_S) {
+        bail!("--timeout-s must be a number of seconds in (0, {MAX_TIMEOUT_S}], not {timeout_s}");
+    }
+    Ok(Duration::from_secs_f64(timeout_s))
+}
+
 /// The controller's link. A command that needs exactly one of `--tcp` and `--serial` says so
 /// with a clap `ArgGroup` over the ids `tcp` and `serial`.
 #[derive(clap::Args, Debug, Clone, Default)]
@@ -63,5 +78,31 @@ impl LinkArgs {
             }
         })?;
         Ok((t, client))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn reply_timeout_takes_seconds_up_to_a_day_and_refuses_the_rest() {
+        assert_eq!(reply_timeout(5.0).unwrap(), Duration::from_secs(5));
+        assert_eq!(
+            reply_timeout(MAX_TIMEOUT_S).unwrap(),
+            Duration::from_secs(86_400)
+        );
+        // 1e30 s would make `Duration::from_secs_f64` panic.
+        for bad in [
+            0.0,
+            -1.0,
+            f64::NAN,
+            f64::INFINITY,
+            MAX_TIMEOUT_S * 1.01,
+            1e30,
+        ] {
+            let e = reply_timeout(bad).unwrap_err().to_string();
+            assert!(e.contains("--timeout-s"), "{bad}: {e}");
+        }
     }
 }

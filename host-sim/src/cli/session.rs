@@ -114,12 +114,7 @@ fn session<S: Read + Write>(
 
 /// `host-sim session`.
 pub fn run(args: &Args) -> Result<()> {
-    if !(args.timeout_s > 0.0 && args.timeout_s.is_finite()) {
-        bail!(
-            "--timeout-s must be a positive number, not {}",
-            args.timeout_s
-        );
-    }
+    let timeout = super::link_args::reply_timeout(args.timeout_s)?;
     match (args.instrument, &args.out, &args.angles_out) {
         (InstrumentArg::Typed, None, _) => bail!("give --out FILE for the measurement CSV"),
         (InstrumentArg::Export, _, None) => bail!(
@@ -141,7 +136,6 @@ pub fn run(args: &Args) -> Result<()> {
     let mut opts = SessionOptions::for_machine(&spec);
     opts.settle.following_error_rad = args.settle_following_error_urad * 1e-6;
     opts.settle.dwell_s = args.settle_dwell_s;
-    let timeout = Duration::from_secs_f64(args.timeout_s);
     let result = args
         .link
         .open(timeout)

@@ -21,7 +21,6 @@ use host_sim::io::plot::{xy_plot_png, Mark, Series};
 use host_sim::io::policy::CommandFiles;
 use host_sim::io::telemetry_csv::telemetry_text;
 use host_sim::io::KeyOrder;
-use host_sim::machine_spec::STANDARD_GRAVITY_MM_S2;
 use host_sim::sim::closed_loop::{FeedForward, LoopSummary};
 use host_sim::sim::simulate::{format_log, simulate, SimulateOptions, MAX_SECONDS};
 use host_sim::sim::trajectory::Trajectory;
@@ -114,14 +113,12 @@ pub fn run(args: &Args) -> Result<()> {
     if !(20..=2000).contains(&args.decimation) {
         bail!("--decimation must be 20 to 2000, not {}", args.decimation);
     }
-    if !(args.accel_g > 0.0 && args.accel_g <= 20.0) {
-        bail!("--accel-g must be in (0, 20], not {}", args.accel_g);
-    }
+    let accel_mm_s2 = super::common_args::excitation_accel_mm_s2(args.accel_g)?;
     let trajectory = match args.trajectory.as_str() {
         "excitation" => excitation(
             &spec,
             &ExcitationOptions {
-                accel_mm_s2: args.accel_g * STANDARD_GRAVITY_MM_S2,
+                accel_mm_s2,
                 ..ExcitationOptions::default()
             },
         )?

@@ -71,18 +71,7 @@ impl DynamicsFile {
 
     /// The parameters, validated.
     pub fn dynamics(&self) -> Result<FiveBarDynamics<f64>, IoError> {
-        if self.format != FORMAT {
-            return Err(IoError::Invalid(format!(
-                "not a dynamics file: format is '{}', expected '{FORMAT}'",
-                self.format
-            )));
-        }
-        if self.version != 1 {
-            return Err(IoError::Invalid(format!(
-                "unsupported dynamics file version {}",
-                self.version
-            )));
-        }
+        super::check_format("dynamics", &self.format, FORMAT, self.version, 1)?;
         let d = FiveBarDynamics {
             motor_inertia_kg_m2: self.motor_inertia_kg_m2,
             tool_mass_kg: self.tool_mass_kg,

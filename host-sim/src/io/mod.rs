@@ -121,6 +121,29 @@ pub fn read_bytes(path: &Path) -> Result<Vec<u8>, IoError> {
     std::fs::read(path).map_err(|e| IoError::read(path, e))
 }
 
+/// The `format` and `version` fields of a JSON file the tools define, checked: `what` names
+/// the kind of file ("model", "dynamics") in the error, `expected` is its `format` value and
+/// `supported` the one version this host-sim reads.
+pub(crate) fn check_format(
+    what: &str,
+    format: &str,
+    expected: &str,
+    version: u32,
+    supported: u32,
+) -> Result<(), IoError> {
+    if format != expected {
+        return Err(IoError::Invalid(format!(
+            "not a {what} file: format is '{format}', expected '{expected}'"
+        )));
+    }
+    if version != supported {
+        return Err(IoError::Invalid(format!(
+            "unsupported {what} file version {version}"
+        )));
+    }
+    Ok(())
+}
+
 /// How [`json_text`] orders the keys of a struct.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum KeyOrder {

@@ -191,18 +191,7 @@ impl ModelFile {
 
     /// The model, validated.
     pub fn model(&self) -> Result<FiveBar<f64>, IoError> {
-        if self.format != FORMAT {
-            return Err(IoError::Invalid(format!(
-                "not a model file: format is '{}', expected '{FORMAT}'",
-                self.format
-            )));
-        }
-        if self.version != 1 {
-            return Err(IoError::Invalid(format!(
-                "unsupported model file version {}",
-                self.version
-            )));
-        }
+        super::check_format("model", &self.format, FORMAT, self.version, 1)?;
         let m = FiveBar {
             a_mm: self.a_mm,
             b_mm: self.b_mm,

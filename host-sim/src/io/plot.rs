@@ -240,11 +240,17 @@ pub fn round_length(v: f64) -> f64 {
         .unwrap_or(p)
 }
 
-/// An arrow from `a` to `b` (data coordinates, equal scales) with a head of `head` (data units).
-fn arrow(
+/// Half the angle between the two strokes of an arrowhead of the vector plots (rad).
+const HEAD_HALF_ANGLE_RAD: f64 = 0.5;
+
+/// An arrow from `a` to `b` (data coordinates, equal scales): the shaft and a head of two
+/// strokes `head` long (data units; at most 0.4 of the arrow), each `half_angle_rad` off the
+/// shaft. The vector plots' and the verification report's arrows.
+pub(super) fn arrow(
     a: (f64, f64),
     b: (f64, f64),
     head: f64,
+    half_angle_rad: f64,
     style: ShapeStyle,
 ) -> Vec<PathElement<(f64, f64)>> {
     let (dx, dy) = (b.0 - a.0, b.1 - a.1);
@@ -253,7 +259,7 @@ fn arrow(
     if len > 0.0 {
         let h = head.min(0.4 * len);
         let (ux, uy) = (dx / len, dy / len);
-        let (c, s) = (0.5f64.cos(), 0.5f64.sin());
+        let (c, s) = (half_angle_rad.cos(), half_angle_rad.sin());
         for sign in [1.0, -1.0] {
             let (rx, ry) = (ux * c - sign * uy * s, sign * ux * s + uy * c);
             v.push(PathElement::new(
@@ -338,6 +344,7 @@ pub fn vector_plot_png(
                         (b[0], b[1]),
                         (b[0] + e[0] * mm_per_um, b[1] + e[1] * mm_per_um),
                         head,
+                        HEAD_HALF_ANGLE_RAD,
                         style,
                     )
                 })
@@ -364,7 +371,13 @@ pub fn vector_plot_png(
             let x1 = hi[0] - 0.04 * (hi[0] - lo[0]);
             let x0 = x1 - len_um * mm_per_um;
             chart
-                .draw_series(arrow((x0, y), (x1, y), head, BLACK.stroke_width(3)))
+                .draw_series(arrow(
+                    (x0, y),
+                    (x1, y),
+                    head,
+                    HEAD_HALF_ANGLE_RAD,
+                    BLACK.stroke_width(3),
+                ))
                 .map_err(err)?;
             chart
                 .draw_series(std::iter::once(Text::new(

@@ -15,7 +15,7 @@
 //! `plotters` draws into an RGB buffer (its bitmap backend), the `png` crate (already under
 //! `plotters`' encoder) encodes it; the font is the embedded one of [`super::plot`].
 
-use super::plot::{ensure_font, COLOURS};
+use super::plot::{arrow, ensure_font, COLOURS};
 use super::IoError;
 use plotters::coord::Shift;
 use plotters::prelude::*;
@@ -129,30 +129,8 @@ fn equal_scale(lo: [f64; 2], hi: [f64; 2], px: (u32, u32)) -> ([f64; 2], [f64; 2
     )
 }
 
-/// An arrow from `from` to `to` (data coordinates, equal scales) with a head `head` long.
-fn arrow(
-    from: (f64, f64),
-    to: (f64, f64),
-    head: f64,
-    style: ShapeStyle,
-) -> Vec<PathElement<(f64, f64)>> {
-    let (dx, dy) = (to.0 - from.0, to.1 - from.1);
-    let len = dx.hypot(dy);
-    let mut parts = vec![PathElement::new(vec![from, to], style)];
-    if len > 0.0 {
-        let (ux, uy) = (dx / len, dy / len);
-        let h = head.min(0.4 * len);
-        for side in [1.0, -1.0] {
-            let (c, s) = (0.42f64.cos(), side * 0.42f64.sin());
-            let back = (-(ux * c - uy * s) * h, -(ux * s + uy * c) * h);
-            parts.push(PathElement::new(
-                vec![to, (to.0 + back.0, to.1 + back.1)],
-                style,
-            ));
-        }
-    }
-    parts
-}
+/// Half the angle between the two strokes of the error map's arrowheads (rad).
+const HEAD_HALF_ANGLE_RAD: f64 = 0.42;
 
 const MAP_WIDTH_PX: u32 = 900;
 const MAP_BAND_PX: u32 = 100;
@@ -262,7 +240,13 @@ pub fn error_map_png(map: &ErrorMap<'_>) -> Result<(Vec<u8>, MapScale), IoError>
         for (t, e) in map.targets_mm.iter().zip(map.error_um) {
             let tip = (t[0] + e[0] * mm_per_um, t[1] + e[1] * mm_per_um);
             chart
-                .draw_series(arrow((t[0], t[1]), tip, head, colour.stroke_width(2)))
+                .draw_series(arrow(
+                    (t[0], t[1]),
+                    tip,
+                    head,
+                    HEAD_HALF_ANGLE_RAD,
+                    colour.stroke_width(2),
+                ))
                 .map_err(err)?;
         }
         chart
@@ -277,7 +261,13 @@ pub fn error_map_png(map: &ErrorMap<'_>) -> Result<(Vec<u8>, MapScale), IoError>
             let from = (lo[0] + 40.0 * mm_per_px[0], lo[1] + 25.0 * mm_per_px[1]);
             let to = (from.0 + scale_um * mm_per_um, from.1);
             chart
-                .draw_series(arrow(from, to, head, BLACK.stroke_width(3)))
+                .draw_series(arrow(
+                    from,
+                    to,
+                    head,
+                    HEAD_HALF_ANGLE_RAD,
+                    BLACK.stroke_width(3),
+                ))
                 .map_err(err)?;
             let label = format!("{} µm", fmt_um(scale_um));
             chart

@@ -250,9 +250,18 @@ mod sealed {
 }
 pub(super) use sealed::SampleModel;
 
-/// The four entry points of one calibration kind, as functions of its own.
+/// The four entry points of one calibration kind, as functions of its own, and its grid
+/// correction (both kinds keep their grid in a field `grid`).
 macro_rules! entry_points {
     () => {
+        #[inline(always)]
+        fn corrected_rad(
+            &self,
+            tool_mm: [f32; 2],
+            theta_rad: [f32; 2],
+        ) -> Result<[f32; 2], SetpointRefusal> {
+            corrected_rad(self.grid.as_ref(), tool_mm, theta_rad)
+        }
         fn accept<'s>(
             &self,
             servo: &'s mut Servo,
@@ -315,14 +324,6 @@ impl SampleModel for Calibration<'_> {
     ) -> Result<(), KinematicsError> {
         slot.solve(&self.model, setpoint, margin.get())
     }
-    #[inline(always)]
-    fn corrected_rad(
-        &self,
-        tool_mm: [f32; 2],
-        theta_rad: [f32; 2],
-    ) -> Result<[f32; 2], SetpointRefusal> {
-        corrected_rad(self.grid.as_ref(), tool_mm, theta_rad)
-    }
 }
 
 impl SampleModel for ValidCalibration<'_> {
@@ -347,13 +348,5 @@ impl SampleModel for ValidCalibration<'_> {
         margin: IkMargin<f32>,
     ) -> Result<(), KinematicsError> {
         slot.solve_valid(&self.model, setpoint, margin)
-    }
-    #[inline(always)]
-    fn corrected_rad(
-        &self,
-        tool_mm: [f32; 2],
-        theta_rad: [f32; 2],
-    ) -> Result<[f32; 2], SetpointRefusal> {
-        corrected_rad(self.grid.as_ref(), tool_mm, theta_rad)
     }
 }
