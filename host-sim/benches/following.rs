@@ -18,7 +18,7 @@ use host_sim::calib::dynamics::identify;
 use host_sim::machine_spec::MachineSpec;
 use host_sim::plant::{Plant, PlantConfig};
 use host_sim::sim::closed_loop::{run_loop_with, FeedForward, LoopSummary};
-use host_sim::sim::trajectory::Trajectory;
+use host_sim::sim::motions::Trajectory;
 use kinematics_core::{Calibration, FiveBar};
 
 fn run(

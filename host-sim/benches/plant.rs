@@ -10,7 +10,7 @@
 use host_sim::machine_spec::MachineSpec;
 use host_sim::plant::{Plant, PlantConfig, PlantModel, SixBar};
 use host_sim::sim::closed_loop::run_loop;
-use host_sim::sim::trajectory::Trajectory;
+use host_sim::sim::motions::Trajectory;
 use kinematics_core::{Calibration, FiveBar};
 use std::hint::black_box;
 use std::time::Instant;

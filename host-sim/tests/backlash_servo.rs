@@ -13,7 +13,7 @@ use host_sim::effect::PhysicalEffect;
 use host_sim::machine_spec::MachineSpec;
 use host_sim::plant::{Plant, PlantConfig};
 use host_sim::sim::closed_loop::{run_loop_with, FeedForward, LogRow};
-use host_sim::sim::trajectory::{rated_limits, Piece, Trajectory};
+use host_sim::sim::motions::{rated_limits, Piece, Trajectory};
 use kinematics_core::grid::{append_backlash, encode, BACKLASH_LEN};
 use kinematics_core::trajectory::PathMotion;
 use kinematics_core::{Backlash, Calibration, CorrectionGrid, FiveBar};

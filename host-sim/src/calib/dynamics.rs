@@ -42,7 +42,7 @@ use crate::machine_spec::{MachineSpec, STANDARD_GRAVITY_MM_S2};
 use crate::numeric::svd::{ScaledSvd, RANK_TOL};
 use crate::plant::{Plant, PlantConfig};
 use crate::sim::closed_loop::{run_loop_with, FeedForward, LogRow};
-use crate::sim::trajectory::{rated_limits, Piece, Trajectory};
+use crate::sim::motions::{rated_limits, Piece, Trajectory};
 use kinematics_core::dynamics::{regressor, FiveBarDynamics, PARAMETERS, PARAMETER_NAMES};
 use kinematics_core::path::{Circle, Figure8};
 use kinematics_core::trajectory::{PathMotion, TaskLimits};

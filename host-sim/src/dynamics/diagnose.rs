@@ -73,7 +73,7 @@ use crate::io::telemetry_csv::TelemetryLog;
 use crate::machine_spec::MachineSpec;
 use crate::numeric::svd::ScaledSvd;
 use crate::sim::knots::KnotPath;
-use crate::sim::trajectory::Trajectory;
+use crate::sim::motions::Trajectory;
 use kinematics_core::dynamics::{regressor, PARAMETER_NAMES};
 use kinematics_core::FiveBarDynamics;
 use nalgebra::DMatrix;
@@ -89,7 +89,7 @@ pub const MIN_SHRINK: f64 = 0.1;
 /// residual it removes (a torque constant: its error; cogging, which the model has none of:
 /// always).
 pub const MIN_RELATIVE: f64 = 0.1;
-/// The rated motion the effects' benefit is predicted on (`sim::trajectory`).
+/// The rated motion the effects' benefit is predicted on (`sim::motions`).
 pub const RATED_MOTION: &str = "figure8-5g";
 /// Smallest relative singular value of the block effects' columns a log must give.
 pub const SEPARATE_TOL: f64 = 1e-3;

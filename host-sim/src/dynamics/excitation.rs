@@ -34,7 +34,7 @@
 use super::DynError;
 use crate::machine_spec::{MachineSpec, STANDARD_GRAVITY_MM_S2};
 use crate::sim::knots::KnotPath;
-use crate::sim::trajectory::Trajectory;
+use crate::sim::motions::Trajectory;
 use link_protocol::Knot;
 use std::f64::consts::{PI, TAU};
 

@@ -166,7 +166,7 @@ mod tests {
     use crate::io::telemetry_csv::{parse_telemetry, telemetry_text};
     use crate::plant::{Plant, PlantConfig};
     use crate::sim::closed_loop::{loop_config, run_loop_configured, FeedForward};
-    use crate::sim::trajectory::Trajectory;
+    use crate::sim::motions::Trajectory;
     use kinematics_core::{Calibration, FiveBar, FiveBarDynamics, ServoConfig};
 
     fn cal() -> Calibration<'static> {

@@ -22,7 +22,7 @@ use crate::effect::PhysicalEffect;
 use crate::machine_spec::MachineSpec;
 use crate::plant::{Plant, PlantConfig, PlantModel};
 use crate::sim::closed_loop::{loop_config, run_loop_configured, FeedForward};
-use crate::sim::trajectory::Trajectory;
+use crate::sim::motions::Trajectory;
 use kinematics_core::{Calibration, FiveBar, FiveBarDynamics, ServoConfig};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;

@@ -32,7 +32,7 @@
 //! Overruns: simulation has no deadline, so nothing can overrun; `overruns` counts the steps
 //! whose wall-clock time exceeded the 500 µs period (0 on any reasonable host).
 
-use super::trajectory::Trajectory;
+use super::motions::Trajectory;
 use super::SimError;
 use crate::machine_spec::{MachineSpec, STANDARD_GRAVITY_MM_S2};
 use crate::plant::Plant;

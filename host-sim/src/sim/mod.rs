@@ -1,16 +1,16 @@
-//! The closed 2 kHz loop on the simulated plant: setpoint trajectories ([`trajectory`]), the
+//! The closed 2 kHz loop on the simulated plant: setpoint trajectories ([`motions`]), the
 //! loop itself ([`closed_loop`]: `kinematics-core`'s servo step exactly as the firmware runs it,
 //! drives integrated between samples, linkage solved every sample) and the `simulate` run with
 //! its log ([`simulate`]); streamed knots played as the controller plays them ([`knots`]).
 //!
-//! Where a change goes: a new test motion in `trajectory.rs`; a new loop statistic in
+//! Where a change goes: a new test motion in `motions.rs`; a new loop statistic in
 //! `closed_loop.rs` (`LoopSummary`, printed as JSON by `host-sim simulate`); the servo itself is
 //! `kinematics_core::servo`, not here.
 
 pub mod closed_loop;
 pub mod knots;
+pub mod motions;
 pub mod simulate;
-pub mod trajectory;
 
 use crate::plant::PlantError;
 

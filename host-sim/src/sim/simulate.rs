@@ -5,7 +5,7 @@
 //! (≈ 0.4 µs per sample with the five-bar plant, 4–5 µs with the six-bar).
 
 use super::closed_loop::{run_loop_with, FeedForward, LogRow, LoopSummary};
-use super::trajectory::Trajectory;
+use super::motions::Trajectory;
 use super::SimError;
 use crate::machine_spec::MachineSpec;
 use crate::plant::{Plant, PlantConfig};
