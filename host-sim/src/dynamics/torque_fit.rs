@@ -13,6 +13,7 @@ use super::samples::MotionSample;
 use crate::diagnose::report::Param;
 use crate::effect::PhysicalEffect;
 use crate::numeric::svd::{ScaledSvd, RANK_TOL};
+use crate::numeric::two_regressors::TwoRegressors;
 use kinematics_core::FiveBarDynamics;
 use nalgebra::{DMatrix, DVector};
 use std::collections::BTreeMap;
@@ -157,19 +158,13 @@ impl Problem<'_> {
             let mut explained = 0.0;
             for k in 0..2 {
                 // Normal equations of [sin, cos] for motor k.
-                let (mut ss, mut sc, mut cc, mut sr, mut cr) = (0.0, 0.0, 0.0, 0.0, 0.0);
+                let mut ne = TwoRegressors::default();
                 for (i, smp) in self.samples.iter().enumerate() {
                     let (sn, cs) = (nf * smp.motion.angle_rad[k]).sin_cos();
-                    let r = resid[2 * i + k];
-                    ss += sn * sn;
-                    sc += sn * cs;
-                    cc += cs * cs;
-                    sr += sn * r;
-                    cr += cs * r;
+                    ne.add(sn, cs, resid[2 * i + k]);
                 }
-                let det = ss * cc - sc * sc;
-                if det > 1e-12 * (ss * cc).max(1e-300) {
-                    explained += (cc * sr * sr - 2.0 * sc * sr * cr + ss * cr * cr) / det;
+                if ne.det() > 1e-12 * (ne.uu * ne.vv).max(1e-300) {
+                    explained += ne.explained();
                 }
             }
             if explained > best.0 {

@@ -11,7 +11,8 @@
 //! * [`rigid`]: planar rigid motions and the best-fitting one between two point sets (the
 //!   registration of an instrument's frame);
 //! * [`stats`]: max/RMS of error magnitudes and the rounding of reported figures;
-//! * [`subspace`]: orthonormal bases, projections and principal angles of column spaces.
+//! * [`subspace`]: orthonormal bases, projections and principal angles of column spaces;
+//! * [`two_regressors`]: least squares on two regressors by its normal equations.
 //!
 //! Where a change goes: a new solver behaviour (acceptance, stopping, damping) in `lm.rs` and its
 //! module doc, with a test in `tests/lm.rs`; nothing here knows about five-bars or effects.
@@ -23,6 +24,7 @@ pub mod rigid;
 pub mod stats;
 pub mod subspace;
 pub mod svd;
+pub mod two_regressors;
 
 pub use lm::{levenberg_marquardt, LmFit, LmOptions, Residuals, Stop};
 pub use rigid::{procrustes, Rigid2};

@@ -43,6 +43,7 @@ use crate::io::measurement_csv::Measurement;
 use crate::io::targets_csv::ListedTarget;
 use crate::io::tracker_export::{Export, ExportPoint};
 use crate::numeric::stats::{round3, round6};
+use crate::numeric::two_regressors::TwoRegressors;
 use serde::Serialize;
 use std::collections::BTreeMap;
 
@@ -489,18 +490,12 @@ fn z_check(
         mean(&|p| p.1),
     );
     // z − z̄ = b (x − x̄) + c (y − ȳ), least squares; a plane needs points not on one line.
-    let (mut sxx, mut sxy, mut syy, mut sxz, mut syz) = (0.0, 0.0, 0.0, 0.0, 0.0);
+    let mut plane = TwoRegressors::default();
     for (p, z) in &with_z {
-        let (dx, dy, dz) = (p.xy_mm[0] - mx, p.xy_mm[1] - my, z - mz);
-        sxx += dx * dx;
-        sxy += dx * dy;
-        syy += dy * dy;
-        sxz += dx * dz;
-        syz += dy * dz;
+        plane.add(p.xy_mm[0] - mx, p.xy_mm[1] - my, z - mz);
     }
-    let det = sxx * syy - sxy * sxy;
-    let (b, c) = if with_z.len() >= 3 && det > 1e-9 * (sxx + syy).powi(2) {
-        ((sxz * syy - syz * sxy) / det, (syz * sxx - sxz * sxy) / det)
+    let (b, c) = if with_z.len() >= 3 && plane.det() > 1e-9 * (plane.uu + plane.vv).powi(2) {
+        plane.solve()
     } else {
         (0.0, 0.0)
     };
