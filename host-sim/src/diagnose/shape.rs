@@ -71,7 +71,7 @@ use super::library::{idx, Effect, LIBRARY, N_SHAPE};
 use super::report::ShapeMisfit;
 use super::scoring::{delta_bic, sigma2, Fitter, ADD_MARGIN};
 use super::selection::Selection;
-use super::standing::judge_standing;
+use super::standing::{judge_standing, JudgedAs};
 use crate::effect::PhysicalEffect;
 use crate::numeric::finite_difference;
 use crate::numeric::subspace::{orthonormal_basis, project_out};
@@ -160,6 +160,44 @@ pub(super) fn stretch_blocks(problem: &Problem, kc_pct: f64) -> Option<[DMatrix<
     Some([0, 1, 2].map(|b| g.columns(b * t, t).into_owned()))
 }
 
+/// The external load's columns: tool displacement (µm, x,y per point) per unit of b's
+/// compliance times a unit force on the platform along x and along y, then the same for c's
+/// (the `load` alternative of `standing.rs`).
+///
+/// Why this form: a force `F` from outside the loops (a hose's or a cable's drag, a weight on a
+/// tilted machine) is carried by the two distal bars as the pose's statics say, `t = U⁻ᵀ·F`
+/// (`U`'s rows the bars' unit vectors toward the tool point); each bar elongates by its tension
+/// times its compliance, and the tool moves by `d = U⁻¹·δ`. With `J_b = U⁻¹·e_b` the tool's
+/// displacement per µm of b's elongation alone (what the finite differences give), b's tension
+/// is `J_b·F`, so `d = k_b·J_b·(J_b·F) + k_c·J_c·(J_c·F)`: four columns linear in the products
+/// of each bar's compliance and each force component, the compliance shape `J·K·Jᵀ·F` of the
+/// load. The two bars' tensions have opposite signs over much of the workspace, so no shared
+/// ratio of the generalised shape follows them.
+pub(super) fn load_columns(problem: &Problem) -> Option<DMatrix<f64>> {
+    let h_mm = 1e-3;
+    let mut g = DMatrix::zeros(2 * problem.points.len(), 4);
+    for (i, p) in problem.points.iter().enumerate() {
+        let at = |db: f64, dc: f64| {
+            let mut m = problem.base;
+            m.b_mm += db;
+            m.c_mm += dc;
+            m.forward(p.theta_rad, 0.0).ok()
+        };
+        let (b1, b0) = (at(h_mm, 0.0)?, at(-h_mm, 0.0)?);
+        let (c1, c0) = (at(0.0, h_mm)?, at(0.0, -h_mm)?);
+        let jb = [0, 1].map(|a| (b1[a] - b0[a]) / (2.0 * h_mm));
+        let jc = [0, 1].map(|a| (c1[a] - c0[a]) / (2.0 * h_mm));
+        for (bar, j) in [jb, jc].iter().enumerate() {
+            for force_axis in 0..2 {
+                for axis in 0..2 {
+                    g[(2 * i + axis, 2 * bar + force_axis)] = j[axis] * j[force_axis];
+                }
+            }
+        }
+    }
+    Some(g)
+}
+
 /// The RMS of each centred link angle over the points (rad): the law's units.
 fn spread(problem: &Problem) -> [f64; 2] {
     let n = problem.points.len().max(1) as f64;
@@ -197,14 +235,43 @@ pub fn set_misfit_modes(
     if e.kind != PhysicalEffect::LinkStretch {
         return Err(format!("{} has no generalised shape", e.name()));
     }
-    let n = problem.points.len();
     let g = stretch_columns(problem, x[idx::STRETCH_RATIO], ratio)
         .ok_or("a point left the model's workspace while differentiating")?;
+    let law = set_modes(problem, e, x, &g)?;
+    Ok(MisfitModes {
+        effect: e.kind,
+        ratio,
+        law,
+    })
+}
+
+/// Sets the problem's shape-misfit nuisance for the stretch `e` fitted at `x` to an external
+/// load's compliance shape ([`load_columns`]) outside `e`'s own span there: the number of
+/// modes, or why there are none.
+pub fn set_load_modes(problem: &mut Problem, e: &Effect, x: &[f64]) -> Result<usize, String> {
+    if e.kind != PhysicalEffect::LinkStretch {
+        return Err(format!("{} has no generalised shape", e.name()));
+    }
+    let g =
+        load_columns(problem).ok_or("a point left the model's workspace while differentiating")?;
+    set_modes(problem, e, x, &g).map(|law| law.len())
+}
+
+/// Writes the part of the columns `g` outside `e`'s own span at `x` into the problem's
+/// shape-misfit nuisance, as at most [`N_SHAPE`] unit-RMS modes; returns each mode's
+/// coefficients on `g`'s columns.
+fn set_modes(
+    problem: &mut Problem,
+    e: &Effect,
+    x: &[f64],
+    g: &DMatrix<f64>,
+) -> Result<Vec<Vec<f64>>, String> {
+    let n = problem.points.len();
     let mut without = problem.clone();
     without.nuisance.shape = None;
     let own = finite_difference::jacobian(&without, x, e.params)
         .map_err(|_| "a point left the model's workspace while differentiating")?;
-    let projected = project_out(&g, &orthonormal_basis(&own));
+    let projected = project_out(g, &orthonormal_basis(&own));
     let top = g.clone().singular_values().max();
     let svd = projected.svd(true, true);
     let (Some(u), Some(vt)) = (svd.u, svd.v_t) else {
@@ -237,11 +304,7 @@ pub fn set_misfit_modes(
         })
         .collect();
     problem.nuisance.shape = Some((e.kind, keep.len()));
-    Ok(MisfitModes {
-        effect: e.kind,
-        ratio,
-        law,
-    })
+    Ok(law)
 }
 
 /// The radial RMS (µm) of the shape misfit's fitted part.
@@ -402,7 +465,18 @@ fn check_one(
         // beside the generalised shape, judged with every other named effect in place (the model
         // that stays), is declared open (a stretch of another law explains what it does as well),
         // not claimed.
-        let judged = judge_standing(&plain, e, &sel.fit.p, &set, &[e], &cur, noise_um);
+        let judged = judge_standing(
+            &plain,
+            e,
+            &sel.fit.p,
+            &set,
+            &JudgedAs {
+                exempt: &[e],
+                load_only: &[],
+            },
+            &cur,
+            noise_um,
+        );
         let supports = supports_text(&judged);
         let open: Vec<String> = judged
             .iter()

@@ -11,25 +11,34 @@
 //! The rule ([`check_stand_ins`], after the selection and its nuisances, when `link_stretch` is
 //! not named): each named effect that **joins after another** must stand on its own beside the
 //! stretch's generalised shape (the library stretch and its shape-misfit modes, `shape.rs`),
-//! with every other named effect in place: lower the BIC by more than [`ADD_MARGIN`]. The first
-//! named effect is judged too when the library's stretch alone fits the data as well as it
-//! alone (within [`ADD_MARGIN`] of BIC, or better): then the data could not decide between it
-//! and a stretch from the first step on. An effect that does not stand is **declared open**
-//! (`shape_misfits[].open` beside `link_stretch`, `effect_named` false): named, in the model,
-//! but not claimed, as an ambiguous pair is; the model itself is left as the selection chose it.
+//! with every other named effect in place: lower the BIC by more than [`ADD_MARGIN`] (the
+//! alternatives of `standing.rs`: the generalised shape at two shared ratios, and an external
+//! load on the platform carried by the two bars by their own compliances). The first named
+//! effect is judged against every alternative too when the library's stretch alone fits the
+//! data as well as it alone (within [`ADD_MARGIN`] of BIC, or better): then the data could not
+//! decide between it and a stretch from the first step on. Otherwise, when another effect joins
+//! it, the first is judged against the external load alone. An effect that does not stand is
+//! **declared open** (`shape_misfits[].open` beside `link_stretch`, `effect_named` false):
+//! named, in the model, but not claimed, as an ambiguous pair is; the model itself is left as
+//! the selection chose it.
 //!
 //! Why open and not dropped: the named model explains the data without the stretch (the
 //! selection preferred it, with fewer parameters); only the claim is in doubt. Why the first
-//! effect is exempt otherwise: what the data name first, clearly ahead of a stretch, is what
-//! they say most plainly; a stretch of another law is then an alternative to what joins after
-//! it, which is where the stand-ins of a misfit come in.
+//! effect, clearly ahead of a stretch, is judged against the external load alone: what the data
+//! name first is what they say most plainly, and the generalised shape (20 modes) can stand in
+//! for much of a real effect's signature; but a constant load stretches one bar and shortens
+//! the other by laws no shared ratio follows, and link lengths then come first carrying the two
+//! bars' mean elongation, ahead of the library's stretch. The load's compliance shape is four
+//! columns of the pose's statics, too narrow to reproduce a real effect's proximal or
+//! instrument part. An effect named alone is not judged: nothing joined it that a misfit could
+//! have brought in.
 //!
 //! What it costs: a real effect that joins after another and whose signature a stretch of
 //! another law reproduces at its fitted size (a small encoder offset beside link lengths) is
 //! declared open too: the data do not decide, and the report says so.
 //!
-//! Cost: when it runs, one fit alone of the first effect and of the stretch, one Jacobian and
-//! SVD of the generalised shape, one LM fit (up to 20 more parameters) per named effect, two
+//! Cost: when it runs, one fit alone of the first effect and of the stretch, then
+//! `standing.rs`'s (per named effect a few LM fits with up to 20 more parameters), two
 //! cross-validations.
 
 use super::forward_model::Problem;
@@ -38,7 +47,7 @@ use super::report::ShapeMisfit;
 use super::scoring::{delta_bic, Fitter, ADD_MARGIN};
 use super::selection::Selection;
 use super::shape::{describe, set_misfit_modes, supports_text};
-use super::standing::judge_standing;
+use super::standing::{judge_standing, JudgedAs};
 use crate::effect::PhysicalEffect;
 
 /// The compliance ratio range (%) the generalised shape is built at: the plausibility range of
@@ -86,12 +95,19 @@ fn judge(
     let alone = plain.fit(&[first], &zero)?;
     let stretch_alone = plain.fit(&[stretch], &zero)?;
     let d_alone = delta_bic(problem, noise_um, &alone, &stretch_alone);
-    let exempt: Vec<&'static Effect> = if d_alone < ADD_MARGIN {
-        vec![stretch]
+    // The first effect clearly ahead of the library's stretch alone is judged against an
+    // external load's stretch only (module doc); otherwise against every alternative.
+    let load_only: Vec<&'static Effect> = if d_alone < ADD_MARGIN {
+        Vec::new()
     } else {
-        vec![stretch, first]
+        vec![first]
     };
-    if sel.effects.iter().all(|c| exempt.contains(c)) {
+    let exempt = [stretch];
+    if sel
+        .effects
+        .iter()
+        .all(|c| exempt.contains(c) || load_only.contains(c))
+    {
         return None;
     }
     let mut set = sel.effects.clone();
@@ -113,15 +129,26 @@ fn judge(
     let k_modes = with.nuisance.shape.map_or(0, |(_, k)| k);
     let mut fitter = Fitter::new(&with);
     let full = fitter.fit(&set, &beside.p)?;
-    let judged = judge_standing(problem, stretch, &x, &set, &exempt, &full, noise_um);
+    let judged = judge_standing(
+        problem,
+        stretch,
+        &x,
+        &set,
+        &JudgedAs {
+            exempt: &exempt,
+            load_only: &load_only,
+        },
+        &full,
+        noise_um,
+    );
     let open: Vec<(&'static Effect, f64)> = judged
         .iter()
         .filter(|(_, _, stands)| !stands)
         .map(|&(c, s, _)| (c, s))
         .collect();
-    let first_text = if exempt.contains(&first) {
+    let first_text = if load_only.contains(&first) {
         format!(
-            "{} first, ahead of {} alone by {:.1} of BIC",
+            "{} first, ahead of {} alone by {:.1} of BIC (judged beside an external load only)",
             first.name(),
             stretch.name(),
             d_alone
