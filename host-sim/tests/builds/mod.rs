@@ -1,4 +1,4 @@
-//! Other builds of a design, for the journey's sweeps (`tests/commission_builds.rs`,
+//! Other builds of a design, for the journey's sweeps (`tests/commission.rs`,
 //! `benches/commission_builds.rs`): a plant file's design (its nominal geometry, parallelograms,
 //! stiffnesses, drives) with part errors, encoder zeros and an instrument set-up drawn afresh,
 //! reproducibly from a seed. What is drawn, and why these magnitudes:
