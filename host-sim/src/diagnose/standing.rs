@@ -33,12 +33,13 @@
 //! data's ratio fits less well than ratio 1 (the linearised choice can miss) never lets a
 //! stand-in through. An effect may be judged against the external load alone (`load_only`,
 //! `stand_in.rs`' first effect). Each model without the effect is fitted from several starts
-//! and the best kept ([`best_fit`]).
+//! and the best kept ([`support_against`]).
 //!
 //! Cost: per effect judged, one Jacobian of the other named effects and [`RATIOS`] least-squares
 //! projections (an SVD of n×20 each); per distinct ratio, one Jacobian and SVD of the generalised
 //! shape and one LM fit with up to 20 more parameters; the same once for the external load (4
-//! more parameters); per effect judged and alternative, up to three LM fits.
+//! more parameters), fitted only for an effect the generalised shape leaves standing; per effect
+//! judged and alternative, two LM fits, a third (from zero) when the effect stands on those.
 
 use super::fit::{fit, Fit};
 use super::forward_model::Problem;
@@ -102,34 +103,48 @@ pub struct JudgedAs<'a> {
     pub load_only: &'a [&'static Effect],
 }
 
-/// The best fit of `set` on the fitter's problem from each start (an empty start skipped), from
-/// each start with the misfit amplitudes at zero, and from zero: an LM fit of a set without an
-/// effect, started from a model where it took part, can stall far off (a scale left at the size
-/// it had beside a frame: a frame removed beside an external load's stretch stalled at 21 209
-/// µm² where the same set from zero reaches 3 544 µm²), and a stalled fit without the effect
-/// makes it look needed.
-fn best_fit(fitter: &mut Fitter<'_>, set: &[&'static Effect], starts: &[&[f64]]) -> Option<Fit> {
+/// How much removing an effect raises the BIC against one alternative law (the fitter's
+/// problem): `with` the model with it, the model without it (`trial`) fitted from each of
+/// `starts` (an empty one skipped) and from the same without the misfit amplitudes, the best
+/// kept; and when the effect would stand on those, from zero too. Why: an LM fit of a set
+/// without an effect, started from a model where it took part, can stall far off (a scale left
+/// at the size it had beside a frame: a frame removed beside an external load's stretch stalled
+/// at 21 209 µm² where the same set from zero reaches 3 544 µm²), and a stalled fit makes the
+/// effect look needed. A fit that does not stand needs no other start (another start can only
+/// lower its support).
+fn support_against(
+    fitter: &mut Fitter<'_>,
+    with: &Fit,
+    trial: &[&'static Effect],
+    starts: &[&[f64]],
+    noise_um: Option<f64>,
+) -> Option<f64> {
     let mut best: Option<Fit> = None;
-    let mut keep = |f: Option<Fit>| {
-        if let Some(f) = f {
-            if best.as_ref().is_none_or(|b| f.cost < b.cost) {
-                best = Some(f);
-            }
-        }
-    };
     for s in starts.iter().filter(|s| s.len() == N_PARAMS) {
         let mut bare = s.to_vec();
         for v in &mut bare[idx::SHAPE..idx::SHAPE + N_SHAPE] {
             *v = 0.0;
         }
-        keep(fitter.fit(set, s));
-        keep(fitter.fit(set, &bare));
+        for f in [fitter.fit(trial, s), fitter.fit(trial, &bare)]
+            .into_iter()
+            .flatten()
+        {
+            if best.as_ref().is_none_or(|b| f.cost < b.cost) {
+                best = Some(f);
+            }
+        }
+    }
+    let support = delta_bic(fitter.problem, noise_um, with, &best?);
+    if support < ADD_MARGIN {
+        return Some(support);
     }
     // The fitter refits from a start only when it is better than its cached optimum: zero, a
     // start far off, is fitted from regardless.
-    let free = fitter.problem.free_params(set);
-    keep(fit(fitter.problem, &[0.0; N_PARAMS], &free));
-    best
+    let free = fitter.problem.free_params(trial);
+    Some(match fit(fitter.problem, &[0.0; N_PARAMS], &free) {
+        Some(f) => support.min(delta_bic(fitter.problem, noise_um, with, &f)),
+        None => support,
+    })
 }
 
 /// The named effects of `set` (`judged_as.exempt` aside, `stretch` among them) judged by the
@@ -196,21 +211,19 @@ pub fn judge_standing(
         return Vec::new();
     };
     // The external load's alternative: the library's stretch and a constant force on the
-    // platform carried by the two bars by their own compliances (`shape::load_columns`).
+    // platform carried by the two bars by their own compliances (`shape::load_columns`); its
+    // model with every named effect fitted when first needed.
     let mut load = plain.clone();
     let load_ok = set_load_modes(&mut load, stretch, x_modes).is_ok();
     let mut load_fitter = Fitter::new(&load);
-    let full_load = if load_ok {
-        best_fit(&mut load_fitter, set, &[&start])
-    } else {
-        None
-    };
+    let mut full_load: Option<Option<Fit>> = None;
     let mut out = Vec::new();
     for (i, k) in judged {
         let mut trial = set.to_vec();
         let c = trial.remove(i);
         // Against each alternative law: the data's ratios, equal elongations, the external load
-        // (only the last for an effect judged against the load alone).
+        // (only the last for an effect judged against the load alone). Once below the margin,
+        // the effect does not stand whatever the rest give: the load is not fitted then.
         let mut support = f64::INFINITY;
         let shaped = [(k, k_full, &full), (EQUAL, EQUAL, &full_equal)];
         for (k_without, k_with, with) in shaped
@@ -222,14 +235,20 @@ pub fn judge_standing(
             };
             // From the model's own misfit amplitudes where the modes are the same.
             let own: &[f64] = if k_without == k_with { &with.p } else { &[] };
-            let Some(f) = best_fit(&mut fitters[slot], &trial, &[own, &with.p]) else {
-                continue;
-            };
-            support = support.min(delta_bic(&problems[0].1, noise_um, with, &f));
+            if let Some(v) =
+                support_against(&mut fitters[slot], with, &trial, &[own, &with.p], noise_um)
+            {
+                support = support.min(v);
+            }
         }
-        if let Some(with) = &full_load {
-            if let Some(f) = best_fit(&mut load_fitter, &trial, &[&with.p]) {
-                support = support.min(delta_bic(&load, noise_um, with, &f));
+        if load_ok && support >= ADD_MARGIN {
+            let with = full_load.get_or_insert_with(|| load_fitter.fit(set, &start));
+            if let Some(with) = with.as_ref() {
+                if let Some(v) =
+                    support_against(&mut load_fitter, with, &trial, &[&with.p], noise_um)
+                {
+                    support = support.min(v);
+                }
             }
         }
         if support.is_finite() {
