@@ -32,6 +32,7 @@ pub mod fit;
 pub mod forward_model;
 pub mod gap_shrink;
 pub mod library;
+pub mod misfit_modes;
 pub mod model_out;
 pub mod moves;
 pub mod nuisance;

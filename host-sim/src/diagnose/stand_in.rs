@@ -43,10 +43,11 @@
 
 use super::forward_model::Problem;
 use super::library::{idx, Effect, LIBRARY, N_PARAMS};
+use super::misfit_modes::{describe, set_misfit_modes};
 use super::report::ShapeMisfit;
 use super::scoring::{delta_bic, Fitter, ADD_MARGIN};
 use super::selection::Selection;
-use super::shape::{describe, set_misfit_modes, supports_text};
+use super::shape::supports_text;
 use super::standing::{judge_standing, JudgedAs};
 use crate::effect::PhysicalEffect;
 

@@ -19,7 +19,7 @@
 //!
 //! The other alternative is an **external load**: the library's stretch and a constant force on
 //! the platform (a hose's or a cable's drag, a weight on a tilted machine) carried by the two
-//! bars as the pose's statics say, each elongating by its own compliance (`shape::load_columns`,
+//! bars as the pose's statics say, each elongating by its own compliance (`misfit_modes::load_columns`,
 //! four columns outside the library stretch's span). A load stretches one bar and shortens the
 //! other over much of the workspace: no shared ratio follows it, and what it leaves beside the
 //! generalised shape (the bars' mean elongations, a near-constant displacement of the tool) is
@@ -44,8 +44,8 @@
 use super::fit::{fit, Fit};
 use super::forward_model::Problem;
 use super::library::{idx, Effect, N_PARAMS, N_SHAPE};
+use super::misfit_modes::{set_load_modes, set_misfit_modes, stretch_blocks};
 use super::scoring::{delta_bic, Fitter, ADD_MARGIN};
-use super::shape::{set_load_modes, set_misfit_modes, stretch_blocks};
 use crate::numeric::finite_difference;
 use crate::numeric::subspace::{orthonormal_basis, project_out};
 use nalgebra::DMatrix;
@@ -211,7 +211,7 @@ pub fn judge_standing(
         return Vec::new();
     };
     // The external load's alternative: the library's stretch and a constant force on the
-    // platform carried by the two bars by their own compliances (`shape::load_columns`); its
+    // platform carried by the two bars by their own compliances (`misfit_modes::load_columns`); its
     // model with every named effect fitted when first needed.
     let mut load = plain.clone();
     let load_ok = set_load_modes(&mut load, stretch, x_modes).is_ok();
