@@ -52,17 +52,9 @@ pub(super) fn stretch_blocks(problem: &Problem, kc_pct: f64) -> Option<[DMatrix<
     let n = problem.points.len();
     let spread = spread(problem);
     let terms = terms();
-    let h_mm = 1e-3;
     let mut g = DMatrix::zeros(2 * n, 3 * terms.len());
     for (i, p) in problem.points.iter().enumerate() {
-        let at = |db: f64, dc: f64| {
-            let mut m = problem.base;
-            m.b_mm += db;
-            m.c_mm += dc;
-            m.forward(p.theta_rad, 0.0).ok()
-        };
-        let (b1, b0) = (at(h_mm, 0.0)?, at(-h_mm, 0.0)?);
-        let (c1, c0) = (at(0.0, h_mm)?, at(0.0, -h_mm)?);
+        let [jb, jc] = distal_jacobians(problem, p.theta_rad)?;
         let sb: f64 = p.stretch_u[0].iter().map(|v| v * v).sum();
         let alpha = if sb > 0.0 {
             p.stretch_u[0]
@@ -75,9 +67,9 @@ pub(super) fn stretch_blocks(problem: &Problem, kc_pct: f64) -> Option<[DMatrix<
             1.0
         };
         // µm of tool per µm of b's elongation with c's by each ratio.
-        let along = |r: f64| [0, 1].map(|a| ((b1[a] - b0[a]) + r * (c1[a] - c0[a])) / (2.0 * h_mm));
+        let along = |r: f64| [0, 1].map(|a| jb[a] + r * jc[a]);
         let design = along((1.0 + kc_pct * 0.01) * alpha);
-        let (b_only, c_only) = (along(0.0), [0, 1].map(|a| (c1[a] - c0[a]) / (2.0 * h_mm)));
+        let (b_only, c_only) = (jb, jc);
         let (u, v) = (
             p.theta_centred_rad[0] / spread[0],
             p.theta_centred_rad[1] / spread[1],
@@ -109,19 +101,9 @@ pub(super) fn stretch_blocks(problem: &Problem, kc_pct: f64) -> Option<[DMatrix<
 /// load. The two bars' tensions have opposite signs over much of the workspace, so no shared
 /// ratio of the generalised shape follows them.
 pub(super) fn load_columns(problem: &Problem) -> Option<DMatrix<f64>> {
-    let h_mm = 1e-3;
     let mut g = DMatrix::zeros(2 * problem.points.len(), 4);
     for (i, p) in problem.points.iter().enumerate() {
-        let at = |db: f64, dc: f64| {
-            let mut m = problem.base;
-            m.b_mm += db;
-            m.c_mm += dc;
-            m.forward(p.theta_rad, 0.0).ok()
-        };
-        let (b1, b0) = (at(h_mm, 0.0)?, at(-h_mm, 0.0)?);
-        let (c1, c0) = (at(0.0, h_mm)?, at(0.0, -h_mm)?);
-        let jb = [0, 1].map(|a| (b1[a] - b0[a]) / (2.0 * h_mm));
-        let jc = [0, 1].map(|a| (c1[a] - c0[a]) / (2.0 * h_mm));
+        let [jb, jc] = distal_jacobians(problem, p.theta_rad)?;
         for (bar, j) in [jb, jc].iter().enumerate() {
             for force_axis in 0..2 {
                 for axis in 0..2 {
@@ -131,6 +113,25 @@ pub(super) fn load_columns(problem: &Problem) -> Option<DMatrix<f64>> {
         }
     }
     Some(g)
+}
+
+/// The tool's displacement (µm) per µm of elongation of b and of c at the link angles
+/// `theta_rad` of the model the problem is linearised about (central differences, 1 µm step);
+/// `None` when a point leaves the model's workspace.
+fn distal_jacobians(problem: &Problem, theta_rad: [f64; 2]) -> Option<[[f64; 2]; 2]> {
+    let h_mm = 1e-3;
+    let at = |db: f64, dc: f64| {
+        let mut m = problem.base;
+        m.b_mm += db;
+        m.c_mm += dc;
+        m.forward(theta_rad, 0.0).ok()
+    };
+    let (b1, b0) = (at(h_mm, 0.0)?, at(-h_mm, 0.0)?);
+    let (c1, c0) = (at(0.0, h_mm)?, at(0.0, -h_mm)?);
+    Some([
+        [0, 1].map(|a| (b1[a] - b0[a]) / (2.0 * h_mm)),
+        [0, 1].map(|a| (c1[a] - c0[a]) / (2.0 * h_mm)),
+    ])
 }
 
 /// The RMS of each centred link angle over the points (rad): the law's units.
