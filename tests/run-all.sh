@@ -33,8 +33,8 @@ mcu_target_dir=target/system-tests
 # host crates' compile CPU); CI always builds from scratch.
 export CARGO_INCREMENTAL=0
 # Nor from the test build's line tables (the dev profile keeps them for backtraces while
-# working): a failing test still names its file and line, and the host test build takes about
-# 15 % less (149 -> 127 s on the 2-core machine, `cargo test --no-run` from scratch).
+# working): a failing test still names its file and line, and the host test build from scratch
+# takes about 15 % less.
 export CARGO_PROFILE_DEV_DEBUG=0
 
 # Each step's line carries the seconds since the start: where CI time goes.
