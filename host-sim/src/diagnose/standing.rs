@@ -104,9 +104,9 @@ pub struct JudgedAs<'a> {
 }
 
 /// How much removing an effect raises the BIC against one alternative law (the fitter's
-/// problem): `with` the model with it, the model without it (`trial`) fitted from each of
-/// `starts` (an empty one skipped) and from the same without the misfit amplitudes, the best
-/// kept; and when the effect would stand on those, from zero too. Why: an LM fit of a set
+/// problem): `with` the model with it, the model without it (`trial`) fitted from `with`'s
+/// parameters and from the same without the misfit amplitudes, the better kept; and when the
+/// effect would stand on those, from zero too. Why: an LM fit of a set
 /// without an effect, started from a model where it took part, can stall far off (a scale left
 /// at the size it had beside a frame: a frame removed beside an external load's stretch stalled
 /// at 21 209 µm² where the same set from zero reaches 3 544 µm²), and a stalled fit makes the
@@ -116,22 +116,22 @@ fn support_against(
     fitter: &mut Fitter<'_>,
     with: &Fit,
     trial: &[&'static Effect],
-    starts: &[&[f64]],
     noise_um: Option<f64>,
 ) -> Option<f64> {
+    if with.p.len() != N_PARAMS {
+        return None;
+    }
+    let mut bare = with.p.clone();
+    for v in &mut bare[idx::SHAPE..idx::SHAPE + N_SHAPE] {
+        *v = 0.0;
+    }
     let mut best: Option<Fit> = None;
-    for s in starts.iter().filter(|s| s.len() == N_PARAMS) {
-        let mut bare = s.to_vec();
-        for v in &mut bare[idx::SHAPE..idx::SHAPE + N_SHAPE] {
-            *v = 0.0;
-        }
-        for f in [fitter.fit(trial, s), fitter.fit(trial, &bare)]
-            .into_iter()
-            .flatten()
-        {
-            if best.as_ref().is_none_or(|b| f.cost < b.cost) {
-                best = Some(f);
-            }
+    for f in [fitter.fit(trial, &with.p), fitter.fit(trial, &bare)]
+        .into_iter()
+        .flatten()
+    {
+        if best.as_ref().is_none_or(|b| f.cost < b.cost) {
+            best = Some(f);
         }
     }
     let support = delta_bic(fitter.problem, noise_um, with, &best?);
@@ -225,28 +225,22 @@ pub fn judge_standing(
         // (only the last for an effect judged against the load alone). Once below the margin,
         // the effect does not stand whatever the rest give: the load is not fitted then.
         let mut support = f64::INFINITY;
-        let shaped = [(k, k_full, &full), (EQUAL, EQUAL, &full_equal)];
-        for (k_without, k_with, with) in shaped
+        let shaped = [(k, &full), (EQUAL, &full_equal)];
+        for (k_without, with) in shaped
             .into_iter()
             .filter(|_| !judged_as.load_only.contains(&c))
         {
             let Some(slot) = at(k_without) else {
                 continue;
             };
-            // From the model's own misfit amplitudes where the modes are the same.
-            let own: &[f64] = if k_without == k_with { &with.p } else { &[] };
-            if let Some(v) =
-                support_against(&mut fitters[slot], with, &trial, &[own, &with.p], noise_um)
-            {
+            if let Some(v) = support_against(&mut fitters[slot], with, &trial, noise_um) {
                 support = support.min(v);
             }
         }
         if load_ok && support >= ADD_MARGIN {
             let with = full_load.get_or_insert_with(|| load_fitter.fit(set, &start));
             if let Some(with) = with.as_ref() {
-                if let Some(v) =
-                    support_against(&mut load_fitter, with, &trial, &[&with.p], noise_um)
-                {
+                if let Some(v) = support_against(&mut load_fitter, with, &trial, noise_um) {
                     support = support.min(v);
                 }
             }
