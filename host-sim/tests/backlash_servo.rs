@@ -7,7 +7,7 @@
 //!
 //! The figures (docs/design/servo-and-dynamics.md "Backlash", docs/design/diagnosis.md "Closing the
 //! loop"):
-//! `cargo test -p host-sim --release --test backlash_servo -- --nocapture`.
+//! `cargo test -p host-sim --release --test integration backlash_servo:: -- --nocapture`.
 
 use host_sim::effect::PhysicalEffect;
 use host_sim::machine_spec::MachineSpec;

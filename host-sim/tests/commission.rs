@@ -29,9 +29,8 @@
 //! Needs qemu-system-arm and the thumbv7em-none-eabihf target (`bash tests/run-all.sh`
 //! installs both); the firmware is built into `target/system-tests` as the other QEMU tests do.
 //! Wall time: about 65 s per journey alone (about 330 simulated s, some 1400 points through the
-//! controller), 30 s for the other build, 15 s for the heavier head. They are one test binary
-//! so that the harness runs them side by side: a journey alone keeps one of the two cores busy
-//! (QEMU and the host take turns), two of them keep both.
+//! controller), 30 s for the other build, 15 s for the heavier head. A journey alone keeps
+//! one core busy (QEMU and the host take turns); the harness runs it beside the other tests.
 
 use host_sim::link::link_protocol::calibration_image_id;
 use host_sim::plant::{Plant, PlantConfig};
@@ -39,6 +38,7 @@ use std::path::Path;
 use std::process::{Command, Output};
 
 include!("../../tests/support/firmware_build.rs");
+#[path = "builds/mod.rs"]
 mod builds;
 
 fn host_sim(args: &[&str]) -> Output {

@@ -376,16 +376,24 @@ fn bad_firmware_or_image_is_a_clear_error_and_never_moves_the_machine() {
         "{e}"
     );
 
-    // Nor through the environment (the other tests name their firmware, which comes first).
-    let mut opts = options(&elf);
-    opts.firmware = None;
-    std::env::set_var("HOST_SIM_FIRMWARE", "/nonexistent/env-firmware.elf");
-    let e = CoSim::start(&opts).err().expect("refused").to_string();
-    std::env::remove_var("HOST_SIM_FIRMWARE");
+    // Nor through the environment: `commission --qemu` without --firmware takes the firmware
+    // `HOST_SIM_FIRMWARE` names. In a child process, so that no other test of this binary,
+    // running beside this one, sees the variable.
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("out");
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_host-sim"))
+        .args(["commission", "--qemu", "--plant", "paper", "--out"])
+        .arg(&out)
+        .env("HOST_SIM_FIRMWARE", "/nonexistent/env-firmware.elf")
+        .output()
+        .expect("host-sim runs");
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success(), "{e}");
     assert!(
         e.contains("HOST_SIM_FIRMWARE") && e.contains("env-firmware.elf"),
         "{e}"
     );
+    assert!(!out.exists(), "nothing written");
 
     // No QEMU.
     let mut opts = options(&elf);
