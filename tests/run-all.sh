@@ -19,9 +19,8 @@
 #      fails if the IK or FK executes no VSQRT)
 #   5. the real board's firmware builds (cargo fw-build)
 #   6. clippy, warnings denied: the host crates (g474-plan included) with all their targets
-#      (host-sim's benches compiled there; it runs in the background beside steps 2 to 5, which
-#      mostly keep one core busy), the firmware for both boards (last, so that it reuses the
-#      proc macros the release builds compiled)
+#      (host-sim's benches compiled there), the firmware for both boards (last, so that it reuses the proc macros
+#      the release builds compiled)
 #
 # Every Cortex-M build (steps 2 to 5 and the firmware's clippy) goes to target/system-tests,
 # where the host tests that run the firmware under QEMU (tests/support/firmware_build.rs) have
@@ -79,15 +78,6 @@ cargo test --locked
 step "the commands reference is the binary's help (docs/reference/commands.md)"
 HOST_SIM_BIN=target/debug/host-sim bash tests/gen-commands-doc.sh --check
 
-# The steps below use one core most of the time (QEMU runs one scenario after another; the
-# release builds are one codegen unit each), the host crates' clippy both now and then: it runs
-# beside them, in the background, its output kept for its own step.
-step "clippy: host crates, started in the background (its result at its step below)"
-clippy_log=$(mktemp)
-cargo clippy --locked --workspace --exclude firmware --all-targets -- -D warnings >"$clippy_log" 2>&1 &
-clippy_pid=$!
-trap 'kill "$clippy_pid" 2>/dev/null || true; rm -f "$clippy_log"' EXIT
-
 step "kinematics-core for the MCU"
 CARGO_TARGET_DIR=$mcu_target_dir cargo build --locked -p kinematics-core --target thumbv7em-none-eabihf --release
 
@@ -104,13 +94,7 @@ CARGO_TARGET_DIR=$mcu_target_dir cargo fw-build
 # build, so an API change that breaks them fails here. The firmware only builds for the MCU
 # target: linted below.
 step "clippy: host crates (kinematics-core, controller, g474-plan, host-sim with its benches, tests; all targets)"
-clippy_rc=0
-wait "$clippy_pid" || clippy_rc=$?
-cat "$clippy_log"
-if [ "$clippy_rc" -ne 0 ]; then
-    echo "clippy on the host crates failed (exit $clippy_rc)" >&2
-    exit "$clippy_rc"
-fi
+cargo clippy --locked --workspace --exclude firmware --all-targets -- -D warnings
 
 step "clippy: firmware, QEMU board and STM32G474 board"
 CARGO_TARGET_DIR=$mcu_target_dir cargo clippy --locked --release -p firmware --target thumbv7em-none-eabihf --lib --bins -- -D warnings
