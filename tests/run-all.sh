@@ -37,7 +37,7 @@ export CARGO_INCREMENTAL=0
 # takes about 15 % less.
 export CARGO_PROFILE_DEV_DEBUG=0
 # And four codegen units instead of the dev profile's 256: on two cores the build is as
-# parallel, does less work (about 8 s less from scratch) and inlines a little more.
+# parallel, does less work and inlines a little more.
 export CARGO_PROFILE_DEV_CODEGEN_UNITS=4
 
 # Each step's line carries the seconds since the start: where CI time goes.

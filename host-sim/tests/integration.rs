@@ -69,7 +69,8 @@ fn every_test_file_is_a_module_of_this_binary_or_a_binary() {
     }
     assert!(
         missing.is_empty(),
-        "tests/{{{}}}.rs: declare each with `mod NAME;` in tests/integration.rs",
+        "tests/{{{}}}.rs: declare each with `mod NAME;` in tests/integration.rs (or as a \
+         `[[test]]` of its own in Cargo.toml)",
         missing.join(",")
     );
 }
