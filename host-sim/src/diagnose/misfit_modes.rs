@@ -37,11 +37,22 @@ fn terms() -> Vec<(i32, i32)> {
 /// block, then b's block plus `ratio` times c's (module doc).
 pub(super) fn stretch_columns(problem: &Problem, kc_pct: f64, ratio: f64) -> Option<DMatrix<f64>> {
     let [design, b, c] = stretch_blocks(problem, kc_pct)?;
+    Some(at_ratio(&design, &b, &c, ratio))
+}
+
+/// [`stretch_blocks`]' three blocks (or any linear image of them, such as their projection)
+/// assembled at the shared ratio `ratio`: the design block, then `b + ratio·c`.
+pub(super) fn at_ratio(
+    design: &DMatrix<f64>,
+    b: &DMatrix<f64>,
+    c: &DMatrix<f64>,
+    ratio: f64,
+) -> DMatrix<f64> {
     let t = design.ncols();
     let mut g = DMatrix::zeros(design.nrows(), 2 * t);
-    g.columns_mut(0, t).copy_from(&design);
+    g.columns_mut(0, t).copy_from(design);
     g.columns_mut(t, t).copy_from(&(b + c * ratio));
-    Some(g)
+    g
 }
 
 /// The generalised stretch's blocks of columns: tool displacement (µm, x,y per point) per µm of

@@ -44,7 +44,7 @@
 use super::fit::{fit, Fit};
 use super::forward_model::Problem;
 use super::library::{idx, Effect, N_PARAMS, N_SHAPE};
-use super::misfit_modes::{set_load_modes, set_misfit_modes, stretch_blocks};
+use super::misfit_modes::{at_ratio, set_load_modes, set_misfit_modes, stretch_blocks};
 use super::scoring::{delta_bic, Fitter, ADD_MARGIN};
 use crate::numeric::finite_difference;
 use crate::numeric::subspace::{orthonormal_basis, project_out};
@@ -81,18 +81,23 @@ fn best_ratio_index(plain: &Problem, x: &[f64], keep: &[&'static Effect]) -> Opt
         project_out(&b, &q),
         project_out(&c, &q),
     );
-    let t = design.ncols();
     (0..RATIOS)
         .map(|k| {
-            let mut m = DMatrix::zeros(design.nrows(), 2 * t);
-            m.columns_mut(0, t).copy_from(&design);
-            m.columns_mut(t, t).copy_from(&(&b + &c * ratio(k)));
-            let qm = orthonormal_basis(&m);
+            let qm = orthonormal_basis(&at_ratio(&design, &b, &c, ratio(k)));
             let rest = &left - &qm * (qm.transpose() * &left);
             (k, rest.norm_squared())
         })
         .min_by(|a, b| a.1.total_cmp(&b.1))
         .map(|(k, _)| k)
+}
+
+/// The parameters `p` with the shape misfit's amplitudes at zero.
+fn without_misfit(p: &[f64]) -> Vec<f64> {
+    let mut bare = p.to_vec();
+    for v in &mut bare[idx::SHAPE..idx::SHAPE + N_SHAPE] {
+        *v = 0.0;
+    }
+    bare
 }
 
 /// Which named effects [`judge_standing`] leaves out or judges against the external load alone.
@@ -106,11 +111,11 @@ pub struct JudgedAs<'a> {
 /// How much removing an effect raises the BIC against one alternative law (the fitter's
 /// problem): `with` the model with it, the model without it (`trial`) fitted from `with`'s
 /// parameters and from the same without the misfit amplitudes, the better kept; and when the
-/// effect would stand on those, from zero too. Why: an LM fit of a set
-/// without an effect, started from a model where it took part, can stall far off (a scale left
-/// at the size it had beside a frame: a frame removed beside an external load's stretch stalled
-/// at 21 209 µm² where the same set from zero reaches 3 544 µm²), and a stalled fit makes the
-/// effect look needed. A fit that does not stand needs no other start (another start can only
+/// effect would stand on those, from zero too. Why: an LM fit of a set without an effect,
+/// started from a model where it took part, can stall far off (a scale left at the size it had
+/// beside a frame: a frame removed beside an external load's stretch stalled at 21 209 µm²
+/// where the same set from zero reaches 3 544 µm²), and a stalled fit makes the effect look
+/// needed. A fit that does not stand needs no other start (another start can only
 /// lower its support).
 fn support_against(
     fitter: &mut Fitter<'_>,
@@ -121,10 +126,7 @@ fn support_against(
     if with.p.len() != N_PARAMS {
         return None;
     }
-    let mut bare = with.p.clone();
-    for v in &mut bare[idx::SHAPE..idx::SHAPE + N_SHAPE] {
-        *v = 0.0;
-    }
+    let bare = without_misfit(&with.p);
     let mut best: Option<Fit> = None;
     for f in [fitter.fit(trial, &with.p), fitter.fit(trial, &bare)]
         .into_iter()
@@ -162,10 +164,7 @@ pub fn judge_standing(
     cur: &Fit,
     noise_um: Option<f64>,
 ) -> Vec<(&'static Effect, f64, bool)> {
-    let mut start = cur.p.clone();
-    for v in &mut start[idx::SHAPE..idx::SHAPE + N_SHAPE] {
-        *v = 0.0;
-    }
+    let start = without_misfit(&cur.p);
     // The ratio of the model with every named effect, and each judged effect's from the model
     // without it: each hypothesis at its best.
     let Some(k_full) = best_ratio_index(plain, &start, set) else {
