@@ -1,5 +1,5 @@
 //! The co-simulation's speed: the production firmware under QEMU driving the paper plant, a
-//! session a calibration would run (`cargo bench -p host-sim --bench cosim [-- MOVES]`).
+//! session a calibration would run (`cargo bench -p host-sim --bench cosim [-- MOVES] [spread]`).
 //!
 //! Boots unhomed, homes through the link, visits MOVES targets (default 40) each with a move
 //! and 0.2 s of settling, then streams a 3 s figure with telemetry on. Prints per phase the
@@ -7,7 +7,8 @@
 //! this process's CPU time (what the wall time would be on an idle machine), and at the end the
 //! firmware's worst servo step and overruns (its own measurement, from its tick), the late
 //! samples, and the exchange's size. The wall time depends on the machine and its load; the
-//! CPU times much less.
+//! CPU times much less. `spread` runs QEMU and the host wherever the OS puts them instead of on
+//! one core (`CoSimOptions::one_core`), for comparison.
 use std::time::{Duration, Instant};
 
 use host_sim::cosim::{commissioning_image, CoSim, CoSimOptions, CoSimStats};
@@ -51,11 +52,19 @@ fn main() {
     let image = commissioning_image(&spec).expect("the paper machine's image");
     let mut opts = CoSimOptions::new(spec.clone(), PlantConfig::paper(), image);
     opts.firmware = Some(elf);
+    opts.one_core = !std::env::args().any(|a| a == "spread");
     let t0 = Instant::now();
     let mut sim = CoSim::start(&opts).expect("co-simulation starts");
     let boot = t0.elapsed().as_secs_f64();
     let mut link = sim.link(Duration::from_secs(60)).expect("link");
-    println!("co-simulation of the paper plant: QEMU and firmware boot {boot:.2} s wall");
+    println!(
+        "co-simulation of the paper plant: QEMU and firmware boot {boot:.2} s wall; {}",
+        sim.stats()
+            .core
+            .map_or("QEMU and the host spread over the cores".to_string(), |c| {
+                format!("QEMU and the host on core {c}")
+            })
+    );
 
     let s0 = sim.stats();
     let t = Instant::now();

@@ -21,6 +21,7 @@ use cosim_wire::{
     up_body_len, FROM_HOST_PIPE, LINK_RX_PIPE, MAX_UP_LEN, TO_HOST_PIPE, UP_HEADER_LEN,
 };
 
+use super::one_core::OneCore;
 use super::CoSimError;
 
 /// The calibration region's origin in the QEMU board's memory map (`firmware/memory-qemu.x`,
@@ -146,6 +147,8 @@ pub struct Qemu {
     link_rx: File,
     /// Bytes read from the firmware not yet handed out as a frame.
     pending: Vec<u8>,
+    /// The core QEMU was started on, held while it runs (released after the kill in `drop`).
+    core: Option<OneCore>,
 }
 
 impl Qemu {
@@ -226,7 +229,20 @@ impl Qemu {
             from_host,
             link_rx,
             pending: Vec::with_capacity(2 * MAX_UP_LEN),
+            core: None,
         })
+    }
+
+    /// This QEMU with the core it was spawned on ([`OneCore`]: the spawning thread's pin,
+    /// which QEMU inherited), held as long as QEMU runs.
+    pub fn on_core(mut self, core: Option<OneCore>) -> Self {
+        self.core = core;
+        self
+    }
+
+    /// The core QEMU runs on, if pinned.
+    pub fn core(&self) -> Option<usize> {
+        self.core.as_ref().map(|c| c.cpu)
     }
 
     /// QEMU's working directory (the firmware's `defmt.bin` and console are there).
