@@ -5,7 +5,8 @@
 //! ([`Residuals::fd_step`]). Error: truncation O(h²·r''') and rounding O(ε·|r| / h); the problems
 //! choose h so both are far below the rank tolerance of [`super::svd::RANK_TOL`] (the five-bar
 //! fit: 1e-6 mm and 1e-8 rad, about 1e-12 and 1e-10 relative; the diagnosis: 1e-2 in its µm /
-//! µrad / ppm units). Cost: 2 residual evaluations per column.
+//! µrad / ppm units). Cost: 2 residual evaluations per column, through the problem's
+//! [`Residuals::neighbours`] (which may share the work the columns' parameters leave unchanged).
 //!
 //! Why not analytic: every model here is the closed-form five-bar plus small extensions; the
 //! differences are accurate enough and keep each model a single forward function.
@@ -25,12 +26,13 @@ pub fn jacobian<R: Residuals + ?Sized>(
     }
     let mut j: Option<DMatrix<f64>> = None;
     let mut q = p.to_vec();
+    let mut near = problem.neighbours(p);
     for (col, &k) in cols.iter().enumerate() {
         let h = problem.fd_step(k);
         q[k] = p[k] + h;
-        let hi = problem.residuals(&q);
+        let hi = near(&q, k);
         q[k] = p[k] - h;
-        let lo = problem.residuals(&q);
+        let lo = near(&q, k);
         q[k] = p[k];
         let (Some(hi), Some(lo)) = (hi, lo) else {
             return Err(NumericError::JacobianOutsideDomain { param: k });

@@ -53,7 +53,19 @@ pub trait Residuals {
     /// Central-difference step of parameter `k`, in its own units (see
     /// [`super::finite_difference`]); also the scale of the step tolerance.
     fn fd_step(&self, k: usize) -> f64;
+    /// The residuals at the neighbours of `at` (points that differ from it in one parameter,
+    /// the finite-difference Jacobian's): a function of the neighbour `q` and the parameter `k`
+    /// it differs in, which must return exactly what `residuals(q)` returns. A problem whose
+    /// parameters leave part of its work unchanged does that part once for all of them; the
+    /// default evaluates [`Residuals::residuals`].
+    fn neighbours<'a>(&'a self, at: &[f64]) -> Neighbours<'a> {
+        let _ = at;
+        Box::new(move |q, _k| self.residuals(q))
+    }
 }
+
+/// What [`Residuals::neighbours`] returns: residuals of a neighbour `q` differing in `k`.
+pub type Neighbours<'a> = Box<dyn FnMut(&[f64], usize) -> Option<DVector<f64>> + 'a>;
 
 /// The solver's settings (defaults: the behaviour documented in the module doc).
 #[derive(Clone, Copy, Debug, PartialEq)]

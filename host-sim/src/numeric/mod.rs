@@ -26,7 +26,7 @@ pub mod subspace;
 pub mod svd;
 pub mod two_regressors;
 
-pub use lm::{levenberg_marquardt, LmFit, LmOptions, Residuals, Stop};
+pub use lm::{levenberg_marquardt, LmFit, LmOptions, Neighbours, Residuals, Stop};
 pub use rigid::{procrustes, Rigid2};
 pub use stats::{max_rms, round3, round6, MaxRms};
 pub use svd::{ScaledSvd, RANK_TOL};
