@@ -188,7 +188,7 @@ impl Problem {
 
     /// Predicted instrument reading of point `p` with full parameter vector `x`.
     pub fn predict(&self, p: &Point, x: &[f64; N_PARAMS]) -> Option<[f64; 2]> {
-        Some(self.reading_mm(p, x, self.tool_mm(p, x)?))
+        Some(self.reading_mm(p, x, &Instrument::of(x), self.tool_mm(p, x)?))
     }
 
     /// The five-bar part of [`Problem::predict`]: the tool point of the model with the
@@ -223,10 +223,16 @@ impl Problem {
     }
 
     /// The rest of [`Problem::predict`]: the tool point `tool_mm` with the six-bar's mismatch,
-    /// the shape misfit, and through the instrument's frame, scale and drift.
-    fn reading_mm(&self, p: &Point, x: &[f64; N_PARAMS], tool_mm: [f64; 2]) -> [f64; 2] {
+    /// the shape misfit, and through the instrument (`instrument`: `x`'s frame and scale) and
+    /// its drift.
+    fn reading_mm(
+        &self,
+        p: &Point,
+        x: &[f64; N_PARAMS],
+        instrument: &Instrument,
+        tool_mm: [f64; 2],
+    ) -> [f64; 2] {
         let um = 1e-3;
-        let urad = 1e-6;
         let mut c = tool_mm;
         for (k, d) in p.mismatch_um.iter().enumerate() {
             c[0] += x[idx::MISMATCH + k] * d[0] * um;
@@ -238,8 +244,7 @@ impl Problem {
                 c[1] += x[idx::SHAPE + k] * d[1] * um;
             }
         }
-        let (sn, co) = (x[idx::FRAME + 2] * urad).sin_cos();
-        let k = 1.0 + x[idx::SCALE] * 1e-6;
+        let Instrument { sin, cos, scale } = *instrument;
         let drift = [
             x[idx::DRIFT] * p.t_s * 1e-3 * um,
             x[idx::DRIFT + 1] * p.t_s * 1e-3 * um,
@@ -249,8 +254,8 @@ impl Problem {
             x[idx::FRAME + 1] * um + drift[1],
         ];
         [
-            k * (co * c[0] - sn * c[1]) + t[0],
-            k * (sn * c[0] + co * c[1]) + t[1],
+            scale * (cos * c[0] - sin * c[1]) + t[0],
+            scale * (sin * c[0] + cos * c[1]) + t[1],
         ]
     }
 
@@ -266,8 +271,9 @@ impl Problem {
         mut tool_mm: impl FnMut(&Point) -> Option<[f64; 2]>,
     ) -> Option<Vec<f64>> {
         let mut r = Vec::with_capacity(2 * self.points.len());
+        let instrument = Instrument::of(x);
         for p in &self.points {
-            let c = self.reading_mm(p, x, tool_mm(p)?);
+            let c = self.reading_mm(p, x, &instrument, tool_mm(p)?);
             r.push((p.measured_mm[0] - c[0]) * 1e3);
             r.push((p.measured_mm[1] - c[1]) * 1e3);
         }
@@ -368,6 +374,26 @@ impl Residuals for Problem {
             self.residuals_from(x, |_| each.next().copied())
                 .map(DVector::from_vec)
         })
+    }
+}
+
+/// The instrument's rotation and scale of a parameter vector: the same for every point, so
+/// computed once per evaluation.
+#[derive(Clone, Copy, Debug)]
+struct Instrument {
+    sin: f64,
+    cos: f64,
+    scale: f64,
+}
+
+impl Instrument {
+    fn of(x: &[f64; N_PARAMS]) -> Self {
+        let (sin, cos) = (x[idx::FRAME + 2] * 1e-6).sin_cos();
+        Instrument {
+            sin,
+            cos,
+            scale: 1.0 + x[idx::SCALE] * 1e-6,
+        }
     }
 }
 
