@@ -10,8 +10,8 @@
 //! accuracy where the tool landed at the fresh targets (max / RMS, µm), the fit's residual,
 //! the grid's effective nodes, and the worst build; each build's plant file is written to
 //! `target/commission_builds/` so that `host-sim commission --qemu --plant FILE --noise-um 1`
-//! reproduces it. The goal: ≤ 1.0 µm max / 0.3 µm RMS on every build. About 80 s of wall
-//! time per build on an idle machine.
+//! reproduces it. The goal: ≤ 1.0 µm max / 0.3 µm RMS on every build. About a minute of wall
+//! time per build (QEMU and this process on one core).
 
 use host_sim::calib::image::commissioning_image;
 use host_sim::calib::machine::check_plant_fits;
