@@ -125,7 +125,8 @@ pub struct CoSimOptions {
     /// Writes every byte exchanged, both ways, in order, to this file.
     pub exchange_log: Option<PathBuf>,
     /// Runs QEMU and the thread that calls into the co-simulation on one core no other
-    /// co-simulation holds ([`one_core`]: about a third less time; the exchange is the same).
+    /// co-simulation holds ([`one_core`]: a third to a half less time; the exchange is the
+    /// same).
     /// Default on; off, or with every core held, they run wherever the OS puts them.
     pub one_core: bool,
 }

@@ -5,8 +5,9 @@
 //! QEMU waits for the host's answer, and inside QEMU the vCPU thread and the main loop hand
 //! the timer's interrupt to each other; at any moment one of them runs. Spread over cores,
 //! each handoff is a wake-up on another core (an inter-processor interrupt, a core leaving
-//! its idle state); on one core it is a context switch. A journey then takes about two
-//! thirds of the CPU time and wall time it takes spread, and leaves the other cores free.
+//! its idle state); on one core it is a context switch. A journey then takes half to two
+//! thirds of the CPU time and wall time it takes spread (`cargo bench -p host-sim --bench cosim`
+//! and `-- spread` compare them), and leaves the other cores free.
 //! Nothing simulated depends on it: the exchange is the same, byte for byte.
 //!
 //! Which core: one no other co-simulation on this machine holds, the calling thread's own
