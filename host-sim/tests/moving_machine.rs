@@ -29,9 +29,10 @@ mod synthetic {
 
 include!("../../tests/support/firmware_build.rs");
 
-/// The two QEMU tests one after the other: the plain QEMU run's virtual clock races the host's
-/// link, and a second QEMU beside it slows the host's side.
-fn one_qemu_at_a_time() -> std::sync::MutexGuard<'static, ()> {
+/// The tests one after the other: the plain QEMU run's virtual clock races the host's link, and
+/// a second QEMU or the files test's fits beside it slow the host's side (the streamed
+/// excitation then differs from run to run, and so does what is identified from it).
+fn one_at_a_time() -> std::sync::MutexGuard<'static, ()> {
     static QEMU: std::sync::Mutex<()> = std::sync::Mutex::new(());
     QEMU.lock().unwrap_or_else(|e| e.into_inner())
 }
@@ -118,7 +119,7 @@ fn base(d: &kinematics_core::FiveBarDynamics<f32>, rotor: [f32; 2]) -> [f64; 3] 
 
 #[test]
 fn the_dynamics_are_identified_and_diagnosed_through_the_qemu_firmware() {
-    let _alone = one_qemu_at_a_time();
+    let _alone = one_at_a_time();
     let elf = build_firmware_bin(&workspace_root(), "firmware");
     let port = TcpListener::bind("127.0.0.1:0")
         .and_then(|l| l.local_addr())
@@ -318,6 +319,7 @@ fn the_dynamics_are_identified_and_diagnosed_through_the_qemu_firmware() {
 /// The files' path without a controller, and the refusals.
 #[test]
 fn the_moving_machine_from_files_and_the_logs_refused() {
+    let _alone = one_at_a_time();
     let work = tempfile::tempdir().unwrap();
     let dir = work.path();
     let p = |name: &str| dir.join(name).to_str().unwrap().to_owned();
@@ -534,7 +536,7 @@ fn the_moving_machine_from_files_and_the_logs_refused() {
 /// on a loaded one), after the firmware's build.
 #[test]
 fn the_dynamics_are_identified_through_the_cosimulated_controller() {
-    let _alone = one_qemu_at_a_time();
+    let _alone = one_at_a_time();
     use host_sim::cosim::{commissioning_image, CoSim, CoSimOptions};
     use host_sim::dynamics::excitation::ExcitationOptions;
     use host_sim::dynamics::identify::identify_through_link;
