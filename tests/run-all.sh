@@ -10,7 +10,8 @@
 #   0. formatting: cargo fmt --all --check; the documentation's links resolve
 #   1. host tests of kinematics-core, the firmware's controller crate, host-sim and the
 #      cross-crate tests (cargo test; the same-core test builds the firmware's golden binary and
-#      runs it under QEMU); the commands reference page is
+#      runs it under QEMU), compiled by clippy with warnings denied: the host crates' clippy
+#      (every target: host-sim's benches are compiled, not run); the commands reference page is
 #      checked against the binary's --help
 #   2. kinematics-core builds for the MCU (thumbv7em-none-eabihf, no_std)
 #   3. firmware under QEMU: the real app against the in-firmware plant (cargo qemu-test)
@@ -18,9 +19,8 @@
 #      (cargo qemu-bench: builds the TCG plugin firmware/qemu/plugin/m4cycles.c with cc and
 #      fails if the IK or FK executes no VSQRT)
 #   5. the real board's firmware builds (cargo fw-build)
-#   6. clippy, warnings denied: the host crates (g474-plan included) with all their targets
-#      (host-sim's benches compiled there), the firmware for both boards (last, so that it reuses the proc macros
-#      the release builds compiled)
+#   6. clippy, warnings denied, on the firmware for both boards (last, so that it reuses the
+#      proc macros the release builds compiled)
 #
 # Every Cortex-M build (steps 2 to 5 and the firmware's clippy) goes to target/system-tests,
 # where the host tests that run the firmware under QEMU (tests/support/firmware_build.rs) have
@@ -72,8 +72,19 @@ cargo fmt --all --check
 step "documentation links (every relative link and anchor in the Markdown files resolves)"
 bash tests/check-doc-links.sh
 
-step "host tests"
-cargo test --locked
+# The host crates are compiled by clippy-driver, clippy's rustc (the workspace's crates only;
+# dependencies by rustc): the test build is also their lint, warnings denied, where a separate
+# `cargo clippy` would type-check the whole dependency tree again (about 40 s on two cores).
+# `--all-targets --no-run` first compiles (and lints) every target `cargo clippy --all-targets`
+# lints, host-sim's benches included; the run reuses it. The firmware builds the tests start
+# (tests/support/firmware_build.rs) are plain release builds: cargo does not hand the wrapper
+# to the processes it runs.
+step "host tests, compiled through clippy (warnings denied)"
+cargo clippy --version >/dev/null 2>&1 || rustup component add clippy
+clippy_driver=$(rustup which clippy-driver 2>/dev/null || command -v clippy-driver)
+linted=(--config "build.rustc-workspace-wrapper=\"$clippy_driver\"" --config 'build.rustflags=["-Dwarnings"]')
+cargo "${linted[@]}" test --locked --all-targets --no-run
+cargo "${linted[@]}" test --locked
 
 step "the commands reference is the binary's help (docs/reference/commands.md)"
 HOST_SIM_BIN=target/debug/host-sim bash tests/gen-commands-doc.sh --check
@@ -89,12 +100,6 @@ CARGO_TARGET_DIR=$mcu_target_dir cargo qemu-bench
 
 step "firmware for the real board (STM32G474) builds"
 CARGO_TARGET_DIR=$mcu_target_dir cargo fw-build
-
-# All targets: this also compiles (checks) host-sim's benches, which `cargo test` does not
-# build, so an API change that breaks them fails here. The firmware only builds for the MCU
-# target: linted below.
-step "clippy: host crates (kinematics-core, controller, g474-plan, host-sim with its benches, tests; all targets)"
-cargo clippy --locked --workspace --exclude firmware --all-targets -- -D warnings
 
 step "clippy: firmware, QEMU board and STM32G474 board"
 CARGO_TARGET_DIR=$mcu_target_dir cargo clippy --locked --release -p firmware --target thumbv7em-none-eabihf --lib --bins -- -D warnings
