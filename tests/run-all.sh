@@ -81,7 +81,8 @@ bash tests/check-doc-links.sh
 # to the processes it runs.
 step "host tests, compiled through clippy (warnings denied)"
 cargo clippy --version >/dev/null 2>&1 || rustup component add clippy
-clippy_driver=$(rustup which clippy-driver 2>/dev/null || command -v clippy-driver)
+clippy_driver=$(rustup which clippy-driver 2>/dev/null || command -v clippy-driver) ||
+    { echo "clippy-driver not found (rustup component add clippy)" >&2; exit 1; }
 linted=(--config "build.rustc-workspace-wrapper=\"$clippy_driver\"" --config 'build.rustflags=["-Dwarnings"]')
 cargo "${linted[@]}" test --locked --all-targets --no-run
 cargo "${linted[@]}" test --locked
