@@ -357,7 +357,7 @@ impl Residuals for Problem {
     }
 
     /// The tool points at `at` computed once, on the first neighbour that needs them, for
-    /// every parameter that does not [`move the five-bar`](moves_the_five_bar) (frame, scale,
+    /// every parameter that does not move the five-bar (see `moves_the_five_bar`; frame, scale,
     /// mismatch, drift, shape misfit: 30 of the 52): the FK and its sines are most of an
     /// evaluation, and a neighbour in those parameters has the same tool points, bit for bit.
     fn neighbours<'a>(&'a self, at: &[f64]) -> Neighbours<'a> {
@@ -400,7 +400,7 @@ impl Instrument {
 /// Whether parameter `k` changes the five-bar's tool point (the FK's input: lengths, encoder
 /// offsets, base, backlash, stretch, gear ratio, periodic error) rather than only what is
 /// added to it or how the instrument sees it.
-pub fn moves_the_five_bar(k: usize) -> bool {
+fn moves_the_five_bar(k: usize) -> bool {
     k < idx::FRAME
         || (idx::GEAR..idx::MISMATCH).contains(&k)
         || (idx::CYCLIC..idx::DRIFT).contains(&k)
